@@ -1,0 +1,416 @@
+"""The centralised part of the design: the gain ``g`` (continuous) and ``q`` (discrete).
+
+Everything here acts on the unobservable-space coordinates of the paper:
+
+* ``V = blockdiag(V_1..V_m)`` (never formed: we use the Gram matrix
+  ``G = [V_i' V_j]`` and ``V'(M (x) I_n)V = expand(M) o G``),
+* ``Atil = blockdiag(A_1..A_m)``, ``A_i = V_i'(A + K_i C_i)V_i`` (eq. QA2),
+* ``B = V' Sbar V`` (discrete, eq. split_discrete_ench: ``A_V = Atil B^q``),
+* continuous ``A_V(g) = Atil - g V'(I - Sbar)V = Atil - g (I - B)``
+  (eq. split_continuous_split),
+* ``H = blockdiag(pi_i I_{n_i})`` with the Perron vector ``pi`` of ``S``
+  (eq. H); the discrete weight ``R = V'(Pi (x) I)V`` equals ``H``.
+
+A :class:`Case` is one (agent set, graph) pair the design must cover: each
+graph of the scenario, and with ``design.resilience: 1`` each graph
+restricted to the survivors of every single agent loss.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.linalg as sla
+
+from .errors import DesignError
+from .graphs import Graph, is_doubly_stochastic, perron_vector
+
+__all__ = [
+    "Case",
+    "make_case",
+    "g_bound",
+    "abscissa",
+    "g_min",
+    "dwell_constants",
+    "g_dwell_bound",
+    "g_arbitrary_bound",
+    "QResult",
+    "q_spectral",
+    "q_weighted",
+    "q_two_norm",
+    "q_mixed",
+    "choose_q",
+    "mixed_norm",
+    "spectral_radius",
+]
+
+
+# --------------------------------------------------------------------------
+# cases
+# --------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Case:
+    """One agent set and graph, in unobservable-space coordinates.
+
+    Attributes
+    ----------
+    label : str
+        e.g. ``a`` or ``a without agent 3``.
+    graph : Graph
+    sizes : tuple of int
+        ``n_i = dim V_i`` per agent of ``graph.ids``.
+    Atil : (nbar, nbar) array
+        ``blockdiag(A_i)``.
+    B : (nbar, nbar) array
+        ``V' Sbar V``.
+    h : (nbar,) array
+        Diagonal of ``H`` (``pi_i`` repeated ``n_i`` times).
+    VLV : (nbar, nbar) array
+        ``V'(L (x) I)V`` with ``L = 2 Pi - Pi S - S' Pi`` (eq. split_continuous_lyap).
+    """
+
+    label: str
+    graph: Graph
+    sizes: tuple
+    Atil: np.ndarray
+    B: np.ndarray
+    h: np.ndarray
+    VLV: np.ndarray
+
+    @property
+    def nbar(self) -> int:
+        return self.B.shape[0]
+
+
+def _expand(M: np.ndarray, sizes) -> np.ndarray:
+    """Repeat entry ``M_ij`` into an ``n_i x n_j`` block."""
+    sizes = np.asarray(sizes)
+    return np.repeat(np.repeat(M, sizes, axis=0), sizes, axis=1)
+
+
+def make_case(label: str, graph: Graph, Vs, A_uns) -> Case:
+    """Build a :class:`Case` from per-agent ``V_i`` and ``A_i`` (in ``graph.ids`` order)."""
+    sizes = tuple(V.shape[1] for V in Vs)
+    n = Vs[0].shape[0]
+    Vcat = np.hstack(Vs) if sum(sizes) else np.zeros((n, 0))
+    G = Vcat.T @ Vcat  # blocks V_i' V_j
+    S = graph.S
+    B = _expand(S, sizes) * G  # V' (S (x) I) V
+    pi = perron_vector(S)
+    Pi = np.diag(pi)
+    L = 2 * Pi - Pi @ S - S.T @ Pi
+    VLV = _expand(L, sizes) * G
+    Atil = sla.block_diag(*A_uns) if sum(sizes) else np.zeros((0, 0))
+    h = np.repeat(pi, sizes)
+    return Case(label=label, graph=graph, sizes=sizes, Atil=Atil, B=B, h=h, VLV=VLV)
+
+
+def spectral_radius(M: np.ndarray) -> float:
+    return float(np.max(np.abs(np.linalg.eigvals(M)))) if M.size else 0.0
+
+
+# --------------------------------------------------------------------------
+# continuous time: g
+# --------------------------------------------------------------------------
+
+
+def g_bound(case: Case, rate: float) -> float:
+    """Sufficient g for a constant graph, eq. (g).
+
+    ``g >= lam_max(H(lam I + Atil) + (lam I + Atil)'H) / lam_min(V'(L (x) I)V)``;
+    returns 0 when the numerator is negative (any g works).
+    """
+    if case.nbar == 0:
+        return 0.0
+    M = rate * np.eye(case.nbar) + case.Atil
+    HM = case.h[:, None] * M
+    num = float(np.linalg.eigvalsh(HM + HM.T)[-1])
+    den = float(np.linalg.eigvalsh(case.VLV)[0])
+    if den <= 0:
+        raise DesignError(f"{case.label}: V'(L (x) I)V is not positive definite (lambda_min = {den:.3g}); "
+                          "is the graph strongly connected and the system jointly observable?")
+    return max(num, 0.0) / den
+
+
+def abscissa(case: Case, g: float) -> float:
+    """Spectral abscissa of ``A_V(g) = Atil - g (I - B)`` (eq. split_continuous_split)."""
+    if case.nbar == 0:
+        return -math.inf
+    AV = case.Atil - g * (np.eye(case.nbar) - case.B)
+    return float(np.max(np.linalg.eigvals(AV).real))
+
+
+def g_min(case: Case, rate: float, *, g_hi: float | None = None, rtol: float = 1e-6) -> float:
+    """Smallest g with ``abscissa(A_V(g)) <= -lam`` (bisection on the spectrum).
+
+    The abscissa is decreasing in g for large g (Prop. split_continuous_stable);
+    the bisection starts from the sufficient ``g_hi`` (eq. g by default) and
+    assumes a single crossing below it.  Returns 0 if g = 0 already works.
+    """
+    if abscissa(case, 0.0) <= -rate:
+        return 0.0
+    hi = g_bound(case, rate) if g_hi is None else g_hi
+    hi = max(hi, 1e-9)
+    while abscissa(case, hi) > -rate:  # eq. (g) is sufficient, so this ends
+        hi *= 2.0
+        if hi > 1e12:
+            raise DesignError(f"{case.label}: no g up to 1e12 meets rate {rate:g}")
+    lo = 0.0
+    while hi - lo > rtol * hi:
+        mid = 0.5 * (lo + hi)
+        if abscissa(case, mid) <= -rate:
+            hi = mid
+        else:
+            lo = mid
+    return hi
+
+
+def dwell_constants(cases) -> tuple:
+    """``(c, lam_star)`` with ``||exp(-V'(I - Sbar)V t)||_2 <= c exp(-lam_star t)`` for every case.
+
+    From the Lyapunov equation (split_continuous_lyap) with ``H``:
+    ``c = max sqrt(max h / min h)``, ``lam_star = min lam_min(V'(L (x) I)V) / (2 max h)``.
+    """
+    c, lam_star = 1.0, math.inf
+    for case in cases:
+        if case.nbar == 0:
+            continue
+        c = max(c, math.sqrt(case.h.max() / case.h.min()))
+        lam_star = min(lam_star, float(np.linalg.eigvalsh(case.VLV)[0]) / (2 * case.h.max()))
+    return c, lam_star
+
+
+def g_dwell_bound(cases, rate: float, dwell: float) -> float:
+    """Sufficient g for switching with average dwell time ``dwell``, eq. (split_continuous_g).
+
+    ``g >= (ln c + (lam + ||Atil||_2 c) tau_D) / (lam_star tau_D)``.
+    """
+    c, lam_star = dwell_constants(cases)
+    if not math.isfinite(lam_star):
+        return 0.0
+    norm_a = max(np.linalg.norm(case.Atil, 2) if case.nbar else 0.0 for case in cases)
+    return (math.log(c) + (rate + norm_a * c) * dwell) / (lam_star * dwell)
+
+
+def g_arbitrary_bound(cases, rate: float) -> float | None:
+    """Sufficient g for arbitrary switching among doubly stochastic graphs (Theorem thm:arb).
+
+    ``g >= lam_max((lam I + Atil) + (lam I + Atil)') / min lam_min(V'((2I - S - S') (x) I)V)``.
+    Returns ``None`` if some ``S`` is not doubly stochastic.
+    """
+    worst = 0.0
+    for case in cases:
+        if not is_doubly_stochastic(case.graph.S):
+            return None
+        if case.nbar == 0:
+            continue
+        M = rate * np.eye(case.nbar) + case.Atil
+        num = float(np.linalg.eigvalsh(M + M.T)[-1])
+        # V'((2I - S - S') (x) I)V = 2 I - B - B'
+        den = float(np.linalg.eigvalsh(2 * np.eye(case.nbar) - case.B - case.B.T)[0])
+        if den <= 0:
+            raise DesignError(f"{case.label}: 2I - B - B' is not positive definite")
+        worst = max(worst, max(num, 0.0) / den)
+    return worst
+
+
+# --------------------------------------------------------------------------
+# discrete time: q
+# --------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class QResult:
+    """A consensus count q with the bound it certifies.
+
+    Attributes
+    ----------
+    q : int
+    method : str
+        ``spectral``, ``weighted``, ``two-norm`` or ``mixed``.
+    bound : float
+        The certified quantity at this q (<= rate when ``certified``):
+        spectral radius of ``Atil B^q`` (spectral), ``||Atil||_R ||B||_R^q``
+        (weighted, eq. rnorm), ``max |Atil B^q|_2`` (two-norm),
+        ``||Atil|| ||B^p||^pbar`` (mixed, eq. rajit2/rajit3).
+    certified : bool
+        Whether ``bound`` meets the rate.
+    switching : bool
+        Whether the certificate holds under arbitrary switching among the
+        cases (two-norm and mixed), or per constant graph only.
+    p, pbar : int or None
+        The factors ``q = p * pbar`` of the two-norm and mixed methods.
+    """
+
+    q: int
+    method: str
+    bound: float
+    certified: bool
+    switching: bool
+    p: int | None = None
+    pbar: int | None = None
+
+
+def _smallest(pred, q_max: int, *, what: str) -> int:
+    """Smallest k in [1, q_max] with pred(k): linear scan to 64, then doubling and bisection."""
+    for k in range(1, min(64, q_max) + 1):
+        if pred(k):
+            return k
+    lo, hi = 64, 128
+    while True:
+        if hi >= q_max:
+            hi = q_max
+            if not pred(hi):
+                raise DesignError(f"no {what} up to design.q_max = {q_max} works; raise design.q_max")
+            break
+        if pred(hi):
+            break
+        lo, hi = hi, hi * 2
+    while hi - lo > 1:
+        mid = (lo + hi) // 2
+        if pred(mid):
+            hi = mid
+        else:
+            lo = mid
+    return hi
+
+
+def _power(B: np.ndarray, k: int) -> np.ndarray:
+    return np.linalg.matrix_power(B, k)
+
+
+def q_spectral(cases, rate: float, *, q: int | None = None, q_max: int = 100_000) -> QResult:
+    """Smallest q with ``rho(Atil B^q) < lam`` for every case (constant graphs)."""
+    def rho(case, k):
+        return spectral_radius(case.Atil @ _power(case.B, k)) if case.nbar else 0.0
+
+    if q is None:
+        q = max(_smallest(lambda k, c=c: rho(c, k) < rate, q_max, what=f"q (spectral, {c.label})")
+                for c in cases)
+    bound = max(rho(c, q) for c in cases)
+    return QResult(q=q, method="spectral", bound=bound, certified=bound < rate, switching=False)
+
+
+def _weighted_norm(M: np.ndarray, h: np.ndarray) -> float:
+    """``||M||_R`` = largest singular value of ``R^1/2 M R^-1/2``, ``R = diag(h)``."""
+    if M.size == 0:
+        return 0.0
+    s = np.sqrt(h)
+    return float(np.linalg.norm(s[:, None] * M / s[None, :], 2))
+
+
+def q_weighted(cases, rate: float, *, q: int | None = None, q_max: int = 100_000) -> QResult:
+    """q by the weighted two-norm, eq. (rnorm): ``||B||_R^q <= lam / ||Atil||_R`` (constant graphs)."""
+    per = []
+    for case in cases:
+        na = _weighted_norm(case.Atil, case.h)
+        nb = _weighted_norm(case.B, case.h)
+        if case.nbar and nb >= 1.0:
+            raise DesignError(f"{case.label}: ||B||_R = {nb:.6g} is not below 1 (eq. ino)")
+        per.append((na, nb))
+    if q is None:
+        q = 1
+        for na, nb in per:
+            if na > rate and nb > 0:
+                q = max(q, math.ceil(math.log(rate / na) / math.log(nb) - 1e-12))
+        if q > q_max:
+            raise DesignError(f"q (weighted) = {q} exceeds design.q_max = {q_max}")
+    bound = max(na * nb ** q for na, nb in per)
+    return QResult(q=q, method="weighted", bound=bound, certified=bound <= rate, switching=False)
+
+
+def q_two_norm(cases, rate: float, *, q: int | None = None, q_max: int = 100_000) -> QResult:
+    """q = p * pbar by the standard two-norm over all cases (time-varying graphs).
+
+    ``p``: smallest with ``|B^p|_2 < 1`` for every case; ``pbar``: smallest with
+    ``|Atil (B^p)^pbar|_2 <= lam`` for every case.  Certificate:
+    ``max |Atil B^q|_2 <= lam``, which bounds every product of switching steps.
+    """
+    live = [c for c in cases if c.nbar]
+
+    def norm2(M):
+        return float(np.linalg.norm(M, 2)) if M.size else 0.0
+
+    if q is None:
+        p = max([_smallest(lambda k, c=c: norm2(_power(c.B, k)) < 1.0, q_max, what=f"p (two-norm, {c.label})")
+                 for c in live] or [1])
+        Bp = [_power(c.B, p) for c in live]
+        pbar = _smallest(lambda k: all(norm2(c.Atil @ _power(b, k)) <= rate for c, b in zip(live, Bp)),
+                         max(1, q_max // p), what="pbar (two-norm)")
+        q = p * pbar
+    else:
+        p = pbar = None
+    bound = max([norm2(c.Atil @ _power(c.B, q)) for c in live] or [0.0])
+    return QResult(q=q, method="two-norm", bound=bound, certified=bound <= rate, switching=True, p=p, pbar=pbar)
+
+
+def mixed_norm(M: np.ndarray, rows, cols=None) -> float:
+    """Mixed matrix norm, eq. (split_mmn): ``|| <M> ||_inf`` with ``<M>_ij = ||M_ij||_2``."""
+    cols = rows if cols is None else cols
+    r_edges = np.concatenate([[0], np.cumsum(rows)])
+    c_edges = np.concatenate([[0], np.cumsum(cols)])
+    best = 0.0
+    for i in range(len(rows)):
+        if rows[i] == 0:
+            continue
+        row_sum = 0.0
+        for j in range(len(cols)):
+            if cols[j] == 0:
+                continue
+            blk = M[r_edges[i]:r_edges[i + 1], c_edges[j]:c_edges[j + 1]]
+            row_sum += np.linalg.norm(blk, 2)
+        best = max(best, row_sum)
+    return best
+
+
+def q_mixed(cases, rate: float, *, q: int | None = None, q_max: int = 100_000) -> QResult:
+    """q = p * pbar by the mixed matrix norm, eqs. (rajit), (rajit2), (rajit3).
+
+    ``p >= (m - 1)^2`` makes ``||B^p|| < 1`` (checked numerically; doubled if not);
+    ``pbar`` is the smallest with ``||Atil|| ||B^p||^pbar <= lam`` for every case.
+    """
+    live = [c for c in cases if c.nbar]
+    if q is not None:
+        # certificate for a given q: factor q = p * pbar with the best admissible p
+        best = (math.inf, None, None)
+        for p in range(1, q + 1):
+            if q % p:
+                continue
+            val = max([mixed_norm(c.Atil, c.sizes) * mixed_norm(_power(c.B, p), c.sizes) ** (q // p)
+                       for c in live] or [0.0])
+            if val < best[0]:
+                best = (val, p, q // p)
+        bound, p, pbar = best
+        return QResult(q=q, method="mixed", bound=bound, certified=bound <= rate, switching=True, p=p, pbar=pbar)
+    if not live:
+        return QResult(q=1, method="mixed", bound=0.0, certified=True, switching=True, p=1, pbar=1)
+    p = max(1, max((c.graph.m - 1) ** 2 for c in live))
+    while True:
+        nbs = [mixed_norm(_power(c.B, p), c.sizes) for c in live]
+        if max(nbs) < 1.0:
+            break
+        p *= 2
+        if p > q_max:
+            raise DesignError(f"mixed norm: ||B^p|| >= 1 for p up to design.q_max = {q_max}")
+    pbar = 1
+    for c, nb in zip(live, nbs):
+        na = mixed_norm(c.Atil, c.sizes)
+        if na > rate and nb > 0:
+            pbar = max(pbar, math.ceil(math.log(rate / na) / math.log(nb) - 1e-12))
+    q = p * pbar
+    if q > q_max:
+        raise DesignError(f"q (mixed) = {q} exceeds design.q_max = {q_max}")
+    bound = max(mixed_norm(c.Atil, c.sizes) * nb ** pbar for c, nb in zip(live, nbs))
+    return QResult(q=q, method="mixed", bound=bound, certified=bound <= rate, switching=True, p=p, pbar=pbar)
+
+
+_Q_METHODS = {"spectral": q_spectral, "weighted": q_weighted, "two-norm": q_two_norm, "mixed": q_mixed}
+
+
+def choose_q(method: str, cases, rate: float, *, q: int | None = None, q_max: int = 100_000) -> QResult:
+    """Dispatch to the q method named by ``design.q_method``; ``q`` given means 'check this q'."""
+    return _Q_METHODS[method](cases, rate, q=q, q_max=q_max)

@@ -1,0 +1,271 @@
+"""Neighbour graphs, their stochastic matrices, and switching signals.
+
+Conventions (paper, Section 2):
+
+* an arc ``(j, i)`` means agent j is a neighbour of agent i (i hears j);
+  every agent is its own neighbour (self-arcs are implicit);
+* ``Adj[j, i] = 1`` for every arc ``j -> i`` (self-arcs included);
+* ``S = D^-1 Adj'`` with ``D`` the in-degrees, so row i of ``S`` averages
+  over i's in-neighbours and itself: ``(S z)_i = (1/m_i) sum_{j in N_i} z_j``;
+* Metropolis weights (undirected graphs only) give a symmetric, doubly
+  stochastic ``S`` as Theorem ``thm:arb`` needs:
+  ``S_ij = 1 / (1 + max(d_i, d_j))`` for neighbours, ``S_ii = 1 - sum``.
+
+Indices here are 0-based positions in the scenario's ``agent_ids``.
+"""
+
+from __future__ import annotations
+
+import itertools
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+
+from .errors import AssumptionError, ScenarioError
+
+__all__ = [
+    "Graph",
+    "adjacency",
+    "stochastic_matrix",
+    "metropolis_matrix",
+    "find_unreachable",
+    "is_strongly_connected",
+    "perron_vector",
+    "is_doubly_stochastic",
+    "build_graph",
+    "graph_sequence",
+    "switch_times",
+    "enumerate_strongly_connected",
+    "neighbour_lists",
+]
+
+
+@dataclass(frozen=True)
+class Graph:
+    """A neighbour graph over a set of agents with its stochastic matrix.
+
+    Attributes
+    ----------
+    name : str
+        Graph name (scenario key, or a derived label such as ``a-minus-3``).
+    ids : tuple of int
+        Agent ids of the vertices, in order.
+    arcs : tuple of (int, int)
+        Arcs ``(j, i)`` between agent ids, without self-arcs.
+    S : (k, k) array
+        Row-stochastic matrix ``S = D^-1 Adj'`` (or Metropolis weights).
+    """
+
+    name: str
+    ids: tuple
+    arcs: tuple
+    S: np.ndarray
+
+    @property
+    def m(self) -> int:
+        return len(self.ids)
+
+
+def adjacency(m: int, arcs) -> np.ndarray:
+    """Adjacency matrix with self-arcs: ``Adj[j, i] = 1`` for each arc ``(j, i)`` (0-based)."""
+    adj = np.eye(m)
+    for j, i in arcs:
+        adj[j, i] = 1.0
+    return adj
+
+
+def stochastic_matrix(adj: np.ndarray) -> np.ndarray:
+    """``S = D^-1 Adj'`` (paper, after eq. split_continuous_em): rows average in-neighbours."""
+    at = adj.T
+    return at / at.sum(axis=1, keepdims=True)
+
+
+def metropolis_matrix(adj: np.ndarray) -> np.ndarray:
+    """Metropolis weights for an undirected graph: symmetric and doubly stochastic.
+
+    Raises
+    ------
+    AssumptionError
+        If the graph is not undirected (``adj`` not symmetric).
+    """
+    if not np.array_equal(adj, adj.T):
+        raise AssumptionError("Metropolis weights need an undirected graph (every arc in both directions)")
+    m = adj.shape[0]
+    deg = adj.sum(axis=0) - 1.0  # neighbours other than self
+    S = np.zeros((m, m))
+    for i in range(m):
+        for j in range(m):
+            if i != j and adj[j, i]:
+                S[i, j] = 1.0 / (1.0 + max(deg[i], deg[j]))
+        S[i, i] = 1.0 - S[i].sum()
+    return S
+
+
+def find_unreachable(m: int, arcs) -> tuple | None:
+    """Return ``(j, i)`` (0-based) such that j cannot reach i, or ``None`` if strongly connected.
+
+    Reaching follows arcs ``j -> i`` (the direction information flows).
+    """
+    if m <= 1:
+        return None
+    out_nb = [[] for _ in range(m)]
+    in_nb = [[] for _ in range(m)]
+    for j, i in arcs:
+        out_nb[j].append(i)
+        in_nb[i].append(j)
+
+    def reach(start: int, nbrs) -> list:
+        seen = [False] * m
+        seen[start] = True
+        todo = deque([start])
+        while todo:
+            v = todo.popleft()
+            for w in nbrs[v]:
+                if not seen[w]:
+                    seen[w] = True
+                    todo.append(w)
+        return seen
+
+    fwd = reach(0, out_nb)
+    for v in range(m):
+        if not fwd[v]:
+            return (0, v)
+    bwd = reach(0, in_nb)
+    for v in range(m):
+        if not bwd[v]:
+            return (v, 0)
+    return None
+
+
+def is_strongly_connected(m: int, arcs) -> bool:
+    return find_unreachable(m, arcs) is None
+
+
+def perron_vector(S: np.ndarray) -> np.ndarray:
+    """Perron vector ``pi > 0``, ``S' pi = pi``, ``sum(pi) = 1`` (proof of prop. split_continuous_stable).
+
+    Unique when the graph of ``S'`` is strongly connected.
+    """
+    m = S.shape[0]
+    M = np.vstack([S.T - np.eye(m), np.ones((1, m))])
+    rhs = np.zeros(m + 1)
+    rhs[-1] = 1.0
+    pi, *_ = np.linalg.lstsq(M, rhs, rcond=None)
+    return pi
+
+
+def is_doubly_stochastic(S: np.ndarray, *, tol: float = 1e-12) -> bool:
+    """True when the column sums of the (row-)stochastic ``S`` are all one."""
+    return bool(np.all(np.abs(S.sum(axis=0) - 1.0) <= tol * S.shape[0]))
+
+
+def build_graph(name: str, ids: tuple, arcs, *, weights: str = "uniform", check: bool = True) -> Graph:
+    """Build a :class:`Graph` over agents ``ids`` from arcs between agent ids.
+
+    Arcs touching agents outside ``ids`` are dropped (the graph restricted to
+    ``ids``, e.g. the survivors of a fault).
+
+    Raises
+    ------
+    AssumptionError
+        If ``check`` and the graph is not strongly connected; the message
+        names an agent that cannot reach another.
+    """
+    pos = {a: k for k, a in enumerate(ids)}
+    kept = tuple((j, i) for j, i in arcs if j in pos and i in pos and j != i)
+    idx = [(pos[j], pos[i]) for j, i in kept]
+    m = len(ids)
+    if check:
+        bad = find_unreachable(m, idx)
+        if bad is not None:
+            raise AssumptionError(
+                f"graph {name} is not strongly connected: agent {ids[bad[0]]} cannot reach agent {ids[bad[1]]}")
+    adj = adjacency(m, idx)
+    S = metropolis_matrix(adj) if weights == "metropolis" else stochastic_matrix(adj)
+    S.setflags(write=False)
+    return Graph(name=name, ids=tuple(ids), arcs=kept, S=S)
+
+
+def neighbour_lists(graph: Graph) -> dict:
+    """``{i: (j, ...)}``: agent ids each agent hears, itself first, then ascending."""
+    nb = {i: [i] for i in graph.ids}
+    for j, i in graph.arcs:
+        nb[i].append(j)
+    return {i: (i,) + tuple(sorted(v[1:])) for i, v in nb.items()}
+
+
+# --------------------------------------------------------------------------
+# switching signals
+# --------------------------------------------------------------------------
+
+
+def switch_times(switching, names: tuple, horizon: float, rng: np.random.Generator | None = None) -> list:
+    """Pieces ``[(start, graph_index), ...]`` of the switching signal on ``[0, horizon)``.
+
+    ``graph_index`` indexes ``names`` (the scenario's graph order).  Random
+    switching draws exponential dwell times with mean ``switching.dwell`` and
+    jumps to a different graph of ``switching.graphs`` chosen uniformly, so
+    the average dwell time is ``dwell`` (the paper's tau_D, chatter bound in
+    probability).  ``rng`` must be given for random switching.
+    """
+    kind = switching.kind
+    if kind == "constant":
+        return [(0.0, 0)]
+    if kind == "schedule":
+        base = [(t, names.index(g)) for t, g in switching.schedule]
+        if switching.period is None:
+            return base
+        pieces = []
+        for k in itertools.count():
+            offset = k * switching.period
+            if offset >= horizon:
+                break
+            pieces.extend((offset + t, g) for t, g in base if offset + t < horizon)
+        return pieces
+    if rng is None:
+        raise ScenarioError("random switching needs a random generator (seed)")
+    choices = [names.index(g) for g in switching.graphs]
+    current = choices[int(rng.integers(len(choices)))]
+    pieces = [(0.0, current)]
+    t = 0.0
+    while True:
+        t += float(rng.exponential(switching.dwell))
+        if t >= horizon:
+            break
+        others = [c for c in choices if c != current]
+        current = others[int(rng.integers(len(others)))]
+        pieces.append((t, current))
+    return pieces
+
+
+def graph_sequence(pieces: list, steps: int, *, dt: float = 1.0) -> np.ndarray:
+    """Active graph index at each step ``k = 0..steps-1`` (time ``k * dt``).
+
+    A graph is held constant over a step (the discrete protocol fixes
+    neighbours between event times; continuous time is sampled with ``dt``);
+    the graph in force at the start of a step is used for the whole step.
+    """
+    starts = np.array([p[0] for p in pieces])
+    idx = np.array([p[1] for p in pieces])
+    times = np.arange(steps) * dt
+    # tolerance so that a switch at t = k*dt is not missed by round-off
+    pos = np.searchsorted(starts, times + 1e-9 * max(dt, 1.0), side="right") - 1
+    return idx[np.clip(pos, 0, None)]
+
+
+def enumerate_strongly_connected(m: int) -> list:
+    """Every strongly connected directed graph on ``m`` vertices (0-based arcs).
+
+    The paper's switching theorems quantify over this set; it has
+    ``2^(m(m-1))`` candidates, so only ``m <= 4`` is allowed.
+    """
+    if m > 4:
+        raise ScenarioError(f"design.graph_set: all enumerates 2^(m(m-1)) graphs; m = {m} is too many (at most 4)")
+    pairs = [(j, i) for j in range(m) for i in range(m) if i != j]
+    out = []
+    for mask in range(1 << len(pairs)):
+        arcs = [p for b, p in enumerate(pairs) if mask >> b & 1]
+        if is_strongly_connected(m, arcs):
+            out.append(tuple(arcs))
+    return out

@@ -1,0 +1,198 @@
+"""Design output: the JSON contract and the readable report."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .bounds import QResult
+from .design import Design
+from .graphs import is_doubly_stochastic, perron_vector
+
+__all__ = ["design_json", "design_text"]
+
+
+def _mat(M: np.ndarray) -> list:
+    return np.asarray(M, dtype=float).tolist()
+
+
+def _complex(z) -> list:
+    return [[float(np.real(x)), float(np.imag(x))] for x in np.asarray(z)]
+
+
+def _num(x):
+    if x is None:
+        return None
+    x = float(x)
+    return x if math.isfinite(x) else None
+
+
+def _q_json(r) -> dict | str:
+    if isinstance(r, str):
+        return {"error": r}
+    return {"q": r.q, "bound": _num(r.bound), "certified": bool(r.certified), "switching": bool(r.switching),
+            "p": r.p, "pbar": r.pbar}
+
+
+def _redundancy(des: Design) -> dict:
+    return {
+        "redundantly_strongly_connected": des.redundantly_strongly_connected,
+        "redundantly_jointly_observable": des.redundantly_jointly_observable,
+        "agent_loss": {
+            str(a): {
+                "jointly_observable": r.jointly_observable,
+                "unobservable_direction": r.unobservable_direction,
+                "strongly_connected": r.strongly_connected,
+            }
+            for a, r in des.agent_losses.items()
+        },
+        "arc_loss": {name: {f"{j}->{i}": ok for (j, i), ok in res.items()} for name, res in des.arc_losses.items()},
+    }
+
+
+def design_json(des: Design) -> dict:
+    """The ``splitspec design --json`` object (contract in ``../shared/DESIGN.md``)."""
+    sc = des.scenario
+    out = {
+        "name": sc.name,
+        "time": sc.time,
+        "rate": sc.design.rate,
+        "m": sc.m,
+        "n": sc.n,
+        "gains": sc.design.gains,
+        "agents": [
+            {
+                "id": a.id,
+                "K": _mat(a.K),
+                "V": _mat(a.V),
+                "P": _mat(a.P),
+                "poles": _complex(a.gain.poles),
+                "n_unobservable": a.dec.n_unobservable,
+                "unobservable_eigs": _complex(np.linalg.eigvals(a.dec.A_un)) if a.dec.n_unobservable else [],
+            }
+            for a in des.agents
+        ],
+        "graphs": [
+            {"name": g.name, "arcs": [list(a) for a in g.arcs], "S": _mat(g.S),
+             "doubly_stochastic": is_doubly_stochastic(g.S), "perron": _mat(perron_vector(g.S))}
+            for g in des.graphs
+        ],
+        "cases": [c.label for c in des.cases],
+        "checks": {
+            "jointly_observable": True,
+            "strongly_connected": {g.name: True for g in des.graphs},
+            "redundancy": _redundancy(des),
+        },
+        "error_spectrum": {k: _num(v) for k, v in des.error_radius.items()},
+        "warnings": list(des.warnings),
+    }
+    if sc.time == "continuous":
+        out.update({
+            "g": _num(des.g),
+            "g_mode": des.g_mode,
+            "g_bound": _num(max(des.g_bounds.values())),
+            "g_min": _num(max(des.g_mins.values())),
+            "g_bounds": {k: _num(v) for k, v in des.g_bounds.items()},
+            "g_mins": {k: _num(v) for k, v in des.g_mins.items()},
+            "g_dwell_bound": _num(des.g_dwell),
+            "dwell": _num(des.dwell),
+            "g_arbitrary_bound": _num(des.g_arbitrary),
+            "g_certified_by": des.g_certified_by,
+            "g0": sc.design.g0 if des.g_mode == "adaptive" else None,
+        })
+    else:
+        r: QResult = des.q_result
+        out.update({
+            "q": des.q,
+            "q_method": r.method,
+            "q_bound": _num(r.bound),
+            "q_certified": bool(r.certified),
+            "q_switching_certificate": bool(r.switching),
+            "p": r.p,
+            "pbar": r.pbar,
+            "q_methods": {k: _q_json(v) for k, v in des.q_methods.items()},
+        })
+    return out
+
+
+def _fmt_poles(z) -> str:
+    parts = []
+    for p in np.asarray(z):
+        parts.append(f"{p.real:.4g}" if abs(p.imag) < 1e-10 else f"{p.real:.4g}{p.imag:+.4g}j")
+    return "[" + ", ".join(parts) + "]" if parts else "[]"
+
+
+def design_text(des: Design) -> str:
+    """A readable multi-line report of a design."""
+    sc = des.scenario
+    d = sc.design
+    unit = "exp(-lam t)" if sc.time == "continuous" else "lam^tau"
+    lines = [
+        f"splitspec design: {sc.name}  ({sc.time} time, m = {sc.m} agents, n = {sc.n} states)",
+        f"  rate lam = {d.rate:g}  (errors decay as {unit}); gains: {d.gains}",
+        "",
+        "agents  (n_i = dim of the unobservable space V_i; poles of Abar_i + Kbar_i Cbar_i)",
+    ]
+    for a in des.agents:
+        lines.append(f"  agent {a.id}: s_i = {a.K.shape[1]}, n_i = {a.dec.n_unobservable}, "
+                     f"poles {_fmt_poles(a.gain.poles)}")
+    lines += ["", "graphs"]
+    for g in des.graphs:
+        ds = "doubly stochastic" if is_doubly_stochastic(g.S) else "not doubly stochastic"
+        arcs = ", ".join(f"{j}->{i}" for j, i in g.arcs)
+        lines.append(f"  {g.name}: strongly connected, {ds}; arcs {arcs}")
+    lines += ["", "checks", "  jointly observable: yes", "  every graph strongly connected: yes"]
+    rsc, rjo = des.redundantly_strongly_connected, des.redundantly_jointly_observable
+    lines.append(f"  redundantly strongly connected: {'yes' if rsc else 'no'}; "
+                 f"redundantly jointly observable: {'yes' if rjo else 'no'}")
+    for a, r in des.agent_losses.items():
+        if not r.ok:
+            why = []
+            if not r.jointly_observable:
+                why.append(f"direction {r.unobservable_direction} unobserved")
+            why += [f"graph {g} splits (agent {r.unreachable[g][0]} cannot reach {r.unreachable[g][1]})"
+                    for g, ok in r.strongly_connected.items() if not ok]
+            lines.append(f"    losing agent {a}: " + "; ".join(why))
+    for name, res in des.arc_losses.items():
+        crit = [f"{j}->{i}" for (j, i), ok in res.items() if not ok]
+        if crit:
+            lines.append(f"    graph {name}: losing arc {', '.join(crit)} breaks strong connectivity")
+    lines += ["", f"cases covered: {', '.join(c.label for c in des.cases)}"]
+    if sc.time == "continuous":
+        lines.append("")
+        if des.g_mode == "adaptive":
+            lines.append(f"g: adaptive (eq. adaptive), each agent integrates its own g_i from g0 = {d.g0:g}")
+        else:
+            by = f"certified by {des.g_certified_by}" if des.g_certified_by else "NOT certified"
+            lines.append(f"g = {des.g:g}  ({des.g_mode}; {by})")
+        for label in des.g_bounds:
+            lines.append(f"  {label}: g_bound (eq. g) = {des.g_bounds[label]:.4g}, "
+                         f"g_min (exact spectrum) = {des.g_mins[label]:.4g}"
+                         + (f", abscissa of A_V at g = {des.error_radius[label]:.4g}" if label in des.error_radius
+                            else ""))
+        if des.g_dwell is not None:
+            lines.append(f"  average dwell time {des.dwell:g}: g >= {des.g_dwell:.4g} (eq. split_continuous_g)")
+        if des.g_arbitrary is not None:
+            lines.append(f"  arbitrary switching, doubly stochastic: g >= {des.g_arbitrary:.4g} (thm. arb)")
+    else:
+        r = des.q_result
+        extra = f" (p = {r.p}, pbar = {r.pbar})" if r.p else ""
+        scope = "arbitrary switching among the cases" if r.switching else "each graph held constant"
+        lines += ["", f"q = {r.q}  ({d.q_method}{extra}); certified bound {r.bound:.4g} "
+                      f"{'<=' if r.certified else '>'} {d.rate:g} for {scope}"]
+        for label, rad in des.error_radius.items():
+            lines.append(f"  {label}: spectral radius of Atil B^q = {rad:.4g}")
+        if len(des.q_methods) > 1:
+            lines.append("  other methods:")
+            for meth, res in des.q_methods.items():
+                if meth == d.q_method:
+                    continue
+                if isinstance(res, str):
+                    lines.append(f"    {meth}: {res}")
+                else:
+                    ex = f" (p = {res.p}, pbar = {res.pbar})" if res.p else ""
+                    lines.append(f"    {meth}: q = {res.q}{ex}, bound {res.bound:.4g}")
+    if des.warnings:
+        lines += [""] + [f"warning: {w}" for w in des.warnings]
+    return "\n".join(lines)
