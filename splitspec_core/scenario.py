@@ -248,10 +248,18 @@ def _check_keys(mapping: Mapping, allowed: tuple, key: str) -> None:
             raise ScenarioError(f"unknown key {where} (expected one of: {', '.join(allowed)})")
 
 
+def _float(value: numbers.Real) -> float:
+    """``float(value)``, with integers too large for a float (YAML ``1000...0``) as +-inf."""
+    try:
+        return float(value)
+    except OverflowError:
+        return math.inf if value > 0 else -math.inf
+
+
 def _number(value: Any, key: str) -> float:
     if isinstance(value, bool) or not isinstance(value, numbers.Real):
         raise ScenarioError(f"{key} must be a number, got {_describe(value)}")
-    x = float(value)
+    x = _float(value)
     if not math.isfinite(x):
         raise ScenarioError(f"{key} must be finite, got {x}")
     return x
@@ -293,10 +301,11 @@ def _matrix(value: Any, key: str, *, vector: bool = False) -> np.ndarray:
         elif len(row) != width:
             raise DimensionError(f"{key} row {r + 1} has {len(row)} entries, row 1 has {width}")
         for c, x in enumerate(row):
+            where = f"{key}[{c + 1}]" if vector else f"{key}[{r + 1}][{c + 1}]"
             if isinstance(x, bool) or not isinstance(x, numbers.Real):
-                raise ScenarioError(f"{key}[{r + 1}][{c + 1}] must be a number, got {_describe(x)}")
-            if not math.isfinite(float(x)):
-                raise ScenarioError(f"{key}[{r + 1}][{c + 1}] must be finite, got {x}")
+                raise ScenarioError(f"{where} must be a number, got {_describe(x)}")
+            if not math.isfinite(_float(x)):
+                raise ScenarioError(f"{where} must be finite, got {_float(x)}")
     if width == 0:
         raise ScenarioError(f"{key} has empty rows")
     arr = np.array(rows, dtype=float)

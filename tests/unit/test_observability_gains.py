@@ -1,0 +1,61 @@
+import numpy as np
+import pytest
+
+from splitspec_core.errors import AssumptionError
+from splitspec_core.gains import design_gain, meets_rate
+from splitspec_core.observability import check_joint_observability, decompose
+
+
+def _osc():
+    return np.array([[0, 1, 0, 0], [-1, 0, 0, 0], [0, 0, 0, 1], [0, 0, -2, 0.0]])
+
+
+def test_decomposition_properties():
+    A = _osc()
+    dec = decompose(A, np.array([[1.0, 0, 0, 0]]))
+    assert dec.n_unobservable == 2
+    assert np.allclose(dec.V.T @ dec.V, np.eye(2))
+    assert np.allclose(dec.Q @ dec.V, 0)
+    assert np.allclose(dec.Q @ A, dec.Abar @ dec.Q)
+    assert np.allclose(dec.Cbar @ dec.Q, [[1, 0, 0, 0]])
+
+
+def test_rank_decision_is_scale_invariant():
+    A = _osc()
+    C = np.array([[1.0, 0, 1e-3, 0]])
+    for scale in (1e-6, 1.0, 1e6):
+        assert decompose(A * scale, C * scale).n_unobservable == 0
+    # a truly tiny coupling below the tolerance is treated as zero at every scale
+    C2 = np.array([[1.0, 0, 1e-13, 0]])
+    for scale in (1e-6, 1.0, 1e6):
+        assert decompose(A * scale, C2 * scale).n_unobservable == 2
+
+
+def test_joint_observability_names_the_direction():
+    A = _osc()
+    with pytest.raises(AssumptionError, match=r"direction \[0 0 1 0\]|direction \[0 0 0 1\]"):
+        check_joint_observability(A, [np.array([[1.0, 0, 0, 0]]), np.array([[0, 1.0, 0, 0]])])
+
+
+@pytest.mark.parametrize("time,rate", [("continuous", 1.0), ("discrete", 0.5)])
+@pytest.mark.parametrize("method", ["place", "riccati"])
+def test_gains_meet_rate_and_keep_V_invariant(time, rate, method):
+    A = _osc() if time == "continuous" else np.array(
+        [[np.cos(.7), np.sin(.7), 0, 0], [-np.sin(.7), np.cos(.7), 0, 0], [0, 0, 1.1, 0], [0, 0, .3, .9]])
+    C = np.array([[1.0, 0, 0, 0], [0, 0, 1.0, 0]])
+    dec = decompose(A, C)
+    g = design_gain(dec, method=method, time=time, rate=rate)
+    assert meets_rate(g.poles, time, rate)
+    full = np.linalg.eigvals(A + g.K @ C)
+    # spectrum of A + K C = observable part (assigned) U unobservable part of A
+    un = np.linalg.eigvals(dec.A_un) if dec.n_unobservable else np.zeros(0)
+    assert np.allclose(np.sort_complex(full), np.sort_complex(np.concatenate([g.poles, un])), atol=1e-8)
+    resid = (np.eye(4) - dec.P) @ (A + g.K @ C) @ dec.V
+    assert np.allclose(resid, 0, atol=1e-10)
+
+
+def test_explicit_gain_that_misses_rate_is_rejected():
+    dec = decompose(_osc(), np.array([[1.0, 0, 0, 0]]))
+    with pytest.raises(AssumptionError, match="do not meet rate"):
+        design_gain(dec, method="explicit", time="continuous", rate=1.0, K=np.array([[-1.0], [0], [0], [0]]),
+                    label="design.K.1")
