@@ -1,0 +1,92 @@
+"""The network as it evolves during a run: switching, faults, alive agents, weights.
+
+Shared by the simulator and the orchestrator, so both apply switches and
+faults at the same steps and hand every agent the same neighbour weights.
+
+* the switching signal is sampled once per step (``graph_sequence``);
+* a fault at time ``at`` takes effect at step ``k = ceil(at / dt)``
+  (``dt = 1`` in discrete time): a killed (or hung) agent takes no part from
+  step k on; a restarted agent rejoins at step k with a fresh estimate;
+  ``drop_arc``/``restore_arc`` remove/re-add one arc from every graph;
+* neighbour sets are the active graph restricted to the alive agents, with
+  the scenario's weights recomputed on that restricted graph.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from .graphs import build_graph, graph_sequence, switch_times
+from .scenario import Scenario
+from .streams import stream
+
+__all__ = ["Plan", "make_plan", "consensus_rows", "fault_step"]
+
+
+def fault_step(at: float, dt: float) -> int:
+    """Step index at which a fault at time ``at`` takes effect."""
+    return int(math.ceil(at / dt - 1e-9))
+
+
+@dataclass(frozen=True)
+class Plan:
+    """Everything about a run that is fixed by the scenario and the seed, except noise.
+
+    Attributes
+    ----------
+    steps : int
+    dt : float
+        1 for discrete time.
+    graph_seq : (steps + 1,) int array
+        Active graph index per step (scenario order).
+    faults : dict
+        ``{step: [Fault, ...]}``.
+    """
+
+    steps: int
+    dt: float
+    graph_seq: np.ndarray
+    faults: dict
+
+    def times(self) -> np.ndarray:
+        return np.arange(self.steps + 1) * self.dt
+
+
+def make_plan(sc: Scenario, seed: int, steps: int | None = None) -> Plan:
+    """The run's switching signal and fault schedule."""
+    steps = sc.run.steps if steps is None else steps
+    dt = sc.run.dt if sc.time == "continuous" else 1.0
+    sw = sc.switching
+    rng = None
+    if sw.kind == "random":
+        rng = np.random.default_rng(sw.seed) if sw.seed is not None else stream(seed, "switching")
+    pieces = switch_times(sw, sc.graph_names, (steps + 1) * dt, rng)
+    seq = graph_sequence(pieces, steps + 1, dt=dt)
+    faults: dict = {}
+    for f in sc.faults:
+        k = fault_step(f.at, dt)
+        if k <= steps:
+            faults.setdefault(k, []).append(f)
+    return Plan(steps=steps, dt=dt, graph_seq=seq, faults=faults)
+
+
+def consensus_rows(sc: Scenario, graph_index: int, alive_ids, dropped=frozenset()) -> dict:
+    """``{i: (neighbour ids, weights)}`` for every alive agent i.
+
+    The active graph minus the dropped arcs, restricted to ``alive_ids``;
+    weights are row i of ``S`` of that restricted graph (uniform ``1/m_i`` or
+    Metropolis).  Neighbours are listed self first, then by position.
+    """
+    alive_ids = tuple(a for a in sc.agent_ids if a in set(alive_ids))
+    if not alive_ids:
+        return {}
+    arcs = [a for a in sc.graphs[graph_index].arcs if a not in dropped]
+    g = build_graph(sc.graphs[graph_index].name, alive_ids, arcs, weights=sc.design.weights, check=False)
+    rows = {}
+    for r, i in enumerate(g.ids):
+        cols = [r] + [c for c in range(g.m) if c != r and g.S[r, c] != 0]
+        rows[i] = (tuple(g.ids[c] for c in cols), tuple(float(g.S[r, c]) for c in cols))
+    return rows

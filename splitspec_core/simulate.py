@@ -1,0 +1,438 @@
+"""Reference simulator: the ground truth for the multi-process runtime.
+
+Three estimators share one driver (plant, noise streams, switching, faults):
+
+* :class:`BatchEstimator` - vectorised across agents, exploiting the block
+  structure: per sub-round one sparse ``W @ Z`` (cost ~ arcs x n) and one
+  batched ``P_i`` product (cost ~ m n^2); never an ``mn x mn`` matrix;
+* :class:`AgentLoopEstimator` - a plain loop calling the per-agent step
+  functions of :mod:`splitspec_core.steps` (exactly what agent processes run);
+* :func:`simulate_exact` - continuous time only: the exact ODE of
+  eq. (split_continuous_observer), integrated with a matrix exponential per
+  step (graphs piecewise constant), noise-free, for comparison.
+
+Step order at step k (time ``t_k``): apply faults at k; record
+``x(k), x_i(k)``; measure ``y_i(k) = C_i x(k) + w_i(k)``; every alive agent
+updates to ``x_i(k+1)``; the plant moves to ``x(k+1)``.
+"""
+
+from __future__ import annotations
+
+import sys
+import time as _time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import scipy.linalg as sla
+import scipy.sparse as sp
+
+from . import steps as st
+from .design import Design
+from .network import Plan, consensus_rows, make_plan
+from .streams import stream
+
+__all__ = [
+    "Trajectory",
+    "simulate",
+    "simulate_exact",
+    "BatchEstimator",
+    "AgentLoopEstimator",
+    "initial_state",
+    "initial_estimate",
+    "Plant",
+]
+
+
+# --------------------------------------------------------------------------
+# trajectory
+# --------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Trajectory:
+    """A simulated or recorded run (``trajectory.npz`` contract).
+
+    Attributes
+    ----------
+    t : (T,) event index (discrete) or time (continuous)
+    x : (T, n) true state
+    xhat : (T, m, n) estimates, NaN where the agent is dead
+    alive : (T, m) bool
+    graph : (T,) active graph index (scenario order)
+    agent_ids : (m,) int
+    gains : (T, m) adaptive gains g_i, or None
+    """
+
+    t: np.ndarray
+    x: np.ndarray
+    xhat: np.ndarray
+    alive: np.ndarray
+    graph: np.ndarray
+    agent_ids: np.ndarray
+    gains: np.ndarray | None = None
+
+    def errors(self) -> np.ndarray:
+        """``|x_i(t) - x(t)|_2`` per agent, shape (T, m), NaN where dead."""
+        return np.linalg.norm(self.xhat - self.x[:, None, :], axis=2)
+
+    def save(self, path: str | Path) -> None:
+        arrays = dict(t=self.t, x=self.x, xhat=self.xhat, alive=self.alive, graph=self.graph,
+                      agent_ids=self.agent_ids)
+        if self.gains is not None:
+            arrays["gains"] = self.gains
+        np.savez(path, **arrays)
+
+    @classmethod
+    def load(cls, path: str | Path) -> "Trajectory":
+        with np.load(path) as f:
+            return cls(t=f["t"], x=f["x"], xhat=f["xhat"], alive=f["alive"], graph=f["graph"],
+                       agent_ids=f["agent_ids"], gains=f["gains"] if "gains" in f.files else None)
+
+
+# --------------------------------------------------------------------------
+# initial conditions and plant (shared with the plant and agent processes)
+# --------------------------------------------------------------------------
+
+
+def initial_state(des: Design, seed: int) -> np.ndarray:
+    """``x(0)``: the scenario's ``x0`` or ``n`` standard normals from the ``initial_state`` stream."""
+    sc = des.scenario
+    if sc.system.x0 is not None:
+        return np.array(sc.system.x0, dtype=float)
+    return stream(seed, "initial_state").normal(size=sc.n)
+
+
+def initial_estimate(n: int, seed: int, agent_index: int, incarnation: int = 0) -> np.ndarray:
+    """``x_i(0)`` of an agent's given incarnation (0 at start, +1 per restart): ``n`` standard normals."""
+    return stream(seed, "estimate", agent_index, incarnation).normal(size=n)
+
+
+class Plant:
+    """The true system and its measurements, drawing noise from the named streams.
+
+    Discrete: ``x(k+1) = A x(k) + sigma_p v``; continuous (sampled with
+    ``dt``): ``x(k+1) = E x(k) + chol(Qd) v`` with ``Qd`` the exact covariance
+    of ``sigma_p^2``-intensity white noise over a step.  Measurements
+    ``y_i(k) = C_i x(k) + sigma_m w_i`` are drawn for every agent every step.
+    """
+
+    def __init__(self, des: Design, seed: int, *, noise: bool = True):
+        sc = des.scenario
+        self.Cs = [np.asarray(C) for C in sc.system.Cs]
+        self.sigma_m = sc.system.measurement_noise if noise else 0.0
+        sigma_p = sc.system.process_noise if noise else 0.0
+        if sc.time == "continuous":
+            E, _, Qd = st.sampled_data_matrices(sc.system.A, sc.run.dt, noise_intensity=sigma_p**2)
+            self.F = E
+            self.L = _psd_sqrt(Qd)
+        else:
+            self.F = np.array(sc.system.A)
+            self.L = sigma_p * np.eye(sc.n)
+        self.proc = stream(seed, "process")
+        self.meas = [stream(seed, "measurement", i) for i in range(sc.m)]
+        self.x = initial_state(des, seed)
+
+    def measure(self) -> list:
+        """``y_i(k)`` for every agent (draws one noise vector per agent)."""
+        return [C @ self.x + self.sigma_m * rng.normal(size=C.shape[0]) for C, rng in zip(self.Cs, self.meas)]
+
+    def advance(self) -> np.ndarray:
+        self.x = self.F @ self.x + self.L @ self.proc.normal(size=self.x.shape[0])
+        return self.x
+
+
+def _psd_sqrt(Q: np.ndarray) -> np.ndarray:
+    if not np.any(Q):
+        return np.zeros_like(Q)
+    try:
+        return np.linalg.cholesky(Q)
+    except np.linalg.LinAlgError:
+        w, U = np.linalg.eigh(Q)
+        return U * np.sqrt(np.clip(w, 0, None))
+
+
+# --------------------------------------------------------------------------
+# estimators
+# --------------------------------------------------------------------------
+
+
+class _EstimatorBase:
+    def __init__(self, des: Design):
+        sc = des.scenario
+        self.des, self.sc = des, sc
+        self.m, self.n = sc.m, sc.n
+        self.A = np.array(sc.system.A)
+        self.Cs = [np.asarray(C) for C in sc.system.Cs]
+        self.Ks = [np.asarray(K) for K in des.Ks]
+        self.Ps = [np.asarray(P) for P in des.Ps]
+        self.Vs = [np.asarray(V) for V in des.Vs]
+        self.continuous = sc.time == "continuous"
+        self.adaptive = self.continuous and des.g_mode == "adaptive"
+        if self.continuous:
+            self.E, self.D, _ = st.sampled_data_matrices(self.A, sc.run.dt)
+            self.dt = sc.run.dt
+            self.g = np.full(self.m, sc.design.g0 if self.adaptive else float(des.g))
+        else:
+            self.q = int(des.q)
+            self.F = [self.A + K @ C for K, C in zip(self.Ks, self.Cs)]
+
+
+class BatchEstimator(_EstimatorBase):
+    """Vectorised estimator: state ``X`` (m, n); sparse weights; batched per-agent matrices."""
+
+    def __init__(self, des: Design):
+        super().__init__(des)
+        s_max = max(C.shape[0] for C in self.Cs)
+        self.Kp = np.zeros((self.m, self.n, s_max))
+        for i, K in enumerate(self.Ks):
+            self.Kp[i, :, : K.shape[1]] = K
+        self.s = [C.shape[0] for C in self.Cs]
+        self.Pst = np.stack(self.Ps)
+        if self.continuous:
+            self.KC = np.stack([K @ C for K, C in zip(self.Ks, self.Cs)])
+        else:
+            self.Fst = np.stack(self.F)
+        self._cache: dict = {}
+
+    def weights(self, rows: dict) -> sp.csr_matrix:
+        key = tuple(sorted((i, r) for i, r in rows.items()))
+        W = self._cache.get(key)
+        if W is None:
+            pos = {a: k for k, a in enumerate(self.sc.agent_ids)}
+            ri, ci, vals = [], [], []
+            for i, (nbs, ws) in rows.items():
+                for j, w in zip(nbs, ws):
+                    ri.append(pos[i])
+                    ci.append(pos[j])
+                    vals.append(w)
+            W = sp.csr_matrix((vals, (ri, ci)), shape=(self.m, self.m))
+            self._cache[key] = W
+        return W
+
+    def step(self, X: np.ndarray, ys: list, rows: dict, alive: np.ndarray) -> np.ndarray:
+        W = self.weights(rows)
+        Y = np.zeros((self.m, self.Kp.shape[2]))
+        for i, y in enumerate(ys):
+            Y[i, : self.s[i]] = y
+        if self.continuous:
+            avg = W @ X
+            diff = X - avg
+            if self.adaptive:
+                rate = np.einsum("mi,mij,mj->m", -diff, self.Pst, -diff)
+            corr = (np.einsum("mij,mj->mi", self.KC, X) - np.einsum("mis,ms->mi", self.Kp, Y)
+                    - self.g[:, None] * np.einsum("mij,mj->mi", self.Pst, diff))
+            Xn = X @ self.E.T + corr @ self.D.T
+            if self.adaptive:
+                self.g = np.where(alive, self.g + self.dt * rate, self.g)
+        else:
+            Z = X
+            for _ in range(self.q):
+                # eq. split-discrete-p2: z_i <- z_i + P_i (sum_j w_ij z_j - z_i)
+                Z = Z + np.einsum("mij,mj->mi", self.Pst, W @ Z - Z)
+            # eq. split-discrete-est1
+            Xn = np.einsum("mij,mj->mi", self.Fst, Z) - np.einsum("mis,ms->mi", self.Kp, Y)
+        Xn[~alive] = 0.0
+        return Xn
+
+
+class AgentLoopEstimator(_EstimatorBase):
+    """Plain per-agent loop over the step functions of :mod:`splitspec_core.steps`."""
+
+    def step(self, X: np.ndarray, ys: list, rows: dict, alive: np.ndarray) -> np.ndarray:
+        pos = {a: k for k, a in enumerate(self.sc.agent_ids)}
+        Xn = np.zeros_like(X)
+        if self.continuous:
+            g_next = self.g.copy()
+            for i_id, (nbs, ws) in rows.items():
+                i = pos[i_id]
+                states = [X[pos[j]] for j in nbs]
+                Xn[i] = st.sampled_step(X[i], self.E, self.D, self.Ks[i], self.Cs[i], ys[i], self.Ps[i],
+                                        self.g[i], states, ws)
+                if self.adaptive:
+                    g_next[i] = st.adaptive_gain_step(self.g[i], st.adaptive_gain_rate(self.Vs[i], X[i], states, ws),
+                                                      self.dt)
+            self.g = g_next
+            return Xn
+        Z = X.copy()
+        for _ in range(self.q):
+            Zn = np.zeros_like(Z)
+            for i_id, (nbs, ws) in rows.items():
+                i = pos[i_id]
+                Zn[i] = st.consensus_subround(Z[i], self.Ps[i], [Z[pos[j]] for j in nbs], ws)
+            Z = Zn
+        for i_id in rows:
+            i = pos[i_id]
+            Xn[i] = st.measurement_update(Z[i], self.F[i], self.Ks[i], ys[i])
+        return Xn
+
+
+# --------------------------------------------------------------------------
+# driver
+# --------------------------------------------------------------------------
+
+
+class _Progress:
+    """A one-line progress bar on stderr, only when it is a terminal and the run is long."""
+
+    def __init__(self, total: int, enabled: bool | None):
+        self.total = total
+        self.enabled = sys.stderr.isatty() if enabled is None else enabled
+        self.enabled = self.enabled and total >= 2000
+        self.t0 = _time.monotonic()
+        self.last = 0.0
+
+    def update(self, k: int) -> None:
+        if not self.enabled:
+            return
+        now = _time.monotonic()
+        if now - self.last < 0.2 and k < self.total:
+            return
+        self.last = now
+        frac = k / self.total
+        bar = "#" * int(30 * frac)
+        sys.stderr.write(f"\rsimulating [{bar:<30}] {100 * frac:5.1f}%  {now - self.t0:6.1f}s")
+        if k >= self.total:
+            sys.stderr.write("\n")
+        sys.stderr.flush()
+
+
+def simulate(des: Design, *, seed: int | None = None, steps: int | None = None, noise: bool = True,
+             estimator: str = "batch", progress: bool | None = False, plan: Plan | None = None) -> Trajectory:
+    """Simulate the scenario of a design (see the module docstring).
+
+    Parameters
+    ----------
+    seed : int, optional
+        Defaults to ``run.seed``; fixes initial state, estimates, noise and random switching.
+    steps : int, optional
+        Defaults to ``run.steps``.
+    noise : bool
+        False zeroes process and measurement noise (the draws still happen).
+    estimator : str
+        ``batch`` (vectorised) or ``loop`` (per-agent step functions).
+    progress : bool or None
+        None shows a progress bar when stderr is a terminal and the run is long.
+    """
+    sc = des.scenario
+    seed = sc.run.seed if seed is None else seed
+    plan = plan or make_plan(sc, seed, steps)
+    est = BatchEstimator(des) if estimator == "batch" else AgentLoopEstimator(des)
+    plant = Plant(des, seed, noise=noise)
+    m, n, T = sc.m, sc.n, plan.steps + 1
+    ids = sc.agent_ids
+    X = np.stack([initial_estimate(n, seed, i) for i in range(m)])
+    alive = np.ones(m, dtype=bool)
+    incarnation = np.zeros(m, dtype=int)
+    dropped: set = set()
+    xs = np.zeros((T, n))
+    xh = np.full((T, m, n), np.nan)
+    al = np.zeros((T, m), dtype=bool)
+    gains = np.zeros((T, m)) if est.continuous and est.adaptive else None
+    bar = _Progress(plan.steps, progress)
+    rows_cache: dict = {}
+    for k in range(T):
+        for f in plan.faults.get(k, ()):
+            if f.action in ("kill", "hang"):
+                i = ids.index(f.agent)
+                alive[i] = False
+                X[i] = 0.0
+            elif f.action == "restart":
+                i = ids.index(f.agent)
+                if not alive[i]:
+                    incarnation[i] += 1
+                    alive[i] = True
+                    X[i] = initial_estimate(n, seed, i, int(incarnation[i]))
+                    if gains is not None:
+                        est.g[i] = sc.design.g0
+            elif f.action == "drop_arc":
+                dropped.add(f.arc)
+            elif f.action == "restore_arc":
+                dropped.discard(f.arc)
+        xs[k] = plant.x
+        xh[k][alive] = X[alive]
+        al[k] = alive
+        if gains is not None:
+            gains[k] = est.g
+        if k == plan.steps:
+            break
+        ys = plant.measure()
+        key = (int(plan.graph_seq[k]), tuple(alive), frozenset(dropped))
+        rows = rows_cache.get(key)
+        if rows is None:
+            rows = rows_cache[key] = consensus_rows(sc, key[0], [ids[i] for i in range(m) if alive[i]], key[2])
+        X = est.step(X, ys, rows, alive)
+        plant.advance()
+        bar.update(k + 1)
+    return Trajectory(t=plan.times(), x=xs, xhat=xh, alive=al, graph=plan.graph_seq.copy(),
+                      agent_ids=np.array(ids), gains=gains)
+
+
+def simulate_exact(des: Design, *, seed: int | None = None, steps: int | None = None) -> Trajectory:
+    """Continuous time, noise-free: the exact ODE of eq. (split_continuous_observer).
+
+    The augmented state ``(x, x_1, ..., x_m)`` obeys a linear ODE that is
+    constant between steps (graph and alive set held), integrated with one
+    matrix exponential per distinct step matrix.  Same initial conditions,
+    switching and faults as :func:`simulate`.
+    """
+    sc = des.scenario
+    if sc.time != "continuous":
+        raise ValueError("simulate_exact is for continuous time")
+    if des.g_mode == "adaptive":
+        raise ValueError("simulate_exact does not support the adaptive gain")
+    seed = sc.run.seed if seed is None else seed
+    plan = make_plan(sc, seed, steps)
+    m, n, T = sc.m, sc.n, plan.steps + 1
+    ids = sc.agent_ids
+    A = np.array(sc.system.A)
+    g = float(des.g)
+    z = np.concatenate([initial_state(des, seed)] + [initial_estimate(n, seed, i) for i in range(m)])
+    alive = np.ones(m, dtype=bool)
+    incarnation = np.zeros(m, dtype=int)
+    dropped: set = set()
+    xs = np.zeros((T, n))
+    xh = np.full((T, m, n), np.nan)
+    al = np.zeros((T, m), dtype=bool)
+    cache: dict = {}
+    for k in range(T):
+        for f in plan.faults.get(k, ()):
+            i = ids.index(f.agent) if f.agent is not None else None
+            if f.action in ("kill", "hang"):
+                alive[i] = False
+            elif f.action == "restart" and not alive[i]:
+                incarnation[i] += 1
+                alive[i] = True
+                z[n * (i + 1):n * (i + 2)] = initial_estimate(n, seed, i, int(incarnation[i]))
+            elif f.action == "drop_arc":
+                dropped.add(f.arc)
+            elif f.action == "restore_arc":
+                dropped.discard(f.arc)
+        xs[k] = z[:n]
+        for i in range(m):
+            if alive[i]:
+                xh[k, i] = z[n * (i + 1):n * (i + 2)]
+        al[k] = alive
+        if k == plan.steps:
+            break
+        rows = consensus_rows(sc, int(plan.graph_seq[k]), [ids[i] for i in range(m) if alive[i]], frozenset(dropped))
+        key = tuple(sorted(rows.items()))
+        Phi = cache.get(key)
+        if Phi is None:
+            M = np.zeros(((m + 1) * n, (m + 1) * n))
+            M[:n, :n] = A
+            pos = {a: r for r, a in enumerate(ids)}
+            for i_id, (nbs, ws) in rows.items():
+                i = pos[i_id]
+                bi = slice(n * (i + 1), n * (i + 2))
+                K, C, P = des.Ks[i], sc.system.Cs[i], des.Ps[i]
+                # dx_i = (A + K_i C_i) x_i - K_i C_i x - g P_i (x_i - sum_j w_ij x_j)
+                M[bi, bi] += A + K @ C - g * P
+                M[bi, :n] += -K @ C
+                for j_id, w in zip(nbs, ws):
+                    bj = slice(n * (pos[j_id] + 1), n * (pos[j_id] + 2))
+                    M[bi, bj] += g * w * P
+            Phi = sla.expm(M * plan.dt)
+            cache[key] = Phi
+        z = Phi @ z
+    return Trajectory(t=plan.times(), x=xs, xhat=xh, alive=al, graph=plan.graph_seq.copy(), agent_ids=np.array(ids))
