@@ -13,6 +13,7 @@ import logging
 import os
 import sys
 
+from splitspec_core.errors import ScenarioError as UsageError  # bad CLI arguments
 from splitspec_core.errors import SplitspecError
 
 EXIT_BAD_INPUT = 2
@@ -34,6 +35,83 @@ def _cmd_design(args: argparse.Namespace) -> int:
     return 0
 
 
+def _simulate_summary_text(summary: dict, *, time: str, out) -> str:
+    rate_word = "exp(-lam t)" if time == "continuous" else "lam^tau"
+    meas = summary["measured_rate"]
+    lines = [f"simulated {summary['steps']} steps; designed rate {summary['designed_rate']:g} ({rate_word})"]
+    if meas is not None:
+        verdict = "meets" if summary["measured_meets_design"] else "does NOT meet"
+        lines.append(f"  measured rate (noise-free, tail fit) {meas:.4g}: {verdict} the design")
+    lines.append(f"  alive at the end: {', '.join(map(str, summary['alive_at_end'])) or 'none'}")
+    lines.append("  agent   final error   max error")
+    for aid, a in summary["agents"].items():
+        fe = "dead" if a["final_error"] is None else f"{a['final_error']:.3e}"
+        me = "-" if a["max_error"] is None else f"{a['max_error']:.3e}"
+        lines.append(f"  {aid:>5}   {fe:>11}   {me:>9}")
+    if "monte_carlo" in summary:
+        mc = summary["monte_carlo"]
+        lines.append(f"  monte carlo over {mc['seeds']} seeds: steady-state RMS error {mc['steady_rms_mean']:.4g} "
+                     f"+- {mc['steady_rms_std']:.3g}, final {mc['final_rms_mean']:.4g} +- {mc['final_rms_std']:.3g}")
+    lines.append(f"wrote {out}/trajectory.npz, summary.json" + ("" if summary.get("plots") is None else
+                                                               ", " + ", ".join(summary["plots"])))
+    return "\n".join(lines)
+
+
+def _cmd_simulate(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from splitspec_core.analysis import monte_carlo_stats, summarize
+    from splitspec_core.design import design
+    from splitspec_core.scenario import load_scenario
+    from splitspec_core.simulate import simulate, simulate_exact
+
+    sc = load_scenario(args.scenario)
+    if args.steps is not None and args.steps < 1:
+        raise UsageError("--steps must be >= 1")
+    if args.monte_carlo is not None and args.monte_carlo < 1:
+        raise UsageError("--monte-carlo must be >= 1")
+    if args.exact and sc.time != "continuous":
+        raise UsageError("--exact integrates the continuous-time ODE; this scenario is discrete")
+    des = design(sc)
+    out = Path(args.out)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise UsageError(f"cannot create output directory {out}: {exc.strerror}") from None
+    seed = sc.run.seed if args.seed is None else args.seed
+    if args.exact:
+        traj = simulate_exact(des, seed=seed, steps=args.steps)
+        clean = traj
+    else:
+        traj = simulate(des, seed=seed, steps=args.steps, progress=None)
+        noisy = sc.system.process_noise > 0 or sc.system.measurement_noise > 0
+        clean = simulate(des, seed=seed, steps=args.steps, noise=False) if noisy else traj
+    traj.save(out / "trajectory.npz")
+    summary = summarize(traj, time=sc.time, rate=sc.design.rate, noise_free=clean)
+    summary.update({"scenario": sc.name, "seed": seed, "time": sc.time,
+                    "g": des.g, "q": des.q, "estimator": "exact ODE" if args.exact else "sampled-data" if
+                    sc.time == "continuous" else "discrete two-rate"})
+    mc = None
+    if args.monte_carlo:
+        trajs = [simulate(des, seed=seed + k, steps=args.steps) for k in range(args.monte_carlo)]
+        mc = monte_carlo_stats(trajs)
+        summary["monte_carlo"] = {k: v for k, v in mc.items() if not hasattr(v, "shape")}
+    if not args.no_plots:
+        from . import plots
+
+        title = f"{sc.name}: {'g = %g' % des.g if des.g is not None else 'q = %d' % des.q if des.q else 'adaptive g'}"
+        plots.plot_errors(traj, out / "errors.png", time=sc.time, rate=sc.design.rate,
+                          c=summary["envelope_c"], title=title)
+        plots.plot_states(traj, out / "states.png", time=sc.time, title=title)
+        summary["plots"] = ["errors.png", "states.png"]
+        if mc is not None:
+            plots.plot_monte_carlo(traj.t, mc, out / "monte_carlo.png", time=sc.time, title=title)
+            summary["plots"].append("monte_carlo.png")
+    (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+    print(_simulate_summary_text(summary, time=sc.time, out=out))
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="splitspec",
@@ -50,6 +128,20 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="print the design as one JSON object")
     p.add_argument("--compact", action="store_true", help="with --json: no indentation")
     p.set_defaults(func=_cmd_design)
+
+    p = sub.add_parser("simulate", help="fast in-process reference simulation: trajectory, summary, plots",
+                       description="Simulate the scenario in-process (the reference for `splitspec run`): "
+                                   "writes trajectory.npz, summary.json and PNG plots to --out.")
+    p.add_argument("scenario", help="scenario YAML file")
+    p.add_argument("--out", required=True, help="output directory (created if missing)")
+    p.add_argument("--seed", type=int, help="override run.seed")
+    p.add_argument("--steps", type=int, help="override run.steps")
+    p.add_argument("--monte-carlo", type=int, metavar="N", help="also run N seeds (seed, seed+1, ...) and report "
+                                                                 "the mean and spread of the error")
+    p.add_argument("--exact", action="store_true", help="continuous time: integrate the exact ODE (noise-free) "
+                                                        "instead of the sampled-data estimator")
+    p.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
+    p.set_defaults(func=_cmd_simulate)
     return parser
 
 
