@@ -35,6 +35,7 @@ __all__ = [
     "g_min",
     "dwell_constants",
     "g_dwell_bound",
+    "sampled_decay",
     "g_arbitrary_bound",
     "QResult",
     "q_spectral",
@@ -167,6 +168,20 @@ def g_min(case: Case, rate: float, *, g_hi: float | None = None, rtol: float = 1
         else:
             lo = mid
     return hi
+
+
+def sampled_decay(case: Case, g: float, Et: np.ndarray, Dt: np.ndarray, dt: float) -> float:
+    """Decay rate of the sampled-data estimator's unobservable part (see :mod:`splitspec_core.steps`).
+
+    With ``E = exp(A dt)``, ``D = int exp(A s) ds`` (both leave each ``V_i``
+    invariant), the error on ``V`` obeys ``w+ = (Et - g Dt (I - B)) w`` with
+    ``Et = blockdiag(V_i' E V_i)``, ``Dt = blockdiag(V_i' D V_i)``.  Returns
+    ``-ln(rho) / dt``; a negative value means the sampled-data estimator is unstable.
+    """
+    if case.nbar == 0:
+        return math.inf
+    rho = spectral_radius(Et - g * Dt @ (np.eye(case.nbar) - case.B))
+    return -math.log(rho) / dt if rho > 0 else math.inf
 
 
 def dwell_constants(cases) -> tuple:

@@ -17,6 +17,7 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
+import scipy.linalg as sla
 
 from . import bounds
 from .errors import AssumptionError
@@ -74,6 +75,7 @@ class Design:
     q_result: bounds.QResult | None = None
     q_methods: dict = field(default_factory=dict)  # every method's result, for comparison
     error_radius: dict = field(default_factory=dict)  # case label -> spectral radius / abscissa of A_V
+    sampled_rate: dict = field(default_factory=dict)  # continuous: case label -> decay rate of the sampled-data form
     agent_losses: dict = field(default_factory=dict)
     arc_losses: dict = field(default_factory=dict)
     warnings: tuple = ()
@@ -216,6 +218,8 @@ def design(sc: Scenario, *, compare_q_methods: bool = False) -> Design:
     kw: dict = {}
     if sc.time == "continuous":
         kw.update(_design_g(sc, cases, switching, warnings))
+        if kw["g"] is not None:
+            kw["sampled_rate"] = _sampled_check(sc, agents, cases, kw["g"], warnings)
     else:
         kw.update(_design_q(sc, cases, switching, warnings, compare_q_methods))
     return Design(scenario=sc, agents=agents, graphs=graphs, cases=cases, agent_losses=agent_losses,
@@ -264,6 +268,41 @@ def _design_g(sc: Scenario, cases, switching: bool, warnings: list) -> dict:
     radius = {c.label: bounds.abscissa(c, g) for c in cases} if g is not None else {}
     return dict(g=g, g_mode=mode, g_bounds=g_bounds, g_mins=g_mins, g_dwell=g_dw, dwell=dwell,
                 g_arbitrary=g_arb, g_certified_by=by, error_radius=radius)
+
+
+def _sampled_check(sc: Scenario, agents, cases, g: float, warnings: list) -> dict:
+    """Decay rate of the sampled-data estimator (run.dt) per case; warn when it misses the rate.
+
+    Observable parts: ``Q_i (E + D K_i C_i) Q_i'``; unobservable part:
+    :func:`bounds.sampled_decay`.  Both are exact for the discretisation used
+    by ``simulate`` and ``run`` (see :mod:`splitspec_core.steps`).
+    """
+    from .steps import sampled_data_matrices
+
+    dt = sc.run.dt
+    A = sc.system.A
+    E, D, _ = sampled_data_matrices(A, dt)
+    obs = math.inf
+    for a, C in zip(agents, sc.system.Cs):
+        if a.dec.n_observable:
+            Q = a.dec.Q
+            rho = bounds.spectral_radius(Q @ (E + D @ a.K @ C) @ Q.T)
+            obs = min(obs, -math.log(rho) / dt if rho > 0 else math.inf)
+    ad = {a.id: a for a in agents}
+    out = {}
+    for c in cases:
+        Vs = [ad[i].V for i in c.graph.ids]
+        Et = sla.block_diag(*[V.T @ E @ V for V in Vs]) if c.nbar else np.zeros((0, 0))
+        Dt = sla.block_diag(*[V.T @ D @ V for V in Vs]) if c.nbar else np.zeros((0, 0))
+        out[c.label] = min(obs, bounds.sampled_decay(c, g, Et, Dt, dt))
+    worst = min(out.values())
+    if worst <= 0:
+        warnings.append(f"the sampled-data estimator is UNSTABLE with g = {g:g} and run.dt = {dt:g} "
+                        f"(dt too large against g or |K_i C_i|): reduce run.dt")
+    elif worst < sc.design.rate:
+        warnings.append(f"with run.dt = {dt:g} the sampled-data estimator decays at {worst:.4g} < rate "
+                        f"{sc.design.rate:g} (first order in dt against g and |K_i C_i|): reduce run.dt")
+    return out
 
 
 def _design_q(sc: Scenario, cases, switching: bool, warnings: list, compare: bool) -> dict:

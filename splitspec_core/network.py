@@ -7,7 +7,8 @@ faults at the same steps and hand every agent the same neighbour weights.
 * a fault at time ``at`` takes effect at step ``k = ceil(at / dt)``
   (``dt = 1`` in discrete time): a killed (or hung) agent takes no part from
   step k on; a restarted agent rejoins at step k with a fresh estimate;
-  ``drop_arc``/``restore_arc`` remove/re-add one arc from every graph;
+  ``drop_arc``/``restore_arc`` remove/re-add one arc from every graph (with
+  Metropolis weights, the link in both directions, keeping graphs undirected);
 * neighbour sets are the active graph restricted to the alive agents, with
   the scenario's weights recomputed on that restricted graph.
 """
@@ -83,6 +84,9 @@ def consensus_rows(sc: Scenario, graph_index: int, alive_ids, dropped=frozenset(
     alive_ids = tuple(a for a in sc.agent_ids if a in set(alive_ids))
     if not alive_ids:
         return {}
+    if sc.design.weights == "metropolis":
+        # Metropolis weights need an undirected graph: a dropped arc is a failed link, both directions
+        dropped = set(dropped) | {(i, j) for j, i in dropped}
     arcs = [a for a in sc.graphs[graph_index].arcs if a not in dropped]
     g = build_graph(sc.graphs[graph_index].name, alive_ids, arcs, weights=sc.design.weights, check=False)
     rows = {}

@@ -100,6 +100,8 @@ def design_json(des: Design) -> dict:
             "g_arbitrary_bound": _num(des.g_arbitrary),
             "g_certified_by": des.g_certified_by,
             "g0": sc.design.g0 if des.g_mode == "adaptive" else None,
+            "dt": sc.run.dt,
+            "sampled_rate": {k: _num(v) for k, v in des.sampled_rate.items()},
         })
     else:
         r: QResult = des.q_result
@@ -175,6 +177,10 @@ def design_text(des: Design) -> str:
             lines.append(f"  average dwell time {des.dwell:g}: g >= {des.g_dwell:.4g} (eq. split_continuous_g)")
         if des.g_arbitrary is not None:
             lines.append(f"  arbitrary switching, doubly stochastic: g >= {des.g_arbitrary:.4g} (thm. arb)")
+        if des.sampled_rate:
+            worst = min(des.sampled_rate.values())
+            lines.append(f"  sampled-data form with run.dt = {sc.run.dt:g}: decay rate {worst:.4g} "
+                         f"({'meets' if worst >= d.rate else 'MISSES'} rate {d.rate:g})")
     else:
         r = des.q_result
         extra = f" (p = {r.p}, pbar = {r.pbar})" if r.p else ""

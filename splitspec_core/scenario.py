@@ -80,9 +80,10 @@ class System:
     x0 : (n,) array or None
         Initial state; ``None`` means drawn from the seed.
     process_noise : float
-        Standard deviation of ``v`` (discrete) or its intensity (continuous).
+        Standard deviation of ``v`` (discrete) or its intensity (continuous:
+        ``E[v(t) v(s)'] = process_noise I delta(t - s)``).
     measurement_noise : float
-        Standard deviation of the measurement noise ``w_i``.
+        Standard deviation of each measurement noise sample ``w_i``.
     """
 
     A: np.ndarray

@@ -3,8 +3,8 @@
 Three estimators share one driver (plant, noise streams, switching, faults):
 
 * :class:`BatchEstimator` - vectorised across agents, exploiting the block
-  structure: per sub-round one sparse ``W @ Z`` (cost ~ arcs x n) and one
-  batched ``P_i`` product (cost ~ m n^2); never an ``mn x mn`` matrix;
+  structure: per sub-round one sparse product with ``B = V' Sbar V`` (one
+  block per arc: cost grows with the arcs); never a dense ``mn x mn`` matrix;
 * :class:`AgentLoopEstimator` - a plain loop calling the per-agent step
   functions of :mod:`splitspec_core.steps` (exactly what agent processes run);
 * :func:`simulate_exact` - continuous time only: the exact ODE of
@@ -111,31 +111,39 @@ def initial_estimate(n: int, seed: int, agent_index: int, incarnation: int = 0) 
 class Plant:
     """The true system and its measurements, drawing noise from the named streams.
 
-    Discrete: ``x(k+1) = A x(k) + sigma_p v``; continuous (sampled with
-    ``dt``): ``x(k+1) = E x(k) + chol(Qd) v`` with ``Qd`` the exact covariance
-    of ``sigma_p^2``-intensity white noise over a step.  Measurements
-    ``y_i(k) = C_i x(k) + sigma_m w_i`` are drawn for every agent every step.
+    Discrete: ``x(k+1) = A x(k) + sigma_p v`` (``process_noise`` = std
+    ``sigma_p``); continuous (sampled with ``dt``): ``x(k+1) = E x(k) + chol(Qd) v``
+    with ``Qd`` the exact covariance over a step of white noise of intensity
+    ``process_noise`` (``E[v(t) v(s)'] = process_noise I delta(t - s)``).
+    Measurements ``y = C x(k) + sigma_m w`` are drawn for every agent every
+    step, stacked in agent order (``C = [C_1; ...; C_m]``).
     """
 
     def __init__(self, des: Design, seed: int, *, noise: bool = True):
         sc = des.scenario
         self.Cs = [np.asarray(C) for C in sc.system.Cs]
+        self.C = np.vstack(self.Cs)
+        self.offsets = np.cumsum([0] + [C.shape[0] for C in self.Cs])
         self.sigma_m = sc.system.measurement_noise if noise else 0.0
         sigma_p = sc.system.process_noise if noise else 0.0
         if sc.time == "continuous":
-            E, _, Qd = st.sampled_data_matrices(sc.system.A, sc.run.dt, noise_intensity=sigma_p**2)
+            E, _, Qd = st.sampled_data_matrices(sc.system.A, sc.run.dt, noise_intensity=sigma_p)
             self.F = E
             self.L = _psd_sqrt(Qd)
         else:
             self.F = np.array(sc.system.A)
             self.L = sigma_p * np.eye(sc.n)
         self.proc = stream(seed, "process")
-        self.meas = [stream(seed, "measurement", i) for i in range(sc.m)]
+        self.meas = stream(seed, "measurement")
         self.x = initial_state(des, seed)
 
-    def measure(self) -> list:
-        """``y_i(k)`` for every agent (draws one noise vector per agent)."""
-        return [C @ self.x + self.sigma_m * rng.normal(size=C.shape[0]) for C, rng in zip(self.Cs, self.meas)]
+    def measure(self) -> np.ndarray:
+        """Stacked ``y(k) = (y_1(k), ..., y_m(k))`` (one noise draw of ``sum s_i`` normals)."""
+        return self.C @ self.x + self.sigma_m * self.meas.normal(size=self.C.shape[0])
+
+    def split(self, y: np.ndarray) -> list:
+        """``[y_1, ..., y_m]`` from the stacked vector."""
+        return [y[a:b] for a, b in zip(self.offsets[:-1], self.offsets[1:])]
 
     def advance(self) -> np.ndarray:
         self.x = self.F @ self.x + self.L @ self.proc.normal(size=self.x.shape[0])
@@ -178,60 +186,81 @@ class _EstimatorBase:
             self.F = [self.A + K @ C for K, C in zip(self.Ks, self.Cs)]
 
 
+def _bmv(M: np.ndarray, X: np.ndarray) -> np.ndarray:
+    """Batched matrix-vector product: row i is ``M[i] @ X[i]``."""
+    return np.matmul(M, X[:, :, None])[:, :, 0]
+
+
 class BatchEstimator(_EstimatorBase):
-    """Vectorised estimator: state ``X`` (m, n); sparse weights; batched per-agent matrices."""
+    """Vectorised estimator: state ``X`` (m, n); sparse weights; batched per-agent matrices.
+
+    Discrete sub-rounds run in unobservable-space coordinates: from
+    eq. (split-discrete-p2), ``(I - P_i) z_i(k) = (I - P_i) x_i(tau)`` for every
+    k, and ``w = V'z`` obeys ``w(k) = c + B w(k-1)`` with ``B = V' Sbar V``
+    (eq. split_discrete_pr2) and ``c = V' Sbar (I - P) x(tau)``.  ``B`` is
+    block sparse (one ``n_i x n_j`` block per arc), so a sub-round costs one
+    sparse product with about ``sum_arcs n_i n_j`` non-zeros.
+    """
 
     def __init__(self, des: Design):
         super().__init__(des)
         s_max = max(C.shape[0] for C in self.Cs)
         self.Kp = np.zeros((self.m, self.n, s_max))
-        for i, K in enumerate(self.Ks):
+        rows, cols = [], []
+        for i, (K, C) in enumerate(zip(self.Ks, self.Cs)):
             self.Kp[i, :, : K.shape[1]] = K
-        self.s = [C.shape[0] for C in self.Cs]
+            rows += [i] * C.shape[0]
+            cols += list(range(C.shape[0]))
+        self._yidx = (np.array(rows), np.array(cols))
         self.Pst = np.stack(self.Ps)
         if self.continuous:
             self.KC = np.stack([K @ C for K, C in zip(self.Ks, self.Cs)])
         else:
             self.Fst = np.stack(self.F)
-        self._cache: dict = {}
+            self.Vbig = sp.block_diag([sp.csr_matrix(V) for V in self.Vs], format="csr")  # (mn, nbar)
+            self.VT = self.Vbig.T.tocsr()
 
-    def weights(self, rows: dict) -> sp.csr_matrix:
-        key = tuple(sorted((i, r) for i, r in rows.items()))
-        W = self._cache.get(key)
-        if W is None:
-            pos = {a: k for k, a in enumerate(self.sc.agent_ids)}
-            ri, ci, vals = [], [], []
-            for i, (nbs, ws) in rows.items():
-                for j, w in zip(nbs, ws):
-                    ri.append(pos[i])
-                    ci.append(pos[j])
-                    vals.append(w)
-            W = sp.csr_matrix((vals, (ri, ci)), shape=(self.m, self.m))
-            self._cache[key] = W
-        return W
+    def weights(self, rows: dict):
+        """Row i holds agent i's weights on its alive neighbours.
 
-    def step(self, X: np.ndarray, ys: list, rows: dict, alive: np.ndarray) -> np.ndarray:
-        W = self.weights(rows)
-        Y = np.zeros((self.m, self.Kp.shape[2]))
-        for i, y in enumerate(ys):
-            Y[i, : self.s[i]] = y
+        Continuous: sparse ``W`` (m x m).  Discrete: ``(B, G)`` with
+        ``B = V'(W (x) I)V`` and ``G = V'(W (x) I)``, both sparse.
+        """
+        pos = {a: k for k, a in enumerate(self.sc.agent_ids)}
+        ri, ci, vals = [], [], []
+        for i, (nbs, ws) in rows.items():
+            for j, w in zip(nbs, ws):
+                ri.append(pos[i])
+                ci.append(pos[j])
+                vals.append(w)
+        W = sp.csr_matrix((vals, (ri, ci)), shape=(self.m, self.m))
         if self.continuous:
-            avg = W @ X
-            diff = X - avg
-            if self.adaptive:
-                rate = np.einsum("mi,mij,mj->m", -diff, self.Pst, -diff)
-            corr = (np.einsum("mij,mj->mi", self.KC, X) - np.einsum("mis,ms->mi", self.Kp, Y)
-                    - self.g[:, None] * np.einsum("mij,mj->mi", self.Pst, diff))
+            return W
+        G = (self.VT @ sp.kron(W, sp.identity(self.n), format="csr")).tocsr()
+        return (G @ self.Vbig).tocsr(), G
+
+    def step(self, X: np.ndarray, y: np.ndarray, W, alive: np.ndarray) -> np.ndarray:
+        Y = np.zeros((self.m, self.Kp.shape[2]))
+        Y[self._yidx] = y
+        if self.continuous:
+            diff = X - W @ X
+            corr = _bmv(self.KC, X) - _bmv(self.Kp, Y) - self.g[:, None] * _bmv(self.Pst, diff)
             Xn = X @ self.E.T + corr @ self.D.T
             if self.adaptive:
+                # eq. (adaptive): |V_i'(avg_i - x_i)|^2 = diff' P_i diff
+                rate = np.einsum("mi,mi->m", diff, _bmv(self.Pst, diff))
                 self.g = np.where(alive, self.g + self.dt * rate, self.g)
         else:
-            Z = X
+            B, G = W
+            U = X - _bmv(self.Pst, X)  # (I - P_i) x_i, fixed through the sub-rounds
+            w = self.VT @ X.ravel()  # w_i = V_i' x_i
+            c = G @ U.ravel()
             for _ in range(self.q):
-                # eq. split-discrete-p2: z_i <- z_i + P_i (sum_j w_ij z_j - z_i)
-                Z = Z + np.einsum("mij,mj->mi", self.Pst, W @ Z - Z)
+                # eq. split-discrete-p2 in V coordinates: w_i <- V_i' sum_j w_ij z_j
+                w = c + B @ w
+            Z = U + (self.Vbig @ w).reshape(self.m, self.n)
             # eq. split-discrete-est1
-            Xn = np.einsum("mij,mj->mi", self.Fst, Z) - np.einsum("mis,ms->mi", self.Kp, Y)
+            Xn = _bmv(self.Fst, Z) - _bmv(self.Kp, Y)
         Xn[~alive] = 0.0
         return Xn
 
@@ -239,8 +268,16 @@ class BatchEstimator(_EstimatorBase):
 class AgentLoopEstimator(_EstimatorBase):
     """Plain per-agent loop over the step functions of :mod:`splitspec_core.steps`."""
 
-    def step(self, X: np.ndarray, ys: list, rows: dict, alive: np.ndarray) -> np.ndarray:
+    def __init__(self, des: Design):
+        super().__init__(des)
+        self.offsets = np.cumsum([0] + [C.shape[0] for C in self.Cs])
+
+    def weights(self, rows: dict) -> dict:
+        return rows
+
+    def step(self, X: np.ndarray, y: np.ndarray, rows: dict, alive: np.ndarray) -> np.ndarray:
         pos = {a: k for k, a in enumerate(self.sc.agent_ids)}
+        ys = [y[a:b] for a, b in zip(self.offsets[:-1], self.offsets[1:])]
         Xn = np.zeros_like(X)
         if self.continuous:
             g_next = self.g.copy()
@@ -330,7 +367,7 @@ def simulate(des: Design, *, seed: int | None = None, steps: int | None = None, 
     al = np.zeros((T, m), dtype=bool)
     gains = np.zeros((T, m)) if est.continuous and est.adaptive else None
     bar = _Progress(plan.steps, progress)
-    rows_cache: dict = {}
+    w_cache: dict = {}  # (graph, alive, dropped) -> the estimator's weights
     for k in range(T):
         for f in plan.faults.get(k, ()):
             if f.action in ("kill", "hang"):
@@ -356,12 +393,13 @@ def simulate(des: Design, *, seed: int | None = None, steps: int | None = None, 
             gains[k] = est.g
         if k == plan.steps:
             break
-        ys = plant.measure()
-        key = (int(plan.graph_seq[k]), tuple(alive), frozenset(dropped))
-        rows = rows_cache.get(key)
-        if rows is None:
-            rows = rows_cache[key] = consensus_rows(sc, key[0], [ids[i] for i in range(m) if alive[i]], key[2])
-        X = est.step(X, ys, rows, alive)
+        y = plant.measure()
+        key = (int(plan.graph_seq[k]), alive.tobytes(), frozenset(dropped))
+        W = w_cache.get(key)
+        if W is None:
+            rows = consensus_rows(sc, key[0], [ids[i] for i in range(m) if alive[i]], key[2])
+            W = w_cache[key] = est.weights(rows)
+        X = est.step(X, y, W, alive)
         plant.advance()
         bar.update(k + 1)
     return Trajectory(t=plan.times(), x=xs, xhat=xh, alive=al, graph=plan.graph_seq.copy(),

@@ -11,8 +11,8 @@ stream              key                                draws (per step)
 ==================  =================================  ==========================
 ``initial_state``   ()                                 ``n`` normals once (if no x0)
 ``process``         ()                                 ``n`` normals per step
-``measurement``     (agent index,)                     ``s_i`` normals per step,
-                                                       for every agent, dead or alive
+``measurement``     ()                                 ``sum s_i`` normals per step
+                                                       (all agents, dead or alive)
 ``estimate``        (agent index, incarnation)         ``n`` normals once
 ``switching``       ()                                 random switching signal
 ==================  =================================  ==========================

@@ -112,21 +112,28 @@ def _coefficient(draw, size: int) -> np.ndarray:
 
 
 @st.composite
-def _system(draw, m: int, time: str, n_max: int = 10) -> tuple:
-    n = draw(st.integers(1, n_max))
+def _system(draw, m: int, time: str, n_max: int = 10, own_cap: int = 10) -> tuple:
+    n = draw(st.integers(1, min(n_max, m * own_cap)))
     blocks = draw(_modes(n, time))
     nb = len(blocks)
     edges = tuple(int(e) for e in np.concatenate([[0], np.cumsum([b.shape[0] for b in blocks])]))
     D = np.zeros((n, n))
     for b, blk in enumerate(blocks):
         D[edges[b]:edges[b + 1], edges[b]:edges[b + 1]] = blk
-    # every block gets an owner (joint observability); agents may own more, or nothing
-    owners = draw(st.lists(st.integers(0, m - 1), min_size=nb, max_size=nb))
+    # every block gets an owner (joint observability); agents may own more, or nothing;
+    # an agent observes at most own_cap states (see scenarios(): Riccati conditioning)
+    size = [edges[b + 1] - edges[b] for b in range(nb)]
     owned = [set() for _ in range(m)]
-    for b, i in enumerate(owners):
+    load = [0] * m
+    for b in range(nb):
+        i = draw(st.sampled_from([k for k in range(m) if load[k] + size[b] <= own_cap]))
         owned[i].add(b)
+        load[i] += size[b]
     for i in range(m):
-        owned[i] |= draw(st.sets(st.integers(0, nb - 1), max_size=nb))
+        for b in draw(st.lists(st.integers(0, nb - 1), max_size=nb, unique=True)):
+            if b not in owned[i] and load[i] + size[b] <= own_cap:
+                owned[i].add(b)
+                load[i] += size[b]
     cs = []
     for i in range(m):
         rows = draw(st.integers(1, 2))
@@ -173,7 +180,21 @@ def scenarios(draw, *, time: str | None = None, q_method: str | None = None, m_m
     time = time or draw(st.sampled_from(["discrete", "continuous"]))
     m = draw(_sizes_m().filter(lambda k: k <= m_max))
     ids = sorted(draw(st.lists(st.integers(1, 40), min_size=m, max_size=m, unique=True)))
-    A, Cs, T, edges, owned = draw(_system(m, time, n_max))
+    rate = draw(st.floats(0.3, 0.95) if time == "discrete" else st.floats(0.2, 2.0))
+    gains = draw(st.sampled_from(["place", "riccati"]))
+    margins = [0.5, 0.5, 0.2, 1.0, 2.0]
+    own_cap = 10
+    if gains == "riccati":
+        # The shifted Riccati design (gains.py) is numerically fragile for one output observing many
+        # states with a large shift: scipy's CARE/DARE then fails ("Failed to find a finite solution")
+        # or returns an X whose closed loop misses the rate, and design_gain rejects it loudly.  E.g.
+        # continuous A = diag(-1, -0.8, ..., 0.6), C_1 = -1', rate 2, margin 0.5..2.  Keep Riccati
+        # to <= 6 states per agent and shifts rate (1 + margin) <= 3 (continuous), rate / (1 + margin)
+        # >= 0.15 (discrete); place covers the rest.
+        own_cap = 6
+        margins = [x for x in margins if (rate * (1 + x) <= 3.0 if time == "continuous" else rate / (1 + x) >= 0.15)]
+        margins = margins or [0.2]
+    A, Cs, T, edges, owned = draw(_system(m, time, n_max, own_cap))
     ngraphs = graphs or draw(st.integers(1, 2))
     gs = [draw(_arcs(m)) for _ in range(ngraphs)]
     names = [f"g{k + 1}" for k in range(ngraphs)]
@@ -193,11 +214,7 @@ def scenarios(draw, *, time: str | None = None, q_method: str | None = None, m_m
         else:
             dwell = draw(st.integers(1, 5)) if time == "discrete" else draw(st.floats(0.05, 2.0))
             data["switching"] = {"random": {"graphs": names, "dwell": dwell, "seed": draw(st.integers(0, 1000))}}
-    design: dict = {
-        "rate": draw(st.floats(0.3, 0.95) if time == "discrete" else st.floats(0.2, 2.0)),
-        "gains": draw(st.sampled_from(["place", "riccati"])),
-        "margin": draw(st.sampled_from([0.5, 0.5, 0.2, 1.0, 2.0])),
-    }
+    design: dict = {"rate": rate, "gains": gains, "margin": draw(st.sampled_from(margins))}
     if design["gains"] == "riccati" and draw(st.booleans()):
         design["riccati"] = {"process_weight": draw(st.floats(0.1, 10.0)),
                              "measurement_weight": draw(st.floats(0.1, 10.0))}

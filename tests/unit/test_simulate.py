@@ -1,0 +1,140 @@
+"""Batch simulator vs per-agent step functions, exact ODE, faults, reproducibility."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from splitspec_core.analysis import fit_decay, max_error
+from splitspec_core.design import design
+from splitspec_core.generate import random_strongly_connected_arcs, random_system
+from splitspec_core.scenario import load_scenario, parse_scenario
+from splitspec_core.simulate import Trajectory, simulate, simulate_exact
+from tests.conftest import EXAMPLES
+
+
+def random_scenario(seed: int, *, time: str, m: int = 5, n: int = 6, g="auto", noise=0.05, faults=()):
+    rng = np.random.default_rng(seed)
+    A, Cs = random_system(rng, m, n, time=time)
+    arcs_a = random_strongly_connected_arcs(rng, m, extra=m)
+    arcs_b = random_strongly_connected_arcs(rng, m, extra=2)
+    d = {"rate": 0.8, "gains": "place", "q": "auto"} if time == "discrete" else {"rate": 0.5, "gains": "riccati",
+                                                                                   "g": g}
+    return parse_scenario({
+        "name": f"rand{seed}", "time": time,
+        "system": {"A": A.tolist(), "C": {i + 1: C.tolist() for i, C in enumerate(Cs)},
+                   "process_noise": noise, "measurement_noise": noise},
+        "graphs": {"a": {"arcs": [[j + 1, i + 1] for j, i in arcs_a]},
+                   "b": {"arcs": [[j + 1, i + 1] for j, i in arcs_b]}},
+        "switching": {"random": {"graphs": ["a", "b"], "dwell": 3 if time == "discrete" else 0.05}},
+        "design": d,
+        "faults": list(faults),
+        "run": {"steps": 300, "seed": seed, **({"dt": 0.01} if time == "continuous" else {})},
+    })
+
+
+@pytest.mark.parametrize("time,g", [("discrete", None), ("continuous", "auto"), ("continuous", "adaptive")])
+@pytest.mark.parametrize("seed", [1, 2])
+def test_batch_equals_per_agent_step_functions(time, g, seed):
+    faults = [{"at": 100 if time == "discrete" else 1.0, "kill": 2},
+              {"at": 200 if time == "discrete" else 2.0, "restart": 2}]
+    sc = random_scenario(seed, time=time, g=g or "auto", faults=faults)
+    des = design(sc)
+    a = simulate(des, estimator="batch")
+    b = simulate(des, estimator="loop")
+    assert a.xhat.shape == (301, 5, 6)
+    assert np.array_equal(np.isnan(a.xhat), np.isnan(b.xhat))
+    assert np.nanmax(np.abs(a.xhat - b.xhat)) <= 1e-12 * max(1.0, np.nanmax(np.abs(a.xhat)))
+    assert np.array_equal(a.x, b.x)
+    assert len(set(a.graph.tolist())) == 2  # it really switched
+    if g == "adaptive":
+        assert np.allclose(a.gains, b.gains, rtol=1e-12, atol=1e-12)
+        assert np.all(np.diff(a.gains[:100], axis=0) >= 0)  # eq. (adaptive): g_i is non-decreasing
+
+
+def test_same_seed_same_trajectory_and_different_seed_differs():
+    des = design(load_scenario(EXAMPLES / "paper_discrete_switching.yaml"))
+    a, b, c = simulate(des, seed=3), simulate(des, seed=3), simulate(des, seed=4)
+    assert np.array_equal(a.xhat, b.xhat) and np.array_equal(a.x, b.x)
+    assert not np.allclose(a.x, c.x)
+
+
+def test_sampled_data_converges_to_exact_ode_as_dt_shrinks():
+    sc = load_scenario(EXAMPLES / "paper_continuous.yaml")
+    errs = []
+    for dt in (0.01, 0.005):
+        s2 = dataclasses.replace(sc, run=dataclasses.replace(sc.run, dt=dt, steps=int(round(2.0 / dt))),
+                                 system=dataclasses.replace(sc.system, process_noise=0.0))
+        des = design(s2)
+        sampled, exact = simulate(des), simulate_exact(des)
+        assert np.allclose(sampled.x, exact.x, atol=1e-12)  # same plant, same initial conditions
+        errs.append(np.nanmax(np.abs(sampled.xhat - exact.xhat)))
+    ratio = errs[0] / errs[1]
+    # first-order discretisation: halving dt halves the gap to the ODE
+    assert 1.7 < ratio < 2.4, (errs, ratio)
+    assert errs[1] < 0.05
+
+
+def test_exact_ode_meets_designed_rate():
+    sc = load_scenario(EXAMPLES / "paper_continuous_switching.yaml")
+    des = design(sc)
+    tr = simulate_exact(des, steps=600)
+    rate = fit_decay(tr.t, max_error(tr), time="continuous", scale=np.linalg.norm(tr.x, axis=1))
+    assert rate >= 1.0
+
+
+def test_kill_makes_row_nan_and_survivors_converge():
+    sc = load_scenario(EXAMPLES / "ring10.yaml")
+    sc = dataclasses.replace(sc, faults=parse_scenario(
+        {**_raw(EXAMPLES / "ring10.yaml"), "faults": [{"at": 10, "kill": 3}]}).faults)
+    des = design(sc)
+    assert des.redundantly_jointly_observable and des.redundantly_strongly_connected
+    tr = simulate(des, steps=80)
+    k = 2  # agent 3
+    assert np.all(np.isnan(tr.xhat[10:, k])) and np.all(np.isfinite(tr.xhat[:10, k]))
+    assert not tr.alive[10:, k].any() and tr.alive[:10, k].all()
+    e = tr.errors()
+    survivors = [i for i in range(10) if i != k]
+    assert np.max(e[-1, survivors]) < 1e-8 * np.max(e[0, survivors])
+    # the survivors keep the designed rate after the loss (resilience: 1)
+    rate = fit_decay(tr.t[10:], np.nanmax(e[10:, survivors], axis=1), time="discrete",
+                     scale=np.linalg.norm(tr.x[10:], axis=1))
+    assert rate <= 0.8
+
+
+def test_restart_rejoins_with_fresh_estimate_and_converges():
+    raw = _raw(EXAMPLES / "ring10.yaml")
+    sc = parse_scenario({**raw, "faults": [{"at": 10, "kill": 5}, {"at": 30, "restart": 5}]})
+    des = design(sc)
+    tr = simulate(des, steps=90)
+    k = 4
+    assert np.all(np.isnan(tr.xhat[10:30, k]))
+    assert np.all(np.isfinite(tr.xhat[30:, k]))
+    e = tr.errors()
+    assert e[30, k] > 1e-3  # fresh estimate, far from the truth
+    assert e[-1, k] < 1e-8 * e[30, k]
+
+
+def test_drop_arc_changes_weights_but_keeps_convergence():
+    raw = _raw(EXAMPLES / "paper_discrete.yaml")
+    sc = parse_scenario({**raw, "faults": [{"at": 5, "drop_arc": [1, 3]}, {"at": 15, "restore_arc": [1, 3]}]})
+    des = design(sc)
+    tr = simulate(des)
+    base = simulate(design(parse_scenario(raw)))
+    assert np.array_equal(tr.xhat[:6], base.xhat[:6])  # step 5 uses the reduced graph, x(6) differs
+    assert not np.allclose(tr.xhat[6:], base.xhat[6:])
+    assert np.nanmax(tr.errors()[-1]) < 1e-6
+
+
+def test_trajectory_roundtrip(tmp_path):
+    des = design(load_scenario(EXAMPLES / "paper_discrete.yaml"))
+    tr = simulate(des)
+    tr.save(tmp_path / "t.npz")
+    back = Trajectory.load(tmp_path / "t.npz")
+    for f in ("t", "x", "xhat", "alive", "graph", "agent_ids"):
+        assert np.array_equal(getattr(tr, f), getattr(back, f), equal_nan=f == "xhat")
+
+
+def _raw(path):
+    import yaml
+    return yaml.safe_load(open(path))
