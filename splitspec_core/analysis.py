@@ -47,9 +47,17 @@ def fit_decay(t: np.ndarray, err: np.ndarray, *, time: str, scale: np.ndarray | 
     return -slope if time == "continuous" else math.exp(slope)
 
 
-def envelope_constant(t: np.ndarray, err: np.ndarray, *, time: str, rate: float) -> float:
-    """Smallest ``c`` with ``err(t) <= c rate^t`` (discrete) or ``c exp(-rate t)`` (continuous)."""
+def envelope_constant(t: np.ndarray, err: np.ndarray, *, time: str, rate: float,
+                      scale: np.ndarray | None = None, floor_rel: float = 1e-9) -> float:
+    """Smallest ``c`` with ``err(t) <= c rate^t`` (discrete) or ``c exp(-rate t)`` (continuous).
+
+    Samples at the round-off floor (``floor_rel * scale(t)``, as in
+    :func:`fit_decay`) are ignored: there the error is float noise, not decay.
+    """
     env = np.exp(-rate * t) if time == "continuous" else rate ** t
+    err = np.asarray(err, dtype=float)
+    if scale is not None:
+        err = np.where(err > floor_rel * np.asarray(scale, dtype=float), err, np.nan)
     ratio = err / env
     return float(np.nanmax(ratio[np.isfinite(ratio)])) if np.isfinite(ratio).any() else float("nan")
 
@@ -58,7 +66,8 @@ def summarize(traj: Trajectory, *, time: str, rate: float, noise_free: Trajector
     """Final and max error per agent, measured decay rate vs the designed rate, alive agents."""
     e = traj.errors()
     ref = noise_free if noise_free is not None else traj
-    measured = fit_decay(ref.t, max_error(ref), time=time, scale=np.linalg.norm(ref.x, axis=1))
+    xnorm = np.linalg.norm(ref.x, axis=1)
+    measured = fit_decay(ref.t, max_error(ref), time=time, scale=xnorm)
     per_agent = {}
     for k, aid in enumerate(traj.agent_ids.tolist()):
         col = e[:, k]
@@ -76,7 +85,7 @@ def summarize(traj: Trajectory, *, time: str, rate: float, noise_free: Trajector
         "designed_rate": rate,
         "measured_rate": measured,
         "measured_meets_design": meets,
-        "envelope_c": envelope_constant(ref.t, max_error(ref), time=time, rate=rate),
+        "envelope_c": envelope_constant(ref.t, max_error(ref), time=time, rate=rate, scale=xnorm),
         "alive_at_end": [int(a) for a, ok in zip(traj.agent_ids, traj.alive[-1]) if ok],
         "agents": per_agent,
     }
