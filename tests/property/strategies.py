@@ -121,7 +121,7 @@ def _system(draw, m: int, time: str, n_max: int = 10, own_cap: int = 10) -> tupl
     for b, blk in enumerate(blocks):
         D[edges[b]:edges[b + 1], edges[b]:edges[b + 1]] = blk
     # every block gets an owner (joint observability); agents may own more, or nothing;
-    # an agent observes at most own_cap states (see scenarios(): Riccati conditioning)
+    # an agent observes at most own_cap states (see scenarios(): conditioning of the local gains)
     size = [edges[b + 1] - edges[b] for b in range(nb)]
     owned = [set() for _ in range(m)]
     load = [0] * m
@@ -183,7 +183,10 @@ def scenarios(draw, *, time: str | None = None, q_method: str | None = None, m_m
     rate = draw(st.floats(0.3, 0.95) if time == "discrete" else st.floats(0.2, 2.0))
     gains = draw(st.sampled_from(["place", "riccati"]))
     margins = [0.5, 0.5, 0.2, 1.0, 2.0]
-    own_cap = 10
+    # continuous pole placement with one output observing 8+ states needs gains |K| ~ 1e8 (e.g. A with
+    # four oscillators and a real mode, C_1 = [1 0 1 0 1 0 1 0 -0.375], rate 2): the design is exact
+    # but its closed-loop eigenvalues are not computable in double precision; keep 7 states per agent
+    own_cap = 10 if time == "discrete" else 7
     if gains == "riccati":
         # The shifted Riccati design (gains.py) is numerically fragile for one output observing many
         # states with a large shift: scipy's CARE/DARE then fails ("Failed to find a finite solution")
