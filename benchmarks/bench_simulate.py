@@ -118,7 +118,7 @@ def dense_simulate(des, seed: int, steps: int) -> tuple:
     Kbig = sla.block_diag(*Ks)
     setup = time.perf_counter() - t0
 
-    plant = Plant(des, seed, noise=True)
+    plant = Plant(des.scenario, seed, noise=True)
     z = np.concatenate([initial_estimate(n, seed, i) for i in range(m)])
     T = steps + 1
     xs = np.zeros((T, n))
@@ -145,7 +145,7 @@ def estimator_only(des, steps: int) -> tuple:
     sc = des.scenario
     est = BatchEstimator(des)
     rows = consensus_rows(sc, 0, sc.agent_ids)
-    ys = Plant(des, SEED, noise=True).measure()
+    ys = Plant(des.scenario, SEED, noise=True).measure()
     W = est.weights(rows)
     alive = np.ones(sc.m, dtype=bool)
     X = np.stack([initial_estimate(sc.n, SEED, i) for i in range(sc.m)])

@@ -112,12 +112,69 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_orchestrator(args: argparse.Namespace) -> int:
+    from .driver import main as orch_main
+
+    return orch_main(args)
+
+
+def _cmd_plant(args: argparse.Namespace) -> int:
+    import importlib
+
+    # the orchestrator never imports the process shells; the CLI dispatches to them
+    return importlib.import_module("plant.plant").main(args)
+
+
+def _cmd_agent(args: argparse.Namespace) -> int:
+    import importlib
+
+    return importlib.import_module("agents.agent").main(args)
+
+
+def _cmd_run(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from splitspec_core.design import design
+    from splitspec_core.scenario import load_scenario
+    from splitspec_core.wire import Keys
+
+    from .launcher import run_local
+
+    sc = load_scenario(args.scenario)
+    design(sc)  # fail fast, with one line, before starting any process
+    Keys(args.run_id)
+    out = Path(args.out)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise UsageError(f"cannot create output directory {out}: {exc.strerror}") from None
+    viewer = "spawn" if args.viewer else args.connect_viewer
+    code = run_local(str(args.scenario), out, run_id=args.run_id, viewer=viewer, wait=args.wait,
+                     round_timeout=args.round_timeout, agent_ids=sc.agent_ids, verbose=args.verbose)
+    rrd = out / "run.rrd"
+    if rrd.exists():
+        print(f"recording: {rrd}  (open it with: {Path(sys.executable).parent / 'rerun'} {rrd})")
+        print(f"trajectory: {out / 'trajectory.npz'}  events: {out / 'events.jsonl'}")
+    return code
+
+
+def _add_process_options(p: argparse.ArgumentParser) -> None:
+    from splitspec_core.wire import DEFAULT_RUN_ID
+
+    p.add_argument("--run-id", default=DEFAULT_RUN_ID,
+                   help=f"run id: key prefix splitspec/<run-id>/ (default {DEFAULT_RUN_ID!r}); several runs can "
+                        "share a router under different ids")
+    p.add_argument("--wait", type=float, default=60.0, help="seconds to wait for the other processes (default 60)")
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="splitspec",
         description="Split-spectrum distributed state estimation: design, simulate, deploy.",
     )
     parser.add_argument("-v", "--verbose", action="store_true", help="log more")
+    parser.add_argument("--log-level", default=None, choices=["debug", "info", "warning", "error"],
+                        help="logging level (default info; debug with -v)")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
 
@@ -142,14 +199,53 @@ def build_parser() -> argparse.ArgumentParser:
                                                         "instead of the sampled-data estimator")
     p.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
     p.set_defaults(func=_cmd_simulate)
+
+    p = sub.add_parser("run", help="local multi-process deployment: orchestrator, plant and one process per agent",
+                       description="Run the scenario as real processes talking over Zenoh on loopback: the "
+                                   "orchestrator (embedded router), the plant and one process per agent. Writes "
+                                   "trajectory.npz, events.jsonl and run.rrd to --out.")
+    p.add_argument("scenario", help="scenario YAML file")
+    p.add_argument("--out", required=True, help="output directory (created if missing)")
+    v = p.add_mutually_exclusive_group()
+    v.add_argument("--viewer", action="store_true", help="spawn the Rerun viewer and stream live")
+    v.add_argument("--connect-viewer", metavar="URL", help="stream live to a running Rerun viewer at URL")
+    p.add_argument("--round-timeout", type=float, default=10.0, help="seconds before a silent agent is declared lost")
+    _add_process_options(p)
+    p.set_defaults(func=_cmd_run)
+
+    p = sub.add_parser("orchestrator", help="the round driver (embedded Zenoh router); records the run",
+                       description="Serve the scenario and the centralised design, drive the rounds, record.")
+    p.add_argument("scenario", help="scenario YAML file")
+    p.add_argument("--listen", metavar="ENDPOINT", help="open an embedded Zenoh router here, e.g. tcp/0.0.0.0:7447")
+    p.add_argument("--connect", metavar="ENDPOINT", help="instead, join an external Zenoh router as a client")
+    p.add_argument("--out", required=True, help="output directory (created if missing)")
+    p.add_argument("--viewer", metavar="spawn|URL", help="also stream to a Rerun viewer ('spawn' or a URL)")
+    p.add_argument("--round-timeout", type=float, default=10.0, help="seconds before a silent agent is declared lost")
+    _add_process_options(p)
+    p.set_defaults(func=_cmd_orchestrator)
+
+    p = sub.add_parser("plant", help="the plant process (needs no scenario file)",
+                       description="The true system: fetches the scenario from the orchestrator, publishes "
+                                   "measurements and the truth each event time.")
+    p.add_argument("--connect", required=True, metavar="ENDPOINT", help="Zenoh router endpoint, e.g. tcp/host:7447")
+    _add_process_options(p)
+    p.set_defaults(func=_cmd_plant)
+
+    p = sub.add_parser("agent", help="one agent process (needs no scenario file)",
+                       description="One agent: fetches its part of the design, computes V_i, P_i, K_i locally "
+                                   "and runs the protocol.")
+    p.add_argument("--id", required=True, type=int, help="agent id (as in the scenario's system.C)")
+    p.add_argument("--connect", required=True, metavar="ENDPOINT", help="Zenoh router endpoint, e.g. tcp/host:7447")
+    _add_process_options(p)
+    p.set_defaults(func=_cmd_agent)
     return parser
 
 
 def main(argv: list | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
-    logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO,
-                        format="%(asctime)s %(name)s %(levelname)s %(message)s")
+    level = args.log_level.upper() if args.log_level else ("DEBUG" if args.verbose else "INFO")
+    logging.basicConfig(level=level, format="%(asctime)s %(name)s %(levelname)s %(message)s")
     try:
         return int(args.func(args) or 0)
     except SplitspecError as exc:
@@ -160,6 +256,11 @@ def main(argv: list | None = None) -> int:
     except KeyboardInterrupt:
         print("splitspec: interrupted", file=sys.stderr)
         return 130
+    except (TimeoutError, ValueError) as exc:  # e.g. no orchestrator answered; agent id not in the scenario
+        if os.environ.get("SPLITSPEC_DEBUG"):
+            raise
+        print(f"splitspec: error: {exc}", file=sys.stderr)
+        return EXIT_FAILED
     except BrokenPipeError:
         return 0
 

@@ -30,6 +30,7 @@ import scipy.sparse as sp
 from . import steps as st
 from .design import Design
 from .network import Plan, consensus_rows, make_plan
+from .scenario import Scenario
 from .streams import stream
 
 __all__ = [
@@ -95,9 +96,8 @@ class Trajectory:
 # --------------------------------------------------------------------------
 
 
-def initial_state(des: Design, seed: int) -> np.ndarray:
+def initial_state(sc: Scenario, seed: int) -> np.ndarray:
     """``x(0)``: the scenario's ``x0`` or ``n`` standard normals from the ``initial_state`` stream."""
-    sc = des.scenario
     if sc.system.x0 is not None:
         return np.array(sc.system.x0, dtype=float)
     return stream(seed, "initial_state").normal(size=sc.n)
@@ -119,8 +119,7 @@ class Plant:
     step, stacked in agent order (``C = [C_1; ...; C_m]``).
     """
 
-    def __init__(self, des: Design, seed: int, *, noise: bool = True):
-        sc = des.scenario
+    def __init__(self, sc: Scenario, seed: int, *, noise: bool = True):
         self.Cs = [np.asarray(C) for C in sc.system.Cs]
         self.C = np.vstack(self.Cs)
         self.offsets = np.cumsum([0] + [C.shape[0] for C in self.Cs])
@@ -135,7 +134,7 @@ class Plant:
             self.L = sigma_p * np.eye(sc.n)
         self.proc = stream(seed, "process")
         self.meas = stream(seed, "measurement")
-        self.x = initial_state(des, seed)
+        self.x = initial_state(sc, seed)
 
     def measure(self) -> np.ndarray:
         """Stacked ``y(k) = (y_1(k), ..., y_m(k))`` (one noise draw of ``sum s_i`` normals)."""
@@ -370,7 +369,7 @@ def simulate(des: Design, *, seed: int | None = None, steps: int | None = None, 
     seed = sc.run.seed if seed is None else seed
     plan = plan or make_plan(sc, seed, steps)
     est = BatchEstimator(des) if estimator == "batch" else AgentLoopEstimator(des)
-    plant = Plant(des, seed, noise=noise)
+    plant = Plant(sc, seed, noise=noise)
     m, n, T = sc.m, sc.n, plan.steps + 1
     ids = sc.agent_ids
     X = np.stack([initial_estimate(n, seed, i) for i in range(m)])
@@ -440,7 +439,7 @@ def simulate_exact(des: Design, *, seed: int | None = None, steps: int | None = 
     ids = sc.agent_ids
     A = np.array(sc.system.A)
     g = float(des.g)
-    z = np.concatenate([initial_state(des, seed)] + [initial_estimate(n, seed, i) for i in range(m)])
+    z = np.concatenate([initial_state(sc, seed)] + [initial_estimate(n, seed, i) for i in range(m)])
     alive = np.ones(m, dtype=bool)
     incarnation = np.zeros(m, dtype=int)
     dropped: set = set()

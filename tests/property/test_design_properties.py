@@ -418,3 +418,66 @@ def test_continuous_g_meets_rate(drawn):
             assert at_gm[0] <= -lam
         else:
             assert same(at_gm, (-lam,) * 3, 1e-4 * (1 + gm)), (at_gm, -lam)
+        # ... and is the smallest: no g on a grid below it meets the rate (bisection assumes one crossing)
+        if gm > 0 and full.nbar:
+            for x in np.linspace(0.0, gm * (1 - 1e-3), 41):
+                below = abscissa_interval(AV(x))
+                assert below[2] > -lam - 1e-9, (x, gm, below, -lam)
+
+
+@settings(max_examples=examples(40), **COMMON)
+@given(scenarios(time="continuous", graphs=2), st.data())
+def test_continuous_switching_certificates(drawn, data):
+    """thm:arb (doubly stochastic S) and eq. (split_continuous_g) (average dwell time), from full matrices."""
+    dsg = designed(drawn)
+    full, lam, g, by = Full(dsg), dsg.rate, dsg.g, dsg.g_certified_by
+    cases = {c.label for c in dsg.cases}
+    graphs = [gr for gr in dsg.graphs if gr.name in cases]
+    if not full.nbar:
+        return
+    I = np.eye(full.nbar)
+    Ms = {gr.name: I - full.B(gr.S) for gr in graphs}  # V'(I - Sbar)V
+    norm_a = norm2(full.Atil)
+    sym = lambda X: X + X.T  # noqa: E731
+    # thm:arb: g >= lam_max((lam I + Atil) + (.)') / min lam_min(V'((2I - S - S') (x) I)V)
+    if all(np.allclose(gr.S.sum(axis=0), 1.0, atol=1e-12) for gr in graphs):
+        num = max(np.linalg.eigvalsh(sym(lam * I + full.Atil))[-1], 0.0)
+        den = min(np.linalg.eigvalsh(full.V.T @ np.kron(2 * np.eye(full.m) - gr.S - gr.S.T, np.eye(full.n)) @ full.V)[0]
+                  for gr in graphs)
+        assert dsg.g_arbitrary == pytest.approx(num / den, rel=1e-7, abs=1e-12)
+    else:
+        assert dsg.g_arbitrary is None
+    # eq. (split_continuous_g): |exp(-V'(I - Sbar)V t)| <= c exp(-lam_star t) from the H-Lyapunov function
+    pis = {gr.name: perron(gr.S) for gr in graphs}
+    c = max(math.sqrt(pi.max() / pi.min()) for pi in pis.values())
+    lam_star = min(np.linalg.eigvalsh(full.V.T @ np.kron(2 * np.diag(pi) - np.diag(pi) @ gr.S - gr.S.T @ np.diag(pi),
+                                                         np.eye(full.n)) @ full.V)[0] / (2 * pis[gr.name].max())
+                   for gr in graphs)
+    for gr in graphs:
+        for t in (0.01, 0.1, 0.5, 1.0, 3.0):
+            assert norm2(sla.expm(-Ms[gr.name] * t)) <= c * math.exp(-lam_star * t) * (1 + 1e-9)
+    tau_d = dsg.dwell
+    if tau_d is not None:
+        g_dw = (math.log(c) + (lam + norm_a * c) * tau_d) / (lam_star * tau_d)
+        assert dsg.g_dwell == pytest.approx(g_dw, rel=1e-7)
+    # the auto g covers the certificate it names
+    assert by in ("thm:arb", "eq:split_continuous_g", None)
+    if by is None:
+        assert any("not certified for switching" in w for w in dsg.warnings)
+        return
+    cert = dsg.g_arbitrary if by == "thm:arb" else dsg.g_dwell
+    assert g >= cert
+    # switching products of exp(A_V(g) t) over random signals decay like exp(-lam T)
+    k = len(graphs)
+    pieces = data.draw(st.lists(st.tuples(st.integers(0, k - 1), st.floats(1.0, 3.0)), min_size=1, max_size=8),
+                       label="switching signal (graph, duration / dwell)")
+    scale = tau_d if by == "eq:split_continuous_g" else data.draw(st.floats(0.01, 1.0), label="time unit")
+    Psi, T = I, 0.0
+    for idx, f in pieces:
+        AV = full.Atil - g * Ms[graphs[idx].name]
+        if by == "thm:arb":
+            # common Lyapunov function |z|^2: (lam I + A_V) + (lam I + A_V)' <= 0 for every graph
+            assert np.linalg.eigvalsh(sym(lam * I + AV))[-1] <= 1e-9 * (1 + g)
+        Psi = sla.expm(AV * f * scale) @ Psi
+        T += f * scale
+        assert norm2(Psi) <= math.exp(-lam * T) * (1 + 1e-6)

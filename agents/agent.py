@@ -1,0 +1,323 @@
+"""One agent: fetches its part of the design, then runs the two-rate protocol round after round.
+
+The protocol logic lives in :class:`AgentNode` (no sockets: messages in,
+messages out), the Zenoh shell in :func:`main`.  The math is exactly the
+per-agent step functions of :mod:`splitspec_core.steps`, so a run equals
+``splitspec simulate`` to round-off.
+
+Round ``(tau, attempt)`` (discrete):  z_i(0) = x_i(tau), published on
+``z/<i>``; for k = 1..q wait for every neighbour's z_j(k-1) of the same
+(tau, attempt), then z_i(k) = consensus_subround(...) (published for k < q);
+then wait for y_i(tau) and publish x_i(tau+1) on ``xhat/<i>``.  The new
+estimate is committed when the tick of tau+1 arrives; a tick of the same tau
+with a higher attempt (a round re-run after a loss) discards it.
+Continuous time: one exchange per step (z = x_i(k)), then the sampled-data
+step (and the adaptive gain update, eq. adaptive).
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import os
+import signal
+import socket
+import sys
+import time
+
+import numpy as np
+import yaml
+
+from splitspec_core import steps as st
+from splitspec_core.design import design_agent, riccati_weights
+from splitspec_core.scenario import parse_scenario
+from splitspec_core.simulate import initial_estimate
+from splitspec_core.wire import DEFAULT_RUN_ID, Keys, WireError, decode, encode
+
+log = logging.getLogger("splitspec.agent")
+
+
+class AgentNode:
+    """Protocol state of agent ``agent_id``; ``on_*`` methods return ``[(key, payload), ...]`` to publish."""
+
+    def __init__(self, agent_id: int, config: dict, run_id: str):
+        self.id = agent_id
+        self.run_id = run_id
+        self.keys = Keys(run_id)
+        sc = parse_scenario(yaml.safe_load(config["scenario"]), source="config")
+        if agent_id not in sc.agent_ids:
+            raise ValueError(f"agent {agent_id} is not in the scenario (agents: {', '.join(map(str, sc.agent_ids))})")
+        self.sc = sc
+        self.seed = int(config["seed"])
+        self.index = sc.agent_ids.index(agent_id)
+        d = sc.design
+        pw, mw = riccati_weights(sc)
+        # the local, fully distributed part of the design: V_i, P_i, K_i from (A, C_i, lam)
+        local = design_agent(sc.system.A, sc.system.Cs[self.index], time=sc.time, rate=d.rate, method=d.gains,
+                             margin=d.margin, K=None if d.K is None else d.K[self.index], rank_tol=d.rank_tol,
+                             process_weight=pw, measurement_weight=mw, agent_id=agent_id)
+        self.A = np.array(sc.system.A)
+        self.C = np.asarray(sc.system.Cs[self.index])
+        self.K, self.P, self.V = local.K, local.P, local.V
+        self.n, self.s = sc.n, self.C.shape[0]
+        self.continuous = sc.time == "continuous"
+        if self.continuous:
+            self.E, self.D, _ = st.sampled_data_matrices(self.A, sc.run.dt)
+            self.dt = sc.run.dt
+            self.adaptive = config["g_mode"] == "adaptive"
+            self.g0 = float(d.g0) if self.adaptive else float(config["g"])
+            self.exchanges = 1
+        else:
+            self.F = self.A + self.K @ self.C
+            self.exchanges = int(config["q"])
+            self.adaptive = False
+            self.g0 = 0.0
+        # potential in-neighbours over every graph (subscriptions)
+        self.in_neighbours = sorted({j for g in sc.graphs for j, i in g.arcs if i == agent_id})
+        self.x = None  # committed x_i(tau)
+        self.g = self.g0
+        self.tau = None  # tau of the committed estimate
+        self.incarnation = None
+        self.round = None  # dict of the round in flight
+        self.candidate = None  # (tau + 1, x, g) computed, not yet committed
+        self.zbuf: dict = {}  # (tau, attempt, k) -> {j: z_j}
+        self.ybuf: dict = {}  # tau -> y_i(tau)
+        self.rejected: dict = {}
+
+    # ------------------------------------------------------------------ helpers
+
+    def reject(self, reason: str) -> None:
+        self.rejected[reason] = self.rejected.get(reason, 0) + 1
+
+    def _xhat(self, tau: int, attempt: int, x: np.ndarray, g: float) -> tuple:
+        return (self.keys.xhat(self.id), encode("xhat", self.run_id, tau=tau, attempt=attempt, agent=self.id,
+                                                  incarnation=int(self.incarnation), x=x, g=float(g),
+                                                  rejected=dict(self.rejected)))
+
+    def _z(self, k: int, z: np.ndarray) -> tuple:
+        r = self.round
+        return (self.keys.z(self.id), encode("z", self.run_id, tau=r["tau"], attempt=r["attempt"], k=k,
+                                               agent=self.id, z=z))
+
+    # ------------------------------------------------------------------ inputs
+
+    def on_tick(self, payload: bytes) -> list:
+        try:
+            t = decode(payload, self.run_id, "tick")
+        except WireError as e:
+            self.reject(e.reason)
+            return []
+        tau, attempt = t["tau"], t["attempt"]
+        out = []
+        if self.round is not None and (tau, attempt) <= (self.round["tau"], self.round["attempt"]):
+            self.reject("stale")
+            return []
+        rows = t["rows"]
+        me = rows.get(str(self.id))
+        if self.candidate is not None:
+            if self.candidate[0] == tau and me is not None:
+                _, self.x, self.g = self.candidate  # commit x_i(tau)
+                self.tau = tau
+            self.candidate = None
+        if me is None:  # not taking part (lost, or not admitted yet)
+            self.round = None
+            if self.x is not None and self.id not in t["alive"]:
+                self.x = None  # we were declared lost: a rejoin starts afresh
+            return []
+        inc = t["incarnation"].get(str(self.id), 0)
+        if self.x is None or inc != self.incarnation or self.tau != tau:
+            # admission (start or rejoin): a fresh estimate of this incarnation, reported first
+            self.incarnation = int(inc)
+            self.x = initial_estimate(self.n, self.seed, self.index, self.incarnation)
+            self.g = self.g0
+            self.tau = tau
+            out.append(self._xhat(tau, attempt, self.x, self.g))
+        # drop buffers of older rounds
+        self.zbuf = {k: v for k, v in self.zbuf.items() if (k[0], k[1]) >= (tau, attempt)}
+        self.ybuf = {k: v for k, v in self.ybuf.items() if k >= tau}
+        if t["final"]:
+            self.round = None
+            return out
+        nbs, ws = me
+        self.round = {"tau": tau, "attempt": attempt, "nbs": [int(j) for j in nbs], "ws": [float(w) for w in ws],
+                      "k": 0, "z": self.x.copy()}
+        out.append(self._z(0, self.round["z"]))
+        return out + self._advance()
+
+    def on_z(self, key: str, payload: bytes) -> list:
+        try:
+            m = decode(payload, self.run_id, "z")
+        except WireError as e:
+            self.reject(e.reason)
+            return []
+        sender = Keys.last(key)
+        if str(m["agent"]) != sender:
+            self.reject("wrong_sender")
+            return []
+        if m["z"].shape != (self.n,):
+            self.reject("bad_shape")
+            return []
+        r = self.round
+        here = (self.tau if r is None else r["tau"], -1 if r is None else r["attempt"])
+        tag = (m["tau"], m["attempt"])
+        if tag < here or not 0 <= m["k"] < self.exchanges:
+            self.reject("stale" if tag < here else "bad_k")
+            return []
+        # the next legitimate round is at most one event time ahead of the committed estimate
+        newest = r["tau"] if r is not None else (self.tau + 1 if self.tau is not None else None)
+        if (newest is not None and m["tau"] > newest) or (newest is None and len(self.zbuf) >= 4 * self.exchanges):
+            self.reject("future")
+            return []
+        slot = self.zbuf.setdefault((m["tau"], m["attempt"], m["k"]), {})
+        if m["agent"] in slot:
+            self.reject("duplicate")
+            return []
+        slot[m["agent"]] = m["z"]
+        return self._advance()
+
+    def on_y(self, payload: bytes) -> list:
+        try:
+            m = decode(payload, self.run_id, "y")
+        except WireError as e:
+            self.reject(e.reason)
+            return []
+        if m["agent"] != self.id or m["y"].shape != (self.s,):
+            self.reject("bad_shape" if m["agent"] == self.id else "wrong_agent")
+            return []
+        if self.tau is not None and m["tau"] < self.tau:
+            self.reject("stale")
+            return []
+        self.ybuf[m["tau"]] = m["y"]
+        return self._advance()
+
+    # ------------------------------------------------------------------ the round
+
+    def _neighbour_states(self, k: int):
+        r = self.round
+        slot = self.zbuf.get((r["tau"], r["attempt"], k), {})
+        states = []
+        for j in r["nbs"]:
+            if j == self.id:
+                states.append(r["z"])
+            elif j in slot:
+                states.append(slot[j])
+            else:
+                return None
+        return states
+
+    def _advance(self) -> list:
+        r = self.round
+        out = []
+        if r is None:
+            return out
+        if self.continuous:
+            states = self._neighbour_states(0)
+            y = self.ybuf.get(r["tau"])
+            if states is None or y is None:
+                return out
+            x_next = st.sampled_step(self.x, self.E, self.D, self.K, self.C, y, self.P, self.g, states, r["ws"])
+            g_next = self.g
+            if self.adaptive:
+                g_next = st.adaptive_gain_step(self.g, st.adaptive_gain_rate(self.V, self.x, states, r["ws"]), self.dt)
+            return self._finish(x_next, g_next)
+        while r["k"] < self.exchanges:
+            states = self._neighbour_states(r["k"])
+            if states is None:
+                return out
+            # eq. split-discrete-p2
+            r["z"] = st.consensus_subround(r["z"], self.P, states, r["ws"])
+            r["k"] += 1
+            if r["k"] < self.exchanges:
+                out.append(self._z(r["k"], r["z"]))
+        y = self.ybuf.get(r["tau"])
+        if y is None:
+            return out
+        # eq. split-discrete-est1
+        return out + self._finish(st.measurement_update(r["z"], self.F, self.K, y), 0.0)
+
+    def _finish(self, x_next: np.ndarray, g_next: float) -> list:
+        r = self.round
+        self.candidate = (r["tau"] + 1, x_next, g_next)
+        self.round = None
+        return [self._xhat(r["tau"] + 1, r["attempt"], x_next, g_next)]
+
+
+# ---------------------------------------------------------------------- process shell
+
+
+def fetch_config(session, keys: Keys, *, role: str, ident: int, wait: float) -> dict:
+    """Ask the orchestrator's queryable for the scenario and the centralised design."""
+    from splitspec_core.bus import query_bytes
+
+    hello = encode("hello", keys.run_id, role=role, id=int(ident), pid=os.getpid(), host=socket.gethostname())
+    raw = query_bytes(session, keys.config, timeout=2.0, payload=hello, retry_until=time.monotonic() + wait)
+    if raw is None:
+        raise TimeoutError(f"no orchestrator answered on {keys.config} within {wait:g} s")
+    return decode(raw, keys.run_id, "config")
+
+
+def install_stop_signals(inbox) -> None:
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: inbox.put(("signal", "", b"")))
+
+
+def main(args: argparse.Namespace) -> int:
+    """``splitspec agent --id I --connect ENDPOINT [--run-id ID]``."""
+    from splitspec_core.bus import LIVELINESS_DELETE, Inbox, open_session
+
+    keys = Keys(args.run_id or DEFAULT_RUN_ID)
+    session = open_session("client", connect=[args.connect])
+    inbox = Inbox(session)
+    install_stop_signals(inbox)
+    try:
+        # watch the orchestrator first: if it dies we must exit by ourselves
+        inbox.watch_liveliness(keys.alive("orchestrator"), "orchestrator")
+        cfg = fetch_config(session, keys, role="agent", ident=args.id, wait=args.wait)
+        node = AgentNode(args.id, cfg, keys.run_id)
+        pubs = {}
+
+        def publish(items):
+            for key, payload in items:
+                pub = pubs.get(key)
+                if pub is None:
+                    pub = pubs[key] = session.declare_publisher(key)
+                pub.put(payload)
+
+        inbox.subscribe(keys.tick, "tick")
+        inbox.subscribe(keys.y(args.id), "y")
+        inbox.subscribe(keys.control, "control")
+        for j in node.in_neighbours:
+            inbox.subscribe(keys.z(j), "z")
+        for key in (keys.xhat(args.id), keys.z(args.id)):
+            pubs[key] = session.declare_publisher(key)
+        token = session.liveliness().declare_token(keys.alive("agent", args.id))
+        log.info("agent %s ready (pid %d, q = %s)", args.id, os.getpid(), node.exchanges)
+        while True:
+            item = inbox.get(timeout=1.0)
+            if item is None:
+                continue
+            channel, key, payload = item
+            if channel == "tick":
+                publish(node.on_tick(payload))
+            elif channel == "z":
+                publish(node.on_z(key, payload))
+            elif channel == "y":
+                publish(node.on_y(payload))
+            elif channel == "control":
+                try:
+                    if decode(payload, keys.run_id, "control")["cmd"] == "stop":
+                        log.info("agent %s: stop from the orchestrator", args.id)
+                        break
+                except WireError as e:
+                    node.reject(e.reason)
+            elif channel == "orchestrator" and payload == LIVELINESS_DELETE:
+                log.warning("agent %s: orchestrator lost, exiting", args.id)
+                break
+            elif channel == "signal":
+                log.info("agent %s: interrupted", args.id)
+                break
+        token.undeclare()
+        return 0
+    finally:
+        inbox.close()
+        session.close()

@@ -1,0 +1,128 @@
+"""``splitspec run``: the one-command local deployment.
+
+Starts the orchestrator (embedded Zenoh router on a free loopback port,
+multicast scouting off), the plant and one process per agent, supervises
+them, forwards Ctrl-C, and leaves no process behind on any exit path:
+
+* every child asks the kernel for SIGTERM when the launcher dies
+  (``PR_SET_PDEATHSIG``), even if the launcher is SIGKILLed;
+* agents and plant exit by themselves when the orchestrator's liveliness
+  token disappears;
+* on the way out the launcher terminates, then kills, whatever is left.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import logging
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+log = logging.getLogger("splitspec.run")
+
+PR_SET_PDEATHSIG = 1
+
+
+def free_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _die_with_parent() -> None:  # runs in the child between fork and exec
+    try:
+        ctypes.CDLL("libc.so.6", use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGTERM)
+    except OSError:
+        pass
+
+
+def cli_command(*args: str) -> list:
+    """The command line that runs ``splitspec ARGS`` with this interpreter."""
+    return [sys.executable, "-m", "orchestrator.cli", *map(str, args)]
+
+
+def spawn(args: list, *, env: dict | None = None) -> subprocess.Popen:
+    return subprocess.Popen(args, preexec_fn=_die_with_parent, env=env, stdin=subprocess.DEVNULL)
+
+
+def wait_listening(port: int, proc: subprocess.Popen, timeout: float) -> bool:
+    """True once something accepts TCP connections on the port (the router is up)."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if proc.poll() is not None:
+            return False
+        try:
+            with socket.create_connection(("127.0.0.1", port), timeout=0.2):
+                return True
+        except OSError:
+            time.sleep(0.05)
+    return False
+
+
+def stop_all(procs: list, *, grace: float = 5.0) -> None:
+    """SIGTERM what is still running, then SIGKILL after ``grace`` seconds."""
+    for p in procs:
+        if p.poll() is None:
+            p.terminate()
+    deadline = time.monotonic() + grace
+    for p in procs:
+        try:
+            p.wait(timeout=max(0.0, deadline - time.monotonic()))
+        except subprocess.TimeoutExpired:
+            p.kill()
+            p.wait()
+
+
+def run_local(scenario: str, out: Path, *, run_id: str, viewer: str | None, wait: float,
+              round_timeout: float, agent_ids: tuple, verbose: bool = False) -> int:
+    """Start and supervise orchestrator, plant and agents; return the orchestrator's exit code."""
+    port = free_port()
+    endpoint = f"tcp/127.0.0.1:{port}"
+    quiet = [] if verbose else ["--log-level", "warning"]
+    orch_cmd = cli_command("orchestrator", scenario, "--listen", endpoint, "--out", out, "--run-id", run_id,
+                           "--wait", wait, "--round-timeout", round_timeout)
+    if viewer:
+        orch_cmd += ["--viewer", viewer]
+    procs: list = []
+    interrupted = False
+
+    def on_signal(signum, _frame):
+        nonlocal interrupted
+        interrupted = True
+        if procs and procs[0].poll() is None:
+            procs[0].send_signal(signal.SIGINT)  # the orchestrator writes its records and stops the others
+
+    old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        procs.append(spawn(orch_cmd))
+        if not wait_listening(port, procs[0], timeout=30.0):
+            code = procs[0].poll()
+            if code is not None:
+                return code
+            print(f"splitspec: error: the orchestrator did not listen on {endpoint} within 30 s", file=sys.stderr)
+            return 1
+        procs.append(spawn(cli_command(*quiet, "plant", "--connect", endpoint, "--run-id", run_id,
+                                       "--wait", wait)))
+        for aid in agent_ids:
+            procs.append(spawn(cli_command(*quiet, "agent", "--id", aid, "--connect", endpoint, "--run-id", run_id,
+                                           "--wait", wait)))
+        log.info("started orchestrator (pid %d), plant and %d agents on %s", procs[0].pid, len(agent_ids), endpoint)
+        while True:
+            code = procs[0].poll()
+            if code is not None:
+                break
+            time.sleep(0.05)
+        # the orchestrator told the others to stop; give them a moment, then make sure
+        deadline = time.monotonic() + 5.0
+        while any(p.poll() is None for p in procs[1:]) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        return 130 if interrupted and code == 0 else code
+    finally:
+        stop_all(procs)
+        for s, h in old.items():
+            signal.signal(s, h)

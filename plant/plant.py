@@ -1,0 +1,109 @@
+"""The plant: generates the true state and the measurements, one event time per tick.
+
+On tick ``tau``: if it is a new event time the plant moves ``x -> x(tau)``
+(process noise), then draws ``y(tau)`` (measurement noise, every agent) and
+publishes ``y_i(tau)`` on ``y/<i>`` and ``x(tau)`` on ``truth``.  A re-run of
+the same tick (a higher attempt) re-publishes the same values.  The draws are
+those of :class:`splitspec_core.simulate.Plant`, in the same order, so the
+truth equals the simulator's.  Agents never see the truth.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import os
+
+import numpy as np
+import yaml
+
+from splitspec_core.scenario import parse_scenario
+from splitspec_core.simulate import Plant
+from splitspec_core.wire import DEFAULT_RUN_ID, Keys, WireError, decode, encode
+
+log = logging.getLogger("splitspec.plant")
+
+
+class PlantNode:
+    """Plant protocol state; ``on_tick`` returns ``[(key, payload), ...]`` to publish."""
+
+    def __init__(self, config: dict, run_id: str):
+        self.run_id = run_id
+        self.keys = Keys(run_id)
+        self.sc = parse_scenario(yaml.safe_load(config["scenario"]), source="config")
+        self.plant = Plant(self.sc, int(config["seed"]))
+        self.tau = None
+        self.y = None
+        self.rejected: dict = {}
+
+    def _reject(self, reason: str) -> None:
+        self.rejected[reason] = self.rejected.get(reason, 0) + 1
+
+    def on_tick(self, payload: bytes) -> list:
+        try:
+            t = decode(payload, self.run_id, "tick")
+        except WireError as e:
+            self._reject(e.reason)
+            return []
+        tau = t["tau"]
+        if self.tau is None:
+            if tau != 0:
+                raise RuntimeError(f"the plant joined at event time {tau}: it must be present from event time 0")
+        elif tau == self.tau + 1:
+            self.plant.advance()
+        elif tau != self.tau:
+            self._reject("stale" if tau < self.tau else "future")
+            return []
+        if tau != self.tau:
+            self.tau = tau
+            self.y = self.plant.split(self.plant.measure())
+        out = [(self.keys.truth, encode("truth", self.run_id, tau=tau, attempt=t["attempt"], x=self.plant.x))]
+        if not t["final"]:
+            for aid, y in zip(self.sc.agent_ids, self.y):
+                out.append((self.keys.y(aid), encode("y", self.run_id, tau=tau, attempt=t["attempt"], agent=aid,
+                                                      y=np.asarray(y))))
+        return out
+
+
+def main(args: argparse.Namespace) -> int:
+    """``splitspec plant --connect ENDPOINT [--run-id ID]``."""
+    from agents.agent import fetch_config, install_stop_signals
+    from splitspec_core.bus import LIVELINESS_DELETE, Inbox, open_session
+
+    keys = Keys(args.run_id or DEFAULT_RUN_ID)
+    session = open_session("client", connect=[args.connect])
+    inbox = Inbox(session)
+    install_stop_signals(inbox)
+    try:
+        inbox.watch_liveliness(keys.alive("orchestrator"), "orchestrator")
+        cfg = fetch_config(session, keys, role="plant", ident=0, wait=args.wait)
+        node = PlantNode(cfg, keys.run_id)
+        pubs = {k: session.declare_publisher(k) for k in [keys.truth] + [keys.y(i) for i in node.sc.agent_ids]}
+        inbox.subscribe(keys.tick, "tick")
+        inbox.subscribe(keys.control, "control")
+        token = session.liveliness().declare_token(keys.alive("plant"))
+        log.info("plant ready (pid %d)", os.getpid())
+        while True:
+            item = inbox.get(timeout=1.0)
+            if item is None:
+                continue
+            channel, key, payload = item
+            if channel == "tick":
+                for k, p in node.on_tick(payload):
+                    pubs[k].put(p)
+            elif channel == "control":
+                try:
+                    if decode(payload, keys.run_id, "control")["cmd"] == "stop":
+                        break
+                except WireError:
+                    pass
+            elif channel == "orchestrator" and payload == LIVELINESS_DELETE:
+                log.warning("plant: orchestrator lost, exiting")
+                break
+            elif channel == "signal":
+                break
+        token.undeclare()
+        return 0
+    finally:
+        inbox.close()
+        session.close()

@@ -1,0 +1,142 @@
+"""The one module that talks to Zenoh (the process shells use it; the math never does).
+
+* :func:`zenoh_config` builds every session's config in one place: mode,
+  listen/connect endpoints, multicast scouting off, a short link lease so a
+  frozen process is detected within about a second;
+* :class:`Inbox` turns subscriber callbacks into one thread-safe queue: the
+  callbacks only enqueue ``(channel, key, payload bytes)`` (never block), and
+  the process's single event loop takes them off in order.
+"""
+
+from __future__ import annotations
+
+import json
+import queue
+import time
+from typing import Any
+
+import zenoh
+
+from .errors import SplitspecError
+
+__all__ = ["zenoh_config", "open_session", "Inbox", "BusError", "LIVELINESS_PUT", "LIVELINESS_DELETE"]
+
+LIVELINESS_PUT = "put"
+LIVELINESS_DELETE = "delete"
+
+
+class BusError(SplitspecError, RuntimeError):
+    """The middleware could not be set up (bad endpoint, port in use, no router)."""
+
+
+def zenoh_config(mode: str, *, listen: list | None = None, connect: list | None = None,
+                 lease_ms: int = 1000, user: str | None = None, password: str | None = None,
+                 extra: dict | None = None) -> zenoh.Config:
+    """Zenoh config: ``mode`` is ``router``, ``peer`` or ``client``; multicast scouting is off.
+
+    ``lease_ms`` is the link lease: a frozen peer is declared gone after it
+    (Zenoh's default is 10 s).
+    """
+    c = zenoh.Config()
+    try:
+        c.insert_json5("mode", json.dumps(mode))
+        if listen:
+            c.insert_json5("listen/endpoints", json.dumps(list(listen)))
+        if connect:
+            c.insert_json5("connect/endpoints", json.dumps(list(connect)))
+            # keep retrying the connection at start-up rather than failing at once
+            c.insert_json5("connect/timeout_ms", "-1" if mode != "client" else "30000")
+        c.insert_json5("scouting/multicast/enabled", "false")
+        c.insert_json5("transport/link/tx/lease", str(int(lease_ms)))
+        c.insert_json5("transport/link/tx/keep_alive", "4")
+        if user is not None:
+            c.insert_json5("transport/auth/usrpwd/user", json.dumps(user))
+            c.insert_json5("transport/auth/usrpwd/password", json.dumps(password or ""))
+        for k, v in (extra or {}).items():
+            c.insert_json5(k, json.dumps(v))
+    except Exception as exc:  # noqa: BLE001 - zenoh reports config errors as ZError/ValueError
+        raise BusError(f"invalid Zenoh configuration: {exc}") from None
+    return c
+
+
+def open_session(mode: str, **kw) -> zenoh.Session:
+    """Open a Zenoh session, turning failures into one-line :class:`BusError`s."""
+    cfg = zenoh_config(mode, **kw)
+    try:
+        return zenoh.open(cfg)
+    except Exception as exc:  # noqa: BLE001
+        where = kw.get("listen") or kw.get("connect") or ""
+        raise BusError(f"cannot open a Zenoh {mode} session on {', '.join(where)}: {exc}") from None
+
+
+class Inbox:
+    """One queue fed by many subscribers; keeps every subscriber referenced."""
+
+    def __init__(self, session: zenoh.Session):
+        self.session = session
+        self.q: queue.SimpleQueue = queue.SimpleQueue()
+        self._subs: list = []
+
+    def subscribe(self, key: str, channel: str) -> None:
+        q = self.q
+
+        def cb(sample, _c=channel, _q=q):
+            _q.put((_c, str(sample.key_expr), sample.payload.to_bytes()))
+
+        self._subs.append(self.session.declare_subscriber(key, cb))
+
+    def watch_liveliness(self, key: str, channel: str, *, history: bool = True) -> None:
+        q = self.q
+
+        def cb(sample, _c=channel, _q=q):
+            kind = LIVELINESS_DELETE if sample.kind == zenoh.SampleKind.DELETE else LIVELINESS_PUT
+            _q.put((_c, str(sample.key_expr), kind))
+
+        self._subs.append(self.session.liveliness().declare_subscriber(key, cb, history=history))
+
+    def serve(self, key: str, reply) -> None:
+        """Declare a queryable answering with ``reply(query) -> bytes`` (runs on a Zenoh thread)."""
+        def cb(query, _key=key):
+            try:
+                query.reply(_key, reply(query))
+            except Exception:  # noqa: BLE001 - a failing reply must not kill the Zenoh thread
+                pass
+
+        self._subs.append(self.session.declare_queryable(key, cb))
+
+    def get(self, timeout: float | None) -> tuple | None:
+        """Next ``(channel, key, payload)`` or ``None`` after ``timeout`` seconds."""
+        try:
+            return self.q.get(timeout=timeout) if timeout is None or timeout > 0 else self.q.get_nowait()
+        except queue.Empty:
+            return None
+
+    def put(self, item: tuple) -> None:
+        """Inject an item (e.g. a signal turned into an event)."""
+        self.q.put(item)
+
+    def close(self) -> None:
+        for s in self._subs:
+            try:
+                s.undeclare()
+            except Exception:  # noqa: BLE001
+                pass
+        self._subs.clear()
+
+
+def query_bytes(session: zenoh.Session, key: str, *, timeout: float, payload: bytes | None = None,
+                retry_until: float | None = None) -> bytes | None:
+    """First reply's payload of ``get(key)``; retried until ``retry_until`` (monotonic) if given."""
+    while True:
+        try:
+            kw: dict[str, Any] = {"timeout": timeout}
+            if payload is not None:
+                kw["payload"] = payload
+            for reply in session.get(key, **kw):
+                if reply.ok is not None:
+                    return reply.ok.payload.to_bytes()
+        except Exception:  # noqa: BLE001 - the router may not be reachable yet
+            pass
+        if retry_until is None or time.monotonic() > retry_until:
+            return None
+        time.sleep(0.1)

@@ -1,0 +1,202 @@
+"""Wire format and key space of the runtime (pure: no sockets).
+
+Every message is a msgpack map with the schema version ``v``, the run id
+``run``, the message ``type`` and its fields; arrays travel as
+``{"shape": [...], "data": <float64 little-endian bytes>}``.
+:func:`decode` validates everything (type, run id, fields, shapes,
+finiteness) and raises :class:`WireError` with a short reason, which the
+receiving process counts and logs; nothing that fails validation is used.
+
+Keys live under ``splitspec/<run_id>/`` (:class:`Keys` builds all of them):
+
+==========================  ======================  ==========================================
+key                         from -> to              payload
+==========================  ======================  ==========================================
+``config``                  queryable (orchestr.)   scenario + centralised design (g or q)
+``tick``                    orchestrator -> all     tau, attempt, graph, neighbour rows, alive
+``y/<i>``                   plant -> agent i        tau, attempt, y_i(tau)
+``truth``                   plant -> orchestrator   tau, attempt, x(tau)
+``z/<i>``                   agent i -> neighbours   tau, attempt, k, z_i(k)
+``xhat/<i>``                agent i -> orchestrator tau, attempt, x_i(tau) (+ g_i, rejected counts)
+``control``                 orchestrator -> all     stop
+``alive/<role>/<id>``       liveliness token        presence; DELETE is a death
+==========================  ======================  ==========================================
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import msgpack
+import numpy as np
+
+from .errors import SplitspecError
+
+__all__ = ["SCHEMA_VERSION", "DEFAULT_RUN_ID", "Keys", "WireError", "encode", "decode", "pack_array",
+           "unpack_array", "MESSAGE_FIELDS"]
+
+SCHEMA_VERSION = 1
+DEFAULT_RUN_ID = "default"
+
+
+class WireError(SplitspecError, ValueError):
+    """A message failed validation; ``reason`` is a short tag for counting."""
+
+    def __init__(self, reason: str, detail: str = ""):
+        super().__init__(f"{reason}: {detail}" if detail else reason)
+        self.reason = reason
+
+
+@dataclass(frozen=True)
+class Keys:
+    """The key expressions of one run."""
+
+    run_id: str = DEFAULT_RUN_ID
+
+    def __post_init__(self):
+        bad = set("/*$?#") & set(self.run_id)
+        if not self.run_id or bad:
+            raise SplitspecError(f"--run-id must be non-empty without / * $ ? #, got {self.run_id!r}")
+
+    @property
+    def prefix(self) -> str:
+        return f"splitspec/{self.run_id}"
+
+    @property
+    def config(self) -> str:
+        return f"{self.prefix}/config"
+
+    @property
+    def tick(self) -> str:
+        return f"{self.prefix}/tick"
+
+    @property
+    def truth(self) -> str:
+        return f"{self.prefix}/truth"
+
+    @property
+    def control(self) -> str:
+        return f"{self.prefix}/control"
+
+    def y(self, i: int | str) -> str:
+        return f"{self.prefix}/y/{i}"
+
+    def z(self, i: int | str) -> str:
+        return f"{self.prefix}/z/{i}"
+
+    def xhat(self, i: int | str) -> str:
+        return f"{self.prefix}/xhat/{i}"
+
+    def alive(self, role: str, ident: int | str = 0) -> str:
+        return f"{self.prefix}/alive/{role}/{ident}"
+
+    @property
+    def alive_all(self) -> str:
+        return f"{self.prefix}/alive/**"
+
+    @staticmethod
+    def last(key: str) -> str:
+        """Last chunk of a key (the agent id of ``.../z/3``)."""
+        return str(key).rsplit("/", 1)[-1]
+
+
+# --------------------------------------------------------------------------
+# arrays
+# --------------------------------------------------------------------------
+
+
+def pack_array(a) -> dict:
+    a = np.ascontiguousarray(a, dtype="<f8")
+    return {"shape": list(a.shape), "data": a.tobytes()}
+
+
+def unpack_array(obj, field: str, *, shape: tuple | None = None, finite: bool = True) -> np.ndarray:
+    if not isinstance(obj, dict) or set(obj) != {"shape", "data"}:
+        raise WireError("bad_field", f"{field} is not an array")
+    shp, data = obj["shape"], obj["data"]
+    if (not isinstance(shp, list) or not all(isinstance(d, int) and not isinstance(d, bool) and 0 <= d < 1 << 20
+                                             for d in shp) or not isinstance(data, bytes)):
+        raise WireError("bad_field", f"{field} has a malformed shape or data")
+    if len(data) != 8 * math.prod(shp):
+        raise WireError("bad_shape", f"{field}: {len(data)} bytes for shape {shp}")
+    a = np.frombuffer(data, dtype="<f8").reshape(shp).astype(float)
+    if shape is not None and a.shape != tuple(shape):
+        raise WireError("bad_shape", f"{field} has shape {a.shape}, expected {tuple(shape)}")
+    if finite and not np.all(np.isfinite(a)):
+        raise WireError("non_finite", f"{field} has NaN or inf")
+    return a
+
+
+# --------------------------------------------------------------------------
+# messages
+# --------------------------------------------------------------------------
+
+#: required fields (name -> kind) per message type; kinds: int, float, str, array, any
+MESSAGE_FIELDS = {
+    "tick": {"tau": "int", "attempt": "int", "graph": "int", "alive": "list", "rows": "map", "final": "bool",
+             "incarnation": "map"},
+    "y": {"tau": "int", "attempt": "int", "agent": "int", "y": "array"},
+    "truth": {"tau": "int", "attempt": "int", "x": "array"},
+    "z": {"tau": "int", "attempt": "int", "k": "int", "agent": "int", "z": "array"},
+    "xhat": {"tau": "int", "attempt": "int", "agent": "int", "incarnation": "int", "x": "array", "g": "float",
+             "rejected": "map"},
+    "control": {"cmd": "str"},
+    "config": {"scenario": "str", "seed": "int", "g": "any", "q": "any", "g_mode": "any"},
+    "hello": {"role": "str", "id": "int", "pid": "int", "host": "str"},
+}
+
+_CHECK = {
+    "int": lambda v: isinstance(v, int) and not isinstance(v, bool),
+    "float": lambda v: isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v),
+    "str": lambda v: isinstance(v, str),
+    "bool": lambda v: isinstance(v, bool),
+    "list": lambda v: isinstance(v, list),
+    "map": lambda v: isinstance(v, dict),
+    "array": lambda v: isinstance(v, dict),
+    "any": lambda v: True,
+}
+
+
+def encode(msg_type: str, run_id: str, **fields) -> bytes:
+    """Encode a message; numpy arrays become packed arrays."""
+    body = {"v": SCHEMA_VERSION, "run": run_id, "type": msg_type}
+    for k, v in fields.items():
+        body[k] = pack_array(v) if isinstance(v, np.ndarray) else v
+    return msgpack.packb(body, use_bin_type=True)
+
+
+def decode(payload: bytes, run_id: str, expected_type: str) -> dict:
+    """Decode and validate one message of ``expected_type`` for ``run_id``.
+
+    Arrays are returned as float64 numpy arrays (finite).  Shapes are checked
+    by the caller, which knows them (``unpack`` already guarantees
+    consistency between shape and data).
+
+    Raises
+    ------
+    WireError
+        ``garbage``, ``bad_version``, ``wrong_run``, ``wrong_type``,
+        ``missing_field``, ``bad_field``, ``bad_shape`` or ``non_finite``.
+    """
+    try:
+        body = msgpack.unpackb(payload, raw=False, strict_map_key=True)
+    except Exception as exc:  # noqa: BLE001 - any decoder failure is garbage on the wire
+        raise WireError("garbage", type(exc).__name__) from None
+    if not isinstance(body, dict):
+        raise WireError("garbage", "not a map")
+    if body.get("v") != SCHEMA_VERSION:
+        raise WireError("bad_version", f"schema {body.get('v')!r}")
+    if body.get("run") != run_id:
+        raise WireError("wrong_run", f"run {body.get('run')!r}")
+    if body.get("type") != expected_type:
+        raise WireError("wrong_type", f"type {body.get('type')!r}, expected {expected_type}")
+    out = {}
+    for name, kind in MESSAGE_FIELDS[expected_type].items():
+        if name not in body:
+            raise WireError("missing_field", name)
+        v = body[name]
+        if not _CHECK[kind](v):
+            raise WireError("bad_field", name)
+        out[name] = unpack_array(v, name) if kind == "array" else v
+    return out
