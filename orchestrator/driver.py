@@ -113,6 +113,14 @@ class Orchestrator:
         self.rejected_total += count
         self.rec.event("message_rejected", t, by=source, reason=reason, count=count)
 
+    def _count_remote(self, who: str, counts: dict, t_now: float) -> None:
+        """Log what another process rejected since its last report (it sends running totals)."""
+        prev = self.remote_rejected.setdefault(who, {})
+        for reason, count in counts.items():
+            if isinstance(count, int) and count > prev.get(reason, 0):
+                self._reject(who, str(reason), t_now, count - prev.get(reason, 0))
+                prev[reason] = count
+
     def _handle(self, item, t_now: float) -> None:
         """Process one inbox item (any phase)."""
         channel, key, payload = item
@@ -148,6 +156,7 @@ class Orchestrator:
                 self._reject("orchestrator", e.reason, t_now)
                 return
             self.truth[m["tau"]] = m["x"]
+            self._count_remote("plant", m["rejected"], t_now)
         elif channel == "xhat":
             try:
                 m = decode(payload, self.keys.run_id, "xhat")
@@ -164,11 +173,7 @@ class Orchestrator:
                 return
             self.est.setdefault(m["tau"], {})[aid] = m["x"]
             self.gains[aid] = m["g"]
-            prev = self.agent_rejected.setdefault(aid, {})
-            for reason, count in m["rejected"].items():
-                if isinstance(count, int) and count > prev.get(reason, 0):
-                    self._reject(f"agent {aid}", str(reason), t_now, count - prev.get(reason, 0))
-                    prev[reason] = count
+            self._count_remote(f"agent {aid}", m["rejected"], t_now)
         elif channel == "signal":
             self.stop_requested = True
 
@@ -238,7 +243,7 @@ class Orchestrator:
         self.truth: dict = {}
         self.est: dict = {}
         self.gains: dict = {}
-        self.agent_rejected: dict = {}
+        self.remote_rejected: dict = {}
         self.rejected_total = 0
         code = EXIT_OK
         t_start = time.monotonic()

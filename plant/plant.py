@@ -57,7 +57,8 @@ class PlantNode:
         if tau != self.tau:
             self.tau = tau
             self.y = self.plant.split(self.plant.measure())
-        out = [(self.keys.truth, encode("truth", self.run_id, tau=tau, attempt=t["attempt"], x=self.plant.x))]
+        out = [(self.keys.truth, encode("truth", self.run_id, tau=tau, attempt=t["attempt"], x=self.plant.x,
+                                        rejected=dict(self.rejected)))]
         if not t["final"]:
             for aid, y in zip(self.sc.agent_ids, self.y):
                 out.append((self.keys.y(aid), encode("y", self.run_id, tau=tau, attempt=t["attempt"], agent=aid,

@@ -31,7 +31,6 @@ from dataclasses import dataclass
 
 import numpy as np
 import scipy.linalg as sla
-from scipy.signal import place_poles
 
 from .errors import AssumptionError, DesignError
 from .observability import Decomposition
@@ -100,6 +99,8 @@ def place_gain(dec: Decomposition, *, time: str, rate: float, margin: float = 0.
     s = dec.Cbar.shape[0]
     if r == 0:
         return _lift(dec, np.zeros((0, s)), "place")
+    from scipy.signal import place_poles  # imported here: scipy.signal costs ~1.5 s at start-up
+
     T, Ct = _output_basis(dec.Cbar)
     poles = target_poles(r, time, rate, margin)
     # dual problem: eig(Abar' - Ct' F) = poles  =>  eig(Abar + (-F') Ct) = poles

@@ -137,7 +137,7 @@ MESSAGE_FIELDS = {
     "tick": {"tau": "int", "attempt": "int", "graph": "int", "alive": "list", "rows": "map", "final": "bool",
              "incarnation": "map"},
     "y": {"tau": "int", "attempt": "int", "agent": "int", "y": "array"},
-    "truth": {"tau": "int", "attempt": "int", "x": "array"},
+    "truth": {"tau": "int", "attempt": "int", "x": "array", "rejected": "map"},
     "z": {"tau": "int", "attempt": "int", "k": "int", "agent": "int", "z": "array"},
     "xhat": {"tau": "int", "attempt": "int", "agent": "int", "incarnation": "int", "x": "array", "g": "float",
              "rejected": "map"},

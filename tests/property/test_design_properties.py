@@ -6,10 +6,18 @@ paper (``Abar = blockdiag(A + K_i C_i)``, ``P = blockdiag(P_i)``,
 quantities the library works with (``bounds.Case``: Gram-matrix ``B``,
 ``A_un``, ``h``), so a slip in the library's reductions shows up here.
 
-Scenarios come from :mod:`strategies` (valid by construction: jointly
-observable, strongly connected).  Environment: ``HYPOTHESIS_PROFILE=ci`` runs
-the same examples on every run (derandomized); the default profile draws new
-ones each run.
+Eigenvalues of these non-normal matrices can be ill-conditioned (agents that
+see nothing on a directed path make ``S`` restricted to them a Jordan block),
+so spectral radii and abscissae are compared as round-off intervals
+(:func:`radius_interval`), never with a fixed tolerance.
+
+Scenarios come from :mod:`.strategies` (valid by construction: jointly
+observable, strongly connected).  Environment:
+
+* ``HYPOTHESIS_PROFILE=ci``: the same examples on every run (derandomized);
+  the default profile draws new ones each run;
+* ``SPLITSPEC_PROPERTY_SCALE=10``: ten times the examples (a longer hunt
+  than the ~30 s default budget).
 """
 
 from __future__ import annotations
@@ -20,7 +28,7 @@ import os
 import numpy as np
 import pytest
 import scipy.linalg as sla
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 
 from splitspec_core.design import design
@@ -31,18 +39,17 @@ from .strategies import graph_sequences, scenarios
 
 settings.register_profile("ci", derandomize=True)
 settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "default"))
-# SPLITSPEC_PROPERTY_SCALE=10 runs ten times the examples (a longer hunt than the CI budget)
 SCALE = float(os.environ.get("SPLITSPEC_PROPERTY_SCALE", "1"))
-
-
-def examples(n: int) -> int:
-    return max(1, int(n * SCALE))
+COMMON = dict(deadline=None, suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
 
 # scipy.signal.place_poles (method YT, multi-output C_i) warns when its robustness iteration stops
 # early; the poles are still placed and design_gain checks them against the rate.
 pytestmark = pytest.mark.filterwarnings("ignore:Convergence was not reached:UserWarning")
 
-COMMON = dict(deadline=None, suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
+
+def examples(n: int) -> int:
+    """``n`` examples times ``SPLITSPEC_PROPERTY_SCALE``."""
+    return max(1, int(n * SCALE))
 
 
 # --------------------------------------------------------------------------
@@ -66,14 +73,6 @@ def blockdiag(blocks) -> np.ndarray:
 def complement(V: np.ndarray) -> np.ndarray:
     """``Q_i'``: orthonormal basis of the orthogonal complement of ``span V_i``."""
     return np.eye(V.shape[0]) if V.shape[1] == 0 else sla.null_space(V.T, rcond=1e-12)
-
-
-def spectral_radius(M: np.ndarray) -> float:
-    return float(np.max(np.abs(np.linalg.eigvals(M)))) if M.size else 0.0
-
-
-def abscissa(M: np.ndarray) -> float:
-    return float(np.max(np.linalg.eigvals(M).real)) if M.size else -math.inf
 
 
 def _eig_errors(M: np.ndarray) -> tuple:
@@ -193,9 +192,24 @@ def expected_S(sc, graph) -> np.ndarray:
     return adj.T / adj.T.sum(axis=1, keepdims=True)
 
 
+def _bucket(k: int) -> str:
+    return "0" if k == 0 else "1" if k == 1 else "2-9" if k < 10 else "10-99" if k < 100 else "100+"
+
+
 def designed(drawn, **kw):
+    """Design the drawn scenario; record its shape for ``--hypothesis-show-statistics``."""
     sc = parse_scenario(drawn.data)
-    return design(sc, **kw)
+    dsg = design(sc, **kw)
+    nbar = sum(V.shape[1] for V in dsg.Vs)
+    event(f"m={sc.m}")
+    event(f"n={sc.n}")
+    event(f"nbar={_bucket(nbar)}")
+    event(f"gains={sc.design.gains}, graphs={len(sc.graphs)}, weights={sc.design.weights}")
+    if sc.time == "discrete":
+        event(f"q_method={sc.design.q_method}, q={_bucket(dsg.q)}")
+    else:
+        event(f"g certified by {dsg.g_certified_by}")
+    return dsg
 
 
 # --------------------------------------------------------------------------
@@ -203,7 +217,7 @@ def designed(drawn, **kw):
 # --------------------------------------------------------------------------
 
 
-@settings(max_examples=examples(60), **COMMON)
+@settings(max_examples=examples(100), **COMMON)
 @given(scenarios())
 def test_local_decomposition_and_gains(drawn):
     dsg = designed(drawn)
@@ -241,15 +255,15 @@ def test_local_decomposition_and_gains(drawn):
 # --------------------------------------------------------------------------
 
 
-@settings(max_examples=examples(60), **COMMON)
+@settings(max_examples=examples(120), **COMMON)
 @given(scenarios(time="discrete"))
 def test_discrete_error_matrix_meets_rate(drawn):
     dsg = designed(drawn)
     full, res, q = Full(dsg), dsg.q_result, dsg.q
     assert res.certified, f"auto q = {q} is not certified by {res.method} (bound {res.bound})"
     # the gains put the observable part strictly inside the rate: rho(blockdiag(Abar_i + Kbar_i Cbar_i))
-    rho_obs = spectral_radius(full.AbarV)
-    assert rho_obs < full.rate
+    rho_obs = radius_interval(full.AbarV)
+    assert rho_obs[0] < full.rate
     rho_V = {}
     for graph in dsg.graphs:
         M = full.discrete_error(graph.S, q)
@@ -263,7 +277,7 @@ def test_discrete_error_matrix_meets_rate(drawn):
         # eq. (split_discrete_as): spec(M) = spec(Abar_V) U spec(A_V)
         rho_V[graph.name] = radius_interval(AV)
         rho_M = radius_interval(M)
-        split = top(radius_interval(full.AbarV), rho_V[graph.name])
+        split = top(rho_obs, rho_V[graph.name])
         assert same(rho_M, split, 1e-9), (rho_M, split)
         # the certificate bounds (or is) the spectral radius, for each graph held constant
         assert rho_M[1] <= full.rate + 1e-9 + (rho_M[2] - rho_M[1])
@@ -274,8 +288,9 @@ def test_discrete_error_matrix_meets_rate(drawn):
         assert same((res.bound,) * 3, worst, 1e-9), (res.bound, worst)
         # q is the smallest that works for every graph
         if q > 1:
-            assert max(spectral_radius(full.Atil @ np.linalg.matrix_power(full.B(g.S), q - 1))
-                       for g in dsg.graphs) >= full.rate
+            before = top(*(radius_interval(full.Atil @ np.linalg.matrix_power(full.B(g.S), q - 1))
+                           for g in dsg.graphs))
+            assert before[2] >= full.rate, before
     else:
         assert worst[0] <= res.bound * (1 + 1e-9) + 1e-12
 
@@ -313,7 +328,7 @@ def _product_check(full, dsg, q: int, seq, *, reduced_bound):
         assert norm2(Phi) <= c * lam**tau * (1 + 1e-8) + 1e-12
 
 
-@settings(max_examples=examples(40), **COMMON)
+@settings(max_examples=examples(100), **COMMON)
 @given(scenarios(time="discrete"), st.data())
 def test_discrete_q_certificates_from_full_matrices(drawn, data):
     dsg = designed(drawn, compare_q_methods=True)
@@ -328,7 +343,7 @@ def test_discrete_q_certificates_from_full_matrices(drawn, data):
             # max over graphs |Atil B^q|_2 <= rate bounds every switching product
             vals = [norm2(full.Atil @ np.linalg.matrix_power(B, q)) for B in Bs.values()]
             assert max(vals, default=0.0) == pytest.approx(res.bound, rel=1e-7, abs=1e-12)
-            assert max(vals, default=0.0) <= lam
+            assert max(vals, default=0.0) <= lam * (1 + 1e-9)
             assert res.p * res.pbar == q
         elif method == "mixed":
             # eqs. (rajit), (rajit2), (rajit3): q = p pbar, ||B^p|| < 1, ||Atil|| ||B^p||^pbar <= rate
@@ -356,8 +371,9 @@ def test_discrete_q_certificates_from_full_matrices(drawn, data):
                 assert nb < 1.0  # eq. (ino)
                 assert wnorm(full.Atil) * nb**q <= lam * (1 + 1e-12)
         else:  # spectral
-            assert max((spectral_radius(full.Atil @ np.linalg.matrix_power(B, q)) for B in Bs.values()),
-                       default=0.0) < lam * (1 + 1e-9)
+            for B in Bs.values():
+                iv = radius_interval(full.Atil @ np.linalg.matrix_power(B, q))
+                assert iv[1] < lam + 1e-9 + (iv[2] - iv[1]), (iv, lam)
     if not full.nbar:
         return
     # switching products over random graph sequences (two-norm and mixed certify arbitrary switching)
@@ -373,14 +389,14 @@ def test_discrete_q_certificates_from_full_matrices(drawn, data):
 # --------------------------------------------------------------------------
 
 
-@settings(max_examples=examples(60), **COMMON)
+@settings(max_examples=examples(80), **COMMON)
 @given(scenarios(time="continuous"))
 def test_continuous_g_meets_rate(drawn):
     dsg = designed(drawn)
     full, lam, g = Full(dsg), dsg.rate, dsg.g
     assert dsg.g_mode == "auto" and g is not None and g >= 0
     a_obs = abscissa_interval(full.AbarV)
-    assert a_obs[1] < -lam
+    assert a_obs[0] < -lam
     for graph in dsg.graphs:
         S = graph.S
         Sbar = full.Sbar(S)
@@ -425,7 +441,7 @@ def test_continuous_g_meets_rate(drawn):
                 assert below[2] > -lam - 1e-9, (x, gm, below, -lam)
 
 
-@settings(max_examples=examples(40), **COMMON)
+@settings(max_examples=examples(50), **COMMON)
 @given(scenarios(time="continuous", graphs=2), st.data())
 def test_continuous_switching_certificates(drawn, data):
     """thm:arb (doubly stochastic S) and eq. (split_continuous_g) (average dwell time), from full matrices."""
@@ -448,11 +464,15 @@ def test_continuous_switching_certificates(drawn, data):
     else:
         assert dsg.g_arbitrary is None
     # eq. (split_continuous_g): |exp(-V'(I - Sbar)V t)| <= c exp(-lam_star t) from the H-Lyapunov function
-    pis = {gr.name: perron(gr.S) for gr in graphs}
-    c = max(math.sqrt(pi.max() / pi.min()) for pi in pis.values())
-    lam_star = min(np.linalg.eigvalsh(full.V.T @ np.kron(2 * np.diag(pi) - np.diag(pi) @ gr.S - gr.S.T @ np.diag(pi),
-                                                         np.eye(full.n)) @ full.V)[0] / (2 * pis[gr.name].max())
-                   for gr in graphs)
+    # (H = blockdiag(pi_i I_{n_i}) (eq. H): agents with n_i = 0 carry no weight)
+    c, lam_star = 1.0, math.inf
+    for gr in graphs:
+        pi = perron(gr.S)
+        h = np.repeat(pi, full.sizes)
+        c = max(c, math.sqrt(h.max() / h.min()))
+        Pi = np.diag(pi)
+        VLV = full.V.T @ np.kron(2 * Pi - Pi @ gr.S - gr.S.T @ Pi, np.eye(full.n)) @ full.V
+        lam_star = min(lam_star, np.linalg.eigvalsh(VLV)[0] / (2 * h.max()))
     for gr in graphs:
         for t in (0.01, 0.1, 0.5, 1.0, 3.0):
             assert norm2(sla.expm(-Ms[gr.name] * t)) <= c * math.exp(-lam_star * t) * (1 + 1e-9)

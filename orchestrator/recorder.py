@@ -1,0 +1,644 @@
+"""Run recorder of the orchestrator: ``trajectory.npz``, ``events.jsonl`` and ``run.rrd``.
+
+The orchestrator hands the recorder one row per event time ``tau`` (true state
+``x(tau)``, every agent's estimate ``x_i(tau)``, the alive set and the active
+graph), the topology on every switch or death, and named events.  The recorder
+keeps three records of the run in ``out_dir``:
+
+``trajectory.npz``
+    the trajectory contract of DESIGN.md ("Trajectories"): ``t`` (T,),
+    ``x`` (T, n), ``xhat`` (T, m, n) NaN where dead, ``alive`` (T, m) bool,
+    ``graph`` (T,) int, ``agent_ids`` (m,).  Rewritten atomically (temporary
+    file in ``out_dir`` + ``os.replace``) at most every ``flush_seconds`` of
+    wall time from :meth:`Recorder.row` and always in :meth:`Recorder.close`,
+    so after a crash it holds every row up to the last flush.
+``events.jsonl``
+    one JSON object per line, ``{"event", "t", "wall", **fields}``, flushed
+    after every line.
+``run.rrd``
+    a Rerun recording (DESIGN.md "Rerun recording"), optionally streamed live
+    to a viewer as well.
+
+Rerun entities (``<id>`` is an agent id, ``<k>`` = 1..n a state component):
+
+=========================  ==================================================
+``errors/agent_<id>``      ``|x_i(tau) - x(tau)|_2``, alive agents only
+``errors/max``             ``max_i |x_i(tau) - x(tau)|_2`` over alive agents
+``state/<k>/truth``        ``x_k(tau)``
+``state/<k>/agent_<id>``   ``x_{i,k}(tau)``, alive agents only
+``topology``               GraphNodes (every agent, lost ones grey) + directed
+                           GraphEdges ``(j, i)``: i receives from j
+``events``                 TextLog (WARN for lost/rejected/error/failed)
+=========================  ==================================================
+
+Timelines: ``event`` (sequence ``tau``), ``time`` (duration: ``tau`` seconds
+in discrete time, ``tau * dt`` in continuous time) and ``wall`` (timestamp).
+A value that stops being true (an agent lost from ``tau`` on after its rows
+were logged, or a row re-sent for the same ``tau`` without an agent) is
+retracted with a non-recursive ``rr.Clear`` at that event time; :func:`read_rrd`
+applies those clears, as the viewer's latest-at queries do.
+
+Rerun never stops a run: a viewer that cannot be spawned or reached, or a
+failing flush, is logged as a warning and the recording goes on (file only).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import os
+import socket
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+from typing import Any, Iterable
+from urllib.parse import urlsplit
+
+import numpy as np
+
+from splitspec_core.errors import SplitspecError
+
+__all__ = ["Recorder", "RecordingError", "read_rrd", "verify_rrd"]
+
+log = logging.getLogger(__name__)
+
+APPLICATION_ID = "splitspec"
+TRAJECTORY_FILE = "trajectory.npz"
+EVENTS_FILE = "events.jsonl"
+RRD_FILE = "run.rrd"
+
+# Rerun entity paths and timelines (built here only).
+ERRORS = "errors"
+ERRORS_MAX = "errors/max"
+STATE = "state"
+TOPOLOGY = "topology"
+EVENTS = "events"
+TL_EVENT, TL_TIME, TL_WALL = "event", "time", "wall"
+
+# Column names of a chunk's record batch in rerun 0.41 (found by experiment:
+# index columns are named after their timeline, data columns "Archetype:field").
+_COL_SCALARS = "Scalars:scalars"
+_COL_CLEAR = "Clear:is_recursive"
+_COL_ROW_ID = "rerun.controls.RowId"
+
+_WARN_WORDS = ("lost", "rejected", "error", "failed")
+_DEFAULT_VIEWER_PORT = 9876
+_PALETTE = [  # matplotlib tab10
+    (31, 119, 180), (255, 127, 14), (44, 160, 44), (214, 39, 40), (148, 103, 189),
+    (140, 86, 75), (227, 119, 194), (127, 127, 127), (188, 189, 34), (23, 190, 207),
+]
+_DEAD_COLOR = (90, 90, 90)
+_MAX_COLOR = (235, 235, 235)
+_TRUTH_COLOR = (235, 235, 235)
+
+
+class RecordingError(SplitspecError, ValueError):
+    """A recorder call does not fit the run (shape, agent id, graph, order); the message names it."""
+
+
+def _agent_path(prefix: str, agent_id: int) -> str:
+    return f"{prefix}/agent_{agent_id}"
+
+
+def _state_path(k: int, who: str) -> str:
+    """``state/<k>/<who>`` with the 1-based component index ``k``."""
+    return f"{STATE}/{k}/{who}"
+
+
+def _json_default(obj: Any) -> Any:
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    if isinstance(obj, (set, frozenset)):
+        return sorted(obj)
+    if isinstance(obj, Path):
+        return str(obj)
+    raise TypeError(f"event field of type {type(obj).__name__} is not JSON serialisable")
+
+
+def _reachable(host: str, port: int, timeout: float) -> bool:
+    try:
+        with socket.create_connection((host, port), timeout=timeout):
+            return True
+    except OSError:
+        return False
+
+
+def _viewer_url(viewer: str) -> str:
+    """Accept a full ``rerun+http://host:port/proxy`` URL or a bare ``host:port``."""
+    return viewer if "://" in viewer else f"rerun+http://{viewer}/proxy"
+
+
+def _url_host_port(url: str) -> tuple[str, int]:
+    parts = urlsplit(url)
+    default = 443 if parts.scheme.endswith("https") else _DEFAULT_VIEWER_PORT
+    return parts.hostname or "127.0.0.1", parts.port or default
+
+
+def _rerun_command() -> list[str]:
+    """The bundled ``rerun`` CLI: the executable next to ``sys.executable``, else ``python -m rerun``."""
+    exe = Path(sys.executable).parent / ("rerun.exe" if os.name == "nt" else "rerun")
+    return [str(exe)] if exe.exists() else [sys.executable, "-m", "rerun"]
+
+
+class Recorder:
+    """Records one run to ``out_dir`` (see the module docstring for the files and entities).
+
+    Parameters
+    ----------
+    out_dir : directory of the run (created if missing)
+    agent_ids : agent ids in the scenario's order; column ``i`` of ``xhat``/``alive`` is ``agent_ids[i]``
+    n : state dimension
+    steps : expected number of steps (capacity hint only; more rows are accepted)
+    time_mode : ``"discrete"`` (``t = tau``) or ``"continuous"`` (``t = tau * dt``)
+    dt : sampling step of continuous time (ignored in discrete time)
+    graph_names : the scenario's graphs, in order; ``graph`` indices refer to it
+    run_id : Rerun recording id
+    scenario_name : shown as the recording's name
+    viewer : ``None`` file only; ``"spawn"`` spawn a viewer and stream to it;
+        otherwise the URL (``rerun+http://host:port/proxy``, or ``host:port``)
+        of a running viewer to stream to.  ``run.rrd`` is written in every case.
+    flush_seconds : wall-time period of the incremental ``trajectory.npz`` writes and Rerun flushes
+    viewer_port : port of a spawned viewer
+    connect_timeout : seconds to wait when checking that a viewer is reachable
+    """
+
+    def __init__(self, out_dir: Path, *, agent_ids: tuple[int, ...], n: int, steps: int, time_mode: str,
+                 dt: float, graph_names: tuple[str, ...], run_id: str, scenario_name: str,
+                 viewer: str | None = None, flush_seconds: float = 1.0,
+                 viewer_port: int = _DEFAULT_VIEWER_PORT, connect_timeout: float = 1.0):
+        if time_mode not in ("discrete", "continuous"):
+            raise RecordingError(f"time_mode must be 'discrete' or 'continuous', got {time_mode!r}")
+        ids = [int(a) for a in agent_ids]
+        if not ids or len(set(ids)) != len(ids):
+            raise RecordingError(f"agent_ids must be non-empty and distinct, got {tuple(agent_ids)}")
+        if int(n) < 1:
+            raise RecordingError(f"n must be >= 1, got {n}")
+        if time_mode == "continuous" and not (math.isfinite(dt) and dt > 0):
+            raise RecordingError(f"dt must be a positive number in continuous time, got {dt}")
+        if not graph_names:
+            raise RecordingError("graph_names must name at least one graph")
+        if not flush_seconds >= 0:
+            raise RecordingError(f"flush_seconds must be >= 0, got {flush_seconds}")
+
+        self.out_dir = Path(out_dir)
+        self.out_dir.mkdir(parents=True, exist_ok=True)
+        self.agent_ids = np.array(ids, dtype=np.int64)
+        self.m, self.n = len(ids), int(n)
+        self.time_mode, self.dt = time_mode, float(dt)
+        self.graph_names = tuple(graph_names)
+        self.run_id, self.scenario_name = str(run_id), str(scenario_name)
+        self.flush_seconds = float(flush_seconds)
+        self._pos = {a: k for k, a in enumerate(ids)}
+        self._lock = threading.RLock()
+        self._closed = False
+
+        # Row storage: capacity grows by doubling; T = self._rows.
+        cap = max(int(steps) + 1, 16)
+        self._t = np.zeros(cap)
+        self._x = np.zeros((cap, self.n))
+        self._xhat = np.full((cap, self.m, self.n), np.nan)
+        self._alive = np.zeros((cap, self.m), dtype=bool)
+        self._graph = np.zeros(cap, dtype=np.int64)
+        self._tau = np.zeros(cap, dtype=np.int64)
+        # What is currently shown in Rerun per row (to retract with Clear when it stops being true).
+        self._shown = np.zeros((cap, self.m), dtype=bool)
+        self._shown_max = np.zeros(cap, dtype=bool)
+        self._rows = 0
+        self._row_of_tau: dict[int, int] = {}
+        self._last_write = time.monotonic()
+
+        self._events = open(self.out_dir / EVENTS_FILE, "w", encoding="utf-8")
+        self._rec = None
+        self._viewer_warned = False
+        try:
+            self._rec = self._open_rerun(viewer, viewer_port=viewer_port, connect_timeout=connect_timeout)
+        except Exception as exc:  # Rerun must never stop a run
+            log.warning("Rerun recording disabled (%s: %s); writing trajectory.npz and events.jsonl only",
+                        type(exc).__name__, exc)
+            self._rec = None
+
+    # ------------------------------------------------------------------ Rerun setup
+
+    def _open_rerun(self, viewer: str | None, *, viewer_port: int, connect_timeout: float):
+        import rerun as rr
+
+        rec = rr.RecordingStream(application_id=APPLICATION_ID, recording_id=self.run_id)
+        sinks: list[Any] = [rr.FileSink(str(self.out_dir / RRD_FILE))]
+        live = self._viewer_sink(rr, rec, viewer, viewer_port=viewer_port, connect_timeout=connect_timeout)
+        if live is not None:
+            sinks.append(live)
+        # Both sinks at once: set_sinks replaces the stream's sinks with this tee.
+        rec.set_sinks(*sinks, default_blueprint=self._blueprint())
+        rec.send_recording_name(f"{self.scenario_name} ({self.run_id})")
+        rec.send_property("splitspec", rr.AnyValues(
+            scenario=self.scenario_name, run_id=self.run_id, time_mode=self.time_mode, dt=self.dt,
+            n=self.n, m=self.m, agent_ids=self.agent_ids.tolist(), graphs=list(self.graph_names)))
+        self._log_static_styles(rr, rec)
+        return rec
+
+    def _viewer_sink(self, rr, rec, viewer: str | None, *, viewer_port: int, connect_timeout: float):
+        """The ``rr.GrpcSink`` of the live viewer, or None (file only, with a warning)."""
+        if viewer is None:
+            return None
+        if viewer == "spawn":
+            if sys.platform.startswith("linux") and not any(
+                    os.environ.get(v) for v in ("DISPLAY", "WAYLAND_DISPLAY", "WAYLAND_SOCKET")):
+                # The native viewer exits at once without a display; rr.spawn would wait ~6 s for it.
+                log.warning("no display (DISPLAY/WAYLAND_DISPLAY unset): not spawning a Rerun viewer; "
+                            "recording to %s only", RRD_FILE)
+                return None
+            cmd = _rerun_command()
+            try:
+                # connect=False: the gRPC sink is added with the file sink in set_sinks.
+                rr.spawn(port=viewer_port, connect=False, recording=rec,
+                         executable_path=cmd[0] if len(cmd) == 1 else None)
+            except Exception as exc:
+                log.warning("could not spawn a Rerun viewer (%s: %s); recording to %s only",
+                            type(exc).__name__, exc, RRD_FILE)
+                return None
+            url = f"rerun+http://127.0.0.1:{viewer_port}/proxy"
+        else:
+            url = _viewer_url(viewer)
+        host, port = _url_host_port(url)
+        # GrpcSink does not fail on an unreachable viewer: set_sinks blocks ~5 s and
+        # every later flush raises.  Check first and fall back to the file.
+        if not _reachable(host, port, connect_timeout):
+            log.warning("Rerun viewer at %s is not reachable; recording to %s only", url, RRD_FILE)
+            return None
+        try:
+            return rr.GrpcSink(url)
+        except Exception as exc:
+            log.warning("invalid Rerun viewer URL %r (%s); recording to %s only", url, exc, RRD_FILE)
+            return None
+
+    def _blueprint(self):
+        import rerun.blueprint as rrb
+
+        # No log-scale y axis in rerun 0.41's ScalarAxis (rerun issue #6773); errors are
+        # positive, so a log axis can be switched on if a later viewer offers one.
+        return rrb.Blueprint(
+            rrb.Horizontal(
+                rrb.Vertical(
+                    rrb.TimeSeriesView(origin=ERRORS, name="estimation errors |x_i - x|"),
+                    rrb.TimeSeriesView(origin=STATE, name="state: truth and estimates"),
+                ),
+                rrb.Vertical(
+                    rrb.GraphView(origin=TOPOLOGY, name="communication graph"),
+                    rrb.TextLogView(origin=EVENTS, name="events"),
+                ),
+                column_shares=[2, 1],
+            ),
+            rrb.TimePanel(timeline=TL_EVENT if self.time_mode == "discrete" else TL_TIME),
+        )
+
+    def _color(self, i: int) -> tuple[int, int, int]:
+        return _PALETTE[i % len(_PALETTE)]
+
+    def _log_static_styles(self, rr, rec) -> None:
+        rec.log(ERRORS_MAX, rr.SeriesLines(names="max", colors=[_MAX_COLOR], widths=2.0), static=True)
+        for i, a in enumerate(self.agent_ids):
+            rec.log(_agent_path(ERRORS, a), rr.SeriesLines(names=f"agent {a}", colors=[self._color(i)]),
+                    static=True)
+        for k in range(1, self.n + 1):
+            rec.log(_state_path(k, "truth"), rr.SeriesLines(names=f"x{k} truth", colors=[_TRUTH_COLOR],
+                                                            widths=2.0), static=True)
+            for i, a in enumerate(self.agent_ids):
+                rec.log(_state_path(k, f"agent_{a}"),
+                        rr.SeriesLines(names=f"x{k} agent {a}", colors=[self._color(i)]), static=True)
+
+    def _set_times(self, tau: int, seconds: float) -> None:
+        # Time context is per thread: always set all three timelines right before logging.
+        self._rec.set_time(TL_EVENT, sequence=int(tau))
+        self._rec.set_time(TL_TIME, duration=float(seconds))
+        self._rec.set_time(TL_WALL, timestamp=time.time())
+
+    def _rerun(self, what: str, fn, *args) -> None:
+        """Run one Rerun logging step; a failure is a warning, never an exception."""
+        if self._rec is None:
+            return
+        try:
+            fn(*args)
+        except Exception as exc:
+            log.warning("Rerun %s failed (%s: %s); continuing", what, type(exc).__name__, exc)
+
+    # ------------------------------------------------------------------ time helpers
+
+    def _t_of_tau(self, tau: int) -> float:
+        return float(tau) if self.time_mode == "discrete" else tau * self.dt
+
+    def _tau_of_t(self, t: float) -> int:
+        return int(round(t)) if self.time_mode == "discrete" else int(round(t / self.dt))
+
+    # ------------------------------------------------------------------ public API
+
+    @property
+    def rows_recorded(self) -> int:
+        """Number of rows (distinct event times) recorded so far: T of ``trajectory.npz``."""
+        return self._rows
+
+    def event(self, event: str, t: float, **fields) -> None:
+        """Append ``{"event", "t", "wall", **fields}`` to ``events.jsonl`` and log it to Rerun.
+
+        ``t`` is the event time in the run's units (``tau`` in discrete time,
+        seconds in continuous time); the TextLog is placed at ``tau = t`` or
+        ``tau = round(t / dt)``.  Level WARN when the name contains
+        lost/rejected/error/failed, else INFO.
+        """
+        level = "WARN" if any(w in event.lower() for w in _WARN_WORDS) else "INFO"
+        self._event(event, t, level, fields)
+
+    def _event(self, event: str, t: float, level: str, fields: dict[str, Any]) -> None:
+        if "wall" in fields:
+            raise RecordingError(f"event {event!r}: field name 'wall' is reserved")
+        with self._lock:
+            self._check_open("event")
+            wall = time.time()
+            line = json.dumps({"event": event, "t": t, "wall": wall, **fields}, default=_json_default)
+            self._events.write(line + "\n")
+            self._events.flush()
+            text = event + "".join(f" {k}={v}" for k, v in fields.items())
+            self._rerun("event log", self._log_event, t, text, level)
+
+    def _log_event(self, t: float, text: str, level: str) -> None:
+        import rerun as rr
+
+        self._set_times(self._tau_of_t(t), float(t))
+        self._rec.log(EVENTS, rr.TextLog(text, level=level))
+
+    def topology(self, tau: int, graph_name: str, alive_ids: Iterable[int],
+                 arcs: Iterable[tuple[int, int]]) -> None:
+        """Log the communication graph at ``tau``: every agent as a node, arcs ``(j, i)`` among alive agents.
+
+        An arc ``(j, i)`` means agent ``i`` receives from agent ``j`` (drawn j -> i).
+        Arcs touching a dead agent are not drawn.
+        """
+        if graph_name not in self.graph_names:
+            raise RecordingError(f"unknown graph {graph_name!r}; expected one of {self.graph_names}")
+        alive = {int(a) for a in alive_ids}
+        unknown = sorted(alive - set(self._pos))
+        if unknown:
+            raise RecordingError(f"alive_ids {unknown} are not agents of this run {tuple(self.agent_ids)}")
+        edges = []
+        for arc in arcs:
+            j, i = (int(v) for v in arc)
+            if j not in self._pos or i not in self._pos:
+                raise RecordingError(f"arc ({j}, {i}) names an agent not in {tuple(self.agent_ids)}")
+            if j in alive and i in alive:
+                edges.append((str(j), str(i)))
+        with self._lock:
+            self._check_open("topology")
+            self._rerun("topology log", self._log_topology, int(tau), graph_name, alive, edges)
+
+    def _log_topology(self, tau: int, graph_name: str, alive: set[int], edges: list[tuple[str, str]]) -> None:
+        import rerun as rr
+
+        ids = self.agent_ids.tolist()
+        labels = [f"agent {a}" if a in alive else f"agent {a} (lost)" for a in ids]
+        colors = [self._color(k) if a in alive else _DEAD_COLOR for k, a in enumerate(ids)]
+        self._set_times(tau, self._t_of_tau(tau))
+        self._rec.log(TOPOLOGY,
+                      rr.GraphNodes([str(a) for a in ids], labels=labels, colors=colors),
+                      rr.GraphEdges(edges, graph_type="directed"),
+                      rr.AnyValues(graph_name=graph_name))
+
+    def row(self, tau: int, x: np.ndarray, xhat: np.ndarray, alive: np.ndarray, graph: int) -> None:
+        """Record event time ``tau``: ``x`` (n,), ``xhat`` (m, n), ``alive`` (m,) bool, graph index.
+
+        Rows come in increasing ``tau``; a row re-sent for an already recorded
+        ``tau`` replaces it.  Rows of dead agents are stored as NaN whatever
+        ``xhat`` holds there.
+        """
+        tau = int(tau)
+        x = np.asarray(x, dtype=float)
+        xhat = np.asarray(xhat, dtype=float)
+        alive = np.asarray(alive)
+        if x.shape != (self.n,):
+            raise RecordingError(f"x has shape {x.shape}; expected ({self.n},)")
+        if xhat.shape != (self.m, self.n):
+            raise RecordingError(f"xhat has shape {xhat.shape}; expected ({self.m}, {self.n})")
+        if alive.shape != (self.m,) or alive.dtype != bool:
+            raise RecordingError(f"alive must be a bool array of shape ({self.m},), "
+                                 f"got {alive.dtype} {alive.shape}")
+        if not 0 <= int(graph) < len(self.graph_names):
+            raise RecordingError(f"graph index {graph} out of range 0..{len(self.graph_names) - 1}")
+        with self._lock:
+            self._check_open("row")
+            k = self._row_of_tau.get(tau)
+            if k is None:
+                if self._rows and tau < self._tau[self._rows - 1]:
+                    raise RecordingError(f"row for tau={tau} arrives after tau={self._tau[self._rows - 1]}; "
+                                         "rows must come in increasing tau")
+                k = self._append_slot(tau)
+            self._t[k] = self._t_of_tau(tau)
+            self._x[k] = x
+            self._xhat[k] = np.where(alive[:, None], xhat, np.nan)
+            self._alive[k] = alive
+            self._graph[k] = int(graph)
+            self._rerun("row log", self._log_row, k, range(self.m), True)
+            if time.monotonic() - self._last_write >= self.flush_seconds:
+                self._write_trajectory()
+                self._rerun("flush", self._rec_flush, 0.0)
+
+    def _append_slot(self, tau: int) -> int:
+        k = self._rows
+        if k == self._t.shape[0]:
+            self._grow()
+        self._tau[k] = tau
+        self._row_of_tau[tau] = k
+        self._rows += 1
+        return k
+
+    def _grow(self) -> None:
+        def bigger(a: np.ndarray, fill) -> np.ndarray:
+            b = np.full((2 * a.shape[0],) + a.shape[1:], fill, dtype=a.dtype)
+            b[: a.shape[0]] = a
+            return b
+
+        self._t, self._x = bigger(self._t, 0.0), bigger(self._x, 0.0)
+        self._xhat, self._alive = bigger(self._xhat, np.nan), bigger(self._alive, False)
+        self._graph, self._tau = bigger(self._graph, 0), bigger(self._tau, 0)
+        self._shown, self._shown_max = bigger(self._shown, False), bigger(self._shown_max, False)
+
+    def _log_row(self, k: int, agents: Iterable[int], with_truth: bool) -> None:
+        """Log row ``k`` for the given agent columns; clear what was shown and is no longer true."""
+        import rerun as rr
+
+        rec = self._rec
+        self._set_times(int(self._tau[k]), float(self._t[k]))
+        err = np.linalg.norm(self._xhat[k] - self._x[k][None, :], axis=1)  # |x_i - x|_2, NaN if dead
+        show = self._alive[k] & np.isfinite(err)
+        if with_truth:
+            for c in range(self.n):
+                rec.log(_state_path(c + 1, "truth"), rr.Scalars(float(self._x[k, c])))
+        for i in agents:
+            a = int(self.agent_ids[i])
+            if show[i]:
+                rec.log(_agent_path(ERRORS, a), rr.Scalars(float(err[i])))
+                for c in range(self.n):
+                    rec.log(_state_path(c + 1, f"agent_{a}"), rr.Scalars(float(self._xhat[k, i, c])))
+            elif self._shown[k, i]:
+                rec.log(_agent_path(ERRORS, a), rr.Clear(recursive=False))
+                for c in range(self.n):
+                    rec.log(_state_path(c + 1, f"agent_{a}"), rr.Clear(recursive=False))
+            self._shown[k, i] = show[i]
+        if show.any():
+            rec.log(ERRORS_MAX, rr.Scalars(float(err[show].max())))
+            self._shown_max[k] = True
+        elif self._shown_max[k]:
+            rec.log(ERRORS_MAX, rr.Clear(recursive=False))
+            self._shown_max[k] = False
+
+    def mark_lost(self, tau: int, agent_id: int) -> None:
+        """Agent ``agent_id`` is lost from event time ``tau`` on: NaN/False in every recorded row with ``tau' >= tau``."""
+        i = self._pos.get(int(agent_id))
+        if i is None:
+            raise RecordingError(f"agent {agent_id} is not an agent of this run {tuple(self.agent_ids)}")
+        with self._lock:
+            self._check_open("mark_lost")
+            T = self._rows
+            rows = np.nonzero(self._tau[:T] >= int(tau))[0]
+            for k in rows:
+                if not self._alive[k, i]:
+                    continue
+                self._alive[k, i] = False
+                self._xhat[k, i] = np.nan
+                self._rerun("mark_lost log", self._log_row, int(k), [i], False)
+
+    def close(self, *, finished: bool = True) -> None:
+        """Write ``trajectory.npz`` with the rows so far, then flush and close Rerun and ``events.jsonl``.
+
+        ``finished=False`` (run ended early) is noted as a WARN event.  Calling
+        close twice is harmless.
+        """
+        with self._lock:
+            if self._closed:
+                return
+            t_last = float(self._t[self._rows - 1]) if self._rows else 0.0
+            self._event("recording_closed", t_last, "INFO" if finished else "WARN",
+                        {"finished": bool(finished), "rows": self._rows})
+            self._closed = True
+            try:
+                self._write_trajectory()
+            finally:
+                self._events.close()
+                if self._rec is not None:
+                    self._rerun("final flush", self._rec_flush, 10.0)
+                    self._rerun("disconnect", self._rec.disconnect)
+                    self._rec = None
+
+    def __enter__(self) -> "Recorder":
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        self.close(finished=exc_type is None)
+
+    # ------------------------------------------------------------------ internals
+
+    def _check_open(self, what: str) -> None:
+        if self._closed:
+            raise RecordingError(f"{what}() called after close()")
+
+    def _rec_flush(self, timeout: float) -> None:
+        try:
+            self._rec.flush(timeout_sec=timeout)
+        except RuntimeError as exc:  # e.g. a viewer gone away: warn once, keep the file sink going
+            if not self._viewer_warned:
+                log.warning("Rerun flush: %s; run.rrd keeps recording", exc)
+                self._viewer_warned = True
+
+    def _write_trajectory(self) -> None:
+        """Atomically (re)write ``trajectory.npz`` with the rows recorded so far."""
+        T = self._rows
+        arrays = dict(t=self._t[:T].copy(), x=self._x[:T].copy(), xhat=self._xhat[:T].copy(),
+                      alive=self._alive[:T].copy(), graph=self._graph[:T].copy(), agent_ids=self.agent_ids.copy())
+        fd, tmp = tempfile.mkstemp(prefix=".trajectory.", suffix=".npz.tmp", dir=self.out_dir)
+        try:
+            with os.fdopen(fd, "wb") as f:
+                np.savez(f, **arrays)
+                f.flush()
+                os.fsync(f.fileno())
+            os.replace(tmp, self.out_dir / TRAJECTORY_FILE)
+        except BaseException:
+            Path(tmp).unlink(missing_ok=True)
+            raise
+        self._last_write = time.monotonic()
+
+
+# ---------------------------------------------------------------------- read-back
+
+
+def read_rrd(path: str | Path) -> dict[str, list[tuple[int, float]]]:
+    """Every Scalars entity of an ``.rrd``: entity path -> sorted ``[(event index, value), ...]``.
+
+    Entity paths are returned without the leading ``/`` (``"errors/max"``).
+    Per event index the latest logged row wins (by Rerun row id), and a
+    ``Clear`` logged later at the same event index on the entity (or a
+    recursive one on an ancestor) removes the value, as the viewer's latest-at
+    query does.  Only rows on the ``event`` timeline are read.
+
+    Raises
+    ------
+    RecordingError
+        If a Scalars row holds more than one value (not a scalar series).
+    """
+    from rerun.chunk import RrdReader
+
+    # (entity, event) -> (row id, value or None for a clear)
+    latest: dict[tuple[str, int], tuple[bytes, float | None]] = {}
+    clears: list[tuple[str, int, bytes, bool]] = []
+    scalar_entities: set[str] = set()
+    for chunk in RrdReader(path).stream():
+        if chunk.is_static or TL_EVENT not in chunk.timeline_names:
+            continue
+        batch = chunk.to_record_batch()
+        names = batch.schema.names
+        if _COL_SCALARS not in names and _COL_CLEAR not in names:
+            continue
+        entity = chunk.entity_path.lstrip("/")
+        events = batch.column(TL_EVENT).to_pylist()
+        row_ids = batch.column(_COL_ROW_ID).to_pylist()
+        if _COL_SCALARS in names:
+            scalar_entities.add(entity)
+            for ev, rid, vals in zip(events, row_ids, batch.column(_COL_SCALARS).to_pylist()):
+                if ev is None or vals is None:
+                    continue
+                if len(vals) != 1:
+                    raise RecordingError(f"{entity} at event {ev} holds {len(vals)} scalars; expected 1")
+                _keep_latest(latest, (entity, ev), rid, float(vals[0]))
+        if _COL_CLEAR in names:
+            for ev, rid, rec in zip(events, row_ids, batch.column(_COL_CLEAR).to_pylist()):
+                if ev is not None and rec is not None:
+                    clears.append((entity, ev, rid, bool(rec[0])))
+    for c_entity, ev, rid, recursive in clears:
+        for entity in scalar_entities:
+            if entity == c_entity or (recursive and entity.startswith(c_entity + "/")):
+                _keep_latest(latest, (entity, ev), rid, None)
+    out: dict[str, list[tuple[int, float]]] = {}
+    for (entity, ev), (_, value) in sorted(latest.items()):
+        if value is not None:
+            out.setdefault(entity, []).append((ev, value))
+    return out
+
+
+def _keep_latest(latest: dict, key: tuple[str, int], row_id: bytes, value: float | None) -> None:
+    # Row ids are TUIDs: big-endian (nanoseconds, counter), so byte order is log order.
+    old = latest.get(key)
+    if old is None or row_id > old[0]:
+        latest[key] = (row_id, value)
+
+
+def verify_rrd(path: str | Path, *, timeout: float = 120.0) -> tuple[bool, str]:
+    """Run the bundled ``rerun rrd verify <path>``; return (exit code 0, stdout + stderr)."""
+    env = {**os.environ, "RERUN_ANALYTICS": os.environ.get("RERUN_ANALYTICS", "0")}
+    try:
+        proc = subprocess.run([*_rerun_command(), "rrd", "verify", str(path)], capture_output=True,
+                              text=True, timeout=timeout, env=env)
+    except (OSError, subprocess.TimeoutExpired) as exc:
+        return False, f"could not run rerun rrd verify: {exc}"
+    return proc.returncode == 0, (proc.stdout + proc.stderr).strip()

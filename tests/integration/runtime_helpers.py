@@ -1,0 +1,111 @@
+"""Helpers for multi-process tests: start splitspec processes, read their records, check nothing is left."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[2]
+ENV = {**os.environ, "RERUN_ANALYTICS": "0", "PYTHONUNBUFFERED": "1"}
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def cli(*args) -> list:
+    return [sys.executable, "-m", "orchestrator.cli", *map(str, args)]
+
+
+def start(*args, log: Path, **kw) -> subprocess.Popen:
+    """Start ``splitspec ARGS`` in its own process group, output to ``log``."""
+    f = open(log, "wb")
+    return subprocess.Popen(cli(*args), cwd=ROOT, env=ENV, stdout=f, stderr=subprocess.STDOUT,
+                            start_new_session=True, **kw)
+
+
+def run(*args, timeout=180, **kw) -> subprocess.CompletedProcess:
+    return subprocess.run(cli(*args), cwd=ROOT, env=ENV, capture_output=True, text=True, timeout=timeout, **kw)
+
+
+def events(out: Path) -> list:
+    p = out / "events.jsonl"
+    if not p.exists():
+        return []
+    return [json.loads(line) for line in p.read_text().splitlines() if line.strip()]
+
+
+def wait_for_event(out: Path, name: str, timeout: float = 60.0) -> dict:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        for e in events(out):
+            if e["event"] == name:
+                return e
+        time.sleep(0.05)
+    raise AssertionError(f"no {name} event in {out}/events.jsonl within {timeout} s: {events(out)}")
+
+
+def pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    # a zombie is dead for our purposes
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().split(")")[-1].split()[0] != "Z"
+    except FileNotFoundError:
+        return False
+
+
+def started_pids(out: Path) -> dict:
+    """``{(role, id): pid}`` from ``process_started`` events, plus the orchestrator."""
+    pids = {}
+    for e in events(out):
+        if e["event"] == "process_started":
+            pids[(e["role"], e["id"])] = e["pid"]
+        elif e["event"] == "orchestrator_started":
+            pids[("orchestrator", 0)] = e["pid"]
+    return pids
+
+
+def assert_all_gone(pids, timeout: float = 10.0) -> None:
+    deadline = time.monotonic() + timeout
+    left = list(pids)
+    while left and time.monotonic() < deadline:
+        left = [p for p in left if pid_alive(p)]
+        time.sleep(0.05)
+    for p in left:  # do not leak into later tests, but fail
+        try:
+            os.kill(p, signal.SIGKILL)
+        except ProcessLookupError:
+            pass
+    assert not left, f"processes still running: {left}"
+
+
+def compare_with_simulate(out: Path, scenario: Path, tmp: Path, tol: float = 1e-9) -> float:
+    sim = tmp / "sim"
+    r = run("simulate", scenario, "--out", sim, "--no-plots")
+    assert r.returncode == 0, r.stderr
+    a, b = np.load(out / "trajectory.npz"), np.load(sim / "trajectory.npz")
+    for k in ("t", "alive", "graph", "agent_ids"):
+        assert np.array_equal(a[k], b[k]), k
+    assert np.allclose(a["x"], b["x"], rtol=0, atol=tol * max(1.0, np.abs(b["x"]).max()))
+    assert np.array_equal(np.isnan(a["xhat"]), np.isnan(b["xhat"]))
+    diff = float(np.nanmax(np.abs(a["xhat"] - b["xhat"]))) if np.isfinite(b["xhat"]).any() else 0.0
+    assert diff <= tol * max(1.0, float(np.nanmax(np.abs(b["xhat"])))), diff
+    return diff
+
+
+def dump(*logs: Path) -> str:
+    return "\n".join(f"--- {p.name}\n{p.read_text(errors='replace')[-4000:]}" for p in logs if p.exists())
