@@ -1,0 +1,109 @@
+"""Malformed input on the key space is dropped and counted; the trajectory is unchanged.
+
+The deployment is started by hand (orchestrator with --listen, plant and agents with --connect), as a user
+would on several machines; a rogue Zenoh session joins the same router and injects garbage during the run.
+"""
+
+import os
+import threading
+import time
+
+import msgpack
+import numpy as np
+import pytest
+import yaml
+
+from splitspec_core.bus import open_session
+from splitspec_core.wire import Keys, WireError, decode, encode
+from tests.conftest import EXAMPLES
+from tests.integration.runtime_helpers import (assert_all_gone, compare_with_simulate, dump, events, free_port,
+                                               start, started_pids, wait_for_event)
+
+pytestmark = pytest.mark.slow
+
+
+def rogue(endpoint: str, run_id: str, stop: threading.Event, sent: dict) -> None:
+    """Inject every kind of bad message, keyed to the live event time read from the ticks."""
+    keys = Keys(run_id)
+    s = open_session("client", connect=[endpoint])
+    taus = []
+
+    def on_tick(smp):
+        try:
+            taus.append(decode(smp.payload.to_bytes(), run_id, "tick"))
+        except WireError:  # our own garbage tick
+            pass
+
+    sub = s.declare_subscriber(keys.tick, on_tick)
+    pubs = {k: s.declare_publisher(k) for k in (keys.z(1), keys.z(2), keys.y(3), keys.xhat(2), keys.truth, keys.tick)}
+    n = 4
+    try:
+        while not stop.is_set():
+            if not taus:
+                time.sleep(0.01)
+                continue
+            t = taus[-1]
+            tau, att = t["tau"], t["attempt"]
+            bad = {
+                "garbage": (keys.z(1), os.urandom(37)),
+                "wrong_run": (keys.z(2), encode("z", "another-run", tau=tau, attempt=att, k=0, agent=2, z=np.zeros(n))),
+                "bad_shape": (keys.z(1), encode("z", run_id, tau=tau, attempt=att, k=1, agent=1, z=np.zeros(n + 1))),
+                "non_finite": (keys.z(2), encode("z", run_id, tau=tau, attempt=att, k=1, agent=2,
+                                                 z=np.array([np.nan, 0, 0, 0]))),
+                "stale": (keys.z(1), encode("z", run_id, tau=tau - 1, attempt=att, k=0, agent=1, z=np.ones(n))),
+                "future": (keys.z(2), encode("z", run_id, tau=tau + 3, attempt=att, k=0, agent=2, z=np.ones(n))),
+                "bad_k": (keys.z(1), encode("z", run_id, tau=tau, attempt=att, k=99, agent=1, z=np.ones(n))),
+                "y_shape": (keys.y(3), encode("y", run_id, tau=tau, attempt=att, agent=3, y=np.zeros(3))),
+                "xhat_garbage": (keys.xhat(2), msgpack.packb({"v": 1, "run": run_id, "type": "xhat"})),
+                "truth_nan": (keys.truth, encode("truth", run_id, tau=tau, attempt=att, x=np.full(n, np.inf),
+                                                 rejected={})),
+                "tick_garbage": (keys.tick, b"\xff\x00tick"),
+            }
+            for name, (key, payload) in bad.items():
+                pubs[key].put(payload)
+                sent[name] = sent.get(name, 0) + 1
+            time.sleep(0.02)
+    finally:
+        sub.undeclare()
+        s.close()
+
+
+def test_rogue_messages_are_dropped_and_counted(tmp_path):
+    raw = yaml.safe_load((EXAMPLES / "paper_discrete.yaml").read_text())
+    raw["run"].update(steps=60, pace=25)
+    scen = tmp_path / "s.yaml"
+    scen.write_text(yaml.safe_dump(raw))
+    out = tmp_path / "out"
+    port = free_port()
+    endpoint = f"tcp/127.0.0.1:{port}"
+    run_id = "rogue-test"
+    logs = [tmp_path / f"{name}.log" for name in ("orch", "plant", "a1", "a2", "a3")]
+    procs = [start("orchestrator", scen, "--listen", endpoint, "--out", out, "--run-id", run_id, log=logs[0])]
+    procs.append(start("plant", "--connect", endpoint, "--run-id", run_id, log=logs[1]))
+    procs += [start("agent", "--id", i, "--connect", endpoint, "--run-id", run_id, log=logs[1 + i]) for i in (1, 2, 3)]
+    stop = threading.Event()
+    sent: dict = {}
+    th = threading.Thread(target=rogue, args=(endpoint, run_id, stop, sent), daemon=True)
+    try:
+        wait_for_event(out, "run_started", timeout=60)
+        th.start()
+        assert procs[0].wait(timeout=120) == 0, dump(*logs)
+    finally:
+        stop.set()
+        th.join(timeout=10)
+        for p in procs:
+            if p.poll() is None:
+                p.kill()
+    for p in procs[1:]:
+        assert p.wait(timeout=15) == 0, dump(*logs)
+    assert_all_gone(started_pids(out).values())
+    assert sum(sent.values()) > 100
+    rej = {}
+    for e in events(out):
+        if e["event"] == "message_rejected":
+            rej.setdefault(e["reason"], 0)
+            rej[e["reason"]] += e["count"]
+    for reason in ("garbage", "wrong_run", "bad_shape", "non_finite", "stale", "future", "bad_k"):
+        assert rej.get(reason, 0) > 0, (reason, rej)
+    # and none of it changed the estimates: the run still equals the simulator
+    compare_with_simulate(out, scen, tmp_path)
