@@ -1,5 +1,5 @@
 # Two entry points, both safe on a fresh clone with only python3 and make:
-#   make demo   set up .venv and run the main job
+#   make demo   set up .venv and run the main job (the multi-process demo)
 #   make test   set up .venv and run the whole test suite
 PY ?= python3
 VENV ?= .venv
@@ -16,7 +16,7 @@ $(VENV)/.installed: pyproject.toml
 	touch $@
 
 demo: setup
-	$(BIN)/splitspec design examples/paper_discrete.yaml
+	RERUN_ANALYTICS=0 $(BIN)/splitspec run examples/paper_discrete.yaml --out out/demo
 
 test: setup
 	RERUN_ANALYTICS=0 $(BIN)/python -m pytest

@@ -242,6 +242,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list | None = None) -> int:
+    # Zenoh delivers messages on its own threads; a short GIL switch interval lets the process's
+    # event loop take them over quickly (the default 5 ms would dominate a round)
+    sys.setswitchinterval(2e-4)
     parser = build_parser()
     args = parser.parse_args(argv)
     level = args.log_level.upper() if args.log_level else ("DEBUG" if args.verbose else "INFO")
