@@ -9,9 +9,9 @@ keeps three records of the run in ``out_dir``:
     the trajectory contract of DESIGN.md ("Trajectories"): ``t`` (T,),
     ``x`` (T, n), ``xhat`` (T, m, n) NaN where dead, ``alive`` (T, m) bool,
     ``graph`` (T,) int, ``agent_ids`` (m,).  Rewritten atomically (temporary
-    file in ``out_dir`` + ``os.replace``) at most every ``flush_seconds`` of
-    wall time from :meth:`Recorder.row` and always in :meth:`Recorder.close`,
-    so after a crash it holds every row up to the last flush.
+    file in ``out_dir`` + ``os.replace``) at every flush (see below) and always
+    in :meth:`Recorder.close`, so after a crash it holds every row up to the
+    last flush.
 ``events.jsonl``
     one JSON object per line, ``{"event", "t", "wall", **fields}``, flushed
     after every line.
@@ -38,12 +38,28 @@ were logged, or a row re-sent for the same ``tau`` without an agent) is
 retracted with a non-recursive ``rr.Clear`` at that event time; :func:`read_rrd`
 applies those clears, as the viewer's latest-at queries do.
 
+Buffering: :meth:`Recorder.row` only stores the row (a few microseconds).
+Rows reach Rerun in batches: one ``send_columns`` chunk per entity per flush
+(an agent's chunks hold only the event times where it is shown).  The Rerun
+logs of :meth:`Recorder.event` and :meth:`Recorder.topology` are queued and
+sent after the rows buffered before them, one chunk per flush each.  A flush
+(buffered rows, then queued logs, then ``trajectory.npz``) happens when
+``flush_seconds`` of wall time have passed since the last one -- checked on
+every recorder call and by a background thread, so a live viewer is never
+more than about ``flush_seconds`` behind even when rows stop coming -- and on
+:meth:`Recorder.mark_lost`, :meth:`Recorder.flush`, :meth:`Recorder.close`
+and at a normal interpreter exit without ``close``.  ``events.jsonl`` is still
+written and flushed line by line.  Values that were never sent need no
+``Clear``: a row re-sent or an agent lost before the flush simply changes
+what is sent.
+
 Rerun never stops a run: a viewer that cannot be spawned or reached, or a
 failing flush, is logged as a warning and the recording goes on (file only).
 """
 
 from __future__ import annotations
 
+import atexit
 import json
 import logging
 import math
@@ -54,6 +70,7 @@ import sys
 import tempfile
 import threading
 import time
+import weakref
 from pathlib import Path
 from typing import Any, Iterable
 from urllib.parse import urlsplit
@@ -94,6 +111,30 @@ _PALETTE = [  # matplotlib tab10
 _DEAD_COLOR = (90, 90, 90)
 _MAX_COLOR = (235, 235, 235)
 _TRUTH_COLOR = (235, 235, 235)
+
+# Recorders not closed yet: flushed at interpreter exit (and when dropped, see __del__), so a
+# normal exit without close() loses no buffered row.  The handler is registered after rerun is imported (which registers
+# Rerun's shutdown) so that, atexit being last-in first-out, it runs before that shutdown.
+_OPEN: "weakref.WeakSet[Recorder]" = weakref.WeakSet()
+_exit_flush_registered = False
+
+
+def _register_exit_flush() -> None:
+    global _exit_flush_registered
+    if not _exit_flush_registered:
+        atexit.register(_flush_open_recorders)
+        _exit_flush_registered = True
+
+
+def _flush_open_recorders() -> None:
+    for rec in list(_OPEN):
+        try:
+            with rec._lock:
+                if not rec._closed:
+                    rec._flush()
+                    rec._rerun("exit flush", rec._rec_flush, 5.0)
+        except Exception as exc:
+            log.warning("flush at exit failed (%s: %s)", type(exc).__name__, exc)
 
 
 class RecordingError(SplitspecError, ValueError):
@@ -163,7 +204,8 @@ class Recorder:
     viewer : ``None`` file only; ``"spawn"`` spawn a viewer and stream to it;
         otherwise the URL (``rerun+http://host:port/proxy``, or ``host:port``)
         of a running viewer to stream to.  ``run.rrd`` is written in every case.
-    flush_seconds : wall-time period of the incremental ``trajectory.npz`` writes and Rerun flushes
+    flush_seconds : wall-time period of the flushes (buffered rows and queued logs to Rerun,
+        ``trajectory.npz`` rewritten); ``0`` flushes on every call
     viewer_port : port of a spawned viewer
     connect_timeout : seconds to wait when checking that a viewer is reachable
     """
@@ -206,12 +248,21 @@ class Recorder:
         self._alive = np.zeros((cap, self.m), dtype=bool)
         self._graph = np.zeros(cap, dtype=np.int64)
         self._tau = np.zeros(cap, dtype=np.int64)
+        self._wall = np.zeros(cap, dtype=np.int64)  # time.time_ns() of the row's (last) arrival
         # What is currently shown in Rerun per row (to retract with Clear when it stops being true).
         self._shown = np.zeros((cap, self.m), dtype=bool)
         self._shown_max = np.zeros(cap, dtype=bool)
         self._rows = 0
         self._row_of_tau: dict[int, int] = {}
-        self._last_write = time.monotonic()
+        # Buffer: rows _sent.._rows-1 were never sent to Rerun; _dirty holds sent rows that changed
+        # (re-sent tau, agent lost) and are sent again whole.  _queued_events / _queued_topology hold
+        # the deferred Rerun logs of event() / topology() in call order, sent as one chunk each.
+        self._sent = 0
+        self._dirty: set[int] = set()
+        self._queued_events: list[tuple[int, float, str, str, int]] = []
+        self._queued_topology: list[tuple[int, float, str, set[int], list[tuple[str, str]], int]] = []
+        self._traj_dirty = False
+        self._last_flush = time.monotonic()
 
         self._events = open(self.out_dir / EVENTS_FILE, "w", encoding="utf-8")
         self._rec = None
@@ -222,6 +273,14 @@ class Recorder:
             log.warning("Rerun recording disabled (%s: %s); writing trajectory.npz and events.jsonl only",
                         type(exc).__name__, exc)
             self._rec = None
+        _OPEN.add(self)
+        _register_exit_flush()
+        self._stop = threading.Event()
+        self._watcher = None
+        if self.flush_seconds > 0:  # with 0 every call flushes: nothing is left waiting
+            self._watcher = threading.Thread(target=_watch, args=(weakref.ref(self), self._stop),
+                                             name="splitspec-recorder-flush", daemon=True)
+            self._watcher.start()
 
     # ------------------------------------------------------------------ Rerun setup
 
@@ -312,12 +371,6 @@ class Recorder:
                 rec.log(_state_path(k, f"agent_{a}"),
                         rr.SeriesLines(names=f"x{k} agent {a}", colors=[self._color(i)]), static=True)
 
-    def _set_times(self, tau: int, seconds: float) -> None:
-        # Time context is per thread: always set all three timelines right before logging.
-        self._rec.set_time(TL_EVENT, sequence=int(tau))
-        self._rec.set_time(TL_TIME, duration=float(seconds))
-        self._rec.set_time(TL_WALL, timestamp=time.time())
-
     def _rerun(self, what: str, fn, *args) -> None:
         """Run one Rerun logging step; a failure is a warning, never an exception."""
         if self._rec is None:
@@ -362,14 +415,10 @@ class Recorder:
             line = json.dumps({"event": event, "t": t, "wall": wall, **fields}, default=_json_default)
             self._events.write(line + "\n")
             self._events.flush()
-            text = event + "".join(f" {k}={v}" for k, v in fields.items())
-            self._rerun("event log", self._log_event, t, text, level)
-
-    def _log_event(self, t: float, text: str, level: str) -> None:
-        import rerun as rr
-
-        self._set_times(self._tau_of_t(t), float(t))
-        self._rec.log(EVENTS, rr.TextLog(text, level=level))
+            if self._rec is not None:
+                text = event + "".join(f" {k}={v}" for k, v in fields.items())
+                self._queued_events.append((self._tau_of_t(t), float(t), text, level, time.time_ns()))
+            self._maybe_flush()
 
     def topology(self, tau: int, graph_name: str, alive_ids: Iterable[int],
                  arcs: Iterable[tuple[int, int]]) -> None:
@@ -393,26 +442,54 @@ class Recorder:
                 edges.append((str(j), str(i)))
         with self._lock:
             self._check_open("topology")
-            self._rerun("topology log", self._log_topology, int(tau), graph_name, alive, edges)
+            if self._rec is not None:
+                self._queued_topology.append((int(tau), self._t_of_tau(int(tau)), graph_name, alive, edges,
+                                              time.time_ns()))
+            self._maybe_flush()
 
-    def _log_topology(self, tau: int, graph_name: str, alive: set[int], edges: list[tuple[str, str]]) -> None:
+    @staticmethod
+    def _index_columns(rr, taus, seconds, walls_ns) -> list:
+        """The three timeline columns (``event``, ``time``, ``wall``) of a batch of rows."""
+        dur = np.round(np.asarray(seconds, dtype=float) * 1e9).astype(np.int64).astype("timedelta64[ns]")
+        return [rr.TimeColumn(TL_EVENT, sequence=np.asarray(taus, dtype=np.int64)),
+                rr.TimeColumn(TL_TIME, duration=dur),
+                rr.TimeColumn(TL_WALL, timestamp=np.asarray(walls_ns, dtype=np.int64).astype("datetime64[ns]"))]
+
+    def _send_events(self, queued: list[tuple[int, float, str, str, int]]) -> None:
+        """Queued event() logs as one TextLog chunk on ``events`` (one row per event, in call order)."""
+        import rerun as rr
+
+        taus, seconds, texts, levels, walls = zip(*queued)
+        self._rec.send_columns(EVENTS, indexes=self._index_columns(rr, taus, seconds, walls),
+                               columns=rr.TextLog.columns(text=list(texts), level=list(levels)))
+
+    def _send_topology(self, queued: list[tuple[int, float, str, set[int], list[tuple[str, str]], int]]) -> None:
+        """Queued topology() logs as one chunk on ``topology``: GraphNodes + directed GraphEdges + graph name."""
         import rerun as rr
 
         ids = self.agent_ids.tolist()
-        labels = [f"agent {a}" if a in alive else f"agent {a} (lost)" for a in ids]
-        colors = [self._color(k) if a in alive else _DEAD_COLOR for k, a in enumerate(ids)]
-        self._set_times(tau, self._t_of_tau(tau))
-        self._rec.log(TOPOLOGY,
-                      rr.GraphNodes([str(a) for a in ids], labels=labels, colors=colors),
-                      rr.GraphEdges(edges, graph_type="directed"),
-                      rr.AnyValues(graph_name=graph_name))
+        node_ids, labels, colors, edges, edge_counts = [], [], [], [], []
+        for _, _, _, alive, row_edges, _ in queued:
+            node_ids += [str(a) for a in ids]
+            labels += [f"agent {a}" if a in alive else f"agent {a} (lost)" for a in ids]
+            colors += [self._color(k) if a in alive else _DEAD_COLOR for k, a in enumerate(ids)]
+            edges += row_edges
+            edge_counts.append(len(row_edges))
+        taus, seconds, names, _, _, walls = zip(*queued)
+        rows = len(queued)
+        columns = [*rr.GraphNodes.columns(node_ids=node_ids, labels=labels, colors=colors).partition([len(ids)] * rows),
+                   *rr.GraphEdges.columns(edges=edges).partition(edge_counts),
+                   *rr.GraphEdges.columns(graph_type=["directed"] * rows),
+                   *rr.AnyValues.columns(graph_name=list(names))]
+        self._rec.send_columns(TOPOLOGY, indexes=self._index_columns(rr, taus, seconds, walls), columns=columns)
 
     def row(self, tau: int, x: np.ndarray, xhat: np.ndarray, alive: np.ndarray, graph: int) -> None:
         """Record event time ``tau``: ``x`` (n,), ``xhat`` (m, n), ``alive`` (m,) bool, graph index.
 
         Rows come in increasing ``tau``; a row re-sent for an already recorded
         ``tau`` replaces it.  Rows of dead agents are stored as NaN whatever
-        ``xhat`` holds there.
+        ``xhat`` holds there.  The row is buffered: it reaches Rerun and
+        ``trajectory.npz`` at the next flush (see the module docstring).
         """
         tau = int(tau)
         x = np.asarray(x, dtype=float)
@@ -435,15 +512,16 @@ class Recorder:
                     raise RecordingError(f"row for tau={tau} arrives after tau={self._tau[self._rows - 1]}; "
                                          "rows must come in increasing tau")
                 k = self._append_slot(tau)
+            elif k < self._sent:
+                self._dirty.add(k)  # already in Rerun: send the whole row again (newest wins)
             self._t[k] = self._t_of_tau(tau)
             self._x[k] = x
             self._xhat[k] = np.where(alive[:, None], xhat, np.nan)
             self._alive[k] = alive
             self._graph[k] = int(graph)
-            self._rerun("row log", self._log_row, k, range(self.m), True)
-            if time.monotonic() - self._last_write >= self.flush_seconds:
-                self._write_trajectory()
-                self._rerun("flush", self._rec_flush, 0.0)
+            self._wall[k] = time.time_ns()
+            self._traj_dirty = True
+            self._maybe_flush()
 
     def _append_slot(self, tau: int) -> int:
         k = self._rows
@@ -463,39 +541,75 @@ class Recorder:
         self._t, self._x = bigger(self._t, 0.0), bigger(self._x, 0.0)
         self._xhat, self._alive = bigger(self._xhat, np.nan), bigger(self._alive, False)
         self._graph, self._tau = bigger(self._graph, 0), bigger(self._tau, 0)
+        self._wall = bigger(self._wall, 0)
         self._shown, self._shown_max = bigger(self._shown, False), bigger(self._shown_max, False)
 
-    def _log_row(self, k: int, agents: Iterable[int], with_truth: bool) -> None:
-        """Log row ``k`` for the given agent columns; clear what was shown and is no longer true."""
+    def _row_errors(self, K: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``|x_i - x|_2`` of rows ``K`` (L, m), NaN if dead, and where it is shown (alive and finite)."""
+        err = np.linalg.norm(self._xhat[K] - self._x[K][:, None, :], axis=2)
+        return err, self._alive[K] & np.isfinite(err)
+
+    def _send_rows(self, K: np.ndarray, err: np.ndarray, show: np.ndarray) -> None:
+        """Send rows ``K`` (row indices, increasing ``tau``) to Rerun: one chunk per entity.
+
+        Values go where an agent is shown (alive, finite estimate); a non-recursive
+        ``Clear`` goes where a value was shown by an earlier flush and is no longer
+        true.  Per entity, each event time appears at most once per flush, so the
+        newest flush wins on read.
+        """
         import rerun as rr
 
-        rec = self._rec
-        self._set_times(int(self._tau[k]), float(self._t[k]))
-        err = np.linalg.norm(self._xhat[k] - self._x[k][None, :], axis=1)  # |x_i - x|_2, NaN if dead
-        show = self._alive[k] & np.isfinite(err)
-        if with_truth:
-            for c in range(self.n):
-                rec.log(_state_path(c + 1, "truth"), rr.Scalars(float(self._x[k, c])))
-        for i in agents:
-            a = int(self.agent_ids[i])
-            if show[i]:
-                rec.log(_agent_path(ERRORS, a), rr.Scalars(float(err[i])))
+        send = self._rec.send_columns
+        L = len(K)
+        seq, t, wall = self._tau[K], self._t[K], self._wall[K]
+        x, xhat = self._x[K], self._xhat[K]
+        clear = self._shown[K] & ~show
+        show_max = show.any(axis=1)
+        clear_max = self._shown_max[K] & ~show_max
+        err_max = np.max(np.where(show, err, -np.inf), axis=1)
+
+        indexes: dict[bytes, list] = {}
+        clears: dict[int, Any] = {}
+
+        def index(mask: np.ndarray) -> list:
+            key = mask.tobytes()
+            cols = indexes.get(key)
+            if cols is None:
+                cols = indexes[key] = self._index_columns(rr, seq[mask], t[mask], wall[mask])
+            return cols
+
+        def send_clear(path: str, mask: np.ndarray) -> None:
+            cnt = int(mask.sum())
+            if cnt not in clears:
+                clears[cnt] = rr.Clear.columns(is_recursive=np.zeros(cnt, dtype=bool))
+            send(path, indexes=index(mask), columns=clears[cnt])
+
+        every = np.ones(L, dtype=bool)
+        for c in range(self.n):
+            send(_state_path(c + 1, "truth"), indexes=index(every), columns=rr.Scalars.columns(scalars=x[:, c]))
+        for i, a in enumerate(self.agent_ids.tolist()):
+            mask = show[:, i]
+            if mask.any():
+                send(_agent_path(ERRORS, a), indexes=index(mask), columns=rr.Scalars.columns(scalars=err[mask, i]))
                 for c in range(self.n):
-                    rec.log(_state_path(c + 1, f"agent_{a}"), rr.Scalars(float(self._xhat[k, i, c])))
-            elif self._shown[k, i]:
-                rec.log(_agent_path(ERRORS, a), rr.Clear(recursive=False))
+                    send(_state_path(c + 1, f"agent_{a}"), indexes=index(mask),
+                         columns=rr.Scalars.columns(scalars=xhat[mask, i, c]))
+            mask = clear[:, i]
+            if mask.any():
+                send_clear(_agent_path(ERRORS, a), mask)
                 for c in range(self.n):
-                    rec.log(_state_path(c + 1, f"agent_{a}"), rr.Clear(recursive=False))
-            self._shown[k, i] = show[i]
-        if show.any():
-            rec.log(ERRORS_MAX, rr.Scalars(float(err[show].max())))
-            self._shown_max[k] = True
-        elif self._shown_max[k]:
-            rec.log(ERRORS_MAX, rr.Clear(recursive=False))
-            self._shown_max[k] = False
+                    send_clear(_state_path(c + 1, f"agent_{a}"), mask)
+        if show_max.any():
+            send(ERRORS_MAX, indexes=index(show_max), columns=rr.Scalars.columns(scalars=err_max[show_max]))
+        if clear_max.any():
+            send_clear(ERRORS_MAX, clear_max)
 
     def mark_lost(self, tau: int, agent_id: int) -> None:
-        """Agent ``agent_id`` is lost from event time ``tau`` on: NaN/False in every recorded row with ``tau' >= tau``."""
+        """Agent ``agent_id`` is lost from event time ``tau`` on: NaN/False in every recorded row with ``tau' >= tau``.
+
+        Buffered rows simply lose the agent's values; rows already in Rerun get a
+        ``Clear`` (and a new ``errors/max``).  Then everything is flushed.
+        """
         i = self._pos.get(int(agent_id))
         if i is None:
             raise RecordingError(f"agent {agent_id} is not an agent of this run {tuple(self.agent_ids)}")
@@ -508,10 +622,19 @@ class Recorder:
                     continue
                 self._alive[k, i] = False
                 self._xhat[k, i] = np.nan
-                self._rerun("mark_lost log", self._log_row, int(k), [i], False)
+                self._traj_dirty = True
+                if k < self._sent and self._shown[k, i]:
+                    self._dirty.add(int(k))
+            self._flush()
+
+    def flush(self) -> None:
+        """Send the buffered rows and queued logs to Rerun and rewrite ``trajectory.npz`` now."""
+        with self._lock:
+            self._check_open("flush")
+            self._flush()
 
     def close(self, *, finished: bool = True) -> None:
-        """Write ``trajectory.npz`` with the rows so far, then flush and close Rerun and ``events.jsonl``.
+        """Flush, write ``trajectory.npz`` with the rows so far, then close Rerun and ``events.jsonl``.
 
         ``finished=False`` (run ended early) is noted as a WARN event.  Calling
         close twice is harmless.
@@ -523,7 +646,10 @@ class Recorder:
             self._event("recording_closed", t_last, "INFO" if finished else "WARN",
                         {"finished": bool(finished), "rows": self._rows})
             self._closed = True
+            self._stop.set()
+            _OPEN.discard(self)
             try:
+                self._flush(write_trajectory=False)
                 self._write_trajectory()
             finally:
                 self._events.close()
@@ -531,6 +657,15 @@ class Recorder:
                     self._rerun("final flush", self._rec_flush, 10.0)
                     self._rerun("disconnect", self._rec.disconnect)
                     self._rec = None
+
+    def __del__(self) -> None:
+        # Dropped without close(): send what is buffered (logging used to be immediate).
+        try:
+            if not self._closed:
+                with self._lock:
+                    self._flush()
+        except Exception:
+            pass
 
     def __enter__(self) -> "Recorder":
         return self
@@ -543,6 +678,38 @@ class Recorder:
     def _check_open(self, what: str) -> None:
         if self._closed:
             raise RecordingError(f"{what}() called after close()")
+
+    def _maybe_flush(self) -> None:
+        if time.monotonic() - self._last_flush >= self.flush_seconds:
+            self._flush()
+
+    def _pending(self) -> bool:
+        return (self._sent < self._rows or bool(self._dirty) or bool(self._queued_events)
+                or bool(self._queued_topology) or self._traj_dirty)
+
+    def _flush(self, *, write_trajectory: bool = True) -> None:
+        """Buffered rows, then queued logs, to Rerun; then ``trajectory.npz`` if rows changed.  Lock held."""
+        self._last_flush = time.monotonic()
+        K = np.array(sorted(self._dirty.union(range(self._sent, self._rows))), dtype=np.int64)
+        events, self._queued_events = self._queued_events, []
+        topology, self._queued_topology = self._queued_topology, []
+        if len(K):
+            err, show = self._row_errors(K)
+            if self._rec is not None:
+                self._rerun("row log", self._send_rows, K, err, show)
+            # What Rerun now shows (also when a send failed: it is not retried).
+            self._shown[K] = show
+            self._shown_max[K] = show.any(axis=1)
+        if events:
+            self._rerun("event log", self._send_events, events)
+        if topology:
+            self._rerun("topology log", self._send_topology, topology)
+        if len(K) or events or topology:
+            self._rerun("flush", self._rec_flush, 0.0)
+        self._sent = self._rows
+        self._dirty.clear()
+        if write_trajectory and self._traj_dirty:
+            self._write_trajectory()
 
     def _rec_flush(self, timeout: float) -> None:
         try:
@@ -567,7 +734,31 @@ class Recorder:
         except BaseException:
             Path(tmp).unlink(missing_ok=True)
             raise
-        self._last_write = time.monotonic()
+        self._traj_dirty = False
+
+
+def _watch(ref: "weakref.ref[Recorder]", stop: threading.Event) -> None:
+    """Background flusher: flush a recorder whose last flush is ``flush_seconds`` old (rows stopped coming)."""
+    while True:
+        rec = ref()
+        if rec is None:
+            return
+        wait = max(0.01, rec._last_flush + rec.flush_seconds - time.monotonic())
+        del rec  # no strong reference while waiting
+        if stop.wait(wait):
+            return
+        rec = ref()
+        if rec is None:
+            return
+        with rec._lock:
+            if rec._closed:
+                return
+            if time.monotonic() - rec._last_flush >= rec.flush_seconds and rec._pending():
+                try:
+                    rec._flush()
+                except Exception as exc:  # e.g. trajectory.npz not writable: the next call reports it
+                    log.warning("background flush failed (%s: %s)", type(exc).__name__, exc)
+        del rec
 
 
 # ---------------------------------------------------------------------- read-back

@@ -332,6 +332,10 @@ def q_weighted(cases, rate: float, *, q: int | None = None, q_max: int = 100_000
         for na, nb in per:
             if na > rate and nb > 0:
                 q = max(q, math.ceil(math.log(rate / na) / math.log(nb) - 1e-12))
+        # the -1e-12 spares a step when the ratio is an integer; round-off can then leave
+        # ||Atil||_R ||B||_R^q an ulp above lam, so step up until eq. (rnorm) holds as evaluated
+        while max(na * nb ** q for na, nb in per) > rate and q <= q_max:
+            q += 1
         if q > q_max:
             raise DesignError(f"q (weighted) = {q} exceeds design.q_max = {q_max}")
     bound = max(na * nb ** q for na, nb in per)
@@ -411,15 +415,18 @@ def q_mixed(cases, rate: float, *, q: int | None = None, q_max: int = 100_000) -
         p *= 2
         if p > q_max:
             raise DesignError(f"mixed norm: ||B^p|| >= 1 for p up to design.q_max = {q_max}")
+    nas = [mixed_norm(c.Atil, c.sizes) for c in live]
     pbar = 1
-    for c, nb in zip(live, nbs):
-        na = mixed_norm(c.Atil, c.sizes)
+    for na, nb in zip(nas, nbs):
         if na > rate and nb > 0:
             pbar = max(pbar, math.ceil(math.log(rate / na) / math.log(nb) - 1e-12))
+    # as in q_weighted: step up until eq. (rajit3) holds as evaluated, not just up to round-off
+    while max(na * nb ** pbar for na, nb in zip(nas, nbs)) > rate and p * pbar <= q_max:
+        pbar += 1
     q = p * pbar
     if q > q_max:
         raise DesignError(f"q (mixed) = {q} exceeds design.q_max = {q_max}")
-    bound = max(mixed_norm(c.Atil, c.sizes) * nb ** pbar for c, nb in zip(live, nbs))
+    bound = max(na * nb ** pbar for na, nb in zip(nas, nbs))
     return QResult(q=q, method="mixed", bound=bound, certified=bound <= rate, switching=True, p=p, pbar=pbar)
 
 

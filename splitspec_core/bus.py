@@ -11,6 +11,7 @@
 from __future__ import annotations
 
 import json
+import os
 import queue
 import time
 from typing import Any
@@ -29,14 +30,24 @@ class BusError(SplitspecError, RuntimeError):
     """The middleware could not be set up (bad endpoint, port in use, no router)."""
 
 
+def default_lease_ms() -> int:
+    """Link lease: ``SPLITSPEC_LEASE_MS`` or 2000 ms (a frozen process is declared gone after it;
+    shorter leases misfire when a loaded 2-core machine starves a process for a second)."""
+    try:
+        return max(100, int(os.environ.get("SPLITSPEC_LEASE_MS", "2000")))
+    except ValueError:
+        return 2000
+
+
 def zenoh_config(mode: str, *, listen: list | None = None, connect: list | None = None,
-                 lease_ms: int = 1000, user: str | None = None, password: str | None = None,
+                 lease_ms: int | None = None, user: str | None = None, password: str | None = None,
                  extra: dict | None = None) -> zenoh.Config:
     """Zenoh config: ``mode`` is ``router``, ``peer`` or ``client``; multicast scouting is off.
 
-    ``lease_ms`` is the link lease: a frozen peer is declared gone after it
-    (Zenoh's default is 10 s).
+    ``lease_ms`` is the link lease (default :func:`default_lease_ms`): a frozen
+    peer is declared gone after it (Zenoh's default is 10 s).
     """
+    lease_ms = default_lease_ms() if lease_ms is None else lease_ms
     c = zenoh.Config()
     try:
         c.insert_json5("mode", json.dumps(mode))

@@ -526,6 +526,8 @@ def _parse_design(raw: Any, time: str, system: System, ids: tuple) -> DesignSpec
     if q_method not in Q_METHODS:
         raise ScenarioError(f"design.q_method must be one of {', '.join(Q_METHODS)}, got {q_method!r}")
     q_max = _integer(dmap.get("q_max", 100_000), "design.q_max", minimum=1)
+    if q != "auto" and q > q_max:
+        raise ScenarioError(f"design.q = {q} exceeds design.q_max = {q_max}")
     resilience = _integer(dmap.get("resilience", 0), "design.resilience", minimum=0)
     if resilience > 1:
         raise ScenarioError(f"design.resilience must be 0 or 1, got {resilience}")

@@ -1,4 +1,4 @@
-"""Recorder: trajectory.npz contract, events.jsonl, run.rrd contents, crash safety."""
+"""Recorder: trajectory.npz contract, events.jsonl, run.rrd contents, buffering, crash safety."""
 
 from __future__ import annotations
 
@@ -9,6 +9,7 @@ import socket
 import subprocess
 import sys
 import textwrap
+import time
 from pathlib import Path
 
 import numpy as np
@@ -74,16 +75,36 @@ def record(out: Path, *, time_mode: str, close: bool = True, flush_seconds: floa
     return rec
 
 
-@pytest.fixture(scope="module", params=["discrete", "continuous"])
+# flush_seconds 0: every call flushes, so the re-sent row and mark_lost hit rows already in Rerun
+# (Clear path); NEVER: rows stay buffered until mark_lost (rows 0..14) and close (rows 15..19).
+NEVER = 3600.0
+
+
+def clear_taus(path: Path) -> dict[str, set[int]]:
+    """entity -> event times at which a Clear was logged."""
+    from rerun.chunk import RrdReader
+
+    out: dict[str, set[int]] = {}
+    for chunk in RrdReader(path).stream():
+        batch = chunk.to_record_batch()
+        if chunk.is_static or "Clear:is_recursive" not in batch.schema.names:
+            continue
+        out.setdefault(chunk.entity_path.lstrip("/"), set()).update(batch.column("event").to_pylist())
+    return out
+
+
+@pytest.fixture(scope="module", params=[("discrete", NEVER), ("continuous", 0.0), ("discrete", 0.0),
+                                        ("continuous", NEVER)], ids=lambda p: f"{p[0]}-flush{p[1]:g}")
 def recorded(request, tmp_path_factory):
-    out = tmp_path_factory.mktemp(f"run_{request.param}")
-    rec = record(out, time_mode=request.param)
+    mode, flush_seconds = request.param
+    out = tmp_path_factory.mktemp(f"run_{mode}")
+    rec = record(out, time_mode=mode, flush_seconds=flush_seconds)
     assert rec.rows_recorded == T
-    return out, request.param
+    return out, mode, flush_seconds
 
 
 def test_trajectory_contract(recorded):
-    out, mode = recorded
+    out, mode, _ = recorded
     x, _, _, alive, graph, expected_xhat = synthetic()
     with np.load(out / "trajectory.npz") as f:
         assert set(f.files) == {"t", "x", "xhat", "alive", "graph", "agent_ids"}
@@ -102,7 +123,7 @@ def test_trajectory_contract(recorded):
 
 
 def test_events_jsonl(recorded):
-    out, _ = recorded
+    out, _, _ = recorded
     lines = (out / "events.jsonl").read_text().splitlines()
     events = [json.loads(line) for line in lines]
     assert all("event" in e and "t" in e and "wall" in e for e in events)
@@ -114,13 +135,13 @@ def test_events_jsonl(recorded):
 
 
 def test_rrd_verifies(recorded):
-    out, _ = recorded
+    out, _, _ = recorded
     ok, output = verify_rrd(out / "run.rrd")
     assert ok, output
 
 
 def test_rrd_values_match_trajectory(recorded):
-    out, mode = recorded
+    out, mode, _ = recorded
     series = read_rrd(out / "run.rrd")
     with np.load(out / "trajectory.npz") as f:
         x, xhat, alive = f["x"], f["xhat"], f["alive"]
@@ -145,7 +166,7 @@ def test_rrd_values_match_trajectory(recorded):
 def test_rrd_topology_and_event_levels(recorded):
     from rerun.chunk import RrdReader
 
-    out, _ = recorded
+    out, _, _ = recorded
     levels, nodes_labels = {}, []
     for chunk in RrdReader(out / "run.rrd").stream():
         batch = chunk.to_record_batch()
@@ -160,6 +181,83 @@ def test_rrd_topology_and_event_levels(recorded):
     assert ["agent 1", "agent 2", f"agent {LOST_ID} (lost)"] in nodes_labels
 
 
+def test_clear_only_for_values_already_sent(recorded):
+    """mark_lost on buffered rows drops the values; on rows already in Rerun it logs Clear."""
+    out, _, flush_seconds = recorded
+    clears = clear_taus(out / "run.rrd")
+    if flush_seconds == NEVER:  # rows 12..14 were still buffered when agent 5 was marked lost
+        assert clears == {}
+    else:
+        lost = set(range(LOST_TAU, LOST_NOTICED + 1))
+        assert clears[f"errors/agent_{LOST_ID}"] == lost
+        assert all(clears[f"state/{k + 1}/agent_{LOST_ID}"] == lost for k in range(N))
+        assert set(clears) == {f"errors/agent_{LOST_ID}"} | {f"state/{k + 1}/agent_{LOST_ID}" for k in range(N)}
+
+
+def test_resent_rows_buffered_and_sent(tmp_path):
+    """A re-sent row replaces a sent row (values re-sent, Clear where an agent went) or a buffered one."""
+    rec = Recorder(tmp_path, agent_ids=IDS, n=N, steps=4, time_mode="discrete", dt=1.0, graph_names=GRAPHS,
+                   run_id="resend", scenario_name="resend", flush_seconds=NEVER)
+    rng = np.random.default_rng(1)
+    x, xhat = rng.normal(size=(4, N)), rng.normal(size=(4, M, N))
+    everyone = np.ones(M, dtype=bool)
+    for tau in range(3):
+        rec.row(tau, x[tau], xhat[tau], everyone, 0)
+    rec.flush()  # rows 0..2 in Rerun
+    rec.row(3, x[3], xhat[3], everyone, 0)  # buffered
+    without_2, without_1 = np.array([True, False, True]), np.array([False, True, True])
+    xhat[1] += 1.0
+    rec.row(1, x[1], xhat[1], without_2, 0)  # sent row: new values, Clear for agent 2
+    xhat[3] -= 1.0
+    rec.row(3, x[3], xhat[3], without_1, 0)  # buffered row: agent 1 never sent
+    rec.close()
+
+    series = read_rrd(tmp_path / "run.rrd")
+    alive = np.array([everyone, without_2, everyone, without_1])
+    err = np.linalg.norm(xhat - x[:, None, :], axis=2)
+    for i, a in enumerate(IDS):
+        got = dict(series[f"errors/agent_{a}"])
+        assert sorted(got) == [tau for tau in range(4) if alive[tau, i]]
+        for tau, value in got.items():
+            assert value == pytest.approx(err[tau, i], abs=1e-9, rel=0)
+            assert dict(series[f"state/1/agent_{a}"])[tau] == xhat[tau, i, 0]
+    assert [v for _, v in series["errors/max"]] == pytest.approx(
+        [err[tau, alive[tau]].max() for tau in range(4)], abs=1e-9, rel=0)
+    assert clear_taus(tmp_path / "run.rrd") == {"errors/agent_2": {1}, **{f"state/{k + 1}/agent_2": {1}
+                                                                       for k in range(N)}}
+    with np.load(tmp_path / "trajectory.npz") as f:
+        np.testing.assert_array_equal(f["alive"], alive)
+        np.testing.assert_array_equal(np.isnan(f["xhat"]).all(axis=2), ~alive)
+
+
+@pytest.mark.filterwarnings("ignore:RRD file has no footer")
+def test_background_flush_when_rows_stop(tmp_path):
+    """With no recorder call for flush_seconds, buffered rows still reach trajectory.npz and run.rrd."""
+    rec = Recorder(tmp_path, agent_ids=IDS, n=N, steps=10, time_mode="discrete", dt=1.0, graph_names=GRAPHS,
+                   run_id="idle", scenario_name="idle", flush_seconds=0.2)
+    try:
+        rec.event("start", 0.0)
+        for tau in range(3):
+            rec.row(tau, np.zeros(N), np.ones((M, N)), np.ones(M, dtype=bool), 0)
+        deadline = time.monotonic() + 10.0
+        series: dict = {}
+        while time.monotonic() < deadline:
+            time.sleep(0.1)
+            if (tmp_path / "trajectory.npz").exists() and (tmp_path / "run.rrd").exists():
+                series = read_rrd(tmp_path / "run.rrd")
+                if len(series.get("errors/max", [])) == 3:
+                    break
+        with np.load(tmp_path / "trajectory.npz") as f:
+            assert f["t"].shape == (3,)
+        assert [tau for tau, _ in series["errors/max"]] == [0, 1, 2]
+    finally:
+        rec.close()
+    assert rec._watcher is not None
+    rec._watcher.join(timeout=5.0)
+    assert not rec._watcher.is_alive()  # close() stops the background flusher
+
+
+@pytest.mark.filterwarnings("ignore:RRD file has no footer")
 def test_crash_leaves_readable_trajectory(tmp_path):
     """A process killed without close() still leaves every row in trajectory.npz (flush_seconds=0)."""
     script = textwrap.dedent(f"""
@@ -182,6 +280,74 @@ def test_crash_leaves_readable_trajectory(tmp_path):
         np.testing.assert_array_equal(f["alive"], alive)
     events = [json.loads(line) for line in (tmp_path / "events.jsonl").read_text().splitlines()]
     assert events[-1]["event"] == "message_rejected"
+    # run.rrd (no footer after a kill) is readable; rows flushed just before the kill may not have reached it
+    got = [tau for tau, _ in read_rrd(tmp_path / "run.rrd").get("errors/max", [])]
+    assert got == list(range(len(got)))
+
+
+@pytest.mark.filterwarnings("ignore:RRD file has no footer")
+def test_crash_keeps_rows_up_to_last_flush(tmp_path):
+    """Killed after rows were buffered: both files hold exactly the rows up to the last flush (mark_lost)."""
+    script = textwrap.dedent(f"""
+        import os, sys, time
+        sys.path.insert(0, {str(Path(__file__).parent)!r})
+        from test_recorder import record, NEVER
+        from pathlib import Path
+        rec = record(Path({str(tmp_path)!r}), time_mode="discrete", close=False, flush_seconds=NEVER)
+        time.sleep(1.0)  # the Rerun file sink writes in the background
+        os._exit(3)  # no close(), no atexit, no Rerun shutdown
+    """)
+    proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60,
+                          env={**os.environ, "RERUN_ANALYTICS": "0"})
+    assert proc.returncode == 3, proc.stdout + proc.stderr
+    x, _, _, alive, _, expected_xhat = synthetic()
+    flushed = LOST_NOTICED + 1  # mark_lost flushed rows 0..14; rows 15..19 were still buffered
+    with np.load(tmp_path / "trajectory.npz") as f:
+        assert f["t"].shape == (flushed,)
+        np.testing.assert_array_equal(f["xhat"], expected_xhat[:flushed])
+        np.testing.assert_array_equal(f["alive"], alive[:flushed])
+    series = read_rrd(tmp_path / "run.rrd")
+    assert [tau for tau, _ in series["errors/max"]] == list(range(flushed))
+    assert [tau for tau, _ in series[f"errors/agent_{LOST_ID}"]] == list(range(LOST_TAU))
+    assert clear_taus(tmp_path / "run.rrd") == {}
+
+
+@pytest.mark.filterwarnings("ignore:RRD file has no footer")
+@pytest.mark.parametrize("keep", [True, False], ids=["exit", "dropped"])
+def test_exit_without_close_flushes_buffered_rows(tmp_path, keep):
+    """Without close(), buffered rows still reach both files at a normal exit or when the recorder is dropped."""
+    script = textwrap.dedent(f"""
+        import sys
+        sys.path.insert(0, {str(Path(__file__).parent)!r})
+        from test_recorder import record, NEVER
+        from pathlib import Path
+        {"rec = " if keep else ""}record(Path({str(tmp_path)!r}), time_mode="discrete", close=False,
+                                           flush_seconds=NEVER)
+    """)
+    proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60,
+                          env={**os.environ, "RERUN_ANALYTICS": "0"})
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    with np.load(tmp_path / "trajectory.npz") as f:
+        assert f["t"].shape == (T,)
+    assert [tau for tau, _ in read_rrd(tmp_path / "run.rrd")["errors/max"]] == list(range(T))
+
+
+def test_failing_rerun_send_is_a_warning(tmp_path, caplog):
+    rec = Recorder(tmp_path, agent_ids=IDS, n=N, steps=3, time_mode="discrete", dt=1.0, graph_names=GRAPHS,
+                   run_id="fail", scenario_name="fail", flush_seconds=NEVER)
+
+    def broken(*args, **kwargs):
+        raise RuntimeError("sink gone")
+
+    rec._rec.send_columns = broken
+    with caplog.at_level(logging.WARNING, logger="orchestrator.recorder"):
+        for tau in range(3):
+            rec.row(tau, np.zeros(N), np.ones((M, N)), np.ones(M, dtype=bool), 0)
+        rec.event("start", 0.0)
+        rec.close()
+    assert "Rerun row log failed" in caplog.text and "sink gone" in caplog.text
+    with np.load(tmp_path / "trajectory.npz") as f:
+        assert f["t"].shape == (3,)
 
 
 def test_unreachable_viewer_falls_back_to_file(tmp_path, caplog):

@@ -325,3 +325,14 @@ def test_design_json_contract():
     checks = data["checks"]
     assert checks["jointly_observable"] is True
     assert checks["strongly_connected"] == {"a": True, "b": True}
+
+
+def test_given_q_above_q_max_is_rejected(tmp_path, capsys):
+    from orchestrator.cli import main
+
+    p = tmp_path / "s.yaml"
+    p.write_text("time: discrete\nsystem: {A: [[1]], C: {1: [[1]]}}\ngraphs: {a: {arcs: []}}\n"
+                 "design: {rate: 0.5, q: 1000000000}\n")
+    assert main(["design", str(p)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "design.q = 1000000000 exceeds design.q_max = 100000" in err
