@@ -158,10 +158,11 @@ class AgentNode:
             self.reject("bad_shape")
             return []
         r = self.round
-        here = (self.tau if r is None else r["tau"], -1 if r is None else r["attempt"])
         tag = (m["tau"], m["attempt"])
-        if tag < here or not 0 <= m["k"] < self.exchanges:
-            self.reject("stale" if tag < here else "bad_k")
+        # before the first tick nothing is stale: a neighbour may have started the first round already
+        stale = self.tau is not None and tag < ((self.tau, -1) if r is None else (r["tau"], r["attempt"]))
+        if stale or not 0 <= m["k"] < self.exchanges:
+            self.reject("stale" if stale else "bad_k")
             return []
         # the next legitimate round is at most one event time ahead of the committed estimate
         newest = r["tau"] if r is not None else (self.tau + 1 if self.tau is not None else None)
@@ -297,13 +298,18 @@ def main(args: argparse.Namespace) -> int:
             if item is None:
                 continue
             channel, key, payload = item
-            if channel == "tick":
-                publish(node.on_tick(payload))
-            elif channel == "z":
-                publish(node.on_z(key, payload))
-            elif channel == "y":
-                publish(node.on_y(payload))
-            elif channel == "control":
+            try:
+                if channel == "tick":
+                    publish(node.on_tick(payload))
+                elif channel == "z":
+                    publish(node.on_z(key, payload))
+                elif channel == "y":
+                    publish(node.on_y(payload))
+            except (ValueError, TypeError, KeyError, IndexError) as exc:
+                # a message that passed validation but still broke the round: drop it, count it, go on
+                node.reject("handler_error")
+                log.warning("agent %s: dropped a %s message on %s: %s", args.id, channel, key, exc)
+            if channel == "control":
                 try:
                     if decode(payload, keys.run_id, "control")["cmd"] == "stop":
                         log.info("agent %s: stop from the orchestrator", args.id)

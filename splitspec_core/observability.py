@@ -19,8 +19,15 @@ The observable space is built as the block Krylov space
 its singular value exceeds ``rank_tol * ||C_i||_2`` (first block) or
 ``rank_tol * ||A||_2`` (later blocks, whose vectors have norm up to
 ``||A||_2``), so the decision is invariant to scaling ``A`` or ``C_i``.
-``rank_tol`` defaults to 1e-9 (``design.rank_tol``).  Joint observability is
-decided the same way on the stacked pair ``(C, A)``.
+``rank_tol`` defaults to 1e-9 (``design.rank_tol``).  A kept direction whose
+relative singular value is ``sigma`` is itself only known to ``~eps / sigma``
+(nearly dependent rows of ``C_i``, e.g. two sensors of one oscillator at almost
+the same angle), and ``A'`` carries that error out of the span found so far.
+So the error ``delta`` of the basis is tracked (``eps / sigma`` for the first
+block, ``(delta + eps) / sigma`` for each later one) and later blocks count a
+direction only above ``max(rank_tol, 10 delta) * ||A||_2``; for well
+conditioned ``C_i`` this is ``rank_tol``.  Joint observability is decided the
+same way on the stacked pair ``(C, A)``.
 """
 
 from __future__ import annotations
@@ -83,16 +90,22 @@ def observable_basis(A: np.ndarray, C: np.ndarray, *, rank_tol: float = 1e-9) ->
     normC = np.linalg.norm(C, 2) if C.size else 0.0
     if normC == 0.0:
         return np.zeros((n, 0))
+    eps = np.finfo(float).eps
     U, s, _ = np.linalg.svd(C.T, full_matrices=False)
-    W = U[:, : int(np.sum(s > rank_tol * normC))]
+    r = int(np.sum(s > rank_tol * normC))
+    W = U[:, :r]
     new = W
+    noise = eps * normC / s[r - 1] if r else 0.0  # accuracy of the least determined kept direction
     normA = np.linalg.norm(A, 2)
     while W.shape[1] < n and new.shape[1] > 0 and normA > 0:
         X = A.T @ new
         for _ in range(2):  # classical Gram-Schmidt, twice for orthogonality
             X = X - W @ (W.T @ X)
         U, s, _ = np.linalg.svd(X, full_matrices=False)
-        new = U[:, : int(np.sum(s > rank_tol * normA))]
+        r = int(np.sum(s > max(rank_tol, 10.0 * noise) * normA))
+        new = U[:, :r]
+        if r:  # a new direction inherits the error of those it came from, divided by its own size
+            noise = max(noise, (noise + eps) * normA / s[r - 1])
         W = np.hstack([W, new])
     return W
 

@@ -12,7 +12,14 @@ row on every owned block, zero elsewhere.  With distinct eigenvalues the PBH
 test gives: the unobservable space of ``(C_i, A)`` is exactly
 ``T span{e_k : k in unowned blocks}``.  Every block has at least one owner,
 hence ``(C, A)`` is jointly observable.  An agent may own nothing (``C_i = 0``,
-``V_i = R^n``).
+``V_i = R^n``); ``C_i`` may have a second row, a multiple of the first or well
+independent of it (singular value ratio >= 1e-3), or, with ``near_dependent``,
+one that differs from a multiple of the first by 1e-4..1e-10.
+
+Sizes: m = 1..8 agents (mostly 2..8), n = 1..10 states.  An agent observes at
+most 8 (discrete) or 6 (continuous) states, and large gain shifts are avoided:
+the local gains are numerically meaningless beyond that (see the comment in
+:func:`scenarios`), which is a limit of double precision, not of the paper.
 
 Graphs
 ------
@@ -70,13 +77,13 @@ class Drawn:
 
 
 def _sizes_m():
-    # mostly 2..8 agents, sometimes a single one
+    """Mostly 2..8 agents, a single one once in 22 draws."""
     return st.sampled_from([1] + list(range(2, 9)) * 3)
 
 
 @st.composite
 def _modes(draw, n: int, time: str) -> tuple:
-    """Block sizes and blocks of ``D`` (distinct eigenvalues from the grids)."""
+    """The diagonal blocks of ``D`` in random order (distinct eigenvalues from the grids)."""
     pairs = draw(st.integers(0, n // 2))
     reals = n - 2 * pairs
     if time == "discrete":
@@ -112,7 +119,7 @@ def _coefficient(draw, size: int) -> np.ndarray:
 
 
 @st.composite
-def _system(draw, m: int, time: str, n_max: int = 10, own_cap: int = 10) -> tuple:
+def _system(draw, m: int, time: str, n_max: int = 10, own_cap: int = 10, near_dependent: bool = False) -> tuple:
     n = draw(st.integers(1, min(n_max, m * own_cap)))
     blocks = draw(_modes(n, time))
     nb = len(blocks)
@@ -136,16 +143,29 @@ def _system(draw, m: int, time: str, n_max: int = 10, own_cap: int = 10) -> tupl
                 load[i] += size[b]
     cs = []
     for i in range(m):
-        rows = draw(st.integers(1, 2))
+        rows = 2 if near_dependent else draw(st.integers(1, 2))
         c = np.zeros((rows, n))
-        for r in range(rows):
-            # the first row touches every owned block; a second row a subset (or is a multiple of the first)
-            use = sorted(owned[i]) if r == 0 else sorted(draw(st.sets(st.sampled_from(sorted(owned[i])), max_size=nb))
-                                                           if owned[i] else [])
+        # the first row touches every owned block; a second row touches a subset of them, or is a
+        # multiple of the first (rank-deficient C_i), or (near_dependent) nearly so: two sensors of
+        # the same thing, whose weakly determined difference must not leak into the rank decisions
+        for b in sorted(owned[i]):
+            c[0, edges[b]:edges[b + 1]] = draw(_coefficient(edges[b + 1] - edges[b]))
+        if rows == 2 and owned[i]:
+            kind = "nearly" if near_dependent else draw(st.sampled_from(["subset", "multiple"]))
+            use = sorted(draw(st.sets(st.sampled_from(sorted(owned[i])), max_size=nb))) if kind == "subset" \
+                else sorted(owned[i])
             for b in use:
-                c[r, edges[b]:edges[b + 1]] = draw(_coefficient(edges[b + 1] - edges[b]))
-            if r == 1 and draw(st.booleans()):
-                c[1] = draw(st.floats(0.1, 2.0)) * draw(st.sampled_from([-1.0, 1.0])) * c[0]  # rank-deficient C_i
+                c[1, edges[b]:edges[b + 1]] = draw(_coefficient(edges[b + 1] - edges[b]))
+            if kind != "subset":
+                f = draw(st.floats(0.1, 2.0)) * draw(st.sampled_from([-1.0, 1.0]))
+                delta = 0.0 if kind == "multiple" else draw(st.sampled_from([1e-4, 1e-7, 1e-8, 1e-10]))
+                c[1] = f * c[0] + delta * c[1]
+            sv = np.linalg.svd(c, compute_uv=False)
+            if not near_dependent and len(sv) == 2 and 0 < sv[1] < 1e-3 * sv[0]:
+                # a subset row at almost the angle of the first (one shared 2x2 block): every result
+                # of the design then carries round-off amplified by sv[0] / sv[1] (K ~ 1 / sv[1]);
+                # keep the main properties on well-conditioned C_i
+                c[1] = c[0]
         cs.append(c)
     if draw(st.booleans()):
         seed = draw(st.integers(0, 2**32 - 1))
@@ -175,8 +195,12 @@ def _arcs(draw, m: int) -> tuple:
 
 @st.composite
 def scenarios(draw, *, time: str | None = None, q_method: str | None = None, m_max: int = 8,
-              n_max: int = 10, graphs: int | None = None) -> Drawn:
-    """A valid scenario (see the module docstring); ``None`` arguments are drawn."""
+              n_max: int = 10, graphs: int | None = None, near_dependent: bool = False) -> Drawn:
+    """A valid scenario (see the module docstring); ``None`` arguments are drawn.
+
+    ``near_dependent``: every observing agent has two output rows that differ by 1e-4..1e-10 of
+    their size (valid, but ill-conditioned: for rank-decision tests of the local decomposition).
+    """
     time = time or draw(st.sampled_from(["discrete", "continuous"]))
     m = draw(_sizes_m().filter(lambda k: k <= m_max))
     ids = sorted(draw(st.lists(st.integers(1, 40), min_size=m, max_size=m, unique=True)))
@@ -199,7 +223,7 @@ def scenarios(draw, *, time: str | None = None, q_method: str | None = None, m_m
         margins = [x for x in margins if rate * (1 + x) <= 3.0] or [0.2]
     elif gains == "riccati":
         margins = [x for x in margins if rate / (1 + x) >= 0.15] or [0.2]
-    A, Cs, T, edges, owned = draw(_system(m, time, n_max, own_cap))
+    A, Cs, T, edges, owned = draw(_system(m, time, n_max, own_cap, near_dependent))
     ngraphs = graphs or draw(st.integers(1, 2))
     gs = [draw(_arcs(m)) for _ in range(ngraphs)]
     names = [f"g{k + 1}" for k in range(ngraphs)]
