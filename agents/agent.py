@@ -19,11 +19,6 @@ from __future__ import annotations
 
 import argparse
 import logging
-import os
-import signal
-import socket
-import sys
-import time
 
 import numpy as np
 import yaml
@@ -246,84 +241,20 @@ class AgentNode:
 # ---------------------------------------------------------------------- process shell
 
 
-def fetch_config(session, keys: Keys, *, role: str, ident: int, wait: float) -> dict:
-    """Ask the orchestrator's queryable for the scenario and the centralised design."""
-    from splitspec_core.bus import query_bytes
-
-    hello = encode("hello", keys.run_id, role=role, id=int(ident), pid=os.getpid(), host=socket.gethostname())
-    raw = query_bytes(session, keys.config, timeout=2.0, payload=hello, retry_until=time.monotonic() + wait)
-    if raw is None:
-        raise TimeoutError(f"no orchestrator answered on {keys.config} within {wait:g} s")
-    return decode(raw, keys.run_id, "config")
-
-
-def install_stop_signals(inbox) -> None:
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: inbox.put(("signal", "", b"")))
-
-
 def main(args: argparse.Namespace) -> int:
     """``splitspec agent --id I --connect ENDPOINT [--run-id ID]``."""
-    from splitspec_core.bus import LIVELINESS_DELETE, Inbox, open_session
+    from splitspec_core.bus import NodeShell
 
     keys = Keys(args.run_id or DEFAULT_RUN_ID)
-    session = open_session("client", connect=[args.connect])
-    inbox = Inbox(session)
-    install_stop_signals(inbox)
+    shell = NodeShell(args.connect, keys, log=log)
     try:
-        # watch the orchestrator first: if it dies we must exit by ourselves
-        inbox.watch_liveliness(keys.alive("orchestrator"), "orchestrator")
-        cfg = fetch_config(session, keys, role="agent", ident=args.id, wait=args.wait)
-        node = AgentNode(args.id, cfg, keys.run_id)
-        pubs = {}
-
-        def publish(items):
-            for key, payload in items:
-                pub = pubs.get(key)
-                if pub is None:
-                    pub = pubs[key] = session.declare_publisher(key)
-                pub.put(payload)
-
-        inbox.subscribe(keys.tick, "tick")
-        inbox.subscribe(keys.y(args.id), "y")
-        inbox.subscribe(keys.control, "control")
+        node = AgentNode(args.id, shell.fetch_config(role="agent", ident=args.id, wait=args.wait), keys.run_id)
+        handlers = {"tick": lambda key, p: node.on_tick(p), "z": node.on_z, "y": lambda key, p: node.on_y(p)}
+        shell.inbox.subscribe(keys.tick, "tick")
+        shell.inbox.subscribe(keys.y(args.id), "y")
         for j in node.in_neighbours:
-            inbox.subscribe(keys.z(j), "z")
-        for key in (keys.xhat(args.id), keys.z(args.id)):
-            pubs[key] = session.declare_publisher(key)
-        token = session.liveliness().declare_token(keys.alive("agent", args.id))
-        log.info("agent %s ready (pid %d, q = %s)", args.id, os.getpid(), node.exchanges)
-        while True:
-            item = inbox.get(timeout=1.0)
-            if item is None:
-                continue
-            channel, key, payload = item
-            try:
-                if channel == "tick":
-                    publish(node.on_tick(payload))
-                elif channel == "z":
-                    publish(node.on_z(key, payload))
-                elif channel == "y":
-                    publish(node.on_y(payload))
-            except (ValueError, TypeError, KeyError, IndexError) as exc:
-                # a message that passed validation but still broke the round: drop it, count it, go on
-                node.reject("handler_error")
-                log.warning("agent %s: dropped a %s message on %s: %s", args.id, channel, key, exc)
-            if channel == "control":
-                try:
-                    if decode(payload, keys.run_id, "control")["cmd"] == "stop":
-                        log.info("agent %s: stop from the orchestrator", args.id)
-                        break
-                except WireError as e:
-                    node.reject(e.reason)
-            elif channel == "orchestrator" and payload == LIVELINESS_DELETE:
-                log.warning("agent %s: orchestrator lost, exiting", args.id)
-                break
-            elif channel == "signal":
-                log.info("agent %s: interrupted", args.id)
-                break
-        token.undeclare()
-        return 0
+            shell.inbox.subscribe(keys.z(j), "z")
+        return shell.run(keys.alive("agent", args.id), lambda ch, key, p: handlers[ch](key, p), node.reject,
+                         name=f"agent {args.id} (q = {node.exchanges})")
     finally:
-        inbox.close()
-        session.close()
+        shell.close()

@@ -142,7 +142,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
     sc = load_scenario(args.scenario)
     design(sc)  # fail fast, with one line, before starting any process
-    Keys(args.run_id)
+    Keys(args.run_id)  # validates --run-id before any process starts
     out = Path(args.out)
     try:
         out.mkdir(parents=True, exist_ok=True)

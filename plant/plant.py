@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import argparse
 import logging
-import os
 
 import numpy as np
 import yaml
@@ -36,14 +35,14 @@ class PlantNode:
         self.y = None
         self.rejected: dict = {}
 
-    def _reject(self, reason: str) -> None:
+    def reject(self, reason: str) -> None:
         self.rejected[reason] = self.rejected.get(reason, 0) + 1
 
     def on_tick(self, payload: bytes) -> list:
         try:
             t = decode(payload, self.run_id, "tick")
         except WireError as e:
-            self._reject(e.reason)
+            self.reject(e.reason)
             return []
         tau = t["tau"]
         if self.tau is None:
@@ -52,7 +51,7 @@ class PlantNode:
         elif tau == self.tau + 1:
             self.plant.advance()
         elif tau != self.tau:
-            self._reject("stale" if tau < self.tau else "future")
+            self.reject("stale" if tau < self.tau else "future")
             return []
         if tau != self.tau:
             self.tau = tau
@@ -68,43 +67,13 @@ class PlantNode:
 
 def main(args: argparse.Namespace) -> int:
     """``splitspec plant --connect ENDPOINT [--run-id ID]``."""
-    from agents.agent import fetch_config, install_stop_signals
-    from splitspec_core.bus import LIVELINESS_DELETE, Inbox, open_session
+    from splitspec_core.bus import NodeShell
 
     keys = Keys(args.run_id or DEFAULT_RUN_ID)
-    session = open_session("client", connect=[args.connect])
-    inbox = Inbox(session)
-    install_stop_signals(inbox)
+    shell = NodeShell(args.connect, keys, log=log)
     try:
-        inbox.watch_liveliness(keys.alive("orchestrator"), "orchestrator")
-        cfg = fetch_config(session, keys, role="plant", ident=0, wait=args.wait)
-        node = PlantNode(cfg, keys.run_id)
-        pubs = {k: session.declare_publisher(k) for k in [keys.truth] + [keys.y(i) for i in node.sc.agent_ids]}
-        inbox.subscribe(keys.tick, "tick")
-        inbox.subscribe(keys.control, "control")
-        token = session.liveliness().declare_token(keys.alive("plant"))
-        log.info("plant ready (pid %d)", os.getpid())
-        while True:
-            item = inbox.get(timeout=1.0)
-            if item is None:
-                continue
-            channel, key, payload = item
-            if channel == "tick":
-                for k, p in node.on_tick(payload):
-                    pubs[k].put(p)
-            elif channel == "control":
-                try:
-                    if decode(payload, keys.run_id, "control")["cmd"] == "stop":
-                        break
-                except WireError:
-                    pass
-            elif channel == "orchestrator" and payload == LIVELINESS_DELETE:
-                log.warning("plant: orchestrator lost, exiting")
-                break
-            elif channel == "signal":
-                break
-        token.undeclare()
-        return 0
+        node = PlantNode(shell.fetch_config(role="plant", ident=0, wait=args.wait), keys.run_id)
+        shell.inbox.subscribe(keys.tick, "tick")
+        return shell.run(keys.alive("plant"), lambda ch, key, p: node.on_tick(p), node.reject, name="plant")
     finally:
-        inbox.close()
-        session.close()
+        shell.close()

@@ -20,7 +20,7 @@ import zenoh
 
 from .errors import SplitspecError
 
-__all__ = ["zenoh_config", "open_session", "Inbox", "BusError", "LIVELINESS_PUT", "LIVELINESS_DELETE"]
+__all__ = ["zenoh_config", "open_session", "Inbox", "NodeShell", "BusError", "LIVELINESS_PUT", "LIVELINESS_DELETE"]
 
 LIVELINESS_PUT = "put"
 LIVELINESS_DELETE = "delete"
@@ -151,3 +151,87 @@ def query_bytes(session: zenoh.Session, key: str, *, timeout: float, payload: by
         if retry_until is None or time.monotonic() > retry_until:
             return None
         time.sleep(0.1)
+
+
+class NodeShell:
+    """The Zenoh side of a plant or agent process: session, config fetch, publishing, the event loop.
+
+    The loop ends on a ``stop`` from the orchestrator, when the orchestrator's
+    liveliness token disappears (so no process outlives a crashed
+    orchestrator), or on SIGINT/SIGTERM.  Every other message goes to the
+    node's ``dispatch(channel, key, payload) -> [(key, payload), ...]``; a
+    handler error is counted with ``on_error(reason)`` and never ends the process.
+    """
+
+    def __init__(self, connect: str, keys, *, log):
+        import signal
+
+        self.keys, self.log = keys, log
+        self.session = open_session("client", connect=[connect])
+        self.inbox = Inbox(self.session)
+        self.pubs: dict = {}
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(sig, lambda *_: self.inbox.put(("signal", "", b"")))
+        # watch the orchestrator first: if it dies we must exit by ourselves
+        self.inbox.watch_liveliness(keys.alive("orchestrator"), "orchestrator")
+
+    def fetch_config(self, *, role: str, ident: int, wait: float) -> dict:
+        """Ask the orchestrator's queryable for the scenario and the centralised design (with a hello)."""
+        import socket
+
+        from .wire import decode, encode
+
+        hello = encode("hello", self.keys.run_id, role=role, id=int(ident), pid=os.getpid(),
+                       host=socket.gethostname())
+        raw = query_bytes(self.session, self.keys.config, timeout=2.0, payload=hello,
+                          retry_until=time.monotonic() + wait)
+        if raw is None:
+            raise TimeoutError(f"no orchestrator answered on {self.keys.config} within {wait:g} s")
+        return decode(raw, self.keys.run_id, "config")
+
+    def publish(self, items) -> None:
+        for key, payload in items:
+            pub = self.pubs.get(key)
+            if pub is None:
+                pub = self.pubs[key] = self.session.declare_publisher(key)
+            pub.put(payload)
+
+    def run(self, token_key: str, dispatch, on_error, *, name: str) -> int:
+        """Declare the liveliness token, then handle messages until told to stop."""
+        from .wire import WireError, decode
+
+        self.inbox.subscribe(self.keys.control, "control")
+        token = self.session.liveliness().declare_token(token_key)
+        self.log.info("%s ready (pid %d)", name, os.getpid())
+        while True:
+            item = self.inbox.get(timeout=1.0)
+            if item is None:
+                continue
+            channel, key, payload = item
+            if channel == "control":
+                try:
+                    if decode(payload, self.keys.run_id, "control")["cmd"] == "stop":
+                        self.log.info("%s: stop from the orchestrator", name)
+                        break
+                except WireError as e:
+                    on_error(e.reason)
+            elif channel == "orchestrator":
+                if payload == LIVELINESS_DELETE:
+                    self.log.warning("%s: orchestrator lost, exiting", name)
+                    break
+            elif channel == "signal":
+                self.log.info("%s: interrupted", name)
+                break
+            else:
+                try:
+                    self.publish(dispatch(channel, key, payload))
+                except (ValueError, TypeError, KeyError, IndexError) as exc:
+                    # a message that passed validation but still broke the node: drop it, count it, go on
+                    on_error("handler_error")
+                    self.log.warning("%s: dropped a %s message on %s: %s", name, channel, key, exc)
+        token.undeclare()
+        return 0
+
+    def close(self) -> None:
+        self.inbox.close()
+        self.session.close()

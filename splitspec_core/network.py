@@ -24,7 +24,7 @@ from .graphs import build_graph, graph_sequence, switch_times
 from .scenario import Scenario
 from .streams import stream
 
-__all__ = ["Plan", "make_plan", "consensus_rows", "fault_step"]
+__all__ = ["Plan", "make_plan", "consensus_rows", "fault_step", "NetworkState"]
 
 
 def fault_step(at: float, dt: float) -> int:
@@ -94,3 +94,46 @@ def consensus_rows(sc: Scenario, graph_index: int, alive_ids, dropped=frozenset(
         cols = [r] + [c for c in range(g.m) if c != r and g.S[r, c] != 0]
         rows[i] = (tuple(g.ids[c] for c in cols), tuple(float(g.S[r, c]) for c in cols))
     return rows
+
+
+class NetworkState:
+    """Alive agents, incarnations and dropped arcs as faults apply (agent positions are 0-based).
+
+    ``apply`` returns ``(killed, rejoined)``: positions that stopped taking part
+    and ``(position, incarnation)`` of agents that rejoin with a fresh estimate.
+    A hang is handled as a loss (the runtime declares a frozen agent lost).
+    """
+
+    def __init__(self, sc: Scenario):
+        self.ids = sc.agent_ids
+        self.alive = np.ones(sc.m, dtype=bool)
+        self.incarnation = np.zeros(sc.m, dtype=int)
+        self.dropped: set = set()
+
+    def apply(self, faults) -> tuple:
+        killed, rejoined = [], []
+        for f in faults:
+            if f.action in ("kill", "hang"):
+                i = self.ids.index(f.agent)
+                if self.alive[i]:
+                    self.alive[i] = False
+                    killed.append(i)
+            elif f.action == "restart":
+                i = self.ids.index(f.agent)
+                if not self.alive[i]:
+                    self.incarnation[i] += 1
+                    self.alive[i] = True
+                    rejoined.append((i, int(self.incarnation[i])))
+            elif f.action == "drop_arc":
+                self.dropped.add(f.arc)
+            elif f.action == "restore_arc":
+                self.dropped.discard(f.arc)
+        return killed, rejoined
+
+    def key(self, graph_index: int) -> tuple:
+        """Hashable description of the active network (for caching weights)."""
+        return (int(graph_index), self.alive.tobytes(), frozenset(self.dropped))
+
+    def rows(self, sc: Scenario, graph_index: int) -> dict:
+        return consensus_rows(sc, graph_index, [a for a, ok in zip(self.ids, self.alive) if ok],
+                              frozenset(self.dropped))

@@ -29,7 +29,7 @@ import scipy.sparse as sp
 
 from . import steps as st
 from .design import Design
-from .network import Plan, consensus_rows, make_plan
+from .network import NetworkState, Plan, make_plan
 from .scenario import Scenario
 from .streams import stream
 
@@ -373,33 +373,22 @@ def simulate(des: Design, *, seed: int | None = None, steps: int | None = None, 
     m, n, T = sc.m, sc.n, plan.steps + 1
     ids = sc.agent_ids
     X = np.stack([initial_estimate(n, seed, i) for i in range(m)])
-    alive = np.ones(m, dtype=bool)
-    incarnation = np.zeros(m, dtype=int)
-    dropped: set = set()
+    net = NetworkState(sc)
+    alive = net.alive
     xs = np.zeros((T, n))
     xh = np.full((T, m, n), np.nan)
     al = np.zeros((T, m), dtype=bool)
     gains = np.zeros((T, m)) if est.continuous and est.adaptive else None
     bar = _Progress(plan.steps, progress)
-    w_cache: dict = {}  # (graph, alive, dropped) -> the estimator's weights
+    w_cache: dict = {}  # active network -> the estimator's weights
     for k in range(T):
-        for f in plan.faults.get(k, ()):
-            if f.action in ("kill", "hang"):
-                i = ids.index(f.agent)
-                alive[i] = False
-                X[i] = 0.0
-            elif f.action == "restart":
-                i = ids.index(f.agent)
-                if not alive[i]:
-                    incarnation[i] += 1
-                    alive[i] = True
-                    X[i] = initial_estimate(n, seed, i, int(incarnation[i]))
-                    if gains is not None:
-                        est.g[i] = sc.design.g0
-            elif f.action == "drop_arc":
-                dropped.add(f.arc)
-            elif f.action == "restore_arc":
-                dropped.discard(f.arc)
+        killed, rejoined = net.apply(plan.faults.get(k, ()))
+        for i in killed:
+            X[i] = 0.0
+        for i, inc in rejoined:
+            X[i] = initial_estimate(n, seed, i, inc)
+            if gains is not None:
+                est.g[i] = sc.design.g0
         xs[k] = plant.x
         xh[k][alive] = X[alive]
         al[k] = alive
@@ -408,11 +397,10 @@ def simulate(des: Design, *, seed: int | None = None, steps: int | None = None, 
         if k == plan.steps:
             break
         y = plant.measure()
-        key = (int(plan.graph_seq[k]), alive.tobytes(), frozenset(dropped))
+        key = net.key(plan.graph_seq[k])
         W = w_cache.get(key)
         if W is None:
-            rows = consensus_rows(sc, key[0], [ids[i] for i in range(m) if alive[i]], key[2])
-            W = w_cache[key] = est.weights(rows)
+            W = w_cache[key] = est.weights(net.rows(sc, key[0]))
         X = est.step(X, y, W, alive)
         plant.advance()
         bar.update(k + 1)
@@ -440,26 +428,15 @@ def simulate_exact(des: Design, *, seed: int | None = None, steps: int | None = 
     A = np.array(sc.system.A)
     g = float(des.g)
     z = np.concatenate([initial_state(sc, seed)] + [initial_estimate(n, seed, i) for i in range(m)])
-    alive = np.ones(m, dtype=bool)
-    incarnation = np.zeros(m, dtype=int)
-    dropped: set = set()
+    net = NetworkState(sc)
+    alive = net.alive
     xs = np.zeros((T, n))
     xh = np.full((T, m, n), np.nan)
     al = np.zeros((T, m), dtype=bool)
     cache: dict = {}
     for k in range(T):
-        for f in plan.faults.get(k, ()):
-            i = ids.index(f.agent) if f.agent is not None else None
-            if f.action in ("kill", "hang"):
-                alive[i] = False
-            elif f.action == "restart" and not alive[i]:
-                incarnation[i] += 1
-                alive[i] = True
-                z[n * (i + 1):n * (i + 2)] = initial_estimate(n, seed, i, int(incarnation[i]))
-            elif f.action == "drop_arc":
-                dropped.add(f.arc)
-            elif f.action == "restore_arc":
-                dropped.discard(f.arc)
+        for i, inc in net.apply(plan.faults.get(k, ()))[1]:
+            z[n * (i + 1):n * (i + 2)] = initial_estimate(n, seed, i, inc)
         xs[k] = z[:n]
         for i in range(m):
             if alive[i]:
@@ -467,10 +444,10 @@ def simulate_exact(des: Design, *, seed: int | None = None, steps: int | None = 
         al[k] = alive
         if k == plan.steps:
             break
-        rows = consensus_rows(sc, int(plan.graph_seq[k]), [ids[i] for i in range(m) if alive[i]], frozenset(dropped))
-        key = tuple(sorted(rows.items()))
+        key = net.key(plan.graph_seq[k])
         Phi = cache.get(key)
         if Phi is None:
+            rows = net.rows(sc, key[0])
             M = np.zeros(((m + 1) * n, (m + 1) * n))
             M[:n, :n] = A
             pos = {a: r for r, a in enumerate(ids)}

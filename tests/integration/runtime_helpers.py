@@ -55,6 +55,20 @@ def wait_for_event(out: Path, name: str, timeout: float = 60.0) -> dict:
     raise AssertionError(f"no {name} event in {out}/events.jsonl within {timeout} s: {events(out)}")
 
 
+def wait_for_rows(out: Path, rows: int, timeout: float = 60.0) -> None:
+    """Until ``trajectory.npz`` (written incrementally) holds at least ``rows`` event times."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        try:
+            with np.load(out / "trajectory.npz") as f:
+                if f["t"].shape[0] >= rows:
+                    return
+        except (OSError, ValueError, KeyError):
+            pass  # not written yet
+        time.sleep(0.05)
+    raise AssertionError(f"fewer than {rows} rows in {out}/trajectory.npz after {timeout} s")
+
+
 def pid_alive(pid: int) -> bool:
     try:
         os.kill(pid, 0)
