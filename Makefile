@@ -16,6 +16,7 @@ $(VENV)/.installed: pyproject.toml
 	touch $@
 
 demo: setup
+	$(BIN)/splitspec design examples/paper_discrete.yaml
 	RERUN_ANALYTICS=0 $(BIN)/splitspec run examples/paper_discrete.yaml --out out/demo
 
 test: setup
