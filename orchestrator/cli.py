@@ -66,6 +66,10 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     from splitspec_core.simulate import simulate, simulate_exact
 
     sc = load_scenario(args.scenario)
+    if args.faults_from:
+        from splitspec_core.replay import with_recorded_faults
+
+        sc = with_recorded_faults(sc, args.faults_from)
     if args.steps is not None and args.steps < 1:
         raise UsageError("--steps must be >= 1")
     if args.monte_carlo is not None and args.monte_carlo < 1:
@@ -158,6 +162,33 @@ def _cmd_run(args: argparse.Namespace) -> int:
     return code
 
 
+_SIGNALS = {"KILL": "SIGKILL", "STOP": "SIGSTOP", "CONT": "SIGCONT", "TERM": "SIGTERM", "INT": "SIGINT"}
+
+
+def _cmd_kill(args: argparse.Namespace) -> int:
+    import signal
+    import socket
+
+    from splitspec_core.wire import Keys
+
+    from .registry import resolve
+
+    Keys(args.run_id)
+    role, ident = ("plant", None) if args.plant else ("orchestrator", None) if args.orchestrator else ("agent", args.agent)
+    pid, host, entry = resolve(args.run_id, role, ident)
+    what = {"plant": "the plant", "orchestrator": "the orchestrator"}.get(role, f"agent {ident}")
+    if host and host != socket.gethostname():
+        raise UsageError(f"{what} runs on host {host} (pid {pid}), not here: run splitspec kill there")
+    sig = getattr(signal, _SIGNALS[args.signal])
+    try:
+        os.kill(pid, sig)
+    except ProcessLookupError:
+        raise UsageError(f"{what} (pid {pid}) is not running any more") from None
+    print(f"sent {_SIGNALS[args.signal]} to {what} (pid {pid}) of run {args.run_id!r} "
+          f"(orchestrator pid {entry['orchestrator']['pid']}, records in {entry.get('out')})")
+    return 0
+
+
 def _add_process_options(p: argparse.ArgumentParser) -> None:
     from splitspec_core.wire import DEFAULT_RUN_ID
 
@@ -198,6 +229,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--exact", action="store_true", help="continuous time: integrate the exact ODE (noise-free) "
                                                         "instead of the sampled-data estimator")
     p.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
+    p.add_argument("--faults-from", metavar="EVENTS", help="replay a run: replace the scenario's faults by the "
+                   "losses, rejoins and link changes recorded in a run's events.jsonl (use the run's "
+                   "scenario.yaml)")
     p.set_defaults(func=_cmd_simulate)
 
     p = sub.add_parser("run", help="local multi-process deployment: orchestrator, plant and one process per agent",
@@ -223,6 +257,20 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--round-timeout", type=float, default=10.0, help="seconds before a silent agent is declared lost")
     _add_process_options(p)
     p.set_defaults(func=_cmd_orchestrator)
+
+    p = sub.add_parser("kill", help="inject a fault from outside: signal an agent (or the plant) of a running run",
+                       description="Send a signal to one process of a run started on this machine (found through "
+                                   "the orchestrator's registry). KILL (default) is a crash, STOP a hang (CONT "
+                                   "resumes it); the orchestrator detects either and carries on without the agent.")
+    who = p.add_mutually_exclusive_group(required=True)
+    who.add_argument("--agent", type=int, metavar="I", help="agent id")
+    who.add_argument("--plant", action="store_true", help="the plant (the run stops)")
+    who.add_argument("--orchestrator", action="store_true", help="the orchestrator (everything stops)")
+    p.add_argument("--signal", default="KILL", choices=sorted(_SIGNALS), help="signal to send (default KILL)")
+    from splitspec_core.wire import DEFAULT_RUN_ID
+
+    p.add_argument("--run-id", default=DEFAULT_RUN_ID, help=f"the run's id (default {DEFAULT_RUN_ID!r})")
+    p.set_defaults(func=_cmd_kill)
 
     p = sub.add_parser("plant", help="the plant process (needs no scenario file)",
                        description="The true system: fetches the scenario from the orchestrator, publishes "

@@ -13,7 +13,20 @@
   ``xhat(tau+1)``, record, next tick.  An agent whose token disappears (or
   that misses the round timeout) is lost from that event time on and the
   round in flight is re-run without it (a higher ``attempt``);
-* records ``trajectory.npz``, ``events.jsonl`` and ``run.rrd``.
+* executes the scenario's faults between rounds, at the step the simulator
+  applies them (:func:`splitspec_core.network.fault_step`): ``kill`` sends
+  SIGKILL and ``hang`` SIGSTOP to the agent's process (or, for a process on
+  another host, asks it to do so to itself), both lost from that event time;
+  ``restart`` spawns a new agent process and admits it with a fresh estimate
+  once its token appears; ``drop_arc``/``restore_arc`` change the links;
+* admits at the next event time any agent that (re)appears by hand after a
+  loss (``splitspec agent --id I --connect ...``), with a new incarnation;
+* after every change of the network, logs the resilience verdict
+  (:func:`splitspec_core.design.certify_network`): still strongly connected,
+  jointly observable, and is the rate still certified by the designed g or q;
+* records ``trajectory.npz``, ``events.jsonl``, ``run.rrd`` and a copy of the
+  scenario (``scenario.yaml``), so that ``splitspec simulate scenario.yaml
+  --faults-from events.jsonl`` replays the run.
 """
 
 from __future__ import annotations
@@ -23,16 +36,17 @@ import logging
 import math
 import os
 import signal
+import socket
+import subprocess
 import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
-from splitspec_core.design import design
+from splitspec_core.design import certify_network, design
 from splitspec_core.errors import SplitspecError
-from splitspec_core.network import consensus_rows, make_plan
-from splitspec_core.resilience import network_verdict
+from splitspec_core.network import NetworkState, make_plan
 from splitspec_core.scenario import load_scenario
 from splitspec_core.wire import DEFAULT_RUN_ID, Keys, WireError, decode, encode
 
@@ -68,11 +82,31 @@ class Progress:
         sys.stderr.flush()
 
 
+HOST = socket.gethostname()
+_FAULT_SIGNAL = {"kill": signal.SIGKILL, "hang": signal.SIGSTOP}
+
+
+def local_endpoint(endpoint: str) -> str:
+    """An endpoint a process on this machine can connect to (``0.0.0.0`` / ``[::]`` -> loopback)."""
+    return endpoint.replace("/0.0.0.0:", "/127.0.0.1:").replace("/[::]:", "/[::1]:")
+
+
+def _is_splitspec_process(pid: int) -> bool:
+    """Guard against pid reuse before signalling a pid learned from a hello."""
+    try:
+        with open(f"/proc/{pid}/cmdline", "rb") as f:
+            cmd = f.read()
+    except OSError:
+        return False
+    return b"orchestrator.cli" in cmd or b"splitspec" in cmd
+
+
 class Orchestrator:
     """Round driver.  ``run()`` returns the process exit code."""
 
     def __init__(self, scenario_path: str, *, out: Path, run_id: str, listen: str | None, connect: str | None,
-                 wait: float = 60.0, round_timeout: float = 10.0, viewer: str | None = None):
+                 wait: float = 60.0, round_timeout: float = 10.0, viewer: str | None = None,
+                 security=None):
         self.scenario_text = Path(scenario_path).read_text(encoding="utf-8")
         self.sc = load_scenario(scenario_path)
         self.des = design(self.sc)
@@ -81,6 +115,7 @@ class Orchestrator:
         self.listen, self.connect = listen, connect
         self.wait, self.round_timeout = wait, round_timeout
         self.viewer = viewer
+        self.security = security  # splitspec_core.security.Credentials or None
         self.stop_requested = False
 
     # ------------------------------------------------------------------ set-up
@@ -94,10 +129,14 @@ class Orchestrator:
     def _open(self) -> None:
         from splitspec_core.bus import Inbox, open_session
 
+        kw: dict = {}
+        if self.security is not None:
+            kw = self.security.session_kwargs("orchestrator", router=not self.connect, run_id=self.keys.run_id,
+                                               agent_ids=self.sc.agent_ids)
         if self.connect:
-            self.session = open_session("client", connect=[self.connect])
+            self.session = open_session("client", connect=[self.connect], **kw)
         else:
-            self.session = open_session("router", listen=[self.listen])
+            self.session = open_session("router", listen=[self.listen], **kw)
         self.inbox = Inbox(self.session)
         self.inbox.watch_liveliness(self.keys.alive_all, "alive")
         self.inbox.subscribe(self.keys.truth, "truth")
@@ -132,12 +171,21 @@ class Orchestrator:
                     aid = int(ident)
                 except ValueError:
                     return
+                if aid not in self.index:
+                    return
                 if payload == "put":
-                    self.present.add(aid)
+                    self.tokens.add(aid)
+                    if aid not in self.alive:
+                        # a new process for this agent (started by hand or by a restart): admitted at the
+                        # next event time; a lost agent whose old token lingers is never re-admitted
+                        self.joinable.add(aid)
+                        if self.started:
+                            log.info("agent %d is back; it joins at the next event time", aid)
                 else:
-                    self.present.discard(aid)
+                    self.tokens.discard(aid)
+                    self.joinable.discard(aid)
                     if aid in self.alive:
-                        self.pending_loss.add(aid)
+                        self.pending_loss[aid] = "liveliness lost (process died or froze)"
             elif role == "plant":
                 self.plant_present = payload == "put"
         elif channel == "hello":
@@ -147,6 +195,13 @@ class Orchestrator:
                 self._reject("orchestrator", e.reason, t_now)
                 return
             self.rec.event("process_started", t_now, role=h["role"], id=h["id"], pid=h["pid"], host=h["host"])
+            info = {"pid": h["pid"], "host": h["host"]}
+            if h["role"] == "agent":
+                self.procs[h["id"]] = info
+                self.registry.data["agents"][str(h["id"])] = info
+            elif h["role"] == "plant":
+                self.registry.data["plant"] = info
+            self.registry.update()
         elif channel == "truth":
             try:
                 m = decode(payload, self.keys.run_id, "truth")
@@ -168,7 +223,7 @@ class Orchestrator:
                 self._reject("orchestrator", e.reason, t_now)
                 return
             aid = m["agent"]
-            if m["incarnation"] != self.incarnation.get(aid) or m["attempt"] != self.attempt:
+            if m["incarnation"] != self.incarnation(aid) or m["attempt"] != self.attempt:
                 self._reject("orchestrator", "stale", t_now)
                 return
             self.est.setdefault(m["tau"], {})[aid] = m["x"]
@@ -190,16 +245,170 @@ class Orchestrator:
                 self._handle(item, t_now)
         return True
 
+    def _check_stop(self, tau: int) -> None:
+        if self.stop_requested:
+            raise KeyboardInterrupt
+        if self.started and not self.plant_present:
+            raise RunFailed(f"the plant was lost at event time {tau}; stopping (records up to event time "
+                            f"{tau - 1} are kept in {self.out})")
+
+    # ------------------------------------------------------------------ the network
+
+    def incarnation(self, aid: int) -> int:
+        return int(self.net.incarnation[self.index[aid]])
+
+    def _verdict(self, tau: int, after: str) -> None:
+        """Log the resilience verdict of the current network (events.jsonl, Rerun, terminal)."""
+        v = certify_network(self.des, self.alive, frozenset(self.net.dropped))
+        survivors = ", ".join(map(str, v["alive"])) or "none"
+        if not v["jointly_observable"]:
+            msg = (f"agents {survivors} do NOT jointly observe the system (direction {v['unobservable_direction']} "
+                   "is seen by none of them): their estimates cannot converge; the run goes on")
+        elif not all(v["strongly_connected"].values()):
+            bad = ", ".join(f"graph {g} (agent {j} cannot reach agent {i})" for g, (j, i) in v["unreachable"].items())
+            msg = f"the network of agents {survivors} is NOT strongly connected: {bad}; the run goes on"
+        elif v["rate_certified"] is False:
+            msg = (f"agents {survivors} still jointly observe the system over a strongly connected network, but the "
+                   f"designed rate is no longer certified ({v['certificate']}); design with `design.resilience: 1` "
+                   "to cover single losses")
+        else:
+            msg = f"agents {survivors}: still strongly connected and jointly observable; {v['certificate']}"
+        self.rec.event("resilience_verdict", float(tau) * self.dt, level="INFO" if v["ok"] else "WARN",
+                       note=f"{after} at event time {tau}: {msg}", after=after, tau=tau, **v)
+        log.log(logging.INFO if v["ok"] else logging.WARNING, "%s at event time %d: %s", after, tau, msg)
+        self.topology_dirty = True
+
+    def _lose(self, aid: int, tau: int, why: str) -> None:
+        if not self.net.lose(self.index[aid]):
+            return
+        self.alive.discard(aid)
+        self.joinable.discard(aid)
+        self.rec.mark_lost(tau, aid)
+        pid = self.procs.get(aid, {}).get("pid")
+        self.rec.event("agent_lost", float(tau) * self.dt, id=aid, tau=tau, reason=why, pid=pid)
+        log.warning("agent %d lost from event time %d: %s", aid, tau, why)
+        self._verdict(tau, f"agent {aid} lost")
+
+    def _admit(self, aid: int, tau: int, why: str) -> None:
+        inc = self.net.rejoin(self.index[aid])
+        if inc is None:
+            return
+        self.alive.add(aid)
+        self.joinable.discard(aid)
+        pid = self.procs.get(aid, {}).get("pid")
+        self.rec.event("agent_rejoined", float(tau) * self.dt, id=aid, tau=tau, incarnation=inc, reason=why, pid=pid)
+        log.info("agent %d rejoins at event time %d with a fresh estimate (incarnation %d): %s", aid, tau, inc, why)
+        self._verdict(tau, f"agent {aid} rejoined")
+
+    def _apply_pending_losses(self, tau: int) -> bool:
+        lost = False
+        for a, why in sorted(self.pending_loss.items()):
+            if a in self.alive:
+                self._lose(a, tau, why)
+                lost = True
+        self.pending_loss.clear()
+        return lost
+
+    def _signal_agent(self, aid: int, action: str) -> str:
+        """Send the fault's signal to agent ``aid``'s process; returns how it was delivered."""
+        sig = _FAULT_SIGNAL[action]
+        info = self.procs.get(aid)
+        if info and info["host"] == HOST and _is_splitspec_process(int(info["pid"])):
+            try:
+                os.kill(int(info["pid"]), sig)
+                if action == "hang":
+                    self.hung.add(int(info["pid"]))
+                return f"{signal.Signals(sig).name} to pid {info['pid']}"
+            except ProcessLookupError:
+                return f"pid {info['pid']} already gone"
+        # another host (or unknown pid): the agent signals itself
+        self.pub_control.put(encode("control", self.keys.run_id, cmd=f"{action} agent/{aid}"))
+        return f"asked agent {aid} on {info['host'] if info else 'an unknown host'} to {action} itself"
+
+    def _spawn_agent(self, aid: int) -> subprocess.Popen:
+        from .launcher import cli_command, spawn
+
+        endpoint = self.connect or local_endpoint(self.listen)
+        args = ["--log-level", "warning", "agent", "--id", aid, "--connect", endpoint, "--run-id", self.keys.run_id,
+                "--wait", self.wait]
+        if self.security is not None:
+            args += ["--credentials", self.security.credentials_file(f"agent-{aid}")]
+        p = spawn(cli_command(*args))
+        self.children.append(p)
+        return p
+
+    def _wait_between_rounds(self, seconds: float, done, tau: int) -> bool:
+        """Handle messages (and losses) between rounds until ``done()``; False on timeout."""
+        deadline = time.monotonic() + seconds
+        while True:
+            ok = self._pump(deadline, done, float(tau) * self.dt)
+            self._check_stop(tau)
+            if self.pending_loss:
+                self._apply_pending_losses(tau)
+                continue
+            return ok
+
+    def _restart(self, aid: int, tau: int) -> None:
+        t = float(tau) * self.dt
+        from .registry import pid_running
+
+        old = self.procs.get(aid)
+        if aid in self.tokens:
+            # the old process still holds its token (hung, or its death not yet seen): make sure it is
+            # dead and wait until its token is gone, so the new token cannot be confused with it
+            if old and old["host"] == HOST and pid_running(int(old["pid"])):
+                how = self._signal_agent(aid, "kill")
+                self.hung.discard(int(old["pid"]))
+                log.info("restart of agent %d: killed the old process (%s)", aid, how)
+            self._wait_between_rounds(self.wait, lambda: aid not in self.tokens, tau)
+        p = self._spawn_agent(aid)
+        self.rec.event("agent_restarting", t, id=aid, tau=tau, pid=p.pid)
+        if self._wait_between_rounds(self.wait, lambda: aid in self.joinable or p.poll() is not None, tau) \
+                and aid in self.joinable:
+            self._admit(aid, tau, "restarted by the scenario")
+        else:
+            why = (f"exited with status {p.returncode}" if p.poll() is not None else
+                   f"no liveliness token within {self.wait:g} s")
+            self.rec.event("restart_failed", t, id=aid, tau=tau, reason=why)
+            log.warning("restart of agent %d at event time %d failed: %s; the run goes on without it", aid, tau, why)
+
+    def _between_rounds(self, tau: int, faults) -> None:
+        """Scenario faults due at ``tau`` (in scenario order), then agents that came back by hand."""
+        t = float(tau) * self.dt
+        self._wait_between_rounds(0.0, lambda: True, tau)  # losses detected since the last round
+        for f in faults:
+            if f.action in ("kill", "hang"):
+                if f.agent not in self.alive:
+                    self.rec.event("fault_skipped", t, action=f.action, id=f.agent, reason="agent not alive")
+                    continue
+                how = self._signal_agent(f.agent, f.action)
+                self._lose(f.agent, tau, f"{'killed' if f.action == 'kill' else 'hung'} by the scenario ({how})")
+            elif f.action == "restart":
+                if f.agent in self.alive:
+                    self.rec.event("fault_skipped", t, action="restart", id=f.agent, reason="agent is alive")
+                    continue
+                self._restart(f.agent, tau)
+            else:
+                arc = tuple(f.arc)
+                if f.action == "drop_arc":
+                    self.net.dropped.add(arc)
+                else:
+                    self.net.dropped.discard(arc)
+                self.rec.event("arc_dropped" if f.action == "drop_arc" else "arc_restored", t, arc=list(arc), tau=tau)
+                self._verdict(tau, f"arc {arc[0]} -> {arc[1]} {'dropped' if f.action == 'drop_arc' else 'restored'}")
+        for a in sorted(self.joinable - self.alive):
+            self._admit(a, tau, "started by hand")
+
     # ------------------------------------------------------------------ run
 
     def _wait_for_participants(self) -> None:
         need = set(self.sc.agent_ids)
         deadline = time.monotonic() + self.wait
-        ok = self._pump(deadline, lambda: self.plant_present and need <= self.present, 0.0)
+        ok = self._pump(deadline, lambda: self.plant_present and need <= self.tokens, 0.0)
         if self.stop_requested:
             return
         if not ok:
-            missing = ([] if self.plant_present else ["plant"]) + [f"agent {i}" for i in sorted(need - self.present)]
+            missing = ([] if self.plant_present else ["plant"]) + [f"agent {i}" for i in sorted(need - self.tokens)]
             raise RunFailed(f"waited {self.wait:g} s for {', '.join(missing)} to connect on "
                             f"{self.connect or self.listen} (run id {self.keys.run_id})")
 
@@ -208,37 +417,34 @@ class Orchestrator:
             "tick", self.keys.run_id, tau=tau, attempt=self.attempt, graph=graph, final=final,
             alive=sorted(self.alive),
             rows={str(i): [list(nb), list(w)] for i, (nb, w) in rows.items()},
-            incarnation={str(i): int(v) for i, v in self.incarnation.items()}))
-
-    def _lose(self, aid: int, tau: int, why: str) -> None:
-        self.alive.discard(aid)
-        self.rec.mark_lost(tau, aid)
-        self.rec.event("agent_lost", float(tau) * self.dt, id=aid, tau=tau, reason=why)
-        v = network_verdict(self.sc.system.A, dict(zip(self.sc.agent_ids, self.sc.system.Cs)), self.alive,
-                            {g.name: g.arcs for g in self.sc.graphs}, rank_tol=self.sc.design.rank_tol)
-        self.rec.event("resilience_verdict", float(tau) * self.dt, alive=sorted(self.alive),
-                       strongly_connected=v.strongly_connected, jointly_observable=v.jointly_observable,
-                       unobservable_direction=v.unobservable_direction)
-        if not v.ok:
-            log.warning("after losing agent %d the network is %s", aid,
-                        "not jointly observable" if not v.jointly_observable else "not strongly connected")
+            incarnation={str(i): self.incarnation(i) for i in self.sc.agent_ids}))
 
     def run(self) -> int:
         from .recorder import Recorder
+        from .registry import RunRegistry
 
         sc = self.sc
         self.dt = sc.run.dt if sc.time == "continuous" else 1.0
         self.out.mkdir(parents=True, exist_ok=True)
+        (self.out / "scenario.yaml").write_text(self.scenario_text, encoding="utf-8")
         self.rec = Recorder(self.out, agent_ids=sc.agent_ids, n=sc.n, steps=sc.run.steps, time_mode=sc.time,
                             dt=self.dt, graph_names=sc.graph_names, run_id=self.keys.run_id,
                             scenario_name=sc.name, viewer=self.viewer)
+        self.registry = RunRegistry(self.keys.run_id, {"endpoint": self.connect or self.listen,
+                                                       "out": str(self.out.resolve()), "host": HOST})
         self.index = {a: k for k, a in enumerate(sc.agent_ids)}
-        self.present: set = set()
+        self.net = NetworkState(sc)
+        self.net.alive[:] = False
+        self.alive: set = set()
+        self.tokens: set = set()  # agents holding a liveliness token
+        self.joinable: set = set()  # agents whose token appeared since they were last lost
+        self.procs: dict = {}  # agent id -> {"pid", "host"} of its latest process
+        self.children: list = []  # agent processes this orchestrator spawned (restarts)
+        self.hung: set = set()  # pids this orchestrator SIGSTOPped
         self.plant_present = False
         self.started = False
-        self.alive: set = set()
-        self.pending_loss: set = set()
-        self.incarnation = {a: 0 for a in sc.agent_ids}
+        self.pending_loss: dict = {}
+        self.topology_dirty = True
         self.attempt = 0
         self.truth: dict = {}
         self.est: dict = {}
@@ -249,13 +455,17 @@ class Orchestrator:
         t_start = time.monotonic()
         tau = 0
         try:
+            self.registry.update()
             self._open()
             self.rec.event("orchestrator_started", 0.0, pid=os.getpid(), endpoint=self.connect or self.listen,
-                           run_id=self.keys.run_id, scenario=sc.name, q=self.des.q, g=self.des.g)
+                           run_id=self.keys.run_id, scenario=sc.name, q=self.des.q, g=self.des.g,
+                           secure=self.security is not None)
             self._wait_for_participants()
             if self.stop_requested:
                 raise KeyboardInterrupt
+            self.net.alive[:] = True
             self.alive = set(sc.agent_ids)
+            self.joinable.clear()
             self.started = True
             plan = make_plan(sc, sc.run.seed)
             progress = Progress(plan.steps, sc.m)
@@ -269,16 +479,17 @@ class Orchestrator:
                 if sc.run.pace:
                     delay = t_run + tau / sc.run.pace - time.monotonic()
                     if delay > 0:
-                        time.sleep(delay)
+                        self._wait_between_rounds(delay, lambda: False, tau)
                 self.attempt = 0
+                self._between_rounds(tau, plan.faults.get(tau, ()))
                 while True:
-                    rows = consensus_rows(sc, graph, self.alive)
-                    if graph != last_graph:
+                    rows = self.net.rows(sc, graph)
+                    if graph != last_graph or self.topology_dirty:
                         name = sc.graph_names[graph]
-                        if last_graph is not None:
+                        if last_graph is not None and graph != last_graph:
                             self.rec.event("graph_switched", t, graph=name, previous=sc.graph_names[last_graph])
-                        self.rec.topology(tau, name, sorted(self.alive), sc.graphs[graph].arcs)
-                        last_graph = graph
+                        self.rec.topology(tau, name, sorted(self.alive), self.net.arcs(sc, graph))
+                        last_graph, self.topology_dirty = graph, False
                     self._tick(tau, rows, graph, final)
                     expect_next = set() if final else set(self.alive)
 
@@ -290,22 +501,15 @@ class Orchestrator:
                         return all(a in have_now for a in self.alive) and expect_next <= set(have_next)
 
                     ok = self._pump(time.monotonic() + self.round_timeout, done, t)
-                    if self.stop_requested:
-                        raise KeyboardInterrupt
-                    if self.started and not self.plant_present:
-                        raise RunFailed(f"the plant was lost at event time {tau}; stopping")
+                    self._check_stop(tau)
                     if not ok:
-                        late = sorted(a for a in expect_next if a not in self.est.get(tau + 1, {}))
                         if tau not in self.truth:
                             raise RunFailed(f"no truth from the plant for event time {tau} within "
                                             f"{self.round_timeout:g} s")
+                        late = sorted(a for a in expect_next if a not in self.est.get(tau + 1, {}))
                         for a in late or sorted(a for a in self.alive if a not in self.est.get(tau, {})):
-                            self.pending_loss.add(a)
-                    if self.pending_loss:
-                        for a in sorted(self.pending_loss):
-                            if a in self.alive:
-                                self._lose(a, tau, "liveliness lost" if a not in self.present else "round timeout")
-                        self.pending_loss.clear()
+                            self.pending_loss[a] = f"round timeout ({self.round_timeout:g} s without its estimate)"
+                    if self._apply_pending_losses(tau):
                         self.est.pop(tau + 1, None)
                         self.attempt += 1
                         continue  # re-run the round without the lost agents
@@ -338,36 +542,51 @@ class Orchestrator:
         finally:
             self._shutdown()
             self.rec.close(finished=code == EXIT_OK)
+            self.registry.remove()
         log.info("wall time %.2f s", time.monotonic() - t_start)
         return code
 
     def _shutdown(self) -> None:
         session = getattr(self, "session", None)
-        if session is None:
-            return
         try:
-            self.pub_control.put(encode("control", self.keys.run_id, cmd="stop"))
-            # give the others a moment to leave on their own (their tokens disappear)
-            deadline = time.monotonic() + 3.0
-            while (self.present or self.plant_present) and time.monotonic() < deadline:
-                item = self.inbox.get(timeout=0.1)
-                if item is not None and item[0] == "alive":
-                    self._handle(item, 0.0)
-            self.token.undeclare()
+            if session is not None:
+                self.pub_control.put(encode("control", self.keys.run_id, cmd="stop"))
+            for pid in self.hung:  # processes we froze cannot obey a stop
+                try:
+                    os.kill(pid, signal.SIGKILL)
+                except ProcessLookupError:
+                    pass
+            if session is not None:
+                # give the others a moment to leave on their own (their tokens disappear)
+                deadline = time.monotonic() + 3.0
+                while (self.tokens or self.plant_present) and time.monotonic() < deadline:
+                    item = self.inbox.get(timeout=0.1)
+                    if item is not None and item[0] == "alive":
+                        self._handle(item, 0.0)
+                self.token.undeclare()
         except Exception as exc:  # noqa: BLE001 - shutting down: report and go on
             log.warning("shutdown: %s", exc)
         finally:
-            self.inbox.close()
-            session.close()
+            from .launcher import stop_all
+
+            stop_all(getattr(self, "children", []), grace=3.0)
+            if session is not None:
+                self.inbox.close()
+                session.close()
 
 
 def main(args: argparse.Namespace) -> int:
     """``splitspec orchestrator SCENARIO --listen ENDPOINT --out DIR [--run-id ID] [--connect ENDPOINT]``."""
     if not args.listen and not args.connect:
         raise SplitspecError("give --listen ENDPOINT (embedded router) or --connect ENDPOINT (external router)")
+    security = None
+    if getattr(args, "secure_dir", None):
+        from splitspec_core.security import Credentials
+
+        security = Credentials.load(args.secure_dir)
     orch = Orchestrator(args.scenario, out=Path(args.out), run_id=args.run_id or DEFAULT_RUN_ID,
                         listen=args.listen, connect=args.connect, wait=args.wait,
-                        round_timeout=args.round_timeout, viewer=args.viewer)
+                        round_timeout=args.round_timeout, viewer=args.viewer, security=security)
 
     def on_signal(*_):
         orch.stop_requested = True

@@ -68,6 +68,10 @@ def stop_all(procs: list, *, grace: float = 5.0) -> None:
     for p in procs:
         if p.poll() is None:
             p.terminate()
+            try:
+                p.send_signal(signal.SIGCONT)  # a stopped (hung) process acts on the SIGTERM only once resumed
+            except ProcessLookupError:
+                pass
     deadline = time.monotonic() + grace
     for p in procs:
         try:

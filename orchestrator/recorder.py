@@ -395,18 +395,21 @@ class Recorder:
         """Number of rows (distinct event times) recorded so far: T of ``trajectory.npz``."""
         return self._rows
 
-    def event(self, event: str, t: float, **fields) -> None:
+    def event(self, event: str, t: float, *, level: str | None = None, note: str | None = None, **fields) -> None:
         """Append ``{"event", "t", "wall", **fields}`` to ``events.jsonl`` and log it to Rerun.
 
         ``t`` is the event time in the run's units (``tau`` in discrete time,
         seconds in continuous time); the TextLog is placed at ``tau = t`` or
         ``tau = round(t / dt)``.  Level WARN when the name contains
-        lost/rejected/error/failed, else INFO.
+        lost/rejected/error/failed, else INFO, unless ``level`` is given.
+        ``note`` replaces the fields in the Rerun text (``"<event>: <note>"``);
+        ``events.jsonl`` always has every field.
         """
-        level = "WARN" if any(w in event.lower() for w in _WARN_WORDS) else "INFO"
-        self._event(event, t, level, fields)
+        if level is None:
+            level = "WARN" if any(w in event.lower() for w in _WARN_WORDS) else "INFO"
+        self._event(event, t, level, fields, note)
 
-    def _event(self, event: str, t: float, level: str, fields: dict[str, Any]) -> None:
+    def _event(self, event: str, t: float, level: str, fields: dict[str, Any], note: str | None = None) -> None:
         if "wall" in fields:
             raise RecordingError(f"event {event!r}: field name 'wall' is reserved")
         with self._lock:
@@ -416,7 +419,7 @@ class Recorder:
             self._events.write(line + "\n")
             self._events.flush()
             if self._rec is not None:
-                text = event + "".join(f" {k}={v}" for k, v in fields.items())
+                text = f"{event}: {note}" if note else event + "".join(f" {k}={v}" for k, v in fields.items())
                 self._queued_events.append((self._tau_of_t(t), float(t), text, level, time.time_ns()))
             self._maybe_flush()
 
@@ -822,6 +825,34 @@ def _keep_latest(latest: dict, key: tuple[str, int], row_id: bytes, value: float
     old = latest.get(key)
     if old is None or row_id > old[0]:
         latest[key] = (row_id, value)
+
+
+def read_rrd_logs(path: str | Path) -> dict[str, list]:
+    """The text log and topology of an ``.rrd``.
+
+    Returns ``{"events": [(event index, level, text), ...], "topology": [(event index, [node labels],
+    [(j, i) edges]), ...]}`` in logging order.
+    """
+    from rerun.chunk import RrdReader
+
+    out: dict[str, list] = {"events": [], "topology": []}
+    for chunk in RrdReader(path).stream():
+        if chunk.is_static or TL_EVENT not in chunk.timeline_names:
+            continue
+        batch = chunk.to_record_batch()
+        names = batch.schema.names
+        taus = batch.column(TL_EVENT).to_pylist()
+        if chunk.entity_path == f"/{EVENTS}" and "TextLog:text" in names:
+            for tau, text, level in zip(taus, batch.column("TextLog:text").to_pylist(),
+                                        batch.column("TextLog:level").to_pylist()):
+                out["events"].append((tau, level[0] if level else None, text[0]))
+        elif chunk.entity_path == f"/{TOPOLOGY}" and "GraphNodes:labels" in names:
+            edges = batch.column("GraphEdges:edges").to_pylist() if "GraphEdges:edges" in names else [None] * len(taus)
+            for tau, labels, es in zip(taus, batch.column("GraphNodes:labels").to_pylist(), edges):
+                pairs = [(int(e["first"]), int(e["second"])) if isinstance(e, dict) else tuple(map(int, e))
+                         for e in (es or [])]
+                out["topology"].append((tau, labels, pairs))
+    return out
 
 
 def verify_rrd(path: str | Path, *, timeout: float = 120.0) -> tuple[bool, str]:

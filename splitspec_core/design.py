@@ -27,7 +27,7 @@ from .observability import Decomposition, check_joint_observability, decompose
 from .resilience import analyse_agent_losses, analyse_arc_losses
 from .scenario import Scenario
 
-__all__ = ["AgentDesign", "Design", "design", "design_agent", "nice_ceil", "scenario_dwell"]
+__all__ = ["AgentDesign", "Design", "certify_network", "design", "design_agent", "nice_ceil", "scenario_dwell"]
 
 
 @dataclass(frozen=True)
@@ -328,3 +328,64 @@ def _design_q(sc: Scenario, cases, switching: bool, warnings: list, compare: boo
     radius = {c.label: bounds.spectral_radius(c.Atil @ np.linalg.matrix_power(c.B, result.q)) if c.nbar else 0.0
               for c in cases}
     return dict(q=result.q, q_result=result, q_methods=others, error_radius=radius)
+
+
+def certify_network(des: Design, alive_ids, dropped=frozenset()) -> dict:
+    """Does the designed g or q still certify the rate on what is left after losses?
+
+    The survivors ``alive_ids`` on every graph the switching signal uses,
+    minus the ``dropped`` arcs: strong connectivity and joint observability
+    (:func:`resilience.network_verdict`), then, when both hold, the design's
+    own certificate recomputed on the survivors' graphs: ``q`` with the
+    design's q method (rho(Atil B^q) <= lam for ``spectral``, eq. split_discrete_rho),
+    ``g`` against eq. (g) or, failing that, the exact spectrum of A_V(g)
+    (eq. split_continuous_split) per graph held constant.  Cheap enough to
+    call at every loss during a run (no bisection).
+
+    Returns a JSON-ready dict: ``alive``, ``dropped_arcs``,
+    ``strongly_connected`` (per graph), ``unreachable`` (per graph, a pair
+    ``[j, i]``), ``jointly_observable``, ``unobservable_direction``,
+    ``rate_certified`` (bool, or None for the adaptive gain), ``certificate``
+    (one line), ``ok``.
+    """
+    from .network import active_arcs
+    from .resilience import network_verdict
+
+    sc = des.scenario
+    alive = tuple(a for a in sc.agent_ids if a in set(alive_ids))
+    used = sc.switching.graph_names(sc.graph_names)
+    arcs = {name: active_arcs(sc, sc.graph_names.index(name), dropped) for name in used}
+    v = network_verdict(sc.system.A, dict(zip(sc.agent_ids, sc.system.Cs)), alive, arcs,
+                        rank_tol=sc.design.rank_tol)
+    out = {"alive": list(alive), "dropped_arcs": sorted([list(a) for a in dropped]),
+           "strongly_connected": dict(v.strongly_connected),
+           "unreachable": {k: list(p) for k, p in v.unreachable.items()},
+           "jointly_observable": v.jointly_observable, "unobservable_direction": v.unobservable_direction}
+    rate = sc.design.rate
+    if not v.ok:
+        cert, text = False, "no rate: " + ("the survivors are not jointly observable" if not v.jointly_observable
+                                            else "a graph is not strongly connected")
+    elif des.time == "discrete":
+        ad = {a.id: a for a in des.agents}
+        cases = [bounds.make_case(name, build_graph(name, alive, arcs[name], weights=sc.design.weights),
+                                  [ad[i].V for i in alive], [ad[i].dec.A_un for i in alive]) for name in used]
+        res = bounds.choose_q(sc.design.q_method, cases, rate, q=des.q, q_max=sc.design.q_max)
+        cert = bool(res.certified)
+        text = (f"q = {des.q}: {res.method} bound {res.bound:.4g} {'<=' if cert else '>'} rate {rate:g}"
+                + ("" if res.switching or len(cases) == 1 else " (per graph held constant)"))
+    elif des.g is None:
+        cert, text = None, "adaptive gain: convergence without a certified rate"
+    else:
+        ad = {a.id: a for a in des.agents}
+        cases = [bounds.make_case(name, build_graph(name, alive, arcs[name], weights=sc.design.weights),
+                                  [ad[i].V for i in alive], [ad[i].dec.A_un for i in alive]) for name in used]
+        gb = max(bounds.g_bound(c, rate) for c in cases)
+        if des.g >= gb:
+            cert, text = True, f"g = {des.g:g} >= eq. (g) bound {gb:.4g} on the survivors' graphs"
+        else:
+            worst = max(bounds.abscissa(c, des.g) for c in cases)
+            cert = worst <= -rate
+            text = (f"g = {des.g:g} < eq. (g) bound {gb:.4g}; exact spectral abscissa {worst:.4g} "
+                    f"{'<=' if cert else '>'} -{rate:g} (per graph held constant)")
+    out.update(rate_certified=cert, certificate=text, ok=bool(v.ok and cert is not False))
+    return out

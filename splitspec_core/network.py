@@ -24,7 +24,7 @@ from .graphs import build_graph, graph_sequence, switch_times
 from .scenario import Scenario
 from .streams import stream
 
-__all__ = ["Plan", "make_plan", "consensus_rows", "fault_step", "NetworkState"]
+__all__ = ["Plan", "make_plan", "active_arcs", "consensus_rows", "fault_step", "NetworkState"]
 
 
 def fault_step(at: float, dt: float) -> int:
@@ -74,6 +74,17 @@ def make_plan(sc: Scenario, seed: int, steps: int | None = None) -> Plan:
     return Plan(steps=steps, dt=dt, graph_seq=seq, faults=faults)
 
 
+def active_arcs(sc: Scenario, graph_index: int, dropped=frozenset()) -> tuple:
+    """Arcs ``(j, i)`` of graph ``graph_index`` minus the dropped ones.
+
+    With Metropolis weights (undirected graphs) a dropped arc is a failed link:
+    both directions go.
+    """
+    if sc.design.weights == "metropolis":
+        dropped = set(dropped) | {(i, j) for j, i in dropped}
+    return tuple(a for a in sc.graphs[graph_index].arcs if a not in dropped)
+
+
 def consensus_rows(sc: Scenario, graph_index: int, alive_ids, dropped=frozenset()) -> dict:
     """``{i: (neighbour ids, weights)}`` for every alive agent i.
 
@@ -84,10 +95,7 @@ def consensus_rows(sc: Scenario, graph_index: int, alive_ids, dropped=frozenset(
     alive_ids = tuple(a for a in sc.agent_ids if a in set(alive_ids))
     if not alive_ids:
         return {}
-    if sc.design.weights == "metropolis":
-        # Metropolis weights need an undirected graph: a dropped arc is a failed link, both directions
-        dropped = set(dropped) | {(i, j) for j, i in dropped}
-    arcs = [a for a in sc.graphs[graph_index].arcs if a not in dropped]
+    arcs = active_arcs(sc, graph_index, dropped)
     g = build_graph(sc.graphs[graph_index].name, alive_ids, arcs, weights=sc.design.weights, check=False)
     rows = {}
     for r, i in enumerate(g.ids):
@@ -110,30 +118,49 @@ class NetworkState:
         self.incarnation = np.zeros(sc.m, dtype=int)
         self.dropped: set = set()
 
+    def lose(self, i: int) -> bool:
+        """Agent at position ``i`` stops taking part; False if it was not alive."""
+        if not self.alive[i]:
+            return False
+        self.alive[i] = False
+        return True
+
+    def rejoin(self, i: int) -> int | None:
+        """Agent at position ``i`` rejoins with a fresh estimate; its new incarnation (None if alive)."""
+        if self.alive[i]:
+            return None
+        self.incarnation[i] += 1
+        self.alive[i] = True
+        return int(self.incarnation[i])
+
     def apply(self, faults) -> tuple:
         killed, rejoined = [], []
         for f in faults:
             if f.action in ("kill", "hang"):
                 i = self.ids.index(f.agent)
-                if self.alive[i]:
-                    self.alive[i] = False
+                if self.lose(i):
                     killed.append(i)
             elif f.action == "restart":
                 i = self.ids.index(f.agent)
-                if not self.alive[i]:
-                    self.incarnation[i] += 1
-                    self.alive[i] = True
-                    rejoined.append((i, int(self.incarnation[i])))
+                inc = self.rejoin(i)
+                if inc is not None:
+                    rejoined.append((i, inc))
             elif f.action == "drop_arc":
                 self.dropped.add(f.arc)
             elif f.action == "restore_arc":
                 self.dropped.discard(f.arc)
         return killed, rejoined
 
+    def alive_ids(self) -> list:
+        return [a for a, ok in zip(self.ids, self.alive) if ok]
+
     def key(self, graph_index: int) -> tuple:
         """Hashable description of the active network (for caching weights)."""
         return (int(graph_index), self.alive.tobytes(), frozenset(self.dropped))
 
     def rows(self, sc: Scenario, graph_index: int) -> dict:
-        return consensus_rows(sc, graph_index, [a for a, ok in zip(self.ids, self.alive) if ok],
-                              frozenset(self.dropped))
+        return consensus_rows(sc, graph_index, self.alive_ids(), frozenset(self.dropped))
+
+    def arcs(self, sc: Scenario, graph_index: int) -> tuple:
+        """Arcs of the active graph that still exist (see :func:`active_arcs`)."""
+        return active_arcs(sc, graph_index, self.dropped)

@@ -18,7 +18,7 @@ key                         from -> to              payload
 ``truth``                   plant -> orchestrator   tau, attempt, x(tau)
 ``z/<i>``                   agent i -> neighbours   tau, attempt, k, z_i(k)
 ``xhat/<i>``                agent i -> orchestrator tau, attempt, x_i(tau) (+ g_i, rejected counts)
-``control``                 orchestrator -> all     stop
+``control``                 orchestrator -> all     ``stop``; ``kill agent/<i>``, ``hang agent/<i>`` (faults)
 ``alive/<role>/<id>``       liveliness token        presence; DELETE is a death
 ==========================  ======================  ==========================================
 """

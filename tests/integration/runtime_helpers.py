@@ -107,11 +107,14 @@ def assert_all_gone(pids, timeout: float = 10.0) -> None:
     assert not left, f"processes still running: {left}"
 
 
-def compare_with_simulate(out: Path, scenario: Path, tmp: Path, tol: float = 1e-9) -> float:
-    sim = tmp / "sim"
-    r = run("simulate", scenario, "--out", sim, "--no-plots")
-    assert r.returncode == 0, r.stderr
-    a, b = np.load(out / "trajectory.npz"), np.load(sim / "trajectory.npz")
+def all_pids(out: Path) -> list:
+    """Every pid of the run: the orchestrator and every process_started (restarted agents included)."""
+    return [e["pid"] for e in events(out) if e["event"] in ("process_started", "orchestrator_started")]
+
+
+def compare_trajectories(a_path: Path, b_path: Path, tol: float = 1e-9) -> float:
+    """Assert two trajectory.npz files agree to ``tol`` (relative to the largest value); return the max diff."""
+    a, b = np.load(a_path), np.load(b_path)
     for k in ("t", "alive", "graph", "agent_ids"):
         assert np.array_equal(a[k], b[k]), k
     assert np.allclose(a["x"], b["x"], rtol=0, atol=tol * max(1.0, np.abs(b["x"]).max()))
@@ -119,6 +122,19 @@ def compare_with_simulate(out: Path, scenario: Path, tmp: Path, tol: float = 1e-
     diff = float(np.nanmax(np.abs(a["xhat"] - b["xhat"]))) if np.isfinite(b["xhat"]).any() else 0.0
     assert diff <= tol * max(1.0, float(np.nanmax(np.abs(b["xhat"])))), diff
     return diff
+
+
+def compare_with_simulate(out: Path, scenario: Path, tmp: Path, tol: float = 1e-9, *extra) -> float:
+    """``splitspec simulate SCENARIO [EXTRA]`` must give the run's trajectory."""
+    sim = tmp / "sim"
+    r = run("simulate", scenario, "--out", sim, "--no-plots", *extra)
+    assert r.returncode == 0, r.stderr
+    return compare_trajectories(out / "trajectory.npz", sim / "trajectory.npz", tol)
+
+
+def replay(out: Path, tmp: Path, tol: float = 1e-9) -> float:
+    """The run's own scenario copy replayed with the faults recorded in its events.jsonl."""
+    return compare_with_simulate(out, out / "scenario.yaml", tmp, tol, "--faults-from", out / "events.jsonl")
 
 
 def dump(*logs: Path) -> str:

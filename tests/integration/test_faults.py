@@ -1,0 +1,239 @@
+"""Faults on real processes: kills, hangs, restarts, rejoins by hand, plant death, chaos; replay in simulate."""
+
+import os
+import signal
+import time
+import uuid
+
+import numpy as np
+import pytest
+import yaml
+
+from orchestrator.recorder import read_rrd, read_rrd_logs, verify_rrd
+from tests.conftest import EXAMPLES
+from tests.integration.runtime_helpers import (all_pids, assert_all_gone, compare_with_simulate, dump, events,
+                                               replay, run, start, started_pids, wait_for_event,
+                                               wait_for_rows)
+from tests.integration.test_runtime import scenario_file
+
+pytestmark = pytest.mark.slow
+
+
+def run_id() -> str:
+    return "t" + uuid.uuid4().hex[:10]
+
+
+def launch(tmp_path, scen, rid):
+    """Start `splitspec run` in the background; return (process, out dir, log file)."""
+    out = tmp_path / "out"
+    log = tmp_path / "run.log"
+    p = start("run", scen, "--out", out, "--run-id", rid, log=log)
+    return p, out, log
+
+
+def finish(p, log, timeout=120):
+    try:
+        p.wait(timeout=timeout)
+    finally:
+        if p.poll() is None:
+            os.killpg(p.pid, signal.SIGKILL)
+    return p.returncode, log.read_text(errors="replace")
+
+
+def lost_events(out, aid=None):
+    return [e for e in events(out) if e["event"] == "agent_lost" and (aid is None or e["id"] == aid)]
+
+
+def agent_errors(out):
+    traj = np.load(out / "trajectory.npz")
+    return traj, np.linalg.norm(traj["xhat"] - traj["x"][:, None, :], axis=2)
+
+
+def test_scenario_faults_execute_for_real_and_equal_simulate(tmp_path):
+    """kill / drop_arc / hang / restart / restore_arc from the scenario: real signals, real respawns."""
+    scen = EXAMPLES / "ring10_faults.yaml"
+    out = tmp_path / "out"
+    r = run("run", scen, "--out", out, "--run-id", run_id())
+    assert r.returncode == 0, r.stdout + r.stderr
+    compare_with_simulate(out, scen, tmp_path)
+    ev = events(out)
+    lost = {e["id"]: e for e in ev if e["event"] == "agent_lost"}
+    assert lost[3]["tau"] == 10 and "SIGKILL" in lost[3]["reason"]
+    assert lost[5]["tau"] == 20 and "SIGSTOP" in lost[5]["reason"]
+    back = {e["id"]: e for e in ev if e["event"] == "agent_rejoined"}
+    assert (back[3]["tau"], back[3]["incarnation"]) == (30, 1) and (back[5]["tau"], back[5]["incarnation"]) == (35, 1)
+    assert [e["arc"] for e in ev if e["event"] == "arc_dropped"] == [[1, 6]]
+    # a restart is a new OS process
+    pids3 = [e["pid"] for e in ev if e["event"] == "process_started" and e["role"] == "agent" and e["id"] == 3]
+    assert len(pids3) == 2 and pids3[0] != pids3[1]
+    assert_all_gone(all_pids(out))  # the hung process included
+    # every change has a verdict; ring10 is designed with resilience: 1, so single losses stay certified
+    verdicts = [e for e in ev if e["event"] == "resilience_verdict"]
+    assert len(verdicts) == 6 and all(v["rate_certified"] for v in verdicts if len(v["alive"]) == 9)
+    # the recording shows the death and the rejoin: no error for agent 3 while it is dead
+    ok, msg = verify_rrd(out / "run.rrd")
+    assert ok, msg
+    err3 = dict(read_rrd(out / "run.rrd")["errors/agent_3"])
+    assert sorted(err3) == list(range(10)) + list(range(30, 61))
+    logs = read_rrd_logs(out / "run.rrd")
+    assert any(tau == 10 and level == "WARN" and text.startswith("agent_lost id=3") for tau, level, text in logs["events"])
+    assert any(tau == 30 and text.startswith("agent_rejoined id=3") for tau, _, text in logs["events"])
+    topo = {tau: (labels, edges) for tau, labels, edges in logs["topology"]}
+    assert "agent 3 (lost)" in topo[10][0] and all(3 not in e for e in topo[10][1])
+    assert (1, 6) not in topo[15][1] and (1, 6) in topo[40][1]
+    assert "agent 3 (lost)" not in topo[30][0] and "agent 5 (lost)" not in topo[35][0]
+
+
+def test_outside_sigkill_of_a_redundant_agent(tmp_path):
+    """kill -9 from outside the run: survivors converge, the row is NaN from the recorded time, replay agrees."""
+    scen = scenario_file(tmp_path, "ring10", run={"steps": 120, "pace": 20})
+    p, out, log = launch(tmp_path, scen, run_id())
+    try:
+        wait_for_rows(out, 25, timeout=90)
+        victim = started_pids(out)[("agent", 4)]
+        os.kill(victim, signal.SIGKILL)
+    except BaseException:
+        os.killpg(p.pid, signal.SIGKILL)
+        raise
+    code, text = finish(p, log)
+    assert code == 0, text
+    (lost,) = lost_events(out, 4)
+    tau = lost["tau"]
+    assert tau >= 25 and "liveliness" in lost["reason"]
+    traj, err = agent_errors(out)
+    k = list(traj["agent_ids"]).index(4)
+    assert traj["alive"][:tau, k].all() and not traj["alive"][tau:, k].any()
+    assert np.isnan(traj["xhat"][tau:, k]).all() and np.isfinite(traj["xhat"][:tau, k]).all()
+    survivors = np.delete(err[-1], k)
+    assert np.all(survivors < 1e-9), survivors  # converged to round-off
+    replay(out, tmp_path)
+    assert_all_gone(all_pids(out))
+
+
+def test_hang_then_kill_and_rejoin_by_hand(tmp_path):
+    """SIGSTOP via `splitspec kill`, then SIGKILL of another agent and a hand-started replacement."""
+    rid = run_id()
+    scen = scenario_file(tmp_path, "ring10", run={"steps": 240, "pace": 20})
+    p, out, log = launch(tmp_path, scen, rid)
+    hand = None
+    try:
+        wait_for_rows(out, 20, timeout=90)
+        r = run("kill", "--agent", 7, "--signal", "STOP", "--run-id", rid, timeout=30)
+        assert r.returncode == 0 and "SIGSTOP" in r.stdout, r.stderr
+        hung = wait_for_event(out, "agent_lost", timeout=30)
+        assert hung["id"] == 7 and "liveliness" in hung["reason"]
+        r = run("kill", "--agent", 2, "--run-id", rid, timeout=30)
+        assert r.returncode == 0 and "SIGKILL" in r.stdout, r.stderr
+        deadline = time.monotonic() + 30
+        while not lost_events(out, 2) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        endpoint = next(e["endpoint"] for e in events(out) if e["event"] == "orchestrator_started")
+        hand = start("agent", "--id", 2, "--connect", endpoint, "--run-id", rid, log=tmp_path / "hand.log")
+        back = wait_for_event(out, "agent_rejoined", timeout=60)
+        assert back["id"] == 2 and back["incarnation"] == 1 and back["pid"] == hand.pid
+    except BaseException:
+        os.killpg(p.pid, signal.SIGKILL)
+        raise
+    code, text = finish(p, log)
+    assert code == 0, text + dump(tmp_path / "hand.log")
+    hand.wait(timeout=15)  # told to stop with the others
+    (l2,) = lost_events(out, 2)
+    traj, err = agent_errors(out)
+    k = list(traj["agent_ids"]).index(2)
+    lo, hi = l2["tau"], back["tau"]
+    assert lo < hi and np.isnan(traj["xhat"][lo:hi, k]).all() and traj["alive"][hi:, k].all()
+    assert err[-1, k] < 1e-6 * err[hi, k]  # the fresh estimate converged again
+    replay(out, tmp_path)
+    assert_all_gone(all_pids(out))  # the frozen agent too
+
+
+def test_plant_death_stops_the_run_cleanly(tmp_path):
+    rid = run_id()
+    scen = scenario_file(tmp_path, "paper_discrete", run={"steps": 400, "pace": 20})
+    p, out, log = launch(tmp_path, scen, rid)
+    try:
+        wait_for_rows(out, 10, timeout=90)
+        r = run("kill", "--plant", "--run-id", rid, timeout=30)
+        assert r.returncode == 0, r.stderr
+    except BaseException:
+        os.killpg(p.pid, signal.SIGKILL)
+        raise
+    code, text = finish(p, log)
+    assert code == 1
+    errors = [line for line in text.splitlines() if line.startswith("splitspec: error:")]
+    assert len(errors) == 1 and "the plant was lost at event time" in errors[0], text
+    assert "Traceback" not in text
+    assert [e["event"] for e in events(out)][-2:] == ["run_failed", "recording_closed"]
+    traj = np.load(out / "trajectory.npz")
+    assert 10 <= traj["t"].shape[0] < 401
+    ok, msg = verify_rrd(out / "run.rrd")
+    assert ok, msg
+    assert_all_gone(all_pids(out))
+    # the run is gone from the registry: `splitspec kill` says so in one line
+    r = run("kill", "--agent", 1, "--run-id", rid, timeout=30)
+    assert r.returncode == 2 and r.stderr.count("\n") == 1 and "no running run" in r.stderr
+
+
+def test_non_redundant_loss_is_reported_and_the_run_goes_on(tmp_path):
+    """Agent 3 is the only one that observes the second oscillator of the paper's example."""
+    raw = yaml.safe_load((EXAMPLES / "paper_discrete.yaml").read_text())
+    raw["faults"] = [{"at": 10, "kill": 3}]
+    scen = tmp_path / "lose3.yaml"
+    scen.write_text(yaml.safe_dump(raw))
+    out = tmp_path / "out"
+    r = run("run", scen, "--out", out, "--run-id", run_id())
+    assert r.returncode == 0, r.stderr
+    assert "do NOT jointly observe" in r.stderr  # on the terminal
+    (v,) = [e for e in events(out) if e["event"] == "resilience_verdict"]
+    assert v["after"] == "agent 3 lost" and v["ok"] is False and v["jointly_observable"] is False
+    assert v["alive"] == [1, 2] and v["unobservable_direction"]
+    logs = read_rrd_logs(out / "run.rrd")
+    assert any(level == "WARN" and "NOT jointly observe" in text and tau == 10 for tau, level, text in logs["events"])
+    compare_with_simulate(out, scen, tmp_path)
+    traj = np.load(out / "trajectory.npz")
+    assert traj["t"].shape[0] == 41  # the run went on to the end
+
+
+@pytest.mark.parametrize("seed", [11, 12, 13])
+def test_chaos_random_kills(tmp_path, seed):
+    """Seeded random SIGKILLs at random moments of a paced run: every run completes and replays."""
+    rng = np.random.default_rng(seed)
+    scen = scenario_file(tmp_path, "ring10", run={"steps": 100, "pace": 30})
+    victims = [int(v) for v in rng.choice(np.arange(1, 11), size=2, replace=False)]
+    # trajectory.npz is flushed about once a second (30 rows here): stay clear of the end of the run
+    rows = sorted(int(r) for r in rng.integers(5, 50, size=2))
+    p, out, log = launch(tmp_path, scen, run_id())
+    try:
+        for victim, row in zip(victims, rows):
+            wait_for_rows(out, row, timeout=90)
+            os.kill(started_pids(out)[("agent", victim)], signal.SIGKILL)
+    except BaseException:
+        os.killpg(p.pid, signal.SIGKILL)
+        raise
+    code, text = finish(p, log)
+    assert code == 0, text
+    assert sorted(e["id"] for e in lost_events(out)) == sorted(victims)
+    assert events(out)[-2]["event"] == "run_finished"
+    replay(out, tmp_path)
+    assert_all_gone(all_pids(out))
+
+
+def test_kill_cli_bad_input(tmp_path):
+    r = run("kill", "--agent", 1, "--run-id", "no-such-run-" + uuid.uuid4().hex[:6])
+    assert r.returncode == 2 and r.stderr.startswith("splitspec: error: no running run") and "Traceback" not in r.stderr
+    r = run("kill", "--run-id", "x")
+    assert r.returncode == 2 and "one of the arguments --agent --plant --orchestrator is required" in r.stderr
+    r = run("kill", "--agent", 1, "--run-id", "a/b")
+    assert r.returncode == 2 and "--run-id" in r.stderr
+
+
+def test_replay_bad_events_file(tmp_path):
+    bad = tmp_path / "events.jsonl"
+    bad.write_text('{"event": "agent_lost", "id": 99, "tau": 3}\n')
+    r = run("simulate", EXAMPLES / "paper_discrete.yaml", "--out", tmp_path / "o", "--faults-from", bad)
+    assert r.returncode == 2 and "agent 99" in r.stderr and r.stderr.count("\n") == 1
+    bad.write_text('not json\n{"event": "x"}\n')
+    r = run("simulate", EXAMPLES / "paper_discrete.yaml", "--out", tmp_path / "o", "--faults-from", bad)
+    assert r.returncode == 2 and f"{bad}:1" in r.stderr
+    r = run("simulate", EXAMPLES / "paper_discrete.yaml", "--out", tmp_path / "o", "--faults-from", tmp_path / "none")
+    assert r.returncode == 2 and "cannot read events file" in r.stderr

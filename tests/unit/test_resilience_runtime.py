@@ -1,0 +1,167 @@
+"""Pure parts of fault handling: verdicts at a loss, replay of recorded events, the run registry."""
+
+import json
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from splitspec_core.design import certify_network, design
+from splitspec_core.errors import ScenarioError
+from splitspec_core.network import NetworkState, active_arcs
+from splitspec_core.replay import faults_from_events, load_events, with_recorded_faults
+from splitspec_core.scenario import load_scenario
+from splitspec_core.simulate import simulate
+from tests.conftest import EXAMPLES
+
+
+@pytest.fixture(scope="module")
+def paper():
+    return design(load_scenario(EXAMPLES / "paper_discrete.yaml"))
+
+
+@pytest.fixture(scope="module")
+def ring():
+    return design(load_scenario(EXAMPLES / "ring10.yaml"))
+
+
+def test_verdict_non_redundant_loss(paper):
+    v = certify_network(paper, [1, 2])  # agent 3 alone sees the second oscillator
+    assert v["jointly_observable"] is False and v["ok"] is False and v["rate_certified"] is False
+    assert v["unobservable_direction"]
+    v = certify_network(paper, [2, 3])  # agent 2 sees the first oscillator: still fine
+    assert v["ok"] and v["rate_certified"] and v["certificate"].startswith("q = 6")
+
+
+def full_error_radius(des, alive) -> float:
+    """rho of the survivors' one-event-time error map F (I - P + P (S (x) I))^q, from the full matrices."""
+    from splitspec_core.network import consensus_rows
+
+    sc = des.scenario
+    rows = consensus_rows(sc, 0, alive)
+    pos = {a: k for k, a in enumerate(alive)}
+    n, m = sc.n, len(alive)
+    ad = {a.id: a for a in des.agents}
+    W = np.zeros((m * n, m * n))
+    F = np.zeros((m * n, m * n))
+    for i in alive:
+        r = slice(pos[i] * n, pos[i] * n + n)
+        P = ad[i].P
+        W[r, r] += np.eye(n) - P
+        for j, w in zip(*rows[i]):
+            W[r, pos[j] * n:pos[j] * n + n] += w * P
+        C = sc.system.Cs[sc.agent_ids.index(i)]
+        F[r, r] = sc.system.A + ad[i].K @ C
+    return float(np.max(np.abs(np.linalg.eigvals(F @ np.linalg.matrix_power(W, des.q)))))
+
+
+def test_verdict_matches_the_full_error_map(ring, paper):
+    """A certified verdict at a loss means the survivors' full mn x mn error map contracts at the rate."""
+    for des in (ring, paper):
+        sc = des.scenario
+        for lost in sc.agent_ids:
+            alive = [a for a in sc.agent_ids if a != lost]
+            v = certify_network(des, alive)
+            if v["jointly_observable"]:
+                rho = full_error_radius(des, alive)
+                assert v["rate_certified"] == (rho <= sc.design.rate + 1e-9), (lost, rho, v)
+    # ring10 is designed with resilience: 1, so every single loss stays certified
+    assert all(certify_network(ring, [a for a in ring.scenario.agent_ids if a != x])["ok"]
+               for x in ring.scenario.agent_ids)
+
+
+def test_verdict_after_link_failures(ring):
+    sc = ring.scenario
+    # cutting the ring on both sides of agent 2 (uniform weights: one direction each) isolates it
+    v = certify_network(ring, sc.agent_ids, {(1, 2), (3, 2)})
+    assert v["strongly_connected"] == {"ring": False} and v["unreachable"]["ring"][1] == 2 and not v["ok"]
+    v = certify_network(ring, sc.agent_ids, {(1, 6)})
+    assert v["ok"]
+
+
+def test_active_arcs_metropolis_drops_both_directions():
+    sc = load_scenario(EXAMPLES / "paper_discrete_switching.yaml")
+    k = sc.graph_names.index("b")
+    arcs = active_arcs(sc, k, {(1, 2)})
+    if sc.design.weights == "metropolis":
+        assert (1, 2) not in arcs and (2, 1) not in arcs
+    else:
+        assert (1, 2) not in arcs and (2, 1) in arcs
+
+
+def test_network_state_lose_and_rejoin():
+    sc = load_scenario(EXAMPLES / "paper_discrete.yaml")
+    net = NetworkState(sc)
+    assert net.lose(1) and not net.lose(1)
+    assert net.alive_ids() == [1, 3]
+    assert net.rejoin(1) == 1 and net.rejoin(1) is None and net.rejoin(1) is None
+    assert net.lose(1) and net.rejoin(1) == 2
+
+
+def test_replay_events_reproduce_scenario_faults():
+    """Events a run would log for the scenario's faults give the same trajectory as the faults themselves."""
+    sc = load_scenario(EXAMPLES / "ring10_faults.yaml")
+    evs = []
+    for f in sc.faults:
+        name = {"kill": "agent_lost", "hang": "agent_lost", "restart": "agent_rejoined",
+                "drop_arc": "arc_dropped", "restore_arc": "arc_restored"}[f.action]
+        e = {"event": name, "tau": int(f.at)}
+        e.update({"id": f.agent} if f.agent is not None else {"arc": list(f.arc)})
+        evs.append(e)
+    evs.insert(0, {"event": "process_started", "role": "agent", "id": 1})  # ignored
+    replayed = faults_from_events(evs, sc)
+    assert [f.action for f in replayed] == ["kill", "drop_arc", "kill", "restart", "restart", "restore_arc"]
+    import dataclasses
+    a = simulate(design(sc))
+    b = simulate(design(dataclasses.replace(sc, faults=replayed)))
+    np.testing.assert_array_equal(a.alive, b.alive)
+    np.testing.assert_allclose(a.xhat, b.xhat, rtol=0, atol=0, equal_nan=True)
+
+
+def test_replay_continuous_time_uses_dt(tmp_path):
+    sc = load_scenario(EXAMPLES / "paper_continuous.yaml")
+    (f,) = faults_from_events([{"event": "agent_lost", "id": 2, "tau": 40}], sc)
+    assert f.at == pytest.approx(40 * sc.run.dt)
+    from splitspec_core.network import make_plan
+    import dataclasses
+    plan = make_plan(dataclasses.replace(sc, faults=(f,)), 0)
+    assert list(plan.faults) == [40]
+
+
+def test_load_events_errors(tmp_path):
+    p = tmp_path / "events.jsonl"
+    p.write_text('{"event": "a"}\n[1, 2]\n{"event": "b"}\n')
+    with pytest.raises(ScenarioError, match=r"events.jsonl:2: not a splitspec event"):
+        load_events(p)
+    p.write_text('{"event": "a"}\n{"event": "agent_lo')  # torn last line of a crashed run
+    assert load_events(p) == [{"event": "a"}]
+    sc = load_scenario(EXAMPLES / "paper_discrete.yaml")
+    with pytest.raises(ScenarioError, match="no valid 'tau'"):
+        faults_from_events([{"event": "agent_lost", "id": 1}], sc)
+    with pytest.raises(ScenarioError, match="bad 'arc'"):
+        faults_from_events([{"event": "arc_dropped", "tau": 1, "arc": [1, 9]}], sc)
+    p.write_text(json.dumps({"event": "orchestrator_started", "scenario": "other"}) + "\n")
+    with pytest.raises(ScenarioError, match="records scenario 'other'"):
+        with_recorded_faults(sc, p)
+
+
+def test_registry_resolve_and_stale_entries(tmp_path, monkeypatch):
+    from orchestrator import registry
+
+    monkeypatch.setenv("SPLITSPEC_RUNTIME_DIR", str(tmp_path))
+    reg = registry.RunRegistry("r1", {"endpoint": "tcp/127.0.0.1:1", "out": "/x", "host": "h"})
+    reg.data["agents"]["3"] = {"pid": os.getpid(), "host": "h"}
+    reg.update()
+    pid, host, entry = registry.resolve("r1", "agent", 3)
+    assert (pid, host) == (os.getpid(), "h") and entry["endpoint"] == "tcp/127.0.0.1:1"
+    with pytest.raises(Exception, match="agent 4 has not started"):
+        registry.resolve("r1", "agent", 4)
+    # an entry whose orchestrator is dead is stale: ignored and removed
+    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True)
+    stale = tmp_path / f"r2.{dead.stdout.strip()}.json"
+    stale.write_text(json.dumps({"run_id": "r2", "orchestrator": {"pid": int(dead.stdout)}, "agents": {}}))
+    assert registry.find_runs("r2") == [] and not stale.exists()
+    reg.remove()
+    assert registry.find_runs("r1") == []
