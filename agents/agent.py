@@ -242,11 +242,11 @@ class AgentNode:
 
 
 def main(args: argparse.Namespace) -> int:
-    """``splitspec agent --id I --connect ENDPOINT [--run-id ID]``."""
+    """``splitspec agent --id I --connect ENDPOINT [--run-id ID] [--credentials FILE]``."""
     from splitspec_core.bus import NodeShell
 
     keys = Keys(args.run_id or DEFAULT_RUN_ID)
-    shell = NodeShell(args.connect, keys, log=log)
+    shell = NodeShell(args.connect, keys, log=log, credentials=args.credentials, wait=args.wait)
     try:
         node = AgentNode(args.id, shell.fetch_config(role="agent", ident=args.id, wait=args.wait), keys.run_id)
         handlers = {"tick": lambda key, p: node.on_tick(p), "z": node.on_z, "y": lambda key, p: node.on_y(p)}

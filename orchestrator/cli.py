@@ -154,12 +154,25 @@ def _cmd_run(args: argparse.Namespace) -> int:
         raise UsageError(f"cannot create output directory {out}: {exc.strerror}") from None
     viewer = "spawn" if args.viewer else args.connect_viewer
     code = run_local(str(args.scenario), out, run_id=args.run_id, viewer=viewer, wait=args.wait,
-                     round_timeout=args.round_timeout, agent_ids=sc.agent_ids, verbose=args.verbose)
+                     round_timeout=args.round_timeout, agent_ids=sc.agent_ids, verbose=args.verbose,
+                     secure=args.secure)
     rrd = out / "run.rrd"
     if rrd.exists():
         print(f"recording: {rrd}  (open it with: {Path(sys.executable).parent / 'rerun'} {rrd})")
         print(f"trajectory: {out / 'trajectory.npz'}  events: {out / 'events.jsonl'}")
     return code
+
+
+def _cmd_credentials(args: argparse.Namespace) -> int:
+    from splitspec_core.scenario import load_scenario
+    from splitspec_core.security import generate
+
+    sc = load_scenario(args.scenario)
+    cred = generate(args.out, sc.agent_ids)
+    print(f"wrote {cred.dir}/users.txt (for the orchestrator: --secure {cred.dir}) and "
+          f"{len(cred.users)} .cred files (plant: --credentials {cred.dir}/plant.cred, agent i: "
+          f"--credentials {cred.dir}/agent-i.cred); copy each to its host only")
+    return 0
 
 
 _SIGNALS = {"KILL": "SIGKILL", "STOP": "SIGSTOP", "CONT": "SIGCONT", "TERM": "SIGTERM", "INT": "SIGINT"}
@@ -244,6 +257,9 @@ def build_parser() -> argparse.ArgumentParser:
     v.add_argument("--viewer", action="store_true", help="spawn the Rerun viewer and stream live")
     v.add_argument("--connect-viewer", metavar="URL", help="stream live to a running Rerun viewer at URL")
     p.add_argument("--round-timeout", type=float, default=10.0, help="seconds before a silent agent is declared lost")
+    p.add_argument("--secure", action="store_true", help="Zenoh user/password authentication and access control: "
+                   "only the plant publishes measurements and truth, only agent i publishes as agent i, clients "
+                   "without credentials are refused (credentials are generated for the run and deleted after)")
     _add_process_options(p)
     p.set_defaults(func=_cmd_run)
 
@@ -255,8 +271,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", required=True, help="output directory (created if missing)")
     p.add_argument("--viewer", metavar="spawn|URL", help="also stream to a Rerun viewer ('spawn' or a URL)")
     p.add_argument("--round-timeout", type=float, default=10.0, help="seconds before a silent agent is declared lost")
+    p.add_argument("--secure", dest="secure_dir", metavar="DIR", help="authenticate clients against DIR/users.txt "
+                   "and enforce the access-control policy (see `splitspec credentials`)")
     _add_process_options(p)
     p.set_defaults(func=_cmd_orchestrator)
+
+    p = sub.add_parser("credentials", help="generate Zenoh credentials for a secure deployment by hand",
+                       description="Write users.txt (for `orchestrator --secure DIR`) and one <user>.cred file per "
+                                   "process (for `plant/agent --credentials FILE`) into DIR, private (0700/0600).")
+    p.add_argument("scenario", help="scenario YAML file (for the agent ids)")
+    p.add_argument("--out", required=True, help="directory to write (created if missing)")
+    p.set_defaults(func=_cmd_credentials)
 
     p = sub.add_parser("kill", help="inject a fault from outside: signal an agent (or the plant) of a running run",
                        description="Send a signal to one process of a run started on this machine (found through "
@@ -276,6 +301,7 @@ def build_parser() -> argparse.ArgumentParser:
                        description="The true system: fetches the scenario from the orchestrator, publishes "
                                    "measurements and the truth each event time.")
     p.add_argument("--connect", required=True, metavar="ENDPOINT", help="Zenoh router endpoint, e.g. tcp/host:7447")
+    p.add_argument("--credentials", metavar="FILE", help="user:password file for a --secure router")
     _add_process_options(p)
     p.set_defaults(func=_cmd_plant)
 
@@ -284,6 +310,7 @@ def build_parser() -> argparse.ArgumentParser:
                                    "and runs the protocol.")
     p.add_argument("--id", required=True, type=int, help="agent id (as in the scenario's system.C)")
     p.add_argument("--connect", required=True, metavar="ENDPOINT", help="Zenoh router endpoint, e.g. tcp/host:7447")
+    p.add_argument("--credentials", metavar="FILE", help="user:password file for a --secure router")
     _add_process_options(p)
     p.set_defaults(func=_cmd_agent)
     return parser

@@ -130,9 +130,8 @@ class Orchestrator:
         from splitspec_core.bus import Inbox, open_session
 
         kw: dict = {}
-        if self.security is not None:
-            kw = self.security.session_kwargs("orchestrator", router=not self.connect, run_id=self.keys.run_id,
-                                               agent_ids=self.sc.agent_ids)
+        if self.security is not None:  # authentication + access control on the embedded router
+            kw = {"extra": self.security.router_extra(self.keys.run_id, self.sc.agent_ids)}
         if self.connect:
             self.session = open_session("client", connect=[self.connect], **kw)
         else:
@@ -583,6 +582,9 @@ def main(args: argparse.Namespace) -> int:
     if getattr(args, "secure_dir", None):
         from splitspec_core.security import Credentials
 
+        if args.connect:
+            raise SplitspecError("--secure configures the orchestrator's embedded router: use it with --listen, "
+                                 "not --connect")
         security = Credentials.load(args.secure_dir)
     orch = Orchestrator(args.scenario, out=Path(args.out), run_id=args.run_id or DEFAULT_RUN_ID,
                         listen=args.listen, connect=args.connect, wait=args.wait,

@@ -82,8 +82,12 @@ def stop_all(procs: list, *, grace: float = 5.0) -> None:
 
 
 def run_local(scenario: str, out: Path, *, run_id: str, viewer: str | None, wait: float,
-              round_timeout: float, agent_ids: tuple, verbose: bool = False) -> int:
-    """Start and supervise orchestrator, plant and agents; return the orchestrator's exit code."""
+              round_timeout: float, agent_ids: tuple, verbose: bool = False, secure: bool = False) -> int:
+    """Start and supervise orchestrator, plant and agents; return the orchestrator's exit code.
+
+    ``secure``: generate credentials for this run in a private directory under the runtime
+    directory, start the router with authentication and access control, and delete them at the end.
+    """
     port = free_port()
     endpoint = f"tcp/127.0.0.1:{port}"
     quiet = [] if verbose else ["--log-level", "warning"]
@@ -91,6 +95,23 @@ def run_local(scenario: str, out: Path, *, run_id: str, viewer: str | None, wait
                            "--wait", wait, "--round-timeout", round_timeout)
     if viewer:
         orch_cmd += ["--viewer", viewer]
+    cred_dir = None
+
+    def creds(user: str) -> list:
+        return ["--credentials", str(cred_dir / f"{user}.cred")] if cred_dir else []
+
+    if secure:
+        import tempfile
+
+        from splitspec_core.security import generate
+
+        from .registry import runtime_dir
+
+        runtime_dir().mkdir(parents=True, exist_ok=True, mode=0o700)
+        cred_dir = Path(tempfile.mkdtemp(prefix=f"creds-{run_id}-", dir=runtime_dir()))
+        generate(cred_dir, agent_ids)
+        orch_cmd += ["--secure", str(cred_dir)]
+        log.info("secure run: credentials in %s (deleted at the end)", cred_dir)
     procs: list = []
     interrupted = False
 
@@ -110,10 +131,10 @@ def run_local(scenario: str, out: Path, *, run_id: str, viewer: str | None, wait
             print(f"splitspec: error: the orchestrator did not listen on {endpoint} within 30 s", file=sys.stderr)
             return 1
         procs.append(spawn(cli_command(*quiet, "plant", "--connect", endpoint, "--run-id", run_id,
-                                       "--wait", wait)))
+                                       "--wait", wait, *creds("plant"))))
         for aid in agent_ids:
             procs.append(spawn(cli_command(*quiet, "agent", "--id", aid, "--connect", endpoint, "--run-id", run_id,
-                                           "--wait", wait)))
+                                           "--wait", wait, *creds(f"agent-{aid}"))))
         log.info("started orchestrator (pid %d), plant and %d agents on %s", procs[0].pid, len(agent_ids), endpoint)
         while True:
             code = procs[0].poll()
@@ -129,3 +150,7 @@ def run_local(scenario: str, out: Path, *, run_id: str, viewer: str | None, wait
         stop_all(procs)
         for s, h in old.items():
             signal.signal(s, h)
+        if cred_dir is not None:
+            import shutil
+
+            shutil.rmtree(cred_dir, ignore_errors=True)

@@ -66,11 +66,11 @@ class PlantNode:
 
 
 def main(args: argparse.Namespace) -> int:
-    """``splitspec plant --connect ENDPOINT [--run-id ID]``."""
+    """``splitspec plant --connect ENDPOINT [--run-id ID] [--credentials FILE]``."""
     from splitspec_core.bus import NodeShell
 
     keys = Keys(args.run_id or DEFAULT_RUN_ID)
-    shell = NodeShell(args.connect, keys, log=log)
+    shell = NodeShell(args.connect, keys, log=log, credentials=args.credentials, wait=args.wait)
     try:
         node = PlantNode(shell.fetch_config(role="plant", ident=0, wait=args.wait), keys.run_id)
         shell.inbox.subscribe(keys.tick, "tick")

@@ -42,7 +42,7 @@ def default_lease_ms() -> int:
 
 def zenoh_config(mode: str, *, listen: list | None = None, connect: list | None = None,
                  lease_ms: int | None = None, user: str | None = None, password: str | None = None,
-                 extra: dict | None = None) -> zenoh.Config:
+                 connect_timeout_ms: int | None = None, extra: dict | None = None) -> zenoh.Config:
     """Zenoh config: ``mode`` is ``router``, ``peer`` or ``client``; multicast scouting is off.
 
     ``lease_ms`` is the link lease (default :func:`default_lease_ms`): a frozen
@@ -57,7 +57,9 @@ def zenoh_config(mode: str, *, listen: list | None = None, connect: list | None 
         if connect:
             c.insert_json5("connect/endpoints", json.dumps(list(connect)))
             # keep retrying the connection at start-up rather than failing at once
-            c.insert_json5("connect/timeout_ms", "-1" if mode != "client" else "30000")
+            # (a client refused by a secure router fails after this timeout, not at once)
+            timeout = connect_timeout_ms if connect_timeout_ms is not None else (-1 if mode != "client" else 30000)
+            c.insert_json5("connect/timeout_ms", str(int(timeout)))
         c.insert_json5("scouting/multicast/enabled", "false")
         c.insert_json5("transport/link/tx/lease", str(int(lease_ms)))
         c.insert_json5("transport/link/tx/keep_alive", "4")
@@ -78,7 +80,11 @@ def open_session(mode: str, **kw) -> zenoh.Session:
         return zenoh.open(cfg)
     except Exception as exc:  # noqa: BLE001
         where = kw.get("listen") or kw.get("connect") or ""
-        raise BusError(f"cannot open a Zenoh {mode} session on {', '.join(where)}: {exc}") from None
+        hint = ""
+        if mode == "client":
+            hint = (" (is the router up? a secure router refuses missing or wrong credentials)" if kw.get("user") is None
+                    else " (is the router up? are these the run's credentials?)")
+        raise BusError(f"cannot open a Zenoh {mode} session on {', '.join(where)}: {exc}{hint}") from None
 
 
 class Inbox:
@@ -164,11 +170,16 @@ class NodeShell:
     handler error is counted with ``on_error(reason)`` and never ends the process.
     """
 
-    def __init__(self, connect: str, keys, *, log):
+    def __init__(self, connect: str, keys, *, log, credentials: str | None = None, wait: float = 30.0):
         import signal
 
         self.keys, self.log = keys, log
-        self.session = open_session("client", connect=[connect])
+        kw = {}
+        if credentials:
+            from .security import read_credentials
+
+            kw["user"], kw["password"] = read_credentials(credentials)
+        self.session = open_session("client", connect=[connect], connect_timeout_ms=int(max(wait, 1.0) * 1000), **kw)
         self.inbox = Inbox(self.session)
         self.pubs: dict = {}
         for sig in (signal.SIGINT, signal.SIGTERM):

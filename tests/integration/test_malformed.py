@@ -22,10 +22,14 @@ from tests.integration.runtime_helpers import (assert_all_gone, compare_with_sim
 pytestmark = pytest.mark.slow
 
 
-def rogue(endpoint: str, run_id: str, stop: threading.Event, sent: dict) -> None:
-    """Inject every kind of bad message, keyed to the live event time read from the ticks."""
+def rogue(endpoint: str, run_id: str, stop: threading.Event, sent: dict, *, credentials=None, only=None) -> None:
+    """Inject every kind of bad message, keyed to the live event time read from the ticks.
+
+    ``credentials``: (user, password) for a secure router; ``only``: inject only on these keys.
+    """
     keys = Keys(run_id)
-    s = open_session("client", connect=[endpoint])
+    user, password = credentials or (None, None)
+    s = open_session("client", connect=[endpoint], user=user, password=password, connect_timeout_ms=5000)
     taus = []
 
     def on_tick(smp):
@@ -60,6 +64,8 @@ def rogue(endpoint: str, run_id: str, stop: threading.Event, sent: dict) -> None
                 "tick_garbage": (keys.tick, b"\xff\x00tick"),
             }
             for name, (key, payload) in bad.items():
+                if only is not None and key not in only:
+                    continue
                 pubs[key].put(payload)
                 sent[name] = sent.get(name, 0) + 1
             time.sleep(0.02)

@@ -1,0 +1,160 @@
+"""``--secure``: Zenoh user/password authentication and access control for a run.
+
+One user per process: ``orchestrator``, ``plant`` and ``agent-<i>``, each
+with a random password.  :func:`generate` writes, into a private directory
+(mode 0700, files 0600):
+
+``users.txt``
+    the router's dictionary (``user:password`` per line, Zenoh's
+    ``transport/auth/usrpwd/dictionary_file``);
+``<user>.cred``
+    one line ``user:password`` per process, passed with ``--credentials``
+    (never on the command line, where ``ps`` would show it).
+
+The orchestrator's embedded router authenticates every client against the
+dictionary (a client without credentials, or with a wrong password, is
+refused at connection time) and enforces this access-control policy
+(:func:`acl_config`; default deny, on the router's transport faces):
+
+* everybody authenticated may subscribe under ``splitspec/<run>/``, receive
+  what is published there, query ``config``, see and query liveliness;
+* only ``plant`` may publish ``y/*`` and ``truth`` and hold ``alive/plant/*``;
+* only ``agent-<i>`` may publish ``z/<i>`` and ``xhat/<i>`` and hold
+  ``alive/agent/<i>``;
+* ``tick``, ``control`` and the ``config`` queryable are the orchestrator's
+  own session (the router itself, not subject to the policy); nobody else
+  may publish them or serve ``config``.
+
+A denied message is dropped by the router silently; the receivers never see
+it.  Zenoh's access control is read when the router opens: the set of
+users is fixed for the run (a restarted agent reuses its agent's
+credentials).
+"""
+
+from __future__ import annotations
+
+import os
+import secrets
+from dataclasses import dataclass
+from pathlib import Path
+
+from .errors import ScenarioError, SplitspecError
+
+__all__ = ["Credentials", "generate", "read_credentials", "acl_config", "user_of"]
+
+DICTIONARY = "users.txt"
+
+
+def user_of(role: str, ident: int | None = None) -> str:
+    return f"agent-{ident}" if role == "agent" else role
+
+
+def _write_private(path: Path, text: str) -> None:
+    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+    with os.fdopen(fd, "w") as f:
+        f.write(text)
+
+
+def read_credentials(path) -> tuple:
+    """``(user, password)`` from a ``.cred`` file (one line ``user:password``)."""
+    path = Path(path)
+    try:
+        line = path.read_text(encoding="utf-8").strip()
+    except OSError as exc:
+        raise ScenarioError(f"cannot read credentials file {path}: {exc.strerror}") from None
+    user, sep, password = line.partition(":")
+    if not sep or not user or not password or "\n" in line:
+        raise ScenarioError(f"credentials file {path}: expected one line 'user:password'")
+    return user, password
+
+
+def acl_config(run_id: str, agent_ids) -> dict:
+    """The router's ``access_control`` section for a run (see the module docstring)."""
+    p = f"splitspec/{run_id}"
+
+    def rule(rid, messages, flows, keys):
+        return {"id": rid, "permission": "allow", "messages": messages, "flows": flows, "key_exprs": keys}
+
+    ingress, egress = ["ingress"], ["egress"]
+    rules = [
+        # egress too: a declared publisher only sends where it knows of a subscriber (write-side filtering)
+        rule("subscribe", ["declare_subscriber"], ["ingress", "egress"], [f"{p}/**"]),
+        rule("receive", ["put"], egress, [f"{p}/**"]),
+        rule("query-config", ["query"], ["ingress", "egress"], [f"{p}/config"]),
+        rule("receive-config", ["reply"], egress, [f"{p}/config"]),
+        rule("watch-liveliness", ["declare_liveliness_subscriber", "liveliness_query"], ingress, [f"{p}/alive/**"]),
+        rule("see-liveliness", ["liveliness_token"], egress, [f"{p}/alive/**"]),
+        rule("plant-publish", ["put"], ingress, [f"{p}/y/*", f"{p}/truth"]),
+        rule("plant-token", ["liveliness_token"], ingress, [f"{p}/alive/plant/*"]),
+    ]
+    subjects = [{"id": "everyone", "usernames": ["orchestrator", "plant"] + [user_of("agent", i) for i in agent_ids]},
+                {"id": "plant", "usernames": ["plant"]}]
+    policies = [
+        {"id": "everyone", "subjects": ["everyone"],
+         "rules": ["subscribe", "receive", "query-config", "receive-config", "watch-liveliness", "see-liveliness"]},
+        {"id": "plant", "subjects": ["plant"], "rules": ["plant-publish", "plant-token"]},
+    ]
+    for i in agent_ids:
+        u = user_of("agent", i)
+        rules += [rule(f"{u}-publish", ["put"], ingress, [f"{p}/z/{i}", f"{p}/xhat/{i}"]),
+                  rule(f"{u}-token", ["liveliness_token"], ingress, [f"{p}/alive/agent/{i}"])]
+        subjects.append({"id": u, "usernames": [u]})
+        policies.append({"id": u, "subjects": [u], "rules": [f"{u}-publish", f"{u}-token"]})
+    return {"enabled": True, "default_permission": "deny", "rules": rules, "subjects": subjects,
+            "policies": policies}
+
+
+@dataclass(frozen=True)
+class Credentials:
+    """A credentials directory (see :func:`generate`)."""
+
+    dir: Path
+    users: tuple
+
+    @classmethod
+    def load(cls, directory) -> "Credentials":
+        d = Path(directory)
+        path = d / DICTIONARY
+        try:
+            lines = [ln.strip() for ln in path.read_text(encoding="utf-8").splitlines() if ln.strip()]
+        except OSError as exc:
+            raise ScenarioError(f"--secure {d}: cannot read {path}: {exc.strerror} (create it with "
+                                "`splitspec credentials SCENARIO --out DIR`)") from None
+        users = []
+        for k, ln in enumerate(lines, 1):
+            user, sep, pw = ln.partition(":")
+            if not sep or not user or not pw:
+                raise ScenarioError(f"{path}:{k}: expected 'user:password'")
+            users.append(user)
+        return cls(dir=d, users=tuple(users))
+
+    def credentials_file(self, user: str) -> str:
+        return str(self.dir / f"{user}.cred")
+
+    def check_agents(self, agent_ids) -> None:
+        missing = [u for u in ["plant"] + [user_of("agent", i) for i in agent_ids] if u not in self.users]
+        if missing:
+            raise ScenarioError(f"--secure {self.dir}: no credentials for {', '.join(missing)} (regenerate them "
+                                "for this scenario with `splitspec credentials SCENARIO --out DIR`)")
+
+    def router_extra(self, run_id: str, agent_ids) -> dict:
+        """Extra Zenoh config of the orchestrator's embedded router."""
+        self.check_agents(agent_ids)
+        return {"transport/auth/usrpwd/dictionary_file": str((self.dir / DICTIONARY).resolve()),
+                "access_control": acl_config(run_id, agent_ids)}
+
+
+def generate(directory, agent_ids) -> Credentials:
+    """Write ``users.txt`` and one ``<user>.cred`` per process into ``directory`` (created, mode 0700)."""
+    d = Path(directory)
+    try:
+        d.mkdir(parents=True, exist_ok=True, mode=0o700)
+        os.chmod(d, 0o700)
+        users = ["orchestrator", "plant"] + [user_of("agent", i) for i in agent_ids]
+        pw = {u: secrets.token_urlsafe(24) for u in users}
+        _write_private(d / DICTIONARY, "".join(f"{u}:{pw[u]}\n" for u in users))
+        for u in users:
+            _write_private(d / f"{u}.cred", f"{u}:{pw[u]}\n")
+    except OSError as exc:
+        raise SplitspecError(f"cannot write credentials into {d}: {exc.strerror}") from None
+    return Credentials(dir=d, users=tuple(users))
