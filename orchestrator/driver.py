@@ -308,6 +308,21 @@ class Orchestrator:
         self.pending_loss.clear()
         return lost
 
+    def _unresponsive(self) -> list:
+        """Alive agents that do not answer a status query within a second (frozen processes)."""
+        from splitspec_core.bus import query_all
+
+        answered = set()
+        for key, payload in query_all(self.session, self.keys.status_all, timeout=min(1.0, self.round_timeout)):
+            parts = key.split("/")
+            if len(parts) >= 2 and parts[-2] == "agent":
+                try:
+                    if decode(payload, self.keys.run_id, "hello")["id"] == int(parts[-1]):
+                        answered.add(int(parts[-1]))
+                except (WireError, ValueError):
+                    pass
+        return sorted(a for a in self.alive if a not in answered)
+
     def _signal_agent(self, aid: int, action: str) -> str:
         """Send the fault's signal to agent ``aid``'s process; returns how it was delivered."""
         sig = _FAULT_SIGNAL[action]
@@ -439,7 +454,7 @@ class Orchestrator:
         self.joinable: set = set()  # agents whose token appeared since they were last lost
         self.procs: dict = {}  # agent id -> {"pid", "host"} of its latest process
         self.children: list = []  # agent processes this orchestrator spawned (restarts)
-        self.hung: set = set()  # pids this orchestrator SIGSTOPped
+        self.hung: set = set()  # pids of frozen agents on this host (SIGSTOPped by a fault or found frozen)
         self.plant_present = False
         self.started = False
         self.pending_loss: dict = {}
@@ -480,6 +495,7 @@ class Orchestrator:
                     if delay > 0:
                         self._wait_between_rounds(delay, lambda: False, tau)
                 self.attempt = 0
+                retried = False
                 self._between_rounds(tau, plan.faults.get(tau, ()))
                 while True:
                     rows = self.net.rows(sc, graph)
@@ -506,8 +522,28 @@ class Orchestrator:
                             raise RunFailed(f"no truth from the plant for event time {tau} within "
                                             f"{self.round_timeout:g} s")
                         late = sorted(a for a in expect_next if a not in self.est.get(tau + 1, {}))
-                        for a in late or sorted(a for a in self.alive if a not in self.est.get(tau, {})):
-                            self.pending_loss[a] = f"round timeout ({self.round_timeout:g} s without its estimate)"
+                        late = late or sorted(a for a in self.alive if a not in self.est.get(tau, {}))
+                        # agents waiting for a frozen neighbour are late too: blame only those that do not
+                        # answer a status query (a frozen process cannot)
+                        frozen = self._unresponsive()
+                        if frozen:
+                            for a in frozen:
+                                self.pending_loss[a] = (f"round timeout ({self.round_timeout:g} s) and no answer "
+                                                        "to a status query: frozen")
+                                info = self.procs.get(a)
+                                if info and info["host"] == HOST:
+                                    self.hung.add(int(info["pid"]))  # cannot obey the final stop: killed then
+                        elif not retried:
+                            retried = True
+                            self.rec.event("round_retried", t, tau=tau, attempt=self.attempt + 1, late=late)
+                            log.warning("event time %d: no estimate from agents %s within %g s, but all answer; "
+                                        "re-running the round once", tau, late, self.round_timeout)
+                            self.est.pop(tau + 1, None)
+                            self.attempt += 1
+                            continue
+                        else:
+                            for a in late:
+                                self.pending_loss[a] = f"round timeout ({self.round_timeout:g} s without its estimate)"
                     if self._apply_pending_losses(tau):
                         self.est.pop(tau + 1, None)
                         self.attempt += 1
@@ -539,9 +575,11 @@ class Orchestrator:
             self.rec.event("run_failed", float(tau) * self.dt, reason=str(exc))
             print(f"splitspec: error: {exc}", file=sys.stderr)
         finally:
-            self._shutdown()
-            self.rec.close(finished=code == EXIT_OK)
-            self.registry.remove()
+            try:
+                self._shutdown()
+            finally:
+                self.rec.close(finished=code == EXIT_OK)
+                self.registry.remove()
         log.info("wall time %.2f s", time.monotonic() - t_start)
         return code
 
@@ -550,11 +588,12 @@ class Orchestrator:
         try:
             if session is not None:
                 self.pub_control.put(encode("control", self.keys.run_id, cmd="stop"))
-            for pid in self.hung:  # processes we froze cannot obey a stop
-                try:
-                    os.kill(pid, signal.SIGKILL)
-                except ProcessLookupError:
-                    pass
+            for pid in getattr(self, "hung", ()):  # frozen processes (hang fault, or found frozen) cannot obey a stop
+                if _is_splitspec_process(pid):
+                    try:
+                        os.kill(pid, signal.SIGKILL)
+                    except ProcessLookupError:
+                        pass
             if session is not None:
                 # give the others a moment to leave on their own (their tokens disappear)
                 deadline = time.monotonic() + 3.0
@@ -571,7 +610,10 @@ class Orchestrator:
             stop_all(getattr(self, "children", []), grace=3.0)
             if session is not None:
                 self.inbox.close()
-                session.close()
+                try:
+                    session.close()
+                except Exception as exc:  # noqa: BLE001 - e.g. a link to a frozen process cannot close cleanly
+                    log.warning("shutdown: closing the Zenoh session: %s", str(exc).split(" at ")[0])
 
 
 def main(args: argparse.Namespace) -> int:

@@ -20,7 +20,7 @@ import zenoh
 
 from .errors import SplitspecError
 
-__all__ = ["zenoh_config", "open_session", "Inbox", "NodeShell", "BusError", "LIVELINESS_PUT", "LIVELINESS_DELETE"]
+__all__ = ["zenoh_config", "open_session", "Inbox", "NodeShell", "BusError", "query_all", "LIVELINESS_PUT", "LIVELINESS_DELETE"]
 
 LIVELINESS_PUT = "put"
 LIVELINESS_DELETE = "delete"
@@ -142,6 +142,19 @@ class Inbox:
         self._subs.clear()
 
 
+def query_all(session: zenoh.Session, key: str, *, timeout: float) -> list:
+    """``[(key, payload bytes), ...]`` of every reply to ``get(key)`` from every matching queryable."""
+    out = []
+    try:
+        for reply in session.get(key, target=zenoh.QueryTarget.ALL, consolidation=zenoh.ConsolidationMode.NONE,
+                                 timeout=timeout):
+            if reply.ok is not None:
+                out.append((str(reply.ok.key_expr), reply.ok.payload.to_bytes()))
+    except Exception:  # noqa: BLE001 - an unreachable network simply gives no replies
+        pass
+    return out
+
+
 def query_bytes(session: zenoh.Session, key: str, *, timeout: float, payload: bytes | None = None,
                 retry_until: float | None = None) -> bytes | None:
     """First reply's payload of ``get(key)``; retried until ``retry_until`` (monotonic) if given."""
@@ -188,13 +201,19 @@ class NodeShell:
         self.inbox.watch_liveliness(keys.alive("orchestrator"), "orchestrator")
 
     def fetch_config(self, *, role: str, ident: int, wait: float) -> dict:
-        """Ask the orchestrator's queryable for the scenario and the centralised design (with a hello)."""
+        """Ask the orchestrator's queryable for the scenario and the centralised design (with a hello).
+
+        Also declares this process's ``status`` queryable: it answers with the same hello from a
+        Zenoh thread, so the orchestrator can tell a frozen process (no answer) from one that is
+        only waiting for a frozen neighbour.
+        """
         import socket
 
         from .wire import decode, encode
 
         hello = encode("hello", self.keys.run_id, role=role, id=int(ident), pid=os.getpid(),
                        host=socket.gethostname())
+        self.inbox.serve(self.keys.status(role, ident), lambda _q: hello)
         raw = query_bytes(self.session, self.keys.config, timeout=2.0, payload=hello,
                           retry_until=time.monotonic() + wait)
         if raw is None:
@@ -256,4 +275,7 @@ class NodeShell:
 
     def close(self) -> None:
         self.inbox.close()
-        self.session.close()
+        try:
+            self.session.close()
+        except Exception as exc:  # noqa: BLE001 - leaving anyway
+            self.log.warning("closing the Zenoh session: %s", str(exc).split(" at ")[0])

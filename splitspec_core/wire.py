@@ -19,6 +19,7 @@ key                         from -> to              payload
 ``z/<i>``                   agent i -> neighbours   tau, attempt, k, z_i(k)
 ``xhat/<i>``                agent i -> orchestrator tau, attempt, x_i(tau) (+ g_i, rejected counts)
 ``control``                 orchestrator -> all     ``stop``; ``kill agent/<i>``, ``hang agent/<i>`` (faults)
+``status/<role>/<id>``      queryable (every proc.) a ``hello``: the process answers (not frozen)
 ``alive/<role>/<id>``       liveliness token        presence; DELETE is a death
 ==========================  ======================  ==========================================
 """
@@ -87,6 +88,13 @@ class Keys:
 
     def xhat(self, i: int | str) -> str:
         return f"{self.prefix}/xhat/{i}"
+
+    def status(self, role: str, ident: int | str = 0) -> str:
+        return f"{self.prefix}/status/{role}/{ident}"
+
+    @property
+    def status_all(self) -> str:
+        return f"{self.prefix}/status/**"
 
     def alive(self, role: str, ident: int | str = 0) -> str:
         return f"{self.prefix}/alive/{role}/{ident}"

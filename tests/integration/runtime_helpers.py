@@ -27,11 +27,11 @@ def cli(*args) -> list:
     return [sys.executable, "-m", "orchestrator.cli", *map(str, args)]
 
 
-def start(*args, log: Path, **kw) -> subprocess.Popen:
+def start(*args, log: Path, env_extra: dict | None = None, **kw) -> subprocess.Popen:
     """Start ``splitspec ARGS`` in its own process group, output to ``log``."""
     f = open(log, "wb")
-    return subprocess.Popen(cli(*args), cwd=ROOT, env=ENV, stdout=f, stderr=subprocess.STDOUT,
-                            start_new_session=True, **kw)
+    return subprocess.Popen(cli(*args), cwd=ROOT, env={**ENV, **(env_extra or {})}, stdout=f,
+                            stderr=subprocess.STDOUT, start_new_session=True, **kw)
 
 
 def run(*args, timeout=180, **kw) -> subprocess.CompletedProcess:

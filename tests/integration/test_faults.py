@@ -237,3 +237,30 @@ def test_replay_bad_events_file(tmp_path):
     assert r.returncode == 2 and f"{bad}:1" in r.stderr
     r = run("simulate", EXAMPLES / "paper_discrete.yaml", "--out", tmp_path / "o", "--faults-from", tmp_path / "none")
     assert r.returncode == 2 and "cannot read events file" in r.stderr
+
+
+def test_round_timeout_catches_a_frozen_agent_before_its_lease(tmp_path):
+    """With a long lease, the round timeout is what notices a SIGSTOPped agent; the round is re-run without it."""
+    rid = run_id()
+    scen = scenario_file(tmp_path, "paper_discrete", run={"steps": 300, "pace": 25})
+    out = tmp_path / "out"
+    log = tmp_path / "run.log"
+    env = {"SPLITSPEC_LEASE_MS": "20000"}
+    p = start("run", scen, "--out", out, "--run-id", rid, "--round-timeout", "0.5", log=log, env_extra=env)
+    try:
+        wait_for_rows(out, 10, timeout=90)
+        r = run("kill", "--agent", 1, "--signal", "STOP", "--run-id", rid, timeout=30)
+        assert r.returncode == 0, r.stderr
+    except BaseException:
+        os.killpg(p.pid, signal.SIGKILL)
+        raise
+    code, text = finish(p, log)
+    assert code == 0, text
+    (lost,) = lost_events(out, 1)
+    assert lost["reason"].startswith("round timeout")
+    # agents 2 and 3 still observe both oscillators: the survivors converge (to round-off relative to |x|,
+    # which grows like 2^(tau/2) in the paper's example)
+    traj, err = agent_errors(out)
+    assert np.all(err[-1, 1:] < 1e-9 * np.linalg.norm(traj["x"][-1])) and np.isnan(traj["xhat"][lost["tau"]:, 0]).all()
+    replay(out, tmp_path)
+    assert_all_gone(all_pids(out))  # the frozen process too

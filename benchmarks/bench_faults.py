@@ -1,0 +1,124 @@
+"""Fault detection and recovery times of `splitspec run`, and the cost of `--secure`.
+
+All from real runs on loopback (the machine is shared: compare within one invocation):
+
+1. detection latency: a paced ring10 run; from outside, SIGKILL one agent and later SIGSTOP another;
+   latency = wall time of the `agent_lost` event - wall time of the signal (the lease is
+   SPLITSPEC_LEASE_MS, default 1000 ms, for the frozen one);
+2. restart latency: examples/ring10_faults.yaml; `agent_restarting` -> `agent_rejoined` (a new
+   Python process: start-up, config fetch, local design, token);
+3. secure vs plain: rounds per second of the unpaced paper example with and without `--secure`
+   (authentication + access control on the router), same invocation.
+
+    .venv/bin/python benchmarks/bench_faults.py [--repeat 3]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+ROOT = Path(__file__).resolve().parents[1]
+ENV = {**os.environ, "RERUN_ANALYTICS": "0"}
+CLI = [sys.executable, "-m", "orchestrator.cli"]
+
+
+def events(out: Path) -> list:
+    p = out / "events.jsonl"
+    return [json.loads(x) for x in p.read_text().splitlines() if x.strip()] if p.exists() else []
+
+
+def wait_for(pred, timeout=90.0):
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        v = pred()
+        if v:
+            return v
+        time.sleep(0.01)
+    raise TimeoutError
+
+
+def detection(tmp: Path, k: int) -> dict:
+    raw = yaml.safe_load((ROOT / "examples/ring10.yaml").read_text())
+    raw["run"].update(steps=400, pace=40)
+    scen = tmp / "ring.yaml"
+    scen.write_text(yaml.safe_dump(raw))
+    out = tmp / f"det{k}"
+    p = subprocess.Popen([*CLI, "run", scen, "--out", out, "--run-id", f"bench{os.getpid()}"], cwd=ROOT, env=ENV,
+                         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        wait_for(lambda: any(e["event"] == "run_started" for e in events(out)))
+        pids = {e["id"]: e["pid"] for e in events(out) if e["event"] == "process_started" and e["role"] == "agent"}
+        res = {}
+        for aid, sig, name in ((4, signal.SIGKILL, "SIGKILL"), (7, signal.SIGSTOP, "SIGSTOP")):
+            time.sleep(1.0)
+            t0 = time.time()
+            os.kill(pids[aid], sig)
+            lost = wait_for(lambda: next((e for e in events(out) if e["event"] == "agent_lost" and e["id"] == aid),
+                                         None))
+            res[name] = lost["wall"] - t0
+        p.wait(timeout=120)
+        return res
+    finally:
+        if p.poll() is None:
+            p.kill()
+
+
+def restart(tmp: Path) -> list:
+    out = tmp / "restart"
+    subprocess.run([*CLI, "run", ROOT / "examples/ring10_faults.yaml", "--out", out, "--run-id",
+                    f"benchr{os.getpid()}"], cwd=ROOT, env=ENV, capture_output=True, check=True, timeout=300)
+    ev = events(out)
+    start = {e["id"]: e["wall"] for e in ev if e["event"] == "agent_restarting"}
+    return [e["wall"] - start[e["id"]] for e in ev if e["event"] == "agent_rejoined"]
+
+
+def rounds_per_second(tmp: Path, secure: bool, steps: int, k: int) -> float:
+    raw = yaml.safe_load((ROOT / "examples/paper_discrete.yaml").read_text())
+    raw["run"].update(steps=steps)
+    scen = tmp / "paper.yaml"
+    scen.write_text(yaml.safe_dump(raw))
+    out = tmp / f"rps{int(secure)}-{k}"
+    cmd = [*CLI, "run", scen, "--out", out, "--run-id", f"benchs{os.getpid()}"] + (["--secure"] if secure else [])
+    subprocess.run(cmd, cwd=ROOT, env=ENV, capture_output=True, check=True, timeout=300)
+    return next(e["rounds_per_second"] for e in events(out) if e["event"] == "run_finished")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--steps", type=int, default=400)
+    args = ap.parse_args()
+    with tempfile.TemporaryDirectory() as d:
+        tmp = Path(d)
+        det = {"SIGKILL": [], "SIGSTOP": []}
+        for r in range(args.repeat):
+            for k, v in detection(tmp, r).items():
+                det[k].append(v)
+        lease = os.environ.get("SPLITSPEC_LEASE_MS", "1000 (default)")
+        print(f"detection latency, ring10, lease {lease} ms, {args.repeat} runs:")
+        for k, v in det.items():
+            print(f"  {k:8s} median {1000 * np.median(v):7.1f} ms   max {1000 * max(v):7.1f} ms")
+        rs = restart(tmp)
+        print(f"restart by the scenario (spawn -> admitted), ring10_faults: {', '.join(f'{r:.2f} s' for r in rs)}")
+        plain, secure = [], []
+        for r in range(args.repeat):  # interleaved, so both see the same machine load
+            plain.append(rounds_per_second(tmp, False, args.steps, r))
+            secure.append(rounds_per_second(tmp, True, args.steps, r))
+        p, s = float(np.median(plain)), float(np.median(secure))
+        print(f"paper example, {args.steps} steps: plain {p:.1f} rounds/s, --secure {s:.1f} rounds/s "
+              f"(secure / plain = {s / p:.2f})")
+
+
+if __name__ == "__main__":
+    main()
