@@ -11,8 +11,10 @@ Methods and their documented margin (``design.margin``, default 0.5)
 ``place``
     Distinct real poles.  Continuous: ``-(1 + margin) lam (1 + k/4)``,
     ``k = 0..r-1``.  Discrete: ``alpha (r - k) / r`` with
-    ``alpha = lam / (1 + margin)``.  Placed with ``scipy.signal.place_poles``
-    on the dual pair ``(Abar_i', Cbar_i')``.
+    ``alpha = lam / (1 + margin)``.  Placed on the dual pair
+    ``(Abar_i', Cbar_i')``: Ackermann's formula for one effective output (the
+    gain is unique; checked, else the fallback), ``scipy.signal.place_poles``
+    (method YT) otherwise.
 ``riccati``
     Steady-state Kalman gain of the observable part, shifted so the rate is
     guaranteed: continuous CARE for ``(Abar_i + alpha I, Cbar_i)`` with
@@ -93,22 +95,60 @@ def _lift(dec: Decomposition, Kbar: np.ndarray, method: str) -> LocalGain:
     return LocalGain(K=K, Kbar=Kbar, poles=poles, method=method)
 
 
+def _ackermann(A: np.ndarray, b: np.ndarray, poles: np.ndarray) -> np.ndarray | None:
+    """Single-input pole placement: ``f`` (1, r) with ``eig(A - b f) = poles`` (Ackermann's formula).
+
+    The single-input gain is unique, so this is the gain any method finds; returns ``None`` when
+    the controllability matrix is too ill-conditioned for the result to be trusted (the caller then
+    uses ``scipy.signal.place_poles``).
+    """
+    r = A.shape[0]
+    W = np.empty((r, r))
+    col = b[:, 0]
+    for k in range(r):
+        W[:, k] = col
+        col = A @ col
+    coeffs = np.real(np.poly(poles))  # phi(s) = s^r + c1 s^(r-1) + ... + cr
+    phi = np.zeros_like(A)
+    for c in coeffs:  # Horner: phi(A)
+        phi = phi @ A + c * np.eye(r)
+    try:
+        if np.linalg.cond(W) > 1e8:
+            return None
+        e = np.zeros(r)
+        e[-1] = 1.0
+        f = np.linalg.solve(W.T, e) @ phi
+    except np.linalg.LinAlgError:
+        return None
+    got = np.sort_complex(np.linalg.eigvals(A - np.outer(b[:, 0], f)))
+    if np.max(np.abs(got - np.sort_complex(poles.astype(complex)))) > 1e-9 * (1.0 + np.max(np.abs(poles))):
+        return None
+    return f[None, :]
+
+
 def place_gain(dec: Decomposition, *, time: str, rate: float, margin: float = 0.5) -> LocalGain:
-    """Pole placement on the observable part (poles from :func:`target_poles`)."""
+    """Pole placement on the observable part (poles from :func:`target_poles`).
+
+    One effective output: Ackermann's formula (the gain is unique); several: ``scipy.signal.place_poles``
+    (method YT), imported only then because importing ``scipy.signal`` costs over a second of
+    start-up in every agent process.
+    """
     r = dec.n_observable
     s = dec.Cbar.shape[0]
     if r == 0:
         return _lift(dec, np.zeros((0, s)), "place")
-    from scipy.signal import place_poles  # imported here: scipy.signal costs ~1.5 s at start-up
-
     T, Ct = _output_basis(dec.Cbar)
     poles = target_poles(r, time, rate, margin)
     # dual problem: eig(Abar' - Ct' F) = poles  =>  eig(Abar + (-F') Ct) = poles
-    try:
-        res = place_poles(dec.Abar.T, Ct.T, poles, method="YT")
-    except ValueError as exc:
-        raise DesignError(f"pole placement failed: {exc}") from None
-    Kt = -res.gain_matrix.T  # (r, rank)
+    F = _ackermann(dec.Abar.T, Ct.T, poles) if Ct.shape[0] == 1 else None
+    if F is None:
+        from scipy.signal import place_poles
+
+        try:
+            F = place_poles(dec.Abar.T, Ct.T, poles, method="YT").gain_matrix
+        except ValueError as exc:
+            raise DesignError(f"pole placement failed: {exc}") from None
+    Kt = -F.T  # (r, rank)
     # Kbar Cbar = Kt Ct with Cbar = T Ct  =>  Kbar = Kt pinv(T)
     Kbar = Kt @ np.linalg.pinv(T)
     return _lift(dec, Kbar, "place")

@@ -59,3 +59,28 @@ def test_explicit_gain_that_misses_rate_is_rejected():
     with pytest.raises(AssumptionError, match="do not meet rate"):
         design_gain(dec, method="explicit", time="continuous", rate=1.0, K=np.array([[-1.0], [0], [0], [0]]),
                     label="design.K.1")
+
+
+def test_ackermann_matches_place_poles_or_declines():
+    """Single-output placement (used to spare every agent process the scipy.signal import) is the unique gain."""
+    from scipy.signal import place_poles
+
+    from splitspec_core.gains import _ackermann
+
+    rng = np.random.default_rng(5)
+    used = 0
+    for r in range(1, 9):
+        for _ in range(20):
+            A = rng.normal(size=(r, r))
+            b = rng.normal(size=(r, 1))
+            poles = 0.5 * (r - np.arange(r)) / r
+            f = _ackermann(A, b, poles)
+            if f is None:  # declined: ill-conditioned, the caller falls back to place_poles
+                continue
+            used += 1
+            g = place_poles(A, b, poles, method="YT").gain_matrix
+            np.testing.assert_allclose(f, g, rtol=1e-6, atol=1e-8 * max(1.0, np.abs(g).max()))
+            np.testing.assert_allclose(np.sort(np.linalg.eigvals(A - b @ f).real), np.sort(poles), atol=1e-8)
+    assert used > 60
+    # an uncontrollable pair is declined, never a wrong gain
+    assert _ackermann(np.diag([0.5, 0.5]), np.array([[1.0], [1.0]]), np.array([0.1, 0.2])) is None
