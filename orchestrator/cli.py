@@ -163,6 +163,25 @@ def _cmd_run(args: argparse.Namespace) -> int:
     return code
 
 
+def _cmd_router(args: argparse.Namespace) -> int:
+    import signal
+    import threading
+
+    from splitspec_core.bus import open_session
+
+    stop = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.set())
+    session = open_session("router", listen=[args.listen])
+    logging.getLogger("splitspec.router").info("Zenoh router listening on %s (pid %d)", args.listen, os.getpid())
+    try:
+        while not stop.wait(0.5):
+            pass
+    finally:
+        session.close()
+    return 0
+
+
 def _cmd_credentials(args: argparse.Namespace) -> int:
     from splitspec_core.scenario import load_scenario
     from splitspec_core.security import generate
@@ -269,12 +288,19 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--listen", metavar="ENDPOINT", help="open an embedded Zenoh router here, e.g. tcp/0.0.0.0:7447")
     p.add_argument("--connect", metavar="ENDPOINT", help="instead, join an external Zenoh router as a client")
     p.add_argument("--out", required=True, help="output directory (created if missing)")
-    p.add_argument("--viewer", metavar="spawn|URL", help="also stream to a Rerun viewer ('spawn' or a URL)")
+    p.add_argument("--viewer", metavar="spawn|URL", default=os.environ.get("SPLITSPEC_VIEWER") or None,
+                   help="also stream to a Rerun viewer ('spawn' or a URL; default $SPLITSPEC_VIEWER)")
     p.add_argument("--round-timeout", type=float, default=10.0, help="seconds before a silent agent is declared lost")
     p.add_argument("--secure", dest="secure_dir", metavar="DIR", help="authenticate clients against DIR/users.txt "
                    "and enforce the access-control policy (see `splitspec credentials`)")
     _add_process_options(p)
     p.set_defaults(func=_cmd_orchestrator)
+
+    p = sub.add_parser("router", help="a plain Zenoh router (for hosts without zenohd)",
+                       description="Run a Zenoh router in this process until Ctrl-C or SIGTERM: the same as zenohd "
+                                   "for splitspec's purposes (multicast scouting off, the link lease of the runtime).")
+    p.add_argument("--listen", required=True, metavar="ENDPOINT", help="e.g. tcp/0.0.0.0:7447")
+    p.set_defaults(func=_cmd_router)
 
     p = sub.add_parser("credentials", help="generate Zenoh credentials for a secure deployment by hand",
                        description="Write users.txt (for `orchestrator --secure DIR`) and one <user>.cred file per "

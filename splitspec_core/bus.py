@@ -84,7 +84,8 @@ def open_session(mode: str, **kw) -> zenoh.Session:
         if mode == "client":
             hint = (" (is the router up? a secure router refuses missing or wrong credentials)" if kw.get("user") is None
                     else " (is the router up? are these the run's credentials?)")
-        raise BusError(f"cannot open a Zenoh {mode} session on {', '.join(where)}: {exc}{hint}") from None
+        why = str(exc).split(" at /")[0]  # drop the Rust source location
+        raise BusError(f"cannot open a Zenoh {mode} session on {', '.join(where)}: {why}{hint}") from None
 
 
 class Inbox:

@@ -1,0 +1,101 @@
+"""compose.yaml and the Dockerfile: parsed and checked against the CLI, the scenario, pyproject and the README."""
+
+import re
+import shlex
+from importlib.metadata import version
+
+import pytest
+import yaml
+
+from orchestrator.cli import build_parser
+from splitspec_core.design import design
+from splitspec_core.scenario import load_scenario
+from tests.conftest import ROOT
+
+
+@pytest.fixture(scope="module")
+def compose():
+    return yaml.safe_load((ROOT / "compose.yaml").read_text())
+
+
+@pytest.fixture(scope="module")
+def dockerfile():
+    return (ROOT / "Dockerfile").read_text()
+
+
+def splitspec_services(compose):
+    return {name: s for name, s in compose["services"].items() if s.get("image", "").startswith("splitspec")}
+
+
+def option(cmd, name):
+    return cmd[cmd.index(name) + 1] if name in cmd else None
+
+
+def test_router_image_matches_the_python_package(compose):
+    router = compose["services"]["router"]
+    image, tag = router["image"].split(":")
+    assert image == "eclipse/zenoh"
+    assert tag.split(".")[:2] == version("eclipse-zenoh").split(".")[:2]
+    listen = option(router["command"], "-l") or option(router["command"], "--listen")
+    assert listen == "tcp/0.0.0.0:7447" and "--no-multicast-scouting" in router["command"]
+
+
+def test_every_command_is_a_valid_invocation(compose):
+    services = splitspec_services(compose)
+    assert {"orchestrator", "plant"} <= set(services)
+    parser = build_parser()
+    roles = {}
+    for name, svc in services.items():
+        assert svc.get("build") == "." and svc.get("init") is True, name
+        cmd = [str(c) for c in svc["command"]]
+        args = parser.parse_args(cmd)  # the real parser: SystemExit (a failed test) on a bad invocation
+        roles[name] = args
+        # explicit endpoint to the router service, same run id everywhere
+        host = re.fullmatch(r"tcp/([\w.-]+):7447", args.connect).group(1)
+        assert host in compose["services"] and "router" in svc.get("depends_on", []), name
+        assert args.run_id == "compose"
+    assert {a.command for a in roles.values()} == {"orchestrator", "plant", "agent"}
+
+
+def test_agents_match_the_scenario_and_output_is_a_volume(compose):
+    services = splitspec_services(compose)
+    orch = [str(c) for c in services["orchestrator"]["command"]]
+    scenario = ROOT / orch[1]
+    sc = load_scenario(scenario)  # the file the image carries (examples/ is copied in)
+    design(sc)  # what the orchestrator does first: the scenario is designable
+    agents = sorted(int(option([str(c) for c in s["command"]], "--id")) for n, s in services.items()
+                    if s["command"][0] == "agent")
+    assert agents == sorted(sc.agent_ids)
+    assert {f"agent-{i}" for i in agents} <= set(services)
+    out = option(orch, "--out")
+    assert any(v.split(":")[1] == out for v in services["orchestrator"]["volumes"])
+    # the viewer URL comes from the environment (documented), and the host is reachable from the container
+    assert "SPLITSPEC_VIEWER" in services["orchestrator"]["environment"]
+    assert "host.docker.internal:host-gateway" in services["orchestrator"]["extra_hosts"]
+
+
+def test_image_installs_what_the_readme_says(dockerfile):
+    text = (ROOT / "pyproject.toml").read_text()
+    packages = re.findall(r'"(\w+)"', re.search(r"^packages = \[(.*)\]$", text, re.M).group(1))
+    assert "splitspec_core" in packages
+    copied = {line.split()[1] for line in dockerfile.splitlines() if line.startswith("COPY")}
+    for pkg in packages + ["examples", "pyproject.toml"]:
+        assert any(c == pkg or c.startswith(pkg) for c in copied), pkg
+    runs = [line[len("RUN "):].strip() for line in dockerfile.splitlines() if line.startswith("RUN ")]
+    assert runs == ["python -m pip install ."]
+    readme = (ROOT / "README.md").read_text()
+    assert f"    {runs[0]}" in readme or f"\n{runs[0]}" in readme  # the README's install step on other hosts
+    assert "docker compose up" in readme
+    assert re.search(r'ENTRYPOINT \["splitspec"\]', dockerfile)
+    assert 'splitspec = "orchestrator.cli:main"' in text
+
+
+def test_readme_hand_started_commands_parse():
+    """The multi-host commands shown in the README are valid invocations too."""
+    readme = (ROOT / "README.md").read_text()
+    block = readme.split("### Starting the processes by hand")[1].split("```sh")[1].split("```")[0]
+    parser = build_parser()
+    cmds = [shlex.split(line.split("#")[0]) for line in block.splitlines() if line.strip().startswith("splitspec")]
+    assert len(cmds) >= 4
+    for cmd in cmds:
+        parser.parse_args(cmd[1:])
