@@ -57,6 +57,7 @@ class RunRegistry:
         self.dir = runtime_dir()
         self.path = self.dir / f"{run_id}.{os.getpid()}.json"
         self.data = {"run_id": run_id, "orchestrator": {"pid": os.getpid()}, "agents": {}, **data}
+        find_runs("*")  # sweep entries of orchestrators that were killed
 
     def update(self) -> None:
         try:
@@ -76,7 +77,7 @@ class RunRegistry:
 
 
 def find_runs(run_id: str) -> list:
-    """Registry entries of live orchestrators for ``run_id`` (stale files are removed)."""
+    """Registry entries of live orchestrators for ``run_id`` (``*``: every run); stale files are removed."""
     d = runtime_dir()
     out = []
     for p in sorted(d.glob(f"{run_id}.*.json")) if d.is_dir() else ():
@@ -85,7 +86,7 @@ def find_runs(run_id: str) -> list:
             pid = int(data["orchestrator"]["pid"])
         except (OSError, ValueError, KeyError, TypeError):
             continue
-        if data.get("run_id") != run_id:
+        if run_id != "*" and data.get("run_id") != run_id:
             continue
         if not pid_running(pid):
             try:

@@ -4,6 +4,7 @@ import os
 import signal
 import time
 import uuid
+from contextlib import contextmanager
 
 import numpy as np
 import pytest
@@ -23,12 +24,17 @@ def run_id() -> str:
     return "t" + uuid.uuid4().hex[:10]
 
 
-def launch(tmp_path, scen, rid):
-    """Start `splitspec run` in the background; return (process, out dir, log file)."""
+@contextmanager
+def running(tmp_path, scen, rid, *extra, env_extra=None):
+    """`splitspec run` in the background: yields (process, out dir, log); its group is killed if the body fails."""
     out = tmp_path / "out"
     log = tmp_path / "run.log"
-    p = start("run", scen, "--out", out, "--run-id", rid, log=log)
-    return p, out, log
+    p = start("run", scen, "--out", out, "--run-id", rid, *extra, log=log, env_extra=env_extra)
+    try:
+        yield p, out, log
+    except BaseException:
+        os.killpg(p.pid, signal.SIGKILL)
+        raise
 
 
 def finish(p, log, timeout=120):
@@ -87,14 +93,10 @@ def test_scenario_faults_execute_for_real_and_equal_simulate(tmp_path):
 def test_outside_sigkill_of_a_redundant_agent(tmp_path):
     """kill -9 from outside the run: survivors converge, the row is NaN from the recorded time, replay agrees."""
     scen = scenario_file(tmp_path, "ring10", run={"steps": 120, "pace": 20})
-    p, out, log = launch(tmp_path, scen, run_id())
-    try:
+    with running(tmp_path, scen, run_id()) as (p, out, log):
         wait_for_rows(out, 25, timeout=90)
         victim = started_pids(out)[("agent", 4)]
         os.kill(victim, signal.SIGKILL)
-    except BaseException:
-        os.killpg(p.pid, signal.SIGKILL)
-        raise
     code, text = finish(p, log)
     assert code == 0, text
     (lost,) = lost_events(out, 4)
@@ -114,9 +116,8 @@ def test_hang_then_kill_and_rejoin_by_hand(tmp_path):
     """SIGSTOP via `splitspec kill`, then SIGKILL of another agent and a hand-started replacement."""
     rid = run_id()
     scen = scenario_file(tmp_path, "ring10", run={"steps": 240, "pace": 20})
-    p, out, log = launch(tmp_path, scen, rid)
     hand = None
-    try:
+    with running(tmp_path, scen, rid) as (p, out, log):
         wait_for_rows(out, 20, timeout=90)
         r = run("kill", "--agent", 7, "--signal", "STOP", "--run-id", rid, timeout=30)
         assert r.returncode == 0 and "SIGSTOP" in r.stdout, r.stderr
@@ -131,9 +132,6 @@ def test_hang_then_kill_and_rejoin_by_hand(tmp_path):
         hand = start("agent", "--id", 2, "--connect", endpoint, "--run-id", rid, log=tmp_path / "hand.log")
         back = wait_for_event(out, "agent_rejoined", timeout=60)
         assert back["id"] == 2 and back["incarnation"] == 1 and back["pid"] == hand.pid
-    except BaseException:
-        os.killpg(p.pid, signal.SIGKILL)
-        raise
     code, text = finish(p, log)
     assert code == 0, text + dump(tmp_path / "hand.log")
     hand.wait(timeout=15)  # told to stop with the others
@@ -150,14 +148,10 @@ def test_hang_then_kill_and_rejoin_by_hand(tmp_path):
 def test_plant_death_stops_the_run_cleanly(tmp_path):
     rid = run_id()
     scen = scenario_file(tmp_path, "paper_discrete", run={"steps": 400, "pace": 20})
-    p, out, log = launch(tmp_path, scen, rid)
-    try:
+    with running(tmp_path, scen, rid) as (p, out, log):
         wait_for_rows(out, 10, timeout=90)
         r = run("kill", "--plant", "--run-id", rid, timeout=30)
         assert r.returncode == 0, r.stderr
-    except BaseException:
-        os.killpg(p.pid, signal.SIGKILL)
-        raise
     code, text = finish(p, log)
     assert code == 1
     errors = [line for line in text.splitlines() if line.startswith("splitspec: error:")]
@@ -202,14 +196,10 @@ def test_chaos_random_kills(tmp_path, seed):
     victims = [int(v) for v in rng.choice(np.arange(1, 11), size=2, replace=False)]
     # trajectory.npz is flushed about once a second (30 rows here): stay clear of the end of the run
     rows = sorted(int(r) for r in rng.integers(5, 50, size=2))
-    p, out, log = launch(tmp_path, scen, run_id())
-    try:
+    with running(tmp_path, scen, run_id()) as (p, out, log):
         for victim, row in zip(victims, rows):
             wait_for_rows(out, row, timeout=90)
             os.kill(started_pids(out)[("agent", victim)], signal.SIGKILL)
-    except BaseException:
-        os.killpg(p.pid, signal.SIGKILL)
-        raise
     code, text = finish(p, log)
     assert code == 0, text
     assert sorted(e["id"] for e in lost_events(out)) == sorted(victims)
@@ -243,17 +233,11 @@ def test_round_timeout_catches_a_frozen_agent_before_its_lease(tmp_path):
     """With a long lease, the round timeout is what notices a SIGSTOPped agent; the round is re-run without it."""
     rid = run_id()
     scen = scenario_file(tmp_path, "paper_discrete", run={"steps": 300, "pace": 25})
-    out = tmp_path / "out"
-    log = tmp_path / "run.log"
-    env = {"SPLITSPEC_LEASE_MS": "20000"}
-    p = start("run", scen, "--out", out, "--run-id", rid, "--round-timeout", "0.5", log=log, env_extra=env)
-    try:
+    with running(tmp_path, scen, rid, "--round-timeout", "0.5", env_extra={"SPLITSPEC_LEASE_MS": "20000"}) \
+            as (p, out, log):
         wait_for_rows(out, 10, timeout=90)
         r = run("kill", "--agent", 1, "--signal", "STOP", "--run-id", rid, timeout=30)
         assert r.returncode == 0, r.stderr
-    except BaseException:
-        os.killpg(p.pid, signal.SIGKILL)
-        raise
     code, text = finish(p, log)
     assert code == 0, text
     (lost,) = lost_events(out, 1)

@@ -7,6 +7,7 @@ would on several machines; a rogue Zenoh session joins the same router and injec
 import os
 import threading
 import time
+from contextlib import contextmanager
 
 import msgpack
 import numpy as np
@@ -74,25 +75,28 @@ def rogue(endpoint: str, run_id: str, stop: threading.Event, sent: dict, *, cred
         s.close()
 
 
-def test_rogue_messages_are_dropped_and_counted(tmp_path):
-    raw = yaml.safe_load((EXAMPLES / "paper_discrete.yaml").read_text())
-    raw["run"].update(steps=60, pace=25)
-    scen = tmp_path / "s.yaml"
-    scen.write_text(yaml.safe_dump(raw))
-    out = tmp_path / "out"
-    port = free_port()
-    endpoint = f"tcp/127.0.0.1:{port}"
-    run_id = "rogue-test"
+@contextmanager
+def rogue_during_hand_started_run(tmp_path, scen, out, run_id, *, creds=None, **rogue_kw):
+    """Orchestrator (--listen), plant and agents 1..3 started by hand, and a rogue session injecting once the run
+    has started. Yields ``(endpoint, procs, sent)``; on exit every process must have ended with 0 and be gone."""
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
     logs = [tmp_path / f"{name}.log" for name in ("orch", "plant", "a1", "a2", "a3")]
-    procs = [start("orchestrator", scen, "--listen", endpoint, "--out", out, "--run-id", run_id, log=logs[0])]
-    procs.append(start("plant", "--connect", endpoint, "--run-id", run_id, log=logs[1]))
-    procs += [start("agent", "--id", i, "--connect", endpoint, "--run-id", run_id, log=logs[1 + i]) for i in (1, 2, 3)]
+
+    def secure(user):
+        return ["--credentials", creds / f"{user}.cred"] if creds else []
+
+    procs = [start("orchestrator", scen, "--listen", endpoint, "--out", out, "--run-id", run_id,
+                   *(["--secure", creds] if creds else []), log=logs[0])]
+    procs.append(start("plant", "--connect", endpoint, "--run-id", run_id, *secure("plant"), log=logs[1]))
+    procs += [start("agent", "--id", i, "--connect", endpoint, "--run-id", run_id, *secure(f"agent-{i}"),
+                    log=logs[1 + i]) for i in (1, 2, 3)]
     stop = threading.Event()
     sent: dict = {}
-    th = threading.Thread(target=rogue, args=(endpoint, run_id, stop, sent), daemon=True)
+    th = threading.Thread(target=rogue, args=(endpoint, run_id, stop, sent), kwargs=rogue_kw, daemon=True)
     try:
         wait_for_event(out, "run_started", timeout=60)
         th.start()
+        yield endpoint, procs, sent
         assert procs[0].wait(timeout=120) == 0, dump(*logs)
     finally:
         stop.set()
@@ -103,6 +107,16 @@ def test_rogue_messages_are_dropped_and_counted(tmp_path):
     for p in procs[1:]:
         assert p.wait(timeout=15) == 0, dump(*logs)
     assert_all_gone(started_pids(out).values())
+
+
+def test_rogue_messages_are_dropped_and_counted(tmp_path):
+    raw = yaml.safe_load((EXAMPLES / "paper_discrete.yaml").read_text())
+    raw["run"].update(steps=60, pace=25)
+    scen = tmp_path / "s.yaml"
+    scen.write_text(yaml.safe_dump(raw))
+    out = tmp_path / "out"
+    with rogue_during_hand_started_run(tmp_path, scen, out, "rogue-test") as (_, _, sent):
+        pass
     assert sum(sent.values()) > 100
     rej = {}
     for e in events(out):

@@ -98,8 +98,14 @@ s.settimeout(10); c, _ = s.accept(); c.close()
 CONNECT = "import socket, sys; socket.create_connection((sys.argv[1], 5000), 5).close()"
 
 
+def root_links() -> list:
+    return sorted(line.split(":")[1].strip() for line in
+                  subprocess.run(["ip", "-o", "link"], capture_output=True, text=True).stdout.splitlines())
+
+
 def test_lab_is_removed_after_a_failure():
     hosts = ["x", "y"]
+    links_before = root_links()
     with pytest.raises(RuntimeError, match="boom"):
         with netns.NetnsLab(hosts) as lab:
             sleeper = subprocess.Popen(lab.exec("x", ["sleep", "60"]))
@@ -112,5 +118,6 @@ def test_lab_is_removed_after_a_failure():
             assert client.returncode == 0 and server.wait(timeout=10) == 0, client.stderr
             raise RuntimeError("boom")
     assert netns.lab_namespaces(os.getpid()) == []
+    assert root_links() == links_before  # the lab never touched this namespace's links
     sleeper.wait(timeout=10)  # killed with its namespace
     assert sleeper.returncode == -9

@@ -1,7 +1,5 @@
 """`--secure`: Zenoh user/password authentication and access control on the orchestrator's router."""
 
-import threading
-
 import pytest
 import yaml
 
@@ -9,9 +7,9 @@ from splitspec_core.bus import BusError, open_session
 from splitspec_core.security import read_credentials
 from splitspec_core.wire import Keys
 from tests.conftest import EXAMPLES
-from tests.integration.runtime_helpers import (all_pids, assert_all_gone, compare_with_simulate, dump, events,
-                                               free_port, run, start, wait_for_event)
-from tests.integration.test_malformed import rogue
+from tests.integration.runtime_helpers import (all_pids, assert_all_gone, compare_with_simulate, events, free_port,
+                                               run)
+from tests.integration.test_malformed import rogue_during_hand_started_run
 
 pytestmark = pytest.mark.slow
 
@@ -26,41 +24,17 @@ def test_secure_deployment_by_hand_refuses_and_confines(tmp_path):
     assert r.returncode == 0, r.stderr
     assert (creds / "users.txt").stat().st_mode & 0o077 == 0 and (creds / "agent-1.cred").stat().st_mode & 0o077 == 0
     out = tmp_path / "out"
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
     rid = "secure-test"
-    logs = [tmp_path / f"{name}.log" for name in ("orch", "plant", "a1", "a2", "a3")]
-    procs = [start("orchestrator", scen, "--listen", endpoint, "--out", out, "--run-id", rid, "--secure", creds,
-                   log=logs[0])]
-    procs.append(start("plant", "--connect", endpoint, "--run-id", rid, "--credentials", creds / "plant.cred",
-                       log=logs[1]))
-    procs += [start("agent", "--id", i, "--connect", endpoint, "--run-id", rid, "--credentials",
-                    creds / f"agent-{i}.cred", log=logs[1 + i]) for i in (1, 2, 3)]
-    stop = threading.Event()
-    sent: dict = {}
     keys = Keys(rid)
     # a compromised agent 1 (its real credentials) forging other processes' messages
     forged = {keys.z(2), keys.y(3), keys.xhat(2), keys.truth, keys.tick}
-    th = threading.Thread(target=rogue, args=(endpoint, rid, stop, sent),
-                          kwargs={"credentials": read_credentials(creds / "agent-1.cred"), "only": forged},
-                          daemon=True)
-    try:
-        wait_for_event(out, "run_started", timeout=60)
-        th.start()
+    with rogue_during_hand_started_run(tmp_path, scen, out, rid, creds=creds, only=forged,
+                                       credentials=read_credentials(creds / "agent-1.cred")) as (endpoint, procs, sent):
         # no credentials, a wrong password, an unknown user: refused at connection time
         for user, password in ((None, None), ("agent-1", "wrong"), ("mallory", "x")):
             with pytest.raises(BusError, match="cannot open a Zenoh client session"):
                 open_session("client", connect=[endpoint], user=user, password=password, connect_timeout_ms=1000)
         assert procs[0].poll() is None  # refused while the run was going on
-        assert procs[0].wait(timeout=120) == 0, dump(*logs)
-    finally:
-        stop.set()
-        th.join(timeout=10)
-        for p in procs:
-            if p.poll() is None:
-                p.kill()
-    for p in procs[1:]:
-        assert p.wait(timeout=15) == 0, dump(*logs)
-    assert_all_gone(all_pids(out))
     assert sum(sent.values()) > 100  # the compromised session did connect and publish
     # the router dropped every forged message: no process ever saw one (without --secure they arrive and are
     # rejected by validation, see test_malformed), and the estimates are the simulator's
