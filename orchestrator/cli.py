@@ -26,12 +26,121 @@ def _cmd_design(args: argparse.Namespace) -> int:
     from splitspec_core.scenario import load_scenario
 
     sc = load_scenario(args.scenario)
+    if args.write and not args.tune:
+        raise UsageError("--write needs --tune")
+    if args.tune:
+        return _tune(args, sc)
     des = design(sc, compare_q_methods=not args.json)
     if args.json:
         json.dump(design_json(des), sys.stdout, indent=None if args.compact else 2)
         sys.stdout.write("\n")
     else:
         print(design_text(des))
+    return 0
+
+
+def _tune(args: argparse.Namespace, sc) -> int:
+    from pathlib import Path
+
+    import yaml
+
+    from splitspec_core.noise import tune
+
+    res = tune(sc)
+    d = res.design
+    cd = res.scenario.design
+    what = ("q", d.q) if sc.time == "discrete" else ("g", d.g)
+    weights = None if cd.gains != "riccati" else {"process_weight": float(cd.riccati_process_weight),
+                                                  "measurement_weight": float(cd.riccati_measurement_weight)}
+    summary = {"gains": cd.gains, what[0]: what[1], "riccati": weights, "predicted_rms": res.rms,
+               "baseline_predicted_rms": res.baseline_rms, "candidates": res.candidates}
+    if args.json:
+        json.dump(summary, sys.stdout, indent=None if args.compact else 2)
+        sys.stdout.write("\n")
+    else:
+        print(f"tuned for noise (process {sc.system.process_noise:g}, measurement {sc.system.measurement_noise:g}): "
+              f"gains {cd.gains}" + (f" {weights}" if weights else "") + f", {what[0]} = {what[1]:g}")
+        print(f"  predicted steady-state RMS error {res.rms:.4g} (the scenario's design: {res.baseline_rms:.4g}, "
+              f"{len(res.candidates)} candidates, all with the rate certified unless marked)")
+    if args.write:
+        raw = yaml.safe_load(Path(args.scenario).read_text(encoding="utf-8"))
+        dd = raw.setdefault("design", {})
+        dd["gains"] = cd.gains
+        dd.pop("K", None)
+        dd[what[0]] = what[1]
+        if weights:
+            dd["riccati"] = weights
+        else:
+            dd.pop("riccati", None)
+        raw["name"] = f"{sc.name}-tuned"
+        try:
+            Path(args.write).write_text(f"# {sc.name} tuned for noise by `splitspec design --tune rms`\n"
+                                        + yaml.safe_dump(raw, sort_keys=False), encoding="utf-8")
+        except OSError as exc:
+            raise UsageError(f"cannot write {args.write}: {exc.strerror}") from None
+        print(f"wrote {args.write}") if not args.json else None
+    return 0
+
+
+def _cmd_compare(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from splitspec_core.compare import compare, sweep
+    from splitspec_core.scenario import load_scenario
+
+    sc = load_scenario(args.scenario)
+    if args.seeds < 1:
+        raise UsageError("--seeds must be >= 1")
+    if args.steps is not None and args.steps < 4:
+        raise UsageError("--steps must be >= 4")
+    out = Path(args.out)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise UsageError(f"cannot create output directory {out}: {exc.strerror}") from None
+    seed0 = sc.run.seed if args.seed is None else args.seed
+    if args.kcf_eps is not None and not args.kcf_eps > 0:
+        raise UsageError("--kcf-eps must be > 0")
+    res = compare(sc, seeds=range(seed0, seed0 + args.seeds), steps=args.steps, eps=args.kcf_eps)
+    curves = res.pop("_curves")
+    lines = [f"{sc.name}: {len(res['seeds'])} seeds x {res['steps']} steps; process noise {sc.system.process_noise:g}, "
+             f"measurement noise {sc.system.measurement_noise:g}",
+             f"  {'estimator':<17} {'steady RMS':>11} {'+-':>9} {'/ central':>9} {'predicted':>10} "
+             f"{'settle 1e-3':>11} {'msgs/event':>10}"]
+    for name, r in res["estimators"].items():
+        pred = "-" if r["predicted_rms"] is None else f"{r['predicted_rms']:.4g}"
+        st = "never" if r["settle_time_1e-3"] is None else f"{r['settle_time_1e-3']:g}"
+        lines.append(f"  {name:<17} {r['rms_mean']:11.4g} {r['rms_std']:9.2g} {r['ratio_to_centralized']:9.3f} "
+                     f"{pred:>10} {st:>11} {r['messages_per_event']:>10}")
+    if "tuned" in res:
+        tnd = res["tuned"]
+        what = f"q = {tnd['q']}" if tnd["q"] is not None else f"g = {tnd['g']:g}"
+        w = "" if tnd["gains"] == "place" else (f" (process_weight {tnd['process_weight']:.3g}, measurement_weight "
+                                                f"{tnd['measurement_weight']:.3g})")
+        lines.append(f"  tuned design: gains {tnd['gains']}{w}, {what}: predicted RMS {tnd['predicted_rms']:.4g} "
+                     f"vs {tnd['baseline_predicted_rms']:.4g} for the scenario's design")
+    plots = []
+    if not args.no_plots:
+        from . import plots as P
+
+        P.plot_compare({**res, "_curves": curves}, out / "compare_errors.png", out / "compare_ratios.png")
+        plots = ["compare_errors.png", "compare_ratios.png"]
+    if args.sweep:
+        sw = sweep(sc, seed=seed0, steps=args.steps)
+        (out / "sweep.json").write_text(json.dumps(sw, indent=2) + "\n")
+        if not args.no_plots:
+            from . import plots as P
+
+            P.plot_sweep(sw, out / "sweep.png")
+            plots.append("sweep.png")
+        lines.append(f"  sweep of {sw['parameter']}: " + ", ".join(
+            f"{r['value']:g}: RMS {r['predicted_rms']:.3g}{'*' if r['certified'] else ''}" for r in sw["rows"]
+            if "error" not in r) + "  (* rate certified)")
+    res["plots"] = plots
+    (out / "compare.json").write_text(json.dumps(res, indent=2) + "\n")
+    lines.append(f"wrote {out}/compare.json" + "".join(f", {p}" for p in plots) +
+                 (", sweep.json" if args.sweep else ""))
+    print("\n".join(lines))
     return 0
 
 
@@ -247,6 +356,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("scenario", help="scenario YAML file")
     p.add_argument("--json", action="store_true", help="print the design as one JSON object")
     p.add_argument("--compact", action="store_true", help="with --json: no indentation")
+    p.add_argument("--tune", choices=["rms"], help="rms: choose q or g and the gains (place, or riccati over a range "
+                   "of weights) for the smallest steady-state RMS error under the scenario's noise, keeping the "
+                   "rate certified")
+    p.add_argument("--write", metavar="FILE", help="with --tune: write the tuned scenario to FILE")
     p.set_defaults(func=_cmd_design)
 
     p = sub.add_parser("simulate", help="fast in-process reference simulation: trajectory, summary, plots",
@@ -265,6 +378,24 @@ def build_parser() -> argparse.ArgumentParser:
                    "losses, rejoins and link changes recorded in a run's events.jsonl (use the run's "
                    "scenario.yaml)")
     p.set_defaults(func=_cmd_simulate)
+
+    p = sub.add_parser("compare", help="estimation quality under noise: against the centralized Kalman filter "
+                                       "and a Kalman-consensus filter",
+                       description="Run split-spectrum (place, riccati, noise-tuned gains), the centralized "
+                                   "steady-state Kalman filter and Olfati-Saber's Kalman-consensus filter on the "
+                                   "same noise realisations; report steady-state RMS error, ratio to the "
+                                   "centralized filter, settling time and messages per event time.")
+    p.add_argument("scenario", help="scenario YAML file (with process and/or measurement noise)")
+    p.add_argument("--out", required=True, help="output directory (created if missing)")
+    p.add_argument("--seeds", type=int, default=5, help="noise realisations: seed, seed+1, ... (default 5)")
+    p.add_argument("--seed", type=int, help="first seed (default run.seed)")
+    p.add_argument("--steps", type=int, help="override run.steps")
+    p.add_argument("--kcf-eps", type=float, help="consensus gain of the Kalman-consensus filter "
+                                                  "(default 1 / (1 + max in-degree))")
+    p.add_argument("--sweep", action="store_true", help="also sweep q (discrete) or g (continuous): RMS error "
+                                                         "and measured rate against it (sweep.json, sweep.png)")
+    p.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
+    p.set_defaults(func=_cmd_compare)
 
     p = sub.add_parser("run", help="local multi-process deployment: orchestrator, plant and one process per agent",
                        description="Run the scenario as real processes talking over Zenoh on loopback: the "

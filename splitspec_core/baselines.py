@@ -1,0 +1,427 @@
+"""Baselines for the split-spectrum estimator: the centralized Kalman predictor and the KCF.
+
+Both are one-step *predictors*, like the project's estimator: at event time k
+an estimate of ``x(k)`` made before ``y(k)`` is available, ``y(k)`` arrives and
+the estimate of ``x(k+1)`` is produced.  The model is the one the plant
+(:class:`splitspec_core.simulate.Plant`) actually follows, per step:
+
+``x(k+1) = F x(k) + v(k)``, ``E[v v'] = Q``;  ``y(k) = C x(k) + w(k)``, ``E[w w'] = R``
+
+with ``F = A`` (discrete) or ``exp(A dt)`` (continuous, sampled), ``Q`` the
+exact per-step process covariance and ``R = sigma_m^2 I``
+(:func:`sampled_model`).
+
+* :func:`kalman_predictor` / :func:`run_predictor` - the steady-state
+  centralized predictor seeing every measurement, the bound no distributed
+  estimator can beat at steady state;
+* :class:`KalmanConsensusFilter` - R. Olfati-Saber, "Kalman-Consensus Filter:
+  Optimality, stability, and performance", IEEE CDC 2009, Algorithm 1, with a
+  multi-exchange extension so it can use as many exchanges per event time as
+  the split-spectrum estimator;
+* :func:`baseline_trajectories` - both on the same noise realisations,
+  initial state and initial estimates as :func:`splitspec_core.simulate.simulate`.
+
+Noise-free measurements (``R = 0``) or a zero process noise make the Riccati
+equations degenerate; both are regularised with a tiny multiple of the
+identity (:data:`REGULARISATION`, see :func:`regularise`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Mapping, Sequence
+
+import numpy as np
+import scipy.linalg as sla
+
+from .errors import DesignError
+from .network import consensus_rows
+from .scenario import Scenario
+from .simulate import Plant, initial_estimate
+
+__all__ = [
+    "REGULARISATION",
+    "regularise",
+    "sampled_model",
+    "KalmanPredictor",
+    "kalman_predictor",
+    "run_predictor",
+    "default_eps",
+    "KalmanConsensusFilter",
+    "baseline_trajectories",
+]
+
+REGULARISATION = 1e-9
+"""Relative size of the identity added to a singular covariance (see :func:`regularise`)."""
+
+
+# --------------------------------------------------------------------------
+# model
+# --------------------------------------------------------------------------
+
+
+def sampled_model(sc: Scenario) -> tuple:
+    """``(F, Q, R)``: the discrete model the plant of the scenario follows, per step.
+
+    Parameters
+    ----------
+    sc : Scenario
+
+    Returns
+    -------
+    F : (n, n) array
+        ``A`` (discrete) or ``exp(A dt)`` (continuous, sampled with ``run.dt``).
+    Q : (n, n) array
+        ``L L'`` with ``L`` the plant's noise input, computed by :class:`Plant`
+        itself: ``sigma_p^2 I`` (discrete) or the exact ``Qd`` of white noise of
+        intensity ``process_noise`` over a step (continuous).
+    R : (p, p) array
+        ``sigma_m^2 I``, ``p = sum s_i``.
+    """
+    plant = Plant(sc, 0)  # the plant's own F and L: no second copy of its formulas
+    F = np.array(plant.F, dtype=float)
+    Q = plant.L @ plant.L.T
+    Q = 0.5 * (Q + Q.T)
+    R = sc.system.measurement_noise ** 2 * np.eye(plant.C.shape[0])
+    return F, Q, R
+
+
+def regularise(M: np.ndarray) -> np.ndarray:
+    """A symmetric PSD matrix made positive definite if it is (numerically) singular.
+
+    If the smallest eigenvalue of ``M`` is at most ``1e-12 max(1, |M|_2)``,
+    returns ``M + REGULARISATION max(1, |M|_2) I`` (``REGULARISATION = 1e-9``);
+    otherwise ``M`` unchanged.  Used for noise-free measurements (``R = 0``) and
+    zero (or rank-deficient) process noise, where the Riccati equation has no
+    stabilising solution or its solver needs ``R`` invertible.
+    """
+    M = 0.5 * (np.asarray(M, dtype=float) + np.asarray(M, dtype=float).T)
+    if M.size == 0:
+        return M
+    scale = max(1.0, float(np.linalg.norm(M, 2)))
+    if np.linalg.eigvalsh(M)[0] <= 1e-12 * scale:
+        return M + REGULARISATION * scale * np.eye(M.shape[0])
+    return M
+
+
+# --------------------------------------------------------------------------
+# centralized steady-state Kalman predictor
+# --------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class KalmanPredictor:
+    """Steady-state one-step Kalman predictor ``xhat(k+1) = F xhat(k) + L (y(k) - C xhat(k))``.
+
+    Attributes
+    ----------
+    L : (n, p) array
+        Predictor gain ``F P C' (C P C' + R)^-1``.
+    P : (n, n) array
+        Steady-state prediction-error covariance ``E[(x(k) - xhat(k))(x(k) - xhat(k))']``.
+    """
+
+    L: np.ndarray
+    P: np.ndarray
+
+
+def _detectable(F: np.ndarray, C: np.ndarray, tol: float = 1e-9) -> bool:
+    """PBH test: ``[lam I - F; C]`` has full column rank for every eigenvalue ``|lam| >= 1``."""
+    n = F.shape[0]
+    for lam in np.linalg.eigvals(F):
+        if abs(lam) < 1.0 - tol:
+            continue
+        M = np.vstack([lam * np.eye(n) - F, C.astype(complex)])
+        s = np.linalg.svd(M, compute_uv=False)
+        if s[-1] <= tol * max(1.0, s[0]):
+            return False
+    return True
+
+
+def kalman_predictor(F: np.ndarray, C: np.ndarray, Q: np.ndarray, R: np.ndarray) -> KalmanPredictor:
+    """Steady-state one-step predictor of ``x+ = F x + v``, ``y = C x + w`` (``cov v = Q``, ``cov w = R``).
+
+    ``P`` is the stabilising solution of the DARE
+    ``P = F P F' - F P C' (C P C' + R)^-1 C P F' + Q`` (solved by
+    ``scipy.linalg.solve_discrete_are(F', C', Q, R)``) and
+    ``L = F P C' (C P C' + R)^-1``.
+
+    A singular ``R`` (noise-free measurements) or a singular ``Q`` (e.g. no
+    process noise) is regularised first with :func:`regularise`: ``1e-9
+    max(1, |.|_2) I`` is added, so the predictor is the limit of small noise.
+
+    Raises
+    ------
+    DesignError
+        If ``(C, F)`` is not detectable or the solver fails.
+    """
+    F = np.asarray(F, dtype=float)
+    C = np.atleast_2d(np.asarray(C, dtype=float))
+    if not _detectable(F, C):
+        raise DesignError("kalman_predictor: (C, F) is not detectable: an unstable mode of F is unobserved")
+    Qr, Rr = regularise(Q), regularise(R)
+    try:
+        P = sla.solve_discrete_are(F.T, C.T, Qr, Rr)
+    except (np.linalg.LinAlgError, ValueError) as exc:
+        raise DesignError(f"kalman_predictor: the Riccati solver failed ({exc})".replace("\n", " ")) from None
+    P = 0.5 * (P + P.T)
+    S = C @ P @ C.T + Rr
+    L = np.linalg.solve(S, C @ P @ F.T).T  # F P C' S^-1 (S symmetric)
+    if not np.all(np.isfinite(P)) or np.max(np.abs(np.linalg.eigvals(F - L @ C)), initial=0.0) >= 1.0:
+        raise DesignError("kalman_predictor: no stabilising Riccati solution (F - L C is not Schur)")
+    return KalmanPredictor(L=L, P=P)
+
+
+def run_predictor(F: np.ndarray, C: np.ndarray, L: np.ndarray, ys: np.ndarray, x0: np.ndarray) -> np.ndarray:
+    """Run ``xhat(k+1) = F xhat(k) + L (y(k) - C xhat(k))`` from ``xhat(0) = x0``.
+
+    Parameters
+    ----------
+    ys : (T - 1, p) array
+        Stacked measurements ``y(0), ..., y(T - 2)``.
+    x0 : (n,) array
+
+    Returns
+    -------
+    (T, n) array
+        The predictions ``xhat(0), ..., xhat(T - 1)``.
+    """
+    F, C, L = (np.asarray(a, dtype=float) for a in (F, C, L))
+    ys = np.asarray(ys, dtype=float).reshape(len(ys), -1)
+    out = np.zeros((ys.shape[0] + 1, F.shape[0]))
+    out[0] = x0
+    A = F - L @ C
+    for k, y in enumerate(ys):
+        out[k + 1] = A @ out[k] + L @ y
+    return out
+
+
+# --------------------------------------------------------------------------
+# Kalman-consensus filter
+# --------------------------------------------------------------------------
+
+
+def _neighbour_lists(neighbours, m: int) -> list:
+    if isinstance(neighbours, Mapping):
+        lists = [list(neighbours.get(i, ())) for i in range(m)]
+    else:
+        lists = [list(nb) for nb in neighbours]
+    if len(lists) != m:
+        raise ValueError(f"neighbours: expected {m} agents, got {len(lists)}")
+    for i, nb in enumerate(lists):
+        if i in nb or any(not 0 <= j < m for j in nb) or len(set(nb)) != len(nb):
+            raise ValueError(f"neighbours[{i}]: expected distinct agent indices in 0..{m - 1} other than {i}")
+    return [[int(j) for j in nb] for nb in lists]
+
+
+def default_eps(neighbours) -> float:
+    """``1 / (1 + max in-degree)``, the default consensus gain of :class:`KalmanConsensusFilter`.
+
+    With ``gamma_i = eps / (1 + |M_i|_F)`` the consensus step size satisfies
+    ``gamma_i |M_i|_2 < eps``, so ``gamma_i |M_i|_2 d_i < d_i / (1 + d_max) < 1``:
+    in the scalar (or commuting) case the consensus update
+    ``x_i + gamma_i M_i sum_j (x_j - x_i)`` is then a convex combination of the
+    neighbours' estimates with weight at least ``1 / (1 + d_max)`` on itself,
+    the usual step size bound of a Laplacian iteration.  It never amplifies
+    disagreement, so repeated exchanges stay stable.
+    """
+    lists = neighbours.values() if isinstance(neighbours, Mapping) else neighbours
+    return 1.0 / (1.0 + max((len(nb) for nb in lists), default=0))
+
+
+class KalmanConsensusFilter:
+    """Olfati-Saber's discrete-time Kalman-consensus filter (CDC 2009, Algorithm 1), one-step predictor form.
+
+    Each agent i keeps a prior ``xbar_i`` (its prediction of ``x(k)``) and
+    ``P_i``.  Per event time, with ``J_i = {i} U N_i`` (``N_i`` the in-neighbours):
+
+    * ``u_i = sum_{j in J_i} C_j' R_j^-1 y_j``, ``U_i = sum_{j in J_i} C_j' R_j^-1 C_j``
+      (the first exchange carries ``u_j, U_j, xbar_j``);
+    * ``M_i = (P_i^-1 + U_i)^-1``;
+    * ``xhat_i = xbar_i + M_i (u_i - U_i xbar_i) + gamma_i M_i sum_{j in N_i} (xbar_j - xbar_i)``,
+      ``gamma_i = eps / (1 + |M_i|_F)``;
+    * multi-step extension (``exchanges = q > 1``): each further exchange carries
+      ``xhat_j`` and applies, simultaneously for all i,
+      ``xhat_i <- xhat_i + gamma_i M_i sum_{j in N_i} (xhat_j - xhat_i)``;
+      ``exchanges = 1`` is exactly Algorithm 1;
+    * ``P_i <- F M_i F' + Q``, ``xbar_i <- F xhat_i``.
+
+    Numerically the fusion is evaluated in the algebraically identical
+    innovation form (matrix inversion lemma): with ``C_J``, ``R_J`` stacked
+    over ``J_i``, ``K = P_i C_J' (C_J P_i C_J' + R_J)^-1``,
+    ``M_i (u_i - U_i xbar_i) = K (y_J - C_J xbar_i)`` and
+    ``M_i = (I - K C_J) P_i (I - K C_J)' + K R_J K'`` (Joseph form), which stays
+    well conditioned for the tiny regularised ``R_j`` of noise-free
+    measurements, where ``u_i - U_i xbar_i`` would cancel large numbers.
+
+    Parameters
+    ----------
+    F : (n, n) array
+    Cs : list of (s_i, n) arrays
+    Q : (n, n) array
+        Process covariance per step (regularised if singular, :func:`regularise`).
+    Rs : list of (s_i, s_i) arrays
+        Measurement covariances (regularised if singular, e.g. ``R_i = 0``).
+    neighbours : dict or list
+        Agent index -> in-neighbour indices (agent itself excluded).
+    eps : float, optional
+        Consensus gain; default :func:`default_eps` = ``1 / (1 + max in-degree)``.
+    exchanges : int
+        Exchanges per event time (``>= 1``).
+    P0 : (n, n) array, optional
+        Initial ``P_i`` of every agent; default the identity.
+
+    Attributes
+    ----------
+    P : (m, n, n) array
+        Current ``P_i`` (changed by :meth:`step`, reset to ``P0`` by :meth:`reset`).
+    """
+
+    def __init__(self, F: np.ndarray, Cs: Sequence[np.ndarray], Q: np.ndarray, Rs: Sequence[np.ndarray],
+                 neighbours, *, eps: float | None = None, exchanges: int = 1, P0: np.ndarray | None = None):
+        self.F = np.asarray(F, dtype=float)
+        n = self.F.shape[0]
+        self.Cs = [np.atleast_2d(np.asarray(C, dtype=float)) for C in Cs]
+        self.m = len(self.Cs)
+        if len(Rs) != self.m:
+            raise ValueError(f"Rs: expected {self.m} matrices, got {len(Rs)}")
+        self.Rs = [regularise(np.atleast_2d(np.asarray(R, dtype=float))) for R in Rs]
+        self.Q = regularise(Q)
+        self.neighbours = _neighbour_lists(neighbours, self.m)
+        self.eps = default_eps(self.neighbours) if eps is None else float(eps)
+        if int(exchanges) < 1:
+            raise ValueError(f"exchanges: expected an integer >= 1, got {exchanges}")
+        self.exchanges = int(exchanges)
+        self.P0 = np.eye(n) if P0 is None else np.array(P0, dtype=float)
+        # stacked output matrix and noise covariance over each inclusive neighbourhood J_i
+        self._J = [[i] + nb for i, nb in enumerate(self.neighbours)]
+        self._CJ = [np.vstack([self.Cs[j] for j in J]) for J in self._J]
+        self._RJ = [sla.block_diag(*[self.Rs[j] for j in J]) for J in self._J]
+        self.reset()
+
+    def reset(self) -> None:
+        """Every ``P_i`` back to ``P0``."""
+        self.P = np.stack([self.P0.copy() for _ in range(self.m)])
+
+    def step(self, xbar: np.ndarray, ys: Sequence[np.ndarray]) -> np.ndarray:
+        """One event time: priors ``xbar`` (m, n) and measurements ``[y_1, ..., y_m]`` -> next priors (m, n).
+
+        Updates :attr:`P`.
+        """
+        xbar = np.asarray(xbar, dtype=float)
+        n = self.F.shape[0]
+        I = np.eye(n)
+        Ms, gammas = [], []
+        xhat = np.zeros_like(xbar)
+        for i, J in enumerate(self._J):
+            P, CJ, RJ = self.P[i], self._CJ[i], self._RJ[i]
+            yJ = np.concatenate([np.asarray(ys[j], dtype=float).ravel() for j in J])
+            S = CJ @ P @ CJ.T + RJ
+            K = np.linalg.solve(S, CJ @ P).T  # P C_J' S^-1
+            IKC = I - K @ CJ
+            M = IKC @ P @ IKC.T + K @ RJ @ K.T  # = (P^-1 + U_i)^-1
+            M = 0.5 * (M + M.T)
+            gamma = self.eps / (1.0 + np.linalg.norm(M, "fro"))
+            disagreement = sum((xbar[j] - xbar[i] for j in self.neighbours[i]), np.zeros(n))
+            xhat[i] = xbar[i] + K @ (yJ - CJ @ xbar[i]) + gamma * (M @ disagreement)
+            Ms.append(M)
+            gammas.append(gamma)
+        for _ in range(self.exchanges - 1):  # multi-step extension: consensus on the estimates
+            prev = xhat.copy()
+            for i, nb in enumerate(self.neighbours):
+                disagreement = sum((prev[j] - prev[i] for j in nb), np.zeros(n))
+                xhat[i] = prev[i] + gammas[i] * (Ms[i] @ disagreement)
+        for i, M in enumerate(Ms):
+            Pn = self.F @ M @ self.F.T + self.Q
+            self.P[i] = 0.5 * (Pn + Pn.T)
+        return xhat @ self.F.T
+
+    def run(self, ys: np.ndarray, X0: np.ndarray, offsets: Sequence[int]) -> np.ndarray:
+        """Priors of every agent over a run, starting from :meth:`reset`.
+
+        Parameters
+        ----------
+        ys : (T - 1, p) array
+            Stacked measurements ``y(0), ..., y(T - 2)``.
+        X0 : (m, n) array
+            Initial priors ``xbar_i(0)``.
+        offsets : sequence of int
+            ``m + 1`` row offsets of the agents' blocks in a stacked ``y``
+            (``[0, s_1, s_1 + s_2, ...]``).
+
+        Returns
+        -------
+        (T, m, n) array
+            ``xbar_i(k)``, the predictions of ``x(k)`` comparable with the
+            project's ``x_i(k)``.
+        """
+        ys = np.asarray(ys, dtype=float).reshape(len(ys), -1)
+        X = np.array(X0, dtype=float)
+        self.reset()
+        out = np.zeros((ys.shape[0] + 1,) + X.shape)
+        out[0] = X
+        cuts = list(zip(offsets[:-1], offsets[1:]))
+        for k, y in enumerate(ys):
+            X = self.step(X, [y[a:b] for a, b in cuts])
+            out[k + 1] = X
+        return out
+
+
+# --------------------------------------------------------------------------
+# both baselines on the simulator's realisations
+# --------------------------------------------------------------------------
+
+
+def baseline_trajectories(sc: Scenario, seed: int, *, exchanges: int, steps: int | None = None, noise: bool = True,
+                          eps: float | None = None) -> dict:
+    """The centralized predictor and the KCF on the realisations of :func:`simulate` (same scenario and seed).
+
+    Same :class:`Plant` (initial state, process and measurement streams) and
+    the same order of ``measure`` / ``advance`` as the simulator, so ``x``
+    equals ``simulate(...).x``.  The KCF agents start from
+    ``initial_estimate(n, seed, i)``, the centralized predictor from their mean.
+    The network is the scenario's first graph (no switching, no faults), the
+    in-neighbours of agent i those of :func:`consensus_rows`.  Both filters use
+    the noisy model (:func:`sampled_model`) even with ``noise=False``, so their
+    gains do not change.
+
+    Parameters
+    ----------
+    exchanges : int
+        KCF exchanges per event time.
+    steps : int, optional
+        Defaults to ``run.steps``.
+    noise : bool
+        False zeroes the plant's process and measurement noise.
+    eps : float, optional
+        KCF consensus gain (default :func:`default_eps`).
+
+    Returns
+    -------
+    dict
+        ``t`` (T,), ``x`` (T, n) true states, ``centralized`` (T, n) and
+        ``kcf`` (T, m, n) predictions.
+    """
+    steps = sc.run.steps if steps is None else int(steps)
+    m, n, T = sc.m, sc.n, steps + 1
+    plant = Plant(sc, seed, noise=noise)
+    xs = np.zeros((T, n))
+    ys = np.zeros((steps, plant.C.shape[0]))
+    for k in range(T):
+        xs[k] = plant.x
+        if k == steps:
+            break
+        ys[k] = plant.measure()
+        plant.advance()
+    F, Q, R = sampled_model(sc)
+    C = plant.C
+    X0 = np.stack([initial_estimate(n, seed, i) for i in range(m)])
+    central = run_predictor(F, C, kalman_predictor(F, C, Q, R).L, ys, X0.mean(axis=0))
+    pos = {a: k for k, a in enumerate(sc.agent_ids)}
+    rows = consensus_rows(sc, 0, sc.agent_ids)
+    neighbours = {pos[i]: [pos[j] for j in nbs if j != i] for i, (nbs, _) in rows.items()}
+    sigma2 = sc.system.measurement_noise ** 2
+    Rs = [sigma2 * np.eye(Ci.shape[0]) for Ci in plant.Cs]
+    kcf = KalmanConsensusFilter(F, plant.Cs, Q, Rs, neighbours, eps=eps, exchanges=exchanges)
+    dt = sc.run.dt if sc.time == "continuous" else 1.0
+    return {"t": np.arange(T) * dt, "x": xs, "centralized": central, "kcf": kcf.run(ys, X0, plant.offsets)}

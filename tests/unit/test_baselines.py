@@ -1,0 +1,260 @@
+"""Baselines: centralized steady-state Kalman predictor and Olfati-Saber's Kalman-consensus filter."""
+
+import numpy as np
+import pytest
+import scipy.linalg as sla
+
+from splitspec_core.baselines import (KalmanConsensusFilter, baseline_trajectories, default_eps, kalman_predictor,
+                                      run_predictor, sampled_model)
+from splitspec_core.design import design
+from splitspec_core.errors import DesignError
+from splitspec_core.scenario import load_scenario
+from splitspec_core.simulate import simulate
+from tests.conftest import EXAMPLES
+
+
+def random_model(seed: int, *, radius: float, n: int = 3, p: int = 2):
+    """Random ``(F, C, Q, R)`` with spectral radius ``radius``, generic (hence observable) C, SPD Q and R."""
+    rng = np.random.default_rng(seed)
+    F = rng.normal(size=(n, n))
+    F *= radius / np.max(np.abs(np.linalg.eigvals(F)))
+    C = rng.normal(size=(p, n))
+    B = rng.normal(size=(n, n))
+    Q = 0.1 * B @ B.T + 0.01 * np.eye(n)
+    D = rng.normal(size=(p, p))
+    R = 0.2 * D @ D.T + 0.05 * np.eye(p)
+    return F, C, Q, R
+
+
+# --------------------------------------------------------------------------
+# centralized predictor
+# --------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("radius", [0.8, 1.3])
+def test_steady_state_covariance_and_gain_match_the_riccati_recursion(radius):
+    F, C, Q, R = random_model(11, radius=radius)
+    kp = kalman_predictor(F, C, Q, R)
+    P, L = kp.P, kp.L
+    assert P.shape == (3, 3) and L.shape == (3, 2)
+    S = C @ P @ C.T + R
+    residual = F @ P @ F.T - F @ P @ C.T @ np.linalg.solve(S, C @ P @ F.T) + Q - P
+    assert np.max(np.abs(residual)) <= 1e-10 * np.max(np.abs(P))
+    assert np.allclose(P, P.T, atol=1e-12)
+    assert np.linalg.eigvalsh(P)[0] > 0
+    assert np.max(np.abs(np.linalg.eigvals(F - L @ C))) < 1  # stabilising solution
+    # time-varying Riccati recursion of the one-step predictor, from P = I
+    Pk = np.eye(3)
+    for _ in range(2000):
+        Sk = C @ Pk @ C.T + R
+        Pk = F @ Pk @ F.T - F @ Pk @ C.T @ np.linalg.solve(Sk, C @ Pk @ F.T) + Q
+    Lk = F @ Pk @ C.T @ np.linalg.inv(C @ Pk @ C.T + R)
+    assert np.allclose(Pk, P, rtol=1e-8, atol=1e-12)
+    assert np.allclose(Lk, L, rtol=1e-8, atol=1e-12)
+
+
+def test_undetectable_pair_raises_and_singular_noise_is_regularised():
+    F = np.diag([2.0, 0.5])
+    with pytest.raises(DesignError):
+        kalman_predictor(F, np.array([[0.0, 1.0]]), np.eye(2), np.eye(1))  # unstable mode 2 unobserved
+    # noise-free measurements and no process noise: regularised, still a stabilising predictor
+    F = np.array([[1.0, 1.0], [0.0, 1.0]])
+    C = np.array([[1.0, 0.0]])
+    kp = kalman_predictor(F, C, np.zeros((2, 2)), np.zeros((1, 1)))
+    assert np.all(np.isfinite(kp.L)) and np.all(np.isfinite(kp.P))
+    assert np.max(np.abs(np.linalg.eigvals(F - kp.L @ C))) < 1
+    assert np.max(np.abs(kp.P)) < 1e-6  # nothing left to estimate in the small-noise limit
+
+
+def test_simulated_error_covariance_matches_the_predicted_one():
+    F, C, Q, R = random_model(5, radius=0.95)
+    kp = kalman_predictor(F, C, Q, R)
+    rng = np.random.default_rng(2024)
+    N, burn = 20000, 200
+    LQ, LR = np.linalg.cholesky(Q), np.linalg.cholesky(R)
+    x = np.zeros(3)
+    xs = np.zeros((N, 3))
+    ys = np.zeros((N - 1, 2))
+    for k in range(N):
+        xs[k] = x
+        if k == N - 1:
+            break
+        ys[k] = C @ x + LR @ rng.normal(size=2)
+        x = F @ x + LQ @ rng.normal(size=3)
+    xhat = run_predictor(F, C, kp.L, ys, np.zeros(3))
+    assert xhat.shape == (N, 3) and np.array_equal(xhat[0], np.zeros(3))
+    e = (xs - xhat)[burn:]
+    measured = np.mean(np.sum(e ** 2, axis=1))
+    predicted = np.trace(kp.P)
+    # Tolerance from the sample size: e(k+1) = (F - L C) e(k) + v - L w is stationary Gaussian with
+    # cov(e(k+h), e(k)) = G_h = (F - L C)^h P, so (Isserlis) cov(|e(k+h)|^2, |e(k)|^2) = 2 tr(G_h G_h')
+    # and the variance of the sample mean of |e|^2 is (2 tr(P^2) + 4 sum_{h>=1} tr(G_h G_h')) / N.
+    # Allow 4 standard deviations (about 3% here; the 200-step transient is negligible).
+    Ae = F - kp.L @ C
+    G, acc = kp.P, 2 * np.trace(kp.P @ kp.P)
+    for _ in range(400):
+        G = Ae @ G
+        acc += 4 * np.trace(G @ G.T)
+    tol = 4 * np.sqrt(acc / len(e)) / predicted
+    assert tol < 0.1
+    assert abs(measured / predicted - 1) < tol
+
+
+# --------------------------------------------------------------------------
+# Kalman-consensus filter
+# --------------------------------------------------------------------------
+
+
+def two_agent_kcf(exchanges: int) -> KalmanConsensusFilter:
+    one = np.array([[1.0]])
+    return KalmanConsensusFilter(one, [one, one], np.array([[0.5]]), [one, one], {0: [1], 1: [0]}, eps=0.5,
+                                 exchanges=exchanges, P0=np.eye(1))
+
+
+def test_kcf_step_worked_by_hand():
+    kcf = two_agent_kcf(1)
+    nxt = kcf.step(np.array([[1.0], [3.0]]), [np.array([2.0]), np.array([2.0])])
+    # each agent fuses both measurements: U_i = 1 + 1 = 2, u_i = 2 + 2 = 4
+    # M_i = (1/P_i + U_i)^-1 = 1 / (1 + 2) = 1/3;  gamma = 0.5 / (1 + |M_i|_F) = 0.5 / (4/3) = 0.375
+    # xhat_1 = 1 + (1/3)(4 - 2*1) + 0.375 (1/3)(3 - 1) = 1 + 2/3 + 1/4 = 23/12
+    # xhat_2 = 3 + (1/3)(4 - 2*3) + 0.375 (1/3)(1 - 3) = 3 - 2/3 - 1/4 = 25/12
+    # F = 1: next priors = xhat;  P_i = F M_i F' + Q = 1/3 + 1/2 = 5/6
+    assert np.allclose(nxt, [[23 / 12], [25 / 12]], rtol=0, atol=1e-14)
+    assert np.allclose(kcf.P, 5 / 6, rtol=0, atol=1e-14)
+    # second event time, y = [0, 6]: M_i = (6/5 + 2)^-1 = 5/16, gamma = 0.5 / (21/16) = 8/21,
+    # gamma M_i = 5/42; u_i = 0 + 6 = 6:
+    # xbar_1 = 23/12 + (5/16)(6 - 2*23/12) + (5/42)(25/12 - 23/12) = 23/12 + (5/16)(13/6) + 5/252
+    #        = 23/12 + 65/96 + 5/252
+    nxt2 = kcf.step(nxt, [np.array([0.0]), np.array([6.0])])
+    assert np.isclose(nxt2[0, 0], 23 / 12 + 65 / 96 + 5 / 252, rtol=0, atol=1e-14)
+    # xbar_2 = 25/12 + (5/16)(6 - 2*25/12) + (5/42)(23/12 - 25/12) = 25/12 + (5/16)(11/6) - 5/252
+    #        = 25/12 + 55/96 - 5/252
+    assert np.isclose(nxt2[1, 0], 25 / 12 + 55 / 96 - 5 / 252, rtol=0, atol=1e-14)
+    assert np.allclose(kcf.P, 5 / 16 + 1 / 2, rtol=0, atol=1e-14)
+
+
+def test_kcf_two_exchanges_worked_by_hand():
+    kcf = two_agent_kcf(2)
+    nxt = kcf.step(np.array([[1.0], [3.0]]), [np.array([2.0]), np.array([2.0])])
+    # first exchange as in Algorithm 1: xhat = (23/12, 25/12); the second one with gamma M_i = 0.375/3 = 1/8:
+    # xhat_1 = 23/12 + (1/8)(25/12 - 23/12) = 23/12 + 1/48 = 93/48
+    # xhat_2 = 25/12 + (1/8)(23/12 - 25/12) = 25/12 - 1/48 = 99/48
+    assert np.allclose(nxt, [[93 / 48], [99 / 48]], rtol=0, atol=1e-14)
+    assert np.allclose(kcf.P, 5 / 6, rtol=0, atol=1e-14)  # P does not depend on the exchanges
+
+
+def test_kcf_step_equals_algorithm_1_in_information_form():
+    rng = np.random.default_rng(3)
+    n, m = 3, 3
+    F = rng.normal(size=(n, n))
+    Cs = [rng.normal(size=(s, n)) for s in (1, 2, 1)]
+    Rs = [np.diag(rng.uniform(0.5, 2.0, size=C.shape[0])) for C in Cs]
+    Q = 0.1 * np.eye(n)
+    nbs = [[1], [0, 2], [0]]
+    eps = 0.4
+    kcf = KalmanConsensusFilter(F, Cs, Q, Rs, nbs, eps=eps)
+    Ps = [np.eye(n) + 0.1 * k * np.ones((n, n)) for k in range(m)]
+    kcf.P = np.stack(Ps)
+    xbar = rng.normal(size=(m, n))
+    ys = [rng.normal(size=C.shape[0]) for C in Cs]
+    got = kcf.step(xbar, ys)
+    for i in range(m):  # Algorithm 1 written out literally
+        J = [i] + nbs[i]
+        u = sum(Cs[j].T @ np.linalg.solve(Rs[j], ys[j]) for j in J)
+        U = sum(Cs[j].T @ np.linalg.solve(Rs[j], Cs[j]) for j in J)
+        M = np.linalg.inv(np.linalg.inv(Ps[i]) + U)
+        gamma = eps / (1 + np.sqrt(np.trace(M.T @ M)))
+        xhat = xbar[i] + M @ (u - U @ xbar[i]) + gamma * M @ sum(xbar[j] - xbar[i] for j in nbs[i])
+        assert np.allclose(got[i], F @ xhat, rtol=1e-10, atol=1e-12)
+        assert np.allclose(kcf.P[i], F @ M @ F.T + Q, rtol=1e-10, atol=1e-12)
+
+
+def test_kcf_default_eps_converges_on_a_path_graph():
+    # 3-agent path 0 - 1 - 2, unstable plant; no agent's neighbourhood sees the whole state
+    rot = lambda a, r: r * np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])  # noqa: E731
+    F = sla.block_diag(rot(0.3, 1.05), rot(0.7, 0.98))
+    Cs = [np.array([[1.0, 0, 0, 0]]), np.array([[0, 0, 1.0, 0]]), np.array([[0, 0, 0, 1.0]])]
+    nbs = {0: [1], 1: [0, 2], 2: [1]}
+    assert default_eps(nbs) == pytest.approx(1 / 3)
+    rng = np.random.default_rng(0)
+    T = 200
+    xs = np.zeros((T, 4))
+    xs[0] = rng.normal(size=4)
+    for k in range(T - 1):
+        xs[k + 1] = F @ xs[k]
+    ys = xs[:-1] @ np.vstack(Cs).T
+    X0 = rng.normal(size=(3, 4))
+    kcf = KalmanConsensusFilter(F, Cs, 0.01 * np.eye(4), [0.01 * np.eye(1)] * 3, nbs)
+    out = kcf.run(ys, X0, [0, 1, 2, 3])
+    assert out.shape == (T, 3, 4) and np.array_equal(out[0], X0)
+    e = np.linalg.norm(out - xs[:, None, :], axis=2).max(axis=1)
+    assert e[-1] < 1e-6 * e[0]
+
+
+@pytest.fixture(scope="module")
+def paper_noise():
+    sc = load_scenario(EXAMPLES / "paper_discrete_noise.yaml")
+    return sc, design(sc).q
+
+
+def test_kcf_noise_free_converges_on_the_paper_example(paper_noise):
+    # The plant has eigenvalues +-i sqrt(2): |x(k)| grows like 2^(k/2) (about 1e30 at k = 200), so round-off
+    # alone leaves errors of about 1e-16 |x(k)|.  Absolute errors must fall below 1e-3 of the initial ones
+    # while |x| is moderate (k = 40, the scenario's run length); at k = 200 the error relative to |x| must
+    # be at round-off level.
+    sc, q = paper_noise
+    b = baseline_trajectories(sc, 7, exchanges=q, steps=200, noise=False)
+    e = np.linalg.norm(b["kcf"] - b["x"][:, None, :], axis=2).max(axis=1)
+    ec = np.linalg.norm(b["centralized"] - b["x"], axis=1)
+    xn = np.linalg.norm(b["x"], axis=1)
+    assert e[40] < 1e-3 * e[0] and ec[40] < 1e-3 * ec[0]
+    assert e[-1] < 1e-12 * xn[-1] and ec[-1] < 1e-12 * xn[-1]
+    assert xn[-1] > 1e20  # the plant really is unstable: absolute errors say nothing at k = 200
+
+
+def test_kcf_noisy_rms_is_finite_and_no_better_than_centralized(paper_noise):
+    # Monte Carlo over seeds instead of one long run: with |x(k)| ~ 2^(k/2), round-off (~1e-16 |x|) would
+    # swamp the noise (std 0.1) after about 100 steps (at 2000 steps |x| ~ 1e301).  60 steps per seed
+    # (round-off ~1e-7 at the end), the last half of each, 40 seeds: 1200 samples per agent.
+    sc, q = paper_noise
+    F, Q, R = sampled_model(sc)
+    kp = kalman_predictor(F, np.vstack(sc.system.Cs), Q, R)
+    sq_kcf, sq_c = [], []
+    for seed in range(40):
+        b = baseline_trajectories(sc, seed, exchanges=q, steps=60)
+        sq_kcf.append(np.sum((b["kcf"] - b["x"][:, None, :])[30:] ** 2, axis=2))
+        sq_c.append(np.sum((b["centralized"] - b["x"])[30:] ** 2, axis=1))
+    rms_kcf = np.sqrt(np.mean(np.concatenate(sq_kcf), axis=0))
+    rms_c = np.sqrt(np.mean(np.concatenate(sq_c)))
+    assert rms_kcf.shape == (sc.m,) and np.all(np.isfinite(rms_kcf))
+    assert np.all(rms_c <= 1.05 * rms_kcf)  # the centralized predictor is optimal
+    # the centralized predictor's error is the predicted one (std of the estimate: about 2%)
+    assert rms_c == pytest.approx(np.sqrt(np.trace(kp.P)), rel=0.1)
+
+
+def test_sampled_model_follows_the_plant():
+    sc = load_scenario(EXAMPLES / "paper_continuous.yaml")
+    F, Q, R = sampled_model(sc)
+    A, dt, w = np.array(sc.system.A), sc.run.dt, sc.system.process_noise
+    assert np.allclose(F, sla.expm(A * dt), rtol=1e-12, atol=1e-14)
+    # Qd = w int_0^dt e^(As) e^(A's) ds, by a fine trapezoid rule
+    s = np.linspace(0, dt, 401)
+    vals = np.stack([sla.expm(A * t) @ sla.expm(A * t).T for t in s])
+    assert np.allclose(Q, w * np.trapezoid(vals, s, axis=0), rtol=1e-6, atol=1e-12)
+    assert np.array_equal(R, np.zeros((3, 3)))
+    sc = load_scenario(EXAMPLES / "paper_discrete_noise.yaml")
+    F, Q, R = sampled_model(sc)
+    assert np.array_equal(F, np.array(sc.system.A)) and np.allclose(Q, 0.01 * np.eye(4), rtol=1e-15, atol=0)
+
+
+@pytest.mark.parametrize("name,steps", [("paper_discrete_noise.yaml", None), ("paper_continuous.yaml", 50)])
+def test_baseline_truth_is_the_simulators(name, steps):
+    sc = load_scenario(EXAMPLES / name)
+    tr = simulate(design(sc), seed=3, steps=steps)
+    b = baseline_trajectories(sc, 3, exchanges=2, steps=steps)
+    assert np.array_equal(b["x"], tr.x)
+    assert np.allclose(b["t"], tr.t, rtol=0, atol=1e-12)
+    T = tr.x.shape[0]
+    assert b["centralized"].shape == (T, sc.n) and b["kcf"].shape == (T, sc.m, sc.n)
+    assert np.array_equal(b["kcf"][0], tr.xhat[0])  # same initial estimates as the simulator's agents
+    assert np.allclose(b["centralized"][0], tr.xhat[0].mean(axis=0), rtol=0, atol=1e-15)

@@ -1,0 +1,118 @@
+"""Estimation quality under noise: exact steady-state covariance, tuning, and `splitspec compare`."""
+
+import dataclasses
+import json
+
+import numpy as np
+import pytest
+import yaml
+
+from splitspec_core.compare import compare, settle_time, steady_rms, sweep
+from splitspec_core.design import design
+from splitspec_core.errors import DesignError
+from splitspec_core.noise import error_dynamics, predicted_rms, tune
+from splitspec_core.scenario import load_scenario
+from splitspec_core.simulate import simulate
+from tests.conftest import EXAMPLES
+from tests.integration.runtime_helpers import run
+from tests.unit.test_resilience_runtime import full_error_radius
+
+
+def test_error_map_is_the_estimators(tmp_path):
+    """M of the covariance recursion is the noise-free error map built independently from the full matrices."""
+    des = design(load_scenario(EXAMPLES / "paper_discrete.yaml"))
+    M, _ = error_dynamics(des)
+    assert np.max(np.abs(np.linalg.eigvals(M))) == pytest.approx(full_error_radius(des, [1, 2, 3]), rel=1e-9)
+
+
+@pytest.mark.parametrize("example,steps", [("ring10_noise", 4000), ("paper_continuous", 30000)])
+def test_predicted_rms_matches_a_long_simulation(example, steps):
+    """The Lyapunov solution is what the simulated RMS converges to (one long realisation per agent)."""
+    des = design(load_scenario(EXAMPLES / f"{example}.yaml"))
+    pred = predicted_rms(des)
+    tr = simulate(des, seed=11, steps=steps, progress=False)
+    e = tr.errors()[steps // 10:]
+    sim = np.sqrt(np.mean(e ** 2, axis=0))
+    # errors are correlated in time (ring10: ~5 steps, paper_continuous: ~0.6 s = 60 steps): >= 450 independent
+    # samples per agent put the RMS within a few percent
+    np.testing.assert_allclose(sim, pred, rtol=0.08)
+    assert np.sqrt(np.mean(sim ** 2)) == pytest.approx(np.sqrt(np.mean(pred ** 2)), rel=0.05)
+
+
+def test_tune_is_certified_and_no_worse_than_the_design():
+    sc = load_scenario(EXAMPLES / "paper_discrete_noise.yaml")
+    res = tune(sc)
+    assert res.design.q_result.certified
+    assert res.rms <= res.baseline_rms + 1e-12
+    # it is the best certified candidate, and it beats place measurably on this example
+    certified = [c["rms"] for c in res.candidates if c["certified"]]
+    assert res.rms == pytest.approx(min(certified))
+    place = min(c["rms"] for c in res.candidates if c["gains"] == "place" and c["certified"])
+    assert res.rms < 0.95 * place
+    # the tuned scenario designs to the same thing from scratch
+    assert np.sqrt(np.mean(predicted_rms(design(res.scenario)) ** 2)) == pytest.approx(res.rms)
+    with pytest.raises(DesignError, match="needs system.process_noise"):
+        tune(load_scenario(EXAMPLES / "paper_discrete.yaml"))
+
+
+def test_compare_on_the_paper_example():
+    sc = load_scenario(EXAMPLES / "paper_discrete_noise.yaml")
+    res = compare(sc, seeds=range(3), steps=60)
+    est = res["estimators"]
+    assert set(est) == {"split (scenario)", "split place", "split riccati", "split tuned", "centralized KF", "KCF"}
+    assert est["centralized KF"]["ratio_to_centralized"] == pytest.approx(1.0)
+    central = est["centralized KF"]["rms_mean"]
+    for name, r in est.items():
+        assert r["rms_mean"] >= 0.95 * central, name  # nobody beats the centralized Kalman filter
+    for name in ("split place", "split riccati", "split tuned"):
+        assert est[name]["messages_per_event"] == 3 * est[name]["q"]
+        assert est[name]["predicted_rms"] == pytest.approx(est[name]["rms_mean"], rel=0.3)
+    assert est["centralized KF"]["messages_per_event"] == 3
+    assert res["_curves"]["t"].shape == (61,)
+
+
+def test_sweep_marks_certified_values():
+    sc = load_scenario(EXAMPLES / "paper_discrete_noise.yaml")
+    sw = sweep(sc, seed=0, steps=40, values=[1, 3, 6, 8])
+    rows = {r["value"]: r for r in sw["rows"]}
+    assert not rows[3]["certified"] and rows[6]["certified"] and rows[8]["certified"]
+    assert rows[1]["predicted_rms"] == float("inf") or rows[1]["predicted_rms"] > rows[6]["predicted_rms"]
+    assert rows[6]["measured_rate"] <= sc.design.rate
+
+
+def test_settle_time_and_steady_rms():
+    t = np.arange(10.0)
+    err = np.array([1, 0.5, 1e-2, 1e-4, 2e-3, 1e-4, 1e-5, 1e-6, 1e-7, 1e-8])
+    assert settle_time(t, err) == 5.0  # after the bump at 4
+    assert settle_time(t, np.ones(10)) is None
+    assert steady_rms(np.array([[9.0, 9.0], [9.0, 9.0], [3.0, 4.0], [3.0, 4.0]])) == pytest.approx(np.sqrt(12.5))
+
+
+def test_compare_and_tune_cli(tmp_path):
+    out = tmp_path / "c"
+    r = run("compare", EXAMPLES / "paper_discrete_noise.yaml", "--out", out, "--seeds", 2, "--steps", 40, "--sweep")
+    assert r.returncode == 0, r.stderr
+    data = json.loads((out / "compare.json").read_text())
+    assert data["estimators"]["centralized KF"]["ratio_to_centralized"] == pytest.approx(1.0)
+    for f in ("compare_errors.png", "compare_ratios.png", "sweep.png", "sweep.json"):
+        assert (out / f).stat().st_size > 1000
+    assert "centralized KF" in r.stdout and "tuned design" in r.stdout
+    tuned = tmp_path / "tuned.yaml"
+    r = run("design", EXAMPLES / "paper_discrete_noise.yaml", "--tune", "rms", "--write", tuned)
+    assert r.returncode == 0, r.stderr
+    raw = yaml.safe_load(tuned.read_text())
+    assert raw["design"]["gains"] in ("place", "riccati") and "K" not in raw["design"]
+    sc = load_scenario(tuned)
+    assert design(sc).q == raw["design"]["q"]
+    # bad input: one line, exit 2
+    r = run("compare", EXAMPLES / "paper_discrete.yaml", "--out", tmp_path / "x")
+    assert r.returncode == 2 and "compare needs noise" in r.stderr and r.stderr.count("\n") == 1
+    r = run("design", EXAMPLES / "paper_discrete.yaml", "--write", tmp_path / "y.yaml")
+    assert r.returncode == 2 and "--write needs --tune" in r.stderr
+
+
+def test_adaptive_gain_has_no_steady_state():
+    sc = load_scenario(EXAMPLES / "paper_continuous.yaml")
+    sc = dataclasses.replace(sc, design=dataclasses.replace(sc.design, g="adaptive", g0=1.0))
+    with pytest.raises(DesignError, match="adaptive"):
+        predicted_rms(design(sc))
