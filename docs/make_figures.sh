@@ -10,3 +10,11 @@ for ex in paper_continuous paper_continuous_switching paper_discrete paper_discr
   cp "out/figures/$ex/states.png" "docs/figures/${ex}_states.png"
 done
 echo "figures written to docs/figures"
+# estimation quality under noise (README "Compare")
+"$BIN/splitspec" compare examples/paper_discrete_noise.yaml --out out/figures/compare_paper --seeds 20 --steps 80 --sweep > /dev/null
+"$BIN/splitspec" compare examples/ring10_noise.yaml --out out/figures/compare_ring10 --seeds 10 > /dev/null
+cp out/figures/compare_paper/compare_ratios.png docs/figures/compare_paper_ratios.png
+cp out/figures/compare_paper/compare_errors.png docs/figures/compare_paper_errors.png
+cp out/figures/compare_paper/sweep.png docs/figures/compare_paper_sweep_q.png
+cp out/figures/compare_ring10/compare_ratios.png docs/figures/compare_ring10_ratios.png
+echo "compare figures written to docs/figures"
