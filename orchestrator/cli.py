@@ -39,6 +39,18 @@ def _cmd_design(args: argparse.Namespace) -> int:
     return 0
 
 
+def _out_dir(path):
+    """``--out`` as a Path: created if missing, or one clear line."""
+    from pathlib import Path
+
+    out = Path(path)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise UsageError(f"cannot create output directory {out}: {exc.strerror}") from None
+    return out
+
+
 def _tune(args: argparse.Namespace, sc) -> int:
     from pathlib import Path
 
@@ -83,8 +95,6 @@ def _tune(args: argparse.Namespace, sc) -> int:
 
 
 def _cmd_compare(args: argparse.Namespace) -> int:
-    from pathlib import Path
-
     from splitspec_core.compare import compare, sweep
     from splitspec_core.scenario import load_scenario
 
@@ -93,11 +103,7 @@ def _cmd_compare(args: argparse.Namespace) -> int:
         raise UsageError("--seeds must be >= 1")
     if args.steps is not None and args.steps < 4:
         raise UsageError("--steps must be >= 4")
-    out = Path(args.out)
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise UsageError(f"cannot create output directory {out}: {exc.strerror}") from None
+    out = _out_dir(args.out)
     seed0 = sc.run.seed if args.seed is None else args.seed
     if args.kcf_eps is not None and not args.kcf_eps > 0:
         raise UsageError("--kcf-eps must be > 0")
@@ -167,8 +173,6 @@ def _simulate_summary_text(summary: dict, *, time: str, out) -> str:
 
 
 def _cmd_simulate(args: argparse.Namespace) -> int:
-    from pathlib import Path
-
     from splitspec_core.analysis import monte_carlo_stats, summarize
     from splitspec_core.design import design
     from splitspec_core.scenario import load_scenario
@@ -186,11 +190,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     if args.exact and sc.time != "continuous":
         raise UsageError("--exact integrates the continuous-time ODE; this scenario is discrete")
     des = design(sc)
-    out = Path(args.out)
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise UsageError(f"cannot create output directory {out}: {exc.strerror}") from None
+    out = _out_dir(args.out)
     seed = sc.run.seed if args.seed is None else args.seed
     if args.exact:
         traj = simulate_exact(des, seed=seed, steps=args.steps)
@@ -256,11 +256,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
     sc = load_scenario(args.scenario)
     design(sc)  # fail fast, with one line, before starting any process
     Keys(args.run_id)  # validates --run-id before any process starts
-    out = Path(args.out)
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise UsageError(f"cannot create output directory {out}: {exc.strerror}") from None
+    out = _out_dir(args.out)
     viewer = "spawn" if args.viewer else args.connect_viewer
     code = run_local(str(args.scenario), out, run_id=args.run_id, viewer=viewer, wait=args.wait,
                      round_timeout=args.round_timeout, agent_ids=sc.agent_ids, verbose=args.verbose,
