@@ -196,8 +196,7 @@ class Orchestrator:
             self.rec.event("process_started", t_now, role=h["role"], id=h["id"], pid=h["pid"], host=h["host"])
             info = {"pid": h["pid"], "host": h["host"]}
             if h["role"] == "agent":
-                self.procs[h["id"]] = info
-                self.registry.data["agents"][str(h["id"])] = info
+                self.procs[h["id"]] = info  # the registry's view (json writes the ids as strings)
             elif h["role"] == "plant":
                 self.registry.data["plant"] = info
             self.registry.update()
@@ -389,7 +388,10 @@ class Orchestrator:
     def _between_rounds(self, tau: int, faults) -> None:
         """Scenario faults due at ``tau`` (in scenario order), then agents that came back by hand."""
         t = float(tau) * self.dt
-        self._wait_between_rounds(0.0, lambda: True, tau)  # losses detected since the last round
+        while (item := self.inbox.get(timeout=0)) is not None:  # what arrived since the last round
+            self._handle(item, t)
+        self._check_stop(tau)
+        self._apply_pending_losses(tau)
         for f in faults:
             if f.action in ("kill", "hang"):
                 if f.agent not in self.alive:
@@ -452,7 +454,7 @@ class Orchestrator:
         self.alive: set = set()
         self.tokens: set = set()  # agents holding a liveliness token
         self.joinable: set = set()  # agents whose token appeared since they were last lost
-        self.procs: dict = {}  # agent id -> {"pid", "host"} of its latest process
+        self.procs: dict = self.registry.data["agents"]  # agent id -> {"pid", "host"} of its latest process
         self.children: list = []  # agent processes this orchestrator spawned (restarts)
         self.hung: set = set()  # pids of frozen agents on this host (SIGSTOPped by a fault or found frozen)
         self.plant_present = False
