@@ -12,9 +12,21 @@ import time
 from pathlib import Path
 
 import numpy as np
+import yaml
 
 ROOT = Path(__file__).resolve().parents[2]
+EXAMPLES = ROOT / "examples"
 ENV = {**os.environ, "RERUN_ANALYTICS": "0", "PYTHONUNBUFFERED": "1"}
+
+
+def scenario_file(tmp_path: Path, example: str, **changes) -> Path:
+    """A copy of an example with some sections changed (e.g. ``run={"steps": 60, "pace": 25}``)."""
+    raw = yaml.safe_load((EXAMPLES / f"{example}.yaml").read_text())
+    for section, values in changes.items():
+        raw.setdefault(section, {}).update(values)
+    path = tmp_path / f"{example}.yaml"
+    path.write_text(yaml.safe_dump(raw))
+    return path
 
 
 def free_port() -> int:

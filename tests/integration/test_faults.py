@@ -14,8 +14,7 @@ from orchestrator.recorder import read_rrd, read_rrd_logs, verify_rrd
 from tests.conftest import EXAMPLES
 from tests.integration.runtime_helpers import (all_pids, assert_all_gone, compare_with_simulate, dump, events,
                                                replay, run, start, started_pids, wait_for_event,
-                                               wait_for_rows)
-from tests.integration.test_runtime import scenario_file
+                                               scenario_file, wait_for_rows)
 
 pytestmark = pytest.mark.slow
 

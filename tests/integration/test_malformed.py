@@ -12,13 +12,11 @@ from contextlib import contextmanager
 import msgpack
 import numpy as np
 import pytest
-import yaml
 
 from splitspec_core.bus import open_session
 from splitspec_core.wire import Keys, WireError, decode, encode
-from tests.conftest import EXAMPLES
 from tests.integration.runtime_helpers import (assert_all_gone, compare_with_simulate, dump, events, free_port,
-                                               start, started_pids, wait_for_event)
+                                               scenario_file, start, started_pids, wait_for_event)
 
 pytestmark = pytest.mark.slow
 
@@ -110,10 +108,7 @@ def rogue_during_hand_started_run(tmp_path, scen, out, run_id, *, creds=None, **
 
 
 def test_rogue_messages_are_dropped_and_counted(tmp_path):
-    raw = yaml.safe_load((EXAMPLES / "paper_discrete.yaml").read_text())
-    raw["run"].update(steps=60, pace=25)
-    scen = tmp_path / "s.yaml"
-    scen.write_text(yaml.safe_dump(raw))
+    scen = scenario_file(tmp_path, "paper_discrete", run={"steps": 60, "pace": 25})
     out = tmp_path / "out"
     with rogue_during_hand_started_run(tmp_path, scen, out, "rogue-test") as (_, _, sent):
         pass

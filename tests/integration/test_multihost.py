@@ -11,12 +11,10 @@ import time
 
 import numpy as np
 import pytest
-import yaml
 
-from tests.conftest import EXAMPLES
 from tests.integration import netns
 from tests.integration.runtime_helpers import (ENV, ROOT, cli, compare_with_simulate, dump, events,
-                                               wait_for_event)
+                                               scenario_file, wait_for_event)
 
 pytestmark = [pytest.mark.slow,
               pytest.mark.skipif(netns.available() is not None, reason=f"{netns.available()}")]
@@ -35,10 +33,8 @@ def net_namespace(pid: int) -> str:
 
 @pytest.mark.parametrize("external_router", [False, True], ids=["embedded-router", "external-router"])
 def test_processes_on_separate_hosts_equal_simulate(tmp_path, external_router):
-    raw = yaml.safe_load((EXAMPLES / "paper_discrete.yaml").read_text())
-    raw["run"].update(steps=120, pace=40)  # slow enough to look at the processes while they run
-    scen = tmp_path / "s.yaml"
-    scen.write_text(yaml.safe_dump(raw))
+    # paced: slow enough to look at the processes while they run
+    scen = scenario_file(tmp_path, "paper_discrete", run={"steps": 120, "pace": 40})
     out = tmp_path / "out"
     rid = "multihost"
     hosts = (["router"] if external_router else []) + ["orch", "plant"] + [f"a{i}" for i in AGENTS]

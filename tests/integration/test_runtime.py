@@ -11,19 +11,9 @@ import yaml
 from orchestrator.recorder import read_rrd, verify_rrd
 from tests.conftest import EXAMPLES, ROOT
 from tests.integration.runtime_helpers import (ENV, assert_all_gone, cli, compare_with_simulate, events, run,
-                                               started_pids, wait_for_event, wait_for_rows)
+                                               scenario_file, started_pids, wait_for_event, wait_for_rows)
 
 pytestmark = pytest.mark.slow
-
-
-def scenario_file(tmp_path, example, **changes):
-    """A copy of an example with some sections changed (e.g. fewer steps)."""
-    raw = yaml.safe_load((EXAMPLES / f"{example}.yaml").read_text())
-    for section, values in changes.items():
-        raw.setdefault(section, {}).update(values)
-    path = tmp_path / f"{example}.yaml"
-    path.write_text(yaml.safe_dump(raw))
-    return path
 
 
 @pytest.mark.parametrize("example,changes", [

@@ -8,17 +8,14 @@ from splitspec_core.security import read_credentials
 from splitspec_core.wire import Keys
 from tests.conftest import EXAMPLES
 from tests.integration.runtime_helpers import (all_pids, assert_all_gone, compare_with_simulate, events, free_port,
-                                               run)
+                                               run, scenario_file)
 from tests.integration.test_malformed import rogue_during_hand_started_run
 
 pytestmark = pytest.mark.slow
 
 
 def test_secure_deployment_by_hand_refuses_and_confines(tmp_path):
-    raw = yaml.safe_load((EXAMPLES / "paper_discrete.yaml").read_text())
-    raw["run"].update(steps=200, pace=25)
-    scen = tmp_path / "s.yaml"
-    scen.write_text(yaml.safe_dump(raw))
+    scen = scenario_file(tmp_path, "paper_discrete", run={"steps": 200, "pace": 25})
     creds = tmp_path / "creds"
     r = run("credentials", scen, "--out", creds)
     assert r.returncode == 0, r.stderr
