@@ -92,7 +92,7 @@ def local_endpoint(endpoint: str) -> str:
 
 
 def _is_splitspec_process(pid: int) -> bool:
-    """Guard against pid reuse before signalling a pid learned from a hello."""
+    """A live (not zombie) splitspec process: the guard against pid reuse before signalling a pid from a hello."""
     try:
         with open(f"/proc/{pid}/cmdline", "rb") as f:
             cmd = f.read()
@@ -363,13 +363,11 @@ class Orchestrator:
 
     def _restart(self, aid: int, tau: int) -> None:
         t = float(tau) * self.dt
-        from .registry import pid_running
-
         old = self.procs.get(aid)
         if aid in self.tokens:
             # the old process still holds its token (hung, or its death not yet seen): make sure it is
             # dead and wait until its token is gone, so the new token cannot be confused with it
-            if old and old["host"] == HOST and pid_running(int(old["pid"])):
+            if old and old["host"] == HOST and _is_splitspec_process(int(old["pid"])):
                 how = self._signal_agent(aid, "kill")
                 self.hung.discard(int(old["pid"]))
                 log.info("restart of agent %d: killed the old process (%s)", aid, how)
@@ -404,12 +402,9 @@ class Orchestrator:
                     self.rec.event("fault_skipped", t, action="restart", id=f.agent, reason="agent is alive")
                     continue
                 self._restart(f.agent, tau)
-            else:
+            else:  # drop_arc / restore_arc: the simulator's own bookkeeping
+                self.net.apply([f])
                 arc = tuple(f.arc)
-                if f.action == "drop_arc":
-                    self.net.dropped.add(arc)
-                else:
-                    self.net.dropped.discard(arc)
                 self.rec.event("arc_dropped" if f.action == "drop_arc" else "arc_restored", t, arc=list(arc), tau=tau)
                 self._verdict(tau, f"arc {arc[0]} -> {arc[1]} {'dropped' if f.action == 'drop_arc' else 'restored'}")
         for a in sorted(self.joinable - self.alive):

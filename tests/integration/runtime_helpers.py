@@ -57,11 +57,12 @@ def events(out: Path) -> list:
     return [json.loads(line) for line in p.read_text().splitlines() if line.strip()]
 
 
-def wait_for_event(out: Path, name: str, timeout: float = 60.0) -> dict:
+def wait_for_event(out: Path, name: str, timeout: float = 60.0, **where) -> dict:
+    """First ``name`` event (with the given field values, e.g. ``id=3``) in ``events.jsonl``."""
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
         for e in events(out):
-            if e["event"] == name:
+            if e["event"] == name and all(e.get(k) == v for k, v in where.items()):
                 return e
         time.sleep(0.05)
     raise AssertionError(f"no {name} event in {out}/events.jsonl within {timeout} s: {events(out)}")

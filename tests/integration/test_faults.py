@@ -2,7 +2,6 @@
 
 import os
 import signal
-import time
 import uuid
 from contextlib import contextmanager
 
@@ -120,17 +119,15 @@ def test_hang_then_kill_and_rejoin_by_hand(tmp_path):
         wait_for_rows(out, 20, timeout=90)
         r = run("kill", "--agent", 7, "--signal", "STOP", "--run-id", rid, timeout=30)
         assert r.returncode == 0 and "SIGSTOP" in r.stdout, r.stderr
-        hung = wait_for_event(out, "agent_lost", timeout=30)
-        assert hung["id"] == 7 and "liveliness" in hung["reason"]
+        hung = wait_for_event(out, "agent_lost", timeout=30, id=7)
+        assert "liveliness" in hung["reason"]
         r = run("kill", "--agent", 2, "--run-id", rid, timeout=30)
         assert r.returncode == 0 and "SIGKILL" in r.stdout, r.stderr
-        deadline = time.monotonic() + 30
-        while not lost_events(out, 2) and time.monotonic() < deadline:
-            time.sleep(0.05)
+        wait_for_event(out, "agent_lost", timeout=30, id=2)
         endpoint = next(e["endpoint"] for e in events(out) if e["event"] == "orchestrator_started")
         hand = start("agent", "--id", 2, "--connect", endpoint, "--run-id", rid, log=tmp_path / "hand.log")
-        back = wait_for_event(out, "agent_rejoined", timeout=60)
-        assert back["id"] == 2 and back["incarnation"] == 1 and back["pid"] == hand.pid
+        back = wait_for_event(out, "agent_rejoined", timeout=60, id=2)
+        assert back["incarnation"] == 1 and back["pid"] == hand.pid
     code, text = finish(p, log)
     assert code == 0, text + dump(tmp_path / "hand.log")
     hand.wait(timeout=15)  # told to stop with the others

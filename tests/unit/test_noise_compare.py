@@ -18,7 +18,7 @@ from tests.integration.runtime_helpers import run
 from tests.unit.test_resilience_runtime import full_error_radius
 
 
-def test_error_map_is_the_estimators(tmp_path):
+def test_error_map_is_the_estimators():
     """M of the covariance recursion is the noise-free error map built independently from the full matrices."""
     des = design(load_scenario(EXAMPLES / "paper_discrete.yaml"))
     M, _ = error_dynamics(des)

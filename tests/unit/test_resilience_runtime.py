@@ -1,5 +1,6 @@
 """Pure parts of fault handling: verdicts at a loss, replay of recorded events, the run registry."""
 
+import dataclasses
 import json
 import os
 import subprocess
@@ -10,7 +11,7 @@ import pytest
 
 from splitspec_core.design import certify_network, design
 from splitspec_core.errors import ScenarioError
-from splitspec_core.network import NetworkState, active_arcs
+from splitspec_core.network import NetworkState, active_arcs, consensus_rows, make_plan
 from splitspec_core.replay import faults_from_events, load_events, with_recorded_faults
 from splitspec_core.scenario import load_scenario
 from splitspec_core.simulate import simulate
@@ -37,8 +38,6 @@ def test_verdict_non_redundant_loss(paper):
 
 def full_error_radius(des, alive) -> float:
     """rho of the survivors' one-event-time error map F (I - P + P (S (x) I))^q, from the full matrices."""
-    from splitspec_core.network import consensus_rows
-
     sc = des.scenario
     rows = consensus_rows(sc, 0, alive)
     pos = {a: k for k, a in enumerate(alive)}
@@ -113,19 +112,16 @@ def test_replay_events_reproduce_scenario_faults():
     evs.insert(0, {"event": "process_started", "role": "agent", "id": 1})  # ignored
     replayed = faults_from_events(evs, sc)
     assert [f.action for f in replayed] == ["kill", "drop_arc", "kill", "restart", "restart", "restore_arc"]
-    import dataclasses
     a = simulate(design(sc))
     b = simulate(design(dataclasses.replace(sc, faults=replayed)))
     np.testing.assert_array_equal(a.alive, b.alive)
     np.testing.assert_allclose(a.xhat, b.xhat, rtol=0, atol=0, equal_nan=True)
 
 
-def test_replay_continuous_time_uses_dt(tmp_path):
+def test_replay_continuous_time_uses_dt():
     sc = load_scenario(EXAMPLES / "paper_continuous.yaml")
     (f,) = faults_from_events([{"event": "agent_lost", "id": 2, "tau": 40}], sc)
     assert f.at == pytest.approx(40 * sc.run.dt)
-    from splitspec_core.network import make_plan
-    import dataclasses
     plan = make_plan(dataclasses.replace(sc, faults=(f,)), 0)
     assert list(plan.faults) == [40]
 
