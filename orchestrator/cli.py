@@ -225,9 +225,20 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     return 0
 
 
+def _announce_run_id(args: argparse.Namespace) -> None:
+    """Give a run started without ``--run-id`` a fresh unique id and say on stderr how to target it."""
+    if args.run_id is None:
+        from .registry import new_run_id
+
+        args.run_id = new_run_id()
+        print(f"splitspec: run id {args.run_id} (splitspec kill --run-id {args.run_id} --agent I)",
+              file=sys.stderr, flush=True)
+
+
 def _cmd_orchestrator(args: argparse.Namespace) -> int:
     from .driver import main as orch_main
 
+    _announce_run_id(args)
     return orch_main(args)
 
 
@@ -255,7 +266,9 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
     sc = load_scenario(args.scenario)
     design(sc)  # fail fast, with one line, before starting any process
-    Keys(args.run_id)  # validates --run-id before any process starts
+    if args.run_id is not None:
+        Keys(args.run_id)  # validates --run-id before any process starts
+    _announce_run_id(args)
     out = _out_dir(args.out)
     viewer = "spawn" if args.viewer else args.connect_viewer
     code = run_local(str(args.scenario), out, run_id=args.run_id, viewer=viewer, wait=args.wait,
@@ -303,35 +316,44 @@ _SIGNALS = {"KILL": "SIGKILL", "STOP": "SIGSTOP", "CONT": "SIGCONT", "TERM": "SI
 
 
 def _cmd_kill(args: argparse.Namespace) -> int:
+    # import-light on purpose: a fault injected from outside should land when it is asked for
     import signal
     import socket
 
-    from splitspec_core.wire import Keys
+    from .registry import RunChoiceError, describe_run, is_own_splitspec_process, resolve
 
-    from .registry import resolve
-
-    Keys(args.run_id)
     role, ident = ("plant", None) if args.plant else ("orchestrator", None) if args.orchestrator else ("agent", args.agent)
-    pid, host, entry = resolve(args.run_id, role, ident)
+    try:
+        pid, host, entry = resolve(args.run_id, role, ident)
+    except RunChoiceError as exc:
+        print(f"splitspec: error: {exc}", file=sys.stderr)
+        for run in exc.runs:
+            print(f"  {describe_run(run)}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    rid = entry["run_id"]
     what = {"plant": "the plant", "orchestrator": "the orchestrator"}.get(role, f"agent {ident}")
     if host and host != socket.gethostname():
         raise UsageError(f"{what} runs on host {host} (pid {pid}), not here: run splitspec kill there")
+    if not is_own_splitspec_process(pid, started_before=entry["_written"]):
+        raise UsageError(f"{what} (pid {pid}) of run {rid!r} is not running any more (that pid is not a "
+                         "splitspec process of yours now); nothing signalled")
     sig = getattr(signal, _SIGNALS[args.signal])
     try:
         os.kill(pid, sig)
     except ProcessLookupError:
         raise UsageError(f"{what} (pid {pid}) is not running any more") from None
-    print(f"sent {_SIGNALS[args.signal]} to {what} (pid {pid}) of run {args.run_id!r} "
+    print(f"sent {_SIGNALS[args.signal]} to {what} (pid {pid}) of run {rid!r} "
           f"(orchestrator pid {entry['orchestrator']['pid']}, records in {entry.get('out')})")
     return 0
 
 
-def _add_process_options(p: argparse.ArgumentParser) -> None:
-    from splitspec_core.wire import DEFAULT_RUN_ID
-
-    p.add_argument("--run-id", default=DEFAULT_RUN_ID,
-                   help=f"run id: key prefix splitspec/<run-id>/ (default {DEFAULT_RUN_ID!r}); several runs can "
-                        "share a router under different ids")
+def _add_process_options(p: argparse.ArgumentParser, *, run_id_required: bool = False) -> None:
+    if run_id_required:
+        p.add_argument("--run-id", required=True, help="the run's id, as printed by splitspec run / orchestrator "
+                       "(key prefix splitspec/<run-id>/)")
+    else:
+        p.add_argument("--run-id", help="run id: key prefix splitspec/<run-id>/ (default: a new unique id, printed "
+                       "at start); several runs can share a router under different ids")
     p.add_argument("--wait", type=float, default=60.0, help="seconds to wait for the other processes (default 60)")
 
 
@@ -445,9 +467,8 @@ def build_parser() -> argparse.ArgumentParser:
     who.add_argument("--plant", action="store_true", help="the plant (the run stops)")
     who.add_argument("--orchestrator", action="store_true", help="the orchestrator (everything stops)")
     p.add_argument("--signal", default="KILL", choices=sorted(_SIGNALS), help="signal to send (default KILL)")
-    from splitspec_core.wire import DEFAULT_RUN_ID
-
-    p.add_argument("--run-id", default=DEFAULT_RUN_ID, help=f"the run's id (default {DEFAULT_RUN_ID!r})")
+    p.add_argument("--run-id", help="the run's id (default: the only live run of yours on this machine; with "
+                   "several, they are listed and nothing is signalled)")
     p.set_defaults(func=_cmd_kill)
 
     p = sub.add_parser("plant", help="the plant process (needs no scenario file)",
@@ -455,7 +476,7 @@ def build_parser() -> argparse.ArgumentParser:
                                    "measurements and the truth each event time.")
     p.add_argument("--connect", required=True, metavar="ENDPOINT", help="Zenoh router endpoint, e.g. tcp/host:7447")
     p.add_argument("--credentials", metavar="FILE", help="user:password file for a --secure router")
-    _add_process_options(p)
+    _add_process_options(p, run_id_required=True)
     p.set_defaults(func=_cmd_plant)
 
     p = sub.add_parser("agent", help="one agent process (needs no scenario file)",
@@ -464,7 +485,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--id", required=True, type=int, help="agent id (as in the scenario's system.C)")
     p.add_argument("--connect", required=True, metavar="ENDPOINT", help="Zenoh router endpoint, e.g. tcp/host:7447")
     p.add_argument("--credentials", metavar="FILE", help="user:password file for a --secure router")
-    _add_process_options(p)
+    _add_process_options(p, run_id_required=True)
     p.set_defaults(func=_cmd_agent)
     return parser
 

@@ -2,15 +2,23 @@
 
 The orchestrator keeps one small JSON file per run in the runtime directory
 (``$SPLITSPEC_RUNTIME_DIR``, else ``$XDG_RUNTIME_DIR/splitspec``, else
-``/tmp/splitspec-<uid>``), named ``<run_id>.<orchestrator pid>.json``::
+``/tmp/splitspec-<uid>``; created 0700), named ``<run_id>.<orchestrator pid>.json``::
 
-    {"run_id": ..., "endpoint": ..., "out": ..., "host": ...,
+    {"run_id": ..., "endpoint": ..., "out": ..., "host": ..., "started": <unix time>,
      "orchestrator": {"pid": ...}, "plant": {"pid": ..., "host": ...},
      "agents": {"3": {"pid": ..., "host": ...}, ...}}
 
 It is rewritten atomically whenever a process starts (a restarted agent has
 a new pid) and removed when the orchestrator exits; a file whose
-orchestrator is gone (SIGKILLed) is stale and ignored.
+orchestrator is gone (SIGKILLed) is stale: ignored and removed.
+
+Only this user's runs count: a directory or file owned by another uid is
+ignored, and a pid is signalled only while it is a live splitspec process of
+this user that started before the entry naming it was written (a pid reused
+by anything else, even another splitspec process, is left alone).
+
+Standard library only: ``splitspec kill`` imports this module and must start
+in a few tens of milliseconds.
 """
 
 from __future__ import annotations
@@ -18,11 +26,38 @@ from __future__ import annotations
 import json
 import os
 import tempfile
+import time
 from pathlib import Path
 
 from splitspec_core.errors import SplitspecError
 
-__all__ = ["runtime_dir", "RunRegistry", "find_runs", "pid_running"]
+__all__ = ["runtime_dir", "RunRegistry", "find_runs", "pid_running", "new_run_id", "check_run_id",
+           "is_own_splitspec_process", "resolve", "RunChoiceError", "describe_run"]
+
+# the characters splitspec_core.wire.Keys refuses in a run id (a Zenoh key chunk; tests check both agree)
+_FORBIDDEN = frozenset("/*$?#")
+
+
+class RunChoiceError(SplitspecError, ValueError):
+    """No run id given and not exactly one live run: ``runs`` lists the live ones."""
+
+    def __init__(self, message: str, runs: list):
+        super().__init__(message)
+        self.runs = runs
+
+
+def new_run_id() -> str:
+    """A fresh run id: ``r`` + 8 hex digits (32 random bits), a valid Zenoh key chunk."""
+    import secrets  # here, not at the top: kill does not need it
+
+    return "r" + secrets.token_hex(4)
+
+
+def check_run_id(run_id: str) -> str:
+    """``run_id`` if it is usable as a key chunk and a file name (the rule of ``wire.Keys``)."""
+    if not run_id or _FORBIDDEN & set(run_id):
+        raise SplitspecError(f"--run-id must be non-empty without / * $ ? #, got {run_id!r}")
+    return run_id
 
 
 def runtime_dir() -> Path:
@@ -50,13 +85,49 @@ def pid_running(pid: int) -> bool:
         return True
 
 
+def _start_time(pid: int) -> float | None:
+    """Wall-clock start of ``pid`` from /proc (rounded down: boot time is in whole seconds)."""
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            ticks = int(f.read().rsplit(")", 1)[-1].split()[19])  # field 22, starttime
+        with open("/proc/stat") as f:
+            btime = next(int(line.split()[1]) for line in f if line.startswith("btime "))
+        return btime + ticks / os.sysconf("SC_CLK_TCK")
+    except (OSError, ValueError, IndexError, StopIteration):
+        return None
+
+
+def is_own_splitspec_process(pid: int, *, started_before: float | None = None) -> bool:
+    """``pid`` is a live splitspec process of this user (started no later than ``started_before``).
+
+    The guard against a reused pid before signalling one read from the registry.
+    """
+    try:
+        pid = int(pid)
+        if pid <= 0 or not pid_running(pid) or os.stat(f"/proc/{pid}").st_uid != os.getuid():
+            return False
+        with open(f"/proc/{pid}/cmdline", "rb") as f:
+            cmd = f.read()
+    except (OSError, ValueError, TypeError, OverflowError):
+        return False
+    if b"orchestrator.cli" not in cmd and b"splitspec" not in cmd:
+        return False
+    if started_before is not None:
+        t0 = _start_time(pid)
+        # 1 s of slack: /proc/stat's boot time is in whole seconds and the wall clock may have been slewed
+        if t0 is None or t0 > started_before + 1.0:
+            return False
+    return True
+
+
 class RunRegistry:
     """The orchestrator's entry: ``update()`` after every change, ``remove()`` at exit."""
 
     def __init__(self, run_id: str, data: dict):
         self.dir = runtime_dir()
-        self.path = self.dir / f"{run_id}.{os.getpid()}.json"
-        self.data = {"run_id": run_id, "orchestrator": {"pid": os.getpid()}, "agents": {}, **data}
+        self.path = self.dir / f"{check_run_id(run_id)}.{os.getpid()}.json"
+        self.data = {"run_id": run_id, "orchestrator": {"pid": os.getpid()}, "agents": {},
+                     "started": time.time(), **data}
         find_runs("*")  # sweep entries of orchestrators that were killed
 
     def update(self) -> None:
@@ -76,34 +147,79 @@ class RunRegistry:
             pass
 
 
+def _own_dir(d: Path) -> bool:
+    try:
+        return d.is_dir() and d.stat().st_uid == os.getuid()
+    except OSError:
+        return False
+
+
 def find_runs(run_id: str) -> list:
-    """Registry entries of live orchestrators for ``run_id`` (``*``: every run); stale files are removed."""
+    """Registry entries of this user's live orchestrators for ``run_id`` (``*``: every run).
+
+    Each entry gets ``_written`` (the file's modification time). Files of other users are
+    ignored; stale files (orchestrator gone) are removed.
+    """
     d = runtime_dir()
+    if not _own_dir(d):
+        return []
+    uid = os.getuid()
     out = []
-    for p in sorted(d.glob(f"{run_id}.*.json")) if d.is_dir() else ():
+    for p in sorted(d.glob("*.json")):  # <run_id>.<pid>.json; the run id is taken from the content
         try:
+            st = p.lstat()
+            if not p.is_file() or p.is_symlink() or st.st_uid != uid:
+                continue  # not ours: never trusted, never removed
             data = json.loads(p.read_text())
             pid = int(data["orchestrator"]["pid"])
+            data["_written"] = st.st_mtime
         except (OSError, ValueError, KeyError, TypeError):
             continue
         if run_id != "*" and data.get("run_id") != run_id:
             continue
-        if not pid_running(pid):
+        if not is_own_splitspec_process(pid, started_before=st.st_mtime):
             try:
                 p.unlink()
             except OSError:
                 pass
             continue
         out.append(data)
-    return out
+    return sorted(out, key=lambda e: (_number(e.get("started")), int(e["orchestrator"]["pid"])))
 
 
-def resolve(run_id: str, role: str, ident: int | None) -> tuple:
-    """``(pid, host, entry)`` of the process ``role``/``ident`` of the one live run ``run_id``."""
-    runs = find_runs(run_id)
+def _number(x) -> float:
+    return float(x) if isinstance(x, (int, float)) else 0.0
+
+
+def describe_run(entry: dict) -> str:
+    """One line: run id, orchestrator pid, output directory, start time."""
+    t = entry.get("started")
+    when = time.strftime("%Y-%m-%d %H:%M:%S", time.localtime(t)) if _number(t) else "?"
+    return (f"{entry.get('run_id')}  orchestrator pid {entry['orchestrator']['pid']}  out {entry.get('out')}  "
+            f"started {when}")
+
+
+def resolve(run_id: str | None, role: str, ident: int | None) -> tuple:
+    """``(pid, host, entry)`` of the process ``role``/``ident`` of one live run of this user.
+
+    ``run_id`` None: the only live run on this machine; with none or several, :class:`RunChoiceError`.
+    """
+    d = runtime_dir()
+    if d.exists() and not _own_dir(d):
+        raise SplitspecError(f"the run registry {d} is not owned by you (uid {os.getuid()}); not using it")
+    if run_id is None:
+        runs = find_runs("*")
+        if len(runs) != 1:
+            what = "no live run" if not runs else f"{len(runs)} live runs"
+            hint = ("start one with splitspec run / orchestrator" if not runs
+                    else "choose one with --run-id")
+            raise RunChoiceError(f"{what} of yours on this machine (looked in {d}); {hint}", runs)
+        run_id = runs[0]["run_id"]
+    else:
+        runs = find_runs(check_run_id(run_id))
     if not runs:
-        raise SplitspecError(f"no running run with id {run_id!r} on this machine (looked in {runtime_dir()}); "
-                             "give --run-id as passed to splitspec run / orchestrator")
+        raise SplitspecError(f"no running run with id {run_id!r} on this machine (looked in {d}); "
+                             "give --run-id as printed by splitspec run / orchestrator")
     if len(runs) > 1:
         pids = ", ".join(str(r["orchestrator"]["pid"]) for r in runs)
         raise SplitspecError(f"{len(runs)} runs with id {run_id!r} are running (orchestrator pids {pids}); "

@@ -65,11 +65,12 @@ def test_secure_bad_input(tmp_path):
     assert r.returncode == 2 and "cannot read" in r.stderr and "splitspec credentials" in r.stderr
     r = run("orchestrator", scen, "--connect", "tcp/127.0.0.1:1", "--out", tmp_path / "o", "--secure", tmp_path)
     assert r.returncode == 2 and "--listen" in r.stderr
-    r = run("agent", "--id", 1, "--connect", "tcp/127.0.0.1:1", "--credentials", tmp_path / "none.cred")
+    r = run("agent", "--id", 1, "--connect", "tcp/127.0.0.1:1", "--run-id", "x",
+            "--credentials", tmp_path / "none.cred")
     assert r.returncode == 2 and "cannot read credentials file" in r.stderr
     bad = tmp_path / "bad.cred"
     bad.write_text("no-colon\n")
-    r = run("plant", "--connect", "tcp/127.0.0.1:1", "--credentials", bad)
+    r = run("plant", "--connect", "tcp/127.0.0.1:1", "--run-id", "x", "--credentials", bad)
     assert r.returncode == 2 and "expected one line 'user:password'" in r.stderr
     # credentials for another scenario (agents 1..3) do not cover ring10's agents
     creds = tmp_path / "c"

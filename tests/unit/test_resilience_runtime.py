@@ -2,9 +2,6 @@
 
 import dataclasses
 import json
-import os
-import subprocess
-import sys
 
 import numpy as np
 import pytest
@@ -141,23 +138,3 @@ def test_load_events_errors(tmp_path):
     p.write_text(json.dumps({"event": "orchestrator_started", "scenario": "other"}) + "\n")
     with pytest.raises(ScenarioError, match="records scenario 'other'"):
         with_recorded_faults(sc, p)
-
-
-def test_registry_resolve_and_stale_entries(tmp_path, monkeypatch):
-    from orchestrator import registry
-
-    monkeypatch.setenv("SPLITSPEC_RUNTIME_DIR", str(tmp_path))
-    reg = registry.RunRegistry("r1", {"endpoint": "tcp/127.0.0.1:1", "out": "/x", "host": "h"})
-    reg.data["agents"]["3"] = {"pid": os.getpid(), "host": "h"}
-    reg.update()
-    pid, host, entry = registry.resolve("r1", "agent", 3)
-    assert (pid, host) == (os.getpid(), "h") and entry["endpoint"] == "tcp/127.0.0.1:1"
-    with pytest.raises(Exception, match="agent 4 has not started"):
-        registry.resolve("r1", "agent", 4)
-    # an entry whose orchestrator is dead is stale: ignored and removed
-    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True)
-    stale = tmp_path / f"r2.{dead.stdout.strip()}.json"
-    stale.write_text(json.dumps({"run_id": "r2", "orchestrator": {"pid": int(dead.stdout)}, "agents": {}}))
-    assert registry.find_runs("r2") == [] and not stale.exists()
-    reg.remove()
-    assert registry.find_runs("r1") == []
