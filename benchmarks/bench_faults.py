@@ -8,9 +8,14 @@ All from real runs on loopback (the machine is shared: compare within one invoca
 2. restart latency: examples/ring10_faults.yaml; `agent_restarting` -> `agent_rejoined` (a new
    Python process: start-up, config fetch, local design, token);
 3. secure vs plain: rounds per second of the unpaced paper example with and without `--secure`
-   (authentication + access control on the router), same invocation.
+   (authentication + access control on the router), same invocation;
+4. kill latency: from launching `splitspec kill --agent 1` (a subprocess, no --run-id) until the
+   victim is reaped, N times, without a real run: a registry entry in a private
+   SPLITSPEC_RUNTIME_DIR names a live dummy orchestrator and a dummy agent 1 (`python -c` sleepers
+   whose argv contains 'splitspec', so kill's process-identity guard accepts them); with the
+   start-up of `python -c pass` and /proc/loadavg for scale.
 
-    .venv/bin/python benchmarks/bench_faults.py [--repeat 3]
+    .venv/bin/python benchmarks/bench_faults.py [--repeat 3] [--only kill] [--kill-runs 20]
 """
 
 from __future__ import annotations
@@ -94,13 +99,81 @@ def rounds_per_second(tmp: Path, secure: bool, steps: int, k: int) -> float:
     return next(e["rounds_per_second"] for e in events(out) if e["event"] == "run_finished")
 
 
+SLEEPER = "import time; time.sleep(600)"
+
+
+def loadavg() -> str:
+    return " ".join(Path("/proc/loadavg").read_text().split()[:3])
+
+
+def kill_latency(tmp: Path, runs: int, cli: list, run_id: str = "rbench000") -> list:
+    """Seconds from starting ``CLI kill --agent 1`` until the dummy agent 1 is reaped, ``runs`` times."""
+    rt = tmp / "rt"
+    rt.mkdir(mode=0o700, exist_ok=True)
+    env = {**ENV, "SPLITSPEC_RUNTIME_DIR": str(rt)}
+    orch = subprocess.Popen([sys.executable, "-c", SLEEPER, "splitspec-bench-orchestrator"])
+    out = []
+    try:
+        for _ in range(runs):
+            victim = subprocess.Popen([sys.executable, "-c", SLEEPER, "splitspec-bench-agent"])
+            time.sleep(0.05)  # the entry is written after the process started, as the orchestrator does
+            entry = {"run_id": run_id, "orchestrator": {"pid": orch.pid}, "out": str(tmp), "host": os.uname().nodename,
+                     "started": time.time(), "agents": {"1": {"pid": victim.pid, "host": os.uname().nodename}}}
+            (rt / f"{run_id}.{orch.pid}.json").write_text(json.dumps(entry))
+            time.sleep(0.2)  # quiet
+            t0 = time.perf_counter()
+            k = subprocess.Popen([*cli, "kill", "--agent", "1"], cwd=ROOT, env=env, stdout=subprocess.DEVNULL,
+                                 stderr=subprocess.PIPE)
+            try:
+                victim.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                victim.kill()
+                victim.wait()
+                raise RuntimeError(f"kill did not signal the victim: {k.communicate()[1]!r}") from None
+            out.append(time.perf_counter() - t0)
+            if k.wait() != 0:
+                raise RuntimeError(f"kill failed: {k.stderr.read()!r}")
+            k.stderr.close()
+    finally:
+        orch.kill()
+        orch.wait()
+    return out
+
+
+def startup(cmd: list, runs: int) -> list:
+    out = []
+    for _ in range(runs):
+        t0 = time.perf_counter()
+        subprocess.run(cmd, check=True)
+        out.append(time.perf_counter() - t0)
+    return out
+
+
+def report_kill(tmp: Path, runs: int) -> None:
+    print(f"kill latency (launch -> victim reaped), {runs} runs each, load average before {loadavg()}:")
+    script = Path(sys.executable).parent / "splitspec"
+    for name, cmd in (("splitspec kill (console script)", [sys.executable, script]),
+                      ("python -m orchestrator.cli kill", CLI)):
+        v = kill_latency(tmp, runs, cmd)
+        print(f"  {name:34s} median {1000 * np.median(v):6.1f} ms   max {1000 * max(v):6.1f} ms")
+    v = startup([sys.executable, "-c", "pass"], runs)
+    name = "python -c pass (start-up, scale)"
+    print(f"  {name:34s} median {1000 * np.median(v):6.1f} ms   max {1000 * max(v):6.1f} ms")
+    print(f"  load average after {loadavg()}")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--steps", type=int, default=400)
+    ap.add_argument("--only", choices=["kill"], help="kill: only the kill-latency measurement (no real runs)")
+    ap.add_argument("--kill-runs", type=int, default=20)
     args = ap.parse_args()
     with tempfile.TemporaryDirectory() as d:
         tmp = Path(d)
+        report_kill(tmp, args.kill_runs)
+        if args.only == "kill":
+            return
         det = {"SIGKILL": [], "SIGSTOP": []}
         for r in range(args.repeat):
             for k, v in detection(tmp, r).items():
