@@ -13,6 +13,14 @@ estimate is committed when the tick of tau+1 arrives; a tick of the same tau
 with a higher attempt (a round re-run after a loss) discards it.
 Continuous time: one exchange per step (z = x_i(k)), then the sampled-data
 step (and the adaptive gain update, eq. adaptive).
+
+Plausibility (every message is also MAC-checked with the run's key, see
+:mod:`splitspec_core.wire`): a tick must be newer than the last one and at
+most one event time ahead of it; ``y`` and ``z`` at most one event time
+ahead of the last tick (``z`` also at most two attempts ahead).  Buffers are
+bounded: ``y`` for at most two event times, ``z`` for at most
+``ZBUF_ROUNDS * q * (in-neighbours)`` messages; anything beyond is dropped
+and counted (``future``, ``stale``, ``buffer_full``...).
 """
 
 from __future__ import annotations
@@ -31,6 +39,9 @@ from splitspec_core.wire import DEFAULT_RUN_ID, Keys, WireError, decode, encode
 
 log = logging.getLogger("splitspec.agent")
 
+#: z messages buffered for at most this many (event time, attempt) rounds per sub-round and neighbour
+ZBUF_ROUNDS = 6
+
 
 class AgentNode:
     """Protocol state of agent ``agent_id``; ``on_*`` methods return ``[(key, payload), ...]`` to publish."""
@@ -44,6 +55,8 @@ class AgentNode:
             raise ValueError(f"agent {agent_id} is not in the scenario (agents: {', '.join(map(str, sc.agent_ids))})")
         self.sc = sc
         self.seed = int(config["seed"])
+        self.mac_key = config.get("key")
+        self.extra_counts = None  # callable -> {reason: count} of drops outside the node (the inbox)
         self.index = sc.agent_ids.index(agent_id)
         d = sc.design
         pw, mw = riccati_weights(sc)
@@ -69,6 +82,8 @@ class AgentNode:
             self.g0 = 0.0
         # potential in-neighbours over every graph (subscriptions)
         self.in_neighbours = sorted({j for g in sc.graphs for j, i in g.arcs if i == agent_id})
+        self.zbuf_limit = ZBUF_ROUNDS * self.exchanges * max(1, len(self.in_neighbours))
+        self.tick_tag = None  # (tau, attempt) of the last accepted tick
         self.x = None  # committed x_i(tau)
         self.g = self.g0
         self.tau = None  # tau of the committed estimate
@@ -84,29 +99,41 @@ class AgentNode:
     def reject(self, reason: str) -> None:
         self.rejected[reason] = self.rejected.get(reason, 0) + 1
 
+    def counts(self) -> dict:
+        """Running totals of rejected messages per reason (the node's and the inbox's)."""
+        out = dict(self.rejected)
+        for reason, c in (self.extra_counts() if self.extra_counts else {}).items():
+            out[reason] = out.get(reason, 0) + c
+        return out
+
     def _xhat(self, tau: int, attempt: int, x: np.ndarray, g: float) -> tuple:
-        return (self.keys.xhat(self.id), encode("xhat", self.run_id, tau=tau, attempt=attempt, agent=self.id,
-                                                  incarnation=int(self.incarnation), x=x, g=float(g),
-                                                  rejected=dict(self.rejected)))
+        return (self.keys.xhat(self.id), encode("xhat", self.run_id, mac_key=self.mac_key, tau=tau, attempt=attempt,
+                                                  agent=self.id, incarnation=int(self.incarnation), x=x, g=float(g),
+                                                  rejected=self.counts()))
 
     def _z(self, k: int, z: np.ndarray) -> tuple:
         r = self.round
-        return (self.keys.z(self.id), encode("z", self.run_id, tau=r["tau"], attempt=r["attempt"], k=k,
-                                               agent=self.id, z=z))
+        return (self.keys.z(self.id), encode("z", self.run_id, mac_key=self.mac_key, tau=r["tau"],
+                                               attempt=r["attempt"], k=k, agent=self.id, z=z))
 
     # ------------------------------------------------------------------ inputs
 
     def on_tick(self, payload: bytes) -> list:
         try:
-            t = decode(payload, self.run_id, "tick")
+            t = decode(payload, self.run_id, "tick", mac_key=self.mac_key)
         except WireError as e:
             self.reject(e.reason)
             return []
         tau, attempt = t["tau"], t["attempt"]
         out = []
-        if self.round is not None and (tau, attempt) <= (self.round["tau"], self.round["attempt"]):
-            self.reject("stale")
-            return []
+        if self.tick_tag is not None:
+            if (tau, attempt) <= self.tick_tag:
+                self.reject("stale")
+                return []
+            if tau > self.tick_tag[0] + 1:
+                self.reject("future")
+                return []
+        self.tick_tag = (tau, attempt)
         rows = t["rows"]
         me = rows.get(str(self.id))
         if self.candidate is not None:
@@ -141,7 +168,7 @@ class AgentNode:
 
     def on_z(self, key: str, payload: bytes) -> list:
         try:
-            m = decode(payload, self.run_id, "z")
+            m = decode(payload, self.run_id, "z", mac_key=self.mac_key)
         except WireError as e:
             self.reject(e.reason)
             return []
@@ -159,30 +186,44 @@ class AgentNode:
         if stale or not 0 <= m["k"] < self.exchanges:
             self.reject("stale" if stale else "bad_k")
             return []
-        # the next legitimate round is at most one event time ahead of the committed estimate
-        newest = r["tau"] if r is not None else (self.tau + 1 if self.tau is not None else None)
-        if (newest is not None and m["tau"] > newest) or (newest is None and len(self.zbuf) >= 4 * self.exchanges):
-            self.reject("future")
-            return []
-        slot = self.zbuf.setdefault((m["tau"], m["attempt"], m["k"]), {})
-        if m["agent"] in slot:
+        # the next legitimate round is at most one event time ahead of the last tick (a neighbour may
+        # have seen the next tick first), and at most two attempts ahead within the same event time
+        if self.tick_tag is not None:
+            t_tau, t_att = self.tick_tag
+            if m["tau"] > t_tau + 1 or (m["tau"] == t_tau and m["attempt"] > t_att + 2):
+                self.reject("future")
+                return []
+        slot = self.zbuf.get((m["tau"], m["attempt"], m["k"]))
+        if slot is not None and m["agent"] in slot:
             self.reject("duplicate")
             return []
-        slot[m["agent"]] = m["z"]
+        if sum(len(v) for v in self.zbuf.values()) >= self.zbuf_limit:
+            self.reject("buffer_full")
+            return []
+        self.zbuf.setdefault((m["tau"], m["attempt"], m["k"]), {})[m["agent"]] = m["z"]
         return self._advance()
 
     def on_y(self, payload: bytes) -> list:
         try:
-            m = decode(payload, self.run_id, "y")
+            m = decode(payload, self.run_id, "y", mac_key=self.mac_key)
         except WireError as e:
             self.reject(e.reason)
             return []
         if m["agent"] != self.id or m["y"].shape != (self.s,):
             self.reject("bad_shape" if m["agent"] == self.id else "wrong_agent")
             return []
-        if self.tau is not None and m["tau"] < self.tau:
+        if (self.tau is not None and m["tau"] < self.tau) or (self.tick_tag and m["tau"] < self.tick_tag[0]):
             self.reject("stale")
             return []
+        if self.tick_tag is not None and m["tau"] > self.tick_tag[0] + 1:
+            self.reject("future")
+            return []
+        if m["tau"] not in self.ybuf and len(self.ybuf) >= 2:  # before the first tick: keep the newest two
+            oldest = min(self.ybuf)
+            if m["tau"] < oldest:
+                self.reject("buffer_full")
+                return []
+            del self.ybuf[oldest]
         self.ybuf[m["tau"]] = m["y"]
         return self._advance()
 
@@ -246,15 +287,17 @@ def main(args: argparse.Namespace) -> int:
     from splitspec_core.bus import NodeShell
 
     keys = Keys(args.run_id or DEFAULT_RUN_ID)
-    shell = NodeShell(args.connect, keys, log=log, credentials=args.credentials, wait=args.wait)
+    shell = NodeShell(args.connect, keys, log=log, role="agent", ident=args.id, credentials=args.credentials,
+                      wait=args.wait)
     try:
-        node = AgentNode(args.id, shell.fetch_config(role="agent", ident=args.id, wait=args.wait), keys.run_id)
+        node = AgentNode(args.id, shell.fetch_config(wait=args.wait), keys.run_id)
+        node.extra_counts = shell.inbox.take_dropped
         handlers = {"tick": lambda key, p: node.on_tick(p), "z": node.on_z, "y": lambda key, p: node.on_y(p)}
         shell.inbox.subscribe(keys.tick, "tick")
         shell.inbox.subscribe(keys.y(args.id), "y")
         for j in node.in_neighbours:
             shell.inbox.subscribe(keys.z(j), "z")
-        return shell.run(keys.alive("agent", args.id), lambda ch, key, p: handlers[ch](key, p), node.reject,
+        return shell.run(lambda ch, key, p: handlers[ch](key, p), node.reject,
                          name=f"agent {args.id} (q = {node.exchanges})")
     finally:
         shell.close()

@@ -271,9 +271,12 @@ def _cmd_run(args: argparse.Namespace) -> int:
     _announce_run_id(args)
     out = _out_dir(args.out)
     viewer = "spawn" if args.viewer else args.connect_viewer
+    if args.insecure:
+        print("splitspec: warning: --insecure: no authentication or access control on the router (any process "
+              "that reaches it can connect; messages are still signed with the run's key)", file=sys.stderr)
     code = run_local(str(args.scenario), out, run_id=args.run_id, viewer=viewer, wait=args.wait,
                      round_timeout=args.round_timeout, agent_ids=sc.agent_ids, verbose=args.verbose,
-                     secure=args.secure)
+                     secure=not args.insecure)
     rrd = out / "run.rrd"
     if rrd.exists():
         print(f"recording: {rrd}  (open it with: {Path(sys.executable).parent / 'rerun'} {rrd})")
@@ -425,9 +428,13 @@ def build_parser() -> argparse.ArgumentParser:
     v.add_argument("--viewer", action="store_true", help="spawn the Rerun viewer and stream live")
     v.add_argument("--connect-viewer", metavar="URL", help="stream live to a running Rerun viewer at URL")
     p.add_argument("--round-timeout", type=float, default=10.0, help="seconds before a silent agent is declared lost")
-    p.add_argument("--secure", action="store_true", help="Zenoh user/password authentication and access control: "
-                   "only the plant publishes measurements and truth, only agent i publishes as agent i, clients "
-                   "without credentials are refused (credentials are generated for the run and deleted after)")
+    sec = p.add_mutually_exclusive_group()
+    sec.add_argument("--secure", action="store_true", help="the default: Zenoh user/password authentication and "
+                     "access control (only the plant publishes measurements and truth, only agent i publishes as "
+                     "agent i, clients without credentials are refused; credentials are generated for the run and "
+                     "deleted after)")
+    sec.add_argument("--insecure", action="store_true", help="no authentication or access control on the router "
+                     "(messages are still signed with the run's key); said on the terminal and in events.jsonl")
     _add_process_options(p)
     p.set_defaults(func=_cmd_run)
 
@@ -442,6 +449,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--round-timeout", type=float, default=10.0, help="seconds before a silent agent is declared lost")
     p.add_argument("--secure", dest="secure_dir", metavar="DIR", help="authenticate clients against DIR/users.txt "
                    "and enforce the access-control policy (see `splitspec credentials`)")
+    p.add_argument("--spawn-local", action="store_true", help="start the plant and the agents on this machine as "
+                   "children of the orchestrator (what `splitspec run` does)")
     _add_process_options(p)
     p.set_defaults(func=_cmd_orchestrator)
 

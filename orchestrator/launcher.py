@@ -81,25 +81,28 @@ def stop_all(procs: list, *, grace: float = 5.0) -> None:
             p.wait()
 
 
-def run_local(scenario: str, out: Path, *, run_id: str, viewer: str | None, wait: float,
-              round_timeout: float, agent_ids: tuple, verbose: bool = False, secure: bool = False) -> int:
-    """Start and supervise orchestrator, plant and agents; return the orchestrator's exit code.
+EXIT_ORCHESTRATOR_LOST = 3  #: `splitspec run`'s exit status when the orchestrator itself died
 
-    ``secure``: generate credentials for this run in a private directory under the runtime
-    directory, start the router with authentication and access control, and delete them at the end.
+
+def run_local(scenario: str, out: Path, *, run_id: str, viewer: str | None, wait: float,
+              round_timeout: float, agent_ids: tuple, verbose: bool = False, secure: bool = True) -> int:
+    """Start the orchestrator, which starts and parents the plant and the agents; return the exit code.
+
+    The orchestrator is their parent, so it sees a process that dies during start-up at once, with
+    its exit status.  ``secure`` (the default): generate credentials for this run in a private
+    directory under the runtime directory, start the router with authentication and access control,
+    and delete them at the end.  If the orchestrator itself dies (a signal), the others die with it
+    (``PR_SET_PDEATHSIG``), the records are recovered (:func:`orchestrator.recover.recover`) and the
+    exit status is :data:`EXIT_ORCHESTRATOR_LOST`.
     """
     port = free_port()
     endpoint = f"tcp/127.0.0.1:{port}"
-    quiet = [] if verbose else ["--log-level", "warning"]
-    orch_cmd = cli_command("orchestrator", scenario, "--listen", endpoint, "--out", out, "--run-id", run_id,
-                           "--wait", wait, "--round-timeout", round_timeout)
+    orch_cmd = cli_command(*([] if verbose else ["--log-level", "warning"]), "orchestrator", scenario,
+                           "--listen", endpoint, "--out", out, "--run-id", run_id, "--wait", wait,
+                           "--round-timeout", round_timeout, "--spawn-local")
     if viewer:
         orch_cmd += ["--viewer", viewer]
     cred_dir = None
-
-    def creds(user: str) -> list:
-        return ["--credentials", str(cred_dir / f"{user}.cred")] if cred_dir else []
-
     if secure:
         import tempfile
 
@@ -124,27 +127,11 @@ def run_local(scenario: str, out: Path, *, run_id: str, viewer: str | None, wait
     old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     try:
         procs.append(spawn(orch_cmd))
-        if not wait_listening(port, procs[0], timeout=30.0):
-            code = procs[0].poll()
-            if code is not None:
-                return code
-            print(f"splitspec: error: the orchestrator did not listen on {endpoint} within 30 s", file=sys.stderr)
-            return 1
-        procs.append(spawn(cli_command(*quiet, "plant", "--connect", endpoint, "--run-id", run_id,
-                                       "--wait", wait, *creds("plant"))))
-        for aid in agent_ids:
-            procs.append(spawn(cli_command(*quiet, "agent", "--id", aid, "--connect", endpoint, "--run-id", run_id,
-                                           "--wait", wait, *creds(f"agent-{aid}"))))
-        log.info("started orchestrator (pid %d), plant and %d agents on %s", procs[0].pid, len(agent_ids), endpoint)
-        while True:
-            code = procs[0].poll()
-            if code is not None:
-                break
-            time.sleep(0.05)
-        # the orchestrator told the others to stop; give them a moment, then make sure
-        deadline = time.monotonic() + 5.0
-        while any(p.poll() is None for p in procs[1:]) and time.monotonic() < deadline:
-            time.sleep(0.05)
+        log.info("started the orchestrator (pid %d) on %s; it starts the plant and %d agents", procs[0].pid,
+                 endpoint, len(agent_ids))
+        code = procs[0].wait()
+        if code < 0:  # killed by a signal: nothing of its own was said
+            return _orchestrator_lost(procs[0].pid, -code, out)
         return 130 if interrupted and code == 0 else code
     finally:
         stop_all(procs)
@@ -154,3 +141,24 @@ def run_local(scenario: str, out: Path, *, run_id: str, viewer: str | None, wait
             import shutil
 
             shutil.rmtree(cred_dir, ignore_errors=True)
+
+
+def _orchestrator_lost(pid: int, signum: int, out: Path) -> int:
+    """One line for an orchestrator killed by a signal; the records are recovered first."""
+    try:
+        name = signal.Signals(signum).name
+    except ValueError:
+        name = f"signal {signum}"
+    what = "its records could not be recovered"
+    try:
+        from .recover import recover
+
+        res = recover(out)
+        what = f"records recovered: {res['rows']} event times in {out}"
+    except ImportError:
+        what = f"records up to the last flush are in {out}"
+    except Exception as exc:  # noqa: BLE001 - the one line below says what is left
+        what = f"its records could not be recovered ({exc}); try `splitspec recover {out}`"
+    print(f"splitspec: error: the orchestrator (pid {pid}) was lost ({name}); the plant and the agents stopped "
+          f"with it; {what}", file=sys.stderr)
+    return EXIT_ORCHESTRATOR_LOST

@@ -31,6 +31,8 @@ class PlantNode:
         self.keys = Keys(run_id)
         self.sc = parse_scenario(yaml.safe_load(config["scenario"]), source="config")
         self.plant = Plant(self.sc, int(config["seed"]))
+        self.mac_key = config.get("key")
+        self.extra_counts = None  # callable -> {reason: count} of drops outside the node (the inbox)
         self.tau = None
         self.y = None
         self.rejected: dict = {}
@@ -38,9 +40,16 @@ class PlantNode:
     def reject(self, reason: str) -> None:
         self.rejected[reason] = self.rejected.get(reason, 0) + 1
 
+    def counts(self) -> dict:
+        """Running totals of rejected messages per reason (the node's and the inbox's)."""
+        out = dict(self.rejected)
+        for reason, c in (self.extra_counts() if self.extra_counts else {}).items():
+            out[reason] = out.get(reason, 0) + c
+        return out
+
     def on_tick(self, payload: bytes) -> list:
         try:
-            t = decode(payload, self.run_id, "tick")
+            t = decode(payload, self.run_id, "tick", mac_key=self.mac_key)
         except WireError as e:
             self.reject(e.reason)
             return []
@@ -56,12 +65,12 @@ class PlantNode:
         if tau != self.tau:
             self.tau = tau
             self.y = self.plant.split(self.plant.measure())
-        out = [(self.keys.truth, encode("truth", self.run_id, tau=tau, attempt=t["attempt"], x=self.plant.x,
-                                        rejected=dict(self.rejected)))]
+        out = [(self.keys.truth, encode("truth", self.run_id, mac_key=self.mac_key, tau=tau, attempt=t["attempt"],
+                                        x=self.plant.x, rejected=self.counts()))]
         if not t["final"]:
             for aid, y in zip(self.sc.agent_ids, self.y):
-                out.append((self.keys.y(aid), encode("y", self.run_id, tau=tau, attempt=t["attempt"], agent=aid,
-                                                      y=np.asarray(y))))
+                out.append((self.keys.y(aid), encode("y", self.run_id, mac_key=self.mac_key, tau=tau,
+                                                      attempt=t["attempt"], agent=aid, y=np.asarray(y))))
         return out
 
 
@@ -70,10 +79,12 @@ def main(args: argparse.Namespace) -> int:
     from splitspec_core.bus import NodeShell
 
     keys = Keys(args.run_id or DEFAULT_RUN_ID)
-    shell = NodeShell(args.connect, keys, log=log, credentials=args.credentials, wait=args.wait)
+    shell = NodeShell(args.connect, keys, log=log, role="plant", ident=0, credentials=args.credentials,
+                      wait=args.wait)
     try:
-        node = PlantNode(shell.fetch_config(role="plant", ident=0, wait=args.wait), keys.run_id)
+        node = PlantNode(shell.fetch_config(wait=args.wait), keys.run_id)
+        node.extra_counts = shell.inbox.take_dropped
         shell.inbox.subscribe(keys.tick, "tick")
-        return shell.run(keys.alive("plant"), lambda ch, key, p: node.on_tick(p), node.reject, name="plant")
+        return shell.run(lambda ch, key, p: node.on_tick(p), node.reject, name="plant")
     finally:
         shell.close()

@@ -1,43 +1,76 @@
 """The one module that talks to Zenoh (the process shells use it; the math never does).
 
 * :func:`zenoh_config` builds every session's config in one place: mode,
-  listen/connect endpoints, multicast scouting off, a short link lease so a
-  frozen process is detected within about a second;
-* :class:`Inbox` turns subscriber callbacks into one thread-safe queue: the
-  callbacks only enqueue ``(channel, key, payload bytes)`` (never block), and
-  the process's single event loop takes them off in order.
+  listen/connect endpoints, multicast scouting off, and the link lease the
+  process announces (:func:`lease_ms_for`): 1 s for the plant and the agents,
+  so a frozen one is detected within about a second, 10 s for the
+  orchestrator (and its embedded router), so the others wait through an
+  orchestrator frozen or starved for seconds instead of leaving the run.
+  Zenoh peers hold a link open until the *other side's* announced lease
+  passes without a message; keep-alives come from Zenoh's own threads, so a
+  busy Python process is never mistaken for a frozen one;
+* :class:`Inbox` turns subscriber callbacks into one bounded, thread-safe
+  queue: the callbacks only check the message's MAC trailer (a microsecond;
+  forged messages are dropped there and counted, never queued) and enqueue
+  ``(channel, key, payload bytes)`` without blocking; the process's single
+  event loop takes them off in order.  The queue holds at most
+  :data:`INBOX_LIMIT` messages; beyond that a message is dropped and counted
+  (``inbox_full``), so a flood can cost CPU but never unbounded memory.
 """
 
 from __future__ import annotations
 
+import hmac
 import json
 import os
 import queue
+import threading
 import time
 from typing import Any
 
 import zenoh
 
 from .errors import SplitspecError
+from .wire import MAC_BYTES, mac
 
-__all__ = ["zenoh_config", "open_session", "Inbox", "NodeShell", "BusError", "query_all", "LIVELINESS_PUT", "LIVELINESS_DELETE"]
+__all__ = ["zenoh_config", "open_session", "Inbox", "NodeShell", "BusError", "IdentityRefused", "query_all",
+           "lease_ms_for", "LIVELINESS_PUT", "LIVELINESS_DELETE", "INBOX_LIMIT"]
 
 LIVELINESS_PUT = "put"
 LIVELINESS_DELETE = "delete"
+INBOX_LIMIT = 10_000
 
 
 class BusError(SplitspecError, RuntimeError):
     """The middleware could not be set up (bad endpoint, port in use, no router)."""
 
 
-def default_lease_ms() -> int:
-    """Link lease: ``SPLITSPEC_LEASE_MS`` or 1000 ms: a frozen process is declared gone after it
-    (Zenoh's default is 10 s).  Keep-alives go every quarter lease from Zenoh's own threads, so a busy
-    Python process is not mistaken for a frozen one; raise it on a machine starved for seconds."""
+class IdentityRefused(SplitspecError, RuntimeError):
+    """The orchestrator refused this process's identity (another live process holds it)."""
+
+
+def _env_ms(name: str, default: int) -> int:
     try:
-        return max(100, int(os.environ.get("SPLITSPEC_LEASE_MS", "1000")))
+        return max(100, int(os.environ.get(name, str(default))))
     except ValueError:
-        return 1000
+        return default
+
+
+def lease_ms_for(role: str) -> int:
+    """The link lease a process of ``role`` announces: how long the others wait for it when it goes silent.
+
+    Plant and agents: ``SPLITSPEC_LEASE_MS`` or 1000 ms (a frozen agent is lost within about a
+    second).  Orchestrator (and its embedded router, through which every message flows):
+    ``SPLITSPEC_ORCH_LEASE_MS`` or 10000 ms, so an orchestrator frozen or starved for up to ~9 s is
+    waited for, not taken for dead (a killed one closes its sockets and is seen at once).
+    """
+    if role in ("orchestrator", "router"):
+        return _env_ms("SPLITSPEC_ORCH_LEASE_MS", 10_000)
+    return _env_ms("SPLITSPEC_LEASE_MS", 1_000)
+
+
+def default_lease_ms() -> int:
+    return lease_ms_for("agent")
 
 
 def zenoh_config(mode: str, *, listen: list | None = None, connect: list | None = None,
@@ -48,7 +81,7 @@ def zenoh_config(mode: str, *, listen: list | None = None, connect: list | None 
     ``lease_ms`` is the link lease (default :func:`default_lease_ms`): a frozen
     peer is declared gone after it (Zenoh's default is 10 s).
     """
-    lease_ms = default_lease_ms() if lease_ms is None else lease_ms
+    lease_ms = lease_ms_for("agent") if lease_ms is None else lease_ms
     c = zenoh.Config()
     try:
         c.insert_json5("mode", json.dumps(mode))
@@ -89,27 +122,62 @@ def open_session(mode: str, **kw) -> zenoh.Session:
 
 
 class Inbox:
-    """One queue fed by many subscribers; keeps every subscriber referenced."""
+    """One bounded queue fed by many subscribers; keeps every subscriber referenced.
 
-    def __init__(self, session: zenoh.Session):
+    ``dropped`` counts, per reason, what the callbacks refused (``bad_mac``) or could not queue
+    (``inbox_full``); the event loop reports it with its own rejections.
+    """
+
+    def __init__(self, session: zenoh.Session, *, limit: int = INBOX_LIMIT):
         self.session = session
         self.q: queue.SimpleQueue = queue.SimpleQueue()
+        self.limit = int(limit)
         self._subs: list = []
+        self.dropped: dict = {}
+        self._lock = threading.Lock()
+        self.mac_key: bytes | None = None  # set once known: messages on signed channels must carry the trailer
 
-    def subscribe(self, key: str, channel: str) -> None:
-        q = self.q
+    def _drop(self, reason: str) -> None:
+        with self._lock:
+            self.dropped[reason] = self.dropped.get(reason, 0) + 1
 
-        def cb(sample, _c=channel, _q=q):
-            _q.put((_c, str(sample.key_expr), sample.payload.to_bytes()))
+    def _offer(self, item: tuple) -> None:
+        if self.q.qsize() >= self.limit:  # messages only; presence changes and signals always get in
+            self._drop("inbox_full")
+        else:
+            self.q.put(item)
+
+    def subscribe(self, key: str, channel: str, *, signed: bool = True) -> None:
+        """Queue every sample on ``key`` as ``(channel, key, payload)``; ``signed``: only with a valid MAC."""
+        inbox = self
+
+        def cb(sample, _c=channel, _signed=signed):
+            payload = sample.payload.to_bytes()
+            mk = inbox.mac_key
+            if _signed and mk is not None:
+                if len(payload) <= MAC_BYTES or not hmac.compare_digest(mac(mk, payload[:-MAC_BYTES]),
+                                                                        payload[-MAC_BYTES:]):
+                    inbox._drop("bad_mac")
+                    return
+            inbox._offer((_c, str(sample.key_expr), payload))
 
         self._subs.append(self.session.declare_subscriber(key, cb))
+
+    def serve_deferred(self, key: str, channel: str) -> None:
+        """Declare a queryable whose queries are queued as ``(channel, key, query)``; the event loop replies."""
+        inbox = self
+
+        def cb(query, _c=channel):
+            inbox._offer((_c, str(query.key_expr), query))
+
+        self._subs.append(self.session.declare_queryable(key, cb))
 
     def watch_liveliness(self, key: str, channel: str, *, history: bool = True) -> None:
         q = self.q
 
         def cb(sample, _c=channel, _q=q):
             kind = LIVELINESS_DELETE if sample.kind == zenoh.SampleKind.DELETE else LIVELINESS_PUT
-            _q.put((_c, str(sample.key_expr), kind))
+            _q.put((_c, str(sample.key_expr), kind))  # never dropped: presence changes are few and vital
 
         self._subs.append(self.session.liveliness().declare_subscriber(key, cb, history=history))
 
@@ -131,8 +199,13 @@ class Inbox:
             return None
 
     def put(self, item: tuple) -> None:
-        """Inject an item (e.g. a signal turned into an event)."""
+        """Inject an item (e.g. a signal turned into an event); never dropped."""
         self.q.put(item)
+
+    def take_dropped(self) -> dict:
+        """Running totals of dropped messages per reason."""
+        with self._lock:
+            return dict(self.dropped)
 
     def close(self) -> None:
         for s in self._subs:
@@ -175,25 +248,34 @@ def query_bytes(session: zenoh.Session, key: str, *, timeout: float, payload: by
 
 
 class NodeShell:
-    """The Zenoh side of a plant or agent process: session, config fetch, publishing, the event loop.
+    """The Zenoh side of a plant or agent process: session, identity claim, config, publishing, the event loop.
 
-    The loop ends on a ``stop`` from the orchestrator, when the orchestrator's
-    liveliness token disappears (so no process outlives a crashed
-    orchestrator), or on SIGINT/SIGTERM.  Every other message goes to the
-    node's ``dispatch(channel, key, payload) -> [(key, payload), ...]``; a
-    handler error is counted with ``on_error(reason)`` and never ends the process.
+    The process claims its identity (``role``, ``ident``) with a random nonce in its ``hello``; the
+    orchestrator answers with the configuration (and the run's MAC key) or refuses, naming the live
+    process that holds the identity (:class:`IdentityRefused`).  The loop ends on a ``stop`` from the
+    orchestrator, when the orchestrator's liveliness token disappears (so no process outlives a crashed
+    orchestrator), or on SIGINT/SIGTERM.  Every other message goes to the node's
+    ``dispatch(channel, key, payload) -> [(key, payload), ...]``; a handler error is counted with
+    ``on_error(reason)`` and never ends the process.
     """
 
-    def __init__(self, connect: str, keys, *, log, credentials: str | None = None, wait: float = 30.0):
+    def __init__(self, connect: str, keys, *, log, role: str, ident: int, credentials: str | None = None,
+                 wait: float = 30.0):
         import signal
 
+        from .wire import new_nonce
+
         self.keys, self.log = keys, log
+        self.role, self.ident = role, int(ident)
+        self.nonce = new_nonce()
+        self.mac_key: bytes | None = None
         kw = {}
         if credentials:
             from .security import read_credentials
 
             kw["user"], kw["password"] = read_credentials(credentials)
-        self.session = open_session("client", connect=[connect], connect_timeout_ms=int(max(wait, 1.0) * 1000), **kw)
+        self.session = open_session("client", connect=[connect], connect_timeout_ms=int(max(wait, 1.0) * 1000),
+                                    lease_ms=lease_ms_for(role), **kw)
         self.inbox = Inbox(self.session)
         self.pubs: dict = {}
         for sig in (signal.SIGINT, signal.SIGTERM):
@@ -201,42 +283,57 @@ class NodeShell:
         # watch the orchestrator first: if it dies we must exit by ourselves
         self.inbox.watch_liveliness(keys.alive("orchestrator"), "orchestrator")
 
-    def fetch_config(self, *, role: str, ident: int, wait: float) -> dict:
-        """Ask the orchestrator's queryable for the scenario and the centralised design (with a hello).
+    @property
+    def who(self) -> str:
+        return "the plant" if self.role == "plant" else f"{self.role} {self.ident}"
 
-        Also declares this process's ``status`` queryable: it answers with the same hello from a
+    def fetch_config(self, *, wait: float) -> dict:
+        """Claim the identity and fetch the scenario, the centralised design and the run's key.
+
+        Then declares this process's ``status`` queryable: it answers with the same hello from a
         Zenoh thread, so the orchestrator can tell a frozen process (no answer) from one that is
         only waiting for a frozen neighbour.
         """
         import socket
 
-        from .wire import decode, encode
+        from .wire import WireError, decode, encode
 
-        hello = encode("hello", self.keys.run_id, role=role, id=int(ident), pid=os.getpid(),
-                       host=socket.gethostname())
-        self.inbox.serve(self.keys.status(role, ident), lambda _q: hello)
+        hello = encode("hello", self.keys.run_id, role=self.role, id=self.ident, pid=os.getpid(),
+                       host=socket.gethostname(), nonce=self.nonce)
         raw = query_bytes(self.session, self.keys.config, timeout=2.0, payload=hello,
                           retry_until=time.monotonic() + wait)
         if raw is None:
             raise TimeoutError(f"no orchestrator answered on {self.keys.config} within {wait:g} s")
-        return decode(raw, self.keys.run_id, "config")
+        try:
+            refusal = decode(raw, self.keys.run_id, "refused")
+        except WireError:
+            refusal = None
+        if refusal is not None:
+            raise IdentityRefused(f"{self.who} of run {self.keys.run_id!r} refused: {refusal['reason']}")
+        cfg = decode(raw, self.keys.run_id, "config")
+        self.mac_key = self.inbox.mac_key = cfg["key"]
+        self.inbox.serve(self.keys.status(self.role, self.ident, self.nonce), lambda _q: hello)
+        return cfg
 
     def publish(self, items) -> None:
         for key, payload in items:
             pub = self.pubs.get(key)
             if pub is None:
-                pub = self.pubs[key] = self.session.declare_publisher(key)
+                # BLOCK: a protocol message is never dropped by congestion control (a flood on the same
+                # links may be; the round must not be)
+                pub = self.pubs[key] = self.session.declare_publisher(
+                    key, congestion_control=zenoh.CongestionControl.BLOCK)
             pub.put(payload)
 
-    def run(self, token_key: str, dispatch, on_error, *, name: str) -> int:
+    def run(self, dispatch, on_error, *, name: str) -> int:
         """Declare the liveliness token, then handle messages until told to stop."""
-        from .wire import WireError, decode
-
         import signal
 
-        me = "/".join(token_key.split("/")[-2:])  # "agent/3": the target name in fault commands
+        from .wire import WireError, decode
+
+        me = f"{self.role}/{self.ident}"  # the target name in fault commands
         self.inbox.subscribe(self.keys.control, "control")
-        token = self.session.liveliness().declare_token(token_key)
+        token = self.session.liveliness().declare_token(self.keys.alive(self.role, self.ident, self.nonce))
         self.log.info("%s ready (pid %d)", name, os.getpid())
         while True:
             item = self.inbox.get(timeout=1.0)
@@ -245,7 +342,7 @@ class NodeShell:
             channel, key, payload = item
             if channel == "control":
                 try:
-                    cmd = decode(payload, self.keys.run_id, "control")["cmd"]
+                    cmd = decode(payload, self.keys.run_id, "control", mac_key=self.mac_key)["cmd"]
                 except WireError as e:
                     on_error(e.reason)
                     continue

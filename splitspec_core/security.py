@@ -18,10 +18,10 @@ refused at connection time) and enforces this access-control policy
 
 * everybody authenticated may subscribe under ``splitspec/<run>/``, receive
   what is published there, query ``config``, see and query liveliness;
-* only ``plant`` may publish ``y/*`` and ``truth``, hold ``alive/plant/*`` and
-  answer ``status/plant/*``;
+* only ``plant`` may publish ``y/*`` and ``truth``, hold ``alive/plant/**`` and
+  answer ``status/plant/**``;
 * only ``agent-<i>`` may publish ``z/<i>`` and ``xhat/<i>``, hold
-  ``alive/agent/<i>`` and answer ``status/agent/<i>``;
+  ``alive/agent/<i>/<nonce>`` and answer ``status/agent/<i>/<nonce>``;
 * ``tick``, ``control`` and the ``config`` queryable are the orchestrator's
   own session (the router itself, not subject to the policy); nobody else
   may publish them or serve ``config``.
@@ -87,8 +87,8 @@ def acl_config(run_id: str, agent_ids) -> dict:
         rule("see-liveliness", ["liveliness_token"], egress, [f"{p}/alive/**"]),
         rule("status-query", ["query"], egress, [f"{p}/status/**"]),
         rule("plant-publish", ["put"], ingress, [f"{p}/y/*", f"{p}/truth"]),
-        rule("plant-token", ["liveliness_token"], ingress, [f"{p}/alive/plant/*"]),
-        rule("plant-status", ["declare_queryable", "reply"], ingress, [f"{p}/status/plant/*"]),
+        rule("plant-token", ["liveliness_token"], ingress, [f"{p}/alive/plant/**"]),
+        rule("plant-status", ["declare_queryable", "reply"], ingress, [f"{p}/status/plant/**"]),
     ]
     subjects = [{"id": "everyone", "usernames": ["orchestrator", "plant"] + [user_of("agent", i) for i in agent_ids]},
                 {"id": "plant", "usernames": ["plant"]}]
@@ -101,8 +101,8 @@ def acl_config(run_id: str, agent_ids) -> dict:
     for i in agent_ids:
         u = user_of("agent", i)
         rules += [rule(f"{u}-publish", ["put"], ingress, [f"{p}/z/{i}", f"{p}/xhat/{i}"]),
-                  rule(f"{u}-token", ["liveliness_token"], ingress, [f"{p}/alive/agent/{i}"]),
-                  rule(f"{u}-status", ["declare_queryable", "reply"], ingress, [f"{p}/status/agent/{i}"])]
+                  rule(f"{u}-token", ["liveliness_token"], ingress, [f"{p}/alive/agent/{i}/*"]),
+                  rule(f"{u}-status", ["declare_queryable", "reply"], ingress, [f"{p}/status/agent/{i}/*"])]
         subjects.append({"id": u, "usernames": [u]})
         policies.append({"id": u, "subjects": [u], "rules": [f"{u}-publish", f"{u}-token", f"{u}-status"]})
     return {"enabled": True, "default_permission": "deny", "rules": rules, "subjects": subjects,

@@ -7,6 +7,21 @@ Every message is a msgpack map with the schema version ``v``, the run id
 finiteness) and raises :class:`WireError` with a short reason, which the
 receiving process counts and logs; nothing that fails validation is used.
 
+Authentication: every message after the configuration (tick, y, truth, z,
+xhat, control) carries a 16-byte trailer, HMAC-SHA256 of the msgpack body
+under the run's key (:func:`new_run_key`).  The orchestrator hands the key
+only to the processes it admits (in the ``config`` reply to an accepted
+``hello``), so a Zenoh client that was never admitted cannot forge a tick,
+a measurement or a stop, even without ``--secure``'s access control.  What
+this does not stop (an admitted process forging another's messages, a
+passive listener) is what ``--secure``'s per-process credentials and the
+router's access-control policy are for.
+
+Identity: each plant or agent process draws a random ``nonce`` at start and
+sends it in its ``hello``; its liveliness token and status queryable carry
+it (``alive/<role>/<id>/<nonce>``), so two processes claiming the same id
+are two different tokens, and the orchestrator knows which one it admitted.
+
 Keys live under ``splitspec/<run_id>/`` (:class:`Keys` builds all of them):
 
 ==========================  ======================  ==========================================
@@ -19,14 +34,17 @@ key                         from -> to              payload
 ``z/<i>``                   agent i -> neighbours   tau, attempt, k, z_i(k)
 ``xhat/<i>``                agent i -> orchestrator tau, attempt, x_i(tau) (+ g_i, rejected counts)
 ``control``                 orchestrator -> all     ``stop``; ``kill agent/<i>``, ``hang agent/<i>`` (faults)
-``status/<role>/<id>``      queryable (every proc.) a ``hello``: the process answers (not frozen)
-``alive/<role>/<id>``       liveliness token        presence; DELETE is a death
+``status/<role>/<id>/<n>``  queryable (every proc.) a ``hello``: the process answers (not frozen)
+``alive/<role>/<id>/<n>``   liveliness token        presence; DELETE is a death (n: the process's nonce)
 ==========================  ======================  ==========================================
 """
 
 from __future__ import annotations
 
+import hashlib
+import hmac
 import math
+import secrets
 from dataclasses import dataclass
 
 import msgpack
@@ -35,7 +53,7 @@ import numpy as np
 from .errors import SplitspecError
 
 __all__ = ["SCHEMA_VERSION", "DEFAULT_RUN_ID", "Keys", "WireError", "encode", "decode", "pack_array",
-           "unpack_array", "MESSAGE_FIELDS"]
+           "unpack_array", "MESSAGE_FIELDS", "MAC_BYTES", "new_run_key", "new_nonce", "mac", "verify", "UNSIGNED"]
 
 SCHEMA_VERSION = 1
 DEFAULT_RUN_ID = "default"
@@ -89,15 +107,28 @@ class Keys:
     def xhat(self, i: int | str) -> str:
         return f"{self.prefix}/xhat/{i}"
 
-    def status(self, role: str, ident: int | str = 0) -> str:
-        return f"{self.prefix}/status/{role}/{ident}"
+    def status(self, role: str, ident: int | str = 0, nonce: str | None = None) -> str:
+        base = f"{self.prefix}/status/{role}/{ident}"
+        return base if nonce is None else f"{base}/{nonce}"
 
     @property
     def status_all(self) -> str:
         return f"{self.prefix}/status/**"
 
-    def alive(self, role: str, ident: int | str = 0) -> str:
-        return f"{self.prefix}/alive/{role}/{ident}"
+    def alive(self, role: str, ident: int | str = 0, nonce: str | None = None) -> str:
+        base = f"{self.prefix}/alive/{role}/{ident}"
+        return base if nonce is None else f"{base}/{nonce}"
+
+    def parse_member(self, key: str, kind: str = "alive") -> tuple | None:
+        """``(role, id, nonce)`` of a ``<kind>/<role>/<id>[/<nonce>]`` key of this run, else None."""
+        head = f"{self.prefix}/{kind}/"
+        key = str(key)
+        if not key.startswith(head):
+            return None
+        parts = key[len(head):].split("/")
+        if len(parts) not in (2, 3) or not parts[1].isdigit():
+            return None
+        return parts[0], int(parts[1]), parts[2] if len(parts) == 3 else None
 
     @property
     def alive_all(self) -> str:
@@ -107,6 +138,28 @@ class Keys:
     def last(key: str) -> str:
         """Last chunk of a key (the agent id of ``.../z/3``)."""
         return str(key).rsplit("/", 1)[-1]
+
+
+# --------------------------------------------------------------------------
+# authentication
+# --------------------------------------------------------------------------
+
+MAC_BYTES = 16
+
+
+def new_run_key() -> bytes:
+    """A fresh random key for one run (32 bytes)."""
+    return secrets.token_bytes(32)
+
+
+def new_nonce() -> str:
+    """A process's identity nonce (16 hex characters)."""
+    return secrets.token_hex(8)
+
+
+def mac(key: bytes, body: bytes) -> bytes:
+    """The trailer: the first ``MAC_BYTES`` of HMAC-SHA256(key, body)."""
+    return hmac.digest(key, body, hashlib.sha256)[:MAC_BYTES]
 
 
 # --------------------------------------------------------------------------
@@ -150,9 +203,13 @@ MESSAGE_FIELDS = {
     "xhat": {"tau": "int", "attempt": "int", "agent": "int", "incarnation": "int", "x": "array", "g": "float",
              "rejected": "map"},
     "control": {"cmd": "str"},
-    "config": {"scenario": "str", "seed": "int", "g": "any", "q": "any", "g_mode": "any"},
-    "hello": {"role": "str", "id": "int", "pid": "int", "host": "str"},
+    "config": {"scenario": "str", "seed": "int", "g": "any", "q": "any", "g_mode": "any", "key": "bytes"},
+    "refused": {"reason": "str", "holder_pid": "int", "holder_host": "str"},
+    "hello": {"role": "str", "id": "int", "pid": "int", "host": "str", "nonce": "str"},
 }
+
+#: message types sent before the key is known (no trailer)
+UNSIGNED = frozenset({"config", "refused", "hello"})
 
 _CHECK = {
     "int": lambda v: isinstance(v, int) and not isinstance(v, bool),
@@ -162,21 +219,34 @@ _CHECK = {
     "list": lambda v: isinstance(v, list),
     "map": lambda v: isinstance(v, dict),
     "array": lambda v: isinstance(v, dict),
+    "bytes": lambda v: isinstance(v, bytes),
     "any": lambda v: True,
 }
 
 
-def encode(msg_type: str, run_id: str, **fields) -> bytes:
-    """Encode a message; numpy arrays become packed arrays."""
+def encode(msg_type: str, run_id: str, *, mac_key: bytes | None = None, **fields) -> bytes:
+    """Encode a message; numpy arrays become packed arrays; with ``mac_key`` the MAC trailer is appended."""
     body = {"v": SCHEMA_VERSION, "run": run_id, "type": msg_type}
     for k, v in fields.items():
         body[k] = pack_array(v) if isinstance(v, np.ndarray) else v
-    return msgpack.packb(body, use_bin_type=True)
+    raw = msgpack.packb(body, use_bin_type=True)
+    return raw if mac_key is None else raw + mac(mac_key, raw)
 
 
-def decode(payload: bytes, run_id: str, expected_type: str) -> dict:
+def verify(payload: bytes, mac_key: bytes) -> bytes:
+    """The body of a signed message, or :class:`WireError` ``bad_mac`` (cheap: run it before decoding)."""
+    if len(payload) <= MAC_BYTES:
+        raise WireError("bad_mac", "too short for a signed message")
+    body, tag = payload[:-MAC_BYTES], payload[-MAC_BYTES:]
+    if not hmac.compare_digest(mac(mac_key, body), tag):
+        raise WireError("bad_mac", "not signed with the run's key")
+    return body
+
+
+def decode(payload: bytes, run_id: str, expected_type: str, *, mac_key: bytes | None = None) -> dict:
     """Decode and validate one message of ``expected_type`` for ``run_id``.
 
+    With ``mac_key`` the message must carry a valid trailer (:func:`verify`).
     Arrays are returned as float64 numpy arrays (finite).  Shapes are checked
     by the caller, which knows them (``unpack`` already guarantees
     consistency between shape and data).
@@ -184,9 +254,11 @@ def decode(payload: bytes, run_id: str, expected_type: str) -> dict:
     Raises
     ------
     WireError
-        ``garbage``, ``bad_version``, ``wrong_run``, ``wrong_type``,
+        ``bad_mac``, ``garbage``, ``bad_version``, ``wrong_run``, ``wrong_type``,
         ``missing_field``, ``bad_field``, ``bad_shape`` or ``non_finite``.
     """
+    if mac_key is not None:
+        payload = verify(payload, mac_key)
     try:
         body = msgpack.unpackb(payload, raw=False, strict_map_key=True)
     except Exception as exc:  # noqa: BLE001 - any decoder failure is garbage on the wire

@@ -115,7 +115,7 @@ def test_hang_then_kill_and_rejoin_by_hand(tmp_path):
     rid = run_id()
     scen = scenario_file(tmp_path, "ring10", run={"steps": 240, "pace": 20})
     hand = None
-    with running(tmp_path, scen, rid) as (p, out, log):
+    with running(tmp_path, scen, rid, "--insecure") as (p, out, log):  # a hand-started agent joins
         wait_for_rows(out, 20, timeout=90)
         r = run("kill", "--agent", 7, "--signal", "STOP", "--run-id", rid, timeout=30)
         assert r.returncode == 0 and "SIGSTOP" in r.stdout, r.stderr

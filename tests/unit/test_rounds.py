@@ -1,0 +1,392 @@
+"""The orchestrator's rules without I/O (orchestrator.rounds.RoundMachine), case by case.
+
+Every test drives the machine by hand: hellos, tokens, truths, estimates and the clock go in; the actions
+that come out are what the Zenoh shell would execute.  The last test plays the whole protocol in-process
+(the real AgentNode and PlantNode, messages delivered by a loop instead of Zenoh) and checks the trajectory
+against `simulate`.
+"""
+
+import signal
+
+import numpy as np
+import pytest
+
+from orchestrator import rounds as R
+from splitspec_core.design import design
+from splitspec_core.scenario import load_scenario, parse_scenario
+from tests.conftest import EXAMPLES
+
+HOST = "here"
+
+
+def machine(example="paper_discrete", *, wait=60.0, round_timeout=10.0, spawned=False, changes=None, now=0.0):
+    import yaml
+
+    raw = yaml.safe_load((EXAMPLES / f"{example}.yaml").read_text())
+    for section, values in (changes or {}).items():
+        if isinstance(values, dict):
+            raw.setdefault(section, {}).update(values)
+        else:
+            raw[section] = values
+    sc = parse_scenario(raw, source=example)
+    return R.RoundMachine(sc, design(sc), host=HOST, wait=wait, round_timeout=round_timeout, spawned=spawned,
+                          now=now)
+
+
+def hello(role, ident, nonce, pid, host=HOST):
+    return {"role": role, "id": ident, "pid": pid, "host": host, "nonce": nonce}
+
+
+def of(actions, kind):
+    return [a for a in actions if isinstance(a, kind)]
+
+
+def events(actions, name=None):
+    return [a for a in actions if isinstance(a, R.Event) and (name is None or a.name == name)]
+
+
+def start(m, now=1.0):
+    """Grant and show every participant; returns the actions (the first tick among them)."""
+    out = m.start(now)
+    out += m.on_hello("q-plant", hello("plant", 0, "p0", 100), now)
+    out += m.on_token("plant", 0, "p0", True, now)
+    for k, a in enumerate(m.sc.agent_ids):
+        out += m.on_hello(f"q{a}", hello("agent", a, f"n{a}", 200 + k), now)
+        out += m.on_token("agent", a, f"n{a}", True, now)
+    return out
+
+
+def advance(m, t0, t1, step=0.4):
+    """The shell's polling: on_timer every ``step`` seconds from t0 to t1; the actions."""
+    out, t = [], t0
+    while t < t1:
+        t = min(t + step, t1)
+        out += m.on_timer(t)
+    return out
+
+
+def finish_round(m, now, *, skip=()):
+    """Feed truth and every alive agent's estimates of the round in flight."""
+    x = np.zeros(m.sc.n)
+    out = m.on_truth(m.tau, m.attempt, x, {}, now)
+    for a in sorted(m.alive):
+        if a in skip:
+            continue
+        if a not in m.est.get(m.tau, {}):  # admission: the fresh estimate x_i(tau) first
+            out += m.on_xhat(a, m.tau, m.attempt, m.incarnation(a), x, 0.0, {}, now)
+        out += m.on_xhat(a, m.tau + 1, m.attempt, m.incarnation(a), x, 0.0, {}, now)
+    return out
+
+
+# ---------------------------------------------------------------------- identity
+
+
+def test_start_needs_every_participant_then_ticks():
+    m = machine()
+    out = m.start(0.0)
+    assert out == []  # not spawned: processes are started by hand
+    out = m.on_hello("q", hello("plant", 0, "p0", 100), 0.1)
+    assert of(out, R.ReplyConfig) and events(out, "process_started") and of(out, R.RegistryUpdate)
+    out = m.on_token("plant", 0, "p0", True, 0.2)
+    assert not of(out, R.Tick)
+    out = start(m, 0.3)
+    ticks = of(out, R.Tick)
+    assert len(ticks) == 1 and (ticks[0].tau, ticks[0].attempt) == (0, 0) and ticks[0].alive == (1, 2, 3)
+    assert events(out, "run_started")
+
+
+def test_second_claimant_is_refused_and_the_holder_kept():
+    m = machine()
+    start(m)
+    out = m.on_hello("q-imp", hello("agent", 3, "impostor", 999, "elsewhere"), 2.0)
+    (ref,) = of(out, R.ReplyRefused)
+    assert "held by pid 202 on host here" in ref.reason and (ref.holder_pid, ref.holder_host) == (202, HOST)
+    (dup,) = events(out, "duplicate_refused")
+    assert dup.fields["pid"] == 999 and dup.fields["holder_pid"] == 202
+    assert m.procs[3] == {"pid": 202, "host": HOST} and not of(out, R.RegistryUpdate)
+    # the impostor's token neither counts nor hides the holder's death
+    assert m.on_token("agent", 3, "impostor", True, 2.1) == []
+    assert m.on_token("agent", 3, "impostor", False, 2.2) == []
+    assert 3 in m.alive and not m.pending_loss
+    out = m.on_token("agent", 3, "n3", False, 2.3)
+    (lost,) = events(out, "agent_lost")
+    assert lost.fields["id"] == 3 and lost.fields["pid"] == 202
+    assert [(t.tau, t.attempt) for t in of(out, R.Tick)] == [(0, 1)]  # the round re-run without it
+
+
+def test_same_process_asking_again_gets_the_config_again():
+    m = machine()
+    m.on_hello("q1", hello("agent", 1, "a", 10), 0.0)
+    out = m.on_hello("q2", hello("agent", 1, "a", 10), 0.5)
+    assert of(out, R.ReplyConfig) and not events(out)
+
+
+def test_unknown_identity_is_refused():
+    m = machine()
+    out = m.on_hello("q", hello("agent", 7, "x", 10), 0.0)
+    (ref,) = of(out, R.ReplyRefused)
+    assert "agent 7 is not part of this run (agents: 1, 2, 3)" == ref.reason
+
+
+def test_claim_without_token_lapses_after_wait():
+    m = machine(wait=5.0)
+    m.on_hello("q", hello("agent", 1, "a", 10), 0.0)
+    assert of(m.on_hello("q2", hello("agent", 1, "b", 11), 1.0), R.ReplyRefused)
+    for k in range(1, 11):
+        m.on_timer(1.0 + 0.5 * k)  # the shell polls every 0.5 s
+    assert of(m.on_hello("q3", hello("agent", 1, "b", 11), 6.1), R.ReplyConfig)
+
+
+def test_claimant_after_a_loss_is_a_rejoin():
+    m = machine()
+    start(m)
+    m.on_token("agent", 2, "n2", False, 2.0)  # agent 2 dies during round 0
+    out = finish_round(m, 2.1)
+    assert of(out, R.Record) and m.tau == 1
+    out = m.on_hello("q", hello("agent", 2, "fresh", 300), 2.2)
+    assert of(out, R.ReplyConfig) and m.procs[2]["pid"] == 300
+    m.on_token("agent", 2, "fresh", True, 2.3)
+    out = finish_round(m, 2.4)
+    (back,) = events(out, "agent_rejoined")
+    assert back.fields["id"] == 2 and back.fields["incarnation"] == 1 and back.fields["tau"] == 2
+    assert of(out, R.Tick)[-1].alive == (1, 2, 3) and of(out, R.Tick)[-1].incarnation[2] == 1
+
+
+def test_old_token_of_a_lost_agent_never_readmits_it():
+    m = machine()
+    start(m)
+    out = m.on_status(set(), 1.0)  # not in the status phase: ignored
+    assert out == []
+    m.pending_loss[1] = "test"
+    out = m.on_timer(1.1)
+    assert events(out, "agent_lost") and 1 not in m.alive
+    m.on_token("agent", 1, "n1", True, 1.2)  # its old process's token shows again
+    finish_round(m, 1.3)
+    assert 1 not in m.alive and not m.joinable
+
+
+# ---------------------------------------------------------------------- start-up failures
+
+
+def test_child_exiting_during_startup_stops_at_once_with_its_status():
+    m = machine(spawned=True)
+    out = m.start(0.0)
+    assert [(s.role, s.ident) for s in of(out, R.Spawn)] == [("plant", 0), ("agent", 1), ("agent", 2), ("agent", 3)]
+    m.on_spawned("plant", 0, 50, 0.0)
+    m.on_hello("q", hello("plant", 0, "p", 50), 0.2)
+    out = m.on_child_exit(50, 1, 0.4)
+    (stop,) = of(out, R.Stop)
+    assert stop.code == 1 and stop.message == "the plant (pid 50) exited during start-up (exit status 1); see its output above"
+    assert m.finished
+
+
+def test_startup_times_out_naming_who_is_missing():
+    m = machine(wait=3.0)
+    m.start(0.0)
+    m.on_hello("q", hello("plant", 0, "p", 5), 0.1)
+    m.on_token("plant", 0, "p", True, 0.2)
+    assert not of(advance(m, 0.2, 2.9), R.Stop)
+    (stop,) = of(m.on_timer(3.05), R.Stop)
+    assert stop.message == "waited 3 s for agent 1, agent 2, agent 3 to connect"
+
+
+def test_plant_lost_during_the_run_stops_it_truthfully():
+    m = machine()
+    start(m)
+    finish_round(m, 1.5)
+    (stop,) = of(m.on_token("plant", 0, "p0", False, 1.6), R.Stop)
+    assert stop.message.startswith("the plant (pid 100) was lost at event time 1: liveliness lost")
+
+
+# ---------------------------------------------------------------------- time, timeouts, retries
+
+
+def test_orchestrator_stall_moves_deadlines_and_blames_nobody():
+    m = machine(round_timeout=2.0)
+    start(m, 1.0)
+    out = m.on_timer(7.0)  # the orchestrator was frozen 6 s with the round in flight
+    assert events(out, "orchestrator_stalled") and not of(out, R.QueryStatus) and not of(out, R.Stop)
+    assert m.deadline == pytest.approx(9.0)
+    out = finish_round(m, 7.1)
+    assert of(out, R.Record) and not events(out, "agent_lost")
+
+
+def test_round_timeout_queries_status_then_retries_once_then_loses_the_late():
+    m = machine(round_timeout=2.0)
+    start(m, 1.0)
+    x = np.zeros(m.sc.n)
+    m.on_truth(0, 0, x, {}, 1.1)
+    for a in (1, 2):
+        m.on_xhat(a, 1, 0, 0, x, 0.0, {}, 1.2)
+    assert of(m.on_timer(2.0), R.QueryStatus) == []
+    assert of(m.on_timer(3.1), R.QueryStatus)
+    out = m.on_status({1, 2, 3}, 3.2)  # all answer: re-run once
+    assert events(out, "round_retried")[0].fields["late"] == [3]
+    assert [(t.tau, t.attempt) for t in of(out, R.Tick)] == [(0, 1)]
+    m.on_truth(0, 1, x, {}, 3.3)
+    for a in (1, 2):  # they answer the re-run; agent 3 stays silent
+        m.on_xhat(a, 1, 1, 0, x, 0.0, {}, 3.4)
+    assert of(advance(m, 3.4, 5.4), R.QueryStatus)
+    out = m.on_status({1, 2, 3}, 5.5)
+    (lost,) = events(out, "agent_lost")
+    assert lost.fields["id"] == 3 and "without its estimate" in lost.fields["reason"]
+
+
+def test_round_timeout_loses_the_frozen_agent_only():
+    m = machine(round_timeout=2.0)
+    start(m, 1.0)
+    m.on_truth(0, 0, np.zeros(m.sc.n), {}, 1.1)
+    assert of(advance(m, 1.1, 3.1), R.QueryStatus)
+    out = m.on_status({1, 3}, 3.2)
+    (lost,) = events(out, "agent_lost")
+    assert lost.fields["id"] == 2 and "frozen" in lost.fields["reason"] and 201 in m.hung
+
+
+def test_rejections_are_summarised_per_second_not_per_message():
+    m = machine()
+    start(m, 1.0)
+    x = np.zeros(m.sc.n)
+    out = []
+    for k in range(5000):  # a flood of well-formed future and stale estimates
+        out += m.on_xhat(1, 50 + k, 0, 0, x, 0.0, {}, 1.0 + k * 1e-4)
+        out += m.on_truth(-1, 0, x, {}, 1.0 + k * 1e-4)
+    out += m.on_timer(2.6)
+    summary = events(out, "message_rejected")
+    assert len(summary) <= 4  # at most one line per reason per second, not 10000
+    totals = {}
+    for e in summary:
+        totals[e.fields["reason"]] = totals.get(e.fields["reason"], 0) + e.fields["count"]
+    assert totals == {"future": 5000, "stale": 5000}
+    assert len(m.est) == 0 and len(m.truth) == 0  # nothing buffered
+    # remote totals are turned into increments
+    m.remote_counts("agent 2", {"bad_mac": 7})
+    m.remote_counts("agent 2", {"bad_mac": 9})
+    out = advance(m, 2.6, 4.0)
+    assert [(e.fields["by"], e.fields["count"]) for e in events(out, "message_rejected")] == [("agent 2", 9)]
+
+
+# ---------------------------------------------------------------------- faults between rounds
+
+
+def test_scenario_faults_kill_hang_restart_and_arcs():
+    m = machine("ring10_faults", changes={"run": {"steps": 40}})
+    start(m, 1.0)
+    t = 1.0
+    acts = []
+    while m.tau < 10:
+        t += 0.01
+        acts = finish_round(m, t)
+    kill = of(acts, R.Signal)
+    pid3 = m.procs[3]["pid"]
+    assert kill == [R.Signal(pid3, int(signal.SIGKILL))] and events(acts, "agent_lost")[0].fields["id"] == 3
+    while m.tau < 30:
+        t += 0.01
+        acts = finish_round(m, t)
+        if m.tau == 20:
+            assert R.Signal(m.procs[5]["pid"], int(signal.SIGSTOP)) in of(acts, R.Signal)
+            assert m.procs[5]["pid"] in m.hung
+    assert m.phase == "restarting" and of(acts, R.Spawn) == [R.Spawn("agent", 3)]
+    assert not of(acts, R.Tick)  # the run waits for the restarted agent
+    m.on_spawned("agent", 3, 777, t)
+    m.on_hello("q", hello("agent", 3, "new3", 777), t + 0.1)
+    out = m.on_token("agent", 3, "new3", True, t + 0.2)
+    assert events(out, "agent_rejoined")[0].fields["reason"] == "restarted by the scenario"
+    assert of(out, R.Tick)[0].tau == 30
+
+
+def test_restart_that_dies_is_reported_and_the_run_goes_on():
+    m = machine("ring10_faults", changes={"run": {"steps": 40}})
+    start(m, 1.0)
+    t = 1.0
+    while m.phase != "restarting":
+        t += 0.01
+        finish_round(m, t)
+    m.on_spawned("agent", 3, 778, t)
+    out = m.on_child_exit(778, -9, t + 0.1)
+    (failed,) = events(out, "restart_failed")
+    assert failed.fields["reason"] == "the new process exited (killed by SIGKILL)"
+    assert of(out, R.Tick) and 3 not in of(out, R.Tick)[0].alive
+
+
+def test_fault_for_an_agent_on_another_host_is_a_control_message():
+    m = machine("paper_discrete", changes={"faults": [{"at": 1, "kill": 2}]})
+    start(m, 1.0)
+    m.procs[2] = {"pid": 5, "host": "far"}
+    out = finish_round(m, 1.1)
+    assert of(out, R.Control) == [R.Control("kill agent/2")] and not of(out, R.Signal)
+
+
+# ---------------------------------------------------------------------- the whole protocol in-process
+
+
+def play(example, changes=None):
+    """Orchestrator machine + PlantNode + AgentNodes with messages delivered in order (no Zenoh)."""
+    from agents.agent import AgentNode
+    from plant.plant import PlantNode
+    from splitspec_core.wire import Keys, encode, new_run_key
+
+    m = machine(example, changes=changes)
+    key = new_run_key()
+    text = (EXAMPLES / f"{example}.yaml").read_text()
+    if changes:
+        import yaml
+
+        raw = yaml.safe_load(text)
+        for section, values in changes.items():
+            raw.setdefault(section, {}).update(values) if isinstance(values, dict) else raw.__setitem__(section, values)
+        text = yaml.safe_dump(raw)
+    cfg = {"scenario": text, "seed": m.sc.run.seed, "g": m.des.g, "q": m.des.q, "g_mode": m.des.g_mode, "key": key}
+    keys = Keys("inproc")
+    plant = PlantNode(cfg, "inproc")
+    nodes = {a: AgentNode(a, cfg, "inproc") for a in m.sc.agent_ids}
+    rows = []
+    t = 1.0
+    queue = list(start(m, t))
+    while queue:
+        a = queue.pop(0)
+        t += 1e-4
+        if isinstance(a, R.Tick):
+            payload = encode("tick", "inproc", mac_key=key, tau=a.tau, attempt=a.attempt, graph=a.graph,
+                             final=a.final, alive=list(a.alive),
+                             rows={str(i): [list(nb), list(w)] for i, (nb, w) in a.rows.items()},
+                             incarnation={str(i): v for i, v in a.incarnation.items()})
+            msgs = plant.on_tick(payload)
+            for n in nodes.values():
+                msgs += n.on_tick(payload)
+            while msgs:  # deliver every message to whoever subscribes to its key
+                k, p = msgs.pop(0)
+                if k == keys.truth:
+                    from splitspec_core.wire import decode
+
+                    d = decode(p, "inproc", "truth", mac_key=key)
+                    queue += m.on_truth(d["tau"], d["attempt"], d["x"], d["rejected"], t)
+                elif k.startswith(keys.prefix + "/xhat/"):
+                    from splitspec_core.wire import decode
+
+                    d = decode(p, "inproc", "xhat", mac_key=key)
+                    queue += m.on_xhat(d["agent"], d["tau"], d["attempt"], d["incarnation"], d["x"], d["g"],
+                                       d["rejected"], t)
+                elif k.startswith(keys.prefix + "/y/"):
+                    msgs += nodes[int(k.rsplit("/", 1)[1])].on_y(p)
+                elif k.startswith(keys.prefix + "/z/"):
+                    for n in nodes.values():
+                        if int(k.rsplit("/", 1)[1]) in n.in_neighbours:
+                            msgs += n.on_z(k, p)
+        elif isinstance(a, R.Record):
+            rows.append(a)
+        elif isinstance(a, (R.Stop,)):
+            raise AssertionError(a.message)
+    assert m.finished
+    return m, rows
+
+
+@pytest.mark.parametrize("example", ["paper_discrete", "paper_continuous_switching"])
+def test_in_process_protocol_equals_simulate(example):
+    from splitspec_core.simulate import simulate
+
+    m, rows = play(example, changes={"run": {"steps": 30}})
+    tr = simulate(m.des, seed=m.sc.run.seed, steps=30)
+    xhat = np.array([r.xhat for r in rows])
+    assert xhat.shape == tr.xhat.shape
+    assert np.max(np.abs(xhat - tr.xhat)) <= 1e-12 * max(1.0, np.abs(tr.xhat).max())
+    assert np.allclose(np.array([r.x for r in rows]), tr.x, rtol=0, atol=1e-12 * max(1.0, np.abs(tr.x).max()))
