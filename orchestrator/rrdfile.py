@@ -211,8 +211,7 @@ def rewrite_rrd(src: str | Path, dst: str | Path, *, blueprint, cutoff: int | No
     fd, tmp = tempfile.mkstemp(prefix=".run.", suffix=".rrd.tmp", dir=dst.parent)
     os.close(fd)
     try:
-        _write_with_rerun(src, Path(tmp), blueprint=blueprint, cutoff=cutoff)
-        if has_footer(tmp):
+        if _write_with_rerun(src, Path(tmp), blueprint=blueprint, cutoff=cutoff):
             os.replace(tmp, dst)
             return
     finally:
@@ -221,8 +220,7 @@ def rewrite_rrd(src: str | Path, dst: str | Path, *, blueprint, cutoff: int | No
     fd, tmp = tempfile.mkstemp(prefix="splitspec-run.", suffix=".rrd.tmp")
     os.close(fd)
     try:
-        _write_with_rerun(src, Path(tmp), blueprint=blueprint, cutoff=cutoff)
-        if not has_footer(tmp):
+        if not _write_with_rerun(src, Path(tmp), blueprint=blueprint, cutoff=cutoff):
             raise OSError(errno.EIO, f"Rerun could not write a temporary copy of {dst.name} in "
                                      f"{tempfile.gettempdir()}")
         new_size = os.path.getsize(tmp)
@@ -239,7 +237,8 @@ def rewrite_rrd(src: str | Path, dst: str | Path, *, blueprint, cutoff: int | No
         Path(tmp).unlink(missing_ok=True)
 
 
-def _write_with_rerun(src: str | Path, tmp: Path, *, blueprint, cutoff: int | None) -> None:
+def _write_with_rerun(src: str | Path, tmp: Path, *, blueprint, cutoff: int | None) -> bool:
+    """Rerun writes the (cut) recording of ``src`` to ``tmp``; whether it got there whole, with footer."""
     import rerun as rr
 
     store, chunks = read_chunks(src, cutoff=cutoff)
@@ -249,5 +248,11 @@ def _write_with_rerun(src: str | Path, tmp: Path, *, blueprint, cutoff: int | No
         rec.set_sinks(rr.FileSink(str(tmp)), default_blueprint=blueprint)
         rec.send_chunks(chunks)
         rec.flush(timeout_sec=60.0)
+    except RuntimeError:  # the file sink's thread gave up (e.g. no space): Rerun says no more than that
+        return False
     finally:
-        rec.disconnect()
+        try:
+            rec.disconnect()
+        except RuntimeError:
+            pass
+    return has_footer(tmp)
