@@ -17,7 +17,8 @@ keeps three records of the run in ``out_dir``:
     after every line.
 ``run.rrd``
     a Rerun recording (DESIGN.md "Rerun recording"), optionally streamed live
-    to a viewer as well.
+    to a viewer as well; appended by Python at every flush and finished (footer,
+    verifiable) at close, see "Write failures and consistency" below.
 
 Rerun entities (``<id>`` is an agent id, ``<k>`` = 1..n a state component):
 
@@ -82,11 +83,14 @@ flush period from both.  ``close(finished=False)`` after a write failure does
 not raise: it removes the disk-space reserve (``.splitspec-reserve``, a few
 MB preallocated at start, :class:`orchestrator.outdir.Reserve`), writes what
 the failure left unwritten, and leaves K = :attr:`Recorder.rows_kept` rows in
-``trajectory.npz``, only event times before the K-th row's successor in
-``run.rrd`` (rewritten, verifiable) and a last ``recording_closed`` event with
-``rows: K`` in ``events.jsonl`` -- each as far as the disk allows (on a
-read-only file system K is what the last successful flush left; ``splitspec
-recover`` finishes the job once the disk is writable).
+``trajectory.npz``, the data of those K event times only in ``run.rrd``
+(rewritten, verifiable; text log and topology up to the next event time) and
+a last ``recording_closed`` event with ``rows: K`` in ``events.jsonl`` -- each
+as far as the disk allows.  On a read-only file system nothing more can be
+written: K is what the last successful flush left in both ``trajectory.npz``
+and the footer-less ``run.rrd``; ``splitspec recover`` (:mod:`orchestrator.recover`)
+finishes the job once the disk is writable.  The same command repairs the
+records of a killed run.
 """
 
 from __future__ import annotations
