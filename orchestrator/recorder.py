@@ -49,7 +49,8 @@ sent after the rows buffered before them, one chunk per flush each.  A flush
 every recorder call and by a background thread, so a live viewer is never
 more than about ``flush_seconds`` behind even when rows stop coming -- and on
 :meth:`Recorder.mark_lost`, :meth:`Recorder.flush`, :meth:`Recorder.close`
-and at a normal interpreter exit without ``close``.  ``events.jsonl`` is still
+and at a normal interpreter exit without ``close`` (which also finishes
+``run.rrd`` with its footer, but writes no ``recording_closed`` event).  ``events.jsonl`` is still
 written and flushed line by line.  Values that were never sent need no
 ``Clear``: a row re-sent or an agent lost before the flush simply changes
 what is sent.
@@ -173,6 +174,11 @@ def _flush_open_recorders() -> None:
             with rec._lock:
                 if not rec._closed and rec._failure is None:
                     rec._flush()
+                    # run.rrd with its footer, as a Rerun FileSink would leave it; nothing is recorded after this
+                    rec._closed = True
+                    rec._stop.set()
+                    rec._finish_rrd(rec._rows_kept)
+                    rec._reserve.release()
         except Exception as exc:
             log.warning("flush at exit failed (%s: %s)", type(exc).__name__, exc)
 

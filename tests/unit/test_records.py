@@ -8,6 +8,7 @@ import signal
 import subprocess
 import sys
 import textwrap
+import time
 from pathlib import Path
 
 import numpy as np
@@ -321,3 +322,52 @@ def test_recover_cli(tmp_path, capsys):
     assert main(["recover", str(tmp_path / "nothing")]) == 1
     err = capsys.readouterr().err.strip().splitlines()
     assert err == [f"splitspec: error: {tmp_path / 'nothing'} is not a directory"]
+
+
+def test_background_flush_failure_is_raised_by_the_next_call(tmpfs):
+    """The background flusher hits ENOSPC: stored, raised by the next call; close keeps every row."""
+    mnt = tmpfs("2m")
+    out = mnt / "run"
+    rec = recorder(out, flush_seconds=0.2)
+    for tau in range(20):
+        put_row(rec, tau)
+    rec.flush()
+    fd = os.open(mnt / "filler", os.O_WRONLY | os.O_CREAT)  # fill what the reserve left
+    try:
+        while os.write(fd, b"\0" * 4096):
+            pass
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
+    for tau in range(20, 60):  # buffered: the background flusher writes them
+        put_row(rec, tau)
+    deadline = time.monotonic() + 10.0
+    while rec._failure is None and time.monotonic() < deadline:
+        time.sleep(0.05)
+    with pytest.raises(RecordsWriteError, match="No space left on device") as info:
+        rec.event("later", 60.0)
+    assert info.value.tau == 59
+    rec.close(finished=False)
+    assert rec.rows_kept == 60
+    assert_records_agree(out, 60)
+
+
+def test_normal_exit_without_close_leaves_a_verifiable_rrd(tmp_path):
+    script = textwrap.dedent(f"""
+        import sys
+        sys.path.insert(0, {str(Path(__file__).parent)!r})
+        from test_records import recorder, put_row
+        from pathlib import Path
+        rec = recorder(Path({str(tmp_path)!r}), flush_seconds=3600.0)
+        for tau in range(7):
+            put_row(rec, tau)
+    """)
+    proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60,
+                          env={**os.environ, "RERUN_ANALYTICS": "0"})
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    assert npz_rows(tmp_path) == 7
+    ok, msg = verify_rrd(tmp_path / "run.rrd")
+    assert ok, msg
+    assert rrd_taus(tmp_path) == list(range(7))
+    assert not (tmp_path / RESERVE_FILE).exists()
