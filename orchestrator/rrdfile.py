@@ -31,6 +31,7 @@ close, ``splitspec recover`` after a crash.
 from __future__ import annotations
 
 import errno
+import logging
 import os
 import shutil
 import struct
@@ -40,6 +41,8 @@ from pathlib import Path
 from typing import Any, Iterator
 
 __all__ = ["RrdAppender", "split_stream", "whole_messages_length", "rewrite_rrd", "has_footer"]
+
+log = logging.getLogger(__name__)
 
 _HEADER_LEN = 12
 _MAGIC = b"RRF2"
@@ -217,6 +220,7 @@ def rewrite_rrd(src: str | Path, dst: str | Path, *, blueprint, cutoff: int | No
     finally:
         Path(tmp).unlink(missing_ok=True)
     # No room for a second copy next to dst: build it elsewhere, copy it in place.
+    log.info("no room for a second copy of %s next to it; rewriting it in place", dst)
     fd, tmp = tempfile.mkstemp(prefix="splitspec-run.", suffix=".rrd.tmp")
     os.close(fd)
     try:
