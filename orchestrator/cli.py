@@ -40,15 +40,22 @@ def _cmd_design(args: argparse.Namespace) -> int:
 
 
 def _out_dir(path):
-    """``--out`` as a Path: created if missing, or one clear line."""
-    from pathlib import Path
+    """``--out`` as a Path: created if missing and proven writable, or one clear line (exit 2)."""
+    from .outdir import check_output_dir
 
-    out = Path(path)
+    return check_output_dir(path)
+
+
+def _cmd_recover(args: argparse.Namespace) -> int:
+    from .recover import RecoverError, recover
+
     try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise UsageError(f"cannot create output directory {out}: {exc.strerror}") from None
-    return out
+        result = recover(args.out)
+    except RecoverError as exc:
+        print(f"splitspec: error: {exc}", file=sys.stderr)
+        return EXIT_FAILED
+    print(result["message"])
+    return 0
 
 
 def _tune(args: argparse.Namespace, sc) -> int:
@@ -479,6 +486,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--run-id", help="the run's id (default: the only live run of yours on this machine; with "
                    "several, they are listed and nothing is signalled)")
     p.set_defaults(func=_cmd_kill)
+
+    p = sub.add_parser("recover", help="after a crash: make trajectory.npz, events.jsonl and run.rrd agree",
+                       description="Take trajectory.npz (K event times) as the authority: rewrite run.rrd with the "
+                                   "event times before K so that rerun rrd verify passes, drop a torn last line "
+                                   "of events.jsonl and note records_recovered. Harmless on records that agree.")
+    p.add_argument("out", metavar="OUT", help="output directory of the run")
+    p.set_defaults(func=_cmd_recover)
 
     p = sub.add_parser("plant", help="the plant process (needs no scenario file)",
                        description="The true system: fetches the scenario from the orchestrator, publishes "

@@ -17,7 +17,8 @@ keeps three records of the run in ``out_dir``:
     after every line.
 ``run.rrd``
     a Rerun recording (DESIGN.md "Rerun recording"), optionally streamed live
-    to a viewer as well.
+    to a viewer as well; appended by Python at every flush and finished (footer,
+    verifiable) at close, see "Write failures and consistency" below.
 
 Rerun entities (``<id>`` is an agent id, ``<k>`` = 1..n a state component):
 
@@ -48,13 +49,49 @@ sent after the rows buffered before them, one chunk per flush each.  A flush
 every recorder call and by a background thread, so a live viewer is never
 more than about ``flush_seconds`` behind even when rows stop coming -- and on
 :meth:`Recorder.mark_lost`, :meth:`Recorder.flush`, :meth:`Recorder.close`
-and at a normal interpreter exit without ``close``.  ``events.jsonl`` is still
+and at a normal interpreter exit without ``close`` (which also finishes
+``run.rrd`` with its footer, but writes no ``recording_closed`` event).  ``events.jsonl`` is still
 written and flushed line by line.  Values that were never sent need no
 ``Clear``: a row re-sent or an agent lost before the flush simply changes
 what is sent.
 
 Rerun never stops a run: a viewer that cannot be spawned or reached, or a
 failing flush, is logged as a warning and the recording goes on (file only).
+
+Write failures and consistency
+------------------------------
+A failed write of any of the three files (ENOSPC, EROFS, EACCES, EDQUOT...)
+*does* stop the recording: it raises :class:`RecordsWriteError`
+(``cannot write <path>: <strerror>``, with ``path``, ``strerror``, ``tau``)
+from the call that hit it, or -- when the background flusher hit it -- from the
+next ``row``/``event``/``topology``/``mark_lost``/``flush``; every later call
+raises it again.
+
+``run.rrd`` is written by Python, not by Rerun's ``FileSink`` (whose Rust
+thread never reports a failed write): the recording logs into an
+``rr.binary_stream()`` and each flush appends the bytes read from it to
+``run.rrd`` with ordinary file calls that raise ``OSError`` (see
+:mod:`orchestrator.rrdfile` for the format).  During the run ``run.rrd`` is a
+footer-less RRD stream, readable with ``RrdReader(path).stream()``; at
+:meth:`Recorder.close` it is rewritten as one RRD with footer, which ``rerun
+rrd verify`` accepts.  ``events.jsonl`` and ``run.rrd`` are opened per write
+(no file of the run stays open between calls), a torn line or message is cut
+back after a failed write.
+
+A flush writes ``run.rrd`` first, then ``trajectory.npz``, so the npz never
+holds an event time the rrd lacks and a SIGKILL loses at most the rows of one
+flush period from both.  ``close(finished=False)`` after a write failure does
+not raise: it removes the disk-space reserve (``.splitspec-reserve``, a few
+MB preallocated at start, :class:`orchestrator.outdir.Reserve`), writes what
+the failure left unwritten, and leaves K = :attr:`Recorder.rows_kept` rows in
+``trajectory.npz``, the data of those K event times only in ``run.rrd``
+(rewritten, verifiable; text log and topology up to the next event time) and
+a last ``recording_closed`` event with ``rows: K`` in ``events.jsonl`` -- each
+as far as the disk allows.  On a read-only file system nothing more can be
+written: K is what the last successful flush left in both ``trajectory.npz``
+and the footer-less ``run.rrd``; ``splitspec recover`` (:mod:`orchestrator.recover`)
+finishes the job once the disk is writable.  The same command repairs the
+records of a killed run.
 """
 
 from __future__ import annotations
@@ -79,7 +116,10 @@ import numpy as np
 
 from splitspec_core.errors import SplitspecError
 
-__all__ = ["Recorder", "RecordingError", "read_rrd", "verify_rrd"]
+from .outdir import Reserve
+from .rrdfile import RrdAppender, rewrite_rrd
+
+__all__ = ["Recorder", "RecordingError", "RecordsWriteError", "read_rrd", "verify_rrd"]
 
 log = logging.getLogger(__name__)
 
@@ -87,6 +127,8 @@ APPLICATION_ID = "splitspec"
 TRAJECTORY_FILE = "trajectory.npz"
 EVENTS_FILE = "events.jsonl"
 RRD_FILE = "run.rrd"
+RESERVE_BYTES = 4 << 20  # disk-space reserve released on ENOSPC to write the final records
+_MAX_INITIAL_ROWS = 1024  # row storage starts at most this big (``steps`` is a hint) and doubles
 
 # Rerun entity paths and timelines (built here only).
 ERRORS = "errors"
@@ -130,15 +172,40 @@ def _flush_open_recorders() -> None:
     for rec in list(_OPEN):
         try:
             with rec._lock:
-                if not rec._closed:
+                if not rec._closed and rec._failure is None:
                     rec._flush()
-                    rec._rerun("exit flush", rec._rec_flush, 5.0)
+                    # run.rrd with its footer, as a Rerun FileSink would leave it; nothing is recorded after this
+                    rec._closed = True
+                    rec._stop.set()
+                    rec._finish_rrd(rec._rows_kept)
+                    rec._reserve.release()
         except Exception as exc:
             log.warning("flush at exit failed (%s: %s)", type(exc).__name__, exc)
 
 
 class RecordingError(SplitspecError, ValueError):
     """A recorder call does not fit the run (shape, agent id, graph, order); the message names it."""
+
+
+class RecordsWriteError(SplitspecError, RuntimeError):
+    """A record of the run (``trajectory.npz``, ``events.jsonl``, ``run.rrd``) could not be written.
+
+    One line, ``cannot write <path>: <strerror>``.  Attributes: ``path``,
+    ``strerror`` (e.g. ``No space left on device``) and ``tau``, the event time
+    being recorded when the write failed (None if unknown).
+    """
+
+    def __init__(self, path: str | Path, strerror: str, tau: int | None = None):
+        self.path, self.strerror, self.tau = Path(path), str(strerror), tau
+        super().__init__(f"cannot write {self.path}: {self.strerror}")
+
+
+def _strerror(exc: OSError) -> str:
+    if exc.strerror:
+        return exc.strerror
+    if exc.errno:
+        return os.strerror(exc.errno)
+    return str(exc) or type(exc).__name__
 
 
 def _agent_path(prefix: str, agent_id: int) -> str:
@@ -181,6 +248,28 @@ def _url_host_port(url: str) -> tuple[str, int]:
     return parts.hostname or "127.0.0.1", parts.port or default
 
 
+def _blueprint(time_mode: str):
+    """The default blueprint of a run's recording (the time panel follows ``time_mode``)."""
+    import rerun.blueprint as rrb
+
+    # No log-scale y axis in rerun 0.41's ScalarAxis (rerun issue #6773); errors are
+    # positive, so a log axis can be switched on if a later viewer offers one.
+    return rrb.Blueprint(
+        rrb.Horizontal(
+            rrb.Vertical(
+                rrb.TimeSeriesView(origin=ERRORS, name="estimation errors |x_i - x|"),
+                rrb.TimeSeriesView(origin=STATE, name="state: truth and estimates"),
+            ),
+            rrb.Vertical(
+                rrb.GraphView(origin=TOPOLOGY, name="communication graph"),
+                rrb.TextLogView(origin=EVENTS, name="events"),
+            ),
+            column_shares=[2, 1],
+        ),
+        rrb.TimePanel(timeline=TL_EVENT if time_mode == "discrete" else TL_TIME),
+    )
+
+
 def _rerun_command() -> list[str]:
     """The bundled ``rerun`` CLI: the executable next to ``sys.executable``, else ``python -m rerun``."""
     exe = Path(sys.executable).parent / ("rerun.exe" if os.name == "nt" else "rerun")
@@ -208,12 +297,20 @@ class Recorder:
         ``trajectory.npz`` rewritten); ``0`` flushes on every call
     viewer_port : port of a spawned viewer
     connect_timeout : seconds to wait when checking that a viewer is reachable
+    reserve_bytes : size of the disk-space reserve ``.splitspec-reserve`` kept in ``out_dir``
+        until close (at most 1/8 of the free space; ``0``: none)
+
+    Raises
+    ------
+    RecordsWriteError
+        If ``out_dir``, ``events.jsonl`` or ``run.rrd`` cannot be created.
     """
 
     def __init__(self, out_dir: Path, *, agent_ids: tuple[int, ...], n: int, steps: int, time_mode: str,
                  dt: float, graph_names: tuple[str, ...], run_id: str, scenario_name: str,
                  viewer: str | None = None, flush_seconds: float = 1.0,
-                 viewer_port: int = _DEFAULT_VIEWER_PORT, connect_timeout: float = 1.0):
+                 viewer_port: int = _DEFAULT_VIEWER_PORT, connect_timeout: float = 1.0,
+                 reserve_bytes: int = RESERVE_BYTES):
         if time_mode not in ("discrete", "continuous"):
             raise RecordingError(f"time_mode must be 'discrete' or 'continuous', got {time_mode!r}")
         ids = [int(a) for a in agent_ids]
@@ -229,7 +326,10 @@ class Recorder:
             raise RecordingError(f"flush_seconds must be >= 0, got {flush_seconds}")
 
         self.out_dir = Path(out_dir)
-        self.out_dir.mkdir(parents=True, exist_ok=True)
+        try:
+            self.out_dir.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise RecordsWriteError(self.out_dir, _strerror(exc)) from None
         self.agent_ids = np.array(ids, dtype=np.int64)
         self.m, self.n = len(ids), int(n)
         self.time_mode, self.dt = time_mode, float(dt)
@@ -240,8 +340,8 @@ class Recorder:
         self._lock = threading.RLock()
         self._closed = False
 
-        # Row storage: capacity grows by doubling; T = self._rows.
-        cap = max(int(steps) + 1, 16)
+        # Row storage: starts small (steps is only a hint) and grows by doubling; T = self._rows.
+        cap = max(min(int(steps) + 1, _MAX_INITIAL_ROWS), 16)
         self._t = np.zeros(cap)
         self._x = np.zeros((cap, self.n))
         self._xhat = np.full((cap, self.m, self.n), np.nan)
@@ -264,7 +364,22 @@ class Recorder:
         self._traj_dirty = False
         self._last_flush = time.monotonic()
 
-        self._events = open(self.out_dir / EVENTS_FILE, "w", encoding="utf-8")
+        # Write failures (see the module docstring): the first one, whether a caller has seen it,
+        # what is on disk (rows of trajectory.npz and of run.rrd, bytes of events.jsonl).
+        self._failure: RecordsWriteError | None = None
+        self._failure_reported = False
+        self._npz_rows = 0
+        self._rrd_rows = 0
+        self._rows_kept = 0
+        self._events_path = self.out_dir / EVENTS_FILE
+        self._events_size = 0
+        try:
+            self._write_events(b"", mode="wb")  # create / empty events.jsonl
+        except OSError as exc:
+            raise RecordsWriteError(self._events_path, _strerror(exc)) from None
+        self._rrd_file = RrdAppender(self.out_dir / RRD_FILE)
+        self._rrd_pending: list[bytes] = []  # read from Rerun, not yet on disk
+        self._stream = None
         self._rec = None
         self._viewer_warned = False
         try:
@@ -273,6 +388,9 @@ class Recorder:
             log.warning("Rerun recording disabled (%s: %s); writing trajectory.npz and events.jsonl only",
                         type(exc).__name__, exc)
             self._rec = None
+        if self._rec is not None:
+            self._append_rrd()  # header, properties, styles and blueprint: run.rrd exists from the start
+        self._reserve = Reserve(self.out_dir, reserve_bytes)
         _OPEN.add(self)
         _register_exit_flush()
         self._stop = threading.Event()
@@ -288,7 +406,9 @@ class Recorder:
         import rerun as rr
 
         rec = rr.RecordingStream(application_id=APPLICATION_ID, recording_id=self.run_id)
-        sinks: list[Any] = [rr.FileSink(str(self.out_dir / RRD_FILE))]
+        # run.rrd: Python appends what it reads from this stream (see the module docstring).
+        self._stream = rr.binary_stream(rec)
+        sinks: list[Any] = [self._stream]
         live = self._viewer_sink(rr, rec, viewer, viewer_port=viewer_port, connect_timeout=connect_timeout)
         if live is not None:
             sinks.append(live)
@@ -337,24 +457,7 @@ class Recorder:
             return None
 
     def _blueprint(self):
-        import rerun.blueprint as rrb
-
-        # No log-scale y axis in rerun 0.41's ScalarAxis (rerun issue #6773); errors are
-        # positive, so a log axis can be switched on if a later viewer offers one.
-        return rrb.Blueprint(
-            rrb.Horizontal(
-                rrb.Vertical(
-                    rrb.TimeSeriesView(origin=ERRORS, name="estimation errors |x_i - x|"),
-                    rrb.TimeSeriesView(origin=STATE, name="state: truth and estimates"),
-                ),
-                rrb.Vertical(
-                    rrb.GraphView(origin=TOPOLOGY, name="communication graph"),
-                    rrb.TextLogView(origin=EVENTS, name="events"),
-                ),
-                column_shares=[2, 1],
-            ),
-            rrb.TimePanel(timeline=TL_EVENT if self.time_mode == "discrete" else TL_TIME),
-        )
+        return _blueprint(self.time_mode)
 
     def _color(self, i: int) -> tuple[int, int, int]:
         return _PALETTE[i % len(_PALETTE)]
@@ -395,6 +498,16 @@ class Recorder:
         """Number of rows (distinct event times) recorded so far: T of ``trajectory.npz``."""
         return self._rows
 
+    @property
+    def rows_kept(self) -> int:
+        """Rows (event times) that ``trajectory.npz`` and ``run.rrd`` both hold on disk.
+
+        During the run: as of the last successful flush.  After :meth:`close`:
+        K, the rows of the closed records (``rows_recorded`` after a normal
+        close; after a write failure, as many as the disk allowed).
+        """
+        return self._rows_kept
+
     def event(self, event: str, t: float, *, level: str | None = None, note: str | None = None, **fields) -> None:
         """Append ``{"event", "t", "wall", **fields}`` to ``events.jsonl`` and log it to Rerun.
 
@@ -414,10 +527,13 @@ class Recorder:
             raise RecordingError(f"event {event!r}: field name 'wall' is reserved")
         with self._lock:
             self._check_open("event")
+            self._check_failed()
             wall = time.time()
             line = json.dumps({"event": event, "t": t, "wall": wall, **fields}, default=_json_default)
-            self._events.write(line + "\n")
-            self._events.flush()
+            try:
+                self._write_events((line + "\n").encode("utf-8"))
+            except OSError as exc:
+                raise self._fail(self._events_path, exc, self._tau_of_t(t)) from None
             if self._rec is not None:
                 text = f"{event}: {note}" if note else event + "".join(f" {k}={v}" for k, v in fields.items())
                 self._queued_events.append((self._tau_of_t(t), float(t), text, level, time.time_ns()))
@@ -445,6 +561,7 @@ class Recorder:
                 edges.append((str(j), str(i)))
         with self._lock:
             self._check_open("topology")
+            self._check_failed()
             if self._rec is not None:
                 self._queued_topology.append((int(tau), self._t_of_tau(int(tau)), graph_name, alive, edges,
                                               time.time_ns()))
@@ -509,6 +626,7 @@ class Recorder:
             raise RecordingError(f"graph index {graph} out of range 0..{len(self.graph_names) - 1}")
         with self._lock:
             self._check_open("row")
+            self._check_failed()
             k = self._row_of_tau.get(tau)
             if k is None:
                 if self._rows and tau < self._tau[self._rows - 1]:
@@ -618,6 +736,7 @@ class Recorder:
             raise RecordingError(f"agent {agent_id} is not an agent of this run {tuple(self.agent_ids)}")
         with self._lock:
             self._check_open("mark_lost")
+            self._check_failed()
             T = self._rows
             rows = np.nonzero(self._tau[:T] >= int(tau))[0]
             for k in rows:
@@ -634,37 +753,61 @@ class Recorder:
         """Send the buffered rows and queued logs to Rerun and rewrite ``trajectory.npz`` now."""
         with self._lock:
             self._check_open("flush")
+            self._check_failed()
             self._flush()
 
     def close(self, *, finished: bool = True) -> None:
-        """Flush, write ``trajectory.npz`` with the rows so far, then close Rerun and ``events.jsonl``.
+        """Flush, write ``trajectory.npz`` with the rows so far, finish ``run.rrd`` and ``events.jsonl``.
 
-        ``finished=False`` (run ended early) is noted as a WARN event.  Calling
+        The last event is ``recording_closed`` with ``finished`` and ``rows``
+        (K = :attr:`rows_kept`); ``finished=False`` (run ended early, or a
+        write failed) is a WARN event.  ``run.rrd`` is rewritten as one RRD
+        with footer; after a write failure only event times before the K-th
+        row's successor are kept in it (see the module docstring).  Calling
         close twice is harmless.
+
+        Raises
+        ------
+        RecordsWriteError
+            Only with ``finished=True`` and a write failure that no earlier call
+            reported (it happened in this close); the records are left
+            consistent first.  ``close(finished=False)`` never raises it.
         """
         with self._lock:
             if self._closed:
                 return
-            t_last = float(self._t[self._rows - 1]) if self._rows else 0.0
-            self._event("recording_closed", t_last, "INFO" if finished else "WARN",
-                        {"finished": bool(finished), "rows": self._rows})
             self._closed = True
             self._stop.set()
             _OPEN.discard(self)
             try:
-                self._flush(write_trajectory=False)
-                self._write_trajectory()
+                if self._failure is None:
+                    try:
+                        self._flush()
+                    except RecordsWriteError:
+                        pass
+                if self._failure is not None:
+                    self._reserve.release()  # room for the final records
+                    self._salvage()
+                K = self._rows_kept
+                ok = bool(finished) and self._failure is None
+                fields: dict[str, Any] = {"finished": ok, "rows": K}
+                if self._failure is not None:
+                    fields["error"] = str(self._failure)
+                self._close_event(float(self._t[K - 1]) if K else 0.0, "INFO" if ok else "WARN", fields)
+                self._finish_rrd(K)
             finally:
-                self._events.close()
+                self._reserve.release()
                 if self._rec is not None:
-                    self._rerun("final flush", self._rec_flush, 10.0)
                     self._rerun("disconnect", self._rec.disconnect)
                     self._rec = None
+            if self._failure is not None and not self._failure_reported and finished:
+                self._failure_reported = True
+                raise self._failure
 
     def __del__(self) -> None:
         # Dropped without close(): send what is buffered (logging used to be immediate).
         try:
-            if not self._closed:
+            if not self._closed and self._failure is None:
                 with self._lock:
                     self._flush()
         except Exception:
@@ -682,16 +825,42 @@ class Recorder:
         if self._closed:
             raise RecordingError(f"{what}() called after close()")
 
+    def _check_failed(self) -> None:
+        """After a write failure the recording has stopped: every call raises it again."""
+        if self._failure is not None:
+            self._failure_reported = True
+            raise self._failure
+
+    def _fail(self, path: Path, exc: OSError, tau: int | None) -> RecordsWriteError:
+        """The :class:`RecordsWriteError` of ``exc``; the first one is kept (the recording stops)."""
+        err = RecordsWriteError(path, _strerror(exc), tau)
+        if self._failure is None:
+            self._failure = err
+            log.warning("recording stopped: %s", err)
+        self._failure_reported = True  # raised to the caller (the background flusher resets this)
+        return err
+
+    def _last_tau(self) -> int | None:
+        return int(self._tau[self._rows - 1]) if self._rows else None
+
     def _maybe_flush(self) -> None:
         if time.monotonic() - self._last_flush >= self.flush_seconds:
             self._flush()
 
     def _pending(self) -> bool:
         return (self._sent < self._rows or bool(self._dirty) or bool(self._queued_events)
-                or bool(self._queued_topology) or self._traj_dirty)
+                or bool(self._queued_topology) or self._traj_dirty or bool(self._rrd_pending))
 
     def _flush(self, *, write_trajectory: bool = True) -> None:
-        """Buffered rows, then queued logs, to Rerun; then ``trajectory.npz`` if rows changed.  Lock held."""
+        """Buffered rows, then queued logs, to Rerun and ``run.rrd``; then ``trajectory.npz``.  Lock held.
+
+        ``run.rrd`` first: ``trajectory.npz`` never holds a row that ``run.rrd`` lacks.
+
+        Raises
+        ------
+        RecordsWriteError
+            If ``run.rrd`` or ``trajectory.npz`` cannot be written.
+        """
         self._last_flush = time.monotonic()
         K = np.array(sorted(self._dirty.union(range(self._sent, self._rows))), dtype=np.int64)
         events, self._queued_events = self._queued_events, []
@@ -707,37 +876,138 @@ class Recorder:
             self._rerun("event log", self._send_events, events)
         if topology:
             self._rerun("topology log", self._send_topology, topology)
-        if len(K) or events or topology:
-            self._rerun("flush", self._rec_flush, 0.0)
         self._sent = self._rows
         self._dirty.clear()
-        if write_trajectory and self._traj_dirty:
+        if len(K) or events or topology or self._rrd_pending:
+            self._append_rrd()
+        if write_trajectory and (self._traj_dirty or self._npz_rows != self._rows):
             self._write_trajectory()
+        self._rows_kept = min(self._npz_rows, self._rrd_rows) if self._rec is not None else self._npz_rows
 
-    def _rec_flush(self, timeout: float) -> None:
+    def _append_rrd(self) -> None:
+        """Read what Rerun encoded since the last call and append it (and anything left over) to ``run.rrd``."""
+        if self._rec is None or self._stream is None:
+            return
+        sent = self._sent
         try:
-            self._rec.flush(timeout_sec=timeout)
-        except RuntimeError as exc:  # e.g. a viewer gone away: warn once, keep the file sink going
-            if not self._viewer_warned:
-                log.warning("Rerun flush: %s; run.rrd keeps recording", exc)
-                self._viewer_warned = True
+            data = self._stream.read(flush=True, flush_timeout_sec=10.0)
+        except Exception as exc:  # e.g. a live viewer that does not take the data: do not wait for it
+            self._rec_flush_warn(exc)
+            data = self._stream.read(flush=False)
+        if data:
+            self._rrd_pending.append(data)
+        while self._rrd_pending:
+            try:
+                self._rrd_file.append(self._rrd_pending[0])
+            except OSError as exc:
+                raise self._fail(self._rrd_file.path, exc, self._last_tau()) from None
+            except ValueError as exc:  # not what rerun 0.41 encodes: drop it rather than tear the file
+                log.warning("Rerun bytes not appended to %s (%s)", RRD_FILE, exc)
+            self._rrd_pending.pop(0)
+        self._rrd_rows = sent
 
-    def _write_trajectory(self) -> None:
-        """Atomically (re)write ``trajectory.npz`` with the rows recorded so far."""
-        T = self._rows
+    def _rec_flush_warn(self, exc: Exception) -> None:
+        if not self._viewer_warned:
+            log.warning("Rerun flush: %s; run.rrd keeps recording", exc)
+            self._viewer_warned = True
+
+    def _write_events(self, data: bytes, *, mode: str = "ab") -> None:
+        """Append ``data`` to ``events.jsonl`` (opened for this write only); cut a torn line back.  OSError."""
+        try:
+            with open(self._events_path, mode) as f:
+                f.write(data)
+                f.flush()
+        except OSError:
+            try:
+                os.truncate(self._events_path, self._events_size)
+            except OSError:
+                pass
+            raise
+        self._events_size = len(data) if mode == "wb" else self._events_size + len(data)
+
+    def _write_trajectory(self, rows: int | None = None) -> None:
+        """Atomically (re)write ``trajectory.npz`` with the first ``rows`` rows (default: all so far)."""
+        T = self._rows if rows is None else rows
         arrays = dict(t=self._t[:T].copy(), x=self._x[:T].copy(), xhat=self._xhat[:T].copy(),
                       alive=self._alive[:T].copy(), graph=self._graph[:T].copy(), agent_ids=self.agent_ids.copy())
-        fd, tmp = tempfile.mkstemp(prefix=".trajectory.", suffix=".npz.tmp", dir=self.out_dir)
+        path = self.out_dir / TRAJECTORY_FILE
+        tmp = None
         try:
+            fd, tmp = tempfile.mkstemp(prefix=".trajectory.", suffix=".npz.tmp", dir=self.out_dir)
             with os.fdopen(fd, "wb") as f:
                 np.savez(f, **arrays)
                 f.flush()
                 os.fsync(f.fileno())
-            os.replace(tmp, self.out_dir / TRAJECTORY_FILE)
-        except BaseException:
-            Path(tmp).unlink(missing_ok=True)
+            os.replace(tmp, path)
+        except BaseException as exc:
+            if tmp is not None:
+                try:
+                    Path(tmp).unlink(missing_ok=True)
+                except OSError:
+                    pass
+            if isinstance(exc, OSError):
+                raise self._fail(path, exc, int(self._tau[T - 1]) if T else None) from None
             raise
-        self._traj_dirty = False
+        self._npz_rows = T
+        if T == self._rows:
+            self._traj_dirty = False
+
+    def _salvage(self) -> None:
+        """After a write failure: write what is left, then make the rows on disk agree.  Never raises.
+
+        K = all rows if ``run.rrd`` and ``trajectory.npz`` can now be written,
+        else the rows both hold on disk (``trajectory.npz`` is cut to them if it
+        holds more and can be rewritten).
+        """
+        try:
+            self._flush()
+        except RecordsWriteError:
+            pass
+        if self._rec is None:
+            self._rows_kept = self._npz_rows
+            return
+        K = min(self._rrd_rows, self._npz_rows)
+        if self._npz_rows > K:
+            try:
+                self._write_trajectory(K)
+            except RecordsWriteError:
+                K = self._npz_rows  # cannot cut it: run.rrd is cut to the trajectory's rows instead
+        self._rows_kept = K
+
+    def _close_event(self, t: float, level: str, fields: dict[str, Any]) -> None:
+        """The last event, ``recording_closed``: to ``events.jsonl`` and ``run.rrd`` if they can take it."""
+        line = json.dumps({"event": "recording_closed", "t": t, "wall": time.time(), **fields},
+                          default=_json_default)
+        try:
+            self._write_events((line + "\n").encode("utf-8"))
+        except OSError as exc:
+            self._fail(self._events_path, exc, self._tau_of_t(t))
+        if self._rec is not None:
+            text = "recording_closed" + "".join(f" {k}={v}" for k, v in fields.items())
+            self._rerun("event log", self._send_events, [(self._tau_of_t(t), t, text, level, time.time_ns())])
+            try:
+                self._append_rrd()
+            except RecordsWriteError:
+                pass
+
+    def _finish_rrd(self, K: int) -> None:
+        """Rewrite ``run.rrd`` as one verifiable RRD; cut after row K-1 if a write failed."""
+        if self._rec is None or self._rrd_file.size == 0:
+            return
+        cutoff = None
+        if self._failure is not None or K < self._rows:
+            cutoff = int(self._tau[K - 1]) + 1 if K else 0
+        try:
+            self._rec.flush(timeout_sec=10.0)
+        except Exception:
+            pass
+        try:
+            rewrite_rrd(self._rrd_file.path, self._rrd_file.path, blueprint=self._blueprint(), cutoff=cutoff)
+        except OSError as exc:
+            self._fail(self._rrd_file.path, exc, int(self._tau[K - 1]) if K else None)
+        except Exception as exc:  # Rerun could not read its own bytes back: keep the footer-less file
+            log.warning("could not finish %s (%s: %s); it is readable but has no footer",
+                        self._rrd_file.path, type(exc).__name__, exc)
 
 
 def _watch(ref: "weakref.ref[Recorder]", stop: threading.Event) -> None:
@@ -756,10 +1026,13 @@ def _watch(ref: "weakref.ref[Recorder]", stop: threading.Event) -> None:
         with rec._lock:
             if rec._closed:
                 return
-            if time.monotonic() - rec._last_flush >= rec.flush_seconds and rec._pending():
+            if (rec._failure is None and time.monotonic() - rec._last_flush >= rec.flush_seconds
+                    and rec._pending()):
                 try:
                     rec._flush()
-                except Exception as exc:  # e.g. trajectory.npz not writable: the next call reports it
+                except RecordsWriteError:  # stored: the next recorder call raises it
+                    rec._failure_reported = False
+                except Exception as exc:
                     log.warning("background flush failed (%s: %s)", type(exc).__name__, exc)
         del rec
 

@@ -81,7 +81,7 @@ def test_unwritable_out_is_one_line(tmp_path):
     blocker = tmp_path / "file"
     blocker.write_text("x")
     r = run_cli("simulate", EXAMPLES / "paper_discrete.yaml", "--out", blocker / "sub")
-    assert r.returncode == 2 and "cannot create output directory" in r.stderr and "Traceback" not in r.stderr
+    assert r.returncode == 2 and "cannot write to output directory" in r.stderr and "Traceback" not in r.stderr
 
 
 def test_progress_bar_on_a_terminal(tmp_path):

@@ -1,0 +1,262 @@
+"""``run.rrd`` written by Python: append Rerun's encoded bytes during a run, finalise or cut it afterwards.
+
+Why Python writes the file
+--------------------------
+Rerun's ``FileSink`` writes from a Rust thread and never reports a failed
+write (full disk, read-only file system) to Python: the run went on and left a
+torn ``run.rrd``.  So the recorder logs into an ``rr.binary_stream()`` instead
+and, at each flush, appends the bytes read from it to ``run.rrd`` itself, with
+ordinary Python file calls whose ``OSError`` (ENOSPC, EROFS, EACCES, EDQUOT...)
+it sees and reports.
+
+Each ``BinaryStream.read()`` returns a complete small RRD stream (rerun 0.41,
+found by experiment)::
+
+    file header (12 bytes: b"RRF2", version, options)
+    messages: u64 kind, u64 length, payload   (kind 0 = end of stream, its payload the manifest)
+    stream footer (32 bytes, b"RRF2FOOT" at [-12:-4])
+
+Concatenated, such pieces do not verify ("More than one RRD manifest") and
+are not even readable.  :class:`RrdAppender` therefore writes the header once
+and then only the messages before the end-of-stream message: during a run
+``run.rrd`` is a valid footer-less ("legacy") RRD stream that
+``rerun.chunk.RrdReader(path).stream()`` reads, and a process killed mid-write
+leaves at most one torn message at its end (:func:`whole_messages_length`
+finds where it starts).  :func:`rewrite_rrd` then writes the chunks read back
+(optionally only those of event times before a cut) as one RRD with footer
+and manifest, which ``rerun rrd verify`` accepts: the recorder does this at
+close, ``splitspec recover`` after a crash.
+"""
+
+from __future__ import annotations
+
+import errno
+import logging
+import os
+import shutil
+import struct
+import tempfile
+import warnings
+from pathlib import Path
+from typing import Any, Iterator
+
+__all__ = ["RrdAppender", "split_stream", "whole_messages_length", "rewrite_rrd", "has_footer"]
+
+log = logging.getLogger(__name__)
+
+_HEADER_LEN = 12
+_MAGIC = b"RRF2"
+_MSG = struct.Struct("<QQ")  # kind, payload length
+_END = 0  # kind of the end-of-stream message
+_FOOTER_LEN = 32
+_FOOTER_MAGIC = b"RRF2FOOT"
+
+TL_EVENT = "event"
+# Entities kept "up to the cut included" (their entries at the cut event time describe it).
+_LOG_ENTITIES = ("/events", "/topology")
+
+
+def split_stream(data: bytes) -> tuple[bytes, bytes]:
+    """``(file header, messages)`` of one complete encoded RRD stream, without end message and footer.
+
+    Raises
+    ------
+    ValueError
+        If ``data`` is not one complete stream as ``BinaryStream.read()`` returns it.
+    """
+    if len(data) < _HEADER_LEN or data[:4] != _MAGIC:
+        raise ValueError("not an RRD stream (no RRF2 header)")
+    off = _HEADER_LEN
+    while True:
+        if off + _MSG.size > len(data):
+            raise ValueError(f"RRD stream ends inside a message header at byte {off}")
+        kind, length = _MSG.unpack_from(data, off)
+        if kind == _END:
+            end = off
+            off += _MSG.size + length
+            break
+        off += _MSG.size + length
+    if len(data) - off != _FOOTER_LEN or data[-12:-4] != _FOOTER_MAGIC:
+        raise ValueError(f"RRD stream has {len(data) - off} bytes after its end message; expected the footer")
+    return data[:_HEADER_LEN], data[_HEADER_LEN:end]
+
+
+def whole_messages_length(path: str | Path) -> int:
+    """Length of the longest prefix of a footer-less RRD file made of whole messages (0: no header)."""
+    size = os.path.getsize(path)
+    with open(path, "rb") as f:
+        if f.read(4) != _MAGIC or size < _HEADER_LEN:
+            return 0
+        off = _HEADER_LEN
+        while off + _MSG.size <= size:
+            f.seek(off)
+            kind, length = _MSG.unpack(f.read(_MSG.size))
+            if kind == _END or off + _MSG.size + length > size:
+                break
+            off += _MSG.size + length
+    return off
+
+
+def has_footer(path: str | Path) -> bool:
+    """Whether ``path`` ends with an RRD stream footer (what a finished FileSink or rewrite leaves)."""
+    try:
+        size = os.path.getsize(path)
+        if size < _HEADER_LEN + _FOOTER_LEN:
+            return False
+        with open(path, "rb") as f:
+            f.seek(size - 12)
+            return f.read(8) == _FOOTER_MAGIC
+    except OSError:
+        return False
+
+
+class RrdAppender:
+    """Appends the pieces read from a ``BinaryStream`` to ``path`` as one footer-less RRD stream.
+
+    The file is created (truncated) by the first :meth:`append`.  A failed
+    append raises the ``OSError`` and cuts the file back to its last whole
+    piece (if it can), so the file never ends in a torn message by our doing.
+    """
+
+    def __init__(self, path: Path):
+        self.path = Path(path)
+        self.size = 0  # bytes of whole pieces on disk
+        self._header: bytes | None = None
+
+    def append(self, piece: bytes) -> None:
+        header, body = split_stream(piece)
+        if self._header is not None and header != self._header:
+            raise ValueError("RRD stream header changed between flushes")
+        data = body if self.size else header + body
+        mode = "ab" if self.size else "wb"
+        try:
+            with open(self.path, mode) as f:
+                f.write(data)
+                f.flush()
+                os.fsync(f.fileno())
+        except OSError:
+            self._cut_back()
+            raise
+        self._header = header
+        self.size += len(data)
+
+    def _cut_back(self) -> None:
+        try:
+            if self.size:
+                os.truncate(self.path, self.size)
+            else:
+                self.path.unlink(missing_ok=True)
+        except OSError:
+            pass
+
+
+def _cut(chunk, cutoff: int):
+    """The rows of ``chunk`` kept by a cut at event time ``cutoff`` (None: none kept)."""
+    import pyarrow.compute as pc
+    from rerun.chunk import Chunk
+
+    if chunk.is_static or TL_EVENT not in chunk.timeline_names:
+        return chunk
+    batch = chunk.to_record_batch()
+    events = batch.column(TL_EVENT)
+    keep = pc.less_equal(events, cutoff) if chunk.entity_path in _LOG_ENTITIES else pc.less(events, cutoff)
+    kept = batch.filter(keep)
+    if kept.num_rows == batch.num_rows:
+        return chunk
+    if kept.num_rows == 0:
+        return None
+    (out,) = Chunk.from_record_batch(kept)  # row ids and chunk id preserved
+    return out
+
+
+def read_chunks(path: str | Path, *, cutoff: int | None = None) -> tuple[Any, Iterator]:
+    """``(recording store entry, chunks)`` of the first recording in ``path``, cut at ``cutoff`` if given.
+
+    With a cut, event-timeline rows with ``event < cutoff`` are kept, and on
+    ``events`` and ``topology`` those with ``event <= cutoff``; static data is kept.
+    """
+    from rerun.chunk import RrdReader
+
+    with warnings.catch_warnings():  # a footer-less file is what we expect here
+        warnings.filterwarnings("ignore", message="RRD file has no footer")
+        reader = RrdReader(path)
+    recordings = reader.recordings()
+    if not recordings:
+        raise ValueError(f"{path} holds no recording")
+    store = recordings[0]
+
+    def chunks():
+        for chunk in reader.stream(store=store):
+            kept = chunk if cutoff is None else _cut(chunk, cutoff)
+            if kept is not None:
+                yield kept
+
+    return store, chunks()
+
+
+def rewrite_rrd(src: str | Path, dst: str | Path, *, blueprint, cutoff: int | None = None) -> None:
+    """Write the recording of ``src`` (cut at ``cutoff``) to ``dst`` as one RRD with footer and manifest.
+
+    ``src`` may be ``dst``.  Rerun writes a temporary file next to ``dst``,
+    checked to end with a footer (Rerun's file sink reports no error), then
+    moved over ``dst``.  If that fails (no space for a second copy), the
+    temporary file goes to the system temporary directory and Python copies
+    it over ``dst`` in place, after checking that it fits: a Python error is
+    then an ``OSError`` with the real reason.
+
+    Raises
+    ------
+    OSError
+        If ``dst`` cannot be written; ``dst`` is left as it was unless the
+        in-place copy itself failed part way.
+    """
+    dst = Path(dst)
+    fd, tmp = tempfile.mkstemp(prefix=".run.", suffix=".rrd.tmp", dir=dst.parent)
+    os.close(fd)
+    try:
+        if _write_with_rerun(src, Path(tmp), blueprint=blueprint, cutoff=cutoff):
+            os.replace(tmp, dst)
+            return
+    finally:
+        Path(tmp).unlink(missing_ok=True)
+    # No room for a second copy next to dst: build it elsewhere, copy it in place.
+    log.info("no room for a second copy of %s next to it; rewriting it in place", dst)
+    fd, tmp = tempfile.mkstemp(prefix="splitspec-run.", suffix=".rrd.tmp")
+    os.close(fd)
+    try:
+        if not _write_with_rerun(src, Path(tmp), blueprint=blueprint, cutoff=cutoff):
+            raise OSError(errno.EIO, f"Rerun could not write a temporary copy of {dst.name} in "
+                                     f"{tempfile.gettempdir()}")
+        new_size = os.path.getsize(tmp)
+        old_size = os.path.getsize(dst) if dst.exists() else 0
+        st = os.statvfs(dst.parent)
+        if new_size > old_size + st.f_bavail * st.f_frsize:
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+        with open(tmp, "rb") as fin, open(dst, "r+b" if dst.exists() else "wb") as fout:
+            shutil.copyfileobj(fin, fout, 1 << 20)
+            fout.truncate(new_size)
+            fout.flush()
+            os.fsync(fout.fileno())
+    finally:
+        Path(tmp).unlink(missing_ok=True)
+
+
+def _write_with_rerun(src: str | Path, tmp: Path, *, blueprint, cutoff: int | None) -> bool:
+    """Rerun writes the (cut) recording of ``src`` to ``tmp``; whether it got there whole, with footer."""
+    import rerun as rr
+
+    store, chunks = read_chunks(src, cutoff=cutoff)
+    rec = rr.RecordingStream(application_id=store.application_id, recording_id=store.recording_id,
+                             send_properties=False)
+    try:
+        rec.set_sinks(rr.FileSink(str(tmp)), default_blueprint=blueprint)
+        rec.send_chunks(chunks)
+        rec.flush(timeout_sec=60.0)
+    except RuntimeError:  # the file sink's thread gave up (e.g. no space): Rerun says no more than that
+        return False
+    finally:
+        try:
+            rec.disconnect()
+        except RuntimeError:
+            pass
+    return has_footer(tmp)
