@@ -54,6 +54,7 @@ from splitspec_core.scenario import load_scenario
 from splitspec_core.wire import DEFAULT_RUN_ID, Keys, WireError, decode, encode, new_run_key
 
 from . import rounds as R
+from .outdir import OutputDirError, check_output_dir
 
 log = logging.getLogger("splitspec.orchestrator")
 
@@ -308,15 +309,18 @@ class Orchestrator:
     # ------------------------------------------------------------------ run
 
     def run(self) -> int:
-        from .recorder import Recorder
+        from .recorder import Recorder, RecordsWriteError
         from .registry import RunRegistry
 
         sc = self.sc
         self.finished = False
         self._dropped_seen: dict = {}
         dt = sc.run.dt if sc.time == "continuous" else 1.0
-        self.out.mkdir(parents=True, exist_ok=True)
-        (self.out / "scenario.yaml").write_text(self.scenario_text, encoding="utf-8")
+        check_output_dir(self.out)
+        try:
+            (self.out / "scenario.yaml").write_text(self.scenario_text, encoding="utf-8")
+        except OSError as exc:
+            raise OutputDirError(f"cannot write {self.out / 'scenario.yaml'}: {exc.strerror}") from None
         self.rec = Recorder(self.out, agent_ids=sc.agent_ids, n=sc.n, steps=sc.run.steps, time_mode=sc.time,
                             dt=dt, graph_names=sc.graph_names, run_id=self.keys.run_id,
                             scenario_name=sc.name, viewer=self.viewer)
@@ -327,6 +331,7 @@ class Orchestrator:
                                           spawned=self.spawn_local, now=now)
         self.progress = Progress(m.plan.steps, sc.m)
         code = EXIT_OK
+        write_error = None
         t_start = time.monotonic()
         try:
             self.registry.update()
@@ -371,6 +376,9 @@ class Orchestrator:
             code = EXIT_FAILED
             self._safe_event("run_failed", m.t(), reason=str(exc))
             print(f"splitspec: error: {exc}", file=sys.stderr)
+        except RecordsWriteError as exc:  # the records cannot be kept: stop at once, say what is left
+            code = EXIT_FAILED
+            write_error = exc
         finally:
             try:
                 self._execute(m.finish_summaries(time.monotonic()))
@@ -381,6 +389,11 @@ class Orchestrator:
             finally:
                 self.rec.close(finished=code == EXIT_OK)
                 self.registry.remove()
+        if write_error is not None:
+            kept = self.rec.rows_kept
+            at = write_error.tau if getattr(write_error, "tau", None) is not None else m.tau
+            print(f"splitspec: error: {write_error}; stopping at event time {at}, records up to event time "
+                  f"{kept - 1} kept in {self.out}", file=sys.stderr)
         log.info("wall time %.2f s", time.monotonic() - t_start)
         return code
 
@@ -429,6 +442,8 @@ class Orchestrator:
 
 def main(args: argparse.Namespace) -> int:
     """``splitspec orchestrator SCENARIO --listen ENDPOINT --out DIR [--run-id ID] [--connect ENDPOINT]``."""
+    # Rerun's Rust side logs a failed write to stderr; the one line the user gets is ours (RUST_LOG overrides)
+    os.environ.setdefault("RUST_LOG", "off")
     if not args.listen and not args.connect:
         raise SplitspecError("give --listen ENDPOINT (embedded router) or --connect ENDPOINT (external router)")
     security = None

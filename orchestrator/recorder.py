@@ -836,7 +836,7 @@ class Recorder:
         err = RecordsWriteError(path, _strerror(exc), tau)
         if self._failure is None:
             self._failure = err
-            log.warning("recording stopped: %s", err)
+            log.info("recording stopped: %s", err)  # the driver prints the one line
         self._failure_reported = True  # raised to the caller (the background flusher resets this)
         return err
 
