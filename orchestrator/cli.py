@@ -275,8 +275,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
     design(sc)  # fail fast, with one line, before starting any process
     if args.run_id is not None:
         Keys(args.run_id)  # validates --run-id before any process starts
-    _announce_run_id(args)
     out = _out_dir(args.out)
+    _announce_run_id(args)
     viewer = "spawn" if args.viewer else args.connect_viewer
     if args.insecure:
         print("splitspec: warning: --insecure: no authentication or access control on the router (any process "
@@ -295,12 +295,12 @@ def _cmd_router(args: argparse.Namespace) -> int:
     import signal
     import threading
 
-    from splitspec_core.bus import open_session
+    from splitspec_core.bus import lease_ms_for, open_session
 
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
-    session = open_session("router", listen=[args.listen])
+    session = open_session("router", listen=[args.listen], lease_ms=lease_ms_for("router"))
     logging.getLogger("splitspec.router").info("Zenoh router listening on %s (pid %d)", args.listen, os.getpid())
     try:
         while not stop.wait(0.5):
