@@ -554,7 +554,8 @@ class RoundMachine:
         pid = self.procs.get(aid, {}).get("pid")
         return [MarkLost(self.tau, aid),
                 Event("agent_lost", self.t(), {"id": aid, "tau": self.tau, "reason": why, "pid": pid}),
-                Log("warning", f"agent {aid} lost from event time {self.tau}: {why}")] + self._verdict(f"agent {aid} lost")
+                Log("warning", f"agent {aid} lost from event time {self.tau}: {why}")
+                ] + self._verdict(f"agent {aid} lost")
 
     def _admit(self, aid: int, why: str) -> list:
         inc = self.net.rejoin(self.index[aid])

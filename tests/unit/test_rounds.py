@@ -176,7 +176,8 @@ def test_child_exiting_during_startup_stops_at_once_with_its_status():
     m.on_hello("q", hello("plant", 0, "p", 50), 0.2)
     out = m.on_child_exit(50, 1, 0.4)
     (stop,) = of(out, R.Stop)
-    assert stop.code == 1 and stop.message == "the plant (pid 50) exited during start-up (exit status 1); see its output above"
+    assert stop.code == 1
+    assert stop.message == "the plant (pid 50) exited during start-up (exit status 1); see its output above"
     assert m.finished
 
 
