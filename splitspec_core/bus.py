@@ -332,6 +332,7 @@ class NodeShell:
         from .wire import WireError, decode
 
         me = f"{self.role}/{self.ident}"  # the target name in fault commands
+        code = 0
         self.inbox.subscribe(self.keys.control, "control")
         token = self.session.liveliness().declare_token(self.keys.alive(self.role, self.ident, self.nonce))
         self.log.info("%s ready (pid %d)", name, os.getpid())
@@ -356,7 +357,11 @@ class NodeShell:
                     os.kill(os.getpid(), signal.SIGKILL if action == "kill" else signal.SIGSTOP)
             elif channel == "orchestrator":
                 if payload == LIVELINESS_DELETE:
-                    self.log.warning("%s: orchestrator lost, exiting", name)
+                    import sys
+
+                    print(f"splitspec: error: {self.who}: the orchestrator of run {self.keys.run_id!r} was lost "
+                          "(its liveliness token disappeared); exiting", file=sys.stderr)
+                    code = 1
                     break
             elif channel == "signal":
                 self.log.info("%s: interrupted", name)
@@ -369,7 +374,7 @@ class NodeShell:
                     on_error("handler_error")
                     self.log.warning("%s: dropped a %s message on %s: %s", name, channel, key, exc)
         token.undeclare()
-        return 0
+        return code
 
     def close(self) -> None:
         self.inbox.close()
