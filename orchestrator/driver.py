@@ -169,6 +169,7 @@ class Orchestrator:
                 h = decode(raw, self.keys.run_id, "hello")
             except WireError as e:
                 m.reject("orchestrator", e.reason)
+                query.drop()  # no answer: not a hello of this run
                 return []
             return m.on_hello(query, h, now)
         if channel == "truth":
