@@ -72,7 +72,7 @@ def _positive(maximum: float):
         try:
             value = float(text)
         except (TypeError, ValueError):
-            raise argparse.ArgumentTypeError(f"must be a number, got {text!r}") from None
+            value = math.nan
         if not math.isfinite(value) or not 0 < value <= maximum:
             raise argparse.ArgumentTypeError(f"must be a number in (0, {maximum:g}], got {text!r}")
         return value
