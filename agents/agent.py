@@ -29,11 +29,10 @@ import argparse
 import logging
 
 import numpy as np
-import yaml
 
 from splitspec_core import steps as st
 from splitspec_core.design import design_agent, riccati_weights
-from splitspec_core.scenario import parse_scenario
+from splitspec_core.scenario import parse_scenario_text
 from splitspec_core.simulate import initial_estimate
 from splitspec_core.wire import DEFAULT_RUN_ID, Keys, WireError, decode, encode
 
@@ -50,7 +49,7 @@ class AgentNode:
         self.id = agent_id
         self.run_id = run_id
         self.keys = Keys(run_id)
-        sc = parse_scenario(yaml.safe_load(config["scenario"]), source="config")
+        sc = parse_scenario_text(config["scenario"], source="config")
         if agent_id not in sc.agent_ids:
             raise ValueError(f"agent {agent_id} is not in the scenario (agents: {', '.join(map(str, sc.agent_ids))})")
         self.sc = sc

@@ -2,7 +2,10 @@
 
 Every subcommand catches splitspec's own errors at this boundary: one line on
 stderr (``splitspec: error: ...``) and exit status 2 for bad input, 1 for a
-failed run; no traceback (set ``SPLITSPEC_DEBUG=1`` to see one).
+failed run; no traceback (set ``SPLITSPEC_DEBUG=1`` to see one).  Bad
+arguments are refused by the parser itself (``type=`` functions below, and
+:class:`ArgumentParser` whose errors are that same one line, without argparse's
+usage block).
 """
 
 from __future__ import annotations
@@ -10,6 +13,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import math
 import os
 import sys
 
@@ -18,6 +22,69 @@ from splitspec_core.errors import SplitspecError
 
 EXIT_BAD_INPUT = 2
 EXIT_FAILED = 1
+
+MAX_SEED = 2**63 - 1  # as splitspec_core.scenario.MAX_SEED: seeds travel to the processes as 64-bit integers
+MAX_SECONDS = 1e6  # --wait, --round-timeout: finite waits that threading and time.sleep accept (11.6 days)
+MAX_KCF_EPS = 1e12  # as splitspec_core.scenario.MAX_MAGNITUDE
+
+
+class ArgumentParser(argparse.ArgumentParser):
+    """argparse with every error as one line ``splitspec: error: ...`` and exit status 2 (no usage block)."""
+
+    def error(self, message: str):
+        message = " ".join(str(message).split())
+        # "argument --steps: must be >= 1, got 0" (from the type= functions below) -> "--steps must be >= 1, got 0"
+        option, sep, rest = message.removeprefix("argument ").partition(": ")
+        if message.startswith("argument ") and sep and rest.startswith("must "):
+            message = f"{option} {rest}"
+        self.exit(EXIT_BAD_INPUT, f"splitspec: error: {message}\n")
+
+
+def _integer(text: str, *, minimum: int, maximum: int | None = None) -> int:
+    try:
+        value = int(text, 10)
+    except (TypeError, ValueError):
+        raise argparse.ArgumentTypeError(f"must be an integer, got {text!r}") from None
+    if value < minimum:
+        raise argparse.ArgumentTypeError(f"must be >= {minimum}, got {value}")
+    if maximum is not None and value > maximum:
+        raise argparse.ArgumentTypeError(f"must be <= {maximum}, got {value}")
+    return value
+
+
+def _seed(text: str) -> int:
+    """``--seed``: an integer in [0, 2**63 - 1]."""
+    return _integer(text, minimum=0, maximum=MAX_SEED)
+
+
+def _at_least(minimum: int):
+    """``type=`` for counts: an integer >= ``minimum``."""
+    def parse(text: str) -> int:
+        return _integer(text, minimum=minimum)
+
+    parse.__name__ = f"integer >= {minimum}"
+    return parse
+
+
+def _positive(maximum: float):
+    """``type=`` for seconds and gains: a finite number in (0, ``maximum``]."""
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except (TypeError, ValueError):
+            value = math.nan
+        if not math.isfinite(value) or not 0 < value <= maximum:
+            raise argparse.ArgumentTypeError(f"must be a number in (0, {maximum:g}], got {text!r}")
+        return value
+
+    parse.__name__ = "positive number"
+    return parse
+
+
+def _seed_range(first: int, count: int, what: str) -> None:
+    """Seeds first .. first + count - 1 must all be valid seeds."""
+    if first + count - 1 > MAX_SEED:
+        raise UsageError(f"{what}: the last seed {first + count - 1} exceeds 2**63 - 1 = {MAX_SEED}")
 
 
 def _cmd_design(args: argparse.Namespace) -> int:
@@ -64,6 +131,7 @@ def _tune(args: argparse.Namespace, sc) -> int:
     import yaml
 
     from splitspec_core.noise import tune
+    from splitspec_core.scenario import load_yaml, read_scenario_text
 
     res = tune(sc)
     d = res.design
@@ -82,7 +150,7 @@ def _tune(args: argparse.Namespace, sc) -> int:
         print(f"  predicted steady-state RMS error {res.rms:.4g} (the scenario's design: {res.baseline_rms:.4g}, "
               f"{len(res.candidates)} candidates, all with the rate certified unless marked)")
     if args.write:
-        raw = yaml.safe_load(Path(args.scenario).read_text(encoding="utf-8"))
+        raw = load_yaml(read_scenario_text(args.scenario), source=str(args.scenario))
         dd = raw.setdefault("design", {})
         dd["gains"] = cd.gains
         dd.pop("K", None)
@@ -104,16 +172,13 @@ def _tune(args: argparse.Namespace, sc) -> int:
 def _cmd_compare(args: argparse.Namespace) -> int:
     from splitspec_core.compare import compare, sweep
     from splitspec_core.scenario import load_scenario
+    from splitspec_core.simulate import check_trajectory_memory
 
     sc = load_scenario(args.scenario)
-    if args.seeds < 1:
-        raise UsageError("--seeds must be >= 1")
-    if args.steps is not None and args.steps < 4:
-        raise UsageError("--steps must be >= 4")
-    out = _out_dir(args.out)
     seed0 = sc.run.seed if args.seed is None else args.seed
-    if args.kcf_eps is not None and not args.kcf_eps > 0:
-        raise UsageError("--kcf-eps must be > 0")
+    _seed_range(seed0, args.seeds, "--seeds")
+    check_trajectory_memory(sc, args.steps, key="--steps" if args.steps is not None else "run.steps")
+    out = _out_dir(args.out)
     res = compare(sc, seeds=range(seed0, seed0 + args.seeds), steps=args.steps, eps=args.kcf_eps)
     curves = res.pop("_curves")
     lines = [f"{sc.name}: {len(res['seeds'])} seeds x {res['steps']} steps; process noise {sc.system.process_noise:g}, "
@@ -183,22 +248,22 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     from splitspec_core.analysis import monte_carlo_stats, summarize
     from splitspec_core.design import design
     from splitspec_core.scenario import load_scenario
-    from splitspec_core.simulate import simulate, simulate_exact
+    from splitspec_core.simulate import check_trajectory_memory, simulate, simulate_exact
 
     sc = load_scenario(args.scenario)
     if args.faults_from:
         from splitspec_core.replay import with_recorded_faults
 
         sc = with_recorded_faults(sc, args.faults_from)
-    if args.steps is not None and args.steps < 1:
-        raise UsageError("--steps must be >= 1")
-    if args.monte_carlo is not None and args.monte_carlo < 1:
-        raise UsageError("--monte-carlo must be >= 1")
     if args.exact and sc.time != "continuous":
         raise UsageError("--exact integrates the continuous-time ODE; this scenario is discrete")
+    seed = sc.run.seed if args.seed is None else args.seed
+    if args.monte_carlo:
+        _seed_range(seed, args.monte_carlo, "--monte-carlo")
+    check_trajectory_memory(sc, args.steps, key="--steps" if args.steps is not None else "run.steps",
+                            copies=max(1, args.monte_carlo or 0))
     des = design(sc)
     out = _out_dir(args.out)
-    seed = sc.run.seed if args.seed is None else args.seed
     if args.exact:
         traj = simulate_exact(des, seed=seed, steps=args.steps)
         clean = traj
@@ -364,18 +429,19 @@ def _add_process_options(p: argparse.ArgumentParser, *, run_id_required: bool = 
     else:
         p.add_argument("--run-id", help="run id: key prefix splitspec/<run-id>/ (default: a new unique id, printed "
                        "at start); several runs can share a router under different ids")
-    p.add_argument("--wait", type=float, default=60.0, help="seconds to wait for the other processes (default 60)")
+    p.add_argument("--wait", type=_positive(MAX_SECONDS), default=60.0,
+                   help="seconds to wait for the other processes (default 60)")
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = ArgumentParser(
         prog="splitspec",
         description="Split-spectrum distributed state estimation: design, simulate, deploy.",
     )
     parser.add_argument("-v", "--verbose", action="store_true", help="log more")
     parser.add_argument("--log-level", default=None, choices=["debug", "info", "warning", "error"],
                         help="logging level (default info; debug with -v)")
-    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=ArgumentParser)
     sub.required = True
 
     p = sub.add_parser("design", help="check the assumptions and design K_i, V_i, P_i and g or q",
@@ -395,9 +461,9 @@ def build_parser() -> argparse.ArgumentParser:
                                    "writes trajectory.npz, summary.json and PNG plots to --out.")
     p.add_argument("scenario", help="scenario YAML file")
     p.add_argument("--out", required=True, help="output directory (created if missing)")
-    p.add_argument("--seed", type=int, help="override run.seed")
-    p.add_argument("--steps", type=int, help="override run.steps")
-    p.add_argument("--monte-carlo", type=int, metavar="N", help="also run N seeds (seed, seed+1, ...) and report "
+    p.add_argument("--seed", type=_seed, help="override run.seed")
+    p.add_argument("--steps", type=_at_least(1), help="override run.steps")
+    p.add_argument("--monte-carlo", type=_at_least(1), metavar="N", help="also run N seeds (seed, seed+1, ...) and report "
                                                                  "the mean and spread of the error")
     p.add_argument("--exact", action="store_true", help="continuous time: integrate the exact ODE (noise-free) "
                                                         "instead of the sampled-data estimator")
@@ -415,10 +481,10 @@ def build_parser() -> argparse.ArgumentParser:
                                    "centralized filter, settling time and messages per event time.")
     p.add_argument("scenario", help="scenario YAML file (with process and/or measurement noise)")
     p.add_argument("--out", required=True, help="output directory (created if missing)")
-    p.add_argument("--seeds", type=int, default=5, help="noise realisations: seed, seed+1, ... (default 5)")
-    p.add_argument("--seed", type=int, help="first seed (default run.seed)")
-    p.add_argument("--steps", type=int, help="override run.steps")
-    p.add_argument("--kcf-eps", type=float, help="consensus gain of the Kalman-consensus filter "
+    p.add_argument("--seeds", type=_at_least(1), default=5, help="noise realisations: seed, seed+1, ... (default 5)")
+    p.add_argument("--seed", type=_seed, help="first seed (default run.seed)")
+    p.add_argument("--steps", type=_at_least(4), help="override run.steps")
+    p.add_argument("--kcf-eps", type=_positive(MAX_KCF_EPS), help="consensus gain of the Kalman-consensus filter "
                                                   "(default 1 / (1 + max in-degree))")
     p.add_argument("--sweep", action="store_true", help="also sweep q (discrete) or g (continuous): RMS error "
                                                          "and measured rate against it (sweep.json, sweep.png)")
@@ -434,7 +500,8 @@ def build_parser() -> argparse.ArgumentParser:
     v = p.add_mutually_exclusive_group()
     v.add_argument("--viewer", action="store_true", help="spawn the Rerun viewer and stream live")
     v.add_argument("--connect-viewer", metavar="URL", help="stream live to a running Rerun viewer at URL")
-    p.add_argument("--round-timeout", type=float, default=10.0, help="seconds before a silent agent is declared lost")
+    p.add_argument("--round-timeout", type=_positive(MAX_SECONDS), default=10.0,
+                   help="seconds before a silent agent is declared lost")
     sec = p.add_mutually_exclusive_group()
     sec.add_argument("--secure", action="store_true", help="the default: Zenoh user/password authentication and "
                      "access control (only the plant publishes measurements and truth, only agent i publishes as "
@@ -453,7 +520,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", required=True, help="output directory (created if missing)")
     p.add_argument("--viewer", metavar="spawn|URL", default=os.environ.get("SPLITSPEC_VIEWER") or None,
                    help="also stream to a Rerun viewer ('spawn' or a URL; default $SPLITSPEC_VIEWER)")
-    p.add_argument("--round-timeout", type=float, default=10.0, help="seconds before a silent agent is declared lost")
+    p.add_argument("--round-timeout", type=_positive(MAX_SECONDS), default=10.0,
+                   help="seconds before a silent agent is declared lost")
     p.add_argument("--secure", dest="secure_dir", metavar="DIR", help="authenticate clients against DIR/users.txt "
                    "and enforce the access-control policy (see `splitspec credentials`)")
     p.add_argument("--spawn-local", action="store_true", help="start the plant and the agents on this machine as "

@@ -50,7 +50,7 @@ from pathlib import Path
 
 from splitspec_core.design import design
 from splitspec_core.errors import SplitspecError
-from splitspec_core.scenario import load_scenario
+from splitspec_core.scenario import load_scenario, read_scenario_text
 from splitspec_core.wire import DEFAULT_RUN_ID, Keys, WireError, decode, encode, new_run_key
 
 from . import rounds as R
@@ -111,7 +111,7 @@ class Orchestrator:
     def __init__(self, scenario_path: str, *, out: Path, run_id: str, listen: str | None, connect: str | None,
                  wait: float = 60.0, round_timeout: float = 10.0, viewer: str | None = None,
                  security=None, spawn_local: bool = False):
-        self.scenario_text = Path(scenario_path).read_text(encoding="utf-8")
+        self.scenario_text = read_scenario_text(scenario_path)
         self.sc = load_scenario(scenario_path)
         self.des = design(self.sc)
         self.keys = Keys(run_id)

@@ -14,9 +14,8 @@ import argparse
 import logging
 
 import numpy as np
-import yaml
 
-from splitspec_core.scenario import parse_scenario
+from splitspec_core.scenario import parse_scenario_text
 from splitspec_core.simulate import Plant
 from splitspec_core.wire import DEFAULT_RUN_ID, Keys, WireError, decode, encode
 
@@ -29,7 +28,7 @@ class PlantNode:
     def __init__(self, config: dict, run_id: str):
         self.run_id = run_id
         self.keys = Keys(run_id)
-        self.sc = parse_scenario(yaml.safe_load(config["scenario"]), source="config")
+        self.sc = parse_scenario_text(config["scenario"], source="config")
         self.plant = Plant(self.sc, int(config["seed"]))
         self.mac_key = config.get("key")
         self.extra_counts = None  # callable -> {reason: count} of drops outside the node (the inbox)

@@ -37,7 +37,7 @@ import scipy.linalg as sla
 from .errors import DesignError
 from .network import consensus_rows
 from .scenario import Scenario
-from .simulate import Plant, initial_estimate
+from .simulate import Plant, check_trajectory_memory, initial_estimate
 
 __all__ = [
     "REGULARISATION",
@@ -402,6 +402,7 @@ def baseline_trajectories(sc: Scenario, seed: int, *, exchanges: int, steps: int
         ``t`` (T,), ``x`` (T, n) true states, ``centralized`` (T, n) and
         ``kcf`` (T, m, n) predictions.
     """
+    check_trajectory_memory(sc, steps)
     steps = sc.run.steps if steps is None else int(steps)
     m, n, T = sc.m, sc.n, steps + 1
     plant = Plant(sc, seed, noise=noise)

@@ -32,7 +32,7 @@ from .design import design
 from .errors import DesignError
 from .noise import predicted_rms, tune
 from .scenario import Scenario
-from .simulate import simulate
+from .simulate import check_trajectory_memory, simulate
 
 __all__ = ["compare", "sweep", "steady_rms", "settle_time"]
 
@@ -69,6 +69,7 @@ def _variant(sc: Scenario, gains: str) -> Scenario:
 def compare(sc: Scenario, *, seeds, steps: int | None = None, eps: float | None = None) -> dict:
     """Run every estimator on the same realisations; JSON-ready results plus mean error curves."""
     seeds = list(seeds)
+    check_trajectory_memory(sc, steps)
     if sc.system.process_noise <= 0 and sc.system.measurement_noise <= 0:
         raise DesignError("compare needs noise: set system.process_noise and/or system.measurement_noise")
     variants = {}

@@ -8,13 +8,19 @@ it into a :class:`Scenario` of frozen dataclasses or raises a
 offending key, e.g. ``system.C.3 has 5 columns, system.A is 4x4``.
 
 Unknown keys are rejected (a typo such as ``q_methd`` would otherwise silently
-fall back to a default).
+fall back to a default).  Numbers are bounded (see the limits below) so that
+nothing accepted here can overflow later arithmetic, and scenario files are
+read only if they are regular files of at most :data:`MAX_FILE_BYTES`.
+Every YAML parse of a scenario goes through :func:`load_yaml` (libyaml's C
+loader when present).
 """
 
 from __future__ import annotations
 
 import math
 import numbers
+import os
+import stat
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
@@ -33,7 +39,14 @@ __all__ = [
     "RunSpec",
     "Scenario",
     "load_scenario",
+    "load_yaml",
     "parse_scenario",
+    "parse_scenario_text",
+    "read_scenario_text",
+    "yaml_loader",
+    "MAX_MAGNITUDE",
+    "MAX_SEED",
+    "MAX_FILE_BYTES",
     "GAIN_METHODS",
     "Q_METHODS",
 ]
@@ -54,6 +67,28 @@ _DESIGN_KEYS = (
 )
 _RICCATI_KEYS = ("process_weight", "measurement_weight")
 _RUN_KEYS = ("steps", "dt", "seed", "pace")
+
+# Limits, each with the key(s) it bounds and why (docs/scenario.md, "Files and limits").
+# Every number (matrix entries, x0, noise levels, rate, g, g0, margin, times, dt, dwell, pace,
+# riccati weights): |x| <= 1e12, so squares and products of a few of them stay far below the
+# float limit 1.8e308 (system.process_noise: 1e308 overflowed in process_noise**2, the Riccati weight).
+MAX_MAGNITUDE = 1e12
+# run.dt >= 1e-9: the sampled model integrates exp(A s) over [0, dt]; at dt = 1e-300 it underflows and the SVD fails.
+MIN_DT = 1e-9
+# run.pace >= 1e-6 event times per second: the orchestrator sleeps 1/pace s per event time.
+MIN_PACE = 1e-6
+# design.riccati.*_weight >= 1e-12: the Riccati equations are solved with these as covariances.
+MIN_RICCATI_WEIGHT = 1e-12
+# switching.random.dwell and switching.period >= 1e-3 sample steps (dt, or 1 event time): the switching
+# signal is built piece by piece (memory ~ horizon / dwell), and switching within a step is not seen.
+MIN_SWITCH_STEPS = 1e-3
+# design.q_max <= 1e6: q is the number of consensus exchanges per event time.
+MAX_Q = 1_000_000
+# run.seed, switching.random.seed <= 2**63 - 1: seeds travel to the processes as msgpack 64-bit integers.
+MAX_SEED = 2**63 - 1
+# scenario files: regular files of at most 16 MB (16,000,000 bytes), read with a bounded read; a scenario
+# is a few kB, and the checks below cost about 0.6 s per MB with libyaml's C loader.
+MAX_FILE_BYTES = 16_000_000
 
 
 # --------------------------------------------------------------------------
@@ -257,13 +292,28 @@ def _float(value: numbers.Real) -> float:
         return math.inf if value > 0 else -math.inf
 
 
+def _bounded(x: float, key: str) -> float:
+    """``x`` if ``|x| <= MAX_MAGNITUDE``, else a one-line :class:`ScenarioError` naming ``key``."""
+    if not math.isfinite(x):
+        raise ScenarioError(f"{key} must be finite, got {x}")
+    if abs(x) > MAX_MAGNITUDE:
+        raise ScenarioError(f"{key} = {x:g} is out of range: numbers must be within +-{MAX_MAGNITUDE:g} "
+                            "(larger ones overflow later arithmetic)")
+    return x
+
+
 def _number(value: Any, key: str) -> float:
     if isinstance(value, bool) or not isinstance(value, numbers.Real):
         raise ScenarioError(f"{key} must be a number, got {_describe(value)}")
-    x = _float(value)
-    if not math.isfinite(x):
-        raise ScenarioError(f"{key} must be finite, got {x}")
-    return x
+    return _bounded(_float(value), key)
+
+
+def _seed(value: Any, key: str) -> int:
+    v = _integer(value, key, minimum=0)
+    if v > MAX_SEED:
+        raise ScenarioError(f"{key} must be <= 2**63 - 1 = {MAX_SEED} (seeds travel to the processes as "
+                            f"64-bit integers), got {v}")
+    return v
 
 
 def _integer(value: Any, key: str, *, minimum: int | None = None) -> int:
@@ -305,8 +355,7 @@ def _matrix(value: Any, key: str, *, vector: bool = False) -> np.ndarray:
             where = f"{key}[{c + 1}]" if vector else f"{key}[{r + 1}][{c + 1}]"
             if isinstance(x, bool) or not isinstance(x, numbers.Real):
                 raise ScenarioError(f"{where} must be a number, got {_describe(x)}")
-            if not math.isfinite(_float(x)):
-                raise ScenarioError(f"{where} must be finite, got {_float(x)}")
+            _bounded(_float(x), where)
     if width == 0:
         raise ScenarioError(f"{key} has empty rows")
     arr = np.array(rows, dtype=float)
@@ -463,7 +512,7 @@ def _parse_switching(raw: Any, names: tuple, time: str) -> Switching:
     dwell = _number(rmap["dwell"], "switching.random.dwell")
     if dwell <= 0:
         raise ScenarioError(f"switching.random.dwell must be > 0, got {dwell:g}")
-    seed = None if rmap.get("seed") is None else _integer(rmap["seed"], "switching.random.seed", minimum=0)
+    seed = None if rmap.get("seed") is None else _seed(rmap["seed"], "switching.random.seed")
     return Switching(kind="random", graphs=gs, dwell=dwell, seed=seed)
 
 
@@ -496,12 +545,12 @@ def _parse_design(raw: Any, time: str, system: System, ids: tuple) -> DesignSpec
         Ks = []
         for aid, C in zip(ids, system.Cs):
             K_i = given[aid]
-            if K_i.shape == (1, system.n) and C.shape[0] == 1:
-                K_i = _frozen(K_i.T)  # a column written as a flat row
             if K_i.shape != (system.n, C.shape[0]):
+                # no guessing: a flat row [a, b, ...] is 1 x n, not the column n x 1
+                hint = "; write a column as [[a], [b], ...]" if C.shape[0] == 1 else ""
                 raise DimensionError(
                     f"design.K.{aid} is {K_i.shape[0]}x{K_i.shape[1]}, expected {system.n}x{C.shape[0]} "
-                    f"(n x s_i with system.C.{aid} {C.shape[0]}x{C.shape[1]})")
+                    f"(n x s_i with system.C.{aid} {C.shape[0]}x{C.shape[1]}{hint})")
             Ks.append(K_i)
         K = tuple(Ks)
     elif "K" in dmap:
@@ -526,6 +575,8 @@ def _parse_design(raw: Any, time: str, system: System, ids: tuple) -> DesignSpec
     if q_method not in Q_METHODS:
         raise ScenarioError(f"design.q_method must be one of {', '.join(Q_METHODS)}, got {q_method!r}")
     q_max = _integer(dmap.get("q_max", 100_000), "design.q_max", minimum=1)
+    if q_max > MAX_Q:
+        raise ScenarioError(f"design.q_max must be <= {MAX_Q} (consensus exchanges per event time), got {q_max}")
     if q != "auto" and q > q_max:
         raise ScenarioError(f"design.q = {q} exceeds design.q_max = {q_max}")
     resilience = _integer(dmap.get("resilience", 0), "design.resilience", minimum=0)
@@ -553,8 +604,8 @@ def _parse_design(raw: Any, time: str, system: System, ids: tuple) -> DesignSpec
         rmap = _require_map(dmap["riccati"], "design.riccati")
         _check_keys(rmap, _RICCATI_KEYS, "design.riccati")
         for k in _RICCATI_KEYS:
-            if k in rmap and not _number(rmap[k], f"design.riccati.{k}") > 0:
-                raise ScenarioError(f"design.riccati.{k} must be > 0, got {rmap[k]}")
+            if k in rmap and not _number(rmap[k], f"design.riccati.{k}") >= MIN_RICCATI_WEIGHT:
+                raise ScenarioError(f"design.riccati.{k} must be >= {MIN_RICCATI_WEIGHT:g}, got {rmap[k]}")
         pw = None if "process_weight" not in rmap else float(rmap["process_weight"])
         mw = None if "measurement_weight" not in rmap else float(rmap["measurement_weight"])
     return DesignSpec(
@@ -584,7 +635,11 @@ def _parse_faults(raw: Any, ids: tuple) -> tuple:
             raise ScenarioError(f"{key} needs exactly one of {', '.join(FAULT_ACTIONS)}")
         action = actions[0]
         if action.endswith("_arc"):
-            out.append(Fault(at=at, action=action, arc=_arc(fmap[action], f"{key}.{action}", ids)))
+            arc = _arc(fmap[action], f"{key}.{action}", ids)
+            if arc[0] == arc[1]:
+                raise ScenarioError(f"{key}.{action} [{arc[0]}, {arc[1]}] is a self-arc: self-arcs are implicit "
+                                    "and cannot be dropped or restored")
+            out.append(Fault(at=at, action=action, arc=arc))
         else:
             out.append(Fault(at=at, action=action, agent=_known_agent(fmap[action], f"{key}.{action}", ids)))
     return tuple(sorted(out, key=lambda f: f.at))
@@ -599,16 +654,16 @@ def _parse_run(raw: Any, time: str) -> RunSpec:
     dt = None
     if time == "continuous":
         dt = _number(rmap.get("dt", 0.01), "run.dt")
-        if dt <= 0:
-            raise ScenarioError(f"run.dt must be > 0, got {dt:g}")
+        if dt < MIN_DT:
+            raise ScenarioError(f"run.dt must be >= {MIN_DT:g}, got {dt:g}")
     elif "dt" in rmap:
         raise ScenarioError("run.dt is only for continuous time (discrete steps are event times)")
-    seed = _integer(rmap.get("seed", 0), "run.seed", minimum=0)
+    seed = _seed(rmap.get("seed", 0), "run.seed")
     pace = None
     if rmap.get("pace") is not None:
         pace = _number(rmap["pace"], "run.pace")
-        if pace <= 0:
-            raise ScenarioError(f"run.pace must be > 0 event times per second, got {pace:g}")
+        if pace < MIN_PACE:
+            raise ScenarioError(f"run.pace must be >= {MIN_PACE:g} event times per second, got {pace:g}")
     return RunSpec(steps=steps, dt=dt, seed=seed, pace=pace)
 
 
@@ -644,10 +699,108 @@ def parse_scenario(data: Any, *, source: str = "<scenario>") -> Scenario:
     design = _parse_design(top["design"], time, system, ids)
     faults = _parse_faults(top.get("faults"), ids)
     run = _parse_run(top.get("run"), time)
+    _check_switching_against_step(switching, run)
     return Scenario(
         name=name, time=time, agent_ids=ids, system=system, graphs=graphs,
         switching=switching, design=design, faults=faults, run=run, source=source,
     )
+
+
+def _check_switching_against_step(switching: Switching, run: RunSpec) -> None:
+    """Random dwell and schedule period of at least ``MIN_SWITCH_STEPS`` sample steps."""
+    step = run.dt if run.dt is not None else 1.0
+    floor = MIN_SWITCH_STEPS * step
+    unit = f"run.dt = {step:g}" if run.dt is not None else "one event time"
+    for key, value in (("switching.random.dwell", switching.dwell), ("switching.period", switching.period)):
+        if value is not None and value < floor:
+            raise ScenarioError(f"{key} = {value:g} is below {MIN_SWITCH_STEPS:g} sample steps ({floor:g}, with "
+                                f"{unit}): switching that fast is not seen by the sampled run")
+
+
+def yaml_loader() -> type:
+    """The YAML loader for scenarios: libyaml's ``CSafeLoader`` when PyYAML has it, else ``SafeLoader``.
+
+    The C loader parses a 10 MB scenario several times faster than the pure-Python one.
+    """
+    return yaml.CSafeLoader if getattr(yaml, "__with_libyaml__", False) else yaml.SafeLoader
+
+
+def load_yaml(text: str, *, source: str = "<scenario>") -> Any:
+    """Parse scenario YAML text (safe loader); a syntax error is one line with its line and column.
+
+    Every YAML parse of a scenario goes through here: :func:`load_scenario`,
+    the ``--tune --write`` of the CLI, and the agent and plant processes
+    (which receive the scenario text from the orchestrator).
+
+    Raises
+    ------
+    ScenarioError
+        ``<source>: YAML syntax error at line L, column C: <problem>``.
+    """
+    try:
+        return yaml.load(text, Loader=yaml_loader())  # noqa: S506 - a safe loader
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
+        where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
+        raise ScenarioError(f"{source}: YAML syntax error{where}: {problem}") from None
+
+
+def parse_scenario_text(text: str, *, source: str = "<scenario>") -> Scenario:
+    """:func:`load_yaml` then :func:`parse_scenario`: a scenario from its YAML text."""
+    if not text.strip():
+        raise ScenarioError(f"{source} is empty")
+    data = load_yaml(text, source=source)
+    if data is None:
+        raise ScenarioError(f"{source} is empty")
+    return parse_scenario(data, source=source)
+
+
+def _megabytes(size: int) -> str:
+    return f"{size / 1e6:.1f}"
+
+
+def read_scenario_text(path: str | Path) -> str:
+    """The text of a scenario file: a regular file of at most :data:`MAX_FILE_BYTES`, UTF-8.
+
+    The file is checked with ``os.stat`` before it is opened (a FIFO would
+    block, ``/dev/zero`` never ends) and read with a bounded read.
+
+    Raises
+    ------
+    ScenarioError
+        One line naming the file: missing, a directory or other non-regular
+        file, too large, unreadable or not UTF-8.
+    """
+    p = Path(path)
+    try:
+        st = os.stat(p)
+    except FileNotFoundError:
+        raise ScenarioError(f"scenario file {p} does not exist") from None
+    except (OSError, ValueError) as exc:
+        raise ScenarioError(f"cannot read scenario file {p}: {getattr(exc, 'strerror', None) or exc}") from None
+    if stat.S_ISDIR(st.st_mode):
+        raise ScenarioError(f"scenario file {p} is a directory")
+    if not stat.S_ISREG(st.st_mode):
+        kind = ("a FIFO" if stat.S_ISFIFO(st.st_mode) else "a character device" if stat.S_ISCHR(st.st_mode)
+                else "a block device" if stat.S_ISBLK(st.st_mode) else "a socket" if stat.S_ISSOCK(st.st_mode)
+                else "not a regular file")
+        raise ScenarioError(f"scenario file {p} is {kind}, not a regular file")
+    limit = f"the limit is {MAX_FILE_BYTES / 1e6:g} MB"
+    if st.st_size > MAX_FILE_BYTES:
+        raise ScenarioError(f"scenario file {p} is {_megabytes(st.st_size)} MB; {limit}")
+    try:
+        with open(p, "rb") as f:
+            data = f.read(MAX_FILE_BYTES + 1)
+    except OSError as exc:
+        raise ScenarioError(f"cannot read scenario file {p}: {exc.strerror or exc}") from None
+    if len(data) > MAX_FILE_BYTES:  # grew since the stat
+        raise ScenarioError(f"scenario file {p} is over {MAX_FILE_BYTES / 1e6:g} MB; {limit}")
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise ScenarioError(f"cannot read scenario file {p}: not UTF-8 text ({exc.reason} at byte {exc.start})") \
+            from None
 
 
 def load_scenario(path: str | Path) -> Scenario:
@@ -656,27 +809,15 @@ def load_scenario(path: str | Path) -> Scenario:
     Raises
     ------
     ScenarioError
-        If the file cannot be read, is empty, is not valid YAML, or fails
-        validation; the message is one line naming the file or key.
+        If the file is not a regular file, is too large, cannot be read, is
+        empty, is not valid YAML, or fails validation; the message is one line
+        naming the file or key.
     """
     p = Path(path)
-    try:
-        text = p.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise ScenarioError(f"scenario file {p} does not exist") from None
-    except IsADirectoryError:
-        raise ScenarioError(f"scenario file {p} is a directory") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise ScenarioError(f"cannot read scenario file {p}: {exc}") from None
+    text = read_scenario_text(p)
     if not text.strip():
         raise ScenarioError(f"scenario file {p} is empty")
-    try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
-        where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
-        raise ScenarioError(f"{p}: YAML syntax error{where}: {problem}") from None
+    data = load_yaml(text, source=str(p))
     if data is None:
         raise ScenarioError(f"scenario file {p} is empty")
     return parse_scenario(data, source=str(p))

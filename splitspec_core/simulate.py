@@ -18,6 +18,7 @@ updates to ``x_i(k+1)``; the plant moves to ``x(k+1)``.
 
 from __future__ import annotations
 
+import os
 import sys
 import time as _time
 from dataclasses import dataclass
@@ -29,12 +30,14 @@ import scipy.sparse as sp
 
 from . import steps as st
 from .design import Design
+from .errors import ScenarioError
 from .network import NetworkState, Plan, make_plan
 from .scenario import Scenario
 from .streams import stream
 
 __all__ = [
     "Trajectory",
+    "check_trajectory_memory",
     "simulate",
     "simulate_exact",
     "BatchEstimator",
@@ -94,6 +97,42 @@ class Trajectory:
 # --------------------------------------------------------------------------
 # initial conditions and plant (shared with the plant and agent processes)
 # --------------------------------------------------------------------------
+
+
+def physical_memory() -> int | None:
+    """Bytes of physical memory (``SC_PHYS_PAGES * SC_PAGE_SIZE``), or None where unknown."""
+    try:
+        return os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    except (ValueError, OSError, AttributeError):
+        return None
+
+
+def check_trajectory_memory(sc: Scenario, steps: int | None = None, *, key: str | None = None,
+                            copies: int = 1) -> None:
+    """Refuse a run whose preallocated trajectory cannot fit in this machine's memory.
+
+    :func:`simulate`, :func:`simulate_exact` and the baselines preallocate
+    ``(T, m, n)`` float64 arrays, ``T = steps + 1``; ``copies`` of them are
+    held at once (e.g. a Monte Carlo run).  The multi-process ``run`` grows
+    its rows as it goes and does not call this.
+
+    Raises
+    ------
+    ScenarioError
+        ``run.steps = S needs X GiB for the trajectory (T x m x n float64); this machine has Y GiB``
+        (``key`` names the option, default ``run.steps`` or ``steps``).
+    """
+    given = steps is not None
+    steps = sc.run.steps if steps is None else int(steps)
+    need = copies * (steps + 1) * sc.m * sc.n * 8
+    have = physical_memory()
+    if have is None or need <= have:
+        return
+    key = key or ("steps" if given else "run.steps")
+    what = "the trajectory (T x m x n float64)" if copies == 1 else \
+        f"{copies} trajectories ({copies} x T x m x n float64)"
+    raise ScenarioError(f"{key} = {steps} needs {need / 2**30:.1f} GiB for {what}; "
+                        f"this machine has {have / 2**30:.1f} GiB")
 
 
 def initial_state(sc: Scenario, seed: int) -> np.ndarray:
@@ -367,6 +406,7 @@ def simulate(des: Design, *, seed: int | None = None, steps: int | None = None, 
     """
     sc = des.scenario
     seed = sc.run.seed if seed is None else seed
+    check_trajectory_memory(sc, plan.steps if plan is not None else steps)
     plan = plan or make_plan(sc, seed, steps)
     est = BatchEstimator(des) if estimator == "batch" else AgentLoopEstimator(des)
     plant = Plant(sc, seed, noise=noise)
@@ -422,6 +462,7 @@ def simulate_exact(des: Design, *, seed: int | None = None, steps: int | None = 
     if des.g_mode == "adaptive":
         raise ValueError("simulate_exact does not support the adaptive gain")
     seed = sc.run.seed if seed is None else seed
+    check_trajectory_memory(sc, steps)
     plan = make_plan(sc, seed, steps)
     m, n, T = sc.m, sc.n, plan.steps + 1
     ids = sc.agent_ids

@@ -14,6 +14,7 @@ import copy
 import json
 import math
 import os
+import resource
 import subprocess
 import sys
 from pathlib import Path
@@ -105,6 +106,23 @@ def _directory(tmp_path: Path) -> Path:
 def _binary_file(tmp_path: Path) -> Path:
     p = tmp_path / "binary.yaml"
     p.write_bytes(b"\xff\xfe\x00\x81garbage\x00\xc3\x28")
+    return p
+
+
+def _fifo(tmp_path: Path) -> Path:
+    """A FIFO nobody writes to: opening it for reading would block forever."""
+    p = tmp_path / "scenario.fifo"
+    os.mkfifo(p)
+    return p
+
+
+def _large_file(tmp_path: Path) -> Path:
+    """A 17.3 MB scenario (a comment, then a valid scenario): refused by size before it is read."""
+    p = tmp_path / "big.yaml"
+    with open(p, "w", encoding="utf-8") as f:
+        f.write(scenario())
+        f.write("#" * 80 + "\n")
+        f.truncate(17_300_000)
     return p
 
 
@@ -219,12 +237,66 @@ CASES = [
     ("g-for-discrete", scenario({"design.g": 10}), ["design.g is for continuous time"]),
     ("dt-for-discrete", scenario({"run.dt": 0.01}), ["run.dt is only for continuous time"]),
     ("bad-time", scenario({"time": "hybrid"}), ["time must be discrete or continuous", "'hybrid'"]),
+    # --- numbers that would overflow later arithmetic (bounds in splitspec_core/scenario.py) -----
+    ("process-noise-1e308", scenario({"system.process_noise": 1e308}),
+     ["system.process_noise = 1e+308 is out of range", "within +-1e+12"]),
+    ("measurement-noise-huge", scenario({"system.measurement_noise": 1e13}),
+     ["system.measurement_noise = 1e+13 is out of range"]),
+    ("A-entry-huge", scenario({"system.A": [[0, 1e300, 0, 0], [-1, 0, 0, 0], [0, 0, 0, 1], [0, 0, -2, 0]]}),
+     ["system.A[1][2] = 1e+300 is out of range"]),
+    ("C-entry-huge", scenario({"system.C.2": [[0, -1e200, 0, 0]]}), ["system.C.2[1][2] = -1e+200 is out of range"]),
+    ("K-entry-huge", scenario({"design.K.3": [[0], [0], [1e20], [1.94]]}), ["design.K.3[3][1] = 1e+20 is out of range"]),
+    ("x0-entry-huge", scenario({"system.x0": [1, 2, 3, 1e13]}), ["system.x0[4] = 1e+13 is out of range"]),
+    ("continuous-rate-huge", scenario({"design.rate": 1e300}, time="continuous"),
+     ["design.rate = 1e+300 is out of range"]),
+    ("g-huge", scenario({"design.g": 1e300}, time="continuous"), ["design.g = 1e+300 is out of range"]),
+    ("dt-huge", scenario({"run.dt": 1e300}, time="continuous"), ["run.dt = 1e+300 is out of range"]),
+    ("dt-tiny", scenario({"run.dt": 1e-300}, time="continuous"), ["run.dt must be >= 1e-09", "1e-300"]),
+    ("pace-huge", scenario({"run.pace": 1e308}), ["run.pace = 1e+308 is out of range"]),
+    ("pace-tiny", scenario({"run.pace": 1e-308}), ["run.pace must be >= 1e-06"]),
+    ("design-dwell-huge", scenario({"design.dwell": 1e300}, time="continuous"),
+     ["design.dwell = 1e+300 is out of range"]),
+    ("random-dwell-tiny", scenario({"switching": {"random": {"graphs": ["a", "b"], "dwell": 1e-300}}},
+                                   time="continuous"),
+     ["switching.random.dwell = 1e-300 is below 0.001 sample steps", "run.dt = 0.01"]),
+    ("period-tiny", scenario({"switching": {"schedule": [[0, "a"], [1e-300, "b"]], "period": 2e-300}}),
+     ["switching.period = 2e-300 is below 0.001 sample steps", "one event time"]),
+    ("schedule-time-huge", scenario({"switching": {"schedule": [[0, "a"], [1e300, "b"]]}}),
+     ["switching.schedule[2] time = 1e+300 is out of range"]),
+    ("fault-at-huge", scenario({"faults": [{"at": 1e300, "kill": 1}]}), ["faults[1].at = 1e+300 is out of range"]),
+    ("riccati-weight-tiny", scenario({"design.gains": "riccati", "design.K": DELETE,
+                                      "design.riccati": {"measurement_weight": 1e-300}}),
+     ["design.riccati.measurement_weight must be >= 1e-12"]),
+    ("riccati-weight-huge", scenario({"design.gains": "riccati", "design.K": DELETE,
+                                      "design.riccati": {"process_weight": 1e300}}),
+     ["design.riccati.process_weight = 1e+300 is out of range"]),
+    ("q_max-huge", scenario({"design.q_max": 10**12}), ["design.q_max must be <= 1000000", "1000000000000"]),
+    # --- seeds: what a process can carry (msgpack, 64-bit) ---------------------------------------
+    ("run-seed-2**70", scenario({"run.seed": 2**70}), ["run.seed must be <= 2**63 - 1", str(2**70)]),
+    ("run-seed-2**63", scenario({"run.seed": 2**63}), ["run.seed must be <= 2**63 - 1", str(2**63)]),
+    ("random-seed-2**70", scenario({"switching": {"random": {"graphs": ["a", "b"], "dwell": 2, "seed": 2**70}}}),
+     ["switching.random.seed must be <= 2**63 - 1", str(2**70)]),
+    # --- faults on self-arcs (implicit) ----------------------------------------------------------
+    ("drop-self-arc", scenario({"faults": [{"at": 5, "drop_arc": [3, 3]}]}),
+     ["faults[1].drop_arc [3, 3] is a self-arc", "implicit"]),
+    ("restore-self-arc", scenario({"faults": [{"at": 5, "drop_arc": [1, 3]}, {"at": 9, "restore_arc": [2, 2]}]}),
+     ["faults[2].restore_arc [2, 2] is a self-arc"]),
+    # --- a gain column written as a flat row is not transposed -----------------------------------
+    ("K-flat-row", scenario({"design.K.1": [0.5, 0.94, 0, 0]}),
+     ["design.K.1 is 1x4, expected 4x1", "write a column as [[a], [b], ...]"]),
+    ("K-row-of-rows", scenario({"design.K.1": [[0.5, 0.94, 0, 0]]}), ["design.K.1 is 1x4, expected 4x1"]),
+    # --- files: regular files only, at most 16 MB ------------------------------------------------
+    ("dev-zero", lambda tmp_path: Path("/dev/zero"), ["scenario file /dev/zero is a character device",
+                                                      "not a regular file"]),
+    ("fifo", _fifo, ["scenario.fifo is a FIFO, not a regular file"]),
+    ("too-large", _large_file, ["big.yaml is 17.3 MB; the limit is 16 MB"]),
 ]
 
 # A handful also go through the real console entry point in a subprocess.
 SUBPROCESS_IDS = (
     "C-wrong-columns", "A-nan", "yaml-syntax-error", "file-missing",
     "design-unknown-key-q_methd", "graph-not-strongly-connected",
+    "process-noise-1e308", "run-seed-2**70", "drop-self-arc", "K-flat-row", "dev-zero", "fifo", "too-large",
 )
 
 _BY_ID = {case_id: (source, fragments) for case_id, source, fragments in CASES}
@@ -250,11 +322,18 @@ def _run_in_process(argv: list, capsys, monkeypatch) -> tuple:
     return code, out, err
 
 
+def _limit_memory() -> None:
+    """In the child: at most 2 GiB of address space, so a regression that reads /dev/zero fails fast."""
+    resource.setrlimit(resource.RLIMIT_AS, (2 * 2**30, 2 * 2**30))
+
+
 def _run_subprocess(argv: list) -> tuple:
+    """The real CLI in a child with a timeout and a memory limit: a blocked or unbounded read cannot hang the test."""
     env = {k: v for k, v in os.environ.items() if k != "SPLITSPEC_DEBUG"}
     env["RERUN_ANALYTICS"] = "0"
     proc = subprocess.run([sys.executable, "-m", "orchestrator.cli", *argv], cwd=ROOT, env=env,
-                          capture_output=True, text=True, timeout=60)
+                          capture_output=True, text=True, timeout=60, stdin=subprocess.DEVNULL,
+                          preexec_fn=_limit_memory)
     return proc.returncode, proc.stdout, proc.stderr
 
 
@@ -270,7 +349,12 @@ def _assert_one_line_error(code, out: str, err: str, fragments: list) -> None:
         assert fragment in message, f"{fragment!r} not in {message!r}"
 
 
-@pytest.mark.parametrize("source, fragments", [pytest.param(s, f, id=i) for i, s, f in CASES])
+# Files that would block (a FIFO) or read without end (/dev/zero) if the checks regressed: only in a subprocess.
+NOT_IN_PROCESS = ("dev-zero", "fifo")
+
+
+@pytest.mark.parametrize("source, fragments",
+                         [pytest.param(s, f, id=i) for i, s, f in CASES if i not in NOT_IN_PROCESS])
 def test_bad_scenario_gives_one_line_and_exit_2(source, fragments, tmp_path, capsys, monkeypatch):
     path = _path_for(source, tmp_path)
     code, out, err = _run_in_process(["design", str(path)], capsys, monkeypatch)
