@@ -226,7 +226,7 @@ class RoundMachine:
         self.spawned = spawned
         self.dt = sc.run.dt if sc.time == "continuous" else 1.0
         self.index = {a: k for k, a in enumerate(sc.agent_ids)}
-        self.plan = make_plan(sc, sc.run.seed)
+        self.plan = make_plan(sc, sc.run.seed, sequence=False)  # O(1) memory: steps may be huge
         self.net = NetworkState(sc)
         self.net.alive[:] = False
         self.alive: set = set()
@@ -737,7 +737,7 @@ class RoundMachine:
 
     def _tick(self, now: float) -> list:
         out = []
-        graph = int(self.plan.graph_seq[self.tau])
+        graph = self.plan.graph_at(self.tau)
         if graph != self.last_graph or self.topology_dirty:
             name = self.sc.graph_names[graph]
             if self.last_graph is not None and graph != self.last_graph:
@@ -766,7 +766,7 @@ class RoundMachine:
             xh[self.index[a]] = self.est[self.tau][a]
             mask[self.index[a]] = True
         gains = np.where(mask, self.gains, np.nan)
-        out = [Record(self.tau, self.truth[self.tau], xh, mask, int(self.plan.graph_seq[self.tau]), gains)]
+        out = [Record(self.tau, self.truth[self.tau], xh, mask, self.plan.graph_at(self.tau), gains)]
         self.truth.pop(self.tau, None)
         self.est.pop(self.tau, None)
         if self.tau == self.plan.steps:

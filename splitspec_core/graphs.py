@@ -35,6 +35,7 @@ __all__ = [
     "is_doubly_stochastic",
     "build_graph",
     "graph_sequence",
+    "SwitchingSignal",
     "switch_times",
     "enumerate_strongly_connected",
     "neighbour_lists",
@@ -237,6 +238,61 @@ def switch_times(switching, names: tuple, horizon: float, rng: np.random.Generat
         current = others[int(rng.integers(len(others)))]
         pieces.append((t, current))
     return pieces
+
+
+class SwitchingSignal:
+    """The switching signal sampled step by step in O(1) memory: what a run of any length needs.
+
+    Draws exactly what :func:`switch_times` draws, in the same order, so
+    ``[signal.at(k) for k in range(steps)]`` equals
+    ``graph_sequence(switch_times(...), steps, dt=dt)`` (tested); steps must be
+    asked for in non-decreasing order.
+    """
+
+    def __init__(self, switching, names: tuple, *, dt: float = 1.0, rng: np.random.Generator | None = None):
+        if switching.kind == "random" and rng is None:
+            raise ScenarioError("random switching needs a random generator (seed)")
+        self.tol = 1e-9 * max(dt, 1.0)
+        self.dt = dt
+        self._it = self._pieces(switching, names, rng)
+        self._cur = next(self._it)
+        self._next = next(self._it, None)
+        self._k = 0
+
+    @staticmethod
+    def _pieces(switching, names, rng):
+        kind = switching.kind
+        if kind == "constant":
+            yield (0.0, 0)
+            return
+        if kind == "schedule":
+            base = [(t, names.index(g)) for t, g in switching.schedule]
+            if switching.period is None:
+                yield from base
+                return
+            for k in itertools.count():
+                offset = k * switching.period
+                for t, g in base:
+                    yield (offset + t, g)
+        choices = [names.index(g) for g in switching.graphs]
+        current = choices[int(rng.integers(len(choices)))]
+        yield (0.0, current)
+        t = 0.0
+        while True:
+            t += float(rng.exponential(switching.dwell))
+            others = [c for c in choices if c != current]
+            current = others[int(rng.integers(len(others)))]
+            yield (t, current)
+
+    def at(self, k: int) -> int:
+        """Graph index in force during step ``k`` (time ``k * dt``)."""
+        if k < self._k:
+            raise ValueError(f"the switching signal moves forward only (asked step {k} after {self._k})")
+        self._k = k
+        t = k * self.dt + self.tol
+        while self._next is not None and self._next[0] <= t:
+            self._cur, self._next = self._next, next(self._it, None)
+        return int(self._cur[1])
 
 
 def graph_sequence(pieces: list, steps: int, *, dt: float = 1.0) -> np.ndarray:

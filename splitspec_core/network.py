@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .graphs import build_graph, graph_sequence, switch_times
+from .graphs import SwitchingSignal, build_graph, graph_sequence, switch_times
 from .scenario import Scenario
 from .streams import stream
 
@@ -41,37 +41,57 @@ class Plan:
     steps : int
     dt : float
         1 for discrete time.
-    graph_seq : (steps + 1,) int array
-        Active graph index per step (scenario order).
+    graph_seq : (steps + 1,) int array or None
+        Active graph index per step (scenario order); ``None`` for a plan made
+        with ``sequence=False`` (a run of any length), which samples
+        ``signal`` step by step instead (:meth:`graph_at`).
     faults : dict
         ``{step: [Fault, ...]}``.
     """
 
     steps: int
     dt: float
-    graph_seq: np.ndarray
+    graph_seq: np.ndarray | None
     faults: dict
+    signal: SwitchingSignal | None = None
 
     def times(self) -> np.ndarray:
         return np.arange(self.steps + 1) * self.dt
 
+    def graph_at(self, k: int) -> int:
+        """Active graph index at step ``k`` (non-decreasing ``k`` when sampled lazily)."""
+        return int(self.graph_seq[k]) if self.graph_seq is not None else self.signal.at(k)
 
-def make_plan(sc: Scenario, seed: int, steps: int | None = None) -> Plan:
-    """The run's switching signal and fault schedule."""
+
+def _switching_rng(sc: Scenario, seed: int):
+    sw = sc.switching
+    if sw.kind != "random":
+        return None
+    return np.random.default_rng(sw.seed) if sw.seed is not None else stream(seed, "switching")
+
+
+def make_plan(sc: Scenario, seed: int, steps: int | None = None, *, sequence: bool = True) -> Plan:
+    """The run's switching signal and fault schedule.
+
+    ``sequence=False``: no per-step array (O(1) memory whatever ``steps``); the
+    graph of each step comes from :meth:`Plan.graph_at`, drawn exactly as the
+    array would be.
+    """
     steps = sc.run.steps if steps is None else steps
     dt = sc.run.dt if sc.time == "continuous" else 1.0
     sw = sc.switching
-    rng = None
-    if sw.kind == "random":
-        rng = np.random.default_rng(sw.seed) if sw.seed is not None else stream(seed, "switching")
-    pieces = switch_times(sw, sc.graph_names, (steps + 1) * dt, rng)
-    seq = graph_sequence(pieces, steps + 1, dt=dt)
+    seq = signal = None
+    if sequence:
+        pieces = switch_times(sw, sc.graph_names, (steps + 1) * dt, _switching_rng(sc, seed))
+        seq = graph_sequence(pieces, steps + 1, dt=dt)
+    else:
+        signal = SwitchingSignal(sw, sc.graph_names, dt=dt, rng=_switching_rng(sc, seed))
     faults: dict = {}
     for f in sc.faults:
         k = fault_step(f.at, dt)
         if k <= steps:
             faults.setdefault(k, []).append(f)
-    return Plan(steps=steps, dt=dt, graph_seq=seq, faults=faults)
+    return Plan(steps=steps, dt=dt, graph_seq=seq, faults=faults, signal=signal)
 
 
 def active_arcs(sc: Scenario, graph_index: int, dropped=frozenset()) -> tuple:

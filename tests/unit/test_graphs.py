@@ -66,3 +66,27 @@ def test_random_switching_is_seeded_and_has_the_average_dwell():
 def test_enumerate_strongly_connected_small():
     assert len(enumerate_strongly_connected(2)) == 1
     assert len(enumerate_strongly_connected(3)) == 18  # known count of strongly connected digraphs on 3 labelled vertices
+
+
+@pytest.mark.parametrize("switching", [
+    {"kind": "constant"},
+    {"kind": "schedule", "schedule": ((0.0, "a"), (3.0, "b"))},
+    {"kind": "schedule", "schedule": ((0.0, "a"), (2.5, "b")), "period": 4.0},
+    {"kind": "random", "graphs": ("a", "b", "c"), "dwell": 0.7},
+])
+@pytest.mark.parametrize("dt", [1.0, 0.05])
+def test_lazy_switching_signal_equals_the_sequence(switching, dt):
+    """The runtime's O(1)-memory signal draws exactly what the simulator's array holds."""
+    from splitspec_core.graphs import SwitchingSignal, graph_sequence, switch_times
+    from splitspec_core.scenario import Switching
+
+    sw = Switching(**switching)
+    names = ("a", "b", "c")
+    steps = 400
+    pieces = switch_times(sw, names, steps * dt, np.random.default_rng(5) if sw.kind == "random" else None)
+    seq = graph_sequence(pieces, steps, dt=dt)
+    sig = SwitchingSignal(sw, names, dt=dt, rng=np.random.default_rng(5) if sw.kind == "random" else None)
+    assert [sig.at(k) for k in range(steps)] == seq.tolist()
+    assert len(set(seq.tolist())) == (1 if sw.kind == "constant" else len(set(g for _, g in pieces)))
+    with pytest.raises(ValueError, match="forward only"):
+        sig.at(3)
