@@ -266,7 +266,8 @@ class Orchestrator:
                 p = self._spawn(a.role, a.ident)
                 self._execute(self.machine.on_spawned(a.role, a.ident, p.pid, time.monotonic()))
             elif kind is R.QueryStatus:
-                self._execute(self.machine.on_status(self._answering_agents(), time.monotonic()))
+                agents, plant = self._answering()
+                self._execute(self.machine.on_status(agents, time.monotonic(), plant=plant))
             elif kind is R.Stop:
                 raise RunFailed(a.message)
             elif kind is R.Finished:
@@ -281,18 +282,21 @@ class Orchestrator:
         finally:
             query.drop()
 
-    def _answering_agents(self) -> set:
-        """Agents whose granted process answers a status query within a second (not frozen)."""
+    def _answering(self) -> tuple:
+        """Agents whose granted process answers a status query within a second (not frozen), and the plant."""
         from splitspec_core.bus import query_all
 
-        answered = set()
+        answered, plant = set(), False
         for key, _payload in query_all(self.session, self.keys.status_all, timeout=min(1.0, self.round_timeout)):
             member = self.keys.parse_member(key, "status")
-            if member and member[0] == "agent":
-                c = self.machine.claims.get(("agent", member[1]))
+            if member and member[0] in ("agent", "plant"):
+                c = self.machine.claims.get(("agent", member[1]) if member[0] == "agent" else ("plant", 0))
                 if c is not None and c.nonce == member[2]:
-                    answered.add(member[1])
-        return answered
+                    if member[0] == "agent":
+                        answered.add(member[1])
+                    else:
+                        plant = True
+        return answered, plant
 
     def _spawn(self, role: str, ident: int):
         from .launcher import cli_command, spawn

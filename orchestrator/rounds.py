@@ -34,6 +34,15 @@ most two event times.  A loss during a round re-runs it without the agent
 ``round_timeout``: agents that do not answer a status query are frozen and
 lost; if all answer, the round is re-run once, then the late ones are lost.
 
+*Frozen processes.*  A round that has had no news for :data:`PROBE_SECONDS`
+queries every process's status (answered from a Zenoh thread, so a busy
+process answers and a frozen one cannot): an agent that does not answer
+within a second is lost as frozen, a silent plant stops the run; if all
+answer, nobody is blamed and the round waits on.  So a frozen agent is lost
+about 1.3 s after it froze, while links keep a long lease (a loaded machine,
+or the orchestrator's own freeze, never closes a link); a killed process
+closes its sockets and is lost at once through its liveliness token.
+
 *Time.*  A gap of more than :data:`STALL_SECONDS` between two calls means
 the orchestrator itself was frozen or starved: every deadline moves by the
 gap (``orchestrator_stalled``), so nobody is blamed for the orchestrator's
@@ -63,6 +72,7 @@ __all__ = ["RoundMachine", "Claim", "STALL_SECONDS", "SUMMARY_SECONDS",
            "ReplyConfig", "ReplyRefused", "RegistryUpdate", "Stop", "Finished"]
 
 STALL_SECONDS = 2.5  #: a gap between calls longer than this is the orchestrator's own freeze
+PROBE_SECONDS = 0.3  #: a round with no news for this long: ask every process whether it is alive
 SUMMARY_SECONDS = 1.0  #: rejected messages are summarised once per this many seconds
 
 
@@ -243,6 +253,8 @@ class RoundMachine:
         self.retried = False
         self.deadline = now + self.wait
         self.restart: tuple | None = None  # (agent id, spawned pid or None)
+        self.quiet_since = now  # the round in flight's last news (a message of it, or its tick)
+        self.probing = False  # the status query in flight is a probe (not the round timeout's)
         self.faults_left: list = []
         self.truth: dict = {}
         self.est: dict = {}
@@ -298,6 +310,8 @@ class RoundMachine:
 
     def next_deadline(self) -> float:
         """When :meth:`on_timer` wants to be called at the latest (the shell polls at least every 0.5 s)."""
+        if self.phase == "round":
+            return min(self.deadline, self.quiet_since + PROBE_SECONDS)
         return self.deadline
 
     # ------------------------------------------------------------------ time
@@ -308,6 +322,7 @@ class RoundMachine:
         gap = now - self.last_now
         if gap > STALL_SECONDS:
             self.deadline += gap
+            self.quiet_since += gap
             if self.t_run is not None:
                 self.t_run += gap
             self.stalled_seconds += gap
@@ -463,6 +478,7 @@ class RoundMachine:
             self.reject("orchestrator", "stale" if (tau, attempt) < (self.tau, self.attempt) else "future")
             return out
         self.truth[tau] = x
+        self.quiet_since = now
         return out + self._progress(now)
 
     def on_xhat(self, aid: int, tau: int, attempt: int, incarnation: int, x: np.ndarray, g: float, rejected: dict,
@@ -478,6 +494,7 @@ class RoundMachine:
             self.reject("orchestrator", "future" if ahead else "stale")
             return out
         self.est.setdefault(tau, {})[aid] = x
+        self.quiet_since = now
         if tau == self.tau + 1:
             self.gains[self.index[aid]] = g
         return out + self._progress(now)
@@ -488,21 +505,27 @@ class RoundMachine:
         out = self.on_clock(now)
         return out + self._progress(now)
 
-    def on_status(self, answered: set, now: float) -> list:
-        """Agents (ids) whose processes answered a status query (the answer to :class:`QueryStatus`)."""
+    def on_status(self, answered: set, now: float, *, plant: bool = True) -> list:
+        """The answer to :class:`QueryStatus`: agents (ids) whose processes answered, and whether the plant did."""
         out = self.on_clock(now)
         if self.phase != "status":
             return out
+        probing, self.probing = self.probing, False
         frozen = sorted(a for a in self.alive if a not in answered)
         late = self._late()
         self.phase = "round"
+        if not plant:
+            return out + [self._stop_plant("it does not answer a status query (frozen)")]
         if frozen:
+            why = ("no news of the round for a while and no answer to a status query within a second: frozen"
+                   if probing else f"round timeout ({self.round_timeout:g} s) and no answer to a status query: frozen")
             for a in frozen:
-                self.pending_loss[a] = (f"round timeout ({self.round_timeout:g} s) and no answer to a status "
-                                        "query: frozen")
+                self.pending_loss[a] = why
                 info = self.procs.get(a)
                 if info and info["host"] == self.host:
                     self.hung.add(int(info["pid"]))  # cannot obey the final stop: killed then
+        elif probing:
+            self.quiet_since = now  # everybody is alive, only slow: wait on (the round timeout still holds)
         elif not self.retried:
             self.retried = True
             out.append(Event("round_retried", self.t(), {"tau": self.tau, "attempt": self.attempt + 1, "late": late}))
@@ -637,6 +660,9 @@ class RoundMachine:
                                               f"{self.round_timeout:g} s")]
                     self.phase = "status"
                     return out + [QueryStatus()]
+                if now >= self.quiet_since + PROBE_SECONDS:
+                    self.phase, self.probing = "status", True
+                    return out + [QueryStatus()]
                 return out
             return out  # status (waiting for on_status) or done
         raise RuntimeError("round machine made no progress")  # pragma: no cover - a bug, not an input
@@ -746,6 +772,7 @@ class RoundMachine:
             out.append(Topology(self.tau, name, tuple(sorted(self.alive)), tuple(self.net.arcs(self.sc, graph))))
             self.last_graph, self.topology_dirty = graph, False
         self.deadline = now + self.round_timeout
+        self.quiet_since = now
         out.append(Tick(self.tau, self.attempt, graph, self.tau == self.plan.steps, tuple(sorted(self.alive)),
                         self.net.rows(self.sc, graph), {a: self.incarnation(a) for a in self.sc.agent_ids}))
         return out

@@ -2,13 +2,12 @@
 
 * :func:`zenoh_config` builds every session's config in one place: mode,
   listen/connect endpoints, multicast scouting off, and the link lease the
-  process announces (:func:`lease_ms_for`): 1 s for the plant and the agents,
-  so a frozen one is detected within about a second, 10 s for the
-  orchestrator (and its embedded router), so the others wait through an
-  orchestrator frozen or starved for seconds instead of leaving the run.
-  Zenoh peers hold a link open until the *other side's* announced lease
-  passes without a message; keep-alives come from Zenoh's own threads, so a
-  busy Python process is never mistaken for a frozen one;
+  process announces (:func:`lease_ms_for`, 10 s): a link stays open through
+  an orchestrator (and its router) frozen or starved for seconds and through
+  any load; a killed process closes its sockets and is seen at once; a
+  frozen one is found by the orchestrator's status probe, not by the lease.
+  Keep-alives come from Zenoh's own threads, so a busy Python process is
+  never mistaken for a frozen one;
 * :class:`Inbox` turns subscriber callbacks into one bounded, thread-safe
   queue: the callbacks only check the message's MAC trailer (a microsecond;
   forged messages are dropped there and counted, never queued) and enqueue
@@ -59,14 +58,14 @@ def _env_ms(name: str, default: int) -> int:
 def lease_ms_for(role: str) -> int:
     """The link lease a process of ``role`` announces: how long the others wait for it when it goes silent.
 
-    Plant and agents: ``SPLITSPEC_LEASE_MS`` or 1000 ms (a frozen agent is lost within about a
-    second).  Orchestrator (and its embedded router, through which every message flows):
-    ``SPLITSPEC_ORCH_LEASE_MS`` or 10000 ms, so an orchestrator frozen or starved for up to ~9 s is
-    waited for, not taken for dead (a killed one closes its sockets and is seen at once).
+    Every role: ``SPLITSPEC_LEASE_MS`` or 10000 ms.  A router that is itself frozen (the
+    orchestrator's embedded one, with the orchestrator) judges its clients by *their* lease when it
+    wakes up, so a short client lease would close every link after an orchestrator freeze of a
+    second; with 10 s an orchestrator frozen or starved for up to ~9 s is waited for, and a loaded
+    machine never closes a link.  A killed process closes its sockets and is seen at once; a frozen
+    agent is found by the orchestrator's status probe (:mod:`orchestrator.rounds`) in about 1.3 s.
     """
-    if role in ("orchestrator", "router"):
-        return _env_ms("SPLITSPEC_ORCH_LEASE_MS", 10_000)
-    return _env_ms("SPLITSPEC_LEASE_MS", 1_000)
+    return _env_ms("SPLITSPEC_LEASE_MS", 10_000)
 
 
 def default_lease_ms() -> int:
@@ -278,8 +277,15 @@ class NodeShell:
                                     lease_ms=lease_ms_for(role), **kw)
         self.inbox = Inbox(self.session)
         self.pubs: dict = {}
+        self._looping = False
+
+        def on_signal(signum, _frame):
+            if not self._looping:  # still starting (fetching the config): leave at once
+                raise SystemExit(128 + signum)
+            self.inbox.put(("signal", "", b""))
+
         for sig in (signal.SIGINT, signal.SIGTERM):
-            signal.signal(sig, lambda *_: self.inbox.put(("signal", "", b"")))
+            signal.signal(sig, on_signal)
         # watch the orchestrator first: if it dies we must exit by ourselves
         self.inbox.watch_liveliness(keys.alive("orchestrator"), "orchestrator")
 
@@ -335,6 +341,7 @@ class NodeShell:
         code = 0
         self.inbox.subscribe(self.keys.control, "control")
         token = self.session.liveliness().declare_token(self.keys.alive(self.role, self.ident, self.nonce))
+        self._looping = True
         self.log.info("%s ready (pid %d)", name, os.getpid())
         while True:
             item = self.inbox.get(timeout=1.0)

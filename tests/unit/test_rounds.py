@@ -56,12 +56,17 @@ def start(m, now=1.0):
     return out
 
 
-def advance(m, t0, t1, step=0.4):
-    """The shell's polling: on_timer every ``step`` seconds from t0 to t1; the actions."""
+def advance(m, t0, t1, step=0.1, answered=None, plant=True):
+    """The shell's polling: on_timer every ``step`` seconds from t0 to t1; status queries are answered by
+    ``answered`` (default: every alive agent) and counted.  Returns the actions."""
     out, t = [], t0
     while t < t1:
         t = min(t + step, t1)
-        out += m.on_timer(t)
+        acts = m.on_timer(t)
+        out += acts
+        while of(acts, R.QueryStatus):
+            acts = m.on_status(set(m.alive) if answered is None else set(answered), t, plant=plant)
+            out += acts
     return out
 
 
@@ -219,28 +224,40 @@ def test_round_timeout_queries_status_then_retries_once_then_loses_the_late():
     m.on_truth(0, 0, x, {}, 1.1)
     for a in (1, 2):
         m.on_xhat(a, 1, 0, 0, x, 0.0, {}, 1.2)
-    assert of(m.on_timer(2.0), R.QueryStatus) == []
-    assert of(m.on_timer(3.1), R.QueryStatus)
+    out = advance(m, 1.2, 2.9)  # no news of agent 3: probes every 0.3 s, all answer, nobody is blamed
+    assert len(of(out, R.QueryStatus)) >= 4 and not events(out, "agent_lost") and not events(out, "round_retried")
+    assert of(m.on_timer(3.1), R.QueryStatus) and not m.probing  # the round timeout's own query
     out = m.on_status({1, 2, 3}, 3.2)  # all answer: re-run once
     assert events(out, "round_retried")[0].fields["late"] == [3]
     assert [(t.tau, t.attempt) for t in of(out, R.Tick)] == [(0, 1)]
     m.on_truth(0, 1, x, {}, 3.3)
     for a in (1, 2):  # they answer the re-run; agent 3 stays silent
         m.on_xhat(a, 1, 1, 0, x, 0.0, {}, 3.4)
-    assert of(advance(m, 3.4, 5.4), R.QueryStatus)
+    advance(m, 3.4, 5.15)
+    assert of(m.on_timer(5.3), R.QueryStatus) and not m.probing
     out = m.on_status({1, 2, 3}, 5.5)
     (lost,) = events(out, "agent_lost")
     assert lost.fields["id"] == 3 and "without its estimate" in lost.fields["reason"]
 
 
-def test_round_timeout_loses_the_frozen_agent_only():
-    m = machine(round_timeout=2.0)
+def test_a_frozen_agent_is_found_by_the_probe_and_lost():
+    m = machine(round_timeout=10.0)
     start(m, 1.0)
     m.on_truth(0, 0, np.zeros(m.sc.n), {}, 1.1)
-    assert of(advance(m, 1.1, 3.1), R.QueryStatus)
-    out = m.on_status({1, 3}, 3.2)
+    assert not of(m.on_timer(1.35), R.QueryStatus)
+    assert of(m.on_timer(1.45), R.QueryStatus) and m.probing  # 0.3 s without news of the round
+    out = m.on_status({1, 3}, 2.45)  # agent 2 does not answer within the second
     (lost,) = events(out, "agent_lost")
     assert lost.fields["id"] == 2 and "frozen" in lost.fields["reason"] and 201 in m.hung
+    assert [(t.tau, t.attempt) for t in of(out, R.Tick)] == [(0, 1)]
+
+
+def test_a_silent_plant_stops_the_run():
+    m = machine()
+    start(m, 1.0)
+    out = advance(m, 1.0, 1.5, plant=False)
+    (stop,) = of(out, R.Stop)
+    assert stop.message.startswith("the plant (pid 100) was lost at event time 0: it does not answer a status query")
 
 
 def test_rejections_are_summarised_per_second_not_per_message():
