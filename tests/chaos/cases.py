@@ -446,6 +446,7 @@ def case_duplicate_id(tmp: Path) -> dict:
         refused_after = time.monotonic() - t0
         text = (r.tmp / "dup-agent-3.log").read_text(errors="replace")
         assert code == 2, text
+        assert refused_after < 10, f"the second agent 3 took {refused_after:.1f} s to be refused"
         line = assert_one_error(text, f"agent 3 of run '{r.rid}' refused: agent 3 is held by pid {holder} on host",
                                 "refusing a second process for it")
         e = wait_event(r.out, "duplicate_refused", timeout=10, id=3)
