@@ -173,7 +173,7 @@ def report_chaos(tmp: Path) -> None:
     """Every chaos case once, as a table (the cases assert; a failure is an outcome, not an abort)."""
     import traceback
 
-    from tests.chaos.cases import CASES, KnownBug, can_mount
+    from tests.chaos.cases import CASES, KnownBug, MountUnavailable, can_mount
 
     needs_mount = {"full disk", "read-only --out"}
     print(f"chaos cases (tests/chaos/cases.py), load average before {loadavg()}:")
@@ -190,6 +190,8 @@ def report_chaos(tmp: Path) -> None:
                 outcome, figures = "ok", ", ".join(f"{k} {v}" for k, v in f.items())
             except KnownBug as bug:
                 outcome, figures = "KNOWN BUG", str(bug)
+            except MountUnavailable as exc:
+                outcome, figures = "skipped", str(exc)
             except AssertionError as exc:
                 outcome, figures = "FAIL", " ".join(str(exc).split())[:300]
             except Exception as exc:  # noqa: BLE001 - a broken case is reported, the table goes on

@@ -37,7 +37,8 @@ from tests.integration.runtime_helpers import (ENV, ROOT, all_pids, assert_all_g
                                                dump, events, pid_alive, replay, scenario_file, started_pids,
                                                wait_for_rows)
 
-__all__ = ["CASES", "KnownBug", "Run", "chaos_run", "assert_records_consistent", "assert_one_error", "assert_clean",
+__all__ = ["CASES", "KnownBug", "MountUnavailable", "Run", "chaos_run", "assert_records_consistent",
+           "assert_one_error", "assert_clean",
            "wait_event", "rss_mb", "RssSampler", "flood", "cpu_load", "tmpfs", "detect", "loadavg"]
 
 ERROR_PREFIX = "splitspec: error:"
@@ -46,6 +47,10 @@ ERROR_PREFIX = "splitspec: error:"
 class KnownBug(AssertionError):
     """A product bug this suite found and reported (see the message); raised only after every other check of
     the case passed.  tests/chaos/test_chaos.py turns it into an xfail, bench_faults.py into its outcome."""
+
+
+class MountUnavailable(OSError):
+    """No tmpfs can be mounted here (not root, or a container without the capability): the case is skipped."""
 
 
 def new_run_id(prefix: str = "c") -> str:
@@ -311,12 +316,12 @@ def cpu_load(n: int = 4):
 
 @contextmanager
 def tmpfs(path: Path, size: str = "3m", *, read_only: bool = False):
-    """A tmpfs of ``size`` mounted on ``path`` (root only: raises OSError otherwise); unmounted at the end."""
+    """A tmpfs of ``size`` on ``path`` (root only, else :class:`MountUnavailable`); unmounted at the end."""
     path.mkdir(parents=True, exist_ok=True)
     opts = f"size={size},mode=0755" + (",ro" if read_only else "")
     r = subprocess.run(["mount", "-t", "tmpfs", "-o", opts, "tmpfs", str(path)], capture_output=True, text=True)
     if r.returncode != 0:
-        raise OSError(f"cannot mount a tmpfs on {path}: {r.stderr.strip()}")
+        raise MountUnavailable(f"cannot mount a tmpfs on {path}: {r.stderr.strip()}")
     try:
         yield path
     finally:
