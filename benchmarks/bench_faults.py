@@ -7,15 +7,20 @@ All from real runs on loopback (the machine is shared: compare within one invoca
    SPLITSPEC_LEASE_MS, default 1000 ms, for the frozen one);
 2. restart latency: examples/ring10_faults.yaml; `agent_restarting` -> `agent_rejoined` (a new
    Python process: start-up, config fetch, local design, token);
-3. secure vs plain: rounds per second of the unpaced paper example with and without `--secure`
-   (authentication + access control on the router), same invocation;
+3. secure vs plain: rounds per second of the unpaced paper example with `--insecure` and without it
+   (the default: authentication + access control on the router), same invocation;
 4. kill latency: from launching `splitspec kill --agent 1` (a subprocess, no --run-id) until the
    victim is reaped, N times, without a real run: a registry entry in a private
    SPLITSPEC_RUNTIME_DIR names a live dummy orchestrator and a dummy agent 1 (`python -c` sleepers
    whose argv contains 'splitspec', so kill's process-identity guard accepts them); with the
-   start-up of `python -c pass` and /proc/loadavg for scale.
+   start-up of `python -c pass` and /proc/loadavg for scale;
+5. chaos (``--chaos``, or ``--only chaos``): every case of tests/chaos/cases.py once (the same functions
+   the test suite runs, with their assertions), as a table ``case | outcome | wall | figures`` with
+   /proc/loadavg after each: detection of SIGKILL / SIGSTOP, flood rate and RSS growth, stall survived,
+   start-up and mid-run deaths, full disk, restart storm.  An outcome is ``ok``, ``KNOWN BUG`` (a product
+   bug the suite reports as xfail; every other check of the case passed), ``FAIL`` or ``skipped``.
 
-    .venv/bin/python benchmarks/bench_faults.py [--repeat 3] [--only kill] [--kill-runs 20]
+    .venv/bin/python benchmarks/bench_faults.py [--repeat 3] [--only kill|chaos] [--kill-runs 20] [--chaos]
 """
 
 from __future__ import annotations
@@ -34,6 +39,8 @@ import numpy as np
 import yaml
 
 ROOT = Path(__file__).resolve().parents[1]
+if str(ROOT) not in sys.path:  # tests.chaos.cases (the chaos primitives and cases)
+    sys.path.insert(0, str(ROOT))
 ENV = {**os.environ, "RERUN_ANALYTICS": "0"}
 CLI = [sys.executable, "-m", "orchestrator.cli"]
 
@@ -94,7 +101,7 @@ def rounds_per_second(tmp: Path, secure: bool, steps: int, k: int) -> float:
     scen = tmp / "paper.yaml"
     scen.write_text(yaml.safe_dump(raw))
     out = tmp / f"rps{int(secure)}-{k}"
-    cmd = [*CLI, "run", scen, "--out", out, "--run-id", f"benchs{os.getpid()}"] + (["--secure"] if secure else [])
+    cmd = [*CLI, "run", scen, "--out", out, "--run-id", f"benchs{os.getpid()}"] + ([] if secure else ["--insecure"])
     subprocess.run(cmd, cwd=ROOT, env=ENV, capture_output=True, check=True, timeout=300)
     return next(e["rounds_per_second"] for e in events(out) if e["event"] == "run_finished")
 
@@ -162,15 +169,54 @@ def report_kill(tmp: Path, runs: int) -> None:
     print(f"  load average after {loadavg()}")
 
 
+def report_chaos(tmp: Path) -> None:
+    """Every chaos case once, as a table (the cases assert; a failure is an outcome, not an abort)."""
+    import traceback
+
+    from tests.chaos.cases import CASES, KnownBug, MountUnavailable, can_mount
+
+    needs_mount = {"full disk", "read-only --out"}
+    print(f"chaos cases (tests/chaos/cases.py), load average before {loadavg()}:")
+    rows = []
+    for name, case in CASES.items():
+        d = tmp / ("chaos-" + "".join(c if c.isalnum() else "-" for c in name))
+        d.mkdir()
+        t0 = time.monotonic()
+        if name in needs_mount and not can_mount():
+            outcome, figures = "skipped", "needs root (tmpfs)"
+        else:
+            try:
+                f = case(d)
+                outcome, figures = "ok", ", ".join(f"{k} {v}" for k, v in f.items())
+            except KnownBug as bug:
+                outcome, figures = "KNOWN BUG", str(bug)
+            except MountUnavailable as exc:
+                outcome, figures = "skipped", str(exc)
+            except AssertionError as exc:
+                outcome, figures = "FAIL", " ".join(str(exc).split())[:300]
+            except Exception as exc:  # noqa: BLE001 - a broken case is reported, the table goes on
+                outcome, figures = "ERROR", "".join(traceback.format_exception_only(exc)).strip()[:300]
+        rows.append((name, outcome, time.monotonic() - t0, figures, loadavg()))
+        print(f"  {name:26s} | {outcome:9s} | {rows[-1][2]:5.1f} s | load {rows[-1][4]} | {figures}", flush=True)
+    total = sum(r[2] for r in rows)
+    ok = sum(r[1] == "ok" for r in rows)
+    print(f"  {ok}/{len(rows)} ok, {total:.0f} s in all, load average after {loadavg()}")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--steps", type=int, default=400)
-    ap.add_argument("--only", choices=["kill"], help="kill: only the kill-latency measurement (no real runs)")
+    ap.add_argument("--only", choices=["kill", "chaos"],
+                    help="kill: only the kill-latency measurement (no real runs); chaos: only the chaos table")
+    ap.add_argument("--chaos", action="store_true", help="also run every chaos case once (tests/chaos/cases.py)")
     ap.add_argument("--kill-runs", type=int, default=20)
     args = ap.parse_args()
     with tempfile.TemporaryDirectory() as d:
         tmp = Path(d)
+        if args.only == "chaos":
+            report_chaos(tmp)
+            return
         report_kill(tmp, args.kill_runs)
         if args.only == "kill":
             return
@@ -189,8 +235,10 @@ def main() -> None:
             plain.append(rounds_per_second(tmp, False, args.steps, r))
             secure.append(rounds_per_second(tmp, True, args.steps, r))
         p, s = float(np.median(plain)), float(np.median(secure))
-        print(f"paper example, {args.steps} steps: plain {p:.1f} rounds/s, --secure {s:.1f} rounds/s "
+        print(f"paper example, {args.steps} steps: --insecure {p:.1f} rounds/s, secure (default) {s:.1f} rounds/s "
               f"(secure / plain = {s / p:.2f})")
+        if args.chaos:
+            report_chaos(tmp)
 
 
 if __name__ == "__main__":

@@ -151,7 +151,7 @@ def test_plant_death_stops_the_run_cleanly(tmp_path):
     code, text = finish(p, log)
     assert code == 1
     errors = [line for line in text.splitlines() if line.startswith("splitspec: error:")]
-    assert len(errors) == 1 and "the plant (pid " in errors[0] and "was lost at event time" in errors[0], text
+    assert len(errors) == 1 and "the plant (pid " in errors[0] and ") was lost at event time" in errors[0], text
     assert "Traceback" not in text
     assert [e["event"] for e in events(out)][-2:] == ["run_failed", "recording_closed"]
     traj = np.load(out / "trajectory.npz")
