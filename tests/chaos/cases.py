@@ -37,16 +37,11 @@ from tests.integration.runtime_helpers import (ENV, ROOT, all_pids, assert_all_g
                                                dump, events, pid_alive, replay, scenario_file, started_pids,
                                                wait_for_rows)
 
-__all__ = ["CASES", "KnownBug", "MountUnavailable", "Run", "chaos_run", "assert_records_consistent",
+__all__ = ["CASES", "MountUnavailable", "Run", "chaos_run", "assert_records_consistent",
            "assert_one_error", "assert_clean",
            "wait_event", "rss_mb", "RssSampler", "flood", "cpu_load", "tmpfs", "detect", "loadavg"]
 
 ERROR_PREFIX = "splitspec: error:"
-
-
-class KnownBug(AssertionError):
-    """A product bug this suite found and reported (see the message); raised only after every other check of
-    the case passed.  tests/chaos/test_chaos.py turns it into an xfail, bench_faults.py into its outcome."""
 
 
 class MountUnavailable(OSError):
@@ -516,20 +511,6 @@ def case_frozen_orchestrator(tmp: Path, *, freeze: float = 5.0) -> dict:
         os.kill(orch, signal.SIGCONT)
         st = wait_event(r.out, "orchestrator_stalled", timeout=30)
     code, text = r.finish()
-    left = "orchestrator lost, exiting" in text
-    if left and (code != 0 or lost(r.out)):
-        # others left as the orchestrator resumed: at least one line, nothing behind, records consistent
-        if code != 0:
-            assert code == 1, r.logs()
-            what = assert_one_error(text, "was lost at event time")
-        else:
-            assert_clean(text)
-            replay(r.out, tmp)
-            what = f"exit 0 with agents {[e['id'] for e in lost(r.out)]} lost ('liveliness lost')"
-        assert_records_consistent(r.out)
-        assert_all_gone(r.every_pid())
-        raise KnownBug(f"a {freeze:g} s orchestrator freeze (stall recorded {st['seconds']} s) ends the run: "
-                       f"processes log 'orchestrator lost, exiting' as it resumes; then: {what}")
     assert code == 0, r.logs()
     assert_clean(text)
     assert st["seconds"] >= freeze - 0.5, st
@@ -580,10 +561,8 @@ def _startup_death(tmp: Path, role: str, ident: int) -> dict:
     failed = next(x for x in ev if x["event"] == "run_failed")
     figures = {"exit after kill s": round(took, 2), "detected s": round(failed["wall"] - t_kill, 3),
                "records closed after s": round(ev[-1]["wall"] - t_kill, 2)}
-    assert took <= 15, figures  # never hangs
-    if took > STARTUP_STOP_S:
-        raise KnownBug(f"splitspec run stopped {took:.2f} s after {who} was killed during start-up (bound "
-                       f"{STARTUP_STOP_S:g} s): {figures}")
+    assert failed["wall"] - t_kill <= STARTUP_STOP_S, figures  # reported (the one line, run_failed) within 2 s
+    assert took <= 10, figures  # and the whole run has ended soon after
     return figures
 
 
@@ -662,7 +641,8 @@ def case_read_only_out(tmp: Path) -> dict:
 
 
 def case_agent_frozen(tmp: Path) -> dict:
-    """SIGSTOP agent 6: lost within the 1 s lease (+0.5 s); SIGCONT later: it leaves or is stopped at the end."""
+    """SIGSTOP agent 6: lost within 1.5 s (the orchestrator's status probe); SIGCONT later: it is not readmitted
+    and is stopped at the end."""
     scen = scenario_file(tmp, "ring10", run={"steps": 120, "pace": 20})
     with chaos_run(tmp, scen) as r:
         wait_for_rows(r.out, 15, timeout=90)
@@ -676,7 +656,7 @@ def case_agent_frozen(tmp: Path) -> dict:
     assert_clean(text)
     assert latency <= 1.5, f"SIGSTOP detected after {latency:.3f} s"
     (loss,) = lost(r.out)
-    assert loss["id"] == 6 and "liveliness" in loss["reason"], loss
+    assert loss["id"] == 6 and "frozen" in loss["reason"], loss
     assert_records_consistent(r.out)
     replay(r.out, tmp)
     assert_all_gone(r.every_pid())
