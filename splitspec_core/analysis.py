@@ -8,7 +8,8 @@ import numpy as np
 
 from .simulate import Trajectory
 
-__all__ = ["max_error", "fit_decay", "envelope_constant", "summarize", "monte_carlo_stats"]
+__all__ = ["max_error", "fit_decay", "envelope_constant", "envelope_restarts", "envelope", "summarize",
+           "monte_carlo_stats"]
 
 
 def max_error(traj: Trajectory) -> np.ndarray:
@@ -60,6 +61,59 @@ def envelope_constant(t: np.ndarray, err: np.ndarray, *, time: str, rate: float,
         err = np.where(err > floor_rel * np.asarray(scale, dtype=float), err, np.nan)
     ratio = err / env
     return float(np.nanmax(ratio[np.isfinite(ratio)])) if np.isfinite(ratio).any() else float("nan")
+
+
+def envelope_restarts(alive: np.ndarray, graph: np.ndarray) -> np.ndarray:
+    """Steps where the designed envelope starts afresh: 0, every rejoin and every graph switch.
+
+    A rejoining agent starts from a fresh estimate, so the guarantee (``|e| <= c lam^tau``, or
+    ``c exp(-lam t)``) holds again from that step with a new constant; a switch moves the error
+    dynamics to another matrix (``A_V(tau)``, eq. split_discrete_ench), whose certificate is its own.
+    A loss alone does not restart it: the survivors' errors keep decaying.
+    """
+    alive = np.asarray(alive, dtype=bool)
+    graph = np.asarray(graph)
+    T = alive.shape[0]
+    if T == 0:
+        return np.zeros(0, dtype=int)
+    rejoin = np.zeros(T, dtype=bool)
+    rejoin[1:] = (alive[1:] & ~alive[:-1]).any(axis=1)
+    switch = np.zeros(T, dtype=bool)
+    switch[1:] = graph[1:] != graph[:-1]
+    switch[0] = rejoin[0] = True
+    return np.nonzero(rejoin | switch)[0]
+
+
+def envelope(t: np.ndarray, err_max: np.ndarray, restarts, *, time: str, rate: float, fit: bool = False,
+             scale: np.ndarray | None = None, floor_rel: float = 1e-9) -> np.ndarray:
+    """The designed envelope, restarted at ``restarts`` (see :func:`envelope_restarts`), shape (T,).
+
+    On each piece ``[k0, k1)``: ``c lam^(t - t_k0)`` (discrete) or ``c exp(-lam (t - t_k0))``
+    (continuous).  ``fit=False`` (what a live recording can know): ``c = err_max[k0]``, the envelope
+    starts at the error it restarts from.  ``fit=True`` (a finished trajectory): ``c`` is the
+    smallest constant above the piece's errors (samples at the round-off floor
+    ``floor_rel * scale`` ignored, as in :func:`envelope_constant`).  NaN where there is no error.
+    """
+    t = np.asarray(t, dtype=float)
+    err = np.asarray(err_max, dtype=float)
+    T = t.shape[0]
+    env = np.full(T, np.nan)
+    starts = [int(k) for k in restarts if 0 <= int(k) < T]
+    if not starts or starts[0] != 0:
+        starts = [0] + starts
+    for a, k0 in enumerate(starts):
+        k1 = starts[a + 1] if a + 1 < len(starts) else T
+        dt = t[k0:k1] - t[k0]
+        decay = np.exp(-rate * dt) if time == "continuous" else rate ** dt
+        piece = err[k0:k1]
+        if fit:
+            sc = None if scale is None else np.asarray(scale, dtype=float)[k0:k1]
+            c = envelope_constant(dt, piece, time=time, rate=rate, scale=sc, floor_rel=floor_rel)
+        else:
+            c = piece[0]
+        if np.isfinite(c) and c > 0:
+            env[k0:k1] = c * decay
+    return env
 
 
 def summarize(traj: Trajectory, *, time: str, rate: float, noise_free: Trajectory | None = None) -> dict:

@@ -138,3 +138,22 @@ def test_trajectory_roundtrip(tmp_path):
 def _raw(path):
     import yaml
     return yaml.safe_load(open(path))
+
+
+def test_envelope_restarts_at_rejoins_and_switches_only():
+    from splitspec_core.analysis import envelope, envelope_restarts
+
+    alive = np.ones((10, 2), dtype=bool)
+    alive[3:6, 1] = False  # lost at 3 (no restart), rejoins at 6 (restart)
+    graph = np.array([0, 0, 0, 0, 0, 0, 0, 0, 1, 1])  # switch at 8 (restart)
+    assert envelope_restarts(alive, graph).tolist() == [0, 6, 8]
+    t = np.arange(10.0)
+    err = np.array([8.0, 4, 2, 1, 0.5, 0.25, 10, 5, 3, 1.5])
+    env = envelope(t, err, [0, 6, 8], time="discrete", rate=0.5)
+    # each piece starts at the error it restarts from and halves every event time
+    assert np.allclose(env, [8, 4, 2, 1, 0.5, 0.25, 10, 5, 3, 1.5])
+    fitted = envelope(t, err * np.array([1, 1, 1, 1, 1, 1, 1, 1.2, 1, 1]), [0, 6, 8], time="discrete", rate=0.5,
+                      fit=True)
+    assert np.allclose(fitted[6:8], [12, 6])  # the smallest constant above the piece
+    cont = envelope(np.linspace(0, 1, 5), np.ones(5), [0], time="continuous", rate=2.0)
+    assert np.allclose(cont, np.exp(-2.0 * np.linspace(0, 1, 5)))
