@@ -266,7 +266,7 @@ class Orchestrator:
                 p = self._spawn(a.role, a.ident)
                 self._execute(self.machine.on_spawned(a.role, a.ident, p.pid, time.monotonic()))
             elif kind is R.QueryStatus:
-                agents, plant = self._answering()
+                agents, plant = self._answering(a.timeout)
                 self._execute(self.machine.on_status(agents, time.monotonic(), plant=plant))
             elif kind is R.Stop:
                 raise RunFailed(a.message)
@@ -282,12 +282,12 @@ class Orchestrator:
         finally:
             query.drop()
 
-    def _answering(self) -> tuple:
-        """Agents whose granted process answers a status query within a second (not frozen), and the plant."""
+    def _answering(self, timeout: float) -> tuple:
+        """Agents whose granted process answers a status query within ``timeout`` (not frozen), and the plant."""
         from splitspec_core.bus import query_all
 
         answered, plant = set(), False
-        for key, _payload in query_all(self.session, self.keys.status_all, timeout=min(1.0, self.round_timeout)):
+        for key, _payload in query_all(self.session, self.keys.status_all, timeout=min(timeout, self.round_timeout)):
             member = self.keys.parse_member(key, "status")
             if member and member[0] in ("agent", "plant"):
                 c = self.machine.claims.get(("agent", member[1]) if member[0] == "agent" else ("plant", 0))

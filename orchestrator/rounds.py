@@ -37,9 +37,9 @@ lost; if all answer, the round is re-run once, then the late ones are lost.
 *Frozen processes.*  A round that has had no news for :data:`PROBE_SECONDS`
 queries every process's status (answered from a Zenoh thread, so a busy
 process answers and a frozen one cannot): an agent that does not answer
-within a second is lost as frozen, a silent plant stops the run; if all
-answer, nobody is blamed and the round waits on.  So a frozen agent is lost
-about 1.3 s after it froze, while links keep a long lease (a loaded machine,
+within :data:`PROBE_ANSWER_SECONDS` is lost as frozen, a silent plant stops
+the run; if all answer, nobody is blamed and the round waits on.  So a frozen
+agent is lost about 1.1 s after it froze, while links keep a long lease (a loaded machine,
 or the orchestrator's own freeze, never closes a link); a killed process
 closes its sockets and is lost at once through its liveliness token.
 
@@ -73,6 +73,7 @@ __all__ = ["RoundMachine", "Claim", "STALL_SECONDS", "SUMMARY_SECONDS",
 
 STALL_SECONDS = 2.5  #: a gap between calls longer than this is the orchestrator's own freeze
 PROBE_SECONDS = 0.3  #: a round with no news for this long: ask every process whether it is alive
+PROBE_ANSWER_SECONDS = 0.8  #: ... and give it this long to answer (a busy process answers in milliseconds)
 SUMMARY_SECONDS = 1.0  #: rejected messages are summarised once per this many seconds
 
 
@@ -149,7 +150,8 @@ class Spawn:
 
 @dataclass(frozen=True)
 class QueryStatus:
-    """Query every process's status; the shell answers with :meth:`RoundMachine.on_status`."""
+    """Query every process's status for ``timeout`` seconds; the shell answers with :meth:`RoundMachine.on_status`."""
+    timeout: float = 1.0
 
 
 @dataclass(frozen=True)
@@ -517,7 +519,8 @@ class RoundMachine:
         if not plant:
             return out + [self._stop_plant("it does not answer a status query (frozen)")]
         if frozen:
-            why = ("no news of the round for a while and no answer to a status query within a second: frozen"
+            why = (f"no news of the round for {PROBE_SECONDS:g} s and no answer to a status query within "
+                   f"{PROBE_ANSWER_SECONDS:g} s: frozen"
                    if probing else f"round timeout ({self.round_timeout:g} s) and no answer to a status query: frozen")
             for a in frozen:
                 self.pending_loss[a] = why
@@ -662,7 +665,7 @@ class RoundMachine:
                     return out + [QueryStatus()]
                 if now >= self.quiet_since + PROBE_SECONDS:
                     self.phase, self.probing = "status", True
-                    return out + [QueryStatus()]
+                    return out + [QueryStatus(PROBE_ANSWER_SECONDS)]
                 return out
             return out  # status (waiting for on_status) or done
         raise RuntimeError("round machine made no progress")  # pragma: no cover - a bug, not an input
