@@ -307,7 +307,9 @@ class Orchestrator:
         if self.security is not None:
             user = "plant" if role == "plant" else f"agent-{ident}"
             args += ["--credentials", self.security.credentials_file(user)]
-        p = spawn(cli_command(*args))
+        from splitspec_core.bus import CHILD_ENV
+
+        p = spawn(cli_command(*args), env={**os.environ, CHILD_ENV: "1"})
         self.children[p.pid] = p
         return p
 

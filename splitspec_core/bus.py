@@ -35,6 +35,7 @@ from .wire import MAC_BYTES, mac
 __all__ = ["zenoh_config", "open_session", "Inbox", "NodeShell", "BusError", "IdentityRefused", "query_all",
            "lease_ms_for", "LIVELINESS_PUT", "LIVELINESS_DELETE", "INBOX_LIMIT"]
 
+CHILD_ENV = "SPLITSPEC_CHILD"  #: set in the environment of the processes an orchestrator starts itself
 LIVELINESS_PUT = "put"
 LIVELINESS_DELETE = "delete"
 INBOX_LIMIT = 10_000
@@ -366,8 +367,12 @@ class NodeShell:
                 if payload == LIVELINESS_DELETE:
                     import sys
 
-                    print(f"splitspec: error: {self.who}: the orchestrator of run {self.keys.run_id!r} was lost "
-                          "(its liveliness token disappeared); exiting", file=sys.stderr)
+                    msg = (f"{self.who}: the orchestrator of run {self.keys.run_id!r} was lost (its liveliness "
+                           "token disappeared); exiting")
+                    if os.environ.get(CHILD_ENV):  # the orchestrator's own child: `splitspec run` says it once
+                        self.log.info("%s", msg)
+                    else:
+                        print(f"splitspec: error: {msg}", file=sys.stderr)
                     code = 1
                     break
             elif channel == "signal":
