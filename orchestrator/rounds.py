@@ -490,7 +490,10 @@ class RoundMachine:
         if aid not in self.index:
             self.reject("orchestrator", "wrong_sender")
             return out
-        if (self.phase not in ("round", "status") or attempt != self.attempt or incarnation != self.incarnation(aid)
+        # x_i(tau) does not depend on the attempt (a fresh estimate at admission, else the last round's result):
+        # an admission estimate that crosses a re-run still counts; x_i(tau + 1) only from the round in flight
+        current = attempt == self.attempt or (tau == self.tau and attempt < self.attempt)
+        if (self.phase not in ("round", "status") or not current or incarnation != self.incarnation(aid)
                 or tau not in (self.tau, self.tau + 1)):
             ahead = (tau, attempt) > (self.tau + 1, self.attempt)
             self.reject("orchestrator", "future" if ahead else "stale")

@@ -408,3 +408,23 @@ def test_in_process_protocol_equals_simulate(example):
     assert xhat.shape == tr.xhat.shape
     assert np.max(np.abs(xhat - tr.xhat)) <= 1e-12 * max(1.0, np.abs(tr.xhat).max())
     assert np.allclose(np.array([r.x for r in rows]), tr.x, rtol=0, atol=1e-12 * max(1.0, np.abs(tr.x).max()))
+
+
+def test_an_admission_estimate_crossing_a_rerun_still_counts():
+    """Agent 2 rejoins at tau; agent 3 dies before agent 2's fresh x_2(tau) (sent for attempt 0) arrives."""
+    m = machine()
+    start(m, 1.0)
+    m.on_token("agent", 2, "n2", False, 1.1)  # agent 2 lost during round 0
+    finish_round(m, 1.2)
+    m.on_hello("q", hello("agent", 2, "fresh", 300), 1.3)
+    m.on_token("agent", 2, "fresh", True, 1.4)
+    out = finish_round(m, 1.5, skip=(2,))  # round 1 ends; round 2 starts with agent 2 admitted
+    assert events(out, "agent_rejoined") and (m.tau, m.attempt) == (2, 0)
+    m.on_token("agent", 3, "n3", False, 1.6)  # agent 3 dies: round 2 re-run (attempt 1)
+    assert m.attempt == 1
+    x = np.zeros(m.sc.n)
+    m.on_xhat(2, 2, 0, 1, x, 0.0, {}, 1.7)  # agent 2's admission estimate, sent at attempt 0, arrives now
+    m.on_truth(2, 1, x, {}, 1.8)
+    for a in (1, 2):
+        out = m.on_xhat(a, 3, 1, m.incarnation(a), x, 0.0, {}, 1.9)
+    assert of(out, R.Record) and m.tau == 3
