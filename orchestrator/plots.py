@@ -7,6 +7,7 @@ from pathlib import Path
 import matplotlib
 
 matplotlib.use("Agg")
+import matplotlib.lines  # noqa: E402
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
@@ -16,63 +17,143 @@ def _xlabel(time: str) -> str:
     return "time t" if time == "continuous" else "event time tau"
 
 
-def plot_errors(traj, path: Path, *, time: str, rate: float, c: float, title: str) -> None:
-    """Error norm per agent, log scale, with the designed envelope ``c rate^tau`` / ``c exp(-rate t)``."""
-    fig, ax = plt.subplots(figsize=(7, 4.2))
+# one style per kind of event (splitspec_core.analysis.Mark.kind)
+MARK_STYLES = {
+    "loss": dict(color="#c0392b", ls=":", lw=1.1),
+    "rejoin": dict(color="#1e8449", ls="-.", lw=1.1),
+    "switch": dict(color="#7f8c8d", ls="-", lw=0.6, alpha=0.5),
+    "arc": dict(color="#7d3c98", ls="--", lw=1.0),
+}
+MARK_NAMES = {"loss": "agent lost", "rejoin": "agent rejoins (fresh estimate)", "switch": "graph switch",
+              "arc": "arc dropped / restored"}
+MAX_LABELLED_SWITCHES = 12  # beyond this, switches are lines without text (the legend names them)
+
+
+def legend_outside(ax, **kw):
+    """The legend to the right of ``ax``, outside the data (figures use constrained layout)."""
+    return ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0, fontsize=8, **kw)
+
+
+def _dense_switches(marks) -> bool:
+    return sum(m.kind == "switch" for m in marks) > MAX_LABELLED_SWITCHES
+
+
+def _labelled(marks) -> list:
+    """The marks that get a text label: all but switches when there are too many of them."""
+    return [m for m in marks if m.kind != "switch" or not _dense_switches(marks)]
+
+
+def _draw_marks(ax, marks, *, text: bool) -> list:
+    """Vertical lines at ``marks``; short labels at the bottom of ``ax`` when ``text``; legend proxies."""
+    dense = _dense_switches(marks)
+    for m in marks:
+        if m.kind == "switch" and dense:  # a tick at the top per switch, not a line through the data
+            ax.axvline(m.t, 0.96, 1.0, **{**MARK_STYLES["switch"], "alpha": 0.8}, gid="mark:switch")
+        else:
+            ax.axvline(m.t, **MARK_STYLES[m.kind], zorder=1.5, gid=f"mark:{m.kind}")
+    for m in _labelled(marks) if text else ():
+        ax.text(m.t, 0.02, " " + m.label, transform=ax.get_xaxis_transform(), rotation=90, va="bottom",
+                ha="right", fontsize=7, color=MARK_STYLES[m.kind]["color"], gid=f"mark-label:{m.kind}")
+    kinds = [k for k in MARK_STYLES if any(m.kind == k for m in marks)]
+    names = {**MARK_NAMES, "switch": "graph switch (ticks at the top)" if dense else MARK_NAMES["switch"]}
+    return [matplotlib.lines.Line2D([], [], **MARK_STYLES[k], label=names[k]) for k in kinds]
+
+
+def _envelope_label(time: str, rate: float, marks, pieces: int, *, across_switches: int = 0) -> str:
+    law = f"exp(-{rate:g} t)" if time == "continuous" else f"{rate:g}^tau"
+    why = [w for k, w in (("rejoin", "rejoin"), ("switch", "switch")) if any(m.kind == k for m in marks)]
+    if across_switches:
+        why = [w for w in why if w != "switch"]
+        return (f"designed rate {law}\none constant across {across_switches} switches"
+                + (f"\nrestarted at each rejoin" if pieces > 1 else ""))
+    if pieces <= 1:
+        return f"designed rate {law}"
+    return f"designed rate {law}\nfrom each restart ({', '.join(why) or 'restart'})"
+
+
+def plot_errors(traj, path: Path, *, time: str, rate: float | None, title: str, marks=(),
+                noise_free=None, adaptive: bool = False) -> None:
+    """Error norm per agent, log scale, events marked, with the designed envelope restarted at rejoins and switches.
+
+    ``marks``: :func:`splitspec_core.analysis.event_marks` of the run.  The
+    envelope ``c rate^(tau - tau_k)`` / ``c exp(-rate (t - t_k))`` starts afresh
+    at every restart ``t_k`` (:func:`splitspec_core.analysis.envelope_restarts`)
+    with the smallest constant above the noise-free errors of its piece.
+    ``adaptive``: no envelope (thm. split_continuous_adaptive certifies no rate).
+    """
+    from splitspec_core.analysis import NO_CERTIFIED_RATE, envelope, envelope_restarts, max_error
+
+    fig, ax = plt.subplots(figsize=(9.5, 4.4), layout="constrained")
     e = traj.errors()
     for k, aid in enumerate(traj.agent_ids):
         ax.semilogy(traj.t, e[:, k], lw=1.3, label=f"agent {aid}")
-    env = c * (np.exp(-rate * traj.t) if time == "continuous" else rate ** traj.t)
-    lab = f"{c:.3g} exp(-{rate:g} t)" if time == "continuous" else f"{c:.3g} x {rate:g}^tau"
-    ax.semilogy(traj.t, env, "k--", lw=1.0, label=f"designed envelope {lab}")
-    died = np.nonzero(np.diff(traj.alive.astype(int), axis=0) < 0)
-    for k_t, k_a in zip(*died):
-        ax.axvline(traj.t[k_t + 1], color="red", lw=0.8, ls=":")
-        ax.text(traj.t[k_t + 1], ax.get_ylim()[1], f" agent {traj.agent_ids[k_a]} lost", color="red",
-                fontsize=7, va="top", rotation=90)
-    finite = e[np.isfinite(e) & (e > 0)]
+    ref = traj if noise_free is None else noise_free
+    if noise_free is not None and noise_free is not traj:
+        ax.semilogy(ref.t, max_error(ref), color="0.35", lw=1.0, ls=(0, (1, 1)), label="max error, noise-free run")
+    if not adaptive:
+        # Switches faster than the eye can follow leave pieces too short to show a rate (the fitted
+        # envelope would trace the error itself): then one constant across them, restarted at rejoins only.
+        across = sum(m.kind == "switch" for m in marks) if _dense_switches(marks) else 0
+        restarts = envelope_restarts(ref.alive, np.zeros_like(ref.graph) if across else ref.graph)
+        env = envelope(ref.t, max_error(ref), restarts, time=time, rate=rate, fit=True,
+                       scale=np.linalg.norm(ref.x, axis=1))
+        ax.semilogy(ref.t, env, "k--", lw=1.0, gid="envelope",
+                    label=_envelope_label(time, rate, marks, restarts.size, across_switches=across))
+    handles, _ = ax.get_legend_handles_labels()
+    shown = e if ref is traj else np.concatenate([e.ravel(), max_error(ref)])  # the noise-free run in view too
+    finite = shown[np.isfinite(shown) & (shown > 0)]
     if finite.size:
-        ax.set_ylim(max(finite.min() * 0.5, 1e-16), finite.max() * 3)
+        lo, hi = np.log10(max(finite.min() * 0.5, 1e-16)), np.log10(finite.max() * 3)
+        if _labelled(marks):
+            lo -= 0.22 * (hi - lo)  # a strip under the data for the marks' labels
+        ax.set_ylim(10 ** lo, 10 ** hi)
+    handles += _draw_marks(ax, marks, text=True)
     ax.set_xlabel(_xlabel(time))
     ax.set_ylabel("|x_i - x|")
-    ax.set_title(title)
+    ax.set_title(title + (f"\n{NO_CERTIFIED_RATE}" if adaptive else ""))
     ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=8, loc="upper right")
-    fig.tight_layout()
+    legend_outside(ax, handles=handles)
     fig.savefig(path, dpi=110)
     plt.close(fig)
 
 
-def plot_states(traj, path: Path, *, time: str, title: str, max_components: int = 8) -> None:
-    """Each state component: truth (black) versus every agent's estimate."""
+def plot_states(traj, path: Path, *, time: str, title: str, marks=(), max_components: int = 8) -> None:
+    """Each state component: truth (black) versus every agent's estimate, events marked."""
     n = min(traj.x.shape[1], max_components)
-    fig, axes = plt.subplots(n, 1, figsize=(7, 1.6 * n + 0.6), sharex=True, squeeze=False)
+    fig, axes = plt.subplots(n, 1, figsize=(9.0, 1.6 * n + 0.8), sharex=True, squeeze=False, layout="constrained")
+    extra = []
     for c in range(n):
         ax = axes[c, 0]
         for k, aid in enumerate(traj.agent_ids):
             ax.plot(traj.t, traj.xhat[:, k, c], lw=1.0, label=f"agent {aid}")
         ax.plot(traj.t, traj.x[:, c], "k", lw=2.0, alpha=0.6, label="truth")
+        extra = _draw_marks(ax, marks, text=False)
         ax.set_ylabel(f"x{c + 1}")
         ax.grid(True, alpha=0.3)
-    axes[0, 0].set_title(title)
-    axes[0, 0].legend(fontsize=7, ncol=4, loc="upper right")
+    top = axes[0, 0]  # short labels above the first component
+    for m in _labelled(marks):
+        top.text(m.t, 1.02, m.label, transform=top.get_xaxis_transform(), rotation=90, va="bottom",
+                 ha="center", fontsize=7, color=MARK_STYLES[m.kind]["color"])
+    fig.suptitle(title)
+    handles, _ = axes[0, 0].get_legend_handles_labels()
+    fig.legend(handles=handles + extra, loc="outside right upper", fontsize=8)  # beside all rows, not one
     axes[-1, 0].set_xlabel(_xlabel(time))
-    fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
 
 
-def plot_monte_carlo(t, stats: dict, path: Path, *, time: str, title: str) -> None:
-    """Mean RMS error over seeds with the 10-90 % band."""
-    fig, ax = plt.subplots(figsize=(7, 4))
+def plot_monte_carlo(t, stats: dict, path: Path, *, time: str, title: str, marks=()) -> None:
+    """Mean RMS error over seeds with the 10-90 % band, events marked."""
+    fig, ax = plt.subplots(figsize=(9.0, 4), layout="constrained")
     ax.fill_between(t, stats["p10"], stats["p90"], alpha=0.3, label="10-90 % of seeds")
     ax.semilogy(t, stats["mean"], lw=1.5, label=f"mean over {stats['seeds']} seeds")
+    handles, _ = ax.get_legend_handles_labels()
+    handles += _draw_marks(ax, marks, text=False)
     ax.set_xlabel(_xlabel(time))
     ax.set_ylabel("RMS error over agents")
     ax.set_title(title)
     ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=8)
-    fig.tight_layout()
+    legend_outside(ax, handles=handles)
     fig.savefig(path, dpi=110)
     plt.close(fig)
 
