@@ -71,8 +71,17 @@ def _envelope_label(time: str, rate: float, marks, pieces: int, *, across_switch
     return f"designed rate {law}\nfrom each restart ({', '.join(why) or 'restart'})"
 
 
-def plot_errors(traj, path: Path, *, time: str, rate: float | None, title: str, marks=(),
-                noise_free=None, adaptive: bool = False) -> None:
+def plot_errors(traj, path: Path, *, time: str, rate: float | None, title: str, marks=(), noise_free=None,
+                adaptive: bool = False) -> None:
+    """Write :func:`errors_figure` to ``path`` (PNG)."""
+    fig = errors_figure(traj, time=time, rate=rate, title=title, marks=marks, noise_free=noise_free,
+                        adaptive=adaptive)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def errors_figure(traj, *, time: str, rate: float | None, title: str, marks=(), noise_free=None,
+                  adaptive: bool = False):
     """Error norm per agent, log scale, events marked, with the designed envelope restarted at rejoins and switches.
 
     ``marks``: :func:`splitspec_core.analysis.event_marks` of the run.  The
@@ -80,6 +89,8 @@ def plot_errors(traj, path: Path, *, time: str, rate: float | None, title: str, 
     at every restart ``t_k`` (:func:`splitspec_core.analysis.envelope_restarts`)
     with the smallest constant above the noise-free errors of its piece.
     ``adaptive``: no envelope (thm. split_continuous_adaptive certifies no rate).
+    Lines carry ``gid`` ``envelope`` and ``mark:<kind>`` (tests find them there).
+    Returns the figure (the caller closes it).
     """
     from splitspec_core.analysis import NO_CERTIFIED_RATE, envelope, envelope_restarts, max_error
 
@@ -113,8 +124,7 @@ def plot_errors(traj, path: Path, *, time: str, rate: float | None, title: str, 
     ax.set_title(title + (f"\n{NO_CERTIFIED_RATE}" if adaptive else ""))
     ax.grid(True, which="both", alpha=0.3)
     legend_outside(ax, handles=handles)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    return fig
 
 
 def plot_states(traj, path: Path, *, time: str, title: str, marks=(), max_components: int = 8) -> None:
