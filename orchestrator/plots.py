@@ -172,7 +172,7 @@ def plot_compare(res: dict, errors_path: Path, ratios_path: Path) -> None:
     """RMS error over time per estimator (mean over seeds) and the bar chart of ratios to the centralized KF."""
     curves = res["_curves"]
     t = curves["t"]
-    fig, ax = plt.subplots(figsize=(7.5, 4.2))
+    fig, ax = plt.subplots(figsize=(9.0, 4.2), layout="constrained")
     for name, c in curves.items():
         if name == "t":
             continue
@@ -182,8 +182,7 @@ def plot_compare(res: dict, errors_path: Path, ratios_path: Path) -> None:
     ax.set_ylabel("RMS over agents of |x_i - x|")
     ax.set_title(f"{res['scenario']}: mean over {len(res['seeds'])} seeds")
     ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=8)
-    fig.tight_layout()
+    legend_outside(ax)
     fig.savefig(errors_path, dpi=120)
     plt.close(fig)
     names = list(res["estimators"])
@@ -205,7 +204,7 @@ def plot_sweep(res: dict, path: Path) -> None:
     """RMS (predicted, simulated) and measured rate against q or g, certified values marked."""
     rows = [r for r in res["rows"] if "error" not in r]
     v = [r["value"] for r in rows]
-    fig, (a1, a2) = plt.subplots(1, 2, figsize=(10, 3.8))
+    fig, (a1, a2) = plt.subplots(1, 2, figsize=(10, 4.6), layout="constrained")
     a1.plot(v, [r["predicted_rms"] for r in rows], "o-", label="predicted (Lyapunov)")
     a1.plot(v, [r["simulated_rms"] for r in rows], "x--", label="simulated")
     a1.set_yscale("log")
@@ -222,8 +221,7 @@ def plot_sweep(res: dict, path: Path) -> None:
                 ax.axvspan(r["value"] - 0.02, r["value"] + 0.02, color="green", alpha=0.15)
         ax.axvline(res["designed"], color="C2", lw=1.0, label=f"designed {res['parameter']} = {res['designed']:g}")
         ax.grid(True, alpha=0.3)
-        ax.legend(fontsize=7)
+        ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.16), ncol=2)  # below the data
     fig.suptitle(f"{res['scenario']}: choosing {res['parameter']} (green: rate certified)")
-    fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)
