@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import matplotlib
@@ -140,6 +141,14 @@ def plot_states(traj, path: Path, *, time: str, title: str, marks=(), max_compon
         extra = _draw_marks(ax, marks, text=False)
         ax.set_ylabel(f"x{c + 1}")
         ax.grid(True, alpha=0.3)
+        early = np.nanmax(np.abs(traj.x[: max(2, traj.t.size // 10), c]))
+        if early > 0 and np.nanmax(np.abs(traj.x[:, c])) > 50 * early:  # a growing mode: keep the transient in view
+            ax.set_yscale("symlog", linthresh=early)
+            d0, d1 = math.ceil(math.log10(early)), math.floor(math.log10(np.nanmax(np.abs(traj.x[:, c]))))
+            dec = [10.0 ** d for d in range(d0, d1 + 1, max(1, math.ceil((d1 - d0 + 1) / 3)))]
+            ax.set_yticks([-v for v in dec[::-1]] + [0.0] + dec)  # a few decades each side, readable
+            ax.minorticks_off()
+            ax.set_ylabel(f"x{c + 1} (symlog)")
     top = axes[0, 0]  # short labels above the first component
     for m in _labelled(marks):
         top.text(m.t, 1.02, m.label, transform=top.get_xaxis_transform(), rotation=90, va="bottom",
