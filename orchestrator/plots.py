@@ -27,7 +27,9 @@ MARK_STYLES = {
 }
 MARK_NAMES = {"loss": "agent lost", "rejoin": "agent rejoins (fresh estimate)", "switch": "graph switch",
               "arc": "arc dropped / restored"}
-MAX_LABELLED_SWITCHES = 12  # beyond this, switches are lines without text (the legend names them)
+MAX_LABELLED_SWITCHES = 12  # beyond this, switches are ticks without text (the legend names them)
+SWITCH_TICK = 0.07  # height of a switch tick at the top of the axes (axes fraction)
+SWITCH_TICK_STYLE = dict(color="#34495e", ls="-", lw=1.6)
 
 
 def legend_outside(ax, **kw):
@@ -49,7 +51,7 @@ def _draw_marks(ax, marks, *, text: bool) -> list:
     dense = _dense_switches(marks)
     for m in marks:
         if m.kind == "switch" and dense:  # a tick at the top per switch, not a line through the data
-            ax.axvline(m.t, 0.96, 1.0, **{**MARK_STYLES["switch"], "alpha": 0.8}, gid="mark:switch")
+            ax.axvline(m.t, 1.0 - SWITCH_TICK, 1.0, **SWITCH_TICK_STYLE, gid="mark:switch")
         else:
             ax.axvline(m.t, **MARK_STYLES[m.kind], zorder=1.5, gid=f"mark:{m.kind}")
     for m in _labelled(marks) if text else ():
@@ -57,7 +59,8 @@ def _draw_marks(ax, marks, *, text: bool) -> list:
                 ha="right", fontsize=7, color=MARK_STYLES[m.kind]["color"], gid=f"mark-label:{m.kind}")
     kinds = [k for k in MARK_STYLES if any(m.kind == k for m in marks)]
     names = {**MARK_NAMES, "switch": "graph switch (ticks at the top)" if dense else MARK_NAMES["switch"]}
-    return [matplotlib.lines.Line2D([], [], **MARK_STYLES[k], label=names[k]) for k in kinds]
+    style = {**MARK_STYLES, "switch": SWITCH_TICK_STYLE if dense else MARK_STYLES["switch"]}
+    return [matplotlib.lines.Line2D([], [], **style[k], label=names[k]) for k in kinds]
 
 
 def _envelope_label(time: str, rate: float, marks, pieces: int, *, across_switches: int = 0) -> str:
@@ -116,8 +119,11 @@ def errors_figure(traj, *, time: str, rate: float | None, title: str, marks=(), 
     finite = shown[np.isfinite(shown) & (shown > 0)]
     if finite.size:
         lo, hi = np.log10(max(finite.min() * 0.5, 1e-16)), np.log10(finite.max() * 3)
+        span = hi - lo
         if _labelled(marks):
-            lo -= 0.22 * (hi - lo)  # a strip under the data for the marks' labels
+            lo -= 0.22 * span  # a strip under the data for the marks' labels
+        if _dense_switches(marks):
+            hi += 0.09 * span  # a strip over the data for the switch ticks
         ax.set_ylim(10 ** lo, 10 ** hi)
     handles += _draw_marks(ax, marks, text=True)
     ax.set_xlabel(_xlabel(time))

@@ -147,7 +147,7 @@ def test_dense_switching_envelope_is_one_constant_and_switches_are_ticks():
         assert np.allclose(env[1:] / env[:-1], sc.design.rate)  # no restart at every switch
         assert f"across {n_switch} switches" in env_line.get_label()
         ticks = _lines(ax, "mark:switch")
-        assert len(ticks) == n_switch and all(np.allclose(t.get_ydata(), [0.96, 1.0]) for t in ticks)
+        assert len(ticks) == n_switch and all(np.allclose(t.get_ydata(), [1 - plots.SWITCH_TICK, 1.0]) for t in ticks)
         assert not ax.texts  # no label per switch
     finally:
         plt.close(fig)
