@@ -3,7 +3,7 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 BIN=${BIN:-.venv/bin}
-for ex in paper_continuous paper_continuous_switching paper_discrete paper_discrete_noise paper_discrete_switching ring10; do
+for ex in paper_continuous paper_continuous_switching paper_discrete paper_discrete_noise paper_discrete_switching ring10 ring10_faults; do
   "$BIN/splitspec" simulate "examples/$ex.yaml" --out "out/figures/$ex" > /dev/null
   mkdir -p docs/figures
   cp "out/figures/$ex/errors.png" "docs/figures/${ex}_errors.png"

@@ -225,10 +225,18 @@ def _cmd_compare(args: argparse.Namespace) -> int:
 def _simulate_summary_text(summary: dict, *, time: str, out) -> str:
     rate_word = "exp(-lam t)" if time == "continuous" else "lam^tau"
     meas = summary["measured_rate"]
-    lines = [f"simulated {summary['steps']} steps; designed rate {summary['designed_rate']:g} ({rate_word})"]
-    if meas is not None:
-        verdict = "meets" if summary["measured_meets_design"] else "does NOT meet"
-        lines.append(f"  measured rate (noise-free, tail fit) {meas:.4g}: {verdict} the design")
+    if summary.get("rate_note"):  # the adaptive gain: no rate to meet
+        lines = [f"simulated {summary['steps']} steps; adaptive gain: {summary['rate_note']}"]
+        if meas is not None:
+            lines.append(f"  measured rate (noise-free, tail fit) {meas:.4g} ({rate_word}), for information")
+    else:
+        lines = [f"simulated {summary['steps']} steps; designed rate {summary['designed_rate']:g} ({rate_word})"
+                 + ("" if summary.get("certified_rate", True) else ", NOT certified by the design")]
+        if meas is not None:
+            verdict = "meets" if summary["measured_meets_design"] else "does NOT meet"
+            lines.append(f"  measured rate (noise-free, tail fit) {meas:.4g}: {verdict} the design")
+        if summary.get("envelope_pieces") and len(summary["envelope_pieces"]) > 1:
+            lines.append(f"  envelope restarted {len(summary['envelope_pieces']) - 1} times (rejoins, switches)")
     lines.append(f"  alive at the end: {', '.join(map(str, summary['alive_at_end'])) or 'none'}")
     lines.append("  agent   final error   max error")
     for aid, a in summary["agents"].items():
@@ -244,8 +252,17 @@ def _simulate_summary_text(summary: dict, *, time: str, out) -> str:
     return "\n".join(lines)
 
 
+def _rate_certified(des) -> bool:
+    """Whether the design certifies its rate: q by its method, g by a bound; never the adaptive gain."""
+    if des.g_mode == "adaptive":
+        return False
+    if des.time == "discrete":
+        return bool(des.q_result is not None and des.q_result.certified)
+    return des.g_certified_by is not None
+
+
 def _cmd_simulate(args: argparse.Namespace) -> int:
-    from splitspec_core.analysis import monte_carlo_stats, summarize
+    from splitspec_core.analysis import event_marks, monte_carlo_stats, summarize
     from splitspec_core.design import design
     from splitspec_core.scenario import load_scenario
     from splitspec_core.simulate import check_trajectory_memory, simulate, simulate_exact
@@ -272,7 +289,9 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
         noisy = sc.system.process_noise > 0 or sc.system.measurement_noise > 0
         clean = simulate(des, seed=seed, steps=args.steps, noise=False) if noisy else traj
     traj.save(out / "trajectory.npz")
-    summary = summarize(traj, time=sc.time, rate=sc.design.rate, noise_free=clean)
+    adaptive = des.g_mode == "adaptive"
+    summary = summarize(traj, time=sc.time, rate=sc.design.rate, noise_free=clean, adaptive=adaptive,
+                        certified_rate=_rate_certified(des))
     summary.update({"scenario": sc.name, "seed": seed, "time": sc.time,
                     "g": des.g, "q": des.q, "estimator": "exact ODE" if args.exact else "sampled-data" if
                     sc.time == "continuous" else "discrete two-rate"})
@@ -285,12 +304,16 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
         from . import plots
 
         title = f"{sc.name}: {'g = %g' % des.g if des.g is not None else 'q = %d' % des.q if des.q else 'adaptive g'}"
-        plots.plot_errors(traj, out / "errors.png", time=sc.time, rate=sc.design.rate,
-                          c=summary["envelope_c"], title=title)
-        plots.plot_states(traj, out / "states.png", time=sc.time, title=title)
+        marks = event_marks(traj.t, traj.alive, traj.graph, agent_ids=traj.agent_ids, faults=sc.faults,
+                            graph_names=sc.graph_names, dt=sc.run.dt if sc.time == "continuous" else 1.0)
+        plots.plot_errors(traj, out / "errors.png", time=sc.time, rate=sc.design.rate, title=title, marks=marks,
+                          noise_free=clean, adaptive=adaptive)
+        plots.plot_states(traj, out / "states.png", time=sc.time, title=title, marks=marks)
         summary["plots"] = ["errors.png", "states.png"]
         if mc is not None:
-            plots.plot_monte_carlo(traj.t, mc, out / "monte_carlo.png", time=sc.time, title=title)
+            # faults strike every seed at the same step; a random switching signal may differ per seed
+            plots.plot_monte_carlo(traj.t, mc, out / "monte_carlo.png", time=sc.time, title=title,
+                                   marks=[mk for mk in marks if mk.kind != "switch"])
             summary["plots"].append("monte_carlo.png")
     (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
     print(_simulate_summary_text(summary, time=sc.time, out=out))

@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import matplotlib
 
 matplotlib.use("Agg")
+import matplotlib.lines  # noqa: E402
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
@@ -16,63 +18,167 @@ def _xlabel(time: str) -> str:
     return "time t" if time == "continuous" else "event time tau"
 
 
-def plot_errors(traj, path: Path, *, time: str, rate: float, c: float, title: str) -> None:
-    """Error norm per agent, log scale, with the designed envelope ``c rate^tau`` / ``c exp(-rate t)``."""
-    fig, ax = plt.subplots(figsize=(7, 4.2))
-    e = traj.errors()
-    for k, aid in enumerate(traj.agent_ids):
-        ax.semilogy(traj.t, e[:, k], lw=1.3, label=f"agent {aid}")
-    env = c * (np.exp(-rate * traj.t) if time == "continuous" else rate ** traj.t)
-    lab = f"{c:.3g} exp(-{rate:g} t)" if time == "continuous" else f"{c:.3g} x {rate:g}^tau"
-    ax.semilogy(traj.t, env, "k--", lw=1.0, label=f"designed envelope {lab}")
-    died = np.nonzero(np.diff(traj.alive.astype(int), axis=0) < 0)
-    for k_t, k_a in zip(*died):
-        ax.axvline(traj.t[k_t + 1], color="red", lw=0.8, ls=":")
-        ax.text(traj.t[k_t + 1], ax.get_ylim()[1], f" agent {traj.agent_ids[k_a]} lost", color="red",
-                fontsize=7, va="top", rotation=90)
-    finite = e[np.isfinite(e) & (e > 0)]
-    if finite.size:
-        ax.set_ylim(max(finite.min() * 0.5, 1e-16), finite.max() * 3)
-    ax.set_xlabel(_xlabel(time))
-    ax.set_ylabel("|x_i - x|")
-    ax.set_title(title)
-    ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=8, loc="upper right")
-    fig.tight_layout()
+# one style per kind of event (splitspec_core.analysis.Mark.kind)
+MARK_STYLES = {
+    "loss": dict(color="#c0392b", ls=":", lw=1.1),
+    "rejoin": dict(color="#1e8449", ls="-.", lw=1.1),
+    "switch": dict(color="#7f8c8d", ls="-", lw=0.6, alpha=0.5),
+    "arc": dict(color="#7d3c98", ls="--", lw=1.0),
+}
+MARK_NAMES = {"loss": "agent lost", "rejoin": "agent rejoins (fresh estimate)", "switch": "graph switch",
+              "arc": "arc dropped / restored"}
+MAX_LABELLED_SWITCHES = 12  # beyond this, switches are ticks without text (the legend names them)
+SWITCH_TICK = 0.07  # height of a switch tick at the top of the axes (axes fraction)
+SWITCH_TICK_STYLE = dict(color="#34495e", ls="-", lw=1.6)
+
+
+def legend_outside(ax, **kw):
+    """The legend to the right of ``ax``, outside the data (figures use constrained layout)."""
+    return ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0, fontsize=8, **kw)
+
+
+def _dense_switches(marks) -> bool:
+    return sum(m.kind == "switch" for m in marks) > MAX_LABELLED_SWITCHES
+
+
+def _labelled(marks) -> list:
+    """The marks that get a text label: all but switches when there are too many of them."""
+    return [m for m in marks if m.kind != "switch" or not _dense_switches(marks)]
+
+
+def _draw_marks(ax, marks, *, text: bool) -> list:
+    """Vertical lines at ``marks``; short labels at the bottom of ``ax`` when ``text``; legend proxies."""
+    dense = _dense_switches(marks)
+    for m in marks:
+        if m.kind == "switch" and dense:  # a tick at the top per switch, not a line through the data
+            ax.axvline(m.t, 1.0 - SWITCH_TICK, 1.0, **SWITCH_TICK_STYLE, gid="mark:switch")
+        else:
+            ax.axvline(m.t, **MARK_STYLES[m.kind], zorder=1.5, gid=f"mark:{m.kind}")
+    for m in _labelled(marks) if text else ():
+        ax.text(m.t, 0.02, " " + m.label, transform=ax.get_xaxis_transform(), rotation=90, va="bottom",
+                ha="right", fontsize=7, color=MARK_STYLES[m.kind]["color"], gid=f"mark-label:{m.kind}")
+    kinds = [k for k in MARK_STYLES if any(m.kind == k for m in marks)]
+    names = {**MARK_NAMES, "switch": "graph switch (ticks at the top)" if dense else MARK_NAMES["switch"]}
+    style = {**MARK_STYLES, "switch": SWITCH_TICK_STYLE if dense else MARK_STYLES["switch"]}
+    return [matplotlib.lines.Line2D([], [], **style[k], label=names[k]) for k in kinds]
+
+
+def _envelope_label(time: str, rate: float, marks, pieces: int, *, across_switches: int = 0) -> str:
+    law = f"exp(-{rate:g} t)" if time == "continuous" else f"{rate:g}^tau"
+    why = [w for k, w in (("rejoin", "rejoin"), ("switch", "switch")) if any(m.kind == k for m in marks)]
+    if across_switches:
+        why = [w for w in why if w != "switch"]
+        return (f"designed rate {law}\none constant across {across_switches} switches"
+                + (f"\nrestarted at each rejoin" if pieces > 1 else ""))
+    if pieces <= 1:
+        return f"designed rate {law}"
+    return f"designed rate {law}\nfrom each restart ({', '.join(why) or 'restart'})"
+
+
+def plot_errors(traj, path: Path, *, time: str, rate: float | None, title: str, marks=(), noise_free=None,
+                adaptive: bool = False) -> None:
+    """Write :func:`errors_figure` to ``path`` (PNG)."""
+    fig = errors_figure(traj, time=time, rate=rate, title=title, marks=marks, noise_free=noise_free,
+                        adaptive=adaptive)
     fig.savefig(path, dpi=110)
     plt.close(fig)
 
 
-def plot_states(traj, path: Path, *, time: str, title: str, max_components: int = 8) -> None:
-    """Each state component: truth (black) versus every agent's estimate."""
+def errors_figure(traj, *, time: str, rate: float | None, title: str, marks=(), noise_free=None,
+                  adaptive: bool = False):
+    """Error norm per agent, log scale, events marked, with the designed envelope restarted at rejoins and switches.
+
+    ``marks``: :func:`splitspec_core.analysis.event_marks` of the run.  The
+    envelope ``c rate^(tau - tau_k)`` / ``c exp(-rate (t - t_k))`` starts afresh
+    at every restart ``t_k`` (:func:`splitspec_core.analysis.envelope_restarts`)
+    with the smallest constant above the noise-free errors of its piece.
+    ``adaptive``: no envelope (thm. split_continuous_adaptive certifies no rate).
+    Lines carry ``gid`` ``envelope`` and ``mark:<kind>`` (tests find them there).
+    Returns the figure (the caller closes it).
+    """
+    from splitspec_core.analysis import NO_CERTIFIED_RATE, envelope, envelope_restarts, max_error
+
+    fig, ax = plt.subplots(figsize=(9.5, 4.4), layout="constrained")
+    e = traj.errors()
+    for k, aid in enumerate(traj.agent_ids):
+        ax.semilogy(traj.t, e[:, k], lw=1.3, label=f"agent {aid}")
+    ref = traj if noise_free is None else noise_free
+    if noise_free is not None and noise_free is not traj:
+        ax.semilogy(ref.t, max_error(ref), color="0.35", lw=1.0, ls=(0, (1, 1)), label="max error, noise-free run")
+    if not adaptive:
+        # Switches faster than the eye can follow leave pieces too short to show a rate (the fitted
+        # envelope would trace the error itself): then one constant across them, restarted at rejoins only.
+        across = sum(m.kind == "switch" for m in marks) if _dense_switches(marks) else 0
+        restarts = envelope_restarts(ref.alive, np.zeros_like(ref.graph) if across else ref.graph)
+        env = envelope(ref.t, max_error(ref), restarts, time=time, rate=rate, fit=True,
+                       scale=np.linalg.norm(ref.x, axis=1))
+        ax.semilogy(ref.t, env, "k--", lw=1.0, gid="envelope",
+                    label=_envelope_label(time, rate, marks, restarts.size, across_switches=across))
+    handles, _ = ax.get_legend_handles_labels()
+    shown = e if ref is traj else np.concatenate([e.ravel(), max_error(ref)])  # the noise-free run in view too
+    finite = shown[np.isfinite(shown) & (shown > 0)]
+    if finite.size:
+        lo, hi = np.log10(max(finite.min() * 0.5, 1e-16)), np.log10(finite.max() * 3)
+        span = hi - lo
+        if _labelled(marks):
+            lo -= 0.22 * span  # a strip under the data for the marks' labels
+        if _dense_switches(marks):
+            hi += 0.09 * span  # a strip over the data for the switch ticks
+        ax.set_ylim(10 ** lo, 10 ** hi)
+    handles += _draw_marks(ax, marks, text=True)
+    ax.set_xlabel(_xlabel(time))
+    ax.set_ylabel("|x_i - x|")
+    ax.set_title(title + (f"\n{NO_CERTIFIED_RATE}" if adaptive else ""))
+    ax.grid(True, which="both", alpha=0.3)
+    legend_outside(ax, handles=handles)
+    return fig
+
+
+def plot_states(traj, path: Path, *, time: str, title: str, marks=(), max_components: int = 8) -> None:
+    """Each state component: truth (black) versus every agent's estimate, events marked."""
     n = min(traj.x.shape[1], max_components)
-    fig, axes = plt.subplots(n, 1, figsize=(7, 1.6 * n + 0.6), sharex=True, squeeze=False)
+    fig, axes = plt.subplots(n, 1, figsize=(9.0, 1.6 * n + 0.8), sharex=True, squeeze=False, layout="constrained")
+    extra = []
     for c in range(n):
         ax = axes[c, 0]
         for k, aid in enumerate(traj.agent_ids):
             ax.plot(traj.t, traj.xhat[:, k, c], lw=1.0, label=f"agent {aid}")
         ax.plot(traj.t, traj.x[:, c], "k", lw=2.0, alpha=0.6, label="truth")
+        extra = _draw_marks(ax, marks, text=False)
         ax.set_ylabel(f"x{c + 1}")
         ax.grid(True, alpha=0.3)
-    axes[0, 0].set_title(title)
-    axes[0, 0].legend(fontsize=7, ncol=4, loc="upper right")
+        early = np.nanmax(np.abs(traj.x[: max(2, traj.t.size // 10), c]))
+        if early > 0 and np.nanmax(np.abs(traj.x[:, c])) > 50 * early:  # a growing mode: keep the transient in view
+            ax.set_yscale("symlog", linthresh=early)
+            d0, d1 = math.ceil(math.log10(early)), math.floor(math.log10(np.nanmax(np.abs(traj.x[:, c]))))
+            dec = [10.0 ** d for d in range(d0, d1 + 1, max(1, math.ceil((d1 - d0 + 1) / 3)))]
+            ax.set_yticks([-v for v in dec[::-1]] + [0.0] + dec)  # a few decades each side, readable
+            ax.minorticks_off()
+            ax.set_ylabel(f"x{c + 1} (symlog)")
+    top = axes[0, 0]  # short labels above the first component
+    for m in _labelled(marks):
+        top.text(m.t, 1.02, m.label, transform=top.get_xaxis_transform(), rotation=90, va="bottom",
+                 ha="center", fontsize=7, color=MARK_STYLES[m.kind]["color"])
+    fig.suptitle(title)
+    handles, _ = axes[0, 0].get_legend_handles_labels()
+    fig.legend(handles=handles + extra, loc="outside right upper", fontsize=8)  # beside all rows, not one
     axes[-1, 0].set_xlabel(_xlabel(time))
-    fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
 
 
-def plot_monte_carlo(t, stats: dict, path: Path, *, time: str, title: str) -> None:
-    """Mean RMS error over seeds with the 10-90 % band."""
-    fig, ax = plt.subplots(figsize=(7, 4))
+def plot_monte_carlo(t, stats: dict, path: Path, *, time: str, title: str, marks=()) -> None:
+    """Mean RMS error over seeds with the 10-90 % band, events marked."""
+    fig, ax = plt.subplots(figsize=(9.0, 4), layout="constrained")
     ax.fill_between(t, stats["p10"], stats["p90"], alpha=0.3, label="10-90 % of seeds")
     ax.semilogy(t, stats["mean"], lw=1.5, label=f"mean over {stats['seeds']} seeds")
+    handles, _ = ax.get_legend_handles_labels()
+    handles += _draw_marks(ax, marks, text=False)
     ax.set_xlabel(_xlabel(time))
     ax.set_ylabel("RMS error over agents")
     ax.set_title(title)
     ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=8)
-    fig.tight_layout()
+    legend_outside(ax, handles=handles)
     fig.savefig(path, dpi=110)
     plt.close(fig)
 
@@ -81,7 +187,7 @@ def plot_compare(res: dict, errors_path: Path, ratios_path: Path) -> None:
     """RMS error over time per estimator (mean over seeds) and the bar chart of ratios to the centralized KF."""
     curves = res["_curves"]
     t = curves["t"]
-    fig, ax = plt.subplots(figsize=(7.5, 4.2))
+    fig, ax = plt.subplots(figsize=(9.0, 4.2), layout="constrained")
     for name, c in curves.items():
         if name == "t":
             continue
@@ -91,8 +197,7 @@ def plot_compare(res: dict, errors_path: Path, ratios_path: Path) -> None:
     ax.set_ylabel("RMS over agents of |x_i - x|")
     ax.set_title(f"{res['scenario']}: mean over {len(res['seeds'])} seeds")
     ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=8)
-    fig.tight_layout()
+    legend_outside(ax)
     fig.savefig(errors_path, dpi=120)
     plt.close(fig)
     names = list(res["estimators"])
@@ -114,7 +219,7 @@ def plot_sweep(res: dict, path: Path) -> None:
     """RMS (predicted, simulated) and measured rate against q or g, certified values marked."""
     rows = [r for r in res["rows"] if "error" not in r]
     v = [r["value"] for r in rows]
-    fig, (a1, a2) = plt.subplots(1, 2, figsize=(10, 3.8))
+    fig, (a1, a2) = plt.subplots(1, 2, figsize=(10, 4.6), layout="constrained")
     a1.plot(v, [r["predicted_rms"] for r in rows], "o-", label="predicted (Lyapunov)")
     a1.plot(v, [r["simulated_rms"] for r in rows], "x--", label="simulated")
     a1.set_yscale("log")
@@ -131,8 +236,7 @@ def plot_sweep(res: dict, path: Path) -> None:
                 ax.axvspan(r["value"] - 0.02, r["value"] + 0.02, color="green", alpha=0.15)
         ax.axvline(res["designed"], color="C2", lw=1.0, label=f"designed {res['parameter']} = {res['designed']:g}")
         ax.grid(True, alpha=0.3)
-        ax.legend(fontsize=7)
+        ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.16), ncol=2)  # below the data
     fig.suptitle(f"{res['scenario']}: choosing {res['parameter']} (green: rate certified)")
-    fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)

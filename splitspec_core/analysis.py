@@ -3,13 +3,17 @@
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
+from .network import fault_step
 from .simulate import Trajectory
 
-__all__ = ["max_error", "fit_decay", "envelope_constant", "envelope_restarts", "envelope", "summarize",
-           "monte_carlo_stats"]
+__all__ = ["max_error", "fit_decay", "envelope_constant", "envelope_restarts", "envelope", "Mark", "event_marks",
+           "summarize", "monte_carlo_stats", "NO_CERTIFIED_RATE"]
+
+NO_CERTIFIED_RATE = "asymptotic convergence only (no certified rate)"  # thm. split_continuous_adaptive
 
 
 def max_error(traj: Trajectory) -> np.ndarray:
@@ -116,8 +120,76 @@ def envelope(t: np.ndarray, err_max: np.ndarray, restarts, *, time: str, rate: f
     return env
 
 
-def summarize(traj: Trajectory, *, time: str, rate: float, noise_free: Trajectory | None = None) -> dict:
-    """Final and max error per agent, measured decay rate vs the designed rate, alive agents."""
+@dataclass(frozen=True)
+class Mark:
+    """One event of a run, to mark on a plot: ``kind`` is ``loss``, ``rejoin``, ``switch`` or ``arc``."""
+
+    step: int
+    t: float
+    kind: str
+    label: str
+
+
+MARK_KINDS = ("loss", "rejoin", "switch", "arc")
+
+
+def event_marks(t: np.ndarray, alive: np.ndarray, graph: np.ndarray, *, agent_ids, faults=(),
+                graph_names=None, dt: float = 1.0) -> tuple:
+    """Losses, rejoins, graph switches and arc faults of a run, one :class:`Mark` per (step, kind).
+
+    Losses, rejoins and switches come from the recorded ``alive`` (T, m) and
+    ``graph`` (T,) (``trajectory.npz``), so a recording marks what happened.
+    ``faults`` (the scenario's :class:`~splitspec_core.scenario.Fault` list)
+    names the loss (``killed``, ``hung``) and adds what ``alive`` and
+    ``graph`` cannot show: ``drop_arc`` / ``restore_arc`` at step
+    ``ceil(at / dt)`` (as :func:`splitspec_core.network.fault_step`).
+    """
+    t = np.asarray(t, dtype=float)
+    alive = np.asarray(alive, dtype=bool)
+    graph = np.asarray(graph)
+    ids = [int(a) for a in agent_ids]
+    T = t.shape[0]
+    why = {}  # (step, agent id) -> word from the fault list
+    arcs: dict = {}  # step -> ["1-6 down", ...]
+    for f in faults:
+        k = fault_step(f.at, dt)
+        if k >= T:
+            continue
+        if f.arc is not None:
+            arcs.setdefault(k, []).append(f"{f.arc[0]}-{f.arc[1]} {'down' if f.action == 'drop_arc' else 'up'}")
+        elif f.action in ("kill", "hang"):
+            why[(k, int(f.agent))] = "killed" if f.action == "kill" else "hung"
+    marks = []
+    for k in range(1, T):
+        lost = np.nonzero(alive[k - 1] & ~alive[k])[0]
+        back = np.nonzero(~alive[k - 1] & alive[k])[0]
+        if lost.size:
+            words = [f"{ids[a]} {why.get((k, ids[a]), 'lost')}" for a in lost]
+            marks.append(Mark(k, float(t[k]), "loss", ", ".join(words)))
+        if back.size:
+            marks.append(Mark(k, float(t[k]), "rejoin", ", ".join(str(ids[a]) for a in back) + " rejoins"))
+        if graph[k] != graph[k - 1]:
+            g = int(graph[k])
+            name = graph_names[g] if graph_names is not None and g < len(graph_names) else str(g)
+            marks.append(Mark(k, float(t[k]), "switch", f"graph {name}"))
+        if k in arcs:
+            marks.append(Mark(k, float(t[k]), "arc", "arc " + ", ".join(arcs[k])))
+    if 0 in arcs:
+        marks.insert(0, Mark(0, float(t[0]), "arc", "arc " + ", ".join(arcs[0])))
+    return tuple(marks)
+
+
+def summarize(traj: Trajectory, *, time: str, rate: float, noise_free: Trajectory | None = None,
+              adaptive: bool = False, certified_rate: bool | None = None) -> dict:
+    """Final and max error per agent, measured decay rate vs the designed rate, alive agents.
+
+    ``adaptive=True`` (the adaptive gain, thm. split_continuous_adaptive): the
+    estimator converges asymptotically with no certified rate, so there is no
+    designed envelope (``envelope_c`` None) and no verdict against the design
+    (``measured_meets_design`` None); ``measured_rate`` stays, as information.
+    ``certified_rate`` is whether the design certifies ``rate`` (always False
+    for the adaptive gain; default True otherwise).
+    """
     e = traj.errors()
     ref = noise_free if noise_free is not None else traj
     xnorm = np.linalg.norm(ref.x, axis=1)
@@ -132,14 +204,26 @@ def summarize(traj: Trajectory, *, time: str, rate: float, noise_free: Trajector
             "alive_at_end": bool(traj.alive[-1, k]),
         }
     meets = None
-    if measured is not None:
+    if measured is not None and not adaptive:
         meets = bool(measured >= rate * (1 - 1e-3) if time == "continuous" else measured <= rate * (1 + 1e-3))
+    restarts = envelope_restarts(ref.alive, ref.graph)
+    pieces = []  # [t of the restart, smallest c on that piece], as envelope(..., fit=True)
+    if not adaptive:
+        emax = max_error(ref)
+        for a, k0 in enumerate(restarts):
+            k1 = restarts[a + 1] if a + 1 < restarts.size else ref.t.size
+            c = envelope_constant(ref.t[k0:k1] - ref.t[k0], emax[k0:k1], time=time, rate=rate, scale=xnorm[k0:k1])
+            pieces.append([float(ref.t[k0]), c if math.isfinite(c) else None])
+    env_c = pieces[0][1] if len(pieces) == 1 else None  # one constant only where the envelope never restarts
     return {
         "steps": int(traj.t.size - 1),
-        "designed_rate": rate,
+        "designed_rate": None if adaptive else rate,
+        "certified_rate": False if adaptive else (True if certified_rate is None else bool(certified_rate)),
+        "rate_note": NO_CERTIFIED_RATE if adaptive else None,
         "measured_rate": measured,
         "measured_meets_design": meets,
-        "envelope_c": envelope_constant(ref.t, max_error(ref), time=time, rate=rate, scale=xnorm),
+        "envelope_c": env_c,
+        "envelope_pieces": pieces,
         "alive_at_end": [int(a) for a, ok in zip(traj.agent_ids, traj.alive[-1]) if ok],
         "agents": per_agent,
     }
