@@ -120,7 +120,7 @@ def _accepts_tcp(port: int) -> bool:
         return False
 
 
-def _stop(proc: subprocess.Popen) -> None:
+def stop_viewer(proc: subprocess.Popen) -> None:
     """SIGTERM to the viewer's process group, SIGKILL after :data:`STOP_TIMEOUT`; reaps it."""
     for sig in (signal.SIGTERM, signal.SIGKILL):
         try:
@@ -164,7 +164,7 @@ def start_web_viewer(rrd: Path, *, port: int | None = None, grpc_port: int | Non
         if proc.poll() is not None or time.monotonic() > deadline:
             what = (f"exited with status {proc.returncode}" if proc.poll() is not None
                     else f"did not answer on ports {web_port} and {grpc_port} within {timeout:g} s")
-            _stop(proc)
+            stop_viewer(proc)
             raise ViewError(f"the Rerun web viewer {what}: {_tail(log_file) or 'no output'}")
         time.sleep(0.1)
     return proc, viewer
@@ -189,7 +189,7 @@ def serve(rrd: Path, *, port: int | None = None, grpc_port: int | None = None, s
                     return 1
             return 0
         finally:
-            _stop(proc)
+            stop_viewer(proc)
     finally:
         for sig, handler in previous.items():
             signal.signal(sig, handler)
