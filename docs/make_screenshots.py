@@ -30,8 +30,8 @@ cursor must read back as the time asked for, else the script stops with a
 message saying which). The Python ``ViewerClient`` cannot do this: the
 ``rerun --web-viewer`` process is only a message proxy and answers its
 requests with ``Unimplemented``. The viewer renders with a software rasterizer
-in headless Chromium: about 20 to 60 s until the recording is on screen, and
-10 to 15 s per screenshot, on two cores.
+in headless Chromium: 20 to 60 s until the recording is on screen, and 9 to
+17 s per screenshot, on two shared cores.
 """
 
 from __future__ import annotations
