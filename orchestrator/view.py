@@ -213,5 +213,10 @@ def view(out, *, web: bool = False, port: int | None = None, grpc_port: int | No
     """Open ``OUT/run.rrd``: the native viewer with a display (unless ``web``), else serve the web viewer."""
     rrd = recording_path(out)
     if has_display() and not web and port is None and grpc_port is None:
-        return open_native(rrd)
+        code = open_native(rrd)
+        if code not in (0, -signal.SIGINT, -signal.SIGTERM, 130):
+            print(f"splitspec: error: the native Rerun viewer exited with status {code} (no usable display? "
+                  f"splitspec view {out} --web serves the web viewer instead)", file=sys.stderr)
+            return 1
+        return 0
     return serve(rrd, port=port, grpc_port=grpc_port)
