@@ -351,8 +351,6 @@ def _cmd_agent(args: argparse.Namespace) -> int:
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
-    from pathlib import Path
-
     from splitspec_core.design import design
     from splitspec_core.scenario import load_scenario
     from splitspec_core.wire import Keys
@@ -374,9 +372,34 @@ def _cmd_run(args: argparse.Namespace) -> int:
                      secure=not args.insecure)
     rrd = out / "run.rrd"
     if rrd.exists():
-        print(f"recording: {rrd}  (open it with: {Path(sys.executable).parent / 'rerun'} {rrd})")
+        print(f"recording: {rrd}  (open it with: {_splitspec_command()} view {out})")
         print(f"trajectory: {out / 'trajectory.npz'}  events: {out / 'events.jsonl'}")
     return code
+
+
+def _splitspec_command() -> str:
+    """``splitspec`` if that is on PATH, else the script next to this interpreter (``.venv/bin/splitspec``)."""
+    import shutil
+    from pathlib import Path
+
+    if shutil.which("splitspec"):
+        return "splitspec"
+    beside = Path(sys.executable).parent / "splitspec"
+    try:
+        return str(beside.relative_to(Path.cwd()))
+    except ValueError:
+        return str(beside)
+
+
+def _cmd_view(args: argparse.Namespace) -> int:
+    from .view import view
+
+    return view(args.out, web=args.web, port=args.port, grpc_port=args.grpc_port)
+
+
+def _port(text: str) -> int:
+    """``type=`` for TCP ports: an integer in [1, 65535]."""
+    return _integer(text, minimum=1, maximum=65535)
 
 
 def _cmd_router(args: argparse.Namespace) -> int:
@@ -551,6 +574,19 @@ def build_parser() -> argparse.ArgumentParser:
                    "children of the orchestrator (what `splitspec run` does)")
     _add_process_options(p)
     p.set_defaults(func=_cmd_orchestrator)
+
+    p = sub.add_parser("view", help="open a run's recording (OUT/run.rrd): native Rerun viewer with a display, "
+                       "else the web viewer on loopback",
+                       description="Open OUT/run.rrd in the native Rerun viewer when a display exists (DISPLAY or "
+                                   "WAYLAND_DISPLAY set); otherwise serve Rerun's web viewer on 127.0.0.1 (free "
+                                   "ports unless given), print the URL to open (and the ssh -L line to reach it "
+                                   "from another machine) and serve until Ctrl-C.")
+    p.add_argument("out", metavar="OUT", help="output directory of a run (splitspec run --out OUT)")
+    p.add_argument("--web", action="store_true", help="serve the web viewer even when a display exists")
+    p.add_argument("--port", type=_port, help="web viewer page port (default: a free port; implies --web)")
+    p.add_argument("--grpc-port", type=_port, help="port the page streams the recording from (default: a free "
+                   "port; implies --web)")
+    p.set_defaults(func=_cmd_view)
 
     p = sub.add_parser("router", help="a plain Zenoh router (for hosts without zenohd)",
                        description="Run a Zenoh router in this process until Ctrl-C or SIGTERM: the same as zenohd "

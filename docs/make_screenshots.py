@@ -1,0 +1,300 @@
+"""Screenshots of a run in Rerun's web viewer, taken in a real (headless) Chromium.
+
+Runs ``examples/ring10_faults.yaml`` (or takes a run's output directory with
+``--run-dir``), serves ``run.rrd`` with the web viewer exactly as
+``splitspec view`` does, opens it in headless Chromium through Playwright, waits
+until the viewer has the whole recording, then moves the time cursor to each
+chosen event time and saves a screenshot to ``docs/figures/``:
+
+    view_ring10_faults_kill.png     just after agent 3 is killed (event time 10)
+    view_ring10_faults_hang.png     just after agent 5 hangs (20)
+    view_ring10_faults_rejoin.png   after the restarts of 3 and 5 (30, 35)
+    view_ring10_faults_end.png      the end of the run (60)
+
+Setup, once (no browser download: Debian's chromium is used):
+
+    apt-get install chromium
+    .venv/bin/python -m pip install -e '.[docs]'     # playwright
+    .venv/bin/python docs/make_screenshots.py
+
+How the viewer is driven. Readiness and the time cursor go through the page's
+own viewer handle, ``window._handle`` (the ``WebHandle`` the served
+``index.html`` keeps): ``viewer_state()`` returns the Viewer Control API's
+``GetViewerStateResponse`` (protobuf: open recordings, their timelines with
+time ranges, the time cursor), and ``viewer_control(bytes)`` performs one
+``ViewerControlRequest``, here ``set_time_cursor`` on the ``event`` timeline
+(which also pauses playback). The few fields needed are encoded and decoded by
+hand below (rerun 0.41; that API carries no compatibility guarantee, so every
+step is checked: the recording must reach the run's last event time, and the
+cursor must read back as the time asked for, else the script stops with a
+message saying which). The Python ``ViewerClient`` cannot do this: the
+``rerun --web-viewer`` process is only a message proxy and answers its
+requests with ``Unimplemented``. The viewer renders with a software rasterizer
+in headless Chromium: 20 to 60 s until the recording is on screen, and 9 to
+17 s per screenshot, on two shared cores.
+"""
+
+from __future__ import annotations
+
+import argparse
+import io
+import json
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from orchestrator.view import start_web_viewer, stop_viewer  # noqa: E402  (the same server as `splitspec view`)
+
+CHROMIUM = "/usr/bin/chromium"
+CHROMIUM_ARGS = ["--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+                 "--disable-background-networking", "--disable-component-update", "--disable-sync"]
+TIMELINE = "event"
+DEFAULT_SCENARIO = ROOT / "examples" / "ring10_faults.yaml"
+# ring10_faults: kill 3 at 10, arc 1->6 dropped at 15, hang 5 at 20, restart 3 at 30 and 5 at 35, arc back at 40
+DEFAULT_TIMES = {"kill": 12, "hang": 22, "rejoin": 38, "end": 60}
+
+
+class ScreenshotError(RuntimeError):
+    """The viewer did not get where it was asked to within its time: the message says where it stopped."""
+
+
+# --- the few protobuf fields of the Viewer Control API that are needed (wire format by hand) --------------
+
+def _varint(data: bytes, i: int) -> tuple[int, int]:
+    value = shift = 0
+    while True:
+        byte = data[i]
+        i += 1
+        value |= (byte & 0x7F) << shift
+        shift += 7
+        if byte < 0x80:
+            return value, i
+
+
+def _fields(data: bytes) -> list:
+    """Top-level ``(field number, value)`` pairs: ints for varints, bytes for length-delimited fields."""
+    out, i = [], 0
+    while i < len(data):
+        key, i = _varint(data, i)
+        number, wire = key >> 3, key & 7
+        if wire == 0:
+            value, i = _varint(data, i)
+        elif wire == 2:
+            length, i = _varint(data, i)
+            value, i = bytes(data[i:i + length]), i + length
+        elif wire == 1:
+            value, i = int.from_bytes(data[i:i + 8], "little"), i + 8
+        elif wire == 5:
+            value, i = int.from_bytes(data[i:i + 4], "little"), i + 4
+        else:
+            raise ScreenshotError(f"unexpected protobuf wire type {wire} in the viewer's state")
+        out.append((number, value))
+    return out
+
+
+def _get(data: bytes, number: int, default=None):
+    return next((v for n, v in _fields(data) if n == number), default)
+
+
+def _encode_varint(value: int) -> bytes:
+    value &= (1 << 64) - 1
+    out = bytearray()
+    while True:
+        byte, value = value & 0x7F, value >> 7
+        out.append(byte | (0x80 if value else 0))
+        if not value:
+            return bytes(out)
+
+
+def _field(number: int, value) -> bytes:
+    if isinstance(value, int):
+        return _encode_varint(number << 3) + _encode_varint(value)
+    value = value.encode() if isinstance(value, str) else value
+    return _encode_varint(number << 3 | 2) + _encode_varint(len(value)) + value
+
+
+PAUSED = 1  # play state: 1 paused, 2 playing, 3 following (rerun 0.41)
+
+
+def set_time_cursor_request(timeline: str, sequence: int) -> bytes:
+    """``ViewerControlRequest{set_time_cursor(6): {timeline(2): {name(1)}, time(3): {sequence(1)}, play_state(5)}}``.
+
+    Without ``play_state = PAUSED`` the viewer plays on from the new time (found by trying: the cursor
+    moved on by about six event times a second while a screenshot was taken).
+    """
+    return _field(6, _field(2, _field(1, timeline)) + _field(3, _field(1, sequence)) + _field(5, PAUSED))
+
+
+@dataclass(frozen=True)
+class RecordingState:
+    """What the viewer has of the active recording: the timeline's last time, and where the cursor is."""
+
+    store_id: str | None
+    timelines: dict  # name -> (start, end), or None while the timeline has no data
+    cursor_timeline: str | None
+    cursor: int | None
+    play_state: int | None
+
+
+def recording_state(state: bytes) -> RecordingState:
+    """Decode ``GetViewerStateResponse``: active_store_id (2), recordings (3) with store_id (1),
+    timelines (2: timeline {name}, time_type, time_range {start, end}), current_time (3) and play state (5)."""
+    active = _get(state, 2)
+    active = active.decode() if active is not None else None
+    for number, rec in _fields(state):
+        if number != 3 or (active is not None and _get(rec, 1, b"").decode() != active):
+            continue
+        timelines = {}
+        for n, tl in _fields(rec):
+            if n == 2:
+                name = _get(_get(tl, 1, b""), 1, b"").decode()
+                rng = _get(tl, 3)
+                timelines[name] = None if rng is None else (_get(rng, 1, 0), _get(rng, 2, 0))
+        cursor = _get(rec, 3)
+        cursor_name = None if cursor is None else _get(_get(cursor, 1, b""), 1, b"").decode()
+        cursor_time = None if cursor is None or _get(cursor, 3) is None else _get(_get(cursor, 3), 1, 0)
+        return RecordingState(active, timelines, cursor_name, cursor_time, _get(rec, 5))
+    return RecordingState(active, {}, None, None, None)
+
+
+# --- the page -------------------------------------------------------------------------------------------
+
+def _state(page) -> RecordingState | None:
+    data = page.evaluate("window._handle ? Array.from(window._handle.viewer_state()) : null")
+    return None if data is None else recording_state(bytes(data))
+
+
+def _poll(what: str, check, *, timeout: float, interval: float = 1.0, last=lambda: ""):
+    deadline = time.monotonic() + timeout
+    while True:
+        result = check()
+        if result:
+            return result
+        if time.monotonic() > deadline:
+            raise ScreenshotError(f"timed out after {timeout:g} s waiting for {what}; last seen: {last()}")
+        time.sleep(interval)
+
+
+def _painted(page) -> bool:
+    """The canvas shows something: the screenshot has more than a handful of colours (not blank, not a spinner)."""
+    from PIL import Image
+
+    image = Image.open(io.BytesIO(page.screenshot())).convert("RGB").resize((160, 100))
+    return len(image.getcolors(maxcolors=160 * 100) or ()) > 50
+
+
+def last_event_time(run_dir: Path) -> int:
+    """The run's last event time, from ``recording_closed`` (or the last record) in events.jsonl."""
+    lines = [json.loads(line) for line in (run_dir / "events.jsonl").read_text().splitlines() if line.strip()]
+    closed = [e for e in lines if e.get("event") == "recording_closed"]
+    return int(round((closed or lines)[-1]["t"]))
+
+
+def screenshots(run_dir: Path, times: dict, *, figures: Path, prefix: str, size: tuple[int, int],
+                timeout: float, chromium: str) -> list:
+    from playwright.sync_api import sync_playwright
+
+    end = last_event_time(run_dir)
+    log = tempfile.TemporaryFile()
+    proc, viewer = start_web_viewer(run_dir / "run.rrd", log_file=log)
+    written = []
+    try:
+        with tempfile.TemporaryDirectory(prefix="splitspec-chromium-") as profile, sync_playwright() as pw:
+            browser = pw.chromium.launch_persistent_context(
+                profile, executable_path=chromium, headless=True, args=CHROMIUM_ARGS,
+                viewport={"width": size[0], "height": size[1]})
+            try:
+                page = browser.pages[0] if browser.pages else browser.new_page()
+                t0 = time.monotonic()
+                page.goto(viewer.url)
+                seen = {}
+
+                def loaded():
+                    seen["state"] = _state(page)
+                    st = seen["state"]
+                    return st is not None and (st.timelines.get(TIMELINE) or (0, -1))[1] >= end
+
+                _poll(f"the recording up to {TIMELINE} {end}", loaded, timeout=timeout, last=lambda: seen.get("state"))
+                t_loaded = time.monotonic() - t0
+                _poll("the viewer to paint the recording", lambda: _painted(page), timeout=timeout, interval=2.0)
+                print(f"viewer: recording loaded after {t_loaded:.0f} s, painted after {time.monotonic() - t0:.0f} s "
+                      f"({viewer.url})")
+                for name, t in times.items():
+                    t1 = time.monotonic()
+                    page.evaluate("async (bytes) => { await window._handle.viewer_control(new Uint8Array(bytes)); }",
+                                  list(set_time_cursor_request(TIMELINE, t)))
+                    def at_t():
+                        s = _state(page)
+                        return s and s.cursor_timeline == TIMELINE and s.cursor == t and s.play_state == PAUSED
+
+                    _poll(f"the time cursor paused at {TIMELINE} {t}", at_t, timeout=30, interval=0.2,
+                          last=lambda: _state(page))
+                    path = figures / f"{prefix}_{name}.png"
+                    page.screenshot(path=str(path))
+                    if not at_t():
+                        raise ScreenshotError(f"the time cursor left {TIMELINE} {t} while {path.name} was taken: "
+                                              f"{_state(page)}")
+                    written.append(path)
+                    print(f"  {path.relative_to(ROOT) if path.is_relative_to(ROOT) else path}: {TIMELINE} {t} "
+                          f"({time.monotonic() - t1:.0f} s)")
+            finally:
+                browser.close()
+    finally:
+        stop_viewer(proc)
+    return written
+
+
+def _times(items: list) -> dict:
+    times = {}
+    for item in items:
+        name, sep, value = item.partition("=")
+        if not sep or not name.isidentifier() or not value.isdigit():
+            raise SystemExit(f"make_screenshots: error: --at wants NAME=EVENT_TIME, got {item!r}")
+        times[name] = int(value)
+    return times
+
+
+def main(argv: list | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--scenario", type=Path, default=DEFAULT_SCENARIO, help="scenario to run (default ring10_faults)")
+    p.add_argument("--run-dir", type=Path, help="use this run's output directory instead of running the scenario")
+    p.add_argument("--at", action="append", default=[], metavar="NAME=T",
+                   help="screenshot NAME at event time T (repeatable; default " +
+                        ", ".join(f"{k}={v}" for k, v in DEFAULT_TIMES.items()) + ")")
+    p.add_argument("--figures", type=Path, default=ROOT / "docs" / "figures", help="where to write the PNGs")
+    p.add_argument("--prefix", help="file name prefix (default view_<scenario file stem>)")
+    p.add_argument("--size", default="1600x1000", help="browser viewport WIDTHxHEIGHT (default 1600x1000)")
+    p.add_argument("--timeout", type=float, default=240.0, help="seconds to wait for the viewer (default 240)")
+    p.add_argument("--chromium", default=CHROMIUM, help=f"Chromium executable (default {CHROMIUM})")
+    args = p.parse_args(argv)
+    times = _times(args.at) if args.at else dict(DEFAULT_TIMES)
+    width, _, height = args.size.partition("x")
+    if not Path(args.chromium).is_file():
+        raise SystemExit(f"make_screenshots: error: no Chromium at {args.chromium} (apt-get install chromium, "
+                         "or give --chromium PATH)")
+    run_dir = args.run_dir
+    if run_dir is None:
+        run_dir = ROOT / "out" / "screenshots" / args.scenario.stem
+        t0 = time.monotonic()
+        subprocess.run([sys.executable, "-m", "orchestrator.cli", "run", str(args.scenario), "--out", str(run_dir)],
+                       cwd=ROOT, check=True, stdout=subprocess.DEVNULL)
+        print(f"ran {args.scenario.name} into {run_dir} in {time.monotonic() - t0:.0f} s")
+    prefix = args.prefix or f"view_{(args.scenario if args.run_dir is None else run_dir).stem}"
+    args.figures.mkdir(parents=True, exist_ok=True)
+    try:
+        screenshots(run_dir, times, figures=args.figures, prefix=prefix, size=(int(width), int(height)),
+                    timeout=args.timeout, chromium=args.chromium)
+    except ScreenshotError as exc:
+        print(f"make_screenshots: error: {exc}", file=sys.stderr)
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
