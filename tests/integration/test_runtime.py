@@ -30,7 +30,7 @@ def test_run_equals_simulate(tmp_path, example, changes):
     out = tmp_path / "out"
     r = run("run", scen, "--out", out)
     assert r.returncode == 0, r.stdout + r.stderr
-    assert "run.rrd" in r.stdout and "rerun" in r.stdout  # tells the user how to open the recording
+    assert "run.rrd" in r.stdout and "splitspec view" in r.stdout  # tells the user how to open the recording
     compare_with_simulate(out, scen, tmp_path)
     # every agent ran in its own process
     pids = started_pids(out)
