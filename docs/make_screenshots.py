@@ -1,15 +1,15 @@
 """Screenshots of a run in Rerun's web viewer, taken in a real (headless) Chromium.
 
-Runs ``examples/ring10_faults.yaml`` (or takes a run's output directory with
+Runs ``examples/ring10_faults_switching.yaml`` (or takes a run's output directory with
 ``--run-dir``), serves ``run.rrd`` with the web viewer exactly as
 ``splitspec view`` does, opens it in headless Chromium through Playwright, waits
 until the viewer has the whole recording, then moves the time cursor to each
 chosen event time and saves a screenshot to ``docs/figures/``:
 
-    view_ring10_faults_kill.png     just after agent 3 is killed (event time 10)
-    view_ring10_faults_hang.png     just after agent 5 hangs (20)
-    view_ring10_faults_rejoin.png   after the restarts of 3 and 5 (30, 35)
-    view_ring10_faults_end.png      the end of the run (60)
+    view_ring10_faults_switching_kill.png     after agent 3 is killed (10) and agent 5 hangs (20)
+    view_ring10_faults_switching_rejoin.png   after the restarts of 3 and 5 (30, 35)
+    view_ring10_faults_switching_switch.png   on the other graph (switch at 45, back at 52)
+    view_ring10_faults_switching_end.png      the end of the run (60)
 
 Setup, once (no browser download: Debian's chromium is used):
 
@@ -55,9 +55,10 @@ CHROMIUM = "/usr/bin/chromium"
 CHROMIUM_ARGS = ["--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
                  "--disable-background-networking", "--disable-component-update", "--disable-sync"]
 TIMELINE = "event"
-DEFAULT_SCENARIO = ROOT / "examples" / "ring10_faults.yaml"
-# ring10_faults: kill 3 at 10, arc 1->6 dropped at 15, hang 5 at 20, restart 3 at 30 and 5 at 35, arc back at 40
-DEFAULT_TIMES = {"kill": 12, "hang": 22, "rejoin": 38, "end": 60}
+DEFAULT_SCENARIO = ROOT / "examples" / "ring10_faults_switching.yaml"
+# kill 3 at 10, arc 1->6 dropped at 15, hang 5 at 20, restart 3 at 30 and 5 at 35, arc back at 40,
+# graph ring -> ring2 at 45 and back at 52
+DEFAULT_TIMES = {"kill": 24, "rejoin": 38, "switch": 48, "end": 60}
 
 
 class ScreenshotError(RuntimeError):
@@ -262,7 +263,7 @@ def _times(items: list) -> dict:
 
 def main(argv: list | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--scenario", type=Path, default=DEFAULT_SCENARIO, help="scenario to run (default ring10_faults)")
+    p.add_argument("--scenario", type=Path, default=DEFAULT_SCENARIO, help="scenario to run (default ring10_faults_switching)")
     p.add_argument("--run-dir", type=Path, help="use this run's output directory instead of running the scenario")
     p.add_argument("--at", action="append", default=[], metavar="NAME=T",
                    help="screenshot NAME at event time T (repeatable; default " +
