@@ -31,7 +31,8 @@ import numpy as np
 from splitspec_core.errors import SplitspecError
 
 from .outdir import RESERVE_FILE
-from .recorder import EVENTS_FILE, RRD_FILE, TRAJECTORY_FILE, _blueprint, verify_rrd
+from .blueprint import default_blueprint
+from .recorder import EVENTS_FILE, RRD_FILE, TRAJECTORY_FILE, verify_rrd
 from .rrdfile import has_footer, read_chunks, rewrite_rrd, whole_messages_length
 
 __all__ = ["RecoverError", "recover"]
@@ -113,7 +114,7 @@ def _recover_rrd(rrd: Path, K: int) -> tuple[str, bool | None]:
             raise RecoverError(f"{rrd} holds no readable Rerun data")
         if whole < rrd.stat().st_size:
             os.truncate(rrd, whole)  # a message torn by the kill
-    rewrite_rrd(rrd, rrd, blueprint=_blueprint(_time_mode(rrd)), cutoff=K)
+    rewrite_rrd(rrd, rrd, blueprint=default_blueprint(_time_mode(rrd)), cutoff=K)
     ok, _ = verify_rrd(rrd)
     return "rewritten", ok
 

@@ -35,12 +35,15 @@ import logging
 import os
 import shutil
 import struct
+import subprocess
+import sys
 import tempfile
 import warnings
 from pathlib import Path
 from typing import Any, Iterator
 
-__all__ = ["RrdAppender", "split_stream", "whole_messages_length", "rewrite_rrd", "has_footer"]
+__all__ = ["RrdAppender", "split_stream", "whole_messages_length", "rewrite_rrd", "has_footer", "rerun_command",
+           "verify_rrd"]
 
 log = logging.getLogger(__name__)
 
@@ -53,7 +56,8 @@ _FOOTER_MAGIC = b"RRF2FOOT"
 
 TL_EVENT = "event"
 # Entities kept "up to the cut included" (their entries at the cut event time describe it).
-_LOG_ENTITIES = ("/events", "/topology")
+_LOG_ENTITIES = ("/events", "/topology", "/topology/graph", "/marks/lost", "/marks/rejoined", "/marks/graph_switch",
+                 "/marks/fault")
 
 
 def split_stream(data: bytes) -> tuple[bytes, bytes]:
@@ -260,3 +264,20 @@ def _write_with_rerun(src: str | Path, tmp: Path, *, blueprint, cutoff: int | No
         except RuntimeError:
             pass
     return has_footer(tmp)
+
+
+def rerun_command() -> list[str]:
+    """The bundled ``rerun`` CLI: the executable next to ``sys.executable``, else ``python -m rerun``."""
+    exe = Path(sys.executable).parent / ("rerun.exe" if os.name == "nt" else "rerun")
+    return [str(exe)] if exe.exists() else [sys.executable, "-m", "rerun"]
+
+
+def verify_rrd(path: str | Path, *, timeout: float = 120.0) -> tuple[bool, str]:
+    """Run the bundled ``rerun rrd verify <path>``; return (exit code 0, stdout + stderr)."""
+    env = {**os.environ, "RERUN_ANALYTICS": os.environ.get("RERUN_ANALYTICS", "0")}
+    try:
+        proc = subprocess.run([*rerun_command(), "rrd", "verify", str(path)], capture_output=True,
+                              text=True, timeout=timeout, env=env)
+    except (OSError, subprocess.TimeoutExpired) as exc:
+        return False, f"could not run rerun rrd verify: {exc}"
+    return proc.returncode == 0, (proc.stdout + proc.stderr).strip()

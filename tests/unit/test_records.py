@@ -16,9 +16,10 @@ import pytest
 
 from orchestrator.cli import main
 from orchestrator.outdir import RESERVE_FILE, OutputDirError, check_output_dir
-from orchestrator.recorder import Recorder, RecordsWriteError, read_rrd, read_rrd_logs, verify_rrd
+from orchestrator.recorder import Recorder, RecordsWriteError
 from orchestrator.recover import recover
 from splitspec_core.errors import SplitspecError
+from tests.rrd_readback import read_rrd, read_rrd_logs, verify_rrd
 
 os.environ.setdefault("RERUN_ANALYTICS", "0")
 
