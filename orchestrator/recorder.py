@@ -8,7 +8,8 @@ keeps three records of the run in ``out_dir``:
 ``trajectory.npz``
     the trajectory contract of DESIGN.md ("Trajectories"): ``t`` (T,),
     ``x`` (T, n), ``xhat`` (T, m, n) NaN where dead, ``alive`` (T, m) bool,
-    ``graph`` (T,) int, ``agent_ids`` (m,).  Rewritten atomically (temporary
+    ``graph`` (T,) int, ``agent_ids`` (m,), and ``g`` (T, m) (each agent's
+    gain, NaN where dead or none).  Rewritten atomically (temporary
     file in ``out_dir`` + ``os.replace``) at every flush (see below) and always
     in :meth:`Recorder.close`, so after a crash it holds every row up to the
     last flush.
@@ -20,12 +21,16 @@ keeps three records of the run in ``out_dir``:
     to a viewer as well; appended by Python at every flush and finished (footer,
     verifiable) at close, see "Write failures and consistency" below.
 
-Rerun entities: see :mod:`orchestrator.blueprint` (errors, their log10, the
-designed envelope, states per component, gains, round diagnostics, marks,
-topology, events); :mod:`orchestrator.rerun_sink` logs them and
-:mod:`orchestrator.eventlog` writes ``events.jsonl``; the trajectory file is
-written by :func:`splitspec_core.trajfile.write_trajectory`, the one writer
-shared with ``simulate``.
+The parts: :mod:`orchestrator.rowstore` (the rows and what each shows),
+:mod:`orchestrator.rerun_sink` (the Rerun stream and ``run.rrd``; entity
+paths and the default blueprint in :mod:`orchestrator.blueprint`),
+:mod:`orchestrator.eventlog` (``events.jsonl`` and each event's sentence) and
+:func:`splitspec_core.trajfile.write_trajectory` (the one writer of
+``trajectory.npz``, shared with ``simulate``).  This module keeps what ties
+them together under one lock: buffering and flushes, the order of the writes,
+write failures, salvage and close.  It stays above 400 lines because those
+rules form one invariant (the three files agree on K rows) that is easier to
+check in one place than spread over modules.
 
 Timelines: ``event`` (sequence ``tau``), ``time`` (duration: ``tau`` seconds
 in discrete time, ``tau * dt`` in continuous time) and ``wall`` (timestamp).
@@ -119,6 +124,7 @@ from .eventlog import EVENTS_FILE, EventLog, event_level, event_text
 from .outdir import Reserve
 from .rerun_sink import RRD_FILE, RerunSink, RowBatch
 from .rrdfile import verify_rrd
+from .rowstore import RowStore
 
 __all__ = ["Recorder", "RecordingError", "RecordsWriteError", "verify_rrd", "TRAJECTORY_FILE", "EVENTS_FILE",
            "RRD_FILE"]
@@ -255,23 +261,7 @@ class Recorder:
         self._lock = threading.RLock()
         self._closed = False
 
-        # Row storage: starts small (steps is only a hint) and grows by doubling; T = self._rows.
-        cap = max(min(int(steps) + 1, _MAX_INITIAL_ROWS), 16)
-        self._t = np.zeros(cap)
-        self._x = np.zeros((cap, self.n))
-        self._xhat = np.full((cap, self.m, self.n), np.nan)
-        self._alive = np.zeros((cap, self.m), dtype=bool)
-        self._graph = np.zeros(cap, dtype=np.int64)
-        self._tau = np.zeros(cap, dtype=np.int64)
-        self._wall = np.zeros(cap, dtype=np.int64)  # time.time_ns() of the row's (last) arrival
-        self._g = np.full((cap, self.m), np.nan)  # g_i(tau), NaN where dead or none
-        self._round = np.full((cap, 3), np.nan)  # round diagnostics: wall ms, attempts, rejected
-        self._env_start = np.zeros(cap, dtype=np.int64)  # row where the envelope's piece of the row starts
-        # What is currently shown in Rerun per row (to retract with Clear when it stops being true).
-        self._shown = np.zeros((cap, self.m), dtype=bool)
-        self._shown_max = np.zeros(cap, dtype=bool)
-        self._rows = 0
-        self._row_of_tau: dict[int, int] = {}
+        self._s = RowStore(self.m, self.n, capacity=max(min(int(steps) + 1, _MAX_INITIAL_ROWS), 16))
         # Buffer: rows _sent.._rows-1 were never sent to Rerun; _dirty holds sent rows that changed
         # (re-sent tau, agent lost) and are sent again whole.  _queued_events / _queued_topology hold
         # the deferred Rerun logs of event() / topology() in call order, sent as one chunk each.
@@ -333,7 +323,7 @@ class Recorder:
     @property
     def rows_recorded(self) -> int:
         """Number of rows (distinct event times) recorded so far: T of ``trajectory.npz``."""
-        return self._rows
+        return self._s.rows
 
     @property
     def rows_kept(self) -> int:
@@ -441,97 +431,34 @@ class Recorder:
         with self._lock:
             self._check_open("row")
             self._check_failed()
-            k = self._row_of_tau.get(tau)
+            k = self._s.row_of_tau.get(tau)
             if k is None:
-                if self._rows and tau < self._tau[self._rows - 1]:
-                    raise RecordingError(f"row for tau={tau} arrives after tau={self._tau[self._rows - 1]}; "
+                if self._s.rows and tau < self._s.tau[self._s.rows - 1]:
+                    raise RecordingError(f"row for tau={tau} arrives after tau={self._s.tau[self._s.rows - 1]}; "
                                          "rows must come in increasing tau")
-                k = self._append_slot(tau)
+                k = self._s.append_slot(tau)
             elif k < self._sent:
                 self._dirty.add(k)  # already in Rerun: send the whole row again (newest wins)
-            self._t[k] = self._t_of_tau(tau)
-            self._x[k] = x
-            self._xhat[k] = np.where(alive[:, None], xhat, np.nan)
-            self._alive[k] = alive
-            self._graph[k] = int(graph)
-            self._g[k] = np.where(alive, g, np.nan)
-            self._round[k] = diag
-            self._wall[k] = time.time_ns()
+            self._s.t[k] = self._t_of_tau(tau)
+            self._s.x[k] = x
+            self._s.xhat[k] = np.where(alive[:, None], xhat, np.nan)
+            self._s.alive[k] = alive
+            self._s.graph[k] = int(graph)
+            self._s.g[k] = np.where(alive, g, np.nan)
+            self._s.round[k] = diag
+            self._s.wall[k] = time.time_ns()
             self._traj_dirty = True
             self._maybe_flush()
-
-    def _append_slot(self, tau: int) -> int:
-        k = self._rows
-        if k == self._t.shape[0]:
-            self._grow()
-        self._tau[k] = tau
-        self._row_of_tau[tau] = k
-        self._rows += 1
-        return k
-
-    def _grow(self) -> None:
-        def bigger(a: np.ndarray, fill) -> np.ndarray:
-            b = np.full((2 * a.shape[0],) + a.shape[1:], fill, dtype=a.dtype)
-            b[: a.shape[0]] = a
-            return b
-
-        self._t, self._x = bigger(self._t, 0.0), bigger(self._x, 0.0)
-        self._xhat, self._alive = bigger(self._xhat, np.nan), bigger(self._alive, False)
-        self._graph, self._tau = bigger(self._graph, 0), bigger(self._tau, 0)
-        self._wall = bigger(self._wall, 0)
-        self._g, self._round = bigger(self._g, np.nan), bigger(self._round, np.nan)
-        self._env_start = bigger(self._env_start, 0)
-        self._shown, self._shown_max = bigger(self._shown, False), bigger(self._shown_max, False)
-
-    def _row_errors(self, K: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``|x_i - x|_2`` of rows ``K`` (L, m), NaN if dead, and where it is shown (alive and finite)."""
-        err = np.linalg.norm(self._xhat[K] - self._x[K][:, None, :], axis=2)
-        return err, self._alive[K] & np.isfinite(err)
-
-    def _max_error(self, k: int) -> float:
-        """``max_i |x_i - x|`` over the alive agents of row ``k`` (NaN if none)."""
-        e = np.linalg.norm(self._xhat[k] - self._x[k], axis=1)[self._alive[k]]
-        e = e[np.isfinite(e)]
-        return float(e.max()) if e.size else math.nan
-
-    def _envelope(self, K: np.ndarray) -> np.ndarray:
-        """The designed envelope at rows ``K`` (sorted; every earlier row already has its piece's start).
-
-        Row k starts a piece when k = 0, its alive set gains an agent, or its graph changed
-        (:func:`splitspec_core.analysis.envelope_restarts`); on a piece started at k0:
-        ``c lam^(t - t_k0)`` or ``c exp(-lam (t - t_k0))``, ``c`` the max error at k0.
-        """
-        env = np.full(len(K), np.nan)
-        lam = self.envelope_rate
-        for r, k in enumerate(K.tolist()):
-            restart = k == 0 or bool((self._alive[k] & ~self._alive[k - 1]).any()) \
-                or self._graph[k] != self._graph[k - 1]
-            self._env_start[k] = k0 = k if restart else self._env_start[k - 1]
-            if lam is None:
-                continue
-            c, dt = self._max_error(int(k0)), self._t[k] - self._t[k0]
-            if math.isfinite(c) and c > 0:
-                env[r] = c * (math.exp(-lam * dt) if self.time_mode == "continuous" else lam ** dt)
-        return env
 
     def _batch(self, K: np.ndarray, err: np.ndarray, show: np.ndarray) -> RowBatch:
         """Rows ``K`` as the sink logs them; ``clear`` where an earlier flush showed a value no longer true."""
         show_max = show.any(axis=1)
         err_max = np.max(np.where(show, err, -np.inf), axis=1)
-        return RowBatch(seq=self._tau[K], t=self._t[K], wall=self._wall[K], x=self._x[K], xhat=self._xhat[K],
-                        err=err, show=show, clear=self._shown[K] & ~show, err_max=err_max, show_max=show_max,
-                        clear_max=self._shown_max[K] & ~show_max, env=self._envelope(K), gains=self._g[K],
-                        rounds=self._round[K])
-
-    def _mark_y(self, tau: int) -> float:
-        """Height of a mark at ``tau`` on the log10 error axis: log10 of the max error at (or before) ``tau``."""
-        T = self._rows
-        k = int(np.searchsorted(self._tau[:T], tau, side="right")) - 1
-        for j in range(min(max(k, 0), T - 1), -1, -1):
-            e = self._max_error(j)
-            if math.isfinite(e) and e > 0:
-                return math.log10(e)
-        return 0.0
+        S = self._s
+        return RowBatch(seq=S.tau[K], t=S.t[K], wall=S.wall[K], x=S.x[K], xhat=S.xhat[K], err=err, show=show,
+                        clear=S.shown[K] & ~show, err_max=err_max, show_max=show_max,
+                        clear_max=S.shown_max[K] & ~show_max, env=S.envelope(K, self.envelope_rate, self.time_mode),
+                        gains=S.g[K], rounds=S.round[K])
 
     def mark_lost(self, tau: int, agent_id: int) -> None:
         """Agent ``agent_id`` is lost from event time ``tau`` on: NaN/False in every recorded row with ``tau' >= tau``.
@@ -546,16 +473,16 @@ class Recorder:
         with self._lock:
             self._check_open("mark_lost")
             self._check_failed()
-            T = self._rows
-            rows = np.nonzero(self._tau[:T] >= int(tau))[0]
+            T = self._s.rows
+            rows = np.nonzero(self._s.tau[:T] >= int(tau))[0]
             for k in rows:
-                if not self._alive[k, i]:
+                if not self._s.alive[k, i]:
                     continue
-                self._alive[k, i] = False
-                self._xhat[k, i] = np.nan
-                self._g[k, i] = np.nan
+                self._s.alive[k, i] = False
+                self._s.xhat[k, i] = np.nan
+                self._s.g[k, i] = np.nan
                 self._traj_dirty = True
-                if k < self._sent and self._shown[k, i]:
+                if k < self._sent and self._s.shown[k, i]:
                     self._dirty.add(int(k))
             if self._rec is not None:
                 self._queued_clears.append((int(tau), self._t_of_tau(int(tau)), int(agent_id), time.time_ns()))
@@ -605,7 +532,7 @@ class Recorder:
                 fields: dict[str, Any] = {"finished": ok, "rows": K}
                 if self._failure is not None:
                     fields["error"] = str(self._failure)
-                self._close_event(float(self._t[K - 1]) if K else 0.0, "INFO" if ok else "WARN", fields)
+                self._close_event(float(self._s.t[K - 1]) if K else 0.0, "INFO" if ok else "WARN", fields)
                 self._finish_rrd(K)
             finally:
                 self._reserve.release()
@@ -653,14 +580,14 @@ class Recorder:
         return err
 
     def _last_tau(self) -> int | None:
-        return int(self._tau[self._rows - 1]) if self._rows else None
+        return int(self._s.tau[self._s.rows - 1]) if self._s.rows else None
 
     def _maybe_flush(self) -> None:
         if time.monotonic() - self._last_flush >= self.flush_seconds:
             self._flush()
 
     def _pending(self) -> bool:
-        return (self._sent < self._rows or bool(self._dirty) or bool(self._queued_events)
+        return (self._sent < self._s.rows or bool(self._dirty) or bool(self._queued_events)
                 or bool(self._queued_topology) or bool(self._queued_marks) or bool(self._queued_clears)
                 or self._traj_dirty or (self._rec is not None and bool(self._rec.pending)))
 
@@ -675,34 +602,34 @@ class Recorder:
             If ``run.rrd`` or ``trajectory.npz`` cannot be written.
         """
         self._last_flush = time.monotonic()
-        K = np.array(sorted(self._dirty.union(range(self._sent, self._rows))), dtype=np.int64)
+        K = np.array(sorted(self._dirty.union(range(self._sent, self._s.rows))), dtype=np.int64)
         events, self._queued_events = self._queued_events, []
         topology, self._queued_topology = self._queued_topology, []
         marks, self._queued_marks = self._queued_marks, []
         clears, self._queued_clears = self._queued_clears, []
         sink = self._rec
         if len(K):
-            err, show = self._row_errors(K)
+            err, show = self._s.row_errors(K)
             if sink is not None:
                 sink.guarded("row log", lambda: sink.send_rows(self._batch(K, err, show)))
             # What Rerun now shows (also when a send failed: it is not retried).
-            self._shown[K] = show
-            self._shown_max[K] = show.any(axis=1)
+            self._s.shown[K] = show
+            self._s.shown_max[K] = show.any(axis=1)
         if sink is not None:
             if clears:
                 sink.guarded("loss clears", sink.send_loss_clears, clears)
             if events:
                 sink.guarded("event log", sink.send_events, events)
             if marks:
-                sink.guarded("marks", sink.send_marks, [(tau, t, kind, self._mark_y(tau), wall)
+                sink.guarded("marks", sink.send_marks, [(tau, t, kind, self._s.mark_y(tau), wall)
                                                         for tau, t, kind, wall in marks])
             if topology:
                 sink.guarded("topology log", sink.send_topology, topology)
-        self._sent = self._rows
+        self._sent = self._s.rows
         self._dirty.clear()
         if len(K) or events or topology or marks or clears or (sink is not None and sink.pending):
             self._append_rrd()
-        if write_trajectory and (self._traj_dirty or self._npz_rows != self._rows):
+        if write_trajectory and (self._traj_dirty or self._npz_rows != self._s.rows):
             self._write_trajectory()
         self._rows_kept = min(self._npz_rows, self._rrd_rows) if self._rec is not None else self._npz_rows
 
@@ -720,16 +647,16 @@ class Recorder:
 
     def _write_trajectory(self, rows: int | None = None) -> None:
         """Atomically (re)write ``trajectory.npz`` with the first ``rows`` rows (default: all so far)."""
-        T = self._rows if rows is None else rows
+        T = self._s.rows if rows is None else rows
         path = self.out_dir / TRAJECTORY_FILE
         try:
-            write_trajectory(path, t=self._t[:T].copy(), x=self._x[:T].copy(), xhat=self._xhat[:T].copy(),
-                             alive=self._alive[:T].copy(), graph=self._graph[:T].copy(),
-                             agent_ids=self.agent_ids.copy(), g=self._g[:T].copy())
+            write_trajectory(path, t=self._s.t[:T].copy(), x=self._s.x[:T].copy(), xhat=self._s.xhat[:T].copy(),
+                             alive=self._s.alive[:T].copy(), graph=self._s.graph[:T].copy(),
+                             agent_ids=self.agent_ids.copy(), g=self._s.g[:T].copy())
         except OSError as exc:
-            raise self._fail(path, exc, int(self._tau[T - 1]) if T else None) from None
+            raise self._fail(path, exc, int(self._s.tau[T - 1]) if T else None) from None
         self._npz_rows = T
-        if T == self._rows:
+        if T == self._s.rows:
             self._traj_dirty = False
 
     def _salvage(self) -> None:
@@ -774,12 +701,12 @@ class Recorder:
         if self._rec is None:
             return
         cutoff = None
-        if self._failure is not None or K < self._rows:
-            cutoff = int(self._tau[K - 1]) + 1 if K else 0
+        if self._failure is not None or K < self._s.rows:
+            cutoff = int(self._s.tau[K - 1]) + 1 if K else 0
         try:
             self._rec.finish(cutoff)
         except OSError as exc:
-            self._fail(self._rrd_path, exc, int(self._tau[K - 1]) if K else None)
+            self._fail(self._rrd_path, exc, int(self._s.tau[K - 1]) if K else None)
 
 
 def _watch(ref: "weakref.ref[Recorder]", stop: threading.Event) -> None:
