@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from tests.conftest import EXAMPLES
-from tests.integration.runtime_helpers import compare_with_simulate, events, run
+from tests.integration.runtime_helpers import compare_with_simulate, events, run, scenario_file
 from tests.rrd_readback import (read_blueprint, read_rrd, read_rrd_clears, read_rrd_logs, read_rrd_nodes,
                                 rrd_entities, verify_rrd)
 
@@ -110,3 +110,26 @@ def test_g_and_trajectory_equal_simulate(ring10):
     with np.load(out / "trajectory.npz") as f:
         assert f["g"].shape == f["alive"].shape and np.isnan(f["g"]).all()  # discrete time: no g
     compare_with_simulate(out, EXAMPLES / "ring10_faults.yaml", tmp)
+
+
+def test_adaptive_gain_run_logs_gains_and_no_envelope(tmp_path):
+    """Continuous time, adaptive g (no certified rate): gains/agent_<i> equal trajectory.npz's g, no envelope."""
+    scen = scenario_file(tmp_path, "paper_continuous", run={"steps": 60}, design={"g": "adaptive", "g0": 1.0})
+    out = tmp_path / "out"
+    r = run("run", scen, "--out", out, timeout=300)
+    assert r.returncode == 0, r.stdout + r.stderr
+    rrd = out / "run.rrd"
+    ents = rrd_entities(rrd)
+    assert "errors_log10/envelope" not in ents and "errors_log10/max" in ents
+    series = read_rrd(rrd)
+    with np.load(out / "trajectory.npz") as f:
+        g, ids = f["g"], f["agent_ids"].tolist()
+    assert np.isfinite(g).all()  # nobody dies here: every agent has its g_i(t)
+    for i, a in enumerate(ids):
+        got = series[f"gains/agent_{a}"]
+        assert [tau for tau, _ in got] == list(range(g.shape[0]))
+        np.testing.assert_allclose([v for _, v in got], g[:, i], rtol=0, atol=1e-12)
+    assert np.all(np.diff(g, axis=0) >= 0)  # eq. (adaptive): g_i never decreases
+    compare_with_simulate(out, scen, tmp_path)
+    bp = read_blueprint(rrd)
+    assert ("TimeSeries", "adaptive gains g_i", "gains") in bp["views"]
