@@ -215,14 +215,17 @@ def rewrite_rrd(src: str | Path, dst: str | Path, *, blueprint, cutoff: int | No
         in-place copy itself failed part way.
     """
     dst = Path(dst)
-    fd, tmp = tempfile.mkstemp(prefix=".run.", suffix=".rrd.tmp", dir=dst.parent)
-    os.close(fd)
-    try:
-        if _write_with_rerun(src, Path(tmp), blueprint=blueprint, cutoff=cutoff):
-            os.replace(tmp, dst)
-            return
-    finally:
-        Path(tmp).unlink(missing_ok=True)
+    st = os.statvfs(dst.parent)
+    # Rerun's FileSink on a full disk may block its flush for long: only try next to dst with room for a copy.
+    if os.path.getsize(src) + (1 << 20) <= st.f_bavail * st.f_frsize:
+        fd, tmp = tempfile.mkstemp(prefix=".run.", suffix=".rrd.tmp", dir=dst.parent)
+        os.close(fd)
+        try:
+            if _write_with_rerun(src, Path(tmp), blueprint=blueprint, cutoff=cutoff):
+                os.replace(tmp, dst)
+                return
+        finally:
+            Path(tmp).unlink(missing_ok=True)
     # No room for a second copy next to dst: build it elsewhere, copy it in place.
     log.info("no room for a second copy of %s next to it; rewriting it in place", dst)
     fd, tmp = tempfile.mkstemp(prefix="splitspec-run.", suffix=".rrd.tmp")
