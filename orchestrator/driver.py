@@ -231,7 +231,9 @@ class Orchestrator:
                     rows={str(i): [list(nb), list(w)] for i, (nb, w) in a.rows.items()},
                     incarnation={str(i): int(v) for i, v in a.incarnation.items()}))
             elif kind is R.Record:
-                self.rec.row(a.tau, a.x, a.xhat, a.alive, a.graph)
+                gains = a.gains if self.sc.time == "continuous" else None  # no g in discrete time
+                self.rec.row(a.tau, a.x, a.xhat, a.alive, a.graph, gains=gains, attempts=a.attempts,
+                             rejected=a.rejected, wall_ms=(time.monotonic() - a.started) * 1e3)
                 self.progress.update(a.tau, self.machine.max_error(a), int(a.alive.sum()),
                                      force=a.tau == self.machine.plan.steps)
             elif kind is R.Event:
@@ -330,7 +332,9 @@ class Orchestrator:
             raise OutputDirError(f"cannot write {self.out / 'scenario.yaml'}: {exc.strerror}") from None
         self.rec = Recorder(self.out, agent_ids=sc.agent_ids, n=sc.n, steps=sc.run.steps, time_mode=sc.time,
                             dt=dt, graph_names=sc.graph_names, run_id=self.keys.run_id,
-                            scenario_name=sc.name, viewer=self.viewer)
+                            scenario_name=sc.name, viewer=self.viewer,
+                            envelope_rate=None if self.des.g_mode == "adaptive" else float(sc.design.rate),
+                            gains=sc.time == "continuous", positions=sc.positions)
         self.registry = RunRegistry(self.keys.run_id, {"endpoint": self.connect or self.listen,
                                                        "out": str(self.out.resolve()), "host": HOST})
         now = time.monotonic()

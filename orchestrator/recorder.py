@@ -8,7 +8,8 @@ keeps three records of the run in ``out_dir``:
 ``trajectory.npz``
     the trajectory contract of DESIGN.md ("Trajectories"): ``t`` (T,),
     ``x`` (T, n), ``xhat`` (T, m, n) NaN where dead, ``alive`` (T, m) bool,
-    ``graph`` (T,) int, ``agent_ids`` (m,).  Rewritten atomically (temporary
+    ``graph`` (T,) int, ``agent_ids`` (m,), and ``g`` (T, m) (each agent's
+    gain, NaN where dead or none).  Rewritten atomically (temporary
     file in ``out_dir`` + ``os.replace``) at every flush (see below) and always
     in :meth:`Recorder.close`, so after a crash it holds every row up to the
     last flush.
@@ -20,24 +21,31 @@ keeps three records of the run in ``out_dir``:
     to a viewer as well; appended by Python at every flush and finished (footer,
     verifiable) at close, see "Write failures and consistency" below.
 
-Rerun entities (``<id>`` is an agent id, ``<k>`` = 1..n a state component):
-
-=========================  ==================================================
-``errors/agent_<id>``      ``|x_i(tau) - x(tau)|_2``, alive agents only
-``errors/max``             ``max_i |x_i(tau) - x(tau)|_2`` over alive agents
-``state/<k>/truth``        ``x_k(tau)``
-``state/<k>/agent_<id>``   ``x_{i,k}(tau)``, alive agents only
-``topology``               GraphNodes (every agent, lost ones grey) + directed
-                           GraphEdges ``(j, i)``: i receives from j
-``events``                 TextLog (WARN for lost/rejected/error/failed)
-=========================  ==================================================
+The parts: :mod:`orchestrator.rowstore` (the rows and what each shows),
+:mod:`orchestrator.rerun_sink` (the Rerun stream and ``run.rrd``; entity
+paths and the default blueprint in :mod:`orchestrator.blueprint`),
+:mod:`orchestrator.eventlog` (``events.jsonl`` and each event's sentence) and
+:func:`splitspec_core.trajfile.write_trajectory` (the one writer of
+``trajectory.npz``, shared with ``simulate``).  This module keeps what ties
+them together under one lock: buffering and flushes, the order of the writes,
+write failures, salvage and close.  It stays above 400 lines because those
+rules form one invariant (the three files agree on K rows) that is easier to
+check in one place than spread over modules.
 
 Timelines: ``event`` (sequence ``tau``), ``time`` (duration: ``tau`` seconds
 in discrete time, ``tau * dt`` in continuous time) and ``wall`` (timestamp).
 A value that stops being true (an agent lost from ``tau`` on after its rows
 were logged, or a row re-sent for the same ``tau`` without an agent) is
-retracted with a non-recursive ``rr.Clear`` at that event time; :func:`read_rrd`
-applies those clears, as the viewer's latest-at queries do.
+retracted with a non-recursive ``rr.Clear`` at that event time; and a loss gets
+an explicit Clear of every series of the agent at the loss itself, which breaks
+the agent's lines in the time-series views.
+
+The designed envelope (``errors_log10/envelope``) is computed row by row, as a
+live recording can: it restarts at a row whose alive set gains an agent or
+whose graph changed (:func:`splitspec_core.analysis.envelope_restarts`), from
+the max error there, and decays as ``c lam^(tau - tau0)`` (discrete) or ``c
+exp(-lam (t - t0))`` (continuous); none with the adaptive gain
+(``envelope_rate=None``).
 
 Buffering: :meth:`Recorder.row` only stores the row (a few microseconds).
 Rows reach Rerun in batches: one ``send_columns`` chunk per entity per flush
@@ -97,62 +105,34 @@ records of a killed run.
 from __future__ import annotations
 
 import atexit
-import json
 import logging
 import math
 import os
-import socket
-import subprocess
-import sys
-import tempfile
 import threading
 import time
 import weakref
 from pathlib import Path
-from typing import Any, Iterable
-from urllib.parse import urlsplit
+from typing import Any, Iterable, Mapping
 
 import numpy as np
 
 from splitspec_core.errors import SplitspecError
+from splitspec_core.trajfile import TRAJECTORY_FILE, write_trajectory
 
+from . import blueprint as bp
+from .eventlog import EVENTS_FILE, EventLog, event_level, event_text
 from .outdir import Reserve
-from .rrdfile import RrdAppender, rewrite_rrd
+from .rerun_sink import RRD_FILE, RerunSink, RowBatch
+from .rrdfile import verify_rrd
+from .rowstore import RowStore
 
-__all__ = ["Recorder", "RecordingError", "RecordsWriteError", "read_rrd", "verify_rrd"]
+__all__ = ["Recorder", "RecordingError", "RecordsWriteError", "verify_rrd", "TRAJECTORY_FILE", "EVENTS_FILE",
+           "RRD_FILE"]
 
 log = logging.getLogger(__name__)
 
-APPLICATION_ID = "splitspec"
-TRAJECTORY_FILE = "trajectory.npz"
-EVENTS_FILE = "events.jsonl"
-RRD_FILE = "run.rrd"
 RESERVE_BYTES = 4 << 20  # disk-space reserve released on ENOSPC to write the final records
 _MAX_INITIAL_ROWS = 1024  # row storage starts at most this big (``steps`` is a hint) and doubles
-
-# Rerun entity paths and timelines (built here only).
-ERRORS = "errors"
-ERRORS_MAX = "errors/max"
-STATE = "state"
-TOPOLOGY = "topology"
-EVENTS = "events"
-TL_EVENT, TL_TIME, TL_WALL = "event", "time", "wall"
-
-# Column names of a chunk's record batch in rerun 0.41 (found by experiment:
-# index columns are named after their timeline, data columns "Archetype:field").
-_COL_SCALARS = "Scalars:scalars"
-_COL_CLEAR = "Clear:is_recursive"
-_COL_ROW_ID = "rerun.controls.RowId"
-
-_WARN_WORDS = ("lost", "rejected", "error", "failed")
-_DEFAULT_VIEWER_PORT = 9876
-_PALETTE = [  # matplotlib tab10
-    (31, 119, 180), (255, 127, 14), (44, 160, 44), (214, 39, 40), (148, 103, 189),
-    (140, 86, 75), (227, 119, 194), (127, 127, 127), (188, 189, 34), (23, 190, 207),
-]
-_DEAD_COLOR = (90, 90, 90)
-_MAX_COLOR = (235, 235, 235)
-_TRUTH_COLOR = (235, 235, 235)
 
 # Recorders not closed yet: flushed at interpreter exit (and when dropped, see __del__), so a
 # normal exit without close() loses no buffered row.  The handler is registered after rerun is imported (which registers
@@ -208,74 +188,6 @@ def _strerror(exc: OSError) -> str:
     return str(exc) or type(exc).__name__
 
 
-def _agent_path(prefix: str, agent_id: int) -> str:
-    return f"{prefix}/agent_{agent_id}"
-
-
-def _state_path(k: int, who: str) -> str:
-    """``state/<k>/<who>`` with the 1-based component index ``k``."""
-    return f"{STATE}/{k}/{who}"
-
-
-def _json_default(obj: Any) -> Any:
-    if isinstance(obj, np.generic):
-        return obj.item()
-    if isinstance(obj, np.ndarray):
-        return obj.tolist()
-    if isinstance(obj, (set, frozenset)):
-        return sorted(obj)
-    if isinstance(obj, Path):
-        return str(obj)
-    raise TypeError(f"event field of type {type(obj).__name__} is not JSON serialisable")
-
-
-def _reachable(host: str, port: int, timeout: float) -> bool:
-    try:
-        with socket.create_connection((host, port), timeout=timeout):
-            return True
-    except OSError:
-        return False
-
-
-def _viewer_url(viewer: str) -> str:
-    """Accept a full ``rerun+http://host:port/proxy`` URL or a bare ``host:port``."""
-    return viewer if "://" in viewer else f"rerun+http://{viewer}/proxy"
-
-
-def _url_host_port(url: str) -> tuple[str, int]:
-    parts = urlsplit(url)
-    default = 443 if parts.scheme.endswith("https") else _DEFAULT_VIEWER_PORT
-    return parts.hostname or "127.0.0.1", parts.port or default
-
-
-def _blueprint(time_mode: str):
-    """The default blueprint of a run's recording (the time panel follows ``time_mode``)."""
-    import rerun.blueprint as rrb
-
-    # No log-scale y axis in rerun 0.41's ScalarAxis (rerun issue #6773); errors are
-    # positive, so a log axis can be switched on if a later viewer offers one.
-    return rrb.Blueprint(
-        rrb.Horizontal(
-            rrb.Vertical(
-                rrb.TimeSeriesView(origin=ERRORS, name="estimation errors |x_i - x|"),
-                rrb.TimeSeriesView(origin=STATE, name="state: truth and estimates"),
-            ),
-            rrb.Vertical(
-                rrb.GraphView(origin=TOPOLOGY, name="communication graph"),
-                rrb.TextLogView(origin=EVENTS, name="events"),
-            ),
-            column_shares=[2, 1],
-        ),
-        rrb.TimePanel(timeline=TL_EVENT if time_mode == "discrete" else TL_TIME),
-    )
-
-
-def _rerun_command() -> list[str]:
-    """The bundled ``rerun`` CLI: the executable next to ``sys.executable``, else ``python -m rerun``."""
-    exe = Path(sys.executable).parent / ("rerun.exe" if os.name == "nt" else "rerun")
-    return [str(exe)] if exe.exists() else [sys.executable, "-m", "rerun"]
-
-
 class Recorder:
     """Records one run to ``out_dir`` (see the module docstring for the files and entities).
 
@@ -299,6 +211,9 @@ class Recorder:
     connect_timeout : seconds to wait when checking that a viewer is reachable
     reserve_bytes : size of the disk-space reserve ``.splitspec-reserve`` kept in ``out_dir``
         until close (at most 1/8 of the free space; ``0``: none)
+    envelope_rate : designed rate ``lam`` of ``errors_log10/envelope`` (None: no envelope, e.g. adaptive gain)
+    gains : log ``gains/agent_<id>`` (continuous time)
+    positions : ``{agent id: (x, y)}`` of the topology's nodes (None: a circle)
 
     Raises
     ------
@@ -309,8 +224,9 @@ class Recorder:
     def __init__(self, out_dir: Path, *, agent_ids: tuple[int, ...], n: int, steps: int, time_mode: str,
                  dt: float, graph_names: tuple[str, ...], run_id: str, scenario_name: str,
                  viewer: str | None = None, flush_seconds: float = 1.0,
-                 viewer_port: int = _DEFAULT_VIEWER_PORT, connect_timeout: float = 1.0,
-                 reserve_bytes: int = RESERVE_BYTES):
+                 viewer_port: int = 9876, connect_timeout: float = 1.0,
+                 reserve_bytes: int = RESERVE_BYTES, envelope_rate: float | None = None, gains: bool = False,
+                 positions: Mapping[int, tuple[float, float]] | None = None):
         if time_mode not in ("discrete", "continuous"):
             raise RecordingError(f"time_mode must be 'discrete' or 'continuous', got {time_mode!r}")
         ids = [int(a) for a in agent_ids]
@@ -324,6 +240,10 @@ class Recorder:
             raise RecordingError("graph_names must name at least one graph")
         if not flush_seconds >= 0:
             raise RecordingError(f"flush_seconds must be >= 0, got {flush_seconds}")
+        if envelope_rate is not None and not (math.isfinite(envelope_rate) and envelope_rate > 0):
+            raise RecordingError(f"envelope_rate must be a positive number or None, got {envelope_rate}")
+        if positions is not None and set(int(a) for a in positions) != set(ids):
+            raise RecordingError(f"positions must give every agent of {tuple(ids)}, got {sorted(positions)}")
 
         self.out_dir = Path(out_dir)
         try:
@@ -336,24 +256,12 @@ class Recorder:
         self.graph_names = tuple(graph_names)
         self.run_id, self.scenario_name = str(run_id), str(scenario_name)
         self.flush_seconds = float(flush_seconds)
+        self.envelope_rate = None if envelope_rate is None else float(envelope_rate)
         self._pos = {a: k for k, a in enumerate(ids)}
         self._lock = threading.RLock()
         self._closed = False
 
-        # Row storage: starts small (steps is only a hint) and grows by doubling; T = self._rows.
-        cap = max(min(int(steps) + 1, _MAX_INITIAL_ROWS), 16)
-        self._t = np.zeros(cap)
-        self._x = np.zeros((cap, self.n))
-        self._xhat = np.full((cap, self.m, self.n), np.nan)
-        self._alive = np.zeros((cap, self.m), dtype=bool)
-        self._graph = np.zeros(cap, dtype=np.int64)
-        self._tau = np.zeros(cap, dtype=np.int64)
-        self._wall = np.zeros(cap, dtype=np.int64)  # time.time_ns() of the row's (last) arrival
-        # What is currently shown in Rerun per row (to retract with Clear when it stops being true).
-        self._shown = np.zeros((cap, self.m), dtype=bool)
-        self._shown_max = np.zeros(cap, dtype=bool)
-        self._rows = 0
-        self._row_of_tau: dict[int, int] = {}
+        self._s = RowStore(self.m, self.n, capacity=max(min(int(steps) + 1, _MAX_INITIAL_ROWS), 16))
         # Buffer: rows _sent.._rows-1 were never sent to Rerun; _dirty holds sent rows that changed
         # (re-sent tau, agent lost) and are sent again whole.  _queued_events / _queued_topology hold
         # the deferred Rerun logs of event() / topology() in call order, sent as one chunk each.
@@ -361,6 +269,8 @@ class Recorder:
         self._dirty: set[int] = set()
         self._queued_events: list[tuple[int, float, str, str, int]] = []
         self._queued_topology: list[tuple[int, float, str, set[int], list[tuple[str, str]], int]] = []
+        self._queued_marks: list[tuple[int, float, str, int]] = []  # (tau, t, kind, wall_ns); y set at flush
+        self._queued_clears: list[tuple[int, float, int, int]] = []  # loss clears (tau, t, agent, wall_ns)
         self._traj_dirty = False
         self._last_flush = time.monotonic()
 
@@ -372,18 +282,18 @@ class Recorder:
         self._rrd_rows = 0
         self._rows_kept = 0
         self._events_path = self.out_dir / EVENTS_FILE
-        self._events_size = 0
         try:
-            self._write_events(b"", mode="wb")  # create / empty events.jsonl
+            self._events = EventLog(self._events_path)  # create / empty events.jsonl
         except OSError as exc:
             raise RecordsWriteError(self._events_path, _strerror(exc)) from None
-        self._rrd_file = RrdAppender(self.out_dir / RRD_FILE)
-        self._rrd_pending: list[bytes] = []  # read from Rerun, not yet on disk
-        self._stream = None
-        self._rec = None
-        self._viewer_warned = False
+        self._rrd_path = self.out_dir / RRD_FILE
+        self._rec: RerunSink | None = None
         try:
-            self._rec = self._open_rerun(viewer, viewer_port=viewer_port, connect_timeout=connect_timeout)
+            self._rec = RerunSink(self.out_dir, run_id=self.run_id, scenario_name=self.scenario_name,
+                                  agent_ids=self.agent_ids, n=self.n, time_mode=time_mode, dt=self.dt,
+                                  graph_names=self.graph_names, envelope=self.envelope_rate is not None,
+                                  gains=bool(gains), positions=dict(positions) if positions else None,
+                                  viewer=viewer, viewer_port=viewer_port, connect_timeout=connect_timeout)
         except Exception as exc:  # Rerun must never stop a run
             log.warning("Rerun recording disabled (%s: %s); writing trajectory.npz and events.jsonl only",
                         type(exc).__name__, exc)
@@ -400,89 +310,6 @@ class Recorder:
                                              name="splitspec-recorder-flush", daemon=True)
             self._watcher.start()
 
-    # ------------------------------------------------------------------ Rerun setup
-
-    def _open_rerun(self, viewer: str | None, *, viewer_port: int, connect_timeout: float):
-        import rerun as rr
-
-        rec = rr.RecordingStream(application_id=APPLICATION_ID, recording_id=self.run_id)
-        # run.rrd: Python appends what it reads from this stream (see the module docstring).
-        self._stream = rr.binary_stream(rec)
-        sinks: list[Any] = [self._stream]
-        live = self._viewer_sink(rr, rec, viewer, viewer_port=viewer_port, connect_timeout=connect_timeout)
-        if live is not None:
-            sinks.append(live)
-        # Both sinks at once: set_sinks replaces the stream's sinks with this tee.
-        rec.set_sinks(*sinks, default_blueprint=self._blueprint())
-        rec.send_recording_name(f"{self.scenario_name} ({self.run_id})")
-        rec.send_property("splitspec", rr.AnyValues(
-            scenario=self.scenario_name, run_id=self.run_id, time_mode=self.time_mode, dt=self.dt,
-            n=self.n, m=self.m, agent_ids=self.agent_ids.tolist(), graphs=list(self.graph_names)))
-        self._log_static_styles(rr, rec)
-        return rec
-
-    def _viewer_sink(self, rr, rec, viewer: str | None, *, viewer_port: int, connect_timeout: float):
-        """The ``rr.GrpcSink`` of the live viewer, or None (file only, with a warning)."""
-        if viewer is None:
-            return None
-        if viewer == "spawn":
-            if sys.platform.startswith("linux") and not any(
-                    os.environ.get(v) for v in ("DISPLAY", "WAYLAND_DISPLAY", "WAYLAND_SOCKET")):
-                # The native viewer exits at once without a display; rr.spawn would wait ~6 s for it.
-                log.warning("no display (DISPLAY/WAYLAND_DISPLAY unset): not spawning a Rerun viewer; "
-                            "recording to %s only", RRD_FILE)
-                return None
-            cmd = _rerun_command()
-            try:
-                # connect=False: the gRPC sink is added with the file sink in set_sinks.
-                rr.spawn(port=viewer_port, connect=False, recording=rec,
-                         executable_path=cmd[0] if len(cmd) == 1 else None)
-            except Exception as exc:
-                log.warning("could not spawn a Rerun viewer (%s: %s); recording to %s only",
-                            type(exc).__name__, exc, RRD_FILE)
-                return None
-            url = f"rerun+http://127.0.0.1:{viewer_port}/proxy"
-        else:
-            url = _viewer_url(viewer)
-        host, port = _url_host_port(url)
-        # GrpcSink does not fail on an unreachable viewer: set_sinks blocks ~5 s and
-        # every later flush raises.  Check first and fall back to the file.
-        if not _reachable(host, port, connect_timeout):
-            log.warning("Rerun viewer at %s is not reachable; recording to %s only", url, RRD_FILE)
-            return None
-        try:
-            return rr.GrpcSink(url)
-        except Exception as exc:
-            log.warning("invalid Rerun viewer URL %r (%s); recording to %s only", url, exc, RRD_FILE)
-            return None
-
-    def _blueprint(self):
-        return _blueprint(self.time_mode)
-
-    def _color(self, i: int) -> tuple[int, int, int]:
-        return _PALETTE[i % len(_PALETTE)]
-
-    def _log_static_styles(self, rr, rec) -> None:
-        rec.log(ERRORS_MAX, rr.SeriesLines(names="max", colors=[_MAX_COLOR], widths=2.0), static=True)
-        for i, a in enumerate(self.agent_ids):
-            rec.log(_agent_path(ERRORS, a), rr.SeriesLines(names=f"agent {a}", colors=[self._color(i)]),
-                    static=True)
-        for k in range(1, self.n + 1):
-            rec.log(_state_path(k, "truth"), rr.SeriesLines(names=f"x{k} truth", colors=[_TRUTH_COLOR],
-                                                            widths=2.0), static=True)
-            for i, a in enumerate(self.agent_ids):
-                rec.log(_state_path(k, f"agent_{a}"),
-                        rr.SeriesLines(names=f"x{k} agent {a}", colors=[self._color(i)]), static=True)
-
-    def _rerun(self, what: str, fn, *args) -> None:
-        """Run one Rerun logging step; a failure is a warning, never an exception."""
-        if self._rec is None:
-            return
-        try:
-            fn(*args)
-        except Exception as exc:
-            log.warning("Rerun %s failed (%s: %s); continuing", what, type(exc).__name__, exc)
-
     # ------------------------------------------------------------------ time helpers
 
     def _t_of_tau(self, tau: int) -> float:
@@ -496,7 +323,7 @@ class Recorder:
     @property
     def rows_recorded(self) -> int:
         """Number of rows (distinct event times) recorded so far: T of ``trajectory.npz``."""
-        return self._rows
+        return self._s.rows
 
     @property
     def rows_kept(self) -> int:
@@ -515,11 +342,12 @@ class Recorder:
         seconds in continuous time); the TextLog is placed at ``tau = t`` or
         ``tau = round(t / dt)``.  Level WARN when the name contains
         lost/rejected/error/failed, else INFO, unless ``level`` is given.
-        ``note`` replaces the fields in the Rerun text (``"<event>: <note>"``);
-        ``events.jsonl`` always has every field.
+        The Rerun text is one short sentence (:func:`orchestrator.eventlog.event_text`;
+        ``note`` replaces it); ``events.jsonl`` always has every field.  Losses,
+        rejoins, graph switches and link faults also get a point on ``marks/<kind>``.
         """
         if level is None:
-            level = "WARN" if any(w in event.lower() for w in _WARN_WORDS) else "INFO"
+            level = event_level(event)
         self._event(event, t, level, fields, note)
 
     def _event(self, event: str, t: float, level: str, fields: dict[str, Any], note: str | None = None) -> None:
@@ -528,15 +356,17 @@ class Recorder:
         with self._lock:
             self._check_open("event")
             self._check_failed()
-            wall = time.time()
-            line = json.dumps({"event": event, "t": t, "wall": wall, **fields}, default=_json_default)
+            line = self._events.line(event, t, time.time(), fields)  # TypeError before any write
             try:
-                self._write_events((line + "\n").encode("utf-8"))
+                self._events._write(line)
             except OSError as exc:
                 raise self._fail(self._events_path, exc, self._tau_of_t(t)) from None
             if self._rec is not None:
-                text = f"{event}: {note}" if note else event + "".join(f" {k}={v}" for k, v in fields.items())
-                self._queued_events.append((self._tau_of_t(t), float(t), text, level, time.time_ns()))
+                tau, wall = self._tau_of_t(t), time.time_ns()
+                self._queued_events.append((tau, float(t), event_text(event, fields, note), level, wall))
+                kind = bp.MARK_OF_EVENT.get(event)
+                if kind is not None:
+                    self._queued_marks.append((tau, float(t), kind, wall))
             self._maybe_flush()
 
     def topology(self, tau: int, graph_name: str, alive_ids: Iterable[int],
@@ -567,44 +397,14 @@ class Recorder:
                                               time.time_ns()))
             self._maybe_flush()
 
-    @staticmethod
-    def _index_columns(rr, taus, seconds, walls_ns) -> list:
-        """The three timeline columns (``event``, ``time``, ``wall``) of a batch of rows."""
-        dur = np.round(np.asarray(seconds, dtype=float) * 1e9).astype(np.int64).astype("timedelta64[ns]")
-        return [rr.TimeColumn(TL_EVENT, sequence=np.asarray(taus, dtype=np.int64)),
-                rr.TimeColumn(TL_TIME, duration=dur),
-                rr.TimeColumn(TL_WALL, timestamp=np.asarray(walls_ns, dtype=np.int64).astype("datetime64[ns]"))]
-
-    def _send_events(self, queued: list[tuple[int, float, str, str, int]]) -> None:
-        """Queued event() logs as one TextLog chunk on ``events`` (one row per event, in call order)."""
-        import rerun as rr
-
-        taus, seconds, texts, levels, walls = zip(*queued)
-        self._rec.send_columns(EVENTS, indexes=self._index_columns(rr, taus, seconds, walls),
-                               columns=rr.TextLog.columns(text=list(texts), level=list(levels)))
-
-    def _send_topology(self, queued: list[tuple[int, float, str, set[int], list[tuple[str, str]], int]]) -> None:
-        """Queued topology() logs as one chunk on ``topology``: GraphNodes + directed GraphEdges + graph name."""
-        import rerun as rr
-
-        ids = self.agent_ids.tolist()
-        node_ids, labels, colors, edges, edge_counts = [], [], [], [], []
-        for _, _, _, alive, row_edges, _ in queued:
-            node_ids += [str(a) for a in ids]
-            labels += [f"agent {a}" if a in alive else f"agent {a} (lost)" for a in ids]
-            colors += [self._color(k) if a in alive else _DEAD_COLOR for k, a in enumerate(ids)]
-            edges += row_edges
-            edge_counts.append(len(row_edges))
-        taus, seconds, names, _, _, walls = zip(*queued)
-        rows = len(queued)
-        columns = [*rr.GraphNodes.columns(node_ids=node_ids, labels=labels, colors=colors).partition([len(ids)] * rows),
-                   *rr.GraphEdges.columns(edges=edges).partition(edge_counts),
-                   *rr.GraphEdges.columns(graph_type=["directed"] * rows),
-                   *rr.AnyValues.columns(graph_name=list(names))]
-        self._rec.send_columns(TOPOLOGY, indexes=self._index_columns(rr, taus, seconds, walls), columns=columns)
-
-    def row(self, tau: int, x: np.ndarray, xhat: np.ndarray, alive: np.ndarray, graph: int) -> None:
+    def row(self, tau: int, x: np.ndarray, xhat: np.ndarray, alive: np.ndarray, graph: int, *,
+            gains: np.ndarray | None = None, wall_ms: float | None = None, attempts: int | None = None,
+            rejected: int | None = None) -> None:
         """Record event time ``tau``: ``x`` (n,), ``xhat`` (m, n), ``alive`` (m,) bool, graph index.
+
+        ``gains`` (m,): each agent's ``g_i(tau)`` (None: no gain, discrete
+        time); ``wall_ms``, ``attempts``, ``rejected``: the round's
+        diagnostics (``rounds/...``), None if unknown.
 
         Rows come in increasing ``tau``; a row re-sent for an already recorded
         ``tau`` replaces it.  Rows of dead agents are stored as NaN whatever
@@ -624,112 +424,48 @@ class Recorder:
                                  f"got {alive.dtype} {alive.shape}")
         if not 0 <= int(graph) < len(self.graph_names):
             raise RecordingError(f"graph index {graph} out of range 0..{len(self.graph_names) - 1}")
+        g = np.full(self.m, np.nan) if gains is None else np.asarray(gains, dtype=float)
+        if g.shape != (self.m,):
+            raise RecordingError(f"gains has shape {g.shape}; expected ({self.m},)")
+        diag = [np.nan if v is None else float(v) for v in (wall_ms, attempts, rejected)]
         with self._lock:
             self._check_open("row")
             self._check_failed()
-            k = self._row_of_tau.get(tau)
+            k = self._s.row_of_tau.get(tau)
             if k is None:
-                if self._rows and tau < self._tau[self._rows - 1]:
-                    raise RecordingError(f"row for tau={tau} arrives after tau={self._tau[self._rows - 1]}; "
+                if self._s.rows and tau < self._s.tau[self._s.rows - 1]:
+                    raise RecordingError(f"row for tau={tau} arrives after tau={self._s.tau[self._s.rows - 1]}; "
                                          "rows must come in increasing tau")
-                k = self._append_slot(tau)
+                k = self._s.append_slot(tau)
             elif k < self._sent:
                 self._dirty.add(k)  # already in Rerun: send the whole row again (newest wins)
-            self._t[k] = self._t_of_tau(tau)
-            self._x[k] = x
-            self._xhat[k] = np.where(alive[:, None], xhat, np.nan)
-            self._alive[k] = alive
-            self._graph[k] = int(graph)
-            self._wall[k] = time.time_ns()
+            self._s.t[k] = self._t_of_tau(tau)
+            self._s.x[k] = x
+            self._s.xhat[k] = np.where(alive[:, None], xhat, np.nan)
+            self._s.alive[k] = alive
+            self._s.graph[k] = int(graph)
+            self._s.g[k] = np.where(alive, g, np.nan)
+            self._s.round[k] = diag
+            self._s.wall[k] = time.time_ns()
             self._traj_dirty = True
             self._maybe_flush()
 
-    def _append_slot(self, tau: int) -> int:
-        k = self._rows
-        if k == self._t.shape[0]:
-            self._grow()
-        self._tau[k] = tau
-        self._row_of_tau[tau] = k
-        self._rows += 1
-        return k
-
-    def _grow(self) -> None:
-        def bigger(a: np.ndarray, fill) -> np.ndarray:
-            b = np.full((2 * a.shape[0],) + a.shape[1:], fill, dtype=a.dtype)
-            b[: a.shape[0]] = a
-            return b
-
-        self._t, self._x = bigger(self._t, 0.0), bigger(self._x, 0.0)
-        self._xhat, self._alive = bigger(self._xhat, np.nan), bigger(self._alive, False)
-        self._graph, self._tau = bigger(self._graph, 0), bigger(self._tau, 0)
-        self._wall = bigger(self._wall, 0)
-        self._shown, self._shown_max = bigger(self._shown, False), bigger(self._shown_max, False)
-
-    def _row_errors(self, K: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``|x_i - x|_2`` of rows ``K`` (L, m), NaN if dead, and where it is shown (alive and finite)."""
-        err = np.linalg.norm(self._xhat[K] - self._x[K][:, None, :], axis=2)
-        return err, self._alive[K] & np.isfinite(err)
-
-    def _send_rows(self, K: np.ndarray, err: np.ndarray, show: np.ndarray) -> None:
-        """Send rows ``K`` (row indices, increasing ``tau``) to Rerun: one chunk per entity.
-
-        Values go where an agent is shown (alive, finite estimate); a non-recursive
-        ``Clear`` goes where a value was shown by an earlier flush and is no longer
-        true.  Per entity, each event time appears at most once per flush, so the
-        newest flush wins on read.
-        """
-        import rerun as rr
-
-        send = self._rec.send_columns
-        L = len(K)
-        seq, t, wall = self._tau[K], self._t[K], self._wall[K]
-        x, xhat = self._x[K], self._xhat[K]
-        clear = self._shown[K] & ~show
+    def _batch(self, K: np.ndarray, err: np.ndarray, show: np.ndarray) -> RowBatch:
+        """Rows ``K`` as the sink logs them; ``clear`` where an earlier flush showed a value no longer true."""
         show_max = show.any(axis=1)
-        clear_max = self._shown_max[K] & ~show_max
         err_max = np.max(np.where(show, err, -np.inf), axis=1)
-
-        indexes: dict[bytes, list] = {}
-        clears: dict[int, Any] = {}
-
-        def index(mask: np.ndarray) -> list:
-            key = mask.tobytes()
-            cols = indexes.get(key)
-            if cols is None:
-                cols = indexes[key] = self._index_columns(rr, seq[mask], t[mask], wall[mask])
-            return cols
-
-        def send_clear(path: str, mask: np.ndarray) -> None:
-            cnt = int(mask.sum())
-            if cnt not in clears:
-                clears[cnt] = rr.Clear.columns(is_recursive=np.zeros(cnt, dtype=bool))
-            send(path, indexes=index(mask), columns=clears[cnt])
-
-        every = np.ones(L, dtype=bool)
-        for c in range(self.n):
-            send(_state_path(c + 1, "truth"), indexes=index(every), columns=rr.Scalars.columns(scalars=x[:, c]))
-        for i, a in enumerate(self.agent_ids.tolist()):
-            mask = show[:, i]
-            if mask.any():
-                send(_agent_path(ERRORS, a), indexes=index(mask), columns=rr.Scalars.columns(scalars=err[mask, i]))
-                for c in range(self.n):
-                    send(_state_path(c + 1, f"agent_{a}"), indexes=index(mask),
-                         columns=rr.Scalars.columns(scalars=xhat[mask, i, c]))
-            mask = clear[:, i]
-            if mask.any():
-                send_clear(_agent_path(ERRORS, a), mask)
-                for c in range(self.n):
-                    send_clear(_state_path(c + 1, f"agent_{a}"), mask)
-        if show_max.any():
-            send(ERRORS_MAX, indexes=index(show_max), columns=rr.Scalars.columns(scalars=err_max[show_max]))
-        if clear_max.any():
-            send_clear(ERRORS_MAX, clear_max)
+        S = self._s
+        return RowBatch(seq=S.tau[K], t=S.t[K], wall=S.wall[K], x=S.x[K], xhat=S.xhat[K], err=err, show=show,
+                        clear=S.shown[K] & ~show, err_max=err_max, show_max=show_max,
+                        clear_max=S.shown_max[K] & ~show_max, env=S.envelope(K, self.envelope_rate, self.time_mode),
+                        gains=S.g[K], rounds=S.round[K])
 
     def mark_lost(self, tau: int, agent_id: int) -> None:
         """Agent ``agent_id`` is lost from event time ``tau`` on: NaN/False in every recorded row with ``tau' >= tau``.
 
         Buffered rows simply lose the agent's values; rows already in Rerun get a
-        ``Clear`` (and a new ``errors/max``).  Then everything is flushed.
+        ``Clear`` (and a new ``errors/max``); every series of the agent gets a
+        ``Clear`` at ``tau`` itself (a break in its lines).  Then everything is flushed.
         """
         i = self._pos.get(int(agent_id))
         if i is None:
@@ -737,16 +473,19 @@ class Recorder:
         with self._lock:
             self._check_open("mark_lost")
             self._check_failed()
-            T = self._rows
-            rows = np.nonzero(self._tau[:T] >= int(tau))[0]
+            T = self._s.rows
+            rows = np.nonzero(self._s.tau[:T] >= int(tau))[0]
             for k in rows:
-                if not self._alive[k, i]:
+                if not self._s.alive[k, i]:
                     continue
-                self._alive[k, i] = False
-                self._xhat[k, i] = np.nan
+                self._s.alive[k, i] = False
+                self._s.xhat[k, i] = np.nan
+                self._s.g[k, i] = np.nan
                 self._traj_dirty = True
-                if k < self._sent and self._shown[k, i]:
+                if k < self._sent and self._s.shown[k, i]:
                     self._dirty.add(int(k))
+            if self._rec is not None:
+                self._queued_clears.append((int(tau), self._t_of_tau(int(tau)), int(agent_id), time.time_ns()))
             self._flush()
 
     def flush(self) -> None:
@@ -793,12 +532,12 @@ class Recorder:
                 fields: dict[str, Any] = {"finished": ok, "rows": K}
                 if self._failure is not None:
                     fields["error"] = str(self._failure)
-                self._close_event(float(self._t[K - 1]) if K else 0.0, "INFO" if ok else "WARN", fields)
+                self._close_event(float(self._s.t[K - 1]) if K else 0.0, "INFO" if ok else "WARN", fields)
                 self._finish_rrd(K)
             finally:
                 self._reserve.release()
                 if self._rec is not None:
-                    self._rerun("disconnect", self._rec.disconnect)
+                    self._rec.disconnect()
                     self._rec = None
             if self._failure is not None and not self._failure_reported and finished:
                 self._failure_reported = True
@@ -841,15 +580,16 @@ class Recorder:
         return err
 
     def _last_tau(self) -> int | None:
-        return int(self._tau[self._rows - 1]) if self._rows else None
+        return int(self._s.tau[self._s.rows - 1]) if self._s.rows else None
 
     def _maybe_flush(self) -> None:
         if time.monotonic() - self._last_flush >= self.flush_seconds:
             self._flush()
 
     def _pending(self) -> bool:
-        return (self._sent < self._rows or bool(self._dirty) or bool(self._queued_events)
-                or bool(self._queued_topology) or self._traj_dirty or bool(self._rrd_pending))
+        return (self._sent < self._s.rows or bool(self._dirty) or bool(self._queued_events)
+                or bool(self._queued_topology) or bool(self._queued_marks) or bool(self._queued_clears)
+                or self._traj_dirty or (self._rec is not None and bool(self._rec.pending)))
 
     def _flush(self, *, write_trajectory: bool = True) -> None:
         """Buffered rows, then queued logs, to Rerun and ``run.rrd``; then ``trajectory.npz``.  Lock held.
@@ -862,94 +602,61 @@ class Recorder:
             If ``run.rrd`` or ``trajectory.npz`` cannot be written.
         """
         self._last_flush = time.monotonic()
-        K = np.array(sorted(self._dirty.union(range(self._sent, self._rows))), dtype=np.int64)
+        K = np.array(sorted(self._dirty.union(range(self._sent, self._s.rows))), dtype=np.int64)
         events, self._queued_events = self._queued_events, []
         topology, self._queued_topology = self._queued_topology, []
+        marks, self._queued_marks = self._queued_marks, []
+        clears, self._queued_clears = self._queued_clears, []
+        sink = self._rec
         if len(K):
-            err, show = self._row_errors(K)
-            if self._rec is not None:
-                self._rerun("row log", self._send_rows, K, err, show)
+            err, show = self._s.row_errors(K)
+            if sink is not None:
+                sink.guarded("row log", lambda: sink.send_rows(self._batch(K, err, show)))
             # What Rerun now shows (also when a send failed: it is not retried).
-            self._shown[K] = show
-            self._shown_max[K] = show.any(axis=1)
-        if events:
-            self._rerun("event log", self._send_events, events)
-        if topology:
-            self._rerun("topology log", self._send_topology, topology)
-        self._sent = self._rows
+            self._s.shown[K] = show
+            self._s.shown_max[K] = show.any(axis=1)
+        if sink is not None:
+            if clears:
+                sink.guarded("loss clears", sink.send_loss_clears, clears)
+            if events:
+                sink.guarded("event log", sink.send_events, events)
+            if marks:
+                sink.guarded("marks", sink.send_marks, [(tau, t, kind, self._s.mark_y(tau), wall)
+                                                        for tau, t, kind, wall in marks])
+            if topology:
+                sink.guarded("topology log", sink.send_topology, topology)
+        self._sent = self._s.rows
         self._dirty.clear()
-        if len(K) or events or topology or self._rrd_pending:
+        if len(K) or events or topology or marks or clears or (sink is not None and sink.pending):
             self._append_rrd()
-        if write_trajectory and (self._traj_dirty or self._npz_rows != self._rows):
+        if write_trajectory and (self._traj_dirty or self._npz_rows != self._s.rows):
             self._write_trajectory()
         self._rows_kept = min(self._npz_rows, self._rrd_rows) if self._rec is not None else self._npz_rows
 
     def _append_rrd(self) -> None:
         """Read what Rerun encoded since the last call and append it (and anything left over) to ``run.rrd``."""
-        if self._rec is None or self._stream is None:
+        if self._rec is None:
             return
         sent = self._sent
+        self._rec.read_pending()
         try:
-            data = self._stream.read(flush=True, flush_timeout_sec=10.0)
-        except Exception as exc:  # e.g. a live viewer that does not take the data: do not wait for it
-            self._rec_flush_warn(exc)
-            data = self._stream.read(flush=False)
-        if data:
-            self._rrd_pending.append(data)
-        while self._rrd_pending:
-            try:
-                self._rrd_file.append(self._rrd_pending[0])
-            except OSError as exc:
-                raise self._fail(self._rrd_file.path, exc, self._last_tau()) from None
-            except ValueError as exc:  # not what rerun 0.41 encodes: drop it rather than tear the file
-                log.warning("Rerun bytes not appended to %s (%s)", RRD_FILE, exc)
-            self._rrd_pending.pop(0)
+            self._rec.write_pending()
+        except OSError as exc:
+            raise self._fail(self._rrd_path, exc, self._last_tau()) from None
         self._rrd_rows = sent
-
-    def _rec_flush_warn(self, exc: Exception) -> None:
-        if not self._viewer_warned:
-            log.warning("Rerun flush: %s; run.rrd keeps recording", exc)
-            self._viewer_warned = True
-
-    def _write_events(self, data: bytes, *, mode: str = "ab") -> None:
-        """Append ``data`` to ``events.jsonl`` (opened for this write only); cut a torn line back.  OSError."""
-        try:
-            with open(self._events_path, mode) as f:
-                f.write(data)
-                f.flush()
-        except OSError:
-            try:
-                os.truncate(self._events_path, self._events_size)
-            except OSError:
-                pass
-            raise
-        self._events_size = len(data) if mode == "wb" else self._events_size + len(data)
 
     def _write_trajectory(self, rows: int | None = None) -> None:
         """Atomically (re)write ``trajectory.npz`` with the first ``rows`` rows (default: all so far)."""
-        T = self._rows if rows is None else rows
-        arrays = dict(t=self._t[:T].copy(), x=self._x[:T].copy(), xhat=self._xhat[:T].copy(),
-                      alive=self._alive[:T].copy(), graph=self._graph[:T].copy(), agent_ids=self.agent_ids.copy())
+        T = self._s.rows if rows is None else rows
         path = self.out_dir / TRAJECTORY_FILE
-        tmp = None
         try:
-            fd, tmp = tempfile.mkstemp(prefix=".trajectory.", suffix=".npz.tmp", dir=self.out_dir)
-            with os.fdopen(fd, "wb") as f:
-                np.savez(f, **arrays)
-                f.flush()
-                os.fsync(f.fileno())
-            os.replace(tmp, path)
-        except BaseException as exc:
-            if tmp is not None:
-                try:
-                    Path(tmp).unlink(missing_ok=True)
-                except OSError:
-                    pass
-            if isinstance(exc, OSError):
-                raise self._fail(path, exc, int(self._tau[T - 1]) if T else None) from None
-            raise
+            write_trajectory(path, t=self._s.t[:T].copy(), x=self._s.x[:T].copy(), xhat=self._s.xhat[:T].copy(),
+                             alive=self._s.alive[:T].copy(), graph=self._s.graph[:T].copy(),
+                             agent_ids=self.agent_ids.copy(), g=self._s.g[:T].copy())
+        except OSError as exc:
+            raise self._fail(path, exc, int(self._s.tau[T - 1]) if T else None) from None
         self._npz_rows = T
-        if T == self._rows:
+        if T == self._s.rows:
             self._traj_dirty = False
 
     def _salvage(self) -> None:
@@ -976,15 +683,14 @@ class Recorder:
 
     def _close_event(self, t: float, level: str, fields: dict[str, Any]) -> None:
         """The last event, ``recording_closed``: to ``events.jsonl`` and ``run.rrd`` if they can take it."""
-        line = json.dumps({"event": "recording_closed", "t": t, "wall": time.time(), **fields},
-                          default=_json_default)
         try:
-            self._write_events((line + "\n").encode("utf-8"))
+            self._events.write("recording_closed", t, time.time(), fields)
         except OSError as exc:
             self._fail(self._events_path, exc, self._tau_of_t(t))
         if self._rec is not None:
-            text = "recording_closed" + "".join(f" {k}={v}" for k, v in fields.items())
-            self._rerun("event log", self._send_events, [(self._tau_of_t(t), t, text, level, time.time_ns())])
+            text = event_text("recording_closed", fields)
+            self._rec.guarded("event log", self._rec.send_events,
+                              [(self._tau_of_t(t), t, text, level, time.time_ns())])
             try:
                 self._append_rrd()
             except RecordsWriteError:
@@ -992,22 +698,15 @@ class Recorder:
 
     def _finish_rrd(self, K: int) -> None:
         """Rewrite ``run.rrd`` as one verifiable RRD; cut after row K-1 if a write failed."""
-        if self._rec is None or self._rrd_file.size == 0:
+        if self._rec is None:
             return
         cutoff = None
-        if self._failure is not None or K < self._rows:
-            cutoff = int(self._tau[K - 1]) + 1 if K else 0
+        if self._failure is not None or K < self._s.rows:
+            cutoff = int(self._s.tau[K - 1]) + 1 if K else 0
         try:
-            self._rec.flush(timeout_sec=10.0)
-        except Exception:
-            pass
-        try:
-            rewrite_rrd(self._rrd_file.path, self._rrd_file.path, blueprint=self._blueprint(), cutoff=cutoff)
+            self._rec.finish(cutoff)
         except OSError as exc:
-            self._fail(self._rrd_file.path, exc, int(self._tau[K - 1]) if K else None)
-        except Exception as exc:  # Rerun could not read its own bytes back: keep the footer-less file
-            log.warning("could not finish %s (%s: %s); it is readable but has no footer",
-                        self._rrd_file.path, type(exc).__name__, exc)
+            self._fail(self._rrd_path, exc, int(self._s.tau[K - 1]) if K else None)
 
 
 def _watch(ref: "weakref.ref[Recorder]", stop: threading.Event) -> None:
@@ -1035,105 +734,3 @@ def _watch(ref: "weakref.ref[Recorder]", stop: threading.Event) -> None:
                 except Exception as exc:
                     log.warning("background flush failed (%s: %s)", type(exc).__name__, exc)
         del rec
-
-
-# ---------------------------------------------------------------------- read-back
-
-
-def read_rrd(path: str | Path) -> dict[str, list[tuple[int, float]]]:
-    """Every Scalars entity of an ``.rrd``: entity path -> sorted ``[(event index, value), ...]``.
-
-    Entity paths are returned without the leading ``/`` (``"errors/max"``).
-    Per event index the latest logged row wins (by Rerun row id), and a
-    ``Clear`` logged later at the same event index on the entity (or a
-    recursive one on an ancestor) removes the value, as the viewer's latest-at
-    query does.  Only rows on the ``event`` timeline are read.
-
-    Raises
-    ------
-    RecordingError
-        If a Scalars row holds more than one value (not a scalar series).
-    """
-    from rerun.chunk import RrdReader
-
-    # (entity, event) -> (row id, value or None for a clear)
-    latest: dict[tuple[str, int], tuple[bytes, float | None]] = {}
-    clears: list[tuple[str, int, bytes, bool]] = []
-    scalar_entities: set[str] = set()
-    for chunk in RrdReader(path).stream():
-        if chunk.is_static or TL_EVENT not in chunk.timeline_names:
-            continue
-        batch = chunk.to_record_batch()
-        names = batch.schema.names
-        if _COL_SCALARS not in names and _COL_CLEAR not in names:
-            continue
-        entity = chunk.entity_path.lstrip("/")
-        events = batch.column(TL_EVENT).to_pylist()
-        row_ids = batch.column(_COL_ROW_ID).to_pylist()
-        if _COL_SCALARS in names:
-            scalar_entities.add(entity)
-            for ev, rid, vals in zip(events, row_ids, batch.column(_COL_SCALARS).to_pylist()):
-                if ev is None or vals is None:
-                    continue
-                if len(vals) != 1:
-                    raise RecordingError(f"{entity} at event {ev} holds {len(vals)} scalars; expected 1")
-                _keep_latest(latest, (entity, ev), rid, float(vals[0]))
-        if _COL_CLEAR in names:
-            for ev, rid, rec in zip(events, row_ids, batch.column(_COL_CLEAR).to_pylist()):
-                if ev is not None and rec is not None:
-                    clears.append((entity, ev, rid, bool(rec[0])))
-    for c_entity, ev, rid, recursive in clears:
-        for entity in scalar_entities:
-            if entity == c_entity or (recursive and entity.startswith(c_entity + "/")):
-                _keep_latest(latest, (entity, ev), rid, None)
-    out: dict[str, list[tuple[int, float]]] = {}
-    for (entity, ev), (_, value) in sorted(latest.items()):
-        if value is not None:
-            out.setdefault(entity, []).append((ev, value))
-    return out
-
-
-def _keep_latest(latest: dict, key: tuple[str, int], row_id: bytes, value: float | None) -> None:
-    # Row ids are TUIDs: big-endian (nanoseconds, counter), so byte order is log order.
-    old = latest.get(key)
-    if old is None or row_id > old[0]:
-        latest[key] = (row_id, value)
-
-
-def read_rrd_logs(path: str | Path) -> dict[str, list]:
-    """The text log and topology of an ``.rrd``.
-
-    Returns ``{"events": [(event index, level, text), ...], "topology": [(event index, [node labels],
-    [(j, i) edges]), ...]}`` in logging order.
-    """
-    from rerun.chunk import RrdReader
-
-    out: dict[str, list] = {"events": [], "topology": []}
-    for chunk in RrdReader(path).stream():
-        if chunk.is_static or TL_EVENT not in chunk.timeline_names:
-            continue
-        batch = chunk.to_record_batch()
-        names = batch.schema.names
-        taus = batch.column(TL_EVENT).to_pylist()
-        if chunk.entity_path == f"/{EVENTS}" and "TextLog:text" in names:
-            for tau, text, level in zip(taus, batch.column("TextLog:text").to_pylist(),
-                                        batch.column("TextLog:level").to_pylist()):
-                out["events"].append((tau, level[0] if level else None, text[0]))
-        elif chunk.entity_path == f"/{TOPOLOGY}" and "GraphNodes:labels" in names:
-            edges = batch.column("GraphEdges:edges").to_pylist() if "GraphEdges:edges" in names else [None] * len(taus)
-            for tau, labels, es in zip(taus, batch.column("GraphNodes:labels").to_pylist(), edges):
-                pairs = [(int(e["first"]), int(e["second"])) if isinstance(e, dict) else tuple(map(int, e))
-                         for e in (es or [])]
-                out["topology"].append((tau, labels, pairs))
-    return out
-
-
-def verify_rrd(path: str | Path, *, timeout: float = 120.0) -> tuple[bool, str]:
-    """Run the bundled ``rerun rrd verify <path>``; return (exit code 0, stdout + stderr)."""
-    env = {**os.environ, "RERUN_ANALYTICS": os.environ.get("RERUN_ANALYTICS", "0")}
-    try:
-        proc = subprocess.run([*_rerun_command(), "rrd", "verify", str(path)], capture_output=True,
-                              text=True, timeout=timeout, env=env)
-    except (OSError, subprocess.TimeoutExpired) as exc:
-        return False, f"could not run rerun rrd verify: {exc}"
-    return proc.returncode == 0, (proc.stdout + proc.stderr).strip()

@@ -31,7 +31,8 @@ import numpy as np
 from splitspec_core.errors import SplitspecError
 
 from .outdir import RESERVE_FILE
-from .recorder import EVENTS_FILE, RRD_FILE, TRAJECTORY_FILE, _blueprint, verify_rrd
+from .blueprint import default_blueprint
+from .recorder import EVENTS_FILE, RRD_FILE, TRAJECTORY_FILE, verify_rrd
 from .rrdfile import has_footer, read_chunks, rewrite_rrd, whole_messages_length
 
 __all__ = ["RecoverError", "recover"]
@@ -113,7 +114,7 @@ def _recover_rrd(rrd: Path, K: int) -> tuple[str, bool | None]:
             raise RecoverError(f"{rrd} holds no readable Rerun data")
         if whole < rrd.stat().st_size:
             os.truncate(rrd, whole)  # a message torn by the kill
-    rewrite_rrd(rrd, rrd, blueprint=_blueprint(_time_mode(rrd)), cutoff=K)
+    rewrite_rrd(rrd, rrd, blueprint=_blueprint(rrd), cutoff=K)
     ok, _ = verify_rrd(rrd)
     return "rewritten", ok
 
@@ -131,18 +132,28 @@ def _max_data_event(rrd: Path) -> int:
     return top
 
 
-def _time_mode(rrd: Path) -> str:
-    """The run's ``time_mode`` from the recording's ``splitspec`` property (``discrete`` if absent)."""
+def _run_properties(rrd: Path) -> dict:
+    """The recording's ``splitspec`` property (``time_mode``, ``n``, ``envelope``, ``gains``...), {} if absent."""
     with warnings.catch_warnings():
         warnings.filterwarnings("ignore", message="RRD file has no footer")
         _, chunks = read_chunks(rrd)
         for chunk in chunks:
             if chunk.entity_path == "/__properties/splitspec":
                 batch = chunk.to_record_batch()
-                if "time_mode" in batch.schema.names:
-                    value = batch.column("time_mode").to_pylist()[0]
-                    return value[0] if isinstance(value, list) else str(value)
-    return "discrete"
+                out = {}
+                for name in batch.schema.names:
+                    value = batch.column(name).to_pylist()[0]
+                    out[name] = value[0] if isinstance(value, list) and len(value) == 1 else value
+                return out
+    return {}
+
+
+def _blueprint(rrd: Path):
+    """The run's default blueprint, rebuilt from the recording's properties (discrete time if absent)."""
+    props = _run_properties(rrd)
+    n = props.get("n")
+    return default_blueprint(str(props.get("time_mode", "discrete")), n=int(n) if isinstance(n, int) else None,
+                             envelope=bool(props.get("envelope", True)), gains=bool(props.get("gains", False)))
 
 
 def _recover_events(events: Path, K: int, t_last: float, rrd_state: str) -> tuple[bool, bool]:

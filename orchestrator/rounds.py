@@ -99,6 +99,9 @@ class Record:
     alive: np.ndarray
     graph: int
     gains: np.ndarray
+    attempts: int = 1  # attempts of the round (1 = not re-run)
+    rejected: int = 0  # messages rejected since the previous record
+    started: float = math.nan  # `now` of the round's first tick (driver clock)
 
 
 @dataclass(frozen=True)
@@ -260,6 +263,7 @@ class RoundMachine:
         self.faults_left: list = []
         self.truth: dict = {}
         self.est: dict = {}
+        self.est_g: dict = {}  # tau -> {agent id: g_i(tau)} from the xhat messages (for Record)
         g_start = float(sc.design.g0) if des.g_mode == "adaptive" else (float(des.g) if des.g is not None else 0.0)
         self.gains = np.full(sc.m, g_start)
         self.last_graph: int | None = None
@@ -267,6 +271,8 @@ class RoundMachine:
         self.t_run = None
         self.last_now = now
         self.rejected_total = 0
+        self.rejected_recorded = 0  # rejected_total at the last Record
+        self.round_started = math.nan  # `now` of the round in flight's first tick (for Record)
         self._rej_pending: dict = {}
         self._rej_last = now
         self._remote: dict = {}
@@ -499,6 +505,7 @@ class RoundMachine:
             self.reject("orchestrator", "future" if ahead else "stale")
             return out
         self.est.setdefault(tau, {})[aid] = x
+        self.est_g.setdefault(tau, {})[aid] = g  # g_i(tau), recorded with row tau
         self.quiet_since = now
         if tau == self.tau + 1:
             self.gains[self.index[aid]] = g
@@ -759,6 +766,7 @@ class RoundMachine:
         self.phase = "round"
         self.attempt = 0
         self.retried = False
+        self.round_started = now
         return self._tick(now)
 
     def _rerun(self, now: float) -> list:
@@ -798,8 +806,13 @@ class RoundMachine:
         for a in self.alive:
             xh[self.index[a]] = self.est[self.tau][a]
             mask[self.index[a]] = True
-        gains = np.where(mask, self.gains, np.nan)
-        out = [Record(self.tau, self.truth[self.tau], xh, mask, self.plan.graph_at(self.tau), gains)]
+        gains = np.full(sc.m, np.nan)
+        for a, g in self.est_g.pop(self.tau, {}).items():
+            if a in self.alive:
+                gains[self.index[a]] = float(g)
+        rejected, self.rejected_recorded = self.rejected_total - self.rejected_recorded, self.rejected_total
+        out = [Record(self.tau, self.truth[self.tau], xh, mask, self.plan.graph_at(self.tau), gains,
+                      attempts=self.attempt + 1, rejected=rejected, started=self.round_started)]
         self.truth.pop(self.tau, None)
         self.est.pop(self.tau, None)
         if self.tau == self.plan.steps:

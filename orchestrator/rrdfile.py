@@ -35,12 +35,15 @@ import logging
 import os
 import shutil
 import struct
+import subprocess
+import sys
 import tempfile
 import warnings
 from pathlib import Path
 from typing import Any, Iterator
 
-__all__ = ["RrdAppender", "split_stream", "whole_messages_length", "rewrite_rrd", "has_footer"]
+__all__ = ["RrdAppender", "split_stream", "whole_messages_length", "rewrite_rrd", "has_footer", "rerun_command",
+           "verify_rrd"]
 
 log = logging.getLogger(__name__)
 
@@ -53,7 +56,8 @@ _FOOTER_MAGIC = b"RRF2FOOT"
 
 TL_EVENT = "event"
 # Entities kept "up to the cut included" (their entries at the cut event time describe it).
-_LOG_ENTITIES = ("/events", "/topology")
+# (marks are scalars like the rows: cut before the cut, so no scalar series reaches it)
+_LOG_ENTITIES = ("/events", "/topology", "/topology/graph")
 
 
 def split_stream(data: bytes) -> tuple[bytes, bytes]:
@@ -211,14 +215,17 @@ def rewrite_rrd(src: str | Path, dst: str | Path, *, blueprint, cutoff: int | No
         in-place copy itself failed part way.
     """
     dst = Path(dst)
-    fd, tmp = tempfile.mkstemp(prefix=".run.", suffix=".rrd.tmp", dir=dst.parent)
-    os.close(fd)
-    try:
-        if _write_with_rerun(src, Path(tmp), blueprint=blueprint, cutoff=cutoff):
-            os.replace(tmp, dst)
-            return
-    finally:
-        Path(tmp).unlink(missing_ok=True)
+    st = os.statvfs(dst.parent)
+    # Rerun's FileSink on a full disk may block its flush for long: only try next to dst with room for a copy.
+    if os.path.getsize(src) + (1 << 20) <= st.f_bavail * st.f_frsize:
+        fd, tmp = tempfile.mkstemp(prefix=".run.", suffix=".rrd.tmp", dir=dst.parent)
+        os.close(fd)
+        try:
+            if _write_with_rerun(src, Path(tmp), blueprint=blueprint, cutoff=cutoff):
+                os.replace(tmp, dst)
+                return
+        finally:
+            Path(tmp).unlink(missing_ok=True)
     # No room for a second copy next to dst: build it elsewhere, copy it in place.
     log.info("no room for a second copy of %s next to it; rewriting it in place", dst)
     fd, tmp = tempfile.mkstemp(prefix="splitspec-run.", suffix=".rrd.tmp")
@@ -260,3 +267,20 @@ def _write_with_rerun(src: str | Path, tmp: Path, *, blueprint, cutoff: int | No
         except RuntimeError:
             pass
     return has_footer(tmp)
+
+
+def rerun_command() -> list[str]:
+    """The bundled ``rerun`` CLI: the executable next to ``sys.executable``, else ``python -m rerun``."""
+    exe = Path(sys.executable).parent / ("rerun.exe" if os.name == "nt" else "rerun")
+    return [str(exe)] if exe.exists() else [sys.executable, "-m", "rerun"]
+
+
+def verify_rrd(path: str | Path, *, timeout: float = 120.0) -> tuple[bool, str]:
+    """Run the bundled ``rerun rrd verify <path>``; return (exit code 0, stdout + stderr)."""
+    env = {**os.environ, "RERUN_ANALYTICS": os.environ.get("RERUN_ANALYTICS", "0")}
+    try:
+        proc = subprocess.run([*rerun_command(), "rrd", "verify", str(path)], capture_output=True,
+                              text=True, timeout=timeout, env=env)
+    except (OSError, subprocess.TimeoutExpired) as exc:
+        return False, f"could not run rerun rrd verify: {exc}"
+    return proc.returncode == 0, (proc.stdout + proc.stderr).strip()

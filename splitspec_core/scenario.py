@@ -56,7 +56,7 @@ Q_METHODS = ("spectral", "weighted", "two-norm", "mixed")
 WEIGHTINGS = ("uniform", "metropolis")
 FAULT_ACTIONS = ("kill", "restart", "hang", "drop_arc", "restore_arc")
 
-_TOP_KEYS = ("name", "time", "system", "graphs", "switching", "design", "faults", "run")
+_TOP_KEYS = ("name", "time", "system", "graphs", "switching", "design", "faults", "run", "positions")
 _SYSTEM_KEYS = ("A", "C", "x0", "process_noise", "measurement_noise")
 _GRAPH_KEYS = ("arcs", "undirected")
 _SWITCHING_KEYS = ("schedule", "period", "random")
@@ -228,6 +228,7 @@ class Scenario:
     faults: tuple = ()
     run: RunSpec = field(default_factory=RunSpec)
     source: str = "<scenario>"
+    positions: dict | None = None  # agent id -> (x, y) of the topology drawing; None: a circle
 
     @property
     def m(self) -> int:
@@ -700,10 +701,34 @@ def parse_scenario(data: Any, *, source: str = "<scenario>") -> Scenario:
     faults = _parse_faults(top.get("faults"), ids)
     run = _parse_run(top.get("run"), time)
     _check_switching_against_step(switching, run)
+    positions = _parse_positions(top.get("positions"), ids)
     return Scenario(
         name=name, time=time, agent_ids=ids, system=system, graphs=graphs,
-        switching=switching, design=design, faults=faults, run=run, source=source,
+        switching=switching, design=design, faults=faults, run=run, source=source, positions=positions,
     )
+
+
+def _parse_positions(raw: Any, ids: tuple) -> dict | None:
+    """``positions: {id: [x, y], ...}``: where each agent is drawn in the topology view (every agent, distinct)."""
+    if raw is None:
+        return None
+    mapping = _require_map(raw, "positions")
+    out: dict = {}
+    for key, value in mapping.items():
+        aid = _known_agent(key, "positions", ids)
+        where = f"positions.{aid}"
+        if isinstance(value, (str, bytes)) or not isinstance(value, (list, tuple)) or len(value) != 2:
+            raise ScenarioError(f"{where} must be a pair [x, y], got {_describe(value)}")
+        out[aid] = (_number(value[0], f"{where}[0]"), _number(value[1], f"{where}[1]"))
+    missing = [a for a in ids if a not in out]
+    if missing:
+        raise ScenarioError(f"positions has no [x, y] for agents {_ids_text(tuple(missing))} (give every agent one)")
+    seen: dict = {}
+    for aid, p in out.items():
+        if p in seen:
+            raise ScenarioError(f"positions.{aid} = [{p[0]:g}, {p[1]:g}] is also agent {seen[p]}'s position")
+        seen[p] = aid
+    return {a: out[a] for a in ids}
 
 
 def _check_switching_against_step(switching: Switching, run: RunSpec) -> None:

@@ -34,6 +34,7 @@ from .errors import ScenarioError
 from .network import NetworkState, Plan, make_plan
 from .scenario import Scenario
 from .streams import stream
+from .trajfile import write_trajectory
 
 __all__ = [
     "Trajectory",
@@ -65,7 +66,8 @@ class Trajectory:
     alive : (T, m) bool
     graph : (T,) active graph index (scenario order)
     agent_ids : (m,) int
-    gains : (T, m) adaptive gains g_i, or None
+    gains : (T, m) gains g_i (``g`` in the file): adaptive g_i(t) or the fixed continuous g, NaN where
+        dead and in discrete time; None only for a file written before ``g`` existed
     """
 
     t: np.ndarray
@@ -81,17 +83,15 @@ class Trajectory:
         return np.linalg.norm(self.xhat - self.x[:, None, :], axis=2)
 
     def save(self, path: str | Path) -> None:
-        arrays = dict(t=self.t, x=self.x, xhat=self.xhat, alive=self.alive, graph=self.graph,
-                      agent_ids=self.agent_ids)
-        if self.gains is not None:
-            arrays["gains"] = self.gains
-        np.savez(path, **arrays)
+        """Atomically write ``path`` (the one writer of the contract, :func:`~splitspec_core.trajfile.write_trajectory`)."""
+        write_trajectory(path, t=self.t, x=self.x, xhat=self.xhat, alive=self.alive, graph=self.graph,
+                         agent_ids=self.agent_ids, g=self.gains)
 
     @classmethod
     def load(cls, path: str | Path) -> "Trajectory":
         with np.load(path) as f:
             return cls(t=f["t"], x=f["x"], xhat=f["xhat"], alive=f["alive"], graph=f["graph"],
-                       agent_ids=f["agent_ids"], gains=f["gains"] if "gains" in f.files else None)
+                       agent_ids=f["agent_ids"], gains=f["g"] if "g" in f.files else None)
 
 
 # --------------------------------------------------------------------------
@@ -418,7 +418,7 @@ def simulate(des: Design, *, seed: int | None = None, steps: int | None = None, 
     xs = np.zeros((T, n))
     xh = np.full((T, m, n), np.nan)
     al = np.zeros((T, m), dtype=bool)
-    gains = np.zeros((T, m)) if est.continuous and est.adaptive else None
+    gains = np.full((T, m), np.nan)  # g_i(t): adaptive or fixed in continuous time; none in discrete time
     bar = _Progress(plan.steps, progress)
     w_cache: dict = {}  # active network -> the estimator's weights
     for k in range(T):
@@ -427,13 +427,13 @@ def simulate(des: Design, *, seed: int | None = None, steps: int | None = None, 
             X[i] = 0.0
         for i, inc in rejoined:
             X[i] = initial_estimate(n, seed, i, inc)
-            if gains is not None:
+            if est.continuous and est.adaptive:
                 est.g[i] = sc.design.g0
         xs[k] = plant.x
         xh[k][alive] = X[alive]
         al[k] = alive
-        if gains is not None:
-            gains[k] = est.g
+        if est.continuous:
+            gains[k][alive] = est.g[alive]
         if k == plan.steps:
             break
         y = plant.measure()
@@ -505,4 +505,5 @@ def simulate_exact(des: Design, *, seed: int | None = None, steps: int | None = 
             Phi = sla.expm(M * plan.dt)
             cache[key] = Phi
         z = Phi @ z
-    return Trajectory(t=plan.times(), x=xs, xhat=xh, alive=al, graph=plan.graph_seq.copy(), agent_ids=np.array(ids))
+    return Trajectory(t=plan.times(), x=xs, xhat=xh, alive=al, graph=plan.graph_seq.copy(), agent_ids=np.array(ids),
+                      gains=np.where(al, g, np.nan))

@@ -32,10 +32,10 @@ from pathlib import Path
 import msgpack
 import numpy as np
 
-from orchestrator.recorder import read_rrd, verify_rrd
 from tests.integration.runtime_helpers import (ENV, ROOT, all_pids, assert_all_gone, cli, compare_with_simulate,
                                                dump, events, pid_alive, replay, scenario_file, started_pids,
                                                wait_for_rows)
+from tests.rrd_readback import read_rrd, verify_rrd
 
 __all__ = ["CASES", "MountUnavailable", "Run", "chaos_run", "assert_records_consistent",
            "assert_one_error", "assert_clean",

@@ -134,6 +134,12 @@ def compare_trajectories(a_path: Path, b_path: Path, tol: float = 1e-9) -> float
     assert np.array_equal(np.isnan(a["xhat"]), np.isnan(b["xhat"]))
     diff = float(np.nanmax(np.abs(a["xhat"] - b["xhat"]))) if np.isfinite(b["xhat"]).any() else 0.0
     assert diff <= tol * max(1.0, float(np.nanmax(np.abs(b["xhat"])))), diff
+    # g (T, m): NaN where dead and in discrete time, else the adaptive g_i or the fixed g
+    assert a["g"].shape == b["g"].shape == a["alive"].shape, (a["g"].shape, b["g"].shape)
+    assert np.array_equal(np.isnan(a["g"]), np.isnan(b["g"])), "g is NaN at different places"
+    if np.isfinite(b["g"]).any():
+        gdiff = float(np.nanmax(np.abs(a["g"] - b["g"])))
+        assert gdiff <= tol * max(1.0, float(np.nanmax(np.abs(b["g"])))), f"g differs by {gdiff}"
     return diff
 
 

@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 import yaml
 
-from orchestrator.recorder import read_rrd, read_rrd_logs, verify_rrd
 from tests.conftest import EXAMPLES
 from tests.integration.runtime_helpers import (all_pids, assert_all_gone, compare_with_simulate, dump, events,
                                                replay, run, start, started_pids, wait_for_event,
                                                scenario_file, wait_for_rows)
+from tests.rrd_readback import read_rrd, read_rrd_logs, verify_rrd
 
 pytestmark = pytest.mark.slow
 

@@ -15,7 +15,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from orchestrator.recorder import Recorder, RecordingError, read_rrd, verify_rrd
+from orchestrator.recorder import Recorder, RecordingError
+from tests.rrd_readback import read_rrd, verify_rrd
 
 os.environ.setdefault("RERUN_ANALYTICS", "0")
 
@@ -107,7 +108,8 @@ def test_trajectory_contract(recorded):
     out, mode, _ = recorded
     x, _, _, alive, graph, expected_xhat = synthetic()
     with np.load(out / "trajectory.npz") as f:
-        assert set(f.files) == {"t", "x", "xhat", "alive", "graph", "agent_ids"}
+        assert set(f.files) == {"t", "x", "xhat", "alive", "graph", "agent_ids", "g"}
+        assert f["g"].shape == f["alive"].shape and np.isnan(f["g"]).all()  # no gains given
         t, xs, xh, al, gr, ids = (f[k] for k in ("t", "x", "xhat", "alive", "graph", "agent_ids"))
     assert t.shape == (T,) and xs.shape == (T, N) and xh.shape == (T, M, N)
     assert al.shape == (T, M) and al.dtype == bool and gr.shape == (T,) and ids.shape == (M,)
@@ -173,25 +175,30 @@ def test_rrd_topology_and_event_levels(recorded):
         if chunk.entity_path == "/events" and "TextLog:text" in batch.schema.names:
             for text, level in zip(batch.column("TextLog:text").to_pylist(),
                                    batch.column("TextLog:level").to_pylist()):
-                levels[text[0].split()[0]] = level[0]
+                levels[text[0]] = level[0]
         if chunk.entity_path == "/topology" and "GraphNodes:labels" in batch.schema.names:
             nodes_labels += batch.column("GraphNodes:labels").to_pylist()
-    assert levels["agent_lost"] == "WARN" and levels["message_rejected"] == "WARN"
-    assert levels["start"] == "INFO" and levels["switch"] == "INFO"
+    # one short sentence per event (orchestrator.eventlog.event_text); unknown events: "<event> k=v ..."
+    assert levels[f"agent {LOST_ID} lost"] == "WARN" and levels["1 message(s) rejected (stale)"] == "WARN"
+    assert levels["start agents=[1, 2, 5] seed=7"] == "INFO" and levels["switch graph=complete"] == "INFO"
     assert ["agent 1", "agent 2", f"agent {LOST_ID} (lost)"] in nodes_labels
 
 
 def test_clear_only_for_values_already_sent(recorded):
-    """mark_lost on buffered rows drops the values; on rows already in Rerun it logs Clear."""
+    """mark_lost on buffered rows drops the values; on rows already in Rerun it logs Clear.
+
+    Either way every series of the lost agent gets a Clear at the loss itself (a break in its line).
+    """
     out, _, flush_seconds = recorded
     clears = clear_taus(out / "run.rrd")
+    series = {f"errors/agent_{LOST_ID}", f"errors_log10/agent_{LOST_ID}"} | \
+        {f"state/{k + 1}/agent_{LOST_ID}" for k in range(N)}
+    assert set(clears) == series
     if flush_seconds == NEVER:  # rows 12..14 were still buffered when agent 5 was marked lost
-        assert clears == {}
+        assert all(clears[s] == {LOST_TAU} for s in series)
     else:
         lost = set(range(LOST_TAU, LOST_NOTICED + 1))
-        assert clears[f"errors/agent_{LOST_ID}"] == lost
-        assert all(clears[f"state/{k + 1}/agent_{LOST_ID}"] == lost for k in range(N))
-        assert set(clears) == {f"errors/agent_{LOST_ID}"} | {f"state/{k + 1}/agent_{LOST_ID}" for k in range(N)}
+        assert all(clears[s] == lost for s in series)
 
 
 def test_resent_rows_buffered_and_sent(tmp_path):
@@ -223,7 +230,8 @@ def test_resent_rows_buffered_and_sent(tmp_path):
             assert dict(series[f"state/1/agent_{a}"])[tau] == xhat[tau, i, 0]
     assert [v for _, v in series["errors/max"]] == pytest.approx(
         [err[tau, alive[tau]].max() for tau in range(4)], abs=1e-9, rel=0)
-    assert clear_taus(tmp_path / "run.rrd") == {"errors/agent_2": {1}, **{f"state/{k + 1}/agent_2": {1}
+    assert clear_taus(tmp_path / "run.rrd") == {"errors/agent_2": {1}, "errors_log10/agent_2": {1},
+                                                **{f"state/{k + 1}/agent_2": {1}
                                                                        for k in range(N)}}
     with np.load(tmp_path / "trajectory.npz") as f:
         np.testing.assert_array_equal(f["alive"], alive)
@@ -309,7 +317,8 @@ def test_crash_keeps_rows_up_to_last_flush(tmp_path):
     series = read_rrd(tmp_path / "run.rrd")
     assert [tau for tau, _ in series["errors/max"]] == list(range(flushed))
     assert [tau for tau, _ in series[f"errors/agent_{LOST_ID}"]] == list(range(LOST_TAU))
-    assert clear_taus(tmp_path / "run.rrd") == {}
+    # only the loss's own Clears (rows 12..14 were buffered when the loss was marked)
+    assert set(map(frozenset, clear_taus(tmp_path / "run.rrd").values())) == {frozenset({LOST_TAU})}
 
 
 @pytest.mark.filterwarnings("ignore:RRD file has no footer")
@@ -339,8 +348,8 @@ def test_failing_rerun_send_is_a_warning(tmp_path, caplog):
     def broken(*args, **kwargs):
         raise RuntimeError("sink gone")
 
-    rec._rec.send_columns = broken
-    with caplog.at_level(logging.WARNING, logger="orchestrator.recorder"):
+    rec._rec.rec.send_columns = broken  # the RerunSink's recording stream
+    with caplog.at_level(logging.WARNING, logger="orchestrator"):
         for tau in range(3):
             rec.row(tau, np.zeros(N), np.ones((M, N)), np.ones(M, dtype=bool), 0)
         rec.event("start", 0.0)
@@ -354,7 +363,7 @@ def test_unreachable_viewer_falls_back_to_file(tmp_path, caplog):
     with socket.socket() as s:  # a free port nobody listens on
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
-    with caplog.at_level(logging.WARNING, logger="orchestrator.recorder"):
+    with caplog.at_level(logging.WARNING, logger="orchestrator"):
         record(tmp_path, time_mode="discrete", viewer=f"rerun+http://127.0.0.1:{port}/proxy")
     assert "not reachable" in caplog.text
     assert len(read_rrd(tmp_path / "run.rrd")["errors/max"]) == T

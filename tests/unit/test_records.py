@@ -16,9 +16,10 @@ import pytest
 
 from orchestrator.cli import main
 from orchestrator.outdir import RESERVE_FILE, OutputDirError, check_output_dir
-from orchestrator.recorder import Recorder, RecordsWriteError, read_rrd, read_rrd_logs, verify_rrd
+from orchestrator.recorder import Recorder, RecordsWriteError
 from orchestrator.recover import recover
 from splitspec_core.errors import SplitspecError
+from tests.rrd_readback import read_rrd, read_rrd_logs, verify_rrd
 
 os.environ.setdefault("RERUN_ANALYTICS", "0")
 
@@ -100,13 +101,14 @@ def tmpfs(tmp_path):
 def test_huge_steps_hint_allocates_little(tmp_path):
     rec = recorder(tmp_path, steps=10**9, flush_seconds=3600.0)
     try:
-        arrays = [rec._t, rec._x, rec._xhat, rec._alive, rec._graph, rec._tau, rec._wall, rec._shown, rec._shown_max]
+        S = rec._s  # the recorder's RowStore
+        arrays = [S.t, S.x, S.xhat, S.alive, S.graph, S.tau, S.wall, S.shown, S.shown_max, S.g, S.round, S.env_start]
         assert all(a.shape[0] <= 1024 for a in arrays)
         assert sum(a.nbytes for a in arrays) < 1 << 20
-        cap = rec._t.shape[0]
+        cap = S.t.shape[0]
         for tau in range(cap + 1):  # one row more than the capacity: storage doubles
             put_row(rec, tau)
-        assert rec._t.shape[0] == 2 * cap and rec._xhat.shape == (2 * cap, M, N)
+        assert S.t.shape[0] == 2 * cap and S.xhat.shape == (2 * cap, M, N)
     finally:
         rec.close()
     assert npz_rows(tmp_path) == cap + 1

@@ -48,7 +48,7 @@ def test_batch_equals_per_agent_step_functions(time, g, seed):
     assert np.array_equal(a.x, b.x)
     assert len(set(a.graph.tolist())) == 2  # it really switched
     if g == "adaptive":
-        assert np.allclose(a.gains, b.gains, rtol=1e-12, atol=1e-12)
+        assert np.allclose(a.gains, b.gains, rtol=1e-12, atol=1e-12, equal_nan=True)
         assert np.all(np.diff(a.gains[:100], axis=0) >= 0)  # eq. (adaptive): g_i is non-decreasing
 
 

@@ -1,0 +1,151 @@
+"""Rerun entity paths of a run's recording, its colours and node positions, and its default blueprint.
+
+Entity paths (DESIGN.md "Rerun recording" is the contract for the first ones;
+``<id>`` is an agent id, ``<k>`` = 1..n a state component):
+
+==============================  ===============================================================
+``errors/agent_<id>``           ``|x_i(tau) - x(tau)|_2``, alive agents only
+``errors/max``                  ``max_i |x_i(tau) - x(tau)|_2`` over alive agents
+``errors_log10/agent_<id>``     ``log10 |x_i(tau) - x(tau)|_2``
+``errors_log10/max``            ``log10 max_i |x_i(tau) - x(tau)|_2``
+``errors_log10/envelope``       ``log10`` of the designed envelope (no entity with the adaptive gain)
+``state/<k>/truth``             ``x_k(tau)`` (bold)
+``state/<k>/agent_<id>``        ``x_{i,k}(tau)`` (thin), alive agents only
+``gains/agent_<id>``            ``g_i(tau)`` (continuous time only)
+``rounds/wall_ms``              wall time of the round of ``tau``, first tick to record
+``rounds/attempts``             attempts of that round (1 = no re-run)
+``rounds/rejected``             messages rejected since the previous round's record
+``marks/<kind>``                a point at each loss, rejoin, graph switch, scenario fault
+``topology``                    GraphNodes (fixed positions, lost agents grey) + GraphEdges
+``topology/graph``              one label node: the active graph's name
+``events``                      TextLog, one short sentence per event
+==============================  ===============================================================
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Mapping
+
+__all__ = ["ERRORS", "ERRORS_MAX", "ERRORS_LOG10", "ERRORS_LOG10_MAX", "ENVELOPE", "STATE", "GAINS", "ROUNDS",
+           "MARKS", "MARK_KINDS", "TOPOLOGY", "TOPOLOGY_GRAPH", "EVENTS", "TL_EVENT", "TL_TIME", "TL_WALL",
+           "agent_path", "state_path", "color", "circle_positions", "default_blueprint"]
+
+ERRORS = "errors"
+ERRORS_MAX = "errors/max"
+ERRORS_LOG10 = "errors_log10"
+ERRORS_LOG10_MAX = "errors_log10/max"
+ENVELOPE = "errors_log10/envelope"
+STATE = "state"
+GAINS = "gains"
+ROUNDS = "rounds"
+ROUND_SERIES = ("wall_ms", "attempts", "rejected")
+MARKS = "marks"
+TOPOLOGY = "topology"
+TOPOLOGY_GRAPH = "topology/graph"
+EVENTS = "events"
+TL_EVENT, TL_TIME, TL_WALL = "event", "time", "wall"
+
+# Event name -> mark kind (entity ``marks/<kind>``), with its marker and colour.
+MARK_OF_EVENT = {"agent_lost": "lost", "agent_rejoined": "rejoined", "graph_switched": "graph_switch",
+                 "arc_dropped": "fault", "arc_restored": "fault", "fault_skipped": "fault"}
+MARK_KINDS = {  # kind: (legend name, marker, colour)
+    "lost": ("agent lost", "Cross", (214, 39, 40)),
+    "rejoined": ("agent rejoined", "Up", (44, 160, 44)),
+    "graph_switch": ("graph switch", "Diamond", (255, 200, 0)),
+    "fault": ("scenario fault (link)", "Asterisk", (255, 127, 14)),
+}
+
+PALETTE = [  # matplotlib tab10
+    (31, 119, 180), (255, 127, 14), (44, 160, 44), (214, 39, 40), (148, 103, 189),
+    (140, 86, 75), (227, 119, 194), (127, 127, 127), (188, 189, 34), (23, 190, 207),
+]
+DEAD_COLOR = (90, 90, 90)
+MAX_COLOR = (235, 235, 235)
+TRUTH_COLOR = (235, 235, 235)
+ENVELOPE_COLOR = (255, 80, 80)
+CIRCLE_RADIUS = 100.0
+
+
+def agent_path(prefix: str, agent_id: int) -> str:
+    return f"{prefix}/agent_{agent_id}"
+
+
+def state_path(k: int, who: str) -> str:
+    """``state/<k>/<who>`` with the 1-based component index ``k``."""
+    return f"{STATE}/{k}/{who}"
+
+
+def color(i: int) -> tuple[int, int, int]:
+    """Colour of the agent in column ``i``."""
+    return PALETTE[i % len(PALETTE)]
+
+
+def circle_positions(agent_ids, *, radius: float = CIRCLE_RADIUS) -> dict[int, tuple[float, float]]:
+    """Agents evenly on a circle, the first at the top, clockwise (screen y grows downwards)."""
+    ids = [int(a) for a in agent_ids]
+    m = len(ids)
+    return {a: (radius * math.sin(2 * math.pi * k / m), -radius * math.cos(2 * math.pi * k / m))
+            for k, a in enumerate(ids)}
+
+
+def node_positions(agent_ids, given: Mapping[int, tuple[float, float]] | None) -> dict[int, tuple[float, float]]:
+    """The scenario's ``positions`` scaled to the circle's size, or the circle when there are none."""
+    if not given:
+        return circle_positions(agent_ids)
+    pts = {int(a): (float(given[a][0]), float(given[a][1])) for a in agent_ids}
+    xs, ys = [p[0] for p in pts.values()], [p[1] for p in pts.values()]
+    cx, cy = (max(xs) + min(xs)) / 2, (max(ys) + min(ys)) / 2
+    span = max(max(xs) - min(xs), max(ys) - min(ys)) or 1.0
+    s = 2 * CIRCLE_RADIUS / span
+    # scenario y points up, screen y down
+    return {a: ((x - cx) * s, -(y - cy) * s) for a, (x, y) in pts.items()}
+
+
+def graph_label_position(positions: Mapping[int, tuple[float, float]]) -> tuple[float, float]:
+    """Where the graph's name goes: above the agents."""
+    ys = [p[1] for p in positions.values()]
+    return 0.0, min(ys) - 0.35 * CIRCLE_RADIUS
+
+
+def default_blueprint(time_mode: str, *, n: int | None = None, envelope: bool = True,
+                      gains: bool = False):
+    """The default layout: log errors (envelope, marks) large; topology and event log beside; the rest in tabs.
+
+    Left, tabs: ``errors (log10)`` (the designed envelope and the marks of
+    losses, rejoins, switches and faults on the same axes), ``errors``
+    (linear), ``states`` (a grid of one view per component, truth bold),
+    ``gains`` (continuous time), ``rounds`` (wall time, attempts, rejected
+    messages).  Right: topology above the event log.  ``n`` None (a recording
+    whose state dimension is unknown): one view for every state component.
+    Rerun 0.41 has no log-scale axis (rerun issue #6773), hence ``errors_log10``.
+    """
+    import rerun.blueprint as rrb
+
+    log_errors = rrb.TimeSeriesView(
+        origin="/", contents=[f"{ERRORS_LOG10}/**", f"{MARKS}/**"],
+        name="log10 |x_i - x|, designed envelope, marks" if envelope else "log10 |x_i - x|, marks")
+    if n:
+        states = rrb.Grid(*[rrb.TimeSeriesView(origin=f"{STATE}/{k}", name=f"x{k}: truth and estimates")
+                            for k in range(1, n + 1)], name="states")
+    else:
+        states = rrb.TimeSeriesView(origin=STATE, name="states")
+    rounds = rrb.Vertical(*[rrb.TimeSeriesView(origin=f"{ROUNDS}/{s}", name=f"round {s.replace('_', ' ')}")
+                            for s in ROUND_SERIES], name="rounds")
+    tabs = [log_errors, rrb.TimeSeriesView(origin=ERRORS, name="|x_i - x| (linear)"), states]
+    if gains:
+        tabs.append(rrb.TimeSeriesView(origin=GAINS, name="adaptive gains g_i"))
+    tabs.append(rounds)
+    return rrb.Blueprint(
+        rrb.Horizontal(
+            rrb.Tabs(*tabs, active_tab=0, name="series"),
+            rrb.Vertical(
+                rrb.GraphView(origin=TOPOLOGY, name="communication graph"),
+                rrb.TextLogView(origin=EVENTS, name="events"),
+                row_shares=[3, 2],
+            ),
+            column_shares=[2, 1],
+        ),
+        rrb.TimePanel(timeline=TL_EVENT if time_mode == "discrete" else TL_TIME),
+        collapse_panels=False,
+    )

@@ -1,0 +1,125 @@
+"""The run's event log: ``events.jsonl`` (one JSON object per line) and the one-sentence text shown in Rerun.
+
+``events.jsonl`` holds ``{"event", "t", "wall", **fields}`` per line, flushed
+line by line; the file is opened for each write only (no file of the run stays
+open between calls) and a line torn by a failed write is cut back.
+:func:`event_text` turns an event into the short, complete sentence of the
+``events`` TextLog (``agent 3 lost: killed by the scenario (SIGKILL)``,
+``graph a -> b``, ``arc 1 -> 6 dropped``); unknown events read
+``<event> k=v ...``.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+__all__ = ["EVENTS_FILE", "EventLog", "event_text", "event_level", "json_default"]
+
+EVENTS_FILE = "events.jsonl"
+_WARN_WORDS = ("lost", "rejected", "error", "failed")
+
+
+def json_default(obj: Any) -> Any:
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    if isinstance(obj, (set, frozenset)):
+        return sorted(obj)
+    if isinstance(obj, Path):
+        return str(obj)
+    raise TypeError(f"event field of type {type(obj).__name__} is not JSON serialisable")
+
+
+def event_level(event: str) -> str:
+    """WARN when the name contains lost/rejected/error/failed, else INFO."""
+    return "WARN" if any(w in event.lower() for w in _WARN_WORDS) else "INFO"
+
+
+def _arc(fields: dict) -> str:
+    j, i = fields.get("arc", ("?", "?"))
+    return f"arc {j} -> {i}"
+
+
+def _who(fields: dict) -> str:
+    role = fields.get("role", "agent")
+    return "the plant" if role == "plant" else f"{role} {fields.get('id', '?')}"
+
+
+_TEXTS = {
+    "agent_lost": lambda f: f"agent {f.get('id', f.get('agent', '?'))} lost" + (f": {f['reason']}" if f.get("reason") else ""),
+    "agent_rejoined": lambda f: f"agent {f.get('id', '?')} rejoined (incarnation {f.get('incarnation', '?')})",
+    "agent_restarting": lambda f: f"agent {f.get('id', '?')} restarting",
+    "restart_failed": lambda f: f"restart of agent {f.get('id', '?')} failed: {f.get('reason', '')}",
+    "graph_switched": lambda f: f"graph {f.get('previous', '?')} -> {f.get('graph', '?')}",
+    "arc_dropped": lambda f: f"{_arc(f)} dropped",
+    "arc_restored": lambda f: f"{_arc(f)} restored",
+    "fault_skipped": lambda f: f"{f.get('action', 'fault')} of agent {f.get('id', '?')} skipped: {f.get('reason', '')}",
+    "process_started": lambda f: f"{_who(f)} started (pid {f.get('pid')} on {f.get('host')})",
+    "process_exited": lambda f: f"{_who(f)} exited (pid {f.get('pid')}, {f.get('how', f.get('status'))})",
+    "process_left": lambda f: f"{_who(f)} left during start-up (pid {f.get('pid')})",
+    "message_rejected": lambda f: f"{f.get('count', 1)} message(s)" + (f" from {f['by']}" if f.get("by") else "")
+                                  + f" rejected ({f.get('reason', '?')})",
+    "round_retried": lambda f: f"round {f.get('tau')} re-run (attempt {f.get('attempt')}; late: {f.get('late')})",
+    "run_started": lambda f: f"run started ({len(f.get('agents', []))} agents, {f.get('steps')} steps)",
+    "run_finished": lambda f: f"run finished ({f.get('rounds')} rounds in {f.get('seconds')} s)",
+    "run_interrupted": lambda f: "run interrupted",
+    "orchestrator_started": lambda f: f"orchestrator started (pid {f.get('pid')})",
+    "orchestrator_stalled": lambda f: f"orchestrator frozen for {f.get('seconds')} s",
+    "recording_closed": lambda f: f"recording closed ({f.get('rows')} rows"
+                                  + ("" if f.get("finished", True) else ", unfinished")
+                                  + (f": {f['error']}" if f.get("error") else "") + ")",
+}
+
+
+def event_text(event: str, fields: dict, note: str | None = None) -> str:
+    """The one-sentence text of an event for the ``events`` TextLog (never truncated)."""
+    if note:
+        return note if event == "resilience_verdict" else f"{event}: {note}"
+    fmt = _TEXTS.get(event)
+    if fmt is not None:
+        try:
+            return fmt(fields)
+        except (TypeError, ValueError):
+            pass
+    return event + "".join(f" {k}={v}" for k, v in fields.items())
+
+
+class EventLog:
+    """``events.jsonl`` of a run: created empty, then appended one line at a time.
+
+    Raises
+    ------
+    OSError
+        From :meth:`write` or the constructor when the file cannot be written
+        (a torn line is cut back first).
+    """
+
+    def __init__(self, path: Path):
+        self.path = Path(path)
+        self.size = 0
+        self._write(b"", mode="wb")
+
+    def line(self, event: str, t: float, wall: float, fields: dict) -> bytes:
+        return (json.dumps({"event": event, "t": t, "wall": wall, **fields}, default=json_default) + "\n").encode()
+
+    def write(self, event: str, t: float, wall: float, fields: dict) -> None:
+        self._write(self.line(event, t, wall, fields))
+
+    def _write(self, data: bytes, *, mode: str = "ab") -> None:
+        try:
+            with open(self.path, mode) as f:
+                f.write(data)
+                f.flush()
+        except OSError:
+            try:
+                os.truncate(self.path, self.size)
+            except OSError:
+                pass
+            raise
+        self.size = len(data) if mode == "wb" else self.size + len(data)

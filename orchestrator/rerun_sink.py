@@ -1,0 +1,378 @@
+"""The Rerun side of the recorder: one recording stream, its live viewer, and ``run.rrd`` appended by Python.
+
+:class:`RerunSink` logs what :class:`orchestrator.recorder.Recorder` hands it
+(batches of rows, text events, topology, marks, loss clears) with
+``send_columns``, one chunk per entity per batch, on the timelines ``event``
+(sequence ``tau``), ``time`` (duration) and ``wall`` (timestamp).  Entity paths,
+colours and the default blueprint are in :mod:`orchestrator.blueprint`.
+
+A lost agent's series (``errors``, ``errors_log10``, ``state/<k>``,
+``gains``) get a non-recursive ``rr.Clear`` at the loss's event time: the
+time-series view draws a Clear on the entity itself as a break of the line
+(``collect_recursive_clears`` in rerun's series visualizer keeps non-recursive
+clears of the queried entity), so no line crosses a dead interval.
+
+The recording logs into an ``rr.binary_stream()`` (plus a ``GrpcSink`` for a
+live viewer); :meth:`RerunSink.write_pending` appends what it encoded to
+``run.rrd`` with ordinary file calls whose ``OSError`` the recorder reports
+(see :mod:`orchestrator.rrdfile`).  Rerun itself never stops a run: a viewer
+that cannot be spawned or reached is a warning and the recording goes on.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import socket
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+from urllib.parse import urlsplit
+
+import numpy as np
+
+from . import blueprint as bp
+from .rrdfile import RrdAppender, rerun_command, rewrite_rrd
+
+__all__ = ["RerunSink", "RowBatch", "APPLICATION_ID", "RRD_FILE"]
+
+log = logging.getLogger(__name__)
+
+APPLICATION_ID = "splitspec"
+RRD_FILE = "run.rrd"
+DEFAULT_VIEWER_PORT = 9876
+
+
+@dataclass
+class RowBatch:
+    """Rows to log (L of them, increasing ``tau``); per-agent arrays are (L, m).
+
+    ``show``: where an agent's values are logged (alive, finite); ``clear``:
+    where a value shown by an earlier batch is no longer true (Clear).
+    ``env``: the designed envelope, NaN where none; ``rounds``: (L, 3) wall ms,
+    attempts, rejected (NaN unknown).
+    """
+
+    seq: np.ndarray
+    t: np.ndarray
+    wall: np.ndarray
+    x: np.ndarray
+    xhat: np.ndarray
+    err: np.ndarray
+    show: np.ndarray
+    clear: np.ndarray
+    err_max: np.ndarray
+    show_max: np.ndarray
+    clear_max: np.ndarray
+    env: np.ndarray
+    gains: np.ndarray
+    rounds: np.ndarray
+
+
+def _reachable(host: str, port: int, timeout: float) -> bool:
+    try:
+        with socket.create_connection((host, port), timeout=timeout):
+            return True
+    except OSError:
+        return False
+
+
+def _viewer_url(viewer: str) -> str:
+    """Accept a full ``rerun+http://host:port/proxy`` URL or a bare ``host:port``."""
+    return viewer if "://" in viewer else f"rerun+http://{viewer}/proxy"
+
+
+def _url_host_port(url: str) -> tuple[str, int]:
+    parts = urlsplit(url)
+    default = 443 if parts.scheme.endswith("https") else DEFAULT_VIEWER_PORT
+    return parts.hostname or "127.0.0.1", parts.port or default
+
+
+def _log10(v: np.ndarray) -> np.ndarray:
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.log10(v)
+
+
+class RerunSink:
+    """One run's Rerun recording (see the module docstring).  Constructing it may raise anything Rerun raises."""
+
+    def __init__(self, out_dir: Path, *, run_id: str, scenario_name: str, agent_ids: np.ndarray, n: int,
+                 time_mode: str, dt: float, graph_names: tuple, envelope: bool, gains: bool,
+                 positions: dict, viewer: str | None, viewer_port: int, connect_timeout: float):
+        import rerun as rr
+
+        self.agent_ids = [int(a) for a in agent_ids]
+        self.n, self.time_mode, self.envelope, self.gains = int(n), time_mode, bool(envelope), bool(gains)
+        self.positions = bp.node_positions(self.agent_ids, positions)
+        self.rrd_file = RrdAppender(Path(out_dir) / RRD_FILE)
+        self.pending: list[bytes] = []  # read from Rerun, not yet on disk
+        self._viewer_warned = False
+        self.rec = rec = rr.RecordingStream(application_id=APPLICATION_ID, recording_id=run_id)
+        self.stream = rr.binary_stream(rec)
+        sinks: list[Any] = [self.stream]
+        live = self._viewer_sink(rr, rec, viewer, viewer_port=viewer_port, connect_timeout=connect_timeout)
+        if live is not None:
+            sinks.append(live)
+        rec.set_sinks(*sinks, default_blueprint=self.blueprint())  # both sinks at once (a tee)
+        rec.send_recording_name(f"{scenario_name} ({run_id})")
+        rec.send_property("splitspec", rr.AnyValues(
+            scenario=scenario_name, run_id=run_id, time_mode=time_mode, dt=dt, n=self.n, m=len(self.agent_ids),
+            agent_ids=self.agent_ids, graphs=list(graph_names), envelope=self.envelope, gains=self.gains))
+        self._log_static_styles(rr, rec)
+
+    # ------------------------------------------------------------------ setup
+
+    def blueprint(self):
+        return bp.default_blueprint(self.time_mode, n=self.n, envelope=self.envelope, gains=self.gains)
+
+    def _viewer_sink(self, rr, rec, viewer: str | None, *, viewer_port: int, connect_timeout: float):
+        """The ``rr.GrpcSink`` of the live viewer, or None (file only, with a warning)."""
+        if viewer is None:
+            return None
+        if viewer == "spawn":
+            if sys.platform.startswith("linux") and not any(
+                    os.environ.get(v) for v in ("DISPLAY", "WAYLAND_DISPLAY", "WAYLAND_SOCKET")):
+                # The native viewer exits at once without a display; rr.spawn would wait ~6 s for it.
+                log.warning("no display (DISPLAY/WAYLAND_DISPLAY unset): not spawning a Rerun viewer; "
+                            "recording to %s only", RRD_FILE)
+                return None
+            cmd = rerun_command()
+            try:
+                # connect=False: the gRPC sink is added with the file sink in set_sinks.
+                rr.spawn(port=viewer_port, connect=False, recording=rec,
+                         executable_path=cmd[0] if len(cmd) == 1 else None)
+            except Exception as exc:
+                log.warning("could not spawn a Rerun viewer (%s: %s); recording to %s only",
+                            type(exc).__name__, exc, RRD_FILE)
+                return None
+            url = f"rerun+http://127.0.0.1:{viewer_port}/proxy"
+        else:
+            url = _viewer_url(viewer)
+        host, port = _url_host_port(url)
+        # GrpcSink does not fail on an unreachable viewer: set_sinks blocks ~5 s and
+        # every later flush raises.  Check first and fall back to the file.
+        if not _reachable(host, port, connect_timeout):
+            log.warning("Rerun viewer at %s is not reachable; recording to %s only", url, RRD_FILE)
+            return None
+        try:
+            return rr.GrpcSink(url)
+        except Exception as exc:
+            log.warning("invalid Rerun viewer URL %r (%s); recording to %s only", url, exc, RRD_FILE)
+            return None
+
+    def _log_static_styles(self, rr, rec) -> None:
+        def line(path, name, col, width=None):
+            rec.log(path, rr.SeriesLines(names=name, colors=[col], **({"widths": width} if width else {})),
+                    static=True)
+
+        line(bp.ERRORS_MAX, "max", bp.MAX_COLOR, 2.5)
+        line(bp.ERRORS_LOG10_MAX, "max", bp.MAX_COLOR, 2.5)
+        if self.envelope:
+            line(bp.ENVELOPE, "designed envelope", bp.ENVELOPE_COLOR, 2.0)
+        for kind, (name, marker, col) in bp.MARK_KINDS.items():
+            rec.log(f"{bp.MARKS}/{kind}", rr.SeriesPoints(names=name, colors=[col], markers=marker,
+                                                          marker_sizes=6.0), static=True)
+        for i, a in enumerate(self.agent_ids):
+            line(bp.agent_path(bp.ERRORS, a), f"agent {a}", bp.color(i))
+            line(bp.agent_path(bp.ERRORS_LOG10, a), f"agent {a}", bp.color(i))
+            if self.gains:
+                line(bp.agent_path(bp.GAINS, a), f"g agent {a}", bp.color(i))
+        for k in range(1, self.n + 1):
+            line(bp.state_path(k, "truth"), f"x{k} truth", bp.TRUTH_COLOR, 3.0)
+            for i, a in enumerate(self.agent_ids):
+                line(bp.state_path(k, f"agent_{a}"), f"x{k} agent {a}", bp.color(i), 1.0)
+        for s in bp.ROUND_SERIES:
+            line(f"{bp.ROUNDS}/{s}", s.replace("_", " "), bp.MAX_COLOR)
+
+    def guarded(self, what: str, fn, *args) -> None:
+        """Run one Rerun logging step; a failure is a warning, never an exception."""
+        try:
+            fn(*args)
+        except Exception as exc:
+            log.warning("Rerun %s failed (%s: %s); continuing", what, type(exc).__name__, exc)
+
+    @staticmethod
+    def _index(rr, taus, seconds, walls_ns) -> list:
+        """The three timeline columns (``event``, ``time``, ``wall``) of a batch of rows."""
+        dur = np.round(np.asarray(seconds, dtype=float) * 1e9).astype(np.int64).astype("timedelta64[ns]")
+        return [rr.TimeColumn(bp.TL_EVENT, sequence=np.asarray(taus, dtype=np.int64)),
+                rr.TimeColumn(bp.TL_TIME, duration=dur),
+                rr.TimeColumn(bp.TL_WALL, timestamp=np.asarray(walls_ns, dtype=np.int64).astype("datetime64[ns]"))]
+
+    def agent_series(self, agent_id: int) -> list[str]:
+        """Every series entity of one agent (what a loss clears)."""
+        paths = [bp.agent_path(bp.ERRORS, agent_id), bp.agent_path(bp.ERRORS_LOG10, agent_id)]
+        paths += [bp.state_path(k, f"agent_{agent_id}") for k in range(1, self.n + 1)]
+        if self.gains:
+            paths.append(bp.agent_path(bp.GAINS, agent_id))
+        return paths
+
+    # ------------------------------------------------------------------ logging
+
+    def send_rows(self, b: RowBatch) -> None:
+        """One chunk per entity: values where shown, a non-recursive Clear where a shown value stopped being true.
+
+        Per entity, each event time appears at most once per batch, so the newest batch wins on read.
+        """
+        import rerun as rr
+
+        send = self.rec.send_columns
+        L = len(b.seq)
+        indexes: dict[bytes, list] = {}
+        clears: dict[int, Any] = {}
+
+        def index(mask: np.ndarray) -> list:
+            key = mask.tobytes()
+            cols = indexes.get(key)
+            if cols is None:
+                cols = indexes[key] = self._index(rr, b.seq[mask], b.t[mask], b.wall[mask])
+            return cols
+
+        def scalars(path: str, mask: np.ndarray, values: np.ndarray) -> None:
+            if mask.any():
+                send(path, indexes=index(mask), columns=rr.Scalars.columns(scalars=values[mask]))
+
+        def clear(path: str, mask: np.ndarray) -> None:
+            cnt = int(mask.sum())
+            if cnt:
+                if cnt not in clears:
+                    clears[cnt] = rr.Clear.columns(is_recursive=np.zeros(cnt, dtype=bool))
+                send(path, indexes=index(mask), columns=clears[cnt])
+
+        every = np.ones(L, dtype=bool)
+        lerr, lmax = _log10(b.err), _log10(b.err_max)
+        for c in range(self.n):
+            scalars(bp.state_path(c + 1, "truth"), every, b.x[:, c])
+        for i, a in enumerate(self.agent_ids):
+            mask = b.show[:, i]
+            scalars(bp.agent_path(bp.ERRORS, a), mask, b.err[:, i])
+            scalars(bp.agent_path(bp.ERRORS_LOG10, a), mask & np.isfinite(lerr[:, i]), lerr[:, i])
+            for c in range(self.n):
+                scalars(bp.state_path(c + 1, f"agent_{a}"), mask, b.xhat[:, i, c])
+            if self.gains:
+                scalars(bp.agent_path(bp.GAINS, a), mask & np.isfinite(b.gains[:, i]), b.gains[:, i])
+            for path in self.agent_series(a):
+                clear(path, b.clear[:, i])
+        scalars(bp.ERRORS_MAX, b.show_max, b.err_max)
+        scalars(bp.ERRORS_LOG10_MAX, b.show_max & np.isfinite(lmax), lmax)
+        clear(bp.ERRORS_MAX, b.clear_max)
+        clear(bp.ERRORS_LOG10_MAX, b.clear_max)
+        if self.envelope:
+            lenv = _log10(b.env)
+            scalars(bp.ENVELOPE, np.isfinite(lenv), lenv)
+        for s, col in zip(bp.ROUND_SERIES, b.rounds.T):
+            scalars(f"{bp.ROUNDS}/{s}", np.isfinite(col), col)
+
+    def send_events(self, queued: list[tuple[int, float, str, str, int]]) -> None:
+        """``(tau, t, text, level, wall_ns)`` as one TextLog chunk on ``events``, in call order."""
+        import rerun as rr
+
+        taus, seconds, texts, levels, walls = zip(*queued)
+        self.rec.send_columns(bp.EVENTS, indexes=self._index(rr, taus, seconds, walls),
+                              columns=rr.TextLog.columns(text=list(texts), level=list(levels)))
+
+    def send_marks(self, queued: list[tuple[int, float, str, float, int]]) -> None:
+        """``(tau, t, kind, y, wall_ns)``: one point per event on ``marks/<kind>``."""
+        import rerun as rr
+
+        for kind in bp.MARK_KINDS:
+            rows = [q for q in queued if q[2] == kind]
+            if rows:
+                taus, seconds, _, ys, walls = zip(*rows)
+                self.rec.send_columns(f"{bp.MARKS}/{kind}", indexes=self._index(rr, taus, seconds, walls),
+                                      columns=rr.Scalars.columns(scalars=np.asarray(ys, dtype=float)))
+
+    def send_loss_clears(self, queued: list[tuple[int, float, int, int]]) -> None:
+        """``(tau, t, agent id, wall_ns)``: a non-recursive Clear on each of the agent's series at ``tau``."""
+        import rerun as rr
+
+        for tau, t, a, wall in queued:
+            idx = self._index(rr, [tau], [t], [wall])
+            for path in self.agent_series(a):
+                self.rec.send_columns(path, indexes=idx, columns=rr.Clear.columns(is_recursive=[False]))
+
+    def send_topology(self, queued: list[tuple[int, float, str, set, list, int]]) -> None:
+        """``(tau, t, graph name, alive ids, edges, wall_ns)``: GraphNodes (fixed positions, lost grey) + edges.
+
+        The active graph's name is a label node on ``topology/graph`` above the agents.
+        """
+        import rerun as rr
+
+        ids = self.agent_ids
+        pos = [self.positions[a] for a in ids]
+        node_ids, labels, colors, positions, edges, edge_counts = [], [], [], [], [], []
+        for _, _, _, alive, row_edges, _ in queued:
+            node_ids += [str(a) for a in ids]
+            labels += [f"agent {a}" if a in alive else f"agent {a} (lost)" for a in ids]
+            colors += [bp.color(k) if a in alive else bp.DEAD_COLOR for k, a in enumerate(ids)]
+            positions += pos
+            edges += row_edges
+            edge_counts.append(len(row_edges))
+        taus, seconds, names, _, _, walls = zip(*queued)
+        rows = len(queued)
+        index = self._index(rr, taus, seconds, walls)
+        columns = [*rr.GraphNodes.columns(node_ids=node_ids, labels=labels, colors=colors,
+                                          positions=positions).partition([len(ids)] * rows),
+                   *rr.GraphEdges.columns(edges=edges).partition(edge_counts),
+                   *rr.GraphEdges.columns(graph_type=["directed"] * rows),
+                   *rr.AnyValues.columns(graph_name=list(names))]
+        self.rec.send_columns(bp.TOPOLOGY, indexes=index, columns=columns)
+        label_pos = bp.graph_label_position(self.positions)
+        self.rec.send_columns(bp.TOPOLOGY_GRAPH, indexes=index, columns=rr.GraphNodes.columns(
+            node_ids=["graph"] * rows, labels=[f"graph: {name}" for name in names], positions=[label_pos] * rows,
+            colors=[bp.MAX_COLOR] * rows, radii=[1.0] * rows))
+
+    # ------------------------------------------------------------------ run.rrd
+
+    def read_pending(self) -> None:
+        """Take what Rerun encoded since the last call (waiting at most 10 s for it)."""
+        try:
+            data = self.stream.read(flush=True, flush_timeout_sec=10.0)
+        except Exception as exc:  # e.g. a live viewer that does not take the data: do not wait for it
+            if not self._viewer_warned:
+                log.warning("Rerun flush: %s; run.rrd keeps recording", exc)
+                self._viewer_warned = True
+            data = self.stream.read(flush=False)
+        if data:
+            self.pending.append(data)
+
+    def write_pending(self) -> None:
+        """Append the pieces read so far to ``run.rrd``.
+
+        Raises
+        ------
+        OSError
+            If ``run.rrd`` cannot be written (the pieces not written stay pending).
+        """
+        while self.pending:
+            try:
+                self.rrd_file.append(self.pending[0])
+            except ValueError as exc:  # not what rerun 0.41 encodes: drop it rather than tear the file
+                log.warning("Rerun bytes not appended to %s (%s)", RRD_FILE, exc)
+            self.pending.pop(0)
+
+    def finish(self, cutoff: int | None) -> None:
+        """Rewrite ``run.rrd`` as one verifiable RRD (with the blueprint), cut at ``cutoff`` if given.
+
+        Raises
+        ------
+        OSError
+            If ``run.rrd`` cannot be rewritten; other failures leave the footer-less file with a warning.
+        """
+        if self.rrd_file.size == 0:
+            return
+        try:
+            self.rec.flush(timeout_sec=10.0)
+        except Exception:
+            pass
+        try:
+            rewrite_rrd(self.rrd_file.path, self.rrd_file.path, blueprint=self.blueprint(), cutoff=cutoff)
+        except OSError:
+            raise
+        except Exception as exc:  # Rerun could not read its own bytes back: keep the footer-less file
+            log.warning("could not finish %s (%s: %s); it is readable but has no footer",
+                        self.rrd_file.path, type(exc).__name__, exc)
+
+    def disconnect(self) -> None:
+        self.guarded("disconnect", self.rec.disconnect)

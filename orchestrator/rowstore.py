@@ -1,0 +1,105 @@
+"""Row storage of the recorder: one row per event time, grown by doubling, and what each row shows.
+
+Row ``k`` holds event time ``tau[k]``: ``t`` (T,), ``x`` (T, n), ``xhat``
+(T, m, n) NaN where dead, ``alive`` (T, m), ``graph`` (T,), ``g`` (T, m) NaN
+where dead or none, ``round`` (T, 3) wall ms / attempts / rejected, ``wall``
+(T,) ``time.time_ns()`` of the row's last arrival; ``shown``/``shown_max``:
+what Rerun currently shows (retracted with a Clear when it stops being
+true); ``env_start``: the row where the designed envelope's piece of row k
+starts.  ``rows`` = T.  No I/O and no lock: the recorder holds its lock.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+__all__ = ["RowStore"]
+
+
+class RowStore:
+    """Preallocated row arrays of one run (``capacity`` rows to start with, doubling when full)."""
+
+    def __init__(self, m: int, n: int, *, capacity: int):
+        self.m, self.n = int(m), int(n)
+        cap = int(capacity)
+        self.t = np.zeros(cap)
+        self.x = np.zeros((cap, n))
+        self.xhat = np.full((cap, m, n), np.nan)
+        self.alive = np.zeros((cap, m), dtype=bool)
+        self.graph = np.zeros(cap, dtype=np.int64)
+        self.tau = np.zeros(cap, dtype=np.int64)
+        self.wall = np.zeros(cap, dtype=np.int64)  # time.time_ns() of the row's (last) arrival
+        self.g = np.full((cap, m), np.nan)  # g_i(tau), NaN where dead or none
+        self.round = np.full((cap, 3), np.nan)  # round diagnostics: wall ms, attempts, rejected
+        self.env_start = np.zeros(cap, dtype=np.int64)  # row where the envelope's piece of the row starts
+        # What is currently shown in Rerun per row (to retract with Clear when it stops being true).
+        self.shown = np.zeros((cap, m), dtype=bool)
+        self.shown_max = np.zeros(cap, dtype=bool)
+        self.rows = 0
+        self.row_of_tau: dict[int, int] = {}
+
+    def append_slot(self, tau: int) -> int:
+        """A new row for event time ``tau`` (after the last one); its index."""
+        k = self.rows
+        if k == self.t.shape[0]:
+            self.grow()
+        self.tau[k] = tau
+        self.row_of_tau[tau] = k
+        self.rows += 1
+        return k
+
+    def grow(self) -> None:
+        def bigger(a: np.ndarray, fill) -> np.ndarray:
+            b = np.full((2 * a.shape[0],) + a.shape[1:], fill, dtype=a.dtype)
+            b[: a.shape[0]] = a
+            return b
+
+        self.t, self.x = bigger(self.t, 0.0), bigger(self.x, 0.0)
+        self.xhat, self.alive = bigger(self.xhat, np.nan), bigger(self.alive, False)
+        self.graph, self.tau = bigger(self.graph, 0), bigger(self.tau, 0)
+        self.wall = bigger(self.wall, 0)
+        self.g, self.round = bigger(self.g, np.nan), bigger(self.round, np.nan)
+        self.env_start = bigger(self.env_start, 0)
+        self.shown, self.shown_max = bigger(self.shown, False), bigger(self.shown_max, False)
+
+    def row_errors(self, K: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``|x_i - x|_2`` of rows ``K`` (L, m), NaN if dead, and where it is shown (alive and finite)."""
+        err = np.linalg.norm(self.xhat[K] - self.x[K][:, None, :], axis=2)
+        return err, self.alive[K] & np.isfinite(err)
+
+    def max_error(self, k: int) -> float:
+        """``max_i |x_i - x|`` over the alive agents of row ``k`` (NaN if none)."""
+        e = np.linalg.norm(self.xhat[k] - self.x[k], axis=1)[self.alive[k]]
+        e = e[np.isfinite(e)]
+        return float(e.max()) if e.size else math.nan
+
+    def envelope(self, K: np.ndarray, lam: float | None, time_mode: str) -> np.ndarray:
+        """The designed envelope at rows ``K`` (sorted; every earlier row already has its piece's start).
+
+        Row k starts a piece when k = 0, its alive set gains an agent, or its graph changed
+        (:func:`splitspec_core.analysis.envelope_restarts`); on a piece started at k0:
+        ``c lam^(t - t_k0)`` or ``c exp(-lam (t - t_k0))``, ``c`` the max error at k0.
+        """
+        env = np.full(len(K), np.nan)
+        for r, k in enumerate(K.tolist()):
+            restart = k == 0 or bool((self.alive[k] & ~self.alive[k - 1]).any()) \
+                or self.graph[k] != self.graph[k - 1]
+            self.env_start[k] = k0 = k if restart else self.env_start[k - 1]
+            if lam is None:
+                continue
+            c, dt = self.max_error(int(k0)), self.t[k] - self.t[k0]
+            if math.isfinite(c) and c > 0:
+                env[r] = c * (math.exp(-lam * dt) if time_mode == "continuous" else lam ** dt)
+        return env
+
+    def mark_y(self, tau: int) -> float:
+        """Height of a mark at ``tau`` on the log10 error axis: log10 of the max error at (or before) ``tau``."""
+        T = self.rows
+        k = int(np.searchsorted(self.tau[:T], tau, side="right")) - 1
+        for j in range(min(max(k, 0), T - 1), -1, -1):
+            e = self.max_error(j)
+            if math.isfinite(e) and e > 0:
+                return math.log10(e)
+        return 0.0

@@ -1,0 +1,59 @@
+"""The one writer of the ``trajectory.npz`` contract (DESIGN.md "Trajectories"), shared by ``simulate`` and ``run``.
+
+Arrays: ``t`` (T,), ``x`` (T, n), ``xhat`` (T, m, n) NaN where dead,
+``alive`` (T, m) bool, ``graph`` (T,) int, ``agent_ids`` (m,), and ``g``
+(T, m): the gain ``g_i(t)`` of each agent (eq. adaptive for the adaptive gain,
+the designed scalar ``g`` for a fixed continuous-time gain), NaN where the
+agent is dead and everywhere in discrete time (there is no ``g``).
+
+The file is written atomically: a temporary file in the same directory,
+flushed and fsynced, then ``os.replace``; a reader never sees a torn file and
+a failed write leaves the previous file in place.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["TRAJECTORY_FILE", "write_trajectory", "no_gains"]
+
+TRAJECTORY_FILE = "trajectory.npz"
+
+
+def no_gains(T: int, m: int) -> np.ndarray:
+    """``g`` where there is none (discrete time): all NaN, shape (T, m)."""
+    return np.full((T, m), np.nan)
+
+
+def write_trajectory(path: str | Path, *, t: np.ndarray, x: np.ndarray, xhat: np.ndarray, alive: np.ndarray,
+                     graph: np.ndarray, agent_ids: np.ndarray, g: np.ndarray | None = None) -> None:
+    """Atomically write ``path`` with the trajectory arrays (``g`` all NaN if None).
+
+    Raises
+    ------
+    OSError
+        If the file cannot be written; ``path`` is left as it was and no temporary file remains.
+    """
+    path = Path(path)
+    T, m = np.shape(alive)
+    arrays = dict(t=t, x=x, xhat=xhat, alive=alive, graph=graph, agent_ids=agent_ids,
+                  g=no_gains(T, m) if g is None else g)
+    tmp = None
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".npz.tmp", dir=path.parent)
+        with os.fdopen(fd, "wb") as f:
+            np.savez(f, **arrays)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        if tmp is not None:
+            try:
+                Path(tmp).unlink(missing_ok=True)
+            except OSError:
+                pass
+        raise

@@ -1,0 +1,176 @@
+"""Read a run's ``.rrd`` back (tests and benchmarks only): scalar series, clears, text log, topology.
+
+Column names of a chunk's record batch in rerun 0.41 (found by experiment):
+index columns are named after their timeline, data columns ``Archetype:field``.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from orchestrator.blueprint import EVENTS, TL_EVENT, TOPOLOGY
+from orchestrator.recorder import RecordingError, verify_rrd
+
+__all__ = ["read_rrd", "read_rrd_logs", "read_rrd_clears", "read_rrd_nodes", "rrd_entities", "verify_rrd"]
+
+_COL_SCALARS = "Scalars:scalars"
+_COL_CLEAR = "Clear:is_recursive"
+_COL_ROW_ID = "rerun.controls.RowId"
+
+
+def read_rrd(path: str | Path) -> dict[str, list[tuple[int, float]]]:
+    """Every Scalars entity of an ``.rrd``: entity path -> sorted ``[(event index, value), ...]``.
+
+    Entity paths are returned without the leading ``/`` (``"errors/max"``).
+    Per event index the latest logged row wins (by Rerun row id), and a
+    ``Clear`` logged later at the same event index on the entity (or a
+    recursive one on an ancestor) removes the value, as the viewer's latest-at
+    query does.  Only rows on the ``event`` timeline are read.
+
+    Raises
+    ------
+    RecordingError
+        If a Scalars row holds more than one value (not a scalar series).
+    """
+    from rerun.chunk import RrdReader
+
+    # (entity, event) -> (row id, value or None for a clear)
+    latest: dict[tuple[str, int], tuple[bytes, float | None]] = {}
+    clears: list[tuple[str, int, bytes, bool]] = []
+    scalar_entities: set[str] = set()
+    for chunk in RrdReader(path).stream():
+        if chunk.is_static or TL_EVENT not in chunk.timeline_names:
+            continue
+        batch = chunk.to_record_batch()
+        names = batch.schema.names
+        if _COL_SCALARS not in names and _COL_CLEAR not in names:
+            continue
+        entity = chunk.entity_path.lstrip("/")
+        events = batch.column(TL_EVENT).to_pylist()
+        row_ids = batch.column(_COL_ROW_ID).to_pylist()
+        if _COL_SCALARS in names:
+            scalar_entities.add(entity)
+            for ev, rid, vals in zip(events, row_ids, batch.column(_COL_SCALARS).to_pylist()):
+                if ev is None or vals is None:
+                    continue
+                if len(vals) != 1:
+                    raise RecordingError(f"{entity} at event {ev} holds {len(vals)} scalars; expected 1")
+                _keep_latest(latest, (entity, ev), rid, float(vals[0]))
+        if _COL_CLEAR in names:
+            for ev, rid, rec in zip(events, row_ids, batch.column(_COL_CLEAR).to_pylist()):
+                if ev is not None and rec is not None:
+                    clears.append((entity, ev, rid, bool(rec[0])))
+    for c_entity, ev, rid, recursive in clears:
+        for entity in scalar_entities:
+            if entity == c_entity or (recursive and entity.startswith(c_entity + "/")):
+                _keep_latest(latest, (entity, ev), rid, None)
+    out: dict[str, list[tuple[int, float]]] = {}
+    for (entity, ev), (_, value) in sorted(latest.items()):
+        if value is not None:
+            out.setdefault(entity, []).append((ev, value))
+    return out
+
+
+def _keep_latest(latest: dict, key: tuple[str, int], row_id: bytes, value: float | None) -> None:
+    # Row ids are TUIDs: big-endian (nanoseconds, counter), so byte order is log order.
+    old = latest.get(key)
+    if old is None or row_id > old[0]:
+        latest[key] = (row_id, value)
+
+
+def read_rrd_logs(path: str | Path) -> dict[str, list]:
+    """The text log and topology of an ``.rrd``.
+
+    Returns ``{"events": [(event index, level, text), ...], "topology": [(event index, [node labels],
+    [(j, i) edges]), ...]}`` in logging order.
+    """
+    from rerun.chunk import RrdReader
+
+    out: dict[str, list] = {"events": [], "topology": []}
+    for chunk in RrdReader(path).stream():
+        if chunk.is_static or TL_EVENT not in chunk.timeline_names:
+            continue
+        batch = chunk.to_record_batch()
+        names = batch.schema.names
+        taus = batch.column(TL_EVENT).to_pylist()
+        if chunk.entity_path == f"/{EVENTS}" and "TextLog:text" in names:
+            for tau, text, level in zip(taus, batch.column("TextLog:text").to_pylist(),
+                                        batch.column("TextLog:level").to_pylist()):
+                out["events"].append((tau, level[0] if level else None, text[0]))
+        elif chunk.entity_path == f"/{TOPOLOGY}" and "GraphNodes:labels" in names:
+            edges = batch.column("GraphEdges:edges").to_pylist() if "GraphEdges:edges" in names else [None] * len(taus)
+            for tau, labels, es in zip(taus, batch.column("GraphNodes:labels").to_pylist(), edges):
+                pairs = [(int(e["first"]), int(e["second"])) if isinstance(e, dict) else tuple(map(int, e))
+                         for e in (es or [])]
+                out["topology"].append((tau, labels, pairs))
+    return out
+
+
+def read_rrd_clears(path: str | Path) -> dict[str, list[int]]:
+    """Entity path -> sorted event indices of the non-recursive ``Clear`` rows logged on it."""
+    from rerun.chunk import RrdReader
+
+    out: dict[str, set] = {}
+    for chunk in RrdReader(path).stream():
+        if chunk.is_static or TL_EVENT not in chunk.timeline_names:
+            continue
+        batch = chunk.to_record_batch()
+        if _COL_CLEAR not in batch.schema.names:
+            continue
+        entity = chunk.entity_path.lstrip("/")
+        for ev, rec in zip(batch.column(TL_EVENT).to_pylist(), batch.column(_COL_CLEAR).to_pylist()):
+            if ev is not None and rec is not None:
+                out.setdefault(entity, set()).add(ev)
+    return {k: sorted(v) for k, v in out.items()}
+
+
+def read_rrd_nodes(path: str | Path, entity: str = TOPOLOGY) -> list[tuple[int, list, list]]:
+    """``[(event index, node ids, positions [(x, y)]), ...]`` of the GraphNodes on ``entity``."""
+    from rerun.chunk import RrdReader
+
+    out = []
+    for chunk in RrdReader(path).stream():
+        if chunk.is_static or TL_EVENT not in chunk.timeline_names or chunk.entity_path != f"/{entity}":
+            continue
+        batch = chunk.to_record_batch()
+        names = batch.schema.names
+        if "GraphNodes:node_ids" not in names:
+            continue
+        pos = batch.column("GraphNodes:positions").to_pylist() if "GraphNodes:positions" in names \
+            else [None] * batch.num_rows
+        labels = batch.column("GraphNodes:labels").to_pylist() if "GraphNodes:labels" in names \
+            else [None] * batch.num_rows
+        for tau, ids, ps, ls in zip(batch.column(TL_EVENT).to_pylist(), batch.column("GraphNodes:node_ids").to_pylist(),
+                                    pos, labels):
+            out.append((tau, ids, [tuple(p) for p in (ps or [])], ls))
+    return out
+
+
+def rrd_entities(path: str | Path) -> set[str]:
+    """Every entity path of the recording (without the leading ``/``), static data included."""
+    from rerun.chunk import RrdReader
+
+    return {chunk.entity_path.lstrip("/") for chunk in RrdReader(path).stream()}
+
+
+def read_blueprint(path: str | Path) -> dict[str, list]:
+    """The default blueprint stored in an ``.rrd``: ``{"views": [(class, name, origin)], "containers": [name]}``."""
+    from rerun.chunk import RrdReader
+
+    reader = RrdReader(path)
+    out: dict[str, list] = {"views": [], "containers": []}
+    for store in reader.blueprints():
+        for chunk in reader.stream(store=store):
+            batch = chunk.to_record_batch()
+            names = batch.schema.names
+
+            def first(col):
+                v = batch.column(col).to_pylist()[0] if col in names else None
+                return v[0] if isinstance(v, list) and v else v
+
+            if "ViewBlueprint:class_identifier" in names:
+                out["views"].append((first("ViewBlueprint:class_identifier"), first("ViewBlueprint:display_name"),
+                                     first("ViewBlueprint:space_origin")))
+            elif "ContainerBlueprint:display_name" in names:
+                out["containers"].append(first("ContainerBlueprint:display_name"))
+    return out
