@@ -81,8 +81,8 @@ def test_scenario_faults_execute_for_real_and_equal_simulate(tmp_path):
     err3 = dict(read_rrd(out / "run.rrd")["errors/agent_3"])
     assert sorted(err3) == list(range(10)) + list(range(30, 61))
     logs = read_rrd_logs(out / "run.rrd")
-    assert any(tau == 10 and level == "WARN" and text.startswith("agent_lost id=3") for tau, level, text in logs["events"])
-    assert any(tau == 30 and text.startswith("agent_rejoined id=3") for tau, _, text in logs["events"])
+    assert any(tau == 10 and level == "WARN" and text.startswith("agent 3 lost: killed by the scenario") for tau, level, text in logs["events"])
+    assert any(tau == 30 and text == "agent 3 rejoined (incarnation 1)" for tau, _, text in logs["events"])
     topo = {tau: (labels, edges) for tau, labels, edges in logs["topology"]}
     assert "agent 3 (lost)" in topo[10][0] and all(3 not in e for e in topo[10][1])
     assert (1, 6) not in topo[15][1] and (1, 6) in topo[40][1]
