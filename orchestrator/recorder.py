@@ -105,6 +105,7 @@ records of a killed run.
 from __future__ import annotations
 
 import atexit
+import errno
 import logging
 import math
 import os
@@ -529,11 +530,21 @@ class Recorder:
                     self._salvage()
                 K = self._rows_kept
                 ok = bool(finished) and self._failure is None
+                if self._failure is not None:
+                    # finish run.rrd first, fewer rows if its rewrite does not fit: the close event then
+                    # states what all three records hold
+                    K = self._finish_rrd_fitting(K)
                 fields: dict[str, Any] = {"finished": ok, "rows": K}
                 if self._failure is not None:
                     fields["error"] = str(self._failure)
-                self._close_event(float(self._s.t[K - 1]) if K else 0.0, "INFO" if ok else "WARN", fields)
-                self._finish_rrd(K)
+                    try:
+                        self._events.write("recording_closed", float(self._s.t[K - 1]) if K else 0.0, time.time(),
+                                           fields)
+                    except OSError as exc:
+                        self._fail(self._events_path, exc, None)
+                else:
+                    self._close_event(float(self._s.t[K - 1]) if K else 0.0, "INFO" if ok else "WARN", fields)
+                    self._finish_rrd(K)
             finally:
                 self._reserve.release()
                 if self._rec is not None:
@@ -695,6 +706,31 @@ class Recorder:
                 self._append_rrd()
             except RecordsWriteError:
                 pass
+
+    def _finish_rrd_fitting(self, K: int) -> int:
+        """After a write failure: finish ``run.rrd`` with K rows, or with fewer (a tenth less each try) when
+        its rewrite does not fit on the full disk; ``trajectory.npz`` is cut to the same rows.  The rows kept."""
+        if self._rec is None or K == 0:
+            self._finish_rrd(K)
+            return K
+        for _ in range(12):
+            cutoff = int(self._s.tau[K - 1]) + 1
+            try:
+                self._rec.finish(cutoff)
+            except OSError as exc:
+                if exc.errno != errno.ENOSPC or K <= 1:
+                    self._fail(self._rrd_path, exc, int(self._s.tau[K - 1]))
+                    return K
+                K = max(1, K - max(1, K // 10))
+                continue
+            if K < self._rows_kept:
+                try:
+                    self._write_trajectory(K)
+                except RecordsWriteError:
+                    pass
+                self._rows_kept = K
+            return K
+        return K
 
     def _finish_rrd(self, K: int) -> None:
         """Rewrite ``run.rrd`` as one verifiable RRD; cut after row K-1 if a write failed."""
