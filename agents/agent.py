@@ -34,7 +34,7 @@ from splitspec_core import steps as st
 from splitspec_core.design import design_agent, riccati_weights
 from splitspec_core.scenario import parse_scenario_text
 from splitspec_core.simulate import initial_estimate
-from splitspec_core.wire import DEFAULT_RUN_ID, Keys, WireError, decode, encode
+from splitspec_core.wire import Keys, WireError, decode, encode
 
 log = logging.getLogger("splitspec.agent")
 
@@ -285,7 +285,7 @@ def main(args: argparse.Namespace) -> int:
     """``splitspec agent --id I --connect ENDPOINT [--run-id ID] [--credentials FILE]``."""
     from splitspec_core.bus import NodeShell
 
-    keys = Keys(args.run_id or DEFAULT_RUN_ID)
+    keys = Keys(args.run_id)  # required on the command line
     shell = NodeShell(args.connect, keys, log=log, role="agent", ident=args.id, credentials=args.credentials,
                       wait=args.wait)
     try:

@@ -39,11 +39,9 @@ from __future__ import annotations
 
 import argparse
 import logging
-import math
 import os
 import signal
 import socket
-import subprocess
 import sys
 import time
 from pathlib import Path
@@ -51,7 +49,7 @@ from pathlib import Path
 from splitspec_core.design import design
 from splitspec_core.errors import SplitspecError
 from splitspec_core.scenario import load_scenario, read_scenario_text
-from splitspec_core.wire import DEFAULT_RUN_ID, Keys, WireError, decode, encode, new_run_key
+from splitspec_core.wire import Keys, WireError, decode, encode, new_run_key
 
 from . import rounds as R
 from .outdir import OutputDirError, check_output_dir
@@ -234,7 +232,7 @@ class Orchestrator:
                 gains = a.gains if self.sc.time == "continuous" else None  # no g in discrete time
                 self.rec.row(a.tau, a.x, a.xhat, a.alive, a.graph, gains=gains, attempts=a.attempts,
                              rejected=a.rejected, wall_ms=(time.monotonic() - a.started) * 1e3)
-                self.progress.update(a.tau, self.machine.max_error(a), int(a.alive.sum()),
+                self.progress.update(a.tau, a.max_error, int(a.alive.sum()),
                                      force=a.tau == self.machine.plan.steps)
             elif kind is R.Event:
                 self.rec.event(a.name, a.t, **a.fields)
@@ -433,9 +431,7 @@ class Orchestrator:
                         c.present and not c.released for c in machine.claims.values()):
                     item = self.inbox.get(timeout=0.1)
                     if item is not None and item[0] == "alive":
-                        member = self.keys.parse_member(item[1])
-                        if member:
-                            machine.on_token(member[0], member[1], member[2], item[2] == "put", time.monotonic())
+                        self._handle(item, time.monotonic())  # only the claims matter now, not the actions
                 self.token.undeclare()
         except Exception as exc:  # noqa: BLE001 - shutting down: report and go on
             log.warning("shutdown: %s", exc)
@@ -465,7 +461,7 @@ def main(args: argparse.Namespace) -> int:
             raise SplitspecError("--secure configures the orchestrator's embedded router: use it with --listen, "
                                  "not --connect")
         security = Credentials.load(args.secure_dir)
-    orch = Orchestrator(args.scenario, out=Path(args.out), run_id=args.run_id or DEFAULT_RUN_ID,
+    orch = Orchestrator(args.scenario, out=Path(args.out), run_id=args.run_id,
                         listen=args.listen, connect=args.connect, wait=args.wait,
                         round_timeout=args.round_timeout, viewer=args.viewer, security=security,
                         spawn_local=getattr(args, "spawn_local", False))

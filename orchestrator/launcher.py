@@ -49,20 +49,6 @@ def spawn(args: list, *, env: dict | None = None) -> subprocess.Popen:
     return subprocess.Popen(args, preexec_fn=_die_with_parent, env=env, stdin=subprocess.DEVNULL)
 
 
-def wait_listening(port: int, proc: subprocess.Popen, timeout: float) -> bool:
-    """True once something accepts TCP connections on the port (the router is up)."""
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if proc.poll() is not None:
-            return False
-        try:
-            with socket.create_connection(("127.0.0.1", port), timeout=0.2):
-                return True
-        except OSError:
-            time.sleep(0.05)
-    return False
-
-
 def stop_all(procs: list, *, grace: float = 5.0) -> None:
     """SIGTERM what is still running, then SIGKILL after ``grace`` seconds."""
     for p in procs:

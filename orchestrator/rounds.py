@@ -103,6 +103,12 @@ class Record:
     rejected: int = 0  # messages rejected since the previous record
     started: float = math.nan  # `now` of the round's first tick (driver clock)
 
+    @property
+    def max_error(self) -> float:
+        """``max_i |x_i - x|`` over the alive agents (NaN when none is alive)."""
+        errs = np.linalg.norm(self.xhat - self.x, axis=1)
+        return float(np.nanmax(errs)) if self.alive.any() else math.nan
+
 
 @dataclass(frozen=True)
 class Topology:
@@ -831,6 +837,3 @@ class RoundMachine:
     def finished(self) -> bool:
         return self.phase == "done"
 
-    def max_error(self, rec: Record) -> float:
-        errs = np.linalg.norm(rec.xhat - rec.x, axis=1)
-        return float(np.nanmax(errs)) if rec.alive.any() else math.nan

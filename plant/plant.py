@@ -17,7 +17,7 @@ import numpy as np
 
 from splitspec_core.scenario import parse_scenario_text
 from splitspec_core.simulate import Plant
-from splitspec_core.wire import DEFAULT_RUN_ID, Keys, WireError, decode, encode
+from splitspec_core.wire import Keys, WireError, decode, encode
 
 log = logging.getLogger("splitspec.plant")
 
@@ -77,7 +77,7 @@ def main(args: argparse.Namespace) -> int:
     """``splitspec plant --connect ENDPOINT [--run-id ID] [--credentials FILE]``."""
     from splitspec_core.bus import NodeShell
 
-    keys = Keys(args.run_id or DEFAULT_RUN_ID)
+    keys = Keys(args.run_id)  # required on the command line
     shell = NodeShell(args.connect, keys, log=log, role="plant", ident=0, credentials=args.credentials,
                       wait=args.wait)
     try:

@@ -69,16 +69,12 @@ def lease_ms_for(role: str) -> int:
     return _env_ms("SPLITSPEC_LEASE_MS", 10_000)
 
 
-def default_lease_ms() -> int:
-    return lease_ms_for("agent")
-
-
 def zenoh_config(mode: str, *, listen: list | None = None, connect: list | None = None,
                  lease_ms: int | None = None, user: str | None = None, password: str | None = None,
                  connect_timeout_ms: int | None = None, extra: dict | None = None) -> zenoh.Config:
     """Zenoh config: ``mode`` is ``router``, ``peer`` or ``client``; multicast scouting is off.
 
-    ``lease_ms`` is the link lease (default :func:`default_lease_ms`): a frozen
+    ``lease_ms`` is the link lease (default :func:`lease_ms_for`): a frozen
     peer is declared gone after it (Zenoh's default is 10 s).
     """
     lease_ms = lease_ms_for("agent") if lease_ms is None else lease_ms
