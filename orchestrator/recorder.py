@@ -708,29 +708,46 @@ class Recorder:
                 pass
 
     def _finish_rrd_fitting(self, K: int) -> int:
-        """After a write failure: finish ``run.rrd`` with K rows, or with fewer (a tenth less each try) when
-        its rewrite does not fit on the full disk; ``trajectory.npz`` is cut to the same rows.  The rows kept."""
+        """After a write failure: finish ``run.rrd`` and cut ``trajectory.npz`` to K rows, or to fewer (a tenth
+        less each try) when the rewrites do not fit on the full disk.  The trajectory is cut first: a shorter
+        trajectory frees room for the rrd's rewrite.  Returns the rows kept (what the close event states)."""
         if self._rec is None or K == 0:
             self._finish_rrd(K)
             return K
-        for _ in range(12):
-            cutoff = int(self._s.tau[K - 1]) + 1
+        for _ in range(40):
+            if K != self._npz_rows and not self._cut_trajectory(K):
+                if K <= 1:
+                    break
+                K = max(1, K - max(1, K // 10))
+                continue
             try:
-                self._rec.finish(cutoff)
+                self._rec.finish(int(self._s.tau[K - 1]) + 1)
             except OSError as exc:
                 if exc.errno != errno.ENOSPC or K <= 1:
                     self._fail(self._rrd_path, exc, int(self._s.tau[K - 1]))
-                    return K
+                    break
                 K = max(1, K - max(1, K // 10))
                 continue
-            if K < self._rows_kept:
-                try:
-                    self._write_trajectory(K)
-                except RecordsWriteError:
-                    pass
-                self._rows_kept = K
-            return K
+            break
+        self._rows_kept = K = min(K, self._npz_rows)
         return K
+
+    def _cut_trajectory(self, K: int) -> bool:
+        """After a write failure: cut ``trajectory.npz`` to its first K rows.  The atomic rewrite needs room
+        for both files; when that room is gone, the longer file (whose rows are all in memory) is removed
+        first and the shorter one written in its place.  True when ``trajectory.npz`` holds K rows."""
+        try:
+            self._write_trajectory(K)
+            return True
+        except RecordsWriteError:
+            pass
+        try:
+            (self.out_dir / TRAJECTORY_FILE).unlink(missing_ok=True)
+            self._npz_rows = 0
+            self._write_trajectory(K)
+            return True
+        except (OSError, RecordsWriteError):
+            return False
 
     def _finish_rrd(self, K: int) -> None:
         """Rewrite ``run.rrd`` as one verifiable RRD; cut after row K-1 if a write failed."""
