@@ -15,7 +15,7 @@ Continuous time: one exchange per step (z = x_i(k)), then the sampled-data
 step (and the adaptive gain update, eq. adaptive).
 
 Plausibility (every message is also MAC-checked with the run's key, see
-:mod:`splitspec_core.wire`): a tick must be newer than the last one and at
+:mod:`splitspec_core.runtime.wire`): a tick must be newer than the last one and at
 most one event time ahead of it; ``y`` and ``z`` at most one event time
 ahead of the last tick (``z`` also at most two attempts ahead).  Buffers are
 bounded: ``y`` for at most two event times, ``z`` for at most
@@ -33,8 +33,8 @@ import numpy as np
 from splitspec_core import steps as st
 from splitspec_core.design import design_agent, riccati_weights
 from splitspec_core.scenario import parse_scenario_text
-from splitspec_core.simulate import initial_estimate
-from splitspec_core.wire import Keys, WireError, decode, encode
+from splitspec_core.plant_model import initial_estimate
+from splitspec_core.runtime.wire import Keys, WireError, decode, encode
 
 log = logging.getLogger("splitspec.agent")
 
@@ -281,9 +281,29 @@ class AgentNode:
 # ---------------------------------------------------------------------- process shell
 
 
+def build_parser(prog: str = "python -m splitspec_agents") -> argparse.ArgumentParser:
+    """The agent process's options (also ``splitspec agent ...``, which hands its arguments here)."""
+    from splitspec_core.runtime.cli import ArgumentParser, add_logging_options, add_node_options
+
+    p = ArgumentParser(prog=prog, description="One agent process: fetches its part of the design, computes V_i, P_i, K_i locally and runs the protocol.")
+    p.add_argument("--id", required=True, type=int, help="agent id (as in the scenario's system.C)")
+    add_node_options(p)
+    add_logging_options(p)
+    return p
+
+
+def cli_main(argv: list | None = None, *, prog: str = "python -m splitspec_agents") -> int:
+    """Parse ``argv`` and run the agent inside the shared error boundary; the exit status."""
+    from splitspec_core.runtime.cli import error_boundary, setup_logging
+
+    args = build_parser(prog).parse_args(argv)
+    setup_logging(args)
+    return error_boundary(main, args)
+
+
 def main(args: argparse.Namespace) -> int:
     """``splitspec agent --id I --connect ENDPOINT [--run-id ID] [--credentials FILE]``."""
-    from splitspec_core.bus import NodeShell
+    from splitspec_core.runtime.bus import NodeShell
 
     keys = Keys(args.run_id)  # required on the command line
     shell = NodeShell(args.connect, keys, log=log, role="agent", ident=args.id, credentials=args.credentials,

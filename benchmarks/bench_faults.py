@@ -43,7 +43,7 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:  # tests.chaos.cases (the chaos primitives and cases)
     sys.path.insert(0, str(ROOT))
 ENV = {**os.environ, "RERUN_ANALYTICS": "0"}
-CLI = [sys.executable, "-m", "orchestrator.cli"]
+CLI = [sys.executable, "-m", "splitspec_orchestrator"]
 
 
 def events(out: Path) -> list:
@@ -161,7 +161,7 @@ def report_kill(tmp: Path, runs: int) -> None:
     print(f"kill latency (launch -> victim reaped), {runs} runs each, load average before {loadavg()}:")
     script = Path(sys.executable).parent / "splitspec"
     for name, cmd in (("splitspec kill (console script)", [sys.executable, script]),
-                      ("python -m orchestrator.cli kill", CLI)):
+                      ("python -m splitspec_orchestrator kill", CLI)):
         v = kill_latency(tmp, runs, cmd)
         print(f"  {name:34s} median {1000 * np.median(v):6.1f} ms   max {1000 * max(v):6.1f} ms")
     v = startup([sys.executable, "-c", "pass"], runs)

@@ -33,7 +33,7 @@ ENV = {**os.environ, "RERUN_ANALYTICS": "0"}
 
 PING = r'''
 import sys, time, queue
-from splitspec_core.bus import open_session
+from splitspec_core.runtime.bus import open_session
 role, ep, n = sys.argv[1], sys.argv[2], int(sys.argv[3])
 if role == "router":
     s = open_session("router", listen=[ep])
@@ -92,7 +92,7 @@ def ring_scenario(m: int, steps: int) -> dict:
 
 
 def run_rate(scenario: Path, out: Path) -> tuple:
-    r = subprocess.run([sys.executable, "-m", "orchestrator.cli", "run", str(scenario), "--out", str(out)],
+    r = subprocess.run([sys.executable, "-m", "splitspec_orchestrator", "run", str(scenario), "--out", str(out)],
                        cwd=ROOT, env=ENV, capture_output=True, text=True, timeout=600)
     if r.returncode != 0:
         raise RuntimeError(r.stderr[-2000:])

@@ -62,7 +62,8 @@ from splitspec_core.simulate import _spmv
 from splitspec_core.generate import random_strongly_connected_arcs, random_system
 from splitspec_core.network import consensus_rows
 from splitspec_core.scenario import parse_scenario
-from splitspec_core.simulate import BatchEstimator, Plant, initial_estimate, simulate
+from splitspec_core.plant_model import Plant, initial_estimate
+from splitspec_core.simulate import BatchEstimator, simulate
 
 N = 10
 Q = 10

@@ -49,7 +49,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from orchestrator.view import start_web_viewer, stop_viewer  # noqa: E402  (the same server as `splitspec view`)
+from splitspec_orchestrator.view import start_web_viewer, stop_viewer  # noqa: E402  (the same server as `splitspec view`)
 
 CHROMIUM = "/usr/bin/chromium"
 CHROMIUM_ARGS = ["--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
@@ -283,7 +283,7 @@ def main(argv: list | None = None) -> int:
     if run_dir is None:
         run_dir = ROOT / "out" / "screenshots" / args.scenario.stem
         t0 = time.monotonic()
-        subprocess.run([sys.executable, "-m", "orchestrator.cli", "run", str(args.scenario), "--out", str(run_dir)],
+        subprocess.run([sys.executable, "-m", "splitspec_orchestrator", "run", str(args.scenario), "--out", str(run_dir)],
                        cwd=ROOT, check=True, stdout=subprocess.DEVNULL)
         print(f"ran {args.scenario.name} into {run_dir} in {time.monotonic() - t0:.0f} s")
     prefix = args.prefix or f"view_{(args.scenario if args.run_dir is None else run_dir).stem}"

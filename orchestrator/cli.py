@@ -13,72 +13,18 @@ from __future__ import annotations
 import argparse
 import json
 import logging
-import math
 import os
 import sys
 
-from splitspec_core.errors import ScenarioError as UsageError  # bad CLI arguments
-from splitspec_core.errors import SplitspecError
+from splitspec_core.runtime.cli import (EXIT_BAD_INPUT, EXIT_FAILED, MAX_SECONDS, MAX_SEED, ArgumentParser,
+                                        UsageError, add_logging_options, add_run_id_option,
+                                        error_boundary, setup_logging)
+from splitspec_core.runtime.cli import at_least as _at_least
+from splitspec_core.runtime.cli import integer as _integer
+from splitspec_core.runtime.cli import positive as _positive
+from splitspec_core.runtime.cli import seed as _seed
 
-EXIT_BAD_INPUT = 2
-EXIT_FAILED = 1
-
-MAX_SEED = 2**63 - 1  # as splitspec_core.scenario.MAX_SEED: seeds travel to the processes as 64-bit integers
-MAX_SECONDS = 1e6  # --wait, --round-timeout: finite waits that threading and time.sleep accept (11.6 days)
 MAX_KCF_EPS = 1e12  # as splitspec_core.scenario.MAX_MAGNITUDE
-
-
-class ArgumentParser(argparse.ArgumentParser):
-    """argparse with every error as one line ``splitspec: error: ...`` and exit status 2 (no usage block)."""
-
-    def error(self, message: str):
-        message = " ".join(str(message).split())
-        # "argument --steps: must be >= 1, got 0" (from the type= functions below) -> "--steps must be >= 1, got 0"
-        option, sep, rest = message.removeprefix("argument ").partition(": ")
-        if message.startswith("argument ") and sep and rest.startswith("must "):
-            message = f"{option} {rest}"
-        self.exit(EXIT_BAD_INPUT, f"splitspec: error: {message}\n")
-
-
-def _integer(text: str, *, minimum: int, maximum: int | None = None) -> int:
-    try:
-        value = int(text, 10)
-    except (TypeError, ValueError):
-        raise argparse.ArgumentTypeError(f"must be an integer, got {text!r}") from None
-    if value < minimum:
-        raise argparse.ArgumentTypeError(f"must be >= {minimum}, got {value}")
-    if maximum is not None and value > maximum:
-        raise argparse.ArgumentTypeError(f"must be <= {maximum}, got {value}")
-    return value
-
-
-def _seed(text: str) -> int:
-    """``--seed``: an integer in [0, 2**63 - 1]."""
-    return _integer(text, minimum=0, maximum=MAX_SEED)
-
-
-def _at_least(minimum: int):
-    """``type=`` for counts: an integer >= ``minimum``."""
-    def parse(text: str) -> int:
-        return _integer(text, minimum=minimum)
-
-    parse.__name__ = f"integer >= {minimum}"
-    return parse
-
-
-def _positive(maximum: float):
-    """``type=`` for seconds and gains: a finite number in (0, ``maximum``]."""
-    def parse(text: str) -> float:
-        try:
-            value = float(text)
-        except (TypeError, ValueError):
-            value = math.nan
-        if not math.isfinite(value) or not 0 < value <= maximum:
-            raise argparse.ArgumentTypeError(f"must be a number in (0, {maximum:g}], got {text!r}")
-        return value
-
-    parse.__name__ = "positive number"
-    return parse
 
 
 def _seed_range(first: int, count: int, what: str) -> None:
@@ -340,20 +286,20 @@ def _cmd_orchestrator(args: argparse.Namespace) -> int:
 def _cmd_plant(args: argparse.Namespace) -> int:
     import importlib
 
-    # the orchestrator never imports the process shells; the CLI dispatches to them
-    return importlib.import_module("plant.plant").main(args)
+    # the orchestrator never imports the process shells; the CLI hands the arguments to them
+    return importlib.import_module("splitspec_plant.plant").cli_main(args.rest, prog="splitspec plant")
 
 
 def _cmd_agent(args: argparse.Namespace) -> int:
     import importlib
 
-    return importlib.import_module("agents.agent").main(args)
+    return importlib.import_module("splitspec_agents.agent").cli_main(args.rest, prog="splitspec agent")
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
     from splitspec_core.design import design
     from splitspec_core.scenario import load_scenario
-    from splitspec_core.wire import Keys
+    from splitspec_core.runtime.wire import Keys
 
     from .launcher import run_local
 
@@ -406,7 +352,7 @@ def _cmd_router(args: argparse.Namespace) -> int:
     import signal
     import threading
 
-    from splitspec_core.bus import lease_ms_for, open_session
+    from splitspec_core.runtime.bus import lease_ms_for, open_session
 
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
@@ -423,7 +369,7 @@ def _cmd_router(args: argparse.Namespace) -> int:
 
 def _cmd_credentials(args: argparse.Namespace) -> int:
     from splitspec_core.scenario import load_scenario
-    from splitspec_core.security import generate
+    from splitspec_core.runtime.security import generate
 
     sc = load_scenario(args.scenario)
     cred = generate(args.out, sc.agent_ids)
@@ -468,25 +414,12 @@ def _cmd_kill(args: argparse.Namespace) -> int:
     return 0
 
 
-def _add_process_options(p: argparse.ArgumentParser, *, run_id_required: bool = False) -> None:
-    if run_id_required:
-        p.add_argument("--run-id", required=True, help="the run's id, as printed by splitspec run / orchestrator "
-                       "(key prefix splitspec/<run-id>/)")
-    else:
-        p.add_argument("--run-id", help="run id: key prefix splitspec/<run-id>/ (default: a new unique id, printed "
-                       "at start); several runs can share a router under different ids")
-    p.add_argument("--wait", type=_positive(MAX_SECONDS), default=60.0,
-                   help="seconds to wait for the other processes (default 60)")
-
-
 def build_parser() -> argparse.ArgumentParser:
     parser = ArgumentParser(
         prog="splitspec",
         description="Split-spectrum distributed state estimation: design, simulate, deploy.",
     )
-    parser.add_argument("-v", "--verbose", action="store_true", help="log more")
-    parser.add_argument("--log-level", default=None, choices=["debug", "info", "warning", "error"],
-                        help="logging level (default info; debug with -v)")
+    add_logging_options(parser)
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=ArgumentParser)
     sub.required = True
 
@@ -555,7 +488,7 @@ def build_parser() -> argparse.ArgumentParser:
                      "deleted after)")
     sec.add_argument("--insecure", action="store_true", help="no authentication or access control on the router "
                      "(messages are still signed with the run's key); said on the terminal and in events.jsonl")
-    _add_process_options(p)
+    add_run_id_option(p)
     p.set_defaults(func=_cmd_run)
 
     p = sub.add_parser("orchestrator", help="the round driver (embedded Zenoh router); records the run",
@@ -572,7 +505,7 @@ def build_parser() -> argparse.ArgumentParser:
                    "and enforce the access-control policy (see `splitspec credentials`)")
     p.add_argument("--spawn-local", action="store_true", help="start the plant and the agents on this machine as "
                    "children of the orchestrator (what `splitspec run` does)")
-    _add_process_options(p)
+    add_run_id_option(p)
     p.set_defaults(func=_cmd_orchestrator)
 
     p = sub.add_parser("view", help="open a run's recording (OUT/run.rrd): native Rerun viewer with a display, "
@@ -621,50 +554,26 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("out", metavar="OUT", help="output directory of the run")
     p.set_defaults(func=_cmd_recover)
 
-    p = sub.add_parser("plant", help="the plant process (needs no scenario file)",
-                       description="The true system: fetches the scenario from the orchestrator, publishes "
-                                   "measurements and the truth each event time.")
-    p.add_argument("--connect", required=True, metavar="ENDPOINT", help="Zenoh router endpoint, e.g. tcp/host:7447")
-    p.add_argument("--credentials", metavar="FILE", help="user:password file for a --secure router")
-    _add_process_options(p, run_id_required=True)
-    p.set_defaults(func=_cmd_plant)
+    p = sub.add_parser("plant", help="the plant process (needs no scenario file)", add_help=False,
+                       description="The true system (splitspec plant --help for its options).")
+    p.set_defaults(func=_cmd_plant, rest=[])
 
-    p = sub.add_parser("agent", help="one agent process (needs no scenario file)",
-                       description="One agent: fetches its part of the design, computes V_i, P_i, K_i locally "
-                                   "and runs the protocol.")
-    p.add_argument("--id", required=True, type=int, help="agent id (as in the scenario's system.C)")
-    p.add_argument("--connect", required=True, metavar="ENDPOINT", help="Zenoh router endpoint, e.g. tcp/host:7447")
-    p.add_argument("--credentials", metavar="FILE", help="user:password file for a --secure router")
-    _add_process_options(p, run_id_required=True)
-    p.set_defaults(func=_cmd_agent)
+    p = sub.add_parser("agent", help="one agent process (needs no scenario file)", add_help=False,
+                       description="One agent (splitspec agent --help for its options).")
+    p.set_defaults(func=_cmd_agent, rest=[])
     return parser
 
 
 def main(argv: list | None = None) -> int:
-    # Zenoh delivers messages on its own threads; a short GIL switch interval lets the process's
-    # event loop take them over quickly (the default 5 ms would dominate a round)
-    sys.setswitchinterval(2e-4)
+    """``splitspec ARGS``: parse, configure logging, run the command inside the error boundary."""
     parser = build_parser()
-    args = parser.parse_args(argv)
-    level = args.log_level.upper() if args.log_level else ("DEBUG" if args.verbose else "INFO")
-    logging.basicConfig(level=level, format="%(asctime)s %(name)s %(levelname)s %(message)s")
-    try:
-        return int(args.func(args) or 0)
-    except SplitspecError as exc:
-        if os.environ.get("SPLITSPEC_DEBUG"):
-            raise
-        print(f"splitspec: error: {exc}", file=sys.stderr)
-        return EXIT_BAD_INPUT
-    except KeyboardInterrupt:
-        print("splitspec: interrupted", file=sys.stderr)
-        return 130
-    except (TimeoutError, ValueError) as exc:  # e.g. no orchestrator answered; agent id not in the scenario
-        if os.environ.get("SPLITSPEC_DEBUG"):
-            raise
-        print(f"splitspec: error: {exc}", file=sys.stderr)
-        return EXIT_FAILED
-    except BrokenPipeError:
-        return 0
+    args, rest = parser.parse_known_args(argv)
+    if args.func in (_cmd_plant, _cmd_agent):
+        args.rest = rest  # the process's own parser reads them
+    elif rest:
+        parser.error(f"unrecognized arguments: {' '.join(rest)}")
+    setup_logging(args)
+    return error_boundary(args.func, args)
 
 
 if __name__ == "__main__":

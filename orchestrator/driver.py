@@ -49,7 +49,7 @@ from pathlib import Path
 from splitspec_core.design import design
 from splitspec_core.errors import SplitspecError
 from splitspec_core.scenario import load_scenario, read_scenario_text
-from splitspec_core.wire import Keys, WireError, decode, encode, new_run_key
+from splitspec_core.runtime.wire import Keys, WireError, decode, encode, new_run_key
 
 from . import rounds as R
 from .outdir import OutputDirError, check_output_dir
@@ -117,7 +117,7 @@ class Orchestrator:
         self.listen, self.connect = listen, connect
         self.wait, self.round_timeout = wait, round_timeout
         self.viewer = viewer
-        self.security = security  # splitspec_core.security.Credentials or None
+        self.security = security  # splitspec_core.runtime.security.Credentials or None
         self.spawn_local = spawn_local
         self.key = new_run_key()
         self.stop_requested = False
@@ -126,7 +126,7 @@ class Orchestrator:
     # ------------------------------------------------------------------ set-up
 
     def _open(self) -> None:
-        from splitspec_core.bus import Inbox, lease_ms_for, open_session
+        from splitspec_core.runtime.bus import Inbox, lease_ms_for, open_session
 
         kw: dict = {"lease_ms": lease_ms_for("orchestrator")}
         if self.security is not None:  # authentication + access control on the embedded router
@@ -284,7 +284,7 @@ class Orchestrator:
 
     def _answering(self, timeout: float) -> tuple:
         """Agents whose granted process answers a status query within ``timeout`` (not frozen), and the plant."""
-        from splitspec_core.bus import query_all
+        from splitspec_core.runtime.bus import query_all
 
         answered, plant = set(), False
         for key, _payload in query_all(self.session, self.keys.status_all, timeout=min(timeout, self.round_timeout)):
@@ -299,17 +299,17 @@ class Orchestrator:
         return answered, plant
 
     def _spawn(self, role: str, ident: int):
-        from .launcher import cli_command, spawn
+        from .launcher import node_command, spawn
 
         endpoint = self.connect or local_endpoint(self.listen)
-        args = ["--log-level", "warning", role] + (["--id", ident] if role == "agent" else [])
+        args = ["--log-level", "warning"] + (["--id", ident] if role == "agent" else [])
         args += ["--connect", endpoint, "--run-id", self.keys.run_id, "--wait", self.wait]
         if self.security is not None:
             user = "plant" if role == "plant" else f"agent-{ident}"
             args += ["--credentials", self.security.credentials_file(user)]
-        from splitspec_core.bus import CHILD_ENV
+        from splitspec_core.runtime.bus import CHILD_ENV
 
-        p = spawn(cli_command(*args), env={**os.environ, CHILD_ENV: "1"})
+        p = spawn(node_command(role, *args), env={**os.environ, CHILD_ENV: "1"})
         self.children[p.pid] = p
         return p
 
@@ -455,7 +455,7 @@ def main(args: argparse.Namespace) -> int:
         raise SplitspecError("give --listen ENDPOINT (embedded router) or --connect ENDPOINT (external router)")
     security = None
     if getattr(args, "secure_dir", None):
-        from splitspec_core.security import Credentials
+        from splitspec_core.runtime.security import Credentials
 
         if args.connect:
             raise SplitspecError("--secure configures the orchestrator's embedded router: use it with --listen, "

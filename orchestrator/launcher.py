@@ -42,7 +42,12 @@ def _die_with_parent() -> None:  # runs in the child between fork and exec
 
 def cli_command(*args: str) -> list:
     """The command line that runs ``splitspec ARGS`` with this interpreter."""
-    return [sys.executable, "-m", "orchestrator.cli", *map(str, args)]
+    return [sys.executable, "-m", "splitspec_orchestrator", *map(str, args)]
+
+
+def node_command(role: str, *args: str) -> list:
+    """The command line of a plant or agent process with this interpreter (``python -m splitspec_plant|agents``)."""
+    return [sys.executable, "-m", "splitspec_agents" if role == "agent" else "splitspec_plant", *map(str, args)]
 
 
 def spawn(args: list, *, env: dict | None = None) -> subprocess.Popen:
@@ -92,7 +97,7 @@ def run_local(scenario: str, out: Path, *, run_id: str, viewer: str | None, wait
     if secure:
         import tempfile
 
-        from splitspec_core.security import generate
+        from splitspec_core.runtime.security import generate
 
         from .registry import runtime_dir
 

@@ -34,7 +34,7 @@ from splitspec_core.errors import SplitspecError
 __all__ = ["runtime_dir", "RunRegistry", "find_runs", "pid_running", "new_run_id", "check_run_id",
            "is_own_splitspec_process", "resolve", "RunChoiceError", "describe_run"]
 
-# the characters splitspec_core.wire.Keys refuses in a run id (a Zenoh key chunk; tests check both agree)
+# the characters splitspec_core.runtime.wire.Keys refuses in a run id (a Zenoh key chunk; tests check both agree)
 _FORBIDDEN = frozenset("/*$?#")
 
 
@@ -110,7 +110,7 @@ def is_own_splitspec_process(pid: int, *, started_before: float | None = None) -
             cmd = f.read()
     except (OSError, ValueError, TypeError, OverflowError):
         return False
-    if b"orchestrator.cli" not in cmd and b"splitspec" not in cmd:
+    if b"splitspec_orchestrator" not in cmd and b"splitspec" not in cmd:
         return False
     if started_before is not None:
         t0 = _start_time(pid)

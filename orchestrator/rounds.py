@@ -548,7 +548,7 @@ class RoundMachine:
         elif not self.retried:
             self.retried = True
             out.append(Event("round_retried", self.t(), {"tau": self.tau, "attempt": self.attempt + 1, "late": late}))
-            out.append(Log("warning", f"event time {self.tau}: no estimate from agents {late} within "
+            out.append(Log("warning", f"event time {self.tau}: no estimate from splitspec_agents {late} within "
                                       f"{self.round_timeout:g} s, but all answer; re-running the round once"))
             return out + self._rerun(now)
         else:

@@ -16,8 +16,8 @@ import logging
 import numpy as np
 
 from splitspec_core.scenario import parse_scenario_text
-from splitspec_core.simulate import Plant
-from splitspec_core.wire import Keys, WireError, decode, encode
+from splitspec_core.plant_model import Plant
+from splitspec_core.runtime.wire import Keys, WireError, decode, encode
 
 log = logging.getLogger("splitspec.plant")
 
@@ -73,9 +73,28 @@ class PlantNode:
         return out
 
 
+def build_parser(prog: str = "python -m splitspec_plant") -> argparse.ArgumentParser:
+    """The plant process's options (also ``splitspec plant ...``, which hands its arguments here)."""
+    from splitspec_core.runtime.cli import ArgumentParser, add_logging_options, add_node_options
+
+    p = ArgumentParser(prog=prog, description="The plant process: fetches the scenario from the orchestrator, publishes measurements and the truth each event time.")
+    add_node_options(p)
+    add_logging_options(p)
+    return p
+
+
+def cli_main(argv: list | None = None, *, prog: str = "python -m splitspec_plant") -> int:
+    """Parse ``argv`` and run the plant inside the shared error boundary; the exit status."""
+    from splitspec_core.runtime.cli import error_boundary, setup_logging
+
+    args = build_parser(prog).parse_args(argv)
+    setup_logging(args)
+    return error_boundary(main, args)
+
+
 def main(args: argparse.Namespace) -> int:
     """``splitspec plant --connect ENDPOINT [--run-id ID] [--credentials FILE]``."""
-    from splitspec_core.bus import NodeShell
+    from splitspec_core.runtime.bus import NodeShell
 
     keys = Keys(args.run_id)  # required on the command line
     shell = NodeShell(args.connect, keys, log=log, role="plant", ident=0, credentials=args.credentials,

@@ -37,7 +37,8 @@ import scipy.linalg as sla
 from .errors import DesignError
 from .network import consensus_rows
 from .scenario import Scenario
-from .simulate import Plant, check_trajectory_memory, initial_estimate
+from .plant_model import Plant, initial_estimate
+from .simulate import check_trajectory_memory
 
 __all__ = [
     "REGULARISATION",

@@ -32,6 +32,7 @@ from . import steps as st
 from .design import Design
 from .errors import ScenarioError
 from .network import NetworkState, Plan, make_plan
+from .plant_model import Plant, initial_estimate, initial_state
 from .scenario import Scenario
 from .streams import stream
 from .trajfile import write_trajectory
@@ -43,9 +44,6 @@ __all__ = [
     "simulate_exact",
     "BatchEstimator",
     "AgentLoopEstimator",
-    "initial_state",
-    "initial_estimate",
-    "Plant",
 ]
 
 
@@ -133,69 +131,6 @@ def check_trajectory_memory(sc: Scenario, steps: int | None = None, *, key: str 
         f"{copies} trajectories ({copies} x T x m x n float64)"
     raise ScenarioError(f"{key} = {steps} needs {need / 2**30:.1f} GiB for {what}; "
                         f"this machine has {have / 2**30:.1f} GiB")
-
-
-def initial_state(sc: Scenario, seed: int) -> np.ndarray:
-    """``x(0)``: the scenario's ``x0`` or ``n`` standard normals from the ``initial_state`` stream."""
-    if sc.system.x0 is not None:
-        return np.array(sc.system.x0, dtype=float)
-    return stream(seed, "initial_state").normal(size=sc.n)
-
-
-def initial_estimate(n: int, seed: int, agent_index: int, incarnation: int = 0) -> np.ndarray:
-    """``x_i(0)`` of an agent's given incarnation (0 at start, +1 per restart): ``n`` standard normals."""
-    return stream(seed, "estimate", agent_index, incarnation).normal(size=n)
-
-
-class Plant:
-    """The true system and its measurements, drawing noise from the named streams.
-
-    Discrete: ``x(k+1) = A x(k) + sigma_p v`` (``process_noise`` = std
-    ``sigma_p``); continuous (sampled with ``dt``): ``x(k+1) = E x(k) + chol(Qd) v``
-    with ``Qd`` the exact covariance over a step of white noise of intensity
-    ``process_noise`` (``E[v(t) v(s)'] = process_noise I delta(t - s)``).
-    Measurements ``y = C x(k) + sigma_m w`` are drawn for every agent every
-    step, stacked in agent order (``C = [C_1; ...; C_m]``).
-    """
-
-    def __init__(self, sc: Scenario, seed: int, *, noise: bool = True):
-        self.Cs = [np.asarray(C) for C in sc.system.Cs]
-        self.C = np.vstack(self.Cs)
-        self.offsets = np.cumsum([0] + [C.shape[0] for C in self.Cs])
-        self.sigma_m = sc.system.measurement_noise if noise else 0.0
-        sigma_p = sc.system.process_noise if noise else 0.0
-        if sc.time == "continuous":
-            E, _, Qd = st.sampled_data_matrices(sc.system.A, sc.run.dt, noise_intensity=sigma_p)
-            self.F = E
-            self.L = _psd_sqrt(Qd)
-        else:
-            self.F = np.array(sc.system.A)
-            self.L = sigma_p * np.eye(sc.n)
-        self.proc = stream(seed, "process")
-        self.meas = stream(seed, "measurement")
-        self.x = initial_state(sc, seed)
-
-    def measure(self) -> np.ndarray:
-        """Stacked ``y(k) = (y_1(k), ..., y_m(k))`` (one noise draw of ``sum s_i`` normals)."""
-        return self.C @ self.x + self.sigma_m * self.meas.normal(size=self.C.shape[0])
-
-    def split(self, y: np.ndarray) -> list:
-        """``[y_1, ..., y_m]`` from the stacked vector."""
-        return [y[a:b] for a, b in zip(self.offsets[:-1], self.offsets[1:])]
-
-    def advance(self) -> np.ndarray:
-        self.x = self.F @ self.x + self.L @ self.proc.normal(size=self.x.shape[0])
-        return self.x
-
-
-def _psd_sqrt(Q: np.ndarray) -> np.ndarray:
-    if not np.any(Q):
-        return np.zeros_like(Q)
-    try:
-        return np.linalg.cholesky(Q)
-    except np.linalg.LinAlgError:
-        w, U = np.linalg.eigh(Q)
-        return U * np.sqrt(np.clip(w, 0, None))
 
 
 # --------------------------------------------------------------------------

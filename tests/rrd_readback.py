@@ -8,8 +8,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from orchestrator.blueprint import EVENTS, TL_EVENT, TOPOLOGY
-from orchestrator.recorder import RecordingError, verify_rrd
+from splitspec_orchestrator.blueprint import EVENTS, TL_EVENT, TOPOLOGY
+from splitspec_orchestrator.recorder import RecordingError, verify_rrd
 
 __all__ = ["read_rrd", "read_rrd_logs", "read_rrd_clears", "read_rrd_nodes", "rrd_entities", "verify_rrd"]
 

@@ -349,8 +349,8 @@ def flood(endpoint: str, run_id: str, *, seconds: float = 3.0, rate: float = 50_
     """
     import zenoh
 
-    from splitspec_core.bus import open_session
-    from splitspec_core.wire import Keys, encode
+    from splitspec_core.runtime.bus import open_session
+    from splitspec_core.runtime.wire import Keys, encode
 
     keys = Keys(run_id)
     s = open_session("client", connect=[endpoint], connect_timeout_ms=5000)

@@ -36,7 +36,7 @@ def free_port() -> int:
 
 
 def cli(*args) -> list:
-    return [sys.executable, "-m", "orchestrator.cli", *map(str, args)]
+    return [sys.executable, "-m", "splitspec_orchestrator", *map(str, args)]
 
 
 def start(*args, log: Path, env_extra: dict | None = None, **kw) -> subprocess.Popen:

@@ -18,8 +18,8 @@ import msgpack
 import numpy as np
 import pytest
 
-from splitspec_core.bus import open_session
-from splitspec_core.wire import MAC_BYTES, Keys, WireError, decode, encode
+from splitspec_core.runtime.bus import open_session
+from splitspec_core.runtime.wire import MAC_BYTES, Keys, WireError, decode, encode
 from tests.integration.runtime_helpers import (assert_all_gone, compare_with_simulate, dump, events, free_port,
                                                scenario_file, start, started_pids, wait_for_event)
 

@@ -3,9 +3,9 @@
 import pytest
 import yaml
 
-from splitspec_core.bus import BusError, open_session
-from splitspec_core.security import read_credentials
-from splitspec_core.wire import Keys
+from splitspec_core.runtime.bus import BusError, open_session
+from splitspec_core.runtime.security import read_credentials
+from splitspec_core.runtime.wire import Keys
 from tests.conftest import EXAMPLES
 from tests.integration.runtime_helpers import (all_pids, assert_all_gone, compare_with_simulate, events, free_port,
                                                run, scenario_file)
@@ -44,7 +44,7 @@ def test_secure_deployment_by_hand_refuses_and_confines(tmp_path):
 def test_run_secure_equals_simulate_and_cleans_up(tmp_path):
     import os
 
-    from orchestrator.registry import runtime_dir
+    from splitspec_orchestrator.registry import runtime_dir
 
     rid = "sec" + os.urandom(4).hex()
     raw = yaml.safe_load((EXAMPLES / "ring10_faults.yaml").read_text())

@@ -11,7 +11,7 @@ from tests.conftest import EXAMPLES, ROOT
 
 
 def run_cli(*args, timeout=120):
-    return subprocess.run([sys.executable, "-m", "orchestrator.cli", *map(str, args)], cwd=ROOT,
+    return subprocess.run([sys.executable, "-m", "splitspec_orchestrator", *map(str, args)], cwd=ROOT,
                           capture_output=True, text=True, timeout=timeout)
 
 
@@ -90,7 +90,7 @@ def test_progress_bar_on_a_terminal(tmp_path):
 
     master, slave = pty.openpty()
     try:
-        p = subprocess.run([sys.executable, "-m", "orchestrator.cli", "simulate", str(EXAMPLES / "paper_continuous.yaml"),
+        p = subprocess.run([sys.executable, "-m", "splitspec_orchestrator", "simulate", str(EXAMPLES / "paper_continuous.yaml"),
                             "--out", str(tmp_path), "--steps", "3000", "--no-plots"],
                            cwd=ROOT, stdout=subprocess.PIPE, stderr=slave, timeout=120)
         os.close(slave)

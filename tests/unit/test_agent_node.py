@@ -3,9 +3,9 @@
 import numpy as np
 import pytest
 
-from agents.agent import AgentNode
-from plant.plant import PlantNode
-from splitspec_core.wire import encode, new_run_key
+from splitspec_agents.agent import AgentNode
+from splitspec_plant.plant import PlantNode
+from splitspec_core.runtime.wire import encode, new_run_key
 from tests.conftest import EXAMPLES
 
 KEY = new_run_key()

@@ -1,6 +1,6 @@
 """Bad command-line input: one line ``splitspec: error: ...``, exit 2, no traceback, nothing started.
 
-Every case runs the real CLI in a subprocess (``python -m orchestrator.cli``)
+Every case runs the real CLI in a subprocess (``python -m splitspec_orchestrator``)
 with a timeout, so a case that would block (a FIFO as scenario file) or read
 without end (``/dev/zero``) fails the test instead of hanging it.  All of them
 are refused while the arguments are parsed or the scenario is loaded: none
@@ -18,7 +18,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from orchestrator import cli
+from splitspec_orchestrator import cli
 from splitspec_core import scenario as scenario_module
 from splitspec_core.errors import ScenarioError
 from splitspec_core.scenario import MAX_FILE_BYTES, MAX_SEED, load_scenario, parse_scenario_text
@@ -41,7 +41,7 @@ def run_cli(*argv, timeout: float = 60) -> subprocess.CompletedProcess:
     """The real CLI in a child with a timeout and a memory limit: nothing here can hang or exhaust the machine."""
     env = {k: v for k, v in os.environ.items() if k != "SPLITSPEC_DEBUG"}
     env["RERUN_ANALYTICS"] = "0"
-    return subprocess.run([sys.executable, "-m", "orchestrator.cli", *map(str, argv)], cwd=ROOT, env=env,
+    return subprocess.run([sys.executable, "-m", "splitspec_orchestrator", *map(str, argv)], cwd=ROOT, env=env,
                           capture_output=True, text=True, timeout=timeout, stdin=subprocess.DEVNULL,
                           preexec_fn=_limit_memory)
 

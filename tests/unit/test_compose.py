@@ -7,9 +7,11 @@ from importlib.metadata import version
 import pytest
 import yaml
 
-from orchestrator.cli import build_parser
+from splitspec_agents.agent import build_parser as agent_parser
 from splitspec_core.design import design
 from splitspec_core.scenario import load_scenario
+from splitspec_orchestrator.cli import build_parser
+from splitspec_plant.plant import build_parser as plant_parser
 from tests.conftest import ROOT
 
 
@@ -40,15 +42,27 @@ def test_router_image_matches_the_python_package(compose):
     assert listen == "tcp/0.0.0.0:7447" and "--no-multicast-scouting" in router["command"]
 
 
+NODE_PARSERS = {"agent": agent_parser, "plant": plant_parser}
+
+
+def parse_invocation(cmd: list):
+    """``splitspec CMD`` parsed by the real parsers (``agent``/``plant`` hand their arguments to the
+    process's own parser); SystemExit, a failed test, on a bad invocation."""
+    if cmd[0] in NODE_PARSERS:
+        args = NODE_PARSERS[cmd[0]]().parse_args(cmd[1:])
+        args.command = cmd[0]
+        return args
+    return build_parser().parse_args(cmd)
+
+
 def test_every_command_is_a_valid_invocation(compose):
     services = splitspec_services(compose)
     assert {"orchestrator", "plant"} <= set(services)
-    parser = build_parser()
     roles = {}
     for name, svc in services.items():
         assert svc.get("build") == "." and svc.get("init") is True, name
         cmd = [str(c) for c in svc["command"]]
-        args = parser.parse_args(cmd)  # the real parser: SystemExit (a failed test) on a bad invocation
+        args = parse_invocation(cmd)
         roles[name] = args
         # explicit endpoint to the router service, same run id everywhere
         host = re.fullmatch(r"tcp/([\w.-]+):7447", args.connect).group(1)
@@ -76,8 +90,11 @@ def test_agents_match_the_scenario_and_output_is_a_volume(compose):
 
 def test_image_installs_what_the_readme_says(dockerfile):
     text = (ROOT / "pyproject.toml").read_text()
-    packages = re.findall(r'"(\w+)"', re.search(r"^packages = \[(.*)\]$", text, re.M).group(1))
+    packages = re.findall(r'"([\w.]+)"', re.search(r"^packages = \[(.*)\]$", text, re.M).group(1))
     assert "splitspec_core" in packages
+    folders = dict(re.findall(r'^(\w+) = "(\w+)"$', text.split("[tool.setuptools.package-dir]")[1], re.M))
+    packages = sorted({folders.get(p, p).split(".")[0] for p in packages})
+    assert packages == ["agents", "orchestrator", "plant", "splitspec_core"]  # the repository's folders
     copied = {line.split()[1] for line in dockerfile.splitlines() if line.startswith("COPY")}
     for pkg in packages + ["examples", "pyproject.toml"]:
         assert any(c == pkg or c.startswith(pkg) for c in copied), pkg
@@ -87,15 +104,14 @@ def test_image_installs_what_the_readme_says(dockerfile):
     assert f"    {runs[0]}" in readme or f"\n{runs[0]}" in readme  # the README's install step on other hosts
     assert "docker compose up" in readme
     assert re.search(r'ENTRYPOINT \["splitspec"\]', dockerfile)
-    assert 'splitspec = "orchestrator.cli:main"' in text
+    assert 'splitspec = "splitspec_orchestrator.cli:main"' in text
 
 
 def test_readme_hand_started_commands_parse():
     """The multi-host commands shown in the README are valid invocations too."""
     readme = (ROOT / "README.md").read_text()
     block = readme.split("### Starting the processes by hand")[1].split("```sh")[1].split("```")[0]
-    parser = build_parser()
     cmds = [shlex.split(line.split("#")[0]) for line in block.splitlines() if line.strip().startswith("splitspec")]
     assert len(cmds) >= 4
     for cmd in cmds:
-        parser.parse_args(cmd[1:])
+        parse_invocation(cmd[1:])

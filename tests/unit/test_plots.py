@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import yaml
 
-from orchestrator import cli, plots
+from splitspec_orchestrator import cli, plots
 from splitspec_core.analysis import NO_CERTIFIED_RATE, Mark, event_marks, max_error, summarize
 from splitspec_core.design import design
 from splitspec_core.scenario import Fault, load_scenario

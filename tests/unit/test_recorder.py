@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from orchestrator.recorder import Recorder, RecordingError
+from splitspec_orchestrator.recorder import Recorder, RecordingError
 from tests.rrd_readback import read_rrd, verify_rrd
 
 os.environ.setdefault("RERUN_ANALYTICS", "0")

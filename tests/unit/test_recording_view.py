@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 import yaml
 
-from orchestrator.blueprint import circle_positions, node_positions
-from orchestrator.eventlog import event_text
-from orchestrator.recorder import Recorder, RecordingError
+from splitspec_orchestrator.blueprint import circle_positions, node_positions
+from splitspec_orchestrator.eventlog import event_text
+from splitspec_orchestrator.recorder import Recorder, RecordingError
 from splitspec_core.analysis import envelope, envelope_restarts
 from splitspec_core.errors import ScenarioError
 from splitspec_core.scenario import parse_scenario

@@ -14,10 +14,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from orchestrator.cli import main
-from orchestrator.outdir import RESERVE_FILE, OutputDirError, check_output_dir
-from orchestrator.recorder import Recorder, RecordsWriteError
-from orchestrator.recover import recover
+from splitspec_orchestrator.cli import main
+from splitspec_orchestrator.outdir import RESERVE_FILE, OutputDirError, check_output_dir
+from splitspec_orchestrator.recorder import Recorder, RecordsWriteError
+from splitspec_orchestrator.recover import recover
 from splitspec_core.errors import SplitspecError
 from tests.rrd_readback import read_rrd, read_rrd_logs, verify_rrd
 

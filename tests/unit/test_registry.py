@@ -15,10 +15,10 @@ import time
 
 import pytest
 
-from orchestrator import registry
-from orchestrator.cli import main
+from splitspec_orchestrator import registry
+from splitspec_orchestrator.cli import main
 from splitspec_core.errors import SplitspecError
-from splitspec_core.wire import Keys
+from splitspec_core.runtime.wire import Keys
 
 SLEEPER = "import time; time.sleep(60)"
 

@@ -11,7 +11,7 @@ import signal
 import numpy as np
 import pytest
 
-from orchestrator import rounds as R
+from splitspec_orchestrator import rounds as R
 from splitspec_core.design import design
 from splitspec_core.scenario import load_scenario, parse_scenario
 from tests.conftest import EXAMPLES
@@ -339,9 +339,9 @@ def test_fault_for_an_agent_on_another_host_is_a_control_message():
 
 def play(example, changes=None):
     """Orchestrator machine + PlantNode + AgentNodes with messages delivered in order (no Zenoh)."""
-    from agents.agent import AgentNode
-    from plant.plant import PlantNode
-    from splitspec_core.wire import Keys, encode, new_run_key
+    from splitspec_agents.agent import AgentNode
+    from splitspec_plant.plant import PlantNode
+    from splitspec_core.runtime.wire import Keys, encode, new_run_key
 
     m = machine(example, changes=changes)
     key = new_run_key()
@@ -374,12 +374,12 @@ def play(example, changes=None):
             while msgs:  # deliver every message to whoever subscribes to its key
                 k, p = msgs.pop(0)
                 if k == keys.truth:
-                    from splitspec_core.wire import decode
+                    from splitspec_core.runtime.wire import decode
 
                     d = decode(p, "inproc", "truth", mac_key=key)
                     queue += m.on_truth(d["tau"], d["attempt"], d["x"], d["rejected"], t)
                 elif k.startswith(keys.prefix + "/xhat/"):
-                    from splitspec_core.wire import decode
+                    from splitspec_core.runtime.wire import decode
 
                     d = decode(p, "inproc", "xhat", mac_key=key)
                     queue += m.on_xhat(d["agent"], d["tau"], d["attempt"], d["incarnation"], d["x"], d["g"],

@@ -3,9 +3,9 @@
 Contract (``../shared/DESIGN.md``, "Scenario file"): bad input gets one line on
 stderr naming the key and the reason, a non-zero exit, never a traceback.
 
-Every case runs through ``orchestrator.cli.main`` in-process (fast; an escaping
+Every case runs through ``splitspec_orchestrator.cli.main`` in-process (fast; an escaping
 exception fails the test with its traceback); a handful also run the real CLI
-in a subprocess (``python -m orchestrator.cli design FILE``).
+in a subprocess (``python -m splitspec_orchestrator design FILE``).
 """
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from orchestrator import cli
+from splitspec_orchestrator import cli
 
 ROOT = Path(__file__).resolve().parents[2]
 EXAMPLE = ROOT / "examples" / "paper_discrete.yaml"
@@ -331,7 +331,7 @@ def _run_subprocess(argv: list) -> tuple:
     """The real CLI in a child with a timeout and a memory limit: a blocked or unbounded read cannot hang the test."""
     env = {k: v for k, v in os.environ.items() if k != "SPLITSPEC_DEBUG"}
     env["RERUN_ANALYTICS"] = "0"
-    proc = subprocess.run([sys.executable, "-m", "orchestrator.cli", *argv], cwd=ROOT, env=env,
+    proc = subprocess.run([sys.executable, "-m", "splitspec_orchestrator", *argv], cwd=ROOT, env=env,
                           capture_output=True, text=True, timeout=60, stdin=subprocess.DEVNULL,
                           preexec_fn=_limit_memory)
     return proc.returncode, proc.stdout, proc.stderr
@@ -412,7 +412,7 @@ def test_design_json_contract():
 
 
 def test_given_q_above_q_max_is_rejected(tmp_path, capsys):
-    from orchestrator.cli import main
+    from splitspec_orchestrator.cli import main
 
     p = tmp_path / "s.yaml"
     p.write_text("time: discrete\nsystem: {A: [[1]], C: {1: [[1]]}}\ngraphs: {a: {arcs: []}}\n"

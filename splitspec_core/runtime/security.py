@@ -39,7 +39,7 @@ import secrets
 from dataclasses import dataclass
 from pathlib import Path
 
-from .errors import ScenarioError, SplitspecError
+from ..errors import ScenarioError, SplitspecError
 
 __all__ = ["Credentials", "generate", "read_credentials", "acl_config", "user_of"]
 

@@ -50,7 +50,7 @@ from dataclasses import dataclass
 import msgpack
 import numpy as np
 
-from .errors import SplitspecError
+from ..errors import SplitspecError
 
 __all__ = ["SCHEMA_VERSION", "DEFAULT_RUN_ID", "Keys", "WireError", "encode", "decode", "pack_array",
            "unpack_array", "MESSAGE_FIELDS", "MAC_BYTES", "new_run_key", "new_nonce", "mac", "verify", "UNSIGNED"]

@@ -29,7 +29,7 @@ from typing import Any
 
 import zenoh
 
-from .errors import SplitspecError
+from ..errors import SplitspecError
 from .wire import MAC_BYTES, mac
 
 __all__ = ["zenoh_config", "open_session", "Inbox", "NodeShell", "BusError", "IdentityRefused", "query_all",

@@ -1,0 +1,7 @@
+"""``python -m splitspec_orchestrator ARGS``: the ``splitspec`` command."""
+
+import sys
+
+from splitspec_orchestrator.cli import main
+
+sys.exit(main())

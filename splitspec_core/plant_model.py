@@ -1,0 +1,84 @@
+"""The true system and the initial values, shared by the simulator, the plant process and the agents.
+
+Everything here draws from the named seed streams of :mod:`splitspec_core.streams`, so the
+batch simulator (:mod:`splitspec_core.simulate`), the plant process and every agent process
+produce the same numbers for the same scenario and seed:
+
+- ``x(0)`` (n,): :func:`initial_state`, the scenario's ``x0`` or the ``initial_state`` stream;
+- ``x_i(0)`` (n,): :func:`initial_estimate`, agent i's initial estimate (per incarnation);
+- ``x(k+1) = A x(k) + v(k)``, ``y_i(k) = C_i x(k) + w_i(k)``: :class:`Plant` (continuous time: the
+  system sampled with ``dt``, noise of the exact sampled covariance).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from . import steps as st
+from .scenario import Scenario
+from .streams import stream
+
+__all__ = ["Plant", "initial_estimate", "initial_state"]
+
+
+def initial_state(sc: Scenario, seed: int) -> np.ndarray:
+    """``x(0)``: the scenario's ``x0`` or ``n`` standard normals from the ``initial_state`` stream."""
+    if sc.system.x0 is not None:
+        return np.array(sc.system.x0, dtype=float)
+    return stream(seed, "initial_state").normal(size=sc.n)
+
+
+def initial_estimate(n: int, seed: int, agent_index: int, incarnation: int = 0) -> np.ndarray:
+    """``x_i(0)`` of an agent's given incarnation (0 at start, +1 per restart): ``n`` standard normals."""
+    return stream(seed, "estimate", agent_index, incarnation).normal(size=n)
+
+
+class Plant:
+    """The true system and its measurements, drawing noise from the named streams.
+
+    Discrete: ``x(k+1) = A x(k) + sigma_p v`` (``process_noise`` = std
+    ``sigma_p``); continuous (sampled with ``dt``): ``x(k+1) = E x(k) + chol(Qd) v``
+    with ``Qd`` the exact covariance over a step of white noise of intensity
+    ``process_noise`` (``E[v(t) v(s)'] = process_noise I delta(t - s)``).
+    Measurements ``y = C x(k) + sigma_m w`` are drawn for every agent every
+    step, stacked in agent order (``C = [C_1; ...; C_m]``).
+    """
+
+    def __init__(self, sc: Scenario, seed: int, *, noise: bool = True):
+        self.Cs = [np.asarray(C) for C in sc.system.Cs]
+        self.C = np.vstack(self.Cs)
+        self.offsets = np.cumsum([0] + [C.shape[0] for C in self.Cs])
+        self.sigma_m = sc.system.measurement_noise if noise else 0.0
+        sigma_p = sc.system.process_noise if noise else 0.0
+        if sc.time == "continuous":
+            E, _, Qd = st.sampled_data_matrices(sc.system.A, sc.run.dt, noise_intensity=sigma_p)
+            self.F = E
+            self.L = _psd_sqrt(Qd)
+        else:
+            self.F = np.array(sc.system.A)
+            self.L = sigma_p * np.eye(sc.n)
+        self.proc = stream(seed, "process")
+        self.meas = stream(seed, "measurement")
+        self.x = initial_state(sc, seed)
+
+    def measure(self) -> np.ndarray:
+        """Stacked ``y(k) = (y_1(k), ..., y_m(k))`` (one noise draw of ``sum s_i`` normals)."""
+        return self.C @ self.x + self.sigma_m * self.meas.normal(size=self.C.shape[0])
+
+    def split(self, y: np.ndarray) -> list:
+        """``[y_1, ..., y_m]`` from the stacked vector."""
+        return [y[a:b] for a, b in zip(self.offsets[:-1], self.offsets[1:])]
+
+    def advance(self) -> np.ndarray:
+        self.x = self.F @ self.x + self.L @ self.proc.normal(size=self.x.shape[0])
+        return self.x
+
+
+def _psd_sqrt(Q: np.ndarray) -> np.ndarray:
+    if not np.any(Q):
+        return np.zeros_like(Q)
+    try:
+        return np.linalg.cholesky(Q)
+    except np.linalg.LinAlgError:
+        w, U = np.linalg.eigh(Q)
+        return U * np.sqrt(np.clip(w, 0, None))

@@ -1,0 +1,11 @@
+"""The process runtime: what the agent, plant and orchestrator processes need and the math never does.
+
+- :mod:`.wire`: the message codec (msgpack payloads, HMAC trailers, key names built in one place).
+- :mod:`.bus`: the Zenoh session, bounded inboxes, liveliness and the process shell ``NodeShell``.
+- :mod:`.security`: the per-process Zenoh users, passwords and access-control policy of a secure run.
+
+Imports flow one way: ``splitspec_agents``, ``splitspec_plant``, ``splitspec_orchestrator`` ->
+``splitspec_core.runtime`` -> ``splitspec_core``.  No module of ``splitspec_core`` outside this
+subpackage imports it (``tests/unit/test_architecture.py`` checks it), so design and simulate
+run where Zenoh and msgpack are not installed.
+"""

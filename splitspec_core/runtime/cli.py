@@ -1,0 +1,145 @@
+"""Command-line conventions every splitspec process shares: one-line errors, typed options, the error boundary.
+
+``splitspec`` (:mod:`splitspec_orchestrator.cli`), ``python -m splitspec_agents`` and
+``python -m splitspec_plant`` parse with :class:`ArgumentParser` and run their command through
+:func:`error_boundary`, so bad input anywhere ends the same way: one line
+``splitspec: error: ...`` on stderr and a non-zero exit (2 bad input, 1 failure, 130 Ctrl-C),
+never a traceback (``SPLITSPEC_DEBUG=1`` re-raises for debugging).
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import math
+import os
+import sys
+from typing import Callable
+
+from ..errors import ScenarioError as UsageError  # bad CLI arguments
+from ..errors import SplitspecError
+
+__all__ = ["ArgumentParser", "EXIT_BAD_INPUT", "EXIT_FAILED", "MAX_SECONDS", "MAX_SEED", "UsageError",
+           "add_logging_options", "add_node_options", "at_least", "error_boundary", "positive", "seed",
+           "add_run_id_option", "setup_logging", "integer"]
+
+EXIT_BAD_INPUT = 2
+EXIT_FAILED = 1
+EXIT_INTERRUPTED = 130
+
+MAX_SEED = 2**63 - 1  # as splitspec_core.scenario.MAX_SEED: seeds travel to the processes as 64-bit integers
+MAX_SECONDS = 1e6  # --wait, --round-timeout: finite waits that threading and time.sleep accept (11.6 days)
+
+
+class ArgumentParser(argparse.ArgumentParser):
+    """argparse with every error as one line ``splitspec: error: ...`` and exit status 2 (no usage block)."""
+
+    def error(self, message: str):
+        message = " ".join(str(message).split())
+        # "argument --steps: must be >= 1, got 0" (from the type= functions below) -> "--steps must be >= 1, got 0"
+        option, sep, rest = message.removeprefix("argument ").partition(": ")
+        if message.startswith("argument ") and sep and rest.startswith("must "):
+            message = f"{option} {rest}"
+        self.exit(EXIT_BAD_INPUT, f"splitspec: error: {message}\n")
+
+
+def integer(text: str, *, minimum: int, maximum: int | None = None) -> int:
+    """An integer option in [minimum, maximum] (base 10), else ``argparse.ArgumentTypeError``."""
+    try:
+        value = int(text, 10)
+    except (TypeError, ValueError):
+        raise argparse.ArgumentTypeError(f"must be an integer, got {text!r}") from None
+    if value < minimum:
+        raise argparse.ArgumentTypeError(f"must be >= {minimum}, got {value}")
+    if maximum is not None and value > maximum:
+        raise argparse.ArgumentTypeError(f"must be <= {maximum}, got {value}")
+    return value
+
+
+def seed(text: str) -> int:
+    """``--seed``: an integer in [0, 2**63 - 1]."""
+    return integer(text, minimum=0, maximum=MAX_SEED)
+
+
+def at_least(minimum: int) -> Callable[[str], int]:
+    """``type=`` for counts: an integer >= ``minimum``."""
+    def parse(text: str) -> int:
+        return integer(text, minimum=minimum)
+
+    parse.__name__ = f"integer >= {minimum}"
+    return parse
+
+
+def positive(maximum: float) -> Callable[[str], float]:
+    """``type=`` for seconds and gains: a finite number in (0, ``maximum``]."""
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except (TypeError, ValueError):
+            value = math.nan
+        if not math.isfinite(value) or not 0 < value <= maximum:
+            raise argparse.ArgumentTypeError(f"must be a number in (0, {maximum:g}], got {text!r}")
+        return value
+
+    parse.__name__ = "positive number"
+    return parse
+
+
+def add_logging_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("-v", "--verbose", action="store_true", help="log more")
+    p.add_argument("--log-level", default=None, choices=["debug", "info", "warning", "error"],
+                   help="logging level (default info; debug with -v)")
+
+
+def setup_logging(args: argparse.Namespace) -> None:
+    """Configure the root logger from ``--log-level`` / ``-v`` (a no-op when it is already configured)."""
+    level = args.log_level.upper() if getattr(args, "log_level", None) else \
+        ("DEBUG" if getattr(args, "verbose", False) else "INFO")
+    logging.basicConfig(level=level, format="%(asctime)s %(name)s %(levelname)s %(message)s")
+
+
+def add_run_id_option(p: argparse.ArgumentParser, *, required: bool = False) -> None:
+    if required:
+        p.add_argument("--run-id", required=True, help="the run's id, as printed by splitspec run / orchestrator "
+                       "(key prefix splitspec/<run-id>/)")
+    else:
+        p.add_argument("--run-id", help="run id: key prefix splitspec/<run-id>/ (default: a new unique id, printed "
+                       "at start); several runs can share a router under different ids")
+    p.add_argument("--wait", type=positive(MAX_SECONDS), default=60.0,
+                   help="seconds to wait for the other processes (default 60)")
+
+
+def add_node_options(p: argparse.ArgumentParser) -> None:
+    """The options of a plant or agent process: where the router is, who it is, how long to wait."""
+    p.add_argument("--connect", required=True, metavar="ENDPOINT", help="Zenoh router endpoint, e.g. tcp/host:7447")
+    p.add_argument("--credentials", metavar="FILE", help="user:password file for a --secure router")
+    add_run_id_option(p, required=True)
+
+
+def error_boundary(func: Callable[[argparse.Namespace], int | None], args: argparse.Namespace) -> int:
+    """Run ``func(args)``; the exit status, with every expected failure as one line on stderr.
+
+    SplitspecError (bad input): 2.  TimeoutError / ValueError (no orchestrator answered, an agent id
+    not in the scenario): 1.  Ctrl-C: 130.  A closed stdout pipe (``| head``): 0.
+    """
+    # Zenoh delivers messages on its own threads; a short GIL switch interval lets the process's
+    # event loop take them over quickly (the default 5 ms would dominate a round)
+    sys.setswitchinterval(2e-4)
+    debug = bool(os.environ.get("SPLITSPEC_DEBUG"))
+    try:
+        return int(func(args) or 0)
+    except SplitspecError as exc:
+        if debug:
+            raise
+        print(f"splitspec: error: {exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except KeyboardInterrupt:
+        print("splitspec: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    except (TimeoutError, ValueError) as exc:
+        if debug:
+            raise
+        print(f"splitspec: error: {exc}", file=sys.stderr)
+        return EXIT_FAILED
+    except BrokenPipeError:
+        return 0

@@ -1,0 +1,119 @@
+"""The layout the README's Architecture section describes, checked on the source: who imports whom."""
+
+from __future__ import annotations
+
+import ast
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from tests.conftest import ROOT
+
+FOLDERS = {"splitspec_core": "splitspec_core", "splitspec_agents": "agents", "splitspec_plant": "plant",
+           "splitspec_orchestrator": "orchestrator"}
+LONG = 420  # lines; a longer module says why in its docstring ("Why one module: ...")
+
+
+def modules(package: str) -> dict[str, Path]:
+    """``{dotted module name: path}`` of an installed package, from its repository folder."""
+    folder = ROOT / FOLDERS[package]
+    out = {}
+    for path in sorted(folder.rglob("*.py")):
+        rel = path.relative_to(folder).with_suffix("")
+        parts = [package, *rel.parts]
+        if parts[-1] == "__init__":
+            parts.pop()
+        out[".".join(parts)] = path
+    return out
+
+
+def imports(name: str, path: Path) -> set[str]:
+    """Absolute names of every module ``path`` imports (relative imports resolved, lazy ones included)."""
+    tree = ast.parse(path.read_text(), str(path))
+    package = name if path.name == "__init__.py" else name.rpartition(".")[0]
+    found = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            found |= {a.name for a in node.names}
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = package.split(".")[: len(package.split(".")) - node.level + 1]
+                mod = ".".join(base + ([node.module] if node.module else []))
+            else:
+                mod = node.module or ""
+            found.add(mod)
+            found |= {f"{mod}.{a.name}" for a in node.names}
+    return found
+
+
+def _under(name: str, prefix: str) -> bool:
+    return name == prefix or name.startswith(prefix + ".")
+
+
+def test_the_math_never_imports_the_runtime():
+    """splitspec_core outside splitspec_core.runtime: no Zenoh, msgpack, Rerun, no process package."""
+    forbidden = ("splitspec_core.runtime", "zenoh", "msgpack", "rerun", "splitspec_orchestrator",
+                 "splitspec_agents", "splitspec_plant")
+    bad = [(name, imp) for name, path in modules("splitspec_core").items() if not _under(name, "splitspec_core.runtime")
+           for imp in imports(name, path) if any(_under(imp, f) for f in forbidden)]
+    assert not bad, bad
+
+
+def test_imports_flow_one_way():
+    """agents, plant -> splitspec_core only; the orchestrator never imports agents or plant (it starts them)."""
+    bad = []
+    for package in ("splitspec_agents", "splitspec_plant", "splitspec_orchestrator"):
+        others = {"splitspec_agents", "splitspec_plant", "splitspec_orchestrator"} - {package}
+        for name, path in modules(package).items():
+            bad += [(name, imp) for imp in imports(name, path) if any(_under(imp, o) for o in others)]
+    assert not bad, bad
+
+
+def test_no_generic_top_level_import_names():
+    """Nothing imports the bare folder names (``agents`` is another package's import name)."""
+    bad = []
+    for root in [*FOLDERS.values(), "tests", "benchmarks", "examples", "docs"]:
+        for path in (ROOT / root).rglob("*.py"):
+            for imp in imports("x.y", path):
+                if imp.split(".")[0] in ("agents", "plant", "orchestrator"):
+                    bad.append((str(path.relative_to(ROOT)), imp))
+    assert not bad, bad
+
+
+def test_long_modules_say_why():
+    long = []
+    for package in FOLDERS:
+        for name, path in modules(package).items():
+            n = len(path.read_text().splitlines())
+            doc = ast.get_docstring(ast.parse(path.read_text())) or ""
+            if n > LONG and "Why one module:" not in doc:
+                long.append((name, n))
+    assert not long, long
+
+
+def test_installed_names_work_outside_the_repository(tmp_path):
+    """From another directory (the checkout not on sys.path): the installed import names and ``-m`` entry points."""
+    env = {**os.environ, "PYTHONPATH": "", "RERUN_ANALYTICS": "0"}
+    code = ("import sys, splitspec_core, splitspec_orchestrator.cli, splitspec_agents.agent, splitspec_plant.plant\n"
+            "assert not {'agents', 'plant', 'orchestrator'} & set(sys.modules), sorted(sys.modules)\n"
+            "assert 'splitspec_core.runtime.bus' not in sys.modules  # nothing above needs Zenoh at import\n"
+            "print(splitspec_core.__file__)")
+    r = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, env=env, capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    assert Path(r.stdout.strip()).parent == ROOT / "splitspec_core"
+    for pkg, words in (("splitspec_agents", "--id ID --connect ENDPOINT"), ("splitspec_plant", "--connect ENDPOINT"),
+                       ("splitspec_orchestrator", "design")):
+        r = subprocess.run([sys.executable, "-m", pkg, "--help"], cwd=tmp_path, env=env, capture_output=True,
+                           text=True)
+        assert r.returncode == 0 and words in " ".join(r.stdout.split()), (pkg, r.stdout, r.stderr)
+
+
+@pytest.mark.parametrize("pkg", ["splitspec_agents", "splitspec_plant"])
+def test_node_bad_argument_is_one_line(tmp_path, pkg):
+    r = subprocess.run([sys.executable, "-m", pkg, "--connect", "tcp/127.0.0.1:1", "--run-id", "x", "--wait", "-1"],
+                       cwd=tmp_path, capture_output=True, text=True, env={**os.environ, "RERUN_ANALYTICS": "0"})
+    assert r.returncode == 2 and r.stderr.count("\n") == 1, r.stderr
+    assert r.stderr.startswith("splitspec: error: ") and "--wait must be a number" in r.stderr, r.stderr
