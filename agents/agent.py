@@ -31,8 +31,8 @@ import logging
 import numpy as np
 
 from splitspec_core import steps as st
-from splitspec_core.design import design_agent, riccati_weights
-from splitspec_core.scenario import parse_scenario_text
+from splitspec_core.designer import design_agent, riccati_weights
+from splitspec_core.scenario_model import parse_scenario_text
 from splitspec_core.plant_model import initial_estimate
 from splitspec_core.runtime.wire import Keys, WireError, decode, encode
 

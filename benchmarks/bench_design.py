@@ -15,9 +15,9 @@ import time
 
 import numpy as np
 
-from splitspec_core.design import design
+from splitspec_core.designer import design
 from splitspec_core.generate import random_strongly_connected_arcs, random_system
-from splitspec_core.scenario import parse_scenario
+from splitspec_core.scenario_model import parse_scenario
 
 
 def scenario(m: int, n: int, time_mode: str, seed: int) -> dict:

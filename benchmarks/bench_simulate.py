@@ -57,13 +57,13 @@ import numpy as np
 import scipy
 import scipy.linalg as sla
 
-from splitspec_core.design import design
-from splitspec_core.simulate import _spmv
+from splitspec_core.designer import design
+from splitspec_core.simulator import _spmv
 from splitspec_core.generate import random_strongly_connected_arcs, random_system
 from splitspec_core.network import consensus_rows
-from splitspec_core.scenario import parse_scenario
+from splitspec_core.scenario_model import parse_scenario
 from splitspec_core.plant_model import Plant, initial_estimate
-from splitspec_core.simulate import BatchEstimator, simulate
+from splitspec_core.simulator import BatchEstimator, simulate
 
 N = 10
 Q = 10

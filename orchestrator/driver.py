@@ -28,7 +28,7 @@ What it does, through the machine:
 * admits at the next event time any agent that (re)appears by hand after a
   loss (``splitspec agent --id I --connect ...``), with a new incarnation;
 * after every change of the network, logs the resilience verdict
-  (:func:`splitspec_core.design.certify_network`): still strongly connected,
+  (:func:`splitspec_core.designer.certify_network`): still strongly connected,
   jointly observable, and is the rate still certified by the designed g or q;
 * records ``trajectory.npz``, ``events.jsonl``, ``run.rrd`` and a copy of the
   scenario (``scenario.yaml``), so that ``splitspec simulate scenario.yaml
@@ -46,9 +46,9 @@ import sys
 import time
 from pathlib import Path
 
-from splitspec_core.design import design
+from splitspec_core.designer import design
 from splitspec_core.errors import SplitspecError
-from splitspec_core.scenario import load_scenario, read_scenario_text
+from splitspec_core.scenario_model import load_scenario, read_scenario_text
 from splitspec_core.runtime.wire import Keys, WireError, decode, encode, new_run_key
 
 from . import rounds as R

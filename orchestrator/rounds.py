@@ -64,7 +64,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from splitspec_core.design import certify_network
+from splitspec_core.designer import certify_network
 from splitspec_core.network import NetworkState, make_plan
 
 __all__ = ["RoundMachine", "Claim", "STALL_SECONDS", "SUMMARY_SECONDS",

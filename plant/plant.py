@@ -4,7 +4,7 @@ On tick ``tau``: if it is a new event time the plant moves ``x -> x(tau)``
 (process noise), then draws ``y(tau)`` (measurement noise, every agent) and
 publishes ``y_i(tau)`` on ``y/<i>`` and ``x(tau)`` on ``truth``.  A re-run of
 the same tick (a higher attempt) re-publishes the same values.  The draws are
-those of :class:`splitspec_core.simulate.Plant`, in the same order, so the
+those of :class:`splitspec_core.simulator.Plant`, in the same order, so the
 truth equals the simulator's.  Agents never see the truth.
 """
 
@@ -15,7 +15,7 @@ import logging
 
 import numpy as np
 
-from splitspec_core.scenario import parse_scenario_text
+from splitspec_core.scenario_model import parse_scenario_text
 from splitspec_core.plant_model import Plant
 from splitspec_core.runtime.wire import Keys, WireError, decode, encode
 

@@ -8,7 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .network import fault_step
-from .simulate import Trajectory
+from .simulator import Trajectory
 
 __all__ = ["max_error", "fit_decay", "envelope_constant", "envelope_restarts", "envelope", "Mark", "event_marks",
            "summarize", "monte_carlo_stats", "NO_CERTIFIED_RATE"]
@@ -139,7 +139,7 @@ def event_marks(t: np.ndarray, alive: np.ndarray, graph: np.ndarray, *, agent_id
 
     Losses, rejoins and switches come from the recorded ``alive`` (T, m) and
     ``graph`` (T,) (``trajectory.npz``), so a recording marks what happened.
-    ``faults`` (the scenario's :class:`~splitspec_core.scenario.Fault` list)
+    ``faults`` (the scenario's :class:`~splitspec_core.scenario_model.Fault` list)
     names the loss (``killed``, ``hung``) and adds what ``alive`` and
     ``graph`` cannot show: ``drop_arc`` / ``restore_arc`` at step
     ``ceil(at / dt)`` (as :func:`splitspec_core.network.fault_step`).

@@ -3,7 +3,7 @@
 Both are one-step *predictors*, like the project's estimator: at event time k
 an estimate of ``x(k)`` made before ``y(k)`` is available, ``y(k)`` arrives and
 the estimate of ``x(k+1)`` is produced.  The model is the one the plant
-(:class:`splitspec_core.simulate.Plant`) actually follows, per step:
+(:class:`splitspec_core.simulator.Plant`) actually follows, per step:
 
 ``x(k+1) = F x(k) + v(k)``, ``E[v v'] = Q``;  ``y(k) = C x(k) + w(k)``, ``E[w w'] = R``
 
@@ -19,7 +19,7 @@ exact per-step process covariance and ``R = sigma_m^2 I``
   multi-exchange extension so it can use as many exchanges per event time as
   the split-spectrum estimator;
 * :func:`baseline_trajectories` - both on the same noise realisations,
-  initial state and initial estimates as :func:`splitspec_core.simulate.simulate`.
+  initial state and initial estimates as :func:`splitspec_core.simulator.simulate`.
 
 Noise-free measurements (``R = 0``) or a zero process noise make the Riccati
 equations degenerate; both are regularised with a tiny multiple of the
@@ -36,9 +36,9 @@ import scipy.linalg as sla
 
 from .errors import DesignError
 from .network import consensus_rows
-from .scenario import Scenario
+from .scenario_model import Scenario
 from .plant_model import Plant, initial_estimate
-from .simulate import check_trajectory_memory
+from .simulator import check_trajectory_memory
 
 __all__ = [
     "REGULARISATION",

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .graphs import SwitchingSignal, build_graph, graph_sequence, switch_times
-from .scenario import Scenario
+from .scenario_model import Scenario
 from .streams import stream
 
 __all__ = ["Plan", "make_plan", "active_arcs", "consensus_rows", "fault_step", "NetworkState"]

@@ -12,7 +12,7 @@ continuous, sampled-data form (see :mod:`splitspec_core.steps`)
 
 with ``w`` the measurement noise (covariance ``R = sigma_m^2 I``) and ``v``
 the process noise (covariance ``Q``, the plant's, see
-:class:`splitspec_core.simulate.Plant`).  The steady-state covariance solves
+:class:`splitspec_core.simulator.Plant`).  The steady-state covariance solves
 the discrete Lyapunov equation ``Sigma = M Sigma M' + N``; agent i's RMS error
 is ``sqrt(trace Sigma_ii)``.  No simulation, no sampling error: this is what
 a long simulation's RMS converges to (tested).
@@ -31,10 +31,10 @@ import math
 import numpy as np
 import scipy.linalg as sla
 
-from .design import Design, design
+from .designer import Design, design
 from .errors import DesignError
 from .network import consensus_rows
-from .scenario import Scenario
+from .scenario_model import Scenario
 
 __all__ = ["error_dynamics", "predicted_rms", "TuneResult", "tune"]
 

@@ -1,7 +1,7 @@
 """The true system and the initial values, shared by the simulator, the plant process and the agents.
 
 Everything here draws from the named seed streams of :mod:`splitspec_core.streams`, so the
-batch simulator (:mod:`splitspec_core.simulate`), the plant process and every agent process
+batch simulator (:mod:`splitspec_core.simulator`), the plant process and every agent process
 produce the same numbers for the same scenario and seed:
 
 - ``x(0)`` (n,): :func:`initial_state`, the scenario's ``x0`` or the ``initial_state`` stream;
@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import steps as st
-from .scenario import Scenario
+from .scenario_model import Scenario
 from .streams import stream
 
 __all__ = ["Plant", "initial_estimate", "initial_state"]

@@ -17,7 +17,7 @@ import json
 from pathlib import Path
 
 from .errors import ScenarioError
-from .scenario import Fault, Scenario
+from .scenario_model import Fault, Scenario
 
 __all__ = ["load_events", "faults_from_events", "with_recorded_faults"]
 

@@ -7,7 +7,7 @@ import math
 import numpy as np
 
 from .bounds import QResult
-from .design import Design
+from .designer import Design
 from .graphs import is_doubly_stochastic, perron_vector
 
 __all__ = ["design_json", "design_text"]

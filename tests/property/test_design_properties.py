@@ -31,9 +31,9 @@ import scipy.linalg as sla
 from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 
-from splitspec_core.design import design
+from splitspec_core.designer import design
 from splitspec_core.observability import decompose
-from splitspec_core.scenario import parse_scenario
+from splitspec_core.scenario_model import parse_scenario
 
 from .strategies import graph_sequences, scenarios
 

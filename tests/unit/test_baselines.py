@@ -6,10 +6,10 @@ import scipy.linalg as sla
 
 from splitspec_core.baselines import (KalmanConsensusFilter, baseline_trajectories, default_eps, kalman_predictor,
                                       run_predictor, sampled_model)
-from splitspec_core.design import design
+from splitspec_core.designer import design
 from splitspec_core.errors import DesignError
-from splitspec_core.scenario import load_scenario
-from splitspec_core.simulate import simulate
+from splitspec_core.scenario_model import load_scenario
+from splitspec_core.simulator import simulate
 from tests.conftest import EXAMPLES
 
 

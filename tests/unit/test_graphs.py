@@ -5,7 +5,7 @@ from splitspec_core.errors import AssumptionError
 from splitspec_core.graphs import (adjacency, build_graph, enumerate_strongly_connected, find_unreachable,
                                    graph_sequence, is_doubly_stochastic, metropolis_matrix, neighbour_lists,
                                    perron_vector, stochastic_matrix, switch_times)
-from splitspec_core.scenario import Switching
+from splitspec_core.scenario_model import Switching
 
 
 def test_stochastic_matrix_averages_in_neighbours():
@@ -78,7 +78,7 @@ def test_enumerate_strongly_connected_small():
 def test_lazy_switching_signal_equals_the_sequence(switching, dt):
     """The runtime's O(1)-memory signal draws exactly what the simulator's array holds."""
     from splitspec_core.graphs import SwitchingSignal, graph_sequence, switch_times
-    from splitspec_core.scenario import Switching
+    from splitspec_core.scenario_model import Switching
 
     sw = Switching(**switching)
     names = ("a", "b", "c")

@@ -7,12 +7,12 @@ import numpy as np
 import pytest
 import yaml
 
-from splitspec_core.compare import compare, settle_time, steady_rms, sweep
-from splitspec_core.design import design
+from splitspec_core.comparison import compare, settle_time, steady_rms, sweep
+from splitspec_core.designer import design
 from splitspec_core.errors import DesignError
 from splitspec_core.noise import error_dynamics, predicted_rms, tune
-from splitspec_core.scenario import load_scenario
-from splitspec_core.simulate import simulate
+from splitspec_core.scenario_model import load_scenario
+from splitspec_core.simulator import simulate
 from tests.conftest import EXAMPLES
 from tests.integration.runtime_helpers import run
 from tests.unit.test_resilience_runtime import full_error_radius

@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 
 from splitspec_core import bounds
-from splitspec_core.design import design
-from splitspec_core.scenario import load_scenario
+from splitspec_core.designer import design
+from splitspec_core.scenario_model import load_scenario
 
 
 @pytest.fixture(scope="module")

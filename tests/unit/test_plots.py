@@ -9,9 +9,9 @@ import yaml
 
 from splitspec_orchestrator import cli, plots
 from splitspec_core.analysis import NO_CERTIFIED_RATE, Mark, event_marks, max_error, summarize
-from splitspec_core.design import design
-from splitspec_core.scenario import Fault, load_scenario
-from splitspec_core.simulate import simulate
+from splitspec_core.designer import design
+from splitspec_core.scenario_model import Fault, load_scenario
+from splitspec_core.simulator import simulate
 from tests.conftest import EXAMPLES
 
 

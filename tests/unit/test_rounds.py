@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 
 from splitspec_orchestrator import rounds as R
-from splitspec_core.design import design
-from splitspec_core.scenario import load_scenario, parse_scenario
+from splitspec_core.designer import design
+from splitspec_core.scenario_model import load_scenario, parse_scenario
 from tests.conftest import EXAMPLES
 
 HOST = "here"
@@ -400,7 +400,7 @@ def play(example, changes=None):
 
 @pytest.mark.parametrize("example", ["paper_discrete", "paper_continuous_switching"])
 def test_in_process_protocol_equals_simulate(example):
-    from splitspec_core.simulate import simulate
+    from splitspec_core.simulator import simulate
 
     m, rows = play(example, changes={"run": {"steps": 30}})
     tr = simulate(m.des, seed=m.sc.run.seed, steps=30)

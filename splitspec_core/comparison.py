@@ -28,11 +28,11 @@ import numpy as np
 
 from .analysis import fit_decay
 from .baselines import baseline_trajectories, kalman_predictor, sampled_model
-from .design import design
+from .designer import design
 from .errors import DesignError
 from .noise import predicted_rms, tune
-from .scenario import Scenario
-from .simulate import check_trajectory_memory, simulate
+from .scenario_model import Scenario
+from .simulator import check_trajectory_memory, simulate
 
 __all__ = ["compare", "sweep", "steady_rms", "settle_time"]
 

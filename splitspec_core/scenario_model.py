@@ -268,21 +268,65 @@ def _describe(value: Any) -> str:
     if value is None:
         return "nothing (null)"
     if isinstance(value, str):
-        return f"the string {value!r}"
+        return f"the string {_short(repr(value))}"
     if isinstance(value, bool):
         return f"the boolean {value}"
     if isinstance(value, list):
         return f"a list of {len(value)} items"
     if isinstance(value, Mapping):
         return "a mapping"
-    return f"{type(value).__name__} {value!r}"
+    if isinstance(value, np.ndarray):
+        return f"an array of shape {value.shape}"
+    return f"{type(value).__name__} {_short(repr(value))}"
+
+
+def _short(text: str, limit: int = 60) -> str:
+    """One line of at most ``limit`` characters (error messages are one line)."""
+    text = " ".join(text.split())
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def _plain(value: Any, depth: int = 0) -> Any:
+    """The YAML data model of a value built in Python: arrays and tuples as lists, numpy scalars as
+    Python numbers, mappings as dicts.  Applied to every scenario before validation, so a file and
+    :func:`splitspec_core.scenario_model` (numpy arrays welcome) meet the same checks with the same messages."""
+    if depth > 8:  # deeper than any scenario key: left for the checks to refuse
+        return value
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, (list, tuple)):
+        return [_plain(v, depth + 1) for v in value]
+    if isinstance(value, Mapping):
+        return {_plain(k, depth + 1): _plain(v, depth + 1) for k, v in value.items()}
+    return value
 
 
 def _check_keys(mapping: Mapping, allowed: tuple, key: str) -> None:
     for k in mapping:
         if k not in allowed:
             where = f"{key}.{k}" if key else str(k)
-            raise ScenarioError(f"unknown key {where} (expected one of: {', '.join(allowed)})")
+            raise ScenarioError(f"unknown key {where} (expected one of: {', '.join(allowed)}){_did_you_mean(k)}")
+
+
+# every key of the file by its dotted place, for "did you mean" hints
+_ALL_KEYS = (
+    *_TOP_KEYS, *(f"system.{k}" for k in _SYSTEM_KEYS), *(f"design.{k}" for k in _DESIGN_KEYS),
+    *(f"run.{k}" for k in _RUN_KEYS), *(f"switching.{k}" for k in _SWITCHING_KEYS),
+    *(f"design.riccati.{k}" for k in _RICCATI_KEYS),
+)
+
+
+def _did_you_mean(key: Any) -> str:
+    """``; did you mean design.q_method?`` when ``key`` is (close to) a key that belongs elsewhere."""
+    import difflib
+
+    word = str(key)
+    places = {k: k.rpartition(".")[2] for k in _ALL_KEYS}
+    exact = [k for k, last in places.items() if last == word]
+    close = exact or [k for k in _ALL_KEYS if places[k] in difflib.get_close_matches(word, places.values(), n=1)]
+    return f"; did you mean {close[0]}?" if close else ""
 
 
 def _float(value: numbers.Real) -> float:
@@ -443,6 +487,8 @@ def _parse_graphs(raw: Any, ids: tuple) -> tuple:
     for name, spec in gmap.items():
         gname = str(name)
         key = f"graphs.{gname}"
+        if isinstance(spec, list):  # shorthand: a graph given as its list of arcs
+            spec = {"arcs": spec}
         spec = _require_map(spec, key)
         _check_keys(spec, _GRAPH_KEYS, key)
         if "arcs" not in spec and "undirected" not in spec:
@@ -683,6 +729,7 @@ def parse_scenario(data: Any, *, source: str = "<scenario>") -> Scenario:
     """
     if data is None:
         raise ScenarioError(f"{source} is empty")
+    data = _plain(data)
     top = _require_map(data, "the scenario")
     _check_keys(top, _TOP_KEYS, "")
     name = str(top.get("name", Path(source).stem))

@@ -29,12 +29,11 @@ import scipy.linalg as sla
 import scipy.sparse as sp
 
 from . import steps as st
-from .design import Design
+from .designer import Design
 from .errors import ScenarioError
 from .network import NetworkState, Plan, make_plan
 from .plant_model import Plant, initial_estimate, initial_state
-from .scenario import Scenario
-from .streams import stream
+from .scenario_model import Scenario
 from .trajfile import write_trajectory
 
 __all__ = [

@@ -25,7 +25,7 @@ from .gains import LocalGain, design_gain
 from .graphs import build_graph, enumerate_strongly_connected
 from .observability import Decomposition, check_joint_observability, decompose
 from .resilience import analyse_agent_losses, analyse_arc_losses
-from .scenario import Scenario
+from .scenario_model import Scenario
 
 __all__ = ["AgentDesign", "Design", "certify_network", "design", "design_agent", "nice_ceil", "scenario_dwell"]
 

@@ -1,0 +1,18 @@
+"""The ``splitspec`` commands, one module per group; :mod:`splitspec_orchestrator.cli` parses and dispatches.
+
+- :mod:`.study`: ``design``, ``simulate``, ``compare`` (the public API, then files and plots);
+- :mod:`.deploy`: ``run``, ``orchestrator``, ``router``, ``credentials``;
+- :mod:`.operate`: ``kill``, ``recover``, ``view``.
+
+``splitspec plant`` and ``splitspec agent`` hand their arguments to the process packages
+(``splitspec_plant``, ``splitspec_agents``), which the orchestrator never imports.
+"""
+
+from __future__ import annotations
+
+
+def out_dir(path):
+    """``--out`` as a Path: created if missing and proven writable, or one clear line (exit 2)."""
+    from ..outdir import check_output_dir
+
+    return check_output_dir(path)

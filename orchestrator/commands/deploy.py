@@ -1,0 +1,99 @@
+"""The deployment commands: ``splitspec run`` (local multi-process), ``orchestrator``, ``router``, ``credentials``."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import os
+import sys
+
+from . import out_dir
+
+
+def _announce_run_id(args: argparse.Namespace) -> None:
+    """Give a run started without ``--run-id`` a fresh unique id and say on stderr how to target it."""
+    if args.run_id is None:
+        from ..registry import new_run_id
+
+        args.run_id = new_run_id()
+        print(f"splitspec: run id {args.run_id} (splitspec kill --run-id {args.run_id} --agent I)",
+              file=sys.stderr, flush=True)
+
+
+def cmd_orchestrator(args: argparse.Namespace) -> int:
+    from ..driver import main as orch_main
+
+    _announce_run_id(args)
+    return orch_main(args)
+
+
+def cmd_run(args: argparse.Namespace) -> int:
+    from splitspec_core.designer import design
+    from splitspec_core.scenario_model import load_scenario
+    from splitspec_core.runtime.wire import Keys
+
+    from ..launcher import run_local
+
+    sc = load_scenario(args.scenario)
+    design(sc)  # fail fast, with one line, before starting any process
+    if args.run_id is not None:
+        Keys(args.run_id)  # validates --run-id before any process starts
+    out = out_dir(args.out)
+    _announce_run_id(args)
+    viewer = "spawn" if args.viewer else args.connect_viewer
+    if args.insecure:
+        print("splitspec: warning: --insecure: no authentication or access control on the router (any process "
+              "that reaches it can connect; messages are still signed with the run's key)", file=sys.stderr)
+    code = run_local(str(args.scenario), out, run_id=args.run_id, viewer=viewer, wait=args.wait,
+                     round_timeout=args.round_timeout, agent_ids=sc.agent_ids, verbose=args.verbose,
+                     secure=not args.insecure)
+    rrd = out / "run.rrd"
+    if rrd.exists():
+        print(f"recording: {rrd}  (open it with: {_splitspec_command()} view {out})")
+        print(f"trajectory: {out / 'trajectory.npz'}  events: {out / 'events.jsonl'}")
+    return code
+
+
+def _splitspec_command() -> str:
+    """``splitspec`` if that is on PATH, else the script next to this interpreter (``.venv/bin/splitspec``)."""
+    import shutil
+    from pathlib import Path
+
+    if shutil.which("splitspec"):
+        return "splitspec"
+    beside = Path(sys.executable).parent / "splitspec"
+    try:
+        return str(beside.relative_to(Path.cwd()))
+    except ValueError:
+        return str(beside)
+
+
+def cmd_router(args: argparse.Namespace) -> int:
+    import signal
+    import threading
+
+    from splitspec_core.runtime.bus import lease_ms_for, open_session
+
+    stop = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.set())
+    session = open_session("router", listen=[args.listen], lease_ms=lease_ms_for("router"))
+    logging.getLogger("splitspec.router").info("Zenoh router listening on %s (pid %d)", args.listen, os.getpid())
+    try:
+        while not stop.wait(0.5):
+            pass
+    finally:
+        session.close()
+    return 0
+
+
+def cmd_credentials(args: argparse.Namespace) -> int:
+    from splitspec_core.scenario_model import load_scenario
+    from splitspec_core.runtime.security import generate
+
+    sc = load_scenario(args.scenario)
+    cred = generate(args.out, sc.agent_ids)
+    print(f"wrote {cred.dir}/users.txt (for the orchestrator: --secure {cred.dir}) and "
+          f"{len(cred.users)} .cred files (plant: --credentials {cred.dir}/plant.cred, agent i: "
+          f"--credentials {cred.dir}/agent-i.cred); copy each to its host only")
+    return 0

@@ -1,0 +1,68 @@
+"""The operating commands on a run: ``splitspec kill`` (fault injection), ``recover``, ``view``."""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+
+from splitspec_core.runtime.cli import EXIT_BAD_INPUT, EXIT_FAILED, UsageError
+from splitspec_core.runtime.cli import integer as _integer
+
+
+def cmd_recover(args: argparse.Namespace) -> int:
+    from ..recover import RecoverError, recover
+
+    try:
+        result = recover(args.out)
+    except RecoverError as exc:
+        print(f"splitspec: error: {exc}", file=sys.stderr)
+        return EXIT_FAILED
+    print(result["message"])
+    return 0
+
+
+def cmd_view(args: argparse.Namespace) -> int:
+    from ..view import view
+
+    return view(args.out, web=args.web, port=args.port, grpc_port=args.grpc_port)
+
+
+def port(text: str) -> int:
+    """``type=`` for TCP ports: an integer in [1, 65535]."""
+    return _integer(text, minimum=1, maximum=65535)
+
+
+SIGNALS = {"KILL": "SIGKILL", "STOP": "SIGSTOP", "CONT": "SIGCONT", "TERM": "SIGTERM", "INT": "SIGINT"}
+
+
+def cmd_kill(args: argparse.Namespace) -> int:
+    # import-light on purpose: a fault injected from outside should land when it is asked for
+    import signal
+    import socket
+
+    from ..registry import RunChoiceError, describe_run, is_own_splitspec_process, resolve
+
+    role, ident = ("plant", None) if args.plant else ("orchestrator", None) if args.orchestrator else ("agent", args.agent)
+    try:
+        pid, host, entry = resolve(args.run_id, role, ident)
+    except RunChoiceError as exc:
+        print(f"splitspec: error: {exc}", file=sys.stderr)
+        for run in exc.runs:
+            print(f"  {describe_run(run)}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    rid = entry["run_id"]
+    what = {"plant": "the plant", "orchestrator": "the orchestrator"}.get(role, f"agent {ident}")
+    if host and host != socket.gethostname():
+        raise UsageError(f"{what} runs on host {host} (pid {pid}), not here: run splitspec kill there")
+    if not is_own_splitspec_process(pid, started_before=entry["_written"]):
+        raise UsageError(f"{what} (pid {pid}) of run {rid!r} is not running any more (that pid is not a "
+                         "splitspec process of yours now); nothing signalled")
+    sig = getattr(signal, SIGNALS[args.signal])
+    try:
+        os.kill(pid, sig)
+    except ProcessLookupError:
+        raise UsageError(f"{what} (pid {pid}) is not running any more") from None
+    print(f"sent {SIGNALS[args.signal]} to {what} (pid {pid}) of run {rid!r} "
+          f"(orchestrator pid {entry['orchestrator']['pid']}, records in {entry.get('out')})")
+    return 0

@@ -1,0 +1,219 @@
+"""The study commands: ``splitspec design``, ``simulate`` and ``compare`` (offline, one process).
+
+Each calls the public API (:mod:`splitspec_core.api`) and writes what it returns: the report,
+``trajectory.npz`` / ``summary.json`` / plots, ``compare.json`` / plots.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+import splitspec_core as ss
+from splitspec_core.runtime.cli import MAX_SEED, UsageError
+
+from . import out_dir
+
+
+MAX_KCF_EPS = 1e12  # as splitspec_core.scenario_model.MAX_MAGNITUDE
+
+
+def _seed_range(first: int, count: int, what: str) -> None:
+    """Seeds first .. first + count - 1 must all be valid seeds."""
+    if first + count - 1 > MAX_SEED:
+        raise UsageError(f"{what}: the last seed {first + count - 1} exceeds 2**63 - 1 = {MAX_SEED}")
+
+
+def cmd_design(args: argparse.Namespace) -> int:
+    sc = ss.load_scenario(args.scenario)
+    if args.write and not args.tune:
+        raise UsageError("--write needs --tune")
+    if args.tune:
+        return _tune(args, sc)
+    d = ss.design(sc, all_q_methods=not args.json)
+    if args.json:
+        json.dump(d.to_json(), sys.stdout, indent=None if args.compact else 2)
+        sys.stdout.write("\n")
+    else:
+        print(d.report())
+    return 0
+
+
+def _tune(args: argparse.Namespace, sc) -> int:
+    from pathlib import Path
+
+    import yaml
+
+    from splitspec_core.noise import tune
+    from splitspec_core.scenario_model import load_yaml, read_scenario_text
+
+    res = tune(sc)
+    d = res.design
+    cd = res.scenario.design
+    what = ("q", d.q) if sc.time == "discrete" else ("g", d.g)
+    weights = None if cd.gains != "riccati" else {"process_weight": float(cd.riccati_process_weight),
+                                                  "measurement_weight": float(cd.riccati_measurement_weight)}
+    summary = {"gains": cd.gains, what[0]: what[1], "riccati": weights, "predicted_rms": res.rms,
+               "baseline_predicted_rms": res.baseline_rms, "candidates": res.candidates}
+    if args.json:
+        json.dump(summary, sys.stdout, indent=None if args.compact else 2)
+        sys.stdout.write("\n")
+    else:
+        print(f"tuned for noise (process {sc.system.process_noise:g}, measurement {sc.system.measurement_noise:g}): "
+              f"gains {cd.gains}" + (f" {weights}" if weights else "") + f", {what[0]} = {what[1]:g}")
+        print(f"  predicted steady-state RMS error {res.rms:.4g} (the scenario's design: {res.baseline_rms:.4g}, "
+              f"{len(res.candidates)} candidates, all with the rate certified unless marked)")
+    if args.write:
+        raw = load_yaml(read_scenario_text(args.scenario), source=str(args.scenario))
+        dd = raw.setdefault("design", {})
+        dd["gains"] = cd.gains
+        dd.pop("K", None)
+        dd[what[0]] = what[1]
+        if weights:
+            dd["riccati"] = weights
+        else:
+            dd.pop("riccati", None)
+        raw["name"] = f"{sc.name}-tuned"
+        try:
+            Path(args.write).write_text(f"# {sc.name} tuned for noise by `splitspec design --tune rms`\n"
+                                        + yaml.safe_dump(raw, sort_keys=False), encoding="utf-8")
+        except OSError as exc:
+            raise UsageError(f"cannot write {args.write}: {exc.strerror}") from None
+        print(f"wrote {args.write}") if not args.json else None
+    return 0
+
+
+def cmd_compare(args: argparse.Namespace) -> int:
+    from splitspec_core.comparison import sweep
+    from splitspec_core.simulator import check_trajectory_memory
+
+    sc = ss.load_scenario(args.scenario)
+    seed0 = sc.run.seed if args.seed is None else args.seed
+    _seed_range(seed0, args.seeds, "--seeds")
+    check_trajectory_memory(sc, args.steps, key="--steps" if args.steps is not None else "run.steps")
+    out = out_dir(args.out)
+    result = ss.compare(sc, seeds=args.seeds, seed=seed0, steps=args.steps, kcf_eps=args.kcf_eps)
+    res = result.to_json()
+    lines = [f"{sc.name}: {len(res['seeds'])} seeds x {res['steps']} steps; process noise {sc.system.process_noise:g}, "
+             f"measurement noise {sc.system.measurement_noise:g}",
+             f"  {'estimator':<17} {'steady RMS':>11} {'+-':>9} {'/ central':>9} {'predicted':>10} "
+             f"{'settle 1e-3':>11} {'msgs/event':>10}"]
+    for name, r in res["estimators"].items():
+        pred = "-" if r["predicted_rms"] is None else f"{r['predicted_rms']:.4g}"
+        st = "never" if r["settle_time_1e-3"] is None else f"{r['settle_time_1e-3']:g}"
+        lines.append(f"  {name:<17} {r['rms_mean']:11.4g} {r['rms_std']:9.2g} {r['ratio_to_centralized']:9.3f} "
+                     f"{pred:>10} {st:>11} {r['messages_per_event']:>10}")
+    if "tuned" in res:
+        tnd = res["tuned"]
+        what = f"q = {tnd['q']}" if tnd["q"] is not None else f"g = {tnd['g']:g}"
+        w = "" if tnd["gains"] == "place" else (f" (process_weight {tnd['process_weight']:.3g}, measurement_weight "
+                                                f"{tnd['measurement_weight']:.3g})")
+        lines.append(f"  tuned design: gains {tnd['gains']}{w}, {what}: predicted RMS {tnd['predicted_rms']:.4g} "
+                     f"vs {tnd['baseline_predicted_rms']:.4g} for the scenario's design")
+    plots = []
+    if not args.no_plots:
+        from .. import plots as P
+
+        P.plot_compare({**res, "_curves": {"t": result.t, **result.curves}}, out / "compare_errors.png", out / "compare_ratios.png")
+        plots = ["compare_errors.png", "compare_ratios.png"]
+    if args.sweep:
+        sw = sweep(sc, seed=seed0, steps=args.steps)
+        (out / "sweep.json").write_text(json.dumps(sw, indent=2) + "\n")
+        if not args.no_plots:
+            from .. import plots as P
+
+            P.plot_sweep(sw, out / "sweep.png")
+            plots.append("sweep.png")
+        lines.append(f"  sweep of {sw['parameter']}: " + ", ".join(
+            f"{r['value']:g}: RMS {r['predicted_rms']:.3g}{'*' if r['certified'] else ''}" for r in sw["rows"]
+            if "error" not in r) + "  (* rate certified)")
+    res["plots"] = plots
+    (out / "compare.json").write_text(json.dumps(res, indent=2) + "\n")
+    lines.append(f"wrote {out}/compare.json" + "".join(f", {p}" for p in plots) +
+                 (", sweep.json" if args.sweep else ""))
+    print("\n".join(lines))
+    return 0
+
+
+def _simulate_summary_text(summary: dict, *, time: str, out) -> str:
+    rate_word = "exp(-lam t)" if time == "continuous" else "lam^tau"
+    meas = summary["measured_rate"]
+    if summary.get("rate_note"):  # the adaptive gain: no rate to meet
+        lines = [f"simulated {summary['steps']} steps; adaptive gain: {summary['rate_note']}"]
+        if meas is not None:
+            lines.append(f"  measured rate (noise-free, tail fit) {meas:.4g} ({rate_word}), for information")
+    else:
+        lines = [f"simulated {summary['steps']} steps; designed rate {summary['designed_rate']:g} ({rate_word})"
+                 + ("" if summary.get("certified_rate", True) else ", NOT certified by the design")]
+        if meas is not None:
+            verdict = "meets" if summary["measured_meets_design"] else "does NOT meet"
+            lines.append(f"  measured rate (noise-free, tail fit) {meas:.4g}: {verdict} the design")
+        if summary.get("envelope_pieces") and len(summary["envelope_pieces"]) > 1:
+            lines.append(f"  envelope restarted {len(summary['envelope_pieces']) - 1} times (rejoins, switches)")
+    lines.append(f"  alive at the end: {', '.join(map(str, summary['alive_at_end'])) or 'none'}")
+    lines.append("  agent   final error   max error")
+    for aid, a in summary["agents"].items():
+        fe = "dead" if a["final_error"] is None else f"{a['final_error']:.3e}"
+        me = "-" if a["max_error"] is None else f"{a['max_error']:.3e}"
+        lines.append(f"  {aid:>5}   {fe:>11}   {me:>9}")
+    if "monte_carlo" in summary:
+        mc = summary["monte_carlo"]
+        lines.append(f"  monte carlo over {mc['seeds']} seeds: steady-state RMS error {mc['steady_rms_mean']:.4g} "
+                     f"+- {mc['steady_rms_std']:.3g}, final {mc['final_rms_mean']:.4g} +- {mc['final_rms_std']:.3g}")
+    lines.append(f"wrote {out}/trajectory.npz, summary.json" + ("" if summary.get("plots") is None else
+                                                               ", " + ", ".join(summary["plots"])))
+    return "\n".join(lines)
+
+
+def cmd_simulate(args: argparse.Namespace) -> int:
+    from splitspec_core.analysis import event_marks, monte_carlo_stats, summarize
+    from splitspec_core.simulator import check_trajectory_memory
+
+    sc = ss.load_scenario(args.scenario)
+    if args.faults_from:
+        from splitspec_core.replay import with_recorded_faults
+
+        sc = with_recorded_faults(sc, args.faults_from)
+    if args.exact and sc.time != "continuous":
+        raise UsageError("--exact integrates the continuous-time ODE; this scenario is discrete")
+    seed = sc.run.seed if args.seed is None else args.seed
+    if args.monte_carlo:
+        _seed_range(seed, args.monte_carlo, "--monte-carlo")
+    check_trajectory_memory(sc, args.steps, key="--steps" if args.steps is not None else "run.steps",
+                            copies=max(1, args.monte_carlo or 0))
+    d = ss.design(sc)
+    out = out_dir(args.out)
+    traj = ss.simulate(d, seed=seed, steps=args.steps, exact=args.exact, progress=None)
+    noisy = sc.system.process_noise > 0 or sc.system.measurement_noise > 0
+    clean = ss.simulate(d, seed=seed, steps=args.steps, noise=False) if noisy and not args.exact else traj
+    traj.save(out / "trajectory.npz")
+    adaptive = d.g_mode == "adaptive"
+    summary = summarize(traj, time=sc.time, rate=sc.design.rate, noise_free=clean, adaptive=adaptive,
+                        certified_rate=bool(d.checks.rate_certified))
+    summary.update({"scenario": sc.name, "seed": seed, "time": sc.time,
+                    "g": d.g, "q": d.q, "estimator": "exact ODE" if args.exact else "sampled-data" if
+                    sc.time == "continuous" else "discrete two-rate"})
+    mc = None
+    if args.monte_carlo:
+        trajs = [ss.simulate(d, seed=seed + k, steps=args.steps) for k in range(args.monte_carlo)]
+        mc = monte_carlo_stats(trajs)
+        summary["monte_carlo"] = {k: v for k, v in mc.items() if not hasattr(v, "shape")}
+    if not args.no_plots:
+        from .. import plots
+
+        title = f"{sc.name}: {'g = %g' % d.g if d.g is not None else 'q = %d' % d.q if d.q else 'adaptive g'}"
+        marks = event_marks(traj.t, traj.alive, traj.graph, agent_ids=traj.agent_ids, faults=sc.faults,
+                            graph_names=sc.graph_names, dt=sc.run.dt if sc.time == "continuous" else 1.0)
+        plots.plot_errors(traj, out / "errors.png", time=sc.time, rate=sc.design.rate, title=title, marks=marks,
+                          noise_free=clean, adaptive=adaptive)
+        plots.plot_states(traj, out / "states.png", time=sc.time, title=title, marks=marks)
+        summary["plots"] = ["errors.png", "states.png"]
+        if mc is not None:
+            # faults strike every seed at the same step; a random switching signal may differ per seed
+            plots.plot_monte_carlo(traj.t, mc, out / "monte_carlo.png", time=sc.time, title=title,
+                                   marks=[mk for mk in marks if mk.kind != "switch"])
+            summary["plots"].append("monte_carlo.png")
+    (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+    print(_simulate_summary_text(summary, time=sc.time, out=out))
+    return 0

@@ -1,0 +1,361 @@
+"""The public Python API: build or load a scenario, design, simulate, compare (re-exported by ``splitspec_core``).
+
+Every function here is what a ``splitspec`` command does, minus the files: the CLI's command
+modules call these same functions.  Results are frozen dataclasses whose arrays are read-only.
+
+Validation has one path: :func:`scenario` turns its keywords into the mapping a scenario file
+holds and hands it to :func:`splitspec_core.scenario_model.parse_scenario`, the checker of YAML files,
+so both meet the same checks with the same one-line messages.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from types import MappingProxyType
+from typing import Any, Iterable, Mapping
+
+import numpy as np
+
+from .designer import Design
+from .errors import ScenarioError
+from .scenario_model import _DESIGN_KEYS, _RUN_KEYS, _SYSTEM_KEYS, Scenario, parse_scenario
+from .scenario_model import load_scenario as _load_scenario
+from .simulator import Trajectory
+
+__all__ = ["AgentResult", "Checks", "CompareResult", "DesignResult", "EstimatorResult", "compare", "design",
+           "load_scenario", "scenario", "simulate"]
+
+_SECTIONS = {"system": _SYSTEM_KEYS, "design": _DESIGN_KEYS, "run": _RUN_KEYS}
+
+
+def _readonly(a: Any) -> np.ndarray:
+    a = np.array(a)
+    a.setflags(write=False)
+    return a
+
+
+# --------------------------------------------------------------------------
+# scenario
+# --------------------------------------------------------------------------
+
+
+def scenario(*, name: str | None = None, time: str | None = None,
+             A: Any = None, C: Mapping | None = None, x0: Any = None,
+             process_noise: float | None = None, measurement_noise: float | None = None,
+             graphs: Mapping | None = None, switching: Mapping | None = None, faults: Iterable | None = None,
+             positions: Mapping | None = None,
+             rate: float | None = None, gains: str | None = None, K: Mapping | None = None, g: Any = None,
+             g0: float | None = None, q: Any = None, q_method: str | None = None, q_max: int | None = None,
+             resilience: int | None = None, weights: str | None = None, margin: float | None = None,
+             rank_tol: float | None = None, graph_set: str | None = None, dwell: float | None = None,
+             riccati: Mapping | None = None,
+             steps: int | None = None, dt: float | None = None, seed: int | None = None, pace: float | None = None,
+             system: Mapping | None = None, design: Mapping | None = None, run: Mapping | None = None,
+             **unknown: Any) -> Scenario:
+    """A validated scenario from keywords: every scenario-file key, by its own name.
+
+    ``A``, ``C``, ``x0``, ``process_noise``, ``measurement_noise`` are the file's ``system.*``;
+    ``rate``, ``gains``, ``K``, ``g``, ``q``, ``q_method``, ... its ``design.*``; ``steps``,
+    ``dt``, ``seed``, ``pace`` its ``run.*`` (``docs/scenario.md`` lists them all).  Matrices
+    may be numpy arrays or nested lists; ``C`` and ``K`` map agent ids to matrices; a graph
+    is ``{"arcs": [(j, i), ...], "undirected": [...]}`` or just its list of arcs ``[(j, i), ...]``
+    (``j -> i``: agent i hears agent j).  A keyword left at ``None`` is absent from the file,
+    so the file's defaults apply.  The sections ``system=``, ``design=``, ``run=`` may also
+    be given whole, as in the file.
+
+    Raises
+    ------
+    ScenarioError
+        The message of the same mistake in a scenario file (it names the key, e.g.
+        ``system.C.3 has 5 columns, system.A is 4x4``); an unknown keyword is an unknown key.
+    """
+    given = dict(locals())
+    top: dict = {k: v for k, v in unknown.items()}  # the checker names them (and suggests the right key)
+    for key in ("name", "time", "graphs", "switching", "faults", "positions"):
+        if given[key] is not None:
+            top[key] = given[key]
+    top.setdefault("name", "scenario")
+    for section, keys in _SECTIONS.items():
+        whole = given[section]
+        if whole is not None and not isinstance(whole, Mapping):
+            top[section] = whole  # the checker says what is wrong with it
+            continue
+        part = dict(whole or {})
+        for key in keys:
+            if given.get(key) is not None:
+                if key in part:
+                    raise ScenarioError(f"{section}.{key} is given twice: as {key}= and in {section}=")
+                part[key] = given[key]
+        if part or whole is not None:
+            top[section] = part
+    return parse_scenario(top, source="<python>")
+
+
+def load_scenario(path: str | Path) -> Scenario:
+    """A validated scenario from a YAML file (the same checks as :func:`scenario`)."""
+    return _load_scenario(path)
+
+
+# --------------------------------------------------------------------------
+# design
+# --------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class AgentResult:
+    """Agent i's local design (computed by the agent itself in a run).
+
+    Attributes
+    ----------
+    id : agent id
+    K : (n, s_i) local gain ``K_i`` (convention ``A + K_i C_i``)
+    V : (n, n - r_i) orthonormal basis of the unobservable space of ``(C_i, A)``
+    Q : (r_i, n) orthonormal basis of its complement (the observable part)
+    P : (n, n) orthogonal projection ``V_i V_i'`` on the unobservable space
+    poles : (r_i,) spectrum of ``Abar_i + Kbar_i Cbar_i`` (the observable part's error dynamics)
+    """
+
+    id: int
+    K: np.ndarray
+    V: np.ndarray
+    Q: np.ndarray
+    P: np.ndarray
+    poles: np.ndarray
+
+    @property
+    def n_unobservable(self) -> int:
+        return int(self.V.shape[1])
+
+
+@dataclass(frozen=True)
+class Checks:
+    """The design's assumptions and its certificate.
+
+    Attributes
+    ----------
+    jointly_observable : ``(C, A)`` jointly observable (:func:`design` raises when it is not)
+    strongly_connected : per graph name (:func:`design` raises when one is not)
+    rate_certified : the rate is certified for every graph the switching signal uses; None for the
+        adaptive gain (asymptotic convergence, no certified rate: thm. split_continuous_adaptive)
+    certificate : one line: what certifies the rate, or why nothing does
+    sampled_rate : continuous time: the worst decay rate of the sampled-data estimator at ``run.dt``
+    warnings : what the design report warns about
+    """
+
+    jointly_observable: bool
+    strongly_connected: Mapping[str, bool]
+    rate_certified: bool | None
+    certificate: str
+    sampled_rate: float | None
+    warnings: tuple
+
+
+@dataclass(frozen=True)
+class DesignResult:
+    """A designed split-spectrum estimator.
+
+    Attributes
+    ----------
+    scenario : the scenario designed
+    time, rate : ``discrete`` (errors within c lam^tau) or ``continuous`` (c exp(-lam t))
+    q : discrete: consensus exchanges per event time (eq. split_discrete_ench); else None
+    g : continuous: the consensus gain (eq. g); None in discrete time and for the adaptive gain
+    g_mode : continuous: ``auto``, ``given`` or ``adaptive``; else None
+    agents : agent id -> :class:`AgentResult`
+    checks : :class:`Checks`
+    detail : the full design with every diagnostic (:class:`splitspec_core.designer.Design`)
+    """
+
+    scenario: Scenario
+    time: str
+    rate: float
+    q: int | None
+    g: float | None
+    g_mode: str | None
+    agents: Mapping[int, AgentResult]
+    checks: Checks
+    detail: Design
+
+    def report(self) -> str:
+        """The text ``splitspec design`` prints."""
+        from .report import design_text
+
+        return design_text(self.detail)
+
+    def to_json(self) -> dict:
+        """The object ``splitspec design --json`` prints."""
+        from .report import design_json
+
+        return design_json(self.detail)
+
+
+def certificate(des: Design) -> tuple[bool | None, str]:
+    """``(rate_certified, one line)`` of a design: q by its method, g by a bound or the exact spectrum;
+    None for the adaptive gain (asymptotic convergence, no certified rate)."""
+    rate = des.rate
+    if des.time == "discrete":
+        r = des.q_result
+        ok = bool(r.certified)
+        return ok, (f"q = {des.q}: {r.method} bound {r.bound:.4g} {'<=' if ok else '>'} rate {rate:g}"
+                    + ("" if r.switching or len(des.cases) <= 1 else " (each graph held constant)"))
+    if des.g_mode == "adaptive":
+        return None, "adaptive gain: asymptotic convergence, no certified rate"
+    sampled = min(des.sampled_rate.values()) if des.sampled_rate else math.inf
+    if des.g_certified_by is None:
+        return False, f"g = {des.g:g} is not certified for rate {rate:g}"
+    if sampled < rate:
+        return False, (f"g = {des.g:g} certified by {des.g_certified_by}, but the sampled-data estimator at "
+                       f"run.dt = {des.scenario.run.dt:g} decays at {sampled:.4g} < rate {rate:g}")
+    return True, f"g = {des.g:g} certified by {des.g_certified_by}"
+
+
+def design(sc: Scenario, *, all_q_methods: bool = False) -> DesignResult:
+    """Check the assumptions and design the estimator (``splitspec design``).
+
+    ``all_q_methods=True`` also computes, for information, the q every other certificate
+    (spectral, weighted, two-norm, mixed) would give (``detail.q_methods``, in the report).
+
+    Raises
+    ------
+    AssumptionError
+        A graph is not strongly connected, ``(C, A)`` is not jointly observable, explicit gains
+        miss the rate (the message names the graph, direction or matrix).
+    DesignError
+        No q below ``design.q_max``, or no g found.
+    """
+    from .designer import design as _design
+
+    des = _design(sc, compare_q_methods=all_q_methods)
+    agents = {a.id: AgentResult(id=a.id, K=_readonly(a.K), V=_readonly(a.V), Q=_readonly(a.dec.Q),
+                                P=_readonly(a.P), poles=_readonly(a.gain.poles)) for a in des.agents}
+    ok, line = certificate(des)
+    sampled = min(des.sampled_rate.values()) if des.sampled_rate else None
+    checks = Checks(jointly_observable=True, strongly_connected=MappingProxyType({g.name: True for g in des.graphs}),
+                    rate_certified=ok, certificate=line, sampled_rate=sampled, warnings=tuple(des.warnings))
+    return DesignResult(scenario=sc, time=sc.time, rate=sc.design.rate, q=des.q, g=des.g, g_mode=des.g_mode,
+                        agents=MappingProxyType(agents), checks=checks, detail=des)
+
+
+# --------------------------------------------------------------------------
+# simulate
+# --------------------------------------------------------------------------
+
+
+def _designed(sc_or_design: Scenario | DesignResult | Design) -> Design:
+    if isinstance(sc_or_design, DesignResult):
+        return sc_or_design.detail
+    if isinstance(sc_or_design, Design):
+        return sc_or_design
+    if isinstance(sc_or_design, Scenario):
+        return design(sc_or_design).detail
+    raise TypeError(f"expected a Scenario or a DesignResult, got {type(sc_or_design).__name__}")
+
+
+def simulate(sc: Scenario | DesignResult, *, steps: int | None = None, seed: int | None = None,
+             noise: bool = True, exact: bool = False, progress: bool | None = False) -> Trajectory:
+    """Simulate in-process: the reference the multi-process ``splitspec run`` reproduces.
+
+    The same scenario and seed give the trajectory ``splitspec simulate`` writes (and, to
+    round-off, the one ``splitspec run`` records).  ``steps`` and ``seed`` default to
+    ``run.steps`` and ``run.seed``; ``noise=False`` drops process and measurement noise;
+    ``exact=True`` integrates the continuous-time ODE of eq. (split_continuous_observer)
+    noise-free instead of the sampled-data estimator.
+
+    Returns
+    -------
+    Trajectory
+        ``t`` (T,), ``x`` (T, n), ``xhat`` (T, m, n) (NaN while an agent is dead), ``alive`` (T, m),
+        ``graph`` (T,) index into ``scenario.graph_names``, ``gains`` (T, m) g_i(t); ``errors()``.
+    """
+    from .simulator import check_trajectory_memory, simulate as _simulate, simulate_exact
+
+    des = _designed(sc)
+    check_trajectory_memory(des.scenario, steps, key="steps" if steps is not None else "run.steps")
+    if exact:
+        return simulate_exact(des, seed=seed, steps=steps)
+    return _simulate(des, seed=seed, steps=steps, noise=noise, progress=progress)
+
+
+# --------------------------------------------------------------------------
+# compare
+# --------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class EstimatorResult:
+    """One estimator's figures in :func:`compare` (RMS over agents, then mean and std over seeds)."""
+
+    rms_mean: float
+    rms_std: float
+    ratio_to_centralized: float | None
+    predicted_rms: float | None
+    settle_time: float | None  # noise-free: first time after which the error stays below 1e-3 of its start
+    measured_rate: float | None
+    messages_per_event: int
+    q: int | None
+    g: float | None
+    gains: str | None
+
+
+@dataclass(frozen=True)
+class CompareResult:
+    """``splitspec compare``: split-spectrum variants against the centralized Kalman filter and the KCF.
+
+    ``estimators`` maps names (``split place``, ``split riccati``, ``split tuned``, ``centralized KF``,
+    ``KCF``, and ``split (scenario)`` with explicit gains) to :class:`EstimatorResult`; ``t`` and
+    ``curves`` (name -> (T,) RMS error over agents, mean over seeds) are the error curves.
+    """
+
+    scenario: str
+    time: str
+    seeds: tuple
+    steps: int
+    rate: float
+    process_noise: float
+    measurement_noise: float
+    exchanges: int
+    kcf_eps: float | None
+    estimators: Mapping[str, EstimatorResult]
+    tuned: Mapping[str, Any] | None
+    t: np.ndarray
+    curves: Mapping[str, np.ndarray]
+
+    def to_json(self) -> dict:
+        """The ``compare.json`` object."""
+        out = {"scenario": self.scenario, "time": self.time, "seeds": list(self.seeds), "steps": self.steps,
+               "rate": self.rate, "process_noise": self.process_noise,
+               "measurement_noise": self.measurement_noise, "exchanges": self.exchanges, "kcf_eps": self.kcf_eps,
+               "estimators": {k: {("settle_time_1e-3" if f == "settle_time" else f): getattr(v, f)
+                                  for f in v.__dataclass_fields__} for k, v in self.estimators.items()}}
+        if self.tuned is not None:
+            out["tuned"] = dict(self.tuned)
+        return out
+
+
+def compare(sc: Scenario, *, seeds: int | Iterable[int] = 5, seed: int | None = None, steps: int | None = None,
+            kcf_eps: float | None = None) -> CompareResult:
+    """Estimation quality under noise (``splitspec compare``): every estimator on the same realisations.
+
+    ``seeds``: a count (seeds ``seed, seed + 1, ...``, ``seed`` defaulting to ``run.seed``) or the seeds.
+    """
+    from .comparison import compare as _compare
+
+    if isinstance(seeds, (int, np.integer)) and not isinstance(seeds, bool):
+        if seeds < 1:
+            raise ScenarioError(f"seeds must be >= 1, got {seeds}")
+        first = sc.run.seed if seed is None else int(seed)
+        seeds = range(first, first + int(seeds))
+    raw = _compare(sc, seeds=[int(s) for s in seeds], steps=steps, eps=kcf_eps)
+    curves = raw.pop("_curves")
+    t = curves.pop("t")
+    est = {k: EstimatorResult(settle_time=v["settle_time_1e-3"],
+                              **{f: v[f] for f in EstimatorResult.__dataclass_fields__ if f != "settle_time"})
+           for k, v in raw["estimators"].items()}
+    return CompareResult(scenario=raw["scenario"], time=raw["time"], seeds=tuple(raw["seeds"]), steps=raw["steps"],
+                         rate=raw["rate"], process_noise=raw["process_noise"],
+                         measurement_noise=raw["measurement_noise"], exchanges=raw["exchanges"], kcf_eps=raw["kcf_eps"],
+                         estimators=MappingProxyType(est),
+                         tuned=None if "tuned" not in raw else MappingProxyType(raw["tuned"]),
+                         t=_readonly(t), curves=MappingProxyType({k: _readonly(v) for k, v in curves.items()}))
