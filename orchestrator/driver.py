@@ -3,7 +3,7 @@
 ``splitspec orchestrator SCENARIO --listen ENDPOINT --out DIR [--run-id ID]``
 
 This module only moves things between the world and
-:class:`orchestrator.rounds.RoundMachine`: it decodes messages (MAC, schema,
+:class:`splitspec_orchestrator.rounds.RoundMachine`: it decodes messages (MAC, schema,
 shapes) and hands their values to the machine, and executes the machine's
 actions (publish a tick, record, log, signal, spawn, query statuses, stop).
 What it does, through the machine:
@@ -33,6 +33,9 @@ What it does, through the machine:
 * records ``trajectory.npz``, ``events.jsonl``, ``run.rrd`` and a copy of the
   scenario (``scenario.yaml``), so that ``splitspec simulate scenario.yaml
   --faults-from events.jsonl`` replays the run.
+
+Why one module: it is the one place that touches the orchestrator's Zenoh session; every
+function decodes one kind of message or executes one kind of action, none holds a rule.
 """
 
 from __future__ import annotations
@@ -104,7 +107,7 @@ def _is_splitspec_process(pid: int) -> bool:
 
 
 class Orchestrator:
-    """The shell around :class:`~orchestrator.rounds.RoundMachine`.  ``run()`` returns the process exit code."""
+    """The shell around :class:`~splitspec_orchestrator.rounds.RoundMachine`.  ``run()`` returns the process exit code."""
 
     def __init__(self, scenario_path: str, *, out: Path, run_id: str, listen: str | None, connect: str | None,
                  wait: float = 60.0, round_timeout: float = 10.0, viewer: str | None = None,

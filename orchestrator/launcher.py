@@ -83,7 +83,7 @@ def run_local(scenario: str, out: Path, *, run_id: str, viewer: str | None, wait
     its exit status.  ``secure`` (the default): generate credentials for this run in a private
     directory under the runtime directory, start the router with authentication and access control,
     and delete them at the end.  If the orchestrator itself dies (a signal), the others die with it
-    (``PR_SET_PDEATHSIG``), the records are recovered (:func:`orchestrator.recover.recover`) and the
+    (``PR_SET_PDEATHSIG``), the records are recovered (:func:`splitspec_orchestrator.recover.recover`) and the
     exit status is :data:`EXIT_ORCHESTRATOR_LOST`.
     """
     port = free_port()

@@ -21,14 +21,14 @@ keeps three records of the run in ``out_dir``:
     to a viewer as well; appended by Python at every flush and finished (footer,
     verifiable) at close, see "Write failures and consistency" below.
 
-The parts: :mod:`orchestrator.rowstore` (the rows and what each shows),
-:mod:`orchestrator.rerun_sink` (the Rerun stream and ``run.rrd``; entity
-paths and the default blueprint in :mod:`orchestrator.blueprint`),
-:mod:`orchestrator.eventlog` (``events.jsonl`` and each event's sentence) and
+The parts: :mod:`splitspec_orchestrator.rowstore` (the rows and what each shows),
+:mod:`splitspec_orchestrator.rerun_sink` (the Rerun stream and ``run.rrd``; entity
+paths and the default blueprint in :mod:`splitspec_orchestrator.blueprint`),
+:mod:`splitspec_orchestrator.eventlog` (``events.jsonl`` and each event's sentence) and
 :func:`splitspec_core.trajfile.write_trajectory` (the one writer of
 ``trajectory.npz``, shared with ``simulate``).  This module keeps what ties
 them together under one lock: buffering and flushes, the order of the writes,
-write failures, salvage and close.  It stays above 400 lines because those
+write failures, salvage and close.  Why one module: those
 rules form one invariant (the three files agree on K rows) that is easier to
 check in one place than spread over modules.
 
@@ -79,7 +79,7 @@ raises it again.
 thread never reports a failed write): the recording logs into an
 ``rr.binary_stream()`` and each flush appends the bytes read from it to
 ``run.rrd`` with ordinary file calls that raise ``OSError`` (see
-:mod:`orchestrator.rrdfile` for the format).  During the run ``run.rrd`` is a
+:mod:`splitspec_orchestrator.rrdfile` for the format).  During the run ``run.rrd`` is a
 footer-less RRD stream, readable with ``RrdReader(path).stream()``; at
 :meth:`Recorder.close` it is rewritten as one RRD with footer, which ``rerun
 rrd verify`` accepts.  ``events.jsonl`` and ``run.rrd`` are opened per write
@@ -90,14 +90,14 @@ A flush writes ``run.rrd`` first, then ``trajectory.npz``, so the npz never
 holds an event time the rrd lacks and a SIGKILL loses at most the rows of one
 flush period from both.  ``close(finished=False)`` after a write failure does
 not raise: it removes the disk-space reserve (``.splitspec-reserve``, a few
-MB preallocated at start, :class:`orchestrator.outdir.Reserve`), writes what
+MB preallocated at start, :class:`splitspec_orchestrator.outdir.Reserve`), writes what
 the failure left unwritten, and leaves K = :attr:`Recorder.rows_kept` rows in
 ``trajectory.npz``, the data of those K event times only in ``run.rrd``
 (rewritten, verifiable; text log and topology up to the next event time) and
 a last ``recording_closed`` event with ``rows: K`` in ``events.jsonl`` -- each
 as far as the disk allows.  On a read-only file system nothing more can be
 written: K is what the last successful flush left in both ``trajectory.npz``
-and the footer-less ``run.rrd``; ``splitspec recover`` (:mod:`orchestrator.recover`)
+and the footer-less ``run.rrd``; ``splitspec recover`` (:mod:`splitspec_orchestrator.recover`)
 finishes the job once the disk is writable.  The same command repairs the
 records of a killed run.
 """
@@ -343,7 +343,7 @@ class Recorder:
         seconds in continuous time); the TextLog is placed at ``tau = t`` or
         ``tau = round(t / dt)``.  Level WARN when the name contains
         lost/rejected/error/failed, else INFO, unless ``level`` is given.
-        The Rerun text is one short sentence (:func:`orchestrator.eventlog.event_text`;
+        The Rerun text is one short sentence (:func:`splitspec_orchestrator.eventlog.event_text`;
         ``note`` replaces it); ``events.jsonl`` always has every field.  Losses,
         rejoins, graph switches and link faults also get a point on ``marks/<kind>``.
         """

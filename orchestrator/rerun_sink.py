@@ -1,10 +1,10 @@
 """The Rerun side of the recorder: one recording stream, its live viewer, and ``run.rrd`` appended by Python.
 
-:class:`RerunSink` logs what :class:`orchestrator.recorder.Recorder` hands it
+:class:`RerunSink` logs what :class:`splitspec_orchestrator.recorder.Recorder` hands it
 (batches of rows, text events, topology, marks, loss clears) with
 ``send_columns``, one chunk per entity per batch, on the timelines ``event``
 (sequence ``tau``), ``time`` (duration) and ``wall`` (timestamp).  Entity paths,
-colours and the default blueprint are in :mod:`orchestrator.blueprint`.
+colours and the default blueprint are in :mod:`splitspec_orchestrator.blueprint`.
 
 A lost agent's series (``errors``, ``errors_log10``, ``state/<k>``,
 ``gains``) get a non-recursive ``rr.Clear`` at the loss's event time: the
@@ -15,7 +15,7 @@ clears of the queried entity), so no line crosses a dead interval.
 The recording logs into an ``rr.binary_stream()`` (plus a ``GrpcSink`` for a
 live viewer); :meth:`RerunSink.write_pending` appends what it encoded to
 ``run.rrd`` with ordinary file calls whose ``OSError`` the recorder reports
-(see :mod:`orchestrator.rrdfile`).  Rerun itself never stops a run: a viewer
+(see :mod:`splitspec_orchestrator.rrdfile`).  Rerun itself never stops a run: a viewer
 that cannot be spawned or reached is a warning and the recording goes on.
 """
 

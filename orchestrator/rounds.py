@@ -1,9 +1,9 @@
 """The orchestrator's rules, without I/O: identity, admission, losses, retries, restarts, faults between rounds.
 
-:class:`RoundMachine` is to the orchestrator what :class:`agents.agent.AgentNode`
+:class:`RoundMachine` is to the orchestrator what :class:`splitspec_agents.agent.AgentNode`
 is to an agent: events in (method calls with already-decoded values and the
 current monotonic time ``now``), actions out (a list of small dataclasses the
-Zenoh shell in :mod:`orchestrator.driver` executes: publish a tick, record a
+Zenoh shell in :mod:`splitspec_orchestrator.driver` executes: publish a tick, record a
 row, log an event, signal or spawn a process, query statuses, stop).  It
 opens no socket and reads no clock, so every rule is unit-tested case by case
 (``tests/unit/test_rounds.py``).
@@ -54,6 +54,9 @@ arc), then agents that came back by hand (a rejoin with a new incarnation).
 
 *Rejections* are counted per (process, reason) and logged as one summary
 event per second, never one line per message.
+
+Why one module: the rules act on one state and on each other (a loss during a retry during
+a restart, a freeze of the orchestrator itself); split, each part would need the whole state.
 """
 
 from __future__ import annotations

@@ -20,7 +20,8 @@ import numpy as np
 
 from .designer import Design
 from .errors import ScenarioError
-from .scenario_model import _DESIGN_KEYS, _RUN_KEYS, _SYSTEM_KEYS, Scenario, parse_scenario
+from .scenario_checks import _DESIGN_KEYS, _RUN_KEYS, _SYSTEM_KEYS
+from .scenario_model import Scenario, parse_scenario
 from .scenario_model import load_scenario as _load_scenario
 from .simulator import Trajectory
 

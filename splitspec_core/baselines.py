@@ -24,6 +24,9 @@ exact per-step process covariance and ``R = sigma_m^2 I``
 Noise-free measurements (``R = 0``) or a zero process noise make the Riccati
 equations degenerate; both are regularised with a tiny multiple of the
 identity (:data:`REGULARISATION`, see :func:`regularise`).
+
+Why one module: the centralized predictor and the KCF share the sampled model, the noise
+realisations and the trajectory loop that makes them comparable line by line.
 """
 
 from __future__ import annotations

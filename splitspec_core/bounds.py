@@ -14,6 +14,9 @@ Everything here acts on the unobservable-space coordinates of the paper:
 A :class:`Case` is one (agent set, graph) pair the design must cover: each
 graph of the scenario, and with ``design.resilience: 1`` each graph
 restricted to the survivors of every single agent loss.
+
+Why one module: every certificate (eq. g, the dwell and arbitrary-switching bounds, the four q
+methods) is built on the same ``Case`` and compared side by side in the design report.
 """
 
 from __future__ import annotations

@@ -14,6 +14,10 @@ Three estimators share one driver (plant, noise streams, switching, faults):
 Step order at step k (time ``t_k``): apply faults at k; record
 ``x(k), x_i(k)``; measure ``y_i(k) = C_i x(k) + w_i(k)``; every alive agent
 updates to ``x_i(k+1)``; the plant moves to ``x(k+1)``.
+
+Why one module: the three estimators share one driver (plant, seed streams, switching,
+faults, restarts); split, the driver's step order -- the contract ``splitspec run`` reproduces --
+would be spread over files.
 """
 
 from __future__ import annotations
