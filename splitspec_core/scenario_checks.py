@@ -236,3 +236,27 @@ def _arc(value: Any, key: str, ids: tuple) -> tuple:
     j = _known_agent(value[0], key, ids)
     i = _known_agent(value[1], key, ids)
     return (j, i)
+
+
+def check_shapes(A: Any, Cs: Mapping, x0: Any = None, Ks: Mapping | None = None) -> None:
+    """The system's shapes, each mismatch one line naming the matrix: ``A`` square, ``C_i`` with n columns,
+    ``x0`` of n entries, ``K_i`` n x s_i.  ``Cs`` and ``Ks`` map agent ids to matrices.  The scenario
+    parser and :class:`~splitspec_core.scenario_model.Scenario` itself both call it, so a scenario
+    built from its dataclasses cannot skip it."""
+    shape = np.shape(A)
+    if len(shape) != 2 or shape[0] != shape[1]:
+        raise DimensionError(f"system.A must be square, got {'x'.join(map(str, shape))}")
+    n = shape[0]
+    for aid, C in Cs.items():
+        cs = np.shape(C)
+        if len(cs) != 2 or cs[1] != n:
+            raise DimensionError(f"system.C.{aid} has {cs[-1] if cs else 0} columns, system.A is {n}x{n}")
+    if x0 is not None and np.shape(x0) != (n,):
+        raise DimensionError(f"system.x0 has {np.size(x0)} entries, system.A is {n}x{n}")
+    for aid, K in (Ks or {}).items():
+        s_i, ks = np.shape(Cs[aid])[0], np.shape(K)
+        if ks != (n, s_i):
+            # no guessing: a flat row [a, b, ...] is 1 x n, not the column n x 1
+            hint = "; write a column as [[a], [b], ...]" if s_i == 1 else ""
+            raise DimensionError(f"design.K.{aid} is {'x'.join(map(str, ks))}, expected {n}x{s_i} "
+                                 f"(n x s_i with system.C.{aid} {s_i}x{n}{hint})")

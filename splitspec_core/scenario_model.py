@@ -30,8 +30,8 @@ from typing import Any
 import numpy as np
 import yaml
 
-from .errors import ScenarioError
-from .scenario_checks import GAIN_METHODS, MAX_FILE_BYTES, MAX_MAGNITUDE, MAX_SEED, Q_METHODS  # noqa: F401
+from .errors import DimensionError, ScenarioError
+from .scenario_checks import GAIN_METHODS, MAX_FILE_BYTES, MAX_MAGNITUDE, MAX_SEED, Q_METHODS, check_shapes  # noqa: F401
 
 __all__ = [
     "System",
@@ -209,6 +209,15 @@ class Scenario:
     def index_of(self, agent_id: int) -> int:
         """Position of ``agent_id`` in ``agent_ids``."""
         return self.agent_ids.index(agent_id)
+
+    def __post_init__(self) -> None:
+        # built directly from the dataclasses, a scenario still meets the parser's shape checks
+        if len(self.agent_ids) != len(self.system.Cs):
+            raise DimensionError(f"agent_ids lists {len(self.agent_ids)} agents, system.Cs holds "
+                                 f"{len(self.system.Cs)} output matrices")
+        Cs = dict(zip(self.agent_ids, self.system.Cs))
+        Ks = None if self.design.K is None else dict(zip(self.agent_ids, self.design.K))
+        check_shapes(self.system.A, Cs, self.system.x0, Ks)
 
 
 # --------------------------------------------------------------------------

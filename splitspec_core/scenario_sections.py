@@ -10,21 +10,19 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from .errors import DimensionError, ScenarioError
+from .errors import ScenarioError
 from .scenario_checks import (_DESIGN_KEYS, _GRAPH_KEYS, _RANDOM_KEYS, _RICCATI_KEYS, _RUN_KEYS, _SWITCHING_KEYS,
                               _SYSTEM_KEYS, _TOP_KEYS, FAULT_ACTIONS, GAIN_METHODS, MAX_Q, MIN_DT, MIN_PACE,
                               MIN_RICCATI_WEIGHT, MIN_SWITCH_STEPS, Q_METHODS, WEIGHTINGS, _agent_id, _arc,
                               _check_keys, _describe, _ids_text, _integer, _known_agent, _matrix, _number,
-                              _require_map, _seed, plain)
+                              _require_map, _seed, check_shapes, plain)
 from .scenario_model import DesignSpec, Fault, GraphSpec, RunSpec, Scenario, Switching, System
 
 def _parse_system(raw: Any) -> tuple[System, tuple]:
     sysmap = _require_map(raw, "system")
     _check_keys(sysmap, _SYSTEM_KEYS, "system")
     A = _matrix(sysmap.get("A"), "system.A")
-    n = A.shape[0]
-    if A.shape != (n, n):
-        raise DimensionError(f"system.A must be square, got {A.shape[0]}x{A.shape[1]}")
+    check_shapes(A, {})
     craw = sysmap.get("C")
     if craw is None:
         raise ScenarioError("system.C is missing (one output matrix per agent, keyed by agent id)")
@@ -37,15 +35,13 @@ def _parse_system(raw: Any) -> tuple[System, tuple]:
         if aid in entries:
             raise ScenarioError(f"system.C.{aid} is given twice")
         C = _matrix(v, f"system.C.{aid}")
-        if C.shape[1] != n:
-            raise DimensionError(f"system.C.{aid} has {C.shape[1]} columns, system.A is {n}x{n}")
+        check_shapes(A, {aid: C})
         entries[aid] = C
     ids = tuple(sorted(entries))
     x0 = None
     if sysmap.get("x0") is not None:
         x0 = _matrix(sysmap["x0"], "system.x0", vector=True)
-        if x0.shape != (n,):
-            raise DimensionError(f"system.x0 has {x0.shape[0]} entries, system.A is {n}x{n}")
+        check_shapes(A, {}, x0)
     noises = {}
     for k in ("process_noise", "measurement_noise"):
         v = _number(sysmap.get(k, 0.0), f"system.{k}")
@@ -171,12 +167,7 @@ def _parse_design(raw: Any, time: str, system: System, ids: tuple) -> DesignSpec
         Ks = []
         for aid, C in zip(ids, system.Cs):
             K_i = given[aid]
-            if K_i.shape != (system.n, C.shape[0]):
-                # no guessing: a flat row [a, b, ...] is 1 x n, not the column n x 1
-                hint = "; write a column as [[a], [b], ...]" if C.shape[0] == 1 else ""
-                raise DimensionError(
-                    f"design.K.{aid} is {K_i.shape[0]}x{K_i.shape[1]}, expected {system.n}x{C.shape[0]} "
-                    f"(n x s_i with system.C.{aid} {C.shape[0]}x{C.shape[1]}{hint})")
+            check_shapes(system.A, {aid: C}, Ks={aid: K_i})
             Ks.append(K_i)
         K = tuple(Ks)
     elif "K" in dmap:
