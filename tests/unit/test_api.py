@@ -149,3 +149,14 @@ def test_api_tour_runs(tmp_path):
                  "x 1.00 of centralized"):
         assert word in out, (word, out)
     assert png.stat().st_size > 10_000
+
+
+def test_readme_python_example_runs(monkeypatch):
+    """The README's Python API block, executed as written (from the repository root)."""
+    readme = (ROOT / "README.md").read_text()
+    block = readme.split("## Python API")[1].split("```python")[1].split("```")[0]
+    monkeypatch.chdir(ROOT)
+    scope: dict = {}
+    exec(compile(block, "README.md", "exec"), scope)  # noqa: S102 - our own documentation
+    assert scope["d"].q == 6 and scope["tr"].xhat.shape == (41, 3, 4)
+    assert scope["cmp"].estimators["KCF"].rms_mean > 0
