@@ -28,14 +28,13 @@ def cmd_orchestrator(args: argparse.Namespace) -> int:
 
 
 def cmd_run(args: argparse.Namespace) -> int:
-    from splitspec_core.designer import design
-    from splitspec_core.scenario_model import load_scenario
+    import splitspec_core as ss
     from splitspec_core.runtime.wire import Keys
 
     from ..launcher import run_local
 
-    sc = load_scenario(args.scenario)
-    design(sc)  # fail fast, with one line, before starting any process
+    sc = ss.load_scenario(args.scenario)
+    ss.design(sc)  # fail fast, with one line, before starting any process
     if args.run_id is not None:
         Keys(args.run_id)  # validates --run-id before any process starts
     out = out_dir(args.out)
@@ -88,10 +87,10 @@ def cmd_router(args: argparse.Namespace) -> int:
 
 
 def cmd_credentials(args: argparse.Namespace) -> int:
-    from splitspec_core.scenario_model import load_scenario
+    import splitspec_core as ss
     from splitspec_core.runtime.security import generate
 
-    sc = load_scenario(args.scenario)
+    sc = ss.load_scenario(args.scenario)
     cred = generate(args.out, sc.agent_ids)
     print(f"wrote {cred.dir}/users.txt (for the orchestrator: --secure {cred.dir}) and "
           f"{len(cred.users)} .cred files (plant: --credentials {cred.dir}/plant.cred, agent i: "
