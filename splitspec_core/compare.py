@@ -31,6 +31,7 @@ from .baselines import baseline_trajectories, kalman_predictor, sampled_model
 from .design import design
 from .errors import DesignError
 from .noise import predicted_rms, tune
+from .report import rate_certificate
 from .scenario import Scenario
 from .simulate import check_trajectory_memory, simulate
 
@@ -152,7 +153,13 @@ def compare(sc: Scenario, *, seeds, steps: int | None = None, eps: float | None 
 
 
 def sweep(sc: Scenario, *, seed: int, steps: int | None = None, values=None) -> dict:
-    """RMS error (predicted and simulated) and measured rate against q (discrete) or g (continuous)."""
+    """RMS error (predicted and simulated) and measured rate against q (discrete) or g (continuous).
+
+    A row is ``certified`` as :func:`~splitspec_core.report.rate_certificate`
+    judges the design at that value, for the estimator the row simulates
+    (continuous: the sampled-data form with ``run.dt``, so a g certified for
+    the ODE alone is not certified); ``certificate`` says why in one line.
+    """
     base = design(sc)
     discrete = sc.time == "discrete"
     if values is None:
@@ -170,13 +177,13 @@ def sweep(sc: Scenario, *, seed: int, steps: int | None = None, values=None) -> 
         except DesignError as exc:
             rows.append({"value": v, "error": str(exc)})
             continue
-        certified = bool(des.q_result.certified) if discrete else des.g_certified_by is not None
+        cert = rate_certificate(des)
         noisy = simulate(des, seed=seed, steps=steps, progress=False)
         clean = simulate(des, seed=seed, steps=steps, noise=False, progress=False)
         e = clean.errors()
         rate = fit_decay(clean.t, np.nanmax(e, axis=1), time=sc.time, scale=np.linalg.norm(clean.x, axis=1))
         pred = predicted_rms(des)
-        rows.append({"value": v, "certified": certified, "predicted_rms": float(np.sqrt(np.mean(pred ** 2))),
+        rows.append({"value": v, "certified": cert.certified, "certificate": cert.text, "predicted_rms": float(np.sqrt(np.mean(pred ** 2))),
                      "simulated_rms": steady_rms(noisy.errors()), "measured_rate": rate})
     return {"scenario": sc.name, "parameter": "q" if discrete else "g", "designed": base.q if discrete else base.g,
             "rate": sc.design.rate, "seed": seed, "rows": rows}

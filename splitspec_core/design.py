@@ -27,7 +27,11 @@ from .observability import Decomposition, check_joint_observability, decompose
 from .resilience import analyse_agent_losses, analyse_arc_losses
 from .scenario import Scenario
 
-__all__ = ["AgentDesign", "Design", "certify_network", "design", "design_agent", "nice_ceil", "scenario_dwell"]
+__all__ = ["AgentDesign", "Design", "certify_network", "design", "design_agent", "nice_ceil", "scenario_dwell",
+           "NO_CERTIFIED_RATE"]
+
+# thm. split_continuous_adaptive: with the adaptive gain (eq. adaptive) every error tends to zero, at no stated rate
+NO_CERTIFIED_RATE = "asymptotic convergence only (no certified rate)"
 
 
 @dataclass(frozen=True)
