@@ -177,7 +177,8 @@ def _simulate_summary_text(summary: dict, *, time: str, out) -> str:
             lines.append(f"  measured rate (noise-free, tail fit) {meas:.4g} ({rate_word}), for information")
     else:
         lines = [f"simulated {summary['steps']} steps; designed rate {summary['designed_rate']:g} ({rate_word})"
-                 + ("" if summary.get("certified_rate", True) else ", NOT certified by the design")]
+                 + ("" if summary.get("certified_rate", True) else
+                    f", NOT certified by the design ({summary.get('certificate')})")]
         if meas is not None:
             verdict = "meets" if summary["measured_meets_design"] else "does NOT meet"
             lines.append(f"  measured rate (noise-free, tail fit) {meas:.4g}: {verdict} the design")
@@ -198,18 +199,10 @@ def _simulate_summary_text(summary: dict, *, time: str, out) -> str:
     return "\n".join(lines)
 
 
-def _rate_certified(des) -> bool:
-    """Whether the design certifies its rate: q by its method, g by a bound; never the adaptive gain."""
-    if des.g_mode == "adaptive":
-        return False
-    if des.time == "discrete":
-        return bool(des.q_result is not None and des.q_result.certified)
-    return des.g_certified_by is not None
-
-
 def _cmd_simulate(args: argparse.Namespace) -> int:
     from splitspec_core.analysis import event_marks, monte_carlo_stats, summarize
     from splitspec_core.design import design
+    from splitspec_core.report import rate_certificate
     from splitspec_core.scenario import load_scenario
     from splitspec_core.simulate import check_trajectory_memory, simulate, simulate_exact
 
@@ -236,9 +229,10 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
         clean = simulate(des, seed=seed, steps=args.steps, noise=False) if noisy else traj
     traj.save(out / "trajectory.npz")
     adaptive = des.g_mode == "adaptive"
+    cert = rate_certificate(des, sampled=not args.exact)  # --exact integrates the ODE itself
     summary = summarize(traj, time=sc.time, rate=sc.design.rate, noise_free=clean, adaptive=adaptive,
-                        certified_rate=_rate_certified(des))
-    summary.update({"scenario": sc.name, "seed": seed, "time": sc.time,
+                        certified_rate=cert.certified)
+    summary.update({"certificate": cert.text, "scenario": sc.name, "seed": seed, "time": sc.time,
                     "g": des.g, "q": des.q, "estimator": "exact ODE" if args.exact else "sampled-data" if
                     sc.time == "continuous" else "discrete two-rate"})
     mc = None

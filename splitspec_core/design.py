@@ -60,7 +60,9 @@ class Design:
     """A complete design with diagnostics (see ``design_json`` for the contract).
 
     ``g`` is ``None`` for discrete time and for the adaptive estimator;
-    ``q`` is ``None`` for continuous time.
+    ``q`` is ``None`` for continuous time.  ``g_certified_by`` names what
+    certifies g for the ODE (None: nothing, or the adaptive gain); the verdict
+    for the estimator as run is :func:`splitspec_core.report.rate_certificate`.
     """
 
     scenario: Scenario
@@ -244,7 +246,7 @@ def _design_g(sc: Scenario, cases, switching: bool, warnings: list) -> dict:
     else:
         certified = {k: v for k, v in (("thm:arb", g_arb), ("eq:split_continuous_g", g_dw)) if v is not None}
     if d.g == "adaptive":
-        g, mode, by = None, "adaptive", "thm:split_continuous_adaptive (asymptotic, no rate)"
+        g, mode, by = None, "adaptive", None  # thm. split_continuous_adaptive: NO_CERTIFIED_RATE
     elif d.g == "auto":
         mode = "auto"
         if certified:

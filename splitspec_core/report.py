@@ -153,6 +153,9 @@ def design_json(des: Design) -> dict:
         "error_spectrum": {k: _num(v) for k, v in des.error_radius.items()},
         "warnings": list(des.warnings),
     }
+    cert = rate_certificate(des)
+    out.update(certified_rate=cert.certified, certificate=cert.text,
+               rate_note=NO_CERTIFIED_RATE if des.g_mode == "adaptive" else None)
     if sc.time == "continuous":
         out.update({
             "g": _num(des.g),
@@ -196,9 +199,11 @@ def design_text(des: Design) -> str:
     sc = des.scenario
     d = sc.design
     unit = "exp(-lam t)" if sc.time == "continuous" else "lam^tau"
+    adaptive = des.g_mode == "adaptive"
     lines = [
         f"splitspec design: {sc.name}  ({sc.time} time, m = {sc.m} agents, n = {sc.n} states)",
-        f"  rate lam = {d.rate:g}  (errors decay as {unit}); gains: {d.gains}",
+        (f"  rate lam = {d.rate:g} for the local gains only; adaptive g: {NO_CERTIFIED_RATE}; gains: {d.gains}"
+         if adaptive else f"  rate lam = {d.rate:g}  (errors decay as {unit}); gains: {d.gains}"),
         "",
         "agents  (n_i = dim of the unobservable space V_i; poles of Abar_i + Kbar_i Cbar_i)",
     ]
@@ -234,6 +239,8 @@ def design_text(des: Design) -> str:
         else:
             by = f"certified by {des.g_certified_by}" if des.g_certified_by else "NOT certified"
             lines.append(f"g = {des.g:g}  ({des.g_mode}; {by})")
+        if adaptive:
+            lines.append("  for comparison, a fixed g meeting the rate would need:")
         for label in des.g_bounds:
             lines.append(f"  {label}: g_bound (eq. g) = {des.g_bounds[label]:.4g}, "
                          f"g_min (exact spectrum) = {des.g_mins[label]:.4g}"
@@ -265,6 +272,9 @@ def design_text(des: Design) -> str:
                 else:
                     ex = f" (p = {res.p}, pbar = {res.pbar})" if res.p else ""
                     lines.append(f"    {meth}: q = {res.q}{ex}, bound {res.bound:.4g}")
+    cert = rate_certificate(des)
+    verdict = "rate" if adaptive else f"rate {'certified' if cert.certified else 'NOT certified'}"
+    lines += ["", f"{verdict}: {cert.text}"]
     if des.warnings:
         lines += [""] + [f"warning: {w}" for w in des.warnings]
     return "\n".join(lines)
