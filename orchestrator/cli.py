@@ -116,7 +116,7 @@ def _tune(args: argparse.Namespace, sc) -> int:
 
 
 def _cmd_compare(args: argparse.Namespace) -> int:
-    from splitspec_core.compare import compare, sweep
+    from splitspec_core.compare import certificate_lines, compare, sweep, sweep_line
     from splitspec_core.scenario import load_scenario
     from splitspec_core.simulate import check_trajectory_memory
 
@@ -136,6 +136,7 @@ def _cmd_compare(args: argparse.Namespace) -> int:
         st = "never" if r["settle_time_1e-3"] is None else f"{r['settle_time_1e-3']:g}"
         lines.append(f"  {name:<17} {r['rms_mean']:11.4g} {r['rms_std']:9.2g} {r['ratio_to_centralized']:9.3f} "
                      f"{pred:>10} {st:>11} {r['messages_per_event']:>10}")
+    lines += certificate_lines(res)
     if "tuned" in res:
         tnd = res["tuned"]
         what = f"q = {tnd['q']}" if tnd["q"] is not None else f"g = {tnd['g']:g}"
@@ -157,9 +158,7 @@ def _cmd_compare(args: argparse.Namespace) -> int:
 
             P.plot_sweep(sw, out / "sweep.png")
             plots.append("sweep.png")
-        lines.append(f"  sweep of {sw['parameter']}: " + ", ".join(
-            f"{r['value']:g}: RMS {r['predicted_rms']:.3g}{'*' if r['certified'] else ''}" for r in sw["rows"]
-            if "error" not in r) + "  (* rate certified)")
+        lines.append(sweep_line(sw))
     res["plots"] = plots
     (out / "compare.json").write_text(json.dumps(res, indent=2) + "\n")
     lines.append(f"wrote {out}/compare.json" + "".join(f", {p}" for p in plots) +

@@ -119,3 +119,28 @@ def test_adaptive_simulate_claims_no_rate(adaptive, tmp_path, capsys):
     assert summary["envelope_c"] is None and not summary["envelope_pieces"]
     for claim in CLAIMS:
         assert claim not in text, claim
+
+
+def test_adaptive_compare_claims_no_rate(adaptive, tmp_path, capsys):
+    """compare runs the adaptive estimator (no predicted steady state) and says it has no certified rate."""
+    path, _ = adaptive
+    out = tmp_path / "cmp"
+    assert cli.main(["compare", str(path), "--out", str(out), "--seeds", "2", "--steps", "100", "--sweep"]) == 0
+    text = capsys.readouterr().out
+    res = json.loads((out / "compare.json").read_text())
+    split = {k: v for k, v in res["estimators"].items() if k.startswith("split")}
+    assert split and "split tuned" not in split  # the adaptive gain has no steady state to tune
+    for name, r in split.items():
+        assert r["certified_rate"] is False and r["rate_note"] == NO_CERTIFIED_RATE, name
+        assert r["predicted_rms"] is None and r["g"] is None
+        assert f"{name}: adaptive gain: {NO_CERTIFIED_RATE}" in text
+    for r in (res["estimators"]["centralized KF"], res["estimators"]["KCF"]):
+        assert "certified_rate" not in r  # no split-spectrum certificate for the baselines
+    assert (out / "sweep.png").stat().st_size > 1000  # drawn without a designed g
+    sw = json.loads((out / "sweep.json").read_text())
+    assert sw["designed"] is None and NO_CERTIFIED_RATE in sw["designed_note"]
+    assert NO_CERTIFIED_RATE in text.splitlines()[-2]  # the sweep line: its values are fixed g, for comparison
+    for line in text.splitlines():
+        if line.strip().startswith("split"):
+            for claim in CLAIMS:
+                assert claim not in line, (claim, line)
