@@ -2,9 +2,10 @@
 
 Steps (paper, Sections 2-4):
 
-1. per agent: observability decomposition ``V_i, Q_i, P_i`` and local gain
-   ``K_i`` (local; each agent can do this from ``(A, C_i, lam)``);
-2. checks: every graph strongly connected, ``(C, A)`` jointly observable;
+1. ``(C, A)`` jointly observable (before any gain is judged);
+2. per agent: observability decomposition ``V_i, Q_i, P_i`` and local gain
+   ``K_i`` (local; each agent can do this from ``(A, C_i, lam)``); every
+   graph strongly connected;
 3. centralised: g (continuous) or q (discrete) covering every graph the
    switching signal can use (and, with ``design.resilience: 1``, every graph
    left after a single agent loss);
@@ -174,6 +175,9 @@ def design(sc: Scenario, *, compare_q_methods: bool = False) -> Design:
     """
     d = sc.design
     A = sc.system.A
+    # the standing assumption first ((C, A) of eqs. pre_sys1-pre_sys2 jointly observable): without it no K_i helps,
+    # so an explicit K_i that misses the rate on a direction nobody sees is not the error to report
+    check_joint_observability(A, sc.system.Cs, rank_tol=d.rank_tol)
     pw, mw = riccati_weights(sc)
     agents = tuple(
         design_agent(A, C, time=sc.time, rate=d.rate, method=d.gains, margin=d.margin,
@@ -181,7 +185,6 @@ def design(sc: Scenario, *, compare_q_methods: bool = False) -> Design:
                      process_weight=pw, measurement_weight=mw, agent_id=aid)
         for k, (aid, C) in enumerate(zip(sc.agent_ids, sc.system.Cs))
     )
-    check_joint_observability(A, sc.system.Cs, rank_tol=d.rank_tol)
     graphs = tuple(build_graph(g.name, sc.agent_ids, g.arcs, weights=d.weights) for g in sc.graphs)
     warnings = []
     used = sc.switching.graph_names(sc.graph_names)
