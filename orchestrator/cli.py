@@ -203,7 +203,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     from splitspec_core.design import design
     from splitspec_core.report import rate_certificate
     from splitspec_core.scenario import load_scenario
-    from splitspec_core.simulate import check_trajectory_memory, simulate, simulate_exact
+    from splitspec_core.simulate import EXACT_NEEDS_FIXED_G, check_trajectory_memory, simulate, simulate_exact
 
     sc = load_scenario(args.scenario)
     if args.faults_from:
@@ -212,6 +212,8 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
         sc = with_recorded_faults(sc, args.faults_from)
     if args.exact and sc.time != "continuous":
         raise UsageError("--exact integrates the continuous-time ODE; this scenario is discrete")
+    if args.exact and sc.design.g == "adaptive":
+        raise UsageError(f"--exact: {EXACT_NEEDS_FIXED_G}, or drop --exact")
     seed = sc.run.seed if args.seed is None else args.seed
     if args.monte_carlo:
         _seed_range(seed, args.monte_carlo, "--monte-carlo")
