@@ -18,7 +18,6 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-import scipy.linalg as sla
 
 from . import bounds
 from .errors import AssumptionError
@@ -26,6 +25,7 @@ from .gains import LocalGain, design_gain
 from .graphs import build_graph, enumerate_strongly_connected
 from .observability import Decomposition, check_joint_observability, decompose
 from .resilience import analyse_agent_losses, analyse_arc_losses
+from .sampled import sampled_rates
 from .scenario import Scenario
 
 __all__ = ["AgentDesign", "Design", "certify_network", "design", "design_agent", "nice_ceil", "scenario_dwell",
@@ -280,30 +280,9 @@ def _design_g(sc: Scenario, cases, switching: bool, warnings: list) -> dict:
 
 
 def _sampled_check(sc: Scenario, agents, cases, g: float, warnings: list) -> dict:
-    """Decay rate of the sampled-data estimator (run.dt) per case; warn when it misses the rate.
-
-    Observable parts: ``Q_i (E + D K_i C_i) Q_i'``; unobservable part:
-    :func:`bounds.sampled_decay`.  Both are exact for the discretisation used
-    by ``simulate`` and ``run`` (see :mod:`splitspec_core.steps`).
-    """
-    from .steps import sampled_data_matrices
-
+    """:func:`sampled.sampled_rates` for the design; warn when the sampled-data form misses the rate."""
     dt = sc.run.dt
-    A = sc.system.A
-    E, D, _ = sampled_data_matrices(A, dt)
-    obs = math.inf
-    for a, C in zip(agents, sc.system.Cs):
-        if a.dec.n_observable:
-            Q = a.dec.Q
-            rho = bounds.spectral_radius(Q @ (E + D @ a.K @ C) @ Q.T)
-            obs = min(obs, -math.log(rho) / dt if rho > 0 else math.inf)
-    ad = {a.id: a for a in agents}
-    out = {}
-    for c in cases:
-        Vs = [ad[i].V for i in c.graph.ids]
-        Et = sla.block_diag(*[V.T @ E @ V for V in Vs]) if c.nbar else np.zeros((0, 0))
-        Dt = sla.block_diag(*[V.T @ D @ V for V in Vs]) if c.nbar else np.zeros((0, 0))
-        out[c.label] = min(obs, bounds.sampled_decay(c, g, Et, Dt, dt))
+    out = sampled_rates(sc, agents, cases, g)
     worst = min(out.values())
     if worst <= 0:
         warnings.append(f"the sampled-data estimator is UNSTABLE with g = {g:g} and run.dt = {dt:g} "
@@ -349,7 +328,9 @@ def certify_network(des: Design, alive_ids, dropped=frozenset()) -> dict:
     design's q method (rho(Atil B^q) <= lam for ``spectral``, eq. split_discrete_rho),
     ``g`` against eq. (g) or, failing that, the exact spectrum of A_V(g)
     (eq. split_continuous_split) per graph held constant.  Cheap enough to
-    call at every loss during a run (no bisection).
+    call at every loss during a run (no bisection).  A continuous g must also
+    make the sampled-data form with ``run.dt`` decay at the rate (as
+    :func:`splitspec_core.report.rate_certificate`).
 
     Returns a JSON-ready dict: ``alive``, ``dropped_arcs``,
     ``strongly_connected`` (per graph), ``unreachable`` (per graph, a pair
@@ -383,7 +364,7 @@ def certify_network(des: Design, alive_ids, dropped=frozenset()) -> dict:
         text = (f"q = {des.q}: {res.method} bound {res.bound:.4g} {'<=' if cert else '>'} rate {rate:g}"
                 + ("" if res.switching or len(cases) == 1 else " (per graph held constant)"))
     elif des.g is None:
-        cert, text = None, "adaptive gain: convergence without a certified rate"
+        cert, text = None, f"adaptive gain: {NO_CERTIFIED_RATE}"
     else:
         ad = {a.id: a for a in des.agents}
         cases = [bounds.make_case(name, build_graph(name, alive, arcs[name], weights=sc.design.weights),
@@ -396,5 +377,12 @@ def certify_network(des: Design, alive_ids, dropped=frozenset()) -> dict:
             cert = worst <= -rate
             text = (f"g = {des.g:g} < eq. (g) bound {gb:.4g}; exact spectral abscissa {worst:.4g} "
                     f"{'<=' if cert else '>'} -{rate:g} (per graph held constant)")
+        if cert:  # what runs is the sampled-data form (steps.py): it must decay at the rate too
+            dt, sampled = sc.run.dt, min(sampled_rates(sc, [ad[i] for i in alive], cases, des.g).values())
+            if sampled < rate:
+                cert = False
+                text += (f"; but its sampled-data form with run.dt = {dt:g} "
+                         + (f"is UNSTABLE (decay rate {sampled:.4g})" if sampled <= 0 else
+                            f"decays at only {sampled:.4g} < rate {rate:g}"))
     out.update(rate_certified=cert, certificate=text, ok=bool(v.ok and cert is not False))
     return out

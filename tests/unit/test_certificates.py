@@ -15,7 +15,7 @@ import pytest
 import scipy.linalg as sla
 import yaml
 
-from splitspec_core.design import NO_CERTIFIED_RATE, design
+from splitspec_core.design import NO_CERTIFIED_RATE, certify_network, design
 from splitspec_core.report import design_json, design_text, rate_certificate
 from splitspec_core.scenario import load_scenario
 from splitspec_orchestrator import cli
@@ -63,6 +63,10 @@ def test_sampled_data_form_decides_the_certificate(tmp_path, capsys, dt):
     assert rate_certificate(des, sampled=False).certified  # the exact ODE is certified either way
     if dt == 0.2:
         assert decay < 0 and "UNSTABLE" in cert.text and "run.dt = 0.2" in cert.text  # the case under test
+    # the runtime verdict on the (here: all) surviving agents agrees
+    verdict = certify_network(des, des.scenario.agent_ids)
+    assert verdict["rate_certified"] is expected and verdict["ok"] is expected
+    assert ("UNSTABLE" in verdict["certificate"]) is (dt == 0.2)
     # design --json and the text report say the same
     assert cli.main(["design", str(path), "--json"]) == 0
     out = json.loads(capsys.readouterr().out)
@@ -96,6 +100,8 @@ def test_adaptive_design_claims_no_rate(adaptive, capsys):
     out = design_json(des)
     assert out["certified_rate"] is False and out["rate_note"] == NO_CERTIFIED_RATE
     assert out["g_certified_by"] is None and out["g"] is None
+    verdict = certify_network(des, des.scenario.agent_ids)
+    assert verdict["rate_certified"] is None and NO_CERTIFIED_RATE in verdict["certificate"]
     text = design_text(des)
     assert NO_CERTIFIED_RATE in text
     for claim in CLAIMS:
