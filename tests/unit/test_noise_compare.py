@@ -119,6 +119,19 @@ def test_sweep_never_certifies_an_unstable_sampled_data_form():
     assert sw["rows"][0]["certified"]  # the designed g is still certified at this dt
 
 
+def test_discrete_sweep_certifies_only_contracting_error_maps():
+    """Discrete time runs exactly A_V = Atil B^q (eq. split_discrete_ench): a certified q contracts at the rate."""
+    sc = load_scenario(EXAMPLES / "paper_discrete_noise.yaml")
+    q0 = design(sc).q
+    sw = sweep(sc, seed=0, steps=40, values=list(range(1, q0 + 3)))
+    assert [r["certified"] for r in sw["rows"]].count(True) == 3  # q0, q0 + 1, q0 + 2
+    for row in sw["rows"]:
+        des = design(dataclasses.replace(sc, design=dataclasses.replace(sc.design, q=row["value"])))
+        rho = full_error_radius(des, sc.agent_ids)
+        assert row["certified"] == (rho < sc.design.rate), (row, rho)  # q_method spectral is exact here
+        assert row["certificate"].startswith(f"q = {row['value']}: spectral bound")
+
+
 def test_settle_time_and_steady_rms():
     t = np.arange(10.0)
     err = np.array([1, 0.5, 1e-2, 1e-4, 2e-3, 1e-4, 1e-5, 1e-6, 1e-7, 1e-8])
