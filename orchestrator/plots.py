@@ -227,16 +227,18 @@ def plot_sweep(res: dict, path: Path) -> None:
     a1.set_ylabel("steady-state RMS error")
     a2.plot(v, [r["measured_rate"] if r["measured_rate"] is not None else np.nan for r in rows], "o-",
             label="measured (noise-free)")
-    a2.axhline(res["rate"], color="k", ls="--", lw=0.8, label=f"designed rate {res['rate']:g}")
+    a2.axhline(res["rate"], color="k", ls="--", lw=0.8, label=f"{'target' if res.get('designed_note') else 'designed'} rate {res['rate']:g}")
     a2.set_xlabel(res["parameter"])
     a2.set_ylabel("decay rate" + (" (lam^tau)" if res["parameter"] == "q" else " (exp(-lam t))"))
     for ax in (a1, a2):
         for r in rows:
             if r["certified"]:
                 ax.axvspan(r["value"] - 0.02, r["value"] + 0.02, color="green", alpha=0.15)
-        ax.axvline(res["designed"], color="C2", lw=1.0, label=f"designed {res['parameter']} = {res['designed']:g}")
+        if res["designed"] is not None:  # None: the adaptive gain, no designed g
+            ax.axvline(res["designed"], color="C2", lw=1.0, label=f"designed {res['parameter']} = {res['designed']:g}")
         ax.grid(True, alpha=0.3)
         ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.16), ncol=2)  # below the data
-    fig.suptitle(f"{res['scenario']}: choosing {res['parameter']} (green: rate certified)")
+    note = f"\nthe scenario's {res['designed_note']}" if res.get("designed_note") else ""
+    fig.suptitle(f"{res['scenario']}: choosing {res['parameter']} (green: rate certified){note}")
     fig.savefig(path, dpi=120)
     plt.close(fig)

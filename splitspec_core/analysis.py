@@ -7,13 +7,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .designer import NO_CERTIFIED_RATE
 from .network import fault_step
 from .simulator import Trajectory
 
 __all__ = ["max_error", "fit_decay", "envelope_constant", "envelope_restarts", "envelope", "Mark", "event_marks",
            "summarize", "monte_carlo_stats", "NO_CERTIFIED_RATE"]
-
-NO_CERTIFIED_RATE = "asymptotic convergence only (no certified rate)"  # thm. split_continuous_adaptive
 
 
 def max_error(traj: Trajectory) -> np.ndarray:

@@ -10,7 +10,6 @@ so both meet the same checks with the same one-line messages.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from pathlib import Path
 from types import MappingProxyType
@@ -20,6 +19,7 @@ import numpy as np
 
 from .designer import Design
 from .errors import ScenarioError
+from .report import rate_certificate
 from .scenario_checks import _DESIGN_KEYS, _RUN_KEYS, _SYSTEM_KEYS
 from .scenario_model import Scenario, parse_scenario
 from .scenario_model import load_scenario as _load_scenario
@@ -138,16 +138,17 @@ class Checks:
     ----------
     jointly_observable : ``(C, A)`` jointly observable (:func:`design` raises when it is not)
     strongly_connected : per graph name (:func:`design` raises when one is not)
-    rate_certified : the rate is certified for every graph the switching signal uses; None for the
-        adaptive gain (asymptotic convergence, no certified rate: thm. split_continuous_adaptive)
-    certificate : one line: what certifies the rate, or why nothing does
+    rate_certified : the rate is certified for the estimator as it runs (continuous time: the
+        sampled-data form at ``run.dt`` too); never for the adaptive gain (asymptotic convergence,
+        no certified rate: thm. split_continuous_adaptive)
+    certificate : one line: what certifies the rate, or why nothing does (``splitspec design`` says the same)
     sampled_rate : continuous time: the worst decay rate of the sampled-data estimator at ``run.dt``
     warnings : what the design report warns about
     """
 
     jointly_observable: bool
     strongly_connected: Mapping[str, bool]
-    rate_certified: bool | None
+    rate_certified: bool
     certificate: str
     sampled_rate: float | None
     warnings: tuple
@@ -192,26 +193,6 @@ class DesignResult:
         return design_json(self.detail)
 
 
-def certificate(des: Design) -> tuple[bool | None, str]:
-    """``(rate_certified, one line)`` of a design: q by its method, g by a bound or the exact spectrum;
-    None for the adaptive gain (asymptotic convergence, no certified rate)."""
-    rate = des.rate
-    if des.time == "discrete":
-        r = des.q_result
-        ok = bool(r.certified)
-        return ok, (f"q = {des.q}: {r.method} bound {r.bound:.4g} {'<=' if ok else '>'} rate {rate:g}"
-                    + ("" if r.switching or len(des.cases) <= 1 else " (each graph held constant)"))
-    if des.g_mode == "adaptive":
-        return None, "adaptive gain: asymptotic convergence, no certified rate"
-    sampled = min(des.sampled_rate.values()) if des.sampled_rate else math.inf
-    if des.g_certified_by is None:
-        return False, f"g = {des.g:g} is not certified for rate {rate:g}"
-    if sampled < rate:
-        return False, (f"g = {des.g:g} certified by {des.g_certified_by}, but the sampled-data estimator at "
-                       f"run.dt = {des.scenario.run.dt:g} decays at {sampled:.4g} < rate {rate:g}")
-    return True, f"g = {des.g:g} certified by {des.g_certified_by}"
-
-
 def design(sc: Scenario, *, all_q_methods: bool = False) -> DesignResult:
     """Check the assumptions and design the estimator (``splitspec design``).
 
@@ -231,10 +212,10 @@ def design(sc: Scenario, *, all_q_methods: bool = False) -> DesignResult:
     des = _design(sc, compare_q_methods=all_q_methods)
     agents = {a.id: AgentResult(id=a.id, K=_readonly(a.K), V=_readonly(a.V), Q=_readonly(a.dec.Q),
                                 P=_readonly(a.P), poles=_readonly(a.gain.poles)) for a in des.agents}
-    ok, line = certificate(des)
+    cert = rate_certificate(des)
     sampled = min(des.sampled_rate.values()) if des.sampled_rate else None
     checks = Checks(jointly_observable=True, strongly_connected=MappingProxyType({g.name: True for g in des.graphs}),
-                    rate_certified=ok, certificate=line, sampled_rate=sampled, warnings=tuple(des.warnings))
+                    rate_certified=cert.certified, certificate=cert.text, sampled_rate=sampled, warnings=tuple(des.warnings))
     return DesignResult(scenario=sc, time=sc.time, rate=sc.design.rate, q=des.q, g=des.g, g_mode=des.g_mode,
                         agents=MappingProxyType(agents), checks=checks, detail=des)
 
@@ -298,6 +279,12 @@ class EstimatorResult:
     q: int | None
     g: float | None
     gains: str | None
+    certified_rate: bool | None = None  # split-spectrum rows: the design's certificate (None for the baselines)
+    certificate: str | None = None
+    rate_note: str | None = None  # the adaptive gain: asymptotic convergence only (no certified rate)
+
+
+_CERTIFICATE_FIELDS = ("certified_rate", "certificate", "rate_note")
 
 
 @dataclass(frozen=True)
@@ -329,7 +316,9 @@ class CompareResult:
                "rate": self.rate, "process_noise": self.process_noise,
                "measurement_noise": self.measurement_noise, "exchanges": self.exchanges, "kcf_eps": self.kcf_eps,
                "estimators": {k: {("settle_time_1e-3" if f == "settle_time" else f): getattr(v, f)
-                                  for f in v.__dataclass_fields__} for k, v in self.estimators.items()}}
+                                  for f in v.__dataclass_fields__
+                                  if v.certificate is not None or f not in _CERTIFICATE_FIELDS}
+                              for k, v in self.estimators.items()}}
         if self.tuned is not None:
             out["tuned"] = dict(self.tuned)
         return out
@@ -352,7 +341,7 @@ def compare(sc: Scenario, *, seeds: int | Iterable[int] = 5, seed: int | None = 
     curves = raw.pop("_curves")
     t = curves.pop("t")
     est = {k: EstimatorResult(settle_time=v["settle_time_1e-3"],
-                              **{f: v[f] for f in EstimatorResult.__dataclass_fields__ if f != "settle_time"})
+                              **{f: v[f] for f in EstimatorResult.__dataclass_fields__ if f in v})
            for k, v in raw["estimators"].items()}
     return CompareResult(scenario=raw["scenario"], time=raw["time"], seeds=tuple(raw["seeds"]), steps=raw["steps"],
                          rate=raw["rate"], process_noise=raw["process_noise"],

@@ -14,9 +14,12 @@ simulator's named streams, :mod:`splitspec_core.streams`):
 
 Figures per estimator: steady-state RMS error (over the last half of the run,
 RMS over agents, then mean and std over seeds), its ratio to the centralized
-filter, the predicted (exact) steady-state RMS where available, the
-noise-free time until the error stays below 1e-3 of its initial value, and
-messages per event time (one message = one vector sent by one agent).
+filter, the predicted (exact) steady-state RMS where available (not for the adaptive
+gain, which has no steady state), the noise-free time until the error stays
+below 1e-3 of its initial value, messages per event time (one message = one
+vector sent by one agent), and for the split-spectrum estimators the rate
+certificate of :func:`~splitspec_core.report.rate_certificate` (the adaptive
+gain: asymptotic convergence only, no certified rate).
 """
 
 from __future__ import annotations
@@ -28,13 +31,14 @@ import numpy as np
 
 from .analysis import fit_decay
 from .baselines import baseline_trajectories, kalman_predictor, sampled_model
-from .designer import design
+from .designer import NO_CERTIFIED_RATE, design, nice_ceil
 from .errors import DesignError
 from .noise import predicted_rms, tune
+from .report import rate_certificate
 from .scenario_model import Scenario
 from .simulator import check_trajectory_memory, simulate
 
-__all__ = ["compare", "sweep", "steady_rms", "settle_time"]
+__all__ = ["compare", "sweep", "sweep_line", "certificate_lines", "steady_rms", "settle_time"]
 
 
 def steady_rms(err: np.ndarray) -> float:
@@ -118,7 +122,9 @@ def compare(sc: Scenario, *, seeds, steps: int | None = None, eps: float | None 
     F, Q, R = sampled_model(sc)
     C = np.vstack([np.asarray(c) for c in sc.system.Cs])
     kp = kalman_predictor(F, C, Q, R)
-    predicted = {name: float(np.sqrt(np.mean(predicted_rms(des) ** 2))) for name, des in variants.items()}
+    # the adaptive gain has no steady state (g_i(t) keeps moving), so no predicted RMS
+    predicted = {name: float(np.sqrt(np.mean(predicted_rms(des) ** 2))) for name, des in variants.items()
+                 if des.g_mode != "adaptive"}
     predicted["centralized KF"] = float(math.sqrt(np.trace(kp.P)))
     m = sc.m
     messages = {name: m * des.q if discrete else m for name, des in variants.items()}
@@ -138,6 +144,10 @@ def compare(sc: Scenario, *, seeds, steps: int | None = None, eps: float | None 
             "q": None if des is None else des.q, "g": None if des is None else des.g,
             "gains": None if des is None else des.scenario.design.gains,
         }
+        if des is not None:
+            cert = rate_certificate(des)
+            table[name].update(certified_rate=cert.certified, certificate=cert.text,
+                               rate_note=NO_CERTIFIED_RATE if des.g_mode == "adaptive" else None)
     out = {"scenario": sc.name, "time": sc.time, "seeds": seeds, "steps": int(len(T) - 1),
            "rate": sc.design.rate, "process_noise": sc.system.process_noise,
            "measurement_noise": sc.system.measurement_noise, "exchanges": exchanges, "kcf_eps": eps,
@@ -152,15 +162,21 @@ def compare(sc: Scenario, *, seeds, steps: int | None = None, eps: float | None 
 
 
 def sweep(sc: Scenario, *, seed: int, steps: int | None = None, values=None) -> dict:
-    """RMS error (predicted and simulated) and measured rate against q (discrete) or g (continuous)."""
+    """RMS error (predicted and simulated) and measured rate against q (discrete) or g (continuous).
+
+    A row is ``certified`` as :func:`~splitspec_core.report.rate_certificate`
+    judges the design at that value, for the estimator the row simulates
+    (continuous: the sampled-data form with ``run.dt``, so a g certified for
+    the ODE alone is not certified); ``certificate`` says why in one line.
+    """
     base = design(sc)
     discrete = sc.time == "discrete"
     if values is None:
         if discrete:
             q0 = base.q
             values = list(range(1, max(2 * q0, q0 + 6) + 1))
-        else:
-            g0 = base.g or 1.0
+        else:  # the adaptive gain: fixed values around the auto g (eq. g) for comparison
+            g0 = base.g if base.g is not None else nice_ceil(max(base.g_bounds.values()) * (1 + 1e-9)) or 1.0
             values = [g0 * f for f in (0.25, 0.5, 0.75, 1.0, 1.5, 2.0, 3.0, 4.0)]
     rows = []
     for v in values:
@@ -170,13 +186,35 @@ def sweep(sc: Scenario, *, seed: int, steps: int | None = None, values=None) -> 
         except DesignError as exc:
             rows.append({"value": v, "error": str(exc)})
             continue
-        certified = bool(des.q_result.certified) if discrete else des.g_certified_by is not None
+        cert = rate_certificate(des)
         noisy = simulate(des, seed=seed, steps=steps, progress=False)
         clean = simulate(des, seed=seed, steps=steps, noise=False, progress=False)
         e = clean.errors()
         rate = fit_decay(clean.t, np.nanmax(e, axis=1), time=sc.time, scale=np.linalg.norm(clean.x, axis=1))
         pred = predicted_rms(des)
-        rows.append({"value": v, "certified": certified, "predicted_rms": float(np.sqrt(np.mean(pred ** 2))),
+        rows.append({"value": v, "certified": cert.certified, "certificate": cert.text, "predicted_rms": float(np.sqrt(np.mean(pred ** 2))),
                      "simulated_rms": steady_rms(noisy.errors()), "measured_rate": rate})
     return {"scenario": sc.name, "parameter": "q" if discrete else "g", "designed": base.q if discrete else base.g,
+            "designed_note": f"adaptive gain: {NO_CERTIFIED_RATE}" if base.g_mode == "adaptive" else None,
             "rate": sc.design.rate, "seed": seed, "rows": rows}
+
+
+def certificate_lines(res: dict) -> list:
+    """One line per split-spectrum estimator of a :func:`compare` result: its rate certificate."""
+    lines = []
+    for name, r in res["estimators"].items():
+        if "certificate" not in r:
+            continue
+        verdict = "" if r["rate_note"] else ("rate certified: " if r["certified_rate"] else "rate NOT certified: ")
+        lines.append(f"  {name}: {verdict}{r['certificate']}")
+    return lines
+
+
+def sweep_line(sw: dict) -> str:
+    """The one-line summary of a :func:`sweep`: predicted RMS per value, certified values starred."""
+    text = f"  sweep of {sw['parameter']}: " + ", ".join(
+        f"{r['value']:g}: RMS {r['predicted_rms']:.3g}{'*' if r['certified'] else ''}" for r in sw["rows"]
+        if "error" not in r) + "  (* rate certified)"
+    if sw.get("designed_note"):
+        text += f"; fixed values for comparison, the scenario's {sw['designed_note']}"
+    return text

@@ -2,9 +2,10 @@
 
 Steps (paper, Sections 2-4):
 
-1. per agent: observability decomposition ``V_i, Q_i, P_i`` and local gain
-   ``K_i`` (local; each agent can do this from ``(A, C_i, lam)``);
-2. checks: every graph strongly connected, ``(C, A)`` jointly observable;
+1. ``(C, A)`` jointly observable (before any gain is judged);
+2. per agent: observability decomposition ``V_i, Q_i, P_i`` and local gain
+   ``K_i`` (local; each agent can do this from ``(A, C_i, lam)``); every
+   graph strongly connected;
 3. centralised: g (continuous) or q (discrete) covering every graph the
    switching signal can use (and, with ``design.resilience: 1``, every graph
    left after a single agent loss);
@@ -17,7 +18,6 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-import scipy.linalg as sla
 
 from . import bounds
 from .errors import AssumptionError
@@ -25,9 +25,14 @@ from .gains import LocalGain, design_gain
 from .graphs import build_graph, enumerate_strongly_connected
 from .observability import Decomposition, check_joint_observability, decompose
 from .resilience import analyse_agent_losses, analyse_arc_losses
+from .sampled import sampled_rates
 from .scenario_model import Scenario
 
-__all__ = ["AgentDesign", "Design", "certify_network", "design", "design_agent", "nice_ceil", "scenario_dwell"]
+__all__ = ["AgentDesign", "Design", "certify_network", "design", "design_agent", "nice_ceil", "scenario_dwell",
+           "NO_CERTIFIED_RATE"]
+
+# thm. split_continuous_adaptive: with the adaptive gain (eq. adaptive) every error tends to zero, at no stated rate
+NO_CERTIFIED_RATE = "asymptotic convergence only (no certified rate)"
 
 
 @dataclass(frozen=True)
@@ -56,7 +61,9 @@ class Design:
     """A complete design with diagnostics (see ``design_json`` for the contract).
 
     ``g`` is ``None`` for discrete time and for the adaptive estimator;
-    ``q`` is ``None`` for continuous time.
+    ``q`` is ``None`` for continuous time.  ``g_certified_by`` names what
+    certifies g for the ODE (None: nothing, or the adaptive gain); the verdict
+    for the estimator as run is :func:`splitspec_core.report.rate_certificate`.
     """
 
     scenario: Scenario
@@ -168,6 +175,9 @@ def design(sc: Scenario, *, compare_q_methods: bool = False) -> Design:
     """
     d = sc.design
     A = sc.system.A
+    # the standing assumption first ((C, A) of eqs. pre_sys1-pre_sys2 jointly observable): without it no K_i helps,
+    # so an explicit K_i that misses the rate on a direction nobody sees is not the error to report
+    check_joint_observability(A, sc.system.Cs, rank_tol=d.rank_tol)
     pw, mw = riccati_weights(sc)
     agents = tuple(
         design_agent(A, C, time=sc.time, rate=d.rate, method=d.gains, margin=d.margin,
@@ -175,7 +185,6 @@ def design(sc: Scenario, *, compare_q_methods: bool = False) -> Design:
                      process_weight=pw, measurement_weight=mw, agent_id=aid)
         for k, (aid, C) in enumerate(zip(sc.agent_ids, sc.system.Cs))
     )
-    check_joint_observability(A, sc.system.Cs, rank_tol=d.rank_tol)
     graphs = tuple(build_graph(g.name, sc.agent_ids, g.arcs, weights=d.weights) for g in sc.graphs)
     warnings = []
     used = sc.switching.graph_names(sc.graph_names)
@@ -240,7 +249,7 @@ def _design_g(sc: Scenario, cases, switching: bool, warnings: list) -> dict:
     else:
         certified = {k: v for k, v in (("thm:arb", g_arb), ("eq:split_continuous_g", g_dw)) if v is not None}
     if d.g == "adaptive":
-        g, mode, by = None, "adaptive", "thm:split_continuous_adaptive (asymptotic, no rate)"
+        g, mode, by = None, "adaptive", None  # thm. split_continuous_adaptive: NO_CERTIFIED_RATE
     elif d.g == "auto":
         mode = "auto"
         if certified:
@@ -271,30 +280,9 @@ def _design_g(sc: Scenario, cases, switching: bool, warnings: list) -> dict:
 
 
 def _sampled_check(sc: Scenario, agents, cases, g: float, warnings: list) -> dict:
-    """Decay rate of the sampled-data estimator (run.dt) per case; warn when it misses the rate.
-
-    Observable parts: ``Q_i (E + D K_i C_i) Q_i'``; unobservable part:
-    :func:`bounds.sampled_decay`.  Both are exact for the discretisation used
-    by ``simulate`` and ``run`` (see :mod:`splitspec_core.steps`).
-    """
-    from .steps import sampled_data_matrices
-
+    """:func:`sampled.sampled_rates` for the design; warn when the sampled-data form misses the rate."""
     dt = sc.run.dt
-    A = sc.system.A
-    E, D, _ = sampled_data_matrices(A, dt)
-    obs = math.inf
-    for a, C in zip(agents, sc.system.Cs):
-        if a.dec.n_observable:
-            Q = a.dec.Q
-            rho = bounds.spectral_radius(Q @ (E + D @ a.K @ C) @ Q.T)
-            obs = min(obs, -math.log(rho) / dt if rho > 0 else math.inf)
-    ad = {a.id: a for a in agents}
-    out = {}
-    for c in cases:
-        Vs = [ad[i].V for i in c.graph.ids]
-        Et = sla.block_diag(*[V.T @ E @ V for V in Vs]) if c.nbar else np.zeros((0, 0))
-        Dt = sla.block_diag(*[V.T @ D @ V for V in Vs]) if c.nbar else np.zeros((0, 0))
-        out[c.label] = min(obs, bounds.sampled_decay(c, g, Et, Dt, dt))
+    out = sampled_rates(sc, agents, cases, g)
     worst = min(out.values())
     if worst <= 0:
         warnings.append(f"the sampled-data estimator is UNSTABLE with g = {g:g} and run.dt = {dt:g} "
@@ -340,7 +328,9 @@ def certify_network(des: Design, alive_ids, dropped=frozenset()) -> dict:
     design's q method (rho(Atil B^q) <= lam for ``spectral``, eq. split_discrete_rho),
     ``g`` against eq. (g) or, failing that, the exact spectrum of A_V(g)
     (eq. split_continuous_split) per graph held constant.  Cheap enough to
-    call at every loss during a run (no bisection).
+    call at every loss during a run (no bisection).  A continuous g must also
+    make the sampled-data form with ``run.dt`` decay at the rate (as
+    :func:`splitspec_core.report.rate_certificate`).
 
     Returns a JSON-ready dict: ``alive``, ``dropped_arcs``,
     ``strongly_connected`` (per graph), ``unreachable`` (per graph, a pair
@@ -374,7 +364,7 @@ def certify_network(des: Design, alive_ids, dropped=frozenset()) -> dict:
         text = (f"q = {des.q}: {res.method} bound {res.bound:.4g} {'<=' if cert else '>'} rate {rate:g}"
                 + ("" if res.switching or len(cases) == 1 else " (per graph held constant)"))
     elif des.g is None:
-        cert, text = None, "adaptive gain: convergence without a certified rate"
+        cert, text = None, f"adaptive gain: {NO_CERTIFIED_RATE}"
     else:
         ad = {a.id: a for a in des.agents}
         cases = [bounds.make_case(name, build_graph(name, alive, arcs[name], weights=sc.design.weights),
@@ -387,5 +377,12 @@ def certify_network(des: Design, alive_ids, dropped=frozenset()) -> dict:
             cert = worst <= -rate
             text = (f"g = {des.g:g} < eq. (g) bound {gb:.4g}; exact spectral abscissa {worst:.4g} "
                     f"{'<=' if cert else '>'} -{rate:g} (per graph held constant)")
+        if cert:  # what runs is the sampled-data form (steps.py): it must decay at the rate too
+            dt, sampled = sc.run.dt, min(sampled_rates(sc, [ad[i] for i in alive], cases, des.g).values())
+            if sampled < rate:
+                cert = False
+                text += (f"; but its sampled-data form with run.dt = {dt:g} "
+                         + (f"is UNSTABLE (decay rate {sampled:.4g})" if sampled <= 0 else
+                            f"decays at only {sampled:.4g} < rate {rate:g}"))
     out.update(rate_certified=cert, certificate=text, ok=bool(v.ok and cert is not False))
     return out

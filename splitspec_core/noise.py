@@ -34,6 +34,7 @@ import scipy.linalg as sla
 from .designer import Design, design
 from .errors import DesignError
 from .network import consensus_rows
+from .report import rate_certificate
 from .scenario_model import Scenario
 
 __all__ = ["error_dynamics", "predicted_rms", "TuneResult", "tune"]
@@ -150,7 +151,7 @@ def tune(sc: Scenario, *, extra: int = 6, ratios=(1e-2, 1e-1, 1.0, 1e1, 1e2)) ->
                 des = design(dataclasses.replace(sc, design=dv))
             except DesignError:
                 continue
-            certified = (des.q_result.certified if sc.time == "discrete" else des.g_certified_by is not None)
+            certified = rate_certificate(des).certified  # as every command reports it (sampled-data form included)
             rms = _rms_all(des)
             cands.append({"gains": gains, "process_weight": pw, "measurement_weight": mw,
                           ("q" if sc.time == "discrete" else "g"): v, "certified": bool(certified), "rms": rms})

@@ -3,14 +3,80 @@
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
 from .bounds import QResult
-from .designer import Design
+from .designer import NO_CERTIFIED_RATE, Design
 from .graphs import is_doubly_stochastic, perron_vector
 
-__all__ = ["design_json", "design_text"]
+__all__ = ["RateCertificate", "rate_certificate", "design_json", "design_text"]
+
+
+@dataclass(frozen=True)
+class RateCertificate:
+    """A design's verdict on its rate: the one every command reports.
+
+    Attributes
+    ----------
+    certified : bool
+        The design certifies that every error decays at the rate ``lam``.
+    text : str
+        One line: what certifies it, or why nothing does.
+    """
+
+    certified: bool
+    text: str
+
+
+def rate_certificate(des: Design, *, sampled: bool = True) -> RateCertificate:
+    """Does the design certify its rate for the estimator as it is run?
+
+    * adaptive gain: never (thm. split_continuous_adaptive gives asymptotic
+      convergence only, :data:`~splitspec_core.designer.NO_CERTIFIED_RATE`);
+    * discrete: the certificate of q's method (``QResult``); the estimator
+      runs exactly ``A_V = Atil B^q`` (eq. split_discrete_ench), so the bound
+      is about what runs; a per-graph method on a switching scenario says so;
+    * continuous: g certified for the ODE (eq. g, thm. arb,
+      eq. split_continuous_g, or the exact spectrum of eq. split_continuous_split)
+      and, with ``sampled`` (what ``simulate`` and ``run`` integrate: the
+      sampled-data form with step ``run.dt``, :mod:`splitspec_core.steps`),
+      its error map decaying at the rate too (``Design.sampled_rate``: exact,
+      per graph held constant).  ``sampled=False`` judges the exact ODE alone.
+    """
+    sc = des.scenario
+    rate = sc.design.rate
+    if des.g_mode == "adaptive":
+        return RateCertificate(False, f"adaptive gain: {NO_CERTIFIED_RATE}")
+    if des.time == "discrete":
+        r = des.q_result
+        ok = bool(r.certified)
+        scope = "" if r.switching or len(des.cases) == 1 else " (each graph held constant)"
+        return RateCertificate(ok, f"q = {r.q}: {r.method} bound {r.bound:.4g} {'<=' if ok else '>'} rate {rate:g}"
+                                   + scope)
+    g = des.g
+    if des.g_certified_by is None:
+        worst = max(des.error_radius.values(), default=-math.inf)
+        if worst > -rate:  # eq. (split_continuous_split): the ODE's error decays as exp(abscissa t)
+            return RateCertificate(False, f"g = {g:g} misses rate {rate:g} even for the ODE (spectral abscissa "
+                                          f"of A_V {worst:.4g} > -{rate:g})")
+        return RateCertificate(False, f"g = {g:g} meets rate {rate:g} for each graph held constant, but no bound "
+                                      "covers the switching (thm. arb, eq. split_continuous_g)")
+    ode = f"g = {g:g} certified by {des.g_certified_by} for the ODE"
+    if not sampled or not des.sampled_rate:
+        return RateCertificate(True, ode)
+    dt = sc.run.dt
+    worst = min(des.sampled_rate.values())
+    if worst <= 0:
+        return RateCertificate(False, f"{ode}, but its sampled-data form with run.dt = {dt:g} is UNSTABLE (decay "
+                                      f"rate {worst:.4g}): reduce run.dt or g")
+    if worst < rate:
+        return RateCertificate(False, f"{ode}, but its sampled-data form with run.dt = {dt:g} decays at only "
+                                      f"{worst:.4g} < rate {rate:g}: reduce run.dt")
+    scope = " (each graph held constant)" if len(des.cases) > 1 else ""
+    return RateCertificate(True, f"{ode}; its sampled-data form with run.dt = {dt:g} decays at {worst:.4g} >= "
+                                 f"{rate:g}{scope}")
 
 
 def _mat(M: np.ndarray) -> list:
@@ -87,6 +153,9 @@ def design_json(des: Design) -> dict:
         "error_spectrum": {k: _num(v) for k, v in des.error_radius.items()},
         "warnings": list(des.warnings),
     }
+    cert = rate_certificate(des)
+    out.update(certified_rate=cert.certified, certificate=cert.text,
+               rate_note=NO_CERTIFIED_RATE if des.g_mode == "adaptive" else None)
     if sc.time == "continuous":
         out.update({
             "g": _num(des.g),
@@ -130,9 +199,11 @@ def design_text(des: Design) -> str:
     sc = des.scenario
     d = sc.design
     unit = "exp(-lam t)" if sc.time == "continuous" else "lam^tau"
+    adaptive = des.g_mode == "adaptive"
     lines = [
         f"splitspec design: {sc.name}  ({sc.time} time, m = {sc.m} agents, n = {sc.n} states)",
-        f"  rate lam = {d.rate:g}  (errors decay as {unit}); gains: {d.gains}",
+        (f"  rate lam = {d.rate:g} for the local gains only; adaptive g: {NO_CERTIFIED_RATE}; gains: {d.gains}"
+         if adaptive else f"  rate lam = {d.rate:g}  (errors decay as {unit}); gains: {d.gains}"),
         "",
         "agents  (n_i = dim of the unobservable space V_i; poles of Abar_i + Kbar_i Cbar_i)",
     ]
@@ -168,6 +239,8 @@ def design_text(des: Design) -> str:
         else:
             by = f"certified by {des.g_certified_by}" if des.g_certified_by else "NOT certified"
             lines.append(f"g = {des.g:g}  ({des.g_mode}; {by})")
+        if adaptive:
+            lines.append("  for comparison, a fixed g meeting the rate would need:")
         for label in des.g_bounds:
             lines.append(f"  {label}: g_bound (eq. g) = {des.g_bounds[label]:.4g}, "
                          f"g_min (exact spectrum) = {des.g_mins[label]:.4g}"
@@ -199,6 +272,9 @@ def design_text(des: Design) -> str:
                 else:
                     ex = f" (p = {res.p}, pbar = {res.pbar})" if res.p else ""
                     lines.append(f"    {meth}: q = {res.q}{ex}, bound {res.bound:.4g}")
+    cert = rate_certificate(des)
+    verdict = "rate" if adaptive else f"rate {'certified' if cert.certified else 'NOT certified'}"
+    lines += ["", f"{verdict}: {cert.text}"]
     if des.warnings:
         lines += [""] + [f"warning: {w}" for w in des.warnings]
     return "\n".join(lines)

@@ -93,7 +93,7 @@ def _short(text: str, limit: int = 60) -> str:
 def plain(value: Any, depth: int = 0) -> Any:
     """The YAML data model of a value built in Python: arrays and tuples as lists, numpy scalars as
     Python numbers, mappings as dicts.  Applied to every scenario before validation, so a file and
-    :func:`splitspec_core.scenario_model` (numpy arrays welcome) meet the same checks with the same messages."""
+    :func:`splitspec_core.scenario` (numpy arrays welcome) meet the same checks with the same messages."""
     if depth > 8:  # deeper than any scenario key: left for the checks to refuse
         return value
     if isinstance(value, np.ndarray):

@@ -45,6 +45,7 @@ __all__ = [
     "check_trajectory_memory",
     "simulate",
     "simulate_exact",
+    "EXACT_NEEDS_FIXED_G",
     "BatchEstimator",
     "AgentLoopEstimator",
 ]
@@ -386,6 +387,11 @@ def simulate(des: Design, *, seed: int | None = None, steps: int | None = None, 
                       agent_ids=np.array(ids), gains=gains)
 
 
+# eq. (adaptive) makes each g_i(t) a state of its own: the ODE is no longer linear, so no matrix exponential
+EXACT_NEEDS_FIXED_G = ("the exact ODE needs one fixed g, and design.g is adaptive (each agent's g_i(t), eq. adaptive): "
+                       "give design.g a number or auto")
+
+
 def simulate_exact(des: Design, *, seed: int | None = None, steps: int | None = None) -> Trajectory:
     """Continuous time, noise-free: the exact ODE of eq. (split_continuous_observer).
 
@@ -396,9 +402,9 @@ def simulate_exact(des: Design, *, seed: int | None = None, steps: int | None = 
     """
     sc = des.scenario
     if sc.time != "continuous":
-        raise ValueError("simulate_exact is for continuous time")
+        raise ScenarioError("the exact ODE is continuous time; this scenario is discrete (time: discrete)")
     if des.g_mode == "adaptive":
-        raise ValueError("simulate_exact does not support the adaptive gain")
+        raise ScenarioError(EXACT_NEEDS_FIXED_G)
     seed = sc.run.seed if seed is None else seed
     check_trajectory_memory(sc, steps)
     plan = make_plan(sc, seed, steps)

@@ -85,7 +85,7 @@ def _tune(args: argparse.Namespace, sc) -> int:
 
 
 def cmd_compare(args: argparse.Namespace) -> int:
-    from splitspec_core.comparison import sweep
+    from splitspec_core.comparison import certificate_lines, sweep, sweep_line
     from splitspec_core.simulator import check_trajectory_memory
 
     sc = ss.load_scenario(args.scenario)
@@ -104,6 +104,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
         st = "never" if r["settle_time_1e-3"] is None else f"{r['settle_time_1e-3']:g}"
         lines.append(f"  {name:<17} {r['rms_mean']:11.4g} {r['rms_std']:9.2g} {r['ratio_to_centralized']:9.3f} "
                      f"{pred:>10} {st:>11} {r['messages_per_event']:>10}")
+    lines += certificate_lines(res)
     if "tuned" in res:
         tnd = res["tuned"]
         what = f"q = {tnd['q']}" if tnd["q"] is not None else f"g = {tnd['g']:g}"
@@ -125,9 +126,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
 
             P.plot_sweep(sw, out / "sweep.png")
             plots.append("sweep.png")
-        lines.append(f"  sweep of {sw['parameter']}: " + ", ".join(
-            f"{r['value']:g}: RMS {r['predicted_rms']:.3g}{'*' if r['certified'] else ''}" for r in sw["rows"]
-            if "error" not in r) + "  (* rate certified)")
+        lines.append(sweep_line(sw))
     res["plots"] = plots
     (out / "compare.json").write_text(json.dumps(res, indent=2) + "\n")
     lines.append(f"wrote {out}/compare.json" + "".join(f", {p}" for p in plots) +
@@ -145,7 +144,8 @@ def _simulate_summary_text(summary: dict, *, time: str, out) -> str:
             lines.append(f"  measured rate (noise-free, tail fit) {meas:.4g} ({rate_word}), for information")
     else:
         lines = [f"simulated {summary['steps']} steps; designed rate {summary['designed_rate']:g} ({rate_word})"
-                 + ("" if summary.get("certified_rate", True) else ", NOT certified by the design")]
+                 + ("" if summary.get("certified_rate", True) else
+                    f", NOT certified by the design ({summary.get('certificate')})")]
         if meas is not None:
             verdict = "meets" if summary["measured_meets_design"] else "does NOT meet"
             lines.append(f"  measured rate (noise-free, tail fit) {meas:.4g}: {verdict} the design")
@@ -168,6 +168,7 @@ def _simulate_summary_text(summary: dict, *, time: str, out) -> str:
 
 def cmd_simulate(args: argparse.Namespace) -> int:
     from splitspec_core.analysis import event_marks, monte_carlo_stats, summarize
+    from splitspec_core.report import rate_certificate
     from splitspec_core.simulator import check_trajectory_memory
 
     sc = ss.load_scenario(args.scenario)
@@ -177,6 +178,10 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         sc = with_recorded_faults(sc, args.faults_from)
     if args.exact and sc.time != "continuous":
         raise UsageError("--exact integrates the continuous-time ODE; this scenario is discrete")
+    if args.exact and sc.design.g == "adaptive":
+        from splitspec_core.simulator import EXACT_NEEDS_FIXED_G
+
+        raise UsageError(f"--exact: {EXACT_NEEDS_FIXED_G}, or drop --exact")
     seed = sc.run.seed if args.seed is None else args.seed
     if args.monte_carlo:
         _seed_range(seed, args.monte_carlo, "--monte-carlo")
@@ -189,9 +194,11 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     clean = ss.simulate(d, seed=seed, steps=args.steps, noise=False) if noisy and not args.exact else traj
     traj.save(out / "trajectory.npz")
     adaptive = d.g_mode == "adaptive"
+    # the certificate of what ran: --exact integrates the ODE itself, else the sampled-data form
+    cert = rate_certificate(d.detail, sampled=not args.exact)
     summary = summarize(traj, time=sc.time, rate=sc.design.rate, noise_free=clean, adaptive=adaptive,
-                        certified_rate=bool(d.checks.rate_certified))
-    summary.update({"scenario": sc.name, "seed": seed, "time": sc.time,
+                        certified_rate=cert.certified)
+    summary.update({"certificate": cert.text, "scenario": sc.name, "seed": seed, "time": sc.time,
                     "g": d.g, "q": d.q, "estimator": "exact ODE" if args.exact else "sampled-data" if
                     sc.time == "continuous" else "discrete two-rate"})
     mc = None

@@ -61,6 +61,25 @@ def test_simulate_exact_and_faults(tmp_path):
     assert "exact ODE" in (tmp_path / "summary.json").read_text()
 
 
+def test_exact_with_the_adaptive_gain_is_one_line(tmp_path):
+    """--exact cannot integrate eq. (adaptive) (g_i(t) is a state): refused before any output, naming the key."""
+    import yaml
+
+    raw = yaml.safe_load((EXAMPLES / "paper_continuous.yaml").read_text())
+    raw["design"]["g"] = "adaptive"
+    path = tmp_path / "adaptive.yaml"
+    path.write_text(yaml.safe_dump(raw))
+    out = tmp_path / "o"
+    r = run_cli("simulate", path, "--out", out, "--exact")
+    assert r.returncode == 2 and r.stdout == ""
+    assert r.stderr.count("\n") == 1 and r.stderr.startswith("splitspec: error: --exact")
+    assert "design.g is adaptive" in r.stderr
+    assert "simulate_exact" not in r.stderr and "Traceback" not in r.stderr
+    assert not out.exists()  # refused before the output directory is made
+    r = run_cli("simulate", path, "--out", out, "--steps", "20", "--no-plots")  # without --exact it runs
+    assert r.returncode == 0, r.stderr
+
+
 @pytest.mark.parametrize("args,needle", [
     (["--steps", "0"], "--steps must be >= 1"),
     (["--monte-carlo", "0"], "--monte-carlo must be >= 1"),

@@ -5,6 +5,7 @@ import json
 
 import numpy as np
 import pytest
+import scipy.linalg as sla
 import yaml
 
 from splitspec_core.comparison import compare, settle_time, steady_rms, sweep
@@ -78,6 +79,57 @@ def test_sweep_marks_certified_values():
     assert not rows[3]["certified"] and rows[6]["certified"] and rows[8]["certified"]
     assert rows[1]["predicted_rms"] == float("inf") or rows[1]["predicted_rms"] > rows[6]["predicted_rms"]
     assert rows[6]["measured_rate"] <= sc.design.rate
+
+
+def _sampled_error_radius(des) -> float:
+    """Spectral radius of the full sampled-data error map, built from steps.py's formula with the full matrices.
+
+    ``e_i+ = (E + D K_i C_i) e_i - g D P_i (e_i - sum_j s_ij e_j)``, ``E = exp(A dt)``, ``D = int_0^dt exp(A s) ds``.
+    """
+    sc = des.scenario
+    A, dt, n, m = np.asarray(sc.system.A), sc.run.dt, sc.n, sc.m
+    F = sla.expm(np.block([[A, np.eye(n)], [np.zeros((n, 2 * n))]]) * dt)
+    E, D = F[:n, :n], F[:n, n:]
+    S = des.graphs[0].S
+    M = (sla.block_diag(*[E + D @ K @ C for K, C in zip(des.Ks, sc.system.Cs)])
+         - des.g * sla.block_diag(*[D @ P for P in des.Ps]) @ (np.eye(m * n) - np.kron(S, np.eye(n))))
+    return float(np.max(np.abs(np.linalg.eigvals(M))))
+
+
+def test_sweep_never_certifies_an_unstable_sampled_data_form():
+    """A g certified for the ODE (eq. g) whose sampled-data form with run.dt is unstable is not certified."""
+    sc = load_scenario(EXAMPLES / "paper_continuous.yaml")
+    sc = dataclasses.replace(sc, run=dataclasses.replace(sc.run, dt=0.05))
+    g0 = design(sc).g
+    values = [g0, 2 * g0, 4 * g0]
+    sw = sweep(sc, seed=0, steps=400, values=values)
+    unstable_but_ode_certified = 0
+    for row in sw["rows"]:
+        des = design(dataclasses.replace(sc, design=dataclasses.replace(sc.design, g=row["value"])))
+        rho = _sampled_error_radius(des)
+        meets = rho <= np.exp(-sc.design.rate * sc.run.dt)  # the sampled-data form decays at the rate
+        assert row["certified"] == (des.g_certified_by is not None and meets), (row, rho)
+        if des.g_certified_by is not None and rho >= 1:
+            unstable_but_ode_certified += 1
+            assert not row["certified"] and "UNSTABLE" in row["certificate"] and "run.dt = 0.05" in row["certificate"]
+            assert row["measured_rate"] < 0 and row["predicted_rms"] == float("inf")  # the error does grow
+        if row["certified"]:
+            assert row["measured_rate"] >= sc.design.rate
+    assert unstable_but_ode_certified  # the sweep reached the contradiction the certificate must catch
+    assert sw["rows"][0]["certified"]  # the designed g is still certified at this dt
+
+
+def test_discrete_sweep_certifies_only_contracting_error_maps():
+    """Discrete time runs exactly A_V = Atil B^q (eq. split_discrete_ench): a certified q contracts at the rate."""
+    sc = load_scenario(EXAMPLES / "paper_discrete_noise.yaml")
+    q0 = design(sc).q
+    sw = sweep(sc, seed=0, steps=40, values=list(range(1, q0 + 3)))
+    assert [r["certified"] for r in sw["rows"]].count(True) == 3  # q0, q0 + 1, q0 + 2
+    for row in sw["rows"]:
+        des = design(dataclasses.replace(sc, design=dataclasses.replace(sc.design, q=row["value"])))
+        rho = full_error_radius(des, sc.agent_ids)
+        assert row["certified"] == (rho < sc.design.rate), (row, rho)  # q_method spectral is exact here
+        assert row["certificate"].startswith(f"q = {row['value']}: spectral bound")
 
 
 def test_settle_time_and_steady_rms():

@@ -84,3 +84,38 @@ def test_ackermann_matches_place_poles_or_declines():
     assert used > 60
     # an uncontrollable pair is declined, never a wrong gain
     assert _ackermann(np.diag([0.5, 0.5]), np.array([[1.0], [1.0]]), np.array([0.1, 0.2])) is None
+
+
+@pytest.mark.parametrize("time", ["continuous", "discrete"])
+def test_joint_observability_is_judged_before_explicit_gains(tmp_path, capsys, time):
+    """Not jointly observable, explicit K_i that also miss the rate: the error is the assumption, not K_i."""
+    import yaml
+
+    from splitspec_core.designer import design
+    from splitspec_core.scenario_model import load_scenario
+    from splitspec_orchestrator import cli
+    from tests.conftest import EXAMPLES
+
+    raw = yaml.safe_load((EXAMPLES / f"paper_{time}.yaml").read_text())
+    raw["system"]["C"][3] = [[1, 0, 0, 0]]  # nobody sees the second oscillator (x3, x4)
+    path = tmp_path / "unobservable.yaml"
+    path.write_text(yaml.safe_dump(raw))
+    sc = load_scenario(path)
+    # the precondition of the test: agent 3's own K_3 misses the rate (Q_3 K_3 = 0 leaves the poles of Abar_3)
+    dec3 = decompose(np.asarray(sc.system.A), np.asarray(sc.system.Cs[2]))
+    with pytest.raises(AssumptionError, match="design.K.3"):
+        design_gain(dec3, method="explicit", time=time, rate=sc.design.rate, K=np.asarray(sc.design.K[2]),
+                    label="design.K.3")
+    with pytest.raises(AssumptionError, match=r"\(C, A\) is not jointly observable: direction \[") as err:
+        design(sc)
+    assert "design.K" not in str(err.value)
+    # the named direction is unobservable: C_all O(v) = 0 for the observability matrix of the stacked C
+    v = np.array([float(x) for x in str(err.value).split("direction [")[1].split("]")[0].split()])
+    C = np.vstack([np.asarray(c) for c in sc.system.Cs])
+    A = np.asarray(sc.system.A)
+    obs = np.vstack([C @ np.linalg.matrix_power(A, k) for k in range(sc.n)])
+    assert np.linalg.norm(v) > 0 and np.allclose(obs @ v, 0, atol=1e-9)
+    # through the CLI: one line naming it, exit 2
+    assert cli.main(["design", str(path)]) == 2
+    stderr = capsys.readouterr().err
+    assert stderr.count("\n") == 1 and "splitspec: error: (C, A) is not jointly observable" in stderr

@@ -157,3 +157,16 @@ def test_envelope_restarts_at_rejoins_and_switches_only():
     assert np.allclose(fitted[6:8], [12, 6])  # the smallest constant above the piece
     cont = envelope(np.linspace(0, 1, 5), np.ones(5), [0], time="continuous", rate=2.0)
     assert np.allclose(cont, np.exp(-2.0 * np.linspace(0, 1, 5)))
+
+
+def test_exact_refuses_what_it_cannot_integrate():
+    """Library callers get the same one line (a ScenarioError naming the key), no function names."""
+    from splitspec_core.errors import ScenarioError
+
+    sc = load_scenario(EXAMPLES / "paper_continuous.yaml")
+    adaptive = design(dataclasses.replace(sc, design=dataclasses.replace(sc.design, g="adaptive")))
+    with pytest.raises(ScenarioError, match="design.g is adaptive") as err:
+        simulate_exact(adaptive, steps=5)
+    assert "simulate_exact" not in str(err.value)
+    with pytest.raises(ScenarioError, match="time: discrete"):
+        simulate_exact(design(load_scenario(EXAMPLES / "paper_discrete.yaml")), steps=5)
