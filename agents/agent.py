@@ -5,12 +5,17 @@ messages out), the Zenoh shell in :func:`main`.  The math is exactly the
 per-agent step functions of :mod:`splitspec_core.steps`, so a run equals
 ``splitspec simulate`` to round-off.
 
-Round ``(tau, attempt)`` (discrete):  z_i(0) = x_i(tau), published on
-``z/<i>``; for k = 1..q wait for every neighbour's z_j(k-1) of the same
-(tau, attempt), then z_i(k) = consensus_subround(...) (published for k < q);
-then wait for y_i(tau) and publish x_i(tau+1) on ``xhat/<i>``.  The new
-estimate is committed when the tick of tau+1 arrives; a tick of the same tau
-with a higher attempt (a round re-run after a loss) discards it.
+Round ``(tau, attempt)`` (discrete):  z_i(0) = x_i(tau); for k = 1..q wait
+for every neighbour's z_j(k-1) of the same (tau, attempt), then
+z_i(k) = consensus_subround(...) (published on ``z/<i>`` for k < q); then wait
+for y_i(tau) and publish x_i(tau+1) on ``xhat/<i>``, which the orchestrator
+records and the neighbours keep as the next round's z_i(0): z_i(0) itself is
+published only in a round the tick marks ``fresh`` (someone starts with a fresh
+estimate: the first round, a rejoin) and in a re-run (attempt > 0).  Otherwise
+the tick's ``prev_attempt`` names the attempt of round tau-1 whose estimates
+are this round's z_j(0), so a neighbour never uses an estimate of an aborted
+attempt.  The new estimate is committed when the tick of tau+1 arrives; a tick
+of the same tau with a higher attempt (a round re-run after a loss) discards it.
 Continuous time: one exchange per step (z = x_i(k)), then the sampled-data
 step (and the adaptive gain update, eq. adaptive).
 
@@ -90,7 +95,11 @@ class AgentNode:
         self.round = None  # dict of the round in flight
         self.candidate = None  # (tau + 1, x, g) computed, not yet committed
         self.zbuf: dict = {}  # (tau, attempt, k) -> {j: z_j}
+        self.xbuf: dict = {}  # (tau, attempt of round tau - 1) -> {j: x_j(tau)}: the next round's z_j(0)
         self.ybuf: dict = {}  # tau -> y_i(tau)
+        offsets = np.cumsum([0] + [C.shape[0] for C in sc.system.Cs])
+        self.y_rows = slice(int(offsets[self.index]), int(offsets[self.index + 1]))  # y_i in the stacked y
+        self.y_size = int(offsets[-1])
         self.rejected: dict = {}
 
     # ------------------------------------------------------------------ helpers
@@ -155,14 +164,18 @@ class AgentNode:
             out.append(self._xhat(tau, attempt, self.x, self.g))
         # drop buffers of older rounds
         self.zbuf = {k: v for k, v in self.zbuf.items() if (k[0], k[1]) >= (tau, attempt)}
+        self.xbuf = {k: v for k, v in self.xbuf.items() if k[0] >= tau}
         self.ybuf = {k: v for k, v in self.ybuf.items() if k >= tau}
         if t["final"]:
             self.round = None
             return out
         nbs, ws = me
+        # z_j(0): sent as such in a fresh or re-run round, else the x_j(tau) of round (tau - 1, prev_attempt)
+        explicit = bool(t["fresh"]) or attempt > 0
         self.round = {"tau": tau, "attempt": attempt, "nbs": [int(j) for j in nbs], "ws": [float(w) for w in ws],
-                      "k": 0, "z": self.x.copy()}
-        out.append(self._z(0, self.round["z"]))
+                      "k": 0, "z": self.x.copy(), "z0": None if explicit else (tau, int(t["prev_attempt"]))}
+        if explicit:
+            out.append(self._z(0, self.round["z"]))
         return out + self._advance()
 
     def on_z(self, key: str, payload: bytes) -> list:
@@ -208,8 +221,8 @@ class AgentNode:
         except WireError as e:
             self.reject(e.reason)
             return []
-        if m["agent"] != self.id or m["y"].shape != (self.s,):
-            self.reject("bad_shape" if m["agent"] == self.id else "wrong_agent")
+        if m["y"].shape != (self.y_size,):
+            self.reject("bad_shape")
             return []
         if (self.tau is not None and m["tau"] < self.tau) or (self.tick_tag and m["tau"] < self.tick_tag[0]):
             self.reject("stale")
@@ -223,14 +236,49 @@ class AgentNode:
                 self.reject("buffer_full")
                 return []
             del self.ybuf[oldest]
-        self.ybuf[m["tau"]] = m["y"]
+        self.ybuf[m["tau"]] = m["y"][self.y_rows]
+        return self._advance()
+
+    def on_x(self, key: str, payload: bytes) -> list:
+        """A neighbour's new estimate x_j(tau) (its report to the orchestrator): the next round's z_j(0)."""
+        try:
+            m = decode(payload, self.run_id, "xhat", mac_key=self.mac_key)
+        except WireError as e:
+            self.reject(e.reason)
+            return []
+        if str(m["agent"]) != Keys.last(key):
+            self.reject("wrong_sender")
+            return []
+        if m["x"].shape != (self.n,):
+            self.reject("bad_shape")
+            return []
+        if self.tick_tag is not None:
+            t_tau, t_att = self.tick_tag
+            # x_j(tau + 1) of the round in flight, or x_j(tau) (an admission report); at most two attempts ahead
+            if m["tau"] < t_tau or m["tau"] > t_tau + 1:
+                self.reject("stale" if m["tau"] < t_tau else "future")
+                return []
+            if m["attempt"] > t_att + 2:
+                self.reject("future")
+                return []
+        slot = self.xbuf.get((m["tau"], m["attempt"]), {})
+        if m["agent"] in slot:
+            self.reject("duplicate")
+            return []
+        if sum(len(v) for v in self.xbuf.values()) >= self.zbuf_limit:
+            self.reject("buffer_full")
+            return []
+        self.xbuf.setdefault((m["tau"], m["attempt"]), {})[m["agent"]] = m["x"]
         return self._advance()
 
     # ------------------------------------------------------------------ the round
 
     def _neighbour_states(self, k: int):
         r = self.round
-        slot = self.zbuf.get((r["tau"], r["attempt"], k), {})
+        if k == 0 and r["z0"] is not None:  # eq. split-discrete-p1: z_j(0) = x_j(tau), sent as x_j's report
+            slot = self.xbuf.get(r["z0"], {})
+        else:
+            slot = self.zbuf.get((r["tau"], r["attempt"], k), {})
         states = []
         for j in r["nbs"]:
             if j == self.id:
@@ -311,12 +359,11 @@ def main(args: argparse.Namespace) -> int:
     try:
         node = AgentNode(args.id, shell.fetch_config(wait=args.wait), keys.run_id)
         node.extra_counts = shell.inbox.take_dropped
-        handlers = {"tick": lambda key, p: node.on_tick(p), "z": node.on_z, "y": lambda key, p: node.on_y(p)}
-        shell.inbox.subscribe(keys.tick, "tick")
-        shell.inbox.subscribe(keys.y(args.id), "y")
-        for j in node.in_neighbours:
-            shell.inbox.subscribe(keys.z(j), "z")
+        handlers = {"tick": lambda key, p: node.on_tick(p), "z": node.on_z, "x": node.on_x,
+                    "y": lambda key, p: node.on_y(p)}
+        subscriptions = ([(keys.tick, "tick"), (keys.y, "y")] + [(keys.z(j), "z") for j in node.in_neighbours]
+                         + [(keys.xhat(j), "x") for j in node.in_neighbours])
         return shell.run(lambda ch, key, p: handlers[ch](key, p), node.reject,
-                         name=f"agent {args.id} (q = {node.exchanges})")
+                         name=f"agent {args.id} (q = {node.exchanges})", subscriptions=subscriptions)
     finally:
         shell.close()

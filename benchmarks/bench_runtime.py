@@ -1,15 +1,28 @@
-"""Runtime speed: events per second of `splitspec run` beside the raw Zenoh one-way latency.
+"""Runtime speed: ms per event of `splitspec run` on rings against the CPU cost of a bare Zenoh delivery.
 
-Measured side by side in one invocation (the machine is shared; compare ratios, not absolute times):
+Measured side by side in one invocation (the machine is shared: compare ratios, quote the load average):
 
-1. raw latency: a Zenoh router and two client processes on loopback play ping-pong with 100-byte
-   messages through the router (the same topology as a run); one-way latency = median RTT / 2;
-2. `splitspec run` (real processes, unpaced) of the paper's discrete example (m = 3, q = 6) and of
-   an undirected ring of m = 8 agents; rounds per second from the run's `run_finished` event;
-3. the ratio of the time per event to the protocol floor (q + 2) x one-way latency: one hop for the
-   tick, q consensus exchanges, one hop for the estimates.
+1. bare zenoh-python: a router and two client processes play ping-pong through the router with
+   100-byte messages and default callbacks (what a plain zenoh-python program does); CPU seconds of
+   the three processes (user + sys) per delivered message;
+2. the protocol's floor: deliveries per event time x that CPU cost.  Deliveries per event on a ring
+   (every agent hears d = 2 neighbours), m agents, q exchanges:
+     old protocol (before issue 14)  3m + 2 + 2mq: tick m + 1, y m (m publishes), truth 1, z 2mq, xhat m;
+     new protocol                    3m + 2 + 2mq: tick m + 1, y m (one publish), truth 1, z 2m(q - 1),
+                                     xhat 3m (each x_i(tau + 1) goes to the orchestrator and the 2 neighbours,
+                                     and is their z_i(0) of the next round);
+   publishes per event: old 2m + 2 + mq, new 3 + mq (see README, "Runtime speed");
+3. `splitspec run` (real processes, unpaced) of undirected rings, n = 6: ms/event (from the run's
+   ``run_finished`` event), the ratio to the old protocol's floor, the peak RSS per agent and of the
+   orchestrator (sampled from /proc every 0.2 s), and start-up: spawn of the first process to the first
+   round (``run_started``), and per process from its spawn to its liveliness token (``process_ready``).
 
-    .venv/bin/python benchmarks/bench_runtime.py [--steps 400] [--repeat 2]
+With ``--baseline DIR`` (a checkout of an older commit with its own ``.venv``, e.g. made with
+``git worktree add /tmp/base <commit> && make -C /tmp/base setup``) every ring also runs with that
+checkout, interleaved (new, old, new, old...), and the table shows both.
+
+    .venv/bin/python benchmarks/bench_runtime.py [--sizes 3 8 16 32] [--q 3 6] [--steps 200] [--repeat 2]
+        [--baseline DIR]
 """
 
 from __future__ import annotations
@@ -17,10 +30,13 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import resource
 import socket
+import statistics
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from pathlib import Path
 
@@ -28,31 +44,30 @@ import numpy as np
 import yaml
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
 ENV = {**os.environ, "RERUN_ANALYTICS": "0"}
 
 PING = r'''
-import sys, time, queue
-from splitspec_core.runtime.bus import open_session
+import sys, time, queue, json, zenoh
 role, ep, n = sys.argv[1], sys.argv[2], int(sys.argv[3])
+c = zenoh.Config()
+c.insert_json5("mode", json.dumps("router" if role == "router" else "client"))
+c.insert_json5("listen/endpoints" if role == "router" else "connect/endpoints", json.dumps([ep]))
+c.insert_json5("scouting/multicast/enabled", "false")
+s = zenoh.open(c)
 if role == "router":
-    s = open_session("router", listen=[ep])
     sys.stdin.read()  # until the parent closes stdin
     s.close(); sys.exit()
-s = open_session("client", connect=[ep])
 q = queue.SimpleQueue()
 mine, other = ("ping", "pong") if role == "a" else ("pong", "ping")
 sub = s.declare_subscriber(f"bench/{other}", lambda smp: q.put(smp.payload.to_bytes()))
 pub = s.declare_publisher(f"bench/{mine}")
 time.sleep(1.0)
 if role == "a":
-    ts = []
     for _ in range(n):
-        t0 = time.perf_counter(); pub.put(b"x" * 100); q.get(timeout=10); ts.append(time.perf_counter() - t0)
-    print(sorted(ts)[n // 2])
+        pub.put(b"x" * 100); q.get(timeout=10)
 else:
     for _ in range(n):
-        q.get(timeout=30); pub.put(b"y" * 100)
+        q.get(timeout=60); pub.put(b"y" * 100)
 s.close()
 '''
 
@@ -63,72 +78,159 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
-def one_way_latency(n: int = 1000) -> float:
-    ep = f"tcp/127.0.0.1:{free_port()}"
-    router = subprocess.Popen([sys.executable, "-c", PING, "router", ep, "0"], cwd=ROOT, env=ENV,
-                              stdin=subprocess.PIPE)
-    try:
-        time.sleep(1.0)
-        b = subprocess.Popen([sys.executable, "-c", PING, "b", ep, str(n)], cwd=ROOT, env=ENV)
+def _children_cpu() -> float:
+    r = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return r.ru_utime + r.ru_stime
+
+
+def bare_cpu_per_delivery(n: int = 5000) -> float:
+    """CPU seconds (router + both clients, user + sys) per delivered 100-byte message, ping-pong through a router.
+
+    The fixed costs (interpreter start, session open, the 1 s settle) are removed by running n and n/5
+    round trips and taking the difference."""
+    def run(k: int) -> float:
+        ep = f"tcp/127.0.0.1:{free_port()}"
+        before = _children_cpu()
+        router = subprocess.Popen([sys.executable, "-c", PING, "router", ep, "0"], env=ENV, stdin=subprocess.PIPE)
+        time.sleep(0.5)
+        b = subprocess.Popen([sys.executable, "-c", PING, "b", ep, str(k)], env=ENV)
         time.sleep(0.3)
-        out = subprocess.run([sys.executable, "-c", PING, "a", ep, str(n)], cwd=ROOT, env=ENV, capture_output=True,
-                             text=True, timeout=120)
-        b.wait(timeout=30)
-        return float(out.stdout.strip()) / 2
-    finally:
+        subprocess.run([sys.executable, "-c", PING, "a", ep, str(k)], env=ENV, check=True, timeout=300)
+        b.wait(timeout=60)
         router.stdin.close()
-        router.wait(timeout=10)
+        router.wait(timeout=30)
+        return _children_cpu() - before
+
+    small, big = max(1, n // 5), n
+    cpu_small, cpu_big = run(small), run(big)
+    return (cpu_big - cpu_small) / (2 * (big - small))  # two deliveries per round trip
 
 
-def ring_scenario(m: int, steps: int) -> dict:
+def deliveries_old(m: int, q: int) -> int:
+    return 3 * m + 2 + 2 * m * q
+
+
+def deliveries_new(m: int, q: int) -> int:
+    return (m + 1) + m + 1 + 2 * m * (q - 1) + 3 * m  # = 3m + 2 + 2mq on a ring
+
+
+def publishes_old(m: int, q: int) -> int:
+    return 2 * m + 2 + m * q
+
+
+def publishes_new(m: int, q: int) -> int:
+    return 3 + m * q
+
+
+def ring_scenario(m: int, q: int, steps: int) -> dict:
     from splitspec_core.generate import random_system
 
     A, Cs = random_system(np.random.default_rng(8), m, 6, time="discrete")
-    return {"name": f"ring{m}", "time": "discrete",
+    return {"name": f"ring{m}-q{q}", "time": "discrete",
             "system": {"A": A.tolist(), "C": {i + 1: C.tolist() for i, C in enumerate(Cs)}},
             "graphs": {"ring": {"undirected": [[i, i % m + 1] for i in range(1, m + 1)]}},
-            "design": {"rate": 0.9, "gains": "place", "q_method": "spectral"},
+            "design": {"rate": 0.999, "gains": "place", "q_method": "spectral", "q": q},
             "run": {"steps": steps, "seed": 1}}
 
 
-def run_rate(scenario: Path, out: Path) -> tuple:
-    r = subprocess.run([sys.executable, "-m", "splitspec_orchestrator", "run", str(scenario), "--out", str(out)],
-                       cwd=ROOT, env=ENV, capture_output=True, text=True, timeout=600)
+class RssSampler:
+    """Peak RSS per process of a run (its ``--run-id`` in the command line), sampled from /proc."""
+
+    def __init__(self, run_id: str):
+        self.run_id, self.peak, self.role = run_id, {}, {}
+        self._stop = threading.Event()
+        self._t = threading.Thread(target=self._loop, daemon=True)
+        self._t.start()
+
+    def _loop(self) -> None:
+        needle = self.run_id.encode()
+        while not self._stop.is_set():
+            for d in os.listdir("/proc"):
+                if not d.isdigit():
+                    continue
+                try:
+                    cmd = Path(f"/proc/{d}/cmdline").read_bytes()
+                    if needle not in cmd:
+                        continue
+                    rss = next(int(line.split()[1]) for line in Path(f"/proc/{d}/status").read_text().splitlines()
+                               if line.startswith("VmRSS:"))
+                except (OSError, StopIteration, ValueError):
+                    continue
+                pid = int(d)
+                self.peak[pid] = max(self.peak.get(pid, 0), rss)
+                self.role[pid] = ("agent" if b"splitspec_agents" in cmd else "plant" if b"splitspec_plant" in cmd
+                                  else "orchestrator" if b"orchestrator" in cmd else "other")
+            time.sleep(0.2)
+
+    def stop(self) -> dict:
+        self._stop.set()
+        self._t.join()
+        out: dict = {}
+        for pid, kb in self.peak.items():
+            out.setdefault(self.role[pid], []).append(kb / 1024)
+        return out
+
+
+def run_ring(python: str, cwd: Path, scenario: Path, out: Path, run_id: str, wait: float) -> dict:
+    sampler = RssSampler(run_id)
+    cpu0 = _children_cpu()
+    t0 = time.time()
+    r = subprocess.run([python, "-m", "splitspec_orchestrator", "run", str(scenario), "--out", str(out),
+                        "--run-id", run_id, "--wait", str(wait)], cwd=cwd, env=ENV, capture_output=True, text=True,
+                       timeout=1800)
+    cpu = _children_cpu() - cpu0  # every process of the run (the orchestrator waits for its children)
+    rss = sampler.stop()
     if r.returncode != 0:
-        raise RuntimeError(r.stderr[-2000:])
+        raise RuntimeError(f"run failed ({r.returncode}): {r.stderr[-2000:]}")
     ev = [json.loads(x) for x in (out / "events.jsonl").read_text().splitlines()]
     fin = next(e for e in ev if e["event"] == "run_finished")
-    q = next(e for e in ev if e["event"] == "orchestrator_started")["q"]
-    return fin["rounds_per_second"], q
+    started = next(e for e in ev if e["event"] == "run_started")
+    ready = [e["startup_s"] for e in ev if e["event"] == "process_ready" and "startup_s" in e]
+    return {"ms": 1e3 / fin["rounds_per_second"], "startup": started["wall"] - t0, "cpu_s": cpu,
+            "ready_max": max(ready) if ready else None, "ready_median": statistics.median(ready) if ready else None,
+            "agent_mb": max(rss.get("agent", [0])), "orch_mb": max(rss.get("orchestrator", [0]))}
 
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--steps", type=int, default=400)
+    ap.add_argument("--sizes", type=int, nargs="+", default=[3, 8, 16, 32])
+    ap.add_argument("--q", type=int, nargs="+", default=[3, 6])
+    ap.add_argument("--steps", type=int, default=200)
     ap.add_argument("--repeat", type=int, default=2)
+    ap.add_argument("--bare-messages", type=int, default=5000)
+    ap.add_argument("--baseline", type=Path, help="an older checkout with its own .venv, run interleaved")
     args = ap.parse_args()
     tmp = Path(tempfile.mkdtemp(prefix="bench_runtime_"))
-    paper = yaml.safe_load((ROOT / "examples/paper_discrete.yaml").read_text())
-    paper["run"]["steps"] = args.steps
-    scenarios = {"paper m=3": paper, "ring m=8": ring_scenario(8, args.steps)}
-    lat = [one_way_latency() for _ in range(args.repeat)]
-    one_way = min(lat)
-    print(f"# {os.cpu_count()} cpus; raw Zenoh one-way latency through the router (median RTT/2, best of "
-          f"{args.repeat}): {one_way * 1e6:.0f} us  (all: {', '.join(f'{x * 1e6:.0f}' for x in lat)})")
-    print(f"{'scenario':>10} {'m':>3} {'q':>3} {'steps':>6} {'events/s':>9} {'ms/event':>9} {'floor ms':>9} "
-          f"{'ratio':>6}")
-    for name, sc in scenarios.items():
-        path = tmp / f"{name.split()[0]}.yaml"
-        path.write_text(yaml.safe_dump(sc))
-        best, q = 0.0, None
-        for k in range(args.repeat):
-            rps, q = run_rate(path, tmp / f"{name.split()[0]}_{k}")
-            best = max(best, rps)
-        m = len(sc["system"]["C"])
-        per = 1.0 / best
-        floor = (q + 2) * one_way
-        print(f"{name:>10} {m:>3} {q:>3} {args.steps:>6} {best:>9.1f} {per * 1e3:>9.2f} {floor * 1e3:>9.3f} "
-              f"{per / floor:>6.1f}", flush=True)
+    print(f"# {os.cpu_count()} cpus; load average {Path('/proc/loadavg').read_text().split()[:3]}", flush=True)
+    bare = [bare_cpu_per_delivery(args.bare_messages) for _ in range(args.repeat)]
+    cpu = statistics.median(bare)
+    print(f"# bare zenoh-python through a router: {cpu * 1e6:.0f} us CPU per delivery (median of "
+          f"{', '.join(f'{b * 1e6:.0f}' for b in bare)})", flush=True)
+    variants = [("new", sys.executable, ROOT)]
+    if args.baseline is not None:
+        variants.append(("old", str(args.baseline / ".venv/bin/python"), args.baseline))
+    print(f"{'ring':>8} {'q':>2} {'code':>4} {'ms/event':>9} {'old floor':>9} {'new floor':>9} {'ratio':>6} "
+          f"{'agent MB':>8} {'orch MB':>7} {'start s':>7} {'ready s':>7}  load")
+    for m in args.sizes:
+        for q in args.q:
+            path = tmp / f"ring{m}-q{q}.yaml"
+            path.write_text(yaml.safe_dump(ring_scenario(m, q, args.steps)))
+            res: dict = {name: [] for name, _, _ in variants}
+            for k in range(args.repeat):
+                for name, python, cwd in variants:  # interleaved: new, old, new, old
+                    rid = f"bench-{m}-{q}-{name}-{k}-{os.getpid()}"
+                    res[name].append(run_ring(python, cwd, path, tmp / rid, rid, wait=max(60.0, 3.0 * m)))
+            floor_old = deliveries_old(m, q) * cpu * 1e3
+            floor_new = deliveries_new(m, q) * cpu * 1e3
+            load = Path("/proc/loadavg").read_text().split()[0]
+            for name, _, _ in variants:
+                rs = res[name]
+                ms = statistics.median(r["ms"] for r in rs)
+                ready = [r["ready_max"] for r in rs if r["ready_max"] is not None]
+                print(f"{m:>8} {q:>2} {name:>4} {ms:>9.2f} {floor_old:>9.2f} {floor_new:>9.2f} {ms / floor_old:>6.2f} "
+                      f"{max(r['agent_mb'] for r in rs):>8.0f} {max(r['orch_mb'] for r in rs):>7.0f} "
+                      f"{statistics.median(r['startup'] for r in rs):>7.1f} "
+                      f"{(statistics.median(ready) if ready else float('nan')):>7.2f}  {load}", flush=True)
     return 0
 
 

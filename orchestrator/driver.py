@@ -230,7 +230,8 @@ class Orchestrator:
                     "tick", self.keys.run_id, mac_key=self.key, tau=a.tau, attempt=a.attempt, graph=a.graph,
                     final=a.final, alive=list(a.alive),
                     rows={str(i): [list(nb), list(w)] for i, (nb, w) in a.rows.items()},
-                    incarnation={str(i): int(v) for i, v in a.incarnation.items()}))
+                    incarnation={str(i): int(v) for i, v in a.incarnation.items()}, fresh=a.fresh,
+                    prev_attempt=a.prev_attempt))
             elif kind is R.Record:
                 gains = a.gains if self.sc.time == "continuous" else None  # no g in discrete time
                 self.rec.row(a.tau, a.x, a.xhat, a.alive, a.graph, gains=gains, attempts=a.attempts,

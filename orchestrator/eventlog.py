@@ -61,6 +61,7 @@ _TEXTS = {
     "arc_restored": lambda f: f"{_arc(f)} restored",
     "fault_skipped": lambda f: f"{f.get('action', 'fault')} of agent {f.get('id', '?')} skipped: {f.get('reason', '')}",
     "process_started": lambda f: f"{_who(f)} started (pid {f.get('pid')} on {f.get('host')})",
+    "process_ready": lambda f: f"{_who(f)} ready {f.get('startup_s')} s after its start (pid {f.get('pid')})",
     "process_exited": lambda f: f"{_who(f)} exited (pid {f.get('pid')}, {f.get('how', f.get('status'))})",
     "process_left": lambda f: f"{_who(f)} left during start-up (pid {f.get('pid')})",
     "message_rejected": lambda f: f"{f.get('count', 1)} message(s)" + (f" from {f['by']}" if f.get("by") else "")

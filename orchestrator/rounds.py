@@ -92,6 +92,8 @@ class Tick:
     alive: tuple
     rows: dict
     incarnation: dict
+    fresh: bool = True  # someone starts this round with a fresh estimate: every agent sends its z_i(0)
+    prev_attempt: int = 0  # the attempt of round tau - 1 whose estimates x_i(tau) are this round's z_i(0)
 
 
 @dataclass(frozen=True)
@@ -258,6 +260,9 @@ class RoundMachine:
         self.claims: dict = {}  # (role, ident) -> Claim
         self.procs: dict = {}  # "plant" / agent id -> {"pid", "host"} of the granted process
         self.children: dict = {}  # pid -> (role, ident) of processes this orchestrator spawned
+        self.spawn_times: dict = {}  # pid -> when it was spawned, until its liveliness token appears
+        self.fresh_tau: int | None = None  # the event time whose round starts a fresh estimate (admission)
+        self.prev_attempt = 0  # the attempt that completed the previous round
         self.hung: set = set()  # pids of frozen processes on this host (killed at the end)
         self.pending_loss: dict = {}
         self.phase = "waiting"
@@ -394,6 +399,10 @@ class RoundMachine:
             return out  # an impostor's, a superseded process's or a lost agent's token: ignored
         if present:
             c.present = True
+            spawned_at = self.spawn_times.pop(c.pid, None)
+            if spawned_at is not None:  # start-up of a process this orchestrator spawned: spawn to ready
+                out.append(Event("process_ready", self.t(), {"role": role, "id": ident, "pid": c.pid,
+                                                             "startup_s": round(now - spawned_at, 3)}))
             if role == "agent" and self.started and ident not in self.alive:
                 self.joinable.add(ident)
                 out.append(Log("info", f"agent {ident} is back; it joins at the next event time"))
@@ -421,6 +430,7 @@ class RoundMachine:
 
     def on_spawned(self, role: str, ident: int, pid: int, now: float) -> list:
         self.children[int(pid)] = (role, int(ident))
+        self.spawn_times[int(pid)] = now
         if self.restart is not None and role == "agent" and self.restart[0] == ident:
             self.restart = (ident, int(pid))
         return []
@@ -608,6 +618,7 @@ class RoundMachine:
             return []
         self.alive.add(aid)
         self.joinable.discard(aid)
+        self.fresh_tau = self.tau  # its neighbours need its z(0): every agent sends z(0) in this round
         if self.des.g_mode == "adaptive":
             self.gains[self.index[aid]] = float(self.sc.design.g0)  # a fresh estimate starts from g0 again
         pid = self.procs.get(aid, {}).get("pid")
@@ -691,6 +702,7 @@ class RoundMachine:
 
     def _begin(self, now: float) -> list:
         self.started = True
+        self.fresh_tau = 0
         self.net.alive[:] = True
         self.alive = set(self.sc.agent_ids)
         self.joinable.clear()
@@ -797,7 +809,8 @@ class RoundMachine:
         self.deadline = now + self.round_timeout
         self.quiet_since = now
         out.append(Tick(self.tau, self.attempt, graph, self.tau == self.plan.steps, tuple(sorted(self.alive)),
-                        self.net.rows(self.sc, graph), {a: self.incarnation(a) for a in self.sc.agent_ids}))
+                        self.net.rows(self.sc, graph), {a: self.incarnation(a) for a in self.sc.agent_ids},
+                        fresh=self.fresh_tau == self.tau, prev_attempt=self.prev_attempt))
         return out
 
     def _round_done(self) -> bool:
@@ -827,6 +840,7 @@ class RoundMachine:
         if self.tau == self.plan.steps:
             self.phase = "done"
             return out + self._summaries(now, force=True) + [Finished(self.plan.steps)]
+        self.prev_attempt = self.attempt  # its estimates x_i(tau + 1) start the next round
         self.tau += 1
         self.faults_left = list(self.plan.faults.get(self.tau, ()))
         self.phase = "between"

@@ -63,13 +63,12 @@ class PlantNode:
             return []
         if tau != self.tau:
             self.tau = tau
-            self.y = self.plant.split(self.plant.measure())
+            self.y = self.plant.measure()  # (y_1, ..., y_m) stacked in agent order
         out = [(self.keys.truth, encode("truth", self.run_id, mac_key=self.mac_key, tau=tau, attempt=t["attempt"],
                                         x=self.plant.x, rejected=self.counts()))]
-        if not t["final"]:
-            for aid, y in zip(self.sc.agent_ids, self.y):
-                out.append((self.keys.y(aid), encode("y", self.run_id, mac_key=self.mac_key, tau=tau,
-                                                      attempt=t["attempt"], agent=aid, y=np.asarray(y))))
+        if not t["final"]:  # one message for every agent: each takes its own rows
+            out.append((self.keys.y, encode("y", self.run_id, mac_key=self.mac_key, tau=tau, attempt=t["attempt"],
+                                            y=np.asarray(self.y))))
         return out
 
 
@@ -102,7 +101,7 @@ def main(args: argparse.Namespace) -> int:
     try:
         node = PlantNode(shell.fetch_config(wait=args.wait), keys.run_id)
         node.extra_counts = shell.inbox.take_dropped
-        shell.inbox.subscribe(keys.tick, "tick")
-        return shell.run(lambda ch, key, p: node.on_tick(p), node.reject, name="plant")
+        return shell.run(lambda ch, key, p: node.on_tick(p), node.reject, name="plant",
+                         subscriptions=[(keys.tick, "tick")])
     finally:
         shell.close()

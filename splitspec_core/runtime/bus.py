@@ -25,7 +25,7 @@ import os
 import queue
 import threading
 import time
-from typing import Any
+from typing import Any, Callable
 
 import zenoh
 
@@ -143,11 +143,19 @@ class Inbox:
         else:
             self.q.put(item)
 
-    def subscribe(self, key: str, channel: str, *, signed: bool = True) -> None:
-        """Queue every sample on ``key`` as ``(channel, key, payload)``; ``signed``: only with a valid MAC."""
-        inbox = self
+    def subscribe(self, key: str, channel: str, *, signed: bool = True,
+                  direct: Callable[[str, str, bytes], None] | None = None) -> None:
+        """Deliver every sample on ``key`` as ``(channel, key, payload)``; ``signed``: only with a valid MAC.
 
-        def cb(sample, _c=channel, _signed=signed):
+        The callback runs on the Zenoh thread that received the sample (``indirect=False``: no extra
+        Python thread, no hand-off).  With ``direct`` it calls ``direct(channel, key, payload)`` there
+        and then; otherwise it queues the item for the event loop (bounded: ``inbox_full``).  A key
+        without wildcards is bound once: no string is built per message.
+        """
+        inbox = self
+        fixed = None if any(c in key for c in "*$") else key
+
+        def cb(sample, _c=channel, _signed=signed, _fixed=fixed, _direct=direct):
             payload = sample.payload.to_bytes()
             mk = inbox.mac_key
             if _signed and mk is not None:
@@ -155,9 +163,14 @@ class Inbox:
                                                                         payload[-MAC_BYTES:]):
                     inbox._drop("bad_mac")
                     return
-            inbox._offer((_c, str(sample.key_expr), payload))
+            k = _fixed if _fixed is not None else str(sample.key_expr)
+            if _direct is not None:
+                _direct(_c, k, payload)
+            else:
+                inbox._offer((_c, k, payload))
 
-        self._subs.append(self.session.declare_subscriber(key, cb))
+        ind = os.environ.get("SPLITSPEC_INDIRECT", "0") == "1"  # EXPERIMENT
+        self._subs.append(self.session.declare_subscriber(key, zenoh.handlers.Callback(cb, indirect=ind)))
 
     def serve_deferred(self, key: str, channel: str) -> None:
         """Declare a queryable whose queries are queued as ``(channel, key, query)``; the event loop replies."""
@@ -328,14 +341,34 @@ class NodeShell:
                     key, congestion_control=zenoh.CongestionControl.BLOCK)
             pub.put(payload)
 
-    def run(self, dispatch, on_error, *, name: str) -> int:
-        """Declare the liveliness token, then handle messages until told to stop."""
+    def run(self, dispatch, on_error, *, name: str, subscriptions=()) -> int:
+        """Subscribe, declare the liveliness token, then handle messages until told to stop.
+
+        ``subscriptions`` (``(key, channel)`` pairs) are handled where they arrive, on the Zenoh
+        thread, one at a time under a lock: ``dispatch(channel, key, payload)`` and the publication
+        of what it returns (no queue, no thread hand-off).  Control messages, the orchestrator's
+        presence and signals go through the event loop below.
+        """
         import signal
 
         from .wire import WireError, decode
 
         me = f"{self.role}/{self.ident}"  # the target name in fault commands
         code = 0
+        lock = threading.Lock()
+
+        def handle(channel: str, key: str, payload: bytes) -> None:
+            with lock:
+                try:
+                    self.publish(dispatch(channel, key, payload))
+                except (ValueError, TypeError, KeyError, IndexError) as exc:
+                    # a message that passed validation but still broke the node: drop it, count it, go on
+                    on_error("handler_error")
+                    self.log.warning("%s: dropped a %s message on %s: %s", name, channel, key, exc)
+
+        direct = os.environ.get("SPLITSPEC_DIRECT", "1") == "1"  # EXPERIMENT
+        for key, channel in subscriptions:
+            self.inbox.subscribe(key, channel, direct=handle if direct else None)
         self.inbox.subscribe(self.keys.control, "control")
         token = self.session.liveliness().declare_token(self.keys.alive(self.role, self.ident, self.nonce))
         self._looping = True
@@ -374,13 +407,8 @@ class NodeShell:
             elif channel == "signal":
                 self.log.info("%s: interrupted", name)
                 break
-            else:
-                try:
-                    self.publish(dispatch(channel, key, payload))
-                except (ValueError, TypeError, KeyError, IndexError) as exc:
-                    # a message that passed validation but still broke the node: drop it, count it, go on
-                    on_error("handler_error")
-                    self.log.warning("%s: dropped a %s message on %s: %s", name, channel, key, exc)
+            else:  # subscribed before run() without a direct handler: handled here, in order
+                handle(channel, key, payload)
         token.undeclare()
         return code
 

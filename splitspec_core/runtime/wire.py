@@ -28,11 +28,14 @@ Keys live under ``splitspec/<run_id>/`` (:class:`Keys` builds all of them):
 key                         from -> to              payload
 ==========================  ======================  ==========================================
 ``config``                  queryable (orchestr.)   scenario + centralised design (g or q)
-``tick``                    orchestrator -> all     tau, attempt, graph, neighbour rows, alive
-``y/<i>``                   plant -> agent i        tau, attempt, y_i(tau)
+``tick``                    orchestrator -> all     tau, attempt, graph, neighbour rows, alive, fresh,
+                                                    prev_attempt
+``y/all``                   plant -> agents         tau, attempt, (y_1(tau), ..., y_m(tau)) stacked
 ``truth``                   plant -> orchestrator   tau, attempt, x(tau)
-``z/<i>``                   agent i -> neighbours   tau, attempt, k, z_i(k)
-``xhat/<i>``                agent i -> orchestrator tau, attempt, x_i(tau) (+ g_i, rejected counts)
+``z/<i>``                   agent i -> neighbours   tau, attempt, k, z_i(k) (k = 0 only in fresh or re-run
+                                                    rounds)
+``xhat/<i>``                agent i -> orchestrator tau, attempt, x_i(tau) (+ g_i, rejected counts); also
+                            and neighbours          the next round's z_i(0)
 ``control``                 orchestrator -> all     ``stop``; ``kill agent/<i>``, ``hang agent/<i>`` (faults)
 ``status/<role>/<id>/<n>``  queryable (every proc.) a ``hello``: the process answers (not frozen)
 ``alive/<role>/<id>/<n>``   liveliness token        presence; DELETE is a death (n: the process's nonce)
@@ -55,7 +58,7 @@ from ..errors import SplitspecError
 __all__ = ["SCHEMA_VERSION", "DEFAULT_RUN_ID", "Keys", "WireError", "encode", "decode", "pack_array",
            "unpack_array", "MESSAGE_FIELDS", "MAC_BYTES", "new_run_key", "new_nonce", "mac", "verify", "UNSIGNED"]
 
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2  # 2: one y message for every agent; x_i(tau + 1) doubles as the next z_i(0)
 DEFAULT_RUN_ID = "default"
 
 
@@ -98,8 +101,10 @@ class Keys:
     def control(self) -> str:
         return f"{self.prefix}/control"
 
-    def y(self, i: int | str) -> str:
-        return f"{self.prefix}/y/{i}"
+    @property
+    def y(self) -> str:
+        """Every agent's measurement, stacked in agent order (one message per event time)."""
+        return f"{self.prefix}/y/all"
 
     def z(self, i: int | str) -> str:
         return f"{self.prefix}/z/{i}"
@@ -196,8 +201,8 @@ def unpack_array(obj, field: str, *, shape: tuple | None = None, finite: bool = 
 #: required fields (name -> kind) per message type; kinds: int, float, str, array, any
 MESSAGE_FIELDS = {
     "tick": {"tau": "int", "attempt": "int", "graph": "int", "alive": "list", "rows": "map", "final": "bool",
-             "incarnation": "map"},
-    "y": {"tau": "int", "attempt": "int", "agent": "int", "y": "array"},
+             "incarnation": "map", "fresh": "bool", "prev_attempt": "int"},
+    "y": {"tau": "int", "attempt": "int", "y": "array"},
     "truth": {"tau": "int", "attempt": "int", "x": "array", "rejected": "map"},
     "z": {"tau": "int", "attempt": "int", "k": "int", "agent": "int", "z": "array"},
     "xhat": {"tau": "int", "attempt": "int", "agent": "int", "incarnation": "int", "x": "array", "g": "float",

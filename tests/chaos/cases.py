@@ -338,7 +338,7 @@ def _first_object(raw: bytes):
 
 
 def flood(endpoint: str, run_id: str, *, seconds: float = 3.0, rate: float = 50_000, n: int = 4,
-          y_dim: int = 1, agent: int = 1, other: int = 2, batch: int = 250) -> dict:
+          y_dim: int = 3, agent: int = 1, other: int = 2, batch: int = 250) -> dict:
     """A rogue Zenoh client (never admitted, no MAC) floods well-formed future messages.
 
     Keys: y/<agent>, z/<agent>, xhat/<other>, truth and tick, in turn, at ``rate`` msg/s in total for
@@ -365,20 +365,20 @@ def flood(endpoint: str, run_id: str, *, seconds: float = 3.0, rate: float = 50_
             pass
 
     sub = s.declare_subscriber(keys.tick, on_tick)
-    targets = [keys.y(agent), keys.z(agent), keys.xhat(other), keys.truth, keys.tick]
+    targets = [keys.y, keys.z(agent), keys.xhat(other), keys.truth, keys.tick]
     drop = zenoh.CongestionControl.DROP
     pubs = {k: s.declare_publisher(k, congestion_control=drop) for k in targets}
 
     def payloads(tau: int, att: int) -> list:
         f = tau + 2
         return [
-            (keys.y(agent), encode("y", run_id, tau=f, attempt=att, agent=agent, y=np.zeros(y_dim))),
+            (keys.y, encode("y", run_id, tau=f, attempt=att, y=np.zeros(y_dim))),
             (keys.z(agent), encode("z", run_id, tau=f, attempt=att, k=0, agent=agent, z=np.zeros(n))),
             (keys.xhat(other), encode("xhat", run_id, tau=f, attempt=att, agent=other, incarnation=0, x=np.zeros(n),
                                       g=None, rejected={})),
             (keys.truth, encode("truth", run_id, tau=f, attempt=att, x=np.zeros(n), rejected={})),
             (keys.tick, encode("tick", run_id, tau=f, attempt=att, graph=0, final=False, alive=[], rows={},
-                               incarnation={})),
+                               incarnation={}, fresh=False, prev_attempt=0)),
         ]
 
     try:
@@ -403,8 +403,8 @@ def flood(endpoint: str, run_id: str, *, seconds: float = 3.0, rate: float = 50_
         elapsed = time.perf_counter() - t0
         tau, att = ticks[-1]
         pubs[keys.tick].put(encode("tick", run_id, tau=2 ** 62, attempt=0, graph=0, alive=[], rows={},
-                                   final=False, incarnation={}))
-        pubs[keys.y(agent)].put(encode("y", run_id, tau=tau, attempt=att, agent=agent, y=np.full(y_dim, 1e6)))
+                                   final=False, incarnation={}, fresh=False, prev_attempt=0))
+        pubs[keys.y].put(encode("y", run_id, tau=tau, attempt=att, y=np.full(y_dim, 1e6)))
         return {"sent": sent + 2, "seconds": round(elapsed, 3), "rate": round(sent / elapsed),
                 "tau_first": tau_first, "tau_last": tau}
     finally:

@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 
 from splitspec_core.runtime.bus import open_session
-from splitspec_core.runtime.wire import MAC_BYTES, Keys, WireError, decode, encode
+from splitspec_core.runtime.wire import MAC_BYTES, SCHEMA_VERSION, Keys, WireError, decode, encode
 from tests.integration.runtime_helpers import (assert_all_gone, compare_with_simulate, dump, events, free_port,
                                                scenario_file, start, started_pids, wait_for_event)
 
@@ -44,7 +44,7 @@ def rogue(endpoint: str, run_id: str, stop: threading.Event, sent: dict, *, cred
             pass
 
     sub = s.declare_subscriber(keys.tick, on_tick)
-    pubs = {k: s.declare_publisher(k) for k in (keys.z(1), keys.z(2), keys.y(1), keys.y(3), keys.xhat(2), keys.truth,
+    pubs = {k: s.declare_publisher(k) for k in (keys.z(1), keys.z(2), keys.y, keys.xhat(2), keys.truth,
                                                 keys.tick)}
     n = 4
     try:
@@ -63,16 +63,16 @@ def rogue(endpoint: str, run_id: str, stop: threading.Event, sent: dict, *, cred
                 "stale": (keys.z(1), encode("z", run_id, tau=tau - 1, attempt=att, k=0, agent=1, z=np.ones(n))),
                 "future": (keys.z(2), encode("z", run_id, tau=tau + 3, attempt=att, k=0, agent=2, z=np.ones(n))),
                 "bad_k": (keys.z(1), encode("z", run_id, tau=tau, attempt=att, k=99, agent=1, z=np.ones(n))),
-                "y_shape": (keys.y(3), encode("y", run_id, tau=tau, attempt=att, agent=3, y=np.zeros(3))),
-                "xhat_garbage": (keys.xhat(2), msgpack.packb({"v": 1, "run": run_id, "type": "xhat"})),
+                "y_shape": (keys.y, encode("y", run_id, tau=tau, attempt=att, y=np.zeros(5))),
+                "xhat_garbage": (keys.xhat(2), msgpack.packb({"v": SCHEMA_VERSION, "run": run_id, "type": "xhat"})),
                 "truth_nan": (keys.truth, encode("truth", run_id, tau=tau, attempt=att, x=np.full(n, np.inf),
                                                  rejected={})),
                 "tick_garbage": (keys.tick, b"\xff\x00tick"),
                 # well-formed forgeries: a tick from the far future with no rows (used to make every agent
                 # restart) and a measurement for the current event time (used to shift the trajectory)
                 "tick_future": (keys.tick, encode("tick", run_id, tau=2 ** 62, attempt=0, graph=0, alive=[], rows={},
-                                                  final=False, incarnation={})),
-                "y_forged": (keys.y(1), encode("y", run_id, tau=tau, attempt=att, agent=1, y=np.array([1e6]))),
+                                                  final=False, incarnation={}, fresh=False, prev_attempt=0)),
+                "y_forged": (keys.y, encode("y", run_id, tau=tau, attempt=att, y=np.full(3, 1e6))),
             }
             for name, (key, payload) in bad.items():
                 if only is not None and key not in only:

@@ -24,7 +24,7 @@ def test_secure_deployment_by_hand_refuses_and_confines(tmp_path):
     rid = "secure-test"
     keys = Keys(rid)
     # a compromised agent 1 (its real credentials) forging other processes' messages
-    forged = {keys.z(2), keys.y(3), keys.xhat(2), keys.truth, keys.tick}
+    forged = {keys.z(2), keys.y, keys.xhat(2), keys.truth, keys.tick}
     with rogue_during_hand_started_run(tmp_path, scen, out, rid, creds=creds, only=forged,
                                        credentials=read_credentials(creds / "agent-1.cred")) as (endpoint, procs, sent):
         # no credentials, a wrong password, an unknown user: refused at connection time

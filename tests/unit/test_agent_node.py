@@ -27,9 +27,17 @@ def sign(msg_type, run="r", key=KEY, **fields):
 ROWS = {"2": [[2, 1, 3], [1 / 3, 1 / 3, 1 / 3]]}
 
 
-def tick(tau, attempt=0, rows=ROWS, **kw):
+def tick(tau, attempt=0, rows=ROWS, fresh=True, prev_attempt=0, **kw):
     return sign("tick", tau=tau, attempt=attempt, graph=0, final=False, alive=[1, 2, 3], rows=rows,
-                incarnation={"2": 0}, **kw)
+                incarnation={"2": 0}, fresh=fresh, prev_attempt=prev_attempt, **kw)
+
+
+def y(tau, attempt=0, value=0.0, key=KEY):
+    return encode("y", "r", mac_key=key, tau=tau, attempt=attempt, y=np.full(3, value))  # y_1, y_2, y_3 stacked
+
+
+def xhat(tau, j, attempt=0, value=0.0, n=4):
+    return sign("xhat", tau=tau, attempt=attempt, agent=j, incarnation=0, x=np.full(n, value), g=0.0, rejected={})
 
 
 def z(tau, k, j=1, attempt=0, n=4, run="r", key=KEY, value=0.0):
@@ -51,9 +59,57 @@ def test_round_publishes_q_exchanges_and_the_estimate():
     for k in range(6):
         for j in (1, 3):
             out = a.on_z(f"splitspec/r/z/{j}", z(0, k, j))
-    out = a.on_y(sign("y", tau=0, attempt=0, agent=2, y=np.zeros(1)))
+    out = a.on_y(y(0))
     assert [k for k, _ in out] == ["splitspec/r/xhat/2"]
     assert a.candidate[0] == 1
+
+
+def run_round(a, tau, *, z0_from_x: bool):
+    """Neighbours 1 and 3 play round tau with agent 2: their z(k) for k >= 1 (and z(0) or their x)."""
+    for j in (1, 3):
+        if z0_from_x:
+            a.on_x(f"splitspec/r/xhat/{j}", xhat(tau, j, value=float(j)))
+        else:
+            a.on_z(f"splitspec/r/z/{j}", z(tau, 0, j, value=float(j)))
+    for k in range(1, 6):
+        for j in (1, 3):
+            a.on_z(f"splitspec/r/z/{j}", z(tau, k, j))
+    return a.on_y(y(tau))
+
+
+def test_a_steady_round_takes_z0_from_the_neighbours_estimates_and_sends_no_z0():
+    """x_j(tau) published in round tau - 1 is z_j(0) of round tau (eq. split-discrete-p1): bit for bit the
+    same round as with explicit z(0) messages, one publish fewer per agent."""
+    a, b = node(), node()
+    for n in (a, b):
+        n.on_tick(tick(0))
+        run_round(n, 0, z0_from_x=False)
+    explicit = b.on_tick(tick(1, fresh=True))
+    steady = a.on_tick(tick(1, fresh=False, prev_attempt=0))
+    assert [k for k, _ in explicit] == ["splitspec/r/z/2"] and steady == []  # no z(0) in a steady round
+    run_round(b, 1, z0_from_x=False)
+    run_round(a, 1, z0_from_x=True)
+    assert a.candidate[0] == b.candidate[0] == 2 and np.array_equal(a.candidate[1], b.candidate[1])
+
+
+def test_estimates_of_an_aborted_attempt_are_not_taken_as_z0():
+    a = node()
+    a.on_tick(tick(0))
+    run_round(a, 0, z0_from_x=False)
+    a.on_x("splitspec/r/xhat/1", xhat(1, 1, attempt=0, value=9.0))  # round 0, attempt 0: re-run later
+    a.on_x("splitspec/r/xhat/1", xhat(1, 1, attempt=1, value=1.0))  # round 0, attempt 1: the one kept
+    a.on_x("splitspec/r/xhat/3", xhat(1, 3, attempt=1, value=3.0))
+    a.on_tick(tick(1, fresh=False, prev_attempt=1))
+    assert a._neighbour_states(0)[1][0] == 1.0  # rows [2, 1, 3]: agent 1's z(0) is its attempt-1 estimate
+
+
+def test_a_rerun_round_sends_z0_again():
+    a = node()
+    a.on_tick(tick(0))
+    run_round(a, 0, z0_from_x=False)
+    a.on_tick(tick(1, fresh=False))
+    out = a.on_tick(tick(1, attempt=1, fresh=False))
+    assert [k for k, _ in out] == ["splitspec/r/z/2"]
 
 
 def test_forgeries_without_the_key_change_nothing():
@@ -66,7 +122,7 @@ def test_forgeries_without_the_key_change_nothing():
                             rows={}, incarnation={})) == []
     assert a.on_tick(encode("tick", "r", tau=1, attempt=0, graph=0, final=False, alive=[], rows={},
                             incarnation={})) == []  # unsigned
-    assert a.on_y(encode("y", "r", tau=0, attempt=0, agent=2, y=np.array([1e6]))) == []
+    assert a.on_y(encode("y", "r", tau=0, attempt=0, y=np.full(3, 1e6))) == []
     assert a.rejected == {"bad_mac": 3} and a.ybuf == {} and np.array_equal(a.x, x0) and a.tick_tag == (0, 0)
 
 
@@ -101,8 +157,10 @@ def test_buffers_are_bounded_under_a_flood_of_plausible_messages():
     for k in range(1000):  # every (tau, attempt, k) slot that is plausible, and more
         a.on_z("splitspec/r/z/1", z(k % 2, k % 6, attempt=k % 3))
         a.on_z("splitspec/r/z/3", z(1, k % 6, j=3, attempt=(k + 1) % 3))
-        a.on_y(sign("y", tau=k % 2, attempt=0, agent=2, y=np.zeros(1)))
+        a.on_y(y(k % 2))
+        a.on_x("splitspec/r/xhat/1", xhat(k % 2, 1, attempt=k % 3))
     assert sum(len(v) for v in a.zbuf.values()) <= a.zbuf_limit == 6 * 6 * 2
+    assert sum(len(v) for v in a.xbuf.values()) <= a.zbuf_limit
     assert len(a.ybuf) <= 2
     assert a.rejected.get("duplicate", 0) > 0
 
@@ -110,7 +168,7 @@ def test_buffers_are_bounded_under_a_flood_of_plausible_messages():
 def test_plant_takes_only_signed_ticks_in_order():
     p = PlantNode(config(), "r")
     out = p.on_tick(tick(0))
-    assert [k for k, _ in out] == ["splitspec/r/truth", "splitspec/r/y/1", "splitspec/r/y/2", "splitspec/r/y/3"]
+    assert [k for k, _ in out] == ["splitspec/r/truth", "splitspec/r/y/all"]  # one y message for every agent
     assert p.on_tick(encode("tick", "r", tau=1, attempt=0, graph=0, final=False, alive=[], rows={},
-                            incarnation={})) == []
+                            incarnation={}, fresh=False, prev_attempt=0)) == []
     assert p.on_tick(tick(5)) == [] and p.rejected == {"bad_mac": 1, "future": 1}

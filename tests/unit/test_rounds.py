@@ -367,7 +367,8 @@ def play(example, changes=None):
             payload = encode("tick", "inproc", mac_key=key, tau=a.tau, attempt=a.attempt, graph=a.graph,
                              final=a.final, alive=list(a.alive),
                              rows={str(i): [list(nb), list(w)] for i, (nb, w) in a.rows.items()},
-                             incarnation={str(i): v for i, v in a.incarnation.items()})
+                             incarnation={str(i): v for i, v in a.incarnation.items()}, fresh=a.fresh,
+                             prev_attempt=a.prev_attempt)
             msgs = plant.on_tick(payload)
             for n in nodes.values():
                 msgs += n.on_tick(payload)
@@ -384,8 +385,12 @@ def play(example, changes=None):
                     d = decode(p, "inproc", "xhat", mac_key=key)
                     queue += m.on_xhat(d["agent"], d["tau"], d["attempt"], d["incarnation"], d["x"], d["g"],
                                        d["rejected"], t)
-                elif k.startswith(keys.prefix + "/y/"):
-                    msgs += nodes[int(k.rsplit("/", 1)[1])].on_y(p)
+                    for n in nodes.values():  # x_j(tau + 1) is also the neighbours' next z_j(0)
+                        if d["agent"] in n.in_neighbours:
+                            msgs += n.on_x(k, p)
+                elif k == keys.y:
+                    for n in nodes.values():
+                        msgs += n.on_y(p)
                 elif k.startswith(keys.prefix + "/z/"):
                     for n in nodes.values():
                         if int(k.rsplit("/", 1)[1]) in n.in_neighbours:
