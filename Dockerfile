@@ -8,7 +8,7 @@ ENV PYTHONUNBUFFERED=1 \
     RERUN_ANALYTICS=0
 
 WORKDIR /app
-COPY pyproject.toml README.md ./
+COPY pyproject.toml README.md LICENSE ./
 COPY splitspec_core ./splitspec_core
 COPY agents ./agents
 COPY plant ./plant

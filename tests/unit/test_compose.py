@@ -95,8 +95,9 @@ def test_image_installs_what_the_readme_says(dockerfile):
     folders = dict(re.findall(r'^(\w+) = "(\w+)"$', text.split("[tool.setuptools.package-dir]")[1], re.M))
     packages = sorted({folders.get(p, p).split(".")[0] for p in packages})
     assert packages == ["agents", "orchestrator", "plant", "splitspec_core"]  # the repository's folders
-    copied = {line.split()[1] for line in dockerfile.splitlines() if line.startswith("COPY")}
-    for pkg in packages + ["examples", "pyproject.toml"]:
+    copied = {src for line in dockerfile.splitlines() if line.startswith("COPY") for src in line.split()[1:-1]}
+    license_files = re.findall(r'"([^"]+)"', re.search(r"^license-files = \[(.*)\]$", text, re.M).group(1))
+    for pkg in packages + ["examples", "pyproject.toml", "README.md"] + license_files:  # what the build reads
         assert any(c == pkg or c.startswith(pkg) for c in copied), pkg
     runs = [line[len("RUN "):].strip() for line in dockerfile.splitlines() if line.startswith("RUN ")]
     assert runs == ["python -m pip install ."]
