@@ -7,7 +7,7 @@ add polynomial factors t^k lam^t to the transient.
 """
 
 import numpy as np
-from hypothesis import HealthCheck, assume, given, settings
+from hypothesis import HealthCheck, assume, example, given, settings
 from hypothesis import strategies as st
 
 from splitspec_core.analysis import fit_decay, max_error
@@ -51,6 +51,7 @@ def test_discrete_error_decays_at_designed_rate(seed, m, n, rate, gains, extra):
 @settings(max_examples=10, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(seed=st.integers(0, 10_000), m=st.integers(2, 5), n=st.integers(2, 6),
        rate=st.floats(0.2, 1.5), gains=st.sampled_from(["place", "riccati"]), extra=st.integers(0, 4))
+@example(seed=1, m=2, n=4, rate=0.21875, gains="place", extra=0)  # found by hypothesis: a thin margin at dt = 0.005
 def test_continuous_error_decays_at_designed_rate(seed, m, n, rate, gains, extra):
     des = design(_scenario(seed, m, n, "continuous", rate, gains, extra))
     # as the design's warning advises: keep dt small against g and the local gains |K_i C_i|
@@ -60,7 +61,12 @@ def test_continuous_error_decays_at_designed_rate(seed, m, n, rate, gains, extra
     assume(25 / (rate * dt) <= 40_000)  # bounded run length
     if dt < 0.005:
         des = design(_scenario(seed, m, n, "continuous", rate, gains, extra, dt=dt))
-    assert min(des.sampled_rate.values()) >= rate * 0.98
+    # the sampled-data form tends to the ODE as dt -> 0; where the ODE's margin over the rate is thin
+    # (seed 1, m 2, n 4, rate 0.21875: abscissa -0.22) dt = 0.005 decays at 0.208, dt / 2 at 0.220
+    while min(des.sampled_rate.values()) < rate * 0.98 and 25 / (rate * dt / 2) <= 100_000:
+        dt /= 2
+        des = design(_scenario(seed, m, n, "continuous", rate, gains, extra, dt=dt))
+    assert min(des.sampled_rate.values()) >= rate * 0.98, (dt, des.sampled_rate, des.error_radius)
     tr = simulate(des)
     measured = fit_decay(tr.t, max_error(tr), time="continuous", floor_rel=1e-250)
     if measured is None:
