@@ -110,7 +110,7 @@ class Orchestrator:
     """The shell around :class:`~splitspec_orchestrator.rounds.RoundMachine`.  ``run()`` returns the process exit code."""
 
     def __init__(self, scenario_path: str, *, out: Path, run_id: str, listen: str | None, connect: str | None,
-                 wait: float = 60.0, round_timeout: float = 10.0, viewer: str | None = None,
+                 wait: float | None = None, round_timeout: float = 10.0, viewer: str | None = None,
                  security=None, spawn_local: bool = False):
         self.scenario_text = read_scenario_text(scenario_path)
         self.sc = load_scenario(scenario_path)
@@ -118,7 +118,10 @@ class Orchestrator:
         self.keys = Keys(run_id)
         self.out = out
         self.listen, self.connect = listen, connect
-        self.wait, self.round_timeout = wait, round_timeout
+        from splitspec_core.runtime.cli import default_wait
+
+        self.wait = default_wait(self.sc.m) if wait is None else wait
+        self.round_timeout = round_timeout
         self.viewer = viewer
         self.security = security  # splitspec_core.runtime.security.Credentials or None
         self.spawn_local = spawn_local

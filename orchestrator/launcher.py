@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import ctypes
 import logging
+import os
 import signal
 import socket
 import subprocess
@@ -50,7 +51,13 @@ def node_command(role: str, *args: str) -> list:
     return [sys.executable, "-m", "splitspec_agents" if role == "agent" else "splitspec_plant", *map(str, args)]
 
 
+#: one BLAS thread per spawned process: an agent's matrices are n x n (n ~ 10), and m processes that each
+#: start a thread per core only contend for the cores the round needs
+ONE_BLAS_THREAD = {k: "1" for k in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")}
+
+
 def spawn(args: list, *, env: dict | None = None) -> subprocess.Popen:
+    env = {**(os.environ if env is None else env), **ONE_BLAS_THREAD}
     return subprocess.Popen(args, preexec_fn=_die_with_parent, env=env, stdin=subprocess.DEVNULL)
 
 
@@ -75,7 +82,7 @@ def stop_all(procs: list, *, grace: float = 5.0) -> None:
 EXIT_ORCHESTRATOR_LOST = 3  #: `splitspec run`'s exit status when the orchestrator itself died
 
 
-def run_local(scenario: str, out: Path, *, run_id: str, viewer: str | None, wait: float,
+def run_local(scenario: str, out: Path, *, run_id: str, viewer: str | None, wait: float | None,
               round_timeout: float, agent_ids: tuple, verbose: bool = False, secure: bool = True) -> int:
     """Start the orchestrator, which starts and parents the plant and the agents; return the exit code.
 
@@ -89,7 +96,8 @@ def run_local(scenario: str, out: Path, *, run_id: str, viewer: str | None, wait
     port = free_port()
     endpoint = f"tcp/127.0.0.1:{port}"
     orch_cmd = cli_command(*([] if verbose else ["--log-level", "warning"]), "orchestrator", scenario,
-                           "--listen", endpoint, "--out", out, "--run-id", run_id, "--wait", wait,
+                           "--listen", endpoint, "--out", out, "--run-id", run_id,
+                           *(["--wait", wait] if wait is not None else []),
                            "--round-timeout", round_timeout, "--spawn-local")
     if viewer:
         orch_cmd += ["--viewer", viewer]

@@ -21,7 +21,7 @@ from ..errors import SplitspecError
 
 __all__ = ["ArgumentParser", "EXIT_BAD_INPUT", "EXIT_FAILED", "MAX_SECONDS", "MAX_SEED", "UsageError",
            "add_logging_options", "add_node_options", "at_least", "error_boundary", "positive", "seed",
-           "add_run_id_option", "setup_logging", "integer"]
+           "add_run_id_option", "setup_logging", "integer", "default_wait", "DEFAULT_WAIT"]
 
 EXIT_BAD_INPUT = 2
 EXIT_FAILED = 1
@@ -29,6 +29,13 @@ EXIT_INTERRUPTED = 130
 
 MAX_SEED = 2**63 - 1  # as splitspec_core.scenario_model.MAX_SEED: seeds travel to the processes as 64-bit integers
 MAX_SECONDS = 1e6  # --wait, --round-timeout: finite waits that threading and time.sleep accept (11.6 days)
+DEFAULT_WAIT = 60.0  # --wait of a plant or agent process (seconds)
+
+
+def default_wait(m: int) -> float:
+    """The orchestrator's default ``--wait`` for m agents: 60 s plus 1 s per agent (m processes start at once,
+    on as few cores as the machine has; one m = 32 run did not start within a flat 60 s under load)."""
+    return DEFAULT_WAIT + float(m)
 
 
 class ArgumentParser(argparse.ArgumentParser):
@@ -105,8 +112,9 @@ def add_run_id_option(p: argparse.ArgumentParser, *, required: bool = False) -> 
     else:
         p.add_argument("--run-id", help="run id: key prefix splitspec/<run-id>/ (default: a new unique id, printed "
                        "at start); several runs can share a router under different ids")
-    p.add_argument("--wait", type=positive(MAX_SECONDS), default=60.0,
-                   help="seconds to wait for the other processes (default 60)")
+    p.add_argument("--wait", type=positive(MAX_SECONDS), default=DEFAULT_WAIT if required else None,
+                   help="seconds to wait for the other processes (default 60" + ("" if required else
+                                                                                  ", plus 1 per agent") + ")")
 
 
 def add_node_options(p: argparse.ArgumentParser) -> None:
