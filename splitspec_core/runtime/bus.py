@@ -169,8 +169,7 @@ class Inbox:
             else:
                 inbox._offer((_c, k, payload))
 
-        ind = os.environ.get("SPLITSPEC_INDIRECT", "0") == "1"  # EXPERIMENT
-        self._subs.append(self.session.declare_subscriber(key, zenoh.handlers.Callback(cb, indirect=ind)))
+        self._subs.append(self.session.declare_subscriber(key, zenoh.handlers.Callback(cb, indirect=False)))
 
     def serve_deferred(self, key: str, channel: str) -> None:
         """Declare a queryable whose queries are queued as ``(channel, key, query)``; the event loop replies."""
@@ -366,9 +365,8 @@ class NodeShell:
                     on_error("handler_error")
                     self.log.warning("%s: dropped a %s message on %s: %s", name, channel, key, exc)
 
-        direct = os.environ.get("SPLITSPEC_DIRECT", "1") == "1"  # EXPERIMENT
         for key, channel in subscriptions:
-            self.inbox.subscribe(key, channel, direct=handle if direct else None)
+            self.inbox.subscribe(key, channel, direct=handle)
         self.inbox.subscribe(self.keys.control, "control")
         token = self.session.liveliness().declare_token(self.keys.alive(self.role, self.ident, self.nonce))
         self._looping = True
