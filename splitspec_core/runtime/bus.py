@@ -291,6 +291,7 @@ class NodeShell:
         self.inbox = Inbox(self.session)
         self.pubs: dict = {}
         self._looping = False
+        self._closing = False
 
         def on_signal(signum, _frame):
             if not self._looping:  # still starting (fetching the config): leave at once
@@ -362,12 +363,16 @@ class NodeShell:
 
         def handle(channel: str, key: str, payload: bytes) -> None:
             with lock:
+                if self._closing:  # the loop has ended: nothing more is handled or sent
+                    return
                 try:
                     self.publish(dispatch(channel, key, payload))
                 except (ValueError, TypeError, KeyError, IndexError) as exc:
                     # a message that passed validation but still broke the node: drop it, count it, go on
                     on_error("handler_error")
                     self.log.warning("%s: dropped a %s message on %s: %s", name, channel, key, exc)
+                except zenoh.ZError as exc:  # the session is closing under us (the orchestrator was lost)
+                    self.log.info("%s: not sent (%s)", name, str(exc).split(" at ")[0])
 
         for key, channel in subscriptions:
             self.inbox.subscribe(key, channel, direct=handle)
@@ -411,6 +416,8 @@ class NodeShell:
                 break
             else:  # subscribed before run() without a direct handler: handled here, in order
                 handle(channel, key, payload)
+        with lock:
+            self._closing = True
         token.undeclare()
         return code
 

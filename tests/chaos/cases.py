@@ -350,7 +350,7 @@ def flood(endpoint: str, run_id: str, *, seconds: float = 3.0, rate: float = 50_
     import zenoh
 
     from splitspec_core.runtime.bus import open_session
-    from splitspec_core.runtime.wire import Keys, encode
+    from splitspec_core.runtime.wire import MAC_BYTES, Keys, encode
 
     keys = Keys(run_id)
     s = open_session("client", connect=[endpoint], connect_timeout_ms=5000)
@@ -358,8 +358,12 @@ def flood(endpoint: str, run_id: str, *, seconds: float = 3.0, rate: float = 50_
 
     def on_tick(smp):
         try:
-            b = _first_object(smp.payload.to_bytes())
-            if isinstance(b, dict) and b.get("run") == run_id and isinstance(b.get("tau"), int):
+            raw = smp.payload.to_bytes()
+            b = _first_object(raw)
+            # the orchestrator's ticks only: they carry the MAC trailer; our own forged ones (delivered back
+            # to this session) do not, and taking them would run the flood's event time away
+            signed = len(raw) == len(msgpack.packb(b, use_bin_type=True)) + MAC_BYTES
+            if signed and isinstance(b, dict) and b.get("run") == run_id and isinstance(b.get("tau"), int):
                 ticks.append((b["tau"], b.get("attempt", 0)))
         except Exception:  # noqa: BLE001 - our own far-future tick or garbage
             pass
