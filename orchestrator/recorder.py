@@ -36,9 +36,11 @@ Timelines: ``event`` (sequence ``tau``), ``time`` (duration: ``tau`` seconds
 in discrete time, ``tau * dt`` in continuous time) and ``wall`` (timestamp).
 A value that stops being true (an agent lost from ``tau`` on after its rows
 were logged, or a row re-sent for the same ``tau`` without an agent) is
-retracted with a non-recursive ``rr.Clear`` at that event time; and a loss gets
-an explicit Clear of every series of the agent at the loss itself, which breaks
-the agent's lines in the time-series views.
+retracted with a non-recursive ``rr.Clear`` at that event time (in the
+per-component state batches ``state/<k>/agents``, by re-sending the row with NaN
+for that agent); and a loss gets an explicit Clear of every series of the agent
+alone at the loss itself, which breaks the agent's lines in the time-series
+views (its state lines break at the NaN of the rows where it is dead).
 
 The designed envelope (``errors_log10/envelope``) is computed row by row, as a
 live recording can: it restarts at a row whose alive set gains an agent or
@@ -465,8 +467,9 @@ class Recorder:
         """Agent ``agent_id`` is lost from event time ``tau`` on: NaN/False in every recorded row with ``tau' >= tau``.
 
         Buffered rows simply lose the agent's values; rows already in Rerun get a
-        ``Clear`` (and a new ``errors/max``); every series of the agent gets a
-        ``Clear`` at ``tau`` itself (a break in its lines).  Then everything is flushed.
+        ``Clear`` (and a new ``errors/max``; NaN for the agent in ``state/<k>/agents``);
+        every series of the agent alone gets a ``Clear`` at ``tau`` itself (a break in
+        its lines).  Then everything is flushed.
         """
         i = self._pos.get(int(agent_id))
         if i is None:

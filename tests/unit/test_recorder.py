@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from splitspec_orchestrator.recorder import Recorder, RecordingError
-from tests.rrd_readback import read_rrd, verify_rrd
+from tests.rrd_readback import read_rrd, read_rrd_state, read_rrd_vectors, rrd_entities, verify_rrd
 
 os.environ.setdefault("RERUN_ANALYTICS", "0")
 
@@ -158,11 +158,29 @@ def test_rrd_values_match_trajectory(recorded):
     assert sorted(got_max) == list(range(T))
     for tau in range(T):
         assert got_max[tau] == pytest.approx(np.nanmax(err[tau]), abs=1e-9, rel=0)
+    state = read_rrd_state(out / "run.rrd")
     for k in range(N):
-        truth = dict(series[f"state/{k + 1}/truth"])
+        truth = dict(state[f"state/{k + 1}/truth"])
         np.testing.assert_allclose([truth[tau] for tau in range(T)], x[:, k], rtol=0, atol=1e-12)
-        est = dict(series[f"state/{k + 1}/agent_{LOST_ID}"])
-        assert sorted(est) == list(range(LOST_TAU))
+        for i, a in enumerate(IDS):
+            est = dict(state[f"state/{k + 1}/agent_{a}"])
+            assert sorted(est) == [tau for tau in range(T) if alive[tau, i]]
+            np.testing.assert_array_equal([est[tau] for tau in sorted(est)], xhat[sorted(est), i, k])
+
+
+def test_state_is_one_batch_per_component(recorded):
+    """state/<k>/agents: one entity per component holding m values per event time (NaN where dead)."""
+    out, _, _ = recorded
+    ents = rrd_entities(out / "run.rrd")
+    assert {e for e in ents if e.startswith("state/")} == \
+        {f"state/{k}/{who}" for k in range(1, N + 1) for who in ("truth", "agents")}
+    vectors = read_rrd_vectors(out / "run.rrd")
+    with np.load(out / "trajectory.npz") as f:
+        xhat = f["xhat"]
+    for k in range(N):
+        rows = vectors[f"state/{k + 1}/agents"]
+        assert [tau for tau, _ in rows] == list(range(T))
+        np.testing.assert_array_equal(np.array([v for _, v in rows]), xhat[:, :, k])  # NaN where dead
 
 
 def test_rrd_topology_and_event_levels(recorded):
@@ -187,13 +205,17 @@ def test_rrd_topology_and_event_levels(recorded):
 def test_clear_only_for_values_already_sent(recorded):
     """mark_lost on buffered rows drops the values; on rows already in Rerun it logs Clear.
 
-    Either way every series of the lost agent gets a Clear at the loss itself (a break in its line).
+    Either way every series of the lost agent alone gets a Clear at the loss itself (a break in its
+    line); in the shared state batches its values are NaN from the loss on, re-sent rows included.
     """
     out, _, flush_seconds = recorded
     clears = clear_taus(out / "run.rrd")
-    series = {f"errors/agent_{LOST_ID}", f"errors_log10/agent_{LOST_ID}"} | \
-        {f"state/{k + 1}/agent_{LOST_ID}" for k in range(N)}
+    series = {f"errors/agent_{LOST_ID}", f"errors_log10/agent_{LOST_ID}"}
     assert set(clears) == series
+    lost_col = IDS.index(LOST_ID)
+    for k in range(N):
+        rows = dict(read_rrd_vectors(out / "run.rrd")[f"state/{k + 1}/agents"])
+        assert all(np.isnan(rows[tau][lost_col]) == (tau >= LOST_TAU) for tau in range(T))
     if flush_seconds == NEVER:  # rows 12..14 were still buffered when agent 5 was marked lost
         assert all(clears[s] == {LOST_TAU} for s in series)
     else:
@@ -220,6 +242,7 @@ def test_resent_rows_buffered_and_sent(tmp_path):
     rec.close()
 
     series = read_rrd(tmp_path / "run.rrd")
+    state = read_rrd_state(tmp_path / "run.rrd")
     alive = np.array([everyone, without_2, everyone, without_1])
     err = np.linalg.norm(xhat - x[:, None, :], axis=2)
     for i, a in enumerate(IDS):
@@ -227,12 +250,13 @@ def test_resent_rows_buffered_and_sent(tmp_path):
         assert sorted(got) == [tau for tau in range(4) if alive[tau, i]]
         for tau, value in got.items():
             assert value == pytest.approx(err[tau, i], abs=1e-9, rel=0)
-            assert dict(series[f"state/1/agent_{a}"])[tau] == xhat[tau, i, 0]
+            assert dict(state[f"state/1/agent_{a}"])[tau] == xhat[tau, i, 0]
     assert [v for _, v in series["errors/max"]] == pytest.approx(
         [err[tau, alive[tau]].max() for tau in range(4)], abs=1e-9, rel=0)
-    assert clear_taus(tmp_path / "run.rrd") == {"errors/agent_2": {1}, "errors_log10/agent_2": {1},
-                                                **{f"state/{k + 1}/agent_2": {1}
-                                                                       for k in range(N)}}
+    assert clear_taus(tmp_path / "run.rrd") == {"errors/agent_2": {1}, "errors_log10/agent_2": {1}}
+    for k in range(N):  # the re-sent row 1 retracts agent 2's state with NaN; agent 1 never sent for row 3
+        assert sorted(dict(state[f"state/{k + 1}/agent_2"])) == [0, 2, 3]
+        assert sorted(dict(state[f"state/{k + 1}/agent_1"])) == [0, 1, 2]
     with np.load(tmp_path / "trajectory.npz") as f:
         np.testing.assert_array_equal(f["alive"], alive)
         np.testing.assert_array_equal(np.isnan(f["xhat"]).all(axis=2), ~alive)

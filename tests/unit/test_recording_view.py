@@ -15,7 +15,7 @@ from splitspec_core.analysis import envelope, envelope_restarts
 from splitspec_core.errors import ScenarioError
 from splitspec_core.scenario_model import parse_scenario
 from tests.integration.runtime_helpers import EXAMPLES
-from tests.rrd_readback import read_rrd, read_rrd_clears, read_rrd_nodes
+from tests.rrd_readback import read_rrd, read_rrd_clears, read_rrd_nodes, read_rrd_state
 
 IDS = (1, 2, 5)
 M, N, T = 3, 2, 30
@@ -105,8 +105,13 @@ def test_no_envelope_without_a_certified_rate(tmp_path):
 def test_loss_clears_every_series_and_marks_the_axis(tmp_path):
     record(tmp_path, "continuous", flush_seconds=NEVER, envelope_rate=LAM["continuous"])
     clears = read_rrd_clears(tmp_path / "run.rrd")
-    agent2 = {"errors/agent_2", "errors_log10/agent_2", "gains/agent_2"} | {f"state/{k}/agent_2" for k in (1, 2)}
+    agent2 = {"errors/agent_2", "errors_log10/agent_2", "gains/agent_2"}
     assert {e for e, taus in clears.items() if 8 in taus} == agent2
+    # its state estimates (in the shared per-component batches) are NaN while it is dead: no line there
+    _, _, alive, _, _ = rows()
+    state = read_rrd_state(tmp_path / "run.rrd")
+    for k in (1, 2):
+        assert sorted(dict(state[f"state/{k}/agent_2"])) == [tau for tau in range(T) if alive[tau, 1]]
     series = read_rrd(tmp_path / "run.rrd")
     assert [tau for tau, _ in series["marks/lost"]] == [8]
     assert [tau for tau, _ in series["marks/rejoined"]] == [14]
