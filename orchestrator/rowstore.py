@@ -6,7 +6,12 @@ where dead or none, ``round`` (T, 3) wall ms / attempts / rejected, ``wall``
 (T,) ``time.time_ns()`` of the row's last arrival; ``shown``/``shown_max``:
 what Rerun currently shows (retracted with a Clear when it stops being
 true); ``env_start``: the row where the designed envelope's piece of row k
-starts.  ``rows`` = T.  No I/O and no lock: the recorder holds its lock.
+starts.  ``rows`` = T.  No I/O and no lock: the recorder holds its locks.
+
+The recorder keeps two: the rows as its callers record them, and the rows as
+its flushes took them (:meth:`RowStore.take`), which the flushes write out
+while the callers go on recording; ``shown``, ``shown_max`` and ``env_start``
+are only kept up to date in the second.
 """
 
 from __future__ import annotations
@@ -49,6 +54,14 @@ class RowStore:
         self.row_of_tau[tau] = k
         self.rows += 1
         return k
+
+    def take(self, src: "RowStore", rows: np.ndarray, upto: int) -> None:
+        """Copy the recorded columns of ``rows`` (all below ``upto``) from ``src``; hold ``upto`` rows after it."""
+        while self.t.shape[0] < upto:
+            self.grow()
+        for name in ("t", "x", "xhat", "alive", "graph", "tau", "wall", "g", "round"):
+            getattr(self, name)[rows] = getattr(src, name)[rows]
+        self.rows = max(self.rows, upto)
 
     def grow(self) -> None:
         def bigger(a: np.ndarray, fill) -> np.ndarray:

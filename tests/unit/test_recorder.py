@@ -412,3 +412,88 @@ def test_input_errors_name_the_problem(tmp_path):
     assert json.loads((tmp_path / "events.jsonl").read_text().splitlines()[-1])["finished"] is False
     with pytest.raises(RecordingError, match="after close"):
         rec.row(2, np.zeros(N), np.zeros((M, N)), ok, 0)
+
+
+def test_round_loop_calls_never_write_or_wait_for_a_flush(tmp_path, monkeypatch):
+    """flush_seconds > 0: row/event/topology/mark_lost do no Rerun call, no run.rrd or trajectory.npz write
+    and no fsync in the caller's thread, and return at once while a (slow) background flush is under way."""
+    import threading
+
+    import splitspec_core.trajfile as trajfile
+    import splitspec_orchestrator.rrdfile as rrdfile
+
+    main = threading.current_thread()
+    calls: list[tuple[str, bool]] = []  # (what, in the caller's thread)
+    real_fsync, real_append = os.fsync, rrdfile.RrdAppender.append
+    monkeypatch.setattr(os, "fsync", lambda fd: (calls.append(("fsync", threading.current_thread() is main)),
+                                                 real_fsync(fd))[1])
+    monkeypatch.setattr(rrdfile.RrdAppender, "append", lambda self, piece: (
+        calls.append(("run.rrd", threading.current_thread() is main)), real_append(self, piece))[1])
+    real_write = trajfile.write_trajectory
+    monkeypatch.setattr("splitspec_orchestrator.recorder.write_trajectory", lambda *a, **kw: (
+        calls.append(("trajectory.npz", threading.current_thread() is main)), real_write(*a, **kw))[1])
+    rec = Recorder(tmp_path, agent_ids=IDS, n=N, steps=T, time_mode="discrete", dt=1.0, graph_names=GRAPHS,
+                   run_id="bg", scenario_name="bg", flush_seconds=0.05)
+    calls.clear()  # the constructor writes run.rrd's header itself
+    in_flush = threading.Event()
+    real_send = rec._rec.send_rows
+
+    def slow_send(batch):
+        calls.append(("rerun", threading.current_thread() is main))
+        in_flush.set()
+        time.sleep(0.5)  # a slow flush: the callers must not wait for it
+        real_send(batch)
+
+    rec._rec.send_rows = slow_send
+    x, xhat, _, alive, graph, _ = synthetic()
+    rec.topology(0, "ring", IDS, RING)
+    rec.event("start", 0.0)
+    longest = 0.0
+    for tau in range(T):
+        t0 = time.perf_counter()
+        rec.row(tau, x[tau], xhat[tau], alive[tau] | (tau >= LOST_TAU), int(graph[tau]))
+        if tau == LOST_NOTICED:
+            rec.mark_lost(LOST_TAU, LOST_ID)
+            rec.event("agent_lost", float(LOST_TAU), id=LOST_ID)
+            rec.topology(LOST_TAU, "complete", (1, 2), COMPLETE)
+        longest = max(longest, time.perf_counter() - t0)
+        if tau == 5:
+            assert in_flush.wait(10.0)  # rows 0..5 are being flushed, slowly, from here on
+    assert longest < 0.25, f"a recorder call waited {longest:.3f} s"
+    deadline = time.monotonic() + 20.0
+    while rec.rows_kept < T and time.monotonic() < deadline:  # the background thread writes them all
+        time.sleep(0.05)
+    assert rec.rows_kept == T
+    assert calls and not any(in_main for _, in_main in calls), calls
+    assert {what for what, _ in calls} >= {"rerun", "run.rrd", "trajectory.npz", "fsync"}
+    rec.close()  # close writes in the caller's thread
+    assert any(in_main for _, in_main in calls)
+    with np.load(tmp_path / "trajectory.npz") as f:
+        assert f["t"].shape == (T,)
+    assert [tau for tau, _ in read_rrd(tmp_path / "run.rrd")["errors/max"]] == list(range(T))
+
+
+@pytest.mark.filterwarnings("ignore:RRD file has no footer")
+def test_mark_lost_asks_for_a_flush_of_the_rows_so_far(tmp_path):
+    """With a flush period that never comes, mark_lost still gets every row recorded before it written
+    (by the background thread), and only those."""
+    rec = Recorder(tmp_path, agent_ids=IDS, n=N, steps=T, time_mode="discrete", dt=1.0, graph_names=GRAPHS,
+                   run_id="ml", scenario_name="ml", flush_seconds=NEVER)
+    try:
+        x, xhat, _, alive, graph, _ = synthetic()
+        for tau in range(LOST_NOTICED + 1):
+            rec.row(tau, x[tau], xhat[tau], np.ones(M, dtype=bool), int(graph[tau]))
+        rec.mark_lost(LOST_TAU, LOST_ID)
+        for tau in range(LOST_NOTICED + 1, T):  # recorded after the request: not in that flush
+            rec.row(tau, x[tau], xhat[tau], alive[tau], int(graph[tau]))
+        deadline = time.monotonic() + 10.0
+        while rec.rows_kept < LOST_NOTICED + 1 and time.monotonic() < deadline:
+            time.sleep(0.02)
+        assert rec.rows_kept == LOST_NOTICED + 1
+        with np.load(tmp_path / "trajectory.npz") as f:
+            assert f["t"].shape == (LOST_NOTICED + 1,)
+            assert np.isnan(f["xhat"][LOST_TAU:, IDS.index(LOST_ID)]).all()
+        assert [tau for tau, _ in read_rrd(tmp_path / "run.rrd")["errors/max"]] == list(range(LOST_NOTICED + 1))
+    finally:
+        rec.close()
+    assert rec.rows_kept == T
