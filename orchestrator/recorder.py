@@ -66,7 +66,10 @@ recording -- sends the rows to Rerun (one ``send_columns`` chunk per entity
 per flush; an agent's chunks hold only the event times where it is shown),
 then the queued logs of ``event``/``topology``/``mark_lost`` (one chunk per
 flush each), appends what Rerun encoded to ``run.rrd`` (fsynced) and
-rewrites ``trajectory.npz`` (fsynced).  So no Rerun call, no ``run.rrd`` or
+rewrites ``trajectory.npz`` (fsynced) -- the whole file, so on a long run
+(tens of MB) the background thread skips that rewrite at the flushes that
+come sooner than 9 times its last duration after it: at most a tenth of its
+time goes to it (every flush up to some 10^4 rows at m = 32, n = 6).  So no Rerun call, no ``run.rrd`` or
 ``trajectory.npz`` write and no fsync happens in the caller's thread, except
 in :meth:`Recorder.flush` (explicit: it waits for a background flush under
 way, then flushes), :meth:`Recorder.close`, at a normal interpreter exit
@@ -104,7 +107,9 @@ back after a failed write.
 A flush writes ``run.rrd`` first, then ``trajectory.npz`` (one flush at a
 time, whichever thread runs it), so the npz never holds an event time the rrd
 lacks and a SIGKILL loses at most the rows of one flush period (plus the
-flush under way) from both.  ``close(finished=False)`` after a write failure does
+flush under way; on a long run, those since the last rewrite of
+``trajectory.npz``, which ``splitspec recover`` cuts ``run.rrd`` back to)
+from both.  ``close(finished=False)`` after a write failure does
 not raise: it removes the disk-space reserve (``.splitspec-reserve``, a few
 MB preallocated at start, :class:`splitspec_orchestrator.outdir.Reserve`), writes what
 the failure left unwritten, and leaves K = :attr:`Recorder.rows_kept` rows in
@@ -150,6 +155,9 @@ log = logging.getLogger(__name__)
 
 RESERVE_BYTES = 4 << 20  # disk-space reserve released on ENOSPC to write the final records
 _MAX_INITIAL_ROWS = 1024  # row storage starts at most this big (``steps`` is a hint) and doubles
+# The background thread's rewrites of trajectory.npz take at most this share of its time: a rewrite
+# that took w seconds is followed by none before 9 w have passed (a long run's trajectory is large).
+_NPZ_DUTY = 0.1
 
 # Recorders not closed yet: flushed at interpreter exit (and when dropped, see __del__), so a
 # normal exit without close() loses no buffered row.  The handler is registered after rerun is imported (which registers
@@ -299,6 +307,7 @@ class Recorder:
         self._queued_clears: list[tuple[int, float, int, int]] = []  # loss clears (tau, t, agent, wall_ns)
         self._request: int | None = None
         self._npz_dirty = False  # rows taken since trajectory.npz was last written (under _io)
+        self._npz_next = 0.0  # monotonic time before which the background thread does not rewrite it
         self._last_flush = time.monotonic()
 
         # Write failures (see the module docstring): the first one, whether a caller has seen it,
@@ -650,10 +659,12 @@ class Recorder:
                 self._flush()
 
     def _pending(self) -> bool:
-        """Something recorded that no flush took yet.  ``_lock`` held."""
+        """Something recorded that no flush took or wrote yet (``trajectory.npz`` included).  ``_io`` and
+        ``_lock`` held."""
         return (self._taken < self._s.rows or bool(self._changed) or bool(self._queued_events)
                 or bool(self._queued_topology) or bool(self._queued_marks) or bool(self._queued_clears)
-                or self._request is not None or (self._rec is not None and bool(self._rec.pending)))
+                or self._request is not None or (self._rec is not None and bool(self._rec.pending))
+                or self._npz_dirty)
 
     def _background_flush(self) -> bool:
         """One turn of :func:`_watch`: flush if due or asked for.  False when the recorder is closed."""
@@ -670,7 +681,7 @@ class Recorder:
                         return True
                 taken = self._take(upto)
             try:
-                self._write(*taken)
+                self._write(*taken, trajectory=upto is not None or time.monotonic() >= self._npz_next)
             except RecordsWriteError:  # stored: the next recorder call raises it
                 with self._lock:
                     self._failure_reported = False
@@ -712,8 +723,12 @@ class Recorder:
         self._queued_events, self._queued_topology, self._queued_marks, self._queued_clears = [], [], [], []
         return taken
 
-    def _write(self, K: np.ndarray, events: list, topology: list, marks: list, clears: list) -> None:
-        """Write out what :meth:`_take` took.  ``_io`` held; ``_lock`` only for the bookkeeping at the end."""
+    def _write(self, K: np.ndarray, events: list, topology: list, marks: list, clears: list, *,
+               trajectory: bool = True) -> None:
+        """Write out what :meth:`_take` took.  ``_io`` held; ``_lock`` only for the bookkeeping at the end.
+
+        ``trajectory=False``: leave ``trajectory.npz`` for a later flush (see ``_NPZ_DUTY``).
+        """
         D = self._d
         sink = self._rec
         if len(K):
@@ -735,8 +750,10 @@ class Recorder:
                 sink.guarded("topology log", sink.send_topology, topology)
         if len(K) or events or topology or marks or clears or (sink is not None and sink.pending):
             self._append_rrd()
-        if self._npz_dirty or self._npz_rows != D.rows:
+        if trajectory and (self._npz_dirty or self._npz_rows != D.rows):
+            t0 = time.monotonic()
             self._write_trajectory()
+            self._npz_next = time.monotonic() + (time.monotonic() - t0) * (1 - _NPZ_DUTY) / _NPZ_DUTY
         with self._lock:
             self._rows_kept = min(self._npz_rows, self._rrd_rows) if sink is not None else self._npz_rows
 

@@ -497,3 +497,39 @@ def test_mark_lost_asks_for_a_flush_of_the_rows_so_far(tmp_path):
     finally:
         rec.close()
     assert rec.rows_kept == T
+
+
+def test_slow_trajectory_rewrites_are_spaced_out(tmp_path, monkeypatch):
+    """The background thread spends at most about a tenth of its time rewriting trajectory.npz (the whole
+    file each time): a rewrite that takes 0.1 s is not repeated within 0.9 s, while run.rrd is appended at
+    every flush; close() still writes every row."""
+    import splitspec_core.trajfile as trajfile
+
+    writes: list[float] = []
+    real_write = trajfile.write_trajectory
+
+    def slow_write(*args, **kwargs):
+        writes.append(time.monotonic())
+        time.sleep(0.1)
+        real_write(*args, **kwargs)
+
+    monkeypatch.setattr("splitspec_orchestrator.recorder.write_trajectory", slow_write)
+    rec = Recorder(tmp_path, agent_ids=IDS, n=N, steps=200, time_mode="discrete", dt=1.0, graph_names=GRAPHS,
+                   run_id="npz", scenario_name="npz", flush_seconds=0.05)
+    appends = []
+    real_append = rec._rec.rrd_file.append
+    rec._rec.rrd_file.append = lambda piece: (appends.append(time.monotonic()), real_append(piece))[1]
+    t0 = time.monotonic()
+    tau = 0
+    while time.monotonic() - t0 < 2.0:
+        rec.row(tau, np.zeros(N), np.ones((M, N)), np.ones(M, dtype=bool), 0)
+        tau += 1
+        time.sleep(0.01)
+    during = list(writes)
+    rec.close()
+    assert 1 <= len(during) <= 3, during
+    assert all(b - a >= 0.9 for a, b in zip(during, during[1:])), during
+    assert len(appends) >= 2 * len(during)  # run.rrd kept up meanwhile
+    with np.load(tmp_path / "trajectory.npz") as f:
+        assert f["t"].shape == (tau,)
+    assert rec.rows_kept == tau
