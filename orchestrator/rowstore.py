@@ -55,27 +55,51 @@ class RowStore:
         self.rows += 1
         return k
 
-    def take(self, src: "RowStore", rows: np.ndarray, upto: int) -> None:
-        """Copy the recorded columns of ``rows`` (all below ``upto``) from ``src``; hold ``upto`` rows after it."""
-        while self.t.shape[0] < upto:
-            self.grow()
-        for name in ("t", "x", "xhat", "alive", "graph", "tau", "wall", "g", "round"):
-            getattr(self, name)[rows] = getattr(src, name)[rows]
+    _RECORDED = ("t", "x", "xhat", "alive", "graph", "tau", "wall", "g", "round")  # what take() copies
+
+    def take(self, src: "RowStore", start: int, upto: int, changed: np.ndarray) -> None:
+        """Copy the recorded columns of rows ``start..upto-1`` and of ``changed`` (all below ``start``)
+        from ``src``; hold ``upto`` rows after it.  Slices for the new rows: a plain memory copy."""
+        self.reserve(upto)
+        for name in self._RECORDED:
+            dst, srcarr = getattr(self, name), getattr(src, name)
+            dst[start:upto] = srcarr[start:upto]
+            if len(changed):
+                dst[changed] = srcarr[changed]
         self.rows = max(self.rows, upto)
 
-    def grow(self) -> None:
-        def bigger(a: np.ndarray, fill) -> np.ndarray:
-            b = np.full((2 * a.shape[0],) + a.shape[1:], fill, dtype=a.dtype)
-            b[: a.shape[0]] = a
-            return b
+    def reserve(self, capacity: int) -> None:
+        """Room for ``capacity`` rows at least (doubling, in one step however far)."""
+        cap = self.t.shape[0]
+        if capacity > cap:
+            self.grow(max(2 * cap, int(capacity)))
 
-        self.t, self.x = bigger(self.t, 0.0), bigger(self.x, 0.0)
-        self.xhat, self.alive = bigger(self.xhat, np.nan), bigger(self.alive, False)
-        self.graph, self.tau = bigger(self.graph, 0), bigger(self.tau, 0)
-        self.wall = bigger(self.wall, 0)
-        self.g, self.round = bigger(self.g, np.nan), bigger(self.round, np.nan)
-        self.env_start = bigger(self.env_start, 0)
-        self.shown, self.shown_max = bigger(self.shown, False), bigger(self.shown_max, False)
+    _FILL = {"t": 0.0, "x": 0.0, "xhat": np.nan, "alive": False, "graph": 0, "tau": 0, "wall": 0, "g": np.nan,
+             "round": np.nan, "env_start": 0, "shown": False, "shown_max": False}
+
+    def spare(self, capacity: int) -> dict[str, np.ndarray]:
+        """Empty columns for ``capacity`` rows, filled (the memory touched): for :meth:`adopt`, later.
+
+        Reads only the columns' shapes: a thread may prepare them while another records rows.
+        """
+        return {name: np.full((int(capacity),) + getattr(self, name).shape[1:], fill, dtype=getattr(self, name).dtype)
+                for name, fill in self._FILL.items()}
+
+    def adopt(self, spare: dict[str, np.ndarray]) -> None:
+        """Move the rows held into ``spare`` (from :meth:`spare`, more rows than now) and use its columns."""
+        T = self.rows
+        for name in self._FILL:
+            new = spare[name]
+            new[:T] = getattr(self, name)[:T]
+            setattr(self, name, new)
+
+    @property
+    def capacity(self) -> int:
+        return self.t.shape[0]
+
+    def grow(self, capacity: int | None = None) -> None:
+        """Room for ``capacity`` rows (default: twice as many); the rows held are kept."""
+        self.adopt(self.spare(2 * self.capacity if capacity is None else capacity))
 
     def row_errors(self, K: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``|x_i - x|_2`` of rows ``K`` (L, m), NaN if dead, and where it is shown (alive and finite)."""
