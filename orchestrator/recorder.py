@@ -158,8 +158,9 @@ _MAX_INITIAL_ROWS = 1024  # row storage starts at most this big (``steps`` is a 
 # The background thread's rewrites of trajectory.npz take at most this share of its time: a rewrite
 # that took w seconds is followed by none before 9 w have passed (a long run's trajectory is large).
 _NPZ_DUTY = 0.1
-# Rows per send_columns chunk: Rerun encodes a chunk holding the GIL, so a caller waiting for the GIL
-# waits for at most one chunk of that many rows (a flush after a burst of rows sends several).
+# Rows per piece of a flush: rerun's BinaryStream.read returns what was encoded as one bytes object
+# and holds the GIL meanwhile (~20 ms for 8 MB here), so a flush after a burst of rows sends and
+# reads them back 512 rows at a time: a caller waiting for the GIL waits for one piece at most.
 _SEND_ROWS = 512
 
 # Recorders not closed yet: flushed at interpreter exit (and when dropped, see __del__), so a
@@ -758,6 +759,8 @@ class Recorder:
             # What Rerun now shows (also when a send failed: it is not retried).
             D.shown[part] = show
             D.shown_max[part] = show.any(axis=1)
+            if sink is not None and lo + _SEND_ROWS < len(K):
+                sink.read_pending()  # a piece at a time (see _SEND_ROWS); run.rrd gets it below
         if sink is not None:
             if clears:
                 sink.guarded("loss clears", sink.send_loss_clears, clears)
