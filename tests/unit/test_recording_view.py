@@ -179,3 +179,31 @@ def test_scenario_positions():
                      ({i: ["a", 0] for i in range(1, 11)}, "positions.1\\[0\\] must be a number")]:
         with pytest.raises(ScenarioError, match=msg):
             parse_scenario({**raw, "positions": bad})
+
+
+def test_mark_height_is_the_last_positive_max_error_and_cheap():
+    """marks/<kind> sit at log10 of the max error of the last row at or before the mark with a positive finite
+    one; errors that reached exactly 0 (or rows with nobody alive) are skipped without a row-by-row scan."""
+    import time
+
+    from splitspec_orchestrator.rowstore import RowStore
+
+    m, n, rows = 4, 3, 20000
+    S = RowStore(m, n, capacity=rows)
+    rng = np.random.default_rng(0)
+    for k in range(rows):
+        S.append_slot(2 * k)  # event times 0, 2, 4, ...
+    S.t[:rows] = np.arange(rows)
+    S.x[:rows] = rng.normal(size=(rows, n))
+    S.xhat[:rows] = S.x[:rows, None, :] + rng.normal(size=(rows, m, n))
+    S.alive[:rows] = True
+    S.xhat[100:] = S.x[100:, None, :]  # exactly 0 from row 100 on
+    S.alive[50:100] = False  # nobody alive on rows 50..99
+    want = math.log10(np.linalg.norm(S.xhat[49] - S.x[49], axis=1).max())
+    t0 = time.perf_counter()
+    assert S.mark_y(2 * (rows - 1)) == pytest.approx(want, abs=1e-12)
+    assert time.perf_counter() - t0 < 0.5
+    assert S.mark_y(7) == pytest.approx(math.log10(np.linalg.norm(S.xhat[3] - S.x[3], axis=1).max()), abs=1e-12)
+    S.alive[:, 1:] = False
+    S.xhat[:rows, 0] = np.nan  # the one alive agent reports NaN: no height anywhere
+    assert S.mark_y(100) == 0.0
