@@ -63,7 +63,9 @@ something is pending (so a live viewer is never more than about
 flush takes what was recorded since the last one under the lock (memory
 copies of those rows only), releases it, and then -- while the callers go on
 recording -- sends the rows to Rerun (one ``send_columns`` chunk per entity
-per flush; an agent's chunks hold only the event times where it is shown),
+per flush, per 512 rows after a burst; an agent's chunks hold only the event
+times where it is shown; the viewer still draws a retracted value as a lone
+point beside the NaN or Clear that retracts it, both being rows at that time),
 then the queued logs of ``event``/``topology``/``mark_lost`` (one chunk per
 flush each), appends what Rerun encoded to ``run.rrd`` (fsynced) and
 rewrites ``trajectory.npz`` (fsynced) -- the whole file, so on a long run
