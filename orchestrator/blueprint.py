@@ -10,7 +10,9 @@ Entity paths (DESIGN.md "Rerun recording" is the contract for the first ones;
 ``errors_log10/max``            ``log10 max_i |x_i(tau) - x(tau)|_2``
 ``errors_log10/envelope``       ``log10`` of the designed envelope (no entity with the adaptive gain)
 ``state/<k>/truth``             ``x_k(tau)`` (bold)
-``state/<k>/agent_<id>``        ``x_{i,k}(tau)`` (thin), alive agents only
+``state/<k>/agents``            one batch of m scalars per event time: ``x_{i,k}(tau)`` of every
+                                agent, instance i = the i-th agent of the scenario (thin lines,
+                                named ``x<k> agent <id>``), NaN where the agent is dead
 ``gains/agent_<id>``            ``g_i(tau)`` (continuous time only)
 ``rounds/wall_ms``              wall time of the round of ``tau``, first tick to record
 ``rounds/attempts``             attempts of that round (1 = no re-run)
@@ -20,6 +22,24 @@ Entity paths (DESIGN.md "Rerun recording" is the contract for the first ones;
 ``topology/graph``              one label node: the active graph's name
 ``events``                      TextLog, one short sentence per event
 ==============================  ===============================================================
+
+Entities per run: ``2m + 2n + 13`` (with the envelope; ``m`` more with gains): at m = 32,
+n = 6, 89 instead of the 275 of one entity per agent and state component
+(``state/<k>/agent_<id>``, ``n (m + 1)`` of them with the truth), which the recorder paid for
+in every flush (one ``send_columns`` chunk per entity) and the viewer in every query.
+
+Why a batch per component and not one entity per agent holding its n components: the
+default blueprint keeps one view per state component (m + 1 lines each), and a Rerun 0.41
+time-series view cannot take one element of a batch.  A view's contents select entities,
+not instances; a component mapping's selector (``[N]``, experimental in 0.41) is applied
+to each instance's value (a Float64 for ``Scalars``: nothing to index), so it cannot pick
+one instance of the batch; per-view ``SeriesLines`` ``visible_series`` overrides hide lines
+but each of the n views would still query all ``n (m + 1)`` of them and list them all in
+its legend (as the SDK's docstring says).  A batch per component keeps the per-component
+views as they were at ``2n`` entities (fewer than the ``m + 1`` of a batch per agent).  The
+price: a dead agent's values are NaN inside the batch (the line breaks there) instead of
+absent, and its state lines get no ``Clear`` of their own (the loss makes every later value
+NaN, which breaks them as well).
 """
 
 from __future__ import annotations
@@ -72,7 +92,7 @@ def agent_path(prefix: str, agent_id: int) -> str:
 
 
 def state_path(k: int, who: str) -> str:
-    """``state/<k>/<who>`` with the 1-based component index ``k``."""
+    """``state/<k>/<who>`` with the 1-based component index ``k``: ``who`` is ``truth`` or ``agents``."""
     return f"{STATE}/{k}/{who}"
 
 
@@ -114,7 +134,8 @@ def default_blueprint(time_mode: str, *, n: int | None = None, envelope: bool = 
 
     Left, tabs: ``errors (log10)`` (the designed envelope and the marks of
     losses, rejoins, switches and faults on the same axes), ``errors``
-    (linear), ``states`` (a grid of one view per component, truth bold),
+    (linear), ``states`` (a grid of one view per component: its truth, bold,
+    and the batch of every agent's estimate, m + 1 lines),
     ``gains`` (continuous time), ``rounds`` (wall time, attempts, rejected
     messages).  Right: topology above the event log.  ``n`` None (a recording
     whose state dimension is unknown): one view for every state component.

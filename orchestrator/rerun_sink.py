@@ -6,11 +6,15 @@
 (sequence ``tau``), ``time`` (duration) and ``wall`` (timestamp).  Entity paths,
 colours and the default blueprint are in :mod:`splitspec_orchestrator.blueprint`.
 
-A lost agent's series (``errors``, ``errors_log10``, ``state/<k>``,
-``gains``) get a non-recursive ``rr.Clear`` at the loss's event time: the
-time-series view draws a Clear on the entity itself as a break of the line
+A lost agent's own series (``errors``, ``errors_log10``, ``gains``) get a
+non-recursive ``rr.Clear`` at the loss's event time: the time-series view
+draws a Clear on the entity itself as a break of the line
 (``collect_recursive_clears`` in rerun's series visualizer keeps non-recursive
-clears of the queried entity), so no line crosses a dead interval.
+clears of the queried entity), so no line crosses a dead interval.  Its
+state estimates live in the per-component batches ``state/<k>/agents`` shared
+with the other agents, which cannot be cleared for one agent: there the agent's
+values are NaN at every event time it is dead (or re-sent as NaN when the loss
+is noticed after they were logged), and a NaN breaks the line as well.
 
 The recording logs into an ``rr.binary_stream()`` (plus a ``GrpcSink`` for a
 live viewer); :meth:`RerunSink.write_pending` appends what it encoded to
@@ -178,10 +182,13 @@ class RerunSink:
             line(bp.agent_path(bp.ERRORS_LOG10, a), f"agent {a}", bp.color(i))
             if self.gains:
                 line(bp.agent_path(bp.GAINS, a), f"g agent {a}", bp.color(i))
+        m = len(self.agent_ids)
         for k in range(1, self.n + 1):
             line(bp.state_path(k, "truth"), f"x{k} truth", bp.TRUTH_COLOR, 3.0)
-            for i, a in enumerate(self.agent_ids):
-                line(bp.state_path(k, f"agent_{a}"), f"x{k} agent {a}", bp.color(i), 1.0)
+            # one batch of m scalars: one name, colour and width per instance (agent)
+            rec.log(bp.state_path(k, "agents"), rr.SeriesLines(
+                names=[f"x{k} agent {a}" for a in self.agent_ids], colors=[bp.color(i) for i in range(m)],
+                widths=[1.0] * m), static=True)
         for s in bp.ROUND_SERIES:
             line(f"{bp.ROUNDS}/{s}", s.replace("_", " "), bp.MAX_COLOR)
 
@@ -201,9 +208,8 @@ class RerunSink:
                 rr.TimeColumn(bp.TL_WALL, timestamp=np.asarray(walls_ns, dtype=np.int64).astype("datetime64[ns]"))]
 
     def agent_series(self, agent_id: int) -> list[str]:
-        """Every series entity of one agent (what a loss clears)."""
+        """Every series entity of one agent alone (what a loss clears; not the shared ``state/<k>/agents``)."""
         paths = [bp.agent_path(bp.ERRORS, agent_id), bp.agent_path(bp.ERRORS_LOG10, agent_id)]
-        paths += [bp.state_path(k, f"agent_{agent_id}") for k in range(1, self.n + 1)]
         if self.gains:
             paths.append(bp.agent_path(bp.GAINS, agent_id))
         return paths
@@ -213,7 +219,9 @@ class RerunSink:
     def send_rows(self, b: RowBatch) -> None:
         """One chunk per entity: values where shown, a non-recursive Clear where a shown value stopped being true.
 
-        Per entity, each event time appears at most once per batch, so the newest batch wins on read.
+        ``state/<k>/agents`` gets every row of the batch, m values each, NaN where an agent is not
+        shown (a row re-sent without an agent retracts its value that way).  Per entity, each event
+        time appears at most once per batch, so the newest batch wins on read.
         """
         import rerun as rr
 
@@ -242,14 +250,14 @@ class RerunSink:
 
         every = np.ones(L, dtype=bool)
         lerr, lmax = _log10(b.err), _log10(b.err_max)
+        shown = np.where(b.show[:, :, None], b.xhat, np.nan)  # (L, m, n)
         for c in range(self.n):
             scalars(bp.state_path(c + 1, "truth"), every, b.x[:, c])
+            scalars(bp.state_path(c + 1, "agents"), every, shown[:, :, c])  # (L, m): a batch of m per row
         for i, a in enumerate(self.agent_ids):
             mask = b.show[:, i]
             scalars(bp.agent_path(bp.ERRORS, a), mask, b.err[:, i])
             scalars(bp.agent_path(bp.ERRORS_LOG10, a), mask & np.isfinite(lerr[:, i]), lerr[:, i])
-            for c in range(self.n):
-                scalars(bp.state_path(c + 1, f"agent_{a}"), mask, b.xhat[:, i, c])
             if self.gains:
                 scalars(bp.agent_path(bp.GAINS, a), mask & np.isfinite(b.gains[:, i]), b.gains[:, i])
             for path in self.agent_series(a):

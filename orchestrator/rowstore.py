@@ -6,7 +6,12 @@ where dead or none, ``round`` (T, 3) wall ms / attempts / rejected, ``wall``
 (T,) ``time.time_ns()`` of the row's last arrival; ``shown``/``shown_max``:
 what Rerun currently shows (retracted with a Clear when it stops being
 true); ``env_start``: the row where the designed envelope's piece of row k
-starts.  ``rows`` = T.  No I/O and no lock: the recorder holds its lock.
+starts.  ``rows`` = T.  No I/O and no lock: the recorder holds its locks.
+
+The recorder keeps two: the rows as its callers record them, and the rows as
+its flushes took them (:meth:`RowStore.take`), which the flushes write out
+while the callers go on recording; ``shown``, ``shown_max`` and ``env_start``
+are only kept up to date in the second.
 """
 
 from __future__ import annotations
@@ -50,19 +55,51 @@ class RowStore:
         self.rows += 1
         return k
 
-    def grow(self) -> None:
-        def bigger(a: np.ndarray, fill) -> np.ndarray:
-            b = np.full((2 * a.shape[0],) + a.shape[1:], fill, dtype=a.dtype)
-            b[: a.shape[0]] = a
-            return b
+    _RECORDED = ("t", "x", "xhat", "alive", "graph", "tau", "wall", "g", "round")  # what take() copies
 
-        self.t, self.x = bigger(self.t, 0.0), bigger(self.x, 0.0)
-        self.xhat, self.alive = bigger(self.xhat, np.nan), bigger(self.alive, False)
-        self.graph, self.tau = bigger(self.graph, 0), bigger(self.tau, 0)
-        self.wall = bigger(self.wall, 0)
-        self.g, self.round = bigger(self.g, np.nan), bigger(self.round, np.nan)
-        self.env_start = bigger(self.env_start, 0)
-        self.shown, self.shown_max = bigger(self.shown, False), bigger(self.shown_max, False)
+    def take(self, src: "RowStore", start: int, upto: int, changed: np.ndarray) -> None:
+        """Copy the recorded columns of rows ``start..upto-1`` and of ``changed`` (all below ``start``)
+        from ``src``; hold ``upto`` rows after it.  Slices for the new rows: a plain memory copy."""
+        self.reserve(upto)
+        for name in self._RECORDED:
+            dst, srcarr = getattr(self, name), getattr(src, name)
+            dst[start:upto] = srcarr[start:upto]
+            if len(changed):
+                dst[changed] = srcarr[changed]
+        self.rows = max(self.rows, upto)
+
+    def reserve(self, capacity: int) -> None:
+        """Room for ``capacity`` rows at least (doubling, in one step however far)."""
+        cap = self.t.shape[0]
+        if capacity > cap:
+            self.grow(max(2 * cap, int(capacity)))
+
+    _FILL = {"t": 0.0, "x": 0.0, "xhat": np.nan, "alive": False, "graph": 0, "tau": 0, "wall": 0, "g": np.nan,
+             "round": np.nan, "env_start": 0, "shown": False, "shown_max": False}
+
+    def spare(self, capacity: int) -> dict[str, np.ndarray]:
+        """Empty columns for ``capacity`` rows, filled (the memory touched): for :meth:`adopt`, later.
+
+        Reads only the columns' shapes: a thread may prepare them while another records rows.
+        """
+        return {name: np.full((int(capacity),) + getattr(self, name).shape[1:], fill, dtype=getattr(self, name).dtype)
+                for name, fill in self._FILL.items()}
+
+    def adopt(self, spare: dict[str, np.ndarray]) -> None:
+        """Move the rows held into ``spare`` (from :meth:`spare`, more rows than now) and use its columns."""
+        T = self.rows
+        for name in self._FILL:
+            new = spare[name]
+            new[:T] = getattr(self, name)[:T]
+            setattr(self, name, new)
+
+    @property
+    def capacity(self) -> int:
+        return self.t.shape[0]
+
+    def grow(self, capacity: int | None = None) -> None:
+        """Room for ``capacity`` rows (default: twice as many); the rows held are kept."""
+        self.adopt(self.spare(2 * self.capacity if capacity is None else capacity))
 
     def row_errors(self, K: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``|x_i - x|_2`` of rows ``K`` (L, m), NaN if dead, and where it is shown (alive and finite)."""
@@ -95,11 +132,20 @@ class RowStore:
         return env
 
     def mark_y(self, tau: int) -> float:
-        """Height of a mark at ``tau`` on the log10 error axis: log10 of the max error at (or before) ``tau``."""
+        """Height of a mark at ``tau`` on the log10 error axis: log10 of the max error at (or before) ``tau``.
+
+        The last row at or before ``tau`` with a positive finite max error, searched backwards a block
+        of rows at a time (errors that reached exactly 0 could otherwise cost a row-by-row scan of the
+        whole run per mark); 0.0 if there is none.
+        """
         T = self.rows
-        k = int(np.searchsorted(self.tau[:T], tau, side="right")) - 1
-        for j in range(min(max(k, 0), T - 1), -1, -1):
-            e = self.max_error(j)
-            if math.isfinite(e) and e > 0:
-                return math.log10(e)
+        hi = min(max(int(np.searchsorted(self.tau[:T], tau, side="right")), 1), T)
+        while hi > 0:
+            lo = max(0, hi - 256)
+            err = np.linalg.norm(self.xhat[lo:hi] - self.x[lo:hi, None, :], axis=2)
+            err = np.where(self.alive[lo:hi] & np.isfinite(err), err, -np.inf).max(axis=1)
+            ok = np.nonzero(err > 0)[0]
+            if ok.size:
+                return math.log10(float(err[ok[-1]]))
+            hi = lo
         return 0.0

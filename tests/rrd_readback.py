@@ -6,12 +6,13 @@ index columns are named after their timeline, data columns ``Archetype:field``.
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
-from splitspec_orchestrator.blueprint import EVENTS, TL_EVENT, TOPOLOGY
+from splitspec_orchestrator.blueprint import EVENTS, STATE, TL_EVENT, TOPOLOGY
 from splitspec_orchestrator.recorder import RecordingError, verify_rrd
 
-__all__ = ["read_rrd", "read_rrd_logs", "read_rrd_clears", "read_rrd_nodes", "rrd_entities", "verify_rrd"]
+__all__ = ["read_rrd", "read_rrd_vectors", "read_rrd_state", "read_rrd_logs", "read_rrd_clears", "read_rrd_nodes", "rrd_entities", "verify_rrd"]
 
 _COL_SCALARS = "Scalars:scalars"
 _COL_CLEAR = "Clear:is_recursive"
@@ -19,23 +20,35 @@ _COL_ROW_ID = "rerun.controls.RowId"
 
 
 def read_rrd(path: str | Path) -> dict[str, list[tuple[int, float]]]:
-    """Every Scalars entity of an ``.rrd``: entity path -> sorted ``[(event index, value), ...]``.
+    """Every scalar series of an ``.rrd``: entity path -> sorted ``[(event index, value), ...]``.
 
     Entity paths are returned without the leading ``/`` (``"errors/max"``).
     Per event index the latest logged row wins (by Rerun row id), and a
     ``Clear`` logged later at the same event index on the entity (or a
     recursive one on an ancestor) removes the value, as the viewer's latest-at
-    query does.  Only rows on the ``event`` timeline are read.
+    query does.  Only rows on the ``event`` timeline are read.  Entities that
+    hold a batch per row (``state/<k>/agents``) are in :func:`read_rrd_vectors`
+    and :func:`read_rrd_state`, not here.
+    """
+    return {entity: [(ev, float(vals[0])) for ev, vals in rows]
+            for entity, rows in read_rrd_vectors(path).items() if all(len(v) == 1 for _, v in rows)}
+
+
+def read_rrd_vectors(path: str | Path) -> dict[str, list[tuple[int, list[float]]]]:
+    """Every Scalars entity of an ``.rrd``, batches included: entity path -> sorted ``[(event, [values])]``.
+
+    The same latest-row and ``Clear`` rules as :func:`read_rrd`.
 
     Raises
     ------
     RecordingError
-        If a Scalars row holds more than one value (not a scalar series).
+        If an entity's rows do not all hold the same number of values (the viewer draws one line
+        per instance of the first row).
     """
     from rerun.chunk import RrdReader
 
-    # (entity, event) -> (row id, value or None for a clear)
-    latest: dict[tuple[str, int], tuple[bytes, float | None]] = {}
+    # (entity, event) -> (row id, values or None for a clear)
+    latest: dict[tuple[str, int], tuple[bytes, list | None]] = {}
     clears: list[tuple[str, int, bytes, bool]] = []
     scalar_entities: set[str] = set()
     for chunk in RrdReader(path).stream():
@@ -53,9 +66,7 @@ def read_rrd(path: str | Path) -> dict[str, list[tuple[int, float]]]:
             for ev, rid, vals in zip(events, row_ids, batch.column(_COL_SCALARS).to_pylist()):
                 if ev is None or vals is None:
                     continue
-                if len(vals) != 1:
-                    raise RecordingError(f"{entity} at event {ev} holds {len(vals)} scalars; expected 1")
-                _keep_latest(latest, (entity, ev), rid, float(vals[0]))
+                _keep_latest(latest, (entity, ev), rid, [float(v) for v in vals])
         if _COL_CLEAR in names:
             for ev, rid, rec in zip(events, row_ids, batch.column(_COL_CLEAR).to_pylist()):
                 if ev is not None and rec is not None:
@@ -64,11 +75,53 @@ def read_rrd(path: str | Path) -> dict[str, list[tuple[int, float]]]:
         for entity in scalar_entities:
             if entity == c_entity or (recursive and entity.startswith(c_entity + "/")):
                 _keep_latest(latest, (entity, ev), rid, None)
-    out: dict[str, list[tuple[int, float]]] = {}
-    for (entity, ev), (_, value) in sorted(latest.items()):
-        if value is not None:
-            out.setdefault(entity, []).append((ev, value))
+    out: dict[str, list[tuple[int, list[float]]]] = {}
+    for (entity, ev), (_, values) in sorted(latest.items()):
+        if values is not None:
+            out.setdefault(entity, []).append((ev, values))
+    for entity, rows in out.items():
+        widths = {len(v) for _, v in rows}
+        if len(widths) != 1:
+            raise RecordingError(f"{entity} holds rows of {sorted(widths)} values; expected one width")
     return out
+
+
+def read_rrd_state(path: str | Path) -> dict[str, list[tuple[int, float]]]:
+    """The state series as one scalar series per agent: ``state/<k>/truth`` and ``state/<k>/agent_<id>``.
+
+    ``state/<k>/agents`` (a batch of m per event time, instance i = the i-th agent id of the
+    recording's ``splitspec`` property ``agent_ids``) is split into one series per agent; NaN
+    values (the agent dead) are left out, as the viewer draws none.
+    """
+    ids = _agent_ids(path)
+    out: dict[str, list[tuple[int, float]]] = {}
+    for entity, rows in read_rrd_vectors(path).items():
+        if not entity.startswith(f"{STATE}/"):
+            continue
+        if entity.endswith("/truth"):
+            out[entity] = [(ev, v[0]) for ev, v in rows]
+        elif entity.endswith("/agents"):
+            base = entity[: -len("agents")]
+            for ev, values in rows:
+                if len(values) != len(ids):
+                    raise RecordingError(f"{entity} at event {ev} holds {len(values)} values for {len(ids)} agents")
+                for a, v in zip(ids, values):
+                    if not math.isnan(v):
+                        out.setdefault(f"{base}agent_{a}", []).append((ev, v))
+    return out
+
+
+def _agent_ids(path: str | Path) -> list[int]:
+    """``agent_ids`` of the recording's ``splitspec`` property (the order of the ``state/<k>/agents`` batches)."""
+    from rerun.chunk import RrdReader
+
+    for chunk in RrdReader(path).stream():
+        if chunk.entity_path == "/__properties/splitspec":
+            batch = chunk.to_record_batch()
+            for name in batch.schema.names:
+                if name.endswith("agent_ids"):
+                    return [int(a) for a in batch.column(name).to_pylist()[0]]
+    raise RecordingError(f"{path} has no splitspec property with agent_ids")
 
 
 def _keep_latest(latest: dict, key: tuple[str, int], row_id: bytes, value: float | None) -> None:

@@ -8,7 +8,7 @@ import pytest
 from tests.conftest import EXAMPLES
 from tests.integration.runtime_helpers import compare_with_simulate, events, run, scenario_file
 from tests.rrd_readback import (read_blueprint, read_rrd, read_rrd_clears, read_rrd_logs, read_rrd_nodes,
-                                rrd_entities, verify_rrd)
+                                read_rrd_state, rrd_entities, verify_rrd)
 
 pytestmark = pytest.mark.slow
 
@@ -34,9 +34,10 @@ def test_entities_and_blueprint(ring10):
     want = {"errors/max", "errors_log10/max", "errors_log10/envelope", "topology", "topology/graph", "events",
             "rounds/wall_ms", "rounds/attempts", "rounds/rejected", "marks/lost", "marks/rejoined", "marks/fault"}
     want |= {f"errors/agent_{a}" for a in IDS} | {f"errors_log10/agent_{a}" for a in IDS}
-    want |= {f"state/{k}/truth" for k in range(1, N + 1)}
-    want |= {f"state/{k}/agent_{a}" for k in range(1, N + 1) for a in IDS}
+    want |= {f"state/{k}/truth" for k in range(1, N + 1)} | {f"state/{k}/agents" for k in range(1, N + 1)}
     assert want <= ents, sorted(want - ents)
+    # one batch entity per state component, not one entity per agent and component
+    assert {e for e in ents if e.startswith("state/")} == {e for e in want if e.startswith("state/")}
     assert not any(e.startswith("gains/") for e in ents)  # discrete time: no g
     series = read_rrd(rrd)
     # rounds: every event time has its diagnostics
@@ -77,11 +78,13 @@ def test_every_loss_clears_the_agents_series_and_is_marked(ring10):
     clears = read_rrd_clears(rrd)
     lost = [e for e in events(out) if e["event"] == "agent_lost"]
     assert [(e["id"], e["tau"]) for e in lost] == [(3, 10), (5, 20)]
+    state = read_rrd_state(rrd)
     for e in lost:
         a, tau = e["id"], e["tau"]
-        for path in [f"errors/agent_{a}", f"errors_log10/agent_{a}"] + [f"state/{k}/agent_{a}"
-                                                                          for k in range(1, N + 1)]:
+        for path in [f"errors/agent_{a}", f"errors_log10/agent_{a}"]:
             assert tau in clears.get(path, []), (path, clears.get(path))
+        for k in range(1, N + 1):  # no estimate drawn at the loss: NaN in the state batch
+            assert tau not in dict(state[f"state/{k}/agent_{a}"])
     series = read_rrd(rrd)
     assert [tau for tau, _ in series["marks/lost"]] == [10, 20]
     assert [tau for tau, _ in series["marks/rejoined"]] == [30, 35]

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from splitspec_orchestrator.recorder import Recorder, RecordingError
-from tests.rrd_readback import read_rrd, verify_rrd
+from tests.rrd_readback import read_rrd, read_rrd_state, read_rrd_vectors, rrd_entities, verify_rrd
 
 os.environ.setdefault("RERUN_ANALYTICS", "0")
 
@@ -158,11 +158,29 @@ def test_rrd_values_match_trajectory(recorded):
     assert sorted(got_max) == list(range(T))
     for tau in range(T):
         assert got_max[tau] == pytest.approx(np.nanmax(err[tau]), abs=1e-9, rel=0)
+    state = read_rrd_state(out / "run.rrd")
     for k in range(N):
-        truth = dict(series[f"state/{k + 1}/truth"])
+        truth = dict(state[f"state/{k + 1}/truth"])
         np.testing.assert_allclose([truth[tau] for tau in range(T)], x[:, k], rtol=0, atol=1e-12)
-        est = dict(series[f"state/{k + 1}/agent_{LOST_ID}"])
-        assert sorted(est) == list(range(LOST_TAU))
+        for i, a in enumerate(IDS):
+            est = dict(state[f"state/{k + 1}/agent_{a}"])
+            assert sorted(est) == [tau for tau in range(T) if alive[tau, i]]
+            np.testing.assert_array_equal([est[tau] for tau in sorted(est)], xhat[sorted(est), i, k])
+
+
+def test_state_is_one_batch_per_component(recorded):
+    """state/<k>/agents: one entity per component holding m values per event time (NaN where dead)."""
+    out, _, _ = recorded
+    ents = rrd_entities(out / "run.rrd")
+    assert {e for e in ents if e.startswith("state/")} == \
+        {f"state/{k}/{who}" for k in range(1, N + 1) for who in ("truth", "agents")}
+    vectors = read_rrd_vectors(out / "run.rrd")
+    with np.load(out / "trajectory.npz") as f:
+        xhat = f["xhat"]
+    for k in range(N):
+        rows = vectors[f"state/{k + 1}/agents"]
+        assert [tau for tau, _ in rows] == list(range(T))
+        np.testing.assert_array_equal(np.array([v for _, v in rows]), xhat[:, :, k])  # NaN where dead
 
 
 def test_rrd_topology_and_event_levels(recorded):
@@ -187,13 +205,17 @@ def test_rrd_topology_and_event_levels(recorded):
 def test_clear_only_for_values_already_sent(recorded):
     """mark_lost on buffered rows drops the values; on rows already in Rerun it logs Clear.
 
-    Either way every series of the lost agent gets a Clear at the loss itself (a break in its line).
+    Either way every series of the lost agent alone gets a Clear at the loss itself (a break in its
+    line); in the shared state batches its values are NaN from the loss on, re-sent rows included.
     """
     out, _, flush_seconds = recorded
     clears = clear_taus(out / "run.rrd")
-    series = {f"errors/agent_{LOST_ID}", f"errors_log10/agent_{LOST_ID}"} | \
-        {f"state/{k + 1}/agent_{LOST_ID}" for k in range(N)}
+    series = {f"errors/agent_{LOST_ID}", f"errors_log10/agent_{LOST_ID}"}
     assert set(clears) == series
+    lost_col = IDS.index(LOST_ID)
+    for k in range(N):
+        rows = dict(read_rrd_vectors(out / "run.rrd")[f"state/{k + 1}/agents"])
+        assert all(np.isnan(rows[tau][lost_col]) == (tau >= LOST_TAU) for tau in range(T))
     if flush_seconds == NEVER:  # rows 12..14 were still buffered when agent 5 was marked lost
         assert all(clears[s] == {LOST_TAU} for s in series)
     else:
@@ -220,6 +242,7 @@ def test_resent_rows_buffered_and_sent(tmp_path):
     rec.close()
 
     series = read_rrd(tmp_path / "run.rrd")
+    state = read_rrd_state(tmp_path / "run.rrd")
     alive = np.array([everyone, without_2, everyone, without_1])
     err = np.linalg.norm(xhat - x[:, None, :], axis=2)
     for i, a in enumerate(IDS):
@@ -227,12 +250,13 @@ def test_resent_rows_buffered_and_sent(tmp_path):
         assert sorted(got) == [tau for tau in range(4) if alive[tau, i]]
         for tau, value in got.items():
             assert value == pytest.approx(err[tau, i], abs=1e-9, rel=0)
-            assert dict(series[f"state/1/agent_{a}"])[tau] == xhat[tau, i, 0]
+            assert dict(state[f"state/1/agent_{a}"])[tau] == xhat[tau, i, 0]
     assert [v for _, v in series["errors/max"]] == pytest.approx(
         [err[tau, alive[tau]].max() for tau in range(4)], abs=1e-9, rel=0)
-    assert clear_taus(tmp_path / "run.rrd") == {"errors/agent_2": {1}, "errors_log10/agent_2": {1},
-                                                **{f"state/{k + 1}/agent_2": {1}
-                                                                       for k in range(N)}}
+    assert clear_taus(tmp_path / "run.rrd") == {"errors/agent_2": {1}, "errors_log10/agent_2": {1}}
+    for k in range(N):  # the re-sent row 1 retracts agent 2's state with NaN; agent 1 never sent for row 3
+        assert sorted(dict(state[f"state/{k + 1}/agent_2"])) == [0, 2, 3]
+        assert sorted(dict(state[f"state/{k + 1}/agent_1"])) == [0, 1, 2]
     with np.load(tmp_path / "trajectory.npz") as f:
         np.testing.assert_array_equal(f["alive"], alive)
         np.testing.assert_array_equal(np.isnan(f["xhat"]).all(axis=2), ~alive)
@@ -388,3 +412,124 @@ def test_input_errors_name_the_problem(tmp_path):
     assert json.loads((tmp_path / "events.jsonl").read_text().splitlines()[-1])["finished"] is False
     with pytest.raises(RecordingError, match="after close"):
         rec.row(2, np.zeros(N), np.zeros((M, N)), ok, 0)
+
+
+def test_round_loop_calls_never_write_or_wait_for_a_flush(tmp_path, monkeypatch):
+    """flush_seconds > 0: row/event/topology/mark_lost do no Rerun call, no run.rrd or trajectory.npz write
+    and no fsync in the caller's thread, and return at once while a (slow) background flush is under way."""
+    import threading
+
+    import splitspec_core.trajfile as trajfile
+    import splitspec_orchestrator.rrdfile as rrdfile
+
+    main = threading.current_thread()
+    calls: list[tuple[str, bool]] = []  # (what, in the caller's thread)
+    real_fsync, real_append = os.fsync, rrdfile.RrdAppender.append
+    monkeypatch.setattr(os, "fsync", lambda fd: (calls.append(("fsync", threading.current_thread() is main)),
+                                                 real_fsync(fd))[1])
+    monkeypatch.setattr(rrdfile.RrdAppender, "append", lambda self, piece: (
+        calls.append(("run.rrd", threading.current_thread() is main)), real_append(self, piece))[1])
+    real_write = trajfile.write_trajectory
+    monkeypatch.setattr("splitspec_orchestrator.recorder.write_trajectory", lambda *a, **kw: (
+        calls.append(("trajectory.npz", threading.current_thread() is main)), real_write(*a, **kw))[1])
+    rec = Recorder(tmp_path, agent_ids=IDS, n=N, steps=T, time_mode="discrete", dt=1.0, graph_names=GRAPHS,
+                   run_id="bg", scenario_name="bg", flush_seconds=0.05)
+    calls.clear()  # the constructor writes run.rrd's header itself
+    in_flush = threading.Event()
+    real_send = rec._rec.send_rows
+
+    def slow_send(batch):
+        calls.append(("rerun", threading.current_thread() is main))
+        in_flush.set()
+        time.sleep(0.5)  # a slow flush: the callers must not wait for it
+        real_send(batch)
+
+    rec._rec.send_rows = slow_send
+    x, xhat, _, alive, graph, _ = synthetic()
+    rec.topology(0, "ring", IDS, RING)
+    rec.event("start", 0.0)
+    longest = 0.0
+    for tau in range(T):
+        t0 = time.perf_counter()
+        rec.row(tau, x[tau], xhat[tau], alive[tau] | (tau >= LOST_TAU), int(graph[tau]))
+        if tau == LOST_NOTICED:
+            rec.mark_lost(LOST_TAU, LOST_ID)
+            rec.event("agent_lost", float(LOST_TAU), id=LOST_ID)
+            rec.topology(LOST_TAU, "complete", (1, 2), COMPLETE)
+        longest = max(longest, time.perf_counter() - t0)
+        if tau == 5:
+            assert in_flush.wait(10.0)  # rows 0..5 are being flushed, slowly, from here on
+    assert longest < 0.25, f"a recorder call waited {longest:.3f} s"
+    deadline = time.monotonic() + 20.0
+    while rec.rows_kept < T and time.monotonic() < deadline:  # the background thread writes them all
+        time.sleep(0.05)
+    assert rec.rows_kept == T
+    assert calls and not any(in_main for _, in_main in calls), calls
+    assert {what for what, _ in calls} >= {"rerun", "run.rrd", "trajectory.npz", "fsync"}
+    rec.close()  # close writes in the caller's thread
+    assert any(in_main for _, in_main in calls)
+    with np.load(tmp_path / "trajectory.npz") as f:
+        assert f["t"].shape == (T,)
+    assert [tau for tau, _ in read_rrd(tmp_path / "run.rrd")["errors/max"]] == list(range(T))
+
+
+@pytest.mark.filterwarnings("ignore:RRD file has no footer")
+def test_mark_lost_asks_for_a_flush_of_the_rows_so_far(tmp_path):
+    """With a flush period that never comes, mark_lost still gets every row recorded before it written
+    (by the background thread), and only those."""
+    rec = Recorder(tmp_path, agent_ids=IDS, n=N, steps=T, time_mode="discrete", dt=1.0, graph_names=GRAPHS,
+                   run_id="ml", scenario_name="ml", flush_seconds=NEVER)
+    try:
+        x, xhat, _, alive, graph, _ = synthetic()
+        for tau in range(LOST_NOTICED + 1):
+            rec.row(tau, x[tau], xhat[tau], np.ones(M, dtype=bool), int(graph[tau]))
+        rec.mark_lost(LOST_TAU, LOST_ID)
+        for tau in range(LOST_NOTICED + 1, T):  # recorded after the request: not in that flush
+            rec.row(tau, x[tau], xhat[tau], alive[tau], int(graph[tau]))
+        deadline = time.monotonic() + 10.0
+        while rec.rows_kept < LOST_NOTICED + 1 and time.monotonic() < deadline:
+            time.sleep(0.02)
+        assert rec.rows_kept == LOST_NOTICED + 1
+        with np.load(tmp_path / "trajectory.npz") as f:
+            assert f["t"].shape == (LOST_NOTICED + 1,)
+            assert np.isnan(f["xhat"][LOST_TAU:, IDS.index(LOST_ID)]).all()
+        assert [tau for tau, _ in read_rrd(tmp_path / "run.rrd")["errors/max"]] == list(range(LOST_NOTICED + 1))
+    finally:
+        rec.close()
+    assert rec.rows_kept == T
+
+
+def test_slow_trajectory_rewrites_are_spaced_out(tmp_path, monkeypatch):
+    """The background thread spends at most about a tenth of its time rewriting trajectory.npz (the whole
+    file each time): a rewrite that takes 0.1 s is not repeated within 0.9 s, while run.rrd is appended at
+    every flush; close() still writes every row."""
+    import splitspec_core.trajfile as trajfile
+
+    writes: list[float] = []
+    real_write = trajfile.write_trajectory
+
+    def slow_write(*args, **kwargs):
+        writes.append(time.monotonic())
+        time.sleep(0.1)
+        real_write(*args, **kwargs)
+
+    monkeypatch.setattr("splitspec_orchestrator.recorder.write_trajectory", slow_write)
+    rec = Recorder(tmp_path, agent_ids=IDS, n=N, steps=200, time_mode="discrete", dt=1.0, graph_names=GRAPHS,
+                   run_id="npz", scenario_name="npz", flush_seconds=0.05)
+    appends = []
+    real_append = rec._rec.rrd_file.append
+    rec._rec.rrd_file.append = lambda piece: (appends.append(time.monotonic()), real_append(piece))[1]
+    t0 = time.monotonic()
+    tau = 0
+    while time.monotonic() - t0 < 2.0:
+        rec.row(tau, np.zeros(N), np.ones((M, N)), np.ones(M, dtype=bool), 0)
+        tau += 1
+        time.sleep(0.01)
+    during = list(writes)
+    rec.close()
+    assert 1 <= len(during) <= 3, during
+    assert all(b - a >= 0.9 for a, b in zip(during, during[1:])), during
+    assert len(appends) >= 2 * len(during)  # run.rrd kept up meanwhile
+    with np.load(tmp_path / "trajectory.npz") as f:
+        assert f["t"].shape == (tau,)
+    assert rec.rows_kept == tau

@@ -15,7 +15,7 @@ from splitspec_core.analysis import envelope, envelope_restarts
 from splitspec_core.errors import ScenarioError
 from splitspec_core.scenario_model import parse_scenario
 from tests.integration.runtime_helpers import EXAMPLES
-from tests.rrd_readback import read_rrd, read_rrd_clears, read_rrd_nodes
+from tests.rrd_readback import read_rrd, read_rrd_clears, read_rrd_nodes, read_rrd_state
 
 IDS = (1, 2, 5)
 M, N, T = 3, 2, 30
@@ -105,8 +105,13 @@ def test_no_envelope_without_a_certified_rate(tmp_path):
 def test_loss_clears_every_series_and_marks_the_axis(tmp_path):
     record(tmp_path, "continuous", flush_seconds=NEVER, envelope_rate=LAM["continuous"])
     clears = read_rrd_clears(tmp_path / "run.rrd")
-    agent2 = {"errors/agent_2", "errors_log10/agent_2", "gains/agent_2"} | {f"state/{k}/agent_2" for k in (1, 2)}
+    agent2 = {"errors/agent_2", "errors_log10/agent_2", "gains/agent_2"}
     assert {e for e, taus in clears.items() if 8 in taus} == agent2
+    # its state estimates (in the shared per-component batches) are NaN while it is dead: no line there
+    _, _, alive, _, _ = rows()
+    state = read_rrd_state(tmp_path / "run.rrd")
+    for k in (1, 2):
+        assert sorted(dict(state[f"state/{k}/agent_2"])) == [tau for tau in range(T) if alive[tau, 1]]
     series = read_rrd(tmp_path / "run.rrd")
     assert [tau for tau, _ in series["marks/lost"]] == [8]
     assert [tau for tau, _ in series["marks/rejoined"]] == [14]
@@ -174,3 +179,31 @@ def test_scenario_positions():
                      ({i: ["a", 0] for i in range(1, 11)}, "positions.1\\[0\\] must be a number")]:
         with pytest.raises(ScenarioError, match=msg):
             parse_scenario({**raw, "positions": bad})
+
+
+def test_mark_height_is_the_last_positive_max_error_and_cheap():
+    """marks/<kind> sit at log10 of the max error of the last row at or before the mark with a positive finite
+    one; errors that reached exactly 0 (or rows with nobody alive) are skipped without a row-by-row scan."""
+    import time
+
+    from splitspec_orchestrator.rowstore import RowStore
+
+    m, n, rows = 4, 3, 20000
+    S = RowStore(m, n, capacity=rows)
+    rng = np.random.default_rng(0)
+    for k in range(rows):
+        S.append_slot(2 * k)  # event times 0, 2, 4, ...
+    S.t[:rows] = np.arange(rows)
+    S.x[:rows] = rng.normal(size=(rows, n))
+    S.xhat[:rows] = S.x[:rows, None, :] + rng.normal(size=(rows, m, n))
+    S.alive[:rows] = True
+    S.xhat[100:] = S.x[100:, None, :]  # exactly 0 from row 100 on
+    S.alive[50:100] = False  # nobody alive on rows 50..99
+    want = math.log10(np.linalg.norm(S.xhat[49] - S.x[49], axis=1).max())
+    t0 = time.perf_counter()
+    assert S.mark_y(2 * (rows - 1)) == pytest.approx(want, abs=1e-12)
+    assert time.perf_counter() - t0 < 0.5
+    assert S.mark_y(7) == pytest.approx(math.log10(np.linalg.norm(S.xhat[3] - S.x[3], axis=1).max()), abs=1e-12)
+    S.alive[:, 1:] = False
+    S.xhat[:rows, 0] = np.nan  # the one alive agent reports NaN: no height anywhere
+    assert S.mark_y(100) == 0.0

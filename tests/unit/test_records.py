@@ -114,6 +114,26 @@ def test_huge_steps_hint_allocates_little(tmp_path):
     assert npz_rows(tmp_path) == cap + 1
 
 
+def test_background_thread_grows_the_row_storage_ahead_of_the_caller(tmp_path):
+    """Fresh memory is slow to touch: the background thread doubles the storage once it is 3/4 full, so the
+    round loop's row() does not pay for it (it still can, when rows outrun the flush period)."""
+    rec = recorder(tmp_path, steps=10, flush_seconds=0.05)
+    try:
+        cap = rec._s.capacity
+        for tau in range(cap * 3 // 4 + 1):
+            put_row(rec, tau)
+        deadline = time.monotonic() + 10.0
+        while rec._s.capacity == cap and time.monotonic() < deadline:
+            time.sleep(0.02)
+        assert rec._s.capacity == 2 * cap
+        for tau in range(cap * 3 // 4 + 1, cap + 1):
+            put_row(rec, tau)
+        assert rec._s.capacity == 2 * cap  # no growth in row()
+    finally:
+        rec.close()
+    assert npz_rows(tmp_path) == cap + 1 and rrd_taus(tmp_path) == list(range(cap + 1))
+
+
 # ---------------------------------------------------------------------- write failures
 
 
