@@ -333,7 +333,8 @@ def build_parser(prog: str = "python -m splitspec_agents") -> argparse.ArgumentP
     """The agent process's options (also ``splitspec agent ...``, which hands its arguments here)."""
     from splitspec_core.runtime.cli import ArgumentParser, add_logging_options, add_node_options
 
-    p = ArgumentParser(prog=prog, description="One agent process: fetches its part of the design, computes V_i, P_i, K_i locally and runs the protocol.")
+    p = ArgumentParser(prog=prog, description="One agent process: fetches its part of the design, computes V_i, P_i, K_i "
+                       "locally and runs the protocol.")
     p.add_argument("--id", required=True, type=int, help="agent id (as in the scenario's system.C)")
     add_node_options(p)
     add_logging_options(p)
@@ -342,16 +343,14 @@ def build_parser(prog: str = "python -m splitspec_agents") -> argparse.ArgumentP
 
 def cli_main(argv: list | None = None, *, prog: str = "python -m splitspec_agents") -> int:
     """Parse ``argv`` and run the agent inside the shared error boundary; the exit status."""
-    from splitspec_core.runtime.cli import error_boundary, setup_logging
+    from splitspec_core.runtime.cli import node_cli
 
-    args = build_parser(prog).parse_args(argv)
-    setup_logging(args)
-    return error_boundary(main, args)
+    return node_cli(build_parser, main, argv, prog)
 
 
 def main(args: argparse.Namespace) -> int:
     """``splitspec agent --id I --connect ENDPOINT [--run-id ID] [--credentials FILE]``."""
-    from splitspec_core.runtime.bus import NodeShell
+    from splitspec_core.runtime.node import NodeShell
 
     keys = Keys(args.run_id)  # required on the command line
     shell = NodeShell(args.connect, keys, log=log, role="agent", ident=args.id, credentials=args.credentials,

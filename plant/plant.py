@@ -76,7 +76,8 @@ def build_parser(prog: str = "python -m splitspec_plant") -> argparse.ArgumentPa
     """The plant process's options (also ``splitspec plant ...``, which hands its arguments here)."""
     from splitspec_core.runtime.cli import ArgumentParser, add_logging_options, add_node_options
 
-    p = ArgumentParser(prog=prog, description="The plant process: fetches the scenario from the orchestrator, publishes measurements and the truth each event time.")
+    p = ArgumentParser(prog=prog, description="The plant process: fetches the scenario from the orchestrator, publishes "
+                       "measurements and the truth each event time.")
     add_node_options(p)
     add_logging_options(p)
     return p
@@ -84,16 +85,14 @@ def build_parser(prog: str = "python -m splitspec_plant") -> argparse.ArgumentPa
 
 def cli_main(argv: list | None = None, *, prog: str = "python -m splitspec_plant") -> int:
     """Parse ``argv`` and run the plant inside the shared error boundary; the exit status."""
-    from splitspec_core.runtime.cli import error_boundary, setup_logging
+    from splitspec_core.runtime.cli import node_cli
 
-    args = build_parser(prog).parse_args(argv)
-    setup_logging(args)
-    return error_boundary(main, args)
+    return node_cli(build_parser, main, argv, prog)
 
 
 def main(args: argparse.Namespace) -> int:
     """``splitspec plant --connect ENDPOINT [--run-id ID] [--credentials FILE]``."""
-    from splitspec_core.runtime.bus import NodeShell
+    from splitspec_core.runtime.node import NodeShell
 
     keys = Keys(args.run_id)  # required on the command line
     shell = NodeShell(args.connect, keys, log=log, role="plant", ident=0, credentials=args.credentials,

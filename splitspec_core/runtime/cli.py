@@ -21,7 +21,7 @@ from ..errors import SplitspecError
 
 __all__ = ["ArgumentParser", "EXIT_BAD_INPUT", "EXIT_FAILED", "MAX_SECONDS", "MAX_SEED", "UsageError",
            "add_logging_options", "add_node_options", "at_least", "error_boundary", "positive", "seed",
-           "add_run_id_option", "setup_logging", "integer", "default_wait", "DEFAULT_WAIT"]
+           "add_run_id_option", "node_cli", "setup_logging", "integer", "default_wait", "DEFAULT_WAIT"]
 
 EXIT_BAD_INPUT = 2
 EXIT_FAILED = 1
@@ -122,6 +122,14 @@ def add_node_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--connect", required=True, metavar="ENDPOINT", help="Zenoh router endpoint, e.g. tcp/host:7447")
     p.add_argument("--credentials", metavar="FILE", help="user:password file for a --secure router")
     add_run_id_option(p, required=True)
+
+
+def node_cli(build_parser: Callable[[str], argparse.ArgumentParser], main: Callable[[argparse.Namespace], int],
+             argv: list | None, prog: str) -> int:
+    """A plant or agent process's command line: parse ``argv``, set up logging, run ``main`` in the boundary."""
+    args = build_parser(prog).parse_args(argv)
+    setup_logging(args)
+    return error_boundary(main, args)
 
 
 def error_boundary(func: Callable[[argparse.Namespace], int | None], args: argparse.Namespace) -> int:

@@ -38,16 +38,21 @@ def _scenario_file(tmp_path, name: str, **changes) -> tuple:
     return path, raw
 
 
-def _sampled_decay(des) -> float:
-    """``-ln rho(M) / dt`` of the full sampled-data error map (steps.py), built from the full matrices."""
+def sampled_error_map(des) -> np.ndarray:
+    """The full (mn x mn) sampled-data error map of steps.py's formula, built from the full matrices:
+    ``e_i+ = (E + D K_i C_i) e_i - g D P_i (e_i - sum_j s_ij e_j)``, ``E = exp(A dt)``, ``D = int_0^dt exp(A s) ds``."""
     sc = des.scenario
     A, dt, n, m = np.asarray(sc.system.A), sc.run.dt, sc.n, sc.m
     F = sla.expm(np.block([[A, np.eye(n)], [np.zeros((n, 2 * n))]]) * dt)
     E, D = F[:n, :n], F[:n, n:]
     S = des.graphs[0].S
-    M = (sla.block_diag(*[E + D @ K @ C for K, C in zip(des.Ks, sc.system.Cs)])
-         - des.g * sla.block_diag(*[D @ P for P in des.Ps]) @ (np.eye(m * n) - np.kron(S, np.eye(n))))
-    return -math.log(np.max(np.abs(np.linalg.eigvals(M)))) / dt
+    return (sla.block_diag(*[E + D @ K @ C for K, C in zip(des.Ks, sc.system.Cs)])
+            - des.g * sla.block_diag(*[D @ P for P in des.Ps]) @ (np.eye(m * n) - np.kron(S, np.eye(n))))
+
+
+def _sampled_decay(des) -> float:
+    """``-ln rho(M) / dt`` of the full sampled-data error map."""
+    return -math.log(np.max(np.abs(np.linalg.eigvals(sampled_error_map(des))))) / des.scenario.run.dt
 
 
 @pytest.mark.parametrize("dt", [0.01, 0.2])

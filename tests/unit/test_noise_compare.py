@@ -5,7 +5,6 @@ import json
 
 import numpy as np
 import pytest
-import scipy.linalg as sla
 import yaml
 
 from splitspec_core.comparison import compare, settle_time, steady_rms, sweep
@@ -16,6 +15,7 @@ from splitspec_core.scenario_model import load_scenario
 from splitspec_core.simulator import simulate
 from tests.conftest import EXAMPLES
 from tests.integration.runtime_helpers import run
+from tests.unit.test_certificates import sampled_error_map
 from tests.unit.test_resilience_runtime import full_error_radius
 
 
@@ -82,18 +82,8 @@ def test_sweep_marks_certified_values():
 
 
 def _sampled_error_radius(des) -> float:
-    """Spectral radius of the full sampled-data error map, built from steps.py's formula with the full matrices.
-
-    ``e_i+ = (E + D K_i C_i) e_i - g D P_i (e_i - sum_j s_ij e_j)``, ``E = exp(A dt)``, ``D = int_0^dt exp(A s) ds``.
-    """
-    sc = des.scenario
-    A, dt, n, m = np.asarray(sc.system.A), sc.run.dt, sc.n, sc.m
-    F = sla.expm(np.block([[A, np.eye(n)], [np.zeros((n, 2 * n))]]) * dt)
-    E, D = F[:n, :n], F[:n, n:]
-    S = des.graphs[0].S
-    M = (sla.block_diag(*[E + D @ K @ C for K, C in zip(des.Ks, sc.system.Cs)])
-         - des.g * sla.block_diag(*[D @ P for P in des.Ps]) @ (np.eye(m * n) - np.kron(S, np.eye(n))))
-    return float(np.max(np.abs(np.linalg.eigvals(M))))
+    """Spectral radius of the full sampled-data error map (:func:`tests.unit.test_certificates.sampled_error_map`)."""
+    return float(np.max(np.abs(np.linalg.eigvals(sampled_error_map(des)))))
 
 
 def test_sweep_never_certifies_an_unstable_sampled_data_form():
