@@ -80,7 +80,7 @@ class Design:
     g_certified_by: str | None = None
     q: int | None = None
     q_result: bounds.QResult | None = None
-    q_methods: dict = field(default_factory=dict)  # every method's result, for comparison
+    q_methods: dict = field(default_factory=dict)  # the q method's result; every method's with compare_q_methods
     error_radius: dict = field(default_factory=dict)  # case label -> spectral radius / abscissa of A_V
     sampled_rate: dict = field(default_factory=dict)  # continuous: case label -> decay rate of the sampled-data form
     agent_losses: dict = field(default_factory=dict)
@@ -163,6 +163,9 @@ def scenario_dwell(sc: Scenario) -> float | None:
 
 def design(sc: Scenario, *, compare_q_methods: bool = False) -> Design:
     """Run the whole design for a scenario.
+
+    ``compare_q_methods`` (discrete time) also computes, for information, the q of every other
+    q method over the same cases (``Design.q_methods``; ``splitspec design --all-methods``).
 
     Raises
     ------

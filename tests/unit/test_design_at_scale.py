@@ -2,14 +2,19 @@
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
+import yaml
 
+import splitspec_core as ss
 from splitspec_core.designer import design
 from splitspec_core.generate import random_system, ring_arcs, ring_scenario, ring_system
 from splitspec_core.graphs import is_strongly_connected
 from splitspec_core.observability import unobservable_directions
-from splitspec_core.scenario_model import parse_scenario
+from splitspec_core.scenario_model import load_scenario, parse_scenario
+from splitspec_orchestrator import cli
 
 
 # --------------------------------------------------------------------------
@@ -46,3 +51,55 @@ def test_random_system_unchanged_by_the_refactor():
     A, Cs = random_system(np.random.default_rng(3), 4, 5)
     assert A.shape == (5, 5) and len(Cs) == 4
     assert A[0, 0] == 0.818775539384253 and sum(c.sum() for c in Cs) == 1.2393351448471717
+
+
+# --------------------------------------------------------------------------
+# the other q methods: on request only (splitspec design --all-methods)
+# --------------------------------------------------------------------------
+
+
+@pytest.fixture
+def resilient_ring(tmp_path):
+    path = tmp_path / "ring.yaml"
+    path.write_text(yaml.safe_dump(ring_scenario(8, 4, resilience=1), sort_keys=False))
+    return path
+
+
+def test_design_computes_other_methods_only_when_asked(resilient_ring, monkeypatch):
+    from splitspec_core import bounds
+
+    asked = []
+    real = bounds.choose_q
+    monkeypatch.setattr(bounds, "choose_q", lambda method, cases, *a, **kw: asked.append(method) or
+                        real(method, cases, *a, **kw))
+    sc = load_scenario(resilient_ring)
+    des = design(sc)
+    assert asked == ["spectral"] and list(des.q_methods) == ["spectral"]  # loss cases included: nothing else
+    asked.clear()
+    des = ss.design(sc, all_q_methods=True).detail
+    assert sorted(asked) == sorted(des.q_methods) == ["mixed", "spectral", "two-norm", "weighted"]
+
+
+@pytest.mark.parametrize("as_json", [False, True])
+def test_cli_all_methods_flag(resilient_ring, capsys, as_json):
+    fmt = ["--json"] if as_json else []
+    assert cli.main(["design", str(resilient_ring), *fmt]) == 0
+    plain = capsys.readouterr().out
+    assert cli.main(["design", str(resilient_ring), *fmt, "--all-methods"]) == 0
+    full = capsys.readouterr().out
+    if as_json:
+        assert list(json.loads(plain)["q_methods"]) == ["spectral"]
+        assert sorted(json.loads(full)["q_methods"]) == ["mixed", "spectral", "two-norm", "weighted"]
+        assert json.loads(full)["q"] == json.loads(plain)["q"]
+    else:
+        assert "other methods:" not in plain
+        assert "other methods:" in full and "    mixed: q = " in full
+        lines = full.splitlines()
+        start = lines.index("  other methods:")
+        assert [ln for ln in lines[start + 1:] if ln.startswith("    ")] == lines[start + 1:start + 4]
+        assert lines[:start] + lines[start + 4:] == plain.splitlines()  # the report otherwise unchanged
+
+
+def test_cli_all_methods_with_tune_is_refused(resilient_ring, capsys):
+    assert cli.main(["design", str(resilient_ring), "--tune", "rms", "--all-methods"]) == 2
+    assert "--all-methods" in capsys.readouterr().err
