@@ -9,6 +9,7 @@ import pytest
 import yaml
 
 import splitspec_core as ss
+from splitspec_core import bounds
 from splitspec_core.designer import design
 from splitspec_core.generate import random_system, ring_arcs, ring_scenario, ring_system
 from splitspec_core.graphs import is_strongly_connected
@@ -103,3 +104,46 @@ def test_cli_all_methods_flag(resilient_ring, capsys, as_json):
 def test_cli_all_methods_with_tune_is_refused(resilient_ring, capsys):
     assert cli.main(["design", str(resilient_ring), "--tune", "rms", "--all-methods"]) == 2
     assert "--all-methods" in capsys.readouterr().err
+
+
+# --------------------------------------------------------------------------
+# mixed norm over the non-zero blocks only
+# --------------------------------------------------------------------------
+
+
+def dense_mixed_norm(M, rows, cols):
+    """Eq. (split_mmn) block by block over all blocks, zero ones included (the former implementation)."""
+    r_edges, c_edges = np.concatenate([[0], np.cumsum(rows)]), np.concatenate([[0], np.cumsum(cols)])
+    best = 0.0
+    for i in range(len(rows)):
+        if rows[i] == 0:
+            continue
+        row_sum = 0.0
+        for j in range(len(cols)):
+            if cols[j] == 0:
+                continue
+            row_sum += np.linalg.norm(M[r_edges[i]:r_edges[i + 1], c_edges[j]:c_edges[j + 1]], 2)
+        best = max(best, row_sum)
+    return best
+
+
+@pytest.mark.parametrize("seed", range(40))
+def test_mixed_norm_sparse_equals_dense(seed):
+    rng = np.random.default_rng(seed)
+    m = int(rng.integers(1, 12))
+    rows = rng.integers(0, 4, size=m)  # empty blocks (n_i = 0) too
+    cols = rows if seed % 2 else rng.integers(0, 4, size=int(rng.integers(1, 12)))
+    M = rng.normal(size=(rows.sum(), cols.sum()))
+    keep = rng.random((len(rows), len(cols))) < rng.uniform(0, 1)  # a random block pattern, often sparse
+    M *= np.repeat(np.repeat(keep, rows, axis=0), cols, axis=1)
+    ref = dense_mixed_norm(M, rows, cols)
+    assert bounds.mixed_norm(M, rows, cols) == pytest.approx(ref, rel=1e-12, abs=0)
+
+
+def test_mixed_norm_on_a_resilient_rings_cases():
+    """Atil (block diagonal) and B = V' Sbar V (arcs and diagonal) of every case, and a dense B^p."""
+    des = design(parse_scenario(ring_scenario(12, 6, resilience=1)))
+    for case in des.cases:
+        for M in (case.Atil, case.B, np.linalg.matrix_power(case.B, 30)):
+            assert bounds.mixed_norm(M, case.sizes) == pytest.approx(dense_mixed_norm(M, case.sizes, case.sizes),
+                                                                     rel=1e-12, abs=0)
