@@ -22,7 +22,7 @@ methods) is built on the same ``Case`` and compared side by side in the design r
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.linalg as sla
@@ -48,6 +48,7 @@ __all__ = [
     "choose_q",
     "mixed_norm",
     "spectral_radius",
+    "error_radius",
 ]
 
 
@@ -84,6 +85,9 @@ class Case:
     B: np.ndarray
     h: np.ndarray
     VLV: np.ndarray
+    # q -> rho(Atil B^q), filled by error_radius: the q search, the certified bound and the report's
+    # error radius ask for the same numbers
+    _radius: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
     @property
     def nbar(self) -> int:
@@ -273,12 +277,15 @@ class QResult:
     pbar: int | None = None
 
 
+_SCAN = 64  # _smallest scans k = 1.._SCAN one by one, then doubles and bisects
+
+
 def _smallest(pred, q_max: int, *, what: str) -> int:
     """Smallest k in [1, q_max] with pred(k): linear scan to 64, then doubling and bisection."""
-    for k in range(1, min(64, q_max) + 1):
+    for k in range(1, min(_SCAN, q_max) + 1):
         if pred(k):
             return k
-    lo, hi = 64, 128
+    lo, hi = _SCAN, 2 * _SCAN
     while True:
         if hi >= q_max:
             hi = q_max
@@ -297,19 +304,94 @@ def _smallest(pred, q_max: int, *, what: str) -> int:
     return hi
 
 
+def _smallest_max(preds, q_max: int, *, whats) -> int:
+    """``max(_smallest(pred) for pred in preds)``, the same number, warm-started from the cases already searched.
+
+    Once q is the max over the cases searched so far, a case with ``pred(q)`` true and ``q <= 64``
+    (inside the linear scan of :func:`_smallest`) has its own smallest k at most q, so it cannot
+    raise the max: one evaluation instead of a search.  Only a case with ``pred(q)`` false is
+    searched from scratch (its evaluations memoised by the caller), exactly as before, so the
+    result and any error are those of the searches from scratch, also for a predicate that is
+    not monotone in k.  With ``design.resilience: 1`` the loss cases mostly need the q of the
+    cases before them, and then cost one evaluation each.
+    """
+    q = None
+    for pred, what in zip(preds, whats):
+        if q is not None and q <= min(_SCAN, q_max) and pred(q):
+            continue
+        k = _smallest(pred, q_max, what=what)
+        q = k if q is None else max(q, k)
+    return q
+
+
+class _Powers:
+    """``B^k`` bit for bit as :func:`numpy.linalg.matrix_power` computes it, the squares shared between k.
+
+    ``matrix_power`` multiplies, from the lowest bit of k up, the squares ``B, B^2, B^4, ...``
+    (with short cuts for k = 2 and 3); keeping the squares, each further k costs
+    ``popcount(k) - 1`` products instead of about ``log2(k) + popcount(k) - 1``.
+    """
+
+    def __init__(self, B: np.ndarray):
+        self._sq = [B]
+
+    def _square(self, j: int) -> np.ndarray:
+        while len(self._sq) <= j:
+            self._sq.append(np.matmul(self._sq[-1], self._sq[-1]))
+        return self._sq[j]
+
+    def __call__(self, k: int) -> np.ndarray:
+        if k < 1:
+            return np.linalg.matrix_power(self._sq[0], k)
+        if k == 1:
+            return self._sq[0]
+        if k == 2:
+            return self._square(1)
+        if k == 3:
+            return np.matmul(self._square(1), self._sq[0])  # matrix_power's short cut: (B B) B
+        result, j = None, 0
+        while k:
+            k, bit = divmod(k, 2)
+            if bit:
+                z = self._square(j)
+                result = z if result is None else np.matmul(result, z)
+            j += 1
+        return result
+
+
 def _power(B: np.ndarray, k: int) -> np.ndarray:
     return np.linalg.matrix_power(B, k)
 
 
-def q_spectral(cases, rate: float, *, q: int | None = None, q_max: int = 100_000) -> QResult:
-    """Smallest q with ``rho(Atil B^q) < lam`` for every case (constant graphs)."""
-    def rho(case, k):
-        return spectral_radius(case.Atil @ _power(case.B, k)) if case.nbar else 0.0
+def error_radius(case: Case, q: int, powers: _Powers | None = None) -> float:
+    """``rho(Atil B^q)``, the error map's spectral radius over one event time (eq. split_discrete_rho).
 
+    Memoised on the case: the q search, the certified bound and the design report's error
+    radius ask for the same numbers.  ``powers`` (of ``case.B``) shares the squares between q.
+    """
+    if not case.nbar:
+        return 0.0
+    rho = case._radius.get(q)
+    if rho is None:
+        # eq. (split_discrete_ench): A_V = Atil (V' Sbar V)^q
+        rho = spectral_radius(case.Atil @ (powers(q) if powers is not None else _power(case.B, q)))
+        case._radius[q] = rho
+    return rho
+
+
+def q_spectral(cases, rate: float, *, q: int | None = None, q_max: int = 100_000) -> QResult:
+    """Smallest q with ``rho(Atil B^q) < lam`` for every case (constant graphs).
+
+    The cases are searched in order, each warm-started from the q of the ones before
+    (:func:`_smallest_max`): the q of a search from scratch per case.
+    """
     if q is None:
-        q = max(_smallest(lambda k, c=c: rho(c, k) < rate, q_max, what=f"q (spectral, {c.label})")
-                for c in cases)
-    bound = max(rho(c, q) for c in cases)
+        def pred(case):
+            powers = _Powers(case.B)  # lives while this case is evaluated
+            return lambda k: error_radius(case, k, powers) < rate
+
+        q = _smallest_max((pred(c) for c in cases), q_max, whats=(f"q (spectral, {c.label})" for c in cases))
+    bound = max(error_radius(c, q) for c in cases)
     return QResult(q=q, method="spectral", bound=bound, certified=bound < rate, switching=False)
 
 
@@ -358,8 +440,13 @@ def q_two_norm(cases, rate: float, *, q: int | None = None, q_max: int = 100_000
         return float(np.linalg.norm(M, 2)) if M.size else 0.0
 
     if q is None:
-        p = max([_smallest(lambda k, c=c: norm2(_power(c.B, k)) < 1.0, q_max, what=f"p (two-norm, {c.label})")
-                 for c in live] or [1])
+        def p_pred(case):  # |B^k|_2 < 1, memoised while this case is evaluated
+            powers, memo = _Powers(case.B), {}
+            return lambda k: memo[k] if k in memo else memo.setdefault(k, norm2(powers(k)) < 1.0)
+
+        # warm-started over the cases (_smallest_max): the p of a search from scratch per case
+        p = _smallest_max((p_pred(c) for c in live), q_max,
+                          whats=(f"p (two-norm, {c.label})" for c in live)) if live else 1
         Bp = [_power(c.B, p) for c in live]
         pbar = _smallest(lambda k: all(norm2(c.Atil @ _power(b, k)) <= rate for c, b in zip(live, Bp)),
                          max(1, q_max // p), what="pbar (two-norm)")

@@ -316,8 +316,8 @@ def _design_q(sc: Scenario, cases, switching: bool, warnings: list, compare: boo
         except Exception as exc:  # noqa: BLE001 - comparison only; the chosen method already succeeded
             others[meth] = str(exc)
     others[d.q_method] = result
-    radius = {c.label: bounds.spectral_radius(c.Atil @ np.linalg.matrix_power(c.B, result.q)) if c.nbar else 0.0
-              for c in cases}
+    # rho(Atil B^q) per case (eq. split_discrete_rho); the spectral q search has computed them already
+    radius = {c.label: bounds.error_radius(c, result.q) for c in cases}
     return dict(q=result.q, q_result=result, q_methods=others, error_radius=radius)
 
 

@@ -7,10 +7,13 @@ import json
 import numpy as np
 import pytest
 import yaml
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 import splitspec_core as ss
 from splitspec_core import bounds
 from splitspec_core.designer import design
+from splitspec_core.errors import DesignError
 from splitspec_core.generate import random_system, ring_arcs, ring_scenario, ring_system
 from splitspec_core.graphs import is_strongly_connected
 from splitspec_core.observability import unobservable_directions
@@ -147,3 +150,83 @@ def test_mixed_norm_on_a_resilient_rings_cases():
         for M in (case.Atil, case.B, np.linalg.matrix_power(case.B, 30)):
             assert bounds.mixed_norm(M, case.sizes) == pytest.approx(dense_mixed_norm(M, case.sizes, case.sizes),
                                                                      rel=1e-12, abs=0)
+
+
+# --------------------------------------------------------------------------
+# the q search warm-started over the cases, powers of B sharing their squares
+# --------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("size", [1, 3, 8])
+def test_powers_are_matrix_power_bit_for_bit(size):
+    rng = np.random.default_rng(size)
+    B = rng.normal(size=(size, size)) / size
+    powers = bounds._Powers(B)
+    for k in [*rng.permutation(70), 64, 1, 0, 129, 3, 2]:  # any order: the squares are shared
+        assert np.array_equal(powers(int(k)), np.linalg.matrix_power(B, int(k))), k
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.lists(st.lists(st.booleans(), min_size=1, max_size=150), min_size=1, max_size=6),
+       st.integers(1, 150))
+def test_warm_started_max_equals_searches_from_scratch(tables, q_max):
+    """Any predicates, monotone in k or not, with and without an answer below q_max: same q, same error."""
+    def preds():
+        return [lambda k, t=t: t[(k - 1) % len(t)] for t in tables]
+
+    def outcome(f):
+        try:
+            return f()
+        except DesignError as exc:
+            return str(exc)
+
+    whats = [f"case {i}" for i in range(len(tables))]
+    scratch = outcome(lambda: max(bounds._smallest(p, q_max, what=w) for p, w in zip(preds(), whats)))
+    assert outcome(lambda: bounds._smallest_max(preds(), q_max, whats=whats)) == scratch
+
+
+def spectral_from_scratch(cases, rate, q_max=100_000):
+    """q_spectral as it was: every case searched from scratch, every radius recomputed."""
+    def rho(case, k):
+        return bounds.spectral_radius(case.Atil @ np.linalg.matrix_power(case.B, k)) if case.nbar else 0.0
+
+    q = max(bounds._smallest(lambda k, c=c: rho(c, k) < rate, q_max, what=c.label) for c in cases)
+    return q, max(rho(c, q) for c in cases), {c.label: rho(c, q) for c in cases}
+
+
+def two_norm_p_from_scratch(cases):
+    live = [c for c in cases if c.nbar]
+    return max([bounds._smallest(lambda k, c=c: np.linalg.norm(np.linalg.matrix_power(c.B, k), 2) < 1.0, 100_000,
+                                 what=c.label) for c in live] or [1])
+
+
+def random_resilient(seed: int, method: str = "spectral") -> dict:
+    """The ring of ring_system plus random chords (still redundant), a random rate."""
+    rng = np.random.default_rng(seed)
+    n = int(rng.choice([4, 5, 6, 8]))
+    m = int(rng.integers((n + 1) // 2 * 2, 13))
+    raw = ring_scenario(m, n, resilience=1, seed=seed, rate=float(rng.uniform(0.05, 0.9)), q_method=method)
+    chords = rng.integers(1, m + 1, size=(int(rng.integers(0, m)), 2))
+    raw["graphs"]["ring"]["arcs"] += [[int(j), int(i)] for j, i in chords if j != i]
+    return raw
+
+
+@pytest.mark.parametrize("seed", range(12))
+def test_warm_started_q_equals_the_search_from_scratch(seed):
+    """Random redundant networks with every loss case: q, bound and each case's error radius, bit for bit."""
+    des = design(parse_scenario(random_resilient(seed)))
+    assert len(des.cases) == 1 + des.scenario.m
+    q, bound, radius = spectral_from_scratch(des.cases, des.rate)
+    assert (des.q, des.q_result.bound, des.error_radius) == (q, bound, radius)
+    # the cases in another order (the loss cases first): the same q again, on fresh cases (no memo)
+    fresh = design(parse_scenario(random_resilient(seed))).cases
+    order = np.random.default_rng(seed).permutation(len(fresh))
+    assert bounds.q_spectral([fresh[k] for k in order], des.rate).q == q
+    assert bounds.q_two_norm(fresh, des.rate).p == two_norm_p_from_scratch(fresh)
+
+
+def test_warm_start_does_not_hide_a_case_that_needs_more():
+    """A loss case needing a larger q than the base graph still raises q (here 1 -> 2)."""
+    des = design(parse_scenario(ring_scenario(10, 4, resilience=1)))
+    base = des.cases[0]
+    assert bounds.q_spectral([base], des.rate).q < des.q == spectral_from_scratch(des.cases, des.rate)[0]
