@@ -23,9 +23,9 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
-import scipy.linalg as sla
 
 from .errors import DesignError
 from .graphs import Graph, is_doubly_stochastic, perron_vector
@@ -72,10 +72,12 @@ class Case:
         ``blockdiag(A_i)``.
     B : (nbar, nbar) array
         ``V' Sbar V``.
+    Vcat : (n, nbar) array
+        ``[V_1 .. V_m]`` (the Gram matrix ``G = Vcat' Vcat`` has the blocks ``V_i' V_j``).
     h : (nbar,) array
-        Diagonal of ``H`` (``pi_i`` repeated ``n_i`` times).
+        Diagonal of ``H`` (``pi_i`` repeated ``n_i`` times); computed on first use.
     VLV : (nbar, nbar) array
-        ``V'(L (x) I)V`` with ``L = 2 Pi - Pi S - S' Pi`` (eq. split_continuous_lyap).
+        ``V'(L (x) I)V`` with ``L = 2 Pi - Pi S - S' Pi`` (eq. split_continuous_lyap); computed on first use.
     """
 
     label: str
@@ -83,8 +85,7 @@ class Case:
     sizes: tuple
     Atil: np.ndarray
     B: np.ndarray
-    h: np.ndarray
-    VLV: np.ndarray
+    Vcat: np.ndarray = field(repr=False, compare=False)  # [V_1 .. V_m], n x nbar: G = Vcat' Vcat again for VLV
     # q -> rho(Atil B^q), filled by error_radius: the q search, the certified bound and the report's
     # error radius ask for the same numbers
     _radius: dict = field(default_factory=dict, init=False, repr=False, compare=False)
@@ -93,11 +94,37 @@ class Case:
     def nbar(self) -> int:
         return self.B.shape[0]
 
+    # h and VLV only serve g, its dwell bound and the weighted q: computed on first use (a discrete
+    # design with spectral q never needs the Perron vector of the m + 1 cases of a resilient design)
+    @cached_property
+    def _pi(self) -> np.ndarray:
+        return perron_vector(self.graph.S)
+
+    @cached_property
+    def h(self) -> np.ndarray:
+        return np.repeat(self._pi, self.sizes)
+
+    @cached_property
+    def VLV(self) -> np.ndarray:
+        S, Pi = self.graph.S, np.diag(self._pi)
+        L = 2 * Pi - Pi @ S - S.T @ Pi  # eq. (split_continuous_lyap)
+        return _expand(L, self.sizes) * (self.Vcat.T @ self.Vcat)
+
 
 def _expand(M: np.ndarray, sizes) -> np.ndarray:
     """Repeat entry ``M_ij`` into an ``n_i x n_j`` block."""
     sizes = np.asarray(sizes)
     return np.repeat(np.repeat(M, sizes, axis=0), sizes, axis=1)
+
+
+def _block_diag(blocks, sizes) -> np.ndarray:
+    """``blockdiag(blocks)`` (the blocks ``n_i x n_i``): the values ``scipy.linalg.block_diag`` gives, at a
+    fraction of its per-block overhead (it dominated building the m + 1 cases of a resilient design)."""
+    edges = np.concatenate([[0], np.cumsum(sizes, dtype=int)])
+    out = np.zeros((edges[-1], edges[-1]))
+    for k, blk in enumerate(blocks):
+        out[edges[k]:edges[k + 1], edges[k]:edges[k + 1]] = blk
+    return out
 
 
 def make_case(label: str, graph: Graph, Vs, A_uns) -> Case:
@@ -106,15 +133,9 @@ def make_case(label: str, graph: Graph, Vs, A_uns) -> Case:
     n = Vs[0].shape[0]
     Vcat = np.hstack(Vs) if sum(sizes) else np.zeros((n, 0))
     G = Vcat.T @ Vcat  # blocks V_i' V_j
-    S = graph.S
-    B = _expand(S, sizes) * G  # V' (S (x) I) V
-    pi = perron_vector(S)
-    Pi = np.diag(pi)
-    L = 2 * Pi - Pi @ S - S.T @ Pi
-    VLV = _expand(L, sizes) * G
-    Atil = sla.block_diag(*A_uns) if sum(sizes) else np.zeros((0, 0))
-    h = np.repeat(pi, sizes)
-    return Case(label=label, graph=graph, sizes=sizes, Atil=Atil, B=B, h=h, VLV=VLV)
+    B = _expand(graph.S, sizes) * G  # V' (S (x) I) V
+    Atil = _block_diag(A_uns, sizes)
+    return Case(label=label, graph=graph, sizes=sizes, Atil=Atil, B=B, Vcat=Vcat)
 
 
 def spectral_radius(M: np.ndarray) -> float:

@@ -230,3 +230,42 @@ def test_warm_start_does_not_hide_a_case_that_needs_more():
     des = design(parse_scenario(ring_scenario(10, 4, resilience=1)))
     base = des.cases[0]
     assert bounds.q_spectral([base], des.rate).q < des.q == spectral_from_scratch(des.cases, des.rate)[0]
+
+
+# --------------------------------------------------------------------------
+# building the m + 1 cases
+# --------------------------------------------------------------------------
+
+
+def test_case_parts_as_the_eager_formulas():
+    """h and VLV (now computed on first use) and Atil (no longer scipy's block_diag): the same values."""
+    import scipy.linalg as sla
+
+    from splitspec_core.graphs import perron_vector
+
+    des = design(parse_scenario(random_resilient(3)))
+    ad = {a.id: a for a in des.agents}
+    for case in des.cases:
+        Vs = [ad[i].V for i in case.graph.ids]
+        G = np.hstack(Vs).T @ np.hstack(Vs)
+        S = case.graph.S
+        pi = perron_vector(S)
+        Pi = np.diag(pi)
+        assert np.array_equal(case.h, np.repeat(pi, case.sizes))
+        assert np.array_equal(case.VLV, bounds._expand(2 * Pi - Pi @ S - S.T @ Pi, case.sizes) * G)
+        assert np.array_equal(case.Atil, sla.block_diag(*[ad[i].dec.A_un for i in case.graph.ids]))
+    assert bounds._block_diag([np.ones((2, 2)), np.zeros((0, 0)), 2 * np.ones((1, 1))], (2, 0, 1)).tolist() == \
+        [[1, 1, 0], [1, 1, 0], [0, 0, 2]]
+
+
+def test_spectral_design_needs_no_perron_vector(monkeypatch):
+    """A discrete design with spectral q never uses h or VLV: no Perron vector for the m + 1 cases."""
+    from splitspec_core import graphs
+
+    calls = []
+    real = graphs.perron_vector
+    monkeypatch.setattr(bounds, "perron_vector", lambda S: calls.append(1) or real(S))
+    design(parse_scenario(ring_scenario(10, 4, resilience=1)))
+    assert calls == []
+    design(parse_scenario(ring_scenario(10, 4, resilience=1, q_method="weighted")))
+    assert len(calls) == 11  # ||.||_R needs H: one Perron vector per case
