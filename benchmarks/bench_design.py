@@ -11,8 +11,8 @@ Two tables, no timing assertions anywhere (the machine is shared):
   plain and with ``design.resilience: 1`` (q certified on the m + 1 cases: the ring
   and the ring without each agent).  Plain and resilient runs alternate, the table
   gives their medians, the ratio resilient / plain and /proc/loadavg beside them.
-  ``--cli`` times ``splitspec design FILE --json`` (a fresh process, as a user runs it)
-  instead of the in-process ``design()``.
+  ``--cli`` times the text report ``splitspec design FILE`` (a fresh process, as a user
+  runs it) instead of the in-process ``design()``.
 
     .venv/bin/python benchmarks/bench_design.py [--sizes 5 20 50 100] [--repeat 1]
     .venv/bin/python benchmarks/bench_design.py --only ring [--ring-sizes 50 100] [--ring-n 4] [--ring-repeat 3] [--cli]
@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import re
 import statistics
 import subprocess
 import sys
@@ -88,20 +89,19 @@ def _timer(raw: dict, cli: bool, tmp: Path):
         return run
     path = tmp / f"{raw['name']}-r{raw['design']['resilience']}.yaml"
     path.write_text(yaml.safe_dump(raw, sort_keys=False))
-    exe = str(Path(sys.executable).with_name("splitspec"))
+    cmd = [sys.executable, "-m", "splitspec_orchestrator", "design", str(path)]
 
     def run_cli() -> tuple:
         t0 = time.perf_counter()
-        out = subprocess.run([exe, "design", str(path), "--json", "--compact"], check=True, capture_output=True,
-                             text=True).stdout
+        out = subprocess.run(cmd, check=True, capture_output=True, text=True).stdout
         t = time.perf_counter() - t0
-        res = yaml.safe_load(out)
-        return t, res["q"], sum(len(a["V"][0]) for a in res["agents"])
+        q = int(re.search(r"^q = (\d+)", out, re.M).group(1))
+        return t, q, sum(int(k) for k in re.findall(r"^  agent \d+: .*n_i = (\d+),", out, re.M))
     return run_cli
 
 
 def ring_table(args) -> None:
-    what = "splitspec design --json (fresh process)" if args.cli else "design() in-process"
+    what = "splitspec design FILE (fresh process)" if args.cli else "design() in-process"
     print(f"undirected ring, n = {args.ring_n}, discrete, spectral q; {what}; median of {args.ring_repeat} "
           f"interleaved runs; OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS', 'unset')}")
     print(f"{'m':>5} {'nbar':>6} {'q plain':>8} {'q resil.':>8} {'plain s':>9} {'resilient s':>12} {'ratio':>7}"
@@ -131,7 +131,7 @@ def main() -> None:
     ap.add_argument("--ring-sizes", type=int, nargs="+", default=[50, 100])
     ap.add_argument("--ring-n", type=int, default=4, help="states of the ring's system")
     ap.add_argument("--ring-repeat", type=int, default=3)
-    ap.add_argument("--cli", action="store_true", help="ring table: time `splitspec design --json` processes")
+    ap.add_argument("--cli", action="store_true", help="ring table: time `splitspec design FILE` processes")
     args = ap.parse_args()
     if args.only != "ring":
         random_table(args)
