@@ -1,22 +1,43 @@
-"""Design time for growing networks (issue: design engine).
+"""Design time for growing networks (issue: design engine; "Speed at scale", item 6).
 
-Random jointly observable systems (n = 10, every agent sees part of the
-state) on random strongly connected graphs (a ring plus 2m random arcs),
-discrete (spectral q) and continuous (g_bound + exact g_min), place gains.
-Prints a table; no timing assertions anywhere (the machine is shared).
+Two tables, no timing assertions anywhere (the machine is shared):
+
+* random jointly observable systems (n = 10, every agent sees part of the
+  state) on random strongly connected graphs (a ring plus 2m random arcs),
+  discrete (spectral q) and continuous (g_bound + exact g_min), place gains;
+* design at scale: the undirected ring of :func:`splitspec_core.generate.ring_scenario`
+  (every oscillator block seen by two agents or more, so any single loss leaves a
+  jointly observable, strongly connected network), discrete, spectral q, designed
+  plain and with ``design.resilience: 1`` (q certified on the m + 1 cases: the ring
+  and the ring without each agent).  Plain and resilient runs alternate, the table
+  gives their medians, the ratio resilient / plain and /proc/loadavg beside them.
+  ``--cli`` times the text report ``splitspec design FILE`` (a fresh process, as a user
+  runs it) instead of the in-process ``design()``.
 
     .venv/bin/python benchmarks/bench_design.py [--sizes 5 20 50 100] [--repeat 1]
+    .venv/bin/python benchmarks/bench_design.py --only ring [--ring-sizes 50 100] [--ring-n 4] [--ring-repeat 3] [--cli]
+
+On a loaded machine OpenBLAS threads can dominate the figures; ``OPENBLAS_NUM_THREADS=1``
+in the environment takes them out (the header says which setting ran).
 """
 
 from __future__ import annotations
 
 import argparse
+import os
+import re
+import statistics
+import subprocess
+import sys
+import tempfile
 import time
+from pathlib import Path
 
 import numpy as np
+import yaml
 
 from splitspec_core.designer import design
-from splitspec_core.generate import random_strongly_connected_arcs, random_system
+from splitspec_core.generate import random_strongly_connected_arcs, random_system, ring_scenario
 from splitspec_core.scenario_model import parse_scenario
 
 
@@ -34,12 +55,14 @@ def scenario(m: int, n: int, time_mode: str, seed: int) -> dict:
     }
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--sizes", type=int, nargs="+", default=[5, 20, 50, 100])
-    ap.add_argument("--n", type=int, default=10)
-    ap.add_argument("--repeat", type=int, default=1)
-    args = ap.parse_args()
+def loadavg() -> str:
+    try:
+        return " ".join(Path("/proc/loadavg").read_text().split()[:3])
+    except OSError:
+        return "n/a"
+
+
+def random_table(args) -> None:
     print(f"{'m':>5} {'n':>3} {'time':>10} {'nbar':>6} {'result':>22} {'seconds':>9}")
     for m in args.sizes:
         for mode in ("discrete", "continuous"):
@@ -52,6 +75,70 @@ def main() -> None:
             nbar = des.cases[0].nbar
             res = f"q = {des.q}" if mode == "discrete" else f"g = {des.g:.4g} (min {max(des.g_mins.values()):.3g})"
             print(f"{m:>5} {args.n:>3} {mode:>10} {nbar:>6} {res:>22} {best:>9.3f}", flush=True)
+
+
+def _timer(raw: dict, cli: bool, tmp: Path):
+    """A function timing one design of ``raw`` (in-process, or ``splitspec design --json`` in a fresh process)."""
+    if not cli:
+        sc = parse_scenario(raw)
+
+        def run() -> tuple:
+            t0 = time.perf_counter()
+            des = design(sc)
+            return time.perf_counter() - t0, des.q, des.cases[0].nbar
+        return run
+    path = tmp / f"{raw['name']}-r{raw['design']['resilience']}.yaml"
+    path.write_text(yaml.safe_dump(raw, sort_keys=False))
+    cmd = [sys.executable, "-m", "splitspec_orchestrator", "design", str(path)]
+
+    def run_cli() -> tuple:
+        t0 = time.perf_counter()
+        out = subprocess.run(cmd, check=True, capture_output=True, text=True).stdout
+        t = time.perf_counter() - t0
+        q = int(re.search(r"^q = (\d+)", out, re.M).group(1))
+        return t, q, sum(int(k) for k in re.findall(r"^  agent \d+: .*n_i = (\d+),", out, re.M))
+    return run_cli
+
+
+def ring_table(args) -> None:
+    what = "splitspec design FILE (fresh process)" if args.cli else "design() in-process"
+    print(f"undirected ring, n = {args.ring_n}, discrete, spectral q; {what}; median of {args.ring_repeat} "
+          f"interleaved runs; OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS', 'unset')}")
+    print(f"{'m':>5} {'nbar':>6} {'q plain':>8} {'q resil.':>8} {'plain s':>9} {'resilient s':>12} {'ratio':>7}"
+          f"   loadavg (before -> after)")
+    with tempfile.TemporaryDirectory() as tmp:
+        for m in args.ring_sizes:
+            plain = _timer(ring_scenario(m, args.ring_n, resilience=0), args.cli, Path(tmp))
+            resil = _timer(ring_scenario(m, args.ring_n, resilience=1), args.cli, Path(tmp))
+            load0 = loadavg()
+            tp, tr = [], []
+            for _ in range(args.ring_repeat):  # interleaved, so both see the same load
+                t, qp, nbar = plain()
+                tp.append(t)
+                t, qr, _ = resil()
+                tr.append(t)
+            mp, mr = statistics.median(tp), statistics.median(tr)
+            print(f"{m:>5} {nbar:>6} {qp:>8} {qr:>8} {mp:>9.3f} {mr:>12.3f} {mr / mp:>7.2f}   {load0} -> {loadavg()}",
+                  flush=True)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--only", choices=["random", "ring"], help="run one table only")
+    ap.add_argument("--sizes", type=int, nargs="+", default=[5, 20, 50, 100])
+    ap.add_argument("--n", type=int, default=10)
+    ap.add_argument("--repeat", type=int, default=1)
+    ap.add_argument("--ring-sizes", type=int, nargs="+", default=[50, 100])
+    ap.add_argument("--ring-n", type=int, default=4, help="states of the ring's system")
+    ap.add_argument("--ring-repeat", type=int, default=3)
+    ap.add_argument("--cli", action="store_true", help="ring table: time `splitspec design FILE` processes")
+    args = ap.parse_args()
+    if args.only != "ring":
+        random_table(args)
+    if args.only != "random":
+        if args.only is None:
+            print()
+        ring_table(args)
 
 
 if __name__ == "__main__":

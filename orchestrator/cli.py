@@ -68,6 +68,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("scenario", help="scenario YAML file")
     p.add_argument("--json", action="store_true", help="print the design as one JSON object")
     p.add_argument("--compact", action="store_true", help="with --json: no indentation")
+    p.add_argument("--all-methods", action="store_true", help="discrete time: also compute, for comparison, the q "
+                   "every other q method (spectral, weighted, two-norm, mixed) would give")
     p.add_argument("--tune", choices=["rms"], help="rms: choose q or g and the gains (place, or riccati over a range "
                    "of weights) for the smallest steady-state RMS error under the scenario's noise, keeping the "
                    "rate certified")

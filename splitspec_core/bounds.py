@@ -22,10 +22,10 @@ methods) is built on the same ``Case`` and compared side by side in the design r
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
-import scipy.linalg as sla
 
 from .errors import DesignError
 from .graphs import Graph, is_doubly_stochastic, perron_vector
@@ -48,6 +48,7 @@ __all__ = [
     "choose_q",
     "mixed_norm",
     "spectral_radius",
+    "error_radius",
 ]
 
 
@@ -71,10 +72,12 @@ class Case:
         ``blockdiag(A_i)``.
     B : (nbar, nbar) array
         ``V' Sbar V``.
+    Vcat : (n, nbar) array
+        ``[V_1 .. V_m]`` (the Gram matrix ``G = Vcat' Vcat`` has the blocks ``V_i' V_j``).
     h : (nbar,) array
-        Diagonal of ``H`` (``pi_i`` repeated ``n_i`` times).
+        Diagonal of ``H`` (``pi_i`` repeated ``n_i`` times); computed on first use.
     VLV : (nbar, nbar) array
-        ``V'(L (x) I)V`` with ``L = 2 Pi - Pi S - S' Pi`` (eq. split_continuous_lyap).
+        ``V'(L (x) I)V`` with ``L = 2 Pi - Pi S - S' Pi`` (eq. split_continuous_lyap); computed on first use.
     """
 
     label: str
@@ -82,12 +85,30 @@ class Case:
     sizes: tuple
     Atil: np.ndarray
     B: np.ndarray
-    h: np.ndarray
-    VLV: np.ndarray
+    Vcat: np.ndarray = field(repr=False, compare=False)  # [V_1 .. V_m], n x nbar: G = Vcat' Vcat again for VLV
+    # q -> rho(Atil B^q), filled by error_radius: the q search, the certified bound and the report's
+    # error radius ask for the same numbers
+    _radius: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
     @property
     def nbar(self) -> int:
         return self.B.shape[0]
+
+    # h and VLV only serve g, its dwell bound and the weighted q: computed on first use (a discrete
+    # design with spectral q never needs the Perron vector of the m + 1 cases of a resilient design)
+    @cached_property
+    def _pi(self) -> np.ndarray:
+        return perron_vector(self.graph.S)
+
+    @cached_property
+    def h(self) -> np.ndarray:
+        return np.repeat(self._pi, self.sizes)
+
+    @cached_property
+    def VLV(self) -> np.ndarray:
+        S, Pi = self.graph.S, np.diag(self._pi)
+        L = 2 * Pi - Pi @ S - S.T @ Pi  # eq. (split_continuous_lyap)
+        return _expand(L, self.sizes) * (self.Vcat.T @ self.Vcat)
 
 
 def _expand(M: np.ndarray, sizes) -> np.ndarray:
@@ -96,21 +117,25 @@ def _expand(M: np.ndarray, sizes) -> np.ndarray:
     return np.repeat(np.repeat(M, sizes, axis=0), sizes, axis=1)
 
 
+def _block_diag(blocks, sizes) -> np.ndarray:
+    """``blockdiag(blocks)`` (the blocks ``n_i x n_i``): the values ``scipy.linalg.block_diag`` gives, at a
+    fraction of its per-block overhead (it dominated building the m + 1 cases of a resilient design)."""
+    edges = np.concatenate([[0], np.cumsum(sizes, dtype=int)])
+    out = np.zeros((edges[-1], edges[-1]))
+    for k, blk in enumerate(blocks):
+        out[edges[k]:edges[k + 1], edges[k]:edges[k + 1]] = blk
+    return out
+
+
 def make_case(label: str, graph: Graph, Vs, A_uns) -> Case:
     """Build a :class:`Case` from per-agent ``V_i`` and ``A_i`` (in ``graph.ids`` order)."""
     sizes = tuple(V.shape[1] for V in Vs)
     n = Vs[0].shape[0]
     Vcat = np.hstack(Vs) if sum(sizes) else np.zeros((n, 0))
     G = Vcat.T @ Vcat  # blocks V_i' V_j
-    S = graph.S
-    B = _expand(S, sizes) * G  # V' (S (x) I) V
-    pi = perron_vector(S)
-    Pi = np.diag(pi)
-    L = 2 * Pi - Pi @ S - S.T @ Pi
-    VLV = _expand(L, sizes) * G
-    Atil = sla.block_diag(*A_uns) if sum(sizes) else np.zeros((0, 0))
-    h = np.repeat(pi, sizes)
-    return Case(label=label, graph=graph, sizes=sizes, Atil=Atil, B=B, h=h, VLV=VLV)
+    B = _expand(graph.S, sizes) * G  # V' (S (x) I) V
+    Atil = _block_diag(A_uns, sizes)
+    return Case(label=label, graph=graph, sizes=sizes, Atil=Atil, B=B, Vcat=Vcat)
 
 
 def spectral_radius(M: np.ndarray) -> float:
@@ -273,12 +298,15 @@ class QResult:
     pbar: int | None = None
 
 
+_SCAN = 64  # _smallest scans k = 1.._SCAN one by one, then doubles and bisects
+
+
 def _smallest(pred, q_max: int, *, what: str) -> int:
     """Smallest k in [1, q_max] with pred(k): linear scan to 64, then doubling and bisection."""
-    for k in range(1, min(64, q_max) + 1):
+    for k in range(1, min(_SCAN, q_max) + 1):
         if pred(k):
             return k
-    lo, hi = 64, 128
+    lo, hi = _SCAN, 2 * _SCAN
     while True:
         if hi >= q_max:
             hi = q_max
@@ -297,19 +325,94 @@ def _smallest(pred, q_max: int, *, what: str) -> int:
     return hi
 
 
+def _smallest_max(preds, q_max: int, *, whats) -> int:
+    """``max(_smallest(pred) for pred in preds)``, the same number, warm-started from the cases already searched.
+
+    Once q is the max over the cases searched so far, a case with ``pred(q)`` true and ``q <= 64``
+    (inside the linear scan of :func:`_smallest`) has its own smallest k at most q, so it cannot
+    raise the max: one evaluation instead of a search.  Only a case with ``pred(q)`` false is
+    searched from scratch (its evaluations memoised by the caller), exactly as before, so the
+    result and any error are those of the searches from scratch, also for a predicate that is
+    not monotone in k.  With ``design.resilience: 1`` the loss cases mostly need the q of the
+    cases before them, and then cost one evaluation each.
+    """
+    q = None
+    for pred, what in zip(preds, whats):
+        if q is not None and q <= min(_SCAN, q_max) and pred(q):
+            continue
+        k = _smallest(pred, q_max, what=what)
+        q = k if q is None else max(q, k)
+    return q
+
+
+class _Powers:
+    """``B^k`` bit for bit as :func:`numpy.linalg.matrix_power` computes it, the squares shared between k.
+
+    ``matrix_power`` multiplies, from the lowest bit of k up, the squares ``B, B^2, B^4, ...``
+    (with short cuts for k = 2 and 3); keeping the squares, each further k costs
+    ``popcount(k) - 1`` products instead of about ``log2(k) + popcount(k) - 1``.
+    """
+
+    def __init__(self, B: np.ndarray):
+        self._sq = [B]
+
+    def _square(self, j: int) -> np.ndarray:
+        while len(self._sq) <= j:
+            self._sq.append(np.matmul(self._sq[-1], self._sq[-1]))
+        return self._sq[j]
+
+    def __call__(self, k: int) -> np.ndarray:
+        if k < 1:
+            return np.linalg.matrix_power(self._sq[0], k)
+        if k == 1:
+            return self._sq[0]
+        if k == 2:
+            return self._square(1)
+        if k == 3:
+            return np.matmul(self._square(1), self._sq[0])  # matrix_power's short cut: (B B) B
+        result, j = None, 0
+        while k:
+            k, bit = divmod(k, 2)
+            if bit:
+                z = self._square(j)
+                result = z if result is None else np.matmul(result, z)
+            j += 1
+        return result
+
+
 def _power(B: np.ndarray, k: int) -> np.ndarray:
     return np.linalg.matrix_power(B, k)
 
 
-def q_spectral(cases, rate: float, *, q: int | None = None, q_max: int = 100_000) -> QResult:
-    """Smallest q with ``rho(Atil B^q) < lam`` for every case (constant graphs)."""
-    def rho(case, k):
-        return spectral_radius(case.Atil @ _power(case.B, k)) if case.nbar else 0.0
+def error_radius(case: Case, q: int, powers: _Powers | None = None) -> float:
+    """``rho(Atil B^q)``, the error map's spectral radius over one event time (eq. split_discrete_rho).
 
+    Memoised on the case: the q search, the certified bound and the design report's error
+    radius ask for the same numbers.  ``powers`` (of ``case.B``) shares the squares between q.
+    """
+    if not case.nbar:
+        return 0.0
+    rho = case._radius.get(q)
+    if rho is None:
+        # eq. (split_discrete_ench): A_V = Atil (V' Sbar V)^q
+        rho = spectral_radius(case.Atil @ (powers(q) if powers is not None else _power(case.B, q)))
+        case._radius[q] = rho
+    return rho
+
+
+def q_spectral(cases, rate: float, *, q: int | None = None, q_max: int = 100_000) -> QResult:
+    """Smallest q with ``rho(Atil B^q) < lam`` for every case (constant graphs).
+
+    The cases are searched in order, each warm-started from the q of the ones before
+    (:func:`_smallest_max`): the q of a search from scratch per case.
+    """
     if q is None:
-        q = max(_smallest(lambda k, c=c: rho(c, k) < rate, q_max, what=f"q (spectral, {c.label})")
-                for c in cases)
-    bound = max(rho(c, q) for c in cases)
+        def pred(case):
+            powers = _Powers(case.B)  # lives while this case is evaluated
+            return lambda k: error_radius(case, k, powers) < rate
+
+        q = _smallest_max((pred(c) for c in cases), q_max, whats=(f"q (spectral, {c.label})" for c in cases))
+    bound = max(error_radius(c, q) for c in cases)
     return QResult(q=q, method="spectral", bound=bound, certified=bound < rate, switching=False)
 
 
@@ -358,8 +461,13 @@ def q_two_norm(cases, rate: float, *, q: int | None = None, q_max: int = 100_000
         return float(np.linalg.norm(M, 2)) if M.size else 0.0
 
     if q is None:
-        p = max([_smallest(lambda k, c=c: norm2(_power(c.B, k)) < 1.0, q_max, what=f"p (two-norm, {c.label})")
-                 for c in live] or [1])
+        def p_pred(case):  # |B^k|_2 < 1, memoised while this case is evaluated
+            powers, memo = _Powers(case.B), {}
+            return lambda k: memo[k] if k in memo else memo.setdefault(k, norm2(powers(k)) < 1.0)
+
+        # warm-started over the cases (_smallest_max): the p of a search from scratch per case
+        p = _smallest_max((p_pred(c) for c in live), q_max,
+                          whats=(f"p (two-norm, {c.label})" for c in live)) if live else 1
         Bp = [_power(c.B, p) for c in live]
         pbar = _smallest(lambda k: all(norm2(c.Atil @ _power(b, k)) <= rate for c, b in zip(live, Bp)),
                          max(1, q_max // p), what="pbar (two-norm)")
@@ -371,22 +479,35 @@ def q_two_norm(cases, rate: float, *, q: int | None = None, q_max: int = 100_000
 
 
 def mixed_norm(M: np.ndarray, rows, cols=None) -> float:
-    """Mixed matrix norm, eq. (split_mmn): ``|| <M> ||_inf`` with ``<M>_ij = ||M_ij||_2``."""
+    """Mixed matrix norm, eq. (split_mmn): ``|| <M> ||_inf`` with ``<M>_ij = ||M_ij||_2``.
+
+    Only the non-zero blocks are factorised: ``Atil`` is block diagonal and ``B = V' Sbar V``
+    has blocks only on the graph's arcs and the diagonal, so most of the ``m^2`` blocks are
+    exactly zero (norm 0).  The others are stacked by shape into one batched SVD each (the
+    same LAPACK call per block as ``np.linalg.norm(block, 2)``), and each row of blocks is
+    summed left to right as before: the same number as the block-by-block loop.
+    """
     cols = rows if cols is None else cols
+    rows, cols = np.asarray(rows, dtype=int), np.asarray(cols, dtype=int)
     r_edges = np.concatenate([[0], np.cumsum(rows)])
     c_edges = np.concatenate([[0], np.cumsum(cols)])
-    best = 0.0
-    for i in range(len(rows)):
-        if rows[i] == 0:
-            continue
-        row_sum = 0.0
-        for j in range(len(cols)):
-            if cols[j] == 0:
-                continue
-            blk = M[r_edges[i]:r_edges[i + 1], c_edges[j]:c_edges[j + 1]]
-            row_sum += np.linalg.norm(blk, 2)
-        best = max(best, row_sum)
-    return best
+    ri, cj = np.flatnonzero(rows), np.flatnonzero(cols)  # empty blocks count for nothing
+    if not len(ri) or not len(cj):
+        return 0.0
+    # which blocks hold a non-zero entry: reduce over each block's rows, then its columns
+    nz = np.logical_or.reduceat(np.logical_or.reduceat(M != 0, r_edges[ri], axis=0), c_edges[cj], axis=1)
+    norms = np.zeros((len(ri), len(cj)))  # <M>_ij over the non-empty blocks
+    bi, bj = np.nonzero(nz)
+    shapes = rows[ri[bi]] * (int(cols.max()) + 1) + cols[cj[bj]]
+    for shape in np.unique(shapes):
+        sel = np.flatnonzero(shapes == shape)
+        blocks = np.stack([M[r_edges[ri[i]]:r_edges[ri[i] + 1], c_edges[cj[j]]:c_edges[cj[j] + 1]]
+                           for i, j in zip(bi[sel], bj[sel])])
+        norms[bi[sel], bj[sel]] = np.linalg.svd(blocks, compute_uv=False).max(axis=-1)  # ||M_ij||_2
+    row_sums = np.zeros(len(ri))
+    for j in range(len(cj)):  # left to right, as the block-by-block loop added them
+        row_sums += norms[:, j]
+    return max(0.0, float(row_sums.max()))
 
 
 def q_mixed(cases, rate: float, *, q: int | None = None, q_max: int = 100_000) -> QResult:

@@ -80,7 +80,7 @@ class Design:
     g_certified_by: str | None = None
     q: int | None = None
     q_result: bounds.QResult | None = None
-    q_methods: dict = field(default_factory=dict)  # every method's result, for comparison
+    q_methods: dict = field(default_factory=dict)  # the q method's result; every method's with compare_q_methods
     error_radius: dict = field(default_factory=dict)  # case label -> spectral radius / abscissa of A_V
     sampled_rate: dict = field(default_factory=dict)  # continuous: case label -> decay rate of the sampled-data form
     agent_losses: dict = field(default_factory=dict)
@@ -164,6 +164,9 @@ def scenario_dwell(sc: Scenario) -> float | None:
 def design(sc: Scenario, *, compare_q_methods: bool = False) -> Design:
     """Run the whole design for a scenario.
 
+    ``compare_q_methods`` (discrete time) also computes, for information, the q of every other
+    q method over the same cases (``Design.q_methods``; ``splitspec design --all-methods``).
+
     Raises
     ------
     AssumptionError
@@ -218,8 +221,9 @@ def design(sc: Scenario, *, compare_q_methods: bool = False) -> Design:
                         f"design.resilience: 1 needs a redundantly strongly connected network: without agent "
                         f"{lost}, graph {name} is not strongly connected (agent {j} cannot reach agent {i})")
             survivors = tuple(i for i in sc.agent_ids if i != lost)
-            for name in used:
-                g = build_graph(f"{name} without agent {lost}", survivors, graph_arcs[name], weights=d.weights)
+            for name in used:  # strongly connected: checked just above (rep.strongly_connected)
+                g = build_graph(f"{name} without agent {lost}", survivors, graph_arcs[name], weights=d.weights,
+                                check=False)
                 cases.append(case_for(g.name, g))
     cases = tuple(cases)
     switching = len(used) > 1 or d.graph_set == "all"
@@ -313,8 +317,8 @@ def _design_q(sc: Scenario, cases, switching: bool, warnings: list, compare: boo
         except Exception as exc:  # noqa: BLE001 - comparison only; the chosen method already succeeded
             others[meth] = str(exc)
     others[d.q_method] = result
-    radius = {c.label: bounds.spectral_radius(c.Atil @ np.linalg.matrix_power(c.B, result.q)) if c.nbar else 0.0
-              for c in cases}
+    # rho(Atil B^q) per case (eq. split_discrete_rho); the spectral q search has computed them already
+    radius = {c.label: bounds.error_radius(c, result.q) for c in cases}
     return dict(q=result.q, q_result=result, q_methods=others, error_radius=radius)
 
 

@@ -6,22 +6,23 @@ one real mode when n is odd), so no agent alone need observe everything but
 every block is observed by someone, hence ``(C, A)`` is jointly observable
 (PBH test on distinct eigenvalues).  Graphs are a random directed ring (strongly
 connected) plus random extra arcs.
+
+:func:`ring_system` and :func:`ring_arcs` build the resilience benchmark: an
+undirected ring (still strongly connected, as a path, after any one agent is
+lost) whose agents each observe one oscillator block that every
+``nb``-th agent also observes, so the survivors of any single loss still
+jointly observe ``(C, A)``.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["random_system", "random_strongly_connected_arcs"]
+__all__ = ["random_system", "random_strongly_connected_arcs", "ring_system", "ring_arcs", "ring_scenario"]
 
 
-def random_system(rng: np.random.Generator, m: int, n: int, *, time: str = "discrete",
-                  rotate: bool = True) -> tuple:
-    """``(A, Cs)``: jointly observable by construction; agent i observes a random subset of blocks.
-
-    Discrete blocks are rotations (eigenvalues on the unit circle, the paper's
-    example is of this kind); continuous blocks are undamped oscillators.
-    """
+def _oscillator_blocks(rng: np.random.Generator, n: int, time: str) -> tuple:
+    """``(A, edges)``: block-diagonal A of 2x2 oscillators (and one real mode for odd n), distinct eigenvalues."""
     sizes = [2] * (n // 2) + ([1] if n % 2 else [])
     nb = len(sizes)
     freqs = np.sort(rng.uniform(0.2, 2.0, size=nb))
@@ -37,7 +38,18 @@ def random_system(rng: np.random.Generator, m: int, n: int, *, time: str = "disc
             blk = [[rng.uniform(0.5, 1.1)]] if time == "discrete" else [[rng.uniform(-0.5, 0.5)]]
         A[k:k + s, k:k + s] = blk
         k += s
-    edges = np.concatenate([[0], np.cumsum(sizes)])
+    return A, np.concatenate([[0], np.cumsum(sizes)])
+
+
+def random_system(rng: np.random.Generator, m: int, n: int, *, time: str = "discrete",
+                  rotate: bool = True) -> tuple:
+    """``(A, Cs)``: jointly observable by construction; agent i observes a random subset of blocks.
+
+    Discrete blocks are rotations (eigenvalues on the unit circle, the paper's
+    example is of this kind); continuous blocks are undamped oscillators.
+    """
+    A, edges = _oscillator_blocks(rng, n, time)
+    nb = len(edges) - 1
     # every block gets an owner; each agent also sees a few random blocks
     owners = [set() for _ in range(m)]
     for b in range(nb):
@@ -73,3 +85,63 @@ def random_strongly_connected_arcs(rng: np.random.Generator, m: int, *, extra: i
     if undirected:
         arcs |= {(i, j) for j, i in arcs}
     return sorted(arcs)
+
+
+def ring_system(rng: np.random.Generator, m: int, n: int, *, time: str = "discrete", rotate: bool = True) -> tuple:
+    """``(A, Cs)``: redundantly jointly observable; agent i observes oscillator block ``i mod nb`` alone.
+
+    ``A`` as in :func:`random_system`; agent i (0-based) has one output, a random
+    combination of the coordinates of block ``i mod nb`` (``nb`` = number of
+    blocks, ``ceil(n / 2)``).  With ``m >= 2 nb`` every block is observed by at
+    least two agents, so any ``m - 1`` agents still jointly observe ``(C, A)``
+    (PBH test on distinct eigenvalues).
+    """
+    A, edges = _oscillator_blocks(rng, n, time)
+    nb = len(edges) - 1
+    if m < 2 * nb:
+        raise ValueError(f"ring_system needs m >= 2 * ceil(n / 2) = {2 * nb} agents for every block to be observed "
+                         f"twice, got m = {m}")
+    Cs = []
+    for i in range(m):
+        b = i % nb
+        c = np.zeros((1, n))
+        c[0, edges[b]:edges[b + 1]] = rng.normal(size=edges[b + 1] - edges[b])
+        c[0, edges[b]] += np.sign(c[0, edges[b]]) * 0.5 + (c[0, edges[b]] == 0)  # never zero
+        Cs.append(c)
+    if rotate:
+        T, _ = np.linalg.qr(rng.normal(size=(n, n)))
+        A = T @ A @ T.T
+        Cs = [c @ T.T for c in Cs]
+    return A, Cs
+
+
+def ring_arcs(m: int, *, undirected: bool = True) -> list:
+    """Arcs ``(j, i)`` (0-based) of the ring ``0 -> 1 -> ... -> m-1 -> 0`` (and back when undirected).
+
+    The undirected ring is redundantly strongly connected: without any one agent it is a path.
+    """
+    arcs = {(k, (k + 1) % m) for k in range(m)} if m > 1 else set()
+    if undirected:
+        arcs |= {(i, j) for j, i in arcs}
+    return sorted(arcs)
+
+
+def ring_scenario(m: int, n: int = 10, *, time: str = "discrete", resilience: int = 0, seed: int = 0,
+                  rate: float | None = None, q_method: str = "spectral") -> dict:
+    """A scenario mapping (as a YAML file holds it): :func:`ring_system` on the undirected :func:`ring_arcs`.
+
+    ``rate`` defaults to 0.5 (discrete) or 0.5 (continuous); place gains, ``q``/``g`` auto.
+    """
+    rng = np.random.default_rng(seed)
+    A, Cs = ring_system(rng, m, n, time=time)
+    if time == "discrete":
+        design = {"rate": 0.5 if rate is None else rate, "gains": "place", "q": "auto", "q_method": q_method}
+    else:
+        design = {"rate": 0.5 if rate is None else rate, "gains": "place", "g": "auto"}
+    design["resilience"] = resilience
+    return {
+        "name": f"ring{m}", "time": time,
+        "system": {"A": A.tolist(), "C": {i + 1: C.tolist() for i, C in enumerate(Cs)}},
+        "graphs": {"ring": {"arcs": [[j + 1, i + 1] for j, i in ring_arcs(m)]}},
+        "design": design,
+    }

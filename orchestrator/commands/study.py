@@ -29,9 +29,12 @@ def cmd_design(args: argparse.Namespace) -> int:
     sc = ss.load_scenario(args.scenario)
     if args.write and not args.tune:
         raise UsageError("--write needs --tune")
+    if args.all_methods and args.tune:
+        raise UsageError("--all-methods belongs to the design report; --tune reports no q methods")
     if args.tune:
         return _tune(args, sc)
-    d = ss.design(sc, all_q_methods=not args.json)
+    # the other q methods are for information only and cost more than the design itself at scale: on request
+    d = ss.design(sc, all_q_methods=args.all_methods)
     if args.json:
         json.dump(d.to_json(), sys.stdout, indent=None if args.compact else 2)
         sys.stdout.write("\n")
