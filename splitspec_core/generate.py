@@ -59,14 +59,23 @@ def random_system(rng: np.random.Generator, m: int, n: int, *, time: str = "disc
         owners[i].update(rng.choice(nb, size=min(nb, int(extra)), replace=False).tolist())
         if not owners[i]:
             owners[i].add(int(rng.integers(nb)))
-    Cs = []
-    for i in range(m):
-        c = np.zeros((1, n))
-        for b in owners[i]:
-            c[0, edges[b]:edges[b + 1]] = rng.normal(size=edges[b + 1] - edges[b])
-            c[0, edges[b]] += np.sign(c[0, edges[b]]) * 0.5 + (c[0, edges[b]] == 0)  # never zero
-        Cs.append(c)
+    Cs = [_output_row(rng, n, edges, owners[i]) for i in range(m)]
+    return _rotated(rng, A, Cs, rotate)
+
+
+def _output_row(rng: np.random.Generator, n: int, edges, blocks) -> np.ndarray:
+    """A (1, n) output row observing ``blocks`` (random entries, the first of each block never zero)."""
+    c = np.zeros((1, n))
+    for b in blocks:
+        c[0, edges[b]:edges[b + 1]] = rng.normal(size=edges[b + 1] - edges[b])
+        c[0, edges[b]] += np.sign(c[0, edges[b]]) * 0.5 + (c[0, edges[b]] == 0)  # never zero
+    return c
+
+
+def _rotated(rng: np.random.Generator, A: np.ndarray, Cs: list, rotate: bool) -> tuple:
+    """``(A, Cs)`` in a random orthogonal basis when ``rotate``."""
     if rotate:
+        n = A.shape[0]
         T, _ = np.linalg.qr(rng.normal(size=(n, n)))
         A = T @ A @ T.T
         Cs = [c @ T.T for c in Cs]
@@ -101,18 +110,8 @@ def ring_system(rng: np.random.Generator, m: int, n: int, *, time: str = "discre
     if m < 2 * nb:
         raise ValueError(f"ring_system needs m >= 2 * ceil(n / 2) = {2 * nb} agents for every block to be observed "
                          f"twice, got m = {m}")
-    Cs = []
-    for i in range(m):
-        b = i % nb
-        c = np.zeros((1, n))
-        c[0, edges[b]:edges[b + 1]] = rng.normal(size=edges[b + 1] - edges[b])
-        c[0, edges[b]] += np.sign(c[0, edges[b]]) * 0.5 + (c[0, edges[b]] == 0)  # never zero
-        Cs.append(c)
-    if rotate:
-        T, _ = np.linalg.qr(rng.normal(size=(n, n)))
-        A = T @ A @ T.T
-        Cs = [c @ T.T for c in Cs]
-    return A, Cs
+    Cs = [_output_row(rng, n, edges, [i % nb]) for i in range(m)]
+    return _rotated(rng, A, Cs, rotate)
 
 
 def ring_arcs(m: int, *, undirected: bool = True) -> list:
