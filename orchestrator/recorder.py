@@ -549,7 +549,7 @@ class Recorder:
             with self._lock:
                 self._check_open("flush")
                 self._check_failed()
-            self._flush()
+            self._flush(final=True)
 
     def close(self, *, finished: bool = True) -> None:
         """Flush, write ``trajectory.npz`` with the rows so far, finish ``run.rrd`` and ``events.jsonl``.
@@ -578,7 +578,7 @@ class Recorder:
             try:
                 if self._failure is None:
                     try:
-                        self._flush()
+                        self._flush(final=True)
                     except RecordsWriteError:
                         pass
                 if self._failure is not None:
@@ -617,7 +617,7 @@ class Recorder:
         try:
             if not self._closed and self._failure is None:
                 with self._io:
-                    self._flush()
+                    self._flush(final=True)
         except Exception:
             pass
 
@@ -709,7 +709,7 @@ class Recorder:
                 log.warning("background flush failed (%s: %s)", type(exc).__name__, exc)
         return True
 
-    def _flush(self, upto: int | None = None) -> None:
+    def _flush(self, upto: int | None = None, *, final: bool = False) -> None:
         """Take what was recorded (under ``_lock``, memory only), then write it out (``_io`` held, not ``_lock``).
 
         ``upto``: take only the rows before it (new rows; changed rows are always taken).  The
@@ -724,10 +724,10 @@ class Recorder:
         with self._io:
             self._d.reserve(self._s.rows)  # any growth of the taken rows outside _lock
             with self._lock:
-                taken = self._take(upto)
+                taken = self._take(upto, final=final)
             self._write(*taken)
 
-    def _take(self, upto: int | None) -> tuple:
+    def _take(self, upto: int | None, *, final: bool = False) -> tuple:
         """Copy the rows recorded since the last flush (and changed ones) into the taken rows; take the
         queued logs.  ``_io`` and ``_lock`` held; no I/O, O(rows taken) work."""
         self._last_flush = time.monotonic()
@@ -741,8 +741,13 @@ class Recorder:
         self._changed.clear()
         if self._request is not None and self._request <= T:
             self._request = None
-        taken = (K, self._queued_events, self._queued_topology, self._queued_marks, self._queued_clears)
-        self._queued_events, self._queued_topology, self._queued_marks, self._queued_clears = [], [], [], []
+        # a mark stands at the height of its own row's max error: one whose row is not taken yet (the
+        # topology of tau arrives before its row) waits for the next flush (close() takes them all)
+        last = int(self._s.tau[T - 1]) if T else None
+        ready = [mk for mk in self._queued_marks if final or (last is not None and mk[0] <= last)]
+        later = [mk for mk in self._queued_marks if mk not in ready] if len(ready) < len(self._queued_marks) else []
+        taken = (K, self._queued_events, self._queued_topology, ready, self._queued_clears)
+        self._queued_events, self._queued_topology, self._queued_marks, self._queued_clears = [], [], later, []
         return taken
 
     def _write(self, K: np.ndarray, events: list, topology: list, marks: list, clears: list, *,
@@ -816,7 +821,7 @@ class Recorder:
         holds more and can be rewritten).
         """
         try:
-            self._flush()
+            self._flush(final=True)
         except RecordsWriteError:
             pass
         if self._rec is None:

@@ -114,8 +114,10 @@ def is_own_splitspec_process(pid: int, *, started_before: float | None = None) -
         return False
     if started_before is not None:
         t0 = _start_time(pid)
-        # 1 s of slack: /proc/stat's boot time is in whole seconds and the wall clock may have been slewed
-        if t0 is None or t0 > started_before + 1.0:
+        # 10 s of slack: /proc/stat's boot time is in whole seconds and the wall clock may have been slewed or
+        # stepped since boot (on CI a process started at once was placed more than 1 s in the future); a
+        # reused pid belongs to a process started long after the entry was written
+        if t0 is None or t0 > started_before + 10.0:
             return False
     return True
 

@@ -36,7 +36,8 @@ def rows(seed: int = 3):
     return x, xhat, alive, graph, g
 
 
-def record(out, time_mode: str, *, flush_seconds: float, envelope_rate, positions=None) -> None:
+def record(out, time_mode: str, *, flush_seconds: float, envelope_rate, positions=None,
+           flush_before_row_20: bool = False) -> None:
     x, xhat, alive, graph, g = rows()
     rec = Recorder(out, agent_ids=IDS, n=N, steps=T - 1, time_mode=time_mode, dt=DT, graph_names=("a", "b"),
                    run_id="view", scenario_name="view", flush_seconds=flush_seconds, envelope_rate=envelope_rate,
@@ -52,6 +53,8 @@ def record(out, time_mode: str, *, flush_seconds: float, envelope_rate, position
             rec.event("agent_rejoined", t_of(14), id=2, tau=14, incarnation=1)
         if tau == 20:
             rec.event("graph_switched", t_of(20), graph="b", previous="a")
+            if flush_before_row_20:  # the background flush running between the switch and its row
+                rec._flush()
         rec.row(tau, x[tau], xhat[tau], alive[tau], int(graph[tau]), gains=g[tau], wall_ms=1.5, attempts=1,
                 rejected=tau % 2)
     rec.close()
@@ -119,6 +122,17 @@ def test_loss_clears_every_series_and_marks_the_axis(tmp_path):
     # at the height of the log10 max error of that row (visible next to the curves)
     lmax = dict(series["errors_log10/max"])
     assert series["marks/graph_switch"][0][1] == pytest.approx(lmax[20], abs=1e-12)
+
+
+def test_a_mark_waits_for_its_own_row(tmp_path):
+    """A background flush between a graph switch (logged with the tick) and that event time's row: the mark
+    still stands at the height of its own row (CI once saw the previous row's height)."""
+    record(tmp_path, "discrete", flush_seconds=NEVER, envelope_rate=LAM["discrete"], flush_before_row_20=True)
+    series = read_rrd(tmp_path / "run.rrd")
+    lmax = dict(series["errors_log10/max"])
+    assert [tau for tau, _ in series["marks/graph_switch"]] == [20]
+    assert series["marks/graph_switch"][0][1] == pytest.approx(lmax[20], abs=1e-12)
+    assert lmax[20] != pytest.approx(lmax[19], abs=1e-6)  # the two heights differ: the test can tell them apart
 
 
 def test_event_texts_are_short_complete_sentences():
