@@ -38,7 +38,7 @@ import numpy as np
 from splitspec_core import steps as st
 from splitspec_core.designer import design_agent, riccati_weights
 from splitspec_core.scenario_model import parse_scenario_text
-from splitspec_core.plant_model import initial_estimate
+from splitspec_core.plant_model import initial_estimate, output_rows
 from splitspec_core.runtime.wire import Keys, WireError, decode, encode
 
 log = logging.getLogger("splitspec.agent")
@@ -97,9 +97,8 @@ class AgentNode:
         self.zbuf: dict = {}  # (tau, attempt, k) -> {j: z_j}
         self.xbuf: dict = {}  # (tau, attempt of round tau - 1) -> {j: x_j(tau)}: the next round's z_j(0)
         self.ybuf: dict = {}  # tau -> y_i(tau)
-        offsets = np.cumsum([0] + [C.shape[0] for C in sc.system.Cs])
-        self.y_rows = slice(int(offsets[self.index]), int(offsets[self.index + 1]))  # y_i in the stacked y
-        self.y_size = int(offsets[-1])
+        self.y_rows = output_rows(sc.system.Cs)[self.index]  # y_i in the stacked y of the plant
+        self.y_size = sum(C.shape[0] for C in sc.system.Cs)
         self.rejected: dict = {}
 
     # ------------------------------------------------------------------ helpers
@@ -178,18 +177,36 @@ class AgentNode:
             out.append(self._z(0, self.round["z"]))
         return out + self._advance()
 
-    def on_z(self, key: str, payload: bytes) -> list:
+    def _from_neighbour(self, msg_type: str, field: str, key: str, payload: bytes) -> dict | None:
+        """A neighbour's z or x message, decoded, from the agent its key names, with an n-vector; else counted."""
         try:
-            m = decode(payload, self.run_id, "z", mac_key=self.mac_key)
+            m = decode(payload, self.run_id, msg_type, mac_key=self.mac_key)
         except WireError as e:
             self.reject(e.reason)
-            return []
-        sender = Keys.last(key)
-        if str(m["agent"]) != sender:
+            return None
+        if str(m["agent"]) != Keys.last(key):
             self.reject("wrong_sender")
-            return []
-        if m["z"].shape != (self.n,):
+            return None
+        if m[field].shape != (self.n,):
             self.reject("bad_shape")
+            return None
+        return m
+
+    def _store(self, buf: dict, tag: tuple, agent: int, value: np.ndarray) -> list:
+        """Buffer a neighbour's vector under ``tag`` (one per agent and tag, at most ``zbuf_limit`` in ``buf``)."""
+        slot = buf.get(tag)
+        if slot is not None and agent in slot:
+            self.reject("duplicate")
+            return []
+        if sum(len(v) for v in buf.values()) >= self.zbuf_limit:
+            self.reject("buffer_full")
+            return []
+        buf.setdefault(tag, {})[agent] = value
+        return self._advance()
+
+    def on_z(self, key: str, payload: bytes) -> list:
+        m = self._from_neighbour("z", "z", key, payload)
+        if m is None:
             return []
         r = self.round
         tag = (m["tau"], m["attempt"])
@@ -205,15 +222,7 @@ class AgentNode:
             if m["tau"] > t_tau + 1 or (m["tau"] == t_tau and m["attempt"] > t_att + 2):
                 self.reject("future")
                 return []
-        slot = self.zbuf.get((m["tau"], m["attempt"], m["k"]))
-        if slot is not None and m["agent"] in slot:
-            self.reject("duplicate")
-            return []
-        if sum(len(v) for v in self.zbuf.values()) >= self.zbuf_limit:
-            self.reject("buffer_full")
-            return []
-        self.zbuf.setdefault((m["tau"], m["attempt"], m["k"]), {})[m["agent"]] = m["z"]
-        return self._advance()
+        return self._store(self.zbuf, (m["tau"], m["attempt"], m["k"]), m["agent"], m["z"])
 
     def on_y(self, payload: bytes) -> list:
         try:
@@ -241,16 +250,8 @@ class AgentNode:
 
     def on_x(self, key: str, payload: bytes) -> list:
         """A neighbour's new estimate x_j(tau) (its report to the orchestrator): the next round's z_j(0)."""
-        try:
-            m = decode(payload, self.run_id, "xhat", mac_key=self.mac_key)
-        except WireError as e:
-            self.reject(e.reason)
-            return []
-        if str(m["agent"]) != Keys.last(key):
-            self.reject("wrong_sender")
-            return []
-        if m["x"].shape != (self.n,):
-            self.reject("bad_shape")
+        m = self._from_neighbour("xhat", "x", key, payload)
+        if m is None:
             return []
         if self.tick_tag is not None:
             t_tau, t_att = self.tick_tag
@@ -261,15 +262,7 @@ class AgentNode:
             if m["attempt"] > t_att + 2:
                 self.reject("future")
                 return []
-        slot = self.xbuf.get((m["tau"], m["attempt"]), {})
-        if m["agent"] in slot:
-            self.reject("duplicate")
-            return []
-        if sum(len(v) for v in self.xbuf.values()) >= self.zbuf_limit:
-            self.reject("buffer_full")
-            return []
-        self.xbuf.setdefault((m["tau"], m["attempt"]), {})[m["agent"]] = m["x"]
-        return self._advance()
+        return self._store(self.xbuf, (m["tau"], m["attempt"]), m["agent"], m["x"])
 
     # ------------------------------------------------------------------ the round
 

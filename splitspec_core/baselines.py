@@ -340,7 +340,7 @@ class KalmanConsensusFilter:
             self.P[i] = 0.5 * (Pn + Pn.T)
         return xhat @ self.F.T
 
-    def run(self, ys: np.ndarray, X0: np.ndarray, offsets: Sequence[int]) -> np.ndarray:
+    def run(self, ys: np.ndarray, X0: np.ndarray, rows: Sequence[slice]) -> np.ndarray:
         """Priors of every agent over a run, starting from :meth:`reset`.
 
         Parameters
@@ -349,9 +349,8 @@ class KalmanConsensusFilter:
             Stacked measurements ``y(0), ..., y(T - 2)``.
         X0 : (m, n) array
             Initial priors ``xbar_i(0)``.
-        offsets : sequence of int
-            ``m + 1`` row offsets of the agents' blocks in a stacked ``y``
-            (``[0, s_1, s_1 + s_2, ...]``).
+        rows : sequence of slice
+            Each agent's rows in a stacked ``y`` (:func:`splitspec_core.plant_model.output_rows`).
 
         Returns
         -------
@@ -364,9 +363,8 @@ class KalmanConsensusFilter:
         self.reset()
         out = np.zeros((ys.shape[0] + 1,) + X.shape)
         out[0] = X
-        cuts = list(zip(offsets[:-1], offsets[1:]))
         for k, y in enumerate(ys):
-            X = self.step(X, [y[a:b] for a, b in cuts])
+            X = self.step(X, [y[r] for r in rows])
             out[k + 1] = X
         return out
 
@@ -429,4 +427,4 @@ def baseline_trajectories(sc: Scenario, seed: int, *, exchanges: int, steps: int
     Rs = [sigma2 * np.eye(Ci.shape[0]) for Ci in plant.Cs]
     kcf = KalmanConsensusFilter(F, plant.Cs, Q, Rs, neighbours, eps=eps, exchanges=exchanges)
     dt = sc.run.dt if sc.time == "continuous" else 1.0
-    return {"t": np.arange(T) * dt, "x": xs, "centralized": central, "kcf": kcf.run(ys, X0, plant.offsets)}
+    return {"t": np.arange(T) * dt, "x": xs, "centralized": central, "kcf": kcf.run(ys, X0, plant.rows)}

@@ -18,7 +18,13 @@ from . import steps as st
 from .scenario_model import Scenario
 from .streams import stream
 
-__all__ = ["Plant", "initial_estimate", "initial_state"]
+__all__ = ["Plant", "initial_estimate", "initial_state", "output_rows"]
+
+
+def output_rows(Cs) -> list:
+    """``[slice of y_i in the stacked y = (y_1, ..., y_m)]`` in agent order (``C = [C_1; ...; C_m]``)."""
+    offsets = np.cumsum([0] + [np.shape(C)[0] for C in Cs])
+    return [slice(int(a), int(b)) for a, b in zip(offsets[:-1], offsets[1:])]
 
 
 def initial_state(sc: Scenario, seed: int) -> np.ndarray:
@@ -47,7 +53,7 @@ class Plant:
     def __init__(self, sc: Scenario, seed: int, *, noise: bool = True):
         self.Cs = [np.asarray(C) for C in sc.system.Cs]
         self.C = np.vstack(self.Cs)
-        self.offsets = np.cumsum([0] + [C.shape[0] for C in self.Cs])
+        self.rows = output_rows(self.Cs)
         self.sigma_m = sc.system.measurement_noise if noise else 0.0
         sigma_p = sc.system.process_noise if noise else 0.0
         if sc.time == "continuous":
@@ -67,7 +73,7 @@ class Plant:
 
     def split(self, y: np.ndarray) -> list:
         """``[y_1, ..., y_m]`` from the stacked vector."""
-        return [y[a:b] for a, b in zip(self.offsets[:-1], self.offsets[1:])]
+        return [y[r] for r in self.rows]
 
     def advance(self) -> np.ndarray:
         self.x = self.F @ self.x + self.L @ self.proc.normal(size=self.x.shape[0])

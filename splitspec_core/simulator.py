@@ -36,7 +36,7 @@ from . import steps as st
 from .designer import Design
 from .errors import ScenarioError
 from .network import NetworkState, Plan, make_plan
-from .plant_model import Plant, initial_estimate, initial_state
+from .plant_model import Plant, initial_estimate, initial_state, output_rows
 from .scenario_model import Scenario
 from .trajfile import write_trajectory
 
@@ -262,14 +262,14 @@ class AgentLoopEstimator(_EstimatorBase):
 
     def __init__(self, des: Design):
         super().__init__(des)
-        self.offsets = np.cumsum([0] + [C.shape[0] for C in self.Cs])
+        self.rows = output_rows(self.Cs)
 
     def weights(self, rows: dict) -> dict:
         return rows
 
     def step(self, X: np.ndarray, y: np.ndarray, rows: dict, alive: np.ndarray) -> np.ndarray:
         pos = {a: k for k, a in enumerate(self.sc.agent_ids)}
-        ys = [y[a:b] for a, b in zip(self.offsets[:-1], self.offsets[1:])]
+        ys = [y[r] for r in self.rows]
         Xn = np.zeros_like(X)
         if self.continuous:
             g_next = self.g.copy()

@@ -8,6 +8,7 @@ from splitspec_core.baselines import (KalmanConsensusFilter, baseline_trajectori
                                       run_predictor, sampled_model)
 from splitspec_core.designer import design
 from splitspec_core.errors import DesignError
+from splitspec_core.plant_model import output_rows
 from splitspec_core.scenario_model import load_scenario
 from splitspec_core.simulator import simulate
 from tests.conftest import EXAMPLES
@@ -185,7 +186,7 @@ def test_kcf_default_eps_converges_on_a_path_graph():
     ys = xs[:-1] @ np.vstack(Cs).T
     X0 = rng.normal(size=(3, 4))
     kcf = KalmanConsensusFilter(F, Cs, 0.01 * np.eye(4), [0.01 * np.eye(1)] * 3, nbs)
-    out = kcf.run(ys, X0, [0, 1, 2, 3])
+    out = kcf.run(ys, X0, output_rows([[[1]], [[1]], [[1]]]))  # three single-row agents
     assert out.shape == (T, 3, 4) and np.array_equal(out[0], X0)
     e = np.linalg.norm(out - xs[:, None, :], axis=2).max(axis=1)
     assert e[-1] < 1e-6 * e[0]
