@@ -39,6 +39,8 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from splitspec_orchestrator import registry
+
 ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:  # tests.chaos.cases (the chaos primitives and cases)
     sys.path.insert(0, str(ROOT))
@@ -126,7 +128,7 @@ def kill_latency(tmp: Path, runs: int, cli: list, run_id: str = "rbench000") -> 
             victim = subprocess.Popen([sys.executable, "-c", SLEEPER, "splitspec-bench-agent"])
             time.sleep(0.05)  # the entry is written after the process started, as the orchestrator does
             entry = {"run_id": run_id, "orchestrator": {"pid": orch.pid}, "out": str(tmp), "host": os.uname().nodename,
-                     "started": time.time(), "agents": {"1": {"pid": victim.pid, "host": os.uname().nodename}}}
+                     "started": time.time(), "written": registry.now_mark(), "agents": {"1": {"pid": victim.pid, "host": os.uname().nodename}}}
             (rt / f"{run_id}.{orch.pid}.json").write_text(json.dumps(entry))
             time.sleep(0.2)  # quiet
             t0 = time.perf_counter()

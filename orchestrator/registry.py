@@ -5,7 +5,7 @@ The orchestrator keeps one small JSON file per run in the runtime directory
 ``/tmp/splitspec-<uid>``; created 0700), named ``<run_id>.<orchestrator pid>.json``::
 
     {"run_id": ..., "endpoint": ..., "out": ..., "host": ..., "started": <unix time>,
-     "orchestrator": {"pid": ...}, "plant": {"pid": ..., "host": ...},
+     "written": {"boot_id": ..., "ticks": <kernel clock ticks when written>}, "orchestrator": {"pid": ...}, "plant": {"pid": ..., "host": ...},
      "agents": {"3": {"pid": ..., "host": ...}, ...}}
 
 It is rewritten atomically whenever a process starts (a restarted agent has
@@ -26,6 +26,7 @@ from __future__ import annotations
 import json
 import os
 import tempfile
+import threading
 import time
 from pathlib import Path
 
@@ -85,22 +86,43 @@ def pid_running(pid: int) -> bool:
         return True
 
 
-def _start_time(pid: int) -> float | None:
-    """Wall-clock start of ``pid`` from /proc (rounded down: boot time is in whole seconds)."""
+def _start_ticks(path: str) -> int | None:
+    """Field 22 (starttime, clock ticks since boot) of a /proc ``stat`` file."""
     try:
-        with open(f"/proc/{pid}/stat") as f:
-            ticks = int(f.read().rsplit(")", 1)[-1].split()[19])  # field 22, starttime
-        with open("/proc/stat") as f:
-            btime = next(int(line.split()[1]) for line in f if line.startswith("btime "))
-        return btime + ticks / os.sysconf("SC_CLK_TCK")
-    except (OSError, ValueError, IndexError, StopIteration):
+        with open(path) as f:
+            return int(f.read().rsplit(")", 1)[-1].split()[19])
+    except (OSError, ValueError, IndexError):
         return None
 
 
-def is_own_splitspec_process(pid: int, *, started_before: float | None = None) -> bool:
-    """``pid`` is a live splitspec process of this user (started no later than ``started_before``).
+def _boot_id() -> str | None:
+    try:
+        with open("/proc/sys/kernel/random/boot_id") as f:
+            return f.read().strip()
+    except OSError:
+        return None
 
-    The guard against a reused pid before signalling one read from the registry.
+
+def now_mark() -> dict:
+    """This instant on the kernel's own process clock: ``{"boot_id", "ticks"}``.
+
+    The ticks are the start time of a thread created now, read from /proc exactly as a process's start is
+    read, so comparing the two involves no wall clock (on CI a VM's wall clock, stepped or restored from
+    a snapshot, placed a fresh process more than 10 s in the future of time.time()).
+    """
+    box = []
+    t = threading.Thread(target=lambda: box.append(_start_ticks(f"/proc/self/task/{threading.get_native_id()}/stat")))
+    t.start()
+    t.join()
+    return {"boot_id": _boot_id(), "ticks": box[0] if box else None}
+
+
+def is_own_splitspec_process(pid: int, *, started_before: dict | None = None) -> bool:
+    """``pid`` is a live splitspec process of this user (started no later than the mark ``started_before``).
+
+    The guard against a reused pid before signalling one read from the registry: ``started_before`` is
+    the entry's :func:`now_mark` when it was written (a mark of another boot, or a process that started
+    more than a second after it, is not the process the entry names).
     """
     try:
         pid = int(pid)
@@ -110,14 +132,13 @@ def is_own_splitspec_process(pid: int, *, started_before: float | None = None) -
             cmd = f.read()
     except (OSError, ValueError, TypeError, OverflowError):
         return False
-    if b"splitspec_orchestrator" not in cmd and b"splitspec" not in cmd:
+    if b"splitspec" not in cmd:
         return False
-    if started_before is not None:
-        t0 = _start_time(pid)
-        # 10 s of slack: /proc/stat's boot time is in whole seconds and the wall clock may have been slewed or
-        # stepped since boot (on CI a process started at once was placed more than 1 s in the future); a
-        # reused pid belongs to a process started long after the entry was written
-        if t0 is None or t0 > started_before + 10.0:
+    if isinstance(started_before, dict) and isinstance(started_before.get("ticks"), int):
+        if started_before.get("boot_id") != _boot_id():
+            return False
+        t0 = _start_ticks(f"/proc/{pid}/stat")
+        if t0 is None or t0 > started_before["ticks"] + os.sysconf("SC_CLK_TCK"):
             return False
     return True
 
@@ -137,7 +158,7 @@ class RunRegistry:
             self.dir.mkdir(parents=True, exist_ok=True, mode=0o700)
             fd, tmp = tempfile.mkstemp(dir=self.dir, prefix=".reg-")
             with os.fdopen(fd, "w") as f:
-                json.dump(self.data, f)
+                json.dump({**self.data, "written": now_mark()}, f)
             os.replace(tmp, self.path)
         except OSError:
             pass  # the registry is a convenience; a run never fails because of it
@@ -159,8 +180,7 @@ def _own_dir(d: Path) -> bool:
 def find_runs(run_id: str) -> list:
     """Registry entries of this user's live orchestrators for ``run_id`` (``*``: every run).
 
-    Each entry gets ``_written`` (the file's modification time). Files of other users are
-    ignored; stale files (orchestrator gone) are removed.
+    Files of other users are ignored; stale files (orchestrator gone) are removed.
     """
     d = runtime_dir()
     if not _own_dir(d):
@@ -174,12 +194,11 @@ def find_runs(run_id: str) -> list:
                 continue  # not ours: never trusted, never removed
             data = json.loads(p.read_text())
             pid = int(data["orchestrator"]["pid"])
-            data["_written"] = st.st_mtime
         except (OSError, ValueError, KeyError, TypeError):
             continue
         if run_id != "*" and data.get("run_id") != run_id:
             continue
-        if not is_own_splitspec_process(pid, started_before=st.st_mtime):
+        if not is_own_splitspec_process(pid, started_before=data.get("written")):
             try:
                 p.unlink()
             except OSError:

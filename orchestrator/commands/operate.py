@@ -55,7 +55,7 @@ def cmd_kill(args: argparse.Namespace) -> int:
     what = {"plant": "the plant", "orchestrator": "the orchestrator"}.get(role, f"agent {ident}")
     if host and host != socket.gethostname():
         raise UsageError(f"{what} runs on host {host} (pid {pid}), not here: run splitspec kill there")
-    if not is_own_splitspec_process(pid, started_before=entry["_written"]):
+    if not is_own_splitspec_process(pid, started_before=entry.get("written")):
         raise UsageError(f"{what} (pid {pid}) of run {rid!r} is not running any more (that pid is not a "
                          "splitspec process of yours now); nothing signalled")
     sig = getattr(signal, SIGNALS[args.signal])

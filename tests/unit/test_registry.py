@@ -55,7 +55,7 @@ def dummy(procs, role="agent"):
 def write_entry(rt, run_id, orch_pid, agents=(), **extra):
     path = rt / f"{run_id}.{orch_pid}.json"
     path.write_text(json.dumps({"run_id": run_id, "orchestrator": {"pid": orch_pid}, "out": f"/tmp/out-{run_id}",
-                                "host": os.uname().nodename, "started": time.time(),
+                                "host": os.uname().nodename, "started": time.time(), "written": registry.now_mark(),
                                 "agents": {str(i): {"pid": pid, "host": os.uname().nodename}
                                            for i, pid in agents}, **extra}))
     return path
@@ -148,8 +148,11 @@ def test_a_reused_pid_is_never_signalled(rt, procs, capsys):
     assert alive(plain) and alive(foreign) and alive(orch)
     # a splitspec process of this user that started after the entry was written is not the one it names
     late = dummy(procs)
-    assert registry.is_own_splitspec_process(late.pid, started_before=time.time())
-    assert not registry.is_own_splitspec_process(late.pid, started_before=time.time() - 60)  # beyond the slack
+    mark = registry.now_mark()
+    assert registry.is_own_splitspec_process(late.pid, started_before=mark)
+    tick = os.sysconf("SC_CLK_TCK")
+    assert not registry.is_own_splitspec_process(late.pid, started_before={**mark, "ticks": mark["ticks"] - 3 * tick})
+    assert not registry.is_own_splitspec_process(late.pid, started_before={**mark, "boot_id": "another boot"})
     assert not registry.is_own_splitspec_process(plain.pid) and not registry.is_own_splitspec_process(foreign.pid)
 
 
