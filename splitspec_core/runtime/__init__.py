@@ -1,6 +1,6 @@
 """The process runtime: what the agent, plant and orchestrator processes need and the math never does.
 
-- :mod:`.wire`: the message codec (msgpack payloads, HMAC trailers, key names built in one place).
+- :mod:`.wire`: the message codec (binary round messages, msgpack for the rest, MAC trailers, key names built in one place).
 - :mod:`.bus`: the Zenoh session, bounded inboxes, liveliness and the process shell ``NodeShell``.
 - :mod:`.security`: the per-process Zenoh users, passwords and access-control policy of a secure run.
 

@@ -8,10 +8,10 @@
   frozen one is found by the orchestrator's status probe, not by the lease.
   Keep-alives come from Zenoh's own threads, so a busy Python process is
   never mistaken for a frozen one;
-* :class:`Inbox` holds every subscriber and checks each message's MAC trailer
-  in its callback (a microsecond; forged messages are dropped there and
-  counted).  A message then goes either straight to a handler in that
-  callback thread (the plant's and the agents' protocol messages, see
+* :class:`Inbox` holds every subscriber and checks each queued message's MAC
+  trailer in its callback (half a microsecond; forged messages are dropped
+  there and counted).  A message goes either straight to a handler in that
+  callback thread, which verifies it as it decodes (the plant's and the agents' protocol messages, see
   :class:`splitspec_core.runtime.node.NodeShell`) or into one bounded,
   thread-safe queue that a single event loop empties in order (the
   orchestrator; control and presence everywhere).  The queue holds at most
@@ -164,7 +164,7 @@ class Inbox:
         def cb(sample, _c=channel, _signed=signed, _fixed=fixed, _direct=direct):
             payload = sample.payload.to_bytes()
             mk = inbox.mac_key
-            if _signed and mk is not None:
+            if _signed and mk is not None and _direct is None:  # a direct handler verifies as it decodes
                 if len(payload) <= MAC_BYTES or not hmac.compare_digest(mac(mk, payload[:-MAC_BYTES]),
                                                                         payload[-MAC_BYTES:]):
                     inbox._drop("bad_mac")
