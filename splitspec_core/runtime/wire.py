@@ -280,8 +280,11 @@ def _encode_binary(msg_type: str, run_id: str, fields: dict) -> bytes:
     a = np.ascontiguousarray(fields[vec], dtype="<f8")
     if a.ndim != 1:
         raise ValueError(f"{msg_type}.{vec} must be a vector, got shape {a.shape}")
-    body = _BIN[msg_type].pack(BINARY_MAGIC, SCHEMA_VERSION, code, run_tag(run_id),
-                               *(fields[n] for n in names), a.size) + a.tobytes()
+    try:
+        body = _BIN[msg_type].pack(BINARY_MAGIC, SCHEMA_VERSION, code, run_tag(run_id),
+                                   *(fields[n] for n in names), a.size) + a.tobytes()
+    except struct.error as exc:  # a field of the wrong type or out of its range: the caller's bug
+        raise TypeError(f"{msg_type}: {exc} ({', '.join(f'{n}={fields[n]!r}' for n in names)})") from None
     for name in maps:
         body += msgpack.packb(fields[name], use_bin_type=True)
     return body

@@ -379,7 +379,7 @@ def flood(endpoint: str, run_id: str, *, seconds: float = 3.0, rate: float = 50_
             (keys.y, encode("y", run_id, tau=f, attempt=att, y=np.zeros(y_dim))),
             (keys.z(agent), encode("z", run_id, tau=f, attempt=att, k=0, agent=agent, z=np.zeros(n))),
             (keys.xhat(other), encode("xhat", run_id, tau=f, attempt=att, agent=other, incarnation=0, x=np.zeros(n),
-                                      g=None, rejected={})),
+                                      g=1.0, rejected={})),
             (keys.truth, encode("truth", run_id, tau=f, attempt=att, x=np.zeros(n), rejected={})),
             (keys.tick, encode("tick", run_id, tau=f, attempt=att, graph=0, final=False, alive=[], rows={},
                                incarnation={}, fresh=False, prev_attempt=0)),

@@ -148,5 +148,9 @@ def test_encode_refuses_what_the_layout_does_not_hold():
         encode("z", RUN, tau=1, attempt=0, k=0, z=V)  # no agent
     with pytest.raises(TypeError, match="takes the fields"):
         encode("y", RUN, tau=1, attempt=0, y=V, extra=1)
+    with pytest.raises(TypeError, match="g=None"):
+        encode("xhat", RUN, **{**ROUND["xhat"], "g": None})
+    with pytest.raises(TypeError, match="tau=" + str(2 ** 63)):
+        encode("z", RUN, **{**ROUND["z"], "tau": 2 ** 63})
     with pytest.raises(ValueError, match="must be a vector"):
         encode("y", RUN, tau=1, attempt=0, y=np.zeros((2, 3)))
