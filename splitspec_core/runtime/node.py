@@ -1,9 +1,14 @@
 """The process shell of a plant or agent: session, identity claim, configuration, publishing, the loop.
 
 The node itself (``AgentNode``, ``PlantNode``) is I/O-free: messages in, messages out.  This shell
-opens the Zenoh session (:mod:`.bus`), claims the process's identity with the orchestrator, fetches
-the scenario and the run's key, hands each message to the node in the subscriber's callback thread
-(one at a time, under a lock) and publishes what the node returns.
+opens the Zenoh sessions (:mod:`.bus`), claims the process's identity with the orchestrator, fetches
+the scenario and the run's key, hands each message to the node on Zenoh's network thread (one at a
+time, under a lock) and publishes what the node returns.  Two sessions, two links to the router: the
+data session carries the protocol, control and the liveliness token (one link, so the token is seen
+only after the subscriptions are in place); the health session only answers the orchestrator's
+``status`` queries, so a flood on the data link, which the network thread works through in order,
+never makes a busy process look frozen (chaos flood case: with one session, every agent was declared
+frozen).
 """
 
 from __future__ import annotations
@@ -47,9 +52,13 @@ class NodeShell:
             from .security import read_credentials
 
             kw["user"], kw["password"] = read_credentials(credentials)
-        self.session = open_session("client", connect=[connect], connect_timeout_ms=int(max(wait, 1.0) * 1000),
-                                    lease_ms=lease_ms_for(role), **kw)
+        opts = dict(connect=[connect], connect_timeout_ms=int(max(wait, 1.0) * 1000), lease_ms=lease_ms_for(role), **kw)
+        self.session = open_session("client", **opts)
+        # the status queryable's own session (its own link): protocol messages are handled on the data
+        # link's network thread, so a flood there must not queue the orchestrator's status queries behind it
+        self.health = open_session("client", **opts)
         self.inbox = Inbox(self.session)
+        self.health_inbox = Inbox(self.health)
         self.pubs: dict = {}
         self._looping = False
         self._closing = False
@@ -93,7 +102,7 @@ class NodeShell:
             raise IdentityRefused(f"{self.who} of run {self.keys.run_id!r} refused: {refusal['reason']}")
         cfg = decode(raw, self.keys.run_id, "config")
         self.mac_key = self.inbox.mac_key = cfg["key"]
-        self.inbox.serve(self.keys.status(self.role, self.ident, self.nonce), lambda _q: hello)
+        self.health_inbox.serve(self.keys.status(self.role, self.ident, self.nonce), lambda _q: hello)
         return cfg
 
     def publish(self, items) -> None:
@@ -184,7 +193,9 @@ class NodeShell:
 
     def close(self) -> None:
         self.inbox.close()
-        try:
-            self.session.close()
-        except Exception as exc:  # noqa: BLE001 - leaving anyway
-            self.log.warning("closing the Zenoh session: %s", str(exc).split(" at ")[0])
+        self.health_inbox.close()
+        for session in (self.session, self.health):
+            try:
+                session.close()
+            except Exception as exc:  # noqa: BLE001 - leaving anyway
+                self.log.warning("closing the Zenoh session: %s", str(exc).split(" at ")[0])

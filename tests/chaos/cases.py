@@ -492,7 +492,10 @@ def case_flood(tmp: Path, *, rate: float = 50_000, seconds: float = 3.0) -> dict
     for who, mb in growth.items():
         assert mb < FLOOD_RSS_BOUND_MB, f"{who} grew by {mb:.1f} MB during the flood ({rss.before} -> {rss.peak})"
     rej, lines = _rejected(r.out)
-    assert set(rej) == {"bad_mac"}, rej
+    # the forgeries are all refused for their MAC; a round re-run after a timeout (a machine this loaded
+    # can starve every process for 0.3 s) also refuses its first attempt's late messages as stale
+    retried = any(e["event"] == "round_retried" for e in events(r.out))
+    assert set(rej) - ({"stale"} if retried else set()) == {"bad_mac"}, (rej, retried)
     # at most one summary per process (orchestrator, plant, 3 agents) and reason per second
     secs = _run_seconds(r.out)
     assert lines <= 5 * (secs + 2), (lines, secs)
