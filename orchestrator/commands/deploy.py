@@ -21,8 +21,11 @@ def _announce_run_id(args: argparse.Namespace) -> None:
 
 
 def cmd_orchestrator(args: argparse.Namespace) -> int:
+    from splitspec_core.runtime.cli import die_with_parent
+
     from ..driver import main as orch_main
 
+    die_with_parent()  # started by `splitspec run`: go when it goes
     _announce_run_id(args)
     return orch_main(args)
 
