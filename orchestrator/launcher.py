@@ -4,8 +4,9 @@ Starts the orchestrator (embedded Zenoh router on a free loopback port,
 multicast scouting off), the plant and one process per agent, supervises
 them, forwards Ctrl-C, and leaves no process behind on any exit path:
 
-* every child asks the kernel for SIGTERM when the launcher dies
-  (``PR_SET_PDEATHSIG``), even if the launcher is SIGKILLed;
+* every child asks the kernel for SIGTERM when its parent dies
+  (``PR_SET_PDEATHSIG``, :func:`splitspec_core.runtime.cli.die_with_parent`),
+  even if the parent is SIGKILLed;
 * agents and plant exit by themselves when the orchestrator's liveliness
   token disappears;
 * on the way out the launcher terminates, then kills, whatever is left.
@@ -34,7 +35,7 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
-def _die_with_parent() -> None:  # runs in the child between fork and exec
+def _die_with_parent() -> None:  # runs in the child between fork and exec (the viewer: not a Python process of ours)
     try:
         ctypes.CDLL("libc.so.6", use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGTERM)
     except OSError:
@@ -57,8 +58,16 @@ ONE_BLAS_THREAD = {k: "1" for k in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "
 
 
 def spawn(args: list, *, env: dict | None = None) -> subprocess.Popen:
-    env = {**(os.environ if env is None else env), **ONE_BLAS_THREAD}
-    return subprocess.Popen(args, preexec_fn=_die_with_parent, env=env, stdin=subprocess.DEVNULL)
+    """Start a splitspec process (``args`` from :func:`cli_command` or :func:`node_command`).
+
+    No ``preexec_fn``: the child asks for SIGTERM at our death itself (it finds our pid in
+    :data:`~splitspec_core.runtime.cli.PARENT_ENV`), so ``subprocess`` can vfork instead of copying this
+    process's memory map for each of m + 1 children.
+    """
+    from splitspec_core.runtime.cli import PARENT_ENV
+
+    env = {**(os.environ if env is None else env), **ONE_BLAS_THREAD, PARENT_ENV: str(os.getpid())}
+    return subprocess.Popen(args, env=env, stdin=subprocess.DEVNULL)
 
 
 def stop_all(procs: list, *, grace: float = 5.0) -> None:

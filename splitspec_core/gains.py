@@ -32,7 +32,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.linalg as sla
 
 from .errors import AssumptionError, DesignError
 from .observability import Decomposition
@@ -159,6 +158,8 @@ def riccati_gain(
     process_weight: float = 1.0, measurement_weight: float = 1.0,
 ) -> LocalGain:
     """Shifted steady-state Kalman gain on the observable part (see the module docstring)."""
+    import scipy.linalg as sla  # here only: an agent with pole placement imports no scipy
+
     r = dec.n_observable
     s = dec.Cbar.shape[0]
     if r == 0:

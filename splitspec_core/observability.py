@@ -35,7 +35,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.linalg as sla
 
 from .errors import AssumptionError
 
@@ -115,7 +114,8 @@ def _complement(W: np.ndarray) -> np.ndarray:
     n, r = W.shape
     if r == 0:
         return np.eye(n)
-    Qfull, _ = sla.qr(W, mode="full")
+    # numpy's QR (LAPACK dgeqrf + dorgqr, as scipy.linalg.qr): an agent process then needs no scipy
+    Qfull, _ = np.linalg.qr(W, mode="complete")
     return Qfull[:, r:]
 
 

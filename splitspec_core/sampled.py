@@ -12,7 +12,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-import scipy.linalg as sla
 
 from . import bounds
 from .scenario_model import Scenario
@@ -28,6 +27,8 @@ def sampled_rates(sc: Scenario, agents, cases, g: float) -> dict:
     :func:`bounds.sampled_decay`.  Both are exact for the discretisation used
     by ``simulate`` and ``run`` (see :mod:`splitspec_core.steps`).
     """
+    import scipy.linalg as sla  # here only: the agents import this module (through the designer) but never call it
+
     dt = sc.run.dt
     E, D, _ = sampled_data_matrices(sc.system.A, dt)
     Cs = dict(zip(sc.agent_ids, sc.system.Cs))

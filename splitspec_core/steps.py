@@ -32,7 +32,6 @@ from __future__ import annotations
 from typing import Sequence
 
 import numpy as np
-import scipy.linalg as sla
 
 __all__ = [
     "weighted_average",
@@ -73,6 +72,8 @@ def measurement_update(z_q: np.ndarray, F_i: np.ndarray, K_i: np.ndarray, y_i: n
 def sampled_data_matrices(A: np.ndarray, dt: float, *, noise_intensity: float = 0.0) -> tuple:
     """``(E, D, Qd)`` for step ``dt``: ``E = exp(A dt)``, ``D = int_0^dt exp(A s) ds`` and the
     process-noise covariance ``Qd = sigma^2 int_0^dt exp(A s) exp(A s)' ds`` (Van Loan)."""
+    import scipy.linalg as sla  # here only: a discrete-time agent imports no scipy
+
     n = A.shape[0]
     M = np.zeros((2 * n, 2 * n))
     M[:n, :n] = A

@@ -92,6 +92,14 @@ def zenoh_config(mode: str, *, listen: list | None = None, connect: list | None 
             timeout = connect_timeout_ms if connect_timeout_ms is not None else (-1 if mode != "client" else 30000)
             c.insert_json5("connect/timeout_ms", str(int(timeout)))
         c.insert_json5("scouting/multicast/enabled", "false")
+        if mode == "router" and not connect:
+            # a router sleeps scouting/delay (500 ms) in open() to hear of peers; with multicast scouting off
+            # and none to connect to there is nothing to hear, and the run's processes start only after it
+            c.insert_json5("scouting/delay", "0")
+        # no shared memory: Zenoh would otherwise put every message >= 3 KB between processes of one
+        # host (a config reply from m = 16 agents on) into the sender's 16 MB pool, and every receiver
+        # maps the whole pool (16 MB more RSS per agent); the messages here are a few KB at most
+        c.insert_json5("transport/shared_memory/enabled", "false")
         c.insert_json5("transport/link/tx/lease", str(int(lease_ms)))
         c.insert_json5("transport/link/tx/keep_alive", "4")
         if user is not None:

@@ -117,3 +117,39 @@ def test_node_bad_argument_is_one_line(tmp_path, pkg):
                        cwd=tmp_path, capture_output=True, text=True, env={**os.environ, "RERUN_ANALYTICS": "0"})
     assert r.returncode == 2 and r.stderr.count("\n") == 1, r.stderr
     assert r.stderr.startswith("splitspec: error: ") and "--wait must be a number" in r.stderr, r.stderr
+
+
+#: what no plant or agent process of a discrete-time scenario with pole placement or explicit gains loads
+#: (scipy: about 30 MB of RSS per process; the plotting, recording and simulation modules: the orchestrator's)
+NODE_NEVER = ("scipy", "matplotlib", "rerun", "pyarrow", "splitspec_orchestrator", "splitspec_core.simulator",
+              "splitspec_core.baselines", "splitspec_core.noise", "splitspec_core.report")
+
+
+@pytest.mark.parametrize("example", ["ring10.yaml", "paper_discrete.yaml"])
+def test_a_node_imports_only_what_it_uses(tmp_path, example):
+    """A fresh interpreter with everything an agent and the plant load up to their first round: their entry
+    modules and shell, the scenario and the local design from the config, the first tick (``yaml`` stays:
+    the config carries the scenario's text, parsed once)."""
+    code = f"""
+import sys
+from pathlib import Path
+from splitspec_agents.agent import AgentNode, cli_main
+from splitspec_plant.plant import PlantNode, cli_main as plant_main
+from splitspec_core.runtime.node import NodeShell
+from splitspec_core.runtime.wire import encode, new_run_key
+key = new_run_key()
+cfg = {{"scenario": Path({str(ROOT / "examples" / example)!r}).read_text(), "seed": 7, "g": None, "q": 3,
+        "g_mode": None, "key": key}}
+agent, plant = AgentNode(1, cfg, "r"), PlantNode(cfg, "r")
+ids = agent.sc.agent_ids
+tick = encode("tick", "r", mac_key=key, tau=0, attempt=0, graph=0, final=False, alive=ids,
+              rows={{str(i): [[i], [1.0]] for i in ids}}, incarnation={{str(i): 0 for i in ids}}, fresh=True,
+              prev_attempt=0)
+assert agent.on_tick(tick) and plant.on_tick(tick)
+never = {NODE_NEVER!r}
+print(sorted(m for m in sys.modules if any(m == n or m.startswith(n + ".") for n in never)))
+"""
+    r = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, capture_output=True, text=True,
+                       env={**os.environ, "RERUN_ANALYTICS": "0"})
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.strip() == "[]", r.stdout

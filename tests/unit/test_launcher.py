@@ -1,0 +1,48 @@
+"""launcher.spawn: the processes of a run die with the process that started them (PR_SET_PDEATHSIG, asked for by
+the child itself, so that spawning can vfork)."""
+
+import os
+import signal
+import subprocess
+import sys
+import time
+
+from splitspec_orchestrator.launcher import spawn
+from splitspec_orchestrator.registry import pid_running
+from splitspec_core.runtime.cli import PARENT_ENV
+
+CHILD = "from splitspec_core.runtime.cli import die_with_parent; die_with_parent(); import time; time.sleep(60)"
+
+
+def test_a_spawned_process_dies_with_its_parent_even_a_sigkilled_one():
+    parent = ("import os, signal, sys\n"
+              "from splitspec_orchestrator.launcher import spawn\n"
+              f"p = spawn([sys.executable, '-c', {CHILD!r}])\n"
+              "print(p.pid, flush=True)\n"
+              "import time; time.sleep(1.0)\n"  # the child has asked for the signal by then
+              "os.kill(os.getpid(), signal.SIGKILL)\n")
+    r = subprocess.run([sys.executable, "-c", parent], capture_output=True, text=True, timeout=60)
+    assert r.returncode == -signal.SIGKILL, r.stderr
+    child = int(r.stdout.split()[0])
+    deadline = time.monotonic() + 10
+    while pid_running(child) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert not pid_running(child)
+
+
+def test_a_process_whose_parent_is_already_gone_stops_at_once():
+    """The parent died while the child's interpreter was starting: the pid it left is no longer the child's parent."""
+    p = subprocess.Popen([sys.executable, "-c", CHILD], env={**os.environ, PARENT_ENV: "1"})
+    assert p.wait(timeout=60) == -signal.SIGTERM
+
+
+def test_a_spawned_process_keeps_running_and_its_own_children_do_not_inherit_the_parent():
+    code = ("import os, sys\n"
+            "from splitspec_core.runtime.cli import PARENT_ENV, die_with_parent\n"
+            "assert os.environ[PARENT_ENV] == str(os.getppid())\n"
+            "die_with_parent()\n"
+            "print(os.environ.get(PARENT_ENV))\n")
+    r = subprocess.run([sys.executable, "-c", f"import subprocess, sys; from splitspec_orchestrator.launcher import spawn; "
+                        f"p = spawn([sys.executable, '-c', {code!r}]); sys.exit(p.wait())"],
+                       capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0 and r.stdout.strip() == "None", (r.stdout, r.stderr)
