@@ -50,6 +50,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import random
 import re
 import signal
 import socket
@@ -307,10 +308,25 @@ def child(a) -> int:
 
 # --------------------------------------------------------------------------- parent
 
+_taken: set = set()
+
+
 def free_port() -> int:
-    with socket.socket() as so:
-        so.bind(("127.0.0.1", 0))
-        return so.getsockname()[1]
+    """A free port below the kernel's ephemeral range, so that no outgoing connection takes it before the child
+    listens on it (with ports from the ephemeral range, one of 34 listeners of a run lost that race now and then)."""
+    lo = int(Path("/proc/sys/net/ipv4/ip_local_port_range").read_text().split()[0])
+    rng = random.Random()
+    while True:
+        port = rng.randrange(max(1024, lo - 12000), lo)
+        if port in _taken:
+            continue
+        with socket.socket() as so:
+            try:
+                so.bind(("127.0.0.1", port))
+            except OSError:
+                continue
+        _taken.add(port)
+        return port
 
 
 def proc_cpu(pid: int) -> float:
