@@ -184,7 +184,8 @@ class Inbox:
             else:
                 inbox._offer((_c, k, payload))
 
-        handler = zenoh.handlers.Callback(cb, indirect=False) if direct is not None else cb
+        # drop=None given positionally: eclipse-zenoh 1.3 (our lower bound) requires it
+        handler = zenoh.handlers.Callback(cb, None, indirect=False) if direct is not None else cb
         self._subs.append(self.session.declare_subscriber(key, handler))
 
     def serve_deferred(self, key: str, channel: str) -> None:
