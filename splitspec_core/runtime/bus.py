@@ -10,8 +10,9 @@
   never mistaken for a frozen one;
 * :class:`Inbox` holds every subscriber and checks each queued message's MAC
   trailer in its callback (half a microsecond; forged messages are dropped
-  there and counted).  A message goes either straight to a handler in that
-  callback thread, which verifies it as it decodes (the plant's and the agents' protocol messages, see
+  there and counted).  A message goes either straight to a handler on
+  Zenoh's network thread, which verifies it as it decodes (the plant's and
+  the agents' protocol messages, see
   :class:`splitspec_core.runtime.node.NodeShell`) or into one bounded,
   thread-safe queue that a single event loop empties in order (the
   orchestrator; control and presence everywhere).  The queue holds at most
