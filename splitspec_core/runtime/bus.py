@@ -22,7 +22,6 @@
 
 from __future__ import annotations
 
-import hmac
 import json
 import os
 import queue
@@ -33,7 +32,7 @@ from typing import Any, Callable
 import zenoh
 
 from ..errors import SplitspecError
-from .wire import MAC_BYTES, mac
+from .wire import WireError, verify
 
 __all__ = ["zenoh_config", "open_session", "Inbox", "BusError", "IdentityRefused", "query_all",
            "lease_ms_for", "LIVELINESS_PUT", "LIVELINESS_DELETE", "INBOX_LIMIT"]
@@ -175,8 +174,9 @@ class Inbox:
             payload = sample.payload.to_bytes()
             mk = inbox.mac_key
             if _signed and mk is not None and _direct is None:  # a direct handler verifies as it decodes
-                if len(payload) <= MAC_BYTES or not hmac.compare_digest(mac(mk, payload[:-MAC_BYTES]),
-                                                                        payload[-MAC_BYTES:]):
+                try:
+                    verify(payload, mk)
+                except WireError:
                     inbox._drop("bad_mac")
                     return
             k = _fixed if _fixed is not None else str(sample.key_expr)

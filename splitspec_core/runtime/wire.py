@@ -12,8 +12,7 @@ Two encodings, one API (:func:`encode`, :func:`decode`):
   (``benchmarks/bench_wire.py``);
 * the rest (``tick``, ``control``, ``config``, ``hello``, ``refused``) are
   msgpack maps with the schema version ``v``, the run id ``run``, the
-  message ``type`` and its fields; arrays travel as
-  ``{"shape": [...], "data": <float64 little-endian bytes>}``.
+  message ``type`` and its fields (no arrays).
 
 :func:`decode` validates everything (version, type, run id, fields and their
 ranges, lengths to the byte, shapes, finiteness) and raises
@@ -71,8 +70,8 @@ import numpy as np
 
 from ..errors import SplitspecError
 
-__all__ = ["SCHEMA_VERSION", "DEFAULT_RUN_ID", "Keys", "WireError", "encode", "decode", "pack_array",
-           "unpack_array", "MESSAGE_FIELDS", "MAC_BYTES", "new_run_key", "new_nonce", "mac", "verify", "UNSIGNED",
+__all__ = ["SCHEMA_VERSION", "DEFAULT_RUN_ID", "Keys", "WireError", "encode", "decode",
+           "MESSAGE_FIELDS", "MAC_BYTES", "new_run_key", "new_nonce", "mac", "verify",
            "BINARY_LAYOUT", "run_tag"]
 
 # 2: one y message for every agent; x_i(tau + 1) doubles as the next z_i(0); 3: binary round messages
@@ -186,53 +185,18 @@ def mac(key: bytes, body: bytes) -> bytes:
 
 
 # --------------------------------------------------------------------------
-# arrays
-# --------------------------------------------------------------------------
-
-
-def pack_array(a) -> dict:
-    a = np.ascontiguousarray(a, dtype="<f8")
-    return {"shape": list(a.shape), "data": a.tobytes()}
-
-
-def unpack_array(obj, field: str, *, shape: tuple | None = None, finite: bool = True) -> np.ndarray:
-    if not isinstance(obj, dict) or set(obj) != {"shape", "data"}:
-        raise WireError("bad_field", f"{field} is not an array")
-    shp, data = obj["shape"], obj["data"]
-    if (not isinstance(shp, list) or not all(isinstance(d, int) and not isinstance(d, bool) and 0 <= d < 1 << 20
-                                             for d in shp) or not isinstance(data, bytes)):
-        raise WireError("bad_field", f"{field} has a malformed shape or data")
-    if len(data) != 8 * math.prod(shp):
-        raise WireError("bad_shape", f"{field}: {len(data)} bytes for shape {shp}")
-    a = np.frombuffer(data, dtype="<f8").reshape(shp).astype(float)
-    if shape is not None and a.shape != tuple(shape):
-        raise WireError("bad_shape", f"{field} has shape {a.shape}, expected {tuple(shape)}")
-    if finite and not np.all(np.isfinite(a)):
-        raise WireError("non_finite", f"{field} has NaN or inf")
-    return a
-
-
-# --------------------------------------------------------------------------
 # messages
 # --------------------------------------------------------------------------
 
-#: required fields (name -> kind) per message type; kinds: int, float, str, array, any
+#: required fields (name -> kind) of the msgpack messages; the round messages' are in :data:`BINARY_LAYOUT`
 MESSAGE_FIELDS = {
     "tick": {"tau": "int", "attempt": "int", "graph": "int", "alive": "list", "rows": "map", "final": "bool",
              "incarnation": "map", "fresh": "bool", "prev_attempt": "int"},
-    "y": {"tau": "int", "attempt": "int", "y": "array"},
-    "truth": {"tau": "int", "attempt": "int", "x": "array", "rejected": "map"},
-    "z": {"tau": "int", "attempt": "int", "k": "int", "agent": "int", "z": "array"},
-    "xhat": {"tau": "int", "attempt": "int", "agent": "int", "incarnation": "int", "x": "array", "g": "float",
-             "rejected": "map"},
     "control": {"cmd": "str"},
     "config": {"scenario": "str", "seed": "int", "g": "any", "q": "any", "g_mode": "any", "key": "bytes"},
     "refused": {"reason": "str", "holder_pid": "int", "holder_host": "str"},
     "hello": {"role": "str", "id": "int", "pid": "int", "host": "str", "nonce": "str"},
 }
-
-#: message types sent before the key is known (no trailer)
-UNSIGNED = frozenset({"config", "refused", "hello"})
 
 _CHECK = {
     "int": lambda v: isinstance(v, int) and not isinstance(v, bool),
@@ -241,7 +205,6 @@ _CHECK = {
     "bool": lambda v: isinstance(v, bool),
     "list": lambda v: isinstance(v, list),
     "map": lambda v: isinstance(v, dict),
-    "array": lambda v: isinstance(v, dict),
     "bytes": lambda v: isinstance(v, bytes),
     "any": lambda v: True,
 }
@@ -336,15 +299,12 @@ def encode(msg_type: str, run_id: str, *, mac_key: bytes | None = None, **fields
     """Encode a message; with ``mac_key`` the MAC trailer is appended.
 
     Round messages (:data:`BINARY_LAYOUT`) take exactly their fields, the vector as any 1-D float
-    array; the others are msgpack maps whose numpy arrays become packed arrays.
+    array; the others are msgpack maps of plain values.
     """
     if msg_type in BINARY_LAYOUT:
         raw = _encode_binary(msg_type, run_id, fields)
         return raw if mac_key is None else raw + mac(mac_key, raw)
-    body = {"v": SCHEMA_VERSION, "run": run_id, "type": msg_type}
-    for k, v in fields.items():
-        body[k] = pack_array(v) if isinstance(v, np.ndarray) else v
-    raw = msgpack.packb(body, use_bin_type=True)
+    raw = msgpack.packb({"v": SCHEMA_VERSION, "run": run_id, "type": msg_type, **fields}, use_bin_type=True)
     return raw if mac_key is None else raw + mac(mac_key, raw)
 
 
@@ -362,9 +322,8 @@ def decode(payload: bytes, run_id: str, expected_type: str, *, mac_key: bytes | 
     """Decode and validate one message of ``expected_type`` for ``run_id``.
 
     With ``mac_key`` the message must carry a valid trailer (:func:`verify`).
-    Arrays are returned as float64 numpy arrays (finite).  Shapes are checked
-    by the caller, which knows them (``unpack`` already guarantees
-    consistency between shape and data).
+    A round message's vector is returned as a finite float64 1-D array; its
+    length is checked by the caller, which knows it.
 
     Raises
     ------
@@ -397,5 +356,5 @@ def decode(payload: bytes, run_id: str, expected_type: str, *, mac_key: bytes | 
         v = body[name]
         if not _CHECK[kind](v):
             raise WireError("bad_field", name)
-        out[name] = unpack_array(v, name) if kind == "array" else v
+        out[name] = v
     return out
