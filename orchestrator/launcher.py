@@ -14,7 +14,6 @@ them, forwards Ctrl-C, and leaves no process behind on any exit path:
 
 from __future__ import annotations
 
-import ctypes
 import logging
 import os
 import signal
@@ -24,22 +23,15 @@ import sys
 import time
 from pathlib import Path
 
-log = logging.getLogger("splitspec.run")
+from splitspec_core.runtime.cli import PARENT_ENV
 
-PR_SET_PDEATHSIG = 1
+log = logging.getLogger("splitspec.run")
 
 
 def free_port() -> int:
     with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
-
-
-def _die_with_parent() -> None:  # runs in the child between fork and exec (the viewer: not a Python process of ours)
-    try:
-        ctypes.CDLL("libc.so.6", use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGTERM)
-    except OSError:
-        pass
 
 
 def cli_command(*args: str) -> list:
@@ -64,8 +56,6 @@ def spawn(args: list, *, env: dict | None = None) -> subprocess.Popen:
     :data:`~splitspec_core.runtime.cli.PARENT_ENV`), so ``subprocess`` can vfork instead of copying this
     process's memory map for each of m + 1 children.
     """
-    from splitspec_core.runtime.cli import PARENT_ENV
-
     env = {**(os.environ if env is None else env), **ONE_BLAS_THREAD, PARENT_ENV: str(os.getpid())}
     return subprocess.Popen(args, env=env, stdin=subprocess.DEVNULL)
 

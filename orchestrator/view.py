@@ -28,8 +28,9 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from splitspec_core.errors import ScenarioError, SplitspecError
+from splitspec_core.runtime.cli import sigterm_at_parent_death
 
-from .launcher import _die_with_parent, free_port
+from .launcher import free_port
 
 log = logging.getLogger("splitspec.view")
 
@@ -156,7 +157,7 @@ def start_web_viewer(rrd: Path, *, port: int | None = None, grpc_port: int | Non
     env = {**os.environ, "RERUN_ANALYTICS": os.environ.get("RERUN_ANALYTICS", "0")}
     proc = subprocess.Popen(web_viewer_command(rrd, web_port=web_port, grpc_port=grpc_port), env=env,
                             stdin=subprocess.DEVNULL, stdout=log_file, stderr=subprocess.STDOUT,
-                            start_new_session=True, preexec_fn=_die_with_parent)
+                            start_new_session=True, preexec_fn=sigterm_at_parent_death)
     viewer = WebViewer(web_port, grpc_port, viewer_url(web_port, grpc_port), proc.pid)
     deadline = time.monotonic() + timeout
     page = f"http://{LOOPBACK}:{web_port}/"
@@ -197,7 +198,7 @@ def serve(rrd: Path, *, port: int | None = None, grpc_port: int | None = None, s
 
 def open_native(rrd: Path) -> int:
     """``rerun rrd`` in the foreground (Ctrl-C reaches it through the terminal); its exit status."""
-    proc = subprocess.Popen([rerun_executable(), str(rrd)], stdin=subprocess.DEVNULL, preexec_fn=_die_with_parent)
+    proc = subprocess.Popen([rerun_executable(), str(rrd)], stdin=subprocess.DEVNULL, preexec_fn=sigterm_at_parent_death)
     try:
         return proc.wait()
     except KeyboardInterrupt:  # the viewer got the same SIGINT from the terminal; make sure it is gone

@@ -22,7 +22,7 @@ from ..errors import SplitspecError
 __all__ = ["ArgumentParser", "EXIT_BAD_INPUT", "EXIT_FAILED", "MAX_SECONDS", "MAX_SEED", "UsageError",
            "add_logging_options", "add_node_options", "at_least", "error_boundary", "positive", "seed",
            "add_run_id_option", "node_cli", "setup_logging", "integer", "default_wait", "DEFAULT_WAIT",
-           "PARENT_ENV", "die_with_parent"]
+           "PARENT_ENV", "die_with_parent", "sigterm_at_parent_death"]
 
 EXIT_BAD_INPUT = 2
 EXIT_FAILED = 1
@@ -47,18 +47,24 @@ def die_with_parent() -> None:
     died before the request (this interpreter was starting) is no longer this process's parent: SIGTERM now.
     """
     parent = os.environ.pop(PARENT_ENV, None)
-    if not parent:
+    if not parent or not sigterm_at_parent_death():
         return
+    if str(os.getppid()) != parent:
+        import signal
+
+        os.kill(os.getpid(), signal.SIGTERM)
+
+
+def sigterm_at_parent_death() -> bool:
+    """Ask the kernel for SIGTERM when this process's parent dies (``PR_SET_PDEATHSIG``); False if it cannot."""
+    import ctypes
     import signal
 
     try:
-        import ctypes
-
         ctypes.CDLL("libc.so.6", use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGTERM)
     except (OSError, AttributeError):
-        return
-    if str(os.getppid()) != parent:
-        os.kill(os.getpid(), signal.SIGTERM)
+        return False
+    return True
 
 
 def default_wait(m: int) -> float:
