@@ -97,8 +97,8 @@ class AgentNode:
         self.zbuf: dict = {}  # (tau, attempt, k) -> {j: z_j}
         self.xbuf: dict = {}  # (tau, attempt of round tau - 1) -> {j: x_j(tau)}: the next round's z_j(0)
         self.ybuf: dict = {}  # tau -> y_i(tau)
-        self.y_rows = output_rows(sc.system.Cs)[self.index]  # y_i in the stacked y of the plant
-        self.y_size = sum(C.shape[0] for C in sc.system.Cs)
+        rows = output_rows(sc.system.Cs)
+        self.y_rows, self.y_size = rows[self.index], rows[-1].stop  # y_i in the plant's stacked y, its length
         self.rejected: dict = {}
 
     # ------------------------------------------------------------------ helpers
