@@ -184,7 +184,7 @@ def _flush_open_recorders() -> None:
         try:
             with rec._io, rec._lock:  # waits for a background flush under way
                 if not rec._closed and rec._failure is None:
-                    rec._flush()
+                    rec._flush(final=True)  # the last flush: a mark still waiting for its row goes too
                     # run.rrd with its footer, as a Rerun FileSink would leave it; nothing is recorded after this
                     rec._closed = True
                     rec._stop.set()
@@ -549,7 +549,7 @@ class Recorder:
             with self._lock:
                 self._check_open("flush")
                 self._check_failed()
-            self._flush(final=True)
+            self._flush()  # not the last: a mark whose row is not recorded yet still waits for it
 
     def close(self, *, finished: bool = True) -> None:
         """Flush, write ``trajectory.npz`` with the rows so far, finish ``run.rrd`` and ``events.jsonl``.
@@ -709,11 +709,11 @@ class Recorder:
                 log.warning("background flush failed (%s: %s)", type(exc).__name__, exc)
         return True
 
-    def _flush(self, upto: int | None = None, *, final: bool = False) -> None:
+    def _flush(self, *, final: bool = False) -> None:
         """Take what was recorded (under ``_lock``, memory only), then write it out (``_io`` held, not ``_lock``).
 
-        ``upto``: take only the rows before it (new rows; changed rows are always taken).  The
-        writes: rows, then queued logs, to Rerun and ``run.rrd``; then ``trajectory.npz`` --
+        ``final``: the recording's last flush (close, exit, salvage): marks whose row never came are
+        written too.  The writes: rows, then queued logs, to Rerun and ``run.rrd``; then ``trajectory.npz`` --
         ``run.rrd`` first, so ``trajectory.npz`` never holds a row that ``run.rrd`` lacks.
 
         Raises
@@ -724,7 +724,7 @@ class Recorder:
         with self._io:
             self._d.reserve(self._s.rows)  # any growth of the taken rows outside _lock
             with self._lock:
-                taken = self._take(upto, final=final)
+                taken = self._take(None, final=final)
             self._write(*taken)
 
     def _take(self, upto: int | None, *, final: bool = False) -> tuple:
@@ -744,8 +744,9 @@ class Recorder:
         # a mark stands at the height of its own row's max error: one whose row is not taken yet (the
         # topology of tau arrives before its row) waits for the next flush (close() takes them all)
         last = int(self._s.tau[T - 1]) if T else None
-        ready = [mk for mk in self._queued_marks if final or (last is not None and mk[0] <= last)]
-        later = [mk for mk in self._queued_marks if mk not in ready] if len(ready) < len(self._queued_marks) else []
+        ready, later = [], []
+        for mk in self._queued_marks:
+            (ready if final or (last is not None and mk[0] <= last) else later).append(mk)
         taken = (K, self._queued_events, self._queued_topology, ready, self._queued_clears)
         self._queued_events, self._queued_topology, self._queued_marks, self._queued_clears = [], [], later, []
         return taken

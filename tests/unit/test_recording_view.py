@@ -37,7 +37,7 @@ def rows(seed: int = 3):
 
 
 def record(out, time_mode: str, *, flush_seconds: float, envelope_rate, positions=None,
-           flush_before_row_20: bool = False) -> None:
+           flush_before_row_20: str | None = None) -> None:
     x, xhat, alive, graph, g = rows()
     rec = Recorder(out, agent_ids=IDS, n=N, steps=T - 1, time_mode=time_mode, dt=DT, graph_names=("a", "b"),
                    run_id="view", scenario_name="view", flush_seconds=flush_seconds, envelope_rate=envelope_rate,
@@ -53,8 +53,8 @@ def record(out, time_mode: str, *, flush_seconds: float, envelope_rate, position
             rec.event("agent_rejoined", t_of(14), id=2, tau=14, incarnation=1)
         if tau == 20:
             rec.event("graph_switched", t_of(20), graph="b", previous="a")
-            if flush_before_row_20:  # the background flush running between the switch and its row
-                rec._flush()
+            if flush_before_row_20:  # a flush between the switch and its row (background or flush())
+                rec._flush() if flush_before_row_20 == "background" else rec.flush()
         rec.row(tau, x[tau], xhat[tau], alive[tau], int(graph[tau]), gains=g[tau], wall_ms=1.5, attempts=1,
                 rejected=tau % 2)
     rec.close()
@@ -124,15 +124,33 @@ def test_loss_clears_every_series_and_marks_the_axis(tmp_path):
     assert series["marks/graph_switch"][0][1] == pytest.approx(lmax[20], abs=1e-12)
 
 
-def test_a_mark_waits_for_its_own_row(tmp_path):
-    """A background flush between a graph switch (logged with the tick) and that event time's row: the mark
-    still stands at the height of its own row (CI once saw the previous row's height)."""
-    record(tmp_path, "discrete", flush_seconds=NEVER, envelope_rate=LAM["discrete"], flush_before_row_20=True)
+@pytest.mark.parametrize("flush", ["background", "flush()"])
+def test_a_mark_waits_for_its_own_row(tmp_path, flush):
+    """A flush (the background one, or a caller's flush()) between a graph switch (logged with the tick) and
+    that event time's row: the mark still stands at the height of its own row (CI once saw the previous row's
+    height)."""
+    record(tmp_path, "discrete", flush_seconds=NEVER, envelope_rate=LAM["discrete"], flush_before_row_20=flush)
     series = read_rrd(tmp_path / "run.rrd")
     lmax = dict(series["errors_log10/max"])
     assert [tau for tau, _ in series["marks/graph_switch"]] == [20]
     assert series["marks/graph_switch"][0][1] == pytest.approx(lmax[20], abs=1e-12)
     assert lmax[20] != pytest.approx(lmax[19], abs=1e-6)  # the two heights differ: the test can tell them apart
+
+
+def test_a_mark_still_waiting_for_its_row_is_written_at_exit(tmp_path):
+    """The interpreter's exit flush (a run that never called close) writes a mark whose row never came."""
+    from splitspec_orchestrator.recorder import _flush_open_recorders
+
+    x, xhat, alive, graph, g = rows()
+    rec = Recorder(tmp_path, agent_ids=IDS, n=N, steps=T - 1, time_mode="discrete", dt=DT, graph_names=("a", "b"),
+                   run_id="exit", scenario_name="exit", flush_seconds=NEVER, envelope_rate=LAM["discrete"])
+    rec.topology(0, "a", IDS, [(1, 2), (2, 5), (5, 1)])
+    for tau in range(5):
+        rec.row(tau, x[tau], xhat[tau], alive[tau], 0)
+    rec.event("graph_switched", 5.0, graph="b", previous="a")  # its row 5 never comes
+    _flush_open_recorders()
+    series = read_rrd(tmp_path / "run.rrd")
+    assert [tau for tau, _ in series["marks/graph_switch"]] == [5]
 
 
 def test_event_texts_are_short_complete_sentences():
