@@ -7,6 +7,7 @@ index columns are named after their timeline, data columns ``Archetype:field``.
 from __future__ import annotations
 
 import math
+import re
 from pathlib import Path
 
 from splitspec_orchestrator.blueprint import EVENTS, STATE, TL_EVENT, TOPOLOGY
@@ -17,6 +18,10 @@ __all__ = ["read_rrd", "read_rrd_vectors", "read_rrd_state", "read_rrd_logs", "r
 _COL_SCALARS = "Scalars:scalars"
 _COL_CLEAR = "Clear:is_recursive"
 _COL_ROW_ID = "rerun.controls.RowId"
+
+
+#: the entities that hold one batch of values per row (every agent's k-th state component)
+BATCH_ENTITY = re.compile(r"state/\d+/agents")
 
 
 def read_rrd(path: str | Path) -> dict[str, list[tuple[int, float]]]:
@@ -30,8 +35,14 @@ def read_rrd(path: str | Path) -> dict[str, list[tuple[int, float]]]:
     hold a batch per row (``state/<k>/agents``) are in :func:`read_rrd_vectors`
     and :func:`read_rrd_state`, not here.
     """
-    return {entity: [(ev, float(vals[0])) for ev, vals in rows]
-            for entity, rows in read_rrd_vectors(path).items() if all(len(v) == 1 for _, v in rows)}
+    out = {}
+    for entity, rows in read_rrd_vectors(path).items():
+        if BATCH_ENTITY.fullmatch(entity):
+            continue
+        if not all(len(v) == 1 for _, v in rows):  # a series logged as a batch by mistake is an error, not absent
+            raise RecordingError(f"{entity}: a scalar series holds a batch of values")
+        out[entity] = [(ev, float(vals[0])) for ev, vals in rows]
+    return out
 
 
 def read_rrd_vectors(path: str | Path) -> dict[str, list[tuple[int, list[float]]]]:
