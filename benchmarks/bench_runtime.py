@@ -114,14 +114,6 @@ def deliveries_new(m: int, q: int) -> int:
     return (m + 1) + m + 1 + 2 * m * (q - 1) + 3 * m  # = 3m + 2 + 2mq on a ring
 
 
-def publishes_old(m: int, q: int) -> int:
-    return 2 * m + 2 + m * q
-
-
-def publishes_new(m: int, q: int) -> int:
-    return 3 + m * q
-
-
 def ring_scenario(m: int, q: int, steps: int) -> dict:
     from splitspec_core.generate import random_system
 
@@ -178,12 +170,10 @@ class RssSampler:
 
 def run_ring(python: str, cwd: Path, scenario: Path, out: Path, run_id: str, wait: float) -> dict:
     sampler = RssSampler(run_id)
-    cpu0 = _children_cpu()
     t0 = time.time()
     r = subprocess.run([python, "-m", "splitspec_orchestrator", "run", str(scenario), "--out", str(out),
                         "--run-id", run_id, "--wait", str(wait)], cwd=cwd, env=ENV, capture_output=True, text=True,
                        timeout=1800)
-    cpu = _children_cpu() - cpu0  # every process of the run (the orchestrator waits for its children)
     rss = sampler.stop()
     if r.returncode != 0:
         raise RuntimeError(f"run failed ({r.returncode}): {r.stderr[-2000:]}")
@@ -191,8 +181,8 @@ def run_ring(python: str, cwd: Path, scenario: Path, out: Path, run_id: str, wai
     fin = next(e for e in ev if e["event"] == "run_finished")
     started = next(e for e in ev if e["event"] == "run_started")
     ready = [e["startup_s"] for e in ev if e["event"] == "process_ready" and "startup_s" in e]
-    return {"ms": 1e3 / fin["rounds_per_second"], "startup": started["wall"] - t0, "cpu_s": cpu,
-            "ready_max": max(ready) if ready else None, "ready_median": statistics.median(ready) if ready else None,
+    return {"ms": 1e3 / fin["rounds_per_second"], "startup": started["wall"] - t0,
+            "ready_max": max(ready) if ready else None,
             "agent_mb": max(rss.get("agent", [0])), "orch_mb": max(rss.get("orchestrator", [0]))}
 
 
@@ -205,6 +195,10 @@ def main() -> int:
     ap.add_argument("--bare-messages", type=int, default=5000)
     ap.add_argument("--baseline", type=Path, help="an older checkout with its own .venv, run interleaved")
     args = ap.parse_args()
+    if args.baseline is not None and not (args.baseline / ".venv/bin/python").is_file():
+        ap.error(f"--baseline {args.baseline}: no .venv/bin/python there (make -C {args.baseline} setup)")
+    if min(args.sizes) < 3 or min(args.q) < 1:
+        ap.error("--sizes must be rings of at least 3 agents and --q at least 1")
     tmp = Path(tempfile.mkdtemp(prefix="bench_runtime_"))
     print(f"# {os.cpu_count()} cpus; load average {Path('/proc/loadavg').read_text().split()[:3]}", flush=True)
     bare = [bare_cpu_per_delivery(args.bare_messages) for _ in range(args.repeat)]

@@ -83,8 +83,9 @@ def test_every_loss_clears_the_agents_series_and_is_marked(ring10):
         a, tau = e["id"], e["tau"]
         for path in [f"errors/agent_{a}", f"errors_log10/agent_{a}"]:
             assert tau in clears.get(path, []), (path, clears.get(path))
-        for k in range(1, N + 1):  # no estimate drawn at the loss: NaN in the state batch
+        for k in range(1, N + 1):  # no estimate drawn at the loss: NaN in the state batch, beside recorded ones
             assert tau not in dict(state[f"state/{k}/agent_{a}"])
+            assert tau in dict(state[f"state/{k}/truth"]) and tau in dict(state[f"state/{k}/agent_1"])
     series = read_rrd(rrd)
     assert [tau for tau, _ in series["marks/lost"]] == [10, 20]
     assert [tau for tau, _ in series["marks/rejoined"]] == [30, 35]

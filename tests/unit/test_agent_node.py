@@ -96,9 +96,10 @@ def test_estimates_of_an_aborted_attempt_are_not_taken_as_z0():
     a = node()
     a.on_tick(tick(0))
     run_round(a, 0, z0_from_x=False)
-    a.on_x("splitspec/r/xhat/1", xhat(1, 1, attempt=0, value=9.0))  # round 0, attempt 0: re-run later
+    # the kept attempt's estimate arrives first, the aborted one last: arrival order cannot decide
     a.on_x("splitspec/r/xhat/1", xhat(1, 1, attempt=1, value=1.0))  # round 0, attempt 1: the one kept
     a.on_x("splitspec/r/xhat/3", xhat(1, 3, attempt=1, value=3.0))
+    a.on_x("splitspec/r/xhat/1", xhat(1, 1, attempt=0, value=9.0))  # round 0, attempt 0: re-run later
     a.on_tick(tick(1, fresh=False, prev_attempt=1))
     assert a._neighbour_states(0)[1][0] == 1.0  # rows [2, 1, 3]: agent 1's z(0) is its attempt-1 estimate
 

@@ -145,7 +145,9 @@ ids = agent.sc.agent_ids
 tick = encode("tick", "r", mac_key=key, tau=0, attempt=0, graph=0, final=False, alive=ids,
               rows={{str(i): [[i], [1.0]] for i in ids}}, incarnation={{str(i): 0 for i in ids}}, fresh=True,
               prev_attempt=0)
-assert agent.on_tick(tick) and plant.on_tick(tick)
+assert agent.on_tick(tick)
+y = dict(plant.on_tick(tick))[agent.keys.y]
+assert any("xhat" in k for k, _ in agent.on_y(y))  # a whole round: the step functions ran
 never = {NODE_NEVER!r}
 print(sorted(m for m in sys.modules if any(m == n or m.startswith(n + ".") for n in never)))
 """

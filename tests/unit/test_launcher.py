@@ -7,19 +7,25 @@ import subprocess
 import sys
 import time
 
-from splitspec_orchestrator.launcher import spawn
 from splitspec_orchestrator.registry import pid_running
 from splitspec_core.runtime.cli import PARENT_ENV
 
 CHILD = "from splitspec_core.runtime.cli import die_with_parent; die_with_parent(); import time; time.sleep(60)"
 
 
-def test_a_spawned_process_dies_with_its_parent_even_a_sigkilled_one():
-    parent = ("import os, signal, sys\n"
+def test_a_spawned_process_dies_with_its_parent_even_a_sigkilled_one(tmp_path):
+    ready = tmp_path / "ready"
+    # the child says when it has asked for the signal; only then is the parent killed (before it, the child's
+    # own check of its parent would stop it, and the test could not tell the signal from that check)
+    child = ("import sys; from splitspec_core.runtime.cli import die_with_parent; die_with_parent(); "
+             "open(sys.argv[1], 'w').close(); import time; time.sleep(60)")
+    parent = ("import os, signal, sys, time\n"
+              "from pathlib import Path\n"
               "from splitspec_orchestrator.launcher import spawn\n"
-              f"p = spawn([sys.executable, '-c', {CHILD!r}])\n"
+              f"p = spawn([sys.executable, '-c', {child!r}, {str(ready)!r}])\n"
               "print(p.pid, flush=True)\n"
-              "import time; time.sleep(1.0)\n"  # the child has asked for the signal by then
+              f"while not Path({str(ready)!r}).exists():\n"
+              "    time.sleep(0.01)\n"
               "os.kill(os.getpid(), signal.SIGKILL)\n")
     r = subprocess.run([sys.executable, "-c", parent], capture_output=True, text=True, timeout=60)
     assert r.returncode == -signal.SIGKILL, r.stderr
@@ -32,7 +38,8 @@ def test_a_spawned_process_dies_with_its_parent_even_a_sigkilled_one():
 
 def test_a_process_whose_parent_is_already_gone_stops_at_once():
     """The parent died while the child's interpreter was starting: the pid it left is no longer the child's parent."""
-    p = subprocess.Popen([sys.executable, "-c", CHILD], env={**os.environ, PARENT_ENV: "1"})
+    # pid 0 is nobody's parent (1 would be, for a child reparented to init or a test run as pid 1)
+    p = subprocess.Popen([sys.executable, "-c", CHILD], env={**os.environ, PARENT_ENV: "0"})
     assert p.wait(timeout=60) == -signal.SIGTERM
 
 
