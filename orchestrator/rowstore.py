@@ -106,11 +106,15 @@ class RowStore:
         err = np.linalg.norm(self.xhat[K] - self.x[K][:, None, :], axis=2)
         return err, self.alive[K] & np.isfinite(err)
 
+    def max_errors(self, K: np.ndarray) -> np.ndarray:
+        """``max_i |x_i - x|`` over the shown agents of rows ``K`` (alive, finite error); -inf where none."""
+        err, show = self.row_errors(K)
+        return np.where(show, err, -np.inf).max(axis=1)
+
     def max_error(self, k: int) -> float:
         """``max_i |x_i - x|`` over the alive agents of row ``k`` (NaN if none)."""
-        e = np.linalg.norm(self.xhat[k] - self.x[k], axis=1)[self.alive[k]]
-        e = e[np.isfinite(e)]
-        return float(e.max()) if e.size else math.nan
+        e = float(self.max_errors(np.array([k]))[0])
+        return e if math.isfinite(e) else math.nan
 
     def envelope(self, K: np.ndarray, lam: float | None, time_mode: str) -> np.ndarray:
         """The designed envelope at rows ``K`` (sorted; every earlier row already has its piece's start).
@@ -142,8 +146,7 @@ class RowStore:
         hi = min(max(int(np.searchsorted(self.tau[:T], tau, side="right")), 1), T)
         while hi > 0:
             lo = max(0, hi - 256)
-            err = np.linalg.norm(self.xhat[lo:hi] - self.x[lo:hi, None, :], axis=2)
-            err = np.where(self.alive[lo:hi] & np.isfinite(err), err, -np.inf).max(axis=1)
+            err = self.max_errors(np.arange(lo, hi))
             ok = np.nonzero(err > 0)[0]
             if ok.size:
                 return math.log10(float(err[ok[-1]]))
