@@ -114,7 +114,8 @@ def deliveries_new(m: int, q: int) -> int:
     return (m + 1) + m + 1 + 2 * m * (q - 1) + 3 * m  # = 3m + 2 + 2mq on a ring
 
 
-def ring_scenario(m: int, q: int, steps: int) -> dict:
+def runtime_ring(m: int, q: int, steps: int) -> dict:
+    """The benchmark's ring (random_system, any m >= 3; generate.ring_scenario needs m >= 2 ceil(n / 2))."""
     from splitspec_core.generate import random_system
 
     A, Cs = random_system(np.random.default_rng(8), m, 6, time="discrete")
@@ -213,7 +214,7 @@ def main() -> int:
     for m in args.sizes:
         for q in args.q:
             path = tmp / f"ring{m}-q{q}.yaml"
-            path.write_text(yaml.safe_dump(ring_scenario(m, q, args.steps)))
+            path.write_text(yaml.safe_dump(runtime_ring(m, q, args.steps)))
             res: dict = {name: [] for name, _, _ in variants}
             for k in range(args.repeat):
                 for name, python, cwd in variants:  # interleaved: new, old, new, old

@@ -114,29 +114,23 @@ def ring_system(rng: np.random.Generator, m: int, n: int, *, time: str = "discre
     return _rotated(rng, A, Cs, rotate)
 
 
-def ring_arcs(m: int, *, undirected: bool = True) -> list:
-    """Arcs ``(j, i)`` (0-based) of the ring ``0 -> 1 -> ... -> m-1 -> 0`` (and back when undirected).
+def ring_arcs(m: int) -> list:
+    """Arcs ``(j, i)`` (0-based) of the undirected ring ``0 - 1 - ... - m-1 - 0`` (both directions).
 
-    The undirected ring is redundantly strongly connected: without any one agent it is a path.
+    It is redundantly strongly connected: without any one agent it is a path.
     """
     arcs = {(k, (k + 1) % m) for k in range(m)} if m > 1 else set()
-    if undirected:
-        arcs |= {(i, j) for j, i in arcs}
-    return sorted(arcs)
+    return sorted(arcs | {(i, j) for j, i in arcs})
 
 
 def ring_scenario(m: int, n: int = 10, *, time: str = "discrete", resilience: int = 0, seed: int = 0,
-                  rate: float | None = None, q_method: str = "spectral") -> dict:
-    """A scenario mapping (as a YAML file holds it): :func:`ring_system` on the undirected :func:`ring_arcs`.
-
-    ``rate`` defaults to 0.5 (discrete) or 0.5 (continuous); place gains, ``q``/``g`` auto.
-    """
+                  rate: float = 0.5, q_method: str = "spectral") -> dict:
+    """A scenario mapping (as a YAML file holds it): :func:`ring_system` on the undirected :func:`ring_arcs`,
+    place gains, ``q`` (discrete) or ``g`` (continuous) auto."""
     rng = np.random.default_rng(seed)
     A, Cs = ring_system(rng, m, n, time=time)
-    if time == "discrete":
-        design = {"rate": 0.5 if rate is None else rate, "gains": "place", "q": "auto", "q_method": q_method}
-    else:
-        design = {"rate": 0.5 if rate is None else rate, "gains": "place", "g": "auto"}
+    design = {"rate": rate, "gains": "place"}
+    design.update({"q": "auto", "q_method": q_method} if time == "discrete" else {"g": "auto"})
     design["resilience"] = resilience
     return {
         "name": f"ring{m}", "time": time,
