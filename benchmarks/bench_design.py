@@ -40,6 +40,8 @@ from splitspec_core.designer import design
 from splitspec_core.generate import random_strongly_connected_arcs, random_system, ring_scenario
 from splitspec_core.scenario_model import parse_scenario
 
+from _common import loadavg
+
 
 def scenario(m: int, n: int, time_mode: str, seed: int) -> dict:
     rng = np.random.default_rng(seed)
@@ -53,13 +55,6 @@ def scenario(m: int, n: int, time_mode: str, seed: int) -> dict:
         "graphs": {"g": {"arcs": [[j + 1, i + 1] for j, i in arcs]}},
         "design": d,
     }
-
-
-def loadavg() -> str:
-    try:
-        return " ".join(Path("/proc/loadavg").read_text().split()[:3])
-    except OSError:
-        return "n/a"
 
 
 def random_table(args) -> None:

@@ -41,6 +41,8 @@ import yaml
 
 from splitspec_orchestrator import registry
 
+from _common import loadavg
+
 ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:  # tests.chaos.cases (the chaos primitives and cases)
     sys.path.insert(0, str(ROOT))
@@ -110,10 +112,6 @@ def rounds_per_second(tmp: Path, secure: bool, steps: int, k: int) -> float:
 
 
 SLEEPER = "import time; time.sleep(600)"
-
-
-def loadavg() -> str:
-    return " ".join(Path("/proc/loadavg").read_text().split()[:3])
 
 
 def kill_latency(tmp: Path, runs: int, cli: list, run_id: str = "rbench000") -> list:

@@ -63,6 +63,8 @@ import time
 from collections import Counter
 from pathlib import Path
 
+from _common import loadavg
+
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
@@ -349,10 +351,6 @@ def proc_switches(pid: int) -> tuple[int, int]:
     return n, threads
 
 
-def loadavg() -> str:
-    return Path("/proc/loadavg").read_text().split()[0]
-
-
 def router_bytes(port: int) -> int:
     """TCP bytes sent + received so far on the router's end of every connection (``ss -tin``)."""
     r = subprocess.run(["ss", "-tinH", "state", "established", "sport", "=", f":{port}"],
@@ -428,7 +426,7 @@ def one_run(layout: str, m: int, q: int, steps: int) -> dict:
     router = f"tcp/127.0.0.1:{port}"
     aport = {i: free_port() for i in range(1, m + 1)}
     common = ["--layout", layout, "--m", str(m), "--q", str(q), "--router", router]
-    load0 = loadavg()
+    load0 = loadavg(1)
     t_start = time.perf_counter()
     orch = Child(["--role", "orch", *common])
     orch.ready = orch.read()
@@ -508,7 +506,7 @@ def one_run(layout: str, m: int, q: int, steps: int) -> dict:
         cpu1 = {name: proc_cpu(pid) for name, pid in pids.items()}
         sw1 = {name: proc_switches(pid) for name, pid in pids.items()}
         b1 = router_bytes(port)
-        res["load_end"] = loadavg()
+        res["load_end"] = loadavg(1)
         d = {name: cpu1[name] - cpu0[name] for name in pids}
         res["ms"] = 1e3 * r["wall"] / steps
         res["cpu_ms"] = 1e3 * sum(d.values()) / steps
@@ -610,14 +608,14 @@ def main() -> int:
         return child(a)
     if min(a.sizes) < 3:
         ap.error("a ring needs m >= 3")
-    print(f"# {os.cpu_count()} cpus; load average {Path('/proc/loadavg').read_text().split()[:3]}; {a.steps} rounds "
+    print(f"# {os.cpu_count()} cpus; load average {loadavg()}; {a.steps} rounds "
           f"per run ({a.steps_small} for m <= 8) after {WARM} warm-up, {a.repeat} runs per layout, interleaved",
           flush=True)
     if a.fanout:
         fan: dict = {"star": [], "nbr": []}
         for _ in range(a.repeat):
             for layout in ("star", "nbr"):
-                load = loadavg()
+                load = loadavg(1)
                 f = fanout(layout, a.fanout)
                 fan[layout].append(f)
                 print(f"# fan-out {layout:>4}: CPU us/message router {f['router']:.0f}, publisher {f['pub']:.0f}, "

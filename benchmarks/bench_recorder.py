@@ -38,16 +38,11 @@ from pathlib import Path
 
 import numpy as np
 
+from _common import loadavg
+
 ROOT = Path(__file__).resolve().parents[1]
 ENV = {**os.environ, "RERUN_ANALYTICS": "0"}
 N = 6
-
-
-def loadavg() -> str:
-    try:
-        return Path("/proc/loadavg").read_text().strip()
-    except OSError:
-        return "n/a"
 
 
 def before_package(rev: str, into: Path) -> str:

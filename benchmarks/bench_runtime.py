@@ -43,6 +43,8 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from _common import loadavg
+
 ROOT = Path(__file__).resolve().parents[1]
 ENV = {**os.environ, "RERUN_ANALYTICS": "0"}
 
@@ -201,7 +203,7 @@ def main() -> int:
     if min(args.sizes) < 3 or min(args.q) < 1:
         ap.error("--sizes must be rings of at least 3 agents and --q at least 1")
     tmp = Path(tempfile.mkdtemp(prefix="bench_runtime_"))
-    print(f"# {os.cpu_count()} cpus; load average {Path('/proc/loadavg').read_text().split()[:3]}", flush=True)
+    print(f"# {os.cpu_count()} cpus; load average {loadavg()}", flush=True)
     bare = [bare_cpu_per_delivery(args.bare_messages) for _ in range(args.repeat)]
     cpu = statistics.median(bare)
     print(f"# bare zenoh-python through a router: {cpu * 1e6:.0f} us CPU per delivery (median of "
@@ -222,7 +224,7 @@ def main() -> int:
                     res[name].append(run_ring(python, cwd, path, tmp / rid, rid, wait=max(60.0, 3.0 * m)))
             floor_old = deliveries_old(m, q) * cpu * 1e3
             floor_new = deliveries_new(m, q) * cpu * 1e3
-            load = Path("/proc/loadavg").read_text().split()[0]
+            load = loadavg(1)
             for name, _, _ in variants:
                 rs = res[name]
                 ms = statistics.median(r["ms"] for r in rs)

@@ -21,6 +21,8 @@ import numpy as np
 
 from splitspec_core.runtime.wire import decode, encode, new_run_key
 
+from _common import loadavg
+
 RUN = "default"
 
 
@@ -65,8 +67,7 @@ def main(argv=None) -> int:
         "z": dict(tau=7, attempt=0, k=1, agent=3, z=v),
         "xhat": dict(tau=7, attempt=0, agent=3, incarnation=0, x=v, g=1.0, rejected={}),
     }
-    with open("/proc/loadavg") as f:
-        load = " ".join(f.read().split()[:3])
+    load = loadavg()
     print(f"codec per message, n = {a.n}, median of {a.repeat} x {a.number} calls (load {load})")
     print(f"{'message':8} {'bytes v2':>9} {'bytes now':>9} {'enc v2 us':>10} {'enc now':>8} {'dec v2 us':>10} "
           f"{'dec now':>8} {'enc+dec ratio':>14}")
