@@ -341,10 +341,10 @@ def flood(endpoint: str, run_id: str, *, seconds: float = 3.0, rate: float = 50_
           y_dim: int = 3, agent: int = 1, other: int = 2, batch: int = 250) -> dict:
     """A rogue Zenoh client (never admitted, no MAC) floods well-formed future messages.
 
-    Keys: y/<agent>, z/<agent>, xhat/<other>, truth and tick, in turn, at ``rate`` msg/s in total for
+    Keys: y/all (the stacked y, ``y_dim`` long), z/<agent>, xhat/<other>, truth and tick, in turn, at ``rate`` msg/s in total for
     ``seconds`` (at most ``rate * seconds`` messages, and never longer than ``3 * seconds``), each for event
     time ``tau + 2`` where tau is the live event time read from the ticks; then one far-future tick
-    (tau 2**62, empty rows) and one forged y/<agent> for the current event time.  Returns ``sent``,
+    (tau 2**62, empty rows) and one forged y/all for the current event time.  Returns ``sent``,
     ``seconds`` and ``rate`` (achieved), ``tau_first``/``tau_last`` (event times seen during the flood).
     """
     import zenoh
