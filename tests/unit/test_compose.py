@@ -2,6 +2,7 @@
 
 import re
 import shlex
+import tomllib
 from importlib.metadata import version
 
 import pytest
@@ -89,14 +90,15 @@ def test_agents_match_the_scenario_and_output_is_a_volume(compose):
 
 
 def test_image_installs_what_the_readme_says(dockerfile):
-    text = (ROOT / "pyproject.toml").read_text()
-    packages = re.findall(r'"([\w.]+)"', re.search(r"^packages = \[(.*)\]$", text, re.M).group(1))
+    project = tomllib.loads((ROOT / "pyproject.toml").read_text())
+    setuptools = project["tool"]["setuptools"]
+    packages = setuptools["packages"]
     assert "splitspec_core" in packages
-    folders = dict(re.findall(r'^(\w+) = "(\w+)"$', text.split("[tool.setuptools.package-dir]")[1], re.M))
+    folders = setuptools.get("package-dir", {})
     packages = sorted({folders.get(p, p).split(".")[0] for p in packages})
     assert packages == ["agents", "orchestrator", "plant", "splitspec_core"]  # the repository's folders
     copied = {src for line in dockerfile.splitlines() if line.startswith("COPY") for src in line.split()[1:-1]}
-    license_files = re.findall(r'"([^"]+)"', re.search(r"^license-files = \[(.*)\]$", text, re.M).group(1))
+    license_files = project["project"]["license-files"]
     for pkg in packages + ["examples", "pyproject.toml", "README.md"] + license_files:  # what the build reads
         assert any(c == pkg or c.startswith(pkg) for c in copied), pkg
     runs = [line[len("RUN "):].strip() for line in dockerfile.splitlines() if line.startswith("RUN ")]
@@ -105,7 +107,7 @@ def test_image_installs_what_the_readme_says(dockerfile):
     assert f"    {runs[0]}" in readme or f"\n{runs[0]}" in readme  # the README's install step on other hosts
     assert "docker compose up" in readme
     assert re.search(r'ENTRYPOINT \["splitspec"\]', dockerfile)
-    assert 'splitspec = "splitspec_orchestrator.cli:main"' in text
+    assert project["project"]["scripts"]["splitspec"] == "splitspec_orchestrator.cli:main"
 
 
 def test_readme_hand_started_commands_parse():
