@@ -128,6 +128,8 @@ def all_pids(out: Path) -> list:
 def compare_trajectories(a_path: Path, b_path: Path, tol: float = 1e-9) -> float:
     """Assert two trajectory.npz files agree to ``tol`` (relative to the largest value); return the max diff."""
     a, b = np.load(a_path), np.load(b_path)
+    # exact: flags, indices, ids, and times k * dt (one correctly rounded product in both the recorder and the
+    # simulator); the estimates below, computed in other processes along other paths, only to ``tol``
     for k in ("t", "alive", "graph", "agent_ids"):
         assert np.array_equal(a[k], b[k]), k
     assert np.allclose(a["x"], b["x"], rtol=0, atol=tol * max(1.0, np.abs(b["x"]).max()))

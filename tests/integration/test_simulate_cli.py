@@ -49,7 +49,7 @@ def test_simulate_is_reproducible_and_seed_overrides(tmp_path):
         r = run_cli("simulate", EXAMPLES / "paper_discrete_noise.yaml", "--out", d, "--seed", seed, "--no-plots")
         assert r.returncode == 0, r.stderr
     la, lb, lc = (np.load(d / "trajectory.npz") for d in (a, b, c))
-    assert np.array_equal(la["xhat"], lb["xhat"])
+    assert np.array_equal(la["xhat"], lb["xhat"])  # exact: the same command twice (reproducibility is the subject)
     assert not np.allclose(la["xhat"], lc["xhat"])
     assert not (a / "errors.png").exists()
 

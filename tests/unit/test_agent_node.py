@@ -89,6 +89,8 @@ def test_a_steady_round_takes_z0_from_the_neighbours_estimates_and_sends_no_z0()
     assert [k for k, _ in explicit] == ["splitspec/r/z/2"] and steady == []  # no z(0) in a steady round
     run_round(b, 1, z0_from_x=False)
     run_round(a, 1, z0_from_x=True)
+    # exact: the same step functions on the same float64 values (z_j(0) from x_j's message or from z_j's: the
+    # same bytes decoded), in the same order
     assert a.candidate[0] == b.candidate[0] == 2 and np.array_equal(a.candidate[1], b.candidate[1])
 
 
@@ -101,7 +103,8 @@ def test_estimates_of_an_aborted_attempt_are_not_taken_as_z0():
     a.on_x("splitspec/r/xhat/3", xhat(1, 3, attempt=1, value=3.0))
     a.on_x("splitspec/r/xhat/1", xhat(1, 1, attempt=0, value=9.0))  # round 0, attempt 0: re-run later
     a.on_tick(tick(1, fresh=False, prev_attempt=1))
-    assert a._neighbour_states(0)[1][0] == 1.0  # rows [2, 1, 3]: agent 1's z(0) is its attempt-1 estimate
+    # rows [2, 1, 3]: agent 1's z(0) is its attempt-1 estimate (1.0 exactly: the value sent, decoded)
+    assert a._neighbour_states(0)[1][0] == 1.0
 
 
 def test_a_rerun_round_sends_z0_again():
@@ -124,6 +127,7 @@ def test_forgeries_without_the_key_change_nothing():
     assert a.on_tick(encode("tick", "r", tau=1, attempt=0, graph=0, final=False, alive=[], rows={},
                             incarnation={})) == []  # unsigned
     assert a.on_y(encode("y", "r", tau=0, attempt=0, y=np.full(3, 1e6))) == []
+    # exact: the estimate was not touched (x0 is its copy)
     assert a.rejected == {"bad_mac": 3} and a.ybuf == {} and np.array_equal(a.x, x0) and a.tick_tag == (0, 0)
 
 

@@ -16,6 +16,7 @@ from splitspec_core.scenario_checks import _DESIGN_KEYS, _RUN_KEYS, _SYSTEM_KEYS
 from splitspec_core.scenario_model import DesignSpec, System
 from splitspec_orchestrator import cli
 from tests.conftest import ROOT
+from tests.numerics import assert_close
 from tests.unit import test_scenario_errors as errors_suite
 
 EXAMPLES = ROOT / "examples"
@@ -79,12 +80,12 @@ def test_ss_simulate_equals_splitspec_simulate(name, tmp_path, capsys):
     capsys.readouterr()
     cli_traj = ss.Trajectory.load(tmp_path / "trajectory.npz")
     tr = ss.simulate(ss.load_scenario(path), seed=3)
-    for f in ("t", "alive", "graph", "agent_ids"):
+    for f in ("t", "alive", "graph", "agent_ids"):  # times, flags and indices: the same numbers by construction
         np.testing.assert_array_equal(getattr(tr, f), getattr(cli_traj, f), err_msg=f)
     for f in ("x", "xhat", "gains"):
-        a, b = getattr(tr, f), getattr(cli_traj, f)
-        assert a.shape == b.shape and np.array_equal(np.isnan(a), np.isnan(b)), f
-        assert np.nanmax(np.abs(a - b), initial=0.0) <= 1e-12, f
+        # the same simulator on the same design; compared to round-off all the same (relative 1e-12): the CLI
+        # path builds the scenario and the design anew, and equality of the bits is not what is tested here
+        assert_close(getattr(tr, f), getattr(cli_traj, f), rtol=1e-12, equal_nan=True, what=f)
 
 
 def test_numpy_arrays_and_lists_give_the_same_scenario_and_design():
@@ -97,9 +98,12 @@ def test_numpy_arrays_and_lists_give_the_same_scenario_and_design():
     a, b = ss.design(sc_np), ss.design(sc_file)
     assert a.q == b.q and a.checks.certificate == b.checks.certificate
     for i in sc_file.agent_ids:
+        # exact: explicit gains, the scenario's own numbers, whether they came as lists or arrays
         np.testing.assert_array_equal(a.agents[i].K, b.agents[i].K)
         np.testing.assert_allclose(a.agents[i].poles, b.agents[i].poles)
-    np.testing.assert_array_equal(ss.simulate(a).xhat, ss.simulate(b).xhat)
+    # the same simulator on equal designs: exact on one machine, compared to 1e-12 (relative) as any two
+    # designs built separately (their V_i come out of separate QR factorisations)
+    assert_close(ss.simulate(a).xhat, ss.simulate(b).xhat, rtol=1e-12, what="xhat")
 
 
 def test_results_are_frozen():

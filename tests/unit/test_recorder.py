@@ -115,6 +115,7 @@ def test_trajectory_contract(recorded):
     assert al.shape == (T, M) and al.dtype == bool and gr.shape == (T,) and ids.shape == (M,)
     np.testing.assert_array_equal(ids, IDS)
     np.testing.assert_allclose(t, np.arange(T) * (1.0 if mode == "discrete" else DT), rtol=0, atol=1e-12)
+    # exact: the recorder stores copies of the rows it was given (float64 in, float64 out)
     np.testing.assert_array_equal(xs, x)
     np.testing.assert_array_equal(al, alive)
     np.testing.assert_array_equal(gr, graph)
@@ -165,6 +166,7 @@ def test_rrd_values_match_trajectory(recorded):
         for i, a in enumerate(IDS):
             est = dict(state[f"state/{k + 1}/agent_{a}"])
             assert sorted(est) == [tau for tau in range(T) if alive[tau, i]]
+            # exact: the estimates themselves, logged as float64 and read back
             np.testing.assert_array_equal([est[tau] for tau in sorted(est)], xhat[sorted(est), i, k])
 
 
@@ -180,7 +182,8 @@ def test_state_is_one_batch_per_component(recorded):
     for k in range(N):
         rows = vectors[f"state/{k + 1}/agents"]
         assert [tau for tau, _ in rows] == list(range(T))
-        np.testing.assert_array_equal(np.array([v for _, v in rows]), xhat[:, :, k])  # NaN where dead
+        # exact (NaN where dead): the rows of trajectory.npz, logged as float64 and read back
+        np.testing.assert_array_equal(np.array([v for _, v in rows]), xhat[:, :, k])
 
 
 def test_rrd_topology_and_event_levels(recorded):
@@ -250,7 +253,7 @@ def test_resent_rows_buffered_and_sent(tmp_path):
         assert sorted(got) == [tau for tau in range(4) if alive[tau, i]]
         for tau, value in got.items():
             assert value == pytest.approx(err[tau, i], abs=1e-9, rel=0)
-            assert dict(state[f"state/1/agent_{a}"])[tau] == xhat[tau, i, 0]
+            assert dict(state[f"state/1/agent_{a}"])[tau] == xhat[tau, i, 0]  # exact: logged and read back
     assert [v for _, v in series["errors/max"]] == pytest.approx(
         [err[tau, alive[tau]].max() for tau in range(4)], abs=1e-9, rel=0)
     assert clear_taus(tmp_path / "run.rrd") == {"errors/agent_2": {1}, "errors_log10/agent_2": {1}}
@@ -305,7 +308,7 @@ def test_crash_leaves_readable_trajectory(tmp_path):
     assert proc.returncode == 3, proc.stdout + proc.stderr
     x, _, _, alive, _, expected_xhat = synthetic()
     assert not list(tmp_path.glob(".trajectory.*"))  # no temporary file left behind
-    with np.load(tmp_path / "trajectory.npz") as f:
+    with np.load(tmp_path / "trajectory.npz") as f:  # exact: stored copies of the rows given
         assert f["t"].shape == (T,)
         np.testing.assert_array_equal(f["x"], x)
         np.testing.assert_array_equal(f["xhat"], expected_xhat)
@@ -334,7 +337,7 @@ def test_crash_keeps_rows_up_to_last_flush(tmp_path):
     assert proc.returncode == 3, proc.stdout + proc.stderr
     x, _, _, alive, _, expected_xhat = synthetic()
     flushed = LOST_NOTICED + 1  # mark_lost flushed rows 0..14; rows 15..19 were still buffered
-    with np.load(tmp_path / "trajectory.npz") as f:
+    with np.load(tmp_path / "trajectory.npz") as f:  # exact: stored copies of the rows given
         assert f["t"].shape == (flushed,)
         np.testing.assert_array_equal(f["xhat"], expected_xhat[:flushed])
         np.testing.assert_array_equal(f["alive"], alive[:flushed])

@@ -61,8 +61,11 @@ def test_verdict_matches_the_full_error_map(ring, paper):
             alive = [a for a in sc.agent_ids if a != lost]
             v = certify_network(des, alive)
             if v["jointly_observable"]:
+                # the full mn x mn map against the split one: radii agree to round-off only (another matrix,
+                # another eigenvalue problem), so a radius within 1e-9 of the rate decides nothing here
                 rho = full_error_radius(des, alive)
-                assert v["rate_certified"] == (rho <= sc.design.rate + 1e-9), (lost, rho, v)
+                if abs(rho - sc.design.rate) > 1e-9:
+                    assert v["rate_certified"] == (rho < sc.design.rate), (lost, rho, v)
     # ring10 is designed with resilience: 1, so every single loss stays certified
     assert all(certify_network(ring, [a for a in ring.scenario.agent_ids if a != x])["ok"]
                for x in ring.scenario.agent_ids)
@@ -111,8 +114,9 @@ def test_replay_events_reproduce_scenario_faults():
     assert [f.action for f in replayed] == ["kill", "drop_arc", "kill", "restart", "restart", "restore_arc"]
     a = simulate(design(sc))
     b = simulate(design(dataclasses.replace(sc, faults=replayed)))
+    # exact: the replayed faults equal the scenario's, so the same simulation runs twice, step for step
     np.testing.assert_array_equal(a.alive, b.alive)
-    np.testing.assert_allclose(a.xhat, b.xhat, rtol=0, atol=0, equal_nan=True)
+    np.testing.assert_array_equal(a.xhat, b.xhat)
 
 
 def test_replay_continuous_time_uses_dt():

@@ -11,6 +11,7 @@ from splitspec_core.generate import random_strongly_connected_arcs, random_syste
 from splitspec_core.scenario_model import load_scenario, parse_scenario
 from splitspec_core.simulator import Trajectory, simulate, simulate_exact
 from tests.conftest import EXAMPLES
+from tests.numerics import assert_close, max_rel_diff
 
 
 def random_scenario(seed: int, *, time: str, m: int = 5, n: int = 6, g="auto", noise=0.05, faults=()):
@@ -43,18 +44,20 @@ def test_batch_equals_per_agent_step_functions(time, g, seed):
     a = simulate(des, estimator="batch")
     b = simulate(des, estimator="loop")
     assert a.xhat.shape == (301, 5, 6)
-    assert np.array_equal(np.isnan(a.xhat), np.isnan(b.xhat))
-    assert np.nanmax(np.abs(a.xhat - b.xhat)) <= 1e-12 * max(1.0, np.nanmax(np.abs(a.xhat)))
-    assert np.array_equal(a.x, b.x)
+    # vectorised against per-agent loops: other summation orders; 300 steps of a contracting recursion with
+    # entries of order one, so 1e-12 of the larger norm leaves room for the round-off of each step
+    assert_close(a.xhat, b.xhat, rtol=1e-12, equal_nan=True, what="xhat")  # NaN where dead, in both
+    assert np.array_equal(a.x, b.x)  # exact: one Plant class draws and steps the truth, whatever the estimator
     assert len(set(a.graph.tolist())) == 2  # it really switched
     if g == "adaptive":
-        assert np.allclose(a.gains, b.gains, rtol=1e-12, atol=1e-12, equal_nan=True)
+        assert_close(a.gains, b.gains, rtol=1e-12, equal_nan=True, what="adaptive g_i")
         assert np.all(np.diff(a.gains[:100], axis=0) >= 0)  # eq. (adaptive): g_i is non-decreasing
 
 
 def test_same_seed_same_trajectory_and_different_seed_differs():
     des = design(load_scenario(EXAMPLES / "paper_discrete_switching.yaml"))
     a, b, c = simulate(des, seed=3), simulate(des, seed=3), simulate(des, seed=4)
+    # exact: the same function on the same input, twice (reproducibility is this test's subject)
     assert np.array_equal(a.xhat, b.xhat) and np.array_equal(a.x, b.x)
     assert not np.allclose(a.x, c.x)
 
@@ -121,8 +124,10 @@ def test_drop_arc_changes_weights_but_keeps_convergence():
     des = design(sc)
     tr = simulate(des)
     base = simulate(design(parse_scenario(raw)))
-    assert np.array_equal(tr.xhat[:6], base.xhat[:6])  # step 5 uses the reduced graph, x(6) differs
-    assert not np.allclose(tr.xhat[6:], base.xhat[6:])
+    # step 5 uses the reduced graph, x(6) differs; before it, the same estimator on the same graph (to round-off:
+    # the fault splits the run into other batches of steps)
+    assert_close(tr.xhat[:6], base.xhat[:6], rtol=1e-12, what="xhat before the fault")
+    assert max_rel_diff(tr.xhat[6], base.xhat[6]) > 1e-6  # far beyond round-off
     assert np.nanmax(tr.errors()[-1]) < 1e-6
 
 
@@ -131,7 +136,7 @@ def test_trajectory_roundtrip(tmp_path):
     tr = simulate(des)
     tr.save(tmp_path / "t.npz")
     back = Trajectory.load(tmp_path / "t.npz")
-    for f in ("t", "x", "xhat", "alive", "graph", "agent_ids"):
+    for f in ("t", "x", "xhat", "alive", "graph", "agent_ids"):  # exact: a save/load round trip copies the bytes
         assert np.array_equal(getattr(tr, f), getattr(back, f), equal_nan=f == "xhat")
 
 
