@@ -1,7 +1,9 @@
 # Two entry points, both safe on a fresh clone with only python3 and make:
 #   make demo   set up .venv and run the main job (the multi-process demo)
 #   make test   set up .venv and run the whole test suite
-# and a check of pyproject.toml's lower bounds:
+# and checks CI runs as well:
+#   make test-kernels  the unit and property tests again on other floating-point paths (OpenBLAS kernels,
+#                      BLAS threads, numpy without AVX-512), as on other CPUs
 #   make test-lowest   set up .venv-lowest with every dependency at its lower bound, run a subset
 PY ?= python3
 VENV ?= .venv
@@ -13,7 +15,17 @@ LOWEST ?= .venv-lowest
 LOWEST_TESTS ?= tests/unit tests/integration/test_runtime.py tests/property \
 	--deselect tests/unit/test_compose.py::test_router_image_matches_the_python_package
 
-.PHONY: demo test test-lowest setup clean
+# The numerical tests under floating-point paths other than this machine's: OpenBLAS picks its kernels
+# from the CPU at run time and each kernel sums in its own order (Prescott: SSE3, Sandybridge: AVX,
+# Haswell: AVX2 and FMA, as on AMD EPYC), over 1 or 2 threads; numpy's own loops use the widest SIMD
+# the CPU has (the last variant turns AVX-512 off, as on an AVX2-only CPU).  A test that compares
+# floats of different paths exactly fails here before it fails on a user's machine.  x86-64 only
+# (the kernel names are OpenBLAS's x86 ones); SkylakeX/Zen-only kernels are not forced (they crash on
+# CPUs without their instructions).
+KERNEL_TESTS ?= tests/unit tests/property
+KERNEL_PYTEST = RERUN_ANALYTICS=0 $(BIN)/python -m pytest -p no:cacheprovider $(KERNEL_TESTS)
+
+.PHONY: demo test test-kernels test-lowest setup clean
 
 setup: $(VENV)/.installed
 
@@ -29,6 +41,17 @@ demo: setup
 
 test: setup
 	RERUN_ANALYTICS=0 $(BIN)/python -m pytest
+
+test-kernels: setup
+	@if [ "$$(uname -m)" != x86_64 ]; then echo "test-kernels: x86-64 only (OpenBLAS core names), skipped"; exit 0; fi; \
+	set -e; \
+	echo "== OpenBLAS Prescott kernels, 1 thread"; \
+	OPENBLAS_CORETYPE=Prescott OPENBLAS_NUM_THREADS=1 $(KERNEL_PYTEST); \
+	echo "== OpenBLAS Sandybridge kernels, 2 threads"; \
+	OPENBLAS_CORETYPE=Sandybridge OPENBLAS_NUM_THREADS=2 $(KERNEL_PYTEST); \
+	echo "== OpenBLAS Haswell kernels, 2 threads, numpy without AVX-512"; \
+	OPENBLAS_CORETYPE=Haswell OPENBLAS_NUM_THREADS=2 \
+	  NPY_DISABLE_CPU_FEATURES="$$($(BIN)/python tests/platform_info.py --wide-simd)" $(KERNEL_PYTEST)
 
 # --build-constraint (pip >= 25.3, hence the pip upgrade first): the build backend's isolated environment
 # gets the oldest allowed setuptools too.

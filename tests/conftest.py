@@ -12,3 +12,10 @@ os.environ.setdefault("RERUN_ANALYTICS", "0")
 @pytest.fixture
 def examples_dir() -> Path:
     return EXAMPLES
+
+
+def pytest_report_header(config):
+    """Versions, CPU, OpenBLAS kernel and numpy SIMD: what floating-point results depend on."""
+    from tests.platform_info import lines
+
+    return lines()
