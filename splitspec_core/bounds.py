@@ -346,7 +346,8 @@ def _smallest_max(preds, q_max: int, *, whats) -> int:
 
 
 class _Powers:
-    """``B^k`` bit for bit as :func:`numpy.linalg.matrix_power` computes it, the squares shared between k.
+    """``B^k`` by the very matmul calls of :func:`numpy.linalg.matrix_power`, in its order (so the same bits on one
+    machine), the squares shared between k.
 
     ``matrix_power`` multiplies, from the lowest bit of k up, the squares ``B, B^2, B^4, ...``
     (with short cuts for k = 2 and 3); keeping the squares, each further k costs
