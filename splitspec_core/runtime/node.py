@@ -12,7 +12,7 @@ frozen).
 
 A process started by hand (not by an orchestrator: no ``SPLITSPEC_CHILD`` in its environment) fails
 fast and says why, each as one line and exit status 1 (:class:`~splitspec_core.errors.NetworkError`):
-nothing accepts a connection at the endpoint within :data:`CONNECT_BUDGET`; the router refuses it
+nothing accepts a connection at the endpoint within :data:`CONNECT_BUDGET` of its start; the router refuses it
 (no ``--credentials`` for a secure run, a wrong password, another run's credentials); the router
 hosts other runs but not ``--run-id`` (for :data:`RUN_GRACE`); the router goes away while it waits
 (for :data:`LINK_GRACE`: the run ended).  A router that hosts no run at all is waited on for
@@ -34,10 +34,11 @@ from ..errors import NetworkError
 from .bus import (CHILD_ENV, LIVELINESS_DELETE, IdentityRefused, Inbox, hosted_runs, lease_ms_for, open_session,
                   query_bytes, unreachable_reason, zenoh_config)
 
-__all__ = ["NodeShell", "CONNECT_BUDGET", "RUN_GRACE", "LINK_GRACE"]
+__all__ = ["NodeShell", "CONNECT_BUDGET", "RUN_GRACE", "LINK_GRACE", "process_age"]
 
-#: seconds a hand-started process gives the router to accept its connection (retried while nothing listens)
-CONNECT_BUDGET = 2.0
+#: seconds after its start a hand-started process gives the router to accept its connection (retried while
+#: nothing listens); counted from the process's start, so a slow start on a loaded machine does not add to it
+CONNECT_BUDGET = 2.5
 #: seconds a router hosting other runs may take to show this process's run before the process gives up
 RUN_GRACE = 1.0
 #: seconds a hand-started process waiting for its configuration tolerates having no router link
@@ -45,6 +46,16 @@ LINK_GRACE = 1.0
 #: a refused handshake is tried this many times (POLL apart) before the process reports it
 REFUSALS = 2
 POLL = 0.1
+
+
+def process_age() -> float:
+    """Seconds since this process started (Linux ``/proc/self/stat``); 0 where that cannot be read."""
+    try:
+        with open("/proc/self/stat", encoding="ascii") as f:
+            start_ticks = int(f.read().rsplit(")", 1)[1].split()[19])  # field 22, starttime, in clock ticks
+        return max(0.0, time.clock_gettime(time.CLOCK_BOOTTIME) - start_ticks / os.sysconf("SC_CLK_TCK"))
+    except (OSError, ValueError, IndexError, AttributeError):
+        return 0.0
 
 
 class NodeShell:
@@ -112,13 +123,14 @@ class NodeShell:
     def _open_promptly(self, opts: dict) -> zenoh.Session:
         """A client session of a hand-started process, or a one-line :class:`NetworkError` saying why not.
 
-        Retried every :data:`POLL` seconds for :data:`CONNECT_BUDGET` while nothing accepts a
-        connection at the endpoint (a router still starting); a router that accepts the connection
-        but not the Zenoh handshake refused this process (:data:`REFUSALS` attempts): that is reported
-        at once, naming the credentials it came with.
+        Retried every :data:`POLL` seconds until :data:`CONNECT_BUDGET` seconds after the process
+        started while nothing accepts a connection at the endpoint (a router still starting); a router
+        that accepts the connection but not the Zenoh handshake refused this process (:data:`REFUSALS`
+        attempts): that is reported at once, naming the credentials it came with.
         """
         config = zenoh_config("client", **opts)
-        deadline = time.monotonic() + CONNECT_BUDGET
+        started = time.monotonic() - process_age()
+        deadline = started + CONNECT_BUDGET
         refusals = 0
         while True:
             try:
@@ -128,15 +140,15 @@ class NodeShell:
             why = unreachable_reason(self.endpoint, timeout=max(0.1, min(1.0, deadline - time.monotonic())))
             refusals = refusals + 1 if why is None else 0
             if refusals >= REFUSALS or time.monotonic() >= deadline:
-                raise NetworkError(self._not_admitted(why))
+                raise NetworkError(self._not_admitted(why, time.monotonic() - started))
             time.sleep(POLL)
 
-    def _not_admitted(self, unreachable: str | None) -> str:
+    def _not_admitted(self, unreachable: str | None, tried: float) -> str:
         """The one line saying why this process has no session (``unreachable``: the socket's reason, if any)."""
         ep = self.endpoint
         if unreachable is not None:
-            return (f"cannot reach a Zenoh router at {ep} within {CONNECT_BUDGET:g} s ({unreachable}): is the run "
-                    "(or its router) up, and is this its endpoint?")
+            return (f"cannot reach a Zenoh router at {ep} ({unreachable}, for {tried:.1f} s): is the run (or its "
+                    "router) up, and is this its endpoint?")
         get_them = ("`splitspec credentials SCENARIO --out DIR` writes them, for an orchestrator started with "
                     "--secure DIR")
         if not self.credentials:

@@ -117,7 +117,8 @@ def test_hand_started_agent_exits_when_the_router_goes_away_while_it_waits(tmp_p
     text = agent_log.read_text()
     errors = [ln for ln in text.splitlines() if ln.startswith("splitspec: error")]
     assert code == 1 and len(errors) == 1 and "Traceback" not in text, text
-    assert f"lost the Zenoh router at {endpoint} while agent 3 waited for the orchestrator of run 'rnotyet'" in errors[0]
+    assert f"lost the Zenoh router at {endpoint} while agent 3 waited for the orchestrator of run 'rnotyet'" \
+        in errors[0]
     assert took < BAR, took
     assert_all_gone([agent.pid, router.pid])
 

@@ -97,7 +97,7 @@ def rogue_during_hand_started_run(tmp_path, scen, out, run_id, *, creds=None, **
 
     procs = [start("orchestrator", scen, "--listen", endpoint, "--out", out, "--run-id", run_id,
                    *(["--secure", creds] if creds else []), log=logs[0])]
-    wait_for_listener(endpoint)  # processes started by hand give the orchestrator's router 2 s to be up
+    wait_for_listener(endpoint)  # processes started by hand give the router 2.5 s
     procs.append(start("plant", "--connect", endpoint, "--run-id", run_id, *secure("plant"), log=logs[1]))
     procs += [start("agent", "--id", i, "--connect", endpoint, "--run-id", run_id, *secure(f"agent-{i}"),
                     log=logs[1 + i]) for i in (1, 2, 3)]
