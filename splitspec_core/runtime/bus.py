@@ -36,8 +36,8 @@ from ..errors import SplitspecError
 from .wire import ORCHESTRATORS, Keys, WireError, verify
 
 __all__ = ["zenoh_config", "open_session", "Inbox", "BusError", "IdentityRefused", "query_all",
-           "lease_ms_for", "LIVELINESS_PUT", "LIVELINESS_DELETE", "INBOX_LIMIT", "unreachable_reason",
-           "hosted_runs"]
+           "lease_ms_for", "LIVELINESS_PUT", "LIVELINESS_DELETE", "INBOX_LIMIT", "socket_address",
+           "unreachable_reason", "hosted_runs"]
 
 CHILD_ENV = "SPLITSPEC_CHILD"  #: set in the environment of the processes an orchestrator starts itself
 LIVELINESS_PUT = "put"
@@ -133,36 +133,50 @@ def open_session(mode: str, **kw) -> zenoh.Session:
 TCP_PROTOCOLS = ("tcp", "tls", "ws")
 
 
+def socket_address(endpoint: str) -> tuple | None:
+    """``("tcp", (host, port))`` or ``("unix", path)``: what a plain socket can connect to for ``endpoint``, or None.
+
+    TCP-based locators (``tcp/HOST:PORT``, ``tls/``, ``ws/``; ``[v6]`` addresses, host names) and
+    ``unixsock-stream/PATH``; None for the others (``udp/``, ``quic/``, ``serial/``...), which a
+    socket cannot check.  Zenoh's locator metadata and config (``?...``, ``#...``) are ignored.
+    """
+    proto, sep, address = str(endpoint).partition("/")
+    address = address.split("?", 1)[0].split("#", 1)[0]
+    if not sep or not address:
+        return None
+    if proto in TCP_PROTOCOLS:
+        host, sep, port = address.rpartition(":")
+        if not sep or not host or not port.isdigit():
+            return None
+        return "tcp", (host.removeprefix("[").removesuffix("]"), int(port))
+    if proto == "unixsock-stream":
+        return "unix", address
+    return None
+
+
 def unreachable_reason(endpoint: str, *, timeout: float = 1.0) -> str | None:
-    """Why nothing accepts a connection at ``endpoint`` (``"connection refused"``, ``"timed out"``, ...), or None.
+    """Why nothing accepts a connection at ``endpoint`` (``"connection refused"``, ...), or None if something does.
 
     Zenoh reports a client it could not connect the same way whether nobody listens at the endpoint
     or the router there refused the handshake (no credentials, a wrong password): "Unable to connect
-    to any of [...]".  A plain socket tells the two apart for TCP-based locators (``tcp/``, ``tls/``,
-    ``ws/``, host names resolved) and ``unixsock-stream/``: None means something accepted the
-    connection (closed again at once, before any Zenoh handshake), or that the locator cannot be
-    checked this way (``udp/``, ``quic/``, ``serial/``...).
+    to any of [...]".  A plain socket tells the two apart: None means something accepted the
+    connection (closed again at once, before any Zenoh handshake).  Only for the endpoints
+    :func:`socket_address` knows; None for the others.
     """
-    proto, sep, address = str(endpoint).partition("/")
-    address = address.split("?", 1)[0].split("#", 1)[0]  # drop Zenoh's locator metadata and config
-    if not sep or not address:
+    target = socket_address(endpoint)
+    if target is None:
         return None
+    kind, address = target
     try:
-        if proto in TCP_PROTOCOLS:
-            host, sep, port = address.rpartition(":")
-            if not sep or not port.isdigit():
-                return None
-            host = host.removeprefix("[").removesuffix("]")  # tcp/[::1]:7447
-            try:
-                with socket.create_connection((host, int(port)), timeout=timeout):
-                    return None
-            except socket.gaierror as exc:
-                return f"cannot resolve {host!r}: {exc.strerror}"
-        if proto == "unixsock-stream":
+        if kind == "unix":
             with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as sock:
                 sock.settimeout(timeout)
                 sock.connect(address)
-                return None
+        else:  # any address (IPv4, IPv6) the host name resolves to
+            with socket.create_connection(address, timeout=timeout):
+                pass
+    except socket.gaierror as exc:
+        return f"cannot resolve {address[0]!r}: {exc.strerror}"
     except TimeoutError:
         return f"no answer within {timeout:g} s"
     except OSError as exc:

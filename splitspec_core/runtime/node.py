@@ -32,7 +32,7 @@ import zenoh
 
 from ..errors import NetworkError
 from .bus import (CHILD_ENV, LIVELINESS_DELETE, IdentityRefused, Inbox, hosted_runs, lease_ms_for, open_session,
-                  query_bytes, unreachable_reason, zenoh_config)
+                  query_bytes, socket_address, unreachable_reason, zenoh_config)
 
 __all__ = ["NodeShell", "CONNECT_BUDGET", "RUN_GRACE", "LINK_GRACE", "process_age"]
 
@@ -94,7 +94,11 @@ class NodeShell:
             # until the timeout); _open_promptly retries while nothing listens
             opts["connect_timeout_ms"] = 0
             self.session = self._open_promptly(opts)
-            self.health = self._open_promptly(opts)
+            try:
+                self.health = self._open_promptly(opts)
+            except NetworkError:
+                self.session.close()
+                raise
         else:
             self.session = open_session("client", **opts)
             # the status queryable's own session (its own link): protocol messages are handled on the data
@@ -126,9 +130,11 @@ class NodeShell:
         Retried every :data:`POLL` seconds until :data:`CONNECT_BUDGET` seconds after the process
         started while nothing accepts a connection at the endpoint (a router still starting); a router
         that accepts the connection but not the Zenoh handshake refused this process (:data:`REFUSALS`
-        attempts): that is reported at once, naming the credentials it came with.
+        attempts): that is reported at once, naming the credentials it came with.  An endpoint a
+        socket cannot check (``udp/``, ``quic/``...) is retried for the whole budget.
         """
         config = zenoh_config("client", **opts)
+        checkable = socket_address(self.endpoint) is not None
         started = time.monotonic() - process_age()
         deadline = started + CONNECT_BUDGET
         refusals = 0
@@ -138,17 +144,24 @@ class NodeShell:
             except zenoh.ZError:
                 pass  # zenoh gives no reason ("Unable to connect to any of [...]"): a socket tells
             why = unreachable_reason(self.endpoint, timeout=max(0.1, min(1.0, deadline - time.monotonic())))
-            refusals = refusals + 1 if why is None else 0
+            refusals = refusals + 1 if checkable and why is None else 0
             if refusals >= REFUSALS or time.monotonic() >= deadline:
-                raise NetworkError(self._not_admitted(why, time.monotonic() - started))
+                raise NetworkError(self._not_admitted(why, time.monotonic() - started, checked=checkable))
             time.sleep(POLL)
 
-    def _not_admitted(self, unreachable: str | None, tried: float) -> str:
-        """The one line saying why this process has no session (``unreachable``: the socket's reason, if any)."""
+    def _not_admitted(self, unreachable: str | None, tried: float, *, checked: bool = True) -> str:
+        """The one line saying why this process has no session.
+
+        ``unreachable``: the socket's reason, if nothing accepted a connection; ``checked``: False if
+        a socket cannot tell (the line then names both causes).
+        """
         ep = self.endpoint
         if unreachable is not None:
             return (f"cannot reach a Zenoh router at {ep} ({unreachable}, for {tried:.1f} s): is the run (or its "
                     "router) up, and is this its endpoint?")
+        if not checked:
+            return (f"cannot connect to a Zenoh router at {ep} (for {tried:.1f} s): nothing answers there, or the "
+                    f"router refused {self.who} ({'with' if self.credentials else 'without'} --credentials)")
         get_them = ("`splitspec credentials SCENARIO --out DIR` writes them, for an orchestrator started with "
                     "--secure DIR")
         if not self.credentials:
@@ -226,8 +239,8 @@ class NodeShell:
                 else:
                     others_since = None
                     if not runs and not told:
-                        self.log.info("%s: waiting up to %g s for the orchestrator of run %r on %s (this router "
-                                      "hosts no run yet)", self.who, wait, run_id, ep)
+                        self.log.info("%s: waiting up to %g s for the orchestrator of run %r on %s (no run is "
+                                      "visible on this router yet)", self.who, wait, run_id, ep)
                         told = True
                     raw = query_bytes(self.session, self.keys.config, timeout=2.0, payload=hello)
                     if raw is not None:
