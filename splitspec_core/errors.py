@@ -30,3 +30,13 @@ class AssumptionError(SplitspecError, ValueError):
 
 class DesignError(SplitspecError, RuntimeError):
     """The design could not be completed (e.g. no q found below ``q_max``)."""
+
+
+class NetworkError(SplitspecError, RuntimeError):
+    """A process's command line was well formed, but the deployment around it is not what it names.
+
+    No router answers at the endpoint, the router refused the process (no credentials, a wrong
+    password), the router hosts no run of that id, or the router went away while the process waited.
+    The command-line boundary exits with status 1 (a failure), not 2 (bad input): the same command
+    may succeed once the run is up.
+    """

@@ -25,6 +25,7 @@ from __future__ import annotations
 import json
 import os
 import queue
+import socket
 import threading
 import time
 from typing import Any, Callable
@@ -32,10 +33,11 @@ from typing import Any, Callable
 import zenoh
 
 from ..errors import SplitspecError
-from .wire import WireError, verify
+from .wire import ORCHESTRATORS, Keys, WireError, verify
 
 __all__ = ["zenoh_config", "open_session", "Inbox", "BusError", "IdentityRefused", "query_all",
-           "lease_ms_for", "LIVELINESS_PUT", "LIVELINESS_DELETE", "INBOX_LIMIT"]
+           "lease_ms_for", "LIVELINESS_PUT", "LIVELINESS_DELETE", "INBOX_LIMIT", "socket_address",
+           "unreachable_reason", "hosted_runs"]
 
 CHILD_ENV = "SPLITSPEC_CHILD"  #: set in the environment of the processes an orchestrator starts itself
 LIVELINESS_PUT = "put"
@@ -125,6 +127,80 @@ def open_session(mode: str, **kw) -> zenoh.Session:
                     else " (is the router up? are these the run's credentials?)")
         why = str(exc).split(" at /")[0]  # drop the Rust source location
         raise BusError(f"cannot open a Zenoh {mode} session on {', '.join(where)}: {why}{hint}") from None
+
+
+#: Zenoh link protocols that run over TCP: :func:`unreachable_reason` can check them with a plain socket
+TCP_PROTOCOLS = ("tcp", "tls", "ws")
+
+
+def socket_address(endpoint: str) -> tuple | None:
+    """``("tcp", (host, port))`` or ``("unix", path)``: what a plain socket can connect to for ``endpoint``, or None.
+
+    TCP-based locators (``tcp/HOST:PORT``, ``tls/``, ``ws/``; ``[v6]`` addresses, host names) and
+    ``unixsock-stream/PATH``; None for the others (``udp/``, ``quic/``, ``serial/``...), which a
+    socket cannot check.  Zenoh's locator metadata and config (``?...``, ``#...``) are ignored.
+    """
+    proto, sep, address = str(endpoint).partition("/")
+    address = address.split("?", 1)[0].split("#", 1)[0]
+    if not sep or not address:
+        return None
+    if proto in TCP_PROTOCOLS:
+        host, sep, port = address.rpartition(":")
+        if not sep or not host or not port.isdigit():
+            return None
+        return "tcp", (host.removeprefix("[").removesuffix("]"), int(port))
+    if proto == "unixsock-stream":
+        return "unix", address
+    return None
+
+
+def unreachable_reason(endpoint: str, *, timeout: float = 1.0) -> str | None:
+    """Why nothing accepts a connection at ``endpoint`` (``"connection refused"``, ...), or None if something does.
+
+    Zenoh reports a client it could not connect the same way whether nobody listens at the endpoint
+    or the router there refused the handshake (no credentials, a wrong password): "Unable to connect
+    to any of [...]".  A plain socket tells the two apart: None means something accepted the
+    connection (closed again at once, before any Zenoh handshake).  Only for the endpoints
+    :func:`socket_address` knows; None for the others.
+    """
+    target = socket_address(endpoint)
+    if target is None:
+        return None
+    kind, address = target
+    try:
+        if kind == "unix":
+            with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as sock:
+                sock.settimeout(timeout)
+                sock.connect(address)
+        else:  # any address (IPv4, IPv6) the host name resolves to
+            with socket.create_connection(address, timeout=timeout):
+                pass
+    except socket.gaierror as exc:
+        return f"cannot resolve {address[0]!r}: {exc.strerror}"
+    except TimeoutError:
+        return f"no answer within {timeout:g} s"
+    except OSError as exc:
+        return (exc.strerror or str(exc)).lower()
+    return None
+
+
+def hosted_runs(session: zenoh.Session, *, timeout: float = 1.0) -> list:
+    """The run ids whose orchestrator is present on this session's router (its liveliness token), sorted.
+
+    Empty when the router hosts no run yet, or when it does not let this session ask (a secure
+    router answers an authenticated client with its own run, see
+    :func:`splitspec_core.runtime.security.acl_config`).
+    """
+    runs = set()
+    try:
+        for reply in session.liveliness().get(ORCHESTRATORS, timeout=timeout):
+            if reply.ok is not None:
+                run_id = Keys.run_of(str(reply.ok.key_expr))
+                if run_id:
+                    runs.add(run_id)
+    except zenoh.ZError:  # the session is closing: nothing to report
+        pass
+    return sorted(runs)
 
 
 class Inbox:

@@ -17,7 +17,7 @@ import sys
 from typing import Callable
 
 from ..errors import ScenarioError as UsageError  # bad CLI arguments
-from ..errors import SplitspecError
+from ..errors import NetworkError, SplitspecError
 
 __all__ = ["ArgumentParser", "EXIT_BAD_INPUT", "EXIT_FAILED", "MAX_SECONDS", "MAX_SEED", "UsageError",
            "add_logging_options", "add_node_options", "at_least", "error_boundary", "positive", "seed",
@@ -171,8 +171,10 @@ def node_cli(build_parser: Callable[[str], argparse.ArgumentParser], main: Calla
 def error_boundary(func: Callable[[argparse.Namespace], int | None], args: argparse.Namespace) -> int:
     """Run ``func(args)``; the exit status, with every expected failure as one line on stderr.
 
-    SplitspecError (bad input): 2.  TimeoutError / ValueError (no orchestrator answered, an agent id
-    not in the scenario): 1.  Ctrl-C: 130.  A closed stdout pipe (``| head``): 0.
+    SplitspecError (bad input): 2.  NetworkError (no router at the endpoint, the router refused the
+    process's credentials, no such run on the router, the router went away), TimeoutError / ValueError
+    (no orchestrator answered, an agent id not in the scenario): 1.  Ctrl-C: 130.  A closed stdout
+    pipe (``| head``): 0.
     """
     # Zenoh delivers messages on its own threads; a short GIL switch interval lets the process's
     # event loop take them over quickly (the default 5 ms would dominate a round)
@@ -180,6 +182,11 @@ def error_boundary(func: Callable[[argparse.Namespace], int | None], args: argpa
     debug = bool(os.environ.get("SPLITSPEC_DEBUG"))
     try:
         return int(func(args) or 0)
+    except NetworkError as exc:  # a well-formed command in a deployment that is not (yet) what it names
+        if debug:
+            raise
+        print(f"splitspec: error: {exc}", file=sys.stderr)
+        return EXIT_FAILED
     except SplitspecError as exc:
         if debug:
             raise

@@ -9,6 +9,17 @@ only after the subscriptions are in place); the health session only answers the 
 ``status`` queries, so a flood on the data link, which the network thread works through in order,
 never makes a busy process look frozen (chaos flood case: with one session, every agent was declared
 frozen).
+
+A process started by hand (not by an orchestrator: no ``SPLITSPEC_CHILD`` in its environment) fails
+fast and says why, each as one line and exit status 1 (:class:`~splitspec_core.errors.NetworkError`):
+nothing accepts a connection at the endpoint within :data:`CONNECT_BUDGET` of its start; the router refuses it
+(no ``--credentials`` for a secure run, a wrong password, another run's credentials); the router
+hosts other runs but not ``--run-id`` (for :data:`RUN_GRACE`); the router goes away while it waits
+(for :data:`LINK_GRACE`: the run ended).  A router that hosts no run at all is waited on for
+``--wait`` (a deployment whose orchestrator starts last, as in ``compose.yaml``), and the process
+logs once what it waits for.  The processes an orchestrator starts itself keep the patient start:
+their router is their parent's, already up, and under heavy load a short budget would be a false
+failure.
 """
 
 from __future__ import annotations
@@ -19,10 +30,32 @@ import time
 
 import zenoh
 
-from .bus import (CHILD_ENV, LIVELINESS_DELETE, IdentityRefused, Inbox, lease_ms_for, open_session,
-                  query_bytes)
+from ..errors import NetworkError
+from .bus import (CHILD_ENV, LIVELINESS_DELETE, IdentityRefused, Inbox, hosted_runs, lease_ms_for, open_session,
+                  query_bytes, socket_address, unreachable_reason, zenoh_config)
 
-__all__ = ["NodeShell"]
+__all__ = ["NodeShell", "CONNECT_BUDGET", "RUN_GRACE", "LINK_GRACE", "process_age"]
+
+#: seconds after its start a hand-started process gives the router to accept its connection (retried while
+#: nothing listens); counted from the process's start, so a slow start on a loaded machine does not add to it
+CONNECT_BUDGET = 2.5
+#: seconds a router hosting other runs may take to show this process's run before the process gives up
+RUN_GRACE = 1.0
+#: seconds a hand-started process waiting for its configuration tolerates having no router link
+LINK_GRACE = 1.0
+#: a refused handshake is tried this many times (POLL apart) before the process reports it
+REFUSALS = 2
+POLL = 0.1
+
+
+def process_age() -> float:
+    """Seconds since this process started (Linux ``/proc/self/stat``); 0 where that cannot be read."""
+    try:
+        with open("/proc/self/stat", encoding="ascii") as f:
+            start_ticks = int(f.read().rsplit(")", 1)[1].split()[19])  # field 22, starttime, in clock ticks
+        return max(0.0, time.clock_gettime(time.CLOCK_BOOTTIME) - start_ticks / os.sysconf("SC_CLK_TCK"))
+    except (OSError, ValueError, IndexError, AttributeError):
+        return 0.0
 
 
 class NodeShell:
@@ -45,18 +78,32 @@ class NodeShell:
 
         self.keys, self.log = keys, log
         self.role, self.ident = role, int(ident)
+        self.endpoint, self.credentials = connect, credentials
         self.nonce = new_nonce()
         self.mac_key: bytes | None = None
+        #: not started by an orchestrator: fail fast with the reason (see the module docstring)
+        self.hand_started = not os.environ.get(CHILD_ENV)
         kw = {}
         if credentials:
             from .security import read_credentials
 
             kw["user"], kw["password"] = read_credentials(credentials)
         opts = dict(connect=[connect], connect_timeout_ms=int(max(wait, 1.0) * 1000), lease_ms=lease_ms_for(role), **kw)
-        self.session = open_session("client", **opts)
-        # the status queryable's own session (its own link): protocol messages are handled on the data
-        # link's network thread, so a flood there must not queue the orchestrator's status queries behind it
-        self.health = open_session("client", **opts)
+        if self.hand_started:
+            # one connection attempt per open (a refused handshake fails at once instead of being retried
+            # until the timeout); _open_promptly retries while nothing listens
+            opts["connect_timeout_ms"] = 0
+            self.session = self._open_promptly(opts)
+            try:
+                self.health = self._open_promptly(opts)
+            except NetworkError:
+                self.session.close()
+                raise
+        else:
+            self.session = open_session("client", **opts)
+            # the status queryable's own session (its own link): protocol messages are handled on the data
+            # link's network thread, so a flood there must not queue the orchestrator's status queries behind it
+            self.health = open_session("client", **opts)
         self.inbox = Inbox(self.session)
         self.health_inbox = Inbox(self.health)
         self.pubs: dict = {}
@@ -77,6 +124,57 @@ class NodeShell:
     def who(self) -> str:
         return "the plant" if self.role == "plant" else f"{self.role} {self.ident}"
 
+    def _open_promptly(self, opts: dict) -> zenoh.Session:
+        """A client session of a hand-started process, or a one-line :class:`NetworkError` saying why not.
+
+        Retried every :data:`POLL` seconds until :data:`CONNECT_BUDGET` seconds after the process
+        started while nothing accepts a connection at the endpoint (a router still starting); a router
+        that accepts the connection but not the Zenoh handshake refused this process (:data:`REFUSALS`
+        attempts): that is reported at once, naming the credentials it came with.  An endpoint a
+        socket cannot check (``udp/``, ``quic/``...) is retried for the whole budget.
+        """
+        config = zenoh_config("client", **opts)
+        checkable = socket_address(self.endpoint) is not None
+        started = time.monotonic() - process_age()
+        deadline = started + CONNECT_BUDGET
+        refusals = 0
+        while True:
+            try:
+                return zenoh.open(config)
+            except zenoh.ZError:
+                pass  # zenoh gives no reason ("Unable to connect to any of [...]"): a socket tells
+            why = unreachable_reason(self.endpoint, timeout=max(0.1, min(1.0, deadline - time.monotonic())))
+            refusals = refusals + 1 if checkable and why is None else 0
+            if refusals >= REFUSALS or time.monotonic() >= deadline:
+                raise NetworkError(self._not_admitted(why, time.monotonic() - started, checked=checkable))
+            time.sleep(POLL)
+
+    def _not_admitted(self, unreachable: str | None, tried: float, *, checked: bool = True) -> str:
+        """The one line saying why this process has no session.
+
+        ``unreachable``: the socket's reason, if nothing accepted a connection; ``checked``: False if
+        a socket cannot tell (the line then names both causes).
+        """
+        ep = self.endpoint
+        if unreachable is not None:
+            return (f"cannot reach a Zenoh router at {ep} ({unreachable}, for {tried:.1f} s): is the run (or its "
+                    "router) up, and is this its endpoint?")
+        if not checked:
+            return (f"cannot connect to a Zenoh router at {ep} (for {tried:.1f} s): nothing answers there, or the "
+                    f"router refused {self.who} ({'with' if self.credentials else 'without'} --credentials)")
+        get_them = ("`splitspec credentials SCENARIO --out DIR` writes them, for an orchestrator started with "
+                    "--secure DIR")
+        if not self.credentials:
+            return (f"the Zenoh router at {ep} refused {self.who}, which has no credentials: a secure run (the "
+                    f"default) admits only processes started with --credentials FILE ({get_them}; or start the "
+                    "run with --insecure)")
+        from .security import read_credentials, user_of
+
+        user = read_credentials(self.credentials)[0]
+        mismatch = "" if user == user_of(self.role, self.ident) else f", which is not {self.who}'s user"
+        return (f"the Zenoh router at {ep} refused user {user!r} of {self.credentials}{mismatch}: a wrong "
+                f"password, or another run's credentials (use this run's; {get_them})")
+
     def fetch_config(self, *, wait: float) -> dict:
         """Claim the identity and fetch the scenario, the centralised design and the run's key.
 
@@ -90,8 +188,11 @@ class NodeShell:
 
         hello = encode("hello", self.keys.run_id, role=self.role, id=self.ident, pid=os.getpid(),
                        host=socket.gethostname(), nonce=self.nonce)
-        raw = query_bytes(self.session, self.keys.config, timeout=2.0, payload=hello,
-                          retry_until=time.monotonic() + wait)
+        if self.hand_started:
+            raw = self._await_config(hello, wait=wait)
+        else:
+            raw = query_bytes(self.session, self.keys.config, timeout=2.0, payload=hello,
+                              retry_until=time.monotonic() + wait)
         if raw is None:
             raise TimeoutError(f"no orchestrator answered on {self.keys.config} within {wait:g} s")
         try:
@@ -104,6 +205,49 @@ class NodeShell:
         self.mac_key = self.inbox.mac_key = cfg["key"]
         self.health_inbox.serve(self.keys.status(self.role, self.ident, self.nonce), lambda _q: hello)
         return cfg
+
+    def _await_config(self, hello: bytes, *, wait: float) -> bytes | None:
+        """The orchestrator's answer to ``hello`` (None after ``wait`` s) for a hand-started process.
+
+        Between attempts it looks at what the router hosts (:func:`hosted_runs`): other runs but not
+        this one for :data:`RUN_GRACE` -> :class:`NetworkError` (a wrong ``--run-id``); no router link
+        for :data:`LINK_GRACE` -> :class:`NetworkError` (the run ended, the router stopped); no run at
+        all -> it waits, and says once what for.
+        """
+        run_id, ep = self.keys.run_id, self.endpoint
+        deadline = time.monotonic() + wait
+        others_since = lost_since = None
+        told = False
+        while True:
+            now = time.monotonic()
+            if not self.session.info.routers_zid():
+                lost_since = now if lost_since is None else lost_since
+                if now - lost_since >= LINK_GRACE:
+                    raise NetworkError(f"lost the Zenoh router at {ep} while {self.who} waited for the orchestrator "
+                                       f"of run {run_id!r} (the run ended, or the router stopped)")
+            else:
+                lost_since = None
+                # on the health session: a liveliness get on the data session right after its liveliness
+                # subscriber (the orchestrator watch, with history) often comes back empty (Zenoh 1.10)
+                runs = hosted_runs(self.health)
+                if runs and run_id not in runs:
+                    others_since = now if others_since is None else others_since
+                    if now - others_since >= RUN_GRACE:
+                        hosted = ", ".join(map(repr, runs))
+                        raise NetworkError(f"no run {run_id!r} on {ep}: this router hosts run{'s' * (len(runs) > 1)} "
+                                           f"{hosted} (check --run-id)")
+                else:
+                    others_since = None
+                    if not runs and not told:
+                        self.log.info("%s: waiting up to %g s for the orchestrator of run %r on %s (no run is "
+                                      "visible on this router yet)", self.who, wait, run_id, ep)
+                        told = True
+                    raw = query_bytes(self.session, self.keys.config, timeout=2.0, payload=hello)
+                    if raw is not None:
+                        return raw
+            if time.monotonic() > deadline:
+                return None
+            time.sleep(POLL)
 
     def publish(self, items) -> None:
         for key, payload in items:

@@ -17,7 +17,10 @@ refused at connection time) and enforces this access-control policy
 (:func:`acl_config`; default deny, on the router's transport faces):
 
 * everybody authenticated may subscribe under ``splitspec/<run>/``, receive
-  what is published there, query ``config``, see and query liveliness;
+  what is published there, query ``config``, see and query liveliness, and
+  ask which runs the router hosts (the liveliness query
+  ``splitspec/*/alive/orchestrator/*``, answered with this run's
+  orchestrator token only: a process with a wrong ``--run-id`` is told so);
 * only ``plant`` may publish ``y/*`` and ``truth``, hold ``alive/plant/**`` and
   answer ``status/plant/**``;
 * only ``agent-<i>`` may publish ``z/<i>`` and ``xhat/<i>``, hold
@@ -40,6 +43,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from ..errors import ScenarioError, SplitspecError
+from .wire import ORCHESTRATORS, Keys
 
 __all__ = ["Credentials", "generate", "read_credentials", "acl_config", "user_of"]
 
@@ -71,7 +75,7 @@ def read_credentials(path) -> tuple:
 
 def acl_config(run_id: str, agent_ids) -> dict:
     """The router's ``access_control`` section for a run (see the module docstring)."""
-    p = f"splitspec/{run_id}"
+    p = Keys(run_id).prefix
 
     def rule(rid, messages, flows, keys):
         return {"id": rid, "permission": "allow", "messages": messages, "flows": flows, "key_exprs": keys}
@@ -85,6 +89,8 @@ def acl_config(run_id: str, agent_ids) -> dict:
         rule("receive-config", ["reply"], egress, [f"{p}/config"]),
         rule("watch-liveliness", ["declare_liveliness_subscriber", "liveliness_query"], ingress, [f"{p}/alive/**"]),
         rule("see-liveliness", ["liveliness_token"], egress, [f"{p}/alive/**"]),
+        # a hand-started process with a wrong --run-id learns which run this router hosts (and says so)
+        rule("discover-runs", ["liveliness_query"], ingress, [ORCHESTRATORS]),
         rule("status-query", ["query"], egress, [f"{p}/status/**"]),
         rule("plant-publish", ["put"], ingress, [f"{p}/y/*", f"{p}/truth"]),
         rule("plant-token", ["liveliness_token"], ingress, [f"{p}/alive/plant/**"]),
@@ -95,7 +101,7 @@ def acl_config(run_id: str, agent_ids) -> dict:
     policies = [
         {"id": "everyone", "subjects": ["everyone"],
          "rules": ["subscribe", "receive", "query-config", "receive-config", "watch-liveliness", "see-liveliness",
-                   "status-query"]},
+                   "status-query", "discover-runs"]},
         {"id": "plant", "subjects": ["plant"], "rules": ["plant-publish", "plant-token", "plant-status"]},
     ]
     for i in agent_ids:

@@ -72,11 +72,14 @@ from ..errors import SplitspecError
 
 __all__ = ["SCHEMA_VERSION", "DEFAULT_RUN_ID", "Keys", "WireError", "encode", "decode",
            "MESSAGE_FIELDS", "MAC_BYTES", "new_run_key", "new_nonce", "mac", "verify",
-           "BINARY_LAYOUT", "run_tag"]
+           "BINARY_LAYOUT", "run_tag", "KEY_ROOT", "ORCHESTRATORS"]
 
 # 2: one y message for every agent; x_i(tau + 1) doubles as the next z_i(0); 3: binary round messages
 SCHEMA_VERSION = 3
 DEFAULT_RUN_ID = "default"
+KEY_ROOT = "splitspec"  #: every run's keys live under ``splitspec/<run_id>/``
+#: every run's orchestrator token (``splitspec/<run_id>/alive/orchestrator/0``): which runs a router hosts
+ORCHESTRATORS = f"{KEY_ROOT}/*/alive/orchestrator/*"
 
 
 class WireError(SplitspecError, ValueError):
@@ -100,7 +103,7 @@ class Keys:
 
     @property
     def prefix(self) -> str:
-        return f"splitspec/{self.run_id}"
+        return f"{KEY_ROOT}/{self.run_id}"
 
     @property
     def config(self) -> str:
@@ -155,6 +158,13 @@ class Keys:
     @property
     def alive_all(self) -> str:
         return f"{self.prefix}/alive/**"
+
+    @staticmethod
+    def run_of(key: str) -> str | None:
+        """The run id of a key under ``splitspec/<run_id>/`` (e.g. a reply to :data:`ORCHESTRATORS`), else None."""
+        root, sep, rest = str(key).partition("/")
+        run_id = rest.partition("/")[0]
+        return run_id if root == KEY_ROOT and sep and run_id else None
 
     @staticmethod
     def last(key: str) -> str:

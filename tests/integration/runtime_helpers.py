@@ -35,6 +35,21 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
+def wait_for_listener(endpoint: str, timeout: float = 60.0) -> None:
+    """Until something accepts TCP connections at ``tcp/HOST:PORT`` (a router is up): hand-started processes give
+    the router only a short budget (``splitspec_core.runtime.node.CONNECT_BUDGET``) to be reachable."""
+    host, _, port = endpoint.removeprefix("tcp/").rpartition(":")
+    deadline = time.monotonic() + timeout
+    while True:
+        try:
+            with socket.create_connection((host, int(port)), timeout=1.0):
+                return
+        except OSError:
+            if time.monotonic() > deadline:
+                raise AssertionError(f"nothing listens at {endpoint} after {timeout} s") from None
+            time.sleep(0.05)
+
+
 def cli(*args) -> list:
     return [sys.executable, "-m", "splitspec_orchestrator", *map(str, args)]
 

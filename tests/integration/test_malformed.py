@@ -21,7 +21,7 @@ import pytest
 from splitspec_core.runtime.bus import open_session
 from splitspec_core.runtime.wire import MAC_BYTES, SCHEMA_VERSION, Keys, WireError, decode, encode
 from tests.integration.runtime_helpers import (assert_all_gone, compare_with_simulate, dump, events, free_port,
-                                               scenario_file, start, started_pids, wait_for_event)
+                                               scenario_file, start, started_pids, wait_for_event, wait_for_listener)
 
 pytestmark = pytest.mark.slow
 
@@ -97,6 +97,7 @@ def rogue_during_hand_started_run(tmp_path, scen, out, run_id, *, creds=None, **
 
     procs = [start("orchestrator", scen, "--listen", endpoint, "--out", out, "--run-id", run_id,
                    *(["--secure", creds] if creds else []), log=logs[0])]
+    wait_for_listener(endpoint)  # processes started by hand give the router 2.5 s
     procs.append(start("plant", "--connect", endpoint, "--run-id", run_id, *secure("plant"), log=logs[1]))
     procs += [start("agent", "--id", i, "--connect", endpoint, "--run-id", run_id, *secure(f"agent-{i}"),
                     log=logs[1 + i]) for i in (1, 2, 3)]

@@ -27,6 +27,24 @@ def start_on(lab, host, args, log):
                             stderr=subprocess.STDOUT)
 
 
+def wait_for_router(lab, host, endpoint, timeout: float = 60.0) -> None:
+    """Until ``endpoint`` accepts TCP connections from ``host``'s namespace: processes started by hand give the
+    router a short budget (``splitspec_core.runtime.node.CONNECT_BUDGET``) to be reachable."""
+    addr, port = endpoint.removeprefix("tcp/").rsplit(":", 1)
+    code = ("import socket, sys, time\n"
+            f"deadline = time.monotonic() + {timeout}\n"
+            "while True:\n"
+            "    try:\n"
+            f"        socket.create_connection(({addr!r}, {port}), 1).close()\n"
+            "        break\n"
+            "    except OSError:\n"
+            "        if time.monotonic() > deadline:\n"
+            "            sys.exit(1)\n"
+            "        time.sleep(0.05)\n")
+    r = subprocess.run(lab.exec(host, [sys.executable, "-c", code]), timeout=timeout + 30)
+    assert r.returncode == 0, f"nothing listens at {endpoint} (seen from {host}) after {timeout} s"
+
+
 def net_namespace(pid: int) -> str:
     return os.readlink(f"/proc/{pid}/ns/net")
 
@@ -51,6 +69,7 @@ def test_processes_on_separate_hosts_equal_simulate(tmp_path, external_router):
                 orch_net = ["--listen", endpoint]
             procs["orch"] = start_on(lab, "orch", ["orchestrator", scen, *orch_net, "--out", out, "--run-id", rid],
                                      logs["orch"])
+            wait_for_router(lab, "plant", endpoint)
             # the other hosts need nothing but the endpoint and the run id
             procs["plant"] = start_on(lab, "plant", ["plant", "--connect", endpoint, "--run-id", rid], logs["plant"])
             for i in AGENTS:

@@ -1,10 +1,14 @@
-"""The Zenoh configuration every process's session gets (splitspec_core.runtime.bus.zenoh_config)."""
+"""The Zenoh configuration every process's session gets (splitspec_core.runtime.bus.zenoh_config), and the socket
+check that tells an endpoint nobody listens on from a router that refused (unreachable_reason)."""
 
 import json
+import socket
 
 import pytest
 
-from splitspec_core.runtime.bus import zenoh_config
+from splitspec_core.runtime.bus import socket_address, unreachable_reason, zenoh_config
+from splitspec_core.runtime.security import acl_config
+from splitspec_core.runtime.wire import ORCHESTRATORS, Keys
 
 
 @pytest.mark.parametrize("mode,kw", [("router", {"listen": ["tcp/127.0.0.1:7447"]}),
@@ -23,3 +27,40 @@ def test_a_router_without_peers_opens_without_the_scouting_delay():
     # a router that connects to others keeps Zenoh's default: the delay lets it hear of them
     c = zenoh_config("router", listen=["tcp/127.0.0.1:7447"], connect=["tcp/127.0.0.1:7448"])
     assert json.loads(c.get_json("scouting/delay")) != 0
+
+
+@pytest.mark.parametrize("endpoint,expected", [
+    ("tcp/127.0.0.1:7447", ("tcp", ("127.0.0.1", 7447))),
+    ("tcp/[::1]:7447", ("tcp", ("::1", 7447))),
+    ("tls/router.example:7447?iface=eth0#lease=1", ("tcp", ("router.example", 7447))),
+    ("ws/host:80", ("tcp", ("host", 80))),
+    ("unixsock-stream//tmp/z.sock", ("unix", "/tmp/z.sock")),
+    ("udp/127.0.0.1:7447", None), ("quic/host:7447", None),  # not checkable with a TCP socket
+    ("tcp/127.0.0.1", None), ("tcp/:7447", None), ("garbage", None),
+])
+def test_socket_address(endpoint, expected):
+    assert socket_address(endpoint) == expected
+
+
+def test_unreachable_reason_tells_a_listener_from_nobody(tmp_path):
+    with socket.socket() as srv:
+        srv.bind(("127.0.0.1", 0))
+        srv.listen()
+        port = srv.getsockname()[1]
+        assert unreachable_reason(f"tcp/127.0.0.1:{port}") is None
+    assert unreachable_reason(f"tcp/127.0.0.1:{port}") == "connection refused"  # closed now
+    assert unreachable_reason(f"unixsock-stream/{tmp_path / 'none.sock'}") == "no such file or directory"
+    assert unreachable_reason("tcp/no-such-host.invalid:7447").startswith("cannot resolve 'no-such-host.invalid'")
+    assert unreachable_reason("udp/127.0.0.1:1") is None  # cannot tell
+
+
+def test_every_authenticated_process_may_ask_which_runs_a_secure_router_hosts():
+    acl = acl_config("r1", [1, 2])
+    (rule,) = [r for r in acl["rules"] if r["id"] == "discover-runs"]
+    assert rule["messages"] == ["liveliness_query"] and rule["flows"] == ["ingress"]
+    assert rule["key_exprs"] == [ORCHESTRATORS] == ["splitspec/*/alive/orchestrator/*"]
+    (everyone,) = [p for p in acl["policies"] if p["id"] == "everyone"]
+    assert "discover-runs" in everyone["rules"]
+    # the reply is the orchestrator's own token, which every authenticated process may already see
+    assert Keys.run_of(Keys("r1").alive("orchestrator")) == "r1"
+    assert Keys.run_of("splitspec") is None and Keys.run_of("other/r1/alive") is None

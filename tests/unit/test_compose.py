@@ -69,6 +69,9 @@ def test_every_command_is_a_valid_invocation(compose):
         host = re.fullmatch(r"tcp/([\w.-]+):7447", args.connect).group(1)
         assert host in compose["services"] and "router" in svc.get("depends_on", []), name
         assert args.run_id == "compose"
+        # a plant or agent gives the router 2.5 s to listen: one that started too early is started again (bounded);
+        # the orchestrator waits for the router by itself and a failed run is not repeated
+        assert svc.get("restart") == ("no" if args.command == "orchestrator" else "on-failure:3"), name
     assert {a.command for a in roles.values()} == {"orchestrator", "plant", "agent"}
 
 
