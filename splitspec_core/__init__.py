@@ -40,6 +40,9 @@ q                ``q``                 integer      consensus exchanges per even
 lam              ``rate``              scalar       decay rate
 x_i, xhat        ``xhat``              (T, m, n)    agent i's estimate of x
 e_i              ``errors()``          (T, m)       ``|x_i - x|`` per agent
+M                ``full_error_matrix`` (mn, mn)     full error map of one step (eq. split-discrete-error)
+c                ``transient_constant`` scalar      ``sup_k ||M^k|| / lam^k`` (conditioning.py; not in the paper)
+margin           ``margin``            scalar       graded observability margin (observability.py)
 ===============  ====================  ===========  ==========================================
 
 Layout: the math lives here (pure functions, no I/O); the per-agent steps the simulator and the

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 
@@ -23,7 +24,7 @@ from . import bounds
 from .errors import AssumptionError
 from .gains import LocalGain, design_gain
 from .graphs import build_graph, enumerate_strongly_connected
-from .observability import Decomposition, check_joint_observability, decompose
+from .observability import DEFAULT_RANK_TOL, Decomposition, check_joint_observability, decompose
 from .resilience import analyse_agent_losses, analyse_arc_losses
 from .sampled import sampled_rates
 from .scenario_model import Scenario
@@ -86,6 +87,9 @@ class Design:
     agent_losses: dict = field(default_factory=dict)
     arc_losses: dict = field(default_factory=dict)
     warnings: tuple = ()
+    # max over agents of Decomposition.split_residual; above round-off, full_radius: conditioning.check_full
+    split_residual: float = 0.0
+    full_radius: dict = field(default_factory=dict)
 
     @property
     def time(self) -> str:
@@ -115,6 +119,20 @@ class Design:
     def redundantly_jointly_observable(self) -> bool:
         return all(r.jointly_observable for r in self.agent_losses.values())
 
+    @property
+    def split_exact(self) -> bool:
+        """Every V_i an unobservable space to round-off: the split of prop. error holds, the certificates apply."""
+        from .full_matrix import SPLIT_EXACT
+
+        return self.split_residual <= SPLIT_EXACT
+
+    @cached_property
+    def conditioning(self):
+        """:class:`~splitspec_core.conditioning.Conditioning` (margins, gains, transient constant, noise), on first use."""
+        from .conditioning import conditioning
+
+        return conditioning(self)
+
 
 def nice_ceil(x: float) -> float:
     """Round up to two significant digits (9.47 -> 9.5, 103.8 -> 110); the auto g."""
@@ -125,7 +143,7 @@ def nice_ceil(x: float) -> float:
 
 
 def design_agent(A: np.ndarray, C: np.ndarray, *, time: str, rate: float, method: str = "place",
-                 margin: float = 0.5, K: np.ndarray | None = None, rank_tol: float = 1e-9,
+                 margin: float = 0.5, K: np.ndarray | None = None, rank_tol: float | None = None,
                  process_weight: float = 1.0, measurement_weight: float = 1.0, agent_id: int = 0) -> AgentDesign:
     """The local, fully distributed part of the design for one agent (``V_i, P_i, K_i``)."""
     dec = decompose(A, C, rank_tol=rank_tol)
@@ -180,7 +198,12 @@ def design(sc: Scenario, *, compare_q_methods: bool = False) -> Design:
     A = sc.system.A
     # the standing assumption first ((C, A) of eqs. pre_sys1-pre_sys2 jointly observable): without it no K_i helps,
     # so an explicit K_i that misses the rate on a direction nobody sees is not the error to report
-    check_joint_observability(A, sc.system.Cs, rank_tol=d.rank_tol)
+    jo, warnings = check_joint_observability(A, sc.system.Cs, rank_tol=d.rank_tol), []
+    if jo.margin is not None and jo.margin < DEFAULT_RANK_TOL:
+        why = f"kept by design.rank_tol: {d.rank_tol:g}" if d.rank_tol is not None else "kept: leaving it out " \
+            "would break the split"
+        warnings.append(f"(C, A) is jointly observable only with a margin of {jo.margin:.2g} (< {DEFAULT_RANK_TOL:g}, "
+                        f"{why}): gains grow like 1 / margin")
     pw, mw = riccati_weights(sc)
     agents = tuple(
         design_agent(A, C, time=sc.time, rate=d.rate, method=d.gains, margin=d.margin,
@@ -189,7 +212,6 @@ def design(sc: Scenario, *, compare_q_methods: bool = False) -> Design:
         for k, (aid, C) in enumerate(zip(sc.agent_ids, sc.system.Cs))
     )
     graphs = tuple(build_graph(g.name, sc.agent_ids, g.arcs, weights=d.weights) for g in sc.graphs)
-    warnings = []
     used = sc.switching.graph_names(sc.graph_names)
     by_name = {g.name: g for g in graphs}
     ad = {a.id: a for a in agents}
@@ -235,8 +257,14 @@ def design(sc: Scenario, *, compare_q_methods: bool = False) -> Design:
             kw["sampled_rate"] = _sampled_check(sc, agents, cases, kw["g"], warnings)
     else:
         kw.update(_design_q(sc, cases, switching, warnings, compare_q_methods))
-    return Design(scenario=sc, agents=agents, graphs=graphs, cases=cases, agent_losses=agent_losses,
-                  arc_losses=arc_losses, warnings=tuple(warnings), **kw)
+    residual = max((a.dec.split_residual for a in agents), default=0.0)
+    des = Design(scenario=sc, agents=agents, graphs=graphs, cases=cases, agent_losses=agent_losses,
+                 arc_losses=arc_losses, warnings=tuple(warnings), split_residual=residual, **kw)
+    if des.split_exact or (sc.time == "continuous" and des.g is None):
+        return des
+    from .full_matrix import check_full  # an approximate split: the rate on the full error matrices
+
+    return check_full(des, warnings)
 
 
 def _design_g(sc: Scenario, cases, switching: bool, warnings: list) -> dict:

@@ -1,21 +1,9 @@
 """Estimation quality under noise: the exact steady-state error covariance of a design, and tuning.
 
-The split-spectrum estimators are linear, so with a constant graph the stacked
-error ``e = (x_1 - x, ..., x_m - x)`` follows ``e(k+1) = M e(k) + noise``:
-
-discrete (eqs. split-discrete-est1..p3)
-    ``e(k+1) = blkdiag(A + K_i C_i) W^q e(k) - blkdiag(K_i) w(k) - (1 (x) I) v(k)``
-    with the consensus sub-round ``W = blkdiag(I - P_i) + blkdiag(P_i) (S (x) I)``;
-continuous, sampled-data form (see :mod:`splitspec_core.steps`)
-    ``e(k+1) = [blkdiag(E + D K_i C_i) - g blkdiag(D P_i) (I - S (x) I)] e(k)
-    - blkdiag(D K_i) w(k) - (1 (x) L) v(k)``
-
-with ``w`` the measurement noise (covariance ``R = sigma_m^2 I``) and ``v``
-the process noise (covariance ``Q``, the plant's, see
-:class:`splitspec_core.simulator.Plant`).  The steady-state covariance solves
-the discrete Lyapunov equation ``Sigma = M Sigma M' + N``; agent i's RMS error
-is ``sqrt(trace Sigma_ii)``.  No simulation, no sampling error: this is what
-a long simulation's RMS converges to (tested).
+The split-spectrum estimators are linear, so with a constant graph the stacked error follows
+``e(k+1) = M e(k) + noise``; its steady-state covariance solves a discrete Lyapunov equation
+(:func:`splitspec_core.full_matrix.error_dynamics` and :func:`~splitspec_core.full_matrix.predicted_rms`,
+re-exported here): no simulation, no sampling error, what a long simulation's RMS converges to (tested).
 
 :func:`tune` searches q (discrete) or g (continuous) and the gain design
 (``place``, or ``riccati`` over a range of process/measurement weight ratios)
@@ -29,66 +17,14 @@ import dataclasses
 import math
 
 import numpy as np
-import scipy.linalg as sla
 
 from .designer import Design, design
 from .errors import DesignError
-from .network import consensus_rows
+from .full_matrix import error_dynamics, predicted_rms
 from .report import rate_certificate
 from .scenario_model import Scenario
 
 __all__ = ["error_dynamics", "predicted_rms", "TuneResult", "tune"]
-
-
-def _S(sc: Scenario, graph_index: int) -> np.ndarray:
-    rows = consensus_rows(sc, graph_index, sc.agent_ids)
-    pos = {a: k for k, a in enumerate(sc.agent_ids)}
-    S = np.zeros((sc.m, sc.m))
-    for i, (nbs, ws) in rows.items():
-        for j, w in zip(nbs, ws):
-            S[pos[i], pos[j]] = w
-    return S
-
-
-def error_dynamics(des: Design, graph_index: int = 0) -> tuple:
-    """``(M, N)``: error transition and noise covariance per step (see the module docstring)."""
-    from .baselines import sampled_model
-
-    sc = des.scenario
-    m, n = sc.m, sc.n
-    F, Q, R = sampled_model(sc)
-    S = _S(sc, graph_index)
-    SI = np.kron(S, np.eye(n))
-    Ks = [np.asarray(K) for K in des.Ks]
-    Cs = [np.asarray(C) for C in sc.system.Cs]
-    Ps = [np.asarray(P) for P in des.Ps]
-    if sc.time == "discrete":
-        W = sla.block_diag(*[np.eye(n) - P for P in Ps]) + sla.block_diag(*Ps) @ SI
-        M = sla.block_diag(*[F + K @ C for K, C in zip(Ks, Cs)]) @ np.linalg.matrix_power(W, int(des.q))
-        G = sla.block_diag(*Ks)
-    else:
-        if des.g is None:
-            raise DesignError("the adaptive gain has no steady-state error covariance (g changes with time)")
-        from .steps import sampled_data_matrices
-
-        E, D, _ = sampled_data_matrices(np.asarray(sc.system.A), sc.run.dt)
-        M = (sla.block_diag(*[E + D @ K @ C for K, C in zip(Ks, Cs)])
-             - des.g * sla.block_diag(*[D @ P for P in Ps]) @ (np.eye(m * n) - SI))
-        G = sla.block_diag(*[D @ K for K in Ks])
-    one = np.kron(np.ones((m, 1)), np.eye(n))
-    N = G @ R @ G.T + one @ Q @ one.T
-    return M, 0.5 * (N + N.T)
-
-
-def predicted_rms(des: Design, graph_index: int = 0) -> np.ndarray:
-    """Steady-state RMS error ``sqrt(trace Sigma_ii)`` of every agent (inf if the error map is unstable)."""
-    sc = des.scenario
-    M, N = error_dynamics(des, graph_index)
-    if np.max(np.abs(np.linalg.eigvals(M))) >= 1.0:
-        return np.full(sc.m, math.inf)
-    Sigma = sla.solve_discrete_lyapunov(M, N)
-    n = sc.n
-    return np.sqrt(np.maximum([np.trace(Sigma[i * n:(i + 1) * n, i * n:(i + 1) * n]) for i in range(sc.m)], 0.0))
 
 
 @dataclasses.dataclass(frozen=True)

@@ -49,6 +49,8 @@ def rate_certificate(des: Design, *, sampled: bool = True) -> RateCertificate:
     rate = sc.design.rate
     if des.g_mode == "adaptive":
         return RateCertificate(False, f"adaptive gain: {NO_CERTIFIED_RATE}")
+    if des.full_radius:
+        return _full_certificate(des, sampled=sampled)
     if des.time == "discrete":
         r = des.q_result
         ok = bool(r.certified)
@@ -77,6 +79,28 @@ def rate_certificate(des: Design, *, sampled: bool = True) -> RateCertificate:
     scope = " (each graph held constant)" if len(des.cases) > 1 else ""
     return RateCertificate(True, f"{ode}; its sampled-data form with run.dt = {dt:g} decays at {worst:.4g} >= "
                                  f"{rate:g}{scope}")
+
+
+def _full_certificate(des: Design, *, sampled: bool) -> RateCertificate:
+    """An approximate split (``Design.full_radius``): the verdict of the full error matrices, each graph held
+    constant; no switching certificate of the paper covers it (see :func:`splitspec_core.full_matrix.check_full`)."""
+    sc = des.scenario
+    rate = sc.design.rate
+    scope = (f"each graph held constant; the split is approximate (residual {des.split_residual:.2g}), "
+             "so no switching certificate applies") if len(des.cases) > 1 else \
+        f"the split is approximate (residual {des.split_residual:.2g})"
+    if des.time == "discrete":
+        worst = max(des.full_radius.values())
+        ok = worst < rate
+        return RateCertificate(ok, f"q = {des.q}: spectral radius of the full error matrix {worst:.4g} "
+                                   f"{'<' if ok else '>='} rate {rate:g} ({scope})")
+    ode = max(v["ode"] for v in des.full_radius.values())
+    smp = min(v["sampled"] for v in des.full_radius.values())
+    ok = ode <= -rate and (smp >= rate or not sampled)
+    text = f"g = {des.g:g}: spectral abscissa of the full error matrix {ode:.4g} {'<=' if ode <= -rate else '>'} -{rate:g}"
+    if sampled:
+        text += f", its sampled-data form with run.dt = {sc.run.dt:g} decays at {smp:.4g}"
+    return RateCertificate(ok, f"{text} ({scope})")
 
 
 def _mat(M: np.ndarray) -> list:
@@ -117,9 +141,25 @@ def _redundancy(des: Design) -> dict:
     }
 
 
+def _conditioning_json(des: Design) -> dict:
+    cond = des.conditioning
+    return {
+        "transient_constant": _num(cond.transient_constant) if cond.transient_constant != math.inf else "inf",
+        "transient": {"constant": _num(cond.transient_constant) if cond.transient_constant != math.inf else "inf",
+                      "graph": cond.transient_case, "method": cond.transient_method},
+        "split_residual": _num(des.split_residual),
+        "split_exact": bool(des.split_exact),
+        "full_error_matrix": {k: (v if isinstance(v, dict) else _num(v)) for k, v in des.full_radius.items()},
+        "predicted_rms": None if cond.predicted_rms is None else {
+            "graph": cond.predicted_graph, "agents": {str(i): _num(v) for i, v in cond.predicted_rms.items()},
+            "all": _num(math.sqrt(sum(v * v for v in cond.predicted_rms.values()) / len(cond.predicted_rms)))},
+    }
+
+
 def design_json(des: Design) -> dict:
     """The ``splitspec design --json`` object (contract in ``../shared/DESIGN.md``)."""
     sc = des.scenario
+    cond = {a.id: a for a in des.conditioning.agents}
     out = {
         "name": sc.name,
         "time": sc.time,
@@ -136,6 +176,11 @@ def design_json(des: Design) -> dict:
                 "poles": _complex(a.gain.poles),
                 "n_unobservable": a.dec.n_unobservable,
                 "unobservable_eigs": _complex(np.linalg.eigvals(a.dec.A_un)) if a.dec.n_unobservable else [],
+                "observability_margin": _num(cond[a.id].observability_margin),
+                "gain_norm": _num(cond[a.id].gain_norm),
+                "gain_ratio": _num(cond[a.id].gain_ratio),
+                "weak_margin": _num(cond[a.id].weak),
+                "split_residual": _num(cond[a.id].split_residual),
             }
             for a in des.agents
         ],
@@ -151,7 +196,9 @@ def design_json(des: Design) -> dict:
             "redundancy": _redundancy(des),
         },
         "error_spectrum": {k: _num(v) for k, v in des.error_radius.items()},
-        "warnings": list(des.warnings),
+        "rank_tol": "auto" if sc.design.rank_tol is None else sc.design.rank_tol,
+        **_conditioning_json(des),
+        "warnings": list(des.warnings) + list(des.conditioning.warnings),
     }
     cert = rate_certificate(des)
     out.update(certified_rate=cert.certified, certificate=cert.text,
@@ -205,11 +252,15 @@ def design_text(des: Design) -> str:
         (f"  rate lam = {d.rate:g} for the local gains only; adaptive g: {NO_CERTIFIED_RATE}; gains: {d.gains}"
          if adaptive else f"  rate lam = {d.rate:g}  (errors decay as {unit}); gains: {d.gains}"),
         "",
-        "agents  (n_i = dim of the unobservable space V_i; poles of Abar_i + Kbar_i Cbar_i)",
+        "agents  (n_i = dim of the unobservable space V_i; poles of Abar_i + Kbar_i Cbar_i; the smallest",
+        "         observability margin counted as seen, and ||K_i||)",
     ]
-    for a in des.agents:
+    cond = des.conditioning
+    for a, c in zip(des.agents, cond.agents):
+        margin = "-" if c.observability_margin is None else f"{c.observability_margin:.2g}"
+        weak = f", weak direction (margin {c.weak:.2g}) left to consensus" if c.weak > 0 else ""
         lines.append(f"  agent {a.id}: s_i = {a.K.shape[1]}, n_i = {a.dec.n_unobservable}, "
-                     f"poles {_fmt_poles(a.gain.poles)}")
+                     f"poles {_fmt_poles(a.gain.poles)}, margin {margin}, |K| {c.gain_norm:.3g}{weak}")
     lines += ["", "graphs"]
     for g in des.graphs:
         ds = "doubly stochastic" if is_doubly_stochastic(g.S) else "not doubly stochastic"
@@ -275,6 +326,29 @@ def design_text(des: Design) -> str:
     cert = rate_certificate(des)
     verdict = "rate" if adaptive else f"rate {'certified' if cert.certified else 'NOT certified'}"
     lines += ["", f"{verdict}: {cert.text}"]
-    if des.warnings:
-        lines += [""] + [f"warning: {w}" for w in des.warnings]
+    lines += _size_lines(des)
+    warnings = list(des.warnings) + list(cond.warnings)
+    if warnings:
+        lines += [""] + [f"warning: {w}" for w in warnings]
     return "\n".join(lines)
+
+
+def _size_lines(des: Design) -> list:
+    """The errors' size: the transient constant, and the predicted steady-state error under noise."""
+    cond = des.conditioning
+    sc = des.scenario
+    unit = "rate^tau" if sc.time == "discrete" else "exp(-lam t)"
+    c = cond.transient_constant
+    if c is None:
+        out = [f"transient: {cond.transient_method}"]
+    else:
+        value = "infinite" if math.isinf(c) else f"{c:.3g}"
+        out = [f"transient: ||e(t)|| <= c {unit} ||e(0)|| with c = {value} (transient_constant; "
+               f"graph {cond.transient_case} held constant)"]
+    if cond.predicted_rms is not None:
+        vals = list(cond.predicted_rms.values())
+        allrms = math.sqrt(sum(v * v for v in vals) / len(vals))
+        per = ", ".join(f"{i}: {v:.3g}" for i, v in cond.predicted_rms.items())
+        out.append(f"noise: predicted steady-state RMS error {allrms:.3g} (per agent {per}; graph "
+                   f"{cond.predicted_graph} held constant, discrete Lyapunov equation)")
+    return out

@@ -44,7 +44,8 @@ class LossReport:
         return self.jointly_observable and all(self.strongly_connected.values())
 
 
-def network_verdict(A: np.ndarray, Cs_by_id: dict, alive, graphs: dict, *, rank_tol: float = 1e-9) -> LossReport:
+def network_verdict(A: np.ndarray, Cs_by_id: dict, alive, graphs: dict, *,
+                    rank_tol: float | None = None) -> LossReport:
     """Strong connectivity of each graph restricted to ``alive`` and joint observability of ``alive``.
 
     ``graphs`` maps a name to its arcs ``(j, i)`` between agent ids.
@@ -67,7 +68,7 @@ def network_verdict(A: np.ndarray, Cs_by_id: dict, alive, graphs: dict, *, rank_
                       unobservable_direction=None if jo else _direction_text(D[:, 0]))
 
 
-def analyse_agent_losses(A, Cs_by_id: dict, graphs: dict, *, rank_tol: float = 1e-9) -> dict:
+def analyse_agent_losses(A, Cs_by_id: dict, graphs: dict, *, rank_tol: float | None = None) -> dict:
     """``{lost agent id: LossReport}`` for every single agent loss."""
     ids = tuple(sorted(Cs_by_id))
     return {a: network_verdict(A, Cs_by_id, [b for b in ids if b != a], graphs, rank_tol=rank_tol) for a in ids}

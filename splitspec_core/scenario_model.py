@@ -145,7 +145,7 @@ class DesignSpec:
     resilience: int = 0
     weights: str = "uniform"
     margin: float = 0.5
-    rank_tol: float = 1e-9
+    rank_tol: float | None = None  # None: auto (observability.DEFAULT_RANK_TOL)
     graph_set: str = "scenario"
     dwell: float | None = None
     riccati_process_weight: float | None = None

@@ -205,9 +205,13 @@ def _parse_design(raw: Any, time: str, system: System, ids: tuple) -> DesignSpec
     margin = _number(dmap.get("margin", 0.5), "design.margin")
     if not 0 < margin <= 10:
         raise ScenarioError(f"design.margin must be in (0, 10], got {margin:g}")
-    rank_tol = _number(dmap.get("rank_tol", 1e-9), "design.rank_tol")
-    if not 0 < rank_tol < 1:
-        raise ScenarioError(f"design.rank_tol must be in (0, 1), got {rank_tol:g}")
+    rank_tol = dmap.get("rank_tol", "auto")  # auto: observability.DEFAULT_RANK_TOL (graded margins)
+    if rank_tol == "auto" or rank_tol is None:
+        rank_tol = None
+    else:
+        rank_tol = _number(rank_tol, "design.rank_tol")
+        if not 0 < rank_tol < 1:
+            raise ScenarioError(f"design.rank_tol must be auto or a number in (0, 1), got {rank_tol:g}")
     graph_set = str(dmap.get("graph_set", "scenario"))
     if graph_set not in ("scenario", "all"):
         raise ScenarioError(f"design.graph_set must be scenario or all, got {graph_set!r}")

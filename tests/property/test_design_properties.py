@@ -32,7 +32,7 @@ from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 
 from splitspec_core.designer import design
-from splitspec_core.observability import decompose
+from splitspec_core.observability import decompose, threshold_of
 from splitspec_core.scenario_model import parse_scenario
 
 from .strategies import graph_sequences, scenarios
@@ -577,24 +577,45 @@ def test_weighted_q_is_certified_at_a_round_off_tie():
 # --------------------------------------------------------------------------
 
 
-@settings(max_examples=examples(100), **COMMON)
-@given(scenarios(near_dependent=True))
-def test_nearly_dependent_outputs_keep_the_unobservable_space(drawn):
+@pytest.mark.parametrize("rank_tol", [1e-9, "auto"])
+@settings(max_examples=examples(50), **COMMON)
+@given(data=st.data())
+def test_nearly_dependent_outputs_keep_the_unobservable_space(rank_tol, data):
     """Two sensors of the same quantity (rows 1e-4..1e-10 apart) do not make the rest observable.
 
     Regression: with rows 5e-8 apart on one 2x2 block, round-off of the weakly determined second
     direction (~eps / 5e-8) leaked through ``A'`` above ``rank_tol`` and an agent seeing one block
-    was declared to see all ten (the design then failed in pole placement).
+    was declared to see all ten (the design then failed in pole placement).  The construction's
+    unobservable space always lies in ``V_i``; ``V_i`` may be larger only by directions whose graded
+    margin is too small to tell from round-off or from the threshold, and then ``weak`` or the
+    threshold says so (an agent seeing 8 real modes through one row has margins down to ~1e-5).
     """
+    drawn = data.draw(scenarios(near_dependent=True, rank_tol=rank_tol), label="scenario")
     sc = parse_scenario(drawn.data)
     d = sc.design
     A = sc.system.A
     for k, C in enumerate(sc.system.Cs):
         dec = decompose(A, C, rank_tol=d.rank_tol)
         W = drawn.expected_V_basis(k)
-        assert dec.V.shape == W.shape, (dec.V.shape, W.shape)
+        assert dec.V.shape[1] >= W.shape[1], (dec.V.shape, W.shape)  # never more observable than it is
         # the subspace is as accurate as C_i's conditioning allows
         sv = np.linalg.svd(C, compute_uv=False)
-        kept = sv[sv > d.rank_tol * sv[0]]
+        kept = sv[sv > threshold_of(d.rank_tol) * sv[0]]
         kappa = kept[0] / kept[-1] if kept.size else 1.0
-        assert np.linalg.norm(dec.P - W @ W.T, 2) <= min(1e-8 * kappa, 1.0)
+        tol = min(1e-8 * kappa, 1.0)
+        assert np.linalg.norm(W - dec.P @ W, 2) <= tol  # span W inside span V_i
+        if dec.V.shape == W.shape:
+            assert np.linalg.norm(dec.P - W @ W.T, 2) <= tol
+        else:  # the extra directions were seen too weakly to count: the construction's observable space is
+            # seen with a margin of the order of the threshold at most (smallest singular value of the scaled
+            # observability matrix [C; C S; C S^2; ...] on it, S = (A - aI) / ||A - aI||, C / ||C||)
+            Wo = np.linalg.qr(W, mode="complete")[0][:, W.shape[1]:] if W.shape[1] else np.eye(sc.n)
+            S = A - np.trace(A) / sc.n * np.eye(sc.n)
+            S = S / np.linalg.norm(S, 2)
+            R, rows = C / np.linalg.norm(C, 2), []
+            for _ in range(sc.n):
+                rows.append(R)
+                R = R @ S
+            smin = np.linalg.svd(np.vstack(rows) @ Wo, compute_uv=False).min()
+            assert smin < 3 * max(threshold_of(d.rank_tol), 1e-6), smin
+            event("an owned direction left to consensus (weak)")

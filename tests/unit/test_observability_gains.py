@@ -20,11 +20,12 @@ def test_decomposition_properties():
     assert np.allclose(dec.Cbar @ dec.Q, [[1, 0, 0, 0]])
 
 
-def test_rank_decision_is_scale_invariant():
+def test_rank_decision_is_scale_and_shift_invariant():
     A = _osc()
-    C = np.array([[1.0, 0, 1e-3, 0]])
+    C = np.array([[1.0, 0, 0.1, 0]])
     for scale in (1e-6, 1.0, 1e6):
-        assert decompose(A * scale, C * scale).n_unobservable == 0
+        for shift in (0.0, 3.0, -1e3):  # A + shift I: the same Krylov spaces, the same margins
+            assert decompose(A * scale + shift * np.eye(4), C * scale).n_unobservable == 0
     # a truly tiny coupling below the tolerance is treated as zero at every scale
     C2 = np.array([[1.0, 0, 1e-13, 0]])
     for scale in (1e-6, 1.0, 1e6):
@@ -119,3 +120,54 @@ def test_joint_observability_is_judged_before_explicit_gains(tmp_path, capsys, t
     assert cli.main(["design", str(path)]) == 2
     stderr = capsys.readouterr().err
     assert stderr.count("\n") == 1 and "splitspec: error: (C, A) is not jointly observable" in stderr
+
+
+def _two_oscillators() -> np.ndarray:
+    A = np.zeros((4, 4))
+    A[:2, :2] = [[0.0, 0.7], [-0.7, 0.0]]
+    A[2:, 2:] = [[0.0, 1.3], [-1.3, 0.0]]
+    return A
+
+
+def test_graded_margins_keep_the_split_of_a_rounded_model():
+    """x3, x4 are invisible to agent 1 in the exact model; a 4e-7 trace of them (what rounding to 6 decimals
+    leaves in a rotated model) is no reason to see them: the split stays, the trace is reported as weak."""
+    A = _two_oscillators()
+    T, _ = np.linalg.qr(np.random.default_rng(3).normal(size=(4, 4)))
+    C = np.array([[1.0, 0.3, 0.0, 0.0]])
+    exact = decompose(T @ A @ T.T, C @ T.T)
+    rounded = decompose(np.round(T @ A @ T.T, 6), np.round(C @ T.T, 6))
+    assert exact.n_unobservable == rounded.n_unobservable == 2
+    assert exact.weak == 0.0 and 0 < rounded.weak < 1e-5  # left out with its margin, not lost silently
+    assert np.linalg.norm(exact.P - rounded.P, 2) < 1e-5
+    assert rounded.split_residual < 1e-5 and exact.split_residual < 1e-12
+    # forcing a tolerance below the trace counts it: the whole state becomes "observable" to agent 1
+    assert decompose(np.round(T @ A @ T.T, 6), np.round(C @ T.T, 6), rank_tol=1e-9).n_unobservable == 0
+
+
+def test_weak_joint_observability_is_refused_with_its_margin(tmp_path, capsys):
+    """Nobody sees x3, x4 but through a 1e-5 coupling: refused in one line naming the direction, the margin and
+    design.rank_tol (exit 2); with rank_tol forced below the margin it designs, and warns."""
+    import yaml
+
+    from splitspec_core.designer import design
+    from splitspec_core.scenario_model import parse_scenario
+    from splitspec_orchestrator import cli
+
+    raw = {"name": "weak", "time": "continuous",
+           "system": {"A": _two_oscillators().tolist(), "C": {1: [[1, 0, 1e-5, 0]], 2: [[0, 1, 0, 0]]}},
+           "graphs": {"g": {"undirected": [[1, 2]]}},
+           "design": {"rate": 0.5, "gains": "place", "g": "auto"}}
+    with pytest.raises(AssumptionError, match=r"only weakly jointly observable: direction \[0 0 .*\] is seen by "
+                                              r"every agent with a margin of only [0-9.e-]+ \(< 0.001, "
+                                              r"design.rank_tol: auto\)"):
+        design(parse_scenario(raw))
+    path = tmp_path / "weak.yaml"
+    path.write_text(yaml.safe_dump(raw))
+    assert cli.main(["design", str(path)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "set design.rank_tol below" in err and "Traceback" not in err
+    raw["design"]["rank_tol"] = 1e-8
+    des = design(parse_scenario(raw))
+    assert any("jointly observable only with a margin of" in w and "design.rank_tol: 1e-08" in w
+               for w in des.warnings)

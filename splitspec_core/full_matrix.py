@@ -1,0 +1,238 @@
+"""The full ``mn x mn`` error dynamics of a design: its matrices, their spectra, noise, and the certificate
+of an approximate split.
+
+The full error matrix of one step, for the agents of a case with consensus matrix ``S``:
+
+discrete (eq. split-discrete-error)
+    ``M = blkdiag(A + K_i C_i) W^q``,  ``W = I - P (I - Sbar)`` (the consensus sub-round), ``Sbar = S (x) I_n``;
+continuous, sampled-data form (:mod:`.steps`)
+    ``M = blkdiag(E + D K_i C_i) - g blkdiag(D P_i) (I - Sbar)``, ``E = exp(A dt)``, ``D = int_0^dt exp(A s) ds``;
+    and the ODE's own matrix ``Abar - g P (I - Sbar)`` (eq. split_continuous_em).
+
+With an exact observability split these have the spectrum of the split blocks (prop. error,
+prop. errordis), which is what the certificates of :mod:`.bounds` use.  When a weakly observable
+direction was left to consensus (:mod:`.observability`) the split holds only up to
+``split_residual``: :func:`check_full` then checks the rate on these full matrices, for every case
+held constant, raises an automatic q or g until they meet it, and says so.
+
+Steady-state noise (:func:`predicted_rms`): with process noise ``v`` (covariance ``Q``) and measurement
+noise ``w`` (``R``) the stacked error follows ``e(k+1) = M e(k) - blkdiag(K_i) w(k) - (1 (x) I) v(k)``
+(discrete; the sampled-data analogue in continuous time), and its steady-state covariance solves the
+discrete Lyapunov equation ``Sigma = M Sigma M' + N``; agent i's RMS error is ``sqrt(trace Sigma_ii)``
+(what a long simulation's RMS converges to: tested).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+if TYPE_CHECKING:  # the designer imports this module
+    from .designer import Design
+
+__all__ = ["full_error_matrix", "ode_error_matrix", "full_radius", "check_full", "error_dynamics", "predicted_rms",
+           "MAX_DIM", "SPLIT_EXACT"]
+
+#: the largest ``m n`` for which full error matrices are formed
+MAX_DIM = 1000
+#: a split residual below this is round-off: the split is exact
+SPLIT_EXACT = 1e-9
+
+
+def _blkdiag(blocks) -> np.ndarray:
+    sizes = [b.shape[0] for b in blocks]
+    cols = [b.shape[1] for b in blocks]
+    out = np.zeros((sum(sizes), sum(cols)))
+    r = c = 0
+    for b in blocks:
+        out[r:r + b.shape[0], c:c + b.shape[1]] = b
+        r += b.shape[0]
+        c += b.shape[1]
+    return out
+
+
+def full_error_matrix(A: np.ndarray, Cs, Ks, Ps, S: np.ndarray, *, time: str, q: int | None = None,
+                      g: float | None = None, dt: float | None = None) -> np.ndarray:
+    """The full error matrix of one event time (discrete) or one sampled-data step (continuous); module docstring."""
+    A = np.asarray(A, dtype=float)
+    n, m = A.shape[0], len(Cs)
+    SI = np.kron(S, np.eye(n))
+    if time == "discrete":
+        W = np.eye(m * n) - _blkdiag(Ps) @ (np.eye(m * n) - SI)  # eq. (split-discrete-p1..p3), one sub-round
+        return _blkdiag([A + K @ C for K, C in zip(Ks, Cs)]) @ np.linalg.matrix_power(W, int(q))
+    from .steps import sampled_data_matrices
+
+    E, D, _ = sampled_data_matrices(A, dt)
+    return (_blkdiag([E + D @ K @ C for K, C in zip(Ks, Cs)])
+            - g * _blkdiag([D @ P for P in Ps]) @ (np.eye(m * n) - SI))
+
+
+def ode_error_matrix(A: np.ndarray, Cs, Ks, Ps, S: np.ndarray, g: float) -> np.ndarray:
+    """``Abar - g P (I - Sbar)`` (eq. split_continuous_em)."""
+    n, m = np.shape(A)[0], len(Cs)
+    return (_blkdiag([np.asarray(A) + K @ C for K, C in zip(Ks, Cs)])
+            - g * _blkdiag(Ps) @ (np.eye(m * n) - np.kron(S, np.eye(n))))
+
+
+def _case_parts(des: "Design", case):
+    sc = des.scenario
+    ad = {a.id: a for a in des.agents}
+    Cs = dict(zip(sc.agent_ids, sc.system.Cs))
+    ids = case.graph.ids
+    return ([np.asarray(Cs[i]) for i in ids], [ad[i].K for i in ids], [ad[i].P for i in ids])
+
+
+def full_radius(des: "Design", cases, *, q: int | None = None, g: float | None = None) -> dict:
+    """Per case: the full error matrix's decay, in the certificate's terms.
+
+    Discrete: the spectral radius of ``M`` (must be below ``lam``).  Continuous: ``{"ode": spectral
+    abscissa of Abar - g P (I - Sbar)`` (must be at most ``-lam``), ``"sampled": -log rho(M) / dt`` (the decay
+    rate of the sampled-data form, at least ``lam``)}.
+    """
+    sc = des.scenario
+    A = np.asarray(sc.system.A)
+    out = {}
+    for case in cases:
+        Cs, Ks, Ps = _case_parts(des, case)
+        if sc.time == "discrete":
+            M = full_error_matrix(A, Cs, Ks, Ps, case.graph.S, time="discrete", q=q)
+            out[case.label] = float(np.max(np.abs(np.linalg.eigvals(M))))
+        else:
+            ode = float(np.max(np.linalg.eigvals(ode_error_matrix(A, Cs, Ks, Ps, case.graph.S, g)).real))
+            M = full_error_matrix(A, Cs, Ks, Ps, case.graph.S, time="continuous", g=g, dt=sc.run.dt)
+            rho = float(np.max(np.abs(np.linalg.eigvals(M))))
+            out[case.label] = {"ode": ode, "sampled": -math.log(rho) / sc.run.dt if rho > 0 else math.inf}
+    return out
+
+
+def check_full(des: "Design", warnings: list) -> "Design":
+    """An approximate split (a weakly observable direction left to consensus): the rate on the full error matrices.
+
+    Prop. error (and errordis) split the spectrum exactly only when every V_i is an exact unobservable space;
+    with ``split_residual`` above round-off the certificates' split blocks are an approximation, so the
+    rate is checked on the full error matrix of every case held constant (:func:`full_radius`).
+    No switching certificate of the paper covers an approximate split.
+    """
+    import dataclasses
+
+    sc = des.scenario
+    worst = max(a.dec.weak for a in des.agents)
+    who = ", ".join(str(a.id) for a in des.agents if a.dec.weak > 0)
+    note = (f"agent(s) {who} left a weakly observable direction (margin up to {worst:.2g}) to consensus: the split "
+            f"of the error dynamics holds up to {des.split_residual:.2g}")
+    if sc.m * sc.n > MAX_DIM:
+        warnings.append(f"{note}; the full error matrices (m n = {sc.m * sc.n} > {MAX_DIM}) were not checked")
+        return dataclasses.replace(des, warnings=tuple(warnings))
+    full = full_radius(des, des.cases, q=des.q, g=des.g)
+    warnings.append(f"{note}; the rate is checked on the full error matrix of each graph held constant")
+    des = dataclasses.replace(des, full_radius=full, warnings=tuple(warnings))
+    if not _full_meets(des, full):
+        des = _raise_to_full(des, warnings)
+    if not _full_meets(des, des.full_radius):
+        weakest = min(a.dec.weak for a in des.agents if a.dec.weak > 0)
+        warnings.append(f"leaving agent(s) {who}'s weak directions to consensus misses the rate on the full error "
+                        f"matrix even with more consensus: if the model is accurate to better than {weakest:.2g}, set "
+                        f"design.rank_tol below that (e.g. {weakest / 10:.1g}) to count them (larger local gains)")
+        des = dataclasses.replace(des, warnings=tuple(warnings))
+    return des
+
+
+def _full_meets(des: "Design", full: dict) -> bool:
+    rate = des.rate
+    if des.time == "discrete":
+        return max(full.values()) < rate
+    return max(v["ode"] for v in full.values()) <= -rate and min(v["sampled"] for v in full.values()) >= rate
+
+
+def _raise_to_full(des: "Design", warnings: list) -> "Design":
+    """An automatic q or g that the full error matrices miss (an approximate split): raised until they meet the rate.
+
+    The split's own certificate chose q (or g) on the split blocks; with the split only approximate the
+    coupling it leaves can take the full matrix past the rate, and more consensus (a larger q, a larger g)
+    is what brings it back.  Discrete: q + 1, q + 2, ... up to ``min(design.q_max, 4 q + 64)``; continuous:
+    g grown by 25 % at a time, up to 100 times the split's g.  A q or g the user gave is left alone (the
+    certificate then says it misses the rate).
+    """
+    import dataclasses
+
+    from . import bounds
+    from .designer import nice_ceil
+
+    sc = des.scenario
+    d = sc.design
+    if des.time == "discrete":
+        if d.q != "auto":
+            return des
+        for q in range(des.q + 1, min(d.q_max, 4 * des.q + 64) + 1):
+            full = full_radius(des, des.cases, q=q)
+            if _full_meets(des, full):
+                result = bounds.choose_q(d.q_method, des.cases, d.rate, q=q, q_max=d.q_max)
+                warnings.append(f"q raised from {des.q} to {q}: with the approximate split, q = {des.q} leaves the full "
+                                f"error matrix's spectral radius at {max(des.full_radius.values()):.4g} >= rate {d.rate:g}")
+                return dataclasses.replace(des, q=q, q_result=result, full_radius=full, warnings=tuple(warnings),
+                                           error_radius={c.label: bounds.error_radius(c, q) for c in des.cases})
+        return des
+    if d.g != "auto":
+        return des
+    g = des.g
+    for _ in range(21):
+        g *= 1.25
+        full = full_radius(des, des.cases, g=nice_ceil(g))
+        if _full_meets(des, full):
+            g = nice_ceil(g)
+            worst = max(v["ode"] for v in des.full_radius.values())
+            warnings.append(f"g raised from {des.g:g} to {g:g}: with the approximate split, g = {des.g:g} leaves the full "
+                            f"error matrix's spectral abscissa at {worst:.4g} > -{d.rate:g}")
+            return dataclasses.replace(des, g=g, full_radius=full, warnings=tuple(warnings),
+                                       error_radius={c.label: bounds.abscissa(c, g) for c in des.cases})
+    return des
+
+
+def error_dynamics(des: "Design", graph_index: int = 0) -> tuple:
+    """``(M, N)``: the full error matrix of the scenario's graph ``graph_index`` held constant, every agent,
+    and the covariance of the noise entering per step (module docstring)."""
+    from .baselines import sampled_model
+    from .errors import DesignError
+    from .network import consensus_rows
+
+    sc = des.scenario
+    m, n = sc.m, sc.n
+    _, Qn, R = sampled_model(sc)
+    rows = consensus_rows(sc, graph_index, sc.agent_ids)
+    pos = {a: k for k, a in enumerate(sc.agent_ids)}
+    S = np.zeros((m, m))
+    for i, (nbs, ws) in rows.items():
+        for j, w in zip(nbs, ws):
+            S[pos[i], pos[j]] = w
+    Ks = [np.asarray(K) for K in des.Ks]
+    Cs = [np.asarray(C) for C in sc.system.Cs]
+    Ps = [np.asarray(P) for P in des.Ps]
+    if sc.time == "discrete":
+        M = full_error_matrix(sc.system.A, Cs, Ks, Ps, S, time="discrete", q=des.q)
+        G = _blkdiag(Ks)
+    else:
+        if des.g is None:
+            raise DesignError("the adaptive gain has no steady-state error covariance (g changes with time)")
+        from .steps import sampled_data_matrices
+
+        M = full_error_matrix(sc.system.A, Cs, Ks, Ps, S, time="continuous", g=des.g, dt=sc.run.dt)
+        _, D, _ = sampled_data_matrices(np.asarray(sc.system.A), sc.run.dt)
+        G = _blkdiag([D @ K for K in Ks])
+    one = np.kron(np.ones((m, 1)), np.eye(n))
+    N = G @ R @ G.T + one @ Qn @ one.T
+    return M, 0.5 * (N + N.T)
+
+
+def predicted_rms(des: "Design", graph_index: int = 0) -> np.ndarray:
+    """Steady-state RMS error ``sqrt(trace Sigma_ii)`` of every agent (inf if the error map is unstable)."""
+    import scipy.linalg as sla
+
+    sc = des.scenario
+    M, N = error_dynamics(des, graph_index)
+    if np.max(np.abs(np.linalg.eigvals(M))) >= 1.0:
+        return np.full(sc.m, math.inf)
+    Sigma = sla.solve_discrete_lyapunov(M, N)
+    n = sc.n
+    return np.sqrt(np.maximum([np.trace(Sigma[i * n:(i + 1) * n, i * n:(i + 1) * n]) for i in range(sc.m)], 0.0))

@@ -1,0 +1,145 @@
+"""Designs of imperfect models: perturbed and rounded structured systems keep the exact system's design.
+
+A model is never exactly structured: the entries of ``A`` and ``C_i`` come rounded (to 6 or 4 decimals)
+or perturbed (by 1e-7..1e-4 of their size).  The rank decisions of :mod:`splitspec_core.observability`
+(graded margins, threshold 1e-3 by default) must see through that: the same split ``n_i`` as the
+exact system, gains that move by about the perturbation times a modest condition number, the same
+simulated errors, a measured rate that meets the design, and a certificate.  A system that is only
+weakly observable even jointly is refused (one line naming the direction and its margin), or designed
+with a warning when ``design.rank_tol`` is forced below the margin.
+
+Systems: :func:`splitspec_core.generate.random_system` (oscillator blocks in a random orthogonal basis, each
+agent one output seeing some blocks), 3..7 agents, n = 4, 6 or 8, one random strongly connected graph.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import assume, event, given, settings
+from hypothesis import strategies as st
+
+from splitspec_core.analysis import fit_decay
+from splitspec_core.designer import design
+from splitspec_core.errors import AssumptionError, DesignError
+from splitspec_core.generate import random_strongly_connected_arcs, random_system
+from splitspec_core.observability import DEFAULT_RANK_TOL, joint_observability
+from splitspec_core.report import rate_certificate
+from splitspec_core.scenario_model import parse_scenario
+from splitspec_core.simulator import simulate
+
+from .test_design_properties import COMMON, examples
+
+
+def scenario(A, Cs, arcs, time: str, seed: int, **design_keys) -> dict:
+    d = {"rate": 0.8, "gains": "place"} if time == "discrete" else {"rate": 0.5, "gains": "place", "g": "auto"}
+    # x(0) = 0: the error is the estimates themselves and decays far below the round-off floor of |x| (the tail
+    # fit then sees the asymptotic rate, as in test_simulate_decay)
+    return {"name": "imperfect", "time": time,
+            "system": {"A": np.asarray(A).tolist(), "C": {i + 1: np.asarray(C).tolist() for i, C in enumerate(Cs)},
+                       "x0": [0.0] * np.shape(A)[0]},
+            "graphs": {"a": {"arcs": [[j + 1, i + 1] for j, i in arcs]}},
+            "design": {**d, **design_keys},
+            # continuous: 32 s, long enough for the transient (constants up to ~300) to end before the fit
+            "run": {"steps": 600 if time == "discrete" else 8000, "seed": seed,
+                    **({"dt": 0.004} if time == "continuous" else {})}}
+
+
+def perturbed(rng, M: np.ndarray, kind: str, size: float) -> np.ndarray:
+    if kind == "round":
+        return np.round(M, int(size))
+    return M + size * np.linalg.norm(M, 2) * rng.normal(size=M.shape) / np.sqrt(M.shape[1])
+
+
+def measured_rate(des, tr):
+    return fit_decay(tr.t, np.nanmax(tr.errors(), axis=1), time=des.time, floor_rel=1e-250)
+
+
+@settings(max_examples=examples(40), **COMMON)
+@given(seed=st.integers(0, 10_000), time=st.sampled_from(["discrete", "continuous"]),
+       imperfection=st.one_of(st.tuples(st.just("round"), st.sampled_from([7, 6, 5, 4])),
+                              st.tuples(st.just("noise"), st.sampled_from([1e-7, 1e-6, 1e-5, 1e-4]))))
+def test_a_perturbed_model_keeps_the_exact_design(seed, time, imperfection):
+    rng = np.random.default_rng(seed)
+    m, n = int(rng.integers(3, 8)), int(rng.choice([4, 6, 8]))
+    A, Cs = random_system(rng, m, n, time=time)
+    arcs = random_strongly_connected_arcs(rng, m, extra=m)
+    kind, size = imperfection
+    delta = 10.0 ** -size if kind == "round" else size  # the relative size of the change
+    exact = design(parse_scenario(scenario(A, Cs, arcs, time, seed)))
+    imperfect = design(parse_scenario(scenario(perturbed(rng, A, kind, size), [perturbed(rng, C, kind, size)
+                                                                                 for C in Cs], arcs, time, seed)))
+    # the split is the exact system's wherever the model is accurate enough to tell: the exact system's weakest
+    # counted margin at least 30 times the perturbation (an 8-state agent seeing two close frequencies has
+    # margins down to 4e-4: a 1e-4 perturbation is then as large as what it sees)
+    weakest = min((a.dec.margin for a in exact.agents if a.dec.margin is not None), default=1.0)
+    assume(weakest >= 30 * delta)
+    if not rate_certificate(exact).certified:
+        # a genuine weak direction left to consensus, and the rate then missed on the full error matrix (even
+        # with more consensus): the design says which knob counts it (seen in about 1 system in 100)
+        assert any("set design.rank_tol below" in w for w in exact.warnings), exact.warnings
+        event("exact design not certified: rank_tol named")
+        return
+    assert [a.dec.n_unobservable for a in imperfect.agents] == [a.dec.n_unobservable for a in exact.agents]
+    # the gains move by the perturbation times the agent's conditioning, about 1 / margin (measured: 0.3 / margin)
+    for a, b in zip(imperfect.agents, exact.agents):
+        cond = 10.0 / (b.dec.margin or 1.0)
+        assert np.linalg.norm(a.K - b.K, 2) <= cond * delta * max(np.linalg.norm(b.K, 2), 1e-12), a.id
+    # the same initial conditions: the same errors, within a factor 2 (measured: 1.001 at worst)
+    tr_e, tr_i = simulate(exact, noise=False), simulate(imperfect, noise=False)
+    peak_e, peak_i = np.nanmax(tr_e.errors()), np.nanmax(tr_i.errors())
+    assert 0.5 * peak_e <= peak_i <= 2.0 * peak_e, (peak_i, peak_e)
+    # certified, and the noise-free errors decay at the designed rate
+    assert rate_certificate(imperfect).certified, rate_certificate(imperfect).text
+    # (to 2-3 %, as test_simulate_decay: a fit over a finite tail sees t^k lam^t factors of repeated poles)
+    rate = measured_rate(imperfect, tr_i)
+    assert rate is not None
+    assert rate <= 1.02 * imperfect.rate if time == "discrete" else rate >= 0.97 * imperfect.rate, (rate, imperfect.rate)
+    # an approximate split is checked on the full error matrix (and said so)
+    if not imperfect.split_exact:
+        assert imperfect.full_radius and any("weakly observable direction" in w for w in imperfect.warnings)
+    assert imperfect.conditioning.transient_constant <= 2 * exact.conditioning.transient_constant
+
+
+@settings(max_examples=examples(20), **COMMON)
+@given(seed=st.integers(0, 10_000), coupling=st.sampled_from([1e-7, 1e-6, 1e-5]),
+       time=st.sampled_from(["discrete", "continuous"]))
+def test_a_weakly_observable_system_is_refused_or_warned(seed, coupling, time):
+    """Every agent sees one oscillator block only through a coupling of ``coupling``: refused by default with the
+    direction and its margin; designed, with a warning, once design.rank_tol is forced below that margin."""
+    rng = np.random.default_rng(seed)
+    m, n = int(rng.integers(2, 6)), 6
+    A, Cs = random_system(rng, m, n, time=time, rotate=False)
+    # blocks (x1 x2), (x3 x4), (x5 x6): nobody sees the last one but through `coupling`
+    Cs = [np.where(np.arange(n) < 4, C, 0.0) for C in Cs]
+    Cs[0] = Cs[0].copy()
+    Cs[0][0, :4] = [1.0, 0.2, 0.7, -0.4]  # agent 1 sees both other blocks: jointly observable apart from x5, x6
+    Cs[0][0, 4] = coupling
+    T, _ = np.linalg.qr(rng.normal(size=(n, n)))
+    A, Cs = T @ A @ T.T, [C @ T.T for C in Cs]
+    arcs = random_strongly_connected_arcs(rng, m, extra=1)
+    with pytest.raises(AssumptionError) as err:
+        design(parse_scenario(scenario(A, Cs, arcs, time, seed)))
+    text = str(err.value)
+    if "only weakly jointly observable" not in text:
+        # the block's margin fell below round-off on its way through the staircase: plainly unobservable
+        assert "is not jointly observable" in text and "is unobservable to every agent" in text, text
+        event("margin below round-off: not jointly observable")
+        return
+    assert "is seen by every agent with a margin of only" in text and "set design.rank_tol below" in text, text
+    margin = float(text.split("margin of only ")[1].split(" ")[0])
+    assert 1e-12 < margin < DEFAULT_RANK_TOL
+    # the direction named is the hidden block's (x5, x6 before the rotation T)
+    v = np.array([float(x) for x in text.split("direction [")[1].split("]")[0].split()])
+    assert np.linalg.norm(T[:, 4:].T @ v) >= 0.9 * np.linalg.norm(v), v
+    # forced below the margin: jointly observable, and the design goes on with a warning; its consensus then
+    # needs q (or g) of order 1 / margin^2, which a discrete design may not find below design.q_max (one line)
+    jo = joint_observability(A, Cs, rank_tol=0.1 * margin)
+    assert jo.observable and jo.margin < DEFAULT_RANK_TOL
+    try:
+        forced = design(parse_scenario(scenario(A, Cs, arcs, time, seed, rank_tol=0.1 * margin, q_max=300)))
+    except DesignError as exc:
+        assert time == "discrete" and "raise design.q_max" in str(exc), str(exc)
+    else:
+        assert any("jointly observable only with a margin of" in w for w in forced.warnings)
+        assert forced.conditioning.warnings  # and the price is named: a weak margin, a large gain or a transient
