@@ -32,10 +32,12 @@ from __future__ import annotations
 
 import argparse
 import logging
+import time
 
 import numpy as np
 
 from splitspec_core import steps as st
+from splitspec_core.impairment import Impairment, group_of, sub_round
 from splitspec_core.designer import design_agent, riccati_weights
 from splitspec_core.scenario_model import parse_scenario_text
 from splitspec_core.plant_model import initial_estimate, output_rows
@@ -100,6 +102,14 @@ class AgentNode:
         rows = output_rows(sc.system.Cs)
         self.y_rows, self.y_size = rows[self.index], rows[-1].stop  # y_i in the plant's stacked y, its length
         self.rejected: dict = {}
+        # a misbehaving network (splitspec_core.impairment): the same draws as the simulator's, a deadline per
+        # sub-round, messages held for their delay; the clock is only read when a deadline or a delay is set
+        net = sc.network
+        self.imp = Impairment(net, self.seed) if net.impaired else None
+        self.deadline = net.deadline
+        self.delayed = net.delayed
+        self.clock = time.monotonic
+        self.arrived: dict = {}  # ("z" | "x", buffer tag) -> {agent: when its message arrived} (delays only)
 
     # ------------------------------------------------------------------ helpers
 
@@ -113,10 +123,18 @@ class AgentNode:
             out[reason] = out.get(reason, 0) + c
         return out
 
-    def _xhat(self, tau: int, attempt: int, x: np.ndarray, g: float) -> tuple:
+    def _xhat(self, tau: int, attempt: int, x: np.ndarray, g: float, lost=()) -> tuple:
         return (self.keys.xhat(self.id), encode("xhat", self.run_id, mac_key=self.mac_key, tau=tau, attempt=attempt,
                                                   agent=self.id, incarnation=int(self.incarnation), x=x, g=float(g),
-                                                  rejected=self.counts()))
+                                                  rejected=self.counts(), lost=[v for t in lost for v in t]))
+
+    def next_wakeup(self) -> float | None:
+        """When the round in flight wants :meth:`on_timer` (a sub-round's deadline, a held message's release)."""
+        return self.round.get("wake") if self.round is not None else None
+
+    def on_timer(self) -> list:
+        """The clock reached :meth:`next_wakeup`: go on with what has arrived."""
+        return self._advance()
 
     def _z(self, k: int, z: np.ndarray) -> tuple:
         r = self.round
@@ -165,6 +183,8 @@ class AgentNode:
         self.zbuf = {k: v for k, v in self.zbuf.items() if (k[0], k[1]) >= (tau, attempt)}
         self.xbuf = {k: v for k, v in self.xbuf.items() if k[0] >= tau}
         self.ybuf = {k: v for k, v in self.ybuf.items() if k >= tau}
+        if self.arrived:
+            self.arrived = {k: v for k, v in self.arrived.items() if k[1][0] >= tau}
         if t["final"]:
             self.round = None
             return out
@@ -172,7 +192,9 @@ class AgentNode:
         # z_j(0): sent as such in a fresh or re-run round, else the x_j(tau) of round (tau - 1, prev_attempt)
         explicit = bool(t["fresh"]) or attempt > 0
         self.round = {"tau": tau, "attempt": attempt, "nbs": [int(j) for j in nbs], "ws": [float(w) for w in ws],
-                      "k": 0, "z": self.x.copy(), "z0": None if explicit else (tau, int(t["prev_attempt"]))}
+                      "k": 0, "z": self.x.copy(), "z0": None if explicit else (tau, int(t["prev_attempt"])),
+                      "groups": group_of(t["partition"], self.sc.agent_ids), "lost": [],
+                      "open": self.clock() if self.deadline is not None else None}
         if explicit:
             out.append(self._z(0, self.round["z"]))
         return out + self._advance()
@@ -202,6 +224,8 @@ class AgentNode:
             self.reject("buffer_full")
             return []
         buf.setdefault(tag, {})[agent] = value
+        if self.delayed:
+            self.arrived.setdefault(("x" if buf is self.xbuf else "z", tag), {})[agent] = self.clock()
         return self._advance()
 
     def on_z(self, key: str, payload: bytes) -> list:
@@ -267,20 +291,38 @@ class AgentNode:
     # ------------------------------------------------------------------ the round
 
     def _neighbour_states(self, k: int):
+        """``(nbs, ws, states)`` of the sub-round using the neighbours' ``z_j(k)``, or None while it waits.
+
+        Every neighbour's message counts unless a partition in force cuts it, it is drawn lost, or (with a
+        deadline) it has not arrived, and been held for its delay, by the deadline: the sub-round then goes on
+        with what it has (:func:`~splitspec_core.impairment.realized_row`) and records what did not count.
+        """
         r = self.round
         if k == 0 and r["z0"] is not None:  # eq. split-discrete-p1: z_j(0) = x_j(tau), sent as x_j's report
-            slot = self.xbuf.get(r["z0"], {})
+            kind, tag = "x", r["z0"]
         else:
-            slot = self.zbuf.get((r["tau"], r["attempt"], k), {})
-        states = []
-        for j in r["nbs"]:
-            if j == self.id:
-                states.append(r["z"])
-            elif j in slot:
-                states.append(slot[j])
-            else:
+            kind, tag = "z", (r["tau"], r["attempt"], k)
+        slot = (self.xbuf if kind == "x" else self.zbuf).get(tag, {})
+        if self.imp is None and not r["groups"]:  # a perfect network: every neighbour, every message on time
+            if any(j not in slot for j in r["nbs"] if j != self.id):
                 return None
-        return states
+            return r["nbs"], r["ws"], [r["z"] if j == self.id else slot[j] for j in r["nbs"]]
+        now = self.clock() if (self.delayed or self.deadline is not None) else 0.0
+        arrived = self.arrived.get((kind, tag), {}) if self.delayed else None
+        got = sub_round(self.imp, self.sc.design.weights, tau=r["tau"], k=k + 1, me=self.id, nbs=r["nbs"],
+                        ws=r["ws"], have=slot, groups=r["groups"], now=now, opened=r["open"] or 0.0, arrived=arrived)
+        if got[0] == "wait":
+            r["wake"] = got[1]
+            return None
+        _, nbs, ws, lost = got
+        r["wake"] = None
+        r["lost"] += lost
+        return nbs, ws, [r["z"] if j == self.id else slot[j] for j in nbs]
+
+    def _opened(self) -> None:
+        """The next sub-round opens now (its deadline counts from here)."""
+        if self.deadline is not None:
+            self.round["open"] = self.clock()
 
     def _advance(self) -> list:
         r = self.round
@@ -288,22 +330,29 @@ class AgentNode:
         if r is None:
             return out
         if self.continuous:
-            states = self._neighbour_states(0)
+            if "realized" not in r:
+                got = self._neighbour_states(0)
+                if got is None:
+                    return out
+                r["realized"] = got
+            _, ws, states = r["realized"]
             y = self.ybuf.get(r["tau"])
-            if states is None or y is None:
+            if y is None:
                 return out
-            x_next = st.sampled_step(self.x, self.E, self.D, self.K, self.C, y, self.P, self.g, states, r["ws"])
+            x_next = st.sampled_step(self.x, self.E, self.D, self.K, self.C, y, self.P, self.g, states, ws)
             g_next = self.g
             if self.adaptive:
-                g_next = st.adaptive_gain_step(self.g, st.adaptive_gain_rate(self.V, self.x, states, r["ws"]), self.dt)
+                g_next = st.adaptive_gain_step(self.g, st.adaptive_gain_rate(self.V, self.x, states, ws), self.dt)
             return self._finish(x_next, g_next)
         while r["k"] < self.exchanges:
-            states = self._neighbour_states(r["k"])
-            if states is None:
+            got = self._neighbour_states(r["k"])
+            if got is None:
                 return out
-            # eq. split-discrete-p2
-            r["z"] = st.consensus_subround(r["z"], self.P, states, r["ws"])
+            _, ws, states = got
+            # eq. split-discrete-p2 (over the neighbours whose message counts: impairment.realized_row)
+            r["z"] = st.consensus_subround(r["z"], self.P, states, ws)
             r["k"] += 1
+            self._opened()
             if r["k"] < self.exchanges:
                 out.append(self._z(r["k"], r["z"]))
         y = self.ybuf.get(r["tau"])
@@ -316,7 +365,7 @@ class AgentNode:
         r = self.round
         self.candidate = (r["tau"] + 1, x_next, g_next)
         self.round = None
-        return [self._xhat(r["tau"] + 1, r["attempt"], x_next, g_next)]
+        return [self._xhat(r["tau"] + 1, r["attempt"], x_next, g_next, r["lost"])]
 
 
 # ---------------------------------------------------------------------- process shell
@@ -355,7 +404,9 @@ def main(args: argparse.Namespace) -> int:
                     "y": lambda key, p: node.on_y(p)}
         subscriptions = ([(keys.tick, "tick"), (keys.y, "y")] + [(keys.z(j), "z") for j in node.in_neighbours]
                          + [(keys.xhat(j), "x") for j in node.in_neighbours])
+        timed = node.deadline is not None or node.delayed  # sub-rounds with a deadline, messages held for a delay
         return shell.run(lambda ch, key, p: handlers[ch](key, p), node.reject,
-                         name=f"agent {args.id} (q = {node.exchanges})", subscriptions=subscriptions)
+                         name=f"agent {args.id} (q = {node.exchanges})", subscriptions=subscriptions,
+                         timer=(node.next_wakeup, node.on_timer) if timed else None)
     finally:
         shell.close()

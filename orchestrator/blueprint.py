@@ -17,6 +17,7 @@ Entity paths (DESIGN.md "Rerun recording" is the contract for the first ones;
 ``rounds/wall_ms``              wall time of the round of ``tau``, first tick to record
 ``rounds/attempts``             attempts of that round (1 = no re-run)
 ``rounds/rejected``             messages rejected since the previous round's record
+``rounds/lost``                 consensus messages of the round that did not count (loss, late, partition)
 ``marks/<kind>``                a point at each loss, rejoin, graph switch, scenario fault
 ``topology``                    GraphNodes (fixed positions, lost agents grey) + GraphEdges
 ``topology/graph``              one label node: the active graph's name
@@ -59,7 +60,7 @@ ENVELOPE = "errors_log10/envelope"
 STATE = "state"
 GAINS = "gains"
 ROUNDS = "rounds"
-ROUND_SERIES = ("wall_ms", "attempts", "rejected")
+ROUND_SERIES = ("wall_ms", "attempts", "rejected", "lost")
 MARKS = "marks"
 TOPOLOGY = "topology"
 TOPOLOGY_GRAPH = "topology/graph"

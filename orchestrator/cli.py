@@ -88,9 +88,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--exact", action="store_true", help="continuous time: integrate the exact ODE (noise-free) "
                                                         "instead of the sampled-data estimator")
     p.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
-    p.add_argument("--faults-from", metavar="EVENTS", help="replay a run: replace the scenario's faults by the "
-                   "losses, rejoins and link changes recorded in a run's events.jsonl (use the run's "
-                   "scenario.yaml)")
+    p.add_argument("--faults-from", metavar="RUN", help="replay a run (its output directory, or its events.jsonl): "
+                   "the losses, rejoins, link changes and partitions of its events.jsonl replace the scenario's "
+                   "faults, and the consensus messages its trajectory.npz records as lost are dropped (use the "
+                   "run's scenario.yaml)")
     p.set_defaults(func=_command("study:cmd_simulate"))
 
     p = sub.add_parser("compare", help="estimation quality under noise: against the centralized Kalman filter "

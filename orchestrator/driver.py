@@ -196,7 +196,7 @@ class Orchestrator:
                 m.reject("orchestrator", e.reason)
                 return []
             return m.on_xhat(msg["agent"], msg["tau"], msg["attempt"], msg["incarnation"], msg["x"], msg["g"],
-                             msg["rejected"], now)
+                             msg["rejected"], now, lost=msg["lost"])
         if channel == "signal":
             self.stop_requested = True
         return []
@@ -234,11 +234,11 @@ class Orchestrator:
                     final=a.final, alive=list(a.alive),
                     rows={str(i): [list(nb), list(w)] for i, (nb, w) in a.rows.items()},
                     incarnation={str(i): int(v) for i, v in a.incarnation.items()}, fresh=a.fresh,
-                    prev_attempt=a.prev_attempt))
+                    prev_attempt=a.prev_attempt, partition=[list(g) for g in a.partition]))
             elif kind is R.Record:
                 gains = a.gains if self.sc.time == "continuous" else None  # no g in discrete time
                 self.rec.row(a.tau, a.x, a.xhat, a.alive, a.graph, gains=gains, attempts=a.attempts,
-                             rejected=a.rejected, wall_ms=(time.monotonic() - a.started) * 1e3)
+                             rejected=a.rejected, wall_ms=(time.monotonic() - a.started) * 1e3, lost=a.lost)
                 self.progress.update(a.tau, a.max_error, int(a.alive.sum()),
                                      force=a.tau == self.machine.plan.steps)
             elif kind is R.Event:

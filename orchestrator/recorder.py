@@ -141,7 +141,7 @@ from typing import Any, Iterable, Mapping
 import numpy as np
 
 from splitspec_core.errors import SplitspecError
-from splitspec_core.trajfile import TRAJECTORY_FILE, write_trajectory
+from splitspec_core.trajfile import TRAJECTORY_FILE, lost_arrays, write_trajectory
 
 from . import blueprint as bp
 from .eventlog import EVENTS_FILE, EventLog, event_level, event_text
@@ -297,6 +297,7 @@ class Recorder:
         self._io = threading.RLock()
         self._lock = threading.RLock()
         self._closed = False
+        self._lost: dict = {}  # tau -> rows (tau, k, j, i, cause) of the consensus messages that did not count
 
         cap = max(min(int(steps) + 1, _MAX_INITIAL_ROWS), 16)
         self._s = RowStore(self.m, self.n, capacity=cap)  # the rows recorded (under _lock)
@@ -442,12 +443,15 @@ class Recorder:
 
     def row(self, tau: int, x: np.ndarray, xhat: np.ndarray, alive: np.ndarray, graph: int, *,
             gains: np.ndarray | None = None, wall_ms: float | None = None, attempts: int | None = None,
-            rejected: int | None = None) -> None:
+            rejected: int | None = None, lost=None) -> None:
         """Record event time ``tau``: ``x`` (n,), ``xhat`` (m, n), ``alive`` (m,) bool, graph index.
 
         ``gains`` (m,): each agent's ``g_i(tau)`` (None: no gain, discrete
         time); ``wall_ms``, ``attempts``, ``rejected``: the round's
-        diagnostics (``rounds/...``), None if unknown.
+        diagnostics (``rounds/...``), None if unknown; ``lost``: the round's
+        consensus messages that did not count, rows ``(tau, k, j, i, cause)``
+        (``trajectory.npz`` ``lost``/``lost_cause``; their count is ``rounds/lost``;
+        None: unknown, as in a recorder fed by hand).
 
         Rows come in increasing ``tau``; a row re-sent for an already recorded
         ``tau`` replaces it.  Rows of dead agents are stored as NaN whatever
@@ -471,8 +475,11 @@ class Recorder:
         g = self._no_gains if gains is None else np.asarray(gains, dtype=float)
         if g.shape != (self.m,):
             raise RecordingError(f"gains has shape {g.shape}; expected ({self.m},)")
-        diag = [np.nan if v is None else float(v) for v in (wall_ms, attempts, rejected)]
+        diag = [np.nan if v is None else float(v) for v in (wall_ms, attempts, rejected,
+                                                             None if lost is None else len(lost))]
         with self._lock:
+            if lost is not None:
+                self._lost[tau] = tuple(tuple(int(v) for v in r) for r in lost)
             self._check_open("row")
             self._check_failed()
             k = self._s.row_of_tau.get(tau)
@@ -530,6 +537,9 @@ class Recorder:
                     self._changed.add(int(k))
             if self._rec is not None:
                 self._queued_clears.append((int(tau), self._t_of_tau(int(tau)), int(agent_id), time.time_ns()))
+            for t_, lost in list(self._lost.items()):  # a dead agent sends and receives nothing from tau on
+                if t_ >= int(tau):
+                    self._lost[t_] = tuple(r for r in lost if int(agent_id) not in (r[2], r[3]))
             self._request = T
         if self.flush_seconds == 0:
             self._write_through()
@@ -806,8 +816,10 @@ class Recorder:
         T = D.rows if rows is None else rows
         path = self.out_dir / TRAJECTORY_FILE
         try:
+            last = int(D.tau[T - 1]) if T else -1
+            lost, cause = lost_arrays([r for tau, rows in list(self._lost.items()) if tau <= last for r in rows])
             write_trajectory(path, t=D.t[:T], x=D.x[:T], xhat=D.xhat[:T], alive=D.alive[:T], graph=D.graph[:T],
-                             agent_ids=self.agent_ids, g=D.g[:T])
+                             agent_ids=self.agent_ids, g=D.g[:T], lost=lost, lost_cause=cause)
         except OSError as exc:
             raise self._fail(path, exc, int(D.tau[T - 1]) if T else None) from None
         self._npz_rows = T

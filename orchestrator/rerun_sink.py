@@ -54,8 +54,8 @@ class RowBatch:
 
     ``show``: where an agent's values are logged (alive, finite); ``clear``:
     where a value shown by an earlier batch is no longer true (Clear).
-    ``env``: the designed envelope, NaN where none; ``rounds``: (L, 3) wall ms,
-    attempts, rejected (NaN unknown).
+    ``env``: the designed envelope, NaN where none; ``rounds``: (L, 4) wall ms,
+    attempts, rejected, consensus messages lost (NaN unknown).
     """
 
     seq: np.ndarray

@@ -68,6 +68,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from splitspec_core.designer import certify_network
+from splitspec_core.impairment import CAUSES
 from splitspec_core.network import NetworkState, make_plan
 
 __all__ = ["RoundMachine", "Claim", "STALL_SECONDS", "SUMMARY_SECONDS",
@@ -94,6 +95,7 @@ class Tick:
     incarnation: dict
     fresh: bool = True  # someone starts this round with a fresh estimate: every agent sends its z_i(0)
     prev_attempt: int = 0  # the attempt of round tau - 1 whose estimates x_i(tau) are this round's z_i(0)
+    partition: tuple = ()  # groups of agent ids of a partition in force (splitspec_core.impairment), or ()
 
 
 @dataclass(frozen=True)
@@ -107,6 +109,7 @@ class Record:
     attempts: int = 1  # attempts of the round (1 = not re-run)
     rejected: int = 0  # messages rejected since the previous record
     started: float = math.nan  # `now` of the round's first tick (driver clock)
+    lost: tuple = ()  # (tau, k, j, i, cause) of every consensus message of the round that did not count
 
     @property
     def max_error(self) -> float:
@@ -278,6 +281,7 @@ class RoundMachine:
         self.truth: dict = {}
         self.est: dict = {}
         self.est_g: dict = {}  # tau -> {agent id: g_i(tau)} from the xhat messages (for Record)
+        self.est_lost: dict = {}  # tau + 1 -> {agent id: [k, j, cause, ...]}: what the round of tau did not count
         g_start = float(sc.design.g0) if des.g_mode == "adaptive" else (float(des.g) if des.g is not None else 0.0)
         self.gains = np.full(sc.m, g_start)
         self.last_graph: int | None = None
@@ -509,7 +513,8 @@ class RoundMachine:
         return out + self._progress(now)
 
     def on_xhat(self, aid: int, tau: int, attempt: int, incarnation: int, x: np.ndarray, g: float, rejected: dict,
-                now: float) -> list:
+                now: float, lost=()) -> list:
+        """An agent's estimate (``lost``: flat ``[k, j, cause, ...]`` of the consensus messages it did not count)."""
         out = self.on_clock(now)
         self.remote_counts(f"agent {aid}", rejected)
         if aid not in self.index:
@@ -525,6 +530,8 @@ class RoundMachine:
             return out
         self.est.setdefault(tau, {})[aid] = x
         self.est_g.setdefault(tau, {})[aid] = g  # g_i(tau), recorded with row tau
+        if tau == self.tau + 1:
+            self.est_lost.setdefault(tau, {})[aid] = list(lost)
         self.quiet_since = now
         if tau == self.tau + 1:
             self.gains[self.index[aid]] = g
@@ -732,6 +739,17 @@ class RoundMachine:
                                                           "reason": "agent is alive"}))
                     continue
                 return out + self._begin_restart(f.agent, now)
+            elif f.action in ("partition", "heal"):  # no consensus message crosses between the groups
+                self.net.apply([f])
+                if f.action == "partition":
+                    groups = [list(g) for g in f.groups]
+                    out.append(Event("partition", t, {"groups": groups, "tau": self.tau}))
+                    out.append(Log("warning", f"event time {self.tau}: partition {groups}: no consensus message "
+                                              "crosses between the groups until a heal"))
+                else:
+                    out.append(Event("healed", t, {"tau": self.tau}))
+                    out.append(Log("info", f"event time {self.tau}: the partition is healed"))
+                self.topology_dirty = True
             else:  # drop_arc / restore_arc: the simulator's own bookkeeping
                 self.net.apply([f])
                 arc = tuple(f.arc)
@@ -792,6 +810,7 @@ class RoundMachine:
 
     def _rerun(self, now: float) -> list:
         self.est.pop(self.tau + 1, None)
+        self.est_lost.pop(self.tau + 1, None)
         self.attempt += 1
         self.phase = "round"
         return self._tick(now)
@@ -810,7 +829,8 @@ class RoundMachine:
         self.quiet_since = now
         out.append(Tick(self.tau, self.attempt, graph, self.tau == self.plan.steps, tuple(sorted(self.alive)),
                         self.net.rows(self.sc, graph), {a: self.incarnation(a) for a in self.sc.agent_ids},
-                        fresh=self.fresh_tau == self.tau, prev_attempt=self.prev_attempt))
+                        fresh=self.fresh_tau == self.tau, prev_attempt=self.prev_attempt,
+                        partition=self.net.groups or ()))
         return out
 
     def _round_done(self) -> bool:
@@ -833,8 +853,14 @@ class RoundMachine:
             if a in self.alive:
                 gains[self.index[a]] = float(g)
         rejected, self.rejected_recorded = self.rejected_total - self.rejected_recorded, self.rejected_total
+        lost = tuple((self.tau, t[0], t[1], a, t[2]) for a, flat in sorted(self.est_lost.pop(self.tau + 1, {}).items())
+                     if a in self.alive for t in zip(flat[0::3], flat[1::3], flat[2::3]))
         out = [Record(self.tau, self.truth[self.tau], xh, mask, self.plan.graph_at(self.tau), gains,
-                      attempts=self.attempt + 1, rejected=rejected, started=self.round_started)]
+                      attempts=self.attempt + 1, rejected=rejected, started=self.round_started, lost=lost)]
+        if lost:  # one line per event time, never one per message
+            by = {c: sum(1 for r in lost if r[4] == k) for k, c in enumerate(CAUSES)}
+            out.append(Event("messages_lost", self.t(), {"tau": self.tau, "count": len(lost),
+                                                         **{c: v for c, v in by.items() if v}}))
         self.truth.pop(self.tau, None)
         self.est.pop(self.tau, None)
         if self.tau == self.plan.steps:

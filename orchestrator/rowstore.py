@@ -2,7 +2,7 @@
 
 Row ``k`` holds event time ``tau[k]``: ``t`` (T,), ``x`` (T, n), ``xhat``
 (T, m, n) NaN where dead, ``alive`` (T, m), ``graph`` (T,), ``g`` (T, m) NaN
-where dead or none, ``round`` (T, 3) wall ms / attempts / rejected, ``wall``
+where dead or none, ``round`` (T, 4) wall ms / attempts / rejected / lost, ``wall``
 (T,) ``time.time_ns()`` of the row's last arrival; ``shown``/``shown_max``:
 what Rerun currently shows (retracted with a Clear when it stops being
 true); ``env_start``: the row where the designed envelope's piece of row k
@@ -37,7 +37,7 @@ class RowStore:
         self.tau = np.zeros(cap, dtype=np.int64)
         self.wall = np.zeros(cap, dtype=np.int64)  # time.time_ns() of the row's (last) arrival
         self.g = np.full((cap, m), np.nan)  # g_i(tau), NaN where dead or none
-        self.round = np.full((cap, 3), np.nan)  # round diagnostics: wall ms, attempts, rejected
+        self.round = np.full((cap, 4), np.nan)  # round diagnostics: wall ms, attempts, rejected, lost
         self.env_start = np.zeros(cap, dtype=np.int64)  # row where the envelope's piece of the row starts
         # What is currently shown in Rerun per row (to retract with Clear when it stops being true).
         self.shown = np.zeros((cap, m), dtype=bool)

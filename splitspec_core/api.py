@@ -46,7 +46,7 @@ def scenario(*, name: str | None = None, time: str | None = None,
              A: Any = None, C: Mapping | None = None, x0: Any = None,
              process_noise: float | None = None, measurement_noise: float | None = None,
              graphs: Mapping | None = None, switching: Mapping | None = None, faults: Iterable | None = None,
-             positions: Mapping | None = None,
+             positions: Mapping | None = None, network: Mapping | None = None,
              rate: float | None = None, gains: str | None = None, K: Mapping | None = None, g: Any = None,
              g0: float | None = None, q: Any = None, q_method: str | None = None, q_max: int | None = None,
              resilience: int | None = None, weights: str | None = None, margin: float | None = None,
@@ -74,7 +74,7 @@ def scenario(*, name: str | None = None, time: str | None = None,
     """
     given = dict(locals())
     top: dict = {k: v for k, v in unknown.items()}  # the checker names them (and suggests the right key)
-    for key in ("name", "time", "graphs", "switching", "faults", "positions"):
+    for key in ("name", "time", "graphs", "switching", "faults", "positions", "network"):
         if given[key] is not None:
             top[key] = given[key]
     top.setdefault("name", "scenario")
@@ -236,20 +236,22 @@ def _designed(sc_or_design: Scenario | DesignResult | Design) -> Design:
 
 
 def simulate(sc: Scenario | DesignResult, *, steps: int | None = None, seed: int | None = None,
-             noise: bool = True, exact: bool = False, progress: bool | None = False) -> Trajectory:
+             noise: bool = True, exact: bool = False, progress: bool | None = False, lost=None) -> Trajectory:
     """Simulate in-process: the reference the multi-process ``splitspec run`` reproduces.
 
     The same scenario and seed give the trajectory ``splitspec simulate`` writes (and, to
     round-off, the one ``splitspec run`` records).  ``steps`` and ``seed`` default to
     ``run.steps`` and ``run.seed``; ``noise=False`` drops process and measurement noise;
     ``exact=True`` integrates the continuous-time ODE of eq. (split_continuous_observer)
-    noise-free instead of the sampled-data estimator.
+    noise-free instead of the sampled-data estimator.  ``lost``: replay a run's recorded consensus
+    losses (its ``trajectory.npz`` ``lost``, or ``(lost, lost_cause)``) instead of drawing the scenario's.
 
     Returns
     -------
     Trajectory
         ``t`` (T,), ``x`` (T, n), ``xhat`` (T, m, n) (NaN while an agent is dead), ``alive`` (T, m),
-        ``graph`` (T,) index into ``scenario.graph_names``, ``gains`` (T, m) g_i(t); ``errors()``.
+        ``graph`` (T,) index into ``scenario.graph_names``, ``gains`` (T, m) g_i(t), ``lost`` (N, 4) the
+        consensus messages that did not count; ``errors()``.
     """
     from .simulator import check_trajectory_memory, simulate as _simulate, simulate_exact
 
@@ -257,7 +259,7 @@ def simulate(sc: Scenario | DesignResult, *, steps: int | None = None, seed: int
     check_trajectory_memory(des.scenario, steps, key="steps" if steps is not None else "run.steps")
     if exact:
         return simulate_exact(des, seed=seed, steps=steps)
-    return _simulate(des, seed=seed, steps=steps, noise=noise, progress=progress)
+    return _simulate(des, seed=seed, steps=steps, noise=noise, progress=progress, lost=lost)
 
 
 # --------------------------------------------------------------------------

@@ -9,6 +9,8 @@ faults at the same steps and hand every agent the same neighbour weights.
   step k on; a restarted agent rejoins at step k with a fresh estimate;
   ``drop_arc``/``restore_arc`` remove/re-add one arc from every graph (with
   Metropolis weights, the link in both directions, keeping graphs undirected);
+  ``partition``/``heal`` start/end a partition: the arcs stay, but no consensus
+  message between groups counts (:mod:`splitspec_core.impairment`);
 * neighbour sets are the active graph restricted to the alive agents, with
   the scenario's weights recomputed on that restricted graph.
 """
@@ -137,6 +139,7 @@ class NetworkState:
         self.alive = np.ones(sc.m, dtype=bool)
         self.incarnation = np.zeros(sc.m, dtype=int)
         self.dropped: set = set()
+        self.groups: tuple | None = None  # a partition in force (impairment: no message crosses between groups)
 
     def lose(self, i: int) -> bool:
         """Agent at position ``i`` stops taking part; False if it was not alive."""
@@ -169,6 +172,10 @@ class NetworkState:
                 self.dropped.add(f.arc)
             elif f.action == "restore_arc":
                 self.dropped.discard(f.arc)
+            elif f.action == "partition":
+                self.groups = f.groups
+            elif f.action == "heal":
+                self.groups = None
         return killed, rejoined
 
     def alive_ids(self) -> list:
@@ -176,7 +183,7 @@ class NetworkState:
 
     def key(self, graph_index: int) -> tuple:
         """Hashable description of the active network (for caching weights)."""
-        return (int(graph_index), self.alive.tobytes(), frozenset(self.dropped))
+        return (int(graph_index), self.alive.tobytes(), frozenset(self.dropped), self.groups)
 
     def rows(self, sc: Scenario, graph_index: int) -> dict:
         return consensus_rows(sc, graph_index, self.alive_ids(), frozenset(self.dropped))

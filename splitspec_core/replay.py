@@ -3,11 +3,14 @@
 ``splitspec run`` logs every change of the network with the event time from
 which it holds (``tau``): ``agent_lost`` (whatever the cause: a scenario
 fault, ``kill -9`` from outside, a frozen process, a round timeout),
-``agent_rejoined`` (restart by the scenario or by hand), ``arc_dropped`` and
-``arc_restored``.  Turned into ``{at: tau * dt, kill | restart | drop_arc |
-restore_arc}`` faults they make ``splitspec simulate`` apply the same changes
-at the same steps (:func:`splitspec_core.network.fault_step`), so the replay
-gives the run's trajectory to round-off.
+``agent_rejoined`` (restart by the scenario or by hand), ``arc_dropped``,
+``arc_restored``, ``partition`` and ``healed``.  Turned into ``{at: tau * dt,
+kill | restart | drop_arc | restore_arc | partition | heal}`` faults they make
+``splitspec simulate`` apply the same changes at the same steps
+(:func:`splitspec_core.network.fault_step`); with the consensus messages the
+run recorded as not counted (``trajectory.npz`` ``lost``: injected losses,
+partitions, and real arrivals after the deadline) the replay drops exactly
+those, so it gives the run's trajectory to round-off.
 """
 
 from __future__ import annotations
@@ -19,9 +22,10 @@ from pathlib import Path
 from .errors import ScenarioError
 from .scenario_model import Fault, Scenario
 
-__all__ = ["load_events", "faults_from_events", "with_recorded_faults"]
+__all__ = ["load_events", "faults_from_events", "with_recorded_faults", "recorded_run"]
 
-_ACTIONS = {"agent_lost": "kill", "agent_rejoined": "restart", "arc_dropped": "drop_arc", "arc_restored": "restore_arc"}
+_ACTIONS = {"agent_lost": "kill", "agent_rejoined": "restart", "arc_dropped": "drop_arc", "arc_restored": "restore_arc",
+            "partition": "partition", "healed": "heal"}
 
 
 def load_events(path) -> list:
@@ -58,7 +62,15 @@ def faults_from_events(events: list, sc: Scenario, *, source: str = "events") ->
         tau = e.get("tau")
         if not isinstance(tau, int) or isinstance(tau, bool) or tau < 0:
             raise ScenarioError(f"{source}: event {k} ({e['event']}) has no valid 'tau'")
-        if action in ("kill", "restart"):
+        if action == "partition":
+            groups = e.get("groups")
+            if not (isinstance(groups, list) and groups and all(isinstance(g, list) and all(a in sc.agent_ids for a in g)
+                                                                for g in groups)):
+                raise ScenarioError(f"{source}: event {k} (partition) has bad 'groups' {groups!r}")
+            faults.append(Fault(at=tau * dt, action="partition", groups=tuple(tuple(g) for g in groups)))
+        elif action == "heal":
+            faults.append(Fault(at=tau * dt, action="heal"))
+        elif action in ("kill", "restart"):
             aid = e.get("id")
             if aid not in sc.agent_ids:
                 raise ScenarioError(f"{source}: event {k} ({e['event']}) names agent {aid!r}, which is not in the "
@@ -70,6 +82,26 @@ def faults_from_events(events: list, sc: Scenario, *, source: str = "events") ->
                 raise ScenarioError(f"{source}: event {k} ({e['event']}) has a bad 'arc' {arc!r}")
             faults.append(Fault(at=tau * dt, action=action, arc=(arc[0], arc[1])))
     return tuple(faults)
+
+
+def recorded_run(path) -> tuple:
+    """``(events.jsonl path, (lost, lost_cause) or None)`` of a run: ``path`` is its output directory or its
+    ``events.jsonl``; the consensus messages that did not count come from the ``trajectory.npz`` beside it
+    (None when there is none, or it has no ``lost`` rows)."""
+    import numpy as np
+
+    path = Path(path)
+    events = path / "events.jsonl" if path.is_dir() else path
+    traj = events.parent / "trajectory.npz"
+    lost = None
+    if traj.is_file():
+        try:
+            with np.load(traj) as f:
+                if "lost" in f.files and len(f["lost"]):
+                    lost = (f["lost"], f["lost_cause"] if "lost_cause" in f.files else None)
+        except (OSError, ValueError) as exc:
+            raise ScenarioError(f"cannot read {traj}: {exc}") from None
+    return events, lost
 
 
 def with_recorded_faults(sc: Scenario, events_path) -> Scenario:

@@ -19,9 +19,12 @@ from .errors import DimensionError, ScenarioError
 GAIN_METHODS = ("place", "riccati", "explicit")
 Q_METHODS = ("spectral", "weighted", "two-norm", "mixed")
 WEIGHTINGS = ("uniform", "metropolis")
-FAULT_ACTIONS = ("kill", "restart", "hang", "drop_arc", "restore_arc")
+FAULT_ACTIONS = ("kill", "restart", "hang", "drop_arc", "restore_arc", "partition", "heal")
 
-_TOP_KEYS = ("name", "time", "system", "graphs", "switching", "design", "faults", "run", "positions")
+_TOP_KEYS = ("name", "time", "system", "graphs", "switching", "design", "faults", "run", "positions", "network")
+_NETWORK_KEYS = ("loss", "delay", "deadline", "arcs")
+_DELAY_KEYS = ("mean", "jitter")
+_NETWORK_ARC_KEYS = ("arc", "loss", "delay")
 _SYSTEM_KEYS = ("A", "C", "x0", "process_noise", "measurement_noise")
 _GRAPH_KEYS = ("arcs", "undirected")
 _SWITCHING_KEYS = ("schedule", "period", "random")
@@ -47,6 +50,9 @@ MIN_RICCATI_WEIGHT = 1e-12
 # switching.random.dwell and switching.period >= 1e-3 sample steps (dt, or 1 event time): the switching
 # signal is built piece by piece (memory ~ horizon / dwell), and switching within a step is not seen.
 MIN_SWITCH_STEPS = 1e-3
+# network.delay (mean + jitter) and network.deadline <= 60 s: a consensus sub-round that waits longer is no
+# longer a network impairment but a stalled run (the orchestrator's round timeout is 10 s by default).
+MAX_NETWORK_SECONDS = 60.0
 # design.q_max <= 1e6: q is the number of consensus exchanges per event time.
 MAX_Q = 1_000_000
 # run.seed, switching.random.seed <= 2**63 - 1: seeds travel to the processes as msgpack 64-bit integers.
@@ -118,7 +124,8 @@ def _check_keys(mapping: Mapping, allowed: tuple, key: str) -> None:
 _ALL_KEYS = (
     *_TOP_KEYS, *(f"system.{k}" for k in _SYSTEM_KEYS), *(f"design.{k}" for k in _DESIGN_KEYS),
     *(f"run.{k}" for k in _RUN_KEYS), *(f"switching.{k}" for k in _SWITCHING_KEYS),
-    *(f"design.riccati.{k}" for k in _RICCATI_KEYS),
+    *(f"design.riccati.{k}" for k in _RICCATI_KEYS), *(f"network.{k}" for k in _NETWORK_KEYS),
+    *(f"network.delay.{k}" for k in _DELAY_KEYS),
 )
 
 

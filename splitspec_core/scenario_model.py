@@ -39,6 +39,7 @@ __all__ = [
     "Switching",
     "DesignSpec",
     "Fault",
+    "NetworkSpec",
     "RunSpec",
     "Scenario",
     "load_scenario",
@@ -154,12 +155,57 @@ class DesignSpec:
 
 @dataclass(frozen=True)
 class Fault:
-    """One scheduled fault: ``action`` at time ``at`` on ``agent`` or ``arc``."""
+    """One scheduled fault: ``action`` at time ``at`` on ``agent``, ``arc`` or ``groups``.
+
+    ``partition``: ``groups`` (a tuple of tuples of agent ids; agents named in no group form one more
+    group): no consensus message crosses between groups until a ``heal`` (no operand) ends it.
+    """
 
     at: float
     action: str
     agent: int | None = None
     arc: tuple | None = None
+    groups: tuple | None = None
+
+
+@dataclass(frozen=True)
+class NetworkSpec:
+    """``network:``: what happens to consensus messages (see :mod:`splitspec_core.impairment`).
+
+    ``loss``: probability that one consensus message does not count in its sub-round (every arc);
+    ``delay_mean``, ``delay_jitter``: seconds added to every message in ``run`` (uniform in
+    ``mean +- jitter``, never negative); ``deadline``: seconds a sub-round waits for its neighbours
+    (None: for all of them, lossless); ``arcs``: ``{(j, i): {"loss": p, "delay_mean": s,
+    "delay_jitter": s}}`` overrides per arc.
+    """
+
+    loss: float = 0.0
+    delay_mean: float = 0.0
+    delay_jitter: float = 0.0
+    deadline: float | None = None
+    arcs: dict = field(default_factory=dict)
+
+    @property
+    def lossy(self) -> bool:
+        """Some message may be lost by draw (a loss probability above 0 somewhere)."""
+        return self.loss > 0 or any(o.get("loss", 0.0) > 0 for o in self.arcs.values())
+
+    @property
+    def delayed(self) -> bool:
+        return self.delay_mean > 0 or self.delay_jitter > 0 or any(
+            o.get("delay_mean", 0.0) > 0 or o.get("delay_jitter", 0.0) > 0 for o in self.arcs.values())
+
+    @property
+    def impaired(self) -> bool:
+        """Anything beyond the perfect network (today's behaviour: every message, on time)."""
+        return self.lossy or self.delayed or self.deadline is not None
+
+    def loss_of(self, arc: tuple) -> float:
+        return self.arcs.get(arc, {}).get("loss", self.loss)
+
+    def delay_of(self, arc: tuple) -> tuple:
+        o = self.arcs.get(arc, {})
+        return o.get("delay_mean", self.delay_mean), o.get("delay_jitter", self.delay_jitter)
 
 
 @dataclass(frozen=True)
@@ -187,6 +233,7 @@ class Scenario:
     run: RunSpec = field(default_factory=RunSpec)
     source: str = "<scenario>"
     positions: dict | None = None  # agent id -> (x, y) of the topology drawing; None: a circle
+    network: NetworkSpec = field(default_factory=NetworkSpec)
 
     @property
     def m(self) -> int:

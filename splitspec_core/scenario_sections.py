@@ -1,4 +1,5 @@
-"""The sections of a scenario (system, graphs, switching, design, faults, run, positions), parsed in file order.
+"""The sections of a scenario (system, graphs, switching, design, faults, run, positions), parsed in file order;
+``network:`` in :mod:`splitspec_core.scenario_network`.
 
 :func:`parse_scenario` takes the mapping a YAML file holds (or :func:`splitspec_core.scenario`
 builds) and returns the frozen :class:`~splitspec_core.scenario_model.Scenario`, or raises a
@@ -17,6 +18,7 @@ from .scenario_checks import (_DESIGN_KEYS, _GRAPH_KEYS, _RANDOM_KEYS, _RICCATI_
                               _check_keys, _describe, _ids_text, _integer, _known_agent, _matrix, _number,
                               _require_map, _seed, check_shapes, plain)
 from .scenario_model import DesignSpec, Fault, GraphSpec, RunSpec, Scenario, Switching, System
+from .scenario_network import check_heals, parse_groups, parse_network
 
 def _parse_system(raw: Any) -> tuple[System, tuple]:
     sysmap = _require_map(raw, "system")
@@ -255,7 +257,13 @@ def _parse_faults(raw: Any, ids: tuple) -> tuple:
         if len(actions) != 1:
             raise ScenarioError(f"{key} needs exactly one of {', '.join(FAULT_ACTIONS)}")
         action = actions[0]
-        if action.endswith("_arc"):
+        if action == "partition":
+            out.append(Fault(at=at, action=action, groups=parse_groups(fmap[action], f"{key}.partition", ids)))
+        elif action == "heal":
+            if fmap[action] is not True:
+                raise ScenarioError(f"{key}.heal must be true (it ends every partition), got {_describe(fmap[action])}")
+            out.append(Fault(at=at, action=action))
+        elif action.endswith("_arc"):
             arc = _arc(fmap[action], f"{key}.{action}", ids)
             if arc[0] == arc[1]:
                 raise ScenarioError(f"{key}.{action} [{arc[0]}, {arc[1]}] is a self-arc: self-arcs are implicit "
@@ -263,7 +271,9 @@ def _parse_faults(raw: Any, ids: tuple) -> tuple:
             out.append(Fault(at=at, action=action, arc=arc))
         else:
             out.append(Fault(at=at, action=action, agent=_known_agent(fmap[action], f"{key}.{action}", ids)))
-    return tuple(sorted(out, key=lambda f: f.at))
+    out = tuple(sorted(out, key=lambda f: f.at))
+    check_heals(out)
+    return out
 
 
 def _parse_run(raw: Any, time: str) -> RunSpec:
@@ -318,9 +328,11 @@ def parse_scenario(data: Any, *, source: str = "<scenario>") -> Scenario:
     run = _parse_run(top.get("run"), time)
     _check_switching_against_step(switching, run)
     positions = _parse_positions(top.get("positions"), ids)
+    network = parse_network(top.get("network"), ids, graphs)
     return Scenario(
         name=name, time=time, agent_ids=ids, system=system, graphs=graphs,
         switching=switching, design=design, faults=faults, run=run, source=source, positions=positions,
+        network=network,
     )
 
 

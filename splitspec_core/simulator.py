@@ -25,7 +25,7 @@ from __future__ import annotations
 import os
 import sys
 import time as _time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -37,8 +37,9 @@ from .designer import Design
 from .errors import ScenarioError
 from .network import NetworkState, Plan, make_plan
 from .plant_model import Plant, initial_estimate, initial_state, output_rows
+from .impairment import PARTITION, Impairment, crosses, group_of, realized_row
 from .scenario_model import Scenario
-from .trajfile import write_trajectory
+from .trajfile import lost_arrays, write_trajectory
 
 __all__ = [
     "Trajectory",
@@ -70,6 +71,11 @@ class Trajectory:
     agent_ids : (m,) int
     gains : (T, m) gains g_i (``g`` in the file): adaptive g_i(t) or the fixed continuous g, NaN where
         dead and in discrete time; None only for a file written before ``g`` existed
+    lost : (N, 4) int64
+        Every consensus message that did not count, one row ``(event time, sub-round k, sender j,
+        receiver i)`` (agent ids), sorted (:mod:`splitspec_core.impairment`); empty on a perfect network
+    lost_cause : (N,) int8
+        Why each did not count: 0 loss, 1 late, 2 partition (``impairment.CAUSES``)
     """
 
     t: np.ndarray
@@ -79,6 +85,8 @@ class Trajectory:
     graph: np.ndarray
     agent_ids: np.ndarray
     gains: np.ndarray | None = None
+    lost: np.ndarray = field(default_factory=lambda: np.zeros((0, 4), dtype=np.int64))
+    lost_cause: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int8))
 
     def errors(self) -> np.ndarray:
         """``|x_i(t) - x(t)|_2`` per agent, shape (T, m), NaN where dead."""
@@ -87,13 +95,14 @@ class Trajectory:
     def save(self, path: str | Path) -> None:
         """Atomically write ``path`` (the one writer of the contract, :func:`~splitspec_core.trajfile.write_trajectory`)."""
         write_trajectory(path, t=self.t, x=self.x, xhat=self.xhat, alive=self.alive, graph=self.graph,
-                         agent_ids=self.agent_ids, g=self.gains)
+                         agent_ids=self.agent_ids, g=self.gains, lost=self.lost, lost_cause=self.lost_cause)
 
     @classmethod
     def load(cls, path: str | Path) -> "Trajectory":
         with np.load(path) as f:
+            extra = {k: f[k] for k in ("lost", "lost_cause") if k in f.files}
             return cls(t=f["t"], x=f["x"], xhat=f["xhat"], alive=f["alive"], graph=f["graph"],
-                       agent_ids=f["agent_ids"], gains=f["g"] if "g" in f.files else None)
+                       agent_ids=f["agent_ids"], gains=f["g"] if "g" in f.files else None, **extra)
 
 
 # --------------------------------------------------------------------------
@@ -183,6 +192,15 @@ def _bmv(M: np.ndarray, X: np.ndarray) -> np.ndarray:
     return np.matmul(M, X[:, :, None])[:, :, 0]
 
 
+def _entries(sc: Scenario, rows: dict) -> tuple:
+    """``(row, col, weight, off-diagonal)`` arrays (agent positions) of ``rows``, in its order."""
+    pos = {a: k for k, a in enumerate(sc.agent_ids)}
+    ri = np.array([pos[i] for i, (nbs, _) in rows.items() for _ in nbs], dtype=np.int64)
+    ci = np.array([pos[j] for _, (nbs, _) in rows.items() for j in nbs], dtype=np.int64)
+    w = np.array([x for _, (_, ws) in rows.items() for x in ws], dtype=float)
+    return ri, ci, w, ri != ci
+
+
 class BatchEstimator(_EstimatorBase):
     """Vectorised estimator: state ``X`` (m, n); sparse weights; batched per-agent matrices.
 
@@ -257,6 +275,42 @@ class BatchEstimator(_EstimatorBase):
         return Xn
 
 
+    def realized(self, rows: dict, entries: tuple, counts: list) -> list:
+        """Sparse ``S_k`` (m x m) of each exchange's realized graph: :func:`impairment.realized_row`, vectorised.
+
+        ``entries``: :func:`_entries` of ``rows``; ``counts[k]``: a boolean per off-diagonal entry, True where the
+        message counts.
+        """
+        ri, ci, w, off = entries
+        offi = np.flatnonzero(off)
+        out = []
+        for ok in counts:
+            keep = ~off
+            keep[offi[ok]] = True
+            if self.sc.design.weights == "metropolis":  # the missing weights go to the receiver itself
+                wk = w.copy()
+                kept = keep & off
+                wk[~off] = (1.0 - np.bincount(ri[kept], weights=w[kept], minlength=self.m))[ri[~off]]
+            else:  # 1 / (1 + #counted): row i of the realized graph's S
+                wk = 1.0 / np.bincount(ri[keep], minlength=self.m)[ri]
+            out.append(sp.csr_matrix((wk[keep], (ri[keep], ci[keep])), shape=(self.m, self.m)))
+        return out
+
+    def step_realized(self, X: np.ndarray, y: np.ndarray, Ws: list, alive: np.ndarray) -> np.ndarray:
+        """One step with a realized consensus matrix per exchange (``Ws``: q sparse ``S_k``, or one in continuous
+        time): eq. (split-discrete-p2) as ``z <- z + P_i (S_k z - z)_i``, then eq. (split-discrete-est1)."""
+        Y = np.zeros((self.m, self.Kp.shape[2]))
+        Y[self._yidx] = y
+        if self.continuous:
+            return self.step(X, y, Ws[0], alive)
+        Z = X.copy()
+        for Wk in Ws:
+            Z = Z + _bmv(self.Pst, Wk @ Z - Z)
+        Xn = _bmv(self.Fst, Z) - _bmv(self.Kp, Y)
+        Xn[~alive] = 0.0
+        return Xn
+
+
 class AgentLoopEstimator(_EstimatorBase):
     """Plain per-agent loop over the step functions of :mod:`splitspec_core.steps`."""
 
@@ -295,6 +349,40 @@ class AgentLoopEstimator(_EstimatorBase):
             Xn[i] = st.measurement_update(Z[i], self.F[i], self.Ks[i], ys[i])
         return Xn
 
+    def realized(self, rows: dict, entries: tuple, counts: list) -> list:
+        """Each exchange's realized rows ``{i: (nbs, ws)}``, by the agents' own :func:`impairment.realized_row`."""
+        ri, ci, _, off = entries
+        ids = self.sc.agent_ids
+        offi = np.flatnonzero(off)
+        out = []
+        for ok in counts:
+            counted: dict = {}
+            for e in offi[ok]:
+                counted.setdefault(ids[ri[e]], set()).add(ids[ci[e]])
+            out.append({i: realized_row(nbs, ws, counted.get(i, ()), self.sc.design.weights)
+                        for i, (nbs, ws) in rows.items()})
+        return out
+
+    def step_realized(self, X: np.ndarray, y: np.ndarray, Ws: list, alive: np.ndarray) -> np.ndarray:
+        """One step with each exchange's realized rows (``Ws``: per exchange, ``{i: (nbs, ws)}``), exactly as the
+        agent processes compute it (:func:`splitspec_core.impairment.realized_row`)."""
+        if self.continuous:
+            return self.step(X, y, Ws[0], alive)
+        pos = {a: k for k, a in enumerate(self.sc.agent_ids)}
+        ys = [y[r] for r in self.rows]
+        Xn = np.zeros_like(X)
+        Z = X.copy()
+        for rows in Ws:
+            Zn = np.zeros_like(Z)
+            for i_id, (nbs, ws) in rows.items():
+                i = pos[i_id]
+                Zn[i] = st.consensus_subround(Z[i], self.Ps[i], [Z[pos[j]] for j in nbs], ws)
+            Z = Zn
+        for i_id in Ws[0]:
+            i = pos[i_id]
+            Xn[i] = st.measurement_update(Z[i], self.F[i], self.Ks[i], ys[i])
+        return Xn
+
 
 # --------------------------------------------------------------------------
 # driver
@@ -327,7 +415,8 @@ class _Progress:
 
 
 def simulate(des: Design, *, seed: int | None = None, steps: int | None = None, noise: bool = True,
-             estimator: str = "batch", progress: bool | None = False, plan: Plan | None = None) -> Trajectory:
+             estimator: str = "batch", progress: bool | None = False, plan: Plan | None = None,
+             lost=None) -> Trajectory:
     """Simulate the scenario of a design (see the module docstring).
 
     Parameters
@@ -342,6 +431,9 @@ def simulate(des: Design, *, seed: int | None = None, steps: int | None = None, 
         ``batch`` (vectorised) or ``loop`` (per-agent step functions).
     progress : bool or None
         None shows a progress bar when stderr is a terminal and the run is long.
+    lost : (N, 4) int array, or ``(lost, lost_cause)``, optional
+        Replay: exactly these consensus messages do not count (a run's recorded ``lost``), instead of the
+        scenario's drawn losses (:mod:`splitspec_core.impairment`).
     """
     sc = des.scenario
     seed = sc.run.seed if seed is None else seed
@@ -360,6 +452,12 @@ def simulate(des: Design, *, seed: int | None = None, steps: int | None = None, 
     gains = np.full((T, m), np.nan)  # g_i(t): adaptive or fixed in continuous time; none in discrete time
     bar = _Progress(plan.steps, progress)
     w_cache: dict = {}  # active network -> the estimator's weights
+    # a misbehaving network (impairment.py): messages that do not count, drawn (or replayed from a run's record)
+    imp = Impairment(sc.network, seed) if sc.network.impaired and lost is None else None
+    replay = _replay_index(lost) if lost is not None else None
+    impaired = imp is not None or replay is not None or any(f.action == "partition" for f in sc.faults)
+    exchanges = 1 if est.continuous else int(des.q)
+    lost_rows: list = []
     for k in range(T):
         killed, rejoined = net.apply(plan.faults.get(k, ()))
         for i in killed:
@@ -379,12 +477,62 @@ def simulate(des: Design, *, seed: int | None = None, steps: int | None = None, 
         key = net.key(plan.graph_seq[k])
         W = w_cache.get(key)
         if W is None:
-            W = w_cache[key] = est.weights(net.rows(sc, key[0]))
-        X = est.step(X, y, W, alive)
+            rows = net.rows(sc, key[0])
+            W = w_cache[key] = (est.weights(rows), rows, _entries(sc, rows))
+        Ws = _realized_step(est, sc, W, k, exchanges, imp, replay, net.groups, lost_rows) if impaired else None
+        X = est.step(X, y, W[0], alive) if Ws is None else est.step_realized(X, y, Ws, alive)
         plant.advance()
         bar.update(k + 1)
+    lost_a, cause_a = lost_arrays(lost_rows)
     return Trajectory(t=plan.times(), x=xs, xhat=xh, alive=al, graph=plan.graph_seq.copy(),
-                      agent_ids=np.array(ids), gains=gains)
+                      agent_ids=np.array(ids), gains=gains, lost=lost_a, lost_cause=cause_a)
+
+
+def _replay_index(lost) -> dict:
+    """``{(tau, k): {(j, i): cause}}`` from recorded ``(lost, lost_cause)`` arrays (or rows ``(tau, k, j, i)``)."""
+    rows, causes = (lost if isinstance(lost, tuple) else (lost, None))
+    rows = np.asarray(rows, dtype=np.int64).reshape(-1, 4)
+    causes = np.zeros(len(rows), dtype=np.int64) if causes is None else np.asarray(causes)
+    out: dict = {}
+    for (tau, k, j, i), c in zip(rows.tolist(), causes.tolist()):
+        out.setdefault((tau, k), {})[(j, i)] = int(c)
+    return out
+
+
+def _realized_step(est, sc: Scenario, W: tuple, tau: int, exchanges: int, imp, replay, groups, lost_rows: list):
+    """The realized weights of step ``tau``'s exchanges, or None when every message counts (the lossless path).
+
+    A message ``(tau, k, j, i)`` does not count when a partition in force separates j and i, when it is drawn
+    lost (or late past the deadline, emulated), or, in a replay, when the run recorded it so; its row
+    ``(tau, k, j, i, cause)`` goes to ``lost_rows``.
+    """
+    _, rows, entries = W
+    ri, ci, _, off = entries
+    ids = np.array(sc.agent_ids)
+    js, is_ = ids[ci[off]], ids[ri[off]]
+    if not len(js):
+        return None
+    gmap = group_of(groups, sc.agent_ids)
+    cross = np.array([crosses(gmap, int(j), int(i)) for j, i in zip(js, is_)]) if gmap else None
+    counts, any_lost = [], False
+    for kk in range(1, exchanges + 1):
+        cause = np.full(len(js), -1, dtype=np.int64)
+        if replay is not None:
+            rec = replay.get((tau, kk))
+            if rec:
+                cause = np.array([rec.get((int(j), int(i)), -1) for j, i in zip(js, is_)], dtype=np.int64)
+        else:
+            if cross is not None:
+                cause[cross] = PARTITION
+            if imp is not None:
+                drawn = imp.dropped(tau, kk, js, is_)
+                cause = np.where(cause < 0, drawn, cause)
+        gone = np.flatnonzero(cause >= 0)
+        if gone.size:
+            any_lost = True
+            lost_rows.extend((tau, kk, int(js[e]), int(is_[e]), int(cause[e])) for e in gone)
+        counts.append(cause < 0)
+    return est.realized(rows, entries, counts) if any_lost else None
 
 
 # eq. (adaptive) makes each g_i(t) a state of its own: the ODE is no longer linear, so no matrix exponential
@@ -405,6 +553,9 @@ def simulate_exact(des: Design, *, seed: int | None = None, steps: int | None = 
         raise ScenarioError("the exact ODE is continuous time; this scenario is discrete (time: discrete)")
     if des.g_mode == "adaptive":
         raise ScenarioError(EXACT_NEEDS_FIXED_G)
+    if sc.network.impaired or any(f.action == "partition" for f in sc.faults):
+        raise ScenarioError("the exact ODE has no messages to lose: it cannot model network: or partition faults "
+                            "(simulate without --exact)")
     seed = sc.run.seed if seed is None else seed
     check_trajectory_memory(sc, steps)
     plan = make_plan(sc, seed, steps)

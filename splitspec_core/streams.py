@@ -15,6 +15,9 @@ stream              key                                draws (per step)
                                                        (all agents, dead or alive)
 ``estimate``        (agent index, incarnation)         ``n`` normals once
 ``switching``       ()                                 random switching signal
+``network``         ()                                 two 64-bit keys once: the counter-based
+                                                       loss and delay draws of every consensus
+                                                       message (:mod:`splitspec_core.impairment`)
 ==================  =================================  ==========================
 """
 
@@ -24,7 +27,7 @@ import numpy as np
 
 __all__ = ["stream", "STREAMS"]
 
-STREAMS = {"initial_state": 0, "process": 1, "measurement": 2, "estimate": 3, "switching": 4}
+STREAMS = {"initial_state": 0, "process": 1, "measurement": 2, "estimate": 3, "switching": 4, "network": 5}
 
 
 def stream(seed: int, name: str, *key: int) -> np.random.Generator:

@@ -4,7 +4,11 @@ Arrays: ``t`` (T,), ``x`` (T, n), ``xhat`` (T, m, n) NaN where dead,
 ``alive`` (T, m) bool, ``graph`` (T,) int, ``agent_ids`` (m,), and ``g``
 (T, m): the gain ``g_i(t)`` of each agent (eq. adaptive for the adaptive gain,
 the designed scalar ``g`` for a fixed continuous-time gain), NaN where the
-agent is dead and everywhere in discrete time (there is no ``g``).
+agent is dead and everywhere in discrete time (there is no ``g``); ``lost`` (N, 4)
+int64: every consensus message that did not count, one row ``(event time,
+sub-round k, sender j, receiver i)`` in that order, and ``lost_cause`` (N,) int8
+(0 loss, 1 late, 2 partition: :mod:`splitspec_core.impairment`); empty on a
+perfect network.
 
 The file is written atomically: a temporary file in the same directory,
 flushed and fsynced, then ``os.replace``; a reader never sees a torn file and
@@ -19,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["TRAJECTORY_FILE", "write_trajectory", "no_gains"]
+__all__ = ["TRAJECTORY_FILE", "write_trajectory", "no_gains", "lost_arrays"]
 
 TRAJECTORY_FILE = "trajectory.npz"
 
@@ -29,8 +33,15 @@ def no_gains(T: int, m: int) -> np.ndarray:
     return np.full((T, m), np.nan)
 
 
+def lost_arrays(rows) -> tuple:
+    """``(lost, lost_cause)`` from ``(tau, k, j, i, cause)`` rows, sorted by ``(tau, k, j, i)``."""
+    a = np.array(sorted(rows), dtype=np.int64).reshape(-1, 5)
+    return a[:, :4].copy(), a[:, 4].astype(np.int8)
+
+
 def write_trajectory(path: str | Path, *, t: np.ndarray, x: np.ndarray, xhat: np.ndarray, alive: np.ndarray,
-                     graph: np.ndarray, agent_ids: np.ndarray, g: np.ndarray | None = None) -> None:
+                     graph: np.ndarray, agent_ids: np.ndarray, g: np.ndarray | None = None,
+                     lost: np.ndarray | None = None, lost_cause: np.ndarray | None = None) -> None:
     """Atomically write ``path`` with the trajectory arrays (``g`` all NaN if None).
 
     Raises
@@ -41,7 +52,9 @@ def write_trajectory(path: str | Path, *, t: np.ndarray, x: np.ndarray, xhat: np
     path = Path(path)
     T, m = np.shape(alive)
     arrays = dict(t=t, x=x, xhat=xhat, alive=alive, graph=graph, agent_ids=agent_ids,
-                  g=no_gains(T, m) if g is None else g)
+                  g=no_gains(T, m) if g is None else g,
+                  lost=np.zeros((0, 4), dtype=np.int64) if lost is None else np.asarray(lost, dtype=np.int64),
+                  lost_cause=np.zeros(0, dtype=np.int8) if lost_cause is None else np.asarray(lost_cause, np.int8))
     tmp = None
     try:
         fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".npz.tmp", dir=path.parent)

@@ -10,6 +10,8 @@ import argparse
 import json
 import sys
 
+import numpy as np
+
 import splitspec_core as ss
 from splitspec_core.runtime.cli import MAX_SEED, UsageError
 
@@ -175,10 +177,14 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     from splitspec_core.simulator import check_trajectory_memory
 
     sc = ss.load_scenario(args.scenario)
+    lost = None
     if args.faults_from:
-        from splitspec_core.replay import with_recorded_faults
+        from splitspec_core.replay import recorded_run, with_recorded_faults
 
-        sc = with_recorded_faults(sc, args.faults_from)
+        events, lost = recorded_run(args.faults_from)
+        sc = with_recorded_faults(sc, events)
+        if lost is None and sc.network.impaired:
+            lost = (np.zeros((0, 4), dtype=np.int64), None)  # the run lost nothing: replay that, draw nothing
     if args.exact and sc.time != "continuous":
         raise UsageError("--exact integrates the continuous-time ODE; this scenario is discrete")
     if args.exact and sc.design.g == "adaptive":
@@ -192,9 +198,9 @@ def cmd_simulate(args: argparse.Namespace) -> int:
                             copies=max(1, args.monte_carlo or 0))
     d = ss.design(sc)
     out = out_dir(args.out)
-    traj = ss.simulate(d, seed=seed, steps=args.steps, exact=args.exact, progress=None)
+    traj = ss.simulate(d, seed=seed, steps=args.steps, exact=args.exact, progress=None, lost=lost)
     noisy = sc.system.process_noise > 0 or sc.system.measurement_noise > 0
-    clean = ss.simulate(d, seed=seed, steps=args.steps, noise=False) if noisy and not args.exact else traj
+    clean = ss.simulate(d, seed=seed, steps=args.steps, noise=False, lost=lost) if noisy and not args.exact else traj
     traj.save(out / "trajectory.npz")
     adaptive = d.g_mode == "adaptive"
     # the certificate of what ran: --exact integrates the ODE itself, else the sampled-data form

@@ -259,13 +259,18 @@ class NodeShell:
                     key, congestion_control=zenoh.CongestionControl.BLOCK)
             pub.put(payload)
 
-    def run(self, dispatch, on_error, *, name: str, subscriptions=()) -> int:
+    def run(self, dispatch, on_error, *, name: str, subscriptions=(), timer=None) -> int:
         """Subscribe, declare the liveliness token, then handle messages until told to stop.
 
         ``subscriptions`` (``(key, channel)`` pairs) are handled where they arrive, on the Zenoh
         thread, one at a time under a lock: ``dispatch(channel, key, payload)`` and the publication
         of what it returns (no queue, no thread hand-off).  Control messages, the orchestrator's
         presence and signals go through the event loop below.
+
+        ``timer``: ``(next_wakeup, on_timer)`` of a node with deadlines (an agent on a network with
+        ``network.deadline`` or delays): after every message the shell asks ``next_wakeup()`` (a monotonic
+        time or None) and the event loop calls ``on_timer()`` then, under the same lock, and publishes
+        what it returns.
         """
         import signal
 
@@ -275,18 +280,28 @@ class NodeShell:
         code = 0
         lock = threading.Lock()
 
+        wake = [None]  # when the node wants on_timer (guarded by lock)
+
+        def guarded(call, what: str) -> None:
+            try:
+                self.publish(call())
+            except (ValueError, TypeError, KeyError, IndexError) as exc:
+                # a message that passed validation but still broke the node: drop it, count it, go on
+                on_error("handler_error")
+                self.log.warning("%s: dropped %s: %s", name, what, exc)
+            except zenoh.ZError as exc:  # the session is closing under us (the orchestrator was lost)
+                self.log.info("%s: not sent (%s)", name, str(exc).split(" at ")[0])
+            if timer is not None:
+                w = timer[0]()
+                if w is not None and (wake[0] is None or w < wake[0]):
+                    self.inbox.put(("timer", "", b""))  # the event loop sleeps until the earlier wake-up
+                wake[0] = w
+
         def handle(channel: str, key: str, payload: bytes) -> None:
             with lock:
                 if self._closing:  # the loop has ended: nothing more is handled or sent
                     return
-                try:
-                    self.publish(dispatch(channel, key, payload))
-                except (ValueError, TypeError, KeyError, IndexError) as exc:
-                    # a message that passed validation but still broke the node: drop it, count it, go on
-                    on_error("handler_error")
-                    self.log.warning("%s: dropped a %s message on %s: %s", name, channel, key, exc)
-                except zenoh.ZError as exc:  # the session is closing under us (the orchestrator was lost)
-                    self.log.info("%s: not sent (%s)", name, str(exc).split(" at ")[0])
+                guarded(lambda: dispatch(channel, key, payload), f"a {channel} message on {key}")
 
         for key, channel in subscriptions:
             self.inbox.subscribe(key, channel, direct=handle)
@@ -295,8 +310,14 @@ class NodeShell:
         self._looping = True
         self.log.info("%s ready (pid %d)", name, os.getpid())
         while True:
-            item = self.inbox.get(timeout=1.0)
-            if item is None:
+            due = wake[0]
+            item = self.inbox.get(timeout=1.0 if due is None else min(1.0, max(0.0, due - time.monotonic())))
+            if timer is not None:
+                with lock:
+                    if not self._closing and wake[0] is not None and time.monotonic() >= wake[0]:
+                        wake[0] = None
+                        guarded(timer[1], "a deadline")
+            if item is None or item[0] == "timer":
                 continue
             channel, key, payload = item
             if channel == "control":

@@ -7,7 +7,7 @@ Two encodings, one API (:func:`encode`, :func:`decode`):
   (magic ``0xB5``, schema version, type code, CRC-32 of the run id, the
   message's integer and float fields), one float64 vector (its length, then
   the data) and, for ``truth``/``xhat``, the rejection counters as a msgpack
-  map; a signed ``z`` of n = 6 is 96 bytes (129 as the schema-2 msgpack map),
+  map (and for ``xhat`` the consensus messages not counted, a msgpack list); a signed ``z`` of n = 6 is 96 bytes (129 as the schema-2 msgpack map),
   encoded and decoded, MAC included, in less than half the time
   (``benchmarks/bench_wire.py``);
 * the rest (``tick``, ``control``, ``config``, ``hello``, ``refused``) are
@@ -41,13 +41,14 @@ key                         from -> to              payload
 ==========================  ======================  ==========================================
 ``config``                  queryable (orchestr.)   scenario + centralised design (g or q)
 ``tick``                    orchestrator -> all     tau, attempt, graph, neighbour rows, alive, fresh,
-                                                    prev_attempt
+                                                    prev_attempt, partition (groups in force, or [])
 ``y/all``                   plant -> agents         tau, attempt, (y_1(tau), ..., y_m(tau)) stacked
 ``truth``                   plant -> orchestrator   tau, attempt, x(tau)
 ``z/<i>``                   agent i -> neighbours   tau, attempt, k, z_i(k) (k = 0 only in fresh or re-run
                                                     rounds)
-``xhat/<i>``                agent i -> orchestrator tau, attempt, x_i(tau) (+ g_i, rejected counts); also
-                            and neighbours          the next round's z_i(0)
+``xhat/<i>``                agent i -> orchestrator tau, attempt, x_i(tau) (+ g_i, rejected counts, the
+                            and neighbours          consensus messages it did not count); also the next
+                                                    round's z_i(0)
 ``control``                 orchestrator -> all     ``stop``; ``kill agent/<i>``, ``hang agent/<i>`` (faults)
 ``status/<role>/<id>/<n>``  queryable (every proc.) a ``hello``: the process answers (not frozen)
 ``alive/<role>/<id>/<n>``   liveliness token        presence; DELETE is a death (n: the process's nonce)
@@ -74,8 +75,9 @@ __all__ = ["SCHEMA_VERSION", "DEFAULT_RUN_ID", "Keys", "WireError", "encode", "d
            "MESSAGE_FIELDS", "MAC_BYTES", "new_run_key", "new_nonce", "mac", "verify",
            "BINARY_LAYOUT", "run_tag", "KEY_ROOT", "ORCHESTRATORS"]
 
-# 2: one y message for every agent; x_i(tau + 1) doubles as the next z_i(0); 3: binary round messages
-SCHEMA_VERSION = 3
+# 2: one y message for every agent; x_i(tau + 1) doubles as the next z_i(0); 3: binary round messages;
+# 4: xhat reports the consensus messages that did not count, tick names the partition in force
+SCHEMA_VERSION = 4
 DEFAULT_RUN_ID = "default"
 KEY_ROOT = "splitspec"  #: every run's keys live under ``splitspec/<run_id>/``
 #: every run's orchestrator token (``splitspec/<run_id>/alive/orchestrator/0``): which runs a router hosts
@@ -201,7 +203,7 @@ def mac(key: bytes, body: bytes) -> bytes:
 #: required fields (name -> kind) of the msgpack messages; the round messages' are in :data:`BINARY_LAYOUT`
 MESSAGE_FIELDS = {
     "tick": {"tau": "int", "attempt": "int", "graph": "int", "alive": "list", "rows": "map", "final": "bool",
-             "incarnation": "map", "fresh": "bool", "prev_attempt": "int"},
+             "incarnation": "map", "fresh": "bool", "prev_attempt": "int", "partition": "list"},
     "control": {"cmd": "str"},
     "config": {"scenario": "str", "seed": "int", "g": "any", "q": "any", "g_mode": "any", "key": "bytes"},
     "refused": {"reason": "str", "holder_pid": "int", "holder_host": "str"},
@@ -232,8 +234,11 @@ BINARY_LAYOUT = {
     "y": (1, "qi", ("tau", "attempt"), "y", ()),
     "truth": (2, "qi", ("tau", "attempt"), "x", ("rejected",)),
     "z": (3, "qiii", ("tau", "attempt", "k", "agent"), "z", ()),
-    "xhat": (4, "qiiid", ("tau", "attempt", "agent", "incarnation", "g"), "x", ("rejected",)),
+    "xhat": (4, "qiiid", ("tau", "attempt", "agent", "incarnation", "g"), "x", ("rejected", "lost")),
 }
+#: ``lost`` of an ``xhat``: flat ``[k, j, cause, k, j, cause, ...]`` (sub-round, sender, cause) of the consensus
+#: messages the agent did not count in the round (:mod:`splitspec_core.impairment`); at most this many triples
+MAX_LOST = 1 << 16
 _BIN_HEAD = struct.Struct("<BBBxI")  # magic, version, type code, pad, CRC-32 of the run id
 _BIN = {t: struct.Struct("<BBBxI" + fmt + "I") for t, (_, fmt, *_rest) in BINARY_LAYOUT.items()}
 _BIN_BY_CODE = {code: t for t, (code, *_rest) in BINARY_LAYOUT.items()}
@@ -294,14 +299,24 @@ def _decode_binary(payload: bytes, run_id: str, expected_type: str) -> dict:
         if not np.isfinite(a).all():
             raise WireError("non_finite", f"{vec} has NaN or inf")
         out[vec] = a
-    if maps:  # one map (the rejection counters), to the last byte
+    if maps:  # the rejection counters (a map str -> int), then for xhat the lost triples: to the last byte
+        unpacker = msgpack.Unpacker(raw=False, strict_map_key=True, max_buffer_size=len(payload))
+        unpacker.feed(payload[end:])
         try:
-            m = msgpack.unpackb(payload[end:], raw=False, strict_map_key=True)
-        except Exception as exc:  # noqa: BLE001 - any decoder failure is garbage on the wire
+            objs = [unpacker.unpack() for _ in maps]
+        except Exception as exc:  # noqa: BLE001 - any decoder failure (or too few objects) is garbage on the wire
             raise WireError("garbage", type(exc).__name__) from None
-        if not isinstance(m, dict) or not all(isinstance(k, str) and _CHECK["int"](v) for k, v in m.items()):
-            raise WireError("bad_field", maps[0])
-        out[maps[0]] = m
+        if unpacker.tell() != len(payload) - end:
+            raise WireError("garbage", "trailing bytes")
+        for name, m in zip(maps, objs):
+            if name == "lost":
+                ok = (isinstance(m, list) and len(m) % 3 == 0 and len(m) <= 3 * MAX_LOST
+                      and all(_CHECK["int"](v) and 0 <= v < 2 ** 31 for v in m) and all(c <= 2 for c in m[2::3]))
+            else:
+                ok = isinstance(m, dict) and all(isinstance(k, str) and _CHECK["int"](v) for k, v in m.items())
+            if not ok:
+                raise WireError("bad_field", name)
+            out[name] = m
     return out
 
 

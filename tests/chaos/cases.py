@@ -379,10 +379,10 @@ def flood(endpoint: str, run_id: str, *, seconds: float = 3.0, rate: float = 50_
             (keys.y, encode("y", run_id, tau=f, attempt=att, y=np.zeros(y_dim))),
             (keys.z(agent), encode("z", run_id, tau=f, attempt=att, k=0, agent=agent, z=np.zeros(n))),
             (keys.xhat(other), encode("xhat", run_id, tau=f, attempt=att, agent=other, incarnation=0, x=np.zeros(n),
-                                      g=1.0, rejected={})),
+                                      g=1.0, rejected={}, lost=[])),
             (keys.truth, encode("truth", run_id, tau=f, attempt=att, x=np.zeros(n), rejected={})),
             (keys.tick, encode("tick", run_id, tau=f, attempt=att, graph=0, final=False, alive=[], rows={},
-                               incarnation={}, fresh=False, prev_attempt=0)),
+                               incarnation={}, fresh=False, prev_attempt=0, partition=[])),
         ]
 
     try:
@@ -407,7 +407,8 @@ def flood(endpoint: str, run_id: str, *, seconds: float = 3.0, rate: float = 50_
         elapsed = time.perf_counter() - t0
         tau, att = ticks[-1]
         pubs[keys.tick].put(encode("tick", run_id, tau=2 ** 62, attempt=0, graph=0, alive=[], rows={},
-                                   final=False, incarnation={}, fresh=False, prev_attempt=0))
+                                   final=False, incarnation={}, fresh=False, prev_attempt=0,
+                                   partition=[]))
         pubs[keys.y].put(encode("y", run_id, tau=tau, attempt=att, y=np.full(y_dim, 1e6)))
         return {"sent": sent + 2, "seconds": round(elapsed, 3), "rate": round(sent / elapsed),
                 "tau_first": tau_first, "tau_last": tau}

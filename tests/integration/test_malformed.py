@@ -71,7 +71,8 @@ def rogue(endpoint: str, run_id: str, stop: threading.Event, sent: dict, *, cred
                 # well-formed forgeries: a tick from the far future with no rows (used to make every agent
                 # restart) and a measurement for the current event time (used to shift the trajectory)
                 "tick_future": (keys.tick, encode("tick", run_id, tau=2 ** 62, attempt=0, graph=0, alive=[], rows={},
-                                                  final=False, incarnation={}, fresh=False, prev_attempt=0)),
+                                                  final=False, incarnation={}, fresh=False, prev_attempt=0,
+                                                  partition=[])),
                 "y_forged": (keys.y, encode("y", run_id, tau=tau, attempt=att, y=np.full(3, 1e6))),
             }
             for name, (key, payload) in bad.items():

@@ -29,7 +29,7 @@ ROWS = {"2": [[2, 1, 3], [1 / 3, 1 / 3, 1 / 3]]}
 
 def tick(tau, attempt=0, rows=ROWS, fresh=True, prev_attempt=0, **kw):
     return sign("tick", tau=tau, attempt=attempt, graph=0, final=False, alive=[1, 2, 3], rows=rows,
-                incarnation={"2": 0}, fresh=fresh, prev_attempt=prev_attempt, **kw)
+                incarnation={"2": 0}, fresh=fresh, prev_attempt=prev_attempt, **{"partition": [], **kw})
 
 
 def y(tau, attempt=0, value=0.0, key=KEY):
@@ -37,7 +37,8 @@ def y(tau, attempt=0, value=0.0, key=KEY):
 
 
 def xhat(tau, j, attempt=0, value=0.0, n=4):
-    return sign("xhat", tau=tau, attempt=attempt, agent=j, incarnation=0, x=np.full(n, value), g=0.0, rejected={})
+    return sign("xhat", tau=tau, attempt=attempt, agent=j, incarnation=0, x=np.full(n, value), g=0.0, rejected={},
+                lost=[])
 
 
 def z(tau, k, j=1, attempt=0, n=4, run="r", key=KEY, value=0.0):
@@ -104,7 +105,7 @@ def test_estimates_of_an_aborted_attempt_are_not_taken_as_z0():
     a.on_x("splitspec/r/xhat/1", xhat(1, 1, attempt=0, value=9.0))  # round 0, attempt 0: re-run later
     a.on_tick(tick(1, fresh=False, prev_attempt=1))
     # rows [2, 1, 3]: agent 1's z(0) is its attempt-1 estimate (1.0 exactly: the value sent, decoded)
-    assert a._neighbour_states(0)[1][0] == 1.0
+    assert a._neighbour_states(0)[2][1][0] == 1.0
 
 
 def test_a_rerun_round_sends_z0_again():
@@ -175,5 +176,5 @@ def test_plant_takes_only_signed_ticks_in_order():
     out = p.on_tick(tick(0))
     assert [k for k, _ in out] == ["splitspec/r/truth", "splitspec/r/y/all"]  # one y message for every agent
     assert p.on_tick(encode("tick", "r", tau=1, attempt=0, graph=0, final=False, alive=[], rows={},
-                            incarnation={}, fresh=False, prev_attempt=0)) == []
+                            incarnation={}, fresh=False, prev_attempt=0, partition=[])) == []
     assert p.on_tick(tick(5)) == [] and p.rejected == {"bad_mac": 1, "future": 1}

@@ -368,7 +368,7 @@ def play(example, changes=None):
                              final=a.final, alive=list(a.alive),
                              rows={str(i): [list(nb), list(w)] for i, (nb, w) in a.rows.items()},
                              incarnation={str(i): v for i, v in a.incarnation.items()}, fresh=a.fresh,
-                             prev_attempt=a.prev_attempt)
+                             prev_attempt=a.prev_attempt, partition=[list(g) for g in a.partition])
             msgs = plant.on_tick(payload)
             for n in nodes.values():
                 msgs += n.on_tick(payload)
@@ -384,7 +384,7 @@ def play(example, changes=None):
 
                     d = decode(p, "inproc", "xhat", mac_key=key)
                     queue += m.on_xhat(d["agent"], d["tau"], d["attempt"], d["incarnation"], d["x"], d["g"],
-                                       d["rejected"], t)
+                                       d["rejected"], t, lost=d["lost"])
                     for n in nodes.values():  # x_j(tau + 1) is also the neighbours' next z_j(0)
                         if d["agent"] in n.in_neighbours:
                             msgs += n.on_x(k, p)

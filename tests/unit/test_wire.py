@@ -20,11 +20,11 @@ ROUND = {
     "y": dict(tau=7, attempt=1, y=V[:3]),
     "truth": dict(tau=7, attempt=0, x=V, rejected={"stale": 3, "bad_mac": 1}),
     "z": dict(tau=2 ** 62, attempt=2, k=5, agent=31, z=V),
-    "xhat": dict(tau=0, attempt=0, agent=3, incarnation=2, x=V, g=0.125, rejected={}),
+    "xhat": dict(tau=0, attempt=0, agent=3, incarnation=2, x=V, g=0.125, rejected={}, lost=[1, 2, 0, 3, 4, 1]),
 }
 OTHER = {
     "tick": dict(tau=3, attempt=0, graph=1, alive=[1, 2], rows={"1": [[2], [0.5]]}, final=False,
-                 incarnation={"1": 0}, fresh=True, prev_attempt=0),
+                 incarnation={"1": 0}, fresh=True, prev_attempt=0, partition=[]),
     "control": dict(cmd="stop"),
     "hello": dict(role="agent", id=2, pid=123, host="h", nonce="ab"),
 }
