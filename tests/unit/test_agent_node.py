@@ -178,3 +178,56 @@ def test_plant_takes_only_signed_ticks_in_order():
     assert p.on_tick(encode("tick", "r", tau=1, attempt=0, graph=0, final=False, alive=[], rows={},
                             incarnation={}, fresh=False, prev_attempt=0, partition=[])) == []
     assert p.on_tick(tick(5)) == [] and p.rejected == {"bad_mac": 1, "future": 1}
+
+
+def lossy_node(network: dict):
+    import yaml
+
+    from splitspec_core.runtime.wire import decode
+
+    raw = yaml.safe_load((EXAMPLES / "paper_discrete.yaml").read_text())
+    raw["network"] = network
+    cfg = {**config(), "scenario": yaml.safe_dump(raw)}
+    a = AgentNode(2, cfg, "r")
+    now = [100.0]
+    a.clock = lambda: now[0]  # the node reads no other clock
+    return a, now, lambda payload: decode(payload, "r", "xhat", mac_key=KEY)
+
+
+def test_a_sub_round_goes_on_without_a_late_neighbour_at_the_deadline():
+    """Deadline 20 ms: agent 3's z never comes; at the deadline agent 2 averages with agent 1 alone (1/2, 1/2),
+    and its estimate reports (k, 3, late) for every sub-round."""
+    a, now, xhat_of = lossy_node({"deadline": 0.02})
+    a.on_tick(tick(0))
+    out = a.on_z("splitspec/r/z/1", z(0, 0, j=1, value=1.0))
+    assert out == [] and a.next_wakeup() == pytest.approx(100.02)  # waits for agent 3 until the deadline
+    now[0] = 100.019
+    assert a.on_timer() == [] and a.round["k"] == 0
+    for k in range(6):
+        now[0] += 0.02  # each sub-round's deadline passes (they open one after the other)
+        out = a.on_timer()
+        assert a.round is None or a.round["k"] == k + 1
+        if k < 5:
+            a.on_z("splitspec/r/z/1", z(0, k + 1, j=1, value=1.0))
+    out = a.on_y(y(0))
+    (key, payload), = [o for o in out if "xhat" in o[0]]
+    lost = xhat_of(payload)["lost"]
+    assert lost == [v for k in range(1, 7) for v in (k, 3, 1)]  # (k, j = 3, late) for k = 1..6
+
+
+def test_drawn_losses_are_not_waited_for_and_are_reported():
+    from splitspec_core.impairment import Impairment
+    from splitspec_core.scenario_model import NetworkSpec
+
+    a, now, xhat_of = lossy_node({"loss": 0.5})
+    imp = Impairment(NetworkSpec(loss=0.5), 7)  # the scenario's seed
+    a.on_tick(tick(0))
+    for k in range(6):
+        for j in (1, 3):
+            if not imp.lost(0, k + 1, j, 2):
+                a.on_z(f"splitspec/r/z/{j}", z(0, k, j=j, value=float(j)))
+    out = a.on_y(y(0))
+    (_, payload), = [o for o in out if "xhat" in o[0]]  # no deadline, yet it never waited for a lost message
+    lost = xhat_of(payload)["lost"]
+    expected = [(k, j, 0) for k in range(1, 7) for j in (1, 3) if imp.lost(0, k, j, 2)]
+    assert expected and list(zip(lost[0::3], lost[1::3], lost[2::3])) == expected

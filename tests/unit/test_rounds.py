@@ -337,8 +337,9 @@ def test_fault_for_an_agent_on_another_host_is_a_control_message():
 # ---------------------------------------------------------------------- the whole protocol in-process
 
 
-def play(example, changes=None):
-    """Orchestrator machine + PlantNode + AgentNodes with messages delivered in order (no Zenoh)."""
+def play(example, changes=None, events=None):
+    """Orchestrator machine + PlantNode + AgentNodes with messages delivered in order (no Zenoh); the machine's
+    events go to ``events`` when given."""
     from splitspec_agents.agent import AgentNode
     from splitspec_plant.plant import PlantNode
     from splitspec_core.runtime.wire import Keys, encode, new_run_key
@@ -397,6 +398,8 @@ def play(example, changes=None):
                             msgs += n.on_z(k, p)
         elif isinstance(a, R.Record):
             rows.append(a)
+        elif isinstance(a, R.Event) and events is not None:
+            events.append(a)
         elif isinstance(a, (R.Stop,)):
             raise AssertionError(a.message)
     assert m.finished
@@ -413,6 +416,36 @@ def test_in_process_protocol_equals_simulate(example):
     assert xhat.shape == tr.xhat.shape
     assert np.max(np.abs(xhat - tr.xhat)) <= 1e-12 * max(1.0, np.abs(tr.xhat).max())
     assert np.allclose(np.array([r.x for r in rows]), tr.x, rtol=0, atol=1e-12 * max(1.0, np.abs(tr.x).max()))
+
+
+@pytest.mark.parametrize("example,changes", [
+    ("ring10_partition", {"run": {"steps": 40}}),
+    ("ring10", {"run": {"steps": 25}, "network": {"loss": 0.2, "arcs": [{"arc": [1, 6], "loss": 0.6}]}}),
+    ("paper_continuous", {"run": {"steps": 30}, "network": {"loss": 0.3}}),
+])
+def test_in_process_protocol_loses_what_simulate_loses(example, changes):
+    """Agents drawing their own losses and cutting a partition, the machine collecting what they report: the
+    simulator's lost rows and trajectory (the agents' rule is realized_row, the simulator's loop the same)."""
+    from splitspec_core.simulator import simulate
+
+    m, rows = play(example, changes=changes)
+    steps = changes["run"]["steps"]
+    tr = simulate(m.des, seed=m.sc.run.seed, steps=steps, estimator="loop")
+    lost = np.array(sorted(r[:4] for rec in rows for r in rec.lost), dtype=np.int64).reshape(-1, 4)
+    causes = np.array([r[4] for r in sorted(r for rec in rows for r in rec.lost)], dtype=np.int8)
+    assert len(lost) > 20 and np.array_equal(lost, tr.lost) and np.array_equal(causes, tr.lost_cause)
+    xhat = np.array([r.xhat for r in rows])
+    assert np.max(np.abs(xhat - tr.xhat)) <= 1e-12 * max(1.0, np.abs(tr.xhat).max())
+
+
+def test_rounds_summarise_lost_messages_once_per_event_time():
+    events: list = []
+    m, rows = play("ring10", changes={"run": {"steps": 5}, "network": {"loss": 0.3}}, events=events)
+    summaries = [e for e in events if e.name == "messages_lost"]
+    per_tau = {r.tau: len(r.lost) for r in rows if r.lost}
+    assert per_tau and {e.fields["tau"]: e.fields["count"] for e in summaries} == per_tau  # one line per event time
+    assert all(e.fields["count"] == e.fields["loss"] for e in summaries)  # every one drawn lost, none late
+    assert all(r[0] == rec.tau for rec in rows for r in rec.lost)
 
 
 def test_an_admission_estimate_crossing_a_rerun_still_counts():
