@@ -22,8 +22,11 @@ import numpy as np
 
 from . import bounds
 from .errors import AssumptionError
+from .conditioning import conditioning
+from .full_matrix import SPLIT_EXACT, check_full
 from .gains import LocalGain, design_gain
 from .graphs import build_graph, enumerate_strongly_connected
+from .loss_certificate import loss_certificate
 from .observability import DEFAULT_RANK_TOL, Decomposition, check_joint_observability, decompose
 from .resilience import analyse_agent_losses, analyse_arc_losses
 from .sampled import sampled_rates
@@ -122,16 +125,11 @@ class Design:
     @property
     def split_exact(self) -> bool:
         """Every V_i an unobservable space to round-off: the split of prop. error holds, the certificates apply."""
-        from .full_matrix import SPLIT_EXACT
-
         return self.split_residual <= SPLIT_EXACT
 
-    @cached_property
-    def conditioning(self):
-        """:class:`~splitspec_core.conditioning.Conditioning` (margins, gains, transient constant, noise), on first use."""
-        from .conditioning import conditioning
-
-        return conditioning(self)
+    # on first use (the full error matrices cost more than the design itself at scale):
+    loss_certificate = cached_property(loss_certificate)  # under network: and partitions (None without)
+    conditioning = cached_property(conditioning)  # margins, gain sizes, transient constant, noise
 
 
 def nice_ceil(x: float) -> float:
@@ -262,9 +260,7 @@ def design(sc: Scenario, *, compare_q_methods: bool = False) -> Design:
                  arc_losses=arc_losses, warnings=tuple(warnings), split_residual=residual, **kw)
     if des.split_exact or (sc.time == "continuous" and des.g is None):
         return des
-    from .full_matrix import check_full  # an approximate split: the rate on the full error matrices
-
-    return check_full(des, warnings)
+    return check_full(des, warnings)  # an approximate split: the rate on the full error matrices
 
 
 def _design_g(sc: Scenario, cases, switching: bool, warnings: list) -> dict:

@@ -156,6 +156,14 @@ def _conditioning_json(des: Design) -> dict:
     }
 
 
+def _loss_json(des: Design) -> dict | None:
+    c = des.loss_certificate
+    if c is None:
+        return None
+    return {"certified": bool(c.certified), "text": c.text, "max_lost": c.max_lost, "beta": _num(c.beta),
+            "bound": _num(c.bound), "q_needed": c.q_needed, "p_more": _num(c.p_more), "graphs": c.graphs}
+
+
 def design_json(des: Design) -> dict:
     """The ``splitspec design --json`` object (contract in ``../shared/DESIGN.md``)."""
     sc = des.scenario
@@ -197,6 +205,7 @@ def design_json(des: Design) -> dict:
         },
         "error_spectrum": {k: _num(v) for k, v in des.error_radius.items()},
         "rank_tol": "auto" if sc.design.rank_tol is None else sc.design.rank_tol,
+        "loss_certificate": _loss_json(des),
         **_conditioning_json(des),
         "warnings": list(des.warnings) + list(des.conditioning.warnings),
     }
@@ -326,6 +335,8 @@ def design_text(des: Design) -> str:
     cert = rate_certificate(des)
     verdict = "rate" if adaptive else f"rate {'certified' if cert.certified else 'NOT certified'}"
     lines += ["", f"{verdict}: {cert.text}"]
+    if des.loss_certificate is not None:
+        lines.append(des.loss_certificate.text)  # "rate certified under loss: ..." or "not certified under loss: ..."
     lines += _size_lines(des)
     warnings = list(des.warnings) + list(cond.warnings)
     if warnings:
