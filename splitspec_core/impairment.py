@@ -85,14 +85,16 @@ def _mix_array(z: np.ndarray) -> np.ndarray:
     return z ^ (z >> np.uint64(31))
 
 
-def u_array(key: int, tau: int, k: int, j: np.ndarray, i: np.ndarray) -> np.ndarray:
-    """:func:`u_scalar` for many messages of one sub-round (``j``, ``i`` arrays of agent ids): the same numbers."""
+def u_array(key: int, tau: int, k, j: np.ndarray, i: np.ndarray) -> np.ndarray:
+    """:func:`u_scalar` for many messages (``k``, ``j``, ``i`` arrays, broadcast; ``k`` may be one sub-round):
+    the same numbers."""
+    k = np.asarray(k, dtype=np.uint64)
     j = np.asarray(j, dtype=np.uint64)
     i = np.asarray(i, dtype=np.uint64)
     with np.errstate(over="ignore"):  # uint64 arithmetic wraps modulo 2^64, as the scalar version masks
-        z = np.full(j.shape, np.uint64(key & _M64))
-        z = _mix_array(z ^ np.uint64((int(tau) * _GAMMA[0]) & _M64))
-        z = _mix_array(z ^ np.uint64((int(k) * _GAMMA[1]) & _M64))
+        z = np.uint64(key & _M64) ^ np.uint64((int(tau) * _GAMMA[0]) & _M64)
+        z = _mix_array(np.asarray(z, dtype=np.uint64))
+        z = _mix_array(z ^ (k * np.uint64(_GAMMA[1])))
         z = _mix_array(z ^ (j * np.uint64(_GAMMA[2])))
         z = _mix_array(z ^ (i * np.uint64(_GAMMA[3])))
     return (z >> np.uint64(11)).astype(np.float64) * _TO_UNIT
@@ -105,6 +107,7 @@ class Impairment:
         self.network = network
         keys = stream(seed, "network").integers(0, 2 ** 63, size=2)
         self.loss_key, self.delay_key = int(keys[0]), int(keys[1])
+        self._params: dict = {}  # the per-arc parameters of a sub-round's messages, by (senders, receivers)
 
     def lost(self, tau: int, k: int, j: int, i: int) -> bool:
         """Message ``(tau, k, j, i)`` is lost (an injected loss)."""
@@ -118,22 +121,32 @@ class Impairment:
             return 0.0
         return max(0.0, mean + jitter * (2.0 * u_scalar(self.delay_key, tau, k, j, i) - 1.0))
 
-    def dropped(self, tau: int, k: int, js: np.ndarray, is_: np.ndarray) -> np.ndarray:
-        """Per message of one sub-round (arrays of sender and receiver ids): -1 if it counts, else its cause
-        (``simulate``'s emulation: a delay beyond the deadline is ``late``)."""
-        out = np.full(len(js), -1, dtype=np.int64)
+    def _arc_params(self, js: np.ndarray, is_: np.ndarray) -> tuple:
+        """Loss probability, delay mean and jitter per message (arrays, or scalars without per-arc overrides)."""
+        net = self.network
+        if not net.arcs:
+            return net.loss, net.delay_mean, net.delay_jitter
+        key = (js.tobytes(), is_.tobytes())
+        got = self._params.get(key)
+        if got is None:
+            arcs = list(zip(js.tolist(), is_.tolist()))
+            mj = np.array([net.delay_of(a) for a in arcs], dtype=float).reshape(-1, 2)
+            got = self._params[key] = (np.array([net.loss_of(a) for a in arcs], dtype=float), mj[:, 0], mj[:, 1])
+        return got
+
+    def dropped(self, tau: int, k, js: np.ndarray, is_: np.ndarray) -> np.ndarray:
+        """Per message of sub-round ``k`` (arrays of sender and receiver ids): -1 if it counts, else its cause
+        (``simulate``'s emulation: a delay beyond the deadline is ``late``).  ``k`` an array of sub-rounds: one
+        row per sub-round, the same numbers."""
+        shape = np.broadcast_shapes(np.shape(k), np.shape(js))
+        out = np.full(shape, -1, dtype=np.int64)
         if not len(js):
             return out
         net = self.network
+        p, mean, jitter = self._arc_params(js, is_)
         if net.lossy:
-            p = np.array([net.loss_of((int(j), int(i))) for j, i in zip(js, is_)]) if net.arcs else net.loss
             out[u_array(self.loss_key, tau, k, js, is_) < p] = LOSS
         if net.deadline is not None and net.delayed:
-            if net.arcs:
-                mj = np.array([net.delay_of((int(j), int(i))) for j, i in zip(js, is_)])
-                mean, jitter = mj[:, 0], mj[:, 1]
-            else:
-                mean, jitter = net.delay_mean, net.delay_jitter
             d = np.maximum(0.0, mean + jitter * (2.0 * u_array(self.delay_key, tau, k, js, is_) - 1.0))
             out[(out < 0) & (d > net.deadline)] = LATE
         return out

@@ -193,12 +193,35 @@ def _bmv(M: np.ndarray, X: np.ndarray) -> np.ndarray:
 
 
 def _entries(sc: Scenario, rows: dict) -> tuple:
-    """``(row, col, weight, off-diagonal)`` arrays (agent positions) of ``rows``, in its order."""
+    """``(row, col, weight, off-diagonal)`` arrays (agent positions) of ``rows``, sorted by row, in its order within."""
     pos = {a: k for k, a in enumerate(sc.agent_ids)}
     ri = np.array([pos[i] for i, (nbs, _) in rows.items() for _ in nbs], dtype=np.int64)
     ci = np.array([pos[j] for _, (nbs, _) in rows.items() for j in nbs], dtype=np.int64)
     w = np.array([x for _, (_, ws) in rows.items() for x in ws], dtype=float)
+    order = np.argsort(ri, kind="stable")  # by receiver, each row's own order kept (a realized S sums rows)
+    ri, ci, w = ri[order], ci[order], w[order]
     return ri, ci, w, ri != ci
+
+
+class _RealizedS:
+    """A realized consensus matrix ``S`` (m x m) as entries sorted by row, every present row non-empty (its own
+    weight): ``S @ Z`` sums each row's ``w_ij z_j`` in entry order, as a CSR product does."""
+
+    __slots__ = ("m", "cols", "w", "starts", "present")
+
+    def __init__(self, m: int, rows: np.ndarray, cols: np.ndarray, w: np.ndarray):
+        self.m, self.cols, self.w = m, cols, w
+        new_row = np.ones(len(rows), dtype=bool)
+        new_row[1:] = rows[1:] != rows[:-1]
+        self.starts = np.flatnonzero(new_row)
+        self.present = rows[self.starts]
+
+    def __matmul__(self, Z: np.ndarray) -> np.ndarray:
+        out = np.zeros((self.m,) + Z.shape[1:])
+        if len(self.cols):
+            out[self.present] = np.add.reduceat(self.w.reshape((-1,) + (1,) * (Z.ndim - 1)) * Z[self.cols],
+                                                self.starts, axis=0)
+        return out
 
 
 class BatchEstimator(_EstimatorBase):
@@ -276,10 +299,11 @@ class BatchEstimator(_EstimatorBase):
 
 
     def realized(self, rows: dict, entries: tuple, counts: list) -> list:
-        """Sparse ``S_k`` (m x m) of each exchange's realized graph: :func:`impairment.realized_row`, vectorised.
+        """``S_k`` (m x m) of each exchange's realized graph: :func:`impairment.realized_row`, vectorised.
 
-        ``entries``: :func:`_entries` of ``rows``; ``counts[k]``: a boolean per off-diagonal entry, True where the
-        message counts.
+        ``entries``: :func:`_entries` of ``rows`` (sorted by receiver); ``counts[k]``: a boolean per off-diagonal
+        entry, True where the message counts.  Each ``S_k`` is a :class:`_RealizedS` (a segmented sum: building a
+        scipy matrix per sub-round cost more than the whole step).
         """
         ri, ci, w, off = entries
         offi = np.flatnonzero(off)
@@ -287,13 +311,15 @@ class BatchEstimator(_EstimatorBase):
         for ok in counts:
             keep = ~off
             keep[offi[ok]] = True
+            rk = ri[keep]
             if self.sc.design.weights == "metropolis":  # the missing weights go to the receiver itself
                 wk = w.copy()
                 kept = keep & off
                 wk[~off] = (1.0 - np.bincount(ri[kept], weights=w[kept], minlength=self.m))[ri[~off]]
+                wk = wk[keep]
             else:  # 1 / (1 + #counted): row i of the realized graph's S
-                wk = 1.0 / np.bincount(ri[keep], minlength=self.m)[ri]
-            out.append(sp.csr_matrix((wk[keep], (ri[keep], ci[keep])), shape=(self.m, self.m)))
+                wk = 1.0 / np.bincount(rk, minlength=self.m)[rk]
+            out.append(_RealizedS(self.m, rk, ci[keep], wk))
         return out
 
     def step_realized(self, X: np.ndarray, y: np.ndarray, Ws: list, alive: np.ndarray) -> np.ndarray:
@@ -515,6 +541,9 @@ def _realized_step(est, sc: Scenario, W: tuple, tau: int, exchanges: int, imp, r
     gmap = group_of(groups, sc.agent_ids)
     cross = np.array([crosses(gmap, int(j), int(i)) for j, i in zip(js, is_)]) if gmap else None
     counts, any_lost = [], False
+    # every sub-round's draws at once (the same numbers as one sub-round at a time: counter-based)
+    drawn = imp.dropped(tau, np.arange(1, exchanges + 1)[:, None], js, is_) if imp is not None and replay is None \
+        else None
     for kk in range(1, exchanges + 1):
         cause = np.full(len(js), -1, dtype=np.int64)
         if replay is not None:
@@ -524,9 +553,8 @@ def _realized_step(est, sc: Scenario, W: tuple, tau: int, exchanges: int, imp, r
         else:
             if cross is not None:
                 cause[cross] = PARTITION
-            if imp is not None:
-                drawn = imp.dropped(tau, kk, js, is_)
-                cause = np.where(cause < 0, drawn, cause)
+            if drawn is not None:
+                cause = np.where(cause < 0, drawn[kk - 1], cause)
         gone = np.flatnonzero(cause >= 0)
         if gone.size:
             any_lost = True

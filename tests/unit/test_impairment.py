@@ -40,6 +40,24 @@ def test_scalar_and_vectorised_draws_are_the_same_numbers():
             assert ((got >= 0) & (got < 1)).all()
 
 
+def test_every_sub_round_at_once_draws_the_same_numbers():
+    """The simulator draws an event time's q sub-rounds in one call: the same numbers and causes as one sub-round
+    at a time (the same integer operations per element), per-arc overrides included."""
+    net = NetworkSpec(loss=0.3, delay_mean=0.002, delay_jitter=0.002, deadline=0.003,
+                      arcs={(2, 1): {"loss": 0.9}, (3, 4): {"delay_mean": 0.01}})
+    imp = Impairment(net, seed=11)
+    js, is_ = np.array([2, 3, 1, 4, 5]), np.array([1, 4, 2, 3, 1])
+    for tau in (0, 5, 99):
+        ks = np.arange(1, 7)[:, None]
+        assert u_array(imp.loss_key, tau, ks, js, is_).tolist() == [
+            u_array(imp.loss_key, tau, int(k), js, is_).tolist() for k in range(1, 7)]
+        both = imp.dropped(tau, ks, js, is_)
+        assert both.shape == (6, 5)
+        assert both.tolist() == [imp.dropped(tau, int(k), js, is_).tolist() for k in range(1, 7)]
+    arc34 = imp.dropped(0, np.arange(1, 200)[:, None], js, is_)[:, 1]
+    assert set(arc34.tolist()) == {LOSS, LATE}  # held 8-12 ms against a 3 ms deadline: it never counts
+
+
 def test_draws_are_uniform_and_independent_of_the_indices_order():
     j = np.repeat(np.arange(1, 101), 100)
     i = np.tile(np.arange(1, 101), 100)
