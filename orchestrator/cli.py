@@ -24,6 +24,21 @@ from splitspec_core.runtime.cli import seed as _seed
 from .commands.operate import SIGNALS, port
 
 MAX_KCF_EPS = 1e12  # as splitspec_core.scenario_model.MAX_MAGNITUDE
+MAX_NETWORK_SECONDS = 60.0  # as splitspec_core.scenario_checks.MAX_NETWORK_SECONDS (this module stays light)
+
+
+def _loss_level(text: str) -> float:
+    """``--sweep-loss``: a probability in [0, 1)."""
+    try:
+        value = float(text)
+    except (TypeError, ValueError):
+        value = float("nan")
+    if not 0.0 <= value < 1.0:  # False for nan too
+        raise argparse.ArgumentTypeError(f"must be a loss probability in [0, 1), got {text!r}")
+    return value
+
+
+_loss_level.__name__ = "loss probability"
 
 
 def _cmd_plant(args: argparse.Namespace) -> int:
@@ -109,6 +124,12 @@ def build_parser() -> argparse.ArgumentParser:
                                                   "(default 1 / (1 + max in-degree))")
     p.add_argument("--sweep", action="store_true", help="also sweep q (discrete) or g (continuous): RMS error "
                                                          "and measured rate against it (sweep.json, sweep.png)")
+    p.add_argument("--sweep-loss", type=_loss_level, nargs="+", metavar="P", help="instead of comparing estimators: "
+                   "Monte-Carlo over --seeds per loss probability P (every arc), measured decay rate and steady-state "
+                   "error against P beside the designed and lossless rates (loss_sweep.json, loss_sweep.png)")
+    p.add_argument("--sweep-deadline", type=_positive(MAX_NETWORK_SECONDS), nargs="+", metavar="D",
+                   help="the same against the sub-round deadline D (seconds), with the scenario's network.delay "
+                        "(deadline_sweep.json, deadline_sweep.png)")
     p.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
     p.set_defaults(func=_command("study:cmd_compare"))
 

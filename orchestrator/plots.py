@@ -242,3 +242,50 @@ def plot_sweep(res: dict, path: Path) -> None:
     fig.suptitle(f"{res['scenario']}: choosing {res['parameter']} (green: rate certified){note}")
     fig.savefig(path, dpi=120)
     plt.close(fig)
+
+
+def plot_network_sweep(res: dict, path: Path) -> None:
+    """Measured decay rate (and steady-state RMS when noisy) against loss or deadline, with the designed and the
+    lossless rates; each seed a dot, the mean a line, levels certified under loss marked green."""
+    rows = res["rows"]
+    p = res["parameter"]
+    scale, unit = (1000.0, "deadline (ms)") if p == "deadline" else (1.0, "loss probability per message")
+    v = np.array([r["value"] for r in rows]) * scale
+    panels = 2 if res["noisy"] else 1
+    fig, axes = plt.subplots(1, panels, figsize=(5.6 * panels + 0.6, 4.6), layout="constrained", squeeze=False)
+    a1 = axes[0, 0]
+    for x, r in zip(v, rows):
+        ys = [y for y in r["rates"] if y is not None]
+        a1.plot([x] * len(ys), ys, ".", color="C0", alpha=0.35, ms=4)
+    a1.plot(v, [np.nan if r["rate_mean"] is None else r["rate_mean"] for r in rows], "o-", color="C0",
+            label=f"measured (noise-free, mean of {len(res['seeds'])} seeds)")
+    a1.axhline(res["designed_rate"], color="k", ls="--", lw=0.9, label=f"designed rate {res['designed_rate']:g}")
+    ll = res["lossless"]
+    if ll["rate_mean"] is not None:
+        a1.axhline(ll["rate_mean"], color="C2", ls=":", lw=1.2, label=f"lossless {ll['rate_mean']:.3g}")
+    a1.set_ylabel("decay rate" + (" (lam^tau: smaller is faster)" if res["time"] == "discrete"
+                                  else " (exp(-lam t): larger is faster)"))
+    for x, r in zip(v, rows):
+        a1.annotate(f"{100 * r['lost_fraction']:.0f}% lost", (x, 0), xycoords=("data", "axes fraction"),
+                    xytext=(0, 3), textcoords="offset points", ha="center", fontsize=7, color="0.35")
+    if res["noisy"]:
+        a2 = axes[0, 1]
+        a2.errorbar(v, [r["rms_mean"] for r in rows], yerr=[r["rms_std"] for r in rows], fmt="o-", color="C1",
+                    capsize=3, label="steady-state RMS (mean +- sd over seeds)")
+        a2.axhline(ll["rms_mean"], color="C2", ls=":", lw=1.2, label=f"lossless {ll['rms_mean']:.3g}")
+        a2.set_ylabel("steady-state RMS error")
+    for ax in axes[0]:
+        for x, r in zip(v, rows):
+            if r["certified"]:
+                ax.axvspan(x - 0.01 * (v.max() - v.min() or 1), x + 0.01 * (v.max() - v.min() or 1),
+                           color="green", alpha=0.2)
+        ax.set_xlabel(unit)
+        ax.grid(True, alpha=0.3)
+        ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.16), ncol=2)
+    extra = "" if p == "loss" else f", delays {1000 * res['delay']['mean']:g} +- {1000 * res['delay']['jitter']:g} ms"
+    certified = sum(r["certified"] for r in rows)
+    fig.suptitle(f"{res['scenario']}: the design under {p}{extra}" + (f", q = {res['q']}" if res["q"] is not None else "")
+                 + ("\n(green: certified under loss)" if certified else "\n(no level certified under loss: see "
+                                                                       f"{p}_sweep.json)"), fontsize=11)
+    fig.savefig(path, dpi=120)
+    plt.close(fig)

@@ -16,6 +16,7 @@ Quick start (numpy arrays or lists; every scenario-file key is a keyword)::
     d = ss.design(sc)                         # d.q, d.agents[1].K, d.checks.certificate
     tr = ss.simulate(sc, steps=40, seed=1)    # tr.x (T, n), tr.xhat (T, m, n), tr.errors()
     cmp = ss.compare(ss.load_scenario("examples/paper_discrete_noise.yaml"), seeds=5)
+    sw = ss.network_sweep(ss.load_scenario("examples/ring10_lossy.yaml"), "loss", [0, 0.1, 0.4], seeds=range(5))
 
 Notation (paper symbol, code name, shape, where in the paper; m agents, n states, s_i outputs
 of agent i, r_i = rank of agent i's observable part):
@@ -60,7 +61,7 @@ from typing import Any as _Any
 _PUBLIC = {
     "scenario": "api", "load_scenario": "api", "design": "api", "simulate": "api", "compare": "api",
     "DesignResult": "api", "AgentResult": "api", "Checks": "api", "CompareResult": "api",
-    "EstimatorResult": "api", "Scenario": "scenario_model", "Trajectory": "simulator",
+    "EstimatorResult": "api", "network_sweep": "network_sweep", "Scenario": "scenario_model", "Trajectory": "simulator",
     "SplitspecError": "errors", "ScenarioError": "errors", "DimensionError": "errors",
     "AssumptionError": "errors", "DesignError": "errors",
 }

@@ -418,10 +418,10 @@ class AgentLoopEstimator(_EstimatorBase):
 class _Progress:
     """A one-line progress bar on stderr, only when it is a terminal and the run is long."""
 
-    def __init__(self, total: int, enabled: bool | None):
-        self.total = total
+    def __init__(self, total: int, enabled: bool | None, *, label: str = "simulating", min_total: int = 2000):
+        self.total, self.label = total, label
         self.enabled = sys.stderr.isatty() if enabled is None else enabled
-        self.enabled = self.enabled and total >= 2000
+        self.enabled = self.enabled and total >= min_total
         self.t0 = _time.monotonic()
         self.last = 0.0
 
@@ -434,7 +434,7 @@ class _Progress:
         self.last = now
         frac = k / self.total
         bar = "#" * int(30 * frac)
-        sys.stderr.write(f"\rsimulating [{bar:<30}] {100 * frac:5.1f}%  {now - self.t0:6.1f}s")
+        sys.stderr.write(f"\r{self.label} [{bar:<30}] {100 * frac:5.1f}%  {now - self.t0:6.1f}s")
         if k >= self.total:
             sys.stderr.write("\n")
         sys.stderr.flush()

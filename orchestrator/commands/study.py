@@ -97,6 +97,10 @@ def cmd_compare(args: argparse.Namespace) -> int:
     seed0 = sc.run.seed if args.seed is None else args.seed
     _seed_range(seed0, args.seeds, "--seeds")
     check_trajectory_memory(sc, args.steps, key="--steps" if args.steps is not None else "run.steps")
+    if args.sweep_loss or args.sweep_deadline:
+        if args.sweep:
+            raise UsageError("--sweep (q or g) and --sweep-loss/--sweep-deadline are separate studies: run one at a time")
+        return _network_sweeps(args, sc, seed0)
     out = out_dir(args.out)
     result = ss.compare(sc, seeds=args.seeds, seed=seed0, steps=args.steps, kcf_eps=args.kcf_eps)
     res = result.to_json()
@@ -136,6 +140,31 @@ def cmd_compare(args: argparse.Namespace) -> int:
     (out / "compare.json").write_text(json.dumps(res, indent=2) + "\n")
     lines.append(f"wrote {out}/compare.json" + "".join(f", {p}" for p in plots) +
                  (", sweep.json" if args.sweep else ""))
+    print("\n".join(lines))
+    return 0
+
+
+def _network_sweeps(args: argparse.Namespace, sc, seed0: int) -> int:
+    """``compare --sweep-loss / --sweep-deadline``: the design on a misbehaving network, level by level."""
+    from splitspec_core.network_sweep import check_sweep, network_sweep, sweep_table
+
+    sweeps = [(p, v) for p, v in (("loss", args.sweep_loss), ("deadline", args.sweep_deadline)) if v]
+    for parameter, values in sweeps:  # before any work: one line, exit 2
+        check_sweep(sc, parameter, values)
+    out = out_dir(args.out)
+    lines, written = [], []
+    for parameter, values in sweeps:
+        sw = network_sweep(sc, parameter, values, seeds=range(seed0, seed0 + args.seeds), steps=args.steps,
+                           progress=None)
+        (out / f"{parameter}_sweep.json").write_text(json.dumps(sw, indent=2) + "\n")
+        written.append(f"{parameter}_sweep.json")
+        if not args.no_plots:
+            from .. import plots as P
+
+            P.plot_network_sweep(sw, out / f"{parameter}_sweep.png")
+            written.append(f"{parameter}_sweep.png")
+        lines += sweep_table(sw)
+    lines.append(f"wrote {out}/" + ", ".join(written))
     print("\n".join(lines))
     return 0
 
