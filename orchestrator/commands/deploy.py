@@ -56,7 +56,29 @@ def cmd_run(args: argparse.Namespace) -> int:
     if rrd.exists():
         print(f"recording: {rrd}  (open it with: {_splitspec_command()} view {out})")
         print(f"trajectory: {out / 'trajectory.npz'}  events: {out / 'events.jsonl'}")
+        _network_line(sc, out)
     return code
+
+
+def _network_line(sc, out) -> None:
+    """On a network that misbehaves: how many consensus messages did not count, by cause, and how to replay them."""
+    import numpy as np
+
+    from splitspec_core.impairment import CAUSES
+
+    if not sc.network.impaired and not any(f.action == "partition" for f in sc.faults):
+        return
+    try:
+        with np.load(out / "trajectory.npz") as z:
+            causes = np.bincount(z["lost_cause"], minlength=len(CAUSES)) if "lost_cause" in z.files else None
+    except (OSError, ValueError):
+        return
+    if causes is None:
+        return
+    by = ", ".join(f"{int(c)} {name}" for name, c in zip(CAUSES, causes) if c)
+    print(f"network: {int(causes.sum())} consensus messages did not count" + (f" ({by})" if by else "")
+          + f"; replay them: {_splitspec_command()} simulate {out / 'scenario.yaml'} --out {out / 'replay'} "
+            f"--faults-from {out}")
 
 
 def _splitspec_command() -> str:

@@ -67,6 +67,11 @@ def test_late_messages_are_recorded_and_replayed(tmp_path):
     lost, cause = lost_of(out / "trajectory.npz")
     # delays uniform in 1..3 ms against a 2.5 ms deadline: about a quarter late by the draw alone, more for real
     assert (cause == 1).sum() > 0.1 * 30 * 6 * 24, np.bincount(cause)
+    # the run says so on the terminal, with the replay command
+    counts = np.bincount(cause, minlength=3)
+    assert f"network: {len(lost)} consensus messages did not count ({counts[1]} late)" in r.stdout \
+        or f"({counts[0]} loss, {counts[1]} late)" in r.stdout, r.stdout
+    assert f"--faults-from {out}" in r.stdout
     diff = replay(out, tmp_path)
     assert diff <= 1e-9
     rep, rep_cause = lost_of(tmp_path / "sim" / "trajectory.npz")
