@@ -36,7 +36,7 @@ eq. (split_discrete_pr2), sub-round by sub-round, ``(I - P (I - Sbar_k)) V = V B
 unobservable part is ``A_V(tau) = Atil B_q ... B_1`` (eq. split_discrete_ench with a product in place of
 ``B^q``): the graph now switches *within* an event time, which the paper's discrete results assume it
 does not (Section 4: neighbours do not change between event times), and every certificate is about
-the realized graphs (:func:`splitspec_core.network_certificate`).
+the realized graphs (:mod:`splitspec_core.loss_certificate`).
 
 Draws
 -----
