@@ -118,9 +118,10 @@ NETEM_STEPS = 40
 MESSAGES = NETEM_STEPS * 6 * 5  # consensus messages: event times x q sub-rounds (paper_discrete: q = 6) x arcs
 
 
-def impaired_run(tmp_path, *, link: dict, network: dict | None, steps: int = NETEM_STEPS) -> dict:
+def impaired_run(tmp_path, *, link: dict | None, network: dict | None, steps: int = NETEM_STEPS) -> dict:
     """``paper_discrete`` (with ``network``) across namespaces whose agents' links are impaired by ``link``
-    (:meth:`netns.NetnsLab.impair`); the figures of the run (its output in ``out``).
+    (:meth:`netns.NetnsLab.impair`; None: plain links, no emulator in the way); the figures of the run (its output
+    in ``out``).
 
     Delay and jitter from the start; loss only once every process is in (``run_started``): a lost SYN costs the
     kernel's 1 s retransmission, and a hand-started process gives the router 2.5 s (``node.CONNECT_BUDGET``).
@@ -134,9 +135,9 @@ def impaired_run(tmp_path, *, link: dict, network: dict | None, steps: int = NET
     logs = {h: tmp_path / f"{h}.log" for h in hosts}
     procs = {}
     t0 = time.monotonic()
-    with netns.NetnsLab(hosts, impairable=agents) as lab:
+    with netns.NetnsLab(hosts, impairable=agents if link is not None else ()) as lab:
         try:
-            for h in agents:
+            for h in lab.impairable:
                 lab.impair(h, delay=link.get("delay", 0.0), jitter=link.get("jitter", 0.0))
             endpoint = f"tcp/{lab.addr['orch']}:7447"
             procs["orch"] = start_on(lab, "orch", ["orchestrator", scen, "--listen", endpoint, "--out", out,
@@ -147,12 +148,12 @@ def impaired_run(tmp_path, *, link: dict, network: dict | None, steps: int = NET
                 procs[f"a{i}"] = start_on(lab, f"a{i}", ["agent", "--id", i, "--connect", endpoint, "--run-id", rid],
                                           logs[f"a{i}"])
             wait_for_event(out, "run_started", timeout=90)
-            for h in agents:
+            for h in lab.impairable:
                 lab.impair(h, **link)
             assert procs["orch"].wait(timeout=120) == 0, dump(*logs.values())
             for h in ["plant"] + agents:
                 assert procs[h].wait(timeout=20) == 0, dump(logs[h])
-            frames = lab.link_stats()
+            frames = lab.link_stats() if lab.impairable else {}
             backend = lab.impair_backend
         finally:
             for p in procs.values():
