@@ -12,6 +12,20 @@ each without a deadline (every sub-round waits for every message: a lost frame i
 TCP retransmits it) and with one (a retransmitted message comes after the deadline: ``late``).
 
     sudo .venv/bin/python benchmarks/bench_netem.py [--steps 40] [--repeat 2] [--deadline 0.006]
+
+Measured (2 shared cores, load average 4.2 -> 7.5, user-space emulator: the kernel has no netem; medians of 3
+runs of 40 event times, 1200 consensus messages each; frames dropped over the three agents' links, both ways):
+
+    link                 deadline   ms/event   late   frames dropped
+    plain (no emulator)  none              4      0        0
+    perfect (emulator)   none / 6 ms    6 / 7  0 / 0        0
+    delay 4 +- 3 ms      none / 6 ms  65 / 42  0 / 806      0
+    loss 1.5 %           none / 6 ms  22 / 16  0 / 12      42 / 39
+    delay + loss         none / 6 ms  85 / 54  0 / 800     50 / 41
+
+Loss alone makes few messages late: with data flowing, SACK/RACK retransmit a lost frame within about a
+round-trip (well under a millisecond here); only a tail loss (nothing sent after it on that link) waits for the
+loss probe or the retransmission timeout (at least ~200 ms on Linux), and stalls everything behind it.
 """
 
 from __future__ import annotations
