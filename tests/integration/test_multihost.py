@@ -1,10 +1,14 @@
 """Several hosts on one machine (Linux network namespaces): the process CLI across a real (virtual) network.
 
 Every process runs in its own namespace with its own address on a private subnet and reaches the others only
-through a bridge; the run must still equal `simulate`. Also run: the same with an external router host.
+through a bridge; the run must still equal `simulate`. Also run: the same with an external router host, and a
+run with a `network.deadline` over links that really delay, jitter and lose frames (netem, or its user-space
+emulator where the kernel has no netem: `tests/integration/netns.py`): messages really arrive late, the run
+records them and its replay equals it.
 """
 
 import os
+import shutil
 import subprocess
 import sys
 import time
@@ -13,7 +17,7 @@ import numpy as np
 import pytest
 
 from tests.integration import netns
-from tests.integration.runtime_helpers import (ENV, ROOT, cli, compare_with_simulate, dump, events,
+from tests.integration.runtime_helpers import (ENV, ROOT, cli, compare_with_simulate, dump, events, replay,
                                                scenario_file, wait_for_event)
 
 pytestmark = [pytest.mark.slow,
@@ -105,6 +109,84 @@ def test_processes_on_separate_hosts_equal_simulate(tmp_path, external_router):
     assert np.load(out / "trajectory.npz")["t"].shape[0] == 121
 
 
+# The links of the agents' hosts: every frame held 4 +- 3 ms (uniform) each way, and lost with probability 1.5 %
+# (TCP retransmits it: tens to hundreds of ms later).  A consensus message crosses two such links (agent -> router
+# host -> agent): 2 to 14 ms, 8 on average, before any loaded CPU adds its own; a sub-round waits 6 ms at most.
+LINK = {"delay": 0.004, "jitter": 0.003, "loss": 0.015}
+DEADLINE = 0.006
+NETEM_STEPS = 40
+MESSAGES = NETEM_STEPS * 6 * 5  # consensus messages: event times x q sub-rounds (paper_discrete: q = 6) x arcs
+
+
+def impaired_run(tmp_path, *, link: dict | None, network: dict | None, steps: int = NETEM_STEPS) -> dict:
+    """``paper_discrete`` (with ``network``) across namespaces whose agents' links are impaired by ``link``
+    (:meth:`netns.NetnsLab.impair`; None: plain links, no emulator in the way); the figures of the run (its output
+    in ``out``).
+
+    Delay and jitter from the start; loss only once every process is in (``run_started``): a lost SYN costs the
+    kernel's 1 s retransmission, and a hand-started process gives the router 2.5 s (``node.CONNECT_BUDGET``).
+    """
+    changes = {"run": {"steps": steps}} | ({"network": network} if network is not None else {})
+    scen = scenario_file(tmp_path, "paper_discrete", **changes)
+    out = tmp_path / "out"
+    rid = "netem"
+    agents = [f"a{i}" for i in AGENTS]
+    hosts = ["orch", "plant"] + agents
+    logs = {h: tmp_path / f"{h}.log" for h in hosts}
+    procs = {}
+    t0 = time.monotonic()
+    with netns.NetnsLab(hosts, impairable=agents if link is not None else ()) as lab:
+        try:
+            for h in lab.impairable:
+                lab.impair(h, delay=link.get("delay", 0.0), jitter=link.get("jitter", 0.0))
+            endpoint = f"tcp/{lab.addr['orch']}:7447"
+            procs["orch"] = start_on(lab, "orch", ["orchestrator", scen, "--listen", endpoint, "--out", out,
+                                                   "--run-id", rid], logs["orch"])
+            wait_for_router(lab, "plant", endpoint)
+            procs["plant"] = start_on(lab, "plant", ["plant", "--connect", endpoint, "--run-id", rid], logs["plant"])
+            for i in AGENTS:
+                procs[f"a{i}"] = start_on(lab, f"a{i}", ["agent", "--id", i, "--connect", endpoint, "--run-id", rid],
+                                          logs[f"a{i}"])
+            wait_for_event(out, "run_started", timeout=90)
+            for h in lab.impairable:
+                lab.impair(h, **link)
+            assert procs["orch"].wait(timeout=120) == 0, dump(*logs.values())
+            for h in ["plant"] + agents:
+                assert procs[h].wait(timeout=20) == 0, dump(logs[h])
+            frames = lab.link_stats() if lab.impairable else {}
+            backend = lab.impair_backend
+        finally:
+            for p in procs.values():
+                if p.poll() is None:
+                    p.terminate()
+            deadline = time.monotonic() + 5
+            while any(p.poll() is None for p in procs.values()) and time.monotonic() < deadline:
+                time.sleep(0.05)
+    assert netns.lab_namespaces(os.getpid()) == []
+    with np.load(out / "trajectory.npz") as f:
+        cause, alive = f["lost_cause"], f["alive"]
+    finished = next(e for e in events(out) if e["event"] == "run_finished")
+    return {"out": out, "backend": backend, "frames": frames, "late": int((cause == 1).sum()),
+            "lost": int((cause == 0).sum()), "partition": int((cause == 2).sum()), "all_alive": bool(alive.all()),
+            "seconds": finished["seconds"], "ms_per_event_time": 1000 * finished["seconds"] / steps,
+            "wall": time.monotonic() - t0, "loadavg": open("/proc/loadavg").read().split()[:3]}
+
+
+def test_real_link_impairment_makes_messages_late_and_the_replay_equals_the_run(tmp_path):
+    r = impaired_run(tmp_path, link=LINK, network={"deadline": DEADLINE})
+    print(f"\n{r['backend']}: {r['late']} of {MESSAGES} consensus messages late, {NETEM_STEPS} event times in "
+          f"{r['seconds']} s ({r['ms_per_event_time']:.0f} ms each), test {r['wall']:.1f} s, load {r['loadavg']}, "
+          f"frames {r['frames']}")
+    # the links really lost frames
+    assert sum(r["frames"][h][way]["dropped"] for h in r["frames"] for way in ("up", "down")) > 0, r["frames"]
+    # the network alone made messages late (nothing is drawn lost: the scenario has no network.loss) ...
+    assert r["lost"] == r["partition"] == 0 and r["late"] >= MESSAGES // 10, r
+    # ... and not all of them: the sub-rounds averaged over what had arrived
+    assert r["late"] < MESSAGES and r["all_alive"], r
+    # the replay (simulate with the run's recorded losses) gives the run's trajectory
+    replay(r["out"], tmp_path)
+
+
 ACCEPT_ONE = """
 import socket, sys
 s = socket.socket(); s.bind((sys.argv[1], 5000)); s.listen(1); print("listening", flush=True)
@@ -136,3 +218,42 @@ def test_lab_is_removed_after_a_failure():
     assert root_links() == links_before  # the lab never touched this namespace's links
     sleeper.wait(timeout=10)  # killed with its namespace
     assert sleeper.returncode == -9
+
+
+def root_qdiscs() -> str:
+    return subprocess.run(["tc", "qdisc", "show"], capture_output=True, text=True).stdout if shutil.which("tc") else ""
+
+
+SEND_UDP = ("import socket, sys; s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)\n"
+            "for k in range(100): s.sendto(b'x', (sys.argv[1], 9))")
+TIME_CONNECT = ("import socket, sys, time; t = time.monotonic()\n"
+                "socket.create_connection((sys.argv[1], 5000), 5).close(); print(time.monotonic() - t)")
+
+
+def test_impaired_link_delays_and_loses_frames_and_is_removed():
+    hosts = ["x", "y"]
+    links_before, qdiscs_before = root_links(), root_qdiscs()
+    with pytest.raises(RuntimeError, match="boom"):
+        with netns.NetnsLab(hosts, impairable=["x"]) as lab:
+            assert lab.impair_backend in ("netem", "linkem")
+            with pytest.raises(ValueError, match="not built impairable"):
+                lab.impair("y", delay=0.01)
+            lab.impair("x", delay=0.05, jitter=0.0)
+            server = subprocess.Popen(lab.exec("y", [sys.executable, "-c", ACCEPT_ONE, lab.addr["y"]]),
+                                      stdout=subprocess.PIPE)
+            assert server.stdout.readline().strip() == b"listening"
+            # a TCP handshake crosses x's link twice (SYN out, SYN-ACK back): at least 100 ms
+            client = subprocess.run(lab.exec("x", [sys.executable, "-c", TIME_CONNECT, lab.addr["y"]]),
+                                    capture_output=True, text=True)
+            assert client.returncode == 0 and server.wait(timeout=10) == 0, client.stderr
+            assert float(client.stdout) >= 0.1, client.stdout
+            # a link that loses every other frame: of 100 datagrams from x, some never leave x's link
+            lab.impair("x", loss=0.5)
+            before = lab.link_stats()["x"]["up"]
+            sent = subprocess.run(lab.exec("x", [sys.executable, "-c", SEND_UDP, lab.addr["y"]]), capture_output=True)
+            assert sent.returncode == 0, sent.stderr
+            after = lab.link_stats()["x"]["up"]
+            assert after["frames"] - before["frames"] >= 100 and 10 <= after["dropped"] - before["dropped"] <= 90
+            raise RuntimeError("boom")
+    assert netns.lab_namespaces(os.getpid()) == []
+    assert root_links() == links_before and root_qdiscs() == qdiscs_before  # nothing left outside the lab
