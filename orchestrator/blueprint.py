@@ -73,6 +73,9 @@ STATE = "state"
 GAINS = "gains"
 ROUNDS = "rounds"
 ROUND_SERIES = ("wall_ms", "attempts", "rejected", "lost")
+# mid-tone colours, drawn on the light theme as on the dark one; lost: the red of the dashed arcs
+ROUND_COLORS = {"wall_ms": (31, 119, 180), "attempts": (44, 160, 44), "rejected": (255, 127, 14),
+                "lost": (214, 39, 40)}
 MARKS = "marks"
 TOPOLOGY = "topology"
 TOPOLOGY_GRAPH = "topology/graph"
@@ -107,6 +110,7 @@ LOST_COLOR = (214, 39, 40)  # an arc that lost a message (topology/lost)
 LATE_COLOR = (255, 127, 14)  # ... whose missing messages all came too late
 CUT_COLOR = MARK_KINDS["partition"][2]  # an arc cut by a partition (topology/partition)
 STATUS_COLOR = (214, 39, 40)
+GRAPH_LABEL_COLOR = (150, 150, 150)  # topology/graph: legible on the light theme as on the dark one
 CIRCLE_RADIUS = 100.0
 
 
@@ -158,7 +162,7 @@ def status_label_position(positions: Mapping[int, tuple[float, float]]) -> tuple
 
 
 def default_blueprint(time_mode: str, *, n: int | None = None, envelope: bool = True,
-                      gains: bool = False):
+                      gains: bool = False, active_tab: int | str = 0):
     """The default layout: log errors (envelope, marks) large; topology and event log beside; the rest in tabs.
 
     Left, tabs: ``errors (log10)`` (the designed envelope and the marks of
@@ -171,6 +175,7 @@ def default_blueprint(time_mode: str, *, n: int | None = None, envelope: bool = 
     origin) above the event log.  ``n`` None (a recording
     whose state dimension is unknown): one view for every state component.
     Rerun 0.41 has no log-scale axis (rerun issue #6773), hence ``errors_log10``.
+    ``active_tab``: the tab shown first, by index or name (``"rounds"``); the log errors by default.
     """
     import rerun.blueprint as rrb
 
@@ -188,9 +193,14 @@ def default_blueprint(time_mode: str, *, n: int | None = None, envelope: bool = 
     if gains:
         tabs.append(rrb.TimeSeriesView(origin=GAINS, name="adaptive gains g_i"))
     tabs.append(rounds)
+    if isinstance(active_tab, str):  # rerun resolves names of views only, not of containers (rounds, states)
+        names = [tab.name for tab in tabs]
+        if active_tab not in names:
+            raise ValueError(f"active_tab {active_tab!r} is not a tab of the default blueprint {names}")
+        active_tab = names.index(active_tab)
     return rrb.Blueprint(
         rrb.Horizontal(
-            rrb.Tabs(*tabs, active_tab=0, name="series"),
+            rrb.Tabs(*tabs, active_tab=active_tab, name="series"),
             rrb.Vertical(
                 rrb.GraphView(origin=TOPOLOGY, name="communication graph"),
                 rrb.TextLogView(origin=EVENTS, name="events"),

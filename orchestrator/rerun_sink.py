@@ -194,7 +194,7 @@ class RerunSink:
                 names=[f"x{k} agent {a}" for a in self.agent_ids], colors=[bp.color(i) for i in range(m)],
                 widths=[1.0] * m), static=True)
         for s in bp.ROUND_SERIES:
-            line(f"{bp.ROUNDS}/{s}", s.replace("_", " "), bp.MAX_COLOR)
+            line(f"{bp.ROUNDS}/{s}", s.replace("_", " "), bp.ROUND_COLORS[s])
 
     def guarded(self, what: str, fn, *args) -> None:
         """Run one Rerun logging step; a failure is a warning, never an exception."""

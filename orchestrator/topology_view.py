@@ -197,7 +197,7 @@ class TopologyView:
             node_ids=["graph"] * rows, labels=[f"graph: {name}" + (f"\n{part}" if part else "")
                                                for name, part in zip(names, parts)],
             positions=[bp.graph_label_position(self.positions, lines=2 if part else 1) for part in parts],
-            colors=[bp.CUT_COLOR if part else bp.MAX_COLOR for part in parts], radii=[1.0] * rows))
+            colors=[bp.CUT_COLOR if part else bp.GRAPH_LABEL_COLOR for part in parts], radii=[1.0] * rows))
         if self._cut_shown or any(cuts):
             self._send_dots(bp.TOPOLOGY_PARTITION, index, cut_dots, [bp.CUT_COLOR] * sum(len(d[0]) for d in cut_dots))
             self._cut_shown = bool(cuts[-1])

@@ -188,3 +188,10 @@ def test_dashes_run_between_the_label_boxes_right_of_travel_and_grow_towards_the
     # two boxes that touch: still two dots, around the middle
     ids, xy, _, _ = dash_dots([(1, 2)], {1: (0.0, 0.0), 2: (30.0, 0.0)}, labels)
     assert len(ids) == 2 and all(0 < x < 30 for x, _ in xy)
+
+
+def test_default_blueprint_opens_on_a_tab_by_name():
+    """docs/make_screenshots.py shows the rounds panel through the default blueprint opened on its tab."""
+    bp.default_blueprint("discrete", n=2, active_tab="rounds")
+    with pytest.raises(ValueError, match="'nope' is not a tab"):
+        bp.default_blueprint("discrete", n=2, active_tab="nope")
