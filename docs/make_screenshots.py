@@ -11,11 +11,28 @@ chosen event time and saves a screenshot to ``docs/figures/``:
     view_ring10_faults_switching_switch.png   on the other graph (switch at 45, back at 52)
     view_ring10_faults_switching_end.png      the end of the run (60)
 
+With ``--network``, instead, the two screenshots of a network that misbehaves, in ``docs/``:
+
+    lossy_ring.png   examples/ring10_lossy.yaml at event time 20, the ``rounds`` tab in front:
+                     the messages that did not count per event time (``round lost``), the arcs
+                     that lost one in event time 20 dashed red, their count under the graph
+    partition.png    examples/ring10_partition.yaml at event time 30: the cut arcs dashed purple,
+                     the partition named above the graph, its mark (5) and the heal's (35) on the
+                     log error plot
+
+The default blueprint opens on the log errors; for a screenshot of another tab the viewer is
+given a copy of ``run.rrd`` whose default blueprint is the same one opened on that tab
+(``blueprint.default_blueprint(active_tab=...)``), rather than a click on the canvas.
+
+A PNG larger than ``--max-kb`` is saved again with an adaptive palette of 256 colours (the
+viewer's flat colours survive it; the file shrinks about threefold).
+
 Setup, once (no browser download: Debian's chromium is used):
 
     apt-get install chromium
     .venv/bin/python -m pip install -e '.[docs]'     # playwright
     .venv/bin/python docs/make_screenshots.py
+    .venv/bin/python docs/make_screenshots.py --network      # docs/lossy_ring.png, docs/partition.png
 
 How the viewer is driven. Readiness and the time cursor go through the page's
 own viewer handle, ``window._handle`` (the ``WebHandle`` the served
@@ -59,6 +76,9 @@ DEFAULT_SCENARIO = ROOT / "examples" / "ring10_faults_switching.yaml"
 # kill 3 at 10, arc 1->6 dropped at 15, hang 5 at 20, restart 3 at 30 and 5 at 35, arc back at 40,
 # graph ring -> ring2 at 45 and back at 52
 DEFAULT_TIMES = {"kill": 24, "rejoin": 38, "switch": 48, "end": 60}
+# --network: (scenario, {screenshot name: event time}, tab in front or None), written to docs/<name>.png
+NETWORK_SHOTS = [(ROOT / "examples" / "ring10_lossy.yaml", {"lossy_ring": 20}, "rounds"),
+                 (ROOT / "examples" / "ring10_partition.yaml", {"partition": 30}, None)]
 
 
 class ScreenshotError(RuntimeError):
@@ -197,8 +217,52 @@ def last_event_time(run_dir: Path) -> int:
     return int(round((closed or lines)[-1]["t"]))
 
 
+def recording_info(rrd: Path) -> dict:
+    """The recording's ``splitspec`` property (time_mode, n, envelope, gains, ...), as the recorder wrote it."""
+    from rerun.chunk import RrdReader
+
+    for chunk in RrdReader(rrd).stream():
+        if chunk.entity_path == "/__properties/splitspec":
+            batch = chunk.to_record_batch()
+            out = {}
+            for name in batch.schema.names:
+                value = batch.column(name).to_pylist()[0]
+                out[name.rpartition(":")[2]] = value[0] if isinstance(value, list) and len(value) == 1 else value
+            return out
+    raise ScreenshotError(f"{rrd} has no splitspec property: not a recording of `splitspec run`")
+
+
+def with_tab(run_dir: Path, tab: str, dest: Path) -> Path:
+    """A copy of ``run_dir``'s ``run.rrd`` in ``dest`` whose default blueprint opens on ``tab``; events.jsonl beside it."""
+    import shutil
+
+    from splitspec_orchestrator.blueprint import default_blueprint
+    from splitspec_orchestrator.rrdfile import rewrite_rrd
+
+    info = recording_info(run_dir / "run.rrd")
+    dest.mkdir(parents=True, exist_ok=True)
+    rewrite_rrd(run_dir / "run.rrd", dest / "run.rrd", blueprint=default_blueprint(
+        info["time_mode"], n=int(info["n"]), envelope=bool(info["envelope"]), gains=bool(info["gains"]),
+        active_tab=tab))
+    shutil.copy(run_dir / "events.jsonl", dest / "events.jsonl")
+    return dest
+
+
+def fit_png(path: Path, max_bytes: int) -> None:
+    """Save ``path`` again with an adaptive 256-colour palette if it is larger than ``max_bytes``."""
+    from PIL import Image
+
+    if max_bytes <= 0 or path.stat().st_size <= max_bytes:
+        return
+    with Image.open(path) as image:
+        small = image.convert("RGB").quantize(colors=256, method=Image.Quantize.MEDIANCUT, dither=Image.Dither.NONE)
+    small.save(path, optimize=True)
+
+
 def screenshots(run_dir: Path, times: dict, *, figures: Path, prefix: str, size: tuple[int, int],
-                timeout: float, chromium: str) -> list:
+                timeout: float, chromium: str, max_bytes: int = 0) -> list:
+    """Screenshot ``run_dir``'s recording at each ``{name: event time}`` of ``times``: ``figures/<prefix>_<name>.png``
+    (``figures/<name>.png`` with an empty prefix)."""
     from playwright.sync_api import sync_playwright
 
     end = last_event_time(run_dir)
@@ -236,14 +300,15 @@ def screenshots(run_dir: Path, times: dict, *, figures: Path, prefix: str, size:
 
                     _poll(f"the time cursor paused at {TIMELINE} {t}", at_t, timeout=30, interval=0.2,
                           last=lambda: _state(page))
-                    path = figures / f"{prefix}_{name}.png"
+                    path = figures / (f"{prefix}_{name}.png" if prefix else f"{name}.png")
                     page.screenshot(path=str(path))
                     if not at_t():
                         raise ScreenshotError(f"the time cursor left {TIMELINE} {t} while {path.name} was taken: "
                                               f"{_state(page)}")
+                    fit_png(path, max_bytes)
                     written.append(path)
                     print(f"  {path.relative_to(ROOT) if path.is_relative_to(ROOT) else path}: {TIMELINE} {t} "
-                          f"({time.monotonic() - t1:.0f} s)")
+                          f"({time.monotonic() - t1:.0f} s, {path.stat().st_size // 1024} kB)")
             finally:
                 browser.close()
     finally:
@@ -269,31 +334,47 @@ def main(argv: list | None = None) -> int:
                    help="screenshot NAME at event time T (repeatable; default " +
                         ", ".join(f"{k}={v}" for k, v in DEFAULT_TIMES.items()) + ")")
     p.add_argument("--figures", type=Path, default=ROOT / "docs" / "figures", help="where to write the PNGs")
-    p.add_argument("--prefix", help="file name prefix (default view_<scenario file stem>)")
+    p.add_argument("--prefix", help="file name prefix (default view_<scenario file stem>; '' for none)")
     p.add_argument("--size", default="1600x1000", help="browser viewport WIDTHxHEIGHT (default 1600x1000)")
     p.add_argument("--timeout", type=float, default=240.0, help="seconds to wait for the viewer (default 240)")
     p.add_argument("--chromium", default=CHROMIUM, help=f"Chromium executable (default {CHROMIUM})")
+    p.add_argument("--network", action="store_true",
+                   help="the screenshots of a misbehaving network instead: docs/lossy_ring.png, docs/partition.png")
+    p.add_argument("--max-kb", type=int, default=None,
+                   help="save a larger PNG with a 256-colour palette (default: 200 with --network, else none)")
+    p.add_argument("--tab", help="the tab of the series to show (default: the log errors; e.g. rounds, states)")
     args = p.parse_args(argv)
-    times = _times(args.at) if args.at else dict(DEFAULT_TIMES)
     width, _, height = args.size.partition("x")
     if not Path(args.chromium).is_file():
         raise SystemExit(f"make_screenshots: error: no Chromium at {args.chromium} (apt-get install chromium, "
                          "or give --chromium PATH)")
-    run_dir = args.run_dir
-    if run_dir is None:
-        run_dir = ROOT / "out" / "screenshots" / args.scenario.stem
-        t0 = time.monotonic()
-        subprocess.run([sys.executable, "-m", "splitspec_orchestrator", "run", str(args.scenario), "--out", str(run_dir)],
-                       cwd=ROOT, check=True, stdout=subprocess.DEVNULL)
-        print(f"ran {args.scenario.name} into {run_dir} in {time.monotonic() - t0:.0f} s")
-    prefix = args.prefix or f"view_{(args.scenario if args.run_dir is None else run_dir).stem}"
-    args.figures.mkdir(parents=True, exist_ok=True)
-    try:
-        screenshots(run_dir, times, figures=args.figures, prefix=prefix, size=(int(width), int(height)),
-                    timeout=args.timeout, chromium=args.chromium)
-    except ScreenshotError as exc:
-        print(f"make_screenshots: error: {exc}", file=sys.stderr)
-        return 1
+    if args.network:
+        if args.run_dir or args.at or args.tab:
+            raise SystemExit("make_screenshots: error: --network runs its own scenarios at its own times "
+                             "and tabs (no --run-dir, --at or --tab)")
+        jobs = [(scenario, None, times, ROOT / "docs", "", tab) for scenario, times, tab in NETWORK_SHOTS]
+    else:
+        times = _times(args.at) if args.at else dict(DEFAULT_TIMES)
+        prefix = args.prefix if args.prefix is not None else \
+            f"view_{(args.scenario if args.run_dir is None else args.run_dir).stem}"
+        jobs = [(args.scenario, args.run_dir, times, args.figures, prefix, args.tab)]
+    max_kb = args.max_kb if args.max_kb is not None else (200 if args.network else 0)
+    for scenario, run_dir, times, figures, prefix, tab in jobs:
+        if run_dir is None:
+            run_dir = ROOT / "out" / "screenshots" / scenario.stem
+            t0 = time.monotonic()
+            subprocess.run([sys.executable, "-m", "splitspec_orchestrator", "run", str(scenario), "--out",
+                            str(run_dir)], cwd=ROOT, check=True, stdout=subprocess.DEVNULL)
+            print(f"ran {scenario.name} into {run_dir} in {time.monotonic() - t0:.0f} s")
+        figures.mkdir(parents=True, exist_ok=True)
+        try:
+            if tab is not None:
+                run_dir = with_tab(run_dir, tab, ROOT / "out" / "screenshots" / f"{run_dir.name}-{tab}")
+            screenshots(run_dir, times, figures=figures, prefix=prefix, size=(int(width), int(height)),
+                        timeout=args.timeout, chromium=args.chromium, max_bytes=max_kb * 1024)
+        except ScreenshotError as exc:
+            print(f"make_screenshots: error: {exc}", file=sys.stderr)
+            return 1
     return 0
 
 

@@ -18,14 +18,25 @@ Entity paths (DESIGN.md "Rerun recording" is the contract for the first ones;
 ``rounds/attempts``             attempts of that round (1 = no re-run)
 ``rounds/rejected``             messages rejected since the previous round's record
 ``rounds/lost``                 consensus messages of the round that did not count (loss, late, partition)
-``marks/<kind>``                a point at each loss, rejoin, graph switch, scenario fault
-``topology``                    GraphNodes (fixed positions, lost agents grey) + GraphEdges
-``topology/graph``              one label node: the active graph's name
+``marks/<kind>``                a point at each loss, rejoin, graph switch, scenario fault,
+                                partition and heal
+``topology``                    GraphNodes (fixed positions, lost agents grey) + GraphEdges: the arcs
+                                that carried every message (a partition's cut and, per event time,
+                                the arcs that lost a message are drawn dashed instead)
+``topology/graph``              one label node: the active graph's name (and a partition in force)
+``topology/lost``               dots drawing dashed the arcs that lost a message in this event time
+                                (red: lost, orange: late); none when nothing was lost
+``topology/partition``          dots drawing dashed (purple) the arcs cut by a partition in force
+``topology/status``             one label node: how many messages did not count, by cause
 ``events``                      TextLog, one short sentence per event
 ==============================  ===============================================================
 
-Entities per run: ``2m + 2n + 13`` (with the envelope; ``m`` more with gains): at m = 32,
-n = 6, 89 instead of the 275 of one entity per agent and state component
+The last three exist only in a run whose network misbehaves (:mod:`splitspec_orchestrator.lossview`
+says why dots: an edge of a Rerun 0.41 graph has no colour or dash of its own).
+
+Entities per run: ``2m + 2n + 16`` (with the envelope; ``m`` more with gains, up to 3 more on a
+network that loses messages or is partitioned): at m = 32,
+n = 6, 92 instead of the 278 of one entity per agent and state component
 (``state/<k>/agent_<id>``, ``n (m + 1)`` of them with the truth), which the recorder paid for
 in every flush (one ``send_columns`` chunk per entity) and the viewer in every query.
 
@@ -49,7 +60,8 @@ import math
 from typing import Mapping
 
 __all__ = ["ERRORS", "ERRORS_MAX", "ERRORS_LOG10", "ERRORS_LOG10_MAX", "ENVELOPE", "STATE", "GAINS", "ROUNDS",
-           "MARKS", "MARK_KINDS", "TOPOLOGY", "TOPOLOGY_GRAPH", "EVENTS", "TL_EVENT", "TL_TIME", "TL_WALL",
+           "MARKS", "MARK_KINDS", "TOPOLOGY", "TOPOLOGY_GRAPH", "TOPOLOGY_LOST",
+           "TOPOLOGY_PARTITION", "TOPOLOGY_STATUS", "EVENTS", "TL_EVENT", "TL_TIME", "TL_WALL",
            "agent_path", "state_path", "color", "circle_positions", "default_blueprint"]
 
 ERRORS = "errors"
@@ -61,20 +73,29 @@ STATE = "state"
 GAINS = "gains"
 ROUNDS = "rounds"
 ROUND_SERIES = ("wall_ms", "attempts", "rejected", "lost")
+# mid-tone colours, drawn on the light theme as on the dark one; lost: the red of the dashed arcs
+ROUND_COLORS = {"wall_ms": (31, 119, 180), "attempts": (44, 160, 44), "rejected": (255, 127, 14),
+                "lost": (214, 39, 40)}
 MARKS = "marks"
 TOPOLOGY = "topology"
 TOPOLOGY_GRAPH = "topology/graph"
+TOPOLOGY_LOST = "topology/lost"
+TOPOLOGY_PARTITION = "topology/partition"
+TOPOLOGY_STATUS = "topology/status"
 EVENTS = "events"
 TL_EVENT, TL_TIME, TL_WALL = "event", "time", "wall"
 
 # Event name -> mark kind (entity ``marks/<kind>``), with its marker and colour.
 MARK_OF_EVENT = {"agent_lost": "lost", "agent_rejoined": "rejoined", "graph_switched": "graph_switch",
-                 "arc_dropped": "fault", "arc_restored": "fault", "fault_skipped": "fault"}
+                 "arc_dropped": "fault", "arc_restored": "fault", "fault_skipped": "fault",
+                 "partition": "partition", "healed": "healed"}
 MARK_KINDS = {  # kind: (legend name, marker, colour)
     "lost": ("agent lost", "Cross", (214, 39, 40)),
     "rejoined": ("agent rejoined", "Up", (44, 160, 44)),
     "graph_switch": ("graph switch", "Diamond", (255, 200, 0)),
     "fault": ("scenario fault (link)", "Asterisk", (255, 127, 14)),
+    "partition": ("partition", "Down", (148, 103, 189)),
+    "healed": ("partition healed", "Plus", (23, 190, 207)),
 }
 
 PALETTE = [  # matplotlib tab10
@@ -85,6 +106,11 @@ DEAD_COLOR = (90, 90, 90)
 MAX_COLOR = (235, 235, 235)
 TRUTH_COLOR = (235, 235, 235)
 ENVELOPE_COLOR = (255, 80, 80)
+LOST_COLOR = (214, 39, 40)  # an arc that lost a message (topology/lost)
+LATE_COLOR = (255, 127, 14)  # ... whose missing messages all came too late
+CUT_COLOR = MARK_KINDS["partition"][2]  # an arc cut by a partition (topology/partition)
+STATUS_COLOR = (214, 39, 40)
+GRAPH_LABEL_COLOR = (150, 150, 150)  # topology/graph: legible on the light theme as on the dark one
 CIRCLE_RADIUS = 100.0
 
 
@@ -123,24 +149,33 @@ def node_positions(agent_ids, given: Mapping[int, tuple[float, float]] | None) -
     return {a: ((x - cx) * s, -(y - cy) * s) for a, (x, y) in pts.items()}
 
 
-def graph_label_position(positions: Mapping[int, tuple[float, float]]) -> tuple[float, float]:
-    """Where the graph's name goes: above the agents."""
+def graph_label_position(positions: Mapping[int, tuple[float, float]], *, lines: int = 1) -> tuple[float, float]:
+    """Where the graph's name goes: above the agents (the centre of a label of ``lines`` lines)."""
     ys = [p[1] for p in positions.values()]
-    return 0.0, min(ys) - 0.35 * CIRCLE_RADIUS
+    return 0.0, min(ys) - (0.35 + 0.1 * (lines - 1)) * CIRCLE_RADIUS
+
+
+def status_label_position(positions: Mapping[int, tuple[float, float]]) -> tuple[float, float]:
+    """Where ``topology/status`` goes: below the agents."""
+    ys = [p[1] for p in positions.values()]
+    return 0.0, max(ys) + 0.35 * CIRCLE_RADIUS
 
 
 def default_blueprint(time_mode: str, *, n: int | None = None, envelope: bool = True,
-                      gains: bool = False):
+                      gains: bool = False, active_tab: int | str = 0):
     """The default layout: log errors (envelope, marks) large; topology and event log beside; the rest in tabs.
 
     Left, tabs: ``errors (log10)`` (the designed envelope and the marks of
-    losses, rejoins, switches and faults on the same axes), ``errors``
+    losses, rejoins, switches, faults, partitions and heals on the same axes), ``errors``
     (linear), ``states`` (a grid of one view per component: its truth, bold,
     and the batch of every agent's estimate, m + 1 lines),
     ``gains`` (continuous time), ``rounds`` (wall time, attempts, rejected
-    messages).  Right: topology above the event log.  ``n`` None (a recording
+    messages, consensus messages that did not count).  Right: topology (with
+    ``topology/lost``, ``topology/partition`` and ``topology/status``, all under its
+    origin) above the event log.  ``n`` None (a recording
     whose state dimension is unknown): one view for every state component.
     Rerun 0.41 has no log-scale axis (rerun issue #6773), hence ``errors_log10``.
+    ``active_tab``: the tab shown first, by index or name (``"rounds"``); the log errors by default.
     """
     import rerun.blueprint as rrb
 
@@ -158,9 +193,14 @@ def default_blueprint(time_mode: str, *, n: int | None = None, envelope: bool = 
     if gains:
         tabs.append(rrb.TimeSeriesView(origin=GAINS, name="adaptive gains g_i"))
     tabs.append(rounds)
+    if isinstance(active_tab, str):  # rerun resolves names of views only, not of containers (rounds, states)
+        names = [tab.name for tab in tabs]
+        if active_tab not in names:
+            raise ValueError(f"active_tab {active_tab!r} is not a tab of the default blueprint {names}")
+        active_tab = names.index(active_tab)
     return rrb.Blueprint(
         rrb.Horizontal(
-            rrb.Tabs(*tabs, active_tab=0, name="series"),
+            rrb.Tabs(*tabs, active_tab=active_tab, name="series"),
             rrb.Vertical(
                 rrb.GraphView(origin=TOPOLOGY, name="communication graph"),
                 rrb.TextLogView(origin=EVENTS, name="events"),

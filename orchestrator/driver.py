@@ -246,7 +246,7 @@ class Orchestrator:
             elif kind is R.Log:
                 log.log(logging.WARNING if a.level == "warning" else logging.INFO, "%s", a.message)
             elif kind is R.Topology:
-                self.rec.topology(a.tau, a.graph_name, list(a.alive), list(a.arcs))
+                self.rec.topology(a.tau, a.graph_name, list(a.alive), list(a.arcs), partition=a.partition)
             elif kind is R.MarkLost:
                 self.rec.mark_lost(a.tau, a.agent)
             elif kind is R.ReplyConfig:

@@ -5,7 +5,8 @@ line by line; the file is opened for each write only (no file of the run stays
 open between calls) and a line torn by a failed write is cut back.
 :func:`event_text` turns an event into the short, complete sentence of the
 ``events`` TextLog (``agent 3 lost: killed by the scenario (SIGKILL)``,
-``graph a -> b``, ``arc 1 -> 6 dropped``); unknown events read
+``graph a -> b``, ``arc 1 -> 6 dropped``, ``12 consensus messages did not count (12 loss)``); unknown
+events read
 ``<event> k=v ...``.
 """
 
@@ -66,6 +67,11 @@ _TEXTS = {
     "process_left": lambda f: f"{_who(f)} left during start-up (pid {f.get('pid')})",
     "message_rejected": lambda f: f"{f.get('count', 1)} message(s)" + (f" from {f['by']}" if f.get("by") else "")
                                   + f" rejected ({f.get('reason', '?')})",
+    "messages_lost": lambda f: f"{f['count']} consensus message{'s' if f['count'] != 1 else ''} did not count ("
+                               + ", ".join(f"{f[c]} {c}" for c in ("loss", "late", "partition") if f.get(c)) + ")",
+    "partition": lambda f: "partition " + " | ".join(" ".join(str(a) for a in g) for g in f["groups"])
+                           + ": no consensus message crosses between the groups",
+    "healed": lambda f: "partition healed",
     "round_retried": lambda f: f"round {f.get('tau')} re-run (attempt {f.get('attempt')}; late: {f.get('late')})",
     "run_started": lambda f: f"run started ({len(f.get('agents', []))} agents, {f.get('steps')} steps)",
     "run_finished": lambda f: f"run finished ({f.get('rounds')} rounds in {f.get('seconds')} s)",

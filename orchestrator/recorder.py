@@ -67,7 +67,8 @@ per flush, per 512 rows after a burst; an agent's chunks hold only the event
 times where it is shown; the viewer still draws a retracted value as a lone
 point beside the NaN or Clear that retracts it, both being rows at that time),
 then the queued logs of ``event``/``topology``/``mark_lost`` (one chunk per
-flush each), appends what Rerun encoded to ``run.rrd`` (fsynced) and
+flush each) and, drawn over the topology, the rows' consensus messages that did
+not count (``topology/lost``, ``topology/status``: one chunk each), appends what Rerun encoded to ``run.rrd`` (fsynced) and
 rewrites ``trajectory.npz`` (fsynced) -- the whole file, so on a long run
 (tens of MB) the background thread skips that rewrite at the flushes that
 come sooner than 9 times its last duration after it: at most a tenth of its
@@ -149,6 +150,7 @@ from .outdir import Reserve
 from .rerun_sink import RRD_FILE, RerunSink, RowBatch
 from .rrdfile import verify_rrd
 from .rowstore import RowStore
+from .topology_view import cut_arcs, partition_text
 
 __all__ = ["Recorder", "RecordingError", "RecordsWriteError", "verify_rrd", "TRAJECTORY_FILE", "EVENTS_FILE",
            "RRD_FILE"]
@@ -309,7 +311,8 @@ class Recorder:
         self._taken = 0
         self._changed: set[int] = set()
         self._queued_events: list[tuple[int, float, str, str, int]] = []
-        self._queued_topology: list[tuple[int, float, str, set[int], list[tuple[str, str]], int]] = []
+        # (tau, t, graph name, alive, edges, wall_ns, cut edges, partition text)
+        self._queued_topology: list[tuple[int, float, str, set[int], list[tuple[str, str]], int, frozenset, str]] = []
         self._queued_marks: list[tuple[int, float, str, int]] = []  # (tau, t, kind, wall_ns); y set at flush
         self._queued_clears: list[tuple[int, float, int, int]] = []  # loss clears (tau, t, agent, wall_ns)
         self._request: int | None = None
@@ -414,11 +417,13 @@ class Recorder:
         self._write_through()
 
     def topology(self, tau: int, graph_name: str, alive_ids: Iterable[int],
-                 arcs: Iterable[tuple[int, int]]) -> None:
+                 arcs: Iterable[tuple[int, int]], *, partition=None) -> None:
         """Log the communication graph at ``tau``: every agent as a node, arcs ``(j, i)`` among alive agents.
 
         An arc ``(j, i)`` means agent ``i`` receives from agent ``j`` (drawn j -> i).
-        Arcs touching a dead agent are not drawn.
+        Arcs touching a dead agent are not drawn.  ``partition``: the groups of agent ids of a
+        partition in force (:mod:`splitspec_core.impairment`), None or empty for none: the arcs
+        between groups are drawn dashed (``topology/partition``) and the graph's label names it.
         """
         if graph_name not in self.graph_names:
             raise RecordingError(f"unknown graph {graph_name!r}; expected one of {self.graph_names}")
@@ -433,12 +438,18 @@ class Recorder:
                 raise RecordingError(f"arc ({j}, {i}) names an agent not in {tuple(self.agent_ids)}")
             if j in alive and i in alive:
                 edges.append((str(j), str(i)))
+        groups = tuple(tuple(int(a) for a in g) for g in (partition or ()))
+        strangers = sorted({a for g in groups for a in g} - set(self._pos))
+        if strangers:
+            raise RecordingError(f"partition names {strangers}, not agents of this run {tuple(self.agent_ids)}")
+        cut = frozenset((str(j), str(i)) for j, i in
+                        cut_arcs(groups, [(int(j), int(i)) for j, i in edges], self.agent_ids.tolist()))
         with self._lock:
             self._check_open("topology")
             self._check_failed()
             if self._rec is not None:
                 self._queued_topology.append((int(tau), self._t_of_tau(int(tau)), graph_name, alive, edges,
-                                              time.time_ns()))
+                                              time.time_ns(), cut, partition_text(groups) if groups else ""))
         self._write_through()
 
     def row(self, tau: int, x: np.ndarray, xhat: np.ndarray, alive: np.ndarray, graph: int, *,
@@ -539,7 +550,14 @@ class Recorder:
                 self._queued_clears.append((int(tau), self._t_of_tau(int(tau)), int(agent_id), time.time_ns()))
             for t_, lost in list(self._lost.items()):  # a dead agent sends and receives nothing from tau on
                 if t_ >= int(tau):
-                    self._lost[t_] = tuple(r for r in lost if int(agent_id) not in (r[2], r[3]))
+                    kept = tuple(r for r in lost if int(agent_id) not in (r[2], r[3]))
+                    if len(kept) != len(lost):
+                        self._lost[t_] = kept
+                        k = self._s.row_of_tau.get(t_)
+                        if k is not None:  # rounds/lost counts what trajectory.npz keeps
+                            self._s.round[k, 3] = len(kept)
+                            if k < self._taken:
+                                self._changed.add(int(k))
             self._request = T
         if self.flush_seconds == 0:
             self._write_through()
@@ -757,11 +775,19 @@ class Recorder:
         ready, later = [], []
         for mk in self._queued_marks:
             (ready if final or (last is not None and mk[0] <= last) else later).append(mk)
-        taken = (K, self._queued_events, self._queued_topology, ready, self._queued_clears)
+        # per row taken: its consensus messages that did not count, and whether the previous row's did not all
+        # count (the topology view's per-event-time overlay, TopologyView.send_lost)
+        lost = []
+        if self._rec is not None and self._lost:
+            S = self._s
+            for k in K:
+                prev = bool(self._lost.get(int(S.tau[k - 1]))) if k else False
+                lost.append((int(S.tau[k]), float(S.t[k]), int(S.wall[k]), self._lost.get(int(S.tau[k])) or (), prev))
+        taken = (K, self._queued_events, self._queued_topology, ready, self._queued_clears, lost)
         self._queued_events, self._queued_topology, self._queued_marks, self._queued_clears = [], [], later, []
         return taken
 
-    def _write(self, K: np.ndarray, events: list, topology: list, marks: list, clears: list, *,
+    def _write(self, K: np.ndarray, events: list, topology: list, marks: list, clears: list, lost: list, *,
                trajectory: bool = True) -> None:
         """Write out what :meth:`_take` took.  ``_io`` held; ``_lock`` only for the bookkeeping at the end.
 
@@ -789,6 +815,8 @@ class Recorder:
                                                         for tau, t, kind, wall in marks])
             if topology:
                 sink.guarded("topology log", sink.send_topology, topology)
+            if lost:  # after the topology it is drawn over
+                sink.guarded("lost messages log", sink.send_lost, lost)
         if len(K) or events or topology or marks or clears or (sink is not None and sink.pending):
             self._append_rrd()
         if trajectory and (self._npz_dirty or self._npz_rows != D.rows):

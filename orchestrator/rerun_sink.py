@@ -4,7 +4,9 @@
 (batches of rows, text events, topology, marks, loss clears) with
 ``send_columns``, one chunk per entity per batch, on the timelines ``event``
 (sequence ``tau``), ``time`` (duration) and ``wall`` (timestamp).  Entity paths,
-colours and the default blueprint are in :mod:`splitspec_orchestrator.blueprint`.
+colours and the default blueprint are in :mod:`splitspec_orchestrator.blueprint`;
+the topology and what a misbehaving network draws over it (arcs that lost
+messages, a partition's cut) in :mod:`splitspec_orchestrator.topology_view`.
 
 A lost agent's own series (``errors``, ``errors_log10``, ``gains``) get a
 non-recursive ``rr.Clear`` at the loss's event time: the time-series view
@@ -38,6 +40,7 @@ import numpy as np
 
 from . import blueprint as bp
 from .rrdfile import RrdAppender, rerun_command, rewrite_rrd
+from .topology_view import TopologyView
 
 __all__ = ["RerunSink", "RowBatch", "APPLICATION_ID", "RRD_FILE"]
 
@@ -113,6 +116,7 @@ class RerunSink:
         self.pending: list[bytes] = []  # read from Rerun, not yet on disk
         self._viewer_warned = False
         self.rec = rec = rr.RecordingStream(application_id=APPLICATION_ID, recording_id=run_id)
+        self.topology = TopologyView(rec, self.agent_ids, self.positions, index=self._index)
         self.stream = rr.binary_stream(rec)
         sinks: list[Any] = [self.stream]
         live = self._viewer_sink(rr, rec, viewer, viewer_port=viewer_port, connect_timeout=connect_timeout)
@@ -190,7 +194,7 @@ class RerunSink:
                 names=[f"x{k} agent {a}" for a in self.agent_ids], colors=[bp.color(i) for i in range(m)],
                 widths=[1.0] * m), static=True)
         for s in bp.ROUND_SERIES:
-            line(f"{bp.ROUNDS}/{s}", s.replace("_", " "), bp.MAX_COLOR)
+            line(f"{bp.ROUNDS}/{s}", s.replace("_", " "), bp.ROUND_COLORS[s])
 
     def guarded(self, what: str, fn, *args) -> None:
         """Run one Rerun logging step; a failure is a warning, never an exception."""
@@ -300,36 +304,13 @@ class RerunSink:
             for path in self.agent_series(a):
                 self.rec.send_columns(path, indexes=idx, columns=rr.Clear.columns(is_recursive=[False]))
 
-    def send_topology(self, queued: list[tuple[int, float, str, set, list, int]]) -> None:
-        """``(tau, t, graph name, alive ids, edges, wall_ns)``: GraphNodes (fixed positions, lost grey) + edges.
+    def send_topology(self, queued: list[tuple]) -> None:
+        """See :meth:`splitspec_orchestrator.topology_view.TopologyView.send_topology`."""
+        self.topology.send_topology(queued)
 
-        The active graph's name is a label node on ``topology/graph`` above the agents.
-        """
-        import rerun as rr
-
-        ids = self.agent_ids
-        pos = [self.positions[a] for a in ids]
-        node_ids, labels, colors, positions, edges, edge_counts = [], [], [], [], [], []
-        for _, _, _, alive, row_edges, _ in queued:
-            node_ids += [str(a) for a in ids]
-            labels += [f"agent {a}" if a in alive else f"agent {a} (lost)" for a in ids]
-            colors += [bp.color(k) if a in alive else bp.DEAD_COLOR for k, a in enumerate(ids)]
-            positions += pos
-            edges += row_edges
-            edge_counts.append(len(row_edges))
-        taus, seconds, names, _, _, walls = zip(*queued)
-        rows = len(queued)
-        index = self._index(rr, taus, seconds, walls)
-        columns = [*rr.GraphNodes.columns(node_ids=node_ids, labels=labels, colors=colors,
-                                          positions=positions).partition([len(ids)] * rows),
-                   *rr.GraphEdges.columns(edges=edges).partition(edge_counts),
-                   *rr.GraphEdges.columns(graph_type=["directed"] * rows),
-                   *rr.AnyValues.columns(graph_name=list(names))]
-        self.rec.send_columns(bp.TOPOLOGY, indexes=index, columns=columns)
-        label_pos = bp.graph_label_position(self.positions)
-        self.rec.send_columns(bp.TOPOLOGY_GRAPH, indexes=index, columns=rr.GraphNodes.columns(
-            node_ids=["graph"] * rows, labels=[f"graph: {name}" for name in names], positions=[label_pos] * rows,
-            colors=[bp.MAX_COLOR] * rows, radii=[1.0] * rows))
+    def send_lost(self, rows: list[tuple]) -> None:
+        """See :meth:`splitspec_orchestrator.topology_view.TopologyView.send_lost`."""
+        self.topology.send_lost(rows)
 
     # ------------------------------------------------------------------ run.rrd
 

@@ -124,6 +124,7 @@ class Topology:
     graph_name: str
     alive: tuple
     arcs: tuple
+    partition: tuple = ()  # groups of agent ids of a partition in force, or ()
 
 
 @dataclass(frozen=True)
@@ -823,7 +824,8 @@ class RoundMachine:
             if self.last_graph is not None and graph != self.last_graph:
                 out.append(Event("graph_switched", self.t(), {"graph": name,
                                                               "previous": self.sc.graph_names[self.last_graph]}))
-            out.append(Topology(self.tau, name, tuple(sorted(self.alive)), tuple(self.net.arcs(self.sc, graph))))
+            out.append(Topology(self.tau, name, tuple(sorted(self.alive)), tuple(self.net.arcs(self.sc, graph)),
+                                partition=tuple(self.net.groups or ())))
             self.last_graph, self.topology_dirty = graph, False
         self.deadline = now + self.round_timeout
         self.quiet_since = now

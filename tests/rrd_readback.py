@@ -13,7 +13,8 @@ from pathlib import Path
 from splitspec_orchestrator.blueprint import EVENTS, STATE, TL_EVENT, TOPOLOGY
 from splitspec_orchestrator.recorder import RecordingError, verify_rrd
 
-__all__ = ["read_rrd", "read_rrd_vectors", "read_rrd_state", "read_rrd_logs", "read_rrd_clears", "read_rrd_nodes", "rrd_entities", "verify_rrd"]
+__all__ = ["read_rrd", "read_rrd_vectors", "read_rrd_state", "read_rrd_logs", "read_rrd_clears", "read_rrd_nodes",
+           "read_rrd_graph", "rrd_entities", "verify_rrd"]
 
 _COL_SCALARS = "Scalars:scalars"
 _COL_CLEAR = "Clear:is_recursive"
@@ -207,6 +208,45 @@ def read_rrd_nodes(path: str | Path, entity: str = TOPOLOGY) -> list[tuple[int, 
         for tau, ids, ps, ls in zip(batch.column(TL_EVENT).to_pylist(), batch.column("GraphNodes:node_ids").to_pylist(),
                                     pos, labels):
             out.append((tau, ids, [tuple(p) for p in (ps or [])], ls))
+    return out
+
+
+def read_rrd_graph(path: str | Path, entity: str, tau: int) -> dict:
+    """What the viewer's graph view shows of ``entity`` at event time ``tau`` (latest-at, component by component).
+
+    Returns ``{"edges": [(j, i)], "node_ids": [...], "labels": [...], "colors": [(r, g, b)], "positions":
+    [(x, y)]}``, each from the latest row at or before ``tau`` that holds that component (by event time,
+    then by Rerun row id); a component never logged by then is absent.
+    """
+    from rerun.chunk import RrdReader
+
+    best: dict[str, tuple] = {}
+    for chunk in RrdReader(path).stream():
+        if chunk.is_static or TL_EVENT not in chunk.timeline_names or chunk.entity_path != f"/{entity}":
+            continue
+        batch = chunk.to_record_batch()
+        names = batch.schema.names
+        taus = batch.column(TL_EVENT).to_pylist()
+        rids = batch.column(_COL_ROW_ID).to_pylist()
+        for key, col in (("edges", "GraphEdges:edges"), ("node_ids", "GraphNodes:node_ids"),
+                         ("labels", "GraphNodes:labels"), ("colors", "GraphNodes:colors"),
+                         ("positions", "GraphNodes:positions")):
+            if col not in names:
+                continue
+            for ev, rid, value in zip(taus, rids, batch.column(col).to_pylist()):
+                if ev is None or ev > tau or value is None:
+                    continue
+                if key not in best or (ev, rid) > best[key][:2]:
+                    best[key] = (ev, rid, value)
+    out: dict = {}
+    for key, (_, _, value) in best.items():
+        if key == "edges":
+            value = [(int(e["first"]), int(e["second"])) if isinstance(e, dict) else tuple(map(int, e)) for e in value]
+        elif key == "colors":  # packed 0xRRGGBBAA
+            value = [((c >> 24) & 255, (c >> 16) & 255, (c >> 8) & 255) for c in value]
+        elif key == "positions":
+            value = [tuple(p) for p in value]
+        out[key] = value
     return out
 
 
