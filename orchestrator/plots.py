@@ -69,7 +69,7 @@ def _envelope_label(time: str, rate: float, marks, pieces: int, *, across_switch
     if across_switches:
         why = [w for w in why if w != "switch"]
         return (f"designed rate {law}\none constant across {across_switches} switches"
-                + (f"\nrestarted at each rejoin" if pieces > 1 else ""))
+                + ("\nrestarted at each rejoin" if pieces > 1 else ""))
     if pieces <= 1:
         return f"designed rate {law}"
     return f"designed rate {law}\nfrom each restart ({', '.join(why) or 'restart'})"

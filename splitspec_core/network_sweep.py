@@ -154,7 +154,7 @@ def sweep_table(sw: dict) -> list:
     """The printed table of a :func:`network_sweep`: one line per level, the lossless and designed rates above."""
     p = sw["parameter"]
     conv = "lam^tau" if sw["time"] == "discrete" else "exp(-lam t)"
-    what = (f"every arc's loss probability" if p == "loss" else
+    what = ("every arc's loss probability" if p == "loss" else
             f"the sub-round deadline (s), delays {sw['delay']['mean']:g} +- {sw['delay']['jitter']:g} s, "
             f"loss {sw['loss']:g}")
     ll = sw["lossless"]

@@ -49,6 +49,27 @@ def wait_for_router(lab, host, endpoint, timeout: float = 60.0) -> None:
     assert r.returncode == 0, f"nothing listens at {endpoint} (seen from {host}) after {timeout} s"
 
 
+def start_clients(lab, procs: dict, logs: dict, endpoint: str, rid: str, out) -> None:
+    """The plant and every agent, each on its own host, once the router answers: they need nothing but the
+    endpoint and the run id; returns when the run has started."""
+    wait_for_router(lab, "plant", endpoint)
+    procs["plant"] = start_on(lab, "plant", ["plant", "--connect", endpoint, "--run-id", rid], logs["plant"])
+    for i in AGENTS:
+        procs[f"a{i}"] = start_on(lab, f"a{i}", ["agent", "--id", i, "--connect", endpoint, "--run-id", rid],
+                                  logs[f"a{i}"])
+    wait_for_event(out, "run_started", timeout=90)
+
+
+def stop_all(procs: dict) -> None:
+    """Terminate the lab's processes still running and give them 5 s to go (the lab then removes their hosts)."""
+    for p in procs.values():
+        if p.poll() is None:
+            p.terminate()
+    deadline = time.monotonic() + 5
+    while any(p.poll() is None for p in procs.values()) and time.monotonic() < deadline:
+        time.sleep(0.05)
+
+
 def net_namespace(pid: int) -> str:
     return os.readlink(f"/proc/{pid}/ns/net")
 
@@ -73,13 +94,7 @@ def test_processes_on_separate_hosts_equal_simulate(tmp_path, external_router):
                 orch_net = ["--listen", endpoint]
             procs["orch"] = start_on(lab, "orch", ["orchestrator", scen, *orch_net, "--out", out, "--run-id", rid],
                                      logs["orch"])
-            wait_for_router(lab, "plant", endpoint)
-            # the other hosts need nothing but the endpoint and the run id
-            procs["plant"] = start_on(lab, "plant", ["plant", "--connect", endpoint, "--run-id", rid], logs["plant"])
-            for i in AGENTS:
-                procs[f"a{i}"] = start_on(lab, f"a{i}", ["agent", "--id", i, "--connect", endpoint, "--run-id", rid],
-                                          logs[f"a{i}"])
-            wait_for_event(out, "run_started", timeout=90)
+            start_clients(lab, procs, logs, endpoint, rid, out)
             # each process really is on its own host: distinct network namespaces, none of them ours
             spaces = {h: net_namespace(p.pid) for h, p in procs.items()}
             assert len(set(spaces.values())) == len(hosts) and net_namespace(os.getpid()) not in spaces.values()
@@ -92,12 +107,7 @@ def test_processes_on_separate_hosts_equal_simulate(tmp_path, external_router):
             for h in ["plant"] + [f"a{i}" for i in AGENTS]:
                 assert procs[h].wait(timeout=20) == 0, dump(logs[h])
         finally:
-            for p in procs.values():
-                if p.poll() is None:
-                    p.terminate()
-            deadline = time.monotonic() + 5
-            while any(p.poll() is None for p in procs.values()) and time.monotonic() < deadline:
-                time.sleep(0.05)
+            stop_all(procs)
         names = set(netns.lab_namespaces(os.getpid()))
         assert names == {lab.ns(h) for h in hosts} | {lab.ns("hub")}
     # cleaned up: no namespace, no link, no process of the lab left
@@ -142,12 +152,7 @@ def impaired_run(tmp_path, *, link: dict | None, network: dict | None, steps: in
             endpoint = f"tcp/{lab.addr['orch']}:7447"
             procs["orch"] = start_on(lab, "orch", ["orchestrator", scen, "--listen", endpoint, "--out", out,
                                                    "--run-id", rid], logs["orch"])
-            wait_for_router(lab, "plant", endpoint)
-            procs["plant"] = start_on(lab, "plant", ["plant", "--connect", endpoint, "--run-id", rid], logs["plant"])
-            for i in AGENTS:
-                procs[f"a{i}"] = start_on(lab, f"a{i}", ["agent", "--id", i, "--connect", endpoint, "--run-id", rid],
-                                          logs[f"a{i}"])
-            wait_for_event(out, "run_started", timeout=90)
+            start_clients(lab, procs, logs, endpoint, rid, out)
             for h in lab.impairable:
                 lab.impair(h, **link)
             assert procs["orch"].wait(timeout=120) == 0, dump(*logs.values())
@@ -156,12 +161,7 @@ def impaired_run(tmp_path, *, link: dict | None, network: dict | None, steps: in
             frames = lab.link_stats() if lab.impairable else {}
             backend = lab.impair_backend
         finally:
-            for p in procs.values():
-                if p.poll() is None:
-                    p.terminate()
-            deadline = time.monotonic() + 5
-            while any(p.poll() is None for p in procs.values()) and time.monotonic() < deadline:
-                time.sleep(0.05)
+            stop_all(procs)
     assert netns.lab_namespaces(os.getpid()) == []
     with np.load(out / "trajectory.npz") as f:
         cause, alive = f["lost_cause"], f["alive"]
