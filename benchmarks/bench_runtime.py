@@ -30,7 +30,9 @@ every run's ``trajectory.npz`` ``lost`` is checked and its count shown (column `
 row).  A second table gives, per ring, the ratio deadline / plain of the medians and the median of the
 ratios of the interleaved pairs (each pair ran back to back, so a change of load between pairs cancels),
 with the 1-minute load average read after each run (min-max).  ``--bare-messages 0`` skips the bare Zenoh
-measurement (the floors, which the deadline comparison does not need).
+measurement (the floors, which the deadline comparison does not need).  With both ``--baseline`` and
+``--deadline`` the baseline runs both too (rows ``old`` and ``odl``; it must know ``network:``), so one
+invocation compares the deadline's cost before and after a change, interleaved.
 
     .venv/bin/python benchmarks/bench_runtime.py [--sizes 3 8 16 32] [--q 3 6] [--steps 200] [--repeat 2]
         [--baseline DIR] [--deadline SECONDS] [--bare-messages N]
@@ -250,6 +252,8 @@ def main() -> int:
               flush=True)
     if args.baseline is not None:
         variants.append(("old", str(args.baseline / ".venv/bin/python"), args.baseline, None))
+        if args.deadline is not None:
+            variants.append(("odl", str(args.baseline / ".venv/bin/python"), args.baseline, args.deadline))
     print(f"{'ring':>8} {'q':>2} {'code':>4} {'ms/event':>9} {'old floor':>9} {'new floor':>9} {'ratio':>6} "
           f"{'agent MB':>8} {'orch MB':>7} {'start s':>7} {'ready s':>7} {'lost':>4}  load")
     pairs = []  # (m, q, {name: [run results]}) for the deadline table
@@ -282,14 +286,16 @@ def main() -> int:
               f"{args.repeat} interleaved pairs; pair ratio: median over the pairs of dl / new (run back to back)")
         print(f"{'ring':>8} {'q':>2} {'plain':>8} {'deadline':>8} {'ratio':>6} {'pair ratio':>10} {'lost':>4}  "
               "load (1 min, min-max over the runs)")
+        checkouts = [("new", "dl")] + ([("old", "odl")] if args.baseline is not None else [])
         for m, q, res in pairs:
-            plain, dl = res["new"], res["dl"]
-            a, b = statistics.median(r["ms"] for r in plain), statistics.median(r["ms"] for r in dl)
-            pr = statistics.median(d["ms"] / p["ms"] for p, d in zip(plain, dl))
-            loads = [r["load"] for r in plain + dl]
-            print(f"{m:>8} {q:>2} {a:>8.2f} {b:>8.2f} {b / a:>5.3f}x {pr:>9.3f}x {sum(r['lost'] for r in dl):>4}  "
-                  f"{min(loads):.2f}-{max(loads):.2f}", flush=True)
-        nlost = sum(r["lost"] for _, _, res in pairs for r in res["dl"])
+            for p_name, d_name in checkouts:
+                plain, dl = res[p_name], res[d_name]
+                a, b = statistics.median(r["ms"] for r in plain), statistics.median(r["ms"] for r in dl)
+                pr = statistics.median(d["ms"] / p["ms"] for p, d in zip(plain, dl))
+                loads = [r["load"] for r in plain + dl]
+                print(f"{m:>8} {q:>2} {a:>8.2f} {b:>8.2f} {b / a:>5.3f}x {pr:>9.3f}x {sum(r['lost'] for r in dl):>4}  "
+                      f"{min(loads):.2f}-{max(loads):.2f}" + ("  (baseline)" if p_name == "old" else ""), flush=True)
+        nlost = sum(r["lost"] for _, _, res in pairs for _, d_name in checkouts for r in res[d_name])
         print(f"# lost in the deadline runs' trajectory.npz: {nlost} message{'s' * (nlost != 1)}"
               + ("" if nlost == 0 else " (the deadline was too short for this machine: the figures are not "
                  "'without loss')"), flush=True)
