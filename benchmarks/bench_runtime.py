@@ -27,18 +27,19 @@ and runs a timer (``NodeShell.run(timer=...)``) even when every message is on ti
 table; the plain ring (no ``network:``: every sub-round waits for all its neighbours) is row ``new``,
 interleaved (new, dl, new, dl...).  D must be long enough that nothing is late on loopback (0.5 s is):
 every run's ``trajectory.npz`` ``lost`` is checked and its count shown (column ``lost``, all runs of the
-row).  A second table gives, per ring, the ratio deadline / plain of the medians and the median of the
-ratios of the interleaved pairs (each pair ran back to back, so a change of load between pairs cancels),
-with the 1-minute load average read after each run (min-max).  ``--bare-messages 0`` skips the bare Zenoh
-measurement (the floors, which the deadline comparison does not need).  With both ``--baseline`` and
-``--deadline`` the baseline runs both too (rows ``old`` and ``odl``; it must know ``network:``), so one
-invocation compares the deadline's cost before and after a change, interleaved.
+row).  A second table gives, per ring, the ratio deadline / plain of the medians, the median of the ratios
+of the interleaved pairs (each pair ran back to back, so a change of load between pairs cancels) and their
+interquartile range, with the 1-minute load average read after each run (min-max; the run's own
+processes count in it too).  ``--bare-messages 0`` skips the bare Zenoh measurement (the floors, which the
+deadline comparison does not need).  With both ``--baseline`` and ``--deadline`` the baseline runs both
+too (rows ``old`` and ``odl``; it must know ``network:``), so one invocation compares the deadline's cost
+before and after a change, interleaved.
 
     .venv/bin/python benchmarks/bench_runtime.py [--sizes 3 8 16 32] [--q 3 6] [--steps 200] [--repeat 2]
         [--baseline DIR] [--deadline SECONDS] [--bare-messages N]
 
     # the deadline policy without loss against wait-for-all (target: at most 1.1x ms/event)
-    .venv/bin/python benchmarks/bench_runtime.py --sizes 8 16 32 --q 3 --steps 200 --repeat 5 --deadline 0.5 \
+    .venv/bin/python benchmarks/bench_runtime.py --sizes 8 16 32 --q 3 --steps 200 --repeat 9 --deadline 0.5 \
         --bare-messages 0
 """
 
@@ -284,16 +285,18 @@ def main() -> int:
     if args.deadline is not None:
         print(f"\n# deadline {args.deadline:g} s (no loss, no delay) against wait-for-all: ms/event, medians of "
               f"{args.repeat} interleaved pairs; pair ratio: median over the pairs of dl / new (run back to back)")
-        print(f"{'ring':>8} {'q':>2} {'plain':>8} {'deadline':>8} {'ratio':>6} {'pair ratio':>10} {'lost':>4}  "
-              "load (1 min, min-max over the runs)")
+        print(f"{'ring':>8} {'q':>2} {'plain':>8} {'deadline':>8} {'ratio':>6} {'pair ratio':>10} {'pair IQR':>11} "
+              f"{'lost':>4}  load (1 min, min-max over the runs)")
         checkouts = [("new", "dl")] + ([("old", "odl")] if args.baseline is not None else [])
         for m, q, res in pairs:
             for p_name, d_name in checkouts:
                 plain, dl = res[p_name], res[d_name]
                 a, b = statistics.median(r["ms"] for r in plain), statistics.median(r["ms"] for r in dl)
-                pr = statistics.median(d["ms"] / p["ms"] for p, d in zip(plain, dl))
+                prs = [d["ms"] / p["ms"] for p, d in zip(plain, dl)]
+                q1, _, q3 = statistics.quantiles(prs, n=4) if len(prs) > 1 else (prs[0],) * 3
                 loads = [r["load"] for r in plain + dl]
-                print(f"{m:>8} {q:>2} {a:>8.2f} {b:>8.2f} {b / a:>5.3f}x {pr:>9.3f}x {sum(r['lost'] for r in dl):>4}  "
+                print(f"{m:>8} {q:>2} {a:>8.2f} {b:>8.2f} {b / a:>5.3f}x {statistics.median(prs):>9.3f}x "
+                      f"{q1:>5.3f}-{q3:>5.3f} {sum(r['lost'] for r in dl):>4}  "
                       f"{min(loads):.2f}-{max(loads):.2f}" + ("  (baseline)" if p_name == "old" else ""), flush=True)
         nlost = sum(r["lost"] for _, _, res in pairs for _, d_name in checkouts for r in res[d_name])
         print(f"# lost in the deadline runs' trajectory.npz: {nlost} message{'s' * (nlost != 1)}"
