@@ -108,6 +108,7 @@ class AgentNode:
         self.imp = Impairment(net, self.seed) if net.impaired else None
         self.deadline = net.deadline
         self.delayed = net.delayed
+        self.undrawn = not (net.lossy or net.delayed)  # no loss, no delay: at most a deadline (_neighbour_states)
         self.clock = time.monotonic
         self.arrived: dict = {}  # ("z" | "x", buffer tag) -> {agent: when its message arrived} (delays only)
 
@@ -303,10 +304,14 @@ class AgentNode:
         else:
             kind, tag = "z", (r["tau"], r["attempt"], k)
         slot = (self.xbuf if kind == "x" else self.zbuf).get(tag, {})
-        if self.imp is None and not r["groups"]:  # a perfect network: every neighbour, every message on time
-            if any(j not in slot for j in r["nbs"] if j != self.id):
+        if self.undrawn and not r["groups"]:  # sub_round's decisions without it: only a deadline can drop a message
+            if all(j in slot for j in r["nbs"] if j != self.id):  # every message on time: the whole row
+                r["wake"] = None
+                return r["nbs"], r["ws"], [r["z"] if j == self.id else slot[j] for j in r["nbs"]]
+            if self.deadline is None or self.clock() < r["open"] + self.deadline:  # wait (for all, or till then)
+                r["wake"] = None if self.deadline is None else r["open"] + self.deadline
                 return None
-            return r["nbs"], r["ws"], [r["z"] if j == self.id else slot[j] for j in r["nbs"]]
+            # past the deadline: sub_round records the missing messages as late
         now = self.clock() if (self.delayed or self.deadline is not None) else 0.0
         arrived = self.arrived.get((kind, tag), {}) if self.delayed else None
         got = sub_round(self.imp, self.sc.design.weights, tau=r["tau"], k=k + 1, me=self.id, nbs=r["nbs"],

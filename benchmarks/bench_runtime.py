@@ -21,8 +21,26 @@ With ``--baseline DIR`` (a checkout of an older commit with its own ``.venv``, e
 ``git worktree add /tmp/base <commit> && make -C /tmp/base setup``) every ring also runs with that
 checkout, interleaved (new, old, new, old...), and the table shows both.
 
+With ``--deadline D`` every ring also runs with ``network: {deadline: D}`` and nothing else (no loss, no
+delay): each sub-round waits at most D seconds for its neighbours, so the agent reads a monotonic clock
+and runs a timer (``NodeShell.run(timer=...)``) even when every message is on time.  Row ``dl`` of the
+table; the plain ring (no ``network:``: every sub-round waits for all its neighbours) is row ``new``,
+interleaved (new, dl, new, dl...).  D must be long enough that nothing is late on loopback (0.5 s is):
+every run's ``trajectory.npz`` ``lost`` is checked and its count shown (column ``lost``, all runs of the
+row).  A second table gives, per ring, the ratio deadline / plain of the medians, the median of the ratios
+of the interleaved pairs (each pair ran back to back, so a change of load between pairs cancels) and their
+interquartile range, with the 1-minute load average read after each run (min-max; the run's own
+processes count in it too).  ``--bare-messages 0`` skips the bare Zenoh measurement (the floors, which the
+deadline comparison does not need).  With both ``--baseline`` and ``--deadline`` the baseline runs both
+too (rows ``old`` and ``odl``; it must know ``network:``), so one invocation compares the deadline's cost
+before and after a change, interleaved.
+
     .venv/bin/python benchmarks/bench_runtime.py [--sizes 3 8 16 32] [--q 3 6] [--steps 200] [--repeat 2]
-        [--baseline DIR]
+        [--baseline DIR] [--deadline SECONDS] [--bare-messages N]
+
+    # the deadline policy without loss against wait-for-all (target: at most 1.1x ms/event)
+    .venv/bin/python benchmarks/bench_runtime.py --sizes 8 16 32 --q 3 --steps 200 --repeat 9 --deadline 0.5 \
+        --bare-messages 0
 """
 
 from __future__ import annotations
@@ -116,16 +134,21 @@ def deliveries_new(m: int, q: int) -> int:
     return (m + 1) + m + 1 + 2 * m * (q - 1) + 3 * m  # = 3m + 2 + 2mq on a ring
 
 
-def runtime_ring(m: int, q: int, steps: int) -> dict:
-    """The benchmark's ring (random_system, any m >= 3; generate.ring_scenario needs m >= 2 ceil(n / 2))."""
+def runtime_ring(m: int, q: int, steps: int, *, deadline: float | None = None) -> dict:
+    """The benchmark's ring (random_system, any m >= 3; generate.ring_scenario needs m >= 2 ceil(n / 2)).
+
+    ``deadline``: the same ring with ``network: {deadline: D}`` (no loss, no delay)."""
     from splitspec_core.generate import random_system
 
     A, Cs = random_system(np.random.default_rng(8), m, 6, time="discrete")
-    return {"name": f"ring{m}-q{q}", "time": "discrete",
-            "system": {"A": A.tolist(), "C": {i + 1: C.tolist() for i, C in enumerate(Cs)}},
-            "graphs": {"ring": {"undirected": [[i, i % m + 1] for i in range(1, m + 1)]}},
-            "design": {"rate": 0.999, "gains": "place", "q_method": "spectral", "q": q},
-            "run": {"steps": steps, "seed": 1}}
+    sc = {"name": f"ring{m}-q{q}", "time": "discrete",
+          "system": {"A": A.tolist(), "C": {i + 1: C.tolist() for i, C in enumerate(Cs)}},
+          "graphs": {"ring": {"undirected": [[i, i % m + 1] for i in range(1, m + 1)]}},
+          "design": {"rate": 0.999, "gains": "place", "q_method": "spectral", "q": q},
+          "run": {"steps": steps, "seed": 1}}
+    if deadline is not None:
+        sc["network"] = {"deadline": deadline}
+    return sc
 
 
 class RssSampler:
@@ -184,9 +207,13 @@ def run_ring(python: str, cwd: Path, scenario: Path, out: Path, run_id: str, wai
     fin = next(e for e in ev if e["event"] == "run_finished")
     started = next(e for e in ev if e["event"] == "run_started")
     ready = [e["startup_s"] for e in ev if e["event"] == "process_ready" and "startup_s" in e]
+    load = loadavg(1)
+    with np.load(out / "trajectory.npz") as traj:  # consensus messages that did not count (none on a perfect network)
+        lost = len(traj["lost"]) if "lost" in traj.files else 0
     return {"ms": 1e3 / fin["rounds_per_second"], "startup": started["wall"] - t0,
             "ready_max": max(ready) if ready else None,
-            "agent_mb": max(rss.get("agent", [0])), "orch_mb": max(rss.get("orchestrator", [0]))}
+            "agent_mb": max(rss.get("agent", [0])), "orch_mb": max(rss.get("orchestrator", [0])),
+            "lost": lost, "load": float("nan") if load == "n/a" else float(load)}
 
 
 def main() -> int:
@@ -195,44 +222,86 @@ def main() -> int:
     ap.add_argument("--q", type=int, nargs="+", default=[3, 6])
     ap.add_argument("--steps", type=int, default=200)
     ap.add_argument("--repeat", type=int, default=2)
-    ap.add_argument("--bare-messages", type=int, default=5000)
+    ap.add_argument("--bare-messages", type=int, default=5000, help="0: skip the bare Zenoh measurement (no floors)")
     ap.add_argument("--baseline", type=Path, help="an older checkout with its own .venv, run interleaved")
+    ap.add_argument("--deadline", type=float, metavar="SECONDS",
+                    help="also run every ring with network: {deadline: SECONDS} (no loss, no delay), interleaved")
     args = ap.parse_args()
     if args.baseline is not None and not (args.baseline / ".venv/bin/python").is_file():
         ap.error(f"--baseline {args.baseline}: no .venv/bin/python there (make -C {args.baseline} setup)")
     if min(args.sizes) < 3 or min(args.q) < 1:
         ap.error("--sizes must be rings of at least 3 agents and --q at least 1")
+    if args.deadline is not None and not args.deadline > 0:
+        ap.error(f"--deadline must be positive seconds, not {args.deadline:g}")
+    if args.bare_messages < 0 or 0 < args.bare_messages < 5:
+        ap.error("--bare-messages must be 0 (skip) or at least 5")
     tmp = Path(tempfile.mkdtemp(prefix="bench_runtime_"))
     print(f"# {os.cpu_count()} cpus; load average {loadavg()}", flush=True)
-    bare = [bare_cpu_per_delivery(args.bare_messages) for _ in range(args.repeat)]
-    cpu = statistics.median(bare)
-    print(f"# bare zenoh-python through a router: {cpu * 1e6:.0f} us CPU per delivery (median of "
-          f"{', '.join(f'{b * 1e6:.0f}' for b in bare)})", flush=True)
-    variants = [("new", sys.executable, ROOT)]
+    if args.bare_messages:
+        bare = [bare_cpu_per_delivery(args.bare_messages) for _ in range(args.repeat)]
+        cpu = statistics.median(bare)
+        print(f"# bare zenoh-python through a router: {cpu * 1e6:.0f} us CPU per delivery (median of "
+              f"{', '.join(f'{b * 1e6:.0f}' for b in bare)})", flush=True)
+    else:
+        cpu = float("nan")
+        print("# bare zenoh-python: skipped (--bare-messages 0): no floors", flush=True)
+    # (name, python, checkout, deadline of the scenario)
+    variants = [("new", sys.executable, ROOT, None)]
+    if args.deadline is not None:
+        variants.append(("dl", sys.executable, ROOT, args.deadline))
+        print(f"# dl: network: {{deadline: {args.deadline:g}}}, no loss, no delay; new: no network: (wait for all)",
+              flush=True)
     if args.baseline is not None:
-        variants.append(("old", str(args.baseline / ".venv/bin/python"), args.baseline))
+        variants.append(("old", str(args.baseline / ".venv/bin/python"), args.baseline, None))
+        if args.deadline is not None:
+            variants.append(("odl", str(args.baseline / ".venv/bin/python"), args.baseline, args.deadline))
     print(f"{'ring':>8} {'q':>2} {'code':>4} {'ms/event':>9} {'old floor':>9} {'new floor':>9} {'ratio':>6} "
-          f"{'agent MB':>8} {'orch MB':>7} {'start s':>7} {'ready s':>7}  load")
+          f"{'agent MB':>8} {'orch MB':>7} {'start s':>7} {'ready s':>7} {'lost':>4}  load")
+    pairs = []  # (m, q, {name: [run results]}) for the deadline table
     for m in args.sizes:
         for q in args.q:
-            path = tmp / f"ring{m}-q{q}.yaml"
-            path.write_text(yaml.safe_dump(runtime_ring(m, q, args.steps)))
-            res: dict = {name: [] for name, _, _ in variants}
+            paths = {}
+            for name, _, _, deadline in variants:
+                paths[name] = tmp / f"ring{m}-q{q}-{name}.yaml"
+                paths[name].write_text(yaml.safe_dump(runtime_ring(m, q, args.steps, deadline=deadline)))
+            res: dict = {name: [] for name, _, _, _ in variants}
             for k in range(args.repeat):
-                for name, python, cwd in variants:  # interleaved: new, old, new, old
+                for name, python, cwd, _ in variants:  # interleaved: new, dl, old, new, dl, old...
                     rid = f"bench-{m}-{q}-{name}-{k}-{os.getpid()}"
-                    res[name].append(run_ring(python, cwd, path, tmp / rid, rid, wait=max(60.0, 3.0 * m)))
+                    res[name].append(run_ring(python, cwd, paths[name], tmp / rid, rid, wait=max(60.0, 3.0 * m)))
             floor_old = deliveries_old(m, q) * cpu * 1e3
             floor_new = deliveries_new(m, q) * cpu * 1e3
             load = loadavg(1)
-            for name, _, _ in variants:
+            for name, _, _, _ in variants:
                 rs = res[name]
                 ms = statistics.median(r["ms"] for r in rs)
                 ready = [r["ready_max"] for r in rs if r["ready_max"] is not None]
                 print(f"{m:>8} {q:>2} {name:>4} {ms:>9.2f} {floor_old:>9.2f} {floor_new:>9.2f} {ms / floor_old:>6.2f} "
                       f"{max(r['agent_mb'] for r in rs):>8.0f} {max(r['orch_mb'] for r in rs):>7.0f} "
                       f"{statistics.median(r['startup'] for r in rs):>7.1f} "
-                      f"{(statistics.median(ready) if ready else float('nan')):>7.2f}  {load}", flush=True)
+                      f"{(statistics.median(ready) if ready else float('nan')):>7.2f} "
+                      f"{sum(r['lost'] for r in rs):>4}  {load}", flush=True)
+            pairs.append((m, q, res))
+    if args.deadline is not None:
+        print(f"\n# deadline {args.deadline:g} s (no loss, no delay) against wait-for-all: ms/event, medians of "
+              f"{args.repeat} interleaved pairs; pair ratio: median over the pairs of dl / new (run back to back)")
+        print(f"{'ring':>8} {'q':>2} {'plain':>8} {'deadline':>8} {'ratio':>6} {'pair ratio':>10} {'pair IQR':>11} "
+              f"{'lost':>4}  load (1 min, min-max over the runs)")
+        checkouts = [("new", "dl")] + ([("old", "odl")] if args.baseline is not None else [])
+        for m, q, res in pairs:
+            for p_name, d_name in checkouts:
+                plain, dl = res[p_name], res[d_name]
+                a, b = statistics.median(r["ms"] for r in plain), statistics.median(r["ms"] for r in dl)
+                prs = [d["ms"] / p["ms"] for p, d in zip(plain, dl)]
+                q1, _, q3 = statistics.quantiles(prs, n=4) if len(prs) > 1 else (prs[0],) * 3
+                loads = [r["load"] for r in plain + dl]
+                print(f"{m:>8} {q:>2} {a:>8.2f} {b:>8.2f} {b / a:>5.3f}x {statistics.median(prs):>9.3f}x "
+                      f"{q1:>5.3f}-{q3:>5.3f} {sum(r['lost'] for r in dl):>4}  "
+                      f"{min(loads):.2f}-{max(loads):.2f}" + ("  (baseline)" if p_name == "old" else ""), flush=True)
+        nlost = sum(r["lost"] for _, _, res in pairs for _, d_name in checkouts for r in res[d_name])
+        print(f"# lost in the deadline runs' trajectory.npz: {nlost} message{'s' * (nlost != 1)}"
+              + ("" if nlost == 0 else " (the deadline was too short for this machine: the figures are not "
+                 "'without loss')"), flush=True)
     return 0
 
 

@@ -269,8 +269,12 @@ class NodeShell:
 
         ``timer``: ``(next_wakeup, on_timer)`` of a node with deadlines (an agent on a network with
         ``network.deadline`` or delays): after every message the shell asks ``next_wakeup()`` (a monotonic
-        time or None) and the event loop calls ``on_timer()`` then, under the same lock, and publishes
-        what it returns.
+        time or None) and the event loop calls ``on_timer()`` once the clock reaches it, under the same
+        lock, and publishes what it returns.  The event loop's alarm is never later than ``next_wakeup()``:
+        a message that brings the wake-up before the alarm moves the alarm and wakes the loop (through the
+        inbox); one that moves it later (the next sub-round's deadline, almost every message of a run whose
+        messages arrive in time) leaves the loop asleep, and an alarm that rings early only re-arms it.
+        So a deadline run wakes the event loop about once per deadline, not once per round.
         """
         import signal
 
@@ -280,7 +284,7 @@ class NodeShell:
         code = 0
         lock = threading.Lock()
 
-        wake = [None]  # when the node wants on_timer (guarded by lock)
+        alarm = [None]  # when the event loop wakes up next, never after next_wakeup() (guarded by lock)
 
         def guarded(call, what: str) -> None:
             try:
@@ -293,9 +297,9 @@ class NodeShell:
                 self.log.info("%s: not sent (%s)", name, str(exc).split(" at ")[0])
             if timer is not None:
                 w = timer[0]()
-                if w is not None and (wake[0] is None or w < wake[0]):
-                    self.inbox.put(("timer", "", b""))  # the event loop sleeps until the earlier wake-up
-                wake[0] = w
+                if w is not None and (alarm[0] is None or w < alarm[0]):
+                    alarm[0] = w
+                    self.inbox.put(("timer", "", b""))  # the event loop re-arms for the earlier wake-up
 
         def handle(channel: str, key: str, payload: bytes) -> None:
             with lock:
@@ -310,13 +314,15 @@ class NodeShell:
         self._looping = True
         self.log.info("%s ready (pid %d)", name, os.getpid())
         while True:
-            due = wake[0]
+            due = alarm[0]
             item = self.inbox.get(timeout=1.0 if due is None else min(1.0, max(0.0, due - time.monotonic())))
             if timer is not None:
                 with lock:
-                    if not self._closing and wake[0] is not None and time.monotonic() >= wake[0]:
-                        wake[0] = None
-                        guarded(timer[1], "a deadline")
+                    if not self._closing:
+                        w = timer[0]()
+                        if w is not None and time.monotonic() >= w:
+                            guarded(timer[1], "a deadline")
+                        alarm[0] = timer[0]()  # early (the wake-up moved later, or there is none): re-armed
             if item is None or item[0] == "timer":
                 continue
             channel, key, payload = item
