@@ -231,3 +231,26 @@ def test_drawn_losses_are_not_waited_for_and_are_reported():
     lost = xhat_of(payload)["lost"]
     expected = [(k, j, 0) for k in range(1, 7) for j in (1, 3) if imp.lost(0, k, j, 2)]
     assert expected and list(zip(lost[0::3], lost[1::3], lost[2::3])) == expected
+
+
+def test_on_time_a_deadline_changes_nothing():
+    """Every message in time: a node with a deadline (and no loss or delay) publishes exactly what a node on a
+    perfect network publishes (the same operations in the same order: exact), loses nothing and wants no timer
+    once the event time is done; a message arriving past the deadline is the only thing it would drop."""
+    from splitspec_core.runtime.wire import decode
+
+    plain = node()
+    timed, now, xhat_of = lossy_node({"deadline": 0.02})
+    outs = []
+    for a in (plain, timed):
+        a.on_tick(tick(0))
+        got = []
+        for k in range(6):
+            got += a.on_z("splitspec/r/z/1", z(0, k, j=1, value=1.0 + k))
+            got += a.on_z("splitspec/r/z/3", z(0, k, j=3, value=-2.0 + k))
+            now[0] += 0.001  # well within each sub-round's deadline
+        got += a.on_y(y(0))
+        outs.append([decode(p, "r", "xhat", mac_key=KEY) for key, p in got if "xhat" in key])
+    assert len(outs[0]) == len(outs[1]) == 1
+    assert np.array_equal(outs[0][0]["x"], outs[1][0]["x"])
+    assert outs[1][0]["lost"] == [] and timed.next_wakeup() is None
