@@ -28,7 +28,6 @@ import math
 from typing import TYPE_CHECKING
 
 import numpy as np
-import scipy.linalg as sla
 
 if TYPE_CHECKING:  # the designer imports this module
     from .designer import Design
@@ -42,8 +41,16 @@ MAX_DIM = 1000
 SPLIT_EXACT = 1e-9
 
 
-def _blockdiag(blocks) -> np.ndarray:
-    return sla.block_diag(*blocks)  # zero-width blocks (V_i with n_i = 0) keep their rows
+def block_diagonal(blocks) -> np.ndarray:
+    """Block diagonal that keeps zero-width blocks (``V_i`` with ``n_i = 0``) as rows (numpy only: agent
+    processes import this module and never scipy)."""
+    out = np.zeros((sum(b.shape[0] for b in blocks), sum(b.shape[1] for b in blocks)))
+    r = c = 0
+    for b in blocks:
+        out[r:r + b.shape[0], c:c + b.shape[1]] = b
+        r += b.shape[0]
+        c += b.shape[1]
+    return out
 
 
 def full_error_matrix(A: np.ndarray, Cs, Ks, Ps, S: np.ndarray, *, time: str, q: int | None = None,
@@ -53,20 +60,20 @@ def full_error_matrix(A: np.ndarray, Cs, Ks, Ps, S: np.ndarray, *, time: str, q:
     n, m = A.shape[0], len(Cs)
     SI = np.kron(S, np.eye(n))
     if time == "discrete":
-        W = np.eye(m * n) - _blockdiag(Ps) @ (np.eye(m * n) - SI)  # eq. (split-discrete-p1..p3), one sub-round
-        return _blockdiag([A + K @ C for K, C in zip(Ks, Cs)]) @ np.linalg.matrix_power(W, int(q))
+        W = np.eye(m * n) - block_diagonal(Ps) @ (np.eye(m * n) - SI)  # eq. (split-discrete-p1..p3), one sub-round
+        return block_diagonal([A + K @ C for K, C in zip(Ks, Cs)]) @ np.linalg.matrix_power(W, int(q))
     from .steps import sampled_data_matrices
 
     E, D, _ = sampled_data_matrices(A, dt)
-    return (_blockdiag([E + D @ K @ C for K, C in zip(Ks, Cs)])
-            - g * _blockdiag([D @ P for P in Ps]) @ (np.eye(m * n) - SI))
+    return (block_diagonal([E + D @ K @ C for K, C in zip(Ks, Cs)])
+            - g * block_diagonal([D @ P for P in Ps]) @ (np.eye(m * n) - SI))
 
 
 def ode_error_matrix(A: np.ndarray, Cs, Ks, Ps, S: np.ndarray, g: float) -> np.ndarray:
     """``Abar - g P (I - Sbar)`` (eq. split_continuous_em)."""
     n, m = np.shape(A)[0], len(Cs)
-    return (_blockdiag([np.asarray(A) + K @ C for K, C in zip(Ks, Cs)])
-            - g * _blockdiag(Ps) @ (np.eye(m * n) - np.kron(S, np.eye(n))))
+    return (block_diagonal([np.asarray(A) + K @ C for K, C in zip(Ks, Cs)])
+            - g * block_diagonal(Ps) @ (np.eye(m * n) - np.kron(S, np.eye(n))))
 
 
 def _case_parts(des: "Design", case):
@@ -204,7 +211,7 @@ def error_dynamics(des: "Design", graph_index: int = 0) -> tuple:
     Ps = [np.asarray(P) for P in des.Ps]
     if sc.time == "discrete":
         M = full_error_matrix(sc.system.A, Cs, Ks, Ps, S, time="discrete", q=des.q)
-        G = _blockdiag(Ks)
+        G = block_diagonal(Ks)
     else:
         if des.g is None:
             raise DesignError("the adaptive gain has no steady-state error covariance (g changes with time)")
@@ -212,7 +219,7 @@ def error_dynamics(des: "Design", graph_index: int = 0) -> tuple:
 
         M = full_error_matrix(sc.system.A, Cs, Ks, Ps, S, time="continuous", g=des.g, dt=sc.run.dt)
         _, D, _ = sampled_data_matrices(np.asarray(sc.system.A), sc.run.dt)
-        G = _blockdiag([D @ K for K in Ks])
+        G = block_diagonal([D @ K for K in Ks])
     one = np.kron(np.ones((m, 1)), np.eye(n))
     N = G @ R @ G.T + one @ Qn @ one.T
     return M, 0.5 * (N + N.T)

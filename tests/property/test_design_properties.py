@@ -32,6 +32,7 @@ from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 
 from splitspec_core.designer import design
+from splitspec_core.full_matrix import block_diagonal
 from splitspec_core.observability import decompose, threshold_of
 from splitspec_core.scenario_model import parse_scenario
 
@@ -56,19 +57,6 @@ def examples(n: int) -> int:
 # --------------------------------------------------------------------------
 # dense objects of the paper
 # --------------------------------------------------------------------------
-
-
-def blockdiag(blocks) -> np.ndarray:
-    """Block diagonal that keeps zero-width blocks (``V_i`` with ``n_i = 0``) as rows."""
-    rows = sum(b.shape[0] for b in blocks)
-    cols = sum(b.shape[1] for b in blocks)
-    out = np.zeros((rows, cols))
-    r = c = 0
-    for b in blocks:
-        out[r:r + b.shape[0], c:c + b.shape[1]] = b
-        r += b.shape[0]
-        c += b.shape[1]
-    return out
 
 
 def complement(V: np.ndarray) -> np.ndarray:
@@ -156,10 +144,10 @@ class Full:
         self.dsg, self.sc = dsg, sc
         self.n, self.m, self.rate = sc.n, sc.m, sc.design.rate
         A = sc.system.A
-        self.Abar = blockdiag([A + K @ C for K, C in zip(dsg.Ks, sc.system.Cs)])
-        self.P = blockdiag(dsg.Ps)
-        self.V = blockdiag(dsg.Vs)  # mn x nbar
-        self.Q = blockdiag([complement(V).T for V in dsg.Vs])  # (mn - nbar) x mn
+        self.Abar = block_diagonal([A + K @ C for K, C in zip(dsg.Ks, sc.system.Cs)])
+        self.P = block_diagonal(dsg.Ps)
+        self.V = block_diagonal(dsg.Vs)  # mn x nbar
+        self.Q = block_diagonal([complement(V).T for V in dsg.Vs])  # (mn - nbar) x mn
         self.sizes = [V.shape[1] for V in dsg.Vs]
         # bounds.make_case takes A_i = V_i'A V_i (eq. QA2 with C_i V_i = 0); ours carries V_i'K_i C_i V_i,
         # round-off of size |K_i| |C_i| eps: part of the formation scale in cross-checks
@@ -400,7 +388,7 @@ def test_discrete_q_certificates_from_full_matrices(drawn, data):
                 assert na * nbp**res.pbar <= lam * (1 + 1e-12)
                 assert mixed_norm(full.Atil @ np.linalg.matrix_power(B, q), sizes, sizes) <= lam * (1 + 1e-9)
         elif method == "weighted":
-            # eq. (rnorm) with R = V'(Pi (x) I)V = blockdiag(pi_i I_{n_i}), pi the Perron vector of S
+            # eq. (rnorm) with R = V'(Pi (x) I)V = block_diagonal(pi_i I_{n_i}), pi the Perron vector of S
             for g in dsg.graphs:
                 pi = perron(g.S)
                 assert np.all(pi > 0)
@@ -509,7 +497,7 @@ def test_continuous_switching_certificates(drawn, data):
     else:
         assert dsg.g_arbitrary is None
     # eq. (split_continuous_g): |exp(-V'(I - Sbar)V t)| <= c exp(-lam_star t) from the H-Lyapunov function
-    # (H = blockdiag(pi_i I_{n_i}) (eq. H): agents with n_i = 0 carry no weight)
+    # (H = block_diagonal(pi_i I_{n_i}) (eq. H): agents with n_i = 0 carry no weight)
     c, lam_star = 1.0, math.inf
     for gr in graphs:
         pi = perron(gr.S)
