@@ -80,7 +80,21 @@ def test_a_perturbed_model_keeps_the_exact_design(seed, time, imperfection):
         assert any("set design.rank_tol below" in w for w in exact.warnings), exact.warnings
         event("exact design not certified: rank_tol named")
         return
-    assert [a.dec.n_unobservable for a in imperfect.agents] == [a.dec.n_unobservable for a in exact.agents]
+    changed = [(a, b) for a, b in zip(imperfect.agents, exact.agents) if a.dec.n_unobservable != b.dec.n_unobservable]
+    if changed:
+        # a perturbation within 10x of the threshold (1e-4 against 1e-3) can pass for a full step of a weak chain
+        # (measured: 19 and 8 agents in 10,098 at noise 1e-4 and 4 decimals, none at 1e-5 or 5 decimals and
+        # below; observability.py): the design must then name the agent and the knob
+        for a, b in changed:
+            if a.dec.n_unobservable < b.dec.n_unobservable:  # sees more than the exact model: weakly
+                assert any(f"agent {a.id} sees a direction with an observability margin of only" in w
+                           and "design.rank_tol" in w for w in imperfect.conditioning.warnings), \
+                    (a.id, imperfect.conditioning.warnings)
+            else:  # sees less: a direction left to consensus, said so
+                assert any("weakly observable direction" in w for w in imperfect.warnings), imperfect.warnings
+        assert delta >= 1e-4, (delta, [a.id for a, _ in changed])
+        event("the perturbation changed a split: the agent and design.rank_tol named")
+        return
     # the gains move by the perturbation times the agent's conditioning, about 1 / margin (measured: 0.3 / margin)
     for a, b in zip(imperfect.agents, exact.agents):
         cond = 10.0 / (b.dec.margin or 1.0)
