@@ -107,6 +107,13 @@ def build_parser() -> argparse.ArgumentParser:
                    "the losses, rejoins, link changes and partitions of its events.jsonl replace the scenario's "
                    "faults, and the consensus messages its trajectory.npz records as lost are dropped (use the "
                    "run's scenario.yaml)")
+    meas = p.add_mutually_exclusive_group()
+    meas.add_argument("--measurements", metavar="FILE", help="estimate from these recorded measurements instead of "
+                      "the simulated plant (.npz: t, y_<id>, optional x; .csv: header t, y<id>.<row>, x.<k>; one row "
+                      "per event time); without x the outputs hold residuals, disagreement and the distance to the "
+                      "centralized Kalman filter")
+    meas.add_argument("--write-measurements", metavar="FILE", help="also write the simulated plant's measurements "
+                      "and truth as a measurements file (.npz or .csv), which --measurements reads back")
     p.set_defaults(func=_command("study:cmd_simulate"))
 
     p = sub.add_parser("compare", help="estimation quality under noise: against the centralized Kalman filter "

@@ -134,8 +134,10 @@ def errors_figure(traj, *, time: str, rate: float | None, title: str, marks=(), 
     return fig
 
 
-def plot_states(traj, path: Path, *, time: str, title: str, marks=(), max_components: int = 8) -> None:
-    """Each state component: truth (black) versus every agent's estimate, events marked."""
+def plot_states(traj, path: Path, *, time: str, title: str, marks=(), max_components: int = 8,
+                reference=None) -> None:
+    """Each state component: truth (black) versus every agent's estimate, events marked; without truth,
+    ``reference`` (the centralized Kalman filter on the same measurements, (T, n)) in its place."""
     n = min(traj.x.shape[1], max_components)
     fig, axes = plt.subplots(n, 1, figsize=(9.0, 1.6 * n + 0.8), sharex=True, squeeze=False, layout="constrained")
     extra = []
@@ -143,14 +145,18 @@ def plot_states(traj, path: Path, *, time: str, title: str, marks=(), max_compon
         ax = axes[c, 0]
         for k, aid in enumerate(traj.agent_ids):
             ax.plot(traj.t, traj.xhat[:, k, c], lw=1.0, label=f"agent {aid}")
-        ax.plot(traj.t, traj.x[:, c], "k", lw=2.0, alpha=0.6, label="truth")
+        if reference is None:
+            ax.plot(traj.t, traj.x[:, c], "k", lw=2.0, alpha=0.6, label="truth")
+        else:
+            ax.plot(traj.t, reference[:, c], "k--", lw=1.6, alpha=0.7, label="centralized KF")
         extra = _draw_marks(ax, marks, text=False)
         ax.set_ylabel(f"x{c + 1}")
         ax.grid(True, alpha=0.3)
-        early = np.nanmax(np.abs(traj.x[: max(2, traj.t.size // 10), c]))
-        if early > 0 and np.nanmax(np.abs(traj.x[:, c])) > 50 * early:  # a growing mode: keep the transient in view
+        big = traj.x[:, c] if reference is None else reference[:, c]
+        early = np.nanmax(np.abs(big[: max(2, traj.t.size // 10)]))
+        if early > 0 and np.nanmax(np.abs(big)) > 50 * early:  # a growing mode: keep the transient in view
             ax.set_yscale("symlog", linthresh=early)
-            d0, d1 = math.ceil(math.log10(early)), math.floor(math.log10(np.nanmax(np.abs(traj.x[:, c]))))
+            d0, d1 = math.ceil(math.log10(early)), math.floor(math.log10(np.nanmax(np.abs(big))))
             dec = [10.0 ** d for d in range(d0, d1 + 1, max(1, math.ceil((d1 - d0 + 1) / 3)))]
             ax.set_yticks([-v for v in dec[::-1]] + [0.0] + dec)  # a few decades each side, readable
             ax.minorticks_off()
@@ -288,4 +294,27 @@ def plot_network_sweep(res: dict, path: Path) -> None:
                  + ("\n(green: certified under loss)" if certified else "\n(no level certified under loss: see "
                                                                        f"{p}_sweep.json)"), fontsize=11)
     fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def plot_reference(traj, ref: dict, path: Path, *, time: str, title: str, marks=()) -> None:
+    """Without truth, what can be known (:mod:`splitspec_core.reference`): each agent's measurement residual,
+    the consensus disagreement and each agent's distance to the centralized Kalman filter, log scale."""
+    fig, axes = plt.subplots(3, 1, figsize=(9.5, 8.0), sharex=True, layout="constrained")
+    panels = [("residual", "|y_i - C_i x_i|"), ("kf_distance", "|x_i - x_KF|")]
+    for ax, (key, label) in zip((axes[0], axes[2]), panels):
+        for k, aid in enumerate(traj.agent_ids):
+            ax.semilogy(traj.t, ref[key][:, k], lw=1.1, label=f"agent {aid}")
+        ax.set_ylabel(label)
+    axes[1].semilogy(traj.t, ref["disagreement"], color="k", lw=1.3, label="max_ij |x_i - x_j|")
+    axes[1].set_ylabel("disagreement")
+    axes[0].set_title(title + "\nmeasurement residuals, consensus disagreement, distance to the centralized Kalman filter")
+    extra = []
+    for ax in axes:
+        extra = _draw_marks(ax, marks, text=False)
+        ax.grid(True, which="both", alpha=0.3)
+    axes[-1].set_xlabel(_xlabel(time))
+    handles, _ = axes[0].get_legend_handles_labels()
+    fig.legend(handles=handles + [axes[1].get_lines()[0]] + extra, loc="outside right upper", fontsize=8)
+    fig.savefig(path, dpi=110)
     plt.close(fig)

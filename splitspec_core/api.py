@@ -236,7 +236,8 @@ def _designed(sc_or_design: Scenario | DesignResult | Design) -> Design:
 
 
 def simulate(sc: Scenario | DesignResult, *, steps: int | None = None, seed: int | None = None,
-             noise: bool = True, exact: bool = False, progress: bool | None = False, lost=None) -> Trajectory:
+             noise: bool = True, exact: bool = False, progress: bool | None = False, lost=None,
+             measurements=None, keep_y: bool = False) -> Trajectory:
     """Simulate in-process: the reference the multi-process ``splitspec run`` reproduces.
 
     The same scenario and seed give the trajectory ``splitspec simulate`` writes (and, to
@@ -245,6 +246,9 @@ def simulate(sc: Scenario | DesignResult, *, steps: int | None = None, seed: int
     ``exact=True`` integrates the continuous-time ODE of eq. (split_continuous_observer)
     noise-free instead of the sampled-data estimator.  ``lost``: replay a run's recorded consensus
     losses (its ``trajectory.npz`` ``lost``, or ``(lost, lost_cause)``) instead of drawing the scenario's.
+    ``measurements``: the user's recorded ``y`` instead of the simulated plant (a path to an ``.npz`` or
+    ``.csv`` file, :mod:`splitspec_core.measurements`, or a loaded ``Measurements``); ``keep_y`` records the
+    simulated plant's measurements in ``Trajectory.y``.
 
     Returns
     -------
@@ -256,10 +260,19 @@ def simulate(sc: Scenario | DesignResult, *, steps: int | None = None, seed: int
     from .simulator import check_trajectory_memory, simulate as _simulate, simulate_exact
 
     des = _designed(sc)
-    check_trajectory_memory(des.scenario, steps, key="steps" if steps is not None else "run.steps")
+    if measurements is not None and not hasattr(measurements, "sha256"):
+        from .measurements import load_measurements
+
+        measurements = load_measurements(measurements, des.scenario, steps=steps)
+    if measurements is None:
+        check_trajectory_memory(des.scenario, steps, key="steps" if steps is not None else "run.steps")
     if exact:
+        if measurements is not None:
+            raise ScenarioError("exact=True integrates the noise-free ODE; measurements drive the sampled-data "
+                                "estimator: use one")
         return simulate_exact(des, seed=seed, steps=steps)
-    return _simulate(des, seed=seed, steps=steps, noise=noise, progress=progress, lost=lost)
+    return _simulate(des, seed=seed, steps=steps, noise=noise, progress=progress, lost=lost,
+                     measurements=measurements, keep_y=keep_y)
 
 
 # --------------------------------------------------------------------------

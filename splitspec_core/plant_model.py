@@ -79,6 +79,10 @@ class Plant:
         self.x = self.F @ self.x + self.L @ self.proc.normal(size=self.x.shape[0])
         return self.x
 
+    def missing(self) -> None:
+        """Every agent measures every step."""
+        return None
+
 
 def _psd_sqrt(Q: np.ndarray) -> np.ndarray:
     if not np.any(Q):
@@ -88,3 +92,30 @@ def _psd_sqrt(Q: np.ndarray) -> np.ndarray:
     except np.linalg.LinAlgError:
         w, U = np.linalg.eigh(Q)
         return U * np.sqrt(np.clip(w, 0, None))
+
+
+class RecordedPlant:
+    """The plant of a measurements file (:mod:`splitspec_core.measurements`): row ``k`` of ``y`` at step ``k``.
+
+    The same interface as :class:`Plant`: ``x`` is the file's truth at that row (NaN when it has none),
+    ``measure()`` the stacked ``y`` row, ``missing()`` which agents have no measurement there.
+    """
+
+    def __init__(self, meas, n: int):
+        self.meas = meas
+        self.k = 0
+        self._nan = np.full(n, np.nan)
+
+    @property
+    def x(self) -> np.ndarray:
+        return self.meas.x[self.k] if self.meas.x is not None else self._nan
+
+    def measure(self) -> np.ndarray:
+        return self.meas.y[self.k]
+
+    def missing(self) -> np.ndarray:
+        return self.meas.missing[self.k]
+
+    def advance(self) -> np.ndarray:
+        self.k += 1
+        return self.x

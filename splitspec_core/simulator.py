@@ -36,7 +36,7 @@ from . import steps as st
 from .designer import Design
 from .errors import ScenarioError
 from .network import NetworkState, Plan, make_plan
-from .plant_model import Plant, initial_estimate, initial_state, output_rows
+from .plant_model import Plant, RecordedPlant, initial_estimate, initial_state, output_rows
 from .impairment import PARTITION, Impairment, crosses, group_of, realized_row
 from .scenario_model import Scenario
 from .trajfile import lost_arrays, write_trajectory
@@ -76,6 +76,11 @@ class Trajectory:
         receiver i)`` (agent ids), sorted (:mod:`splitspec_core.impairment`); empty on a perfect network
     lost_cause : (N,) int8
         Why each did not count: 0 loss, 1 late, 2 partition (``impairment.CAUSES``)
+    y : (T, sum s_i), optional
+        The measurements the estimators were given (a measurements file or live sensors), stacked in agent
+        order, 0.0 where missing; None when a simulated plant drew them
+    y_missing : (T, m) bool, optional
+        No measurement of agent i at that step (the agent predicted only)
     """
 
     t: np.ndarray
@@ -87,20 +92,29 @@ class Trajectory:
     gains: np.ndarray | None = None
     lost: np.ndarray = field(default_factory=lambda: np.zeros((0, 4), dtype=np.int64))
     lost_cause: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int8))
+    y: np.ndarray | None = None
+    y_missing: np.ndarray | None = None
+
+    @property
+    def has_truth(self) -> bool:
+        """``x`` is known (a simulated plant, or measurements with their truth); else it is all NaN."""
+        return bool(np.isfinite(self.x).any())
 
     def errors(self) -> np.ndarray:
         """``|x_i(t) - x(t)|_2`` per agent, shape (T, m), NaN where dead."""
         return np.linalg.norm(self.xhat - self.x[:, None, :], axis=2)
 
-    def save(self, path: str | Path) -> None:
+    def save(self, path: str | Path, extra: dict | None = None) -> None:
         """Atomically write ``path`` (the one writer of the contract, :func:`~splitspec_core.trajfile.write_trajectory`)."""
         write_trajectory(path, t=self.t, x=self.x, xhat=self.xhat, alive=self.alive, graph=self.graph,
-                         agent_ids=self.agent_ids, g=self.gains, lost=self.lost, lost_cause=self.lost_cause)
+                         agent_ids=self.agent_ids, g=self.gains, lost=self.lost, lost_cause=self.lost_cause,
+                         extra={**({"y": self.y, "y_missing": self.y_missing} if self.y is not None else {}),
+                                **(extra or {})})
 
     @classmethod
     def load(cls, path: str | Path) -> "Trajectory":
         with np.load(path) as f:
-            extra = {k: f[k] for k in ("lost", "lost_cause") if k in f.files}
+            extra = {k: f[k] for k in ("lost", "lost_cause", "y", "y_missing") if k in f.files}
             return cls(t=f["t"], x=f["x"], xhat=f["xhat"], alive=f["alive"], graph=f["graph"],
                        agent_ids=f["agent_ids"], gains=f["g"] if "g" in f.files else None, **extra)
 
@@ -272,12 +286,16 @@ class BatchEstimator(_EstimatorBase):
         G = (self.VT @ sp.kron(W, sp.identity(self.n), format="csr")).tocsr()
         return (G @ self.Vbig).tocsr(), G
 
-    def step(self, X: np.ndarray, y: np.ndarray, W, alive: np.ndarray) -> np.ndarray:
+    def step(self, X: np.ndarray, y: np.ndarray, W, alive: np.ndarray, missing=None) -> np.ndarray:
+        """One step; ``missing`` (m,) bool: agents without a measurement this step (prediction only)."""
         Y = np.zeros((self.m, self.Kp.shape[2]))
         Y[self._yidx] = y
         if self.continuous:
             diff = X - W @ X
-            corr = _bmv(self.KC, X) - _bmv(self.Kp, Y) - self.g[:, None] * _bmv(self.Pst, diff)
+            innov = _bmv(self.KC, X) - _bmv(self.Kp, Y)
+            if missing is not None and missing.any():
+                innov[missing] = 0.0  # steps.sampled_step with y_i None
+            corr = innov - self.g[:, None] * _bmv(self.Pst, diff)
             Xn = X @ self.E.T + corr @ self.D.T
             if self.adaptive:
                 # eq. (adaptive): |V_i'(avg_i - x_i)|^2 = diff' P_i diff
@@ -292,9 +310,15 @@ class BatchEstimator(_EstimatorBase):
                 # eq. split-discrete-p2 in V coordinates: w_i <- V_i' sum_j w_ij z_j
                 w = c + _spmv(B, w)
             Z = U + _spmv(self.Vbig, w).reshape(self.m, self.n)
-            # eq. split-discrete-est1
-            Xn = _bmv(self.Fst, Z) - _bmv(self.Kp, Y)
+            Xn = self._update(Z, Y, missing)
         Xn[~alive] = 0.0
+        return Xn
+
+    def _update(self, Z: np.ndarray, Y: np.ndarray, missing) -> np.ndarray:
+        """Eq. split-discrete-est1; an agent without a measurement predicts, ``A z_i(q)`` (steps.prediction_update)."""
+        Xn = _bmv(self.Fst, Z) - _bmv(self.Kp, Y)
+        if missing is not None and missing.any():
+            Xn[missing] = Z[missing] @ self.A.T
         return Xn
 
 
@@ -322,17 +346,17 @@ class BatchEstimator(_EstimatorBase):
             out.append(_RealizedS(self.m, rk, ci[keep], wk))
         return out
 
-    def step_realized(self, X: np.ndarray, y: np.ndarray, Ws: list, alive: np.ndarray) -> np.ndarray:
+    def step_realized(self, X: np.ndarray, y: np.ndarray, Ws: list, alive: np.ndarray, missing=None) -> np.ndarray:
         """One step with a realized consensus matrix per exchange (``Ws``: q sparse ``S_k``, or one in continuous
         time): eq. (split-discrete-p2) as ``z <- z + P_i (S_k z - z)_i``, then eq. (split-discrete-est1)."""
         Y = np.zeros((self.m, self.Kp.shape[2]))
         Y[self._yidx] = y
         if self.continuous:
-            return self.step(X, y, Ws[0], alive)
+            return self.step(X, y, Ws[0], alive, missing)
         Z = X.copy()
         for Wk in Ws:
             Z = Z + _bmv(self.Pst, Wk @ Z - Z)
-        Xn = _bmv(self.Fst, Z) - _bmv(self.Kp, Y)
+        Xn = self._update(Z, Y, missing)
         Xn[~alive] = 0.0
         return Xn
 
@@ -347,9 +371,16 @@ class AgentLoopEstimator(_EstimatorBase):
     def weights(self, rows: dict) -> dict:
         return rows
 
-    def step(self, X: np.ndarray, y: np.ndarray, rows: dict, alive: np.ndarray) -> np.ndarray:
+    def _ys(self, y: np.ndarray, missing) -> list:
+        """Each agent's ``y_i``, None where it has no measurement this step."""
+        return [None if missing is not None and missing[k] else y[r] for k, r in enumerate(self.rows)]
+
+    def _update(self, i: int, z: np.ndarray, y_i) -> np.ndarray:
+        return st.prediction_update(z, self.A) if y_i is None else st.measurement_update(z, self.F[i], self.Ks[i], y_i)
+
+    def step(self, X: np.ndarray, y: np.ndarray, rows: dict, alive: np.ndarray, missing=None) -> np.ndarray:
         pos = {a: k for k, a in enumerate(self.sc.agent_ids)}
-        ys = [y[r] for r in self.rows]
+        ys = self._ys(y, missing)
         Xn = np.zeros_like(X)
         if self.continuous:
             g_next = self.g.copy()
@@ -372,7 +403,7 @@ class AgentLoopEstimator(_EstimatorBase):
             Z = Zn
         for i_id in rows:
             i = pos[i_id]
-            Xn[i] = st.measurement_update(Z[i], self.F[i], self.Ks[i], ys[i])
+            Xn[i] = self._update(i, Z[i], ys[i])
         return Xn
 
     def realized(self, rows: dict, entries: tuple, counts: list) -> list:
@@ -389,13 +420,13 @@ class AgentLoopEstimator(_EstimatorBase):
                         for i, (nbs, ws) in rows.items()})
         return out
 
-    def step_realized(self, X: np.ndarray, y: np.ndarray, Ws: list, alive: np.ndarray) -> np.ndarray:
+    def step_realized(self, X: np.ndarray, y: np.ndarray, Ws: list, alive: np.ndarray, missing=None) -> np.ndarray:
         """One step with each exchange's realized rows (``Ws``: per exchange, ``{i: (nbs, ws)}``), exactly as the
         agent processes compute it (:func:`splitspec_core.impairment.realized_row`)."""
         if self.continuous:
-            return self.step(X, y, Ws[0], alive)
+            return self.step(X, y, Ws[0], alive, missing)
         pos = {a: k for k, a in enumerate(self.sc.agent_ids)}
-        ys = [y[r] for r in self.rows]
+        ys = self._ys(y, missing)
         Xn = np.zeros_like(X)
         Z = X.copy()
         for rows in Ws:
@@ -406,7 +437,7 @@ class AgentLoopEstimator(_EstimatorBase):
             Z = Zn
         for i_id in Ws[0]:
             i = pos[i_id]
-            Xn[i] = st.measurement_update(Z[i], self.F[i], self.Ks[i], ys[i])
+            Xn[i] = self._update(i, Z[i], ys[i])
         return Xn
 
 
@@ -442,7 +473,7 @@ class _Progress:
 
 def simulate(des: Design, *, seed: int | None = None, steps: int | None = None, noise: bool = True,
              estimator: str = "batch", progress: bool | None = False, plan: Plan | None = None,
-             lost=None) -> Trajectory:
+             lost=None, measurements=None, keep_y: bool = False) -> Trajectory:
     """Simulate the scenario of a design (see the module docstring).
 
     Parameters
@@ -460,13 +491,24 @@ def simulate(des: Design, *, seed: int | None = None, steps: int | None = None, 
     lost : (N, 4) int array, or ``(lost, lost_cause)``, optional
         Replay: exactly these consensus messages do not count (a run's recorded ``lost``), instead of the
         scenario's drawn losses (:mod:`splitspec_core.impairment`).
+    measurements : :class:`~splitspec_core.measurements.Measurements`, optional
+        The user's recorded ``y`` instead of the simulated plant: ``steps`` defaults to the file's (``T - 1``),
+        ``x`` is the file's truth (NaN without one), an agent without a measurement at a row predicts only;
+        the trajectory then also holds ``y`` and ``y_missing``.
+    keep_y : bool
+        Also record the simulated plant's measurements in ``y`` (what ``simulate --write-measurements`` writes).
     """
     sc = des.scenario
     seed = sc.run.seed if seed is None else seed
+    if measurements is not None:
+        if steps is not None and steps > measurements.steps:
+            raise ScenarioError(f"measurements {measurements.path} has {measurements.steps} steps; "
+                                f"{steps} asked for")
+        steps = measurements.steps if steps is None else steps
     check_trajectory_memory(sc, plan.steps if plan is not None else steps)
     plan = plan or make_plan(sc, seed, steps)
     est = BatchEstimator(des) if estimator == "batch" else AgentLoopEstimator(des)
-    plant = Plant(sc, seed, noise=noise)
+    plant = Plant(sc, seed, noise=noise) if measurements is None else RecordedPlant(measurements, sc.n)
     m, n, T = sc.m, sc.n, plan.steps + 1
     ids = sc.agent_ids
     X = np.stack([initial_estimate(n, seed, i) for i in range(m)])
@@ -484,6 +526,7 @@ def simulate(des: Design, *, seed: int | None = None, steps: int | None = None, 
     impaired = imp is not None or replay is not None or any(f.action == "partition" for f in sc.faults)
     exchanges = 1 if est.continuous else int(des.q)
     lost_rows: list = []
+    ys = np.zeros((T, sum(np.shape(C)[0] for C in sc.system.Cs))) if keep_y else None
     for k in range(T):
         killed, rejoined = net.apply(plan.faults.get(k, ()))
         for i in killed:
@@ -498,20 +541,29 @@ def simulate(des: Design, *, seed: int | None = None, steps: int | None = None, 
         if est.continuous:
             gains[k][alive] = est.g[alive]
         if k == plan.steps:
+            if ys is not None and measurements is None:
+                ys[k] = plant.measure()  # the last row's measurement (drawn after every other draw)
             break
-        y = plant.measure()
+        y, missing = plant.measure(), plant.missing()
+        if ys is not None and measurements is None:
+            ys[k] = y
         key = net.key(plan.graph_seq[k])
         W = w_cache.get(key)
         if W is None:
             rows = net.rows(sc, key[0])
             W = w_cache[key] = (est.weights(rows), rows, _entries(sc, rows))
         Ws = _realized_step(est, sc, W, k, exchanges, imp, replay, net.groups, lost_rows) if impaired else None
-        X = est.step(X, y, W[0], alive) if Ws is None else est.step_realized(X, y, Ws, alive)
+        X = est.step(X, y, W[0], alive, missing) if Ws is None else est.step_realized(X, y, Ws, alive, missing)
         plant.advance()
         bar.update(k + 1)
     lost_a, cause_a = lost_arrays(lost_rows)
+    recorded = {}
+    if measurements is not None:  # what the estimators were given, for the views without truth
+        recorded = {"y": measurements.y[:T].copy(), "y_missing": measurements.missing[:T].copy()}
+    elif ys is not None:
+        recorded = {"y": ys, "y_missing": np.zeros((T, m), dtype=bool)}
     return Trajectory(t=plan.times(), x=xs, xhat=xh, alive=al, graph=plan.graph_seq.copy(),
-                      agent_ids=np.array(ids), gains=gains, lost=lost_a, lost_cause=cause_a)
+                      agent_ids=np.array(ids), gains=gains, lost=lost_a, lost_cause=cause_a, **recorded)
 
 
 def _replay_index(lost) -> dict:

@@ -5,7 +5,9 @@ Discrete two-rate estimator (eqs. split-discrete-est1 .. p3)
 ``z_i(0) = x_i(tau)``;  for ``k = 1..q``:
 ``z_i(k) = (I - P_i) z_i(k-1) + P_i sum_{j in N_i} w_ij z_j(k-1)``
 (``w_ij = 1/m_i`` for uniform weights, or the Metropolis weights);
-``x_i(tau+1) = (A + K_i C_i) z_i(q) - K_i y_i(tau)``.
+``x_i(tau+1) = (A + K_i C_i) z_i(q) - K_i y_i(tau)``, or, when agent i has no measurement at
+``tau`` (a live sensor silent or stale, a recorded gap), the prediction ``x_i(tau+1) = A z_i(q)``
+(the same update with the innovation ``C_i z_i(q) - y_i`` taken as zero).
 
 Continuous time, sampled-data form (one exchange per ``dt``)
 -----------------------------------------------------------
@@ -37,6 +39,7 @@ __all__ = [
     "weighted_average",
     "consensus_subround",
     "measurement_update",
+    "prediction_update",
     "sampled_data_matrices",
     "sampled_step",
     "adaptive_gain_rate",
@@ -69,6 +72,11 @@ def measurement_update(z_q: np.ndarray, F_i: np.ndarray, K_i: np.ndarray, y_i: n
     return F_i @ z_q - K_i @ y_i
 
 
+def prediction_update(z_q: np.ndarray, A: np.ndarray) -> np.ndarray:
+    """No measurement at ``tau``: ``x_i(tau+1) = A z_i(q)`` (eq. split-discrete-est1 without its innovation)."""
+    return A @ z_q
+
+
 def sampled_data_matrices(A: np.ndarray, dt: float, *, noise_intensity: float = 0.0) -> tuple:
     """``(E, D, Qd)`` for step ``dt``: ``E = exp(A dt)``, ``D = int_0^dt exp(A s) ds`` and the
     process-noise covariance ``Qd = sigma^2 int_0^dt exp(A s) exp(A s)' ds`` (Van Loan)."""
@@ -94,11 +102,14 @@ def sampled_data_matrices(A: np.ndarray, dt: float, *, noise_intensity: float = 
 
 
 def sampled_step(x_i: np.ndarray, E: np.ndarray, D: np.ndarray, K_i: np.ndarray, C_i: np.ndarray,
-                 y_i: np.ndarray, P_i: np.ndarray, g_i: float, neighbour_states: Sequence[np.ndarray],
+                 y_i: np.ndarray | None, P_i: np.ndarray, g_i: float, neighbour_states: Sequence[np.ndarray],
                  weights: Sequence[float]) -> np.ndarray:
-    """One sampled-data step of eq. (split_continuous_observer) (see the module docstring)."""
+    """One sampled-data step of eq. (split_continuous_observer) (see the module docstring); ``y_i`` None: no
+    measurement this step, the innovation term ``K_i (C_i x_i - y_i)`` is left out (prediction and consensus)."""
     avg = weighted_average(neighbour_states, weights)
-    corr = K_i @ (C_i @ x_i - y_i) - g_i * (P_i @ (x_i - avg))
+    corr = -g_i * (P_i @ (x_i - avg))
+    if y_i is not None:
+        corr = K_i @ (C_i @ x_i - y_i) + corr
     return E @ x_i + D @ corr
 
 

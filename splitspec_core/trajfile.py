@@ -23,9 +23,14 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["TRAJECTORY_FILE", "write_trajectory", "no_gains", "lost_arrays"]
+__all__ = ["TRAJECTORY_FILE", "OPTIONAL", "write_trajectory", "no_gains", "lost_arrays"]
 
 TRAJECTORY_FILE = "trajectory.npz"
+#: arrays written only when there is something to say: the measurements the estimators were given
+#: (``y`` (T, sum s_i), ``y_missing`` (T, m)) and, without truth, what can be known instead of the error
+#: (:func:`splitspec_core.reference.no_truth_arrays`): ``residual`` (T, m), ``disagreement`` (T,),
+#: ``kf`` (T, n) and ``kf_distance`` (T, m)
+OPTIONAL = ("y", "y_missing", "residual", "disagreement", "kf", "kf_distance")
 
 
 def no_gains(T: int, m: int) -> np.ndarray:
@@ -41,7 +46,8 @@ def lost_arrays(rows) -> tuple:
 
 def write_trajectory(path: str | Path, *, t: np.ndarray, x: np.ndarray, xhat: np.ndarray, alive: np.ndarray,
                      graph: np.ndarray, agent_ids: np.ndarray, g: np.ndarray | None = None,
-                     lost: np.ndarray | None = None, lost_cause: np.ndarray | None = None) -> None:
+                     lost: np.ndarray | None = None, lost_cause: np.ndarray | None = None,
+                     extra: dict | None = None) -> None:
     """Atomically write ``path`` with the trajectory arrays (``g`` all NaN if None).
 
     Raises
@@ -55,6 +61,11 @@ def write_trajectory(path: str | Path, *, t: np.ndarray, x: np.ndarray, xhat: np
                   g=no_gains(T, m) if g is None else g,
                   lost=np.zeros((0, 4), dtype=np.int64) if lost is None else np.asarray(lost, dtype=np.int64),
                   lost_cause=np.zeros(0, dtype=np.int8) if lost_cause is None else np.asarray(lost_cause, np.int8))
+    for k, v in (extra or {}).items():
+        if k not in OPTIONAL:
+            raise ValueError(f"write_trajectory: {k!r} is not an optional array of the contract ({', '.join(OPTIONAL)})")
+        if v is not None:
+            arrays[k] = np.asarray(v)
     tmp = None
     try:
         fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".npz.tmp", dir=path.parent)

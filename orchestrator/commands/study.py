@@ -7,8 +7,10 @@ Each calls the public API (:mod:`splitspec_core.api`) and writes what it returns
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import sys
+from pathlib import Path
 
 import numpy as np
 
@@ -214,6 +216,18 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         sc = with_recorded_faults(sc, events)
         if lost is None and sc.network.impaired:
             lost = (np.zeros((0, 4), dtype=np.int64), None)  # the run lost nothing: replay that, draw nothing
+    if args.measurements or args.write_measurements:
+        if args.exact:
+            raise UsageError("--exact integrates the noise-free ODE; --measurements and --write-measurements belong "
+                             "to the sampled-data estimator: drop one")
+        if args.monte_carlo:
+            raise UsageError("--monte-carlo draws new noise per seed; --measurements and --write-measurements fix "
+                             "one realisation: drop one")
+    meas = None
+    if args.measurements:
+        from splitspec_core.measurements import load_measurements
+
+        meas = load_measurements(args.measurements, sc, steps=args.steps)
     if args.exact and sc.time != "continuous":
         raise UsageError("--exact integrates the continuous-time ODE; this scenario is discrete")
     if args.exact and sc.design.g == "adaptive":
@@ -223,13 +237,22 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     seed = sc.run.seed if args.seed is None else args.seed
     if args.monte_carlo:
         _seed_range(seed, args.monte_carlo, "--monte-carlo")
-    check_trajectory_memory(sc, args.steps, key="--steps" if args.steps is not None else "run.steps",
-                            copies=max(1, args.monte_carlo or 0))
+    check_trajectory_memory(sc, meas.steps if meas is not None else args.steps,
+                            key="--steps" if args.steps is not None else "run.steps", copies=max(1, args.monte_carlo or 0))
     d = ss.design(sc)
     out = out_dir(args.out)
-    traj = ss.simulate(d, seed=seed, steps=args.steps, exact=args.exact, progress=None, lost=lost)
+    traj = ss.simulate(d, seed=seed, steps=args.steps, exact=args.exact, progress=None, lost=lost, measurements=meas,
+                       keep_y=bool(args.write_measurements))
+    if meas is not None:
+        return _simulate_measured(args, sc, d, traj, meas, out)
     noisy = sc.system.process_noise > 0 or sc.system.measurement_noise > 0
     clean = ss.simulate(d, seed=seed, steps=args.steps, noise=False, lost=lost) if noisy and not args.exact else traj
+    if args.write_measurements:
+        from splitspec_core.measurements import write_measurements
+
+        write_measurements(args.write_measurements, t=traj.t, y=traj.y, agent_ids=sc.agent_ids,
+                           sizes=[np.shape(C)[0] for C in sc.system.Cs], x=traj.x)
+        traj = dataclasses.replace(traj, y=None, y_missing=None)  # the file holds them; trajectory.npz as always
     traj.save(out / "trajectory.npz")
     adaptive = d.g_mode == "adaptive"
     # the certificate of what ran: --exact integrates the ODE itself, else the sampled-data form
@@ -261,4 +284,75 @@ def cmd_simulate(args: argparse.Namespace) -> int:
             summary["plots"].append("monte_carlo.png")
     (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
     print(_simulate_summary_text(summary, time=sc.time, out=out))
+    if args.write_measurements:
+        print(f"wrote {args.write_measurements} (the measurements and the truth; splitspec simulate --measurements "
+              "reads it back)")
     return 0
+
+
+def _simulate_measured(args: argparse.Namespace, sc, d, traj, meas, out) -> int:
+    """``simulate --measurements``: the estimates from the user's measurements, judged by what can be known."""
+    from splitspec_core.analysis import event_marks, summarize
+    from splitspec_core.reference import no_truth_arrays
+
+    ref = no_truth_arrays(traj, sc)
+    traj.save(out / "trajectory.npz", extra=ref)
+    summary = {"scenario": sc.name, "time": sc.time, "q": d.q, "g": d.g, "measurements": meas.path,
+               "sha256": meas.sha256, "truth": meas.has_truth, "steps": int(traj.t.size - 1),
+               "missing": int(meas.missing[:traj.t.size - 1].sum())}
+    if meas.has_truth:
+        summary.update(summarize(traj, time=sc.time, rate=sc.design.rate, adaptive=d.g_mode == "adaptive"))
+    summary["reference"] = _reference_summary(traj, ref)
+    plots = []
+    if not args.no_plots:
+        from .. import plots as P
+
+        title = f"{sc.name}: {'g = %g' % d.g if d.g is not None else 'q = %d' % d.q if d.q else 'adaptive g'}" \
+                f", measurements {Path(meas.path).name}"
+        marks = event_marks(traj.t, traj.alive, traj.graph, agent_ids=traj.agent_ids, faults=sc.faults,
+                            graph_names=sc.graph_names, dt=sc.run.dt if sc.time == "continuous" else 1.0)
+        P.plot_reference(traj, ref, out / "reference.png", time=sc.time, title=title, marks=marks)
+        plots.append("reference.png")
+        if meas.has_truth:
+            P.plot_errors(traj, out / "errors.png", time=sc.time, rate=sc.design.rate, title=title, marks=marks,
+                          adaptive=d.g_mode == "adaptive")
+            plots.append("errors.png")
+        P.plot_states(traj, out / "states.png", time=sc.time, title=title, marks=marks,
+                      reference=None if meas.has_truth else ref["kf"])
+        plots.append("states.png")
+    summary["plots"] = plots
+    (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+    r = summary["reference"]
+    lines = [f"estimated {summary['steps']} steps from {meas.path} ({'with' if meas.has_truth else 'no'} truth"
+             + (f", {summary['missing']} measurements missing: predicted only" if summary["missing"] else "") + ")",
+             f"  at the end: consensus disagreement {_g(r['final_disagreement'])}, largest residual "
+             f"{_g(r['final_residual_max'])}, largest distance to the centralized Kalman filter "
+             f"{_g(r['final_kf_distance_max'])}"]
+    if meas.has_truth:
+        lines.append("  final error (truth in the file): max "
+                     + _g(max((a["final_error"] for a in summary["agents"].values() if a["final_error"] is not None),
+                              default=None)))
+    lines.append(f"wrote {out}/trajectory.npz, summary.json" + "".join(f", {p}" for p in plots))
+    print("\n".join(lines))
+    return 0
+
+
+def _g(x) -> str:
+    return "-" if x is None else f"{x:.3g}"
+
+
+def _reference_summary(traj, ref: dict) -> dict:
+    """Final and largest residual, disagreement and distance to the centralized KF (what is known without truth)."""
+    def last(a):
+        a = np.asarray(a)
+        finite = a[np.isfinite(a)]
+        return float(finite.max()) if finite.size else None
+
+    per_agent = {}
+    for k, aid in enumerate(traj.agent_ids.tolist()):
+        per_agent[str(aid)] = {"final_residual": last(ref["residual"][-1:, k]),
+                               "final_kf_distance": last(ref["kf_distance"][-1:, k]),
+                               "max_kf_distance": last(ref["kf_distance"][:, k])}
+    return {"final_disagreement": last(ref["disagreement"][-1:]), "max_disagreement": last(ref["disagreement"]),
+            "final_residual_max": last(ref["residual"][-1]), "final_kf_distance_max": last(ref["kf_distance"][-1]),
+            "agents": per_agent}
