@@ -2,7 +2,6 @@
 without truth, and bad files refused in one line before anything runs."""
 
 import csv
-import dataclasses
 import json
 
 import numpy as np
