@@ -43,6 +43,8 @@ from splitspec_core.scenario_model import parse_scenario_text
 from splitspec_core.plant_model import initial_estimate, output_rows
 from splitspec_core.runtime.wire import Keys, WireError, decode, encode
 
+from .measure import YBuffer
+
 log = logging.getLogger("splitspec.agent")
 
 #: z messages buffered for at most this many (event time, attempt) rounds per sub-round and neighbour
@@ -98,9 +100,9 @@ class AgentNode:
         self.candidate = None  # (tau + 1, x, g) computed, not yet committed
         self.zbuf: dict = {}  # (tau, attempt, k) -> {j: z_j}
         self.xbuf: dict = {}  # (tau, attempt of round tau - 1) -> {j: x_j(tau)}: the next round's z_j(0)
-        self.ybuf: dict = {}  # tau -> y_i(tau)
         rows = output_rows(sc.system.Cs)
-        self.y_rows, self.y_size = rows[self.index], rows[-1].stop  # y_i in the plant's stacked y, its length
+        self.ys = YBuffer(agent_id, rows[self.index], rows[-1].stop)  # y_i(tau), or that there is none
+        self.record_y = bool(config.get("record_y", False))  # report the y_i used (measurements, live sensors)
         self.rejected: dict = {}
         # a misbehaving network (splitspec_core.impairment): the same draws as the simulator's, a deadline per
         # sub-round, messages held for their delay; the clock is only read when a deadline or a delay is set
@@ -124,10 +126,11 @@ class AgentNode:
             out[reason] = out.get(reason, 0) + c
         return out
 
-    def _xhat(self, tau: int, attempt: int, x: np.ndarray, g: float, lost=()) -> tuple:
+    def _xhat(self, tau: int, attempt: int, x: np.ndarray, g: float, lost=(), y=()) -> tuple:
+        used = ([] if not self.record_y else None if y is None else [float(v) for v in y])
         return (self.keys.xhat(self.id), encode("xhat", self.run_id, mac_key=self.mac_key, tau=tau, attempt=attempt,
                                                   agent=self.id, incarnation=int(self.incarnation), x=x, g=float(g),
-                                                  rejected=self.counts(), lost=[v for t in lost for v in t]))
+                                                  rejected=self.counts(), lost=[v for t in lost for v in t], y=used))
 
     def next_wakeup(self) -> float | None:
         """When the round in flight wants :meth:`on_timer` (a sub-round's deadline, a held message's release)."""
@@ -183,7 +186,7 @@ class AgentNode:
         # drop buffers of older rounds
         self.zbuf = {k: v for k, v in self.zbuf.items() if (k[0], k[1]) >= (tau, attempt)}
         self.xbuf = {k: v for k, v in self.xbuf.items() if k[0] >= tau}
-        self.ybuf = {k: v for k, v in self.ybuf.items() if k >= tau}
+        self.ys.prune(tau)
         if self.arrived:
             self.arrived = {k: v for k, v in self.arrived.items() if k[1][0] >= tau}
         if t["final"]:
@@ -255,23 +258,9 @@ class AgentNode:
         except WireError as e:
             self.reject(e.reason)
             return []
-        if m["y"].shape != (self.y_size,):
-            self.reject("bad_shape")
-            return []
-        if (self.tau is not None and m["tau"] < self.tau) or (self.tick_tag and m["tau"] < self.tick_tag[0]):
-            self.reject("stale")
-            return []
-        if self.tick_tag is not None and m["tau"] > self.tick_tag[0] + 1:
-            self.reject("future")
-            return []
-        if m["tau"] not in self.ybuf and len(self.ybuf) >= 2:  # before the first tick: keep the newest two
-            oldest = min(self.ybuf)
-            if m["tau"] < oldest:
-                self.reject("buffer_full")
-                return []
-            del self.ybuf[oldest]
-        self.ybuf[m["tau"]] = m["y"][self.y_rows]
-        return self._advance()
+        kept = self.ys.put_message(m, last_tau=self.tau, tick_tau=self.tick_tag[0] if self.tick_tag else None,
+                                   reject=self.reject)
+        return self._advance() if kept else []
 
     def on_x(self, key: str, payload: bytes) -> list:
         """A neighbour's new estimate x_j(tau) (its report to the orchestrator): the next round's z_j(0)."""
@@ -341,14 +330,14 @@ class AgentNode:
                     return out
                 r["realized"] = got
             _, ws, states = r["realized"]
-            y = self.ybuf.get(r["tau"])
-            if y is None:
+            if not self.ys.ready(r["tau"]):
                 return out
+            y = self.ys.get(r["tau"])  # None: no measurement, the step without its innovation
             x_next = st.sampled_step(self.x, self.E, self.D, self.K, self.C, y, self.P, self.g, states, ws)
             g_next = self.g
             if self.adaptive:
                 g_next = st.adaptive_gain_step(self.g, st.adaptive_gain_rate(self.V, self.x, states, ws), self.dt)
-            return self._finish(x_next, g_next)
+            return self._finish(x_next, g_next, y)
         while r["k"] < self.exchanges:
             got = self._neighbour_states(r["k"])
             if got is None:
@@ -360,17 +349,18 @@ class AgentNode:
             self._opened()
             if r["k"] < self.exchanges:
                 out.append(self._z(r["k"], r["z"]))
-        y = self.ybuf.get(r["tau"])
-        if y is None:
+        if not self.ys.ready(r["tau"]):
             return out
-        # eq. split-discrete-est1
-        return out + self._finish(st.measurement_update(r["z"], self.F, self.K, y), 0.0)
+        y = self.ys.get(r["tau"])
+        # eq. split-discrete-est1, or the prediction without a measurement
+        x_next = st.prediction_update(r["z"], self.A) if y is None else st.measurement_update(r["z"], self.F, self.K, y)
+        return out + self._finish(x_next, 0.0, y)
 
-    def _finish(self, x_next: np.ndarray, g_next: float) -> list:
+    def _finish(self, x_next: np.ndarray, g_next: float, y) -> list:
         r = self.round
         self.candidate = (r["tau"] + 1, x_next, g_next)
         self.round = None
-        return [self._xhat(r["tau"] + 1, r["attempt"], x_next, g_next, r["lost"])]
+        return [self._xhat(r["tau"] + 1, r["attempt"], x_next, g_next, r["lost"], y)]
 
 
 # ---------------------------------------------------------------------- process shell

@@ -158,6 +158,8 @@ def build_parser() -> argparse.ArgumentParser:
                      "deleted after)")
     sec.add_argument("--insecure", action="store_true", help="no authentication or access control on the router "
                      "(messages are still signed with the run's key); said on the terminal and in events.jsonl")
+    p.add_argument("--measurements", metavar="FILE", help="the plant plays these recorded measurements (.npz or "
+                   ".csv, as simulate --measurements; the file decides the steps) instead of simulating the system")
     add_run_id_option(p)
     p.set_defaults(func=_command("deploy:cmd_run"))
 
@@ -175,6 +177,8 @@ def build_parser() -> argparse.ArgumentParser:
                    "and enforce the access-control policy (see `splitspec credentials`)")
     p.add_argument("--spawn-local", action="store_true", help="start the plant and the agents on this machine as "
                    "children of the orchestrator (what `splitspec run` does)")
+    p.add_argument("--measurements", metavar="FILE", help="the run plays this measurements file: the plant must be "
+                   "started with the same file (checked by its sha256); the file decides the steps")
     add_run_id_option(p)
     p.set_defaults(func=_command("deploy:cmd_orchestrator"))
 

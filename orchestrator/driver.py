@@ -49,6 +49,8 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
+
 from splitspec_core.designer import design
 from splitspec_core.errors import SplitspecError
 from splitspec_core.scenario_model import load_scenario, read_scenario_text
@@ -111,10 +113,18 @@ class Orchestrator:
 
     def __init__(self, scenario_path: str, *, out: Path, run_id: str, listen: str | None, connect: str | None,
                  wait: float | None = None, round_timeout: float = 10.0, viewer: str | None = None,
-                 security=None, spawn_local: bool = False):
+                 security=None, spawn_local: bool = False, measurements: str | None = None):
         self.scenario_text = read_scenario_text(scenario_path)
         self.sc = load_scenario(scenario_path)
         self.des = design(self.sc)
+        self.meas, self.measurements_path = None, measurements
+        if measurements is not None:  # the plant plays the user's file; the file decides the steps
+            import dataclasses
+
+            from splitspec_core.measurements import load_measurements
+
+            self.meas = load_measurements(measurements, self.sc)
+            self.sc = dataclasses.replace(self.sc, run=dataclasses.replace(self.sc.run, steps=self.meas.steps))
         self.keys = Keys(run_id)
         self.out = out
         self.listen, self.connect = listen, connect
@@ -179,6 +189,8 @@ class Orchestrator:
         if channel == "truth":
             try:
                 msg = decode(payload, self.keys.run_id, "truth", mac_key=self.key)
+                if msg["x"].shape == (0,) and self.meas is not None and self.meas.x is None:
+                    msg["x"] = np.full(self.sc.n, np.nan)  # measurements without truth: x unknown
                 if msg["x"].shape != (self.sc.n,):
                     raise WireError("bad_shape", "truth")
             except WireError as e:
@@ -250,9 +262,12 @@ class Orchestrator:
             elif kind is R.MarkLost:
                 self.rec.mark_lost(a.tau, a.agent)
             elif kind is R.ReplyConfig:
+                extra = {} if self.meas is None else {
+                    "measurements": {"sha256": self.meas.sha256, "steps": self.meas.steps, "truth": self.meas.has_truth},
+                    "record_y": True}
                 self._reply(a.ref, encode("config", self.keys.run_id, scenario=self.scenario_text,
                                           seed=int(self.sc.run.seed), g=self.des.g, q=self.des.q,
-                                          g_mode=self.des.g_mode, key=self.key))
+                                          g_mode=self.des.g_mode, key=self.key, **extra))
             elif kind is R.ReplyRefused:
                 self._reply(a.ref, encode("refused", self.keys.run_id, reason=a.reason, holder_pid=a.holder_pid,
                                           holder_host=a.holder_host))
@@ -314,6 +329,8 @@ class Orchestrator:
         if self.security is not None:
             user = "plant" if role == "plant" else f"agent-{ident}"
             args += ["--credentials", self.security.credentials_file(user)]
+        if role == "plant" and self.measurements_path is not None:
+            args += ["--measurements", self.measurements_path]
         from splitspec_core.runtime.bus import CHILD_ENV
 
         p = spawn(node_command(role, *args), env={**os.environ, CHILD_ENV: "1"})
@@ -340,6 +357,8 @@ class Orchestrator:
                             scenario_name=sc.name, viewer=self.viewer,
                             envelope_rate=None if self.des.g_mode == "adaptive" else float(sc.design.rate),
                             gains=sc.time == "continuous", positions=sc.positions)
+        if self.meas is not None:
+            self.rec.set_measurements(sc, self.meas)
         self.registry = RunRegistry(self.keys.run_id, {"endpoint": self.connect or self.listen,
                                                        "out": str(self.out.resolve()), "host": HOST})
         now = time.monotonic()
@@ -471,7 +490,8 @@ def main(args: argparse.Namespace) -> int:
     orch = Orchestrator(args.scenario, out=Path(args.out), run_id=args.run_id,
                         listen=args.listen, connect=args.connect, wait=args.wait,
                         round_timeout=args.round_timeout, viewer=args.viewer, security=security,
-                        spawn_local=getattr(args, "spawn_local", False))
+                        spawn_local=getattr(args, "spawn_local", False),
+                        measurements=getattr(args, "measurements", None))
 
     def on_signal(*_):
         orch.stop_requested = True

@@ -82,7 +82,8 @@ EXIT_ORCHESTRATOR_LOST = 3  #: `splitspec run`'s exit status when the orchestrat
 
 
 def run_local(scenario: str, out: Path, *, run_id: str, viewer: str | None, wait: float | None,
-              round_timeout: float, agent_ids: tuple, verbose: bool = False, secure: bool = True) -> int:
+              round_timeout: float, agent_ids: tuple, verbose: bool = False, secure: bool = True,
+              measurements: str | None = None) -> int:
     """Start the orchestrator, which starts and parents the plant and the agents; return the exit code.
 
     The orchestrator is their parent, so it sees a process that dies during start-up at once, with
@@ -97,7 +98,8 @@ def run_local(scenario: str, out: Path, *, run_id: str, viewer: str | None, wait
     orch_cmd = cli_command(*([] if verbose else ["--log-level", "warning"]), "orchestrator", scenario,
                            "--listen", endpoint, "--out", out, "--run-id", run_id,
                            *(["--wait", wait] if wait is not None else []),
-                           "--round-timeout", round_timeout, "--spawn-local")
+                           "--round-timeout", round_timeout, "--spawn-local",
+                           *(["--measurements", Path(measurements).resolve()] if measurements else []))
     if viewer:
         orch_cmd += ["--viewer", viewer]
     cred_dir = None

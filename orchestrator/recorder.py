@@ -600,6 +600,8 @@ class Recorder:
             if self._closed:
                 return
             self._closed = True
+            if getattr(self, "_measured", None) is not None:
+                self._npz_dirty = True  # the last write adds what is known without truth (_measured_arrays)
             self._stop.set()
             self._wake.set()
             _OPEN.discard(self)
@@ -838,6 +840,27 @@ class Recorder:
             raise self._fail(self._rrd_path, exc, self._last_tau()) from None
         self._rrd_rows = taken
 
+    def set_measurements(self, sc, meas) -> None:
+        """The run plays a measurements file: ``trajectory.npz`` gets its ``y`` and ``y_missing`` rows, and at the
+        close what is known without truth (:func:`splitspec_core.reference.no_truth_arrays`)."""
+        self._measured = (sc, meas)
+
+    def _measured_arrays(self, T: int) -> dict:
+        if getattr(self, "_measured", None) is None or not T:
+            return {}
+        sc, meas = self._measured
+        taus = self._d.tau[:T].astype(int)
+        extra = {"y": meas.y[taus], "y_missing": meas.missing[taus]}
+        if self._closed:  # the centralized Kalman filter over the whole run: once, at the end
+            from splitspec_core.reference import no_truth_arrays
+            from splitspec_core.simulator import Trajectory
+
+            D = self._d
+            traj = Trajectory(t=D.t[:T], x=D.x[:T], xhat=D.xhat[:T], alive=D.alive[:T], graph=D.graph[:T],
+                              agent_ids=np.array(self.agent_ids), y=extra["y"], y_missing=extra["y_missing"])
+            extra.update(no_truth_arrays(traj, sc))
+        return extra
+
     def _write_trajectory(self, rows: int | None = None) -> None:
         """Atomically (re)write ``trajectory.npz`` with the first ``rows`` rows taken (default: all)."""
         D = self._d
@@ -847,7 +870,8 @@ class Recorder:
             last = int(D.tau[T - 1]) if T else -1
             lost, cause = lost_arrays([r for tau, rows in list(self._lost.items()) if tau <= last for r in rows])
             write_trajectory(path, t=D.t[:T], x=D.x[:T], xhat=D.xhat[:T], alive=D.alive[:T], graph=D.graph[:T],
-                             agent_ids=self.agent_ids, g=D.g[:T], lost=lost, lost_cause=cause)
+                             agent_ids=self.agent_ids, g=D.g[:T], lost=lost, lost_cause=cause,
+                             extra=self._measured_arrays(T))
         except OSError as exc:
             raise self._fail(path, exc, int(D.tau[T - 1]) if T else None) from None
         self._npz_rows = T

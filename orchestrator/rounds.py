@@ -115,7 +115,7 @@ class Record:
     def max_error(self) -> float:
         """``max_i |x_i - x|`` over the alive agents (NaN when none is alive)."""
         errs = np.linalg.norm(self.xhat - self.x, axis=1)
-        return float(np.nanmax(errs)) if self.alive.any() else math.nan
+        return float(np.nanmax(errs)) if np.isfinite(errs).any() else math.nan  # none alive, or no truth
 
 
 @dataclass(frozen=True)

@@ -2,7 +2,10 @@
 
 On tick ``tau``: if it is a new event time the plant moves ``x -> x(tau)``
 (process noise), then draws ``y(tau)`` (measurement noise, every agent) and
-publishes ``y_i(tau)`` on ``y/<i>`` and ``x(tau)`` on ``truth``.  A re-run of
+publishes ``y_i(tau)`` on ``y/<i>`` and ``x(tau)`` on ``truth``.  With
+``--measurements FILE`` (the file the orchestrator was given, checked by its
+sha256) it plays row ``tau`` of the file instead: its ``y``, the agents without
+a measurement there, and its truth (an empty ``x`` when the file has none).  A re-run of
 the same tick (a higher attempt) re-publishes the same values.  The draws are
 those of :class:`splitspec_core.simulator.Plant`, in the same order, so the
 truth equals the simulator's.  Agents never see the truth.
@@ -15,9 +18,11 @@ import logging
 
 import numpy as np
 
-from splitspec_core.scenario_model import parse_scenario_text
-from splitspec_core.plant_model import Plant
+from splitspec_core.errors import SplitspecError
+from splitspec_core.measurements import load_measurements
+from splitspec_core.plant_model import Plant, RecordedPlant
 from splitspec_core.runtime.wire import Keys, WireError, decode, encode
+from splitspec_core.scenario_model import parse_scenario_text
 
 log = logging.getLogger("splitspec.plant")
 
@@ -25,11 +30,26 @@ log = logging.getLogger("splitspec.plant")
 class PlantNode:
     """Plant protocol state; ``on_tick`` returns ``[(key, payload), ...]`` to publish."""
 
-    def __init__(self, config: dict, run_id: str):
+    def __init__(self, config: dict, run_id: str, measurements: str | None = None):
         self.run_id = run_id
         self.keys = Keys(run_id)
         self.sc = parse_scenario_text(config["scenario"], source="config")
-        self.plant = Plant(self.sc, int(config["seed"]))
+        wanted = config.get("measurements")  # {sha256, steps, truth}: the run plays a measurements file
+        if (wanted is None) != (measurements is None):
+            raise SplitspecError("this run plays the measurements file with sha256 "
+                                 f"{wanted['sha256'][:12]}...: start the plant with --measurements FILE"
+                                 if wanted else f"--measurements {measurements}: this run simulates its plant "
+                                                "(the orchestrator was started without --measurements)")
+        self.meas = None
+        if measurements is not None:
+            self.meas = load_measurements(measurements, self.sc)
+            if self.meas.sha256 != wanted["sha256"]:
+                raise SplitspecError(f"--measurements {measurements} is not the file the orchestrator plays "
+                                     f"(sha256 {self.meas.sha256[:12]}... against {wanted['sha256'][:12]}...)")
+            self.plant = RecordedPlant(self.meas, self.sc.n)
+            self.no_x = np.zeros(0)  # a truth message without x: the file has no truth
+        else:
+            self.plant = Plant(self.sc, int(config["seed"]))
         self.mac_key = config.get("key")
         self.extra_counts = None  # callable -> {reason: count} of drops outside the node (the inbox)
         self.tau = None
@@ -62,13 +82,18 @@ class PlantNode:
             self.reject("stale" if tau < self.tau else "future")
             return []
         if tau != self.tau:
+            if self.meas is not None and tau > self.meas.steps:
+                raise RuntimeError(f"event time {tau} is past the measurements file's last row ({self.meas.steps})")
             self.tau = tau
             self.y = self.plant.measure()  # (y_1, ..., y_m) stacked in agent order
+        x = self.plant.x if self.meas is None or self.meas.x is not None else self.no_x
         out = [(self.keys.truth, encode("truth", self.run_id, mac_key=self.mac_key, tau=tau, attempt=t["attempt"],
-                                        x=self.plant.x, rejected=self.counts()))]
+                                        x=x, rejected=self.counts()))]
         if not t["final"]:  # one message for every agent: each takes its own rows
+            missing = [] if self.meas is None else [a for a, gone in zip(self.sc.agent_ids, self.plant.missing())
+                                                    if gone]
             out.append((self.keys.y, encode("y", self.run_id, mac_key=self.mac_key, tau=tau, attempt=t["attempt"],
-                                            y=np.asarray(self.y))))
+                                            y=np.asarray(self.y), missing=missing)))
         return out
 
 
@@ -79,6 +104,8 @@ def build_parser(prog: str = "python -m splitspec_plant") -> argparse.ArgumentPa
     p = ArgumentParser(prog=prog, description="The plant process: fetches the scenario from the orchestrator, publishes "
                        "measurements and the truth each event time.")
     add_node_options(p)
+    p.add_argument("--measurements", metavar="FILE", help="play this measurements file (the one the orchestrator was "
+                   "given: the same bytes) instead of simulating the plant")
     add_logging_options(p)
     return p
 
@@ -98,7 +125,7 @@ def main(args: argparse.Namespace) -> int:
     shell = NodeShell(args.connect, keys, log=log, role="plant", ident=0, credentials=args.credentials,
                       wait=args.wait)
     try:
-        node = PlantNode(shell.fetch_config(wait=args.wait), keys.run_id)
+        node = PlantNode(shell.fetch_config(wait=args.wait), keys.run_id, measurements=args.measurements)
         node.extra_counts = shell.inbox.take_dropped
         return shell.run(lambda ch, key, p: node.on_tick(p), node.reject, name="plant",
                          subscriptions=[(keys.tick, "tick")])

@@ -41,6 +41,10 @@ def cmd_run(args: argparse.Namespace) -> int:
 
     sc = load_scenario(args.scenario)
     design(sc)  # fail fast, with one line, before starting any process
+    if args.measurements:
+        from splitspec_core.measurements import load_measurements
+
+        load_measurements(args.measurements, sc)  # a bad file: one line, before any process
     if args.run_id is not None:
         Keys(args.run_id)  # validates --run-id before any process starts
     out = out_dir(args.out)
@@ -51,7 +55,7 @@ def cmd_run(args: argparse.Namespace) -> int:
               "that reaches it can connect; messages are still signed with the run's key)", file=sys.stderr)
     code = run_local(str(args.scenario), out, run_id=args.run_id, viewer=viewer, wait=args.wait,
                      round_timeout=args.round_timeout, agent_ids=sc.agent_ids, verbose=args.verbose,
-                     secure=not args.insecure)
+                     secure=not args.insecure, measurements=args.measurements)
     rrd = out / "run.rrd"
     if rrd.exists():
         print(f"recording: {rrd}  (open it with: {_splitspec_command()} view {out})")

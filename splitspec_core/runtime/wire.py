@@ -42,13 +42,15 @@ key                         from -> to              payload
 ``config``                  queryable (orchestr.)   scenario + centralised design (g or q)
 ``tick``                    orchestrator -> all     tau, attempt, graph, neighbour rows, alive, fresh,
                                                     prev_attempt, partition (groups in force, or [])
-``y/all``                   plant -> agents         tau, attempt, (y_1(tau), ..., y_m(tau)) stacked
+``y/all``                   plant -> agents         tau, attempt, (y_1(tau), ..., y_m(tau)) stacked,
+                                                    the agents without a measurement (missing)
 ``truth``                   plant -> orchestrator   tau, attempt, x(tau)
 ``z/<i>``                   agent i -> neighbours   tau, attempt, k, z_i(k) (k = 0 only in fresh or re-run
                                                     rounds)
 ``xhat/<i>``                agent i -> orchestrator tau, attempt, x_i(tau) (+ g_i, rejected counts, the
-                            and neighbours          consensus messages it did not count); also the next
-                                                    round's z_i(0)
+                            and neighbours          consensus messages it did not count, the y_i it
+                                                    used: None without one, [] if not recorded);
+                                                    also the next round's z_i(0)
 ``control``                 orchestrator -> all     ``stop``; ``kill agent/<i>``, ``hang agent/<i>`` (faults)
 ``status/<role>/<id>/<n>``  queryable (every proc.) a ``hello``: the process answers (not frozen)
 ``alive/<role>/<id>/<n>``   liveliness token        presence; DELETE is a death (n: the process's nonce)
@@ -76,8 +78,9 @@ __all__ = ["SCHEMA_VERSION", "DEFAULT_RUN_ID", "Keys", "WireError", "encode", "d
            "BINARY_LAYOUT", "run_tag", "KEY_ROOT", "ORCHESTRATORS"]
 
 # 2: one y message for every agent; x_i(tau + 1) doubles as the next z_i(0); 3: binary round messages;
-# 4: xhat reports the consensus messages that did not count, tick names the partition in force
-SCHEMA_VERSION = 4
+# 4: xhat reports the consensus messages that did not count, tick names the partition in force; 5: y names the
+# agents without a measurement (missing), xhat carries the measurement the agent used (y)
+SCHEMA_VERSION = 5
 DEFAULT_RUN_ID = "default"
 KEY_ROOT = "splitspec"  #: every run's keys live under ``splitspec/<run_id>/``
 #: every run's orchestrator token (``splitspec/<run_id>/alive/orchestrator/0``): which runs a router hosts
@@ -210,6 +213,10 @@ MESSAGE_FIELDS = {
     "hello": {"role": "str", "id": "int", "pid": "int", "host": "str", "nonce": "str"},
 }
 
+#: optional fields (name -> kind), returned only when present: a run on recorded measurements (their sha256, steps,
+#: whether they hold the truth), and whether agents report the y_i they used
+OPTIONAL_FIELDS = {"config": {"measurements": "map", "record_y": "bool"}}
+
 _CHECK = {
     "int": lambda v: isinstance(v, int) and not isinstance(v, bool),
     "float": lambda v: isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v),
@@ -231,11 +238,15 @@ MAX_VECTOR = 1 << 20
 
 #: type -> (code, struct format of the scalar fields, their names, the vector field, the map fields)
 BINARY_LAYOUT = {
-    "y": (1, "qi", ("tau", "attempt"), "y", ()),
+    "y": (1, "qi", ("tau", "attempt"), "y", ("missing",)),
     "truth": (2, "qi", ("tau", "attempt"), "x", ("rejected",)),
     "z": (3, "qiii", ("tau", "attempt", "k", "agent"), "z", ()),
-    "xhat": (4, "qiiid", ("tau", "attempt", "agent", "incarnation", "g"), "x", ("rejected", "lost")),
+    "xhat": (4, "qiiid", ("tau", "attempt", "agent", "incarnation", "g"), "x", ("rejected", "lost", "y")),
 }
+#: map fields a sender may leave out (the usual case): ``missing`` none, ``y`` not recorded
+MAP_DEFAULTS = {"y": {"missing": []}, "xhat": {"y": []}}
+#: the most agent ids ``missing`` lists
+MAX_MISSING = 1 << 16
 #: ``lost`` of an ``xhat``: flat ``[k, j, cause, k, j, cause, ...]`` (sub-round, sender, cause) of the consensus
 #: messages the agent did not count in the round (:mod:`splitspec_core.impairment`); at most this many triples
 MAX_LOST = 1 << 16
@@ -253,6 +264,8 @@ def run_tag(run_id: str) -> int:
 
 def _encode_binary(msg_type: str, run_id: str, fields: dict) -> bytes:
     code, _fmt, names, vec, maps = BINARY_LAYOUT[msg_type]
+    if msg_type in MAP_DEFAULTS:
+        fields = {**MAP_DEFAULTS[msg_type], **fields}
     if fields.keys() != _BIN_FIELDS[msg_type]:
         raise TypeError(f"{msg_type} takes the fields {sorted(_BIN_FIELDS[msg_type])}, got {sorted(fields)}")
     a = np.ascontiguousarray(fields[vec], dtype="<f8")
@@ -312,6 +325,13 @@ def _decode_binary(payload: bytes, run_id: str, expected_type: str) -> dict:
             if name == "lost":
                 ok = (isinstance(m, list) and len(m) % 3 == 0 and len(m) <= 3 * MAX_LOST
                       and all(_CHECK["int"](v) and 0 <= v < 2 ** 31 for v in m) and all(c <= 2 for c in m[2::3]))
+            elif name == "missing":
+                ok = isinstance(m, list) and len(m) <= MAX_MISSING and all(_CHECK["int"](v) and 0 <= v < 2 ** 31
+                                                                            for v in m)
+            elif name == "y":
+                ok = m is None or (isinstance(m, list) and len(m) <= MAX_VECTOR and all(map(_CHECK["float"], m)))
+                if ok and m is not None:
+                    m = [float(v) for v in m]
             else:
                 ok = isinstance(m, dict) and all(isinstance(k, str) and _CHECK["int"](v) for k, v in m.items())
             if not ok:
@@ -382,4 +402,9 @@ def decode(payload: bytes, run_id: str, expected_type: str, *, mac_key: bytes | 
         if not _CHECK[kind](v):
             raise WireError("bad_field", name)
         out[name] = v
+    for name, kind in OPTIONAL_FIELDS.get(expected_type, {}).items():
+        if name in body:
+            if not _CHECK[kind](body[name]):
+                raise WireError("bad_field", name)
+            out[name] = body[name]
     return out

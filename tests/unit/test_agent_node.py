@@ -129,7 +129,7 @@ def test_forgeries_without_the_key_change_nothing():
                             incarnation={})) == []  # unsigned
     assert a.on_y(encode("y", "r", tau=0, attempt=0, y=np.full(3, 1e6))) == []
     # exact: the estimate was not touched (x0 is its copy)
-    assert a.rejected == {"bad_mac": 3} and a.ybuf == {} and np.array_equal(a.x, x0) and a.tick_tag == (0, 0)
+    assert a.rejected == {"bad_mac": 3} and a.ys.buf == {} and np.array_equal(a.x, x0) and a.tick_tag == (0, 0)
 
 
 @pytest.mark.parametrize("payload,reason", [
@@ -167,7 +167,7 @@ def test_buffers_are_bounded_under_a_flood_of_plausible_messages():
         a.on_x("splitspec/r/xhat/1", xhat(k % 2, 1, attempt=k % 3))
     assert sum(len(v) for v in a.zbuf.values()) <= a.zbuf_limit == 6 * 6 * 2
     assert sum(len(v) for v in a.xbuf.values()) <= a.zbuf_limit
-    assert len(a.ybuf) <= 2
+    assert len(a.ys.buf) <= 2
     assert a.rejected.get("duplicate", 0) > 0
 
 
@@ -254,3 +254,63 @@ def test_on_time_a_deadline_changes_nothing():
     assert len(outs[0]) == len(outs[1]) == 1
     assert np.array_equal(outs[0][0]["x"], outs[1][0]["x"])
     assert outs[1][0]["lost"] == [] and timed.next_wakeup() is None
+
+
+def one_round(a, y_msg):
+    """A full round 0 of agent 2 (neighbours' z all 1.0), then its y message: what it publishes last."""
+    from splitspec_core.runtime.wire import decode
+
+    a.on_tick(tick(0))
+    for k in range(6):
+        a.on_z("splitspec/r/z/1", z(0, k, j=1, value=1.0))
+        a.on_z("splitspec/r/z/3", z(0, k, j=3, value=1.0))
+    out = a.on_y(y_msg)
+    (_, payload), = [o for o in out if "xhat" in o[0]]
+    return decode(payload, "r", "xhat", mac_key=KEY)
+
+
+def test_without_a_measurement_the_agent_predicts_and_says_so():
+    """The plant's y names agent 2 missing: x_2(1) = A z_2(q) (steps.prediction_update), not the update with
+    y_2; with record_y the agent reports the y_i it used (None: none), else [] (not recorded)."""
+    from splitspec_core import steps as st
+
+    measured = one_round(AgentNode(2, {**config(), "record_y": True}, "r"), y(0, value=0.5))
+    a = AgentNode(2, {**config(), "record_y": True}, "r")
+    blind = one_round(a, encode("y", "r", mac_key=KEY, tau=0, attempt=0, y=np.full(3, 0.5), missing=[2]))
+    b = AgentNode(2, config(), "r")
+    b_out = one_round(b, y(0, value=0.5))
+    assert measured["y"] == [0.5] and blind["y"] is None and b_out["y"] == []
+    # the same z_2(q) both ways (the consensus does not depend on y): the two updates of that z
+    z_q = np.linalg.solve(a.F, measured["x"] + a.K @ np.array([0.5]))  # from x = F z - K y
+    assert np.allclose(blind["x"], st.prediction_update(z_q, a.A), rtol=1e-12, atol=1e-12)
+    assert not np.allclose(blind["x"], measured["x"])
+    assert np.array_equal(b_out["x"], measured["x"])  # record_y changes what is reported, not the estimate
+
+
+def test_the_plant_plays_the_file_the_orchestrator_was_given(tmp_path):
+    from splitspec_core.errors import SplitspecError
+    from splitspec_core.measurements import load_measurements, write_measurements
+    from splitspec_core.runtime.wire import decode
+    from splitspec_core.scenario_model import load_scenario
+
+    sc = load_scenario(EXAMPLES / "paper_discrete.yaml")
+    t = np.arange(4.0)
+    yy = np.arange(12.0).reshape(4, 3)
+    miss = np.zeros((4, 3), dtype=bool)
+    miss[1, 2] = True
+    write_measurements(tmp_path / "m.csv", t=t, y=yy, agent_ids=sc.agent_ids, sizes=[1, 1, 1], missing=miss)
+    write_measurements(tmp_path / "other.csv", t=t, y=yy + 1, agent_ids=sc.agent_ids, sizes=[1, 1, 1])
+    meas = load_measurements(tmp_path / "m.csv", sc)
+    cfg = {**config(), "measurements": {"sha256": meas.sha256, "steps": 3, "truth": False}}
+    p = PlantNode(cfg, "r", measurements=str(tmp_path / "m.csv"))
+    p.on_tick(tick(0))
+    out = p.on_tick(tick(1))
+    truth, ymsg = (decode(pl, "r", kind, mac_key=KEY) for (_, pl), kind in zip(out, ("truth", "y")))
+    assert truth["x"].shape == (0,)  # no truth in the file: an empty x
+    assert ymsg["y"].tolist() == [3.0, 4.0, 0.0] and ymsg["missing"] == [3]  # row 1; agent 3 missing there
+    with pytest.raises(SplitspecError, match="is not the file the orchestrator plays"):
+        PlantNode(cfg, "r", measurements=str(tmp_path / "other.csv"))
+    with pytest.raises(SplitspecError, match="start the plant with --measurements FILE"):
+        PlantNode(cfg, "r")
+    with pytest.raises(SplitspecError, match="this run simulates its plant"):
+        PlantNode(config(), "r", measurements=str(tmp_path / "m.csv"))

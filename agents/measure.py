@@ -1,0 +1,54 @@
+"""An agent's measurements ``y_i(tau)``: what it updates with, or that it has none (it then predicts only).
+
+The plant publishes one ``y`` message per event time for every agent (``y/all``: the stacked
+``(y_1, ..., y_m)`` and the ids of the agents without a measurement at that event time, a recorded gap in a
+measurements file).  :class:`YBuffer` keeps agent i's rows of it per event time: at most two event times
+before the first tick, none older than the last tick's, none more than one event time ahead of it; anything
+else is dropped and counted (``stale``, ``future``, ``buffer_full``, ``bad_shape``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["YBuffer"]
+
+
+class YBuffer:
+    """``y_i(tau)`` per event time (None: no measurement at ``tau``); :meth:`ready` before :meth:`get`."""
+
+    def __init__(self, agent_id: int, rows: slice, size: int, limit: int = 2):
+        self.id, self.rows, self.size, self.limit = agent_id, rows, size, limit
+        self.buf: dict = {}
+
+    def put_message(self, m: dict, *, last_tau, tick_tau, reject) -> bool:
+        """Keep agent i's part of a decoded ``y`` message; False (and ``reject(reason)``) if it is dropped."""
+        if m["y"].shape != (self.size,):
+            reject("bad_shape")
+            return False
+        tau = m["tau"]
+        if (last_tau is not None and tau < last_tau) or (tick_tau is not None and tau < tick_tau):
+            reject("stale")
+            return False
+        if tick_tau is not None and tau > tick_tau + 1:
+            reject("future")
+            return False
+        if tau not in self.buf and len(self.buf) >= self.limit:  # before the first tick: keep the newest two
+            oldest = min(self.buf)
+            if tau < oldest:
+                reject("buffer_full")
+                return False
+            del self.buf[oldest]
+        self.buf[tau] = None if self.id in m["missing"] else np.asarray(m["y"][self.rows])
+        return True
+
+    def ready(self, tau: int) -> bool:
+        """Whether ``y_i(tau)`` (or the word that there is none) has arrived."""
+        return tau in self.buf
+
+    def get(self, tau: int) -> np.ndarray | None:
+        return self.buf[tau]
+
+    def prune(self, tau: int) -> None:
+        """Forget event times before ``tau``."""
+        self.buf = {k: v for k, v in self.buf.items() if k >= tau}
