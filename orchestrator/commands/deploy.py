@@ -61,7 +61,28 @@ def cmd_run(args: argparse.Namespace) -> int:
         print(f"recording: {rrd}  (open it with: {_splitspec_command()} view {out})")
         print(f"trajectory: {out / 'trajectory.npz'}  events: {out / 'events.jsonl'}")
         _network_line(sc, out)
+        if args.measurements:
+            _measured_line(out)
     return code
+
+
+def _measured_line(out) -> None:
+    """A run on recorded measurements: what is known at the end (the truth when the file has it, else the reference)."""
+    import numpy as np
+
+    try:
+        with np.load(out / "trajectory.npz") as z:
+            if "kf_distance" not in z.files:
+                return
+            last = lambda a: float(np.nanmax(a)) if np.isfinite(a).any() else float("nan")  # noqa: E731
+            truth = bool(np.isfinite(z["x"]).any())
+            err = last(np.linalg.norm(z["xhat"][-1] - z["x"][-1], axis=1)) if truth else None
+            text = (f"measurements: at the end, consensus disagreement {last(z['disagreement'][-1:]):.3g}, largest "
+                    f"distance to the centralized Kalman filter {last(z['kf_distance'][-1]):.3g}"
+                    + (f", largest error to the file's truth {err:.3g}" if truth else " (the file has no truth)"))
+    except (OSError, ValueError, KeyError):
+        return
+    print(text)
 
 
 def _network_line(sc, out) -> None:

@@ -63,6 +63,7 @@ def test_a_run_without_truth_and_with_gaps(tmp_path):
     out = tmp_path / "out"
     r = run("run", scen, "--out", out, "--measurements", csv)
     assert r.returncode == 0, r.stdout + r.stderr
+    assert "consensus disagreement" in r.stdout and "(the file has no truth)" in r.stdout
     compare_with_simulate(out, scen, tmp_path, 1e-9, "--measurements", csv)
     with np.load(out / "trajectory.npz") as f:
         assert np.isnan(f["x"]).all() and np.array_equal(f["y_missing"], missing)
