@@ -591,7 +591,8 @@ def test_nearly_dependent_outputs_keep_the_unobservable_space(rank_tol, data):
         kept = sv[sv > threshold_of(d.rank_tol) * sv[0]]
         kappa = kept[0] / kept[-1] if kept.size else 1.0
         tol = min(1e-8 * kappa, 1.0)
-        assert np.linalg.norm(W - dec.P @ W, 2) <= tol  # span W inside span V_i
+        # span W inside span V_i (W may have no column: numpy 2.0's norm refuses an empty matrix)
+        assert (np.linalg.norm(W - dec.P @ W, 2) if W.size else 0.0) <= tol
         if dec.V.shape == W.shape:
             assert np.linalg.norm(dec.P - W @ W.T, 2) <= tol
         else:  # the extra directions were seen too weakly to count: the construction's observable space is
