@@ -102,6 +102,7 @@ class AgentNode:
         self.xbuf: dict = {}  # (tau, attempt of round tau - 1) -> {j: x_j(tau)}: the next round's z_j(0)
         rows = output_rows(sc.system.Cs)
         self.ys = YBuffer(agent_id, rows[self.index], rows[-1].stop)  # y_i(tau), or that there is none
+        self.sampler = None  # a live sensor's LiveSampler (scenario sources:, agents/sensor.py)
         self.record_y = bool(config.get("record_y", False))  # report the y_i used (measurements, live sensors)
         self.rejected: dict = {}
         # a misbehaving network (splitspec_core.impairment): the same draws as the simulator's, a deadline per
@@ -187,6 +188,8 @@ class AgentNode:
         self.zbuf = {k: v for k, v in self.zbuf.items() if (k[0], k[1]) >= (tau, attempt)}
         self.xbuf = {k: v for k, v in self.xbuf.items() if k[0] >= tau}
         self.ys.prune(tau)
+        if self.sampler is not None and not t["final"]:  # a live sensor: y_i(tau) is its value now (sensor.py)
+            self.ys.put_sample(tau, self.sampler.take())
         if self.arrived:
             self.arrived = {k: v for k, v in self.arrived.items() if k[1][0] >= tau}
         if t["final"]:
@@ -269,8 +272,10 @@ class AgentNode:
             return []
         if self.tick_tag is not None:
             t_tau, t_att = self.tick_tag
-            # x_j(tau + 1) of the round in flight, or x_j(tau) (an admission report); at most two attempts ahead
-            if m["tau"] < t_tau or m["tau"] > t_tau + 1:
+            # x_j(tau + 1) of the round in flight, x_j(tau) (an admission report), or x_j(tau + 2) of a neighbour
+            # that saw the next tick first (measured: with live sensors nobody waits for a plant, and our tick can
+            # arrive after the neighbour's report); at most two attempts ahead
+            if m["tau"] < t_tau or m["tau"] > t_tau + 2:
                 self.reject("stale" if m["tau"] < t_tau else "future")
                 return []
             if m["attempt"] > t_att + 2:
@@ -399,6 +404,10 @@ def main(args: argparse.Namespace) -> int:
                     "y": lambda key, p: node.on_y(p)}
         subscriptions = ([(keys.tick, "tick"), (keys.y, "y")] + [(keys.z(j), "z") for j in node.in_neighbours]
                          + [(keys.xhat(j), "x") for j in node.in_neighbours])
+        if node.sc.sources:
+            from .sensor import attach
+
+            sensor_sub = attach(node, shell, keys)  # noqa: F841 - held: a dropped subscriber is undeclared
         timed = node.deadline is not None or node.delayed  # sub-rounds with a deadline, messages held for a delay
         return shell.run(lambda ch, key, p: handlers[ch](key, p), node.reject,
                          name=f"agent {args.id} (q = {node.exchanges})", subscriptions=subscriptions,
