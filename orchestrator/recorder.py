@@ -845,6 +845,29 @@ class Recorder:
         close what is known without truth (:func:`splitspec_core.reference.no_truth_arrays`)."""
         self._measured = (sc, meas)
 
+    def set_live_sources(self, sc) -> None:
+        """Live sensors (scenario ``sources:``): ``trajectory.npz`` gets the ``y_i`` each agent used at each event
+        time (:meth:`live_y`, from its ``xhat``) as ``y`` / ``y_missing``, and at the close what is known
+        without truth, as for a measurements file."""
+        from types import SimpleNamespace
+
+        from splitspec_core.plant_model import output_rows
+
+        self._live_rows = output_rows(sc.system.Cs)
+        T = int(sc.run.steps) + 1
+        live = SimpleNamespace(y=np.full((T, self._live_rows[-1].stop), np.nan), missing=np.ones((T, self.m), bool))
+        self._measured = (sc, live)
+
+    def live_y(self, tau: int, used) -> None:
+        """The ``(agent id, y_i(tau) or None)`` pairs the agents alive at ``tau`` used (the rest: missing)."""
+        live = self._measured[1]
+        with self._lock:
+            for aid, y in used:
+                k = self._pos[int(aid)]
+                if y is not None and len(y) == self._live_rows[k].stop - self._live_rows[k].start:
+                    live.y[tau, self._live_rows[k]] = y
+                    live.missing[tau, k] = False
+
     def _measured_arrays(self, T: int) -> dict:
         if getattr(self, "_measured", None) is None or not T:
             return {}
