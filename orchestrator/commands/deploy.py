@@ -68,7 +68,27 @@ def cmd_run(args: argparse.Namespace) -> int:
         _network_line(sc, out)
         if args.measurements:
             _measured_line(out)
+        elif sc.sources:
+            _sensors_line(out)
     return code
+
+
+def _sensors_line(out) -> None:
+    """A run on live sensors: how many event times had a measurement, and what is known at the end (no truth)."""
+    import numpy as np
+
+    try:
+        with np.load(out / "trajectory.npz") as z:
+            if "kf_distance" not in z.files:
+                return
+            have = ~z["y_missing"][:-1]  # the final event time has no round, so no measurement
+            last = lambda a: float(np.nanmax(a)) if np.isfinite(a).any() else float("nan")  # noqa: E731
+            text = (f"live sensors: {int(have.sum())} of {have.size} (event time, agent) measurements used; at the "
+                    f"end, consensus disagreement {last(z['disagreement'][-1:]):.3g}, largest distance to the "
+                    f"centralized Kalman filter {last(z['kf_distance'][-1]):.3g} (no truth)")
+    except (OSError, ValueError, KeyError):
+        return
+    print(text)
 
 
 def _measured_line(out) -> None:

@@ -134,19 +134,23 @@ def test_a_secure_run_on_live_sensors_converges_and_its_log_replays(sensor_run, 
     # (measured over 4 runs: medians 0.030-0.042 to the truth, 0.028-0.041 to the KF, disagreement 0.049-0.079)
     assert np.nanmedian(traj["kf_distance"][-20:]) < 0.1 and np.nanmedian(traj["disagreement"][-20:]) < 0.15
     assert np.nanmax(traj["kf_distance"][-20:]) < 0.5
+    said = r.log.read_text()
+    used = int((~missing[:-1]).sum())
+    assert f"live sensors: {used} of 180 (event time, agent) measurements used" in said, said
+    assert f"with --credentials {r.sensors['credentials']}/sensor-<id>.cred" in said
     # the publisher's log is a measurements file the simulator accepts for this very scenario
     sim = run("simulate", r.scenario, "--out", tmp_path / "sim", "--no-plots", "--measurements", record)
     assert sim.returncode == 0, sim.stderr
 
 
 def test_a_sensor_lost_is_predicted_through_and_picked_up_again(sensor_run, tmp_path):
-    r = sensor_run(80, "--insecure")
+    r = sensor_run(90, "--insecure")
     r.publish("--agents", 1, 3, name="pub13", credentials=None)
     second = r.publish("--agents", 2, name="pub2a", credentials=None)
     wait_for_rows(r.out, 25, timeout=30)
     os.killpg(second.pid, signal.SIGKILL)
     second.wait()
-    wait_for_rows(r.out, 50, timeout=30)
+    wait_for_rows(r.out, 45, timeout=30)
     r.publish("--agents", 2, "--seed", 5, name="pub2b", credentials=None)
     traj = r.finish()
     miss = traj["y_missing"][:, 1]
