@@ -210,3 +210,15 @@ def test_each_sensor_user_may_publish_on_its_own_key_only(tmp_path):
     old = generate(tmp_path / "old", [1, 2])
     with pytest.raises(ScenarioError, match="no credentials for sensor-1, sensor-2"):
         old.check_agents([1, 2], {1: "chain/1", 2: "chain/2"})
+
+
+def test_splitspec_credentials_writes_the_sensors_too(tmp_path, capsys):
+    """For an orchestrator started by hand (--secure DIR): `splitspec credentials` gives every sensor its file."""
+    from splitspec_orchestrator import cli
+
+    assert cli.main(["credentials", str(CHAIN), "--out", str(tmp_path / "c")]) == 0
+    said = capsys.readouterr().out
+    assert f"agent i's sensor: {tmp_path / 'c'}/sensor-i.cred" in said
+    for i in (1, 2, 3):
+        assert (tmp_path / "c" / f"sensor-{i}.cred").read_text().startswith(f"sensor-{i}:")
+    assert "sensor-3:" in (tmp_path / "c" / "users.txt").read_text()
