@@ -1,4 +1,5 @@
-"""What a run on measurements records: ReferenceRows (pure) and the reference tab of the default blueprint."""
+"""What a run on measurements records: ReferenceRows (pure), the reference tab of the default blueprint, and a
+Recorder fed by a y source without the truth, read back from its run.rrd."""
 
 from __future__ import annotations
 
@@ -8,7 +9,10 @@ import pytest
 from splitspec_core.measurements import Measurements
 from splitspec_core.reference import disagreement, residuals
 from splitspec_orchestrator import blueprint as bp
+from splitspec_orchestrator.recorder import Recorder, RecordingError
 from splitspec_orchestrator.reference_view import ReferenceRows, file_rows, known_parts, progress_text
+from tests.rrd_readback import read_rrd, read_rrd_clears, rrd_entities, verify_rrd
+from tests.unit.test_measurements import hidden_scenario
 
 # two agents, n = 2: agent 1 sees x1, agent 2 sees x1 + x2 and x2
 CS = [np.array([[1.0, 0.0]]), np.array([[1.0, 1.0], [0.0, 1.0]])]
@@ -99,3 +103,81 @@ def test_the_blueprint_of_a_run_on_measurements_opens_on_the_reference_tab(time_
     for truth, states in ((True, 4), (False, 2)):  # a tab by name: after the reference tabs
         blue = bp.default_blueprint(time_mode, n=3, reference=True, truth=truth, active_tab="states")
         assert blue.root_container.contents[0].active_tab == states
+
+
+def test_a_recorder_on_a_y_source_without_truth(tmp_path):
+    """Continuous time with gains: a live-like y source that knows no row at event times 3 and 4 and misses agent
+    1's at 6; agent 5 lost at 8 once rows up to 10 were logged.  No error, no truth; gains, states, residuals."""
+    sc = hidden_scenario(3, "continuous")
+    ids, n, T = list(sc.agent_ids), sc.n, 14
+    rng = np.random.default_rng(0)
+    Y = rng.normal(size=(T, sum(np.shape(C)[0] for C in sc.system.Cs)))
+
+    def y_row(tau):
+        if tau in (3, 4):
+            return None
+        return Y[tau], np.array([tau == 6] + [False] * (len(ids) - 1))
+
+    rec = Recorder(tmp_path, agent_ids=ids, n=n, steps=T - 1, time_mode="continuous", dt=sc.run.dt,
+                   graph_names=("a",), run_id="ref", scenario_name="ref", flush_seconds=0, gains=True)
+    rec.set_y_source(sc, y_row, truth=False)
+    xhat = rng.normal(size=(T, len(ids), n))
+    alive = np.ones(len(ids), bool)
+    for tau in range(T):
+        rec.row(tau, np.full(n, np.nan), xhat[tau], alive, 0, gains=np.full(len(ids), 2.0 + tau))
+        if tau == 10:
+            rec.mark_lost(8, ids[-1])
+            alive = alive.copy()
+            alive[-1] = False
+    rec.close()
+    rrd = tmp_path / "run.rrd"
+    ok, msg = verify_rrd(rrd)
+    assert ok, msg
+    ents = rrd_entities(rrd)
+    assert not [e for e in ents if e.startswith("errors") or e.endswith("/truth")], sorted(ents)
+    series, clears = read_rrd(rrd), read_rrd_clears(rrd)
+    with np.load(tmp_path / "trajectory.npz") as f:
+        res, dis, kf = f["residual"], f["disagreement"], f["kf"]
+        assert f["y_missing"][3:5].all() and f["y_missing"][6, 0] and not f["y_missing"][7].any()
+    dead = xhat.copy()
+    dead[8:, -1] = np.nan
+    np.testing.assert_allclose(dis, disagreement(dead), rtol=0, atol=0)
+    assert [k for k, _ in series["disagreement"]] == list(range(T))
+    np.testing.assert_allclose([v for _, v in series["disagreement"]], dis, rtol=1e-12, atol=0)
+    got = dict(series[f"residual/agent_{ids[0]}"])
+    assert sorted(got) == [k for k in range(T) if k not in (3, 4, 6)]
+    np.testing.assert_allclose([got[k] for k in sorted(got)], res[sorted(got), 0], rtol=1e-12, atol=0)
+    assert {3, 4, 6} <= set(clears[f"residual/agent_{ids[0]}"])
+    assert set(range(8, T)) <= set(clears[f"residual/agent_{ids[-1]}"])
+    assert sorted(dict(series[f"residual/agent_{ids[-1]}"])) == [k for k in range(8) if k not in (3, 4)]
+    # gains are logged without the truth (they are known), the lost agent's up to its loss
+    assert sorted(dict(series[f"gains/agent_{ids[-1]}"])) == list(range(8))
+    assert dict(series[f"gains/agent_{ids[0]}"])[T - 1] == 2.0 + T - 1
+    np.testing.assert_array_equal([v for _, v in series["state/1/kf"]], kf[:, 0])
+
+
+@pytest.mark.filterwarnings("ignore:RRD file has no footer")
+def test_a_killed_run_without_truth_is_recovered_with_its_layout(tmp_path):
+    """The records of a run on measurements killed mid-run (copied before its close): ``splitspec recover``
+    rebuilds the blueprint from the recording's properties, the reference views and no error view."""
+    import shutil
+
+    from splitspec_orchestrator.recover import recover
+    from tests.rrd_readback import read_blueprint
+
+    sc = hidden_scenario(3)
+    ids, n = list(sc.agent_ids), sc.n
+    Y = np.random.default_rng(1).normal(size=(6, sum(np.shape(C)[0] for C in sc.system.Cs)))
+    rec = Recorder(tmp_path / "run", agent_ids=ids, n=n, steps=5, time_mode="discrete", dt=1.0, graph_names=("a",),
+                   run_id="killed", scenario_name="killed", flush_seconds=0)
+    rec.set_y_source(sc, lambda tau: (Y[tau], np.zeros(len(ids), bool)), truth=False)
+    for tau in range(6):
+        rec.row(tau, np.full(n, np.nan), np.full((len(ids), n), float(tau)), np.ones(len(ids), bool), 0)
+    with pytest.raises(RecordingError, match=r"set_y_source\(\) after the first row"):
+        rec.set_y_source(sc, lambda tau: None, truth=True)
+    killed = tmp_path / "killed"
+    shutil.copytree(tmp_path / "run", killed)  # what a SIGKILL now leaves: run.rrd without footer
+    rec.close()
+    assert recover(killed)["rrd"] == "rewritten"
+    views = {name for _, name, _ in read_blueprint(killed / "run.rrd")["views"]}
+    assert "log10 residuals |y_i - C_i x_i|" in views and not [v for v in views if "|x_i - x|" in v], views
