@@ -131,6 +131,7 @@ MAX_COLOR = (235, 235, 235)
 TRUTH_COLOR = (235, 235, 235)
 KF_COLOR = TRUTH_COLOR  # without the truth the filter is drawn in its place
 KF_BESIDE_TRUTH_COLOR = (150, 150, 150)
+DISAGREEMENT_COLOR = (110, 110, 110)  # alone in its view: a grey that shows on the dark and the light theme
 ENVELOPE_COLOR = (255, 80, 80)
 LOST_COLOR = (214, 39, 40)  # an arc that lost a message (topology/lost)
 LATE_COLOR = (255, 127, 14)  # ... whose missing messages all came too late

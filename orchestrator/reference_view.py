@@ -164,7 +164,7 @@ class ReferenceView:
                          static=True)
 
         for path in (bp.DISAGREEMENT, bp.DISAGREEMENT_LOG10):
-            line(path, "disagreement", bp.MAX_COLOR, 2.5)
+            line(path, "disagreement", bp.DISAGREEMENT_COLOR, 2.5)
         for i, a in enumerate(self.agent_ids):
             for prefix in (bp.RESIDUAL, bp.RESIDUAL_LOG10, bp.KF_DISTANCE, bp.KF_DISTANCE_LOG10):
                 line(bp.agent_path(prefix, a), f"agent {a}", bp.color(i))
