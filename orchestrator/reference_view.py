@@ -211,10 +211,13 @@ class ReferenceView:
         self._send(rr, seq, t, wall, parts)
 
 
-def progress_text(max_error: float, xhat: np.ndarray) -> str:
+def progress_text(max_error: float, xhat: np.ndarray, alive: np.ndarray | None = None) -> str:
     """The figure of a live progress line: ``max error`` with the truth, else the consensus ``disagreement``
-    (``max_ij |x_i - x_j|`` of ``xhat`` (m, n), NaN rows dead) -- never an error the run cannot know."""
+    (``max_ij |x_i - x_j|`` over the ``alive`` rows of ``xhat`` (m, n), NaN rows dead) -- never an error the run
+    cannot know.  For the orchestrator's ``Progress`` line (``rounds.Record.max_error`` is NaN without truth)."""
     if math.isfinite(max_error):
         return f"max error {max_error:9.3e}"
-    dis = float(disagreement(np.asarray(xhat, dtype=float)[None])[0])
-    return f"disagreement {dis:9.3e}"
+    xhat = np.array(xhat, dtype=float)
+    if alive is not None:
+        xhat[~np.asarray(alive, dtype=bool)] = np.nan
+    return f"disagreement {float(disagreement(xhat[None])[0]):9.3e}"

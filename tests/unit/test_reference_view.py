@@ -76,6 +76,7 @@ def test_progress_shows_the_disagreement_without_truth():
     xhat = np.array([[0.0, 0.0], [3.0, 4.0], [np.nan, np.nan]])
     assert progress_text(1.5e-3, xhat) == "max error 1.500e-03"
     assert progress_text(float("nan"), xhat) == "disagreement 5.000e+00"
+    assert progress_text(float("nan"), xhat, np.array([True, False, True])) == "disagreement 0.000e+00"
 
 
 def tab_names(blueprint) -> list[str]:
