@@ -56,6 +56,13 @@ def file_rows(meas) -> YRow:
     return y_row
 
 
+def _grown(a: np.ndarray, rows: int, fill) -> np.ndarray:
+    """``a`` with ``rows`` rows, the new ones ``fill``."""
+    out = np.full((rows,) + a.shape[1:], fill, dtype=a.dtype)
+    out[:len(a)] = a
+    return out
+
+
 def _log10(v: np.ndarray) -> np.ndarray:
     with np.errstate(divide="ignore", invalid="ignore"):
         return np.log10(v)
@@ -101,9 +108,14 @@ class ReferenceRows:
         self.size = sum(C.shape[0] for C in self.Cs)
         self.y_row = y_row
         self._dis = np.full(64, np.nan)  # the disagreement of each event time batched so far, by tau
+        # the measurements y_row gave, by tau (a None is asked again: a live source may know it later)
+        self._y, self._miss, self._known = np.zeros((64, self.size)), np.ones((64, self.m), bool), np.zeros(64, bool)
 
     def measurements(self, taus) -> tuple[np.ndarray, np.ndarray]:
         """``y`` (L, sum s_i) and ``missing`` (L, m) of event times ``taus`` (0.0 and missing where unknown).
+
+        ``y_row`` is asked once per event time that it knows (``trajectory.npz``, rewritten at every
+        flush, asks again for every row).
 
         Raises
         ------
@@ -111,9 +123,11 @@ class ReferenceRows:
             If ``y_row`` gives a row of the wrong shape.
         """
         taus = np.asarray(taus, dtype=np.int64).reshape(-1)
-        Y = np.zeros((len(taus), self.size))
-        missing = np.ones((len(taus), self.m), dtype=bool)
-        for r, tau in enumerate(taus.tolist()):
+        if len(taus) and int(taus.max()) >= len(self._known):
+            cap = max(2 * len(self._known), int(taus.max()) + 1)
+            self._y, self._miss, self._known = (_grown(a, cap, fill) for a, fill in
+                                                ((self._y, 0.0), (self._miss, True), (self._known, False)))
+        for tau in taus[~self._known[taus]].tolist():
             got = self.y_row(int(tau))
             if got is None:
                 continue
@@ -121,8 +135,8 @@ class ReferenceRows:
             if y.shape != (self.size,) or miss.shape != (self.m,):
                 raise ValueError(f"the measurement of event time {tau} has y {y.shape} and missing {miss.shape}; "
                                  f"expected ({self.size},) and ({self.m},)")
-            Y[r], missing[r] = y, miss
-        return Y, missing
+            self._y[tau], self._miss[tau], self._known[tau] = y, miss, True
+        return self._y[taus], self._miss[taus]
 
     def batch(self, seq, t, wall, xhat: np.ndarray) -> ReferenceBatch:
         """Rows of event times ``seq`` with estimates ``xhat`` (L, m, n), NaN where an agent is dead."""
@@ -130,11 +144,8 @@ class ReferenceRows:
         Y, missing = self.measurements(seq)
         dis = disagreement(xhat)
         if len(seq):
-            top = int(seq.max())
-            if top >= len(self._dis):
-                grown = np.full(max(2 * len(self._dis), top + 1), np.nan)
-                grown[:len(self._dis)] = self._dis
-                self._dis = grown
+            if int(seq.max()) >= len(self._dis):
+                self._dis = _grown(self._dis, max(2 * len(self._dis), int(seq.max()) + 1), np.nan)
             self._dis[seq] = dis
         return ReferenceBatch(seq=seq, t=np.asarray(t), wall=np.asarray(wall),
                               residual=residuals(xhat, Y, missing, self.Cs), disagreement=dis)

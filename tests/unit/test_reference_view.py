@@ -182,3 +182,19 @@ def test_a_killed_run_without_truth_is_recovered_with_its_layout(tmp_path):
     assert recover(killed)["rrd"] == "rewritten"
     views = {name for _, name, _ in read_blueprint(killed / "run.rrd")["views"]}
     assert "log10 residuals |y_i - C_i x_i|" in views and not [v for v in views if "|x_i - x|" in v], views
+
+
+def test_each_known_measurement_is_asked_once():
+    """trajectory.npz asks for every row at every flush: y_row is asked again only where it knew nothing."""
+    asked = []
+
+    def y_row(tau):
+        asked.append(tau)
+        return None if tau == 2 else (np.full(3, float(tau)), np.array([False, tau == 1]))
+
+    rows = ReferenceRows(CS, y_row)
+    rows.measurements([0, 1, 2])
+    Y, missing = rows.measurements(np.arange(100))  # past the first 64 rows kept
+    assert asked == [0, 1, 2] + [2] + list(range(3, 100))
+    assert Y[99].tolist() == [99.0] * 3 and Y[2].tolist() == [0.0] * 3 and missing[2].all()
+    assert missing[1].tolist() == [False, True] and not missing[50].any()
