@@ -27,7 +27,8 @@ Entity paths (DESIGN.md "Rerun recording" is the contract for the first ones;
 ``rounds/rejected``             messages rejected since the previous round's record
 ``rounds/lost``                 consensus messages of the round that did not count (loss, late, partition)
 ``marks/<kind>``                a point at each loss, rejoin, graph switch, scenario fault,
-                                partition and heal
+                                partition and heal, at the height of the log10 max error (without
+                                the truth: of the log10 disagreement)
 ``topology``                    GraphNodes (fixed positions, lost agents grey) + GraphEdges: the arcs
                                 that carried every message (a partition's cut and, per event time,
                                 the arcs that lost a message are drawn dashed instead)
