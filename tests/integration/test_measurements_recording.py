@@ -105,7 +105,12 @@ def test_without_truth_no_error_and_no_truth_is_recorded(no_truth):
     assert not [e for e in ents if e.startswith("state/") and e.endswith("/truth")], sorted(ents)
     assert reference_entities() <= ents, sorted(reference_entities() - ents)
     assert {f"state/{k}/agents" for k in range(1, N + 1)} <= ents
-    assert "marks/lost" in ents  # the kill is marked, on the disagreement's axis
+    series = read_rrd(rrd)
+    with np.load(no_truth / "trajectory.npz") as f:
+        dis = f["disagreement"]
+    # the kill is marked at its event time, on the log10 disagreement's axis (no max error to stand on)
+    [(tau, y)] = series["marks/lost"]
+    assert tau == KILL_AT and y == pytest.approx(np.log10(dis[KILL_AT]), abs=RTOL)
     # the layout that travels in the file: reference views, no error view
     views = {name: origin for _, name, origin in read_blueprint(rrd)["views"]}
     assert views["log10 residuals |y_i - C_i x_i|"] == "residual_log10"
