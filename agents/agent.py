@@ -272,9 +272,11 @@ class AgentNode:
             return []
         if self.tick_tag is not None:
             t_tau, t_att = self.tick_tag
-            # x_j(tau + 1) of the round in flight, x_j(tau) (an admission report), or x_j(tau + 2) of a neighbour
-            # that saw the next tick first (measured: with live sensors nobody waits for a plant, and our tick can
-            # arrive after the neighbour's report); at most two attempts ahead
+            # x_j(tau + 1) of the round in flight, x_j(tau) (an admission report), or x_j(tau + 2): when round
+            # tau + 1 needs nothing new from this agent (continuous time, q = 1: z(0) is x(tau + 1), already
+            # sent; or live sensors: no plant to wait for), a neighbour can finish it before this agent has read
+            # tick tau + 1; the orchestrator cannot tick tau + 2 before this agent's x(tau + 2), so nothing honest
+            # is further ahead.  At most two attempts ahead.
             if m["tau"] < t_tau or m["tau"] > t_tau + 2:
                 self.reject("stale" if m["tau"] < t_tau else "future")
                 return []

@@ -20,7 +20,14 @@ With ``--network``, instead, the two screenshots of a network that misbehaves, i
                      the partition named above the graph, its mark (5) and the heal's (35) on the
                      log error plot
 
-The default blueprint opens on the log errors; for a screenshot of another tab the viewer is
+With ``--measured``, the screenshot of a run on measurements without the truth, in ``docs/``:
+
+    measured.png     examples/ring10_noise.yaml run on its own simulated measurements with the truth
+                     columns removed and 10 % of agent 3's measurements blanked (``run --measurements``),
+                     at its end (200): the reference tab the default blueprint opens on for such a run,
+                     log10 residuals, disagreement and distance to the centralized Kalman filter
+
+The default blueprint opens on the log errors (on the reference tab for a run on measurements); for a screenshot of another tab the viewer is
 given a copy of ``run.rrd`` whose default blueprint is the same one opened on that tab
 (``blueprint.default_blueprint(active_tab=...)``), rather than a click on the canvas.
 
@@ -33,6 +40,7 @@ Setup, once (no browser download: Debian's chromium is used):
     .venv/bin/python -m pip install -e '.[docs]'     # playwright
     .venv/bin/python docs/make_screenshots.py
     .venv/bin/python docs/make_screenshots.py --network      # docs/lossy_ring.png, docs/partition.png
+    .venv/bin/python docs/make_screenshots.py --measured     # docs/measured.png
 
 How the viewer is driven. Readiness and the time cursor go through the page's
 own viewer handle, ``window._handle`` (the ``WebHandle`` the served
@@ -79,6 +87,36 @@ DEFAULT_TIMES = {"kill": 24, "rejoin": 38, "switch": 48, "end": 60}
 # --network: (scenario, {screenshot name: event time}, tab in front or None), written to docs/<name>.png
 NETWORK_SHOTS = [(ROOT / "examples" / "ring10_lossy.yaml", {"lossy_ring": 20}, "rounds"),
                  (ROOT / "examples" / "ring10_partition.yaml", {"partition": 30}, None)]
+
+
+MEASURED_SCENARIO = ROOT / "examples" / "ring10_noise.yaml"
+MEASURED_BLANKED = (3, 0.1, 3)  # agent, share of its rows without a measurement, seed of their choice
+
+
+def measured_run(run_dir: Path) -> Path:
+    """``MEASURED_SCENARIO`` run on its own simulated measurements without the truth, into ``run_dir``."""
+    import numpy as np
+
+    from splitspec_core.measurements import load_measurements, write_measurements
+    from splitspec_core.scenario_model import load_scenario
+
+    work = run_dir.parent / f"{run_dir.name}-files"
+    work.mkdir(parents=True, exist_ok=True)
+    subprocess.run([sys.executable, "-m", "splitspec_orchestrator", "simulate", str(MEASURED_SCENARIO), "--out",
+                    str(work / "sim"), "--no-plots", "--write-measurements", str(work / "full.npz")], cwd=ROOT,
+                   check=True, stdout=subprocess.DEVNULL)
+    sc = load_scenario(MEASURED_SCENARIO)
+    full = load_measurements(work / "full.npz", sc)
+    agent, share, seed = MEASURED_BLANKED
+    missing = full.missing.copy()
+    T = len(full.t)
+    missing[np.random.default_rng(seed).choice(T, int(share * T), replace=False), list(sc.agent_ids).index(agent)] = True
+    write_measurements(work / "notruth.csv", t=full.t, y=full.y, agent_ids=sc.agent_ids,
+                       sizes=[np.shape(C)[0] for C in sc.system.Cs], missing=missing)
+    subprocess.run([sys.executable, "-m", "splitspec_orchestrator", "run", str(MEASURED_SCENARIO), "--out",
+                    str(run_dir), "--measurements", str(work / "notruth.csv")], cwd=ROOT, check=True,
+                   stdout=subprocess.DEVNULL)
+    return run_dir
 
 
 class ScreenshotError(RuntimeError):
@@ -218,18 +256,25 @@ def last_event_time(run_dir: Path) -> int:
 
 
 def recording_info(rrd: Path) -> dict:
-    """The recording's ``splitspec`` property (time_mode, n, envelope, gains, ...), as the recorder wrote it."""
+    """The recording's ``splitspec`` property (time_mode, n, envelope, gains, ...), as the recorder wrote it, and
+    ``measurements``: None, or for a run on measurements ``{"truth": bool}`` (its ``measurements`` property)."""
     from rerun.chunk import RrdReader
 
+    def values(chunk) -> dict:
+        batch = chunk.to_record_batch()
+        out = {}
+        for name in batch.schema.names:
+            value = batch.column(name).to_pylist()[0]
+            out[name.rpartition(":")[2]] = value[0] if isinstance(value, list) and len(value) == 1 else value
+        return out
+
+    found: dict = {}
     for chunk in RrdReader(rrd).stream():
-        if chunk.entity_path == "/__properties/splitspec":
-            batch = chunk.to_record_batch()
-            out = {}
-            for name in batch.schema.names:
-                value = batch.column(name).to_pylist()[0]
-                out[name.rpartition(":")[2]] = value[0] if isinstance(value, list) and len(value) == 1 else value
-            return out
-    raise ScreenshotError(f"{rrd} has no splitspec property: not a recording of `splitspec run`")
+        if chunk.entity_path in ("/__properties/splitspec", "/__properties/measurements"):
+            found[chunk.entity_path.rpartition("/")[2]] = values(chunk)
+    if "splitspec" not in found:
+        raise ScreenshotError(f"{rrd} has no splitspec property: not a recording of `splitspec run`")
+    return {**found["splitspec"], "measurements": found.get("measurements")}
 
 
 def with_tab(run_dir: Path, tab: str, dest: Path) -> Path:
@@ -240,10 +285,11 @@ def with_tab(run_dir: Path, tab: str, dest: Path) -> Path:
     from splitspec_orchestrator.rrdfile import rewrite_rrd
 
     info = recording_info(run_dir / "run.rrd")
+    measured = info["measurements"]
     dest.mkdir(parents=True, exist_ok=True)
     rewrite_rrd(run_dir / "run.rrd", dest / "run.rrd", blueprint=default_blueprint(
         info["time_mode"], n=int(info["n"]), envelope=bool(info["envelope"]), gains=bool(info["gains"]),
-        active_tab=tab))
+        reference=measured is not None, truth=measured is None or bool(measured["truth"]), active_tab=tab))
     shutil.copy(run_dir / "events.jsonl", dest / "events.jsonl")
     return dest
 
@@ -340,8 +386,11 @@ def main(argv: list | None = None) -> int:
     p.add_argument("--chromium", default=CHROMIUM, help=f"Chromium executable (default {CHROMIUM})")
     p.add_argument("--network", action="store_true",
                    help="the screenshots of a misbehaving network instead: docs/lossy_ring.png, docs/partition.png")
+    p.add_argument("--measured", action="store_true",
+                   help="the screenshot of a run on measurements without the truth instead: docs/measured.png")
     p.add_argument("--max-kb", type=int, default=None,
-                   help="save a larger PNG with a 256-colour palette (default: 200 with --network, else none)")
+                   help="save a larger PNG with a 256-colour palette (default: 200 with --network or "
+                        "--measured, else none)")
     p.add_argument("--tab", help="the tab of the series to show (default: the log errors; e.g. rounds, states)")
     args = p.parse_args(argv)
     width, _, height = args.size.partition("x")
@@ -353,12 +402,21 @@ def main(argv: list | None = None) -> int:
             raise SystemExit("make_screenshots: error: --network runs its own scenarios at its own times "
                              "and tabs (no --run-dir, --at or --tab)")
         jobs = [(scenario, None, times, ROOT / "docs", "", tab) for scenario, times, tab in NETWORK_SHOTS]
+    elif args.measured:
+        if args.run_dir or args.at or args.tab or args.network:
+            raise SystemExit("make_screenshots: error: --measured makes its own run at its own time and tab "
+                             "(no --run-dir, --at, --tab or --network)")
+        t0 = time.monotonic()
+        run_dir = measured_run(ROOT / "out" / "screenshots" / "measured")
+        print(f"ran {MEASURED_SCENARIO.name} on measurements without truth into {run_dir} in "
+              f"{time.monotonic() - t0:.0f} s")
+        jobs = [(MEASURED_SCENARIO, run_dir, {"measured": last_event_time(run_dir)}, ROOT / "docs", "", None)]
     else:
         times = _times(args.at) if args.at else dict(DEFAULT_TIMES)
         prefix = args.prefix if args.prefix is not None else \
             f"view_{(args.scenario if args.run_dir is None else args.run_dir).stem}"
         jobs = [(args.scenario, args.run_dir, times, args.figures, prefix, args.tab)]
-    max_kb = args.max_kb if args.max_kb is not None else (200 if args.network else 0)
+    max_kb = args.max_kb if args.max_kb is not None else (200 if args.network or args.measured else 0)
     for scenario, run_dir, times, figures, prefix, tab in jobs:
         if run_dir is None:
             run_dir = ROOT / "out" / "screenshots" / scenario.stem

@@ -10,16 +10,25 @@ Entity paths (DESIGN.md "Rerun recording" is the contract for the first ones;
 ``errors_log10/max``            ``log10 max_i |x_i(tau) - x(tau)|_2``
 ``errors_log10/envelope``       ``log10`` of the designed envelope (no entity with the adaptive gain)
 ``state/<k>/truth``             ``x_k(tau)`` (bold)
+``state/<k>/kf``                the centralized Kalman filter's ``x_k(tau)`` (runs on measurements,
+                                logged after the run; bold in place of the truth when there is none)
 ``state/<k>/agents``            one batch of m scalars per event time: ``x_{i,k}(tau)`` of every
                                 agent, instance i = the i-th agent of the scenario (thin lines,
                                 named ``x<k> agent <id>``), NaN where the agent is dead
 ``gains/agent_<id>``            ``g_i(tau)`` (continuous time only)
+``residual/agent_<id>``         ``|y_i(tau) - C_i x_i(tau)|_2`` (runs on measurements; a Clear where the agent is
+                                dead or has no measurement), ``residual_log10/agent_<id>`` its log10
+``disagreement``                ``max_ij |x_i(tau) - x_j(tau)|_2`` over alive agents (runs on measurements),
+                                ``disagreement_log10`` its log10
+``kf_distance/agent_<id>``      ``|x_i(tau) - kf(tau)|_2``, the distance to the centralized Kalman filter (runs on
+                                measurements, logged after the run), ``kf_distance_log10/agent_<id>`` its log10
 ``rounds/wall_ms``              wall time of the round of ``tau``, first tick to record
 ``rounds/attempts``             attempts of that round (1 = no re-run)
 ``rounds/rejected``             messages rejected since the previous round's record
 ``rounds/lost``                 consensus messages of the round that did not count (loss, late, partition)
 ``marks/<kind>``                a point at each loss, rejoin, graph switch, scenario fault,
-                                partition and heal
+                                partition and heal, at the height of the log10 max error (without
+                                the truth: of the log10 disagreement)
 ``topology``                    GraphNodes (fixed positions, lost agents grey) + GraphEdges: the arcs
                                 that carried every message (a partition's cut and, per event time,
                                 the arcs that lost a message are drawn dashed instead)
@@ -34,8 +43,16 @@ Entity paths (DESIGN.md "Rerun recording" is the contract for the first ones;
 The last three exist only in a run whose network misbehaves (:mod:`splitspec_orchestrator.lossview`
 says why dots: an edge of a Rerun 0.41 graph has no colour or dash of its own).
 
+A run on measurements without the truth (``splitspec run --measurements FILE`` whose file has no
+``x``) logs nothing of ``errors``, ``errors_log10`` and ``state/<k>/truth``: what it cannot know
+is not shown, not even as NaN.  The residuals, the disagreement and the distance to the centralized
+Kalman filter take the errors' place (:mod:`splitspec_core.reference`); with the truth they are
+logged beside the errors
+(:mod:`splitspec_orchestrator.reference_view`).
+
 Entities per run: ``2m + 2n + 16`` (with the envelope; ``m`` more with gains, up to 3 more on a
-network that loses messages or is partitioned): at m = 32,
+network that loses messages or is partitioned; ``4m + n + 2`` more on measurements, of which the
+``2m + n`` of the filter are logged once, after the run; ``2m + n + 3`` fewer without the truth): at m = 32,
 n = 6, 92 instead of the 278 of one entity per agent and state component
 (``state/<k>/agent_<id>``, ``n (m + 1)`` of them with the truth), which the recorder paid for
 in every flush (one ``send_columns`` chunk per entity) and the viewer in every query.
@@ -60,9 +77,11 @@ import math
 from typing import Mapping
 
 __all__ = ["ERRORS", "ERRORS_MAX", "ERRORS_LOG10", "ERRORS_LOG10_MAX", "ENVELOPE", "STATE", "GAINS", "ROUNDS",
+           "RESIDUAL", "RESIDUAL_LOG10", "DISAGREEMENT", "DISAGREEMENT_LOG10", "KF_DISTANCE", "KF_DISTANCE_LOG10",
            "MARKS", "MARK_KINDS", "TOPOLOGY", "TOPOLOGY_GRAPH", "TOPOLOGY_LOST",
            "TOPOLOGY_PARTITION", "TOPOLOGY_STATUS", "EVENTS", "TL_EVENT", "TL_TIME", "TL_WALL",
-           "agent_path", "state_path", "color", "circle_positions", "default_blueprint"]
+           "REFERENCE_TAB", "agent_path", "state_path", "color", "circle_positions", "default_blueprint",
+           "reference_views"]
 
 ERRORS = "errors"
 ERRORS_MAX = "errors/max"
@@ -70,6 +89,12 @@ ERRORS_LOG10 = "errors_log10"
 ERRORS_LOG10_MAX = "errors_log10/max"
 ENVELOPE = "errors_log10/envelope"
 STATE = "state"
+RESIDUAL = "residual"
+RESIDUAL_LOG10 = "residual_log10"
+DISAGREEMENT = "disagreement"
+DISAGREEMENT_LOG10 = "disagreement_log10"
+KF_DISTANCE = "kf_distance"
+KF_DISTANCE_LOG10 = "kf_distance_log10"
 GAINS = "gains"
 ROUNDS = "rounds"
 ROUND_SERIES = ("wall_ms", "attempts", "rejected", "lost")
@@ -105,6 +130,9 @@ PALETTE = [  # matplotlib tab10
 DEAD_COLOR = (90, 90, 90)
 MAX_COLOR = (235, 235, 235)
 TRUTH_COLOR = (235, 235, 235)
+KF_COLOR = TRUTH_COLOR  # without the truth the filter is drawn in its place
+KF_BESIDE_TRUTH_COLOR = (150, 150, 150)
+DISAGREEMENT_COLOR = (110, 110, 110)  # alone in its view: a grey that shows on the dark and the light theme
 ENVELOPE_COLOR = (255, 80, 80)
 LOST_COLOR = (214, 39, 40)  # an arc that lost a message (topology/lost)
 LATE_COLOR = (255, 127, 14)  # ... whose missing messages all came too late
@@ -119,7 +147,7 @@ def agent_path(prefix: str, agent_id: int) -> str:
 
 
 def state_path(k: int, who: str) -> str:
-    """``state/<k>/<who>`` with the 1-based component index ``k``: ``who`` is ``truth`` or ``agents``."""
+    """``state/<k>/<who>`` with the 1-based component index ``k``: ``who`` is ``truth``, ``kf`` or ``agents``."""
     return f"{STATE}/{k}/{who}"
 
 
@@ -162,7 +190,7 @@ def status_label_position(positions: Mapping[int, tuple[float, float]]) -> tuple
 
 
 def default_blueprint(time_mode: str, *, n: int | None = None, envelope: bool = True,
-                      gains: bool = False, active_tab: int | str = 0):
+                      gains: bool = False, truth: bool = True, reference: bool = False, active_tab: int | str = 0):
     """The default layout: log errors (envelope, marks) large; topology and event log beside; the rest in tabs.
 
     Left, tabs: ``errors (log10)`` (the designed envelope and the marks of
@@ -175,21 +203,33 @@ def default_blueprint(time_mode: str, *, n: int | None = None, envelope: bool = 
     origin) above the event log.  ``n`` None (a recording
     whose state dimension is unknown): one view for every state component.
     Rerun 0.41 has no log-scale axis (rerun issue #6773), hence ``errors_log10``.
-    ``active_tab``: the tab shown first, by index or name (``"rounds"``); the log errors by default.
+
+    ``reference`` (a run on measurements): two tabs first, before the errors, the residuals,
+    the disagreement and the distance to the centralized Kalman filter on a log10 scale
+    (:data:`REFERENCE_TAB`, the tab shown) and linear (:func:`reference_views`), and the filter's line
+    (thin, grey) beside the truth in the state views.  ``truth=False`` (a run on measurements without
+    the truth): no error tabs at all, the marks on the log10 disagreement, and the states show the
+    filter bold in place of the truth.  Neither (a run of the simulated plant): the layout above.
+    ``active_tab``: the tab shown first, by index or name (``"rounds"``); the first by default.
     """
     import rerun.blueprint as rrb
 
-    log_errors = rrb.TimeSeriesView(
-        origin="/", contents=[f"{ERRORS_LOG10}/**", f"{MARKS}/**"],
-        name="log10 |x_i - x|, designed envelope, marks" if envelope else "log10 |x_i - x|, marks")
     if n:
-        states = rrb.Grid(*[rrb.TimeSeriesView(origin=f"{STATE}/{k}", name=f"x{k}: truth and estimates")
+        what = ("truth, centralized KF and estimates" if reference else "truth and estimates") if truth \
+            else ("centralized KF (after the run) and estimates" if reference else "estimates")
+        states = rrb.Grid(*[rrb.TimeSeriesView(origin=f"{STATE}/{k}", name=f"x{k}: {what}")
                             for k in range(1, n + 1)], name="states")
     else:
         states = rrb.TimeSeriesView(origin=STATE, name="states")
     rounds = rrb.Vertical(*[rrb.TimeSeriesView(origin=f"{ROUNDS}/{s}", name=f"round {s.replace('_', ' ')}")
                             for s in ROUND_SERIES], name="rounds")
-    tabs = [log_errors, rrb.TimeSeriesView(origin=ERRORS, name="|x_i - x| (linear)"), states]
+    tabs = reference_views(marks=not truth) if reference or not truth else []
+    if truth:
+        tabs += [rrb.TimeSeriesView(origin="/", contents=[f"{ERRORS_LOG10}/**", f"{MARKS}/**"],
+                                    name="log10 |x_i - x|, designed envelope, marks" if envelope
+                                    else "log10 |x_i - x|, marks"),
+                 rrb.TimeSeriesView(origin=ERRORS, name="|x_i - x| (linear)")]
+    tabs.append(states)
     if gains:
         tabs.append(rrb.TimeSeriesView(origin=GAINS, name="adaptive gains g_i"))
     tabs.append(rounds)
@@ -211,3 +251,28 @@ def default_blueprint(time_mode: str, *, n: int | None = None, envelope: bool = 
         rrb.TimePanel(timeline=TL_EVENT if time_mode == "discrete" else TL_TIME),
         collapse_panels=False,
     )
+
+
+#: the tab of a run on measurements, by the name ``active_tab`` knows it
+REFERENCE_TAB = "residuals, disagreement, distance to KF"
+
+
+def reference_views(*, marks: bool) -> list:
+    """The two tabs of a run on measurements: ``REFERENCE_TAB`` (log10) and the same linear.
+
+    Each a column of three views: every agent's measurement residual, the consensus disagreement (one
+    line; with ``marks``, the marks of losses, rejoins, switches and faults on it), and every agent's
+    distance to the centralized Kalman filter (known after the run: empty until the run ends).
+    """
+    import rerun.blueprint as rrb
+
+    def column(name: str, dis: str, res: str, kf: str, log: str, with_marks: bool):
+        return rrb.Vertical(
+            rrb.TimeSeriesView(origin=res, name=f"{log}residuals |y_i - C_i x_i|"),
+            rrb.TimeSeriesView(origin="/", contents=[dis] + ([f"{MARKS}/**"] if with_marks else []),
+                               name=f"{log}disagreement max_ij |x_i - x_j|" + (", marks" if with_marks else "")),
+            rrb.TimeSeriesView(origin=kf, name=f"{log}distance to the centralized KF |x_i - x_KF| (after the run)"),
+            name=name)
+
+    return [column(REFERENCE_TAB, DISAGREEMENT_LOG10, RESIDUAL_LOG10, KF_DISTANCE_LOG10, "log10 ", marks),
+            column(f"{REFERENCE_TAB} (linear)", DISAGREEMENT, RESIDUAL, KF_DISTANCE, "", False)]

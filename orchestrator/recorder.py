@@ -300,6 +300,9 @@ class Recorder:
         self._lock = threading.RLock()
         self._closed = False
         self._lost: dict = {}  # tau -> rows (tau, k, j, i, cause) of the consensus messages that did not count
+        # a run on measurements (set_y_source): (scenario, ReferenceRows), whether it has the truth, and the
+        # arrays known at its close (rows, no_truth_arrays) for run.rrd
+        self._measured, self._truth, self._after_run = None, True, None
 
         cap = max(min(int(steps) + 1, _MAX_INITIAL_ROWS), 16)
         self._s = RowStore(self.m, self.n, capacity=cap)  # the rows recorded (under _lock)
@@ -611,6 +614,7 @@ class Recorder:
                         self._flush(final=True)
                     except RecordsWriteError:
                         pass
+                    self._send_reference_after_run()
                 if self._failure is not None:
                     self._reserve.release()  # room for the final records
                     self._salvage()
@@ -799,7 +803,7 @@ class Recorder:
         sink = self._rec
         for lo in range(0, len(K), _SEND_ROWS):
             part = K[lo:lo + _SEND_ROWS]
-            err, show = D.row_errors(part)
+            err, show = self._row_errors(part)
             if sink is not None:
                 sink.guarded("row log", lambda: sink.send_rows(self._batch(part, err, show)))
             # What Rerun now shows (also when a send failed: it is not retried).
@@ -813,7 +817,7 @@ class Recorder:
             if events:
                 sink.guarded("event log", sink.send_events, events)
             if marks:
-                sink.guarded("marks", sink.send_marks, [(tau, t, kind, D.mark_y(tau), wall)
+                sink.guarded("marks", sink.send_marks, [(tau, t, kind, self._mark_y(tau), wall)
                                                         for tau, t, kind, wall in marks])
             if topology:
                 sink.guarded("topology log", sink.send_topology, topology)
@@ -841,39 +845,86 @@ class Recorder:
         self._rrd_rows = taken
 
     def set_measurements(self, sc, meas) -> None:
-        """The run plays a measurements file: ``trajectory.npz`` gets its ``y`` and ``y_missing`` rows, and at the
-        close what is known without truth (:func:`splitspec_core.reference.no_truth_arrays`)."""
-        self._measured = (sc, meas)
+        """The run plays a measurements file (:class:`splitspec_core.measurements.Measurements`): see
+        :meth:`set_y_source`; the truth is the file's ``x`` if it has one."""
+        from .reference_view import file_rows
+
+        self.set_y_source(sc, file_rows(meas), truth=meas.has_truth)
+
+    def set_y_source(self, sc, y_row, *, truth: bool) -> None:
+        """The estimators run on measurements ``y_row(tau) -> (y, missing) | None``
+        (:data:`splitspec_orchestrator.reference_view.YRow`); call before the first row.
+
+        ``trajectory.npz`` gets their ``y`` and ``y_missing`` rows, and at the close what is known without
+        truth (:func:`splitspec_core.reference.no_truth_arrays`); ``run.rrd`` the same as it goes
+        (:mod:`splitspec_orchestrator.reference_view`) and, ``truth=False``, no error and no truth at all.
+        """
+        from .reference_view import ReferenceRows
+
+        rows = ReferenceRows(sc.system.Cs, y_row)
+        with self._io, self._lock:
+            if self._s.rows:
+                raise RecordingError("set_y_source() after the first row: the recording already shows its errors")
+            self._measured, self._truth = (sc, rows), bool(truth)
+            if self._rec is not None:
+                self._rec.guarded("reference setup", lambda: self._rec.set_reference(rows, truth=truth))
+
+    def _row_errors(self, K: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``|x_i - x|`` of rows ``K`` and where a row shows agent i: alive with a finite error, or without the
+        truth (whose errors are never logged) alive with a finite estimate."""
+        err, show = self._d.row_errors(K)
+        if not self._truth:
+            show = self._d.alive[K] & np.isfinite(self._d.xhat[K]).all(axis=2)
+        return err, show
+
+    def _mark_y(self, tau: int) -> float:
+        """A mark's height: on the log10 max error, or without the truth on the log10 disagreement."""
+        if self._truth:
+            return self._d.mark_y(tau)
+        return self._measured[1].mark_y(tau)
+
+    def _send_reference_after_run(self) -> None:
+        """At the close, after the last flush: the centralized Kalman filter and each agent's distance to it,
+        the very arrays the last ``trajectory.npz`` got (:meth:`_measured_arrays`), to Rerun."""
+        done = self._after_run
+        if self._rec is None or self._rec.reference is None or done is None or done[0] != self._d.rows:
+            return
+        D, T, arrays = self._d, done[0], done[1]
+        self._rec.guarded("Kalman filter log", self._rec.reference.send_after_run, D.tau[:T], D.t[:T], D.wall[:T],
+                          arrays["kf"], arrays["kf_distance"])
 
     def set_live_sources(self, sc) -> None:
-        """Live sensors (scenario ``sources:``): ``trajectory.npz`` gets the ``y_i`` each agent used at each event
-        time (:meth:`live_y`, from its ``xhat``) as ``y`` / ``y_missing``, and at the close what is known
-        without truth, as for a measurements file."""
-        from types import SimpleNamespace
-
+        """Live sensors (scenario ``sources:``): the estimators run on the ``y_i`` each agent reports having used
+        (:meth:`live_y`, from its ``xhat``), without a truth (:meth:`set_y_source`); call before the first row."""
         from splitspec_core.plant_model import output_rows
 
         self._live_rows = output_rows(sc.system.Cs)
-        T = int(sc.run.steps) + 1
-        live = SimpleNamespace(y=np.full((T, self._live_rows[-1].stop), np.nan), missing=np.ones((T, self.m), bool))
-        self._measured = (sc, live)
+        self._live: dict = {}  # tau -> (y, missing) from live_y, until the y source has taken it (it keeps it)
+        self.set_y_source(sc, self._live_row, truth=False)
+
+    def _live_row(self, tau: int):
+        with self._lock:
+            return self._live.pop(int(tau), None)
 
     def live_y(self, tau: int, used) -> None:
-        """The ``(agent id, y_i(tau) or None)`` pairs the agents alive at ``tau`` used (the rest: missing)."""
-        live = self._measured[1]
+        """Event time ``tau``'s ``(agent id, y_i(tau) or None)`` of the agents alive (the others: missing, NaN);
+        before :meth:`row` of ``tau``, so that a flush never takes the row without its measurements."""
+        rows = self._live_rows
+        y, missing = np.full(rows[-1].stop, np.nan), np.ones(self.m, dtype=bool)
+        for aid, v in used:
+            k = self._pos[int(aid)]
+            if v is not None and len(v) == rows[k].stop - rows[k].start:
+                y[rows[k]], missing[k] = v, False
         with self._lock:
-            for aid, y in used:
-                k = self._pos[int(aid)]
-                if y is not None and len(y) == self._live_rows[k].stop - self._live_rows[k].start:
-                    live.y[tau, self._live_rows[k]] = y
-                    live.missing[tau, k] = False
+            self._live[int(tau)] = (y, missing)
 
     def _measured_arrays(self, T: int) -> dict:
-        if getattr(self, "_measured", None) is None or not T:
+        if self._measured is None or not T:
             return {}
-        sc, meas = self._measured
+        sc, rows = self._measured
         taus = self._d.tau[:T].astype(int)
-        extra = {"y": meas.y[taus], "y_missing": meas.missing[taus]}
+        y, missing = rows.measurements(taus)
+        extra = {"y": y, "y_missing": missing}
         if self._closed:  # the centralized Kalman filter over the whole run: once, at the end
             from splitspec_core.reference import no_truth_arrays
             from splitspec_core.simulator import Trajectory
@@ -881,7 +932,9 @@ class Recorder:
             D = self._d
             traj = Trajectory(t=D.t[:T], x=D.x[:T], xhat=D.xhat[:T], alive=D.alive[:T], graph=D.graph[:T],
                               agent_ids=np.array(self.agent_ids), y=extra["y"], y_missing=extra["y_missing"])
-            extra.update(no_truth_arrays(traj, sc))
+            known = no_truth_arrays(traj, sc)
+            self._after_run = (T, known)
+            extra.update(known)
         return extra
 
     def _write_trajectory(self, rows: int | None = None) -> None:

@@ -132,13 +132,14 @@ def _max_data_event(rrd: Path) -> int:
     return top
 
 
-def _run_properties(rrd: Path) -> dict:
-    """The recording's ``splitspec`` property (``time_mode``, ``n``, ``envelope``, ``gains``...), {} if absent."""
+def _run_properties(rrd: Path, name: str = "splitspec") -> dict:
+    """The recording's ``splitspec`` property (``time_mode``, ``n``, ``envelope``, ``gains``...), or another one
+    (``measurements``: ``truth``, of a run on measurements); {} if absent."""
     with warnings.catch_warnings():
         warnings.filterwarnings("ignore", message="RRD file has no footer")
         _, chunks = read_chunks(rrd)
         for chunk in chunks:
-            if chunk.entity_path == "/__properties/splitspec":
+            if chunk.entity_path == f"/__properties/{name}":
                 batch = chunk.to_record_batch()
                 out = {}
                 for name in batch.schema.names:
@@ -151,9 +152,11 @@ def _run_properties(rrd: Path) -> dict:
 def _blueprint(rrd: Path):
     """The run's default blueprint, rebuilt from the recording's properties (discrete time if absent)."""
     props = _run_properties(rrd)
+    measured = _run_properties(rrd, "measurements")
     n = props.get("n")
     return default_blueprint(str(props.get("time_mode", "discrete")), n=int(n) if isinstance(n, int) else None,
-                             envelope=bool(props.get("envelope", True)), gains=bool(props.get("gains", False)))
+                             envelope=bool(props.get("envelope", True)), gains=bool(props.get("gains", False)),
+                             reference=bool(measured), truth=bool(measured.get("truth", True)))
 
 
 def _recover_events(events: Path, K: int, t_last: float, rrd_state: str) -> tuple[bool, bool]:

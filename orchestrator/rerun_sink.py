@@ -8,7 +8,13 @@ colours and the default blueprint are in :mod:`splitspec_orchestrator.blueprint`
 the topology and what a misbehaving network draws over it (arcs that lost
 messages, a partition's cut) in :mod:`splitspec_orchestrator.topology_view`.
 
-A lost agent's own series (``errors``, ``errors_log10``, ``gains``) get a
+A run on measurements (:meth:`RerunSink.set_reference`) also logs what
+:mod:`splitspec_orchestrator.reference_view` computes (residuals, disagreement,
+after the run the centralized Kalman filter); without the truth it logs no
+error and no truth at all: their styles are logged with the first rows, once
+that is known, and the default blueprint is sent again.
+
+A lost agent's own series (``errors``, ``errors_log10``, ``gains``, ``residual``) get a
 non-recursive ``rr.Clear`` at the loss's event time: the time-series view
 draws a Clear on the entity itself as a break of the line
 (``collect_recursive_clears`` in rerun's series visualizer keeps non-recursive
@@ -39,6 +45,7 @@ from urllib.parse import urlsplit
 import numpy as np
 
 from . import blueprint as bp
+from .reference_view import ReferenceRows, ReferenceView
 from .rrdfile import RrdAppender, rerun_command, rewrite_rrd
 from .topology_view import TopologyView
 
@@ -115,6 +122,9 @@ class RerunSink:
         self.rrd_file = RrdAppender(Path(out_dir) / RRD_FILE)
         self.pending: list[bytes] = []  # read from Rerun, not yet on disk
         self._viewer_warned = False
+        # a run on measurements (set_reference): whether it has the truth, its rows and its view
+        self.truth, self.reference_rows, self.reference = True, None, None
+        self._truth_styled = False  # the styles of the errors and the truth: logged with the first rows
         self.rec = rec = rr.RecordingStream(application_id=APPLICATION_ID, recording_id=run_id)
         self.topology = TopologyView(rec, self.agent_ids, self.positions, index=self._index)
         self.stream = rr.binary_stream(rec)
@@ -132,7 +142,19 @@ class RerunSink:
     # ------------------------------------------------------------------ setup
 
     def blueprint(self):
-        return bp.default_blueprint(self.time_mode, n=self.n, envelope=self.envelope, gains=self.gains)
+        return bp.default_blueprint(self.time_mode, n=self.n, envelope=self.envelope, gains=self.gains,
+                                    truth=self.truth, reference=self.reference is not None)
+
+    def set_reference(self, rows: ReferenceRows, *, truth: bool) -> None:
+        """The run is on measurements (``rows``): log its residuals, disagreement and filter, the errors and the
+        truth only if it has the truth; the default blueprint opens on the reference tab.  Before the first rows."""
+        import rerun as rr
+
+        self.truth, self.reference_rows = bool(truth), rows
+        self.reference = ReferenceView(self.rec, self.agent_ids, self.n, truth=self.truth, index=self._index)
+        self.reference.log_static_styles(rr)
+        self.rec.send_property("measurements", rr.AnyValues(truth=self.truth))
+        self.rec.send_blueprint(self.blueprint(), make_active=True, make_default=True)
 
     def _viewer_sink(self, rr, rec, viewer: str | None, *, viewer_port: int, connect_timeout: float):
         """The ``rr.GrpcSink`` of the live viewer, or None (file only, with a warning)."""
@@ -174,27 +196,41 @@ class RerunSink:
             rec.log(path, rr.SeriesLines(names=name, colors=[col], **({"widths": width} if width else {})),
                     static=True)
 
-        line(bp.ERRORS_MAX, "max", bp.MAX_COLOR, 2.5)
-        line(bp.ERRORS_LOG10_MAX, "max", bp.MAX_COLOR, 2.5)
-        if self.envelope:
-            line(bp.ENVELOPE, "designed envelope", bp.ENVELOPE_COLOR, 2.0)
         for kind, (name, marker, col) in bp.MARK_KINDS.items():
             rec.log(f"{bp.MARKS}/{kind}", rr.SeriesPoints(names=name, colors=[col], markers=marker,
                                                           marker_sizes=6.0), static=True)
         for i, a in enumerate(self.agent_ids):
-            line(bp.agent_path(bp.ERRORS, a), f"agent {a}", bp.color(i))
-            line(bp.agent_path(bp.ERRORS_LOG10, a), f"agent {a}", bp.color(i))
             if self.gains:
                 line(bp.agent_path(bp.GAINS, a), f"g agent {a}", bp.color(i))
         m = len(self.agent_ids)
         for k in range(1, self.n + 1):
-            line(bp.state_path(k, "truth"), f"x{k} truth", bp.TRUTH_COLOR, 3.0)
             # one batch of m scalars: one name, colour and width per instance (agent)
             rec.log(bp.state_path(k, "agents"), rr.SeriesLines(
                 names=[f"x{k} agent {a}" for a in self.agent_ids], colors=[bp.color(i) for i in range(m)],
                 widths=[1.0] * m), static=True)
         for s in bp.ROUND_SERIES:
             line(f"{bp.ROUNDS}/{s}", s.replace("_", " "), bp.ROUND_COLORS[s])
+
+    def _log_truth_styles(self, rr) -> None:
+        """The styles of the errors and the truth: with the first rows, once it is known whether the run has
+        the truth (a run on measurements says so after the sink exists: :meth:`set_reference`)."""
+        self._truth_styled = True
+        if not self.truth:
+            return
+
+        def line(path, name, col, width=None):
+            self.rec.log(path, rr.SeriesLines(names=name, colors=[col], **({"widths": width} if width else {})),
+                         static=True)
+
+        line(bp.ERRORS_MAX, "max", bp.MAX_COLOR, 2.5)
+        line(bp.ERRORS_LOG10_MAX, "max", bp.MAX_COLOR, 2.5)
+        if self.envelope:
+            line(bp.ENVELOPE, "designed envelope", bp.ENVELOPE_COLOR, 2.0)
+        for i, a in enumerate(self.agent_ids):
+            line(bp.agent_path(bp.ERRORS, a), f"agent {a}", bp.color(i))
+            line(bp.agent_path(bp.ERRORS_LOG10, a), f"agent {a}", bp.color(i))
+        for k in range(1, self.n + 1):
+            line(bp.state_path(k, "truth"), f"x{k} truth", bp.TRUTH_COLOR, 3.0)
 
     def guarded(self, what: str, fn, *args) -> None:
         """Run one Rerun logging step; a failure is a warning, never an exception."""
@@ -213,7 +249,9 @@ class RerunSink:
 
     def agent_series(self, agent_id: int) -> list[str]:
         """Every series entity of one agent alone (what a loss clears; not the shared ``state/<k>/agents``)."""
-        paths = [bp.agent_path(bp.ERRORS, agent_id), bp.agent_path(bp.ERRORS_LOG10, agent_id)]
+        paths = [bp.agent_path(bp.ERRORS, agent_id), bp.agent_path(bp.ERRORS_LOG10, agent_id)] if self.truth else []
+        if self.reference is not None:
+            paths += self.reference.agent_series(agent_id)
         if self.gains:
             paths.append(bp.agent_path(bp.GAINS, agent_id))
         return paths
@@ -229,6 +267,10 @@ class RerunSink:
         """
         import rerun as rr
 
+        if not self._truth_styled:
+            self._log_truth_styles(rr)
+        if self.reference is not None:
+            self.reference.send_rows(self.reference_rows.batch(b.seq, b.t, b.wall, b.xhat))
         send = self.rec.send_columns
         L = len(b.seq)
         indexes: dict[bytes, list] = {}
@@ -256,21 +298,25 @@ class RerunSink:
         lerr, lmax = _log10(b.err), _log10(b.err_max)
         shown = np.where(b.show[:, :, None], b.xhat, np.nan)  # (L, m, n)
         for c in range(self.n):
-            scalars(bp.state_path(c + 1, "truth"), every, b.x[:, c])
+            if self.truth:
+                scalars(bp.state_path(c + 1, "truth"), every, b.x[:, c])
             scalars(bp.state_path(c + 1, "agents"), every, shown[:, :, c])  # (L, m): a batch of m per row
         for i, a in enumerate(self.agent_ids):
             mask = b.show[:, i]
-            scalars(bp.agent_path(bp.ERRORS, a), mask, b.err[:, i])
-            scalars(bp.agent_path(bp.ERRORS_LOG10, a), mask & np.isfinite(lerr[:, i]), lerr[:, i])
+            if self.truth:
+                scalars(bp.agent_path(bp.ERRORS, a), mask, b.err[:, i])
+                scalars(bp.agent_path(bp.ERRORS_LOG10, a), mask & np.isfinite(lerr[:, i]), lerr[:, i])
+                for path in (bp.agent_path(bp.ERRORS, a), bp.agent_path(bp.ERRORS_LOG10, a)):
+                    clear(path, b.clear[:, i])
             if self.gains:
                 scalars(bp.agent_path(bp.GAINS, a), mask & np.isfinite(b.gains[:, i]), b.gains[:, i])
-            for path in self.agent_series(a):
-                clear(path, b.clear[:, i])
-        scalars(bp.ERRORS_MAX, b.show_max, b.err_max)
-        scalars(bp.ERRORS_LOG10_MAX, b.show_max & np.isfinite(lmax), lmax)
-        clear(bp.ERRORS_MAX, b.clear_max)
-        clear(bp.ERRORS_LOG10_MAX, b.clear_max)
-        if self.envelope:
+                clear(bp.agent_path(bp.GAINS, a), b.clear[:, i])
+        if self.truth:
+            scalars(bp.ERRORS_MAX, b.show_max, b.err_max)
+            scalars(bp.ERRORS_LOG10_MAX, b.show_max & np.isfinite(lmax), lmax)
+            clear(bp.ERRORS_MAX, b.clear_max)
+            clear(bp.ERRORS_LOG10_MAX, b.clear_max)
+        if self.envelope and self.truth:
             lenv = _log10(b.env)
             scalars(bp.ENVELOPE, np.isfinite(lenv), lenv)
         for s, col in zip(bp.ROUND_SERIES, b.rounds.T):
