@@ -138,6 +138,15 @@ def test_a_secure_run_on_live_sensors_converges_and_its_log_replays(sensor_run, 
     used = int((~missing[:-1]).sum())
     assert f"live sensors: {used} of 180 (event time, agent) measurements used" in said, said
     assert f"with --credentials {r.sensors['credentials']}/sensor-<id>.cred" in said
+    # run.rrd: what is known without a truth, as for a measurements file, and no error
+    from splitspec_orchestrator.recorder import verify_rrd
+    from tests.rrd_readback import rrd_entities
+
+    ok, why = verify_rrd(r.out / "run.rrd")
+    entities = rrd_entities(r.out / "run.rrd")
+    assert ok, why
+    assert {"disagreement", "residual/agent_2", "kf_distance/agent_3", "state/1/kf"} <= entities
+    assert not any(e.startswith("errors") for e in entities)
     # the publisher's log is a measurements file the simulator accepts for this very scenario
     sim = run("simulate", r.scenario, "--out", tmp_path / "sim", "--no-plots", "--measurements", record)
     assert sim.returncode == 0, sim.stderr
