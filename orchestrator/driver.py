@@ -70,22 +70,27 @@ class RunFailed(SplitspecError, RuntimeError):
 
 
 class Progress:
-    """One status line on a terminal: event time, max error, alive agents, rounds per second."""
+    """One status line on a terminal: event time, max error (without truth: the consensus disagreement,
+    :func:`~splitspec_orchestrator.reference_view.progress_text`), alive agents, rounds per second."""
 
     def __init__(self, steps: int, m: int):
         self.enabled = sys.stderr.isatty()
         self.steps, self.m = steps, m
         self.t0 = self.last = time.monotonic()
 
-    def update(self, tau: int, max_err: float, alive: int, *, force: bool = False) -> None:
+    def update(self, tau: int, max_err: float, alive: int, *, force: bool = False, xhat=None,
+               alive_mask=None) -> None:
         if not self.enabled:
             return
         now = time.monotonic()
         if now - self.last < 0.25 and not force:
             return
+        from .reference_view import progress_text
+
+        figure = f"max error {max_err:9.3e}" if xhat is None else progress_text(max_err, xhat, alive_mask)
         self.last = now
         rps = tau / max(now - self.t0, 1e-9)
-        sys.stderr.write(f"\revent {tau:>6}/{self.steps}  max error {max_err:9.3e}  alive {alive}/{self.m}  "
+        sys.stderr.write(f"\revent {tau:>6}/{self.steps}  {figure}  alive {alive}/{self.m}  "
                          f"{rps:7.1f} rounds/s ")
         if force:
             sys.stderr.write("\n")
@@ -257,8 +262,8 @@ class Orchestrator:
                     self.rec.live_y(a.tau, a.y)
                 self.rec.row(a.tau, a.x, a.xhat, a.alive, a.graph, gains=gains, attempts=a.attempts,
                              rejected=a.rejected, wall_ms=(time.monotonic() - a.started) * 1e3, lost=a.lost)
-                self.progress.update(a.tau, a.max_error, int(a.alive.sum()),
-                                     force=a.tau == self.machine.plan.steps)
+                self.progress.update(a.tau, a.max_error, int(a.alive.sum()), force=a.tau == self.machine.plan.steps,
+                                     xhat=a.xhat, alive_mask=a.alive)
             elif kind is R.Event:
                 self.rec.event(a.name, a.t, **a.fields)
             elif kind is R.Log:
