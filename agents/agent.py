@@ -102,6 +102,7 @@ class AgentNode:
         self.xbuf: dict = {}  # (tau, attempt of round tau - 1) -> {j: x_j(tau)}: the next round's z_j(0)
         rows = output_rows(sc.system.Cs)
         self.ys = YBuffer(agent_id, rows[self.index], rows[-1].stop)  # y_i(tau), or that there is none
+        self.sampler = None  # a live sensor's LiveSampler (scenario sources:, agents/sensor.py)
         self.record_y = bool(config.get("record_y", False))  # report the y_i used (measurements, live sensors)
         self.rejected: dict = {}
         # a misbehaving network (splitspec_core.impairment): the same draws as the simulator's, a deadline per
@@ -187,6 +188,8 @@ class AgentNode:
         self.zbuf = {k: v for k, v in self.zbuf.items() if (k[0], k[1]) >= (tau, attempt)}
         self.xbuf = {k: v for k, v in self.xbuf.items() if k[0] >= tau}
         self.ys.prune(tau)
+        if self.sampler is not None and not t["final"]:  # a live sensor: y_i(tau) is its value now (sensor.py)
+            self.ys.put_sample(tau, self.sampler.take())
         if self.arrived:
             self.arrived = {k: v for k, v in self.arrived.items() if k[1][0] >= tau}
         if t["final"]:
@@ -271,9 +274,9 @@ class AgentNode:
             t_tau, t_att = self.tick_tag
             # x_j(tau + 1) of the round in flight, x_j(tau) (an admission report), or x_j(tau + 2): when round
             # tau + 1 needs nothing new from this agent (continuous time, q = 1: z(0) is x(tau + 1), already
-            # sent), a neighbour can finish it before this agent has read tick tau + 1; the orchestrator cannot
-            # tick tau + 2 before this agent's x(tau + 2), so nothing honest is further ahead.  At most two
-            # attempts ahead.
+            # sent; or live sensors: no plant to wait for), a neighbour can finish it before this agent has read
+            # tick tau + 1; the orchestrator cannot tick tau + 2 before this agent's x(tau + 2), so nothing honest
+            # is further ahead.  At most two attempts ahead.
             if m["tau"] < t_tau or m["tau"] > t_tau + 2:
                 self.reject("stale" if m["tau"] < t_tau else "future")
                 return []
@@ -403,6 +406,10 @@ def main(args: argparse.Namespace) -> int:
                     "y": lambda key, p: node.on_y(p)}
         subscriptions = ([(keys.tick, "tick"), (keys.y, "y")] + [(keys.z(j), "z") for j in node.in_neighbours]
                          + [(keys.xhat(j), "x") for j in node.in_neighbours])
+        if node.sc.sources:
+            from .sensor import attach
+
+            sensor_sub = attach(node, shell, keys)  # noqa: F841 - held: a dropped subscriber is undeclared
         timed = node.deadline is not None or node.delayed  # sub-rounds with a deadline, messages held for a delay
         return shell.run(lambda ch, key, p: handlers[ch](key, p), node.reject,
                          name=f"agent {args.id} (q = {node.exchanges})", subscriptions=subscriptions,

@@ -42,6 +42,10 @@ class YBuffer:
         self.buf[tau] = None if self.id in m["missing"] else np.asarray(m["y"][self.rows])
         return True
 
+    def put_sample(self, tau: int, y: np.ndarray | None) -> None:
+        """A live sensor's sample at event time ``tau`` (:mod:`splitspec_agents.sensor`); the first one counts."""
+        self.buf.setdefault(tau, y)
+
     def ready(self, tau: int) -> bool:
         """Whether ``y_i(tau)`` (or the word that there is none) has arrived."""
         return tau in self.buf

@@ -70,22 +70,27 @@ class RunFailed(SplitspecError, RuntimeError):
 
 
 class Progress:
-    """One status line on a terminal: event time, max error, alive agents, rounds per second."""
+    """One status line on a terminal: event time, max error (without truth: the consensus disagreement,
+    :func:`~splitspec_orchestrator.reference_view.progress_text`), alive agents, rounds per second."""
 
     def __init__(self, steps: int, m: int):
         self.enabled = sys.stderr.isatty()
         self.steps, self.m = steps, m
         self.t0 = self.last = time.monotonic()
 
-    def update(self, tau: int, max_err: float, alive: int, *, force: bool = False) -> None:
+    def update(self, tau: int, max_err: float, alive: int, *, force: bool = False, xhat=None,
+               alive_mask=None) -> None:
         if not self.enabled:
             return
         now = time.monotonic()
         if now - self.last < 0.25 and not force:
             return
+        from .reference_view import progress_text
+
+        figure = f"max error {max_err:9.3e}" if xhat is None else progress_text(max_err, xhat, alive_mask)
         self.last = now
         rps = tau / max(now - self.t0, 1e-9)
-        sys.stderr.write(f"\revent {tau:>6}/{self.steps}  max error {max_err:9.3e}  alive {alive}/{self.m}  "
+        sys.stderr.write(f"\revent {tau:>6}/{self.steps}  {figure}  alive {alive}/{self.m}  "
                          f"{rps:7.1f} rounds/s ")
         if force:
             sys.stderr.write("\n")
@@ -118,6 +123,9 @@ class Orchestrator:
         self.sc = load_scenario(scenario_path)
         self.des = design(self.sc)
         self.meas, self.measurements_path = None, measurements
+        if measurements is not None and self.sc.sources:
+            raise SplitspecError("--measurements replaces the plant, and this scenario has live sensors (sources:) "
+                                 "and no plant: drop one (simulate --measurements plays a file for such a scenario)")
         if measurements is not None:  # the plant plays the user's file; the file decides the steps
             import dataclasses
 
@@ -146,7 +154,8 @@ class Orchestrator:
 
         kw: dict = {"lease_ms": lease_ms_for("orchestrator")}
         if self.security is not None:  # authentication + access control on the embedded router
-            kw["extra"] = self.security.router_extra(self.keys.run_id, self.sc.agent_ids)
+            sensors = {a: src.key for a, src in (self.sc.sources or {}).items()}
+            kw["extra"] = self.security.router_extra(self.keys.run_id, self.sc.agent_ids, sensors)
         if self.connect:
             self.session = open_session("client", connect=[self.connect], **kw)
         else:
@@ -208,7 +217,7 @@ class Orchestrator:
                 m.reject("orchestrator", e.reason)
                 return []
             return m.on_xhat(msg["agent"], msg["tau"], msg["attempt"], msg["incarnation"], msg["x"], msg["g"],
-                             msg["rejected"], now, lost=msg["lost"])
+                             msg["rejected"], now, lost=msg["lost"], y=msg["y"])
         if channel == "signal":
             self.stop_requested = True
         return []
@@ -249,10 +258,12 @@ class Orchestrator:
                     prev_attempt=a.prev_attempt, partition=[list(g) for g in a.partition]))
             elif kind is R.Record:
                 gains = a.gains if self.sc.time == "continuous" else None  # no g in discrete time
+                if self.sc.sources:  # before the row: a flush in between writes both
+                    self.rec.live_y(a.tau, a.y)
                 self.rec.row(a.tau, a.x, a.xhat, a.alive, a.graph, gains=gains, attempts=a.attempts,
                              rejected=a.rejected, wall_ms=(time.monotonic() - a.started) * 1e3, lost=a.lost)
-                self.progress.update(a.tau, a.max_error, int(a.alive.sum()),
-                                     force=a.tau == self.machine.plan.steps)
+                self.progress.update(a.tau, a.max_error, int(a.alive.sum()), force=a.tau == self.machine.plan.steps,
+                                     xhat=a.xhat, alive_mask=a.alive)
             elif kind is R.Event:
                 self.rec.event(a.name, a.t, **a.fields)
             elif kind is R.Log:
@@ -265,6 +276,8 @@ class Orchestrator:
                 extra = {} if self.meas is None else {
                     "measurements": {"sha256": self.meas.sha256, "steps": self.meas.steps, "truth": self.meas.has_truth},
                     "record_y": True}
+                if self.sc.sources:  # live sensors: the agents report the y_i they sampled (recorded)
+                    extra["record_y"] = True
                 self._reply(a.ref, encode("config", self.keys.run_id, scenario=self.scenario_text,
                                           seed=int(self.sc.run.seed), g=self.des.g, q=self.des.q,
                                           g_mode=self.des.g_mode, key=self.key, **extra))
@@ -359,6 +372,9 @@ class Orchestrator:
                             gains=sc.time == "continuous", positions=sc.positions)
         if self.meas is not None:
             self.rec.set_measurements(sc, self.meas)
+        if sc.sources:
+            self.rec.set_live_sources(sc)
+            self._announce_sensors()
         self.registry = RunRegistry(self.keys.run_id, {"endpoint": self.connect or self.listen,
                                                        "out": str(self.out.resolve()), "host": HOST})
         now = time.monotonic()
@@ -431,6 +447,15 @@ class Orchestrator:
                   f"{kept - 1} kept in {self.out}", file=sys.stderr)
         log.info("wall time %.2f s", time.monotonic() - t_start)
         return code
+
+    def _announce_sensors(self) -> None:
+        """Where the user's sensors publish, and with which credentials (logged and in events.jsonl)."""
+        endpoint = self.connect or local_endpoint(self.listen)
+        keys = {str(a): self.keys.sensor(src.key) for a, src in self.sc.sources.items()}
+        creds = None if self.security is None else str(self.security.dir)
+        self.rec.event("sensors", 0.0, endpoint=endpoint, run_id=self.keys.run_id, keys=keys, credentials=creds)
+        log.warning("live sensors: publish y_i on %s at %s%s", ", ".join(keys.values()), endpoint,
+                    "" if creds is None else f" with --credentials {creds}/sensor-<id>.cred")
 
     def _safe_event(self, name: str, t: float, **fields) -> None:
         try:

@@ -83,7 +83,7 @@ EXIT_ORCHESTRATOR_LOST = 3  #: `splitspec run`'s exit status when the orchestrat
 
 def run_local(scenario: str, out: Path, *, run_id: str, viewer: str | None, wait: float | None,
               round_timeout: float, agent_ids: tuple, verbose: bool = False, secure: bool = True,
-              measurements: str | None = None) -> int:
+              measurements: str | None = None, sensor_ids: tuple = ()) -> int:
     """Start the orchestrator, which starts and parents the plant and the agents; return the exit code.
 
     The orchestrator is their parent, so it sees a process that dies during start-up at once, with
@@ -91,7 +91,9 @@ def run_local(scenario: str, out: Path, *, run_id: str, viewer: str | None, wait
     directory under the runtime directory, start the router with authentication and access control,
     and delete them at the end.  If the orchestrator itself dies (a signal), the others die with it
     (``PR_SET_PDEATHSIG``), the records are recovered (:func:`splitspec_orchestrator.recover.recover`) and the
-    exit status is :data:`EXIT_ORCHESTRATOR_LOST`.
+    exit status is :data:`EXIT_ORCHESTRATOR_LOST`.  ``sensor_ids``: agents with a live sensor (scenario
+    ``sources:``): the orchestrator starts no plant, and a secure run's directory also holds
+    ``sensor-<i>.cred`` for the user's sensor processes (the orchestrator says where).
     """
     port = free_port()
     endpoint = f"tcp/127.0.0.1:{port}"
@@ -112,7 +114,7 @@ def run_local(scenario: str, out: Path, *, run_id: str, viewer: str | None, wait
 
         runtime_dir().mkdir(parents=True, exist_ok=True, mode=0o700)
         cred_dir = Path(tempfile.mkdtemp(prefix=f"creds-{run_id}-", dir=runtime_dir()))
-        generate(cred_dir, agent_ids)
+        generate(cred_dir, agent_ids, sensor_ids)
         orch_cmd += ["--secure", str(cred_dir)]
         log.info("secure run: credentials in %s (deleted at the end)", cred_dir)
     procs: list = []

@@ -893,6 +893,31 @@ class Recorder:
         self._rec.guarded("Kalman filter log", self._rec.reference.send_after_run, D.tau[:T], D.t[:T], D.wall[:T],
                           arrays["kf"], arrays["kf_distance"])
 
+    def set_live_sources(self, sc) -> None:
+        """Live sensors (scenario ``sources:``): the estimators run on the ``y_i`` each agent reports having used
+        (:meth:`live_y`, from its ``xhat``), without a truth (:meth:`set_y_source`); call before the first row."""
+        from splitspec_core.plant_model import output_rows
+
+        self._live_rows = output_rows(sc.system.Cs)
+        self._live: dict = {}  # tau -> (y, missing) from live_y, until the y source has taken it (it keeps it)
+        self.set_y_source(sc, self._live_row, truth=False)
+
+    def _live_row(self, tau: int):
+        with self._lock:
+            return self._live.pop(int(tau), None)
+
+    def live_y(self, tau: int, used) -> None:
+        """Event time ``tau``'s ``(agent id, y_i(tau) or None)`` of the agents alive (the others: missing, NaN);
+        before :meth:`row` of ``tau``, so that a flush never takes the row without its measurements."""
+        rows = self._live_rows
+        y, missing = np.full(rows[-1].stop, np.nan), np.ones(self.m, dtype=bool)
+        for aid, v in used:
+            k = self._pos[int(aid)]
+            if v is not None and len(v) == rows[k].stop - rows[k].start:
+                y[rows[k]], missing[k] = v, False
+        with self._lock:
+            self._live[int(tau)] = (y, missing)
+
     def _measured_arrays(self, T: int) -> dict:
         if self._measured is None or not T:
             return {}

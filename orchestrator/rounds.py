@@ -110,6 +110,7 @@ class Record:
     rejected: int = 0  # messages rejected since the previous record
     started: float = math.nan  # `now` of the round's first tick (driver clock)
     lost: tuple = ()  # (tau, k, j, i, cause) of every consensus message of the round that did not count
+    y: tuple = ()  # live sensors: (agent id, y_i(tau) used or None) of the agents alive
 
     @property
     def max_error(self) -> float:
@@ -254,6 +255,8 @@ class RoundMachine:
         self.sc, self.des = sc, des
         self.host, self.wait, self.round_timeout = host, float(wait), float(round_timeout)
         self.spawned = spawned
+        #: live sensors (scenario sources:): no plant process, no truth (x recorded as NaN)
+        self.plantless = bool(getattr(sc, "sources", None))
         self.dt = sc.run.dt if sc.time == "continuous" else 1.0
         self.index = {a: k for k, a in enumerate(sc.agent_ids)}
         self.plan = make_plan(sc, sc.run.seed, sequence=False)  # O(1) memory: steps may be huge
@@ -282,6 +285,7 @@ class RoundMachine:
         self.truth: dict = {}
         self.est: dict = {}
         self.est_g: dict = {}  # tau -> {agent id: g_i(tau)} from the xhat messages (for Record)
+        self.est_y: dict = {}  # tau + 1 -> {agent id: y_i(tau) it used, or None} (live sensors)
         self.est_lost: dict = {}  # tau + 1 -> {agent id: [k, j, cause, ...]}: what the round of tau did not count
         g_start = float(sc.design.g0) if des.g_mode == "adaptive" else (float(des.g) if des.g is not None else 0.0)
         self.gains = np.full(sc.m, g_start)
@@ -385,6 +389,10 @@ class RoundMachine:
                                                       "holder_pid": c.pid, "holder_host": c.host}),
                 Log("warning", f"refused a second process for {who} (pid {h['pid']} on {h['host']}): held by pid "
                                f"{c.pid} on {c.host}")]
+        if role == "plant" and self.plantless:
+            reason = "this run has live sensors (scenario sources:): it takes no plant"
+            return out + [ReplyRefused(ref, reason, 0, ""), Event("identity_refused", self.t(), {
+                "role": role, "id": ident, "pid": h["pid"], "host": h["host"], "reason": reason})]
         if role == "plant" and self.started:
             reason = "the run is under way: the plant must be present from event time 0"
             return out + [ReplyRefused(ref, reason, 0, ""), Event("identity_refused", self.t(), {
@@ -485,17 +493,18 @@ class RoundMachine:
         self.last_now = now
         if not self.spawned:
             return []
-        return [Spawn("plant", 0)] + [Spawn("agent", a) for a in self.sc.agent_ids]
+        return [Spawn("plant", 0)] * (not self.plantless) + [Spawn("agent", a) for a in self.sc.agent_ids]
 
     def _ready(self) -> bool:
         plant = self.claims.get(("plant", 0))
-        return (plant is not None and plant.present and not plant.released
+        return ((self.plantless or (plant is not None and plant.present and not plant.released))
                 and all((c := self.claims.get(("agent", a))) is not None and c.present and not c.released
                         for a in self.sc.agent_ids))
 
     def _missing(self) -> list:
         out = []
-        for key, who in [(("plant", 0), "plant")] + [(("agent", a), f"agent {a}") for a in self.sc.agent_ids]:
+        plant = [(("plant", 0), "plant")] * (not self.plantless)
+        for key, who in plant + [(("agent", a), f"agent {a}") for a in self.sc.agent_ids]:
             c = self.claims.get(key)
             if c is None or not c.present or c.released:
                 out.append(who)
@@ -514,7 +523,7 @@ class RoundMachine:
         return out + self._progress(now)
 
     def on_xhat(self, aid: int, tau: int, attempt: int, incarnation: int, x: np.ndarray, g: float, rejected: dict,
-                now: float, lost=()) -> list:
+                now: float, lost=(), y=()) -> list:
         """An agent's estimate (``lost``: flat ``[k, j, cause, ...]`` of the consensus messages it did not count)."""
         out = self.on_clock(now)
         self.remote_counts(f"agent {aid}", rejected)
@@ -533,6 +542,8 @@ class RoundMachine:
         self.est_g.setdefault(tau, {})[aid] = g  # g_i(tau), recorded with row tau
         if tau == self.tau + 1:
             self.est_lost.setdefault(tau, {})[aid] = list(lost)
+            if self.plantless:
+                self.est_y.setdefault(tau, {})[aid] = y
         self.quiet_since = now
         if tau == self.tau + 1:
             self.gains[self.index[aid]] = g
@@ -553,7 +564,7 @@ class RoundMachine:
         frozen = sorted(a for a in self.alive if a not in answered)
         late = self._late()
         self.phase = "round"
-        if not plant:
+        if not plant and not self.plantless:
             return out + [self._stop_plant("it does not answer a status query (frozen)")]
         if frozen:
             why = (f"no news of the round for {PROBE_SECONDS:g} s and no answer to a status query within "
@@ -695,7 +706,7 @@ class RoundMachine:
                     out += self._complete(now)
                     continue
                 if now >= self.deadline:
-                    if self.tau not in self.truth:
+                    if self.tau not in self.truth and not self.plantless:
                         self.phase = "done"
                         return out + [Stop(1, f"no truth from the plant for event time {self.tau} within "
                                               f"{self.round_timeout:g} s")]
@@ -811,6 +822,7 @@ class RoundMachine:
 
     def _rerun(self, now: float) -> list:
         self.est.pop(self.tau + 1, None)
+        self.est_y.pop(self.tau + 1, None)
         self.est_lost.pop(self.tau + 1, None)
         self.attempt += 1
         self.phase = "round"
@@ -836,7 +848,7 @@ class RoundMachine:
         return out
 
     def _round_done(self) -> bool:
-        if self.tau not in self.truth:
+        if self.tau not in self.truth and not self.plantless:
             return False
         have_now = self.est.get(self.tau, {})
         have_next = self.est.get(self.tau + 1, {})
@@ -857,8 +869,11 @@ class RoundMachine:
         rejected, self.rejected_recorded = self.rejected_total - self.rejected_recorded, self.rejected_total
         lost = tuple((self.tau, t[0], t[1], a, t[2]) for a, flat in sorted(self.est_lost.pop(self.tau + 1, {}).items())
                      if a in self.alive for t in zip(flat[0::3], flat[1::3], flat[2::3]))
-        out = [Record(self.tau, self.truth[self.tau], xh, mask, self.plan.graph_at(self.tau), gains,
-                      attempts=self.attempt + 1, rejected=rejected, started=self.round_started, lost=lost)]
+        x = self.truth[self.tau] if not self.plantless else np.full(sc.n, np.nan)  # live sensors: x unknown
+        used = self.est_y.pop(self.tau + 1, {})
+        out = [Record(self.tau, x, xh, mask, self.plan.graph_at(self.tau), gains, attempts=self.attempt + 1,
+                      rejected=rejected, started=self.round_started, lost=lost,
+                      y=tuple((a, used.get(a)) for a in sorted(self.alive)))]
         if lost:  # one line per event time, never one per message
             by = {c: sum(1 for r in lost if r[4] == k) for k, c in enumerate(CAUSES)}
             out.append(Event("messages_lost", self.t(), {"tau": self.tau, "count": len(lost),

@@ -21,7 +21,8 @@ Q_METHODS = ("spectral", "weighted", "two-norm", "mixed")
 WEIGHTINGS = ("uniform", "metropolis")
 FAULT_ACTIONS = ("kill", "restart", "hang", "drop_arc", "restore_arc", "partition", "heal")
 
-_TOP_KEYS = ("name", "time", "system", "graphs", "switching", "design", "faults", "run", "positions", "network")
+_TOP_KEYS = ("name", "time", "system", "graphs", "switching", "design", "faults", "run", "positions", "network",
+             "sources")
 _NETWORK_KEYS = ("loss", "delay", "deadline", "arcs")
 _DELAY_KEYS = ("mean", "jitter")
 _NETWORK_ARC_KEYS = ("arc", "loss", "delay")

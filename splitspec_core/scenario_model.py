@@ -234,6 +234,7 @@ class Scenario:
     source: str = "<scenario>"
     positions: dict | None = None  # agent id -> (x, y) of the topology drawing; None: a circle
     network: NetworkSpec = field(default_factory=NetworkSpec)
+    sources: dict | None = None  # agent id -> scenario_sources.Source: live sensors (run only)
 
     @property
     def m(self) -> int:

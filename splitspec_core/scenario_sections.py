@@ -19,6 +19,7 @@ from .scenario_checks import (_DESIGN_KEYS, _GRAPH_KEYS, _RANDOM_KEYS, _RICCATI_
                               _require_map, _seed, check_shapes, plain)
 from .scenario_model import DesignSpec, Fault, GraphSpec, RunSpec, Scenario, Switching, System
 from .scenario_network import check_heals, parse_groups, parse_network
+from .scenario_sources import parse_sources
 
 def _parse_system(raw: Any) -> tuple[System, tuple]:
     sysmap = _require_map(raw, "system")
@@ -329,10 +330,11 @@ def parse_scenario(data: Any, *, source: str = "<scenario>") -> Scenario:
     _check_switching_against_step(switching, run)
     positions = _parse_positions(top.get("positions"), ids)
     network = parse_network(top.get("network"), ids, graphs)
+    sources = parse_sources(top.get("sources"), ids, run.pace)
     return Scenario(
         name=name, time=time, agent_ids=ids, system=system, graphs=graphs,
         switching=switching, design=design, faults=faults, run=run, source=source, positions=positions,
-        network=network,
+        network=network, sources=sources,
     )
 
 

@@ -7,6 +7,8 @@ import logging
 import os
 import sys
 
+from splitspec_core.errors import SplitspecError
+
 from . import out_dir
 
 
@@ -41,6 +43,9 @@ def cmd_run(args: argparse.Namespace) -> int:
 
     sc = load_scenario(args.scenario)
     design(sc)  # fail fast, with one line, before starting any process
+    if args.measurements and sc.sources:
+        raise SplitspecError("run --measurements replaces the plant, and this scenario has live sensors (sources:) "
+                             "and no plant: drop one (simulate --measurements plays a file for such a scenario)")
     if args.measurements:
         from splitspec_core.measurements import load_measurements
 
@@ -55,7 +60,7 @@ def cmd_run(args: argparse.Namespace) -> int:
               "that reaches it can connect; messages are still signed with the run's key)", file=sys.stderr)
     code = run_local(str(args.scenario), out, run_id=args.run_id, viewer=viewer, wait=args.wait,
                      round_timeout=args.round_timeout, agent_ids=sc.agent_ids, verbose=args.verbose,
-                     secure=not args.insecure, measurements=args.measurements)
+                     secure=not args.insecure, measurements=args.measurements, sensor_ids=tuple(sc.sources or ()))
     rrd = out / "run.rrd"
     if rrd.exists():
         print(f"recording: {rrd}  (open it with: {_splitspec_command()} view {out})")
@@ -63,7 +68,27 @@ def cmd_run(args: argparse.Namespace) -> int:
         _network_line(sc, out)
         if args.measurements:
             _measured_line(out)
+        elif sc.sources:
+            _sensors_line(out)
     return code
+
+
+def _sensors_line(out) -> None:
+    """A run on live sensors: how many event times had a measurement, and what is known at the end (no truth)."""
+    import numpy as np
+
+    try:
+        with np.load(out / "trajectory.npz") as z:
+            if "kf_distance" not in z.files:
+                return
+            have = ~z["y_missing"][:-1]  # the final event time has no round, so no measurement
+            last = lambda a: float(np.nanmax(a)) if np.isfinite(a).any() else float("nan")  # noqa: E731
+            text = (f"live sensors: {int(have.sum())} of {have.size} (event time, agent) measurements used; at the "
+                    f"end, consensus disagreement {last(z['disagreement'][-1:]):.3g}, largest distance to the "
+                    f"centralized Kalman filter {last(z['kf_distance'][-1]):.3g} (no truth)")
+    except (OSError, ValueError, KeyError):
+        return
+    print(text)
 
 
 def _measured_line(out) -> None:
@@ -144,8 +169,10 @@ def cmd_credentials(args: argparse.Namespace) -> int:
     from splitspec_core.runtime.security import generate
 
     sc = ss.load_scenario(args.scenario)
-    cred = generate(args.out, sc.agent_ids)
+    sensors = tuple(sc.sources or ())
+    cred = generate(args.out, sc.agent_ids, sensors)
     print(f"wrote {cred.dir}/users.txt (for the orchestrator: --secure {cred.dir}) and "
           f"{len(cred.users)} .cred files (plant: --credentials {cred.dir}/plant.cred, agent i: "
-          f"--credentials {cred.dir}/agent-i.cred); copy each to its host only")
+          f"--credentials {cred.dir}/agent-i.cred" + (f", agent i's sensor: {cred.dir}/sensor-i.cred" if sensors else "")
+          + "); copy each to its host only")
     return 0

@@ -208,6 +208,9 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     from splitspec_core.simulator import check_trajectory_memory
 
     sc = ss.load_scenario(args.scenario)
+    if sc.sources and not args.measurements:
+        raise UsageError("this scenario's measurements come from live sensors (sources:), which simulate does not "
+                         "have: give --measurements FILE (a sensor's recorded log) or use `splitspec run`")
     lost = None
     if args.faults_from:
         from splitspec_core.replay import recorded_run, with_recorded_faults

@@ -1,7 +1,8 @@
 """``--secure``: Zenoh user/password authentication and access control for a run.
 
-One user per process: ``orchestrator``, ``plant`` and ``agent-<i>``, each
-with a random password.  :func:`generate` writes, into a private directory
+One user per process: ``orchestrator``, ``plant``, ``agent-<i>`` and, for a
+scenario with live sensors (``sources:``), ``sensor-<i>`` (agent i's sensor,
+the user's own process), each with a random password.  :func:`generate` writes, into a private directory
 (mode 0700, files 0600):
 
 ``users.txt``
@@ -25,6 +26,9 @@ refused at connection time) and enforces this access-control policy
   answer ``status/plant/**``;
 * only ``agent-<i>`` may publish ``z/<i>`` and ``xhat/<i>``, hold
   ``alive/agent/<i>/<nonce>`` and answer ``status/agent/<i>/<nonce>``;
+* only ``sensor-<i>`` may publish on agent i's source key
+  (``sensors/<key>``, :meth:`Keys.sensor`), and that is all it may do
+  (it sees the agents' subscriptions to it, nothing else);
 * ``tick``, ``control`` and the ``config`` queryable are the orchestrator's
   own session (the router itself, not subject to the policy); nobody else
   may publish them or serve ``config``.
@@ -73,9 +77,13 @@ def read_credentials(path) -> tuple:
     return user, password
 
 
-def acl_config(run_id: str, agent_ids) -> dict:
-    """The router's ``access_control`` section for a run (see the module docstring)."""
-    p = Keys(run_id).prefix
+def acl_config(run_id: str, agent_ids, sensors: dict | None = None) -> dict:
+    """The router's ``access_control`` section for a run (see the module docstring).
+
+    ``sensors``: ``{agent id: source key}`` of a scenario's ``sources:`` (relative keys).
+    """
+    keys = Keys(run_id)
+    p = keys.prefix
 
     def rule(rid, messages, flows, keys):
         return {"id": rid, "permission": "allow", "messages": messages, "flows": flows, "key_exprs": keys}
@@ -111,6 +119,12 @@ def acl_config(run_id: str, agent_ids) -> dict:
                   rule(f"{u}-status", ["declare_queryable", "reply"], ingress, [f"{p}/status/agent/{i}/*"])]
         subjects.append({"id": u, "usernames": [u]})
         policies.append({"id": u, "subjects": [u], "rules": [f"{u}-publish", f"{u}-token", f"{u}-status"]})
+    for i, key in (sensors or {}).items():
+        u, k = f"sensor-{i}", keys.sensor(key)
+        rules += [rule(f"{u}-publish", ["put"], ingress, [k]),
+                  rule(f"{u}-interest", ["declare_subscriber"], egress, [k])]
+        subjects.append({"id": u, "usernames": [u]})
+        policies.append({"id": u, "subjects": [u], "rules": [f"{u}-publish", f"{u}-interest"]})
     return {"enabled": True, "default_permission": "deny", "rules": rules, "subjects": subjects,
             "policies": policies}
 
@@ -142,26 +156,32 @@ class Credentials:
     def credentials_file(self, user: str) -> str:
         return str(self.dir / f"{user}.cred")
 
-    def check_agents(self, agent_ids) -> None:
-        missing = [u for u in ["plant"] + [user_of("agent", i) for i in agent_ids] if u not in self.users]
+    def check_agents(self, agent_ids, sensors: dict | None = None) -> None:
+        missing = [u for u in ["plant"] + [user_of("agent", i) for i in agent_ids] + [f"sensor-{i}" for i in
+                                                                                      (sensors or {})]
+                   if u not in self.users]
         if missing:
             raise ScenarioError(f"--secure {self.dir}: no credentials for {', '.join(missing)} (regenerate them "
                                 "for this scenario with `splitspec credentials SCENARIO --out DIR`)")
 
-    def router_extra(self, run_id: str, agent_ids) -> dict:
-        """Extra Zenoh config of the orchestrator's embedded router."""
-        self.check_agents(agent_ids)
+    def router_extra(self, run_id: str, agent_ids, sensors: dict | None = None) -> dict:
+        """Extra Zenoh config of the orchestrator's embedded router (``sensors``: as :func:`acl_config`)."""
+        self.check_agents(agent_ids, sensors)
         return {"transport/auth/usrpwd/dictionary_file": str((self.dir / DICTIONARY).resolve()),
-                "access_control": acl_config(run_id, agent_ids)}
+                "access_control": acl_config(run_id, agent_ids, sensors)}
 
 
-def generate(directory, agent_ids) -> Credentials:
-    """Write ``users.txt`` and one ``<user>.cred`` per process into ``directory`` (created, mode 0700)."""
+def generate(directory, agent_ids, sensor_ids=()) -> Credentials:
+    """Write ``users.txt`` and one ``<user>.cred`` per process into ``directory`` (created, mode 0700).
+
+    ``sensor_ids``: the agents with a live sensor (``sensor-<i>.cred``, for the user's sensor process).
+    """
     d = Path(directory)
     try:
         d.mkdir(parents=True, exist_ok=True, mode=0o700)
         os.chmod(d, 0o700)
-        users = ["orchestrator", "plant"] + [user_of("agent", i) for i in agent_ids]
+        users = ["orchestrator", "plant"] + [user_of("agent", i) for i in agent_ids] + [f"sensor-{i}" for i in
+                                                                                       sensor_ids]
         pw = {u: secrets.token_urlsafe(24) for u in users}
         _write_private(d / DICTIONARY, "".join(f"{u}:{pw[u]}\n" for u in users))
         for u in users:

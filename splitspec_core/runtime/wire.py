@@ -51,6 +51,8 @@ key                         from -> to              payload
                             and neighbours          consensus messages it did not count, the y_i it
                                                     used: None without one, [] if not recorded);
                                                     also the next round's z_i(0)
+``sensors/<key>``            sensor -> agent i       y_i as JSON ``{"y": [...], "t": ...}`` or raw float64 (scenario
+                                                    ``sources:``; unsigned, see :mod:`splitspec_agents.sensor`)
 ``control``                 orchestrator -> all     ``stop``; ``kill agent/<i>``, ``hang agent/<i>`` (faults)
 ``status/<role>/<id>/<n>``  queryable (every proc.) a ``hello``: the process answers (not frozen)
 ``alive/<role>/<id>/<n>``   liveliness token        presence; DELETE is a death (n: the process's nonce)
@@ -133,6 +135,10 @@ class Keys:
 
     def z(self, i: int | str) -> str:
         return f"{self.prefix}/z/{i}"
+
+    def sensor(self, key: str) -> str:
+        """A live sensor's key (scenario ``sources:``, relative to ``sensors/``): the user's process publishes there."""
+        return f"{self.prefix}/sensors/{key}"
 
     def xhat(self, i: int | str) -> str:
         return f"{self.prefix}/xhat/{i}"

@@ -334,3 +334,42 @@ def test_the_plant_plays_the_file_the_orchestrator_was_given(tmp_path):
         PlantNode(cfg, "r")
     with pytest.raises(SplitspecError, match="this run simulates its plant"):
         PlantNode(config(), "r", measurements=str(tmp_path / "m.csv"))
+
+
+def test_a_live_sensor_is_sampled_at_the_tick_and_equals_the_plants_y():
+    """With a LiveSampler (scenario sources:) the round needs no y message: the value the sampler holds at the
+    tick is y_i(tau), the same update as the plant's y of that value (bit for bit); a value older than max_age
+    is no measurement (prediction only, reported as None)."""
+    import json
+
+    from splitspec_agents.sensor import LiveSampler
+    from splitspec_core.runtime.wire import decode
+
+    def live_round(age):
+        clock = [10.0]
+        a = AgentNode(2, {**config(), "record_y": True}, "r")
+        a.sampler = LiveSampler(1, 0.25, clock=lambda: clock[0])
+        a.sampler.offer(json.dumps({"y": [0.5]}).encode())
+        clock[0] += age
+        out = a.on_tick(tick(0))
+        for k in range(6):
+            out += a.on_z("splitspec/r/z/1", z(0, k, j=1, value=1.0))
+            out += a.on_z("splitspec/r/z/3", z(0, k, j=3, value=1.0))
+        (_, payload), = [o for o in out if "xhat" in o[0] and decode(o[1], "r", "xhat", mac_key=KEY)["tau"] == 1]
+        return decode(payload, "r", "xhat", mac_key=KEY)
+
+    plant = one_round(AgentNode(2, {**config(), "record_y": True}, "r"), y(0, value=0.5))
+    fresh, stale = live_round(0.25), live_round(0.5)
+    assert fresh["y"] == [0.5] and np.array_equal(fresh["x"], plant["x"])
+    assert stale["y"] is None and not np.allclose(stale["x"], plant["x"])
+
+
+def test_a_neighbours_report_one_tick_ahead_is_kept():
+    """Without a plant to wait for, a neighbour can finish round tau + 1 before our tick of tau + 1 arrives: its
+    x_j(tau + 2) is the next round's z_j(0) and is kept; further ahead is still refused."""
+    a = node()
+    a.on_tick(tick(0))
+    assert a.on_x("splitspec/r/xhat/1", xhat(2, 1)) == [] and a.rejected == {}
+    assert (2, 0) in a.xbuf and 1 in a.xbuf[(2, 0)]
+    a.on_x("splitspec/r/xhat/1", xhat(3, 1))
+    assert a.rejected == {"future": 1}

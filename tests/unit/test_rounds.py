@@ -466,3 +466,51 @@ def test_an_admission_estimate_crossing_a_rerun_still_counts():
     for a in (1, 2):
         out = m.on_xhat(a, 3, 1, m.incarnation(a), x, 0.0, {}, 1.9)
     assert of(out, R.Record) and m.tau == 3
+
+
+# ---------------------------------------------------------------------- live sensors (scenario sources:)
+
+SENSORS = {"sources": {1: "s/1", 2: "s/2", 3: "s/3"}, "run": {"pace": 1000.0, "steps": 3}}
+
+
+def test_with_live_sensors_no_plant_is_spawned_awaited_or_admitted():
+    m = machine(changes=SENSORS, spawned=True)
+    assert [(s.role, s.ident) for s in of(m.start(0.0), R.Spawn)] == [("agent", 1), ("agent", 2), ("agent", 3)]
+    out = m.on_hello("q", hello("plant", 0, "p0", 100), 0.1)
+    (refused,) = of(out, R.ReplyRefused)
+    assert "live sensors" in refused.reason and not of(out, R.ReplyConfig)
+    out = []
+    for k, a in enumerate(m.sc.agent_ids):
+        out += m.on_hello(f"q{a}", hello("agent", a, f"n{a}", 200 + k), 0.2)
+        out += m.on_token("agent", a, f"n{a}", True, 0.2)
+    assert events(out, "run_started") and of(out, R.Tick)  # the agents alone start the run
+
+
+def test_with_live_sensors_rounds_complete_without_truth_and_record_the_y_used():
+    m = machine(changes=SENSORS)
+    for k, a in enumerate(m.sc.agent_ids):
+        m.on_hello(f"q{a}", hello("agent", a, f"n{a}", 200 + k), 0.0)
+        m.on_token("agent", a, f"n{a}", True, 0.0)
+    x = np.ones(m.sc.n)
+    records, t = [], 0.0
+    for tau in range(4):
+        t = max(t, tau / 1000.0) + 0.01
+        out = m.on_timer(t)  # the pace's tick
+        for a in sorted(m.alive):
+            if a not in m.est.get(m.tau, {}):
+                out += m.on_xhat(a, m.tau, m.attempt, m.incarnation(a), x, 0.0, {}, t)
+            if m.tau < m.plan.steps:
+                used = None if (a, m.tau) == (2, 1) else [float(a), float(m.tau)]  # agent 2 had none at 1
+                out += m.on_xhat(a, m.tau + 1, m.attempt, m.incarnation(a), x, 0.0, {}, t, y=used)
+        records += of(out, R.Record)
+    assert [r.tau for r in records] == [0, 1, 2, 3] and m.finished
+    assert all(np.isnan(r.x).all() for r in records)  # no truth: x unknown, never waited for
+    assert records[1].y == ((1, [1.0, 1.0]), (2, None), (3, [3.0, 1.0]))
+    assert records[3].y == ((1, None), (2, None), (3, None))  # the final event time has no round
+    # a round timeout is not a lost plant: a status query without a plant answer blames no plant
+    m2 = machine(changes=SENSORS)
+    for k, a in enumerate(m2.sc.agent_ids):
+        m2.on_hello(f"q{a}", hello("agent", a, f"n{a}", 200 + k), 0.0)
+        m2.on_token("agent", a, f"n{a}", True, 0.0)
+    out = advance(m2, 0.0, 1.5, plant=False)  # silent agents: probed, all answer, nobody (no plant) blamed
+    assert of(out, R.QueryStatus) and not of(out, R.Stop) and not m2.finished
