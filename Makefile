@@ -5,6 +5,8 @@
 #   make test-kernels  the unit and property tests again on other floating-point paths (OpenBLAS kernels,
 #                      BLAS threads, numpy without AVX-512), as on other CPUs
 #   make test-lowest   set up .venv-lowest with every dependency at its lower bound, run a subset
+# and an example:
+#   make sensors  a run on live sensors: splitspec run examples/sensors/chain.yaml beside its sensor publisher
 PY ?= python3
 VENV ?= .venv
 BIN := $(VENV)/bin
@@ -25,7 +27,7 @@ LOWEST_TESTS ?= tests/unit tests/integration/test_runtime.py tests/property \
 KERNEL_TESTS ?= tests/unit tests/property
 KERNEL_PYTEST = RERUN_ANALYTICS=0 $(BIN)/python -m pytest -p no:cacheprovider $(KERNEL_TESTS)
 
-.PHONY: demo test test-kernels test-lowest setup clean
+.PHONY: demo sensors test test-kernels test-lowest setup clean
 
 setup: $(VENV)/.installed
 
@@ -38,6 +40,13 @@ $(VENV)/.installed: pyproject.toml
 demo: setup
 	$(BIN)/splitspec design examples/paper_discrete.yaml
 	RERUN_ANALYTICS=0 $(BIN)/splitspec run examples/paper_discrete.yaml --out out/demo
+
+# the run in the background, the publisher (its own process, plain Zenoh) finds it through out/sensors and stops
+# when it ends; the make target fails if the run does
+sensors: setup
+	RERUN_ANALYTICS=0 $(BIN)/splitspec run examples/sensors/chain.yaml --out out/sensors & run=$$!; \
+	$(BIN)/python examples/sensors/publisher.py examples/sensors/chain.yaml --from-run out/sensors --dropout 0.05; \
+	wait $$run
 
 test: setup
 	RERUN_ANALYTICS=0 $(BIN)/python -m pytest

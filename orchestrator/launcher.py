@@ -129,8 +129,8 @@ def run_local(scenario: str, out: Path, *, run_id: str, viewer: str | None, wait
     old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     try:
         procs.append(spawn(orch_cmd))
-        log.info("started the orchestrator (pid %d) on %s; it starts the plant and %d agents", procs[0].pid,
-                 endpoint, len(agent_ids))
+        log.info("started the orchestrator (pid %d) on %s; it starts %s%d agents", procs[0].pid, endpoint,
+                 "" if sensor_ids else "the plant and ", len(agent_ids))
         code = procs[0].wait()
         if code < 0:  # killed by a signal: nothing of its own was said
             return _orchestrator_lost(procs[0].pid, -code, out)

@@ -18,6 +18,7 @@ arguments, so a test can call it.
 
     python examples/sensors/publisher.py examples/sensors/chain.yaml --connect tcp/127.0.0.1:7447 \\
         --run-id RUN [--credentials DIR|FILE] [--agents 1 2] [--rate 20] [--dropout 0.05] [--record log.csv]
+    python examples/sensors/publisher.py examples/sensors/chain.yaml --from-run out/chain   # beside splitspec run
 """
 
 from __future__ import annotations
@@ -59,8 +60,12 @@ def step_matrix(dt: float) -> np.ndarray:
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(description="Publish a simulated mass-spring chain's sensors for a splitspec run.")
     p.add_argument("scenario", help="the run's scenario (its sources:, system.C, noise levels, run.pace)")
-    p.add_argument("--connect", required=True, metavar="ENDPOINT", help="the run's Zenoh router, e.g. tcp/127.0.0.1:7447")
-    p.add_argument("--run-id", required=True, help="the run's id (keys live under splitspec/<run-id>/sensors/)")
+    p.add_argument("--from-run", metavar="OUT", help="take the endpoint, run id and credentials from the sensors "
+                   "event of a run writing into OUT (splitspec run --out OUT), waiting up to --wait s for it, and "
+                   "stop when that run has finished")
+    p.add_argument("--wait", type=float, default=60.0, help="with --from-run: seconds to wait for the run (default 60)")
+    p.add_argument("--connect", metavar="ENDPOINT", help="the run's Zenoh router, e.g. tcp/127.0.0.1:7447")
+    p.add_argument("--run-id", help="the run's id (keys live under splitspec/<run-id>/sensors/)")
     p.add_argument("--credentials", metavar="DIR|FILE", help="a secure run's credentials: the directory holding "
                    "sensor-<id>.cred, or one .cred file used for every sensor started here")
     p.add_argument("--agents", type=int, nargs="+", help="publish only these agents' sensors (default: all)")
@@ -87,7 +92,50 @@ def _session(endpoint: str, cred: Path | None) -> zenoh.Session:
     return zenoh.open(c)
 
 
+def _events(out: Path) -> list:
+    try:
+        lines = (out / "events.jsonl").read_text().splitlines()
+    except OSError:
+        return []
+    events = []
+    for line in lines:
+        try:
+            events.append(json.loads(line))
+        except ValueError:  # a line being written
+            pass
+    return events
+
+
+def _finished(events: list) -> bool:
+    return any(e.get("event") in ("run_finished", "recording_closed") for e in events)
+
+
+def from_run(args: argparse.Namespace) -> None:
+    """Fill --connect, --run-id, --credentials from the ``sensors`` event of the run writing into --from-run.
+
+    An events.jsonl whose run has finished is an earlier run's: wait for the new run to rewrite it."""
+    out, deadline = Path(args.from_run), time.monotonic() + args.wait
+    log.info("waiting for the run in %s", out)
+    while True:
+        events = _events(out)
+        found = [e for e in events if e.get("event") == "sensors"]
+        if found and not _finished(events):
+            e = found[-1]
+            args.connect, args.run_id = e["endpoint"], e["run_id"]
+            if args.credentials is None and e.get("credentials"):
+                args.credentials = e["credentials"]
+            return
+        if time.monotonic() > deadline:
+            raise SystemExit(f"publisher: error: --from-run {out}: no running splitspec run with sources wrote "
+                             f"its sensors event there within {args.wait:g} s")
+        time.sleep(0.2)
+
+
 def main(args: argparse.Namespace) -> int:
+    if args.from_run:
+        from_run(args)
+    elif not (args.connect and args.run_id):
+        raise SystemExit("publisher: error: give --from-run OUT, or both --connect and --run-id")
     raw = yaml.safe_load(Path(args.scenario).read_text())
     sources = {int(k): (v if isinstance(v, str) else v["key"]) for k, v in raw["sources"].items()}
     Cs = {int(k): np.atleast_2d(np.array(v, dtype=float)) for k, v in raw["system"]["C"].items()}
@@ -101,7 +149,14 @@ def main(args: argparse.Namespace) -> int:
     sessions, pubs = [], {}
     for i in mine:
         cred = None if creds is None else (creds / f"sensor-{i}.cred" if creds.is_dir() else creds)
-        s = _session(args.connect, cred)
+        for attempt in range(20):  # the router may be a moment from accepting (measured once in 5 starts)
+            try:
+                s = _session(args.connect, cred)
+                break
+            except zenoh.ZError:
+                if attempt == 19:
+                    raise
+                time.sleep(0.5)
         sessions.append(s)
         pubs[i] = s.declare_publisher(f"splitspec/{args.run_id}/sensors/{sources[i]}")
     stop = threading.Event()
@@ -125,6 +180,9 @@ def main(args: argparse.Namespace) -> int:
                 break
             now = time.monotonic()
             if now - t0 > args.duration:
+                break
+            if args.from_run and k % max(1, int(rate)) == 0 and _finished(_events(Path(args.from_run))):
+                log.info("the run has finished")
                 break
             x = step_matrix(now - last) @ x + pnoise * np.sqrt((now - last) / period) * rng.standard_normal(x.size)
             last = now
