@@ -185,6 +185,35 @@ def _put_all(endpoint: str, key: str, payloads) -> None:
         time.sleep(0.3)
 
 
+def test_the_publisher_finds_the_run_by_its_out_dir_and_stops_with_it(tmp_path):
+    """`make sensors`: the publisher started at the same moment as the run, told only ``--from-run OUT`` (an
+    earlier run's finished events.jsonl there is not taken), connects with the run's credentials and ends by
+    itself when the run has."""
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "events.jsonl").write_text(json.dumps({"event": "sensors", "endpoint": "tcp/127.0.0.1:9", "run_id": "old",
+                                                  "credentials": None}) + "\n"
+                                      + json.dumps({"event": "run_finished"}) + "\n")
+    scenario = chain(tmp_path, 30)
+    run_proc = subprocess.Popen(cli("run", scenario, "--out", out), cwd=ROOT, env=ENV, start_new_session=True,
+                                stdout=open(tmp_path / "run.log", "wb"), stderr=subprocess.STDOUT)
+    pub = subprocess.Popen([sys.executable, str(PUBLISHER), str(scenario), "--from-run", str(out)], cwd=ROOT,
+                           env=ENV, start_new_session=True, stdout=open(tmp_path / "pub.log", "wb"),
+                           stderr=subprocess.STDOUT)
+    try:
+        assert run_proc.wait(timeout=60) == 0, dump(tmp_path / "run.log")
+        assert pub.wait(timeout=15) == 0, dump(tmp_path / "pub.log")
+    finally:
+        for p in (run_proc, pub):
+            if p.poll() is None:
+                os.killpg(p.pid, signal.SIGKILL)
+    assert "the run has finished" in (tmp_path / "pub.log").read_text()
+    with np.load(out / "trajectory.npz") as f:
+        used = ~f["y_missing"]
+    # the sensors reached every agent by the end (the last row, the final tick, takes no measurement)
+    assert used[-10:-1].all() and not used[-1].any(), used.astype(int)
+
+
 def test_a_misbehaving_sensor_is_counted_and_the_run_goes_on(sensor_run, tmp_path):
     r = sensor_run(40, "--insecure")
     r.publish("--agents", 2, 3, credentials=None)
