@@ -8,7 +8,8 @@ The user's sensor publishes agent i's measurement on ``splitspec/<run>/sensors/<
 
 A payload that parses as a JSON object is JSON; otherwise one of exactly ``8 * s_i`` bytes is raw.  ``t`` is the sensor's own clock: the agent's clock and
 the sensor's are not synchronised, so ``t`` only orders values (a value whose ``t`` is not after the kept
-one's is dropped, ``out_of_order``); the **age** of a value is measured on the agent's clock from its
+one's is dropped, ``out_of_order``, while the kept one is fresh: a sensor back after ``max_age`` with its
+clock restarted is taken at once); the **age** of a value is measured on the agent's clock from its
 arrival.
 
 :class:`LiveSampler` keeps only the newest valid value and its arrival time (one slot: a flood only
@@ -83,13 +84,24 @@ def _from_object(obj, size: int) -> tuple:
         raise SensorReject("bad_y")
     if len(ys) != size:
         raise SensorReject("bad_length")
-    y = np.array(ys, dtype=float)
+    try:  # JSON integers have no size limit: 400 digits overflow a float
+        y = np.array(ys, dtype=float)
+    except OverflowError:
+        raise SensorReject("non_finite") from None
     if not np.isfinite(y).all():
         raise SensorReject("non_finite")
     t = obj.get("t")
-    if t is not None and (isinstance(t, bool) or not isinstance(t, (int, float)) or not math.isfinite(t)):
+    if t is None:
+        return y, None
+    if isinstance(t, bool) or not isinstance(t, (int, float)):
         raise SensorReject("bad_t")
-    return y, None if t is None else float(t)
+    try:
+        t = float(t)
+    except OverflowError:
+        raise SensorReject("bad_t") from None
+    if not math.isfinite(t):
+        raise SensorReject("bad_t")
+    return y, t
 
 
 class LiveSampler:
@@ -112,10 +124,10 @@ class LiveSampler:
 
     def offer(self, payload: bytes) -> bool:
         """A sensor message: kept (True) or counted and dropped (False)."""
-        now = self.clock()
-        with self._lock:
-            self._tokens = min(float(FLOOD_BURST), self._tokens + (now - self._filled) * FLOOD_RATE)
-            self._filled = now
+        with self._lock:  # the arrival time under the lock: the bucket never refills by a negative amount
+            now = self.clock()
+            self._tokens = min(float(FLOOD_BURST), self._tokens + max(0.0, now - self._filled) * FLOOD_RATE)
+            self._filled = max(self._filled, now)
             if self._tokens < 1.0:
                 self._counts["flood"] = self._counts.get("flood", 0) + 1
                 return False
@@ -125,9 +137,18 @@ class LiveSampler:
         except SensorReject as e:
             self._count(e.reason)
             return False
+        except Exception:  # noqa: BLE001 - a payload must never raise on Zenoh's thread; counted instead
+            self._count("garbage")
+            return False
         with self._lock:
             old = self._slot
-            if t is not None and old is not None and old[1] is not None and t <= old[1]:
+            if old is not None and old[2] > now:  # a newer arrival got the slot first
+                self._counts["out_of_order"] = self._counts.get("out_of_order", 0) + 1
+                return False
+            # t orders the values of one sensor's run of fresh values only: once the kept value is older than
+            # max_age the sensor may have restarted with its clock (a new t below the old one is its return)
+            fresh = old is not None and now - old[2] <= self.max_age
+            if t is not None and fresh and old[1] is not None and t <= old[1]:
                 self._counts["out_of_order"] = self._counts.get("out_of_order", 0) + 1
                 return False
             self._slot = (y, t, now)

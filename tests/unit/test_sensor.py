@@ -62,6 +62,8 @@ def test_json_and_raw_payloads_decode_to_the_same_vector():
     (b"{" + b" " * 2000 + b"}", "too_big"),
     (b"[" * 1200, "too_big"),
     (b"[" * 1000, "garbage"),  # nested too deep for the JSON parser: refused, not a crash
+    (b'{"y": [1' + b"0" * 400 + b', 1.0]}', "non_finite"),  # a JSON integer beyond float: OverflowError before
+    (b'{"y": [1.0, 2.0], "t": 1' + b"0" * 400 + b"}", "bad_t"),
 ])
 def test_a_bad_payload_is_refused_with_its_reason(payload, reason):
     with pytest.raises(SensorReject) as e:
@@ -113,6 +115,31 @@ def test_t_only_orders_values_and_bad_ones_never_replace_a_good_one():
     assert s.offer(b'{"y": [4, 4]}')  # without t: by arrival
     assert list(s.take()) == [4.0, 4.0]
     assert s.counts() == {"out_of_order": 2, "non_finite": 1, "garbage": 1}
+
+
+def test_a_sensor_back_with_its_clock_restarted_is_picked_up():
+    """t orders one run of fresh values only: a sensor restarted (its clock back at 0) after its last value went
+    stale is used again at once; before that, an earlier t is out of order."""
+    clock = Clock()
+    s = LiveSampler(1, 0.5, clock=clock)
+    assert s.offer(b'{"y": [1], "t": 1000.0}')
+    clock.t += 0.25
+    assert not s.offer(b'{"y": [2], "t": 0.5}')  # the kept value is fresh: 0.5 is out of order
+    clock.t += 60.0  # the sensor was gone a minute
+    assert s.take() is None
+    assert s.offer(b'{"y": [3], "t": 0.5}')  # back, its clock restarted
+    assert list(s.take()) == [3.0] and s.counts() == {"out_of_order": 1}
+
+
+def test_an_arrival_that_lost_the_race_to_the_slot_does_not_replace_a_newer_one():
+    clock = Clock()
+    s = LiveSampler(1, 10.0, clock=clock)
+    clock.t = 5.0
+    assert s.offer(b'{"y": [1]}')
+    clock.t = 4.0  # an offer whose arrival time was read before the kept one's (two callbacks at once)
+    assert not s.offer(b'{"y": [2]}')
+    clock.t = 5.0
+    assert list(s.take()) == [1.0] and s.counts() == {"out_of_order": 1}
 
 
 def test_a_flood_is_counted_and_dropped_undecoded_and_the_slot_stays_one():
