@@ -85,17 +85,15 @@ def _read_bytes(path: Path) -> bytes:
 
 
 def _npz_arrays(path: Path, data: bytes) -> dict:
+    if not data.startswith(b"PK"):  # numpy would guess a pickle and say so
+        raise _fail(path, "is not an NPZ file (a zip archive of .npy arrays, as numpy.savez writes)")
     try:
+        with zipfile.ZipFile(io.BytesIO(data)) as z:  # compressed members: bound what they expand to before
+            expanded = sum(i.file_size for i in z.infolist())  # anything is inflated (zipfile reads no more)
+        if expanded > 4 * MAX_FILE_BYTES:
+            raise _fail(path, f"expands to {expanded / 2**20:.0f} MiB; at most {4 * MAX_FILE_BYTES >> 20} MiB")
         with np.load(io.BytesIO(data), allow_pickle=False) as f:
-            total = 0
-            out = {}
-            for k in f.files:
-                a = f[k]
-                total += a.nbytes
-                if total > 4 * MAX_FILE_BYTES:  # compressed members: bound what they expand to
-                    raise _fail(path, f"expands to more than {4 * MAX_FILE_BYTES >> 20} MiB")
-                out[k] = a
-            return out
+            return {k: f[k] for k in f.files}
     except ScenarioError:
         raise
     except (ValueError, OSError, zipfile.BadZipFile, EOFError) as exc:
@@ -133,18 +131,20 @@ def _from_npz(path: Path, data: bytes, ids, sizes, n) -> tuple:
         key = f"y_{i}"
         if key not in arrays:
             raise _fail(path, f"has no {key}: agent {i}'s measurements, shape ({T}, {s})")
-        y = _numeric(path, key, arrays[key])
-        if y.ndim == 1 and s == 1:
-            y = y[:, None]
-        if y.shape != (T, s):
-            raise _fail(path, f"{key} has shape {y.shape}; agent {i} has {s} output(s) and t has {T} rows: "
-                              f"expected ({T}, {s})")
         if f"missing_{i}" in arrays:
             m = arrays[f"missing_{i}"]
             if m.dtype != bool or m.shape != (T,):
                 raise _fail(path, f"missing_{i} must be a bool array of shape ({T},), got {m.dtype} {m.shape}")
             miss[:, k] = m
-        ys.append(np.where(miss[:, k:k + 1], 0.0, y))
+        y = arrays[key]
+        flat = y.ndim == 1 and s == 1
+        if (y.shape[0], 1) != (T, s) if flat else y.shape != (T, s):
+            raise _fail(path, f"{key} has shape {y.shape}; agent {i} has {s} output(s) and t has {T} rows: "
+                              f"expected ({T}, {s})")
+        if y.dtype.kind == "f":  # a row marked missing may hold anything (NaN, as a logger writes it)
+            y = np.where(miss[:, k] if flat else miss[:, k:k + 1], 0.0, y)
+        y = _numeric(path, key, y)
+        ys.append(y[:, None] if flat else y)
     x = None
     if "x" in arrays:
         x = _numeric(path, "x", arrays["x"])

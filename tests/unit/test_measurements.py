@@ -170,11 +170,36 @@ def test_bad_npz_files_are_refused_in_one_line(tmp_path, paper, arrays, msg):
     assert msg in str(err.value) and "\n" not in str(err.value)
 
 
+def test_nan_where_a_measurement_is_marked_missing_is_accepted(tmp_path, paper):
+    path = tmp_path / "gaps.npz"
+    y3 = np.ones(4)
+    y3[2] = np.nan  # a logger's "no value", marked missing: not a bad value
+    np.savez(path, t=np.arange(4.0), y_1=np.zeros(4), y_2=np.zeros(4), y_3=y3,
+             missing_3=np.array([False, False, True, False]))
+    m = load_measurements(path, paper)
+    assert m.missing[:, 2].tolist() == [False, False, True, False] and np.isfinite(m.y).all()
+
+
+def test_a_small_npz_that_expands_beyond_the_bound_is_refused_before_inflating(tmp_path, paper, monkeypatch):
+    import splitspec_core.measurements as meas
+
+    monkeypatch.setattr(meas, "MAX_FILE_BYTES", 1 << 16)  # the bound scaled down: 4 x 64 KiB expanded
+    path = tmp_path / "bomb.npz"
+    np.savez_compressed(path, t=np.arange(40000.0), y_1=np.zeros(40000), y_2=np.zeros(40000), y_3=np.zeros(40000))
+    assert path.stat().st_size < 1 << 16  # zeros compress: the file itself passes the size check
+    with pytest.raises(ScenarioError, match="expands to 1 MiB; at most 0 MiB"):
+        load_measurements(path, paper)
+
+
 def test_unreadable_huge_and_misnamed_files(tmp_path, paper):
     garbage = tmp_path / "garbage.npz"
     garbage.write_bytes(b"\x00\x01 not a zip file" * 10)
-    with pytest.raises(ScenarioError, match="is not a readable NPZ file"):
+    with pytest.raises(ScenarioError, match=r"is not an NPZ file \(a zip archive"):
         load_measurements(garbage, paper)
+    broken = tmp_path / "broken.npz"
+    broken.write_bytes(b"PK\x03\x04 a zip file cut short")
+    with pytest.raises(ScenarioError, match="is not a readable NPZ file"):
+        load_measurements(broken, paper)
     huge = tmp_path / "huge.csv"
     with open(huge, "wb") as f:  # a sparse file: 2 GiB on paper, no disk used
         f.truncate(2 << 30)
