@@ -143,7 +143,11 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("run", help="local multi-process deployment: orchestrator, plant and one process per agent",
                        description="Run the scenario as real processes talking over Zenoh on loopback: the "
                                    "orchestrator (embedded router), the plant and one process per agent. Writes "
-                                   "trajectory.npz, events.jsonl and run.rrd to --out.")
+                                   "trajectory.npz, events.jsonl and run.rrd to --out. With live sensors (the "
+                                   "scenario's sources:) there is no plant: your sensor processes publish y_i "
+                                   "under splitspec/<run-id>/sensors/, and the orchestrator says where and with "
+                                   "which credentials (stderr and the sensors event of events.jsonl; "
+                                   "docs/sensors.md).")
     p.add_argument("scenario", help="scenario YAML file")
     p.add_argument("--out", required=True, help="output directory (created if missing)")
     v = p.add_mutually_exclusive_group()
@@ -154,7 +158,7 @@ def build_parser() -> argparse.ArgumentParser:
     sec = p.add_mutually_exclusive_group()
     sec.add_argument("--secure", action="store_true", help="the default: Zenoh user/password authentication and "
                      "access control (only the plant publishes measurements and truth, only agent i publishes as "
-                     "agent i, clients without credentials are refused; credentials are generated for the run and "
+                     "agent i, only sensor i publishes on agent i's source key, clients without credentials are refused; credentials are generated for the run and "
                      "deleted after)")
     sec.add_argument("--insecure", action="store_true", help="no authentication or access control on the router "
                      "(messages are still signed with the run's key); said on the terminal and in events.jsonl")
