@@ -72,6 +72,10 @@ _TEXTS = {
     "partition": lambda f: "partition " + " | ".join(" ".join(str(a) for a in g) for g in f["groups"])
                            + ": no consensus message crosses between the groups",
     "healed": lambda f: "partition healed",
+    "sensor_lost": lambda f: f"agent {f.get('agent')}'s sensor gave no measurement at event time {f.get('tau')} "
+                             "(prediction only until it is back)",
+    "sensor_back": lambda f: f"agent {f.get('agent')}'s sensor back at event time {f.get('tau')} (silent for "
+                             f"{f.get('silent')} event times)",
     "round_retried": lambda f: f"round {f.get('tau')} re-run (attempt {f.get('attempt')}; late: {f.get('late')})",
     "run_started": lambda f: f"run started ({len(f.get('agents', []))} agents, {f.get('steps')} steps)",
     "run_finished": lambda f: f"run finished ({f.get('rounds')} rounds in {f.get('seconds')} s)",

@@ -286,6 +286,7 @@ class RoundMachine:
         self.est: dict = {}
         self.est_g: dict = {}  # tau -> {agent id: g_i(tau)} from the xhat messages (for Record)
         self.est_y: dict = {}  # tau + 1 -> {agent id: y_i(tau) it used, or None} (live sensors)
+        self.sensor_since: dict = {}  # agent id -> event time its live sensor went silent, or None: it is heard
         self.est_lost: dict = {}  # tau + 1 -> {agent id: [k, j, cause, ...]}: what the round of tau did not count
         g_start = float(sc.design.g0) if des.g_mode == "adaptive" else (float(des.g) if des.g is not None else 0.0)
         self.gains = np.full(sc.m, g_start)
@@ -874,6 +875,8 @@ class RoundMachine:
         out = [Record(self.tau, x, xh, mask, self.plan.graph_at(self.tau), gains, attempts=self.attempt + 1,
                       rejected=rejected, started=self.round_started, lost=lost,
                       y=tuple((a, used.get(a)) for a in sorted(self.alive)))]
+        if self.plantless and self.tau < self.plan.steps:  # the last tick takes no measurement
+            out += self._sensor_events(used)
         if lost:  # one line per event time, never one per message
             by = {c: sum(1 for r in lost if r[4] == k) for k, c in enumerate(CAUSES)}
             out.append(Event("messages_lost", self.t(), {"tau": self.tau, "count": len(lost),
@@ -887,6 +890,26 @@ class RoundMachine:
         self.tau += 1
         self.faults_left = list(self.plan.faults.get(self.tau, ()))
         self.phase = "between"
+        return out
+
+    def _sensor_events(self, used: dict) -> list:
+        """A live sensor heard before that gave its agent no measurement (``sensor_lost``), and its return
+        (``sensor_back``): one event per change, not per event time (the per-row truth is ``y_missing``)."""
+        out = []
+        for a in sorted(self.alive):
+            heard = used.get(a) is not None
+            if a not in self.sensor_since:  # nothing to say until the sensor is first heard
+                if heard:
+                    self.sensor_since[a] = None
+                continue
+            silent_since = self.sensor_since[a]
+            if silent_since is None and not heard:
+                self.sensor_since[a] = self.tau
+                out.append(Event("sensor_lost", self.t(), {"agent": a, "tau": self.tau}))
+            elif silent_since is not None and heard:
+                self.sensor_since[a] = None
+                out.append(Event("sensor_back", self.t(), {"agent": a, "tau": self.tau,
+                                                           "silent": self.tau - silent_since}))
         return out
 
     def finish_summaries(self, now: float) -> list:

@@ -168,6 +168,12 @@ def test_a_sensor_lost_is_predicted_through_and_picked_up_again(sensor_run, tmp_
     assert len(lost) >= 15, miss.astype(int)  # at least ~2 s without agent 2's sensor...
     assert not miss[-11:-1].any(), miss.astype(int)  # ...and its values again at the end
     assert not traj["y_missing"][20:-1, [0, 2]].any()  # the others' sensors never stopped
+    # the timeline says when: one sensor_lost / sensor_back per change of agent 2's y_missing after it was heard
+    said = [(e["event"], e["tau"]) for e in events(r.out) if e["event"].startswith("sensor_") and e.get("agent") == 2]
+    first = int(np.flatnonzero(~miss)[0])
+    changes = [("sensor_lost" if miss[k] else "sensor_back", k) for k in range(first + 1, len(miss) - 1)
+               if miss[k] != miss[k - 1]]
+    assert said == changes and ("sensor_lost", lost[0]) in said and said[-1][0] == "sensor_back", (said, changes)
     # (no convergence check: the second publisher simulates a chain of its own, not the first one's)
 
 

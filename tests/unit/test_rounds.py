@@ -492,7 +492,7 @@ def test_with_live_sensors_rounds_complete_without_truth_and_record_the_y_used()
         m.on_hello(f"q{a}", hello("agent", a, f"n{a}", 200 + k), 0.0)
         m.on_token("agent", a, f"n{a}", True, 0.0)
     x = np.ones(m.sc.n)
-    records, t = [], 0.0
+    records, t, evs = [], 0.0, []
     for tau in range(4):
         t = max(t, tau / 1000.0) + 0.01
         out = m.on_timer(t)  # the pace's tick
@@ -503,7 +503,10 @@ def test_with_live_sensors_rounds_complete_without_truth_and_record_the_y_used()
                 used = None if (a, m.tau) == (2, 1) else [float(a), float(m.tau)]  # agent 2 had none at 1
                 out += m.on_xhat(a, m.tau + 1, m.attempt, m.incarnation(a), x, 0.0, {}, t, y=used)
         records += of(out, R.Record)
+        evs += [(e.name, e.fields) for e in of(out, R.Event) if e.name.startswith("sensor_")]
     assert [r.tau for r in records] == [0, 1, 2, 3] and m.finished
+    # agent 2's sensor, heard at 0, silent at 1, back at 2: one event each (none for the final event time 3)
+    assert evs == [("sensor_lost", {"agent": 2, "tau": 1}), ("sensor_back", {"agent": 2, "tau": 2, "silent": 1})]
     assert all(np.isnan(r.x).all() for r in records)  # no truth: x unknown, never waited for
     assert records[1].y == ((1, [1.0, 1.0]), (2, None), (3, [3.0, 1.0]))
     assert records[3].y == ((1, None), (2, None), (3, None))  # the final event time has no round
