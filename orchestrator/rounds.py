@@ -322,9 +322,15 @@ class RoundMachine:
             self._rej_pending[(by, reason)] = self._rej_pending.get((by, reason), 0) + count
             self.rejected_total += count
 
-    def remote_counts(self, who: str, counts: dict) -> None:
-        """Another process's running totals of rejections (sent with its truth / xhat)."""
-        prev = self._remote.setdefault(who, {})
+    def remote_counts(self, who: str, counts: dict, incarnation: int = 0) -> None:
+        """Another process's running totals of rejections (sent with its truth / xhat); a restarted agent (a
+        higher incarnation) counts from 0 again, and the totals of an older incarnation are not taken."""
+        inc, prev = self._remote.get(who, (incarnation, {}))
+        if incarnation < inc:
+            return
+        if incarnation > inc:
+            prev = {}
+        self._remote[who] = (incarnation, prev)
         for reason, c in counts.items():
             if isinstance(c, int) and c > prev.get(reason, 0):
                 self.reject(who, str(reason), c - prev.get(reason, 0))
@@ -527,7 +533,7 @@ class RoundMachine:
                 now: float, lost=(), y=()) -> list:
         """An agent's estimate (``lost``: flat ``[k, j, cause, ...]`` of the consensus messages it did not count)."""
         out = self.on_clock(now)
-        self.remote_counts(f"agent {aid}", rejected)
+        self.remote_counts(f"agent {aid}", rejected, int(incarnation))
         if aid not in self.index:
             self.reject("orchestrator", "wrong_sender")
             return out

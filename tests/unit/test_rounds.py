@@ -281,6 +281,11 @@ def test_rejections_are_summarised_per_second_not_per_message():
     m.remote_counts("agent 2", {"bad_mac": 9})
     out = advance(m, 2.6, 4.0)
     assert [(e.fields["by"], e.fields["count"]) for e in events(out, "message_rejected")] == [("agent 2", 9)]
+    # a restarted agent (incarnation 1) counts from 0 again: its first 3 are new; the old one's late totals are not
+    m.remote_counts("agent 2", {"bad_mac": 3}, incarnation=1)
+    m.remote_counts("agent 2", {"bad_mac": 12}, incarnation=0)
+    out = advance(m, 4.0, 5.5)
+    assert [(e.fields["by"], e.fields["count"]) for e in events(out, "message_rejected")] == [("agent 2", 3)]
 
 
 # ---------------------------------------------------------------------- faults between rounds
