@@ -158,8 +158,8 @@ def build_parser() -> argparse.ArgumentParser:
     sec = p.add_mutually_exclusive_group()
     sec.add_argument("--secure", action="store_true", help="the default: Zenoh user/password authentication and "
                      "access control (only the plant publishes measurements and truth, only agent i publishes as "
-                     "agent i, only sensor i publishes on agent i's source key, clients without credentials are refused; credentials are generated for the run and "
-                     "deleted after)")
+                     "agent i, only sensor i publishes on agent i's source key, clients without credentials are "
+                     "refused; credentials are generated for the run and deleted after)")
     sec.add_argument("--insecure", action="store_true", help="no authentication or access control on the router "
                      "(messages are still signed with the run's key); said on the terminal and in events.jsonl")
     p.add_argument("--measurements", metavar="FILE", help="the plant plays these recorded measurements (.npz or "
