@@ -52,6 +52,7 @@ def test_discrete_error_decays_at_designed_rate(seed, m, n, rate, gains, extra):
 @given(seed=st.integers(0, 10_000), m=st.integers(2, 5), n=st.integers(2, 6),
        rate=st.floats(0.2, 1.5), gains=st.sampled_from(["place", "riccati"]), extra=st.integers(0, 4))
 @example(seed=1, m=2, n=4, rate=0.21875, gains="place", extra=0)  # found by hypothesis: a thin margin at dt = 0.005
+@example(seed=1477, m=2, n=6, rate=0.21875, gains="place", extra=0)  # CI's test-kernels: thinner than the budget
 def test_continuous_error_decays_at_designed_rate(seed, m, n, rate, gains, extra):
     des = design(_scenario(seed, m, n, "continuous", rate, gains, extra))
     # as the design's warning advises: keep dt small against g and the local gains |K_i C_i|
@@ -66,10 +67,17 @@ def test_continuous_error_decays_at_designed_rate(seed, m, n, rate, gains, extra
     while min(des.sampled_rate.values()) < rate * 0.98 and 25 / (rate * dt / 2) <= 100_000:
         dt /= 2
         des = design(_scenario(seed, m, n, "continuous", rate, gains, extra, dt=dt))
-    assert min(des.sampled_rate.values()) >= rate * 0.98, (dt, des.sampled_rate, des.error_radius)
+    target = rate
+    if min(des.sampled_rate.values()) < rate * 0.98:
+        # the run-length budget ends the halving first (seed 1477, m 2, n 6, rate 0.21875: abscissa -0.22, decays
+        # at 0.185 at dt = 0.0022 and at 0.220 only from dt = 0.00055, 208,000 steps): the design must say so,
+        # and the simulation must keep the rate the design reports for this dt
+        assert any("reduce run.dt" in w for w in des.warnings), (dt, des.sampled_rate, des.warnings)
+        target = min(des.sampled_rate.values())
+        assert target > 0, (dt, des.sampled_rate)
     tr = simulate(des)
     measured = fit_decay(tr.t, max_error(tr), time="continuous", floor_rel=1e-250)
     if measured is None:
         assert np.nanmax(tr.errors()[-1]) <= 1e-200
         return
-    assert measured >= rate * 0.97, (measured, rate, des.g)
+    assert measured >= target * 0.97, (measured, target, rate, des.g)
