@@ -17,6 +17,8 @@ Quick start (numpy arrays or lists; every scenario-file key is a keyword)::
     tr = ss.simulate(sc, steps=40, seed=1)    # tr.x (T, n), tr.xhat (T, m, n), tr.errors()
     cmp = ss.compare(ss.load_scenario("examples/paper_discrete_noise.yaml"), seeds=5)
     sw = ss.network_sweep(ss.load_scenario("examples/ring10_lossy.yaml"), "loss", [0, 0.1, 0.4], seeds=range(5))
+    rec = ss.run(sc, out="out/mine")          # real processes over Zenoh; rec.trajectory, rec.events
+    rec = ss.load_run("out/mine")             # any run's records read back; ss.view("out/mine") opens run.rrd
 
 Notation (paper symbol, code name, shape, where in the paper; m agents, n states, s_i outputs
 of agent i, r_i = rank of agent i's observable part):
@@ -64,6 +66,7 @@ _PUBLIC = {
     "EstimatorResult": "api", "network_sweep": "network_sweep", "Scenario": "scenario_model", "Trajectory": "simulator",
     "SplitspecError": "errors", "ScenarioError": "errors", "DimensionError": "errors",
     "AssumptionError": "errors", "DesignError": "errors",
+    "run": "runs", "load_run": "runs", "view": "runs", "RunRecord": "runs", "RunError": "runs",
 }
 __all__ = list(_PUBLIC)
 

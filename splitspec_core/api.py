@@ -23,6 +23,7 @@ from .report import rate_certificate
 from .scenario_checks import _DESIGN_KEYS, _RUN_KEYS, _SYSTEM_KEYS
 from .scenario_model import Scenario, parse_scenario
 from .scenario_model import load_scenario as _load_scenario
+from .runs import ORIGIN
 from .simulator import Trajectory
 
 __all__ = ["AgentResult", "Checks", "CompareResult", "DesignResult", "EstimatorResult", "compare", "design",
@@ -91,12 +92,16 @@ def scenario(*, name: str | None = None, time: str | None = None,
                 part[key] = given[key]
         if part or whole is not None:
             top[section] = part
-    return parse_scenario(top, source="<python>")
+    sc = parse_scenario(top, source="<python>")
+    object.__setattr__(sc, ORIGIN, top)  # what ss.run hands to the processes as YAML
+    return sc
 
 
 def load_scenario(path: str | Path) -> Scenario:
     """A validated scenario from a YAML file (the same checks as :func:`scenario`)."""
-    return _load_scenario(path)
+    sc = _load_scenario(path)
+    object.__setattr__(sc, ORIGIN, Path(path))  # what ss.run hands to the processes
+    return sc
 
 
 # --------------------------------------------------------------------------

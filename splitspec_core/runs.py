@@ -1,0 +1,201 @@
+"""Runs from Python: start a multi-process run (:func:`run`), read any run's records back (:func:`load_run`), open
+its recording (:func:`view`).  Re-exported by ``splitspec_core`` as ``ss.run``, ``ss.load_run``, ``ss.view``.
+
+A run is real OS processes talking over Zenoh (the orchestrator, the plant, one per agent), so :func:`run`
+starts ``splitspec run`` as a child process of this interpreter (``python -m splitspec_orchestrator``) and waits
+for it: this layer never imports the runtime.  What it returns is what :func:`load_run` reads from the output
+directory, the same :class:`~splitspec_core.simulator.Trajectory` that :func:`splitspec_core.simulate` returns
+(a run equals the simulation of the same scenario and seed to round-off), the events of ``events.jsonl`` and
+the scenario the run wrote (``scenario.yaml``), whose design :meth:`RunRecord.design` gives.
+
+    import splitspec_core as ss
+    sc = ss.load_scenario("examples/ring10_faults.yaml")
+    rec = ss.run(sc, out="out/ring10")            # blocks until the run ends; progress=True to see it
+    sim = ss.simulate(sc)
+    abs(rec.trajectory.xhat - sim.xhat)            # round-off (NaN where an agent was dead)
+    [e["event"] for e in rec.events]                # agent_lost, agent_rejoined, ...
+    ss.view("out/ring10")                           # the Rerun viewer (native, or the web viewer's URL)
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Iterable, Mapping
+
+import numpy as np
+import yaml
+
+from .errors import ScenarioError, SplitspecError
+from .scenario_model import Scenario, load_scenario, load_yaml
+from .simulator import Trajectory
+
+__all__ = ["RunRecord", "RunError", "load_run", "run", "view"]
+
+#: how :func:`splitspec_core.scenario` / :func:`splitspec_core.load_scenario` remember where a scenario came
+#: from (its mapping, or its file), so that :func:`run` can hand it to the processes as YAML
+ORIGIN = "_splitspec_origin"
+
+
+class RunError(SplitspecError):
+    """``splitspec run`` ended with a non-zero status; the message is its last line (what went wrong)."""
+
+    def __init__(self, message: str, status: int):
+        super().__init__(message)
+        self.status = status
+
+
+@dataclass(frozen=True)
+class RunRecord:
+    """A run's records, read back from its output directory ``out``.
+
+    Attributes
+    ----------
+    out : Path
+    scenario : Scenario
+        ``out/scenario.yaml``, the scenario the run played
+    trajectory : Trajectory
+        ``out/trajectory.npz``: ``t``, ``x`` (NaN rows where the truth is unknown), ``xhat`` (T, m, n), ``alive``,
+        ``graph``, ``gains``, ``lost``, and ``y``/``y_missing`` on measurements or live sensors
+    events : tuple of dict
+        ``out/events.jsonl``, one dict per line (``event``, ``t``, ``wall`` and the event's fields)
+    """
+
+    out: Path
+    scenario: Scenario
+    trajectory: Trajectory
+    events: tuple
+
+    def design(self):
+        """The scenario's design (:func:`splitspec_core.design`): what the agents computed for themselves."""
+        from .api import design
+
+        return design(self.scenario)
+
+    def named(self, event: str) -> list:
+        """The events called ``event``, in order."""
+        return [e for e in self.events if e.get("event") == event]
+
+
+def _events(path: Path) -> tuple:
+    out = []
+    for line in path.read_text(encoding="utf-8").splitlines():
+        try:
+            out.append(json.loads(line))
+        except ValueError:  # a line torn by a crash (the recorder cuts them back; a copy may still hold one)
+            continue
+    return tuple(out)
+
+
+def load_run(out: str | Path) -> RunRecord:
+    """Read a run's records back: any ``splitspec run`` (or orchestrator) output directory.
+
+    Raises
+    ------
+    ScenarioError
+        One line naming what is missing (``OUT has no trajectory.npz: not a run's output directory``).
+    """
+    out = Path(out)
+    if not out.is_dir():
+        raise ScenarioError(f"{out} is not a directory (a run's output directory holds trajectory.npz, "
+                            "events.jsonl and scenario.yaml)")
+    for name in ("trajectory.npz", "scenario.yaml", "events.jsonl"):
+        if not (out / name).is_file():
+            raise ScenarioError(f"{out} has no {name}: not a run's output directory (or the run never started)")
+    return RunRecord(out=out, scenario=load_scenario(out / "scenario.yaml"),
+                     trajectory=Trajectory.load(out / "trajectory.npz"), events=_events(out / "events.jsonl"))
+
+
+def _plain(v: Any) -> Any:
+    """A scenario mapping as plain YAML-able data (numpy arrays and scalars, tuples, keys kept)."""
+    if isinstance(v, np.ndarray):
+        return v.tolist()
+    if isinstance(v, np.generic):
+        return v.item()
+    if isinstance(v, Mapping):
+        return {(_plain(k) if isinstance(k, np.generic) else k): _plain(x) for k, x in v.items()}
+    if isinstance(v, (list, tuple)):
+        return [_plain(x) for x in v]
+    return v
+
+
+def _mapping(sc: Scenario | str | Path) -> dict:
+    if isinstance(sc, (str, Path)):
+        return load_yaml(Path(sc).read_text(encoding="utf-8"), source=str(sc))
+    origin = getattr(sc, ORIGIN, None)
+    if origin is None:
+        raise ScenarioError("this Scenario was not made by ss.scenario or ss.load_scenario (e.g. it was changed "
+                            "with dataclasses.replace): give ss.run the keywords or the file instead")
+    if isinstance(origin, Path):
+        return load_yaml(origin.read_text(encoding="utf-8"), source=str(origin))
+    return origin
+
+
+def run(sc: Scenario | str | Path, *, out: str | Path, faults: Iterable | None = None, secure: bool = True,
+        measurements: str | Path | None = None, round_timeout: float | None = None, wait: float | None = None,
+        progress: bool = False, timeout: float | None = None) -> RunRecord:
+    """Run the scenario as real processes over Zenoh on loopback (``splitspec run``) and read its records back.
+
+    ``sc``: a scenario from :func:`splitspec_core.scenario` or :func:`splitspec_core.load_scenario`, or a
+    scenario file.  ``faults``: the scenario's ``faults:`` replaced by these (the file's format, e.g.
+    ``[{"at": 10, "kill": 3}, {"at": 20, "restart": 3}]``).  ``secure``, ``measurements``, ``round_timeout``,
+    ``wait``: as the command's options.  ``progress``: let the command write its progress and summary to this
+    process's terminal (else they are kept, and the last line is the error on failure).  ``timeout``: seconds
+    before the run is interrupted (its records are still written).
+
+    Returns
+    -------
+    RunRecord
+        :func:`load_run` of ``out``.
+
+    Raises
+    ------
+    ScenarioError
+        A scenario that cannot be handed to the processes (one line).
+    RunError
+        The run ended with a non-zero status (its one-line message; ``status`` the exit status).
+    """
+    data = dict(_mapping(sc))
+    if faults is not None:
+        data["faults"] = list(faults)
+    out = Path(out)
+    with tempfile.TemporaryDirectory(prefix="splitspec-run-") as tmp:
+        path = Path(tmp) / "scenario.yaml"
+        path.write_text(yaml.safe_dump(_plain(data), sort_keys=False), encoding="utf-8")
+        cmd = [sys.executable, "-m", "splitspec_orchestrator", "run", str(path), "--out", str(out),
+               "--secure" if secure else "--insecure"]
+        for flag, value in (("--measurements", measurements), ("--round-timeout", round_timeout),
+                            ("--wait", wait)):
+            if value is not None:
+                cmd += [flag, str(value)]
+        capture = None if progress else subprocess.PIPE
+        proc = subprocess.Popen(cmd, stdout=capture, stderr=capture, text=True)
+        try:
+            stdout, stderr = proc.communicate(timeout=timeout)
+        except subprocess.TimeoutExpired:
+            proc.send_signal(2)  # SIGINT: the run writes its records and stops its processes
+            stdout, stderr = proc.communicate()
+        except BaseException:  # KeyboardInterrupt in a notebook: stop the run the same way, then re-raise
+            proc.send_signal(2)
+            proc.communicate()
+            raise
+    if proc.returncode != 0:
+        lines = [ln for ln in (stderr or "").splitlines() if ln.strip()]
+        raise RunError(lines[-1] if lines else f"splitspec run exited with status {proc.returncode}",
+                       proc.returncode)
+    return load_run(out)
+
+
+def view(out: str | Path, *, web: bool = False, port: int | None = None) -> subprocess.Popen:
+    """Open ``out/run.rrd`` (``splitspec view OUT``): the native Rerun viewer with a display, else (or with
+    ``web``, or a ``port``) the web viewer served on 127.0.0.1, its URL printed.  Returns the viewer's process:
+    ``.send_signal(signal.SIGINT)`` stops it as Ctrl-C does."""
+    out = Path(out)
+    if not (out / "run.rrd").is_file():
+        raise ScenarioError(f"{out} has no run.rrd: not a run's output directory")
+    cmd = [sys.executable, "-m", "splitspec_orchestrator", "view", str(out)] + (["--web"] if web else [])
+    return subprocess.Popen(cmd + (["--port", str(port)] if port is not None else []))
