@@ -77,3 +77,21 @@ def test_view_serves_a_run_from_python(tmp_path):
     finally:
         proc.send_signal(signal.SIGINT)
         assert proc.wait(timeout=20) in (0, 130, -2)
+
+
+def test_the_notebook_tutorial_executes(tmp_path):
+    """docs/tutorials/notebook_workflow.py (a jupytext notebook) as a script: design, simulate, run with a kill
+    and a restart, the comparison it asserts itself, the plot."""
+    import os
+    import subprocess
+    import sys
+
+    from tests.integration.runtime_helpers import ENV, ROOT
+
+    r = subprocess.run([sys.executable, str(ROOT / "docs" / "tutorials" / "notebook_workflow.py")], cwd=tmp_path,
+                       env={**ENV, "SPLITSPEC_OUT": str(tmp_path / "nb"), "MPLBACKEND": "Agg"},
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert "('agent_lost', 10), ('agent_rejoined', 20)" in r.stdout
+    assert (tmp_path / "nb" / "errors.png").stat().st_size > 10_000 and (tmp_path / "nb" / "run.rrd").is_file()
+    assert os.path.isfile(tmp_path / "nb" / "trajectory.npz")
