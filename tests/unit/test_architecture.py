@@ -83,6 +83,17 @@ def test_no_generic_top_level_import_names():
     assert not bad, bad
 
 
+def test_every_package_says_what_it_holds():
+    """Each package's and subpackage's docstring says what it holds (a room that says what it is)."""
+    bad = []
+    for package, folder in FOLDERS.items():
+        for init in sorted((ROOT / folder).rglob("__init__.py")):
+            doc = ast.get_docstring(ast.parse(init.read_text())) or ""
+            if len(doc.split()) < 8 or "placeholder" in doc.lower():
+                bad.append((str(init.relative_to(ROOT)), doc[:40]))
+    assert not bad, bad
+
+
 def test_long_modules_say_why():
     long = []
     for package in FOLDERS:
