@@ -20,17 +20,18 @@ the scenario the run wrote (``scenario.yaml``), whose design :meth:`RunRecord.de
 from __future__ import annotations
 
 import json
+import signal
 import subprocess
 import sys
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Iterable, Mapping
+from typing import Iterable
 
-import numpy as np
 import yaml
 
 from .errors import ScenarioError, SplitspecError
+from .scenario_checks import plain
 from .scenario_model import Scenario, load_scenario, load_yaml
 from .simulator import Trajectory
 
@@ -110,21 +111,9 @@ def load_run(out: str | Path) -> RunRecord:
                      trajectory=Trajectory.load(out / "trajectory.npz"), events=_events(out / "events.jsonl"))
 
 
-def _plain(v: Any) -> Any:
-    """A scenario mapping as plain YAML-able data (numpy arrays and scalars, tuples, keys kept)."""
-    if isinstance(v, np.ndarray):
-        return v.tolist()
-    if isinstance(v, np.generic):
-        return v.item()
-    if isinstance(v, Mapping):
-        return {(_plain(k) if isinstance(k, np.generic) else k): _plain(x) for k, x in v.items()}
-    if isinstance(v, (list, tuple)):
-        return [_plain(x) for x in v]
-    return v
-
-
 def _mapping(sc: Scenario | str | Path) -> dict:
     if isinstance(sc, (str, Path)):
+        load_scenario(sc)  # the file's own checks first: a missing or bad file is one line
         return load_yaml(Path(sc).read_text(encoding="utf-8"), source=str(sc))
     origin = getattr(sc, ORIGIN, None)
     if origin is None:
@@ -165,7 +154,7 @@ def run(sc: Scenario | str | Path, *, out: str | Path, faults: Iterable | None =
     out = Path(out)
     with tempfile.TemporaryDirectory(prefix="splitspec-run-") as tmp:
         path = Path(tmp) / "scenario.yaml"
-        path.write_text(yaml.safe_dump(_plain(data), sort_keys=False), encoding="utf-8")
+        path.write_text(yaml.safe_dump(plain(data), sort_keys=False), encoding="utf-8")
         cmd = [sys.executable, "-m", "splitspec_orchestrator", "run", str(path), "--out", str(out),
                "--secure" if secure else "--insecure"]
         for flag, value in (("--measurements", measurements), ("--round-timeout", round_timeout),
@@ -177,10 +166,10 @@ def run(sc: Scenario | str | Path, *, out: str | Path, faults: Iterable | None =
         try:
             stdout, stderr = proc.communicate(timeout=timeout)
         except subprocess.TimeoutExpired:
-            proc.send_signal(2)  # SIGINT: the run writes its records and stops its processes
+            proc.send_signal(signal.SIGINT)  # as Ctrl-C: the run writes its records and stops its processes
             stdout, stderr = proc.communicate()
         except BaseException:  # KeyboardInterrupt in a notebook: stop the run the same way, then re-raise
-            proc.send_signal(2)
+            proc.send_signal(signal.SIGINT)
             proc.communicate()
             raise
     if proc.returncode != 0:

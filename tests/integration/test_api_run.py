@@ -57,6 +57,8 @@ def test_bad_input_to_the_api_is_one_line(tmp_path):
     with pytest.raises(ss.RunError) as err:  # the command's own one-line error, and its status
         ss.run(sc, out=tmp_path / "y", measurements=tmp_path / "absent.csv")
     assert err.value.status == 2 and "absent.csv" in str(err.value) and "\n" not in str(err.value)
+    with pytest.raises(ss.ScenarioError, match="absent.yaml"):  # a file that is not there: one line, no OSError
+        ss.run(tmp_path / "absent.yaml", out=tmp_path / "z")
     with pytest.raises(ss.ScenarioError, match="has no run.rrd"):
         ss.view(tmp_path)
 
