@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import signal
 import urllib.request
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -55,22 +56,22 @@ def files(tmp_path_factory):
     return tmp, _with_kill(scen), sc, blind, tmp / "full.npz"
 
 
-@pytest.fixture(scope="module")
-def no_truth(files):
-    tmp, scen, _, blind, _ = files
-    out = tmp / "no_truth"
-    r = run("run", scen, "--out", out, "--measurements", blind)
+def _run_on(files, name: str, measurements) -> Path:
+    tmp, scen = files[0], files[1]
+    out = tmp / name
+    r = run("run", scen, "--out", out, "--measurements", measurements)
     assert r.returncode == 0, r.stdout + r.stderr
     return out
+
+
+@pytest.fixture(scope="module")
+def no_truth(files):
+    return _run_on(files, "no_truth", files[3])
 
 
 @pytest.fixture(scope="module")
 def with_truth(files):
-    tmp, scen, _, _, full = files
-    out = tmp / "with_truth"
-    r = run("run", scen, "--out", out, "--measurements", full)
-    assert r.returncode == 0, r.stdout + r.stderr
-    return out
+    return _run_on(files, "with_truth", files[4])
 
 
 def reference_entities():

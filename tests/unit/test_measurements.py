@@ -102,14 +102,18 @@ def test_a_missing_measurement_means_prediction_only(tmp_path):
     scale = np.nanmax(np.abs(loop.xhat))
     assert np.nanmax(np.abs(batch.xhat - loop.xhat)) <= 1e-12 * scale  # batched vs per-agent: round-off
     assert not np.allclose(batch.xhat[20:, 1], tr.xhat[20:, 1])  # the gap changed agent 2's estimates
-    assert np.array_equal(batch.xhat[:11], tr.xhat[:11], equal_nan=True)  # and nothing before it (exact)
+    # exact: before the gap the simulator's step runs the same operations on the same y (a missing row only
+    # changes the rows of the agents without a measurement, from their step on)
+    assert np.array_equal(batch.xhat[:11], tr.xhat[:11], equal_nan=True)
     # and an NPZ says the same with missing_<id>
     npz = tmp_path / "gap.npz"
     write_measurements(npz, t=tr.t, y=tr.y, agent_ids=sc.agent_ids, sizes=sizes_of(sc), missing=missing)
+    # exact: the same bits of y and the same missing rows as the CSV, through the same simulator
     assert np.array_equal(simulate(des, measurements=load_measurements(npz, sc)).xhat, batch.xhat, equal_nan=True)
     # the centralized filter leaves those rows out too
     kf_gap = kalman_reference(sc, meas.y, missing)
     kf_all = kalman_reference(sc, tr.y, np.zeros_like(missing))
+    # exact before the gap: the filter's steps are the same operations until a row is left out
     assert np.array_equal(kf_gap[:11], kf_all[:11]) and not np.allclose(kf_gap[11:21], kf_all[11:21])
 
 

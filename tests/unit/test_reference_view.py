@@ -28,7 +28,7 @@ def test_residuals_and_disagreement_by_hand():
     b = rows.batch([0, 1, 2], [0.0, 1.0, 2.0], [0, 0, 0], xhat)
     np.testing.assert_array_equal(b.residual, [[0.0, 0.0], [np.nan, np.sqrt(17.0)], [np.nan, np.nan]])
     np.testing.assert_array_equal(b.disagreement, [2.0, 5.0, 0.0])  # |(0,2)|, |(4,3)|, one agent alive
-    # the same as the functions that write trajectory.npz
+    # the same as the functions that write trajectory.npz (exact: those functions, on this one whole batch)
     Y, missing = rows.measurements([0, 1, 2])
     assert missing.tolist() == [[False, False], [True, False], [True, True]]
     np.testing.assert_array_equal(b.residual, residuals(xhat, Y, missing, CS))
