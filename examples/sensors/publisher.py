@@ -136,11 +136,19 @@ def main(args: argparse.Namespace) -> int:
         from_run(args)
     elif not (args.connect and args.run_id):
         raise SystemExit("publisher: error: give --from-run OUT, or both --connect and --run-id")
-    raw = yaml.safe_load(Path(args.scenario).read_text())
-    sources = {int(k): (v if isinstance(v, str) else v["key"]) for k, v in raw["sources"].items()}
-    Cs = {int(k): np.atleast_2d(np.array(v, dtype=float)) for k, v in raw["system"]["C"].items()}
+    try:
+        raw = yaml.safe_load(Path(args.scenario).read_text())
+        sources = {int(k): (v if isinstance(v, str) else v["key"]) for k, v in raw["sources"].items()}
+        Cs = {int(k): np.atleast_2d(np.array(v, dtype=float)) for k, v in raw["system"]["C"].items()}
+    except (OSError, yaml.YAMLError, KeyError, TypeError, ValueError, AttributeError) as exc:
+        raise SystemExit(f"publisher: error: {args.scenario}: not a scenario with sources: and system.C "
+                         f"({type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''})") from None
     ids = sorted(Cs)
     mine = args.agents or ids
+    unknown = sorted(set(mine) - set(sources))
+    if unknown:
+        raise SystemExit(f"publisher: error: --agents {unknown[0]}: the scenario's sources are for agents "
+                         f"{', '.join(map(str, sorted(sources)))}")
     rate = args.rate or float(raw["run"]["pace"])
     pnoise = float(raw["system"].get("process_noise", 0.0))
     mnoise = float(raw["system"].get("measurement_noise", 0.0))

@@ -284,3 +284,14 @@ def test_sources_conflicts_are_one_line(tmp_path):
     assert r.returncode == 2 and "live sensors (sources:)" in r.stderr and len(r.stderr.strip().splitlines()) == 1
     r = run("simulate", CHAIN, "--out", tmp_path / "o2", "--no-plots", timeout=60)
     assert r.returncode == 2 and "--measurements FILE" in r.stderr and len(r.stderr.strip().splitlines()) == 1
+
+
+@pytest.mark.parametrize("args, fragment", [
+    (["absent.yaml"], "absent.yaml: not a scenario with sources: and system.C"),
+    ([str(ROOT / "examples" / "ring10.yaml")], "(KeyError: 'sources')"),
+    ([str(CHAIN), "--agents", "9"], "--agents 9: the scenario's sources are for agents 1, 2, 3"),
+])
+def test_the_publisher_says_what_is_wrong_in_one_line(tmp_path, args, fragment):
+    r = subprocess.run([sys.executable, str(PUBLISHER), *args, "--connect", "tcp/127.0.0.1:1", "--run-id", "x"],
+                       cwd=tmp_path, env=ENV, capture_output=True, text=True, timeout=30)
+    assert r.returncode != 0 and r.stderr.count("\n") == 1 and fragment in r.stderr, r.stderr
