@@ -66,33 +66,14 @@ def cmd_run(args: argparse.Namespace) -> int:
         print(f"recording: {rrd}  (open it with: {_splitspec_command()} view {out})")
         print(f"trajectory: {out / 'trajectory.npz'}  events: {out / 'events.jsonl'}")
         _network_line(sc, out)
-        if args.measurements:
-            _measured_line(out)
-        elif sc.sources:
-            _sensors_line(out)
+        if args.measurements or sc.sources:
+            _reference_line(out, sensors=not args.measurements)
     return code
 
 
-def _sensors_line(out) -> None:
-    """A run on live sensors: how many event times had a measurement, and what is known at the end (no truth)."""
-    import numpy as np
-
-    try:
-        with np.load(out / "trajectory.npz") as z:
-            if "kf_distance" not in z.files:
-                return
-            have = ~z["y_missing"][:-1]  # the final event time has no round, so no measurement
-            last = lambda a: float(np.nanmax(a)) if np.isfinite(a).any() else float("nan")  # noqa: E731
-            text = (f"live sensors: {int(have.sum())} of {have.size} (event time, agent) measurements used; at the "
-                    f"end, consensus disagreement {last(z['disagreement'][-1:]):.3g}, largest distance to the "
-                    f"centralized Kalman filter {last(z['kf_distance'][-1]):.3g} (no truth)")
-    except (OSError, ValueError, KeyError):
-        return
-    print(text)
-
-
-def _measured_line(out) -> None:
-    """A run on recorded measurements: what is known at the end (the truth when the file has it, else the reference)."""
+def _reference_line(out, *, sensors: bool) -> None:
+    """A run on recorded measurements or live sensors: what is known at the end (for live sensors, how many
+    event times had a measurement; the error to the truth when a file has it, else the reference only)."""
     import numpy as np
 
     try:
@@ -101,10 +82,19 @@ def _measured_line(out) -> None:
                 return
             last = lambda a: float(np.nanmax(a)) if np.isfinite(a).any() else float("nan")  # noqa: E731
             truth = bool(np.isfinite(z["x"]).any())
-            err = last(np.linalg.norm(z["xhat"][-1] - z["x"][-1], axis=1)) if truth else None
-            text = (f"measurements: at the end, consensus disagreement {last(z['disagreement'][-1:]):.3g}, largest "
-                    f"distance to the centralized Kalman filter {last(z['kf_distance'][-1]):.3g}"
-                    + (f", largest error to the file's truth {err:.3g}" if truth else " (the file has no truth)"))
+            if sensors:
+                have = ~z["y_missing"][:-1]  # the final event time has no round, so no measurement
+                head = (f"live sensors: {int(have.sum())} of {have.size} (event time, agent) measurements used; "
+                        "at the end")
+            else:
+                head = "measurements: at the end"
+            text = (f"{head}, consensus disagreement {last(z['disagreement'][-1:]):.3g}, largest distance to the "
+                    f"centralized Kalman filter {last(z['kf_distance'][-1]):.3g}")
+            if truth:
+                err = last(np.linalg.norm(z["xhat"][-1] - z["x"][-1], axis=1))
+                text += f", largest error to the file's truth {err:.3g}"
+            else:
+                text += " (no truth)" if sensors else " (the file has no truth)"
     except (OSError, ValueError, KeyError):
         return
     print(text)
