@@ -28,10 +28,11 @@ import os
 import numpy as np
 import pytest
 import scipy.linalg as sla
-from hypothesis import HealthCheck, event, given, settings
+from hypothesis import HealthCheck, assume, event, given, settings
 from hypothesis import strategies as st
 
 from splitspec_core.designer import design
+from splitspec_core.errors import AssumptionError
 from splitspec_core.full_matrix import block_diagonal
 from splitspec_core.observability import decompose, threshold_of
 from splitspec_core.scenario_model import parse_scenario
@@ -214,7 +215,17 @@ def _bucket(k: int) -> str:
 def designed(drawn, **kw):
     """Design the drawn scenario; record its shape for ``--hypothesis-show-statistics``."""
     sc = parse_scenario(drawn.data)
-    dsg = design(sc, **kw)
+    try:
+        dsg = design(sc, **kw)
+    except AssumptionError as exc:
+        # a rank_tol far below the default counts directions seen with a margin of 1e-12 as observable; pole
+        # placement on such a part is not accurate, and the design refuses it in one line (CI's test-kernels drew
+        # one: poles at 0.39 asked inside 0.34 / 2).  Not a certificate to check: another example
+        reject = "do not meet rate" in str(exc) and isinstance(sc.design.rank_tol, float) and sc.design.rank_tol < 1e-6
+        if not reject:
+            raise
+        event("refused: placement inaccurate on a weakly observable part (rank_tol < 1e-6)")
+        assume(False)
     nbar = sum(V.shape[1] for V in dsg.Vs)
     event(f"m={sc.m}")
     event(f"n={sc.n}")
