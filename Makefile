@@ -5,6 +5,8 @@
 #   make test-kernels  the unit and property tests again on other floating-point paths (OpenBLAS kernels,
 #                      BLAS threads, numpy without AVX-512), as on other CPUs
 #   make test-lowest   set up .venv-lowest with every dependency at its lower bound, run a subset
+# the documentation site (Sphinx, offline, warnings are errors; executes the tutorials):
+#   make docs     docs/_build/html/index.html
 # and an example:
 #   make sensors  a run on live sensors: splitspec run examples/sensors/chain.yaml beside its sensor publisher
 PY ?= python3
@@ -27,7 +29,7 @@ LOWEST_TESTS ?= tests/unit tests/integration/test_runtime.py tests/property \
 KERNEL_TESTS ?= tests/unit tests/property
 KERNEL_PYTEST = RERUN_ANALYTICS=0 $(BIN)/python -m pytest -p no:cacheprovider $(KERNEL_TESTS)
 
-.PHONY: demo sensors test test-kernels test-lowest setup clean
+.PHONY: demo docs sensors test test-kernels test-lowest setup clean
 
 setup: $(VENV)/.installed
 
@@ -47,6 +49,18 @@ sensors: setup
 	RERUN_ANALYTICS=0 $(BIN)/splitspec run examples/sensors/chain.yaml --out out/sensors & run=$$!; \
 	$(BIN)/python examples/sensors/publisher.py examples/sensors/chain.yaml --from-run out/sensors --dropout 0.05; \
 	wait $$run
+
+# -W --keep-going: every warning fails the build, all of them listed (a broken link between pages, a malformed
+# docstring, a missing page, a failed tutorial); not -n: the docstrings name types in prose; -E: read every
+# page again (the generated ones are rewritten each build)
+docs: $(VENV)/.docs-installed
+	rm -rf docs/_build
+	RERUN_ANALYTICS=0 $(BIN)/python -m sphinx -W --keep-going -E -q -b html docs docs/_build/html
+	@echo "docs: open docs/_build/html/index.html"
+
+$(VENV)/.docs-installed: $(VENV)/.installed
+	$(BIN)/python -m pip install --quiet -e '.[dev,docs]'
+	touch $@
 
 test: setup
 	RERUN_ANALYTICS=0 $(BIN)/python -m pytest

@@ -37,7 +37,7 @@ viewer's flat colours survive it; the file shrinks about threefold).
 Setup, once (no browser download: Debian's chromium is used):
 
     apt-get install chromium
-    .venv/bin/python -m pip install -e '.[docs]'     # playwright
+    .venv/bin/python -m pip install -e '.[screenshots]'     # playwright
     .venv/bin/python docs/make_screenshots.py
     .venv/bin/python docs/make_screenshots.py --network      # docs/lossy_ring.png, docs/partition.png
     .venv/bin/python docs/make_screenshots.py --measured     # docs/measured.png

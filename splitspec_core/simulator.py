@@ -63,13 +63,20 @@ class Trajectory:
 
     Attributes
     ----------
-    t : (T,) event index (discrete) or time (continuous)
-    x : (T, n) true state
-    xhat : (T, m, n) estimates, NaN where the agent is dead
+    t : (T,) float
+        Event index (discrete time) or time (continuous time)
+    x : (T, n) float
+        The true state (all NaN when unknown: measurements without their truth)
+    xhat : (T, m, n) float
+        The estimates, NaN where the agent is dead
     alive : (T, m) bool
-    graph : (T,) active graph index (scenario order)
+        Which agents ran at each step
+    graph : (T,) int
+        The active graph's index (scenario order)
     agent_ids : (m,) int
-    gains : (T, m) gains g_i (``g`` in the file): adaptive g_i(t) or the fixed continuous g, NaN where
+        The agents' ids, in the order of every agent axis
+    gains : (T, m) float
+        The gains g_i (``g`` in the file): adaptive g_i(t) or the fixed continuous g, NaN where
         dead and in discrete time; None only for a file written before ``g`` existed
     lost : (N, 4) int64
         Every consensus message that did not count, one row ``(event time, sub-round k, sender j,

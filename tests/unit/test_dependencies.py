@@ -4,7 +4,7 @@
   ``make test-lowest`` the oldest).
 * Every third-party module imported by the packages (``splitspec_core``, ``agents``, ``plant``,
   ``orchestrator``) comes from a declared dependency, and every declared dependency is imported;
-  the tests may also use the ``dev`` extra, ``docs/`` the ``docs`` extra.
+  the tests may also use the ``dev`` extra, ``docs/`` the ``docs`` and ``screenshots`` extras.
 """
 
 from __future__ import annotations
@@ -236,7 +236,7 @@ def test_every_declared_dependency_is_imported_by_the_packages():
     assert not unused, f"in [project] dependencies but imported nowhere in {PACKAGE_FOLDERS}: {unused}"
 
 
-@pytest.mark.parametrize("folders, extras", [(["tests", "benchmarks"], ("dev",)), (["docs"], ("docs",))])
+@pytest.mark.parametrize("folders, extras", [(["tests", "benchmarks"], ("dev",)), (["docs"], ("docs", "screenshots"))])
 def test_tests_and_docs_import_only_declared_dependencies(folders, extras):
     used = third_party(folders)
     undeclared = {dist: sorted(files) for dist, files in used.items() if dist not in declared(*extras)}

@@ -1,0 +1,4 @@
+# %% [markdown]
+# # first_design
+#
+# (being written)

@@ -1,0 +1,4 @@
+# %% [markdown]
+# # lossy_network
+#
+# (being written)
