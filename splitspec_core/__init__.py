@@ -63,7 +63,7 @@ from typing import Any as _Any
 _PUBLIC = {
     "scenario": "api", "load_scenario": "api", "design": "api", "simulate": "api", "compare": "api",
     "DesignResult": "api", "AgentResult": "api", "Checks": "api", "CompareResult": "api",
-    "EstimatorResult": "api", "network_sweep": "network_sweep", "Scenario": "scenario_model", "Trajectory": "simulator",
+    "EstimatorResult": "api", "network_sweep": "sweeps", "Scenario": "scenario_model", "Trajectory": "simulator",
     "SplitspecError": "errors", "ScenarioError": "errors", "DimensionError": "errors",
     "AssumptionError": "errors", "DesignError": "errors",
     "run": "runs", "load_run": "runs", "view": "runs", "RunRecord": "runs", "RunError": "runs",

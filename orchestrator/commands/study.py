@@ -148,7 +148,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
 
 def _network_sweeps(args: argparse.Namespace, sc, seed0: int) -> int:
     """``compare --sweep-loss / --sweep-deadline``: the design on a misbehaving network, level by level."""
-    from splitspec_core.network_sweep import check_sweep, network_sweep, sweep_table
+    from splitspec_core.sweeps import check_sweep, network_sweep, sweep_table
 
     sweeps = [(p, v) for p, v in (("loss", args.sweep_loss), ("deadline", args.sweep_deadline)) if v]
     for parameter, values in sweeps:  # before any work: one line, exit 2

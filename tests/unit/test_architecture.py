@@ -166,3 +166,12 @@ print(sorted(m for m in sys.modules if any(m == n or m.startswith(n + ".") for n
                        env={**os.environ, "RERUN_ANALYTICS": "0"})
     assert r.returncode == 0, r.stderr
     assert r.stdout.strip() == "[]", r.stdout
+
+
+def test_no_module_of_the_math_is_named_after_an_api_name():
+    """``import splitspec_core.X`` binds ``X`` on the package: a module named like a public name (as
+    ``network_sweep.py`` was) would replace ``ss.X`` once anything imported the module."""
+    import splitspec_core
+
+    names = {name.rpartition(".")[2] for name in modules("splitspec_core")}
+    assert not names & set(splitspec_core.__all__), sorted(names & set(splitspec_core.__all__))
