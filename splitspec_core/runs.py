@@ -19,6 +19,8 @@ the scenario the run wrote (``scenario.yaml``), whose design :meth:`RunRecord.de
 
 from __future__ import annotations
 
+import importlib
+import importlib.util
 import json
 import signal
 import subprocess
@@ -179,12 +181,34 @@ def run(sc: Scenario | str | Path, *, out: str | Path, faults: Iterable | None =
     return load_run(out)
 
 
-def view(out: str | Path, *, web: bool = False, port: int | None = None) -> subprocess.Popen:
-    """Open ``out/run.rrd`` (``splitspec view OUT``): the native Rerun viewer with a display, else (or with
-    ``web``, or a ``port``) the web viewer served on 127.0.0.1, its URL printed.  Returns the viewer's process:
-    ``.send_signal(signal.SIGINT)`` stops it as Ctrl-C does."""
+def _in_jupyter() -> bool:
+    """Running in a Jupyter kernel (IPython with a kernel attached), where a widget can be displayed."""
+    shell = sys.modules.get("IPython")
+    ip = shell.get_ipython() if shell is not None and hasattr(shell, "get_ipython") else None
+    return ip is not None and getattr(ip, "kernel", None) is not None
+
+
+def view(out: str | Path, *, web: bool = False, port: int | None = None, inline: bool | None = None):
+    """Open ``out/run.rrd``, the run's Rerun recording.
+
+    ``inline=True`` (the default inside a Jupyter kernel where ``rerun-notebook`` is installed): Rerun's notebook
+    widget, returned (display it by returning it from the cell). Otherwise ``splitspec view OUT``: the native
+    Rerun viewer with a display, else (or with ``web``, or a ``port``) the web viewer served on 127.0.0.1, its
+    URL printed; returns the viewer's process (``.send_signal(signal.SIGINT)`` stops it as Ctrl-C does).
+
+    Raises
+    ------
+    ScenarioError
+        ``out`` has no ``run.rrd``; ``inline=True`` without ``rerun-notebook`` installed.
+    """
     out = Path(out)
     if not (out / "run.rrd").is_file():
         raise ScenarioError(f"{out} has no run.rrd: not a run's output directory")
+    if inline is None:
+        inline = not web and port is None and _in_jupyter() and importlib.util.find_spec("rerun_notebook") is not None
+    if inline:
+        # The widget lives with the rest of Rerun in the orchestrator package (this layer never imports Rerun):
+        # loaded by name, in this process, only when asked for.
+        return importlib.import_module("splitspec_orchestrator.notebook_view").notebook_viewer(out)
     cmd = [sys.executable, "-m", "splitspec_orchestrator", "view", str(out)] + (["--web"] if web else [])
     return subprocess.Popen(cmd + (["--port", str(port)] if port is not None else []))

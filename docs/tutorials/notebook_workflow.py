@@ -71,7 +71,9 @@ assert np.array_equal(rec.trajectory.alive, sim.alive)
 
 # %% [markdown]
 # ## 6. Plot
-# `ss.view(out)` opens the Rerun recording of the run (`run.rrd`) instead.
+# Matplotlib here; for the whole timeline, `ss.view(out)` opens the Rerun recording of the run (`run.rrd`):
+# in Jupyter with `rerun-notebook` installed (`pip install 'rerun-notebook==0.41.*'`) inline in the notebook,
+# elsewhere the native viewer or the web viewer's URL.
 
 # %%
 import matplotlib
@@ -91,3 +93,13 @@ ax.legend(fontsize=8)
 fig.tight_layout()
 fig.savefig(out / "errors.png", dpi=100)
 print("wrote", out / "errors.png")
+
+# %% [markdown]
+# ## 7. Read any run back later
+# `ss.load_run` reads a run's directory (this one, or one `splitspec run` wrote from the command line): the
+# same `Trajectory`, the events, and the scenario the run used, whose design it recomputes.
+
+# %%
+again = ss.load_run(out)
+print(f"{again.scenario.name}: {len(again.trajectory.t)} event times, q = {again.design().q}, "
+      f"{len(again.named('agent_lost'))} agent lost, {len(again.named('agent_rejoined'))} rejoined")
