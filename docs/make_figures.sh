@@ -18,7 +18,7 @@ cp out/figures/compare_paper/compare_errors.png docs/figures/compare_paper_error
 cp out/figures/compare_paper/sweep.png docs/figures/compare_paper_sweep_q.png
 cp out/figures/compare_ring10/compare_ratios.png docs/figures/compare_ring10_ratios.png
 echo "compare figures written to docs/figures"
-# networks that misbehave (docs/how-to/network.md)
+# networks that misbehave (docs/how-to/networks.md)
 "$BIN/splitspec" compare examples/ring10_noise.yaml --out out/figures/loss_sweep --seeds 20 --steps 200 \
   --sweep-loss 0 0.05 0.1 0.2 0.4 > /dev/null
 "$BIN/splitspec" compare examples/ring10_lossy.yaml --out out/figures/deadline_sweep --seeds 20 --steps 200 \
