@@ -15,7 +15,7 @@ COPY plant ./plant
 COPY orchestrator ./orchestrator
 COPY examples ./examples
 
-# the same install step as the README's "other hosts" instructions
+# the same install step as docs/how-to/several_machines.md ("Starting the processes by hand")
 RUN python -m pip install .
 
 ENTRYPOINT ["splitspec"]

@@ -11,7 +11,7 @@ Measured side by side in one invocation (the machine is shared: compare ratios, 
      new protocol                    3m + 2 + 2mq: tick m + 1, y m (one publish), truth 1, z 2m(q - 1),
                                      xhat 3m (each x_i(tau + 1) goes to the orchestrator and the 2 neighbours,
                                      and is their z_i(0) of the next round);
-   publishes per event: old 2m + 2 + mq, new 3 + mq (see README, "Runtime speed");
+   publishes per event: old 2m + 2 + mq, new 3 + mq (see docs/benchmarks/index.md, "Runtime: messages per round");
 3. `splitspec run` (real processes, unpaced) of undirected rings, n = 6: ms/event (from the run's
    ``run_finished`` event), the ratio to the old protocol's floor, the peak RSS per agent and of the
    orchestrator (sampled from /proc every 0.2 s), and start-up: spawn of the first process to the first

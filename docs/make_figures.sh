@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Regenerate the figures the README shows (the paper's Section 5, reproduced).
+# Regenerate the figures the docs show (docs/explanation/method.md: the paper's Section 5, reproduced).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 BIN=${BIN:-.venv/bin}
@@ -10,7 +10,7 @@ for ex in paper_continuous paper_continuous_switching paper_discrete paper_discr
   cp "out/figures/$ex/states.png" "docs/figures/${ex}_states.png"
 done
 echo "figures written to docs/figures"
-# estimation quality under noise (README "Compare")
+# estimation quality under noise (docs/how-to/compare.md)
 "$BIN/splitspec" compare examples/paper_discrete_noise.yaml --out out/figures/compare_paper --seeds 20 --steps 80 --sweep > /dev/null
 "$BIN/splitspec" compare examples/ring10_noise.yaml --out out/figures/compare_ring10 --seeds 10 > /dev/null
 cp out/figures/compare_paper/compare_ratios.png docs/figures/compare_paper_ratios.png
@@ -18,7 +18,7 @@ cp out/figures/compare_paper/compare_errors.png docs/figures/compare_paper_error
 cp out/figures/compare_paper/sweep.png docs/figures/compare_paper_sweep_q.png
 cp out/figures/compare_ring10/compare_ratios.png docs/figures/compare_ring10_ratios.png
 echo "compare figures written to docs/figures"
-# networks that misbehave (README "Networks that misbehave")
+# networks that misbehave (docs/how-to/networks.md)
 "$BIN/splitspec" compare examples/ring10_noise.yaml --out out/figures/loss_sweep --seeds 20 --steps 200 \
   --sweep-loss 0 0.05 0.1 0.2 0.4 > /dev/null
 "$BIN/splitspec" compare examples/ring10_lossy.yaml --out out/figures/deadline_sweep --seeds 20 --steps 200 \

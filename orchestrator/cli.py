@@ -147,7 +147,7 @@ def build_parser() -> argparse.ArgumentParser:
                                    "scenario's sources:) there is no plant: your sensor processes publish y_i "
                                    "under splitspec/<run-id>/sensors/, and the orchestrator says where and with "
                                    "which credentials (stderr and the sensors event of events.jsonl; "
-                                   "docs/sensors.md).")
+                                   "docs/how-to/sensors.md).")
     p.add_argument("scenario", help="scenario YAML file")
     p.add_argument("--out", required=True, help="output directory (created if missing)")
     v = p.add_mutually_exclusive_group()

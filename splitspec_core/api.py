@@ -60,7 +60,7 @@ def scenario(*, name: str | None = None, time: str | None = None,
 
     ``A``, ``C``, ``x0``, ``process_noise``, ``measurement_noise`` are the file's ``system.*``;
     ``rate``, ``gains``, ``K``, ``g``, ``q``, ``q_method``, ... its ``design.*``; ``steps``,
-    ``dt``, ``seed``, ``pace`` its ``run.*`` (``docs/scenario.md`` lists them all).  Matrices
+    ``dt``, ``seed``, ``pace`` its ``run.*`` (``docs/how-to/scenario.md`` lists them all).  Matrices
     may be numpy arrays or nested lists; ``C`` and ``K`` map agent ids to matrices; a graph
     is ``{"arcs": [(j, i), ...], "undirected": [...]}`` or just its list of arcs ``[(j, i), ...]``
     (``j -> i``: agent i hears agent j).  A keyword left at ``None`` is absent from the file,

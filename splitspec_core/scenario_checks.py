@@ -37,7 +37,7 @@ _DESIGN_KEYS = (
 _RICCATI_KEYS = ("process_weight", "measurement_weight")
 _RUN_KEYS = ("steps", "dt", "seed", "pace")
 
-# Limits, each with the key(s) it bounds and why (docs/scenario.md, "Files and limits").
+# Limits, each with the key(s) it bounds and why (docs/how-to/scenario.md, "Files and limits").
 # Every number (matrix entries, x0, noise levels, rate, g, g0, margin, times, dt, dwell, pace,
 # riccati weights): |x| <= 1e12, so squares and products of a few of them stay far below the
 # float limit 1.8e308 (system.process_noise: 1e308 overflowed in process_noise**2, the Riccati weight).

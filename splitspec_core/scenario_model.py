@@ -2,7 +2,7 @@
 
 A scenario is one YAML file holding the system ``(A, C_i)``, the neighbour
 graphs, the switching signal, the design options, faults and run options (see
-``docs/scenario.md`` and ``../shared/DESIGN.md``).  :func:`load_scenario` turns
+``docs/how-to/scenario.md`` and ``../shared/DESIGN.md``).  :func:`load_scenario` turns
 it into a :class:`Scenario` of frozen dataclasses or raises a
 :class:`~splitspec_core.errors.ScenarioError` whose one-line message names the
 offending key, e.g. ``system.C.3 has 5 columns, system.A is 4x4``.

@@ -1,4 +1,4 @@
-"""The layout the README's Architecture section describes, checked on the source: who imports whom."""
+"""The layout docs/explanation/architecture.md describes, checked on the source: who imports whom."""
 
 from __future__ import annotations
 

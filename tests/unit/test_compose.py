@@ -1,4 +1,5 @@
-"""compose.yaml and the Dockerfile: parsed and checked against the CLI, the scenario, pyproject and the README."""
+"""compose.yaml and the Dockerfile: parsed and checked against the CLI, the scenario, pyproject and the how-to page
+docs/how-to/several_machines.md."""
 
 import re
 import shlex
@@ -92,7 +93,7 @@ def test_agents_match_the_scenario_and_output_is_a_volume(compose):
     assert "host.docker.internal:host-gateway" in services["orchestrator"]["extra_hosts"]
 
 
-def test_image_installs_what_the_readme_says(dockerfile):
+def test_image_installs_what_the_howto_says(dockerfile):
     project = tomllib.loads((ROOT / "pyproject.toml").read_text())
     setuptools = project["tool"]["setuptools"]
     packages = setuptools["packages"]
@@ -106,17 +107,17 @@ def test_image_installs_what_the_readme_says(dockerfile):
         assert any(c == pkg or c.startswith(pkg) for c in copied), pkg
     runs = [line[len("RUN "):].strip() for line in dockerfile.splitlines() if line.startswith("RUN ")]
     assert runs == ["python -m pip install ."]
-    readme = (ROOT / "README.md").read_text()
-    assert f"    {runs[0]}" in readme or f"\n{runs[0]}" in readme  # the README's install step on other hosts
-    assert "docker compose up" in readme
+    howto = (ROOT / "docs" / "how-to" / "several_machines.md").read_text()
+    assert f"    {runs[0]}" in howto or f"\n{runs[0]}" in howto  # the how-to's install step on other hosts
+    assert "docker compose up" in howto
     assert re.search(r'ENTRYPOINT \["splitspec"\]', dockerfile)
     assert project["project"]["scripts"]["splitspec"] == "splitspec_orchestrator.cli:main"
 
 
-def test_readme_hand_started_commands_parse():
-    """The multi-host commands shown in the README are valid invocations too."""
-    readme = (ROOT / "README.md").read_text()
-    block = readme.split("### Starting the processes by hand")[1].split("```sh")[1].split("```")[0]
+def test_howto_hand_started_commands_parse():
+    """The multi-host commands shown in docs/how-to/several_machines.md are valid invocations too."""
+    howto = (ROOT / "docs" / "how-to" / "several_machines.md").read_text()
+    block = howto.split("## Starting the processes by hand")[1].split("```sh")[1].split("```")[0]
     cmds = [shlex.split(line.split("#")[0]) for line in block.splitlines() if line.strip().startswith("splitspec")]
     assert len(cmds) >= 4
     for cmd in cmds:
