@@ -31,3 +31,21 @@ def test_every_tutorial_is_a_jupytext_percent_notebook():
         assert "format_name: percent" in text.split("# ---")[1], path.name
         first = text.split("# %%", 1)[1]
         assert first.startswith(" [markdown]\n# # "), path.name
+
+
+def test_the_readmes_links_lead_somewhere():
+    """The README is read on GitHub as well as built into nothing: Sphinx does not check its links, this does."""
+    text = (ROOT / "README.md").read_text()
+    links = re.findall(r"\]\(([^)#\s]+)(?:#[^)]*)?\)", text)
+    local = [link for link in links if not re.match(r"[a-z]+://", link)]
+    assert len(local) >= 15
+    missing = [link for link in local if not (ROOT / link).exists()]
+    assert not missing, missing
+
+
+def test_the_readme_is_a_front_page():
+    """At most ~150 lines, the two quickstart commands before anything else runnable."""
+    text = (ROOT / "README.md").read_text()
+    assert len(text.splitlines()) <= 150
+    first = text.split("```sh", 1)[1].split("```", 1)[0].strip().splitlines()
+    assert [line.split()[:2] for line in first] == [["make", "demo"], ["make", "test"]]
