@@ -1,9 +1,14 @@
-"""The layout the README's Architecture section describes, checked on the source: who imports whom."""
+"""The layout docs/explanation/architecture.md describes, checked on the source: who imports whom.
+
+That page's table of layers ("What may import what") is the one place the import rules are stated:
+:func:`layers` reads it and :func:`test_imports_follow_the_layers` enforces it on every module.
+"""
 
 from __future__ import annotations
 
 import ast
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -53,22 +58,81 @@ def _under(name: str, prefix: str) -> bool:
     return name == prefix or name.startswith(prefix + ".")
 
 
-def test_the_math_never_imports_the_runtime():
-    """splitspec_core outside splitspec_core.runtime: no Zenoh, msgpack, Rerun, no process package."""
-    forbidden = ("splitspec_core.runtime", "zenoh", "msgpack", "rerun", "splitspec_orchestrator",
-                 "splitspec_agents", "splitspec_plant")
-    bad = [(name, imp) for name, path in modules("splitspec_core").items() if not _under(name, "splitspec_core.runtime")
-           for imp in imports(name, path) if any(_under(imp, f) for f in forbidden)]
-    assert not bad, bad
+ARCHITECTURE = ROOT / "docs" / "explanation" / "architecture.md"
+LAYER_COLUMNS = ["layer", "packages/modules", "may import", "never imports"]
 
 
-def test_imports_flow_one_way():
-    """agents, plant -> splitspec_core only; the orchestrator never imports agents or plant (it starts them)."""
+def _cells(line: str) -> list[str]:
+    return [c.strip() for c in line.strip().strip("|").split("|")]
+
+
+def layers() -> dict[str, dict]:
+    """The layers table of :data:`ARCHITECTURE`: ``{layer: {"prefixes", "may", "never"}}``.
+
+    Its header is :data:`LAYER_COLUMNS`; ``packages/modules`` and ``never imports`` hold backticked
+    module names, ``may import`` comma-separated layer names.
+    """
+    lines = ARCHITECTURE.read_text(encoding="utf-8").splitlines()
+    heads = [k for k, line in enumerate(lines) if line.startswith("|") and _cells(line) == LAYER_COLUMNS]
+    assert len(heads) == 1, f"{ARCHITECTURE} must hold one table with the columns {LAYER_COLUMNS}"
+    out = {}
+    for line in lines[heads[0] + 2:]:
+        if not line.startswith("|"):
+            break
+        layer, mods, may, never = _cells(line)
+        out[layer] = {"prefixes": re.findall(r"`([^`]+)`", mods),
+                      "may": {m.strip() for m in may.split(",") if m.strip()},
+                      "never": re.findall(r"`([^`]+)`", never)}
+    return out
+
+
+def layer_of(name: str, table: dict[str, dict]) -> str | None:
+    """The layer of module ``name``: the one whose package is the longest prefix of it (None: no layer)."""
+    best = max(((len(p), layer) for layer, row in table.items() for p in row["prefixes"] if _under(name, p)),
+               default=None)
+    return best and best[1]
+
+
+def test_the_layers_table_is_whole():
+    """Every layer a row may import is a row; every module of every package is in a layer."""
+    table = layers()
+    assert {"core", "runtime", "agents", "plant", "orchestrator"} <= set(table), sorted(table)
+    unknown = {m for row in table.values() for m in row["may"]} - set(table)
+    assert not unknown, unknown
+    orphans = [name for package in FOLDERS for name in modules(package) if layer_of(name, table) is None]
+    assert not orphans, orphans
+
+
+def test_the_layers_table_keeps_the_rules():
+    """The rules the layout stands on, so that loosening the table is a visible decision: the math imports
+    neither the runtime nor Zenoh, msgpack, Rerun; agents and plant import only splitspec_core; the
+    orchestrator imports neither agents nor plant (it starts them)."""
+    table = layers()
+    core = table["core"]
+    assert core["may"] == {"core"} and {"zenoh", "msgpack", "rerun"} <= set(core["never"]), core
+    for node in ("agents", "plant"):
+        assert table[node]["may"] <= {"core", "runtime", node}, table[node]
+    assert not {"agents", "plant"} & table["orchestrator"]["may"], table["orchestrator"]
+    assert layer_of("splitspec_core.runtime.bus", table) == "runtime"
+    assert layer_of("splitspec_core.steps", table) == "core"
+
+
+def test_imports_follow_the_layers():
+    """Every import of every module (lazy ones included) obeys its layer's row of the table in
+    docs/explanation/architecture.md: modules of the project only from the layers it may import,
+    no third-party package it never imports."""
+    table = layers()
     bad = []
-    for package in ("splitspec_agents", "splitspec_plant", "splitspec_orchestrator"):
-        others = {"splitspec_agents", "splitspec_plant", "splitspec_orchestrator"} - {package}
+    for package in FOLDERS:
         for name, path in modules(package).items():
-            bad += [(name, imp) for imp in imports(name, path) if any(_under(imp, o) for o in others)]
+            row = table[layer_of(name, table)]
+            for imp in sorted(imports(name, path)):
+                if imp.split(".")[0] in FOLDERS:
+                    target = layer_of(imp, table)
+                    if target not in row["may"]:
+                        bad.append((name, imp, f"{layer_of(name, table)} may not import {target}"))
+                elif any(_under(imp, n) for n in row["never"]):
+                    bad.append((name, imp, f"{layer_of(name, table)} never imports it"))
     assert not bad, bad
 
 
