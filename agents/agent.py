@@ -39,7 +39,7 @@ import numpy as np
 from splitspec_core import steps as st
 from splitspec_core.impairment import Impairment, group_of, sub_round
 from splitspec_core.designer import design_agent, riccati_weights
-from splitspec_core.scenario_model import parse_scenario_text
+from splitspec_core.scenario_load import parse_scenario_text
 from splitspec_core.plant_model import initial_estimate, output_rows
 from splitspec_core.runtime.wire import Keys, WireError, decode, encode
 

@@ -38,7 +38,7 @@ import yaml
 
 from splitspec_core.designer import design
 from splitspec_core.generate import random_strongly_connected_arcs, random_system, ring_scenario
-from splitspec_core.scenario_model import parse_scenario
+from splitspec_core.scenario_load import parse_scenario
 
 from _common import loadavg
 

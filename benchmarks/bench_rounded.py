@@ -39,7 +39,7 @@ from splitspec_core.analysis import fit_decay
 from splitspec_core.designer import design
 from splitspec_core.generate import random_strongly_connected_arcs, random_system
 from splitspec_core.report import rate_certificate
-from splitspec_core.scenario_model import parse_scenario
+from splitspec_core.scenario_load import parse_scenario
 from splitspec_core.simulator import simulate
 
 from _common import loadavg

@@ -61,7 +61,7 @@ from splitspec_core.designer import design
 from splitspec_core.simulator import _spmv
 from splitspec_core.generate import random_strongly_connected_arcs, random_system
 from splitspec_core.network import consensus_rows
-from splitspec_core.scenario_model import parse_scenario
+from splitspec_core.scenario_load import parse_scenario
 from splitspec_core.plant_model import Plant, initial_estimate
 from splitspec_core.simulator import BatchEstimator, simulate
 

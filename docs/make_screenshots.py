@@ -98,7 +98,7 @@ def measured_run(run_dir: Path) -> Path:
     import numpy as np
 
     from splitspec_core.measurements import load_measurements, write_measurements
-    from splitspec_core.scenario_model import load_scenario
+    from splitspec_core.scenario_load import load_scenario
 
     work = run_dir.parent / f"{run_dir.name}-files"
     work.mkdir(parents=True, exist_ok=True)

@@ -53,7 +53,7 @@ import numpy as np
 
 from splitspec_core.designer import design
 from splitspec_core.errors import SplitspecError
-from splitspec_core.scenario_model import load_scenario, read_scenario_text
+from splitspec_core.scenario_load import load_scenario, read_scenario_text
 from splitspec_core.runtime.wire import Keys, WireError, decode, encode, new_run_key
 
 from . import rounds as R

@@ -21,16 +21,21 @@ keeps three records of the run in ``out_dir``:
     to a viewer as well; appended by Python at every flush and finished (footer,
     verifiable) at close, see "Write failures and consistency" below.
 
-The parts: :mod:`splitspec_orchestrator.rowstore` (the rows and what each shows),
-:mod:`splitspec_orchestrator.rerun_sink` (the Rerun stream and ``run.rrd``; entity
-paths and the default blueprint in :mod:`splitspec_orchestrator.blueprint`),
-:mod:`splitspec_orchestrator.eventlog` (``events.jsonl`` and each event's sentence) and
-:func:`splitspec_core.trajfile.write_trajectory` (the one writer of
-``trajectory.npz``, shared with ``simulate``).  This module keeps what ties
-them together: buffering and flushes on a background thread, the order of
-the writes, write failures, salvage and close.  Why one module: those
-rules form one invariant (the three files agree on K rows) that is easier to
-check in one place than spread over modules.
+This module keeps the coordination: :class:`Recorder` buffers what its callers
+record, flushes it on a background thread, orders the writes, stops at the first
+write failure (:class:`WriteFailure`), salvages and closes.  Its collaborators do
+the rest: :mod:`splitspec_orchestrator.rowstore` (the rows and what each shows),
+:mod:`splitspec_orchestrator.record_files` (``trajectory.npz`` rewritten through
+:func:`splitspec_core.trajfile.write_trajectory`, the one writer shared with
+``simulate``; ``run.rrd`` appended and finished; the cuts after a failure),
+:mod:`splitspec_orchestrator.measured_records` (what a run on measurements or live
+sensors records beyond the rows), :mod:`splitspec_orchestrator.rerun_sink` (the
+Rerun stream; entity paths and the default blueprint in
+:mod:`splitspec_orchestrator.blueprint`) and :mod:`splitspec_orchestrator.eventlog`
+(``events.jsonl`` and each event's sentence).  Why one module: the buffer, the two
+locks, the background flusher and the close are one invariant (the three files
+agree on K rows, and no caller of the round loop waits for a write) that is easier
+to check in one place than spread over modules.
 
 Timelines: ``event`` (sequence ``tau``), ``time`` (duration: ``tau`` seconds
 in discrete time, ``tau * dt`` in continuous time) and ``wall`` (timestamp).
@@ -129,10 +134,8 @@ records of a killed run.
 from __future__ import annotations
 
 import atexit
-import errno
 import logging
 import math
-import os
 import threading
 import time
 import weakref
@@ -142,18 +145,20 @@ from typing import Any, Iterable, Mapping
 import numpy as np
 
 from splitspec_core.errors import SplitspecError
-from splitspec_core.trajfile import TRAJECTORY_FILE, lost_arrays, write_trajectory
+from splitspec_core.trajfile import TRAJECTORY_FILE
 
 from . import blueprint as bp
 from .eventlog import EVENTS_FILE, EventLog, event_level, event_text
+from .measured_records import MeasuredRecords
 from .outdir import Reserve
+from .record_files import RecordFiles, RecordsWriteError, strerror
 from .rerun_sink import RRD_FILE, RerunSink, RowBatch
 from .rrdfile import verify_rrd
 from .rowstore import RowStore
 from .topology_view import cut_arcs, partition_text
 
-__all__ = ["Recorder", "RecordingError", "RecordsWriteError", "verify_rrd", "TRAJECTORY_FILE", "EVENTS_FILE",
-           "RRD_FILE"]
+__all__ = ["Recorder", "RecordingError", "RecordsWriteError", "WriteFailure", "verify_rrd", "TRAJECTORY_FILE",
+           "EVENTS_FILE", "RRD_FILE"]
 
 log = logging.getLogger(__name__)
 
@@ -191,7 +196,7 @@ def _flush_open_recorders() -> None:
                     rec._closed = True
                     rec._stop.set()
                     rec._wake.set()
-                    rec._finish_rrd(rec._rows_kept)
+                    rec._files.finish_rrd(rec._rows_kept)
                     rec._reserve.release()
         except Exception as exc:
             log.warning("flush at exit failed (%s: %s)", type(exc).__name__, exc)
@@ -201,25 +206,24 @@ class RecordingError(SplitspecError, ValueError):
     """A recorder call does not fit the run (shape, agent id, graph, order); the message names it."""
 
 
-class RecordsWriteError(SplitspecError, RuntimeError):
-    """A record of the run (``trajectory.npz``, ``events.jsonl``, ``run.rrd``) could not be written.
+class WriteFailure:
+    """The first failed write of a recorder's records (the recording stops at it), and whether a caller has
+    seen it (raised to it); shared with :class:`~splitspec_orchestrator.record_files.RecordFiles`."""
 
-    One line, ``cannot write <path>: <strerror>``.  Attributes: ``path``,
-    ``strerror`` (e.g. ``No space left on device``) and ``tau``, the event time
-    being recorded when the write failed (None if unknown).
-    """
+    def __init__(self, lock: threading.RLock):
+        self._lock = lock  # the recorder's _lock
+        self.error: RecordsWriteError | None = None
+        self.reported = False
 
-    def __init__(self, path: str | Path, strerror: str, tau: int | None = None):
-        self.path, self.strerror, self.tau = Path(path), str(strerror), tau
-        super().__init__(f"cannot write {self.path}: {self.strerror}")
-
-
-def _strerror(exc: OSError) -> str:
-    if exc.strerror:
-        return exc.strerror
-    if exc.errno:
-        return os.strerror(exc.errno)
-    return str(exc) or type(exc).__name__
+    def fail(self, path: Path, exc: OSError, tau: int | None) -> RecordsWriteError:
+        """The :class:`RecordsWriteError` of ``exc``; the first one is kept (the recording stops)."""
+        err = RecordsWriteError(path, strerror(exc), tau)
+        with self._lock:
+            if self.error is None:
+                self.error = err
+                log.info("recording stopped: %s", err)  # the driver prints the one line
+            self.reported = True  # raised to the caller (the background flusher resets this)
+        return err
 
 
 class Recorder:
@@ -284,7 +288,7 @@ class Recorder:
         try:
             self.out_dir.mkdir(parents=True, exist_ok=True)
         except OSError as exc:
-            raise RecordsWriteError(self.out_dir, _strerror(exc)) from None
+            raise RecordsWriteError(self.out_dir, strerror(exc)) from None
         self.agent_ids = np.array(ids, dtype=np.int64)
         self.m, self.n = len(ids), int(n)
         self.time_mode, self.dt = time_mode, float(dt)
@@ -300,13 +304,12 @@ class Recorder:
         self._lock = threading.RLock()
         self._closed = False
         self._lost: dict = {}  # tau -> rows (tau, k, j, i, cause) of the consensus messages that did not count
-        # a run on measurements (set_y_source): (scenario, ReferenceRows), whether it has the truth, and the
-        # arrays known at its close (rows, no_truth_arrays) for run.rrd
-        self._measured, self._truth, self._after_run = None, True, None
 
         cap = max(min(int(steps) + 1, _MAX_INITIAL_ROWS), 16)
         self._s = RowStore(self.m, self.n, capacity=cap)  # the rows recorded (under _lock)
         self._d = RowStore(self.m, self.n, capacity=cap)  # the rows taken by flushes (under _io)
+        # a run on measurements or live sensors (set_y_source): what it records beyond the rows
+        self._meas = MeasuredRecords(self._lock, taken=self._d, agent_ids=self.agent_ids, pos=self._pos)
         # Buffer: rows _taken.. of _s were never taken by a flush; _changed holds taken rows that
         # changed since (re-sent tau, agent lost): taken and sent again whole.  _queued_events /
         # _queued_topology hold the deferred Rerun logs of event() / topology() in call order, sent
@@ -319,26 +322,21 @@ class Recorder:
         self._queued_marks: list[tuple[int, float, str, int]] = []  # (tau, t, kind, wall_ns); y set at flush
         self._queued_clears: list[tuple[int, float, int, int]] = []  # loss clears (tau, t, agent, wall_ns)
         self._request: int | None = None
-        self._npz_dirty = False  # rows taken since trajectory.npz was last written (under _io)
         self._npz_next = 0.0  # monotonic time before which the background thread does not rewrite it
         self._last_flush = time.monotonic()
 
-        # Write failures (see the module docstring): the first one, whether a caller has seen it,
-        # what is on disk (rows of trajectory.npz and of run.rrd, bytes of events.jsonl).
-        self._failure: RecordsWriteError | None = None
-        self._failure_reported = False
-        self._npz_rows = 0
-        self._rrd_rows = 0
+        # Write failures (see the module docstring): the first one and whether a caller has seen it;
+        # what is on disk: rows of trajectory.npz and of run.rrd (self._files), bytes of events.jsonl.
+        self._failed = WriteFailure(self._lock)
         self._rows_kept = 0
         self._events_path = self.out_dir / EVENTS_FILE
         try:
             self._events = EventLog(self._events_path)  # create / empty events.jsonl
         except OSError as exc:
-            raise RecordsWriteError(self._events_path, _strerror(exc)) from None
-        self._rrd_path = self.out_dir / RRD_FILE
-        self._rec: RerunSink | None = None
+            raise RecordsWriteError(self._events_path, strerror(exc)) from None
+        sink: RerunSink | None = None
         try:
-            self._rec = RerunSink(self.out_dir, run_id=self.run_id, scenario_name=self.scenario_name,
+            sink = RerunSink(self.out_dir, run_id=self.run_id, scenario_name=self.scenario_name,
                                   agent_ids=self.agent_ids, n=self.n, time_mode=time_mode, dt=self.dt,
                                   graph_names=self.graph_names, envelope=self.envelope_rate is not None,
                                   gains=bool(gains), positions=dict(positions) if positions else None,
@@ -346,9 +344,12 @@ class Recorder:
         except Exception as exc:  # Rerun must never stop a run
             log.warning("Rerun recording disabled (%s: %s); writing trajectory.npz and events.jsonl only",
                         type(exc).__name__, exc)
-            self._rec = None
-        if self._rec is not None:
-            self._append_rrd()  # header, properties, styles and blueprint: run.rrd exists from the start
+            sink = None
+        # trajectory.npz and run.rrd (self._rec is its sink)
+        self._files = RecordFiles(self.out_dir, agent_ids=self.agent_ids, taken=self._d, lost=self._lost,
+                                  extra=self._meas.arrays, failure=self._failed, sink=sink)
+        if sink is not None:
+            self._files.append_rrd()  # header, properties, styles and blueprint: run.rrd exists from the start
         self._reserve = Reserve(self.out_dir, reserve_bytes)
         _OPEN.add(self)
         _register_exit_flush()
@@ -367,6 +368,16 @@ class Recorder:
 
     def _tau_of_t(self, t: float) -> int:
         return int(round(t)) if self.time_mode == "discrete" else int(round(t / self.dt))
+
+    @property
+    def _rec(self) -> RerunSink | None:
+        """The Rerun sink (None: file records only, or after close)."""
+        return self._files.sink
+
+    @property
+    def _failure(self) -> RecordsWriteError | None:
+        """The first write failure (the recording has stopped), None if none."""
+        return self._failed.error
 
     # ------------------------------------------------------------------ public API
 
@@ -603,8 +614,9 @@ class Recorder:
             if self._closed:
                 return
             self._closed = True
-            if getattr(self, "_measured", None) is not None:
-                self._npz_dirty = True  # the last write adds what is known without truth (_measured_arrays)
+            self._meas.closed = True
+            if self._meas.source is not None:
+                self._files.npz_dirty = True  # the last write adds what is known without truth (MeasuredRecords.arrays)
             self._stop.set()
             self._wake.set()
             _OPEN.discard(self)
@@ -614,7 +626,7 @@ class Recorder:
                         self._flush(final=True)
                     except RecordsWriteError:
                         pass
-                    self._send_reference_after_run()
+                    self._meas.send_after_run(self._rec)
                 if self._failure is not None:
                     self._reserve.release()  # room for the final records
                     self._salvage()
@@ -623,7 +635,7 @@ class Recorder:
                 if self._failure is not None:
                     # finish run.rrd first, fewer rows if its rewrite does not fit: the close event then
                     # states what all three records hold
-                    K = self._finish_rrd_fitting(K)
+                    K = self._rows_kept = self._files.finish_rrd_fitting(K)
                 fields: dict[str, Any] = {"finished": ok, "rows": K}
                 if self._failure is not None:
                     fields["error"] = str(self._failure)
@@ -634,16 +646,16 @@ class Recorder:
                         self._fail(self._events_path, exc, None)
                 else:
                     self._close_event(float(self._d.t[K - 1]) if K else 0.0, "INFO" if ok else "WARN", fields)
-                    self._finish_rrd(K)
+                    self._files.finish_rrd(K)
             finally:
                 self._reserve.release()
                 if self._rec is not None:
                     self._rec.disconnect()
-                    self._rec = None
+                    self._files.sink = None
         if self._watcher is not None and self._watcher is not threading.current_thread():
             self._watcher.join(timeout=10.0)
-        if self._failure is not None and not self._failure_reported and finished:
-            self._failure_reported = True
+        if self._failure is not None and not self._failed.reported and finished:
+            self._failed.reported = True
             raise self._failure
 
     def __del__(self) -> None:
@@ -670,22 +682,12 @@ class Recorder:
     def _check_failed(self) -> None:
         """After a write failure the recording has stopped: every call raises it again."""
         if self._failure is not None:
-            self._failure_reported = True
+            self._failed.reported = True
             raise self._failure
 
     def _fail(self, path: Path, exc: OSError, tau: int | None) -> RecordsWriteError:
         """The :class:`RecordsWriteError` of ``exc``; the first one is kept (the recording stops)."""
-        err = RecordsWriteError(path, _strerror(exc), tau)
-        with self._lock:
-            if self._failure is None:
-                self._failure = err
-                log.info("recording stopped: %s", err)  # the driver prints the one line
-            self._failure_reported = True  # raised to the caller (the background flusher resets this)
-        return err
-
-    def _last_tau(self) -> int | None:
-        """The event time of the last row taken by a flush (what a failed write was writing)."""
-        return int(self._d.tau[self._d.rows - 1]) if self._d.rows else None
+        return self._failed.fail(path, exc, tau)
 
     def _write_through(self) -> None:
         """``flush_seconds=0``: flush in the caller's thread after every call.  Otherwise nothing: the
@@ -704,7 +706,7 @@ class Recorder:
         return (self._taken < self._s.rows or bool(self._changed) or bool(self._queued_events)
                 or bool(self._queued_topology) or bool(self._queued_marks) or bool(self._queued_clears)
                 or self._request is not None or (self._rec is not None and bool(self._rec.pending))
-                or self._npz_dirty)
+                or self._files.npz_dirty)
 
     def _grow_ahead(self) -> None:
         """Background thread: double the recorded rows' storage before a caller's row fills it.  The new
@@ -738,7 +740,7 @@ class Recorder:
                 self._write(*taken, trajectory=upto is not None or time.monotonic() >= self._npz_next)
             except RecordsWriteError:  # stored: the next recorder call raises it
                 with self._lock:
-                    self._failure_reported = False
+                    self._failed.reported = False
             except Exception as exc:
                 log.warning("background flush failed (%s: %s)", type(exc).__name__, exc)
         return True
@@ -770,7 +772,7 @@ class Recorder:
         K = np.concatenate([changed, np.arange(self._taken, T, dtype=np.int64)])
         if len(K):
             self._d.take(self._s, self._taken, T, changed)
-            self._npz_dirty = True
+            self._files.npz_dirty = True
         self._taken = T
         self._changed.clear()
         if self._request is not None and self._request <= T:
@@ -803,7 +805,7 @@ class Recorder:
         sink = self._rec
         for lo in range(0, len(K), _SEND_ROWS):
             part = K[lo:lo + _SEND_ROWS]
-            err, show = self._row_errors(part)
+            err, show = self._meas.row_errors(part)
             if sink is not None:
                 sink.guarded("row log", lambda: sink.send_rows(self._batch(part, err, show)))
             # What Rerun now shows (also when a send failed: it is not retried).
@@ -817,32 +819,21 @@ class Recorder:
             if events:
                 sink.guarded("event log", sink.send_events, events)
             if marks:
-                sink.guarded("marks", sink.send_marks, [(tau, t, kind, self._mark_y(tau), wall)
+                sink.guarded("marks", sink.send_marks, [(tau, t, kind, self._meas.mark_y(tau), wall)
                                                         for tau, t, kind, wall in marks])
             if topology:
                 sink.guarded("topology log", sink.send_topology, topology)
             if lost:  # after the topology it is drawn over
                 sink.guarded("lost messages log", sink.send_lost, lost)
+        files = self._files
         if len(K) or events or topology or marks or clears or (sink is not None and sink.pending):
-            self._append_rrd()
-        if trajectory and (self._npz_dirty or self._npz_rows != D.rows):
+            files.append_rrd()
+        if trajectory and (files.npz_dirty or files.npz_rows != D.rows):
             t0 = time.monotonic()
-            self._write_trajectory()
+            files.write_trajectory()
             self._npz_next = time.monotonic() + (time.monotonic() - t0) * (1 - _NPZ_DUTY) / _NPZ_DUTY
         with self._lock:
-            self._rows_kept = min(self._npz_rows, self._rrd_rows) if sink is not None else self._npz_rows
-
-    def _append_rrd(self) -> None:
-        """Read what Rerun encoded since the last call and append it (and anything left over) to ``run.rrd``."""
-        if self._rec is None:
-            return
-        taken = self._d.rows
-        self._rec.read_pending()
-        try:
-            self._rec.write_pending()
-        except OSError as exc:
-            raise self._fail(self._rrd_path, exc, self._last_tau()) from None
-        self._rrd_rows = taken
+            self._rows_kept = min(files.npz_rows, files.rrd_rows) if sink is not None else files.npz_rows
 
     def set_measurements(self, sc, meas) -> None:
         """The run plays a measurements file (:class:`splitspec_core.measurements.Measurements`): see
@@ -865,116 +856,28 @@ class Recorder:
         with self._io, self._lock:
             if self._s.rows:
                 raise RecordingError("set_y_source() after the first row: the recording already shows its errors")
-            self._measured, self._truth = (sc, rows), bool(truth)
+            self._meas.use(sc, rows, truth=truth)
             if self._rec is not None:
                 self._rec.guarded("reference setup", lambda: self._rec.set_reference(rows, truth=truth))
-
-    def _row_errors(self, K: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``|x_i - x|`` of rows ``K`` and where a row shows agent i: alive with a finite error, or without the
-        truth (whose errors are never logged) alive with a finite estimate."""
-        err, show = self._d.row_errors(K)
-        if not self._truth:
-            show = self._d.alive[K] & np.isfinite(self._d.xhat[K]).all(axis=2)
-        return err, show
-
-    def _mark_y(self, tau: int) -> float:
-        """A mark's height: on the log10 max error, or without the truth on the log10 disagreement."""
-        if self._truth:
-            return self._d.mark_y(tau)
-        return self._measured[1].mark_y(tau)
-
-    def _send_reference_after_run(self) -> None:
-        """At the close, after the last flush: the centralized Kalman filter and each agent's distance to it,
-        the very arrays the last ``trajectory.npz`` got (:meth:`_measured_arrays`), to Rerun."""
-        done = self._after_run
-        if self._rec is None or self._rec.reference is None or done is None or done[0] != self._d.rows:
-            return
-        D, T, arrays = self._d, done[0], done[1]
-        self._rec.guarded("Kalman filter log", self._rec.reference.send_after_run, D.tau[:T], D.t[:T], D.wall[:T],
-                          arrays["kf"], arrays["kf_distance"])
 
     def set_live_sources(self, sc) -> None:
         """Live sensors (scenario ``sources:``): the estimators run on the ``y_i`` each agent reports having used
         (:meth:`live_y`, from its ``xhat``), without a truth (:meth:`set_y_source`); call before the first row."""
-        from splitspec_core.plant_model import output_rows
-
-        self._live_rows = output_rows(sc.system.Cs)
-        self._live: dict = {}  # tau -> (y, missing) from live_y, until the y source has taken it (it keeps it)
-        self.set_y_source(sc, self._live_row, truth=False)
-
-    def _live_row(self, tau: int):
-        with self._lock:
-            return self._live.pop(int(tau), None)
+        self.set_y_source(sc, self._meas.live_source(sc), truth=False)
 
     def live_y(self, tau: int, used) -> None:
         """Event time ``tau``'s ``(agent id, y_i(tau) or None)`` of the agents alive (the others: missing, NaN);
         before :meth:`row` of ``tau``, so that a flush never takes the row without its measurements."""
-        rows = self._live_rows
-        y, missing = np.full(rows[-1].stop, np.nan), np.ones(self.m, dtype=bool)
-        for aid, v in used:
-            k = self._pos[int(aid)]
-            if v is not None and len(v) == rows[k].stop - rows[k].start:
-                y[rows[k]], missing[k] = v, False
-        with self._lock:
-            self._live[int(tau)] = (y, missing)
-
-    def _measured_arrays(self, T: int) -> dict:
-        if self._measured is None or not T:
-            return {}
-        sc, rows = self._measured
-        taus = self._d.tau[:T].astype(int)
-        y, missing = rows.measurements(taus)
-        extra = {"y": y, "y_missing": missing}
-        if self._closed:  # the centralized Kalman filter over the whole run: once, at the end
-            from splitspec_core.reference import no_truth_arrays
-            from splitspec_core.simulator import Trajectory
-
-            D = self._d
-            traj = Trajectory(t=D.t[:T], x=D.x[:T], xhat=D.xhat[:T], alive=D.alive[:T], graph=D.graph[:T],
-                              agent_ids=np.array(self.agent_ids), y=extra["y"], y_missing=extra["y_missing"])
-            known = no_truth_arrays(traj, sc)
-            self._after_run = (T, known)
-            extra.update(known)
-        return extra
-
-    def _write_trajectory(self, rows: int | None = None) -> None:
-        """Atomically (re)write ``trajectory.npz`` with the first ``rows`` rows taken (default: all)."""
-        D = self._d
-        T = D.rows if rows is None else rows
-        path = self.out_dir / TRAJECTORY_FILE
-        try:
-            last = int(D.tau[T - 1]) if T else -1
-            lost, cause = lost_arrays([r for tau, rows in list(self._lost.items()) if tau <= last for r in rows])
-            write_trajectory(path, t=D.t[:T], x=D.x[:T], xhat=D.xhat[:T], alive=D.alive[:T], graph=D.graph[:T],
-                             agent_ids=self.agent_ids, g=D.g[:T], lost=lost, lost_cause=cause,
-                             extra=self._measured_arrays(T))
-        except OSError as exc:
-            raise self._fail(path, exc, int(D.tau[T - 1]) if T else None) from None
-        self._npz_rows = T
-        if T == D.rows:
-            self._npz_dirty = False
+        self._meas.live_y(tau, used)
 
     def _salvage(self) -> None:
-        """After a write failure: write what is left, then make the rows on disk agree.  Never raises.
-
-        K = all rows if ``run.rrd`` and ``trajectory.npz`` can now be written,
-        else the rows both hold on disk (``trajectory.npz`` is cut to them if it
-        holds more and can be rewritten).
-        """
+        """After a write failure: write what is left, then make the rows on disk agree
+        (:meth:`RecordFiles.salvage`).  Never raises."""
         try:
             self._flush(final=True)
         except RecordsWriteError:
             pass
-        if self._rec is None:
-            self._rows_kept = self._npz_rows
-            return
-        K = min(self._rrd_rows, self._npz_rows)
-        if self._npz_rows > K:
-            try:
-                self._write_trajectory(K)
-            except RecordsWriteError:
-                K = self._npz_rows  # cannot cut it: run.rrd is cut to the trajectory's rows instead
-        self._rows_kept = K
+        self._rows_kept = self._files.salvage()
 
     def _close_event(self, t: float, level: str, fields: dict[str, Any]) -> None:
         """The last event, ``recording_closed``: to ``events.jsonl`` and ``run.rrd`` if they can take it."""
@@ -987,63 +890,9 @@ class Recorder:
             self._rec.guarded("event log", self._rec.send_events,
                               [(self._tau_of_t(t), t, text, level, time.time_ns())])
             try:
-                self._append_rrd()
+                self._files.append_rrd()
             except RecordsWriteError:
                 pass
-
-    def _finish_rrd_fitting(self, K: int) -> int:
-        """After a write failure: finish ``run.rrd`` and cut ``trajectory.npz`` to K rows, or to fewer (a tenth
-        less each try) when the rewrites do not fit on the full disk.  The trajectory is cut first: a shorter
-        trajectory frees room for the rrd's rewrite.  Returns the rows kept (what the close event states)."""
-        if self._rec is None or K == 0:
-            self._finish_rrd(K)
-            return K
-        for _ in range(40):
-            if K != self._npz_rows and not self._cut_trajectory(K):
-                if K <= 1:
-                    break
-                K = max(1, K - max(1, K // 10))
-                continue
-            try:
-                self._rec.finish(int(self._d.tau[K - 1]) + 1)
-            except OSError as exc:
-                if exc.errno != errno.ENOSPC or K <= 1:
-                    self._fail(self._rrd_path, exc, int(self._d.tau[K - 1]))
-                    break
-                K = max(1, K - max(1, K // 10))
-                continue
-            break
-        self._rows_kept = K = min(K, self._npz_rows)
-        return K
-
-    def _cut_trajectory(self, K: int) -> bool:
-        """After a write failure: cut ``trajectory.npz`` to its first K rows.  The atomic rewrite needs room
-        for both files; when that room is gone, the longer file (whose rows are all in memory) is removed
-        first and the shorter one written in its place.  True when ``trajectory.npz`` holds K rows."""
-        try:
-            self._write_trajectory(K)
-            return True
-        except RecordsWriteError:
-            pass
-        try:
-            (self.out_dir / TRAJECTORY_FILE).unlink(missing_ok=True)
-            self._npz_rows = 0
-            self._write_trajectory(K)
-            return True
-        except (OSError, RecordsWriteError):
-            return False
-
-    def _finish_rrd(self, K: int) -> None:
-        """Rewrite ``run.rrd`` as one verifiable RRD; cut after row K-1 if a write failed."""
-        if self._rec is None:
-            return
-        cutoff = None
-        if self._failure is not None or K < self._d.rows:
-            cutoff = int(self._d.tau[K - 1]) + 1 if K else 0
-        try:
-            self._rec.finish(cutoff)
-        except OSError as exc:
-            self._fail(self._rrd_path, exc, int(self._d.tau[K - 1]) if K else None)
 
 
 def _watch(ref: "weakref.ref[Recorder]", stop: threading.Event, wake: threading.Event) -> None:

@@ -22,7 +22,7 @@ from splitspec_core.errors import SplitspecError
 from splitspec_core.measurements import load_measurements
 from splitspec_core.plant_model import Plant, RecordedPlant
 from splitspec_core.runtime.wire import Keys, WireError, decode, encode
-from splitspec_core.scenario_model import parse_scenario_text
+from splitspec_core.scenario_load import parse_scenario_text
 
 log = logging.getLogger("splitspec.plant")
 

@@ -4,7 +4,7 @@ Every function here is what a ``splitspec`` command does, minus the files: the C
 modules call these same functions.  Results are frozen dataclasses whose arrays are read-only.
 
 Validation has one path: :func:`scenario` turns its keywords into the mapping a scenario file
-holds and hands it to :func:`splitspec_core.scenario_model.parse_scenario`, the checker of YAML files,
+holds and hands it to :func:`splitspec_core.scenario_load.parse_scenario`, the checker of YAML files,
 so both meet the same checks with the same one-line messages.
 """
 
@@ -21,8 +21,9 @@ from .designer import Design
 from .errors import ScenarioError
 from .report import rate_certificate
 from .scenario_checks import _DESIGN_KEYS, _RUN_KEYS, _SYSTEM_KEYS
-from .scenario_model import Scenario, parse_scenario
-from .scenario_model import load_scenario as _load_scenario
+from .scenario_load import parse_scenario
+from .scenario_load import load_scenario as _load_scenario
+from .scenario_model import Scenario
 from .runs import ORIGIN
 from .simulator import Trajectory
 

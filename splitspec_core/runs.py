@@ -34,7 +34,8 @@ import yaml
 
 from .errors import ScenarioError, SplitspecError
 from .scenario_checks import plain
-from .scenario_model import Scenario, load_scenario, load_yaml
+from .scenario_load import load_scenario, load_yaml
+from .scenario_model import Scenario
 from .simulator import Trajectory
 
 __all__ = ["RunRecord", "RunError", "load_run", "run", "view"]

@@ -37,7 +37,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     # and with it scipy: a quarter of a second more before the first process starts)
     from splitspec_core.designer import design
     from splitspec_core.runtime.wire import Keys
-    from splitspec_core.scenario_model import load_scenario
+    from splitspec_core.scenario_load import load_scenario
 
     from ..launcher import run_local
 

@@ -53,7 +53,7 @@ def _tune(args: argparse.Namespace, sc) -> int:
     import yaml
 
     from splitspec_core.noise import tune
-    from splitspec_core.scenario_model import load_yaml, read_scenario_text
+    from splitspec_core.scenario_load import load_yaml, read_scenario_text
 
     res = tune(sc)
     d = res.design

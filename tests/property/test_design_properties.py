@@ -35,7 +35,7 @@ from splitspec_core.designer import design
 from splitspec_core.errors import AssumptionError
 from splitspec_core.full_matrix import block_diagonal
 from splitspec_core.observability import decompose, threshold_of
-from splitspec_core.scenario_model import parse_scenario
+from splitspec_core.scenario_load import parse_scenario
 
 from .strategies import graph_sequences, scenarios
 

@@ -25,7 +25,7 @@ from splitspec_core.errors import AssumptionError, DesignError
 from splitspec_core.generate import random_strongly_connected_arcs, random_system
 from splitspec_core.observability import DEFAULT_RANK_TOL, joint_observability
 from splitspec_core.report import rate_certificate
-from splitspec_core.scenario_model import parse_scenario
+from splitspec_core.scenario_load import parse_scenario
 from splitspec_core.simulator import simulate
 
 from .test_design_properties import COMMON, examples

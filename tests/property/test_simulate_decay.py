@@ -13,7 +13,7 @@ from hypothesis import strategies as st
 from splitspec_core.analysis import fit_decay, max_error
 from splitspec_core.designer import design
 from splitspec_core.generate import random_strongly_connected_arcs, random_system
-from splitspec_core.scenario_model import parse_scenario
+from splitspec_core.scenario_load import parse_scenario
 from splitspec_core.simulator import simulate
 
 

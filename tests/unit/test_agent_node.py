@@ -311,7 +311,7 @@ def test_the_plant_plays_the_file_the_orchestrator_was_given(tmp_path):
     from splitspec_core.errors import SplitspecError
     from splitspec_core.measurements import load_measurements, write_measurements
     from splitspec_core.runtime.wire import decode
-    from splitspec_core.scenario_model import load_scenario
+    from splitspec_core.scenario_load import load_scenario
 
     sc = load_scenario(EXAMPLES / "paper_discrete.yaml")
     t = np.arange(4.0)

@@ -9,7 +9,7 @@ from splitspec_core.baselines import (KalmanConsensusFilter, baseline_trajectori
 from splitspec_core.designer import design
 from splitspec_core.errors import DesignError
 from splitspec_core.plant_model import output_rows
-from splitspec_core.scenario_model import load_scenario
+from splitspec_core.scenario_load import load_scenario
 from splitspec_core.simulator import simulate
 from tests.conftest import EXAMPLES
 from tests.numerics import assert_close

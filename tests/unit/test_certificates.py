@@ -17,7 +17,7 @@ import yaml
 
 from splitspec_core.designer import NO_CERTIFIED_RATE, certify_network, design
 from splitspec_core.report import design_json, design_text, rate_certificate
-from splitspec_core.scenario_model import load_scenario
+from splitspec_core.scenario_load import load_scenario
 from splitspec_orchestrator import cli
 from tests.conftest import EXAMPLES
 

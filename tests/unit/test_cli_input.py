@@ -19,9 +19,10 @@ import pytest
 import yaml
 
 from splitspec_orchestrator import cli
-from splitspec_core import scenario_model as scenario_module
+from splitspec_core import scenario_load as scenario_module
 from splitspec_core.errors import ScenarioError
-from splitspec_core.scenario_model import MAX_FILE_BYTES, MAX_SEED, load_scenario, parse_scenario_text
+from splitspec_core.scenario_load import MAX_FILE_BYTES, load_scenario, parse_scenario_text
+from splitspec_core.scenario_model import MAX_SEED
 from splitspec_core.simulator import check_trajectory_memory
 
 ROOT = Path(__file__).resolve().parents[2]

@@ -12,7 +12,7 @@ import yaml
 from splitspec_core.conditioning import transient_constant
 from splitspec_core.full_matrix import full_error_matrix, predicted_rms
 from splitspec_core.designer import design
-from splitspec_core.scenario_model import load_scenario, parse_scenario
+from splitspec_core.scenario_load import load_scenario, parse_scenario
 from splitspec_core.simulator import simulate
 from splitspec_orchestrator import cli
 from tests.conftest import EXAMPLES

@@ -17,7 +17,7 @@ from splitspec_core.errors import DesignError
 from splitspec_core.generate import random_system, ring_arcs, ring_scenario, ring_system
 from splitspec_core.graphs import is_strongly_connected
 from splitspec_core.observability import unobservable_directions
-from splitspec_core.scenario_model import load_scenario, parse_scenario
+from splitspec_core.scenario_load import load_scenario, parse_scenario
 from splitspec_orchestrator import cli
 from tests.numerics import assert_close
 

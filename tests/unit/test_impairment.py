@@ -11,7 +11,8 @@ import yaml
 from splitspec_core.designer import design
 from splitspec_core.impairment import (LATE, LOSS, PARTITION, Impairment, crosses, group_of, realized_row, sub_round,
                                        u_array, u_scalar)
-from splitspec_core.scenario_model import NetworkSpec, load_scenario, parse_scenario
+from splitspec_core.scenario_load import load_scenario, parse_scenario
+from splitspec_core.scenario_model import NetworkSpec
 from splitspec_core.simulator import simulate
 from tests.conftest import EXAMPLES
 from tests.numerics import assert_close

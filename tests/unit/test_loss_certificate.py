@@ -10,7 +10,7 @@ import pytest
 import yaml
 
 from splitspec_core.designer import design
-from splitspec_core.scenario_model import load_scenario, parse_scenario
+from splitspec_core.scenario_load import load_scenario, parse_scenario
 from splitspec_orchestrator import cli
 from tests.conftest import EXAMPLES
 

@@ -12,7 +12,7 @@ from splitspec_core.errors import ScenarioError
 from splitspec_core.generate import random_strongly_connected_arcs, random_system
 from splitspec_core.measurements import load_measurements, write_measurements
 from splitspec_core.reference import disagreement, kalman_reference, no_truth_arrays
-from splitspec_core.scenario_model import load_scenario, parse_scenario
+from splitspec_core.scenario_load import load_scenario, parse_scenario
 from splitspec_core.simulator import simulate
 from tests.conftest import EXAMPLES
 from tests.integration.runtime_helpers import run

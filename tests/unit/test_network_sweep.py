@@ -12,8 +12,9 @@ from splitspec_core.comparison import steady_rms
 from splitspec_core.designer import design
 from splitspec_core.errors import DesignError
 from splitspec_core.impairment import LATE, LOSS
+from splitspec_core.scenario_load import load_scenario
+from splitspec_core.scenario_model import NetworkSpec
 from splitspec_core.sweeps import network_sweep, sweep_table
-from splitspec_core.scenario_model import NetworkSpec, load_scenario
 from splitspec_core.simulator import simulate
 from tests.conftest import EXAMPLES
 from tests.integration.runtime_helpers import run

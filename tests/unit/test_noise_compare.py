@@ -11,7 +11,7 @@ from splitspec_core.comparison import compare, settle_time, steady_rms, sweep
 from splitspec_core.designer import design
 from splitspec_core.errors import DesignError
 from splitspec_core.noise import error_dynamics, predicted_rms, tune
-from splitspec_core.scenario_model import load_scenario
+from splitspec_core.scenario_load import load_scenario
 from splitspec_core.simulator import simulate
 from tests.conftest import EXAMPLES
 from tests.integration.runtime_helpers import run

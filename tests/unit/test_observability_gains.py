@@ -93,7 +93,7 @@ def test_joint_observability_is_judged_before_explicit_gains(tmp_path, capsys, t
     import yaml
 
     from splitspec_core.designer import design
-    from splitspec_core.scenario_model import load_scenario
+    from splitspec_core.scenario_load import load_scenario
     from splitspec_orchestrator import cli
     from tests.conftest import EXAMPLES
 
@@ -151,7 +151,7 @@ def test_weak_joint_observability_is_refused_with_its_margin(tmp_path, capsys):
     import yaml
 
     from splitspec_core.designer import design
-    from splitspec_core.scenario_model import parse_scenario
+    from splitspec_core.scenario_load import parse_scenario
     from splitspec_orchestrator import cli
 
     raw = {"name": "weak", "time": "continuous",

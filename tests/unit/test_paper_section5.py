@@ -5,7 +5,7 @@ import pytest
 
 from splitspec_core import bounds
 from splitspec_core.designer import design
-from splitspec_core.scenario_model import load_scenario
+from splitspec_core.scenario_load import load_scenario
 
 
 @pytest.fixture(scope="module")

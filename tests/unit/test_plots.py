@@ -10,7 +10,8 @@ import yaml
 from splitspec_orchestrator import cli, plots
 from splitspec_core.analysis import NO_CERTIFIED_RATE, Mark, event_marks, max_error, summarize
 from splitspec_core.designer import design
-from splitspec_core.scenario_model import Fault, load_scenario
+from splitspec_core.scenario_load import load_scenario
+from splitspec_core.scenario_model import Fault
 from splitspec_core.simulator import simulate
 from tests.conftest import EXAMPLES
 

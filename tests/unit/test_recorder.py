@@ -434,7 +434,7 @@ def test_round_loop_calls_never_write_or_wait_for_a_flush(tmp_path, monkeypatch)
     monkeypatch.setattr(rrdfile.RrdAppender, "append", lambda self, piece: (
         calls.append(("run.rrd", threading.current_thread() is main)), real_append(self, piece))[1])
     real_write = trajfile.write_trajectory
-    monkeypatch.setattr("splitspec_orchestrator.recorder.write_trajectory", lambda *a, **kw: (
+    monkeypatch.setattr("splitspec_orchestrator.record_files.write_trajectory", lambda *a, **kw: (
         calls.append(("trajectory.npz", threading.current_thread() is main)), real_write(*a, **kw))[1])
     rec = Recorder(tmp_path, agent_ids=IDS, n=N, steps=T, time_mode="discrete", dt=1.0, graph_names=GRAPHS,
                    run_id="bg", scenario_name="bg", flush_seconds=0.05)
@@ -517,7 +517,7 @@ def test_slow_trajectory_rewrites_are_spaced_out(tmp_path, monkeypatch):
         time.sleep(0.1)
         real_write(*args, **kwargs)
 
-    monkeypatch.setattr("splitspec_orchestrator.recorder.write_trajectory", slow_write)
+    monkeypatch.setattr("splitspec_orchestrator.record_files.write_trajectory", slow_write)
     rec = Recorder(tmp_path, agent_ids=IDS, n=N, steps=200, time_mode="discrete", dt=1.0, graph_names=GRAPHS,
                    run_id="npz", scenario_name="npz", flush_seconds=0.05)
     appends = []

@@ -13,7 +13,7 @@ from splitspec_orchestrator.eventlog import event_text
 from splitspec_orchestrator.recorder import Recorder, RecordingError
 from splitspec_core.analysis import envelope, envelope_restarts
 from splitspec_core.errors import ScenarioError
-from splitspec_core.scenario_model import parse_scenario
+from splitspec_core.scenario_load import parse_scenario
 from tests.integration.runtime_helpers import EXAMPLES
 from tests.rrd_readback import read_rrd, read_rrd_clears, read_rrd_nodes, read_rrd_state
 

@@ -10,7 +10,7 @@ from splitspec_core.designer import certify_network, design
 from splitspec_core.errors import ScenarioError
 from splitspec_core.network import NetworkState, active_arcs, consensus_rows, make_plan
 from splitspec_core.replay import faults_from_events, load_events, with_recorded_faults
-from splitspec_core.scenario_model import load_scenario
+from splitspec_core.scenario_load import load_scenario
 from splitspec_core.simulator import simulate
 from tests.conftest import EXAMPLES
 

@@ -13,7 +13,7 @@ import pytest
 
 from splitspec_orchestrator import rounds as R
 from splitspec_core.designer import design
-from splitspec_core.scenario_model import parse_scenario
+from splitspec_core.scenario_load import parse_scenario
 from tests.conftest import EXAMPLES
 
 HOST = "here"

@@ -15,7 +15,7 @@ from splitspec_agents.sensor import FLOOD_BURST, FLOOD_RATE, LiveSampler, Sensor
 from splitspec_core.errors import ScenarioError
 from splitspec_core.runtime.security import acl_config, generate
 from splitspec_core.runtime.wire import Keys
-from splitspec_core.scenario_model import load_scenario, parse_scenario_text
+from splitspec_core.scenario_load import load_scenario, parse_scenario_text
 from tests.conftest import ROOT
 
 CHAIN = ROOT / "examples" / "sensors" / "chain.yaml"

@@ -8,7 +8,7 @@ import pytest
 from splitspec_core.analysis import fit_decay, max_error
 from splitspec_core.designer import design
 from splitspec_core.generate import random_strongly_connected_arcs, random_system
-from splitspec_core.scenario_model import load_scenario, parse_scenario
+from splitspec_core.scenario_load import load_scenario, parse_scenario
 from splitspec_core.simulator import Trajectory, simulate, simulate_exact
 from tests.conftest import EXAMPLES
 from tests.numerics import assert_close, max_rel_diff

@@ -1,0 +1,196 @@
+"""The recorder's two files of rows on disk: ``trajectory.npz`` rewritten, ``run.rrd`` appended and finished.
+
+:class:`RecordFiles` writes what a :class:`~splitspec_orchestrator.recorder.Recorder` flush took and
+knows how many rows each file holds on disk:
+
+``trajectory.npz``
+    rewritten whole and atomically by :func:`splitspec_core.trajfile.write_trajectory` (temporary file
+    in ``out_dir``, fsynced, ``os.replace``) with the first rows taken, their consensus messages that did
+    not count (``lost``, ``lost_cause``) and, on measurements, the arrays of
+    :meth:`splitspec_orchestrator.measured_records.MeasuredRecords.arrays`
+    (:meth:`RecordFiles.write_trajectory`);
+``run.rrd``
+    appended with what Rerun encoded since the last flush (:meth:`RecordFiles.append_rrd`, through the
+    :class:`~splitspec_orchestrator.rerun_sink.RerunSink`; the format in :mod:`splitspec_orchestrator.rrdfile`)
+    and, at the close, rewritten as one verifiable RRD, cut after the K-th row after a write failure
+    (:meth:`RecordFiles.finish_rrd`).
+
+After a write failure the two files are made to agree on K rows, as far as the disk allows:
+:meth:`RecordFiles.salvage` (the rows both hold, ``trajectory.npz`` cut to them),
+:meth:`RecordFiles.finish_rrd_fitting` (fewer rows, a tenth less each try, when the rewrites do not
+fit on a full disk) and :meth:`RecordFiles.cut_trajectory`.  When to write, in which order, and what a
+failure stops are the recorder's (its module docstring, "Write failures and consistency"); a failed
+write is reported to the recorder's :class:`~splitspec_orchestrator.recorder.WriteFailure`, which keeps
+the first one and gives the :class:`RecordsWriteError` to raise.
+"""
+
+from __future__ import annotations
+
+import errno
+import os
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from splitspec_core.errors import SplitspecError
+from splitspec_core.trajfile import TRAJECTORY_FILE, lost_arrays, write_trajectory
+
+from .rerun_sink import RRD_FILE, RerunSink
+from .rowstore import RowStore
+
+__all__ = ["RecordFiles", "RecordsWriteError"]
+
+
+class RecordsWriteError(SplitspecError, RuntimeError):
+    """A record of the run (``trajectory.npz``, ``events.jsonl``, ``run.rrd``) could not be written.
+
+    One line, ``cannot write <path>: <strerror>``.  Attributes: ``path``,
+    ``strerror`` (e.g. ``No space left on device``) and ``tau``, the event time
+    being recorded when the write failed (None if unknown).
+    """
+
+    def __init__(self, path: str | Path, strerror: str, tau: int | None = None):
+        self.path, self.strerror, self.tau = Path(path), str(strerror), tau
+        super().__init__(f"cannot write {self.path}: {self.strerror}")
+
+
+def strerror(exc: OSError) -> str:
+    """The reason of a failed write, as :class:`RecordsWriteError` states it."""
+    if exc.strerror:
+        return exc.strerror
+    if exc.errno:
+        return os.strerror(exc.errno)
+    return str(exc) or type(exc).__name__
+
+
+class RecordFiles:
+    """``trajectory.npz`` and ``run.rrd`` of one recorder, and the rows each holds on disk.
+
+    Parameters
+    ----------
+    out_dir : directory of the run
+    agent_ids : agent ids in the scenario's order
+    taken : the rows taken by the recorder's flushes (its ``_d``; everything here runs under its ``_io``)
+    lost : ``{tau: rows (tau, k, j, i, cause)}`` of the consensus messages that did not count (the recorder's)
+    extra : ``extra(T)``, the further arrays of a ``trajectory.npz`` with the first ``T`` rows
+    failure : the recorder's :class:`~splitspec_orchestrator.recorder.WriteFailure` (``error``,
+        ``fail(path, exc, tau) -> RecordsWriteError``)
+    sink : the recorder's :class:`RerunSink`, None without Rerun (and once the recorder has dropped it)
+    """
+
+    def __init__(self, out_dir: Path, *, agent_ids: np.ndarray, taken: RowStore, lost: dict,
+                 extra: Callable[[int], dict], failure, sink: RerunSink | None):
+        self.out_dir = out_dir
+        self.agent_ids = agent_ids
+        self._d = taken
+        self._lost = lost
+        self._extra = extra
+        self._failure = failure
+        self.sink = sink
+        self.rrd_path = out_dir / RRD_FILE
+        self.npz_rows = 0  # rows trajectory.npz holds on disk
+        self.rrd_rows = 0  # rows run.rrd holds on disk
+        self.npz_dirty = False  # rows taken since trajectory.npz was last written (under the recorder's _io)
+
+    def last_tau(self) -> int | None:
+        """The event time of the last row taken by a flush (what a failed write was writing)."""
+        return int(self._d.tau[self._d.rows - 1]) if self._d.rows else None
+
+    def append_rrd(self) -> None:
+        """Read what Rerun encoded since the last call and append it (and anything left over) to ``run.rrd``."""
+        if self.sink is None:
+            return
+        taken = self._d.rows
+        self.sink.read_pending()
+        try:
+            self.sink.write_pending()
+        except OSError as exc:
+            raise self._failure.fail(self.rrd_path, exc, self.last_tau()) from None
+        self.rrd_rows = taken
+
+    def write_trajectory(self, rows: int | None = None) -> None:
+        """Atomically (re)write ``trajectory.npz`` with the first ``rows`` rows taken (default: all)."""
+        D = self._d
+        T = D.rows if rows is None else rows
+        path = self.out_dir / TRAJECTORY_FILE
+        try:
+            last = int(D.tau[T - 1]) if T else -1
+            lost, cause = lost_arrays([r for tau, rows in list(self._lost.items()) if tau <= last for r in rows])
+            write_trajectory(path, t=D.t[:T], x=D.x[:T], xhat=D.xhat[:T], alive=D.alive[:T], graph=D.graph[:T],
+                             agent_ids=self.agent_ids, g=D.g[:T], lost=lost, lost_cause=cause,
+                             extra=self._extra(T))
+        except OSError as exc:
+            raise self._failure.fail(path, exc, int(D.tau[T - 1]) if T else None) from None
+        self.npz_rows = T
+        if T == D.rows:
+            self.npz_dirty = False
+
+    def salvage(self) -> int:
+        """After a write failure and the last flush: make the rows on disk agree.  Never raises.
+
+        Returns K = all rows if ``run.rrd`` and ``trajectory.npz`` could be written, else the rows both hold
+        on disk (``trajectory.npz`` is cut to them if it holds more and can be rewritten).
+        """
+        if self.sink is None:
+            return self.npz_rows
+        K = min(self.rrd_rows, self.npz_rows)
+        if self.npz_rows > K:
+            try:
+                self.write_trajectory(K)
+            except RecordsWriteError:
+                K = self.npz_rows  # cannot cut it: run.rrd is cut to the trajectory's rows instead
+        return K
+
+    def finish_rrd_fitting(self, K: int) -> int:
+        """After a write failure: finish ``run.rrd`` and cut ``trajectory.npz`` to K rows, or to fewer (a tenth
+        less each try) when the rewrites do not fit on the full disk.  The trajectory is cut first: a shorter
+        trajectory frees room for the rrd's rewrite.  Returns the rows kept (what the close event states)."""
+        if self.sink is None or K == 0:
+            self.finish_rrd(K)
+            return K
+        for _ in range(40):
+            if K != self.npz_rows and not self.cut_trajectory(K):
+                if K <= 1:
+                    break
+                K = max(1, K - max(1, K // 10))
+                continue
+            try:
+                self.sink.finish(int(self._d.tau[K - 1]) + 1)
+            except OSError as exc:
+                if exc.errno != errno.ENOSPC or K <= 1:
+                    self._failure.fail(self.rrd_path, exc, int(self._d.tau[K - 1]))
+                    break
+                K = max(1, K - max(1, K // 10))
+                continue
+            break
+        return min(K, self.npz_rows)
+
+    def cut_trajectory(self, K: int) -> bool:
+        """After a write failure: cut ``trajectory.npz`` to its first K rows.  The atomic rewrite needs room
+        for both files; when that room is gone, the longer file (whose rows are all in memory) is removed
+        first and the shorter one written in its place.  True when ``trajectory.npz`` holds K rows."""
+        try:
+            self.write_trajectory(K)
+            return True
+        except RecordsWriteError:
+            pass
+        try:
+            (self.out_dir / TRAJECTORY_FILE).unlink(missing_ok=True)
+            self.npz_rows = 0
+            self.write_trajectory(K)
+            return True
+        except (OSError, RecordsWriteError):
+            return False
+
+    def finish_rrd(self, K: int) -> None:
+        """Rewrite ``run.rrd`` as one verifiable RRD; cut after row K-1 if a write failed."""
+        if self.sink is None:
+            return
+        cutoff = None
+        if self._failure.error is not None or K < self._d.rows:
+            cutoff = int(self._d.tau[K - 1]) + 1 if K else 0
+        try:
+            self.sink.finish(cutoff)
+        except OSError as exc:
+            self._failure.fail(self.rrd_path, exc, int(self._d.tau[K - 1]) if K else None)
