@@ -21,10 +21,9 @@ from .designer import Design
 from .errors import ScenarioError
 from .report import rate_certificate
 from .scenario_checks import _DESIGN_KEYS, _RUN_KEYS, _SYSTEM_KEYS
-from .scenario_load import parse_scenario
+from .scenario_load import ORIGIN, parse_scenario
 from .scenario_load import load_scenario as _load_scenario
 from .scenario_model import Scenario
-from .runs import ORIGIN
 from .simulator import Trajectory
 
 __all__ = ["AgentResult", "Checks", "CompareResult", "DesignResult", "EstimatorResult", "compare", "design",

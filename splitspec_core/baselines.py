@@ -40,7 +40,7 @@ import scipy.linalg as sla
 from .errors import DesignError
 from .network import consensus_rows
 from .scenario_model import Scenario
-from .plant_model import Plant, initial_estimate
+from .plant_model import Plant, initial_estimate, sampled_model  # noqa: F401 - sampled_model: also from here
 from .simulator import check_trajectory_memory
 
 __all__ = [
@@ -62,32 +62,6 @@ REGULARISATION = 1e-9
 # --------------------------------------------------------------------------
 # model
 # --------------------------------------------------------------------------
-
-
-def sampled_model(sc: Scenario) -> tuple:
-    """``(F, Q, R)``: the discrete model the plant of the scenario follows, per step.
-
-    Parameters
-    ----------
-    sc : Scenario
-
-    Returns
-    -------
-    F : (n, n) array
-        ``A`` (discrete) or ``exp(A dt)`` (continuous, sampled with ``run.dt``).
-    Q : (n, n) array
-        ``L L'`` with ``L`` the plant's noise input, computed by :class:`Plant`
-        itself: ``sigma_p^2 I`` (discrete) or the exact ``Qd`` of white noise of
-        intensity ``process_noise`` over a step (continuous).
-    R : (p, p) array
-        ``sigma_m^2 I``, ``p = sum s_i``.
-    """
-    plant = Plant(sc, 0)  # the plant's own F and L: no second copy of its formulas
-    F = np.array(plant.F, dtype=float)
-    Q = plant.L @ plant.L.T
-    Q = 0.5 * (Q + Q.T)
-    R = sc.system.measurement_noise ** 2 * np.eye(plant.C.shape[0])
-    return F, Q, R
 
 
 def regularise(M: np.ndarray) -> np.ndarray:

@@ -49,7 +49,7 @@ __all__ = [
     "mixed_norm",
     "spectral_radius",
     "error_radius",
-]
+ "nice_ceil"]
 
 
 # --------------------------------------------------------------------------
@@ -561,3 +561,11 @@ _Q_METHODS = {"spectral": q_spectral, "weighted": q_weighted, "two-norm": q_two_
 def choose_q(method: str, cases, rate: float, *, q: int | None = None, q_max: int = 100_000) -> QResult:
     """Dispatch to the q method named by ``design.q_method``; ``q`` given means 'check this q'."""
     return _Q_METHODS[method](cases, rate, q=q, q_max=q_max)
+
+
+def nice_ceil(x: float) -> float:
+    """Round up to two significant digits (9.47 -> 9.5, 103.8 -> 110); the auto g."""
+    if x <= 0:
+        return 0.0
+    e = 10.0 ** (math.floor(math.log10(x)) - 1)
+    return round(math.ceil(x / e - 1e-9) * e, 12)

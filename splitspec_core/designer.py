@@ -14,7 +14,6 @@ Steps (paper, Sections 2-4):
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 from functools import cached_property
 
@@ -31,6 +30,8 @@ from .observability import DEFAULT_RANK_TOL, Decomposition, check_joint_observab
 from .resilience import analyse_agent_losses, analyse_arc_losses
 from .sampled import sampled_rates
 from .scenario_model import Scenario
+
+nice_ceil = bounds.nice_ceil  # the auto g's rounding; lives in bounds (full_matrix uses it too)
 
 __all__ = ["AgentDesign", "Design", "certify_network", "design", "design_agent", "nice_ceil", "scenario_dwell",
            "NO_CERTIFIED_RATE"]
@@ -130,14 +131,6 @@ class Design:
     # on first use (the full error matrices cost more than the design itself at scale):
     loss_certificate = cached_property(loss_certificate)  # under network: and partitions (None without)
     conditioning = cached_property(conditioning)  # margins, gain sizes, transient constant, noise
-
-
-def nice_ceil(x: float) -> float:
-    """Round up to two significant digits (9.47 -> 9.5, 103.8 -> 110); the auto g."""
-    if x <= 0:
-        return 0.0
-    e = 10.0 ** (math.floor(math.log10(x)) - 1)
-    return round(math.ceil(x / e - 1e-9) * e, 12)
 
 
 def design_agent(A: np.ndarray, C: np.ndarray, *, time: str, rate: float, method: str = "place",

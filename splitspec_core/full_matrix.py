@@ -158,7 +158,6 @@ def _raise_to_full(des: "Design", warnings: list) -> "Design":
     import dataclasses
 
     from . import bounds
-    from .designer import nice_ceil
 
     sc = des.scenario
     d = sc.design
@@ -179,9 +178,9 @@ def _raise_to_full(des: "Design", warnings: list) -> "Design":
     g = des.g
     for _ in range(21):
         g *= 1.25
-        full = full_radius(des, des.cases, g=nice_ceil(g))
+        full = full_radius(des, des.cases, g=bounds.nice_ceil(g))
         if _full_meets(des, full):
-            g = nice_ceil(g)
+            g = bounds.nice_ceil(g)
             worst = max(v["ode"] for v in des.full_radius.values())
             warnings.append(f"g raised from {des.g:g} to {g:g}: with the approximate split, g = {des.g:g} leaves the full "
                             f"error matrix's spectral abscissa at {worst:.4g} > -{d.rate:g}")
@@ -193,7 +192,7 @@ def _raise_to_full(des: "Design", warnings: list) -> "Design":
 def error_dynamics(des: "Design", graph_index: int = 0) -> tuple:
     """``(M, N)``: the full error matrix of the scenario's graph ``graph_index`` held constant, every agent,
     and the covariance of the noise entering per step (module docstring)."""
-    from .baselines import sampled_model
+    from .plant_model import sampled_model
     from .errors import DesignError
     from .network import consensus_rows
 

@@ -18,7 +18,7 @@ from . import steps as st
 from .scenario_model import Scenario
 from .streams import stream
 
-__all__ = ["Plant", "initial_estimate", "initial_state", "output_rows"]
+__all__ = ["Plant", "initial_estimate", "initial_state", "output_rows", "sampled_model"]
 
 
 def output_rows(Cs) -> list:
@@ -119,3 +119,29 @@ class RecordedPlant:
     def advance(self) -> np.ndarray:
         self.k += 1
         return self.x
+
+
+def sampled_model(sc: Scenario) -> tuple:
+    """``(F, Q, R)``: the discrete model the plant of the scenario follows, per step.
+
+    Parameters
+    ----------
+    sc : Scenario
+
+    Returns
+    -------
+    F : (n, n) array
+        ``A`` (discrete) or ``exp(A dt)`` (continuous, sampled with ``run.dt``).
+    Q : (n, n) array
+        ``L L'`` with ``L`` the plant's noise input, computed by :class:`Plant`
+        itself: ``sigma_p^2 I`` (discrete) or the exact ``Qd`` of white noise of
+        intensity ``process_noise`` over a step (continuous).
+    R : (p, p) array
+        ``sigma_m^2 I``, ``p = sum s_i``.
+    """
+    plant = Plant(sc, 0)  # the plant's own F and L: no second copy of its formulas
+    F = np.array(plant.F, dtype=float)
+    Q = plant.L @ plant.L.T
+    Q = 0.5 * (Q + Q.T)
+    R = sc.system.measurement_noise ** 2 * np.eye(plant.C.shape[0])
+    return F, Q, R

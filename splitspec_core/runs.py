@@ -34,15 +34,12 @@ import yaml
 
 from .errors import ScenarioError, SplitspecError
 from .scenario_checks import plain
-from .scenario_load import load_scenario, load_yaml
+from .scenario_load import ORIGIN, load_scenario, load_yaml
 from .scenario_model import Scenario
 from .simulator import Trajectory
 
 __all__ = ["RunRecord", "RunError", "load_run", "run", "view"]
 
-#: how :func:`splitspec_core.scenario` / :func:`splitspec_core.load_scenario` remember where a scenario came
-#: from (its mapping, or its file), so that :func:`run` can hand it to the processes as YAML
-ORIGIN = "_splitspec_origin"
 
 
 class RunError(SplitspecError):

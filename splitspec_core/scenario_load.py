@@ -34,6 +34,10 @@ from .scenario_sections import parse_scenario
 __all__ = ["load_scenario", "load_yaml", "parse_scenario", "parse_scenario_text", "read_scenario_text",
            "yaml_loader", "MAX_FILE_BYTES"]
 
+#: how :func:`splitspec_core.scenario` / :func:`splitspec_core.load_scenario` remember where a scenario came
+#: from (its mapping, or its file), so that :func:`splitspec_core.run` can hand it to the processes as YAML
+ORIGIN = "_splitspec_origin"
+
 
 def yaml_loader() -> type:
     """The YAML loader for scenarios: libyaml's ``CSafeLoader`` when PyYAML has it, else ``SafeLoader``.

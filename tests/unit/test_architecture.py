@@ -37,7 +37,10 @@ def modules(package: str) -> dict[str, Path]:
 
 def imports(name: str, path: Path) -> set[str]:
     """Absolute names of every module ``path`` imports (relative imports resolved, lazy ones included)."""
-    tree = ast.parse(path.read_text(), str(path))
+    return _imports_of(name, path, ast.parse(path.read_text(), str(path)))
+
+
+def _imports_of(name: str, path: Path, tree: ast.AST) -> set[str]:
     package = name if path.name == "__init__.py" else name.rpartition(".")[0]
     found = set()
     for node in ast.walk(tree):
@@ -136,10 +139,24 @@ def test_imports_follow_the_layers():
     assert not bad, bad
 
 
+def _type_checking_only(path: Path) -> Path:
+    """``path``'s source without the bodies of its ``if TYPE_CHECKING:`` blocks: imports that never run."""
+    tree = ast.parse(path.read_text(), str(path))
+    for node in ast.walk(tree):
+        if isinstance(node, ast.If) and isinstance(node.test, ast.Name) and node.test.id == "TYPE_CHECKING":
+            node.body = [ast.Pass()]
+    return ast.unparse(tree)
+
+
 def import_graph(package: str) -> dict[str, set[str]]:
-    """``{module: the modules of the same package it imports}``, lazy (function-level) imports included."""
+    """``{module: the modules of the same package it imports}``, lazy (function-level) imports included; not the
+    imports under ``if TYPE_CHECKING:`` (for annotations only: they never execute, so they close no cycle)."""
     mods = modules(package)
-    return {name: {imp for imp in imports(name, path) if imp in mods and imp != name} for name, path in mods.items()}
+    graph = {}
+    for name, path in mods.items():
+        tree = ast.parse(_type_checking_only(path))
+        graph[name] = {imp for imp in _imports_of(name, path, tree) if imp in mods and imp != name}
+    return graph
 
 
 def import_cycles(package: str) -> dict[frozenset, list[str]]:
@@ -170,16 +187,9 @@ def import_cycles(package: str) -> dict[frozenset, list[str]]:
     return found
 
 
-#: the import cycles found when this test was written (issue 21), each named, with the imports that
-#: close it; breaking one means deleting its entry here (a listed cycle that is gone fails the test)
-KNOWN_CYCLES = {
-    # RunRecord.design() imports api.design lazily; api imports runs (ORIGIN, and ss.run)
-    frozenset({"splitspec_core.api", "splitspec_core.runs"}),
-    # designer -> conditioning, full_matrix; conditioning and full_matrix name Design (under TYPE_CHECKING),
-    # full_matrix imports designer.nice_ceil and baselines.sampled_model lazily; baselines -> simulator -> designer
-    frozenset({"splitspec_core.baselines", "splitspec_core.conditioning", "splitspec_core.designer",
-               "splitspec_core.full_matrix", "splitspec_core.simulator"}),
-}
+#: import cycles still allowed, each named with the imports that close it (none: issue 21 broke the last ones,
+#: api <-> runs and designer <-> conditioning/full_matrix/baselines); a listed cycle that is gone fails the test
+KNOWN_CYCLES: set = set()
 
 
 @pytest.mark.parametrize("package", list(FOLDERS))
