@@ -52,7 +52,7 @@ def scenario(*, name: str | None = None, time: str | None = None,
              g0: float | None = None, q: Any = None, q_method: str | None = None, q_max: int | None = None,
              resilience: int | None = None, weights: str | None = None, margin: float | None = None,
              rank_tol: float | None = None, graph_set: str | None = None, dwell: float | None = None,
-             riccati: Mapping | None = None,
+             riccati: Mapping | None = None, eigenvalues: str | None = None,
              steps: int | None = None, dt: float | None = None, seed: int | None = None, pace: float | None = None,
              system: Mapping | None = None, design: Mapping | None = None, run: Mapping | None = None,
              **unknown: Any) -> Scenario:

@@ -68,10 +68,15 @@ class Case:
     graph : Graph
     sizes : tuple of int
         ``n_i = dim V_i`` per agent of ``graph.ids``.
+    A_blocks : tuple of (n_i, n_i) arrays
+        The blocks ``A_i`` of ``Atil``.
+    V_blocks : tuple of (n, n_i) arrays
+        The ``V_i``.
     Atil : (nbar, nbar) array
-        ``blockdiag(A_i)``.
+        ``blockdiag(A_i)``; formed on first use (a large design's spectral q never forms it:
+        :mod:`splitspec_core.spectral` applies it block by block).
     B : (nbar, nbar) array
-        ``V' Sbar V``.
+        ``V' Sbar V``; formed on first use, like ``Atil``.
     Vcat : (n, nbar) array
         ``[V_1 .. V_m]`` (the Gram matrix ``G = Vcat' Vcat`` has the blocks ``V_i' V_j``).
     h : (nbar,) array
@@ -83,16 +88,29 @@ class Case:
     label: str
     graph: Graph
     sizes: tuple
-    Atil: np.ndarray
-    B: np.ndarray
-    Vcat: np.ndarray = field(repr=False, compare=False)  # [V_1 .. V_m], n x nbar: G = Vcat' Vcat again for VLV
+    A_blocks: tuple = field(repr=False, compare=False)
+    V_blocks: tuple = field(repr=False, compare=False)
     # q -> rho(Atil B^q), filled by error_radius: the q search, the certified bound and the report's
-    # error radius ask for the same numbers
+    # error radius ask for the same numbers; q -> how it was computed (spectral.Radius)
     _radius: dict = field(default_factory=dict, init=False, repr=False, compare=False)
+    _how: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
-    @property
+    @cached_property
     def nbar(self) -> int:
-        return self.B.shape[0]
+        return int(sum(self.sizes))
+
+    @cached_property
+    def Vcat(self) -> np.ndarray:
+        return np.hstack(self.V_blocks) if self.nbar else np.zeros((self.V_blocks[0].shape[0], 0))
+
+    @cached_property
+    def Atil(self) -> np.ndarray:
+        return _block_diag(self.A_blocks, self.sizes)
+
+    @cached_property
+    def B(self) -> np.ndarray:
+        G = self.Vcat.T @ self.Vcat  # blocks V_i' V_j
+        return _expand(self.graph.S, self.sizes) * G  # V' (S (x) I) V
 
     # h and VLV only serve g, its dwell bound and the weighted q: computed on first use (a discrete
     # design with spectral q never needs the Perron vector of the m + 1 cases of a resilient design)
@@ -128,14 +146,9 @@ def _block_diag(blocks, sizes) -> np.ndarray:
 
 
 def make_case(label: str, graph: Graph, Vs, A_uns) -> Case:
-    """Build a :class:`Case` from per-agent ``V_i`` and ``A_i`` (in ``graph.ids`` order)."""
-    sizes = tuple(V.shape[1] for V in Vs)
-    n = Vs[0].shape[0]
-    Vcat = np.hstack(Vs) if sum(sizes) else np.zeros((n, 0))
-    G = Vcat.T @ Vcat  # blocks V_i' V_j
-    B = _expand(graph.S, sizes) * G  # V' (S (x) I) V
-    Atil = _block_diag(A_uns, sizes)
-    return Case(label=label, graph=graph, sizes=sizes, Atil=Atil, B=B, Vcat=Vcat)
+    """Build a :class:`Case` from per-agent ``V_i`` and ``A_i`` (in ``graph.ids`` order); the matrices on first use."""
+    return Case(label=label, graph=graph, sizes=tuple(V.shape[1] for V in Vs), A_blocks=tuple(A_uns),
+                V_blocks=tuple(Vs))
 
 
 def spectral_radius(M: np.ndarray) -> float:
@@ -296,6 +309,7 @@ class QResult:
     switching: bool
     p: int | None = None
     pbar: int | None = None
+    eig: dict | None = None  # spectral q: how the radii were computed (spectral.summary: method, tolerance)
 
 
 _SCAN = 64  # _smallest scans k = 1.._SCAN one by one, then doubles and bisects
@@ -385,36 +399,53 @@ def _power(B: np.ndarray, k: int) -> np.ndarray:
     return np.linalg.matrix_power(B, k)
 
 
-def error_radius(case: Case, q: int, powers: _Powers | None = None) -> float:
+def error_radius(case: Case, q: int, powers: _Powers | None = None, *, rate: float | None = None,
+                 method: str = "auto") -> float:
     """``rho(Atil B^q)``, the error map's spectral radius over one event time (eq. split_discrete_rho).
 
     Memoised on the case: the q search, the certified bound and the design report's error
     radius ask for the same numbers.  ``powers`` (of ``case.B``) shares the squares between q.
+    ``method``: ``dense`` (every eigenvalue of the formed matrix), ``iterative`` (matrix-free, the largest
+    eigenvalues only: :func:`splitspec_core.spectral.radius`, which falls back to ``dense`` when it does not
+    converge or lands within its tolerance of ``rate``) or ``auto`` (iterative above
+    :data:`splitspec_core.spectral.DENSE_MAX` unknowns); how each value was computed is in ``case._how``.
     """
     if not case.nbar:
         return 0.0
     rho = case._radius.get(q)
     if rho is None:
-        # eq. (split_discrete_ench): A_V = Atil (V' Sbar V)^q
-        rho = spectral_radius(case.Atil @ (powers(q) if powers is not None else _power(case.B, q)))
+        from . import spectral
+
+        if spectral.use_iterative(case.nbar, method):
+            how = spectral.radius(case, q, rate=rate)
+            rho = how.value
+        else:
+            # eq. (split_discrete_ench): A_V = Atil (V' Sbar V)^q
+            rho = spectral_radius(case.Atil @ (powers(q) if powers is not None else _power(case.B, q)))
+            how = spectral.Radius(rho, "dense", 0.0)
         case._radius[q] = rho
+        case._how[q] = how
     return rho
 
 
-def q_spectral(cases, rate: float, *, q: int | None = None, q_max: int = 100_000) -> QResult:
+def q_spectral(cases, rate: float, *, q: int | None = None, q_max: int = 100_000, method: str = "auto") -> QResult:
     """Smallest q with ``rho(Atil B^q) < lam`` for every case (constant graphs).
 
     The cases are searched in order, each warm-started from the q of the ones before
-    (:func:`_smallest_max`): the q of a search from scratch per case.
+    (:func:`_smallest_max`): the q of a search from scratch per case.  ``method``: how the spectral radii are
+    computed (:func:`error_radius`); the result says which methods were used (``QResult.eig``).
     """
+    from . import spectral
+
     if q is None:
         def pred(case):
-            powers = _Powers(case.B)  # lives while this case is evaluated
-            return lambda k: error_radius(case, k, powers) < rate
+            powers = None if spectral.use_iterative(case.nbar, method) else _Powers(case.B)  # lives for this case
+            return lambda k: error_radius(case, k, powers, rate=rate, method=method) < rate
 
         q = _smallest_max((pred(c) for c in cases), q_max, whats=(f"q (spectral, {c.label})" for c in cases))
-    bound = max(error_radius(c, q) for c in cases)
-    return QResult(q=q, method="spectral", bound=bound, certified=bound < rate, switching=False)
+    bound = max(error_radius(c, q, rate=rate, method=method) for c in cases)
+    return QResult(q=q, method="spectral", bound=bound, certified=bound < rate, switching=False,
+                   eig=spectral.summary(c._how.get(q) for c in cases if c.nbar))
 
 
 def _weighted_norm(M: np.ndarray, h: np.ndarray) -> float:
@@ -558,8 +589,12 @@ def q_mixed(cases, rate: float, *, q: int | None = None, q_max: int = 100_000) -
 _Q_METHODS = {"spectral": q_spectral, "weighted": q_weighted, "two-norm": q_two_norm, "mixed": q_mixed}
 
 
-def choose_q(method: str, cases, rate: float, *, q: int | None = None, q_max: int = 100_000) -> QResult:
-    """Dispatch to the q method named by ``design.q_method``; ``q`` given means 'check this q'."""
+def choose_q(method: str, cases, rate: float, *, q: int | None = None, q_max: int = 100_000,
+             eig: str = "auto") -> QResult:
+    """Dispatch to the q method named by ``design.q_method``; ``q`` given means 'check this q'; ``eig``: how the
+    spectral q computes its radii (:func:`error_radius`)."""
+    if method == "spectral":
+        return q_spectral(cases, rate, q=q, q_max=q_max, method=eig)
     return _Q_METHODS[method](cases, rate, q=q, q_max=q_max)
 
 

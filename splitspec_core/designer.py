@@ -318,7 +318,7 @@ def _design_q(sc: Scenario, cases, switching: bool, warnings: list, compare: boo
     d = sc.design
     rate = d.rate
     given = None if d.q == "auto" else int(d.q)
-    result = bounds.choose_q(d.q_method, cases, rate, q=given, q_max=d.q_max)
+    result = bounds.choose_q(d.q_method, cases, rate, q=given, q_max=d.q_max, eig=d.eigenvalues)
     if switching and not result.switching:
         warnings.append(f"q_method {d.q_method} certifies each graph held constant; the scenario switches among "
                         f"{len(cases)} graphs: use q_method two-norm or mixed for a switching certificate")
@@ -335,7 +335,7 @@ def _design_q(sc: Scenario, cases, switching: bool, warnings: list, compare: boo
             others[meth] = str(exc)
     others[d.q_method] = result
     # rho(Atil B^q) per case (eq. split_discrete_rho); the spectral q search has computed them already
-    radius = {c.label: bounds.error_radius(c, result.q) for c in cases}
+    radius = {c.label: bounds.error_radius(c, result.q, rate=rate, method=d.eigenvalues) for c in cases}
     return dict(q=result.q, q_result=result, q_methods=others, error_radius=radius)
 
 
@@ -380,7 +380,8 @@ def certify_network(des: Design, alive_ids, dropped=frozenset()) -> dict:
         ad = {a.id: a for a in des.agents}
         cases = [bounds.make_case(name, build_graph(name, alive, arcs[name], weights=sc.design.weights),
                                   [ad[i].V for i in alive], [ad[i].dec.A_un for i in alive]) for name in used]
-        res = bounds.choose_q(sc.design.q_method, cases, rate, q=des.q, q_max=sc.design.q_max)
+        res = bounds.choose_q(sc.design.q_method, cases, rate, q=des.q, q_max=sc.design.q_max,
+                              eig=sc.design.eigenvalues)
         cert = bool(res.certified)
         text = (f"q = {des.q}: {res.method} bound {res.bound:.4g} {'<=' if cert else '>'} rate {rate:g}"
                 + ("" if res.switching or len(cases) == 1 else " (per graph held constant)"))

@@ -123,18 +123,33 @@ def ring_arcs(m: int) -> list:
     return sorted(arcs | {(i, j) for j, i in arcs})
 
 
+def chord_arcs(rng: np.random.Generator, m: int) -> list:
+    """Arcs ``(j, i)`` (0-based) of the undirected ring plus one random undirected chord per agent (to an agent
+    that is not a ring neighbour; duplicates merged).  A ring of m mixes in about m^2 steps; with the chords the
+    graph is an expander with high probability, whose consensus converges in O(log m) exchanges: the sensor
+    networks of hundreds or thousands of agents the method is for."""
+    arcs = set(ring_arcs(m))
+    if m > 3:
+        for i in range(m):
+            j = (i + 2 + int(rng.integers(m - 3))) % m  # not i, not its two ring neighbours
+            arcs |= {(i, j), (j, i)}
+    return sorted(arcs)
+
+
 def ring_scenario(m: int, n: int = 10, *, time: str = "discrete", resilience: int = 0, seed: int = 0,
-                  rate: float = 0.5, q_method: str = "spectral") -> dict:
-    """A scenario mapping (as a YAML file holds it): :func:`ring_system` on the undirected :func:`ring_arcs`,
-    place gains, ``q`` (discrete) or ``g`` (continuous) auto."""
+                  rate: float = 0.5, q_method: str = "spectral", chords: bool = False) -> dict:
+    """A scenario mapping (as a YAML file holds it): :func:`ring_system` on the undirected :func:`ring_arcs`
+    (with ``chords``, :func:`chord_arcs`: one random chord per agent as well), place gains, ``q`` (discrete) or
+    ``g`` (continuous) auto."""
     rng = np.random.default_rng(seed)
     A, Cs = ring_system(rng, m, n, time=time)
+    arcs = chord_arcs(rng, m) if chords else ring_arcs(m)
     design = {"rate": rate, "gains": "place"}
     design.update({"q": "auto", "q_method": q_method} if time == "discrete" else {"g": "auto"})
     design["resilience"] = resilience
     return {
         "name": f"ring{m}", "time": time,
         "system": {"A": A.tolist(), "C": {i + 1: C.tolist() for i, C in enumerate(Cs)}},
-        "graphs": {"ring": {"arcs": [[j + 1, i + 1] for j, i in ring_arcs(m)]}},
+        "graphs": {"ring": {"arcs": [[j + 1, i + 1] for j, i in arcs]}},
         "design": design,
     }

@@ -30,6 +30,8 @@ class RateCertificate:
     text: str
 
 
+MAX_LISTED = 12  # cases whose radius the text report lists (the largest first); --json has them all
+
 def rate_certificate(des: Design, *, sampled: bool = True) -> RateCertificate:
     """Does the design certify its rate for the estimator as it is run?
 
@@ -238,6 +240,9 @@ def design_json(des: Design) -> dict:
             "q_switching_certificate": bool(r.switching),
             "p": r.p,
             "pbar": r.pbar,
+            # how the spectral radii behind q were computed: {"methods": {dense|iterative|dense (fallback): count},
+            # "tolerance": ARPACK's relative tolerance, 0 when every radius is dense} (splitspec_core.spectral)
+            "q_eigenvalues": r.eig,
             "q_methods": {k: _q_json(v) for k, v in des.q_methods.items()},
         })
     return out
@@ -320,8 +325,16 @@ def design_text(des: Design) -> str:
         scope = "arbitrary switching among the cases" if r.switching else "each graph held constant"
         lines += ["", f"q = {r.q}  ({d.q_method}{extra}); certified bound {r.bound:.4g} "
                       f"{'<=' if r.certified else '>'} {d.rate:g} for {scope}"]
-        for label, rad in des.error_radius.items():
+        radii = sorted(des.error_radius.items(), key=lambda kv: -kv[1])
+        shown = radii if len(radii) <= MAX_LISTED else radii[:MAX_LISTED - 1]
+        for label, rad in shown:
             lines.append(f"  {label}: spectral radius of Atil B^q = {rad:.4g}")
+        if len(shown) < len(radii):
+            lines.append(f"  ... and {len(radii) - len(shown)} more cases, each at most {radii[len(shown)][1]:.4g}")
+        if r.eig and r.eig.get("methods"):
+            how = ", ".join(f"{k} {v}" for k, v in r.eig["methods"].items())
+            tol = f" (ARPACK relative tolerance {r.eig['tolerance']:g})" if r.eig.get("tolerance") else ""
+            lines.append(f"  spectral radii computed: {how}{tol}")
         if len(des.q_methods) > 1:
             lines.append("  other methods:")
             for meth, res in des.q_methods.items():

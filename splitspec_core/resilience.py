@@ -68,20 +68,67 @@ def network_verdict(A: np.ndarray, Cs_by_id: dict, alive, graphs: dict, *,
                       unobservable_direction=None if jo else _direction_text(D[:, 0]))
 
 
+def _arc_arrays(ids, arcs) -> tuple:
+    """``(rows, cols)`` (positions in ``ids``) of the arcs ``(j, i)`` between agents of ``ids``."""
+    pos = {a: k for k, a in enumerate(ids)}
+    idx = np.array([(pos[j], pos[i]) for j, i in arcs if j in pos and i in pos], dtype=np.int64).reshape(-1, 2)
+    return idx[:, 0], idx[:, 1]
+
+
+def _components(m: int, rows: np.ndarray, cols: np.ndarray, keep: np.ndarray | None = None) -> int:
+    """Strongly connected components of the digraph on m vertices with the arcs ``rows[k] -> cols[k]`` kept."""
+    import scipy.sparse as sp
+    from scipy.sparse.csgraph import connected_components
+
+    if keep is not None:
+        rows, cols = rows[keep], cols[keep]
+    G = sp.csr_matrix((np.ones(len(rows)), (rows, cols)), shape=(m, m))
+    return int(connected_components(G, directed=True, connection="strong", return_labels=False))
+
+
 def analyse_agent_losses(A, Cs_by_id: dict, graphs: dict, *, rank_tol: float | None = None) -> dict:
-    """``{lost agent id: LossReport}`` for every single agent loss."""
+    """``{lost agent id: LossReport}`` for every single agent loss.
+
+    The same reports as :func:`network_verdict` of each survivor set, computed in O(m (m + arcs)) compiled
+    steps: strong connectivity by scipy's strongly connected components (the survivors are strongly connected
+    iff the graph with the lost agent's arcs removed has 2 components, the lost agent alone and the rest);
+    :func:`~splitspec_core.graphs.find_unreachable` only names a pair for a graph that splits."""
     ids = tuple(sorted(Cs_by_id))
-    return {a: network_verdict(A, Cs_by_id, [b for b in ids if b != a], graphs, rank_tol=rank_tol) for a in ids}
+    m = len(ids)
+    arrays = {name: _arc_arrays(ids, arcs) for name, arcs in graphs.items()}
+    out = {}
+    for k, a in enumerate(ids):
+        alive = ids[:k] + ids[k + 1:]
+        sc, unreach = {}, {}
+        for name, (rows, cols) in arrays.items():
+            ok = bool(alive) and (m == 2 or _components(m, rows, cols, (rows != k) & (cols != k)) == 2)
+            sc[name] = ok
+            if not ok and alive:
+                pos = {b: p for p, b in enumerate(alive)}
+                idx = [(pos[j], pos[i]) for j, i in graphs[name] if j in pos and i in pos]
+                bad = find_unreachable(len(alive), idx)
+                if bad is not None:
+                    unreach[name] = (alive[bad[0]], alive[bad[1]])
+        D = unobservable_directions(A, [Cs_by_id[b] for b in alive], rank_tol=rank_tol) if alive \
+            else np.eye(A.shape[0])
+        jo = D.shape[1] == 0
+        out[a] = LossReport(strongly_connected=sc, unreachable=unreach, jointly_observable=jo,
+                            unobservable_direction=None if jo else _direction_text(D[:, 0]))
+    return out
 
 
 def analyse_arc_losses(ids, graphs: dict) -> dict:
-    """``{graph name: {(j, i): still strongly connected}}`` for every single arc loss."""
-    pos = {a: k for k, a in enumerate(ids)}
+    """``{graph name: {(j, i): still strongly connected}}`` for every single arc loss (strongly connected
+    components of the graph without that arc, scipy's compiled search: O(arcs (m + arcs)) compiled steps)."""
+    m = len(ids)
     out = {}
     for name, arcs in graphs.items():
+        rows, cols = _arc_arrays(ids, arcs)
+        keep = np.ones(len(rows), dtype=bool)
         res = {}
-        for drop in arcs:
-            idx = [(pos[j], pos[i]) for j, i in arcs if (j, i) != drop]
-            res[drop] = find_unreachable(len(ids), idx) is None
+        for k, drop in enumerate(arcs):
+            keep[k] = False
+            res[drop] = m <= 1 or _components(m, rows, cols, keep) == 1
+            keep[k] = True
         out[name] = res
     return out

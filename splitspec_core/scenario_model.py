@@ -136,6 +136,7 @@ class DesignSpec:
     dwell: float | None = None
     riccati_process_weight: float | None = None
     riccati_measurement_weight: float | None = None
+    eigenvalues: str = "auto"  # spectral q's radii: auto, dense or iterative (splitspec_core.spectral)
 
 
 @dataclass(frozen=True)

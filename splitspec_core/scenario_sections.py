@@ -223,6 +223,9 @@ def _parse_design(raw: Any, time: str, system: System, ids: tuple) -> DesignSpec
         dwell = _number(dmap["dwell"], "design.dwell")
         if dwell <= 0:
             raise ScenarioError(f"design.dwell must be > 0, got {dwell:g}")
+    eigenvalues = str(dmap.get("eigenvalues", "auto"))
+    if eigenvalues not in ("auto", "dense", "iterative"):
+        raise ScenarioError(f"design.eigenvalues must be auto, dense or iterative, got {eigenvalues!r}")
     pw = mw = None
     if dmap.get("riccati") is not None:
         rmap = _require_map(dmap["riccati"], "design.riccati")
@@ -236,6 +239,7 @@ def _parse_design(raw: Any, time: str, system: System, ids: tuple) -> DesignSpec
         rate=rate, gains=gains, K=K, g=g, g0=g0, q=q, q_method=q_method, q_max=q_max,
         resilience=resilience, weights=weights, margin=margin, rank_tol=rank_tol,
         graph_set=graph_set, dwell=dwell, riccati_process_weight=pw, riccati_measurement_weight=mw,
+        eigenvalues=eigenvalues,
     )
 
 

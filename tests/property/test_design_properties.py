@@ -22,6 +22,7 @@ observable, strongly connected).  Environment:
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 
@@ -31,11 +32,14 @@ import scipy.linalg as sla
 from hypothesis import HealthCheck, assume, event, given, settings
 from hypothesis import strategies as st
 
+from splitspec_core import spectral
 from splitspec_core.designer import design
-from splitspec_core.errors import AssumptionError
+from splitspec_core.errors import AssumptionError, DesignError
 from splitspec_core.full_matrix import block_diagonal
 from splitspec_core.observability import decompose, threshold_of
 from splitspec_core.scenario_load import parse_scenario
+
+from tests.numerics import assert_close
 
 from .strategies import graph_sequences, scenarios
 
@@ -619,3 +623,38 @@ def test_nearly_dependent_outputs_keep_the_unobservable_space(rank_tol, data):
             smin = np.linalg.svd(np.vstack(rows) @ Wo, compute_uv=False).min()
             assert smin < 3 * max(threshold_of(d.rank_tol), 1e-6), smin
             event("an owned direction left to consensus (weak)")
+
+
+# --------------------------------------------------------------------------
+# the two eigenvalue paths of the spectral q (splitspec_core.spectral)
+# --------------------------------------------------------------------------
+
+
+@settings(max_examples=examples(60), **COMMON)
+@given(scenarios(time="discrete", q_method="spectral"), st.sampled_from([0, 1]))
+def test_spectral_q_is_the_same_on_both_eigenvalue_paths(drawn, resilience):
+    """``design.eigenvalues: dense`` and ``iterative`` (ARPACK on the matrix-free operator): the same q, the
+    same verdict, every case's radius within the accuracy its computation claims, and the design says which
+    path computed what."""
+    data = {**drawn.data, "design": {**drawn.data["design"], "resilience": resilience}}
+    outs = {}
+    for how in ("dense", "iterative"):
+        drawn_how = dataclasses.replace(drawn, data={**data, "design": {**data["design"], "eigenvalues": how}})
+        try:
+            outs[how] = designed(drawn_how)
+        except (AssumptionError, DesignError) as exc:  # e.g. a network not redundant enough: the same refusal
+            outs[how] = str(exc)
+    dense, it = outs["dense"], outs["iterative"]
+    if isinstance(dense, str) or isinstance(it, str):
+        assert dense == it
+        return
+    assert it.q == dense.q and it.q_result.certified == dense.q_result.certified
+    for case in it.cases:  # each radius within the accuracy ARPACK's answer claims (Radius.tol)
+        how = case._how.get(it.q)
+        if how is not None:
+            d = dense.error_radius[case.label]
+            # + 1e-7: the dense value's own error on a double defective eigenvalue, ~sqrt(eps) = 1.5e-8 (a drawn
+            # example: dense 0.2500000049, ARPACK 0.2500000013, the exact radius 0.25)
+            assert abs(how.value - d) <= (how.tol + 1e-7) * max(d, how.value), (case.label, how, d)
+    assert set(dense.q_result.eig["methods"]) <= {"dense"}  # empty when no agent leaves anything to consensus
+    assert set(it.q_result.eig["methods"]) <= {"iterative", "dense", "dense (fallback)"}

@@ -11,7 +11,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import splitspec_core as ss
-from splitspec_core import bounds
+from splitspec_core import bounds, spectral
 from splitspec_core.designer import design
 from splitspec_core.errors import DesignError
 from splitspec_core.generate import random_system, ring_arcs, ring_scenario, ring_system
@@ -223,14 +223,17 @@ def test_warm_started_q_equals_the_search_from_scratch(seed):
 
     The radii come out of the same matrix products (``_Powers`` is ``matrix_power``, see above) and the same
     eigenvalue routine, so they agree exactly on one machine; compared to 1e-12 (relative) all the same,
-    since the point here is the warm start, not the bits.  q, an integer, must be equal."""
+    since the point here is the warm start, not the bits.  q, an integer, must be equal.  Under
+    ``make test-iterative`` the design's radii are ARPACK's (splitspec_core.spectral): within DECIDE of the dense
+    ones, the margin under which a comparison with the rate is made again densely."""
     des = design(parse_scenario(random_resilient(seed)))
     assert len(des.cases) == 1 + des.scenario.m
     q, bound, radius = spectral_from_scratch(des.cases, des.rate)
     assert des.q == q
-    assert des.q_result.bound == pytest.approx(bound, rel=1e-12, abs=0)
+    rtol = spectral.DECIDE if des.q_result.eig["methods"].get("iterative") else 1e-12
+    assert des.q_result.bound == pytest.approx(bound, rel=rtol, abs=0)
     assert list(des.error_radius) == list(radius)
-    assert_close([des.error_radius[k] for k in radius], list(radius.values()), rtol=1e-12, what="error radii")
+    assert_close([des.error_radius[k] for k in radius], list(radius.values()), rtol=rtol, what="error radii")
     # the cases in another order (the loss cases first): the same q again, on fresh cases (no memo)
     fresh = design(parse_scenario(random_resilient(seed))).cases
     order = np.random.default_rng(seed).permutation(len(fresh))
