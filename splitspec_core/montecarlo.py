@@ -32,7 +32,7 @@ Nothing of size ``N x T x m x n`` is kept unless trajectories are asked for: per
 the squared error summed over the alive agents and their number (``2 N T`` floats), from which the
 Monte Carlo statistics of :func:`splitspec_core.analysis.monte_carlo_stats` follow.  Seeds run in
 chunks of :data:`CHUNK` (default); a chunk holds its noise draws for the whole run,
-``chunk x T x (n + sum s_i)`` float64 (64 seeds x 501 steps x 210 values = 54 MB for m = 200, n = 10),
+``chunk x T x (n + sum s_i)`` float64 (32 seeds x 500 steps x 210 values = 27 MB for m = 200, n = 10),
 and a few ``m x n x chunk`` state arrays.
 """
 
@@ -52,7 +52,7 @@ from .simulator import BatchEstimator, Trajectory, _entries, _realized_step, che
 
 __all__ = ["CHUNK", "MonteCarloRuns", "SeedBatchEstimator", "fallback_reason", "simulate_seeds"]
 
-CHUNK = 64  # seeds per batch: the state of a chunk (m n CHUNK float64) stays in cache at m = 200, n = 10
+CHUNK = 32  # seeds per batch: a chunk's state (m n CHUNK float64, 0.5 MB at m = 200, n = 10) stays in cache
 
 
 @dataclass(frozen=True)
@@ -118,6 +118,22 @@ def fallback_reason(des: Design, *, lost=None, measurements=None, exact: bool = 
     return None
 
 
+try:  # the CSR kernel writing into a given array (scipy's product allocates a new one every call)
+    from scipy.sparse._sparsetools import csr_matvecs as _csr_matvecs
+except ImportError:  # pragma: no cover - private API moved: fall back to the public product
+    _csr_matvecs = None
+
+
+def _spmm(S: sp.csr_matrix, Z: np.ndarray, out: np.ndarray) -> np.ndarray:
+    """``out = S @ Z`` for a CSR matrix and a C-contiguous float64 matrix; each row sums in entry order."""
+    if _csr_matvecs is None:
+        out[...] = S @ Z
+        return out
+    out.fill(0.0)
+    _csr_matvecs(S.shape[0], S.shape[1], Z.shape[1], S.indptr, S.indices, S.data, Z.ravel(), out.ravel())
+    return out
+
+
 class SeedBatchEstimator(BatchEstimator):
     """:class:`~splitspec_core.simulator.BatchEstimator` with a trailing seed axis: state ``X`` (m, n, N).
 
@@ -167,11 +183,22 @@ class SeedBatchEstimator(BatchEstimator):
                 # eq. (adaptive): |V_i'(avg_i - x_i)|^2 = diff' P_i diff
                 rate = np.einsum("ijs,ijs->is", diff, PD)
                 self.g = np.where(alive[:, None], self.g + self.dt * rate, self.g)
-        else:
+        elif all(isinstance(S, sp.csr_matrix) for S in Ws):
+            # eq. split-discrete-p2: (I - P_i) z_i(k) = (I - P_i) z_i(tau) for every k, so
+            # z_i <- (I - P_i) x_i + P_i sum_j w_ij z_j, in place (no temporary of the state's size)
+            U = X - np.matmul(self.Pst, X)
+            Z = X.copy()
+            SZ = np.empty((m, n * N))
+            for S in Ws:
+                _spmm(S, Z.reshape(m, n * N), SZ)
+                np.matmul(self.Pst, SZ.reshape(m, n, N), out=Z)
+                Z += U
+        else:  # realized graphs of a partition (a _RealizedS per exchange)
             Z = X
             for S in Ws:
                 # eq. split-discrete-p2: z_i <- z_i + P_i (sum_j w_ij z_j - z_i)
                 Z = Z + np.matmul(self.Pst, (S @ Z.reshape(m, n * N)).reshape(m, n, N) - Z)
+        if not self.continuous:
             # eq. split-discrete-est1: x_i <- (A + K_i C_i) z_i(q) - K_i y_i
             Xn = np.matmul(self.Fst, Z) - np.matmul(self.Kp, Y)
         Xn[~alive] = 0.0
