@@ -267,7 +267,8 @@ def simulate(sc: Scenario | DesignResult, *, steps: int | None = None, seed: int
     ``lost``, ``measurements`` and ``exact=True`` (``MonteCarloRuns.fallback`` says which).  Faults,
     switching that does not depend on the seed, partitions, continuous time and the adaptive gain
     are batched.  Only per-step errors are kept (2 N T numbers); ``trajectories=True`` also keeps
-    every seed's :class:`Trajectory` (N trajectories: checked against this machine's memory).
+    every seed's :class:`Trajectory` (N trajectories: checked against this machine's memory); ``progress``
+    is ignored with ``seeds``.
 
     Returns
     -------
