@@ -304,9 +304,6 @@ def simulate(sc: Scenario | DesignResult, *, steps: int | None = None, seed: int
         seeds = [int(s) for s in seeds]
         if keep_y:
             raise ScenarioError("keep_y records one run's measurements: simulate one seed")
-        if trajectories and measurements is None:
-            check_trajectory_memory(des.scenario, steps, key="steps" if steps is not None else "run.steps",
-                                    copies=len(seeds))
         return simulate_seeds(des, seeds, steps=steps, noise=noise, trajectories=trajectories, lost=lost,
                               measurements=measurements, exact=exact)
     if trajectories:

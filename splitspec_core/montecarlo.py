@@ -267,7 +267,7 @@ def _loop(des: Design, seeds: tuple, *, steps, noise, trajectories, lost, measur
         else:
             tr = simulate(des, seed=s, steps=steps, noise=noise, lost=lost, measurements=measurements)
         e2 = np.linalg.norm(tr.xhat - tr.x[:, None, :], axis=2) ** 2
-        sq.append(np.nansum(np.where(tr.alive, e2, 0.0), axis=1))
+        sq.append(np.where(tr.alive, e2, 0.0).sum(axis=1))  # NaN stays where the truth is unknown (measurements)
         count.append(tr.alive.sum(axis=1))
         if trajectories:
             kept.append(tr)

@@ -166,3 +166,19 @@ def test_cli_monte_carlo_figures_equal_the_looped_version(name, tmp_path, capsys
     assert got.keys() == {k for k, v in want.items() if not hasattr(v, "shape")}
     assert got["seeds"] == 4
     assert_stats_close(got, want, [k for k in got if k != "seeds"])
+
+
+def test_seeds_over_a_measurements_file_run_one_after_another(tmp_path):
+    """One realisation of y: only the initial estimates change with the seed; the loop, the same numbers."""
+    from splitspec_core.measurements import write_measurements
+
+    sc = load_scenario(EXAMPLES / "ring10_noise.yaml")
+    tr = ss.simulate(sc, seed=1, steps=40, keep_y=True)
+    write_measurements(tmp_path / "m.npz", t=tr.t, y=tr.y, agent_ids=sc.agent_ids,
+                       sizes=[np.shape(C)[0] for C in sc.system.Cs], x=tr.x)
+    runs = ss.simulate(sc, seeds=[1, 2], measurements=tmp_path / "m.npz")
+    assert not runs.batched and "measurements" in runs.fallback
+    for k, s in enumerate((1, 2)):
+        ref = ss.simulate(sc, seed=s, measurements=tmp_path / "m.npz")
+        # the loop calls this very simulate: the same operations, so the same numbers
+        np.testing.assert_array_equal(runs.sq_error[k], np.nansum(ref.errors() ** 2, axis=1))
