@@ -64,6 +64,7 @@ _PUBLIC = {
     "scenario": "api", "load_scenario": "api", "design": "api", "simulate": "api", "compare": "api",
     "DesignResult": "api", "AgentResult": "api", "Checks": "api", "CompareResult": "api",
     "EstimatorResult": "api", "network_sweep": "sweeps", "Scenario": "scenario_model", "Trajectory": "simulator",
+    "MonteCarloRuns": "montecarlo",
     "SplitspecError": "errors", "ScenarioError": "errors", "DimensionError": "errors",
     "AssumptionError": "errors", "DesignError": "errors",
     "run": "runs", "load_run": "runs", "view": "runs", "RunRecord": "runs", "RunError": "runs",

@@ -12,7 +12,7 @@ from .network import fault_step
 from .simulator import Trajectory
 
 __all__ = ["max_error", "fit_decay", "envelope_constant", "envelope_restarts", "envelope", "Mark", "event_marks",
-           "summarize", "monte_carlo_stats", "NO_CERTIFIED_RATE"]
+           "summarize", "monte_carlo_stats", "rms_stats", "NO_CERTIFIED_RATE"]
 
 
 def max_error(traj: Trajectory) -> np.ndarray:
@@ -232,13 +232,21 @@ def monte_carlo_stats(trajs: list, *, tail: float = 0.2) -> dict:
     """Mean and spread across seeds of the RMS error over agents.
 
     Returns per-time mean/std/10%/90% curves and scalar steady-state
-    statistics over the last ``tail`` fraction of the run.
+    statistics over the last ``tail`` fraction of the run (:func:`rms_stats` of the
+    trajectories' RMS errors; a batched Monte Carlo run gives the same from
+    :meth:`splitspec_core.montecarlo.MonteCarloRuns.stats` without keeping trajectories).
     """
     rms = np.stack([np.sqrt(np.nanmean(tr.errors() ** 2, axis=1)) for tr in trajs])  # (N, T)
+    return rms_stats(rms, tail=tail)
+
+
+def rms_stats(rms: np.ndarray, *, tail: float = 0.2) -> dict:
+    """:func:`monte_carlo_stats` of ``rms`` (N, T), the RMS error over agents per seed and step."""
+    rms = np.asarray(rms, dtype=float)
     k0 = int((1 - tail) * rms.shape[1])
     steady = np.sqrt(np.mean(rms[:, k0:] ** 2, axis=1))  # per seed
     return {
-        "seeds": len(trajs),
+        "seeds": int(rms.shape[0]),
         "mean": rms.mean(axis=0),
         "std": rms.std(axis=0),
         "p10": np.percentile(rms, 10, axis=0),

@@ -13,7 +13,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 from types import MappingProxyType
-from typing import Any, Iterable, Mapping
+from typing import TYPE_CHECKING, Any, Iterable, Mapping
 
 import numpy as np
 
@@ -25,6 +25,9 @@ from .scenario_load import ORIGIN, parse_scenario
 from .scenario_load import load_scenario as _load_scenario
 from .scenario_model import Scenario
 from .simulator import Trajectory
+
+if TYPE_CHECKING:
+    from .montecarlo import MonteCarloRuns
 
 __all__ = ["AgentResult", "Checks", "CompareResult", "DesignResult", "EstimatorResult", "compare", "design",
            "load_scenario", "scenario", "simulate"]
@@ -241,8 +244,9 @@ def _designed(sc_or_design: Scenario | DesignResult | Design) -> Design:
 
 
 def simulate(sc: Scenario | DesignResult, *, steps: int | None = None, seed: int | None = None,
-             noise: bool = True, exact: bool = False, progress: bool | None = False, lost=None,
-             measurements=None, keep_y: bool = False) -> Trajectory:
+             seeds: Iterable[int] | None = None, noise: bool = True, exact: bool = False,
+             progress: bool | None = False, lost=None, measurements=None, keep_y: bool = False,
+             trajectories: bool = False) -> "Trajectory | MonteCarloRuns":
     """Simulate in-process: the reference the multi-process ``splitspec run`` reproduces.
 
     The same scenario and seed give the trajectory ``splitspec simulate`` writes (and, to
@@ -255,12 +259,35 @@ def simulate(sc: Scenario | DesignResult, *, steps: int | None = None, seed: int
     ``.csv`` file, :mod:`splitspec_core.measurements`, or a loaded ``Measurements``); ``keep_y`` records the
     simulated plant's measurements in ``Trajectory.y``.
 
+    ``seeds``: a Monte Carlo study, every seed of ``seeds`` on the same design, as one batched
+    computation (:mod:`splitspec_core.montecarlo`: the seeds on a trailing axis of the estimates, each
+    seed drawing exactly the numbers ``simulate(sc, seed=s)`` draws).  What a seed changes beyond the
+    noise and the initial values runs the seeds one after another instead, with the same results:
+    ``network:`` losses and delays (drawn per seed), random switching drawn from the run's seed,
+    ``lost``, ``measurements`` and ``exact=True`` (``MonteCarloRuns.fallback`` says which).  Faults,
+    switching that does not depend on the seed, partitions, continuous time and the adaptive gain
+    are batched.  Only per-step errors are kept (2 N T numbers); ``trajectories=True`` also keeps
+    every seed's :class:`Trajectory` (N trajectories: checked against this machine's memory); ``progress``
+    is ignored with ``seeds``.
+
     Returns
     -------
     Trajectory
-        ``t`` (T,), ``x`` (T, n), ``xhat`` (T, m, n) (NaN while an agent is dead), ``alive`` (T, m),
-        ``graph`` (T,) index into ``scenario.graph_names``, ``gains`` (T, m) g_i(t), ``lost`` (N, 4) the
-        consensus messages that did not count; ``errors()``.
+        Without ``seeds``: ``t`` (T,), ``x`` (T, n), ``xhat`` (T, m, n) (NaN while an agent is dead),
+        ``alive`` (T, m), ``graph`` (T,) index into ``scenario.graph_names``, ``gains`` (T, m) g_i(t),
+        ``lost`` (N, 4) the consensus messages that did not count; ``errors()``.
+    MonteCarloRuns
+        With ``seeds``: ``seeds``, ``t`` (T,), ``sq_error`` (N, T) the squared error summed over the
+        alive agents per seed and step, ``alive_count`` (N, T), ``rms()`` (N, T), ``stats()`` (the
+        Monte Carlo statistics of ``splitspec simulate --monte-carlo``), ``batched``, ``fallback``,
+        ``trajectories``.  Per seed it equals the single-seed run to round-off, not bit for bit (the
+        batched products sum in another order): relative differences of order 1e-12 are measured.
+
+    Raises
+    ------
+    ScenarioError
+        ``seed`` and ``seeds`` both given, ``seeds`` empty, ``keep_y`` with ``seeds``,
+        or a run that cannot fit in memory.
     """
     from .simulator import check_trajectory_memory, simulate as _simulate, simulate_exact
 
@@ -269,6 +296,18 @@ def simulate(sc: Scenario | DesignResult, *, steps: int | None = None, seed: int
         from .measurements import load_measurements
 
         measurements = load_measurements(measurements, des.scenario, steps=steps)
+    if seeds is not None:
+        from .montecarlo import simulate_seeds
+
+        if seed is not None:
+            raise ScenarioError("give seed (one run) or seeds (a Monte Carlo study), not both")
+        seeds = [int(s) for s in seeds]
+        if keep_y:
+            raise ScenarioError("keep_y records one run's measurements: simulate one seed")
+        return simulate_seeds(des, seeds, steps=steps, noise=noise, trajectories=trajectories, lost=lost,
+                              measurements=measurements, exact=exact)
+    if trajectories:
+        raise ScenarioError("trajectories=True keeps every seed's trajectory: give seeds")
     if measurements is None:
         check_trajectory_memory(des.scenario, steps, key="steps" if steps is not None else "run.steps")
     if exact:
