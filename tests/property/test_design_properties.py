@@ -32,14 +32,11 @@ import scipy.linalg as sla
 from hypothesis import HealthCheck, assume, event, given, settings
 from hypothesis import strategies as st
 
-from splitspec_core import spectral
 from splitspec_core.designer import design
 from splitspec_core.errors import AssumptionError, DesignError
 from splitspec_core.full_matrix import block_diagonal
 from splitspec_core.observability import decompose, threshold_of
 from splitspec_core.scenario_load import parse_scenario
-
-from tests.numerics import assert_close
 
 from .strategies import graph_sequences, scenarios
 
