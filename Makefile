@@ -5,6 +5,7 @@
 #   make test-kernels  the unit and property tests again on other floating-point paths (OpenBLAS kernels,
 #                      BLAS threads, numpy without AVX-512), as on other CPUs
 #   make test-lowest   set up .venv-lowest with every dependency at its lower bound, run a subset
+#   make test-iterative  the certificate tests with every spectral radius computed matrix-free (ARPACK)
 # the documentation site (Sphinx, offline, warnings are errors; executes the tutorials):
 #   make docs     docs/_build/html/index.html
 # and an example:
@@ -29,7 +30,7 @@ LOWEST_TESTS ?= tests/unit tests/integration/test_runtime.py tests/property \
 KERNEL_TESTS ?= tests/unit tests/property
 KERNEL_PYTEST = RERUN_ANALYTICS=0 $(BIN)/python -m pytest -p no:cacheprovider $(KERNEL_TESTS)
 
-.PHONY: demo docs sensors test test-kernels test-lowest setup clean
+.PHONY: demo docs sensors test test-iterative test-kernels test-lowest setup clean
 
 setup: $(VENV)/.installed
 
@@ -64,6 +65,15 @@ $(VENV)/.docs-installed: $(VENV)/.installed
 
 test: setup
 	RERUN_ANALYTICS=0 $(BIN)/python -m pytest
+
+# The certificate tests again with every spectral radius of the spectral q computed by ARPACK on the matrix-free
+# operator (splitspec_core/spectral.py), which by default only designs above 300 unknowns take: both paths give
+# the same q and verdicts (tests/conftest.py reads SPLITSPEC_TEST_EIGENVALUES).
+CERTIFICATE_TESTS ?= tests/unit/test_certificates.py tests/unit/test_design_at_scale.py tests/unit/test_loss_certificate.py \
+	tests/unit/test_paper_section5.py tests/unit/test_resilience_runtime.py tests/property/test_design_properties.py \
+	tests/property/test_imperfect_models.py
+test-iterative: setup
+	SPLITSPEC_TEST_EIGENVALUES=iterative RERUN_ANALYTICS=0 $(BIN)/python -m pytest -p no:cacheprovider $(CERTIFICATE_TESTS)
 
 test-kernels: setup
 	@if [ "$$(uname -m)" != x86_64 ]; then echo "test-kernels: x86-64 only (OpenBLAS core names), skipped"; exit 0; fi; \

@@ -12,10 +12,19 @@ Two tables, no timing assertions anywhere (the machine is shared):
   and the ring without each agent).  Plain and resilient runs alternate, the table
   gives their medians, the ratio resilient / plain and /proc/loadavg beside them.
   ``--cli`` times the text report ``splitspec design FILE`` (a fresh process, as a user
-  runs it) instead of the in-process ``design()``.
+  runs it) instead of the in-process ``design()``;
+* how the cost grows with m (``--only scale``): the ring with one random chord per agent
+  (:func:`splitspec_core.generate.chord_arcs`: a ring of 1000 mixes too slowly to be useful), n = 6,
+  one output per agent, rate 0.9, ``q: auto``, designed plain and resilient, each design in a fresh
+  process: wall seconds, the peak resident memory of that process (``wait4``), q, and how the spectral
+  radii were computed (``dense``/``iterative``, :mod:`splitspec_core.spectral`).  Plain and resilient
+  alternate per size; the load average is printed beside each.
 
     .venv/bin/python benchmarks/bench_design.py [--sizes 5 20 50 100] [--repeat 1]
     .venv/bin/python benchmarks/bench_design.py --only ring [--ring-sizes 50 100] [--ring-n 4] [--ring-repeat 3] [--cli]
+        [--ring-rate 0.5] [--eigenvalues auto|dense|iterative]
+    .venv/bin/python benchmarks/bench_design.py --only scale [--scale-sizes 100 300 1000 3000]
+        [--scale-resilient-max 1000] [--scale-repeat 1]
 
 On a loaded machine OpenBLAS threads can dominate the figures; ``OPENBLAS_NUM_THREADS=1``
 in the environment takes them out (the header says which setting ran).
@@ -24,6 +33,7 @@ in the environment takes them out (the header says which setting ran).
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import re
 import statistics
@@ -95,16 +105,70 @@ def _timer(raw: dict, cli: bool, tmp: Path):
     return run_cli
 
 
+def _child(m: int, resilience: int, rate: float, n: int) -> None:
+    """One design in this (fresh) process: prints its JSON line (the parent measures the process's memory)."""
+    sc = parse_scenario(ring_scenario(m, n, resilience=resilience, rate=rate, chords=True), source="<bench>")
+    t0 = time.perf_counter()
+    des = design(sc)
+    t = time.perf_counter() - t0
+    print(json.dumps({"seconds": t, "q": des.q, "nbar": des.cases[0].nbar, "cases": len(des.cases),
+                      "eig": des.q_result.eig}))
+
+
+def _fresh(m: int, resilience: int, rate: float, n: int) -> dict:
+    """``_child`` in a fresh process; its JSON plus its peak resident memory (MB) from ``wait4``."""
+    cmd = [sys.executable, __file__, "--child", str(m), str(resilience), str(rate), str(n)]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True)
+    out = proc.stdout.read()
+    _, status, usage = os.wait4(proc.pid, 0)
+    proc.returncode = os.waitstatus_to_exitcode(status)
+    if proc.returncode != 0:
+        raise SystemExit(f"bench_design: the design of m = {m} (resilience {resilience}) failed")
+    return {**json.loads(out.strip().splitlines()[-1]), "peak_mb": usage.ru_maxrss / 1024}
+
+
+def _eig(e: dict | None) -> str:
+    return "-" if not e or not e.get("methods") else ", ".join(f"{k} {v}" for k, v in e["methods"].items())
+
+
+def scale_table(args) -> None:
+    print(f"ring + one random chord per agent, n = 6, one output each, rate 0.9, q auto, spectral; each design in a "
+          f"fresh process; OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS', 'unset')}")
+    print(f"{'m':>5} {'nbar':>6} {'design':>10} {'cases':>6} {'q':>3} {'seconds':>9} {'peak MB':>8}  "
+          f"{'spectral radii':<28} loadavg")
+    for m in args.scale_sizes:
+        kinds = [0, 1] if m <= args.scale_resilient_max else [0]
+        rows: dict = {k: [] for k in kinds}
+        for _ in range(args.scale_repeat):
+            for k in kinds:  # interleaved: plain, resilient, plain, ...
+                rows[k].append((_fresh(m, k, 0.9, 6), loadavg()))
+        for k in kinds:
+            res = [r for r, _ in rows[k]]
+            r = res[0]
+            secs = statistics.median(x["seconds"] for x in res)
+            peak = max(x["peak_mb"] for x in res)
+            print(f"{m:>5} {r['nbar']:>6} {'resilient' if k else 'plain':>10} {r['cases']:>6} {r['q']:>3} {secs:>9.2f} "
+                  f"{peak:>8.0f}  {_eig(r['eig']):<28} {rows[k][-1][1]}", flush=True)
+        if len(kinds) == 2:
+            p = statistics.median(x["seconds"] for x, _ in rows[0])
+            q = statistics.median(x["seconds"] for x, _ in rows[1])
+            print(f"{'':>5} resilient / plain: {q / p:.2f}", flush=True)
+
+
 def ring_table(args) -> None:
     what = "splitspec design FILE (fresh process)" if args.cli else "design() in-process"
-    print(f"undirected ring, n = {args.ring_n}, discrete, spectral q; {what}; median of {args.ring_repeat} "
+    print(f"undirected ring, n = {args.ring_n}, rate {args.ring_rate}, discrete, spectral q (eigenvalues "
+          f"{args.eigenvalues}); {what}; median of {args.ring_repeat} "
           f"interleaved runs; OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS', 'unset')}")
     print(f"{'m':>5} {'nbar':>6} {'q plain':>8} {'q resil.':>8} {'plain s':>9} {'resilient s':>12} {'ratio':>7}"
           f"   loadavg (before -> after)")
     with tempfile.TemporaryDirectory() as tmp:
         for m in args.ring_sizes:
-            plain = _timer(ring_scenario(m, args.ring_n, resilience=0), args.cli, Path(tmp))
-            resil = _timer(ring_scenario(m, args.ring_n, resilience=1), args.cli, Path(tmp))
+            raws = [ring_scenario(m, args.ring_n, resilience=r, rate=args.ring_rate) for r in (0, 1)]
+            for raw in raws:
+                raw["design"]["eigenvalues"] = args.eigenvalues
+            plain = _timer(raws[0], args.cli, Path(tmp))
+            resil = _timer(raws[1], args.cli, Path(tmp))
             load0 = loadavg()
             tp, tr = [], []
             for _ in range(args.ring_repeat):  # interleaved, so both see the same load
@@ -119,7 +183,7 @@ def ring_table(args) -> None:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--only", choices=["random", "ring"], help="run one table only")
+    ap.add_argument("--only", choices=["random", "ring", "scale"], help="run one table only")
     ap.add_argument("--sizes", type=int, nargs="+", default=[5, 20, 50, 100])
     ap.add_argument("--n", type=int, default=10)
     ap.add_argument("--repeat", type=int, default=1)
@@ -127,13 +191,25 @@ def main() -> None:
     ap.add_argument("--ring-n", type=int, default=4, help="states of the ring's system")
     ap.add_argument("--ring-repeat", type=int, default=3)
     ap.add_argument("--cli", action="store_true", help="ring table: time `splitspec design FILE` processes")
+    ap.add_argument("--ring-rate", type=float, default=0.5)
+    ap.add_argument("--eigenvalues", choices=["auto", "dense", "iterative"], default="auto",
+                    help="ring table: design.eigenvalues")
+    ap.add_argument("--scale-sizes", type=int, nargs="+", default=[100, 300, 1000, 3000])
+    ap.add_argument("--scale-resilient-max", type=int, default=1000)
+    ap.add_argument("--scale-repeat", type=int, default=1)
+    ap.add_argument("--child", nargs=4, help=argparse.SUPPRESS)
     args = ap.parse_args()
-    if args.only != "ring":
+    if args.child:
+        m, r, rate, n = args.child
+        return _child(int(m), int(r), float(rate), int(n))
+    if args.only in (None, "random"):
         random_table(args)
-    if args.only != "random":
-        if args.only is None:
-            print()
+    if args.only in (None, "ring"):
+        print() if args.only is None else None
         ring_table(args)
+    if args.only in (None, "scale"):
+        print() if args.only is None else None
+        scale_table(args)
 
 
 if __name__ == "__main__":

@@ -400,7 +400,7 @@ def _power(B: np.ndarray, k: int) -> np.ndarray:
 
 
 def error_radius(case: Case, q: int, powers: _Powers | None = None, *, rate: float | None = None,
-                 method: str = "auto") -> float:
+                 method: str = "auto", warm=None, vectors: dict | None = None) -> float:
     """``rho(Atil B^q)``, the error map's spectral radius over one event time (eq. split_discrete_rho).
 
     Memoised on the case: the q search, the certified bound and the design report's error
@@ -409,6 +409,8 @@ def error_radius(case: Case, q: int, powers: _Powers | None = None, *, rate: flo
     eigenvalues only: :func:`splitspec_core.spectral.radius`, which falls back to ``dense`` when it does not
     converge or lands within its tolerance of ``rate``) or ``auto`` (iterative above
     :data:`splitspec_core.spectral.DENSE_MAX` unknowns); how each value was computed is in ``case._how``.
+    ``warm``: the iterative path starts from these eigenvectors of another case (``spectral._warm_start``);
+    ``vectors`` receives this case's.
     """
     if not case.nbar:
         return 0.0
@@ -417,7 +419,7 @@ def error_radius(case: Case, q: int, powers: _Powers | None = None, *, rate: flo
         from . import spectral
 
         if spectral.use_iterative(case.nbar, method):
-            how = spectral.radius(case, q, rate=rate)
+            how = spectral.radius(case, q, rate=rate, warm=warm, vectors=vectors)
             rho = how.value
         else:
             # eq. (split_discrete_ench): A_V = Atil (V' Sbar V)^q
@@ -437,13 +439,20 @@ def q_spectral(cases, rate: float, *, q: int | None = None, q_max: int = 100_000
     """
     from . import spectral
 
+    warm: dict = {}  # q -> (ids, sizes, right and left eigenvectors) of the first case evaluated at q
+
+    def radius(case, k, powers=None):
+        # the first case evaluated at k keeps its eigenvectors in warm: the start of every later case at k
+        return error_radius(case, k, powers, rate=rate, method=method, warm=warm.get(k),
+                            vectors=warm if k not in warm else None)
+
     if q is None:
         def pred(case):
             powers = None if spectral.use_iterative(case.nbar, method) else _Powers(case.B)  # lives for this case
-            return lambda k: error_radius(case, k, powers, rate=rate, method=method) < rate
+            return lambda k: radius(case, k, powers) < rate
 
         q = _smallest_max((pred(c) for c in cases), q_max, whats=(f"q (spectral, {c.label})" for c in cases))
-    bound = max(error_radius(c, q, rate=rate, method=method) for c in cases)
+    bound = max(radius(c, q) for c in cases)
     return QResult(q=q, method="spectral", bound=bound, certified=bound < rate, switching=False,
                    eig=spectral.summary(c._how.get(q) for c in cases if c.nbar))
 

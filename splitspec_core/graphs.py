@@ -19,6 +19,7 @@ from __future__ import annotations
 import itertools
 from collections import deque
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -55,17 +56,45 @@ class Graph:
     arcs : tuple of (int, int)
         Arcs ``(j, i)`` between agent ids, without self-arcs.
     S : (k, k) array
-        Row-stochastic matrix ``S = D^-1 Adj'`` (or Metropolis weights).
+        Row-stochastic matrix ``S = D^-1 Adj'`` (or Metropolis weights); formed on first use (the m + 1 cases
+        of a resilient design of 1000 agents would hold 8 GB of them; their spectral radii need only
+        ``entries``).
+    entries : (rows, cols, values)
+        The nonzero entries of ``S`` (0-based positions), the same values, without forming ``S``.
     """
 
     name: str
     ids: tuple
     arcs: tuple
-    S: np.ndarray
+    weights: str = "uniform"
 
     @property
     def m(self) -> int:
         return len(self.ids)
+
+    @cached_property
+    def _idx(self) -> tuple:
+        pos = {a: k for k, a in enumerate(self.ids)}
+        idx = np.array([(pos[j], pos[i]) for j, i in self.arcs], dtype=np.int64).reshape(-1, 2)
+        return idx[:, 0], idx[:, 1]  # senders j, receivers i
+
+    @cached_property
+    def S(self) -> np.ndarray:
+        adj = adjacency(self.m, zip(*self._idx))
+        S = metropolis_matrix(adj) if self.weights == "metropolis" else stochastic_matrix(adj)
+        S.setflags(write=False)
+        return S
+
+    @cached_property
+    def entries(self) -> tuple:
+        if self.weights == "metropolis" or "S" in self.__dict__:
+            rows, cols = np.nonzero(self.S)
+            return rows, cols, self.S[rows, cols]
+        j, i = self._idx
+        diag = np.arange(self.m)
+        rows, cols = np.concatenate([i, diag]), np.concatenate([j, diag])
+        count = np.bincount(rows, minlength=self.m).astype(float)  # in-neighbours and itself
+        return rows, cols, 1.0 / count[rows]  # S = D^-1 Adj': each row averages its in-neighbours and itself
 
 
 def adjacency(m: int, arcs) -> np.ndarray:
@@ -182,10 +211,10 @@ def build_graph(name: str, ids: tuple, arcs, *, weights: str = "uniform", check:
         if bad is not None:
             raise AssumptionError(
                 f"graph {name} is not strongly connected: agent {ids[bad[0]]} cannot reach agent {ids[bad[1]]}")
-    adj = adjacency(m, idx)
-    S = metropolis_matrix(adj) if weights == "metropolis" else stochastic_matrix(adj)
-    S.setflags(write=False)
-    return Graph(name=name, ids=tuple(ids), arcs=kept, S=S)
+    g = Graph(name=name, ids=tuple(ids), arcs=kept, weights=weights)
+    if weights == "metropolis":
+        g.S  # noqa: B018 - formed now: metropolis_matrix refuses a directed graph, at build time
+    return g
 
 
 def neighbour_lists(graph: Graph) -> dict:
