@@ -298,8 +298,9 @@ class Orchestrator:
             elif kind is R.Control:
                 self.pub_control.put(encode("control", self.keys.run_id, mac_key=self.key, cmd=a.cmd))
             elif kind is R.Spawn:
+                began = time.monotonic()
                 p = self._spawn(a.role, a.ident)
-                self._execute(self.machine.on_spawned(a.role, a.ident, p.pid, time.monotonic()))
+                self._execute(self.machine.on_spawned(a.role, a.ident, p.pid, time.monotonic(), began=began))
             elif kind is R.QueryStatus:
                 agents, plant = self._answering(a.timeout)
                 self._execute(self.machine.on_status(agents, time.monotonic(), plant=plant))

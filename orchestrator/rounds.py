@@ -448,12 +448,20 @@ class RoundMachine:
         return Stop(1, f"the plant (pid {pid}) was lost at event time {self.tau}: {why}; stopping (records up to "
                        f"event time {self.tau - 1} are kept)")
 
-    def on_spawned(self, role: str, ident: int, pid: int, now: float) -> list:
+    def on_spawned(self, role: str, ident: int, pid: int, now: float, *, began: float | None = None) -> list:
+        """The shell started process ``pid`` for ``role``/``ident``; it began at ``began`` and returned at ``now``.
+
+        The time inside the spawn (fork and exec, seconds when the machine is busy starting the other m
+        processes) is the orchestrator's own work, not a freeze: the stall detector looks at the gap
+        before ``began`` only, and starts counting again from ``now``.
+        """
+        out = self.on_clock(began) if began is not None else []
+        self.last_now = max(self.last_now, now)
         self.children[int(pid)] = (role, int(ident))
         self.spawn_times[int(pid)] = now
         if self.restart is not None and role == "agent" and self.restart[0] == ident:
             self.restart = (ident, int(pid))
-        return []
+        return out
 
     def on_child_exit(self, pid: int, status: int, now: float) -> list:
         """A process this orchestrator spawned exited (``status`` as ``Popen.returncode``)."""
