@@ -301,6 +301,7 @@ class RoundMachine:
         self._rej_last = now
         self._remote: dict = {}
         self.stalled_seconds = 0.0
+        self._rows_cache: tuple | None = None  # (NetworkState.key, rows) of the last tick
 
     # ------------------------------------------------------------------ helpers
 
@@ -857,10 +858,18 @@ class RoundMachine:
         self.deadline = now + self.round_timeout
         self.quiet_since = now
         out.append(Tick(self.tau, self.attempt, graph, self.tau == self.plan.steps, tuple(sorted(self.alive)),
-                        self.net.rows(self.sc, graph), {a: self.incarnation(a) for a in self.sc.agent_ids},
+                        self._rows(graph), {a: self.incarnation(a) for a in self.sc.agent_ids},
                         fresh=self.fresh_tau == self.tau, prev_attempt=self.prev_attempt,
                         partition=self.net.groups or ()))
         return out
+
+    def _rows(self, graph: int) -> dict:
+        """The tick's consensus rows of the active network, computed again only when it changed (a graph
+        switch, a loss, a rejoin, an arc): building S is O(m) and the network changes rarely."""
+        key = self.net.key(graph)
+        if self._rows_cache is None or self._rows_cache[0] != key:
+            self._rows_cache = (key, self.net.rows(self.sc, graph))
+        return self._rows_cache[1]
 
     def _round_done(self) -> bool:
         if self.tau not in self.truth and not self.plantless:
@@ -868,6 +877,9 @@ class RoundMachine:
         have_now = self.est.get(self.tau, {})
         have_next = self.est.get(self.tau + 1, {})
         final = self.tau == self.plan.steps
+        n = len(self.alive)
+        if len(have_now) < n or (not final and len(have_next) < n):
+            return False  # O(1) for all but the last estimates of a round (called on every one of the m)
         return all(a in have_now for a in self.alive) and (final or all(a in have_next for a in self.alive))
 
     def _complete(self, now: float) -> list:
