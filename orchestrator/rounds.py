@@ -46,7 +46,9 @@ closes its sockets and is lost at once through its liveliness token.
 *Time.*  A gap of more than :data:`STALL_SECONDS` between two calls means
 the orchestrator itself was frozen or starved: every deadline moves by the
 gap (``orchestrator_stalled``), so nobody is blamed for the orchestrator's
-own pause.
+own pause.  The time inside a spawn of its own processes is not such a gap
+(:meth:`RoundMachine.on_spawned`): at m = 100 the m + 1 spawns take seconds
+on a busy machine, and a warning about them would be a false alarm.
 
 *Between rounds* (at the step the simulator applies them): pending losses,
 then the scenario's faults in order (kill, hang, restart, drop/restore an
