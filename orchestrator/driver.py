@@ -63,6 +63,10 @@ log = logging.getLogger("splitspec.orchestrator")
 
 EXIT_OK, EXIT_FAILED, EXIT_INTERRUPTED = 0, 1, 130
 POLL_SECONDS = 0.5  # the event loop wakes at least this often (timers, child processes, stall detection)
+#: children are polled (one waitpid each) at most this often: the loop turns once per message or two, and m + 1
+#: waitpids per turn were m (m + 1) per round (6% of the orchestrator at m = 100); their liveliness tokens
+#: still report a death at once
+CHILD_POLL_SECONDS = 0.05
 
 
 class RunFailed(SplitspecError, RuntimeError):
@@ -225,10 +229,12 @@ class Orchestrator:
     def _poll_processes(self, now: float) -> list:
         """Children that exited; granted processes on this host that vanished before showing a token."""
         out = []
-        for pid, p in list(self.children.items()):
-            if p.poll() is not None:
-                del self.children[pid]
-                out += self.machine.on_child_exit(pid, p.returncode, now)
+        if now >= self._next_child_poll:  # a waitpid per child: at most every CHILD_POLL_SECONDS, not per message
+            self._next_child_poll = now + CHILD_POLL_SECONDS
+            for pid, p in list(self.children.items()):
+                if p.poll() is not None:
+                    del self.children[pid]
+                    out += self.machine.on_child_exit(pid, p.returncode, now)
         if not self.machine.started:
             from .registry import pid_running
 
@@ -298,8 +304,9 @@ class Orchestrator:
             elif kind is R.Control:
                 self.pub_control.put(encode("control", self.keys.run_id, mac_key=self.key, cmd=a.cmd))
             elif kind is R.Spawn:
+                began = time.monotonic()
                 p = self._spawn(a.role, a.ident)
-                self._execute(self.machine.on_spawned(a.role, a.ident, p.pid, time.monotonic()))
+                self._execute(self.machine.on_spawned(a.role, a.ident, p.pid, time.monotonic(), began=began))
             elif kind is R.QueryStatus:
                 agents, plant = self._answering(a.timeout)
                 self._execute(self.machine.on_status(agents, time.monotonic(), plant=plant))
@@ -359,6 +366,7 @@ class Orchestrator:
         sc = self.sc
         self.finished = False
         self._dropped_seen: dict = {}
+        self._next_child_poll = 0.0
         dt = sc.run.dt if sc.time == "continuous" else 1.0
         check_output_dir(self.out)
         try:

@@ -46,7 +46,9 @@ closes its sockets and is lost at once through its liveliness token.
 *Time.*  A gap of more than :data:`STALL_SECONDS` between two calls means
 the orchestrator itself was frozen or starved: every deadline moves by the
 gap (``orchestrator_stalled``), so nobody is blamed for the orchestrator's
-own pause.
+own pause.  The time inside a spawn of its own processes is not such a gap
+(:meth:`RoundMachine.on_spawned`): at m = 100 the m + 1 spawns take seconds
+on a busy machine, and a warning about them would be a false alarm.
 
 *Between rounds* (at the step the simulator applies them): pending losses,
 then the scenario's faults in order (kill, hang, restart, drop/restore an
@@ -301,6 +303,7 @@ class RoundMachine:
         self._rej_last = now
         self._remote: dict = {}
         self.stalled_seconds = 0.0
+        self._rows_cache: tuple | None = None  # (NetworkState.key, rows) of the last tick
 
     # ------------------------------------------------------------------ helpers
 
@@ -448,12 +451,20 @@ class RoundMachine:
         return Stop(1, f"the plant (pid {pid}) was lost at event time {self.tau}: {why}; stopping (records up to "
                        f"event time {self.tau - 1} are kept)")
 
-    def on_spawned(self, role: str, ident: int, pid: int, now: float) -> list:
+    def on_spawned(self, role: str, ident: int, pid: int, now: float, *, began: float | None = None) -> list:
+        """The shell started process ``pid`` for ``role``/``ident``; it began at ``began`` and returned at ``now``.
+
+        The time inside the spawn (fork and exec, seconds when the machine is busy starting the other m
+        processes) is the orchestrator's own work, not a freeze: the stall detector looks at the gap
+        before ``began`` only, and starts counting again from ``now``.
+        """
+        out = self.on_clock(began) if began is not None else []
+        self.last_now = max(self.last_now, now)
         self.children[int(pid)] = (role, int(ident))
         self.spawn_times[int(pid)] = now
         if self.restart is not None and role == "agent" and self.restart[0] == ident:
             self.restart = (ident, int(pid))
-        return []
+        return out
 
     def on_child_exit(self, pid: int, status: int, now: float) -> list:
         """A process this orchestrator spawned exited (``status`` as ``Popen.returncode``)."""
@@ -849,10 +860,18 @@ class RoundMachine:
         self.deadline = now + self.round_timeout
         self.quiet_since = now
         out.append(Tick(self.tau, self.attempt, graph, self.tau == self.plan.steps, tuple(sorted(self.alive)),
-                        self.net.rows(self.sc, graph), {a: self.incarnation(a) for a in self.sc.agent_ids},
+                        self._rows(graph), {a: self.incarnation(a) for a in self.sc.agent_ids},
                         fresh=self.fresh_tau == self.tau, prev_attempt=self.prev_attempt,
                         partition=self.net.groups or ()))
         return out
+
+    def _rows(self, graph: int) -> dict:
+        """The tick's consensus rows of the active network, computed again only when it changed (a graph
+        switch, a loss, a rejoin, an arc): building S is O(m) and the network changes rarely."""
+        key = self.net.key(graph)
+        if self._rows_cache is None or self._rows_cache[0] != key:
+            self._rows_cache = (key, self.net.rows(self.sc, graph))
+        return self._rows_cache[1]
 
     def _round_done(self) -> bool:
         if self.tau not in self.truth and not self.plantless:
@@ -860,6 +879,9 @@ class RoundMachine:
         have_now = self.est.get(self.tau, {})
         have_next = self.est.get(self.tau + 1, {})
         final = self.tau == self.plan.steps
+        n = len(self.alive)
+        if len(have_now) < n or (not final and len(have_next) < n):
+            return False  # O(1) for all but the last estimates of a round (called on every one of the m)
         return all(a in have_now for a in self.alive) and (final or all(a in have_next for a in self.alive))
 
     def _complete(self, now: float) -> list:

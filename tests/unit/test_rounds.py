@@ -217,6 +217,32 @@ def test_orchestrator_stall_moves_deadlines_and_blames_nobody():
     assert of(out, R.Record) and not events(out, "agent_lost")
 
 
+def test_time_spent_starting_its_own_processes_is_no_stall():
+    """m = 100 on a busy machine: 101 spawns of 0.1 s each (10 s in all, no call in between); then the hellos.
+    Before the fix the first hello saw a 10 s gap and warned "frozen or starved" about the orchestrator's own
+    start-up; a real freeze before a spawn is still one."""
+    m = machine(spawned=True)
+    out = m.start(1.0)
+    spawns = of(out, R.Spawn)
+    assert len(spawns) == 1 + m.sc.m
+    t = 1.0
+    for k, s in enumerate(spawns):
+        out += m.on_spawned(s.role, s.ident, 100 + k, t + 0.1, began=t)
+        t += 0.1
+    t += 0.05
+    out += m.on_hello("q-plant", hello("plant", 0, "p0", 100), t) + m.on_token("plant", 0, "p0", True, t)
+    for k, a in enumerate(m.sc.agent_ids):
+        out += m.on_hello(f"q{a}", hello("agent", a, f"n{a}", 101 + k), t)
+        out += m.on_token("agent", a, f"n{a}", True, t)
+    assert not events(out, "orchestrator_stalled") and not [a for a in out if isinstance(a, R.Log)
+                                                            and "frozen or starved" in a.message]
+    assert m.started and of(out, R.Tick)
+    m = machine(spawned=True)
+    (first, *_) = of(m.start(1.0), R.Spawn)
+    stalled = m.on_spawned(first.role, first.ident, 100, 5.1, began=5.0)  # frozen 4 s before it spawned
+    assert [e.fields["seconds"] for e in events(stalled, "orchestrator_stalled")] == [4.0]
+
+
 def test_round_timeout_queries_status_then_retries_once_then_loses_the_late():
     m = machine(round_timeout=2.0)
     start(m, 1.0)
