@@ -29,6 +29,8 @@ import numpy as np
 
 from .errors import DesignError
 from .graphs import Graph, is_doubly_stochastic, perron_vector
+from . import spectral
+from .spectral import spectral_radius  # also bounds.spectral_radius, as before
 
 __all__ = [
     "Case",
@@ -149,10 +151,6 @@ def make_case(label: str, graph: Graph, Vs, A_uns) -> Case:
     """Build a :class:`Case` from per-agent ``V_i`` and ``A_i`` (in ``graph.ids`` order); the matrices on first use."""
     return Case(label=label, graph=graph, sizes=tuple(V.shape[1] for V in Vs), A_blocks=tuple(A_uns),
                 V_blocks=tuple(Vs))
-
-
-def spectral_radius(M: np.ndarray) -> float:
-    return float(np.max(np.abs(np.linalg.eigvals(M)))) if M.size else 0.0
 
 
 # --------------------------------------------------------------------------
@@ -416,8 +414,6 @@ def error_radius(case: Case, q: int, powers: _Powers | None = None, *, rate: flo
         return 0.0
     rho = case._radius.get(q)
     if rho is None:
-        from . import spectral
-
         if spectral.use_iterative(case.nbar, method):
             how = spectral.radius(case, q, rate=rate, warm=warm, vectors=vectors)
             rho = how.value
@@ -437,8 +433,6 @@ def q_spectral(cases, rate: float, *, q: int | None = None, q_max: int = 100_000
     (:func:`_smallest_max`): the q of a search from scratch per case.  ``method``: how the spectral radii are
     computed (:func:`error_radius`); the result says which methods were used (``QResult.eig``).
     """
-    from . import spectral
-
     warm: dict = {}  # q -> (ids, sizes, right and left eigenvectors) of the first case evaluated at q
 
     def radius(case, k, powers=None):

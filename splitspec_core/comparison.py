@@ -36,7 +36,8 @@ import numpy as np
 from .analysis import fit_decay
 from .montecarlo import simulate_seeds
 from .baselines import baseline_trajectories, kalman_predictor, sampled_model
-from .designer import NO_CERTIFIED_RATE, design, nice_ceil
+from .bounds import nice_ceil
+from .designer import NO_CERTIFIED_RATE, design
 from .errors import DesignError
 from .noise import predicted_rms, tune
 from .report import rate_certificate

@@ -31,9 +31,7 @@ from .resilience import analyse_agent_losses, analyse_arc_losses
 from .sampled import sampled_rates
 from .scenario_model import Scenario
 
-nice_ceil = bounds.nice_ceil  # the auto g's rounding; lives in bounds (full_matrix uses it too)
-
-__all__ = ["AgentDesign", "Design", "certify_network", "design", "design_agent", "nice_ceil", "scenario_dwell",
+__all__ = ["AgentDesign", "Design", "certify_network", "design", "design_agent", "scenario_dwell",
            "NO_CERTIFIED_RATE"]
 
 # thm. split_continuous_adaptive: with the adaptive gain (eq. adaptive) every error tends to zero, at no stated rate
@@ -275,10 +273,10 @@ def _design_g(sc: Scenario, cases, switching: bool, warnings: list) -> dict:
         mode = "auto"
         if certified:
             by = min(certified, key=certified.get)
-            g = nice_ceil(certified[by] * (1 + 1e-9))
+            g = bounds.nice_ceil(certified[by] * (1 + 1e-9))
         else:
             by = None
-            g = nice_ceil(per_graph * (1 + 1e-9))
+            g = bounds.nice_ceil(per_graph * (1 + 1e-9))
             warnings.append("g is not certified for switching: the graphs are not all doubly stochastic and no "
                             "dwell time is known (set design.dwell or design.weights: metropolis); g covers "
                             "each graph held constant (eq. g)")

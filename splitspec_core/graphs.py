@@ -40,6 +40,7 @@ __all__ = [
     "switch_times",
     "enumerate_strongly_connected",
     "neighbour_lists",
+    "arc_positions",
 ]
 
 
@@ -74,9 +75,7 @@ class Graph:
 
     @cached_property
     def _idx(self) -> tuple:
-        pos = {a: k for k, a in enumerate(self.ids)}
-        idx = np.array([(pos[j], pos[i]) for j, i in self.arcs], dtype=np.int64).reshape(-1, 2)
-        return idx[:, 0], idx[:, 1]  # senders j, receivers i
+        return arc_positions(self.ids, self.arcs)  # senders j, receivers i
 
     @cached_property
     def S(self) -> np.ndarray:
@@ -95,6 +94,14 @@ class Graph:
         rows, cols = np.concatenate([i, diag]), np.concatenate([j, diag])
         count = np.bincount(rows, minlength=self.m).astype(float)  # in-neighbours and itself
         return rows, cols, 1.0 / count[rows]  # S = D^-1 Adj': each row averages its in-neighbours and itself
+
+
+def arc_positions(ids, arcs) -> tuple:
+    """``(senders, receivers)``: the positions in ``ids`` of the arcs ``(j, i)`` between agents of ``ids`` (arcs
+    touching another agent dropped), as two int arrays."""
+    pos = {a: k for k, a in enumerate(ids)}
+    idx = np.array([(pos[j], pos[i]) for j, i in arcs if j in pos and i in pos], dtype=np.int64).reshape(-1, 2)
+    return idx[:, 0], idx[:, 1]
 
 
 def adjacency(m: int, arcs) -> np.ndarray:

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .graphs import find_unreachable
+from .graphs import arc_positions, find_unreachable
 from .observability import _direction_text, unobservable_directions
 
 __all__ = ["LossReport", "network_verdict", "analyse_agent_losses", "analyse_arc_losses"]
@@ -45,18 +45,20 @@ class LossReport:
 
 
 def network_verdict(A: np.ndarray, Cs_by_id: dict, alive, graphs: dict, *,
-                    rank_tol: float | None = None) -> LossReport:
+                    rank_tol: float | None = None, connected: dict | None = None) -> LossReport:
     """Strong connectivity of each graph restricted to ``alive`` and joint observability of ``alive``.
 
-    ``graphs`` maps a name to its arcs ``(j, i)`` between agent ids.
+    ``graphs`` maps a name to its arcs ``(j, i)`` between agent ids.  ``connected``: ``{name: bool}`` already
+    known (:func:`analyse_agent_losses` decides it for every loss at once); a pair that cannot reach is then
+    searched only for a graph that splits.
     """
     alive = tuple(sorted(alive))
-    pos = {a: k for k, a in enumerate(alive)}
     sc, unreach = {}, {}
     for name, arcs in graphs.items():
-        idx = [(pos[j], pos[i]) for j, i in arcs if j in pos and i in pos]
-        bad = find_unreachable(len(alive), idx) if alive else None
-        sc[name] = bad is None and bool(alive)
+        bad = None
+        if alive and (connected is None or not connected[name]):
+            bad = find_unreachable(len(alive), list(zip(*arc_positions(alive, arcs))))
+        sc[name] = bad is None and bool(alive) and (connected is None or connected[name])
         if bad is not None:
             unreach[name] = (alive[bad[0]], alive[bad[1]])
     if alive:
@@ -66,13 +68,6 @@ def network_verdict(A: np.ndarray, Cs_by_id: dict, alive, graphs: dict, *,
     jo = D.shape[1] == 0
     return LossReport(strongly_connected=sc, unreachable=unreach, jointly_observable=jo,
                       unobservable_direction=None if jo else _direction_text(D[:, 0]))
-
-
-def _arc_arrays(ids, arcs) -> tuple:
-    """``(rows, cols)`` (positions in ``ids``) of the arcs ``(j, i)`` between agents of ``ids``."""
-    pos = {a: k for k, a in enumerate(ids)}
-    idx = np.array([(pos[j], pos[i]) for j, i in arcs if j in pos and i in pos], dtype=np.int64).reshape(-1, 2)
-    return idx[:, 0], idx[:, 1]
 
 
 def _components(m: int, rows: np.ndarray, cols: np.ndarray, keep: np.ndarray | None = None) -> int:
@@ -87,33 +82,18 @@ def _components(m: int, rows: np.ndarray, cols: np.ndarray, keep: np.ndarray | N
 
 
 def analyse_agent_losses(A, Cs_by_id: dict, graphs: dict, *, rank_tol: float | None = None) -> dict:
-    """``{lost agent id: LossReport}`` for every single agent loss.
-
-    The same reports as :func:`network_verdict` of each survivor set, computed in O(m (m + arcs)) compiled
-    steps: strong connectivity by scipy's strongly connected components (the survivors are strongly connected
-    iff the graph with the lost agent's arcs removed has 2 components, the lost agent alone and the rest);
-    :func:`~splitspec_core.graphs.find_unreachable` only names a pair for a graph that splits."""
+    """``{lost agent id: LossReport}`` for every single agent loss: :func:`network_verdict` of each survivor set,
+    with strong connectivity decided for all of them in O(m (m + arcs)) compiled steps by scipy's strongly
+    connected components (the survivors are strongly connected iff the graph with the lost agent's arcs removed
+    has 2 components, the lost agent alone and the rest)."""
     ids = tuple(sorted(Cs_by_id))
     m = len(ids)
-    arrays = {name: _arc_arrays(ids, arcs) for name, arcs in graphs.items()}
+    arrays = {name: arc_positions(ids, arcs) for name, arcs in graphs.items()}
     out = {}
     for k, a in enumerate(ids):
-        alive = ids[:k] + ids[k + 1:]
-        sc, unreach = {}, {}
-        for name, (rows, cols) in arrays.items():
-            ok = bool(alive) and (m == 2 or _components(m, rows, cols, (rows != k) & (cols != k)) == 2)
-            sc[name] = ok
-            if not ok and alive:
-                pos = {b: p for p, b in enumerate(alive)}
-                idx = [(pos[j], pos[i]) for j, i in graphs[name] if j in pos and i in pos]
-                bad = find_unreachable(len(alive), idx)
-                if bad is not None:
-                    unreach[name] = (alive[bad[0]], alive[bad[1]])
-        D = unobservable_directions(A, [Cs_by_id[b] for b in alive], rank_tol=rank_tol) if alive \
-            else np.eye(A.shape[0])
-        jo = D.shape[1] == 0
-        out[a] = LossReport(strongly_connected=sc, unreachable=unreach, jointly_observable=jo,
-                            unobservable_direction=None if jo else _direction_text(D[:, 0]))
+        connected = {name: m == 2 or _components(m, rows, cols, (rows != k) & (cols != k)) == 2
+                     for name, (rows, cols) in arrays.items()}
+        out[a] = network_verdict(A, Cs_by_id, ids[:k] + ids[k + 1:], graphs, rank_tol=rank_tol, connected=connected)
     return out
 
 
@@ -123,7 +103,7 @@ def analyse_arc_losses(ids, graphs: dict) -> dict:
     m = len(ids)
     out = {}
     for name, arcs in graphs.items():
-        rows, cols = _arc_arrays(ids, arcs)
+        rows, cols = arc_positions(ids, arcs)
         keep = np.ones(len(rows), dtype=bool)
         res = {}
         for k, drop in enumerate(arcs):

@@ -32,7 +32,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["DENSE_MAX", "DECIDE", "TOL", "Radius", "radius", "summary", "use_iterative"]
+__all__ = ["DENSE_MAX", "DECIDE", "TOL", "Radius", "radius", "spectral_radius", "summary", "use_iterative"]
 
 DENSE_MAX = 300  # nbar above which "auto" goes matrix-free (dense eigvals of 300 x 300: ~30 ms)
 TOL = 1e-8  # ARPACK's relative tolerance on the Ritz values
@@ -96,11 +96,15 @@ def _sparse_factors(case):
     return Atil, csr(blocks, I, J)
 
 
-def _dense(case, q: int) -> float:
-    """Every eigenvalue of the formed ``Atil B^q`` (eq. split_discrete_ench): the operations of the dense path of
-    :func:`splitspec_core.bounds.error_radius` (``matrix_power``, ``eigvals``), so the same value."""
-    M = case.Atil @ np.linalg.matrix_power(case.B, q)
+def spectral_radius(M: np.ndarray) -> float:
+    """The largest eigenvalue modulus of a formed matrix: every eigenvalue (``eigvals``)."""
     return float(np.max(np.abs(np.linalg.eigvals(M)))) if M.size else 0.0
+
+
+def _dense(case, q: int) -> float:
+    """``rho(Atil B^q)`` of the formed matrix (eq. split_discrete_ench), as the dense path of
+    :func:`splitspec_core.bounds.error_radius` computes it (``matrix_power``, then :func:`spectral_radius`)."""
+    return spectral_radius(case.Atil @ np.linalg.matrix_power(case.B, q))
 
 
 def _warm_start(case, warm, N: int):

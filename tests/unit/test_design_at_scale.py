@@ -292,3 +292,21 @@ def test_spectral_design_needs_no_perron_vector(monkeypatch):
     assert calls == []
     design(parse_scenario(ring_scenario(10, 4, resilience=1, q_method="weighted")))
     assert len(calls) == 11  # ||.||_R needs H: one Perron vector per case
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_a_graphs_entries_are_its_matrix_nonzeros(seed):
+    """``Graph.entries`` (the spectral path's S, never formed) against the nonzeros of the formed ``S``: the same
+    positions and, computed by the same division 1 / (in-neighbours + 1), the same values exactly."""
+    from splitspec_core.generate import chord_arcs
+    from splitspec_core.graphs import build_graph
+
+    rng = np.random.default_rng(seed)
+    m = int(rng.integers(4, 40))
+    ids = tuple(int(i) for i in rng.permutation(np.arange(1, 3 * m))[:m])
+    arcs = [(ids[j], ids[i]) for j, i in chord_arcs(rng, m)]
+    lazy, formed = build_graph("g", ids, arcs), build_graph("g", ids, arcs)
+    formed.S  # noqa: B018 - formed first: its entries are read from S
+    got = sorted(zip(*[a.tolist() for a in lazy.entries]))
+    want = sorted(zip(*[a.tolist() for a in formed.entries]))
+    assert "S" not in lazy.__dict__ and got == want
