@@ -301,7 +301,6 @@ def simulate(sc: Scenario | DesignResult, *, steps: int | None = None, seed: int
 
         if seed is not None:
             raise ScenarioError("give seed (one run) or seeds (a Monte Carlo study), not both")
-        seeds = [int(s) for s in seeds]
         if keep_y:
             raise ScenarioError("keep_y records one run's measurements: simulate one seed")
         return simulate_seeds(des, seeds, steps=steps, noise=noise, trajectories=trajectories, lost=lost,

@@ -47,7 +47,7 @@ from .analysis import rms_stats
 from .designer import Design
 from .errors import ScenarioError
 from .network import NetworkState, make_plan
-from .plant_model import Plant, initial_estimate
+from .plant_model import Plant, advanced, initial_estimate, measured
 from .simulator import BatchEstimator, Trajectory, _entries, _realized_step, check_trajectory_memory, simulate
 
 __all__ = ["CHUNK", "MonteCarloRuns", "SeedBatchEstimator", "fallback_reason", "simulate_seeds"]
@@ -325,7 +325,7 @@ def _batch(des: Design, seeds: tuple, *, steps, noise, trajectories) -> tuple:
                 gains[:, k, alive] = est.g[alive].T
         if k == plan.steps:
             break
-        y = C @ x + sigma_m * w[k]
+        y = measured(C, sigma_m, x, w[k])  # the plant's formulas (plant_model), on every seed's state
         key = net.key(plan.graph_seq[k])
         W = w_cache.get(key)
         if W is None:
@@ -334,7 +334,7 @@ def _batch(des: Design, seeds: tuple, *, steps, noise, trajectories) -> tuple:
         Ws = _realized_step(est, sc, W, k, exchanges, None, None, net.groups,
                             lost_rows if trajectories else []) if impaired else None
         X = est.step(X, y, W[0], alive) if Ws is None else est.step_realized(X, y, Ws, alive)
-        x = F @ x + L @ v[k]
+        x = advanced(F, L, x, v[k])
     t = plan.times()
     trajs = ()
     if trajectories:

@@ -18,7 +18,7 @@ from . import steps as st
 from .scenario_model import Scenario
 from .streams import stream
 
-__all__ = ["Plant", "initial_estimate", "initial_state", "output_rows", "sampled_model"]
+__all__ = ["Plant", "advanced", "initial_estimate", "initial_state", "measured", "output_rows", "sampled_model"]
 
 
 def output_rows(Cs) -> list:
@@ -38,6 +38,16 @@ def initial_estimate(n: int, seed: int, agent_index: int, incarnation: int = 0) 
     """``x_i(0)`` of an agent's given incarnation (0 at start, +1 per restart): ``n`` standard normals."""
     return stream(seed, "estimate", agent_index, incarnation).normal(size=n)
 
+
+
+def measured(C: np.ndarray, sigma_m: float, x: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """``y = C x + sigma_m w``: the stacked outputs of state ``x`` (n,) or of a batch of states (n, N)."""
+    return C @ x + sigma_m * w
+
+
+def advanced(F: np.ndarray, L: np.ndarray, x: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """``x+ = F x + L v``: one step of the plant from ``x`` (n,) or a batch of states (n, N)."""
+    return F @ x + L @ v
 
 class Plant:
     """The true system and its measurements, drawing noise from the named streams.
@@ -69,14 +79,14 @@ class Plant:
 
     def measure(self) -> np.ndarray:
         """Stacked ``y(k) = (y_1(k), ..., y_m(k))`` (one noise draw of ``sum s_i`` normals)."""
-        return self.C @ self.x + self.sigma_m * self.meas.normal(size=self.C.shape[0])
+        return measured(self.C, self.sigma_m, self.x, self.meas.normal(size=self.C.shape[0]))
 
     def split(self, y: np.ndarray) -> list:
         """``[y_1, ..., y_m]`` from the stacked vector."""
         return [y[r] for r in self.rows]
 
     def advance(self) -> np.ndarray:
-        self.x = self.F @ self.x + self.L @ self.proc.normal(size=self.x.shape[0])
+        self.x = advanced(self.F, self.L, self.x, self.proc.normal(size=self.x.shape[0]))
         return self.x
 
     def missing(self) -> None:
