@@ -17,14 +17,15 @@ Two tables, no timing assertions anywhere (the machine is shared):
   (:func:`splitspec_core.generate.chord_arcs`: a ring of 1000 mixes too slowly to be useful), n = 6,
   one output per agent, rate 0.9, ``q: auto``, designed plain and resilient, each design in a fresh
   process: wall seconds, the peak resident memory of that process (``wait4``), q, and how the spectral
-  radii were computed (``dense``/``iterative``, :mod:`splitspec_core.spectral`).  Plain and resilient
-  alternate per size; the load average is printed beside each.
+  radii were computed (``dense``/``iterative``, :mod:`splitspec_core.spectral`).  Resilient designs run with one
+  process and with every core (:mod:`splitspec_core.parallel`: the loss cases on worker processes); plain and
+  resilient alternate per size; the load average is printed beside each.
 
     .venv/bin/python benchmarks/bench_design.py [--sizes 5 20 50 100] [--repeat 1]
     .venv/bin/python benchmarks/bench_design.py --only ring [--ring-sizes 50 100] [--ring-n 4] [--ring-repeat 3] [--cli]
         [--ring-rate 0.5] [--eigenvalues auto|dense|iterative]
     .venv/bin/python benchmarks/bench_design.py --only scale [--scale-sizes 100 300 1000 3000]
-        [--scale-resilient-max 1000] [--scale-repeat 1]
+        [--scale-resilient-max 1000] [--scale-serial-max 1000] [--scale-repeat 1]
 
 On a loaded machine OpenBLAS threads can dominate the figures; ``OPENBLAS_NUM_THREADS=1``
 in the environment takes them out (the header says which setting ran).
@@ -105,26 +106,34 @@ def _timer(raw: dict, cli: bool, tmp: Path):
     return run_cli
 
 
-def _child(m: int, resilience: int, rate: float, n: int) -> None:
-    """One design in this (fresh) process: prints its JSON line (the parent measures the process's memory)."""
+def _child(m: int, resilience: int, rate: float, n: int, workers: int) -> None:
+    """One design in this (fresh) process: prints its JSON line with its own and its workers' peak memory."""
+    import resource
+
     sc = parse_scenario(ring_scenario(m, n, resilience=resilience, rate=rate, chords=True), source="<bench>")
     t0 = time.perf_counter()
-    des = design(sc)
+    des = design(sc, workers=workers or None)
     t = time.perf_counter() - t0
+    kids = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024  # the largest worker (Linux: KiB)
     print(json.dumps({"seconds": t, "q": des.q, "nbar": des.cases[0].nbar, "cases": len(des.cases),
-                      "eig": des.q_result.eig}))
+                      "eig": des.q_result.eig, "worker_mb": kids}))
 
 
-def _fresh(m: int, resilience: int, rate: float, n: int) -> dict:
-    """``_child`` in a fresh process; its JSON plus its peak resident memory (MB) from ``wait4``."""
-    cmd = [sys.executable, __file__, "--child", str(m), str(resilience), str(rate), str(n)]
+def _fresh(m: int, resilience: int, rate: float, n: int, workers: int = 0) -> dict:
+    """``_child`` in a fresh process; its JSON plus its peak resident memory (MB) from ``wait4`` (``workers`` 0:
+    the design's default, every core)."""
+    cmd = [sys.executable, __file__, "--child", str(m), str(resilience), str(rate), str(n), str(workers)]
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True)
     out = proc.stdout.read()
     _, status, usage = os.wait4(proc.pid, 0)
     proc.returncode = os.waitstatus_to_exitcode(status)
     if proc.returncode != 0:
         raise SystemExit(f"bench_design: the design of m = {m} (resilience {resilience}) failed")
-    return {**json.loads(out.strip().splitlines()[-1]), "peak_mb": usage.ru_maxrss / 1024}
+    res = json.loads(out.strip().splitlines()[-1])
+    # wait4's maxrss is the largest of the process and its waited-for workers: the process's own is at least
+    # what it held before forking them; the sum below counts each worker at the largest one's peak (pages they
+    # share with the parent copy-on-write counted again: an upper bound)
+    return {**res, "peak_mb": usage.ru_maxrss / 1024}
 
 
 def _eig(e: dict | None) -> str:
@@ -132,27 +141,35 @@ def _eig(e: dict | None) -> str:
 
 
 def scale_table(args) -> None:
+    from splitspec_core.parallel import available_workers
+
+    cores = available_workers()
     print(f"ring + one random chord per agent, n = 6, one output each, rate 0.9, q auto, spectral; each design in a "
-          f"fresh process; OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS', 'unset')}")
-    print(f"{'m':>5} {'nbar':>6} {'design':>10} {'cases':>6} {'q':>3} {'seconds':>9} {'peak MB':>8}  "
+          f"fresh process; OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS', 'unset')}; "
+          f"resilient designs with 1 process and with every core ({cores} workers); memory: the process's peak, "
+          f"and the sum with its workers' (each at the largest one's peak: an upper bound)")
+    print(f"{'m':>5} {'nbar':>6} {'design':>14} {'cases':>6} {'q':>3} {'seconds':>9} {'peak MB':>8} {'+workers':>9}  "
           f"{'spectral radii':<28} loadavg")
     for m in args.scale_sizes:
-        kinds = [0, 1] if m <= args.scale_resilient_max else [0]
+        kinds = [("plain", 0, 1)]
+        if m <= args.scale_resilient_max:
+            kinds += [("resilient, 1", 1, 1)] if cores > 1 and m <= args.scale_serial_max else []
+            kinds += [(f"resilient, {cores}", 1, 0)]
         rows: dict = {k: [] for k in kinds}
         for _ in range(args.scale_repeat):
-            for k in kinds:  # interleaved: plain, resilient, plain, ...
-                rows[k].append((_fresh(m, k, 0.9, 6), loadavg()))
+            for k in kinds:  # interleaved: plain, resilient serial, resilient parallel, plain, ...
+                rows[k].append((_fresh(m, k[1], 0.9, 6, k[2]), loadavg()))
         for k in kinds:
             res = [r for r, _ in rows[k]]
             r = res[0]
             secs = statistics.median(x["seconds"] for x in res)
             peak = max(x["peak_mb"] for x in res)
-            print(f"{m:>5} {r['nbar']:>6} {'resilient' if k else 'plain':>10} {r['cases']:>6} {r['q']:>3} {secs:>9.2f} "
-                  f"{peak:>8.0f}  {_eig(r['eig']):<28} {rows[k][-1][1]}", flush=True)
-        if len(kinds) == 2:
-            p = statistics.median(x["seconds"] for x, _ in rows[0])
-            q = statistics.median(x["seconds"] for x, _ in rows[1])
-            print(f"{'':>5} resilient / plain: {q / p:.2f}", flush=True)
+            total = max(x["peak_mb"] + (cores if k[2] == 0 and x["worker_mb"] else 0) * x["worker_mb"] for x in res)
+            print(f"{m:>5} {r['nbar']:>6} {k[0]:>14} {r['cases']:>6} {r['q']:>3} {secs:>9.2f} {peak:>8.0f} "
+                  f"{total:>9.0f}  {_eig(r['eig']):<28} {rows[k][-1][1]}", flush=True)
+        secs = {k[0]: statistics.median(x["seconds"] for x, _ in rows[k]) for k in kinds}
+        for k in kinds[1:]:
+            print(f"{'':>5} {k[0]} / plain: {secs[k[0]] / secs['plain']:.2f}", flush=True)
 
 
 def ring_table(args) -> None:
@@ -197,11 +214,13 @@ def main() -> None:
     ap.add_argument("--scale-sizes", type=int, nargs="+", default=[100, 300, 1000, 3000])
     ap.add_argument("--scale-resilient-max", type=int, default=1000)
     ap.add_argument("--scale-repeat", type=int, default=1)
-    ap.add_argument("--child", nargs=4, help=argparse.SUPPRESS)
+    ap.add_argument("--scale-serial-max", type=int, default=1000,
+                    help="largest m whose resilient design is also timed with one process")
+    ap.add_argument("--child", nargs=5, help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.child:
-        m, r, rate, n = args.child
-        return _child(int(m), int(r), float(rate), int(n))
+        m, r, rate, n, workers = args.child
+        return _child(int(m), int(r), float(rate), int(n), int(workers))
     if args.only in (None, "random"):
         random_table(args)
     if args.only in (None, "ring"):

@@ -89,6 +89,8 @@ def build_parser() -> argparse.ArgumentParser:
                    "of weights) for the smallest steady-state RMS error under the scenario's noise, keeping the "
                    "rate certified")
     p.add_argument("--write", metavar="FILE", help="with --tune: write the tuned scenario to FILE")
+    p.add_argument("--workers", type=_at_least(1), help="processes for the spectral radii of a large resilient "
+                   "design (one case per agent loss); default: every CPU this process may use")
     p.set_defaults(func=_command("study:cmd_design"))
 
     p = sub.add_parser("simulate", help="fast in-process reference simulation: trajectory, summary, plots",

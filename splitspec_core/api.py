@@ -201,11 +201,14 @@ class DesignResult:
         return design_json(self.detail)
 
 
-def design(sc: Scenario, *, all_q_methods: bool = False) -> DesignResult:
+def design(sc: Scenario, *, all_q_methods: bool = False, workers: int | None = None) -> DesignResult:
     """Check the assumptions and design the estimator (``splitspec design``).
 
     ``all_q_methods=True`` also computes, for information, the q every other certificate
     (spectral, weighted, two-norm, mixed) would give (``detail.q_methods``, in the report).
+    ``workers``: processes computing the spectral radii of a large resilient design (one case per agent loss)
+    at once; ``None`` (default): every core this process may use; 1: none besides this one.  The same
+    numbers either way.
 
     Raises
     ------
@@ -217,7 +220,7 @@ def design(sc: Scenario, *, all_q_methods: bool = False) -> DesignResult:
     """
     from .designer import design as _design
 
-    des = _design(sc, compare_q_methods=all_q_methods)
+    des = _design(sc, compare_q_methods=all_q_methods, workers=workers)
     agents = {a.id: AgentResult(id=a.id, K=_readonly(a.K), V=_readonly(a.V), Q=_readonly(a.dec.Q),
                                 P=_readonly(a.P), poles=_readonly(a.gain.poles)) for a in des.agents}
     cert = rate_certificate(des)

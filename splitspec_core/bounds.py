@@ -412,27 +412,42 @@ def error_radius(case: Case, q: int, powers: _Powers | None = None, *, rate: flo
     """
     if not case.nbar:
         return 0.0
-    rho = case._radius.get(q)
-    if rho is None:
+    if q not in case._radius:
         if spectral.use_iterative(case.nbar, method):
             how = spectral.radius(case, q, rate=rate, warm=warm, vectors=vectors)
-            rho = how.value
         else:
             # eq. (split_discrete_ench): A_V = Atil (V' Sbar V)^q
             rho = spectral_radius(case.Atil @ (powers(q) if powers is not None else _power(case.B, q)))
             how = spectral.Radius(rho, "dense", 0.0)
-        case._radius[q] = rho
-        case._how[q] = how
-    return rho
+        _remember(case, q, how)
+    return case._radius[q]
 
 
-def q_spectral(cases, rate: float, *, q: int | None = None, q_max: int = 100_000, method: str = "auto") -> QResult:
+def _remember(case: Case, q: int, how) -> None:
+    case._radius[q] = how.value
+    case._how[q] = how
+
+
+def _prefetch(cases, q: int, *, rate: float, method: str, warm, workers: int | None) -> None:
+    """The iterative radii of ``cases`` at ``q`` not yet known, on every core at once
+    (:func:`splitspec_core.spectral.radii`), remembered as :func:`error_radius` would: the q search then finds
+    them (the same values as computed one by one)."""
+    todo = [c for c in cases if c.nbar and q not in c._radius and spectral.use_iterative(c.nbar, method)]
+    for case, how in zip(todo, spectral.radii(todo, q, rate=rate, warm=warm, workers=workers)):
+        _remember(case, q, how)
+
+
+def q_spectral(cases, rate: float, *, q: int | None = None, q_max: int = 100_000, method: str = "auto",
+               workers: int | None = None) -> QResult:
     """Smallest q with ``rho(Atil B^q) < lam`` for every case (constant graphs).
 
     The cases are searched in order, each warm-started from the q of the ones before
     (:func:`_smallest_max`): the q of a search from scratch per case.  ``method``: how the spectral radii are
-    computed (:func:`error_radius`); the result says which methods were used (``QResult.eig``).
+    computed (:func:`error_radius`); the result says which methods were used (``QResult.eig``).  Once the first
+    case's q is known, the iterative radii of the others at that q (the loss cases of a resilient design mostly
+    need no more) are computed on ``workers`` processes at once (``None``: every core; :func:`_prefetch`).
     """
+    cases = tuple(cases)
     warm: dict = {}  # q -> (ids, sizes, right and left eigenvectors) of the first case evaluated at q
 
     def radius(case, k, powers=None):
@@ -440,12 +455,20 @@ def q_spectral(cases, rate: float, *, q: int | None = None, q_max: int = 100_000
         return error_radius(case, k, powers, rate=rate, method=method, warm=warm.get(k),
                             vectors=warm if k not in warm else None)
 
-    if q is None:
-        def pred(case):
-            powers = None if spectral.use_iterative(case.nbar, method) else _Powers(case.B)  # lives for this case
-            return lambda k: radius(case, k, powers) < rate
+    def pred(case):
+        powers = None if spectral.use_iterative(case.nbar, method) else _Powers(case.B)  # lives for this case
+        return lambda k: radius(case, k, powers) < rate
 
-        q = _smallest_max((pred(c) for c in cases), q_max, whats=(f"q (spectral, {c.label})" for c in cases))
+    def what(case):
+        return f"q (spectral, {case.label})"
+
+    if q is None and cases:
+        first = _smallest(pred(cases[0]), q_max, what=what(cases[0]))  # remembered: _smallest_max replays it
+        _prefetch(cases[1:], first, rate=rate, method=method, warm=warm.get(first), workers=workers)
+        q = _smallest_max((pred(c) for c in cases), q_max, whats=(what(c) for c in cases))
+    elif q is not None:
+        radius(cases[0], q)  # the warm start of the rest
+        _prefetch(cases[1:], q, rate=rate, method=method, warm=warm.get(q), workers=workers)
     bound = max(radius(c, q) for c in cases)
     return QResult(q=q, method="spectral", bound=bound, certified=bound < rate, switching=False,
                    eig=spectral.summary(c._how.get(q) for c in cases if c.nbar))
@@ -593,11 +616,11 @@ _Q_METHODS = {"spectral": q_spectral, "weighted": q_weighted, "two-norm": q_two_
 
 
 def choose_q(method: str, cases, rate: float, *, q: int | None = None, q_max: int = 100_000,
-             eig: str = "auto") -> QResult:
+             eig: str = "auto", workers: int | None = None) -> QResult:
     """Dispatch to the q method named by ``design.q_method``; ``q`` given means 'check this q'; ``eig``: how the
-    spectral q computes its radii (:func:`error_radius`)."""
+    spectral q computes its radii (:func:`error_radius`); ``workers``: its processes (:func:`q_spectral`)."""
     if method == "spectral":
-        return q_spectral(cases, rate, q=q, q_max=q_max, method=eig)
+        return q_spectral(cases, rate, q=q, q_max=q_max, method=eig, workers=workers)
     return _Q_METHODS[method](cases, rate, q=q, q_max=q_max)
 
 

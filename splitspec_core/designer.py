@@ -168,11 +168,13 @@ def scenario_dwell(sc: Scenario) -> float | None:
     return None
 
 
-def design(sc: Scenario, *, compare_q_methods: bool = False) -> Design:
+def design(sc: Scenario, *, compare_q_methods: bool = False, workers: int | None = None) -> Design:
     """Run the whole design for a scenario.
 
     ``compare_q_methods`` (discrete time) also computes, for information, the q of every other
     q method over the same cases (``Design.q_methods``; ``splitspec design --all-methods``).
+    ``workers``: processes for the spectral radii of many large cases (a resilient design of hundreds of
+    agents; :func:`splitspec_core.bounds.q_spectral`); ``None``: every core this process may use.
 
     Raises
     ------
@@ -220,6 +222,7 @@ def design(sc: Scenario, *, compare_q_methods: bool = False) -> Design:
     agent_losses = analyse_agent_losses(A, Cs_by_id, graph_arcs, rank_tol=d.rank_tol) if sc.m > 1 else {}
     arc_losses = analyse_arc_losses(sc.agent_ids, graph_arcs)
     if d.resilience:
+        arc_arrays = {name: np.asarray(arcs, dtype=np.int64).reshape(-1, 2) for name, arcs in graph_arcs.items()}
         for lost, rep in agent_losses.items():
             if not rep.jointly_observable:
                 raise AssumptionError(
@@ -233,7 +236,7 @@ def design(sc: Scenario, *, compare_q_methods: bool = False) -> Design:
                         f"{lost}, graph {name} is not strongly connected (agent {j} cannot reach agent {i})")
             survivors = tuple(i for i in sc.agent_ids if i != lost)
             for name in used:  # strongly connected: checked just above (rep.strongly_connected)
-                g = build_graph(f"{name} without agent {lost}", survivors, graph_arcs[name], weights=d.weights,
+                g = build_graph(f"{name} without agent {lost}", survivors, arc_arrays[name], weights=d.weights,
                                 check=False)
                 cases.append(case_for(g.name, g))
     cases = tuple(cases)
@@ -245,7 +248,7 @@ def design(sc: Scenario, *, compare_q_methods: bool = False) -> Design:
         if kw["g"] is not None:
             kw["sampled_rate"] = _sampled_check(sc, agents, cases, kw["g"], warnings)
     else:
-        kw.update(_design_q(sc, cases, switching, warnings, compare_q_methods))
+        kw.update(_design_q(sc, cases, switching, warnings, compare_q_methods, workers))
     residual = max((a.dec.split_residual for a in agents), default=0.0)
     des = Design(scenario=sc, agents=agents, graphs=graphs, cases=cases, agent_losses=agent_losses,
                  arc_losses=arc_losses, warnings=tuple(warnings), split_residual=residual, **kw)
@@ -312,11 +315,11 @@ def _sampled_check(sc: Scenario, agents, cases, g: float, warnings: list) -> dic
     return out
 
 
-def _design_q(sc: Scenario, cases, switching: bool, warnings: list, compare: bool) -> dict:
+def _design_q(sc: Scenario, cases, switching: bool, warnings: list, compare: bool, workers: int | None) -> dict:
     d = sc.design
     rate = d.rate
     given = None if d.q == "auto" else int(d.q)
-    result = bounds.choose_q(d.q_method, cases, rate, q=given, q_max=d.q_max, eig=d.eigenvalues)
+    result = bounds.choose_q(d.q_method, cases, rate, q=given, q_max=d.q_max, eig=d.eigenvalues, workers=workers)
     if switching and not result.switching:
         warnings.append(f"q_method {d.q_method} certifies each graph held constant; the scenario switches among "
                         f"{len(cases)} graphs: use q_method two-norm or mixed for a switching certificate")

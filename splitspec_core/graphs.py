@@ -96,12 +96,28 @@ class Graph:
         return rows, cols, 1.0 / count[rows]  # S = D^-1 Adj': each row averages its in-neighbours and itself
 
 
+def _positions(ids, arcs) -> tuple:
+    """``(senders, receivers, kept)``: the positions in ``ids`` of each arc's ends and whether both are in ``ids``
+    (vectorised: a sorted lookup, no Python loop over the arcs of a thousand-agent network)."""
+    ids = np.asarray(ids, dtype=np.int64)
+    arcs = np.asarray(arcs, dtype=np.int64).reshape(-1, 2)
+    if not len(ids):
+        empty = np.zeros(len(arcs), dtype=np.int64)
+        return empty, empty, np.zeros(len(arcs), dtype=bool)
+    order = np.argsort(ids, kind="stable")
+    ends, found = [], np.ones(len(arcs), dtype=bool)
+    for col in (0, 1):
+        k = np.minimum(np.searchsorted(ids[order], arcs[:, col]), len(ids) - 1)
+        found &= ids[order][k] == arcs[:, col]
+        ends.append(order[k])
+    return ends[0], ends[1], found
+
+
 def arc_positions(ids, arcs) -> tuple:
     """``(senders, receivers)``: the positions in ``ids`` of the arcs ``(j, i)`` between agents of ``ids`` (arcs
     touching another agent dropped), as two int arrays."""
-    pos = {a: k for k, a in enumerate(ids)}
-    idx = np.array([(pos[j], pos[i]) for j, i in arcs if j in pos and i in pos], dtype=np.int64).reshape(-1, 2)
-    return idx[:, 0], idx[:, 1]
+    j, i, kept = _positions(ids, arcs)
+    return j[kept], i[kept]
 
 
 def adjacency(m: int, arcs) -> np.ndarray:
@@ -209,12 +225,13 @@ def build_graph(name: str, ids: tuple, arcs, *, weights: str = "uniform", check:
         If ``check`` and the graph is not strongly connected; the message
         names an agent that cannot reach another.
     """
-    pos = {a: k for k, a in enumerate(ids)}
-    kept = tuple((j, i) for j, i in arcs if j in pos and i in pos and j != i)
-    idx = [(pos[j], pos[i]) for j, i in kept]
+    arcs = np.asarray(arcs, dtype=np.int64).reshape(-1, 2)  # once: an array passed in is not copied
+    j, i, keep = _positions(ids, arcs)
+    keep &= j != i
+    kept = tuple(map(tuple, arcs[keep].tolist()))
     m = len(ids)
     if check:
-        bad = find_unreachable(m, idx)
+        bad = find_unreachable(m, zip(j[keep].tolist(), i[keep].tolist()))
         if bad is not None:
             raise AssumptionError(
                 f"graph {name} is not strongly connected: agent {ids[bad[0]]} cannot reach agent {ids[bad[1]]}")

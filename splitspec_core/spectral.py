@@ -32,7 +32,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["DENSE_MAX", "DECIDE", "TOL", "Radius", "radius", "spectral_radius", "summary", "use_iterative"]
+__all__ = ["DENSE_MAX", "DECIDE", "TOL", "Radius", "radius", "radii", "spectral_radius", "summary", "use_iterative"]
 
 DENSE_MAX = 300  # nbar above which "auto" goes matrix-free (dense eigvals of 300 x 300: ~30 ms)
 TOL = 1e-8  # ARPACK's relative tolerance on the Ritz values
@@ -61,7 +61,11 @@ def use_iterative(nbar: int, method: str = "auto") -> bool:
     return method == "iterative" or (method == "auto" and nbar > DENSE_MAX)
 
 
-def _padded(blocks, sizes, shape) -> np.ndarray:
+def _padded(blocks, shape) -> np.ndarray:
+    """The blocks stacked into one ``(len, *shape)`` array, each zero-padded to ``shape`` (one ``np.stack`` when
+    they all have that shape already)."""
+    if {np.shape(b) for b in blocks} == {shape}:
+        return np.stack(blocks).astype(float, copy=False)
     out = np.zeros((len(blocks), *shape))
     for k, blk in enumerate(blocks):
         blk = np.asarray(blk, dtype=float)
@@ -70,30 +74,33 @@ def _padded(blocks, sizes, shape) -> np.ndarray:
 
 
 def _sparse_factors(case):
-    """``(Atil, B)`` as CSR matrices: Atil block diagonal, B with the block ``S_ij V_i' V_j`` per arc (and i = j).
+    """``(Atil B, B)`` as sparse matrices: ``B`` with the block ``S_ij V_i' V_j`` per arc (and i = j), ``Atil B``
+    with ``A_i S_ij V_i' V_j`` (as sparse as ``B``: ``Atil`` is block diagonal).
 
     Vectorised over the blocks: every ``V_i`` and ``A_i`` zero-padded to the largest ``n_i``, the blocks of all
-    arcs in one batched product, the padding masked out."""
+    arcs in one batched product.  Every ``n_i`` equal (the common case: agents with the same kind of sensor): block
+    sparse rows (BSR) of those blocks, whose products run ~1.5x faster than CSR's; otherwise CSR with the padding
+    masked out."""
     import scipy.sparse as sp
 
     sizes = np.asarray(case.sizes, dtype=int)
-    edges = np.concatenate([[0], np.cumsum(sizes)])
-    N, s = int(edges[-1]), int(sizes.max())
+    N, s, m = int(sizes.sum()), int(sizes.max()), len(sizes)
     n = case.V_blocks[0].shape[0]
-    a, b = np.meshgrid(np.arange(s), np.arange(s), indexing="ij")
-
-    def csr(blocks, I, J):
-        keep = (a[None] < sizes[I, None, None]) & (b[None] < sizes[J, None, None])
-        rows = np.broadcast_to(edges[I, None, None] + a[None], keep.shape)[keep]
-        cols = np.broadcast_to(edges[J, None, None] + b[None], keep.shape)[keep]
-        return sp.csr_matrix((blocks[keep], (rows, cols)), shape=(N, N))
-
-    ids = np.arange(len(sizes))
-    Atil = csr(_padded(case.A_blocks, sizes, (s, s)), ids, ids)
     I, J, w = case.graph.entries
-    V = _padded(case.V_blocks, sizes, (n, s))
-    blocks = w[:, None, None] * np.einsum("pka,pkb->pab", V[I], V[J])  # S_ij V_i' V_j: V' (S (x) I) V
-    return Atil, csr(blocks, I, J)
+    order = np.lexsort((J, I))  # row by row, columns ascending: the block rows of B
+    I, J, w = I[order], J[order], w[order]
+    V = _padded(case.V_blocks, (n, s))
+    Bb = w[:, None, None] * np.matmul(V[I].transpose(0, 2, 1), V[J])  # S_ij V_i' V_j: V' (S (x) I) V
+    ABb = np.matmul(_padded(case.A_blocks, (s, s))[I], Bb)  # A_i S_ij V_i' V_j: Atil V' (S (x) I) V
+    if np.all(sizes == s):
+        indptr = np.concatenate([[0], np.cumsum(np.bincount(I, minlength=m))])
+        return tuple(sp.bsr_matrix((blocks, J, indptr), shape=(N, N)) for blocks in (ABb, Bb))
+    edges = np.concatenate([[0], np.cumsum(sizes)])
+    a, b = np.meshgrid(np.arange(s), np.arange(s), indexing="ij")
+    keep = (a[None] < sizes[I, None, None]) & (b[None] < sizes[J, None, None])
+    rows = np.broadcast_to(edges[I, None, None] + a[None], keep.shape)[keep]
+    cols = np.broadcast_to(edges[J, None, None] + b[None], keep.shape)[keep]
+    return tuple(sp.csr_matrix((blocks[keep], (rows, cols)), shape=(N, N)) for blocks in (ABb, Bb))
 
 
 def spectral_radius(M: np.ndarray) -> float:
@@ -116,11 +123,15 @@ def _warm_start(case, warm, N: int):
     if warm is None:
         return fixed, fixed
     ids, sizes, x, w = warm
-    edges = np.concatenate([[0], np.cumsum(sizes)])
-    where = {a: (edges[k], edges[k + 1]) for k, a in enumerate(ids)}
-    if any(a not in where or where[a][1] - where[a][0] != s for a, s in zip(case.graph.ids, case.sizes)):
+    ids, sizes = np.asarray(ids), np.asarray(sizes, dtype=int)
+    order = np.argsort(ids, kind="stable")
+    k = np.minimum(np.searchsorted(ids[order], case.graph.ids), len(ids) - 1)
+    own = np.asarray(case.sizes, dtype=int)
+    if not (np.all(ids[order][k] == case.graph.ids) and np.all(sizes[order][k] == own)):
         return fixed, fixed
-    pick = np.concatenate([np.arange(*where[a]) for a in case.graph.ids])
+    starts = np.concatenate([[0], np.cumsum(sizes)])[order][k]  # where each agent's block is in warm's vectors
+    edges = np.concatenate([[0], np.cumsum(own)])
+    pick = np.arange(N) - np.repeat(edges[:-1] - starts, own)
     out = []
     for v in (x, w):
         v = (v.real + v.imag)[pick]
@@ -143,15 +154,14 @@ def radius(case, q: int, *, rate: float | None = None, warm=None, vectors: dict 
         return Radius(_dense(case, q), "dense", 0.0)
     # built for this call and dropped after it: the m + 1 cases of a resilient design of 1000 agents would hold
     # 2.5 GB of them (a case is evaluated at one q but for the few a q search visits again)
-    Atil, B = _sparse_factors(case)
-    AB = (Atil @ B).tocsr()  # as sparse as B (Atil is block diagonal): one product less per application
+    AB, B = _sparse_factors(case)  # Atil B formed (as sparse as B): one product less per application
 
     def apply(x):
         for _ in range(q - 1):
             x = B @ x
         return AB @ x
 
-    ABt, Bt = AB.T.tocsr(), B.T.tocsr()
+    ABt, Bt = AB.T, B.T
 
     def apply_t(y):  # (Atil B^q)' y = (B')^(q-1) (Atil B)' y: for the left eigenvector
         y = ABt @ y
@@ -191,6 +201,20 @@ def radius(case, q: int, *, rate: float | None = None, warm=None, vectors: dict 
     if rate is not None and abs(rho - rate) <= margin * max(rho, rate):
         return Radius(_dense(case, q), f"dense (fallback: ARPACK's {rho:.10g} within {margin:.3g} of the rate)", 0.0)
     return Radius(rho, "iterative", tol)
+
+
+def _radius_of(state, k: int) -> Radius:
+    cases, q, rate, warm = state
+    return radius(cases[k], q, rate=rate, warm=warm)
+
+
+def radii(cases, q: int, *, rate: float | None = None, warm=None, workers: int | None = None) -> list:
+    """:func:`radius` of every case at ``q`` (all started from ``warm``), on ``workers`` processes
+    (:func:`splitspec_core.parallel.fork_map`; ``None``: every core this process may use): the loss cases of a
+    resilient design are independent.  The values of the serial loop, in the order of ``cases``."""
+    from .parallel import fork_map
+
+    return fork_map(_radius_of, (tuple(cases), q, rate, warm), range(len(cases)), workers=workers)
 
 
 def summary(hows) -> dict:

@@ -38,7 +38,7 @@ def cmd_design(args: argparse.Namespace) -> int:
     if args.tune:
         return _tune(args, sc)
     # the other q methods are for information only and cost more than the design itself at scale: on request
-    d = ss.design(sc, all_q_methods=args.all_methods)
+    d = ss.design(sc, all_q_methods=args.all_methods, workers=args.workers)
     if args.json:
         json.dump(d.to_json(), sys.stdout, indent=None if args.compact else 2)
         sys.stdout.write("\n")

@@ -18,6 +18,7 @@ from typing import Callable
 
 from ..errors import ScenarioError as UsageError  # bad CLI arguments
 from ..errors import NetworkError, SplitspecError
+from ..parallel import sigterm_at_parent_death
 
 __all__ = ["ArgumentParser", "EXIT_BAD_INPUT", "EXIT_FAILED", "MAX_SECONDS", "MAX_SEED", "UsageError",
            "add_logging_options", "add_node_options", "at_least", "error_boundary", "positive", "seed",
@@ -35,7 +36,6 @@ DEFAULT_WAIT = 60.0  # --wait of a plant or agent process (seconds)
 #: the pid of the process that spawned this one, set by ``splitspec_orchestrator.launcher.spawn``: the process
 #: then asks for SIGTERM when that parent dies (:func:`die_with_parent`)
 PARENT_ENV = "SPLITSPEC_PARENT_PID"
-PR_SET_PDEATHSIG = 1
 
 
 def die_with_parent() -> None:
@@ -53,18 +53,6 @@ def die_with_parent() -> None:
         import signal
 
         os.kill(os.getpid(), signal.SIGTERM)
-
-
-def sigterm_at_parent_death() -> bool:
-    """Ask the kernel for SIGTERM when this process's parent dies (``PR_SET_PDEATHSIG``); False if it cannot."""
-    import ctypes
-    import signal
-
-    try:
-        ctypes.CDLL("libc.so.6", use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGTERM)
-    except (OSError, AttributeError):
-        return False
-    return True
 
 
 def default_wait(m: int) -> float:

@@ -310,3 +310,39 @@ def test_a_graphs_entries_are_its_matrix_nonzeros(seed):
     got = sorted(zip(*[a.tolist() for a in lazy.entries]))
     want = sorted(zip(*[a.tolist() for a in formed.entries]))
     assert "S" not in lazy.__dict__ and got == want
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_arc_positions_as_a_lookup_by_hand(seed):
+    """The vectorised ``arc_positions`` (a sorted search) against a dictionary lookup arc by arc: the same
+    positions in the same order, arcs with an end outside ``ids`` dropped; ``build_graph`` keeps the same arcs."""
+    from splitspec_core.graphs import arc_positions, build_graph
+
+    rng = np.random.default_rng(seed)
+    m = int(rng.integers(1, 30))
+    ids = tuple(int(i) for i in rng.permutation(np.arange(1, 3 * m + 1))[:m])  # not sorted, gaps between
+    arcs = [tuple(int(a) for a in rng.integers(0, 3 * m + 2, size=2)) for _ in range(int(rng.integers(0, 4 * m)))]
+    pos = {a: k for k, a in enumerate(ids)}
+    want = [(pos[j], pos[i]) for j, i in arcs if j in pos and i in pos]
+    got = list(zip(*[a.tolist() for a in arc_positions(ids, arcs)]))
+    assert got == want
+    kept = build_graph("g", ids, arcs, check=False).arcs
+    assert kept == tuple((j, i) for j, i in arcs if j in pos and i in pos and j != i)
+
+
+@pytest.mark.parametrize("uniform", [True, False], ids=["bsr", "csr"])
+def test_sparse_factors_are_the_formed_matrices(uniform):
+    """The matrix-free path's ``Atil B`` and ``B`` (block sparse rows when every ``n_i`` is equal, CSR with the
+    padding masked out otherwise) against the formed ``Atil @ B`` and ``B``.  The blocks are the same inner
+    products in another order (batched ``matmul`` against the Gram matrix's ``Vcat' Vcat``): 1e-12 of the
+    largest entry."""
+    if uniform:
+        des = design(parse_scenario(ring_scenario(12, 6, resilience=1, rate=0.9, chords=True)))
+    else:
+        des = design(parse_scenario(random_resilient(1)))  # agents with n_i = 3 and 4
+    for case in des.cases:
+        assert (len(set(case.sizes)) == 1) == uniform
+        AB, B = spectral._sparse_factors(case)
+        assert AB.format == B.format == ("bsr" if uniform else "csr")
+        assert_close(B.toarray(), case.B, rtol=1e-12, what="B")
+        assert_close(AB.toarray(), case.Atil @ case.B, rtol=1e-12, what="Atil B")
