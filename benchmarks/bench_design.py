@@ -107,33 +107,63 @@ def _timer(raw: dict, cli: bool, tmp: Path):
 
 
 def _child(m: int, resilience: int, rate: float, n: int, workers: int) -> None:
-    """One design in this (fresh) process: prints its JSON line with its own and its workers' peak memory."""
-    import resource
-
+    """One design in this (fresh) process: prints its JSON line (the parent measures its memory)."""
     sc = parse_scenario(ring_scenario(m, n, resilience=resilience, rate=rate, chords=True), source="<bench>")
     t0 = time.perf_counter()
     des = design(sc, workers=workers or None)
     t = time.perf_counter() - t0
-    kids = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024  # the largest worker (Linux: KiB)
     print(json.dumps({"seconds": t, "q": des.q, "nbar": des.cases[0].nbar, "cases": len(des.cases),
-                      "eig": des.q_result.eig, "worker_mb": kids}))
+                      "eig": des.q_result.eig}))
+
+
+def _pss_mb(pid: int) -> float:
+    """Proportional set size of ``pid`` and its children (MB): each page shared copy-on-write between a process
+    and its forked workers counted once in all (``/proc/PID/smaps_rollup``); 0 for a process that is gone."""
+    total = 0.0
+    pids = [pid]
+    try:
+        for task in os.listdir(f"/proc/{pid}/task"):
+            pids += [int(c) for c in Path(f"/proc/{pid}/task/{task}/children").read_text().split()]
+    except OSError:
+        pass
+    for p in pids:
+        try:
+            for line in Path(f"/proc/{p}/smaps_rollup").read_text().splitlines():
+                if line.startswith("Pss:"):
+                    total += int(line.split()[1]) / 1024
+        except OSError:
+            pass
+    return total
 
 
 def _fresh(m: int, resilience: int, rate: float, n: int, workers: int = 0) -> dict:
-    """``_child`` in a fresh process; its JSON plus its peak resident memory (MB) from ``wait4`` (``workers`` 0:
-    the design's default, every core)."""
+    """``_child`` in a fresh process; its JSON plus its peak resident memory (MB) from ``wait4`` and the peak of
+    its and its workers' proportional set size, sampled every 0.1 s (``workers`` 0: the design's default, every
+    core)."""
+    import threading
+
     cmd = [sys.executable, __file__, "--child", str(m), str(resilience), str(rate), str(n), str(workers)]
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True)
+    peak_pss = [0.0]
+    done = threading.Event()
+
+    def sample():
+        while not done.wait(0.1):
+            peak_pss[0] = max(peak_pss[0], _pss_mb(proc.pid))
+
+    sampler = threading.Thread(target=sample, daemon=True)
+    sampler.start()
     out = proc.stdout.read()
+    done.set()
+    sampler.join()
     _, status, usage = os.wait4(proc.pid, 0)
     proc.returncode = os.waitstatus_to_exitcode(status)
     if proc.returncode != 0:
         raise SystemExit(f"bench_design: the design of m = {m} (resilience {resilience}) failed")
     res = json.loads(out.strip().splitlines()[-1])
-    # wait4's maxrss is the largest of the process and its waited-for workers: the process's own is at least
-    # what it held before forking them; the sum below counts each worker at the largest one's peak (pages they
-    # share with the parent copy-on-write counted again: an upper bound)
-    return {**res, "peak_mb": usage.ru_maxrss / 1024}
+    # wait4's maxrss is the largest of the process and its waited-for workers (the process's own, at least what
+    # it held before forking them); the sampled PSS counts the pages the workers share with it once
+    return {**res, "peak_mb": usage.ru_maxrss / 1024, "pss_mb": peak_pss[0]}
 
 
 def _eig(e: dict | None) -> str:
@@ -146,9 +176,9 @@ def scale_table(args) -> None:
     cores = available_workers()
     print(f"ring + one random chord per agent, n = 6, one output each, rate 0.9, q auto, spectral; each design in a "
           f"fresh process; OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS', 'unset')}; "
-          f"resilient designs with 1 process and with every core ({cores} workers); memory: the process's peak, "
-          f"and the sum with its workers' (each at the largest one's peak: an upper bound)")
-    print(f"{'m':>5} {'nbar':>6} {'design':>14} {'cases':>6} {'q':>3} {'seconds':>9} {'peak MB':>8} {'+workers':>9}  "
+          f"resilient designs with 1 process and with every core ({cores} workers); memory: the process's peak "
+          f"RSS, and the peak proportional set size of the process and its workers together (sampled every 0.1 s)")
+    print(f"{'m':>5} {'nbar':>6} {'design':>14} {'cases':>6} {'q':>3} {'seconds':>9} {'peak MB':>8} {'PSS MB':>8}  "
           f"{'spectral radii':<28} loadavg")
     for m in args.scale_sizes:
         kinds = [("plain", 0, 1)]
@@ -164,9 +194,9 @@ def scale_table(args) -> None:
             r = res[0]
             secs = statistics.median(x["seconds"] for x in res)
             peak = max(x["peak_mb"] for x in res)
-            total = max(x["peak_mb"] + (cores if k[2] == 0 and x["worker_mb"] else 0) * x["worker_mb"] for x in res)
+            total = max(x["pss_mb"] for x in res)
             print(f"{m:>5} {r['nbar']:>6} {k[0]:>14} {r['cases']:>6} {r['q']:>3} {secs:>9.2f} {peak:>8.0f} "
-                  f"{total:>9.0f}  {_eig(r['eig']):<28} {rows[k][-1][1]}", flush=True)
+                  f"{total:>8.0f}  {_eig(r['eig']):<28} {rows[k][-1][1]}", flush=True)
         secs = {k[0]: statistics.median(x["seconds"] for x, _ in rows[k]) for k in kinds}
         for k in kinds[1:]:
             print(f"{'':>5} {k[0]} / plain: {secs[k[0]] / secs['plain']:.2f}", flush=True)

@@ -222,7 +222,6 @@ def design(sc: Scenario, *, compare_q_methods: bool = False, workers: int | None
     agent_losses = analyse_agent_losses(A, Cs_by_id, graph_arcs, rank_tol=d.rank_tol) if sc.m > 1 else {}
     arc_losses = analyse_arc_losses(sc.agent_ids, graph_arcs)
     if d.resilience:
-        arc_arrays = {name: np.asarray(arcs, dtype=np.int64).reshape(-1, 2) for name, arcs in graph_arcs.items()}
         for lost, rep in agent_losses.items():
             if not rep.jointly_observable:
                 raise AssumptionError(
@@ -236,7 +235,7 @@ def design(sc: Scenario, *, compare_q_methods: bool = False, workers: int | None
                         f"{lost}, graph {name} is not strongly connected (agent {j} cannot reach agent {i})")
             survivors = tuple(i for i in sc.agent_ids if i != lost)
             for name in used:  # strongly connected: checked just above (rep.strongly_connected)
-                g = build_graph(f"{name} without agent {lost}", survivors, arc_arrays[name], weights=d.weights,
+                g = build_graph(f"{name} without agent {lost}", survivors, graph_arcs[name], weights=d.weights,
                                 check=False)
                 cases.append(case_for(g.name, g))
     cases = tuple(cases)

@@ -73,8 +73,10 @@ class Graph:
     def m(self) -> int:
         return len(self.ids)
 
-    @cached_property
+    @property
     def _idx(self) -> tuple:
+        # computed on each use (vectorised, well under a millisecond for thousands of arcs): the m + 1 graphs of a
+        # resilient design of 1000 agents would otherwise keep 180 MB of these arrays and of ``entries``
         return arc_positions(self.ids, self.arcs)  # senders j, receivers i
 
     @cached_property
@@ -84,7 +86,7 @@ class Graph:
         S.setflags(write=False)
         return S
 
-    @cached_property
+    @property
     def entries(self) -> tuple:
         if self.weights == "metropolis" or "S" in self.__dict__:
             rows, cols = np.nonzero(self.S)
@@ -225,10 +227,13 @@ def build_graph(name: str, ids: tuple, arcs, *, weights: str = "uniform", check:
         If ``check`` and the graph is not strongly connected; the message
         names an agent that cannot reach another.
     """
-    arcs = np.asarray(arcs, dtype=np.int64).reshape(-1, 2)  # once: an array passed in is not copied
-    j, i, keep = _positions(ids, arcs)
+    arcs = arcs if isinstance(arcs, (tuple, list)) else list(arcs)
+    flat = np.fromiter(itertools.chain.from_iterable(arcs), dtype=np.int64, count=2 * len(arcs))
+    j, i, keep = _positions(ids, flat.reshape(-1, 2))
     keep &= j != i
-    kept = tuple(map(tuple, arcs[keep].tolist()))
+    # the given pairs themselves where they are tuples (tuple(t) is t): the m + 1 graphs of a resilient design
+    # of 1000 agents share the network's arc tuples instead of holding 450 MB of copies
+    kept = tuple(tuple(a) for a in itertools.compress(arcs, keep.tolist()))
     m = len(ids)
     if check:
         bad = find_unreachable(m, zip(j[keep].tolist(), i[keep].tolist()))

@@ -25,6 +25,7 @@ pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="fo
 
 
 def _square_and_pid(state, item):
+    time.sleep(0.01)  # long enough that one worker does not take every chunk before the other has started
     return state * item * item, os.getpid()
 
 
