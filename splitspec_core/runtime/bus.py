@@ -43,6 +43,23 @@ CHILD_ENV = "SPLITSPEC_CHILD"  #: set in the environment of the processes an orc
 LIVELINESS_PUT = "put"
 LIVELINESS_DELETE = "delete"
 INBOX_LIMIT = 10_000
+_kept_thread_states = threading.local()  # .done on a Zenoh thread whose Python thread state is kept
+
+
+def _keep_thread_state() -> None:
+    """Keep this (Zenoh network) thread's Python thread state from one callback to the next.
+
+    zenoh-python runs a direct callback (``indirect=False``) on Zenoh's own thread through
+    ``PyGILState_Ensure``/``Release``; on a thread Python did not start, the release at the end of each
+    callback deletes the thread state the ensure created, so every message paid for a new one and for the
+    memory of its frame stack (mmap, page faults, munmap: about a quarter of an agent's CPU per round at
+    m = 16).  One ``PyGILState_Ensure`` never released keeps the count above zero: later callbacks find the
+    thread state and only take the GIL.  The thread state lives as long as the thread (the session's).
+    """
+    import ctypes
+
+    ctypes.pythonapi.PyGILState_Ensure()
+    _kept_thread_states.done = True
 
 
 class BusError(SplitspecError, RuntimeError):
@@ -246,7 +263,9 @@ class Inbox:
         inbox = self
         fixed = None if any(c in key for c in "*$") else key
 
-        def cb(sample, _c=channel, _signed=signed, _fixed=fixed, _direct=direct):
+        def cb(sample, _c=channel, _signed=signed, _fixed=fixed, _direct=direct, _kept=_kept_thread_states):
+            if _direct is not None and not getattr(_kept, "done", False):
+                _keep_thread_state()
             payload = sample.payload.to_bytes()
             mk = inbox.mac_key
             if _signed and mk is not None and _direct is None:  # a direct handler verifies as it decodes

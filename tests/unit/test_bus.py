@@ -64,3 +64,46 @@ def test_every_authenticated_process_may_ask_which_runs_a_secure_router_hosts():
     # the reply is the orchestrator's own token, which every authenticated process may already see
     assert Keys.run_of(Keys("r1").alive("orchestrator")) == "r1"
     assert Keys.run_of("splitspec") is None and Keys.run_of("other/r1/alive") is None
+
+
+def test_a_direct_handler_keeps_its_thread_state_from_one_message_to_the_next():
+    """zenoh-python runs a direct handler on Zenoh's own thread through PyGILState_Ensure/Release: without
+    Inbox's kept thread state each message got a new Python thread state (and a new frame stack: mmap, page
+    faults, munmap), visible here as a ``threading.local`` that forgets between messages.  Real sessions: a
+    router and a client on a loopback port."""
+    import threading
+    import time
+
+    from splitspec_core.runtime.bus import Inbox, open_session
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        endpoint = f"tcp/127.0.0.1:{s.getsockname()[1]}"
+    router = open_session("router", listen=[endpoint])
+    client = open_session("client", connect=[endpoint])
+    try:
+        local, seen, done = threading.local(), [], threading.Event()
+
+        def handler(channel, key, payload):
+            local.count = getattr(local, "count", 0) + 1  # the same thread state: the count goes on
+            seen.append((threading.get_ident(), local.count))
+            if len(seen) == 20:
+                done.set()
+
+        inbox = Inbox(client)
+        inbox.subscribe("test/direct", "t", signed=False, direct=handler)
+        pub = router.declare_publisher("test/direct")
+        deadline = time.monotonic() + 10
+        while not done.is_set() and time.monotonic() < deadline:
+            pub.put(b"x")
+            time.sleep(0.02)
+        assert done.is_set(), f"{len(seen)} of 20 messages arrived"
+        per_thread: dict = {}
+        for ident, count in seen:  # Zenoh may hand messages to either of its network threads: per thread
+            per_thread.setdefault(ident, []).append(count)
+        assert all(counts == list(range(1, len(counts) + 1)) for counts in per_thread.values()), per_thread
+        assert max(len(c) for c in per_thread.values()) > 1
+        inbox.close()
+    finally:
+        client.close()
+        router.close()
