@@ -149,7 +149,8 @@ class Orchestrator:
         self.spawn_local = spawn_local
         self.key = new_run_key()
         self.stop_requested = False
-        self.children: dict = {}  # pid -> Popen of the processes this orchestrator started
+        self.children: dict = {}  # pid -> Popen (or forks.ForkedProcess) of the processes this orchestrator started
+        self.forks = None  # the agent fork server of a local run (forks.ForkServer), started with the run
 
     # ------------------------------------------------------------------ set-up
 
@@ -340,6 +341,21 @@ class Orchestrator:
                         plant = True
         return answered, plant
 
+    def _start_forks(self) -> None:
+        """Start the agent fork server (:mod:`splitspec_orchestrator.forks`); agents start as new processes
+        if it cannot."""
+        from splitspec_core.runtime.bus import CHILD_ENV
+
+        from .forks import ForkServer
+
+        try:
+            self.forks = ForkServer(env={**os.environ, CHILD_ENV: "1"}, run_id=self.keys.run_id)
+        except OSError as exc:
+            log.warning("cannot start the agent fork server (%s); starting agents as new processes", exc)
+        else:
+            self.children[self.forks.proc.pid] = self.forks.proc
+            self.rec.event("fork_server_started", 0.0, pid=self.forks.proc.pid)
+
     def _spawn(self, role: str, ident: int):
         from .launcher import node_command, spawn
 
@@ -353,7 +369,17 @@ class Orchestrator:
             args += ["--measurements", self.measurements_path]
         from splitspec_core.runtime.bus import CHILD_ENV
 
-        p = spawn(node_command(role, *args), env={**os.environ, CHILD_ENV: "1"})
+        p = None
+        if role == "agent" and self.forks is not None:  # a fork of the agent fork server: no interpreter start
+            from .forks import ForkServerError
+
+            try:
+                p = self.forks.spawn(args)
+            except ForkServerError as exc:
+                log.warning("%s; starting agents as new processes", exc)
+                self.forks = None
+        if p is None:
+            p = spawn(node_command(role, *args), env={**os.environ, CHILD_ENV: "1"})
         self.children[p.pid] = p
         return p
 
@@ -394,6 +420,8 @@ class Orchestrator:
         t_start = time.monotonic()
         try:
             self.registry.update()
+            if self.spawn_local:  # imports numpy and Zenoh while the router opens; the agents are its forks
+                self._start_forks()
             self._open()
             self.rec.event("orchestrator_started", 0.0, pid=os.getpid(), endpoint=self.connect or self.listen,
                            run_id=self.keys.run_id, scenario=sc.name, q=self.des.q, g=self.des.g,
@@ -498,6 +526,8 @@ class Orchestrator:
             from .launcher import stop_all
 
             stop_all(list(self.children.values()), grace=3.0)
+            if self.forks is not None:
+                self.forks.close(grace=3.0)
             if session is not None:
                 self.inbox.close()
                 try:

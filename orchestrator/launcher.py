@@ -49,15 +49,16 @@ def node_command(role: str, *args: str) -> list:
 ONE_BLAS_THREAD = {k: "1" for k in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")}
 
 
-def spawn(args: list, *, env: dict | None = None) -> subprocess.Popen:
+def spawn(args: list, *, env: dict | None = None, pass_fds: tuple = ()) -> subprocess.Popen:
     """Start a splitspec process (``args`` from :func:`cli_command` or :func:`node_command`).
 
     No ``preexec_fn``: the child asks for SIGTERM at our death itself (it finds our pid in
     :data:`~splitspec_core.runtime.cli.PARENT_ENV`), so ``subprocess`` can vfork instead of copying this
-    process's memory map for each of m + 1 children.
+    process's memory map for each of m + 1 children.  ``pass_fds``: descriptors the child keeps (the agent fork
+    server's pipes, :mod:`splitspec_orchestrator.forks`).
     """
     env = {**(os.environ if env is None else env), **ONE_BLAS_THREAD, PARENT_ENV: str(os.getpid())}
-    return subprocess.Popen(args, env=env, stdin=subprocess.DEVNULL)
+    return subprocess.Popen(args, env=env, stdin=subprocess.DEVNULL, pass_fds=pass_fds)
 
 
 def stop_all(procs: list, *, grace: float = 5.0) -> None:

@@ -111,13 +111,15 @@ def pid_alive(pid: int) -> bool:
 
 
 def started_pids(out: Path) -> dict:
-    """``{(role, id): pid}`` from ``process_started`` events, plus the orchestrator."""
+    """``{(role, id): pid}`` from ``process_started`` events, plus the orchestrator and the agent fork server."""
     pids = {}
     for e in events(out):
         if e["event"] == "process_started":
             pids[(e["role"], e["id"])] = e["pid"]
         elif e["event"] == "orchestrator_started":
             pids[("orchestrator", 0)] = e["pid"]
+        elif e["event"] == "fork_server_started":
+            pids[("fork_server", 0)] = e["pid"]
     return pids
 
 
@@ -136,8 +138,10 @@ def assert_all_gone(pids, timeout: float = 10.0) -> None:
 
 
 def all_pids(out: Path) -> list:
-    """Every pid of the run: the orchestrator and every process_started (restarted agents included)."""
-    return [e["pid"] for e in events(out) if e["event"] in ("process_started", "orchestrator_started")]
+    """Every pid of the run: the orchestrator, the agent fork server and every process_started (restarted agents
+    included)."""
+    return [e["pid"] for e in events(out) if e["event"] in ("process_started", "orchestrator_started",
+                                                             "fork_server_started")]
 
 
 def compare_trajectories(a_path: Path, b_path: Path, tol: float = 1e-9) -> float:

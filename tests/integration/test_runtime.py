@@ -38,7 +38,7 @@ def test_run_equals_simulate(tmp_path, example, changes):
     agents = sorted(int(i) for i in sc["system"]["C"])
     assert sorted(i for role, i in pids if role == "agent") == agents
     assert ("plant", 0) in pids and ("orchestrator", 0) in pids
-    assert len(set(pids.values())) == len(pids) == len(agents) + 2
+    assert len(set(pids.values())) == len(pids) == len(agents) + 3  # and the agent fork server
     assert_all_gone(pids.values())
     names = [e["event"] for e in events(out)]
     assert names[-2:] == ["run_finished", "recording_closed"] or "run_finished" in names
@@ -80,6 +80,29 @@ def start_paced_run(tmp_path, min_rows: int = 10):
         p.kill()
         raise
     return p, out, started_pids(out)
+
+
+def test_agents_are_forks_of_the_fork_server(tmp_path):
+    """A local run starts its agents as forks of one agent fork server (splitspec_agents.forkserver): each a
+    process of its own, named after its agent, the server's child; the plant is a process of its own."""
+    p, out, pids = start_paced_run(tmp_path)
+    try:
+        server = pids[("fork_server", 0)]
+        with open(f"/proc/{server}/cmdline", "rb") as f:
+            assert b"splitspec_agents.forkserver" in f.read()
+        agents = {ident: pid for (role, ident), pid in pids.items() if role == "agent"}
+        assert sorted(agents) == [1, 2, 3] and len(set(agents.values())) == 3
+        for ident, pid in agents.items():
+            with open(f"/proc/{pid}/stat") as f:
+                assert int(f.read().rsplit(")", 1)[1].split()[1]) == server
+            with open(f"/proc/{pid}/comm") as f:
+                assert f.read().strip() == f"agent {ident}"
+        with open(f"/proc/{pids[('plant', 0)]}/stat") as f:  # the plant: the orchestrator's own child
+            assert int(f.read().rsplit(")", 1)[1].split()[1]) == pids[("orchestrator", 0)]
+    finally:
+        p.send_signal(signal.SIGINT)
+        p.wait(timeout=30)
+    assert_all_gone(pids.values())
 
 
 def test_ctrl_c_leaves_nothing_behind(tmp_path):
