@@ -13,7 +13,10 @@ Measured side by side in one invocation (the machine is shared: compare ratios, 
                                      and is their z_i(0) of the next round);
    publishes per event: old 2m + 2 + mq, new 3 + mq (see docs/benchmarks/index.md, "Runtime: messages per round");
 3. `splitspec run` (real processes, unpaced) of undirected rings, n = 6: ms/event (from the run's
-   ``run_finished`` event), the ratio to the old protocol's floor, the peak RSS per agent and of the
+   ``run_finished`` event), the ratio to the old protocol's floor, ms/event per delivery of the old protocol
+   (us/deliv) against the first ring of the invocation (x first) and against the bare CPU per delivery
+   spread over the machine's cores (x floor: below 1, a delivery costs less wall time than a bare Zenoh
+   message's CPU on one of them), the peak RSS per agent and of the
    orchestrator (sampled from /proc every 0.2 s), and start-up: spawn of the first process to the first
    round (``run_started``), and per process from its spawn to its liveliness token (``process_ready``).
 
@@ -255,8 +258,13 @@ def main() -> int:
         variants.append(("old", str(args.baseline / ".venv/bin/python"), args.baseline, None))
         if args.deadline is not None:
             variants.append(("odl", str(args.baseline / ".venv/bin/python"), args.baseline, args.deadline))
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    print(f"# us/deliv: ms/event over the old protocol's deliveries (3m + 2 + 2mq); x first: against the first ring "
+          f"of the same q and code; x floor: against the bare CPU per delivery over the {cores} cores")
     print(f"{'ring':>8} {'q':>2} {'code':>4} {'ms/event':>9} {'old floor':>9} {'new floor':>9} {'ratio':>6} "
+          f"{'us/deliv':>8} {'x first':>7} {'x floor':>7} "
           f"{'agent MB':>8} {'orch MB':>7} {'start s':>7} {'ready s':>7} {'lost':>4}  load")
+    first: dict = {}  # (q, code) -> us per delivery of the first ring
     pairs = []  # (m, q, {name: [run results]}) for the deadline table
     for m in args.sizes:
         for q in args.q:
@@ -276,7 +284,10 @@ def main() -> int:
                 rs = res[name]
                 ms = statistics.median(r["ms"] for r in rs)
                 ready = [r["ready_max"] for r in rs if r["ready_max"] is not None]
+                per = ms * 1e3 / deliveries_old(m, q)
+                base = first.setdefault((q, name), per)
                 print(f"{m:>8} {q:>2} {name:>4} {ms:>9.2f} {floor_old:>9.2f} {floor_new:>9.2f} {ms / floor_old:>6.2f} "
+                      f"{per:>8.1f} {per / base:>7.2f} {per / (cpu * 1e6 / cores):>7.2f} "
                       f"{max(r['agent_mb'] for r in rs):>8.0f} {max(r['orch_mb'] for r in rs):>7.0f} "
                       f"{statistics.median(r['startup'] for r in rs):>7.1f} "
                       f"{(statistics.median(ready) if ready else float('nan')):>7.2f} "

@@ -43,6 +43,14 @@ CONNECT_BUDGET = 2.5
 RUN_GRACE = 1.0
 #: seconds a hand-started process waiting for its configuration tolerates having no router link
 LINK_GRACE = 1.0
+#: Zenoh's runtimes in a plant or agent process (RON, read by Zenoh from ``ZENOH_RUNTIME`` when the process opens
+#: its first session; a value already in the environment is kept): the application and transmission tasks run on
+#: the reception threads.  A node handles each message on the reception thread that delivered it and publishes
+#: from there; by default the publication woke a transmission thread, and timers an application thread, about
+#: 11 thread switches per agent and event time more (q = 4).  Ring of 100 agents: 0.90x the agents' CPU per event
+#: time, 0.91x ms/event (benchmarks/bench_runtime.py)
+NODE_ZENOH_RUNTIME = "(app: (handover: rx), tx: (handover: rx))"
+ZENOH_RUNTIME_ENV = "ZENOH_RUNTIME"
 #: a refused handshake is tried this many times (POLL apart) before the process reports it
 REFUSALS = 2
 POLL = 0.1
@@ -79,6 +87,8 @@ class NodeShell:
         self.keys, self.log = keys, log
         self.role, self.ident = role, int(ident)
         self.endpoint, self.credentials = connect, credentials
+        # before the first session: Zenoh builds its runtimes then, from this variable (a user's own wins)
+        os.environ.setdefault(ZENOH_RUNTIME_ENV, NODE_ZENOH_RUNTIME)
         self.nonce = new_nonce()
         self.mac_key: bytes | None = None
         #: not started by an orchestrator: fail fast with the reason (see the module docstring)

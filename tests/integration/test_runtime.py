@@ -4,6 +4,7 @@ import json
 import os
 import signal
 import subprocess
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -97,6 +98,12 @@ def test_agents_are_forks_of_the_fork_server(tmp_path):
                 assert int(f.read().rsplit(")", 1)[1].split()[1]) == server
             with open(f"/proc/{pid}/comm") as f:
                 assert f.read().strip() == f"agent {ident}"
+            # Zenoh's transmission and application tasks on the reception threads (runtime.node.NODE_ZENOH_RUNTIME):
+            # no thread of their own
+            tasks = Path(f"/proc/{pid}/task")
+            threads = {(tasks / t / "comm").read_text().strip() for t in os.listdir(tasks)}
+            assert any(t.startswith("rx-") for t in threads), threads
+            assert not any(t.startswith(("tx-", "app-")) for t in threads), threads
         with open(f"/proc/{pids[('plant', 0)]}/stat") as f:  # the plant: the orchestrator's own child
             assert int(f.read().rsplit(")", 1)[1].split()[1]) == pids[("orchestrator", 0)]
     finally:
