@@ -37,10 +37,11 @@ import time
 import numpy as np
 
 from splitspec_core import steps as st
-from splitspec_core.impairment import Impairment, group_of, sub_round
+from splitspec_core.impairment import Impairment, sub_round
 from splitspec_core.designer import design_agent, riccati_weights
 from splitspec_core.scenario_load import parse_scenario_text
 from splitspec_core.plant_model import initial_estimate, output_rows
+from splitspec_core.runtime.ticks import TickNetwork
 from splitspec_core.runtime.wire import Keys, WireError, decode, encode
 
 from .measure import YBuffer
@@ -92,6 +93,7 @@ class AgentNode:
         self.in_neighbours = sorted({j for g in sc.graphs for j, i in g.arcs if i == agent_id})
         self.zbuf_limit = ZBUF_ROUNDS * self.exchanges * max(1, len(self.in_neighbours))
         self.tick_tag = None  # (tau, attempt) of the last accepted tick
+        self.net = TickNetwork(agent_id, sc.agent_ids)  # the network of the last tick that carried one
         self.x = None  # committed x_i(tau)
         self.g = self.g0
         self.tau = None  # tau of the committed estimate
@@ -164,8 +166,9 @@ class AgentNode:
                 self.reject("future")
                 return []
         self.tick_tag = (tau, attempt)
-        rows = t["rows"]
-        me = rows.get(str(self.id))
+        # the network rides only on the ticks where it changed (runtime.ticks); one this agent never got: no part
+        known = self.net.update(t) or self.reject("unknown_topology")
+        me = self.net.row if known else None
         if self.candidate is not None:
             if self.candidate[0] == tau and me is not None:
                 _, self.x, self.g = self.candidate  # commit x_i(tau)
@@ -173,10 +176,10 @@ class AgentNode:
             self.candidate = None
         if me is None:  # not taking part (lost, or not admitted yet)
             self.round = None
-            if self.x is not None and self.id not in t["alive"]:
+            if known and self.x is not None and not self.net.alive:
                 self.x = None  # we were declared lost: a rejoin starts afresh
             return []
-        inc = t["incarnation"].get(str(self.id), 0)
+        inc = self.net.incarnation
         if self.x is None or inc != self.incarnation or self.tau != tau:
             # admission (start or rejoin): a fresh estimate of this incarnation, reported first
             self.incarnation = int(inc)
@@ -198,10 +201,9 @@ class AgentNode:
         nbs, ws = me
         # z_j(0): sent as such in a fresh or re-run round, else the x_j(tau) of round (tau - 1, prev_attempt)
         explicit = bool(t["fresh"]) or attempt > 0
-        self.round = {"tau": tau, "attempt": attempt, "nbs": [int(j) for j in nbs], "ws": [float(w) for w in ws],
-                      "k": 0, "z": self.x.copy(), "z0": None if explicit else (tau, int(t["prev_attempt"])),
-                      "groups": group_of(t["partition"], self.sc.agent_ids), "lost": [],
-                      "open": self.clock() if self.deadline is not None else None}
+        self.round = {"tau": tau, "attempt": attempt, "nbs": nbs, "ws": ws, "k": 0, "z": self.x.copy(),
+                      "z0": None if explicit else (tau, int(t["prev_attempt"])), "groups": self.net.groups,
+                      "lost": [], "open": self.clock() if self.deadline is not None else None}
         if explicit:
             out.append(self._z(0, self.round["z"]))
         return out + self._advance()

@@ -54,6 +54,7 @@ import numpy as np
 from splitspec_core.designer import design
 from splitspec_core.errors import SplitspecError
 from splitspec_core.scenario_load import load_scenario, read_scenario_text
+from splitspec_core.runtime.ticks import TickEncoder
 from splitspec_core.runtime.wire import Keys, WireError, decode, encode, new_run_key
 
 from . import rounds as R
@@ -148,6 +149,7 @@ class Orchestrator:
         self.security = security  # splitspec_core.runtime.security.Credentials or None
         self.spawn_local = spawn_local
         self.key = new_run_key()
+        self.ticks = TickEncoder(self.keys.run_id, mac_key=self.key)  # the network only when it changed
         self.stop_requested = False
         self.children: dict = {}  # pid -> Popen (or forks.ForkedProcess) of the processes this orchestrator started
         self.forks = None  # the agent fork server of a local run (forks.ForkServer), started with the run
@@ -257,12 +259,10 @@ class Orchestrator:
         for a in actions:
             kind = type(a)
             if kind is R.Tick:
-                self.pub_tick.put(encode(
-                    "tick", self.keys.run_id, mac_key=self.key, tau=a.tau, attempt=a.attempt, graph=a.graph,
-                    final=a.final, alive=list(a.alive),
-                    rows={str(i): [list(nb), list(w)] for i, (nb, w) in a.rows.items()},
-                    incarnation={str(i): int(v) for i, v in a.incarnation.items()}, fresh=a.fresh,
-                    prev_attempt=a.prev_attempt, partition=[list(g) for g in a.partition]))
+                self.pub_tick.put(self.ticks.encode(
+                    tau=a.tau, attempt=a.attempt, graph=a.graph, final=a.final, fresh=a.fresh,
+                    prev_attempt=a.prev_attempt, alive=a.alive, rows=a.rows, incarnation=a.incarnation,
+                    partition=a.partition))
             elif kind is R.Record:
                 gains = a.gains if self.sc.time == "continuous" else None  # no g in discrete time
                 if self.sc.sources:  # before the row: a flush in between writes both

@@ -40,8 +40,8 @@ Keys live under ``splitspec/<run_id>/`` (:class:`Keys` builds all of them):
 key                         from -> to              payload
 ==========================  ======================  ==========================================
 ``config``                  queryable (orchestr.)   scenario + centralised design (g or q)
-``tick``                    orchestrator -> all     tau, attempt, graph, neighbour rows, alive, fresh,
-                                                    prev_attempt, partition (groups in force, or [])
+``tick``                    orchestrator -> all     tau, attempt, graph, final, fresh, prev_attempt, topology;
+                                                    if it changed: rows, alive, incarnation, partition
 ``y/all``                   plant -> agents         tau, attempt, (y_1(tau), ..., y_m(tau)) stacked,
                                                     the agents without a measurement (missing)
 ``truth``                   plant -> orchestrator   tau, attempt, x(tau)
@@ -81,8 +81,9 @@ __all__ = ["SCHEMA_VERSION", "DEFAULT_RUN_ID", "Keys", "WireError", "encode", "d
 
 # 2: one y message for every agent; x_i(tau + 1) doubles as the next z_i(0); 3: binary round messages;
 # 4: xhat reports the consensus messages that did not count, tick names the partition in force; 5: y names the
-# agents without a measurement (missing), xhat carries the measurement the agent used (y)
-SCHEMA_VERSION = 5
+# agents without a measurement (missing), xhat carries the measurement the agent used (y); 6: a tick carries the
+# network (rows, alive, incarnation, partition: O(m) to decode in every agent) only when it changed (topology)
+SCHEMA_VERSION = 6
 DEFAULT_RUN_ID = "default"
 KEY_ROOT = "splitspec"  #: every run's keys live under ``splitspec/<run_id>/``
 #: every run's orchestrator token (``splitspec/<run_id>/alive/orchestrator/0``): which runs a router hosts
@@ -211,8 +212,8 @@ def mac(key: bytes, body: bytes) -> bytes:
 
 #: required fields (name -> kind) of the msgpack messages; the round messages' are in :data:`BINARY_LAYOUT`
 MESSAGE_FIELDS = {
-    "tick": {"tau": "int", "attempt": "int", "graph": "int", "alive": "list", "rows": "map", "final": "bool",
-             "incarnation": "map", "fresh": "bool", "prev_attempt": "int", "partition": "list"},
+    "tick": {"tau": "int", "attempt": "int", "graph": "int", "final": "bool", "fresh": "bool", "prev_attempt": "int",
+             "topology": "int"},
     "control": {"cmd": "str"},
     "config": {"scenario": "str", "seed": "int", "g": "any", "q": "any", "g_mode": "any", "key": "bytes"},
     "refused": {"reason": "str", "holder_pid": "int", "holder_host": "str"},
@@ -220,8 +221,9 @@ MESSAGE_FIELDS = {
 }
 
 #: optional fields (name -> kind), returned only when present: a run on recorded measurements (their sha256, steps,
-#: whether they hold the truth), and whether agents report the y_i they used
-OPTIONAL_FIELDS = {"config": {"measurements": "map", "record_y": "bool"}}
+#: whether they hold the truth), whether agents report the y_i they used; a tick's network (all four or none)
+OPTIONAL_FIELDS = {"config": {"measurements": "map", "record_y": "bool"},
+                   "tick": {"alive": "list", "rows": "map", "incarnation": "map", "partition": "list"}}
 
 _CHECK = {
     "int": lambda v: isinstance(v, int) and not isinstance(v, bool),
@@ -413,4 +415,6 @@ def decode(payload: bytes, run_id: str, expected_type: str, *, mac_key: bytes | 
             if not _CHECK[kind](body[name]):
                 raise WireError("bad_field", name)
             out[name] = body[name]
+    if expected_type == "tick" and 0 < len(out) - len(MESSAGE_FIELDS["tick"]) < 4:  # a network is all four
+        raise WireError("missing_field", next(n for n in OPTIONAL_FIELDS["tick"] if n not in out))
     return out

@@ -27,9 +27,18 @@ def sign(msg_type, run="r", key=KEY, **fields):
 ROWS = {"2": [[2, 1, 3], [1 / 3, 1 / 3, 1 / 3]]}
 
 
-def tick(tau, attempt=0, rows=ROWS, fresh=True, prev_attempt=0, **kw):
+def tick(tau, attempt=0, rows=ROWS, fresh=True, prev_attempt=0, topology=None, **kw):
+    """A tick with its network (a new ``topology`` number each time, unless given)."""
+    global TOPOLOGY
+    if topology is None:
+        TOPOLOGY += 1
+        topology = TOPOLOGY
     return sign("tick", tau=tau, attempt=attempt, graph=0, final=False, alive=[1, 2, 3], rows=rows,
-                incarnation={"2": 0}, fresh=fresh, prev_attempt=prev_attempt, **{"partition": [], **kw})
+                incarnation={"2": 0}, fresh=fresh, prev_attempt=prev_attempt, topology=topology,
+                **{"partition": [], **kw})
+
+
+TOPOLOGY = 0
 
 
 def y(tau, attempt=0, value=0.0, key=KEY):
@@ -373,3 +382,38 @@ def test_a_neighbours_report_one_tick_ahead_is_kept():
     assert (2, 0) in a.xbuf and 1 in a.xbuf[(2, 0)]
     a.on_x("splitspec/r/xhat/1", xhat(3, 1))
     assert a.rejected == {"future": 1}
+
+
+def compact_tick(tau, topology, attempt=0, fresh=False, prev_attempt=0):
+    """A tick without its network (the orchestrator's tick when the network did not change: runtime.ticks)."""
+    return sign("tick", tau=tau, attempt=attempt, graph=0, final=False, fresh=fresh, prev_attempt=prev_attempt,
+                topology=topology)
+
+
+def test_a_tick_without_a_network_runs_on_the_last_one():
+    """The network rides only on the ticks where it changed: a tick without one takes the last one received,
+    and the round is the one a tick with the same network would have given, bit for bit (the same math on the
+    same numbers)."""
+    a, b = node(), node()
+    for n in (a, b):
+        n.on_tick(tick(0, topology=7))
+        run_round(n, 0, z0_from_x=False)
+    full = a.on_tick(tick(1, fresh=False, topology=7))
+    compact = b.on_tick(compact_tick(1, topology=7))
+    assert full == compact == []  # a steady round: nothing to send before the neighbours' z(1)
+    assert b.round["nbs"] == [2, 1, 3] and "unknown_topology" not in b.rejected
+    outs = [run_round(n, 1, z0_from_x=True) for n in (a, b)]
+    assert outs[0] == outs[1] and any("xhat/2" in k for k, _ in outs[1])
+
+
+def test_a_tick_naming_a_network_never_received_leaves_the_agent_out():
+    a = node()
+    a.on_tick(tick(0, topology=3))
+    run_round(a, 0, z0_from_x=False)
+    x = a.candidate[1].copy()
+    assert a.on_tick(compact_tick(1, topology=4)) == []
+    assert a.rejected["unknown_topology"] == 1 and a.round is None
+    # x_i(1) was not committed (the agent took no part in round 1), and the estimate it had was kept
+    assert a.candidate is None and a.x is not None and not np.array_equal(a.x, x)
+    out = a.on_tick(tick(2, topology=4, fresh=True))  # the network comes with the next tick: back in the rounds
+    assert a.round is not None and [k for k, _ in out] == ["splitspec/r/xhat/2", "splitspec/r/z/2"]

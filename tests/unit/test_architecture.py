@@ -287,7 +287,7 @@ agent, plant = AgentNode(1, cfg, "r"), PlantNode(cfg, "r")
 ids = agent.sc.agent_ids
 tick = encode("tick", "r", mac_key=key, tau=0, attempt=0, graph=0, final=False, alive=ids,
               rows={{str(i): [[i], [1.0]] for i in ids}}, incarnation={{str(i): 0 for i in ids}}, fresh=True,
-              prev_attempt=0, partition=[])
+              prev_attempt=0, partition=[], topology=1)
 assert agent.on_tick(tick)
 y = dict(plant.on_tick(tick))[agent.keys.y]
 assert any("xhat" in k for k, _ in agent.on_y(y))  # a whole round: the step functions ran

@@ -373,10 +373,12 @@ def play(example, changes=None, events=None):
     events go to ``events`` when given."""
     from splitspec_agents.agent import AgentNode
     from splitspec_plant.plant import PlantNode
+    from splitspec_core.runtime.ticks import TickEncoder
     from splitspec_core.runtime.wire import Keys, encode, new_run_key
 
     m = machine(example, changes=changes)
     key = new_run_key()
+    ticks = TickEncoder("inproc", mac_key=key)
     text = (EXAMPLES / f"{example}.yaml").read_text()
     if changes:
         import yaml
@@ -395,12 +397,10 @@ def play(example, changes=None, events=None):
     while queue:
         a = queue.pop(0)
         t += 1e-4
-        if isinstance(a, R.Tick):
-            payload = encode("tick", "inproc", mac_key=key, tau=a.tau, attempt=a.attempt, graph=a.graph,
-                             final=a.final, alive=list(a.alive),
-                             rows={str(i): [list(nb), list(w)] for i, (nb, w) in a.rows.items()},
-                             incarnation={str(i): v for i, v in a.incarnation.items()}, fresh=a.fresh,
-                             prev_attempt=a.prev_attempt, partition=[list(g) for g in a.partition])
+        if isinstance(a, R.Tick):  # as the driver encodes it: the network only when it changed
+            payload = ticks.encode(tau=a.tau, attempt=a.attempt, graph=a.graph, final=a.final, fresh=a.fresh,
+                                   prev_attempt=a.prev_attempt, alive=a.alive, rows=a.rows,
+                                   incarnation=a.incarnation, partition=a.partition)
             msgs = plant.on_tick(payload)
             for n in nodes.values():
                 msgs += n.on_tick(payload)

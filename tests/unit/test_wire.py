@@ -25,7 +25,7 @@ ROUND = {
 }
 OTHER = {
     "tick": dict(tau=3, attempt=0, graph=1, alive=[1, 2], rows={"1": [[2], [0.5]]}, final=False,
-                 incarnation={"1": 0}, fresh=True, prev_attempt=0, partition=[]),
+                 incarnation={"1": 0}, fresh=True, prev_attempt=0, partition=[], topology=4),
     "control": dict(cmd="stop"),
     "hello": dict(role="agent", id=2, pid=123, host="h", nonce="ab"),
 }
@@ -174,3 +174,40 @@ def test_encode_refuses_what_the_layout_does_not_hold():
         encode("z", RUN, **{**ROUND["z"], "tau": 2 ** 63})
     with pytest.raises(ValueError, match="must be a vector"):
         encode("y", RUN, tau=1, attempt=0, y=np.zeros((2, 3)))
+
+
+def test_a_tick_carries_its_network_whole_or_not_at_all():
+    from splitspec_core.runtime.wire import decode
+
+    full = OTHER["tick"]
+    compact = {k: v for k, v in full.items() if k not in ("alive", "rows", "incarnation", "partition")}
+    assert "rows" not in decode(encode("tick", RUN, **compact), RUN, "tick")
+    assert decode(encode("tick", RUN, **full), RUN, "tick")["rows"] == full["rows"]
+    for left_out in ("alive", "rows", "incarnation", "partition"):
+        part = {k: v for k, v in full.items() if k != left_out}
+        assert reason(encode("tick", RUN, **part), "tick") == "missing_field"
+
+
+def test_tick_encoder_sends_the_network_when_it_changes():
+    """The first tick and every tick after a change carry the network (topology counts the changes); the others
+    carry none.  A change is any of: alive, rows, incarnations, partition."""
+    from splitspec_core.runtime.ticks import TickEncoder, TickNetwork
+    from splitspec_core.runtime.wire import decode
+
+    enc, view = TickEncoder(RUN, mac_key=None), TickNetwork(2, (1, 2, 3))
+    rows = {1: ((1, 2), (0.5, 0.5)), 2: ((2, 1, 3), (1 / 3,) * 3), 3: ((3, 2), (0.5, 0.5))}
+    base = dict(attempt=0, graph=0, final=False, fresh=False, prev_attempt=0, alive=(1, 2, 3), rows=rows,
+                incarnation={1: 0, 2: 0, 3: 0}, partition=())
+    changes = [{}, {}, {"alive": (1, 2)}, {"alive": (1, 2)}, {"rows": dict(rows)}, {"incarnation": {1: 0, 2: 1, 3: 0}},
+               {"incarnation": {1: 0, 2: 1, 3: 0}}, {"partition": ((1,), (2, 3))}, {"partition": ((1,), (2, 3))}]
+    got = []
+    for tau, change in enumerate(changes):
+        t = decode(enc.encode(tau=tau, **{**base, **change}), RUN, "tick")
+        assert view.update(t)
+        got.append((t["topology"], "rows" in t))
+        base = {**base, **change}
+    # an equal copy of the rows is no change (index 4); a new incarnation and a partition are
+    assert got == [(1, True), (1, False), (2, True), (2, False), (2, False), (3, True), (3, False), (4, True),
+                   (4, False)]
+    assert view.row == ([2, 1, 3], [1 / 3] * 3) and view.incarnation == 1 and view.alive
+    assert view.groups == {1: 0, 2: 1, 3: 1}
