@@ -12,11 +12,13 @@ Measured side by side in one invocation (the machine is shared: compare ratios, 
                                      xhat 3m (each x_i(tau + 1) goes to the orchestrator and the 2 neighbours,
                                      and is their z_i(0) of the next round);
    publishes per event: old 2m + 2 + mq, new 3 + mq (see docs/benchmarks/index.md, "Runtime: messages per round");
-3. `splitspec run` (real processes, unpaced) of undirected rings, n = 6: ms/event (from the run's
+3. `splitspec run` (real processes, unpaced) of undirected rings, n = 6 (``--pressure N``: each ring also
+   with N more processes that only write to their memory, row ``pres``, interleaved: the cache pressure of
+   more processes without their messages): ms/event (from the run's
    ``run_finished`` event), the ratio to the old protocol's floor, ms/event per delivery of the old protocol
    (us/deliv) against the first ring of the invocation (x first) and against the bare CPU per delivery
    spread over the machine's cores (x floor: below 1, a delivery costs less wall time than a bare Zenoh
-   message's CPU on one of them), the peak RSS per agent and of the
+   message's CPU on one of them), the agents' CPU per agent and event time, the peak RSS per agent and of the
    orchestrator (sampled from /proc every 0.2 s), and start-up: spawn of the first process to the first
    round (``run_started``), and per process from its spawn to its liveliness token (``process_ready``).
 
@@ -39,7 +41,7 @@ too (rows ``old`` and ``odl``; it must know ``network:``), so one invocation com
 before and after a change, interleaved.
 
     .venv/bin/python benchmarks/bench_runtime.py [--sizes 3 8 16 32] [--q 3 6] [--steps 200] [--repeat 2]
-        [--baseline DIR] [--deadline SECONDS] [--bare-messages N]
+        [--baseline DIR] [--deadline SECONDS] [--bare-messages N] [--pressure N]
 
     # the deadline policy without loss against wait-for-all (target: at most 1.1x ms/event)
     .venv/bin/python benchmarks/bench_runtime.py --sizes 8 16 32 --q 3 --steps 200 --repeat 9 --deadline 0.5 \
@@ -155,22 +157,38 @@ def runtime_ring(m: int, q: int, steps: int, *, deadline: float | None = None) -
 
 
 class RssSampler:
-    """Peak RSS per process of a run (its ``--run-id`` in the command line), sampled from /proc.
+    """Peak RSS and CPU per process of a run (its ``--run-id`` in the command line), sampled from /proc.
 
     A sample counts for the role the process's command line shows at that moment: a child the orchestrator
     has forked but not yet exec'd shows the orchestrator's command line and, for a moment, a copy of its
     memory (counted as an agent's, it made the agents' peak at m = 32 up to 6 MB higher than any agent's).
+    The agents of a local run are forks of the agent fork server, whose command line they share (it names
+    the run).  CPU (user + system) is taken at the first sample after the run's ``run_started`` event and at
+    the last one before its ``run_finished``: :meth:`cpu_per_round` is the rounds' CPU, without start-up.
     """
 
-    def __init__(self, run_id: str):
-        self.run_id, self.peak = run_id, {}
+    def __init__(self, run_id: str, events: Path):
+        self.run_id, self.events, self.peak = run_id, events, {}
+        self.cpu0: dict | None = None
+        self.cpu1: dict = {}
+        self.t0 = self.t1 = None
         self._stop = threading.Event()
         self._t = threading.Thread(target=self._loop, daemon=True)
         self._t.start()
 
+    def _phase(self) -> str:
+        try:
+            text = self.events.read_text()
+        except OSError:
+            return "starting"
+        return "finished" if "run_finished" in text else "running" if "run_started" in text else "starting"
+
     def _loop(self) -> None:
         needle = self.run_id.encode()
+        tick = os.sysconf("SC_CLK_TCK")
         while not self._stop.is_set():
+            phase = self._phase()
+            cpu = {}
             for d in os.listdir("/proc"):
                 if not d.isdigit():
                     continue
@@ -180,12 +198,18 @@ class RssSampler:
                         continue
                     rss = next(int(line.split()[1]) for line in Path(f"/proc/{d}/status").read_text().splitlines()
                                if line.startswith("VmRSS:"))
-                except (OSError, StopIteration, ValueError):
+                    stat = Path(f"/proc/{d}/stat").read_text().rsplit(")", 1)[1].split()
+                except (OSError, StopIteration, ValueError, IndexError):
                     continue
                 role = ("agent" if b"splitspec_agents" in cmd else "plant" if b"splitspec_plant" in cmd
                         else "orchestrator" if b"orchestrator" in cmd else "other")
                 key = (int(d), role)
                 self.peak[key] = max(self.peak.get(key, 0), rss)
+                cpu[key] = (int(stat[11]) + int(stat[12])) / tick
+            if phase == "running":
+                if self.cpu0 is None:
+                    self.cpu0, self.t0 = cpu, time.monotonic()
+                self.cpu1, self.t1 = cpu, time.monotonic()
             time.sleep(0.2)
 
     def stop(self) -> dict:
@@ -196,14 +220,42 @@ class RssSampler:
             out.setdefault(role, []).append(kb / 1024)
         return out
 
+    def cpu_per_round(self, role: str, rounds_per_second: float) -> float:
+        """CPU seconds per round of all processes of ``role`` present at both samples (nan without two)."""
+        if self.cpu0 is None or self.t1 is None or self.t1 <= self.t0:
+            return float("nan")
+        used = sum(c - self.cpu0[k] for k, c in self.cpu1.items() if k[1] == role and k in self.cpu0)
+        return used / ((self.t1 - self.t0) * rounds_per_second)
 
-def run_ring(python: str, cwd: Path, scenario: Path, out: Path, run_id: str, wait: float) -> dict:
-    sampler = RssSampler(run_id)
+
+PRESSURE = r'''
+import sys, time
+buf = bytearray(int(sys.argv[1]) * 1024)
+end = time.monotonic() + float(sys.argv[2])
+while time.monotonic() < end:
+    buf[::64] = bytes(len(buf) // 64)  # one write per cache line
+    time.sleep(0.005)
+'''
+
+
+def pressure(count: int, seconds: float = 3600.0) -> list:
+    """``count`` processes that each write to every cache line of 512 KB every 5 ms: the cache pressure of that
+    many more processes, without their messages (``--pressure``)."""
+    return [subprocess.Popen([sys.executable, "-c", PRESSURE, "512", str(seconds)]) for _ in range(count)]
+
+
+def run_ring(python: str, cwd: Path, scenario: Path, out: Path, run_id: str, wait: float, m: int = 1,
+             pressure_count: int = 0) -> dict:
+    sleepers = pressure(pressure_count)
+    sampler = RssSampler(run_id, out / "events.jsonl")
     t0 = time.time()
     r = subprocess.run([python, "-m", "splitspec_orchestrator", "run", str(scenario), "--out", str(out),
                         "--run-id", run_id, "--wait", str(wait)], cwd=cwd, env=ENV, capture_output=True, text=True,
                        timeout=1800)
     rss = sampler.stop()
+    for p in sleepers:
+        p.kill()
+        p.wait()
     if r.returncode != 0:
         raise RuntimeError(f"run failed ({r.returncode}): {r.stderr[-2000:]}")
     ev = [json.loads(x) for x in (out / "events.jsonl").read_text().splitlines()]
@@ -213,7 +265,8 @@ def run_ring(python: str, cwd: Path, scenario: Path, out: Path, run_id: str, wai
     load = loadavg(1)
     with np.load(out / "trajectory.npz") as traj:  # consensus messages that did not count (none on a perfect network)
         lost = len(traj["lost"]) if "lost" in traj.files else 0
-    return {"ms": 1e3 / fin["rounds_per_second"], "startup": started["wall"] - t0,
+    agent_us = sampler.cpu_per_round("agent", fin["rounds_per_second"]) * 1e6 / m
+    return {"ms": 1e3 / fin["rounds_per_second"], "startup": started["wall"] - t0, "agent_us": agent_us,
             "ready_max": max(ready) if ready else None,
             "agent_mb": max(rss.get("agent", [0])), "orch_mb": max(rss.get("orchestrator", [0])),
             "lost": lost, "load": float("nan") if load == "n/a" else float(load)}
@@ -227,6 +280,9 @@ def main() -> int:
     ap.add_argument("--repeat", type=int, default=2)
     ap.add_argument("--bare-messages", type=int, default=5000, help="0: skip the bare Zenoh measurement (no floors)")
     ap.add_argument("--baseline", type=Path, help="an older checkout with its own .venv, run interleaved")
+    ap.add_argument("--pressure", type=int, default=0, metavar="N",
+                    help="also run every ring (row 'pres', interleaved) with N more processes writing 512 KB each "
+                         "every 5 ms: the cache pressure of more processes without their messages")
     ap.add_argument("--deadline", type=float, metavar="SECONDS",
                     help="also run every ring with network: {deadline: SECONDS} (no loss, no delay), interleaved")
     args = ap.parse_args()
@@ -254,15 +310,19 @@ def main() -> int:
         variants.append(("dl", sys.executable, ROOT, args.deadline))
         print(f"# dl: network: {{deadline: {args.deadline:g}}}, no loss, no delay; new: no network: (wait for all)",
               flush=True)
+    if args.pressure:
+        variants.append(("pres", sys.executable, ROOT, None))
+        print(f"# pres: the same code with {args.pressure} pressure processes during every run", flush=True)
     if args.baseline is not None:
         variants.append(("old", str(args.baseline / ".venv/bin/python"), args.baseline, None))
         if args.deadline is not None:
             variants.append(("odl", str(args.baseline / ".venv/bin/python"), args.baseline, args.deadline))
     cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
     print(f"# us/deliv: ms/event over the old protocol's deliveries (3m + 2 + 2mq); x first: against the first ring "
-          f"of the same q and code; x floor: against the bare CPU per delivery over the {cores} cores")
+          f"of the same q and code; x floor: against the bare CPU per delivery over the {cores} cores; agent us: "
+          f"CPU per agent and event time (user + system, the rounds only)")
     print(f"{'ring':>8} {'q':>2} {'code':>4} {'ms/event':>9} {'old floor':>9} {'new floor':>9} {'ratio':>6} "
-          f"{'us/deliv':>8} {'x first':>7} {'x floor':>7} "
+          f"{'us/deliv':>8} {'x first':>7} {'x floor':>7} {'agent us':>8} "
           f"{'agent MB':>8} {'orch MB':>7} {'start s':>7} {'ready s':>7} {'lost':>4}  load")
     first: dict = {}  # (q, code) -> us per delivery of the first ring
     pairs = []  # (m, q, {name: [run results]}) for the deadline table
@@ -276,7 +336,8 @@ def main() -> int:
             for k in range(args.repeat):
                 for name, python, cwd, _ in variants:  # interleaved: new, dl, old, new, dl, old...
                     rid = f"bench-{m}-{q}-{name}-{k}-{os.getpid()}"
-                    res[name].append(run_ring(python, cwd, paths[name], tmp / rid, rid, wait=max(60.0, 3.0 * m)))
+                    res[name].append(run_ring(python, cwd, paths[name], tmp / rid, rid, wait=max(60.0, 3.0 * m), m=m,
+                                              pressure_count=args.pressure if name == "pres" else 0))
             floor_old = deliveries_old(m, q) * cpu * 1e3
             floor_new = deliveries_new(m, q) * cpu * 1e3
             load = loadavg(1)
@@ -288,6 +349,7 @@ def main() -> int:
                 base = first.setdefault((q, name), per)
                 print(f"{m:>8} {q:>2} {name:>4} {ms:>9.2f} {floor_old:>9.2f} {floor_new:>9.2f} {ms / floor_old:>6.2f} "
                       f"{per:>8.1f} {per / base:>7.2f} {per / (cpu * 1e6 / cores):>7.2f} "
+                      f"{statistics.median(r['agent_us'] for r in rs):>8.0f} "
                       f"{max(r['agent_mb'] for r in rs):>8.0f} {max(r['orch_mb'] for r in rs):>7.0f} "
                       f"{statistics.median(r['startup'] for r in rs):>7.1f} "
                       f"{(statistics.median(ready) if ready else float('nan')):>7.2f} "
