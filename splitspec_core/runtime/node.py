@@ -47,8 +47,8 @@ LINK_GRACE = 1.0
 #: its first session; a value already in the environment is kept): the application and transmission tasks run on
 #: the reception threads.  A node handles each message on the reception thread that delivered it and publishes
 #: from there; by default the publication woke a transmission thread, and timers an application thread, about
-#: 11 thread switches per agent and event time more (q = 4).  Ring of 100 agents: 0.90x the agents' CPU per event
-#: time, 0.91x ms/event (benchmarks/bench_runtime.py)
+#: 11 thread switches per agent and event time more (q = 4).  Ring of 100 agents (q = 4), two runs each,
+#: alternating: the agents' CPU per event time 110 ms against 122-125 ms, 70-71 against 77-79 ms/event
 NODE_ZENOH_RUNTIME = "(app: (handover: rx), tx: (handover: rx))"
 ZENOH_RUNTIME_ENV = "ZENOH_RUNTIME"
 #: a refused handshake is tried this many times (POLL apart) before the process reports it
