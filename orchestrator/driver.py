@@ -420,8 +420,8 @@ class Orchestrator:
         t_start = time.monotonic()
         try:
             self.registry.update()
-            if self.spawn_local:  # imports numpy and Zenoh while the router opens; the agents are its forks
-                self._start_forks()
+            if self.spawn_local and sys.platform.startswith("linux"):  # the agents are its forks (Linux: it
+                self._start_forks()  # relies on PR_SET_PDEATHSIG); it imports numpy and Zenoh while the router opens
             self._open()
             self.rec.event("orchestrator_started", 0.0, pid=os.getpid(), endpoint=self.connect or self.listen,
                            run_id=self.keys.run_id, scenario=sc.name, q=self.des.q, g=self.des.g,
