@@ -354,7 +354,6 @@ class Orchestrator:
             log.warning("cannot start the agent fork server (%s); starting agents as new processes", exc)
         else:
             self.children[self.forks.proc.pid] = self.forks.proc
-            self.rec.event("fork_server_started", 0.0, pid=self.forks.proc.pid)
 
     def _spawn(self, role: str, ident: int):
         from .launcher import node_command, spawn
@@ -426,6 +425,8 @@ class Orchestrator:
             self.rec.event("orchestrator_started", 0.0, pid=os.getpid(), endpoint=self.connect or self.listen,
                            run_id=self.keys.run_id, scenario=sc.name, q=self.des.q, g=self.des.g,
                            secure=self.security is not None)
+            if self.forks is not None:
+                self.rec.event("fork_server_started", 0.0, pid=self.forks.proc.pid)
             if self.security is None:
                 self.rec.event("insecure_run", 0.0, level="WARN",
                                note="no authentication or access control on the router (--insecure, or no "

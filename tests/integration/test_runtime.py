@@ -88,6 +88,7 @@ def test_agents_are_forks_of_the_fork_server(tmp_path):
     process of its own, named after its agent, the server's child; the plant is a process of its own."""
     p, out, pids = start_paced_run(tmp_path)
     try:
+        assert [e["event"] for e in events(out)][:2] == ["orchestrator_started", "fork_server_started"]
         server = pids[("fork_server", 0)]
         with open(f"/proc/{server}/cmdline", "rb") as f:
             assert b"splitspec_agents.forkserver" in f.read()
