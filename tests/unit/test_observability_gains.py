@@ -171,3 +171,16 @@ def test_weak_joint_observability_is_refused_with_its_margin(tmp_path, capsys):
     des = design(parse_scenario(raw))
     assert any("jointly observable only with a margin of" in w and "design.rank_tol: 1e-08" in w
                for w in des.warnings)
+
+
+def test_a_weak_direction_found_first_does_not_hide_a_strong_one():
+    """Regression (a drawn case of test_nearly_dependent_outputs_keep_the_unobservable_space): two sensors of one
+    quantity, rows 5e-8 apart, on two oscillators of distinct frequencies.  The first row alone sees the whole
+    state (the scaled observability matrix's smallest singular value is 0.1), but the staircase kept the rows'
+    weak difference (x1 - x3, margin 4e-8) at its first step, projected the strong chain's later image of it out,
+    and left one direction of (x2, x4) to the weak chain: declared unobservable.  Now counted."""
+    A = np.array([[0.0, 0.3, 0.0, 0.0], [-0.3, 0.0, 0.0, 0.0], [0.0, 0.0, 0.0, 0.6], [0.0, 0.0, -0.6, 0.0]])
+    C = np.array([[1.0, 0.0, 1.0, 0.0], [-0.9999999, 0.0, -0.99999995, 0.0]])
+    for rank_tol in (1e-9, None):
+        assert decompose(A, C, rank_tol=rank_tol).V.shape == (4, 0)
+        assert decompose(A, C[:1], rank_tol=rank_tol).V.shape == (4, 0)  # the first row alone, as a check
