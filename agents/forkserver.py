@@ -7,7 +7,7 @@ that once, opens no Zenoh session and starts no thread (so forking it is safe), 
 fork that runs the agent's own command line (:func:`splitspec_agents.agent.cli_main`).  Each agent is then a
 separate OS process as before, with its own sessions, identity and pid; it just starts in a few milliseconds.
 
-Protocol, one JSON object per line: the orchestrator writes ``{"argv": [...], "env": {...}}`` on the requests
+Protocol, one JSON object per line: the orchestrator writes ``{"argv": [...]}`` (the agent's arguments) on the requests
 descriptor; the server answers ``{"ready": pid}`` once, then ``{"pid": P}`` per request and ``{"exit": P,
 "code": C}`` (``Popen.returncode``'s convention) when a child ends (the server reaps its children).  The server
 ends when the requests descriptor closes, and dies with the orchestrator (``PR_SET_PDEATHSIG``); each agent dies
@@ -25,7 +25,7 @@ import select
 import signal
 import sys
 
-#: a request line longer than this is refused (and ends the server): argv and env of one agent are < 4 KB
+#: a request line longer than this is refused (and ends the server): an agent's argv is < 1 KB
 MAX_LINE = 1 << 20
 
 
@@ -59,7 +59,6 @@ def _child(request: dict, server: int, close: tuple) -> None:
 
         if not sigterm_at_parent_death() or os.getppid() != server:  # the server is already gone
             os._exit(1)
-        os.environ.update({str(k): str(v) for k, v in request.get("env", {}).items()})
         argv = [str(a) for a in request["argv"]]
         _name(argv)
         from .agent import cli_main

@@ -341,15 +341,20 @@ class Orchestrator:
                         plant = True
         return answered, plant
 
+    @staticmethod
+    def _child_env() -> dict:
+        """The environment of the processes this orchestrator starts (they know it started them)."""
+        from splitspec_core.runtime.bus import CHILD_ENV
+
+        return {**os.environ, CHILD_ENV: "1"}
+
     def _start_forks(self) -> None:
         """Start the agent fork server (:mod:`splitspec_orchestrator.forks`); agents start as new processes
         if it cannot."""
-        from splitspec_core.runtime.bus import CHILD_ENV
-
         from .forks import ForkServer
 
         try:
-            self.forks = ForkServer(env={**os.environ, CHILD_ENV: "1"}, run_id=self.keys.run_id)
+            self.forks = ForkServer(env=self._child_env(), run_id=self.keys.run_id)
         except OSError as exc:
             log.warning("cannot start the agent fork server (%s); starting agents as new processes", exc)
         else:
@@ -366,8 +371,6 @@ class Orchestrator:
             args += ["--credentials", self.security.credentials_file(user)]
         if role == "plant" and self.measurements_path is not None:
             args += ["--measurements", self.measurements_path]
-        from splitspec_core.runtime.bus import CHILD_ENV
-
         p = None
         if role == "agent" and self.forks is not None:  # a fork of the agent fork server: no interpreter start
             from .forks import ForkServerError
@@ -378,7 +381,7 @@ class Orchestrator:
                 log.warning("%s; starting agents as new processes", exc)
                 self.forks = None
         if p is None:
-            p = spawn(node_command(role, *args), env={**os.environ, CHILD_ENV: "1"})
+            p = spawn(node_command(role, *args), env=self._child_env())
         self.children[p.pid] = p
         return p
 

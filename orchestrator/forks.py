@@ -96,7 +96,7 @@ class ForkServer:
                 self._answer(READY_TIMEOUT)  # {"ready": pid}
                 self.ready = True
             try:
-                os.write(self._req_w, (json.dumps({"argv": [str(a) for a in argv], "env": {}}) + "\n").encode())
+                os.write(self._req_w, (json.dumps({"argv": [str(a) for a in argv]}) + "\n").encode())
             except OSError as exc:
                 raise ForkServerError(f"the agent fork server is gone ({exc.strerror})") from None
             return ForkedProcess(self, int(self._answer(FORK_TIMEOUT)["pid"]))

@@ -41,6 +41,7 @@ __all__ = [
     "enumerate_strongly_connected",
     "neighbour_lists",
     "arc_positions",
+    "positions_in",
 ]
 
 
@@ -98,21 +99,23 @@ class Graph:
         return rows, cols, 1.0 / count[rows]  # S = D^-1 Adj': each row averages its in-neighbours and itself
 
 
-def _positions(ids, arcs) -> tuple:
-    """``(senders, receivers, kept)``: the positions in ``ids`` of each arc's ends and whether both are in ``ids``
-    (vectorised: a sorted lookup, no Python loop over the arcs of a thousand-agent network)."""
+def positions_in(ids, values) -> tuple:
+    """``(pos, found)``: for each of ``values`` (agent ids) its position in ``ids`` (0 where it is not there) and
+    whether it is there; vectorised, a sorted lookup (no Python loop over a thousand-agent network)."""
     ids = np.asarray(ids, dtype=np.int64)
-    arcs = np.asarray(arcs, dtype=np.int64).reshape(-1, 2)
+    values = np.asarray(values, dtype=np.int64)
     if not len(ids):
-        empty = np.zeros(len(arcs), dtype=np.int64)
-        return empty, empty, np.zeros(len(arcs), dtype=bool)
+        return np.zeros(len(values), dtype=np.int64), np.zeros(len(values), dtype=bool)
     order = np.argsort(ids, kind="stable")
-    ends, found = [], np.ones(len(arcs), dtype=bool)
-    for col in (0, 1):
-        k = np.minimum(np.searchsorted(ids[order], arcs[:, col]), len(ids) - 1)
-        found &= ids[order][k] == arcs[:, col]
-        ends.append(order[k])
-    return ends[0], ends[1], found
+    k = np.minimum(np.searchsorted(ids[order], values), len(ids) - 1)
+    return order[k], ids[order][k] == values
+
+
+def _positions(ids, arcs) -> tuple:
+    """``(senders, receivers, kept)``: the positions in ``ids`` of each arc's ends and whether both are in ``ids``."""
+    arcs = np.asarray(arcs, dtype=np.int64).reshape(-1, 2)
+    (j, found_j), (i, found_i) = positions_in(ids, arcs[:, 0]), positions_in(ids, arcs[:, 1])
+    return j, i, found_j & found_i
 
 
 def arc_positions(ids, arcs) -> tuple:

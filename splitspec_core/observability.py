@@ -171,6 +171,8 @@ def observability_staircase(A: np.ndarray, C: np.ndarray, *, rank_tol: float | N
     # that inexact basis leaks ~noise * max mu out of the span found so far: a direction counts only well
     # above that leak (for well-determined directions it is ~1e-13, far below any threshold)
     noise = eps / mu.min() if mu.size else 0.0
+    # the shifted, scaled A as a matrix, for _missed's observability matrix; the staircase below keeps forming its
+    # images as (A' X - a X) / scale, the order of operations its rank decisions were measured with
     S = (A - (np.trace(A) / n) * np.eye(n)) / scale if scale > 0 else None
     while True:
         while W.shape[1] < n and new.shape[1] > 0 and scale > 0:

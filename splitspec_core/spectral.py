@@ -32,6 +32,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .graphs import positions_in
+
 __all__ = ["DENSE_MAX", "DECIDE", "TOL", "Radius", "radius", "radii", "spectral_radius", "summary", "use_iterative"]
 
 DENSE_MAX = 300  # nbar above which "auto" goes matrix-free (dense eigvals of 300 x 300: ~30 ms)
@@ -123,13 +125,12 @@ def _warm_start(case, warm, N: int):
     if warm is None:
         return fixed, fixed
     ids, sizes, x, w = warm
-    ids, sizes = np.asarray(ids), np.asarray(sizes, dtype=int)
-    order = np.argsort(ids, kind="stable")
-    k = np.minimum(np.searchsorted(ids[order], case.graph.ids), len(ids) - 1)
+    sizes = np.asarray(sizes, dtype=int)
+    k, found = positions_in(ids, case.graph.ids)
     own = np.asarray(case.sizes, dtype=int)
-    if not (np.all(ids[order][k] == case.graph.ids) and np.all(sizes[order][k] == own)):
+    if not (np.all(found) and np.all(sizes[k] == own)):
         return fixed, fixed
-    starts = np.concatenate([[0], np.cumsum(sizes)])[order][k]  # where each agent's block is in warm's vectors
+    starts = np.concatenate([[0], np.cumsum(sizes)])[k]  # where each agent's block is in warm's vectors
     edges = np.concatenate([[0], np.cumsum(own)])
     pick = np.arange(N) - np.repeat(edges[:-1] - starts, own)
     out = []

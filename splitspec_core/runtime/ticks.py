@@ -32,8 +32,8 @@ class TickEncoder:
         net = (tuple(alive), rows, dict(incarnation), tuple(tuple(g) for g in partition))
         last = self._last
         # rows is the round machine's cached dict while the network stands: identity first, O(1)
-        same = last is not None and (last[1] is rows or last[1] == rows) and last[0::2] == net[0::2] \
-            and last[3] == net[3]
+        same = (last is not None and (last[1] is rows or last[1] == rows)
+                and (last[0], last[2], last[3]) == (net[0], net[2], net[3]))
         fields = dict(tau=tau, attempt=attempt, graph=graph, final=final, fresh=fresh, prev_attempt=prev_attempt)
         if not same:
             self.topology += 1

@@ -1,5 +1,7 @@
 """The agent's and the plant's protocol state machines, without sockets: what they accept and what not."""
 
+import itertools
+
 import numpy as np
 import pytest
 
@@ -27,18 +29,14 @@ def sign(msg_type, run="r", key=KEY, **fields):
 ROWS = {"2": [[2, 1, 3], [1 / 3, 1 / 3, 1 / 3]]}
 
 
+TOPOLOGIES = itertools.count(1)  # a new network number for every tick that does not name one
+
+
 def tick(tau, attempt=0, rows=ROWS, fresh=True, prev_attempt=0, topology=None, **kw):
     """A tick with its network (a new ``topology`` number each time, unless given)."""
-    global TOPOLOGY
-    if topology is None:
-        TOPOLOGY += 1
-        topology = TOPOLOGY
     return sign("tick", tau=tau, attempt=attempt, graph=0, final=False, alive=[1, 2, 3], rows=rows,
-                incarnation={"2": 0}, fresh=fresh, prev_attempt=prev_attempt, topology=topology,
-                **{"partition": [], **kw})
-
-
-TOPOLOGY = 0
+                incarnation={"2": 0}, fresh=fresh, prev_attempt=prev_attempt,
+                topology=next(TOPOLOGIES) if topology is None else topology, **{"partition": [], **kw})
 
 
 def y(tau, attempt=0, value=0.0, key=KEY):
