@@ -16,8 +16,8 @@ A certificate never says more than what was computed:
   error, condition x residual, with the condition ``|x| |y| / |y' x|`` from the left eigenvector ``y`` (ARPACK
   again, on the transpose), and at least ``100 TOL``.  A defective (multiple) eigenvalue, which moves like
   ``TOL^(1/k)``, has ``y' x`` near 0: a huge condition, a large claimed error;
-* when it does not converge, or when its ``rho`` is within ``max(DECIDE, its accuracy)`` of the rate
-  it is compared with, the radius is computed again densely (every eigenvalue: the exact path, whatever the
+* when it does not converge (or fails: an ARPACK error), or when its ``rho`` is within ``max(DECIDE, its accuracy)``
+  of the rate it is compared with, the radius is computed again densely (every eigenvalue: the exact path, whatever the
   size);
 * every value records how it was computed (:class:`Radius`), and the design reports the methods and
   tolerances used (``splitspec design --json``: ``q_eigenvalues``).
@@ -148,7 +148,7 @@ def radius(case, q: int, *, rate: float | None = None, warm=None, vectors: dict 
     converge or (with ``rate``) lands within ``DECIDE`` of it (see the module docstring).  ``warm``: start from
     another case's eigenvectors (:func:`_warm_start`); ``vectors``: a dict that receives this case's, ``{q:
     (ids, sizes, right, left)}``, for the next."""
-    from scipy.sparse.linalg import ArpackNoConvergence, LinearOperator, eigs
+    from scipy.sparse.linalg import ArpackError, ArpackNoConvergence, LinearOperator, eigs
 
     N = case.nbar
     if N <= 3:  # ARPACK needs k < N - 1
@@ -179,6 +179,9 @@ def radius(case, q: int, *, rate: float | None = None, warm=None, vectors: dict 
         left, W = eigs(LinearOperator((N, N), matvec=apply_t, dtype=float), v0=w0, **kw)
     except ArpackNoConvergence:
         return Radius(_dense(case, q), "dense (fallback: ARPACK did not converge)", 0.0)
+    except ArpackError as exc:  # e.g. error 1 of dneupd (the Schur form could not be reordered: a drawn case of 8
+        # agents on one state, 6 of them blind), raised where the iteration itself converged
+        return Radius(_dense(case, q), f"dense (fallback: {str(exc).split(':')[0]})", 0.0)
     top = int(np.argmax(np.abs(vals)))
     theta, x = vals[top], X[:, top]
     rho = float(abs(theta))
