@@ -19,7 +19,10 @@ exact per-step process covariance and ``R = sigma_m^2 I``
   multi-exchange extension so it can use as many exchanges per event time as
   the split-spectrum estimator;
 * :func:`baseline_trajectories` - both on the same noise realisations,
-  initial state and initial estimates as :func:`splitspec_core.simulator.simulate`.
+  initial state and initial estimates as :func:`splitspec_core.simulator.simulate`;
+* :func:`baseline_seeds` - both over many seeds as one batched computation
+  (:class:`SeedBatchKCF`): the KCF's gains do not depend on the measurements, so
+  every seed shares them.
 
 Noise-free measurements (``R = 0``) or a zero process noise make the Riccati
 equations degenerate; both are regularised with a tiny multiple of the
@@ -40,7 +43,8 @@ import scipy.linalg as sla
 from .errors import DesignError
 from .network import consensus_rows
 from .scenario_model import Scenario
-from .plant_model import Plant, initial_estimate, sampled_model  # noqa: F401 - sampled_model: also from here
+from .plant_model import (Plant, advanced, initial_estimate, measured, sampled_model,  # noqa: F401 - sampled_model:
+                          seed_draws)  # also from here
 from .simulator import check_trajectory_memory
 
 __all__ = [
@@ -52,7 +56,9 @@ __all__ = [
     "run_predictor",
     "default_eps",
     "KalmanConsensusFilter",
+    "SeedBatchKCF",
     "baseline_trajectories",
+    "baseline_seeds",
 ]
 
 REGULARISATION = 1e-9
@@ -343,6 +349,73 @@ class KalmanConsensusFilter:
         return out
 
 
+class SeedBatchKCF:
+    """:class:`KalmanConsensusFilter` on many seeds at once: priors ``X`` (m, n, N), seeds on the trailing axis.
+
+    ``P_i``, ``K_i``, ``M_i`` and ``gamma_i`` follow from ``P0`` alone (the Riccati-like recursion
+    ``P_i <- F M_i F' + Q`` never sees a measurement), so every seed has the same ones.  They are computed once
+    per event time for all agents together: every neighbourhood ``J_i`` padded to the largest, with zero rows
+    of ``C_J`` and an identity block of ``R_J`` (``S`` is then ``diag(S_i, I)``, so ``K`` has zero columns
+    there and ``M`` is unchanged).  The estimates of every seed are then batched products: the innovation
+    ``K_i (y_J - C_J xbar_i)`` over a padded gather of ``y``, the consensus term ``gamma_i M_i sum_{j in N_i}
+    (x_j - x_i)`` with one sparse adjacency product.  Per seed the numbers are :meth:`KalmanConsensusFilter.run`'s
+    to round-off (other summation orders: the padded solve, ``(gamma_i M_i) d`` for ``gamma_i (M_i d)``,
+    the adjacency product for the neighbour sum), not bit for bit.
+    """
+
+    def __init__(self, kcf: KalmanConsensusFilter, rows: Sequence[slice]):
+        import scipy.sparse as sp
+
+        self.F, self.Q, self.exchanges, self.eps = kcf.F, kcf.Q, kcf.exchanges, kcf.eps
+        m, n = kcf.m, kcf.F.shape[0]
+        self.m, self.n, self.P0 = m, n, kcf.P0
+        smax = max(CJ.shape[0] for CJ in kcf._CJ)
+        self.CJ = np.zeros((m, smax, n))
+        self.RJ = np.tile(np.eye(smax), (m, 1, 1))
+        p = max(r.stop for r in rows)
+        self.gather = np.full((m, smax), p)  # row p: the zero row appended to y
+        for i, (J, CJ, RJ) in enumerate(zip(kcf._J, kcf._CJ, kcf._RJ)):
+            s = CJ.shape[0]
+            self.CJ[i, :s], self.RJ[i, :s, :s] = CJ, RJ
+            self.gather[i, :s] = np.concatenate([np.arange(rows[j].start, rows[j].stop) for j in J])
+        ri = [i for i, nb in enumerate(kcf.neighbours) for _ in nb]
+        ci = [j for nb in kcf.neighbours for j in nb]
+        self.adj = sp.csr_matrix((np.ones(len(ri)), (ri, ci)), shape=(m, m))
+        self.deg = np.array([len(nb) for nb in kcf.neighbours], dtype=float)[:, None, None]
+        self.reset()
+
+    def reset(self) -> None:
+        """Every ``P_i`` back to ``P0``."""
+        self.P = np.tile(self.P0, (self.m, 1, 1))
+
+    def _disagreement(self, X: np.ndarray) -> np.ndarray:
+        """``sum_{j in N_i} (x_j - x_i)`` of every agent and seed, (m, n, N)."""
+        m, n, N = X.shape
+        return (self.adj @ X.reshape(m, n * N)).reshape(m, n, N) - self.deg * X
+
+    def step(self, X: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """One event time of every seed: priors (m, n, N) and stacked measurements (sum s_i, N) -> next priors.
+
+        Updates :attr:`P` (the same for every seed).  The equations of :meth:`KalmanConsensusFilter.step`.
+        """
+        P, CJ, RJ = self.P, self.CJ, self.RJ
+        CJt = CJ.transpose(0, 2, 1)
+        S = CJ @ P @ CJt + RJ
+        K = np.linalg.solve(S, CJ @ P).transpose(0, 2, 1)  # P C_J' S^-1, zero columns on the padding
+        IKC = np.eye(self.n) - K @ CJ
+        M = IKC @ P @ IKC.transpose(0, 2, 1) + K @ RJ @ K.transpose(0, 2, 1)  # Joseph form: (P^-1 + U_i)^-1
+        M = 0.5 * (M + M.transpose(0, 2, 1))
+        gM = (self.eps / (1.0 + np.linalg.norm(M, "fro", axis=(1, 2))))[:, None, None] * M  # gamma_i M_i
+        yJ = np.concatenate([y, np.zeros((1, y.shape[1]))])[self.gather]  # (m, smax, N), zeros on the padding
+        # xhat_i = xbar_i + K (y_J - C_J xbar_i) + gamma_i M_i sum_{j in N_i} (xbar_j - xbar_i)
+        Xh = X + K @ (yJ - CJ @ X) + gM @ self._disagreement(X)
+        for _ in range(self.exchanges - 1):  # multi-step extension: consensus on the estimates
+            Xh = Xh + gM @ self._disagreement(Xh)
+        Pn = self.F @ M @ self.F.T + self.Q
+        self.P = 0.5 * (Pn + Pn.transpose(0, 2, 1))
+        return np.matmul(self.F, Xh)
+
+
 # --------------------------------------------------------------------------
 # both baselines on the simulator's realisations
 # --------------------------------------------------------------------------
@@ -390,15 +463,69 @@ def baseline_trajectories(sc: Scenario, seed: int, *, exchanges: int, steps: int
             break
         ys[k] = plant.measure()
         plant.advance()
+    F, C, Lc, kcf = _filters(sc, plant, exchanges, eps)
+    X0 = np.stack([initial_estimate(n, seed, i) for i in range(m)])
+    central = run_predictor(F, C, Lc, ys, X0.mean(axis=0))
+    return {"t": _times(sc, T), "x": xs, "centralized": central, "kcf": kcf.run(ys, X0, plant.rows)}
+
+
+def baseline_seeds(sc: Scenario, seeds, *, exchanges: int, steps: int | None = None, noise: bool = True,
+                   eps: float | None = None, chunk: int | None = None) -> dict:
+    """Both baselines over many seeds as one batched computation: the errors of :func:`baseline_trajectories`.
+
+    Per seed the realisations are :func:`baseline_trajectories`'s bit for bit (:func:`seed_draws`) and the
+    estimates its estimates to round-off (:class:`SeedBatchKCF`; the centralized predictor as one ``(n, N)``
+    product per step).  Only squared errors are kept, ``2 N T`` floats; seeds run in chunks of ``chunk``
+    (default :data:`splitspec_core.montecarlo.CHUNK`), each holding its noise draws for the whole run.
+
+    Returns
+    -------
+    dict
+        ``t`` (T,); ``centralized`` (N, T) ``|xhat(k) - x(k)|^2`` of the centralized predictor; ``kcf`` (N, T)
+        ``sum_i |xbar_i(k) - x(k)|^2`` over the m agents of the KCF.
+    """
+    from .montecarlo import CHUNK
+
+    seeds = tuple(int(s) for s in seeds)
+    steps = sc.run.steps if steps is None else int(steps)
+    chunk = CHUNK if chunk is None else int(chunk)
+    m, n, T = sc.m, sc.n, steps + 1
+    sq_c, sq_k = np.zeros((len(seeds), T)), np.zeros((len(seeds), T))
+    batch = Ac = Lc = None
+    for a in range(0, len(seeds), chunk):
+        part = seeds[a:a + chunk]
+        plant, x, v, w = seed_draws(sc, part, steps, noise=noise)
+        if batch is None:
+            F, C, Lc, kcf = _filters(sc, plant, exchanges, eps)
+            Ac, batch = F - Lc @ C, SeedBatchKCF(kcf, plant.rows)
+        batch.reset()
+        X = np.stack([np.stack([initial_estimate(n, s, i) for s in part], axis=1) for i in range(m)])  # (m, n, N)
+        xc = X.mean(axis=0)  # the centralized predictor starts from the agents' mean
+        for k in range(T):
+            sq_c[a:a + len(part), k] = np.sum((xc - x) ** 2, axis=0)
+            sq_k[a:a + len(part), k] = np.sum((X - x[None]) ** 2, axis=(0, 1))
+            if k == steps:
+                break
+            y = measured(plant.C, plant.sigma_m, x, w[k])
+            xc = Ac @ xc + Lc @ y  # run_predictor's step: xhat+ = (F - L C) xhat + L y
+            X = batch.step(X, y)
+            x = advanced(plant.F, plant.L, x, v[k])
+    return {"t": _times(sc, T), "centralized": sq_c, "kcf": sq_k}
+
+
+def _times(sc: Scenario, T: int) -> np.ndarray:
+    return np.arange(T) * (sc.run.dt if sc.time == "continuous" else 1.0)
+
+
+def _filters(sc: Scenario, plant: Plant, exchanges: int, eps: float | None) -> tuple:
+    """``(F, C, L, kcf)``: the sampled model, the centralized predictor's gain ``L`` and the KCF on the scenario's
+    first graph (in-neighbours of :func:`consensus_rows`), both with the noisy model (:func:`sampled_model`)."""
     F, Q, R = sampled_model(sc)
     C = plant.C
-    X0 = np.stack([initial_estimate(n, seed, i) for i in range(m)])
-    central = run_predictor(F, C, kalman_predictor(F, C, Q, R).L, ys, X0.mean(axis=0))
     pos = {a: k for k, a in enumerate(sc.agent_ids)}
     rows = consensus_rows(sc, 0, sc.agent_ids)
     neighbours = {pos[i]: [pos[j] for j in nbs if j != i] for i, (nbs, _) in rows.items()}
     sigma2 = sc.system.measurement_noise ** 2
     Rs = [sigma2 * np.eye(Ci.shape[0]) for Ci in plant.Cs]
     kcf = KalmanConsensusFilter(F, plant.Cs, Q, Rs, neighbours, eps=eps, exchanges=exchanges)
-    dt = sc.run.dt if sc.time == "continuous" else 1.0
-    return {"t": np.arange(T) * dt, "x": xs, "centralized": central, "kcf": kcf.run(ys, X0, plant.rows)}
+    return F, C, kalman_predictor(F, C, Q, R).L, kcf

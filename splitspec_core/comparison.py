@@ -21,9 +21,10 @@ vector sent by one agent), and for the split-spectrum estimators the rate
 certificate of :func:`~splitspec_core.report.rate_certificate` (the adaptive
 gain: asymptotic convergence only, no certified rate).
 
-The split-spectrum variants run their seeds as one batch
-(:func:`splitspec_core.montecarlo.simulate_seeds`, the same numbers per seed
-to round-off); the two baselines run seed by seed.
+Every estimator runs its seeds as one batch, the same numbers per seed to
+round-off: the split-spectrum variants by
+:func:`splitspec_core.montecarlo.simulate_seeds`, the two baselines by
+:func:`splitspec_core.baselines.baseline_seeds`.
 """
 
 from __future__ import annotations
@@ -35,7 +36,7 @@ import numpy as np
 
 from .analysis import fit_decay
 from .montecarlo import simulate_seeds
-from .baselines import baseline_trajectories, kalman_predictor, sampled_model
+from .baselines import baseline_seeds, baseline_trajectories, kalman_predictor, sampled_model
 from .bounds import nice_ceil
 from .designer import NO_CERTIFIED_RATE, design
 from .errors import DesignError
@@ -104,12 +105,12 @@ def compare(sc: Scenario, *, seeds, steps: int | None = None, eps: float | None 
         curves[name] = list(runs.rms())
         rms[name] = list(runs.steady_rms())
         T = runs.t
-    for s in seeds:
-        b = baseline_trajectories(sc, s, exchanges=exchanges, steps=steps, eps=eps)
-        for name, key in (("centralized KF", "centralized"), ("KCF", "kcf")):
-            e = _errors(b[key], b["x"])
-            curves.setdefault(name, []).append(np.sqrt(np.nanmean(e.reshape(len(e), -1) ** 2, axis=1)))
-            rms.setdefault(name, []).append(steady_rms(e))
+    # every seed at once (baselines.baseline_seeds): per seed the errors of baseline_trajectories to round-off
+    b = baseline_seeds(sc, seeds, exchanges=exchanges, steps=steps, eps=eps)
+    for name, key, agents in (("centralized KF", "centralized", 1), ("KCF", "kcf", sc.m)):
+        ms = b[key] / agents  # per seed and step, the mean over agents of the squared error
+        curves[name] = list(np.sqrt(ms))
+        rms[name] = list(np.sqrt(ms[:, ms.shape[1] // 2:].mean(axis=1)))  # steady_rms: the last half
     # noise-free transients (first seed)
     settle = {}
     rate = {}

@@ -47,7 +47,7 @@ from .analysis import rms_stats
 from .designer import Design
 from .errors import ScenarioError
 from .network import NetworkState, make_plan
-from .plant_model import Plant, advanced, initial_estimate, measured
+from .plant_model import advanced, initial_estimate, measured, seed_draws
 from .simulator import BatchEstimator, Trajectory, _entries, _realized_step, check_trajectory_memory, simulate
 
 __all__ = ["CHUNK", "MonteCarloRuns", "SeedBatchEstimator", "fallback_reason", "simulate_seeds"]
@@ -286,12 +286,9 @@ def _batch(des: Design, seeds: tuple, *, steps, noise, trajectories) -> tuple:
     plan = make_plan(sc, seeds[0], steps)  # the same for every seed here (fallback_reason)
     est = SeedBatchEstimator(des, N)
     m, n, T = sc.m, sc.n, plan.steps + 1
-    plants = [Plant(sc, s, noise=noise) for s in seeds]
-    F, L, C, sigma_m = plants[0].F, plants[0].L, plants[0].C, plants[0].sigma_m
-    x = np.stack([p.x for p in plants], axis=1)  # (n, N)
-    # each stream's draws for the whole run at once: the same numbers as one step at a time
-    v = np.stack([p.proc.normal(size=(T - 1, n)) for p in plants], axis=2)  # (T-1, n, N)
-    w = np.stack([p.meas.normal(size=(T - 1, C.shape[0])) for p in plants], axis=2)  # (T-1, sum s_i, N)
+    # x (n, N), v (T-1, n, N), w (T-1, sum s_i, N): each seed's Plant, bit for bit
+    plant, x, v, w = seed_draws(sc, seeds, T - 1, noise=noise)
+    F, L, C, sigma_m = plant.F, plant.L, plant.C, plant.sigma_m
     X = np.stack([np.stack([initial_estimate(n, s, i) for s in seeds], axis=1) for i in range(m)])  # (m, n, N)
     net = NetworkState(sc)
     alive = net.alive

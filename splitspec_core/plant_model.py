@@ -18,7 +18,8 @@ from . import steps as st
 from .scenario_model import Scenario
 from .streams import stream
 
-__all__ = ["Plant", "advanced", "initial_estimate", "initial_state", "measured", "output_rows", "sampled_model"]
+__all__ = ["Plant", "advanced", "initial_estimate", "initial_state", "measured", "output_rows", "sampled_model",
+           "seed_draws"]
 
 
 def output_rows(Cs) -> list:
@@ -92,6 +93,24 @@ class Plant:
     def missing(self) -> None:
         """Every agent measures every step."""
         return None
+
+
+def seed_draws(sc: Scenario, seeds, steps: int, *, noise: bool = True) -> tuple:
+    """Every seed's plant for a run of ``steps`` steps at once, for the batched Monte Carlo paths.
+
+    Returns ``(plant, x0, v, w)``: ``plant`` the first seed's :class:`Plant` (its ``F``, ``L``, ``C``,
+    ``sigma_m`` and ``rows`` are every seed's), ``x0`` (n, N) the initial states, ``v`` (steps, n, N) and
+    ``w`` (steps, sum s_i, N) the process and measurement draws, so that step k is ``y = measured(C, sigma_m,
+    x, w[k])`` then ``x = advanced(F, L, x, v[k])``, as :class:`Plant` runs it.  Each stream's draws for the
+    whole run at once are the same numbers as one step at a time (a stream's ``normal(size=(T, n))`` is its
+    ``T`` successive ``normal(size=n)`` draws), so every seed's realisation is :class:`Plant`'s, bit for bit.
+    """
+    plants = [Plant(sc, s, noise=noise) for s in seeds]
+    n, p = sc.n, plants[0].C.shape[0]
+    x0 = np.stack([pl.x for pl in plants], axis=1)
+    v = np.stack([pl.proc.normal(size=(steps, n)) for pl in plants], axis=2)
+    w = np.stack([pl.meas.normal(size=(steps, p)) for pl in plants], axis=2)
+    return plants[0], x0, v, w
 
 
 def _psd_sqrt(Q: np.ndarray) -> np.ndarray:

@@ -3,13 +3,14 @@
 import numpy as np
 import pytest
 import scipy.linalg as sla
+import yaml
 
-from splitspec_core.baselines import (KalmanConsensusFilter, baseline_trajectories, default_eps, kalman_predictor,
-                                      run_predictor, sampled_model)
+from splitspec_core.baselines import (KalmanConsensusFilter, SeedBatchKCF, baseline_seeds, baseline_trajectories,
+                                      default_eps, kalman_predictor, run_predictor, sampled_model)
 from splitspec_core.designer import design
 from splitspec_core.errors import DesignError
-from splitspec_core.plant_model import output_rows
-from splitspec_core.scenario_load import load_scenario
+from splitspec_core.plant_model import Plant, output_rows
+from splitspec_core.scenario_load import load_scenario, parse_scenario
 from splitspec_core.simulator import simulate
 from tests.conftest import EXAMPLES
 from tests.numerics import assert_close
@@ -263,3 +264,75 @@ def test_baseline_truth_is_the_simulators(name, steps):
     assert np.array_equal(b["kcf"][0], tr.xhat[0])
     # their mean (numpy's mean of the same rows, in both): to 1e-15 of their size all the same
     assert_close(b["centralized"][0], tr.xhat[0].mean(axis=0), rtol=1e-15, what="centralized initial estimate")
+
+
+# --------------------------------------------------------------------------
+# many seeds as one batch
+# --------------------------------------------------------------------------
+
+
+def two_output_scenario():
+    """The paper's discrete example with measurement noise and agent 1 seeing two outputs: neighbourhoods ``J_i``
+    of 2, 3 and 4 rows (agent 3 hears 1 and 2, the others one agent), so the batch's padding is exercised."""
+    data = yaml.safe_load((EXAMPLES / "paper_discrete_noise.yaml").read_text())
+    data["system"]["C"][1] = [[1, 0, 0, 0], [0, 0, 0, 1]]
+    data["system"]["measurement_noise"] = 0.05
+    data["design"] = {"rate": 0.5, "gains": "place", "q": "auto"}
+    return parse_scenario(data)
+
+
+BATCH_CASES = {
+    "two outputs": (two_output_scenario, 3, 60, True),
+    "ring, 3 exchanges": (lambda: load_scenario(EXAMPLES / "ring10_noise.yaml"), 3, 60, True),
+    "continuous": (lambda: load_scenario(EXAMPLES / "paper_continuous.yaml"), 1, 50, True),
+    "noise-free": (two_output_scenario, 2, 40, False),
+}
+
+
+@pytest.mark.parametrize("case", list(BATCH_CASES))
+def test_batched_baselines_are_the_per_seed_ones(case):
+    """``baseline_seeds`` on 5 seeds in chunks of 2 (a chunk boundary inside the seeds, a last chunk of one):
+    per seed the squared errors of ``baseline_trajectories``.  Other summation orders (the padded solve, the
+    adjacency product, ``(gamma M) d``) move an estimate by round-off of the state's size, and the paper's plant
+    grows like 2^(k/2) (|x| ~ 1e9 at k = 60) while the errors stay ~0.1: so the error norms are compared to
+    1e-12 of ``1 + |x(k)|`` (measured: 1e-15), far below any difference of method (one exchange more or less
+    changes the KCF's errors by percents)."""
+    make, exchanges, steps, noise = BATCH_CASES[case]
+    sc = make()
+    seeds = (4, 0, 11, 7, 2)
+    b = baseline_seeds(sc, seeds, exchanges=exchanges, steps=steps, noise=noise, chunk=2)
+    assert b["centralized"].shape == b["kcf"].shape == (5, steps + 1)
+    for k, s in enumerate(seeds):
+        r = baseline_trajectories(sc, s, exchanges=exchanges, steps=steps, noise=noise)
+        assert np.array_equal(b["t"], r["t"])  # exact: the same arange times dt
+        scale = 1.0 + np.linalg.norm(r["x"], axis=1)
+        central = np.linalg.norm(r["centralized"] - r["x"], axis=1)
+        kcf = np.linalg.norm(r["kcf"] - r["x"][:, None, :], axis=2)  # (T, m)
+        assert np.max(np.abs(np.sqrt(b["centralized"][k]) - central) / scale) < 1e-12, s
+        # sum_i |e_i|^2 against the same sum of the reference's: 1e-12 of m (1 + |x|)^2 apart
+        assert np.max(np.abs(b["kcf"][k] - np.sum(kcf ** 2, axis=1)) / (sc.m * scale ** 2)) < 1e-12, s
+        assert np.max(b["kcf"][k]) > 1e-3  # the errors compared are not round-off themselves
+
+
+def test_the_batched_kcf_shares_the_per_seed_gains():
+    """``SeedBatchKCF``'s ``P_i`` after 30 event times are :class:`KalmanConsensusFilter`'s (the recursion never
+    sees a measurement; padded solves in another order: 1e-12 relative), and one seed stepped alone equals the
+    batch's column of it."""
+    sc = two_output_scenario()
+    plant = Plant(sc, 0)
+    F, Q, R = sampled_model(sc)
+    nbs = {0: [1], 1: [0, 2], 2: [0, 1]}
+    Rs = [0.05 ** 2 * np.eye(C.shape[0]) for C in plant.Cs]
+    ref = KalmanConsensusFilter(F, plant.Cs, Q, Rs, nbs, exchanges=2)
+    batch = SeedBatchKCF(KalmanConsensusFilter(F, plant.Cs, Q, Rs, nbs, exchanges=2), plant.rows)
+    rng = np.random.default_rng(5)
+    X = rng.normal(size=(3, 4, 6))
+    Xr = X[:, :, 2].copy()
+    for _ in range(30):
+        y = rng.normal(size=(plant.C.shape[0], 6))
+        X = batch.step(X, y)
+        Xr = ref.step(Xr, [y[r, 2] for r in plant.rows])
+    assert_close(batch.P, ref.P, rtol=1e-12, what="P_i")
+    assert_close(X[:, :, 2], Xr, rtol=1e-9, what="seed 2's priors")
+    batch.reset()
+    assert np.array_equal(batch.P, np.tile(np.eye(4), (3, 1, 1)))  # exact: copies of P0
