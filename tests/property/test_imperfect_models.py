@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from hypothesis import assume, event, given, settings
+from hypothesis import assume, event, example, given, settings
 from hypothesis import strategies as st
 
 from splitspec_core.analysis import fit_decay
@@ -59,6 +59,7 @@ def measured_rate(des, tr):
 @given(seed=st.integers(0, 10_000), time=st.sampled_from(["discrete", "continuous"]),
        imperfection=st.one_of(st.tuples(st.just("round"), st.sampled_from([7, 6, 5, 4])),
                               st.tuples(st.just("noise"), st.sampled_from([1e-7, 1e-6, 1e-5, 1e-4]))))
+@example(seed=8784, time="continuous", imperfection=("round", 7))  # weakly observable even jointly (drawn in CI)
 def test_a_perturbed_model_keeps_the_exact_design(seed, time, imperfection):
     rng = np.random.default_rng(seed)
     m, n = int(rng.integers(3, 8)), int(rng.choice([4, 6, 8]))
@@ -66,6 +67,15 @@ def test_a_perturbed_model_keeps_the_exact_design(seed, time, imperfection):
     arcs = random_strongly_connected_arcs(rng, m, extra=m)
     kind, size = imperfection
     delta = 10.0 ** -size if kind == "round" else size  # the relative size of the change
+    if not joint_observability(A, Cs).observable:
+        # the exact system itself is only weakly observable, even jointly (two oscillators of close frequencies,
+        # 0.256 and 0.239 rad/s, seen with a margin of 9.4e-4 by three agents together: seed 8784): there is no
+        # exact design to keep, and the design refuses it in one line (its wording is checked by
+        # test_a_weakly_observable_system_is_refused_or_warned)
+        with pytest.raises(AssumptionError, match="jointly observable"):
+            design(parse_scenario(scenario(A, Cs, arcs, time, seed)))
+        event("the exact system is weakly observable even jointly: refused")
+        return
     exact = design(parse_scenario(scenario(A, Cs, arcs, time, seed)))
     imperfect = design(parse_scenario(scenario(perturbed(rng, A, kind, size), [perturbed(rng, C, kind, size)
                                                                                  for C in Cs], arcs, time, seed)))
