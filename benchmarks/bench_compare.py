@@ -105,7 +105,7 @@ def main() -> int:
                       flush=True)
         k = min(args.loop_seeds, args.seeds)
         for key in ("centralized", "kcf"):
-            a, b = res["batched"][key][:k], res["looped"][key]
+            a, b = res["batched"][key].sq_error[:k], res["looped"][key]
             worst = max(worst, float(np.max(np.abs(a - b)) / np.max(np.abs(b))))
         ml, mb = float(np.median(per["looped"])), float(np.median(per["batched"]))
         load = loadavg(1)

@@ -41,10 +41,11 @@ import numpy as np
 import scipy.linalg as sla
 
 from .errors import DesignError
-from .network import consensus_rows
+from .montecarlo import CHUNK, MonteCarloRuns
+from .network import consensus_rows, make_plan
 from .scenario_model import Scenario
-from .plant_model import (Plant, advanced, initial_estimate, measured, sampled_model,  # noqa: F401 - sampled_model:
-                          seed_draws)  # also from here
+from .plant_model import (Plant, advanced, initial_estimate, measured, output_rows,  # noqa: F401 - sampled_model:
+                          sampled_model, seed_draws)  # also from here
 from .simulator import check_trajectory_memory
 
 __all__ = [
@@ -363,7 +364,7 @@ class SeedBatchKCF:
     the adjacency product for the neighbour sum), not bit for bit.
     """
 
-    def __init__(self, kcf: KalmanConsensusFilter, rows: Sequence[slice]):
+    def __init__(self, kcf: KalmanConsensusFilter):
         import scipy.sparse as sp
 
         self.F, self.Q, self.exchanges, self.eps = kcf.F, kcf.Q, kcf.exchanges, kcf.eps
@@ -372,7 +373,8 @@ class SeedBatchKCF:
         smax = max(CJ.shape[0] for CJ in kcf._CJ)
         self.CJ = np.zeros((m, smax, n))
         self.RJ = np.tile(np.eye(smax), (m, 1, 1))
-        p = max(r.stop for r in rows)
+        rows = output_rows(kcf.Cs)  # each agent's rows in the stacked y
+        p = rows[-1].stop
         self.gather = np.full((m, smax), p)  # row p: the zero row appended to y
         for i, (J, CJ, RJ) in enumerate(zip(kcf._J, kcf._CJ, kcf._RJ)):
             s = CJ.shape[0]
@@ -463,41 +465,38 @@ def baseline_trajectories(sc: Scenario, seed: int, *, exchanges: int, steps: int
             break
         ys[k] = plant.measure()
         plant.advance()
-    F, C, Lc, kcf = _filters(sc, plant, exchanges, eps)
+    F, C, Lc, kcf = _filters(sc, exchanges, eps)
     X0 = np.stack([initial_estimate(n, seed, i) for i in range(m)])
     central = run_predictor(F, C, Lc, ys, X0.mean(axis=0))
-    return {"t": _times(sc, T), "x": xs, "centralized": central, "kcf": kcf.run(ys, X0, plant.rows)}
+    return {"t": _times(sc, seed, steps), "x": xs, "centralized": central, "kcf": kcf.run(ys, X0, plant.rows)}
 
 
 def baseline_seeds(sc: Scenario, seeds, *, exchanges: int, steps: int | None = None, noise: bool = True,
-                   eps: float | None = None, chunk: int | None = None) -> dict:
+                   eps: float | None = None, chunk: int = CHUNK) -> dict:
     """Both baselines over many seeds as one batched computation: the errors of :func:`baseline_trajectories`.
 
     Per seed the realisations are :func:`baseline_trajectories`'s bit for bit (:func:`seed_draws`) and the
     estimates its estimates to round-off (:class:`SeedBatchKCF`; the centralized predictor as one ``(n, N)``
-    product per step).  Only squared errors are kept, ``2 N T`` floats; seeds run in chunks of ``chunk``
-    (default :data:`splitspec_core.montecarlo.CHUNK`), each holding its noise draws for the whole run.
+    product per step).  Only squared errors are kept, ``2 N T`` floats; seeds run in chunks of ``chunk``,
+    each holding its noise draws for the whole run.
 
     Returns
     -------
     dict
-        ``t`` (T,); ``centralized`` (N, T) ``|xhat(k) - x(k)|^2`` of the centralized predictor; ``kcf`` (N, T)
-        ``sum_i |xbar_i(k) - x(k)|^2`` over the m agents of the KCF.
+        ``{"centralized": runs, "kcf": runs}``, each a :class:`~splitspec_core.montecarlo.MonteCarloRuns` (the
+        split-spectrum estimator's Monte Carlo result, so the same statistics apply): ``sq_error`` (N, T) is
+        ``|xhat(k) - x(k)|^2`` of the centralized predictor (one estimate: ``alive_count`` 1) and ``sum_i
+        |xbar_i(k) - x(k)|^2`` over the m agents of the KCF (``alive_count`` m).
     """
-    from .montecarlo import CHUNK
-
     seeds = tuple(int(s) for s in seeds)
     steps = sc.run.steps if steps is None else int(steps)
-    chunk = CHUNK if chunk is None else int(chunk)
     m, n, T = sc.m, sc.n, steps + 1
+    F, C, Lc, kcf = _filters(sc, exchanges, eps)
+    Ac, batch = F - Lc @ C, SeedBatchKCF(kcf)
     sq_c, sq_k = np.zeros((len(seeds), T)), np.zeros((len(seeds), T))
-    batch = Ac = Lc = None
     for a in range(0, len(seeds), chunk):
         part = seeds[a:a + chunk]
         plant, x, v, w = seed_draws(sc, part, steps, noise=noise)
-        if batch is None:
-            F, C, Lc, kcf = _filters(sc, plant, exchanges, eps)
-            Ac, batch = F - Lc @ C, SeedBatchKCF(kcf, plant.rows)
         batch.reset()
         X = np.stack([np.stack([initial_estimate(n, s, i) for s in part], axis=1) for i in range(m)])  # (m, n, N)
         xc = X.mean(axis=0)  # the centralized predictor starts from the agents' mean
@@ -510,22 +509,27 @@ def baseline_seeds(sc: Scenario, seeds, *, exchanges: int, steps: int | None = N
             xc = Ac @ xc + Lc @ y  # run_predictor's step: xhat+ = (F - L C) xhat + L y
             X = batch.step(X, y)
             x = advanced(plant.F, plant.L, x, v[k])
-    return {"t": _times(sc, T), "centralized": sq_c, "kcf": sq_k}
+    t = _times(sc, seeds[0], steps)
+    return {name: MonteCarloRuns(seeds=seeds, t=t, sq_error=sq, alive_count=np.full(sq.shape, count), batched=True)
+            for name, sq, count in (("centralized", sq_c, 1), ("kcf", sq_k, m))}
 
 
-def _times(sc: Scenario, T: int) -> np.ndarray:
-    return np.arange(T) * (sc.run.dt if sc.time == "continuous" else 1.0)
+def _times(sc: Scenario, seed: int, steps: int) -> np.ndarray:
+    """The simulator's event times (index, or time in continuous time) of a run of ``steps`` steps."""
+    return make_plan(sc, seed, steps, sequence=False).times()
 
 
-def _filters(sc: Scenario, plant: Plant, exchanges: int, eps: float | None) -> tuple:
-    """``(F, C, L, kcf)``: the sampled model, the centralized predictor's gain ``L`` and the KCF on the scenario's
-    first graph (in-neighbours of :func:`consensus_rows`), both with the noisy model (:func:`sampled_model`)."""
+def _filters(sc: Scenario, exchanges: int, eps: float | None) -> tuple:
+    """``(F, C, L, kcf)``: the sampled model, the stacked ``C``, the centralized predictor's gain ``L`` and the KCF on
+    the scenario's first graph (in-neighbours of :func:`consensus_rows`), both with the noisy model
+    (:func:`sampled_model`)."""
     F, Q, R = sampled_model(sc)
-    C = plant.C
+    Cs = [np.asarray(Ci) for Ci in sc.system.Cs]  # as Plant holds them
+    C = np.vstack(Cs)
     pos = {a: k for k, a in enumerate(sc.agent_ids)}
     rows = consensus_rows(sc, 0, sc.agent_ids)
     neighbours = {pos[i]: [pos[j] for j in nbs if j != i] for i, (nbs, _) in rows.items()}
     sigma2 = sc.system.measurement_noise ** 2
-    Rs = [sigma2 * np.eye(Ci.shape[0]) for Ci in plant.Cs]
-    kcf = KalmanConsensusFilter(F, plant.Cs, Q, Rs, neighbours, eps=eps, exchanges=exchanges)
+    Rs = [sigma2 * np.eye(Ci.shape[0]) for Ci in Cs]
+    kcf = KalmanConsensusFilter(F, Cs, Q, Rs, neighbours, eps=eps, exchanges=exchanges)
     return F, C, kalman_predictor(F, C, Q, R).L, kcf

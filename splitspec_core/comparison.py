@@ -96,21 +96,14 @@ def compare(sc: Scenario, *, seeds, steps: int | None = None, eps: float | None 
         pass
     discrete = sc.time == "discrete"
     exchanges = variants["split place"].q if discrete else 1
-    T = None
-    curves: dict = {}
-    rms: dict = {}
-    for name, des in variants.items():
-        # every seed at once (montecarlo.simulate_seeds): per seed the errors of simulate(des, seed=s) to round-off
-        runs = simulate_seeds(des, seeds, steps=steps)
-        curves[name] = list(runs.rms())
-        rms[name] = list(runs.steady_rms())
-        T = runs.t
-    # every seed at once (baselines.baseline_seeds): per seed the errors of baseline_trajectories to round-off
+    # every seed at once, per seed the errors of a single-seed run to round-off: the split-spectrum variants by
+    # montecarlo.simulate_seeds, the baselines by baselines.baseline_seeds (the same MonteCarloRuns statistics)
+    runs = {name: simulate_seeds(des, seeds, steps=steps) for name, des in variants.items()}
     b = baseline_seeds(sc, seeds, exchanges=exchanges, steps=steps, eps=eps)
-    for name, key, agents in (("centralized KF", "centralized", 1), ("KCF", "kcf", sc.m)):
-        ms = b[key] / agents  # per seed and step, the mean over agents of the squared error
-        curves[name] = list(np.sqrt(ms))
-        rms[name] = list(np.sqrt(ms[:, ms.shape[1] // 2:].mean(axis=1)))  # steady_rms: the last half
+    runs.update({"centralized KF": b["centralized"], "KCF": b["kcf"]})
+    curves = {name: list(r.rms()) for name, r in runs.items()}
+    rms = {name: list(r.steady_rms()) for name, r in runs.items()}
+    T = runs["split place"].t
     # noise-free transients (first seed)
     settle = {}
     rate = {}

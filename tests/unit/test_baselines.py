@@ -301,17 +301,18 @@ def test_batched_baselines_are_the_per_seed_ones(case):
     sc = make()
     seeds = (4, 0, 11, 7, 2)
     b = baseline_seeds(sc, seeds, exchanges=exchanges, steps=steps, noise=noise, chunk=2)
-    assert b["centralized"].shape == b["kcf"].shape == (5, steps + 1)
+    assert b["centralized"].sq_error.shape == b["kcf"].sq_error.shape == (5, steps + 1)
+    assert b["kcf"].seeds == seeds and np.all(b["centralized"].alive_count == 1) and np.all(b["kcf"].alive_count == sc.m)
     for k, s in enumerate(seeds):
         r = baseline_trajectories(sc, s, exchanges=exchanges, steps=steps, noise=noise)
-        assert np.array_equal(b["t"], r["t"])  # exact: the same arange times dt
+        assert np.array_equal(b["kcf"].t, r["t"])  # exact: the same plan's times, the same arange times dt
         scale = 1.0 + np.linalg.norm(r["x"], axis=1)
         central = np.linalg.norm(r["centralized"] - r["x"], axis=1)
         kcf = np.linalg.norm(r["kcf"] - r["x"][:, None, :], axis=2)  # (T, m)
-        assert np.max(np.abs(np.sqrt(b["centralized"][k]) - central) / scale) < 1e-12, s
+        assert np.max(np.abs(np.sqrt(b["centralized"].sq_error[k]) - central) / scale) < 1e-12, s
         # sum_i |e_i|^2 against the same sum of the reference's: 1e-12 of m (1 + |x|)^2 apart
-        assert np.max(np.abs(b["kcf"][k] - np.sum(kcf ** 2, axis=1)) / (sc.m * scale ** 2)) < 1e-12, s
-        assert np.max(b["kcf"][k]) > 1e-3  # the errors compared are not round-off themselves
+        assert np.max(np.abs(b["kcf"].sq_error[k] - np.sum(kcf ** 2, axis=1)) / (sc.m * scale ** 2)) < 1e-12, s
+        assert np.max(b["kcf"].sq_error[k]) > 1e-3  # the errors compared are not round-off themselves
 
 
 def test_the_batched_kcf_shares_the_per_seed_gains():
@@ -324,7 +325,7 @@ def test_the_batched_kcf_shares_the_per_seed_gains():
     nbs = {0: [1], 1: [0, 2], 2: [0, 1]}
     Rs = [0.05 ** 2 * np.eye(C.shape[0]) for C in plant.Cs]
     ref = KalmanConsensusFilter(F, plant.Cs, Q, Rs, nbs, exchanges=2)
-    batch = SeedBatchKCF(KalmanConsensusFilter(F, plant.Cs, Q, Rs, nbs, exchanges=2), plant.rows)
+    batch = SeedBatchKCF(KalmanConsensusFilter(F, plant.Cs, Q, Rs, nbs, exchanges=2))
     rng = np.random.default_rng(5)
     X = rng.normal(size=(3, 4, 6))
     Xr = X[:, :, 2].copy()
