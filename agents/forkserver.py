@@ -55,10 +55,9 @@ def _child(request: dict, server: int, close: tuple) -> None:
             signal.signal(sig, signal.SIG_DFL)
         for fd in close:
             os.close(fd)
-        from splitspec_core.parallel import sigterm_at_parent_death
+        from splitspec_core.runtime.cli import die_with_parent
 
-        if not sigterm_at_parent_death() or os.getppid() != server:  # the server is already gone
-            os._exit(1)
+        die_with_parent(server)  # and at once if the server is already gone
         argv = [str(a) for a in request["argv"]]
         _name(argv)
         from .agent import cli_main

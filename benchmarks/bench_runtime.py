@@ -68,6 +68,8 @@ import yaml
 
 from _common import loadavg
 
+from splitspec_core.parallel import available_workers
+
 ROOT = Path(__file__).resolve().parents[1]
 ENV = {**os.environ, "RERUN_ANALYTICS": "0"}
 
@@ -317,7 +319,7 @@ def main() -> int:
         variants.append(("old", str(args.baseline / ".venv/bin/python"), args.baseline, None))
         if args.deadline is not None:
             variants.append(("odl", str(args.baseline / ".venv/bin/python"), args.baseline, args.deadline))
-    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    cores = available_workers()  # the CPUs this process may run on
     print(f"# us/deliv: ms/event over the old protocol's deliveries (3m + 2 + 2mq); x first: against the first ring "
           f"of the same q and code; x floor: against the bare CPU per delivery over the {cores} cores; agent us: "
           f"CPU per agent and event time (user + system, the rounds only)")

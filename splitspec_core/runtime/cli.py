@@ -38,18 +38,20 @@ DEFAULT_WAIT = 60.0  # --wait of a plant or agent process (seconds)
 PARENT_ENV = "SPLITSPEC_PARENT_PID"
 
 
-def die_with_parent() -> None:
-    """SIGTERM when the process that spawned this one dies (``PR_SET_PDEATHSIG``), if it set :data:`PARENT_ENV`.
+def die_with_parent(parent: int | None = None) -> None:
+    """SIGTERM when the process that spawned this one dies (``PR_SET_PDEATHSIG``), if it set :data:`PARENT_ENV`
+    (or, ``parent``, when this is a fork of process ``parent``: an agent of the agent fork server).
 
     Asked for here, in the child, rather than between fork and exec in the parent: a ``preexec_fn`` makes
     ``subprocess`` fork (copy the page tables of) the whole orchestrator for every process it starts, where it
     can otherwise use vfork (33 spawns at m = 32: ~0.35 s of its CPU before the run starts).  A parent that
     died before the request (this interpreter was starting) is no longer this process's parent: SIGTERM now.
     """
-    parent = os.environ.pop(PARENT_ENV, None)
+    if parent is None:
+        parent = os.environ.pop(PARENT_ENV, None)
     if not parent or not sigterm_at_parent_death():
         return
-    if str(os.getppid()) != parent:
+    if str(os.getppid()) != str(parent):
         import signal
 
         os.kill(os.getpid(), signal.SIGTERM)

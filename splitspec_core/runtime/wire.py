@@ -221,9 +221,11 @@ MESSAGE_FIELDS = {
 }
 
 #: optional fields (name -> kind), returned only when present: a run on recorded measurements (their sha256, steps,
-#: whether they hold the truth), whether agents report the y_i they used; a tick's network (all four or none)
+#: whether they hold the truth), whether agents report the y_i they used; a tick's network
 OPTIONAL_FIELDS = {"config": {"measurements": "map", "record_y": "bool"},
                    "tick": {"alive": "list", "rows": "map", "incarnation": "map", "partition": "list"}}
+#: optional fields that come all together or not at all: a tick's network is all four (runtime.ticks)
+TOGETHER = {"tick": ("alive", "rows", "incarnation", "partition")}
 
 _CHECK = {
     "int": lambda v: isinstance(v, int) and not isinstance(v, bool),
@@ -415,6 +417,8 @@ def decode(payload: bytes, run_id: str, expected_type: str, *, mac_key: bytes | 
             if not _CHECK[kind](body[name]):
                 raise WireError("bad_field", name)
             out[name] = body[name]
-    if expected_type == "tick" and 0 < len(out) - len(MESSAGE_FIELDS["tick"]) < 4:  # a network is all four
-        raise WireError("missing_field", next(n for n in OPTIONAL_FIELDS["tick"] if n not in out))
+    group = TOGETHER.get(expected_type, ())
+    missing = [name for name in group if name not in out]
+    if missing and len(missing) < len(group):
+        raise WireError("missing_field", missing[0])
     return out
