@@ -46,8 +46,8 @@ def _reap(replies: int) -> None:
         _send(replies, {"exit": pid, "code": os.waitstatus_to_exitcode(status)})
 
 
-def _child(request: dict, server: int, close: tuple) -> None:
-    """In the fork: the agent's command line, then ``os._exit`` with its status (never returns)."""
+def _child(argv: list, server: int, close: tuple) -> None:
+    """In the fork: the agent's command line ``argv``, then ``os._exit`` with its status (never returns)."""
     code = 1
     try:
         signal.set_wakeup_fd(-1)
@@ -58,7 +58,6 @@ def _child(request: dict, server: int, close: tuple) -> None:
         from splitspec_core.runtime.cli import die_with_parent
 
         die_with_parent(server)  # and at once if the server is already gone
-        argv = [str(a) for a in request["argv"]]
         _name(argv)
         from .agent import cli_main
 
@@ -124,13 +123,19 @@ def serve(requests: int, replies: int) -> int:
             return 0
         buf += data
         if len(buf) > MAX_LINE:
+            print(f"splitspec_agents.forkserver: error: a request longer than {MAX_LINE} bytes; stopping",
+                  file=sys.stderr)
             return 2
         while b"\n" in buf:
             line, buf = buf.split(b"\n", 1)
-            request = json.loads(line)
+            try:
+                argv = [str(a) for a in json.loads(line)["argv"]]
+            except (ValueError, TypeError, KeyError):
+                print('splitspec_agents.forkserver: error: a request is not {"argv": [...]}; stopping', file=sys.stderr)
+                return 2
             pid = os.fork()
             if pid == 0:
-                _child(request, server, (requests, replies, wake_r, wake_w))
+                _child(argv, server, (requests, replies, wake_r, wake_w))
             _send(replies, {"pid": pid})
 
 
@@ -141,7 +146,12 @@ def main(argv: list | None = None) -> int:
     p.add_argument("--replies", type=int, required=True, help="file descriptor the answers go to")
     p.add_argument("--run-id", help="the run it serves (shown in its command line, which its agents share)")
     args = p.parse_args(argv)
-    return serve(args.requests, args.replies)
+    try:
+        return serve(args.requests, args.replies)
+    except OSError as exc:  # a descriptor that is not the orchestrator's pipe
+        print(f"splitspec_agents.forkserver: error: {exc.strerror} (--requests {args.requests}, --replies "
+              f"{args.replies})", file=sys.stderr)
+        return 2
 
 
 if __name__ == "__main__":

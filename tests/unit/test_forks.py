@@ -83,3 +83,40 @@ def test_closing_the_server_ends_the_agents_it_forked(patient_server):
         time.sleep(0.05)
     assert not any(pid_running(p.pid) for p in ps)
     assert all(p.poll() is not None for p in ps)  # and the handles say so
+
+
+def test_a_malformed_request_stops_the_server_in_one_line(tmp_path):
+    """Only the orchestrator writes to the server, but what is not ``{"argv": [...]}`` ends it with one line and
+    status 2: no traceback, no fork (the orchestrator then starts its agents as new processes)."""
+    import subprocess
+
+    err = tmp_path / "stderr"
+    req_r, req_w = os.pipe()
+    rep_r, rep_w = os.pipe()
+    with open(err, "wb") as f:
+        p = subprocess.Popen([sys.executable, "-m", "splitspec_agents.forkserver", "--requests", str(req_r),
+                              "--replies", str(rep_w)], pass_fds=(req_r, rep_w), stderr=f)
+    os.close(req_r)
+    os.close(rep_w)
+    try:
+        with os.fdopen(rep_r, "rb") as replies:
+            assert b'"ready"' in replies.readline()  # imports done: now the request
+            os.write(req_w, b'{"args": ["--id", "1"]}\n')
+            assert p.wait(timeout=30) == 2
+            assert replies.read() == b""  # no {"pid": ...}: nothing was forked
+    finally:
+        os.close(req_w)
+        if p.poll() is None:
+            p.kill()
+    lines = err.read_text().splitlines()
+    assert lines == ['splitspec_agents.forkserver: error: a request is not {"argv": [...]}; stopping'], lines
+
+
+def test_a_server_started_on_bad_descriptors_says_so_in_one_line():
+    import subprocess
+
+    r = subprocess.run([sys.executable, "-m", "splitspec_agents.forkserver", "--requests", "999", "--replies", "998"],
+                       capture_output=True, text=True, timeout=60)
+    assert r.returncode == 2
+    assert r.stderr.splitlines() == ["splitspec_agents.forkserver: error: Bad file descriptor (--requests 999, "
+                                     "--replies 998)"], r.stderr
