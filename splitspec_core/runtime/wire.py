@@ -57,6 +57,10 @@ key                         from -> to              payload
 ``status/<role>/<id>/<n>``  queryable (every proc.) a ``hello``: the process answers (not frozen)
 ``alive/<role>/<id>/<n>``   liveliness token        presence; DELETE is a death (n: the process's nonce)
 ==========================  ======================  ==========================================
+
+Why one module: the encoder and the decoder read the same tables (the fields and their kinds, the binary layout,
+the schema version, the MAC); split, every change of the format would touch two files that must agree byte for
+byte, and the key space above is the other half of the same contract.
 """
 
 from __future__ import annotations
