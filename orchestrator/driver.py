@@ -28,7 +28,7 @@ What it does, through the machine:
 * admits at the next event time any agent that (re)appears by hand after a
   loss (``splitspec agent --id I --connect ...``), with a new incarnation;
 * after every change of the network, logs the resilience verdict
-  (:func:`splitspec_core.designer.certify_network`): still strongly connected,
+  (:func:`splitspec_core.survivors.certify_network`): still strongly connected,
   jointly observable, and is the rate still certified by the designed g or q;
 * records ``trajectory.npz``, ``events.jsonl``, ``run.rrd`` and a copy of the
   scenario (``scenario.yaml``), so that ``splitspec simulate scenario.yaml

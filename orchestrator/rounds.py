@@ -69,7 +69,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from splitspec_core.designer import certify_network
+from splitspec_core.survivors import certify_network
 from splitspec_core.impairment import CAUSES
 from splitspec_core.network import NetworkState, make_plan
 

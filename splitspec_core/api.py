@@ -49,19 +49,21 @@ def _readonly(a: Any) -> np.ndarray:
 def scenario(*, name: str | None = None, time: str | None = None,
              A: Any = None, C: Mapping | None = None, x0: Any = None,
              process_noise: float | None = None, measurement_noise: float | None = None,
+             states: Iterable | None = None, outputs: Mapping | None = None,
              graphs: Mapping | None = None, switching: Mapping | None = None, faults: Iterable | None = None,
              positions: Mapping | None = None, network: Mapping | None = None,
              rate: float | None = None, gains: str | None = None, K: Mapping | None = None, g: Any = None,
              g0: float | None = None, q: Any = None, q_method: str | None = None, q_max: int | None = None,
              resilience: int | None = None, weights: str | None = None, margin: float | None = None,
              rank_tol: float | None = None, graph_set: str | None = None, dwell: float | None = None,
-             riccati: Mapping | None = None, eigenvalues: str | None = None,
+             riccati: Mapping | None = None, eigenvalues: str | None = None, undetectable: str | None = None,
              steps: int | None = None, dt: float | None = None, seed: int | None = None, pace: float | None = None,
              system: Mapping | None = None, design: Mapping | None = None, run: Mapping | None = None,
              **unknown: Any) -> Scenario:
     """A validated scenario from keywords: every scenario-file key, by its own name.
 
-    ``A``, ``C``, ``x0``, ``process_noise``, ``measurement_noise`` are the file's ``system.*``;
+    ``A``, ``C``, ``x0``, ``process_noise``, ``measurement_noise``, ``states`` (n names),
+    ``outputs`` (``{agent id: [names]}``) are the file's ``system.*``;
     ``rate``, ``gains``, ``K``, ``g``, ``q``, ``q_method``, ... its ``design.*``; ``steps``,
     ``dt``, ``seed``, ``pace`` its ``run.*`` (``docs/how-to/scenario.md`` lists them all).  Matrices
     may be numpy arrays or nested lists; ``C`` and ``K`` map agent ids to matrices; a graph

@@ -31,7 +31,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .full_matrix import MAX_DIM, _case_parts, full_error_matrix, predicted_rms
+from .full_matrix import MAX_DIM, _case_parts, full_error_matrix, modulo, predicted_rms
 
 if TYPE_CHECKING:  # the designer imports this module
     from .designer import Design
@@ -46,7 +46,7 @@ GAIN_WARN = 1e3
 #: a transient constant above this is warned about
 TRANSIENT_WARN = 1e3
 #: the work (flops) spent on the exact transient constant before falling back to the Lyapunov bound
-MAX_WORK = 1e10
+MAX_WORK = 1e12
 
 
 @dataclass(frozen=True)
@@ -62,7 +62,10 @@ class Transient:
 def transient_constant(M: np.ndarray, r: float, *, block: int = 1, max_work: float = MAX_WORK) -> Transient:
     """The transient constant of ``e(k+1) = M e(k)`` at rate ``r`` per step (module docstring).
 
-    ``block``: the size of each agent's block of rows (the agent whose rows peak is reported).
+    ``block``: the size of each agent's block of rows (the agent whose rows peak is reported).  The powers are
+    formed once each, with only their Frobenius norms kept (an upper bound of the 2-norm); once one falls below 1 the
+    2-norms of the candidates, largest Frobenius norm first, are computed until no remaining one can exceed the
+    largest 2-norm found (:func:`_sup_two_norm`).
     """
     d = M.shape[0]
     if d == 0:
@@ -72,34 +75,49 @@ def transient_constant(M: np.ndarray, r: float, *, block: int = 1, max_work: flo
         return Transient(math.inf, None, None, f"infinite: the spectral radius {rho:.4g} is not below {r:.4g}")
     T = M / r
     X = np.eye(d)  # (M / r)^k = exp(logs) X: rescaled now and then, so a huge transient cannot overflow
-    logs, log_peak, at, rows = 0.0, 0.0, 0, None
+    logs, logf = 0.0, [0.0]  # log ||T^k||_F (k = 0: the identity counts as 1, its 2-norm)
     steps = int(max(1, max_work // max(1.0, 2.0 * d ** 3)))
     for k in range(1, steps + 1):
         X = T @ X
-        f = float(np.linalg.norm(X))  # Frobenius >= 2-norm: the 2-norm only when it could be a new peak
-        if f == 0.0:  # nilpotent: nothing after this step
-            f = 1e-300
-        if math.log(f) + logs > log_peak:
-            s = float(np.linalg.norm(X, 2))
-            if math.log(s) + logs > log_peak:
-                log_peak, at = math.log(s) + logs, k
-                rows = np.linalg.norm(X.reshape(d // block, block, d), axis=(1, 2))
-        if math.log(f) + logs <= 0.0:
-            # ||X_k|| <= 1: any later power is X_k times an earlier one, so the supremum is the peak so far
-            peak = math.exp(log_peak) if log_peak < 709.0 else math.inf
-            return Transient(peak, at, None if rows is None else int(np.argmax(rows)), "exact")
+        f = float(np.linalg.norm(X)) or 1e-300  # 0: nilpotent, nothing after this step
+        logf.append(math.log(f) + logs)
+        # the 2-norm falls below 1 before the Frobenius norm (up to sqrt(d) sooner): looked at every 64 steps
+        two = logf[-1] <= 0.5 * math.log(d) and k % 64 == 0 and math.log(float(np.linalg.norm(X, 2))) + logs <= 0.0
+        if logf[-1] <= 0.0 or two:
+            # ||X_k|| <= 1: any later power is X_k times an earlier one, so the supremum is over the powers so far
+            peak, at, rows = _sup_two_norm(T, logf, block)
+            return Transient(peak, at, rows, "exact")
         if f > 1e100:
             X /= f
             logs += math.log(f)
-    peak = math.exp(log_peak) if log_peak < 709.0 else math.inf
+    peak, at, rows = _sup_two_norm(T, logf, block)
     import scipy.linalg as sla
 
     with np.errstate(all="ignore"):
         P = sla.solve_discrete_lyapunov(T.T, np.eye(d))  # T' P T - P = -I
         ev = np.linalg.eigvalsh(0.5 * (P + P.T))
     bound = math.sqrt(ev[-1] / ev[0]) if ev[0] > 0 and np.all(np.isfinite(ev)) else math.inf
-    return Transient(max(peak, bound), at, None if rows is None else int(np.argmax(rows)),
-                     f"Lyapunov bound (the exact peak needed more than {steps} steps)")
+    return Transient(max(peak, bound), at, rows,
+                     f"Lyapunov bound (the exact peak needed more than {steps} steps; the peak of those: {peak:.3g})")
+
+
+def _sup_two_norm(T: np.ndarray, logf: list, block: int) -> tuple:
+    """``(max_k ||T^k||_2, k, agent index)`` over the powers whose log Frobenius norms are ``logf`` (k = 0, 1, ...):
+    the 2-norm is at most the Frobenius norm, so the powers are visited largest Frobenius norm first and the search
+    stops at the first one that cannot beat the largest 2-norm found.  A power too large to form (its Frobenius
+    norm above 1e300) counts with its Frobenius norm, an upper bound."""
+    d = T.shape[0]
+    best, at, rows = 1.0, 0, None
+    for k in np.argsort(-np.asarray(logf), kind="stable"):
+        if logf[k] <= math.log(best):
+            break
+        if logf[k] > 690.0:
+            return math.inf, int(k), None
+        P = np.linalg.matrix_power(T, int(k))
+        s = float(np.linalg.norm(P, 2))
+        if s > best:
+            best, at, rows = s, int(k), np.linalg.norm(P.reshape(d // block, block, d), axis=(1, 2))
+    return best, at, None if rows is None else int(np.argmax(rows))
 
 
 # --------------------------------------------------------------------------
@@ -203,19 +221,25 @@ def _transient(des: "Design", warnings: list) -> tuple:
     used = set(sc.switching.graph_names(sc.graph_names))
     cases = [c for c in des.cases if c.label in used] or list(des.cases[:1])
     A = np.asarray(sc.system.A)
-    r = sc.design.rate if sc.time == "discrete" else math.exp(-sc.design.rate * sc.run.dt)
+    # at the envelope's rate: lam, or slower when directions no agent sees limit it (detectability.py)
+    rate = des.envelope_rate
+    r = rate if sc.time == "discrete" else math.exp(-rate * sc.run.dt)
+    block = sc.n - (des.unobserved.dim if des.excluded else 0)
     worst = None
     for case in cases:
         Cs, Ks, Ps = _case_parts(des, case)
         M = full_error_matrix(A, Cs, Ks, Ps, case.graph.S, time=sc.time, q=des.q, g=des.g,
                               dt=sc.run.dt if sc.time == "continuous" else None)
-        t = transient_constant(M, r, block=sc.n)
+        if des.excluded:  # the certificate covers the error modulo W only (design.undetectable: exclude)
+            M = modulo(M, des.unobserved.W, len(Cs))
+        t = transient_constant(M, r, block=block)
         if worst is None or (t.constant or 0.0) > (worst[0].constant or 0.0):
             worst = (t, case)
     t, case = worst
     where = "per event time" if sc.time == "discrete" else f"at the sample times of run.dt = {sc.run.dt:g}"
-    method = (f"sup_k ||M^k|| / rate^k of the full error matrix, {where}, graph {case.label} held constant: "
-              + t.method)
+    what = "the full error matrix" + (" modulo the directions no agent sees" if des.excluded else "")
+    at = "" if rate == sc.design.rate else f" (at the envelope's rate {rate:.4g})"
+    method = f"sup_k ||M^k|| / rate^k of {what}{at}, {where}, graph {case.label} held constant: " + t.method
     if t.constant is not None and t.constant > TRANSIENT_WARN:
         who = "" if t.agent_index is None else f", agent {case.graph.ids[t.agent_index]}'s error peaking"
         knob = "design.q" if sc.time == "discrete" else "design.g"

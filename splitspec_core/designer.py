@@ -2,14 +2,16 @@
 
 Steps (paper, Sections 2-4):
 
-1. ``(C, A)`` jointly observable (before any gain is judged);
-2. per agent: observability decomposition ``V_i, Q_i, P_i`` and local gain
-   ``K_i`` (local; each agent can do this from ``(A, C_i, lam)``); every
-   graph strongly connected;
-3. centralised: g (continuous) or q (discrete) covering every graph the
+1. per agent: observability decomposition ``V_i, Q_i`` (decided in balanced coordinates, cluster by cluster
+   of ``A``'s spectrum: :mod:`splitspec_core.modal`);
+2. ``(C, A)`` jointly detectable: ``W = V_1 ∩ ... ∩ V_m`` (what no agent sees) decays, or the design refuses,
+   naming it (before any gain is judged; :mod:`splitspec_core.detectability`);
+3. per agent: local gain ``K_i`` and the estimator's ``P_i`` on ``V_i ⊖ W`` (local; each agent can do this from
+   ``(A, C, lam)`` and ``W``); every graph strongly connected;
+4. centralised: g (continuous) or q (discrete) covering every graph the
    switching signal can use (and, with ``design.resilience: 1``, every graph
-   left after a single agent loss);
-4. resilience analysis (single agent and single arc losses).
+   left after a single agent loss), on the quotient by ``W``;
+5. resilience analysis (single agent and single arc losses).
 """
 
 from __future__ import annotations
@@ -22,16 +24,18 @@ import numpy as np
 from . import bounds
 from .errors import AssumptionError
 from .conditioning import conditioning
+from .detectability import Unobserved, not_detectable_text, quotient_basis, still_text, unobserved_of
 from .full_matrix import SPLIT_EXACT, check_full
-from .gains import LocalGain, design_gain
+from .gains import LocalGain, beyond_target, design_gain
 from .graphs import build_graph, enumerate_strongly_connected
 from .loss_certificate import loss_certificate
-from .observability import DEFAULT_RANK_TOL, Decomposition, check_joint_observability, decompose
+from .modal import Spectrum, spectrum
+from .observability import Decomposition, decompose
 from .resilience import analyse_agent_losses, analyse_arc_losses
-from .sampled import sampled_rates
+from .sampled import sampled_g
 from .scenario_model import Scenario
 
-__all__ = ["AgentDesign", "Design", "certify_network", "design", "design_agent", "scenario_dwell",
+__all__ = ["AgentDesign", "Design", "design", "design_agent", "scenario_dwell", "scenario_spectrum",
            "NO_CERTIFIED_RATE"]
 
 # thm. split_continuous_adaptive: with the adaptive gain (eq. adaptive) every error tends to zero, at no stated rate
@@ -89,9 +93,12 @@ class Design:
     agent_losses: dict = field(default_factory=dict)
     arc_losses: dict = field(default_factory=dict)
     warnings: tuple = ()
-    # max over agents of Decomposition.split_residual; above round-off, full_radius: conditioning.check_full
+    # max over agents of Decomposition.split_residual (and W's); above round-off, full_radius: conditioning.check_full
     split_residual: float = 0.0
     full_radius: dict = field(default_factory=dict)
+    # what no agent sees (detectability.py): W, its spectrum, whether it decays; None only for a design built by hand
+    unobserved: Unobserved | None = None
+    spectrum: Spectrum | None = field(default=None, repr=False, compare=False)  # modal.py: A balanced, its clusters
 
     @property
     def time(self) -> str:
@@ -122,6 +129,43 @@ class Design:
         return all(r.jointly_observable for r in self.agent_losses.values())
 
     @property
+    def redundantly_jointly_detectable(self) -> bool:
+        return all(r.detectable for r in self.agent_losses.values())
+
+    @property
+    def excluded(self) -> bool:
+        """``design.undetectable: exclude`` took effect: directions no agent sees do not decay, and the certificate
+        covers the error modulo them only."""
+        return self.unobserved is not None and not self.unobserved.decays
+
+    @property
+    def envelope_rate(self) -> float:
+        """The rate of the certified envelope: ``lam``, or slower when the unobserved directions limit it
+        (:meth:`splitspec_core.detectability.Unobserved.envelope`); with :attr:`excluded`, ``lam`` (modulo them)."""
+        un = self.unobserved
+        return self.rate if un is None or self.excluded else un.envelope(self.rate)
+
+    def unobserved_of(self, alive) -> Unobserved:
+        """What the agents ``alive`` leave unobserved (``W_S ⊇ W``, :mod:`splitspec_core.detectability`)."""
+        return unobserved_of(self.scenario, self.spectrum, {a.id: self.unobservable_space(a.id)
+                                                            for a in self.agents})(alive)
+
+    def survivor_case(self, label: str, graph, un: Unobserved) -> bounds.Case:
+        """The certificate's case of the agents of ``graph`` when they leave ``un.W`` unobserved: ``V_i ⊖ W_S``."""
+        ad = {a.id: a for a in self.agents}
+        if self.unobserved is None or un.dim == self.unobserved.dim:
+            return bounds.make_case(label, graph, [ad[i].V for i in graph.ids], [ad[i].dec.A_un for i in graph.ids])
+        A = self.scenario.system.A
+        Vs = [quotient_basis(self.unobservable_space(i), un.W) for i in graph.ids]
+        return bounds.make_case(label, graph, Vs, [V.T @ A @ V for V in Vs])
+
+    def unobservable_space(self, agent_id: int) -> np.ndarray:
+        """Agent ``agent_id``'s own unobservable space: ``[V_i ⊖ W, W]`` (orthonormal: the two are orthogonal)."""
+        a = next(a for a in self.agents if a.id == agent_id)
+        W = self.unobserved.W if self.unobserved is not None else np.zeros((a.V.shape[0], 0))
+        return np.hstack([a.V, W])
+
+    @property
     def split_exact(self) -> bool:
         """Every V_i an unobservable space to round-off: the split of prop. error holds, the certificates apply."""
         return self.split_residual <= SPLIT_EXACT
@@ -133,13 +177,30 @@ class Design:
 
 def design_agent(A: np.ndarray, C: np.ndarray, *, time: str, rate: float, method: str = "place",
                  margin: float = 0.5, K: np.ndarray | None = None, rank_tol: float | None = None,
-                 process_weight: float = 1.0, measurement_weight: float = 1.0, agent_id: int = 0) -> AgentDesign:
-    """The local, fully distributed part of the design for one agent (``V_i, P_i, K_i``)."""
-    dec = decompose(A, C, rank_tol=rank_tol)
+                 process_weight: float = 1.0, measurement_weight: float = 1.0, agent_id: int = 0,
+                 spectrum: Spectrum | None = None, unobserved: np.ndarray | None = None,
+                 dec: Decomposition | None = None) -> AgentDesign:
+    """The local, fully distributed part of the design for one agent (``V_i, P_i, K_i``).
+
+    ``spectrum``: the skeleton of ``A`` balanced with every agent's rows (:func:`splitspec_core.modal.spectrum`;
+    the designer and every agent process compute the same one); ``unobserved``: ``W``, the directions no agent
+    sees (the design's, sent to the agents with their configuration): ``P_i`` then projects on ``V_i ⊖ W``;
+    ``dec``: the decomposition already computed (the designer's).
+    """
+    dec = dec if dec is not None else decompose(A, C, rank_tol=rank_tol, spectrum=spectrum,
+                                                free=beyond_target(time, rate, margin))
     label = f"design.K.{agent_id}" if method == "explicit" else f"agent {agent_id}"
     gain = design_gain(dec, method=method, time=time, rate=rate, margin=margin, K=K,
                        process_weight=process_weight, measurement_weight=measurement_weight, label=label)
+    if unobserved is not None and unobserved.shape[1]:
+        dec = dec.without(unobserved, A)
     return AgentDesign(id=agent_id, dec=dec, gain=gain)
+
+
+def scenario_spectrum(sc: Scenario) -> Spectrum:
+    """The skeleton of the scenario's ``A``, balanced with every agent's rows: what the designer and every agent
+    process decide in (:mod:`splitspec_core.modal`)."""
+    return spectrum(sc.system.A, np.vstack(sc.system.Cs))
 
 
 def riccati_weights(sc: Scenario) -> tuple:
@@ -187,19 +248,25 @@ def design(sc: Scenario, *, compare_q_methods: bool = False, workers: int | None
     """
     d = sc.design
     A = sc.system.A
-    # the standing assumption first ((C, A) of eqs. pre_sys1-pre_sys2 jointly observable): without it no K_i helps,
-    # so an explicit K_i that misses the rate on a direction nobody sees is not the error to report
-    jo, warnings = check_joint_observability(A, sc.system.Cs, rank_tol=d.rank_tol), []
-    if jo.margin is not None and jo.margin < DEFAULT_RANK_TOL:
-        why = f"kept by design.rank_tol: {d.rank_tol:g}" if d.rank_tol is not None else "kept: leaving it out " \
-            "would break the split"
-        warnings.append(f"(C, A) is jointly observable only with a margin of {jo.margin:.2g} (< {DEFAULT_RANK_TOL:g}, "
-                        f"{why}): gains grow like 1 / margin")
+    sp = scenario_spectrum(sc)
+    C_all = np.vstack(sc.system.Cs)
+    free = beyond_target(sc.time, d.rate, d.margin)  # modes the local gains leave alone (gains.py)
+    decs = [decompose(A, C, rank_tol=d.rank_tol, spectrum=sp, free=free) for C in sc.system.Cs]
+    # the standing assumption first ((C, A) of eqs. pre_sys1-pre_sys2 jointly observable, or here detectable):
+    # without it no K_i helps, so an explicit K_i that misses the rate on a direction nobody sees is not the error
+    of = unobserved_of(sc, sp, {aid: dec.V for aid, dec in zip(sc.agent_ids, decs)})
+    un = of(sc.agent_ids)
+    warnings: list = []
+    if not un.decays:
+        if d.undetectable != "exclude":
+            raise AssumptionError(not_detectable_text(un, sp, C_all, d.rank_tol))
+        warnings.append(f"design.undetectable: exclude: {still_text(un)} no agent sees, and {'they do' if un.dim > 1 else 'it does'} "
+                        "not decay; the certificate covers the error modulo the unobserved directions only")
     pw, mw = riccati_weights(sc)
     agents = tuple(
         design_agent(A, C, time=sc.time, rate=d.rate, method=d.gains, margin=d.margin,
                      K=None if d.K is None else d.K[k], rank_tol=d.rank_tol,
-                     process_weight=pw, measurement_weight=mw, agent_id=aid)
+                     process_weight=pw, measurement_weight=mw, agent_id=aid, unobserved=un.W, dec=decs[k])
         for k, (aid, C) in enumerate(zip(sc.agent_ids, sc.system.Cs))
     )
     graphs = tuple(build_graph(g.name, sc.agent_ids, g.arcs, weights=d.weights) for g in sc.graphs)
@@ -207,8 +274,17 @@ def design(sc: Scenario, *, compare_q_methods: bool = False, workers: int | None
     by_name = {g.name: g for g in graphs}
     ad = {a.id: a for a in agents}
 
-    def case_for(label, graph):
-        return bounds.make_case(label, graph, [ad[i].V for i in graph.ids], [ad[i].dec.A_un for i in graph.ids])
+    full_V = {aid: dec.V for aid, dec in zip(sc.agent_ids, decs)}
+
+    def case_for(label, graph, W=None):
+        """The case of ``graph``; ``W``: what its agents leave unobserved when it is not the design's (after a loss):
+        then ``V_i ⊖ W`` (detectability.py)."""
+        if W is None:
+            Vs = [ad[i].V for i in graph.ids]
+        else:
+            Vs = [quotient_basis(full_V[i], W) for i in graph.ids]
+        return bounds.make_case(label, graph, Vs, [V.T @ A @ V for V in Vs] if W is not None else
+                                [ad[i].dec.A_un for i in graph.ids])
 
     cases = [case_for(name, by_name[name]) for name in used]
     if d.graph_set == "all":
@@ -217,16 +293,15 @@ def design(sc: Scenario, *, compare_q_methods: bool = False, workers: int | None
             g = build_graph(f"all#{k + 1}", sc.agent_ids, arcs_ids, weights=d.weights)
             cases.append(case_for(g.name, g))
 
-    Cs_by_id = dict(zip(sc.agent_ids, sc.system.Cs))
     graph_arcs = {g.name: g.arcs for g in sc.graphs}
-    agent_losses = analyse_agent_losses(A, Cs_by_id, graph_arcs, rank_tol=d.rank_tol) if sc.m > 1 else {}
+    agent_losses = analyse_agent_losses(of, sc.agent_ids, graph_arcs) if sc.m > 1 else {}
     arc_losses = analyse_arc_losses(sc.agent_ids, graph_arcs)
     if d.resilience:
         for lost, rep in agent_losses.items():
-            if not rep.jointly_observable:
+            if not rep.detectable:
                 raise AssumptionError(
-                    f"design.resilience: 1 needs a redundantly jointly observable network: without agent {lost}, "
-                    f"direction {rep.unobservable_direction} is unobservable")
+                    f"design.resilience: 1 needs a redundantly jointly detectable network: without agent {lost}, no "
+                    f"agent sees {rep.unobservable_direction}, which does not decay")
             for name in used:
                 if not rep.strongly_connected[name]:
                     j, i = rep.unreachable[name]
@@ -237,7 +312,8 @@ def design(sc: Scenario, *, compare_q_methods: bool = False, workers: int | None
             for name in used:  # strongly connected: checked just above (rep.strongly_connected)
                 g = build_graph(f"{name} without agent {lost}", survivors, graph_arcs[name], weights=d.weights,
                                 check=False)
-                cases.append(case_for(g.name, g))
+                W_S = rep.unobserved.W
+                cases.append(case_for(g.name, g, None if W_S.shape[1] == un.dim else W_S))
     cases = tuple(cases)
     switching = len(used) > 1 or d.graph_set == "all"
 
@@ -245,12 +321,13 @@ def design(sc: Scenario, *, compare_q_methods: bool = False, workers: int | None
     if sc.time == "continuous":
         kw.update(_design_g(sc, cases, switching, warnings))
         if kw["g"] is not None:
-            kw["sampled_rate"] = _sampled_check(sc, agents, cases, kw["g"], warnings)
+            kw.update(sampled_g(sc, agents, cases, kw, switching, warnings))
     else:
         kw.update(_design_q(sc, cases, switching, warnings, compare_q_methods, workers))
-    residual = max((a.dec.split_residual for a in agents), default=0.0)
+    residual = max([a.dec.split_residual for a in agents] + [un.residual])
     des = Design(scenario=sc, agents=agents, graphs=graphs, cases=cases, agent_losses=agent_losses,
-                 arc_losses=arc_losses, warnings=tuple(warnings), split_residual=residual, **kw)
+                 arc_losses=arc_losses, warnings=tuple(warnings), split_residual=residual, unobserved=un, spectrum=sp,
+                 **kw)
     if des.split_exact or (sc.time == "continuous" and des.g is None):
         return des
     return check_full(des, warnings)  # an approximate split: the rate on the full error matrices
@@ -300,20 +377,6 @@ def _design_g(sc: Scenario, cases, switching: bool, warnings: list) -> dict:
                 g_arbitrary=g_arb, g_certified_by=by, error_radius=radius)
 
 
-def _sampled_check(sc: Scenario, agents, cases, g: float, warnings: list) -> dict:
-    """:func:`sampled.sampled_rates` for the design; warn when the sampled-data form misses the rate."""
-    dt = sc.run.dt
-    out = sampled_rates(sc, agents, cases, g)
-    worst = min(out.values())
-    if worst <= 0:
-        warnings.append(f"the sampled-data estimator is UNSTABLE with g = {g:g} and run.dt = {dt:g} "
-                        f"(dt too large against g or |K_i C_i|): reduce run.dt")
-    elif worst < sc.design.rate:
-        warnings.append(f"with run.dt = {dt:g} the sampled-data estimator decays at {worst:.4g} < rate "
-                        f"{sc.design.rate:g} (first order in dt against g and |K_i C_i|): reduce run.dt")
-    return out
-
-
 def _design_q(sc: Scenario, cases, switching: bool, warnings: list, compare: bool, workers: int | None) -> dict:
     d = sc.design
     rate = d.rate
@@ -337,74 +400,3 @@ def _design_q(sc: Scenario, cases, switching: bool, warnings: list, compare: boo
     # rho(Atil B^q) per case (eq. split_discrete_rho); the spectral q search has computed them already
     radius = {c.label: bounds.error_radius(c, result.q, rate=rate, method=d.eigenvalues) for c in cases}
     return dict(q=result.q, q_result=result, q_methods=others, error_radius=radius)
-
-
-def certify_network(des: Design, alive_ids, dropped=frozenset()) -> dict:
-    """Does the designed g or q still certify the rate on what is left after losses?
-
-    The survivors ``alive_ids`` on every graph the switching signal uses,
-    minus the ``dropped`` arcs: strong connectivity and joint observability
-    (:func:`resilience.network_verdict`), then, when both hold, the design's
-    own certificate recomputed on the survivors' graphs: ``q`` with the
-    design's q method (rho(Atil B^q) <= lam for ``spectral``, eq. split_discrete_rho),
-    ``g`` against eq. (g) or, failing that, the exact spectrum of A_V(g)
-    (eq. split_continuous_split) per graph held constant.  Cheap enough to
-    call at every loss during a run (no bisection).  A continuous g must also
-    make the sampled-data form with ``run.dt`` decay at the rate (as
-    :func:`splitspec_core.report.rate_certificate`).
-
-    Returns a JSON-ready dict: ``alive``, ``dropped_arcs``,
-    ``strongly_connected`` (per graph), ``unreachable`` (per graph, a pair
-    ``[j, i]``), ``jointly_observable``, ``unobservable_direction``,
-    ``rate_certified`` (bool, or None for the adaptive gain), ``certificate``
-    (one line), ``ok``.
-    """
-    from .network import active_arcs
-    from .resilience import network_verdict
-
-    sc = des.scenario
-    alive = tuple(a for a in sc.agent_ids if a in set(alive_ids))
-    used = sc.switching.graph_names(sc.graph_names)
-    arcs = {name: active_arcs(sc, sc.graph_names.index(name), dropped) for name in used}
-    v = network_verdict(sc.system.A, dict(zip(sc.agent_ids, sc.system.Cs)), alive, arcs,
-                        rank_tol=sc.design.rank_tol)
-    out = {"alive": list(alive), "dropped_arcs": sorted([list(a) for a in dropped]),
-           "strongly_connected": dict(v.strongly_connected),
-           "unreachable": {k: list(p) for k, p in v.unreachable.items()},
-           "jointly_observable": v.jointly_observable, "unobservable_direction": v.unobservable_direction}
-    rate = sc.design.rate
-    if not v.ok:
-        cert, text = False, "no rate: " + ("the survivors are not jointly observable" if not v.jointly_observable
-                                            else "a graph is not strongly connected")
-    elif des.time == "discrete":
-        ad = {a.id: a for a in des.agents}
-        cases = [bounds.make_case(name, build_graph(name, alive, arcs[name], weights=sc.design.weights),
-                                  [ad[i].V for i in alive], [ad[i].dec.A_un for i in alive]) for name in used]
-        res = bounds.choose_q(sc.design.q_method, cases, rate, q=des.q, q_max=sc.design.q_max,
-                              eig=sc.design.eigenvalues)
-        cert = bool(res.certified)
-        text = (f"q = {des.q}: {res.method} bound {res.bound:.4g} {'<=' if cert else '>'} rate {rate:g}"
-                + ("" if res.switching or len(cases) == 1 else " (per graph held constant)"))
-    elif des.g is None:
-        cert, text = None, f"adaptive gain: {NO_CERTIFIED_RATE}"
-    else:
-        ad = {a.id: a for a in des.agents}
-        cases = [bounds.make_case(name, build_graph(name, alive, arcs[name], weights=sc.design.weights),
-                                  [ad[i].V for i in alive], [ad[i].dec.A_un for i in alive]) for name in used]
-        gb = max(bounds.g_bound(c, rate) for c in cases)
-        if des.g >= gb:
-            cert, text = True, f"g = {des.g:g} >= eq. (g) bound {gb:.4g} on the survivors' graphs"
-        else:
-            worst = max(bounds.abscissa(c, des.g) for c in cases)
-            cert = worst <= -rate
-            text = (f"g = {des.g:g} < eq. (g) bound {gb:.4g}; exact spectral abscissa {worst:.4g} "
-                    f"{'<=' if cert else '>'} -{rate:g} (per graph held constant)")
-        if cert:  # what runs is the sampled-data form (steps.py): it must decay at the rate too
-            dt, sampled = sc.run.dt, min(sampled_rates(sc, [ad[i] for i in alive], cases, des.g).values())
-            if sampled < rate:
-                cert = False
-                text += (f"; but its sampled-data form with run.dt = {dt:g} "
-                         + (f"is UNSTABLE (decay rate {sampled:.4g})" if sampled <= 0 else
-                            f"decays at only {sampled:.4g} < rate {rate:g}"))
-    out.update(rate_certified=cert, certificate=text, ok=bool(v.ok and cert is not False))
-    return out

@@ -32,8 +32,8 @@ import numpy as np
 if TYPE_CHECKING:  # the designer imports this module
     from .designer import Design
 
-__all__ = ["full_error_matrix", "ode_error_matrix", "full_radius", "check_full", "error_dynamics", "predicted_rms",
-           "MAX_DIM", "SPLIT_EXACT"]
+__all__ = ["full_error_matrix", "ode_error_matrix", "modulo", "full_radius", "check_full", "error_dynamics",
+           "predicted_rms", "MAX_DIM", "SPLIT_EXACT"]
 
 #: the largest ``m n`` for which full error matrices are formed
 MAX_DIM = 1000
@@ -69,6 +69,19 @@ def full_error_matrix(A: np.ndarray, Cs, Ks, Ps, S: np.ndarray, *, time: str, q:
             - g * block_diagonal([D @ P for P in Ps]) @ (np.eye(m * n) - SI))
 
 
+def modulo(M: np.ndarray, W: np.ndarray, m: int) -> np.ndarray:
+    """The error map ``M`` (every agent's error stacked) modulo the directions ``W`` (orthonormal, A-invariant, no agent
+    sees them): ``(I_m (x) U_o') M (I_m (x) U_o)`` with ``U_o`` spanning ``W^⊥``.  ``M`` is block triangular in the
+    coordinates ``(U_o' e_i, W' e_i)`` (:mod:`splitspec_core.detectability`), so this is the map of the quotient's
+    errors, whatever ``W``'s part does."""
+    from .subspaces import complement
+
+    if W.shape[1] == 0:
+        return M
+    T = np.kron(np.eye(m), complement(W))
+    return T.T @ M @ T
+
+
 def ode_error_matrix(A: np.ndarray, Cs, Ks, Ps, S: np.ndarray, g: float) -> np.ndarray:
     """``Abar - g P (I - Sbar)`` (eq. split_continuous_em)."""
     n, m = np.shape(A)[0], len(Cs)
@@ -94,14 +107,19 @@ def full_radius(des: "Design", cases, *, q: int | None = None, g: float | None =
     sc = des.scenario
     A = np.asarray(sc.system.A)
     out = {}
+
+    def mod(M, k):  # design.undetectable: exclude: what the certificate covers is the error modulo W
+        return modulo(M, des.unobserved.W, k) if des.excluded else M
+
     for case in cases:
         Cs, Ks, Ps = _case_parts(des, case)
         if sc.time == "discrete":
-            M = full_error_matrix(A, Cs, Ks, Ps, case.graph.S, time="discrete", q=q)
+            M = mod(full_error_matrix(A, Cs, Ks, Ps, case.graph.S, time="discrete", q=q), len(Cs))
             out[case.label] = float(np.max(np.abs(np.linalg.eigvals(M))))
         else:
-            ode = float(np.max(np.linalg.eigvals(ode_error_matrix(A, Cs, Ks, Ps, case.graph.S, g)).real))
-            M = full_error_matrix(A, Cs, Ks, Ps, case.graph.S, time="continuous", g=g, dt=sc.run.dt)
+            ode = float(np.max(np.linalg.eigvals(mod(ode_error_matrix(A, Cs, Ks, Ps, case.graph.S, g),
+                                                     len(Cs))).real))
+            M = mod(full_error_matrix(A, Cs, Ks, Ps, case.graph.S, time="continuous", g=g, dt=sc.run.dt), len(Cs))
             rho = float(np.max(np.abs(np.linalg.eigvals(M))))
             out[case.label] = {"ode": ode, "sampled": -math.log(rho) / sc.run.dt if rho > 0 else math.inf}
     return out
@@ -118,8 +136,8 @@ def check_full(des: "Design", warnings: list) -> "Design":
     import dataclasses
 
     sc = des.scenario
-    worst = max(a.dec.weak for a in des.agents)
-    who = ", ".join(str(a.id) for a in des.agents if a.dec.weak > 0)
+    worst = max([a.dec.weak for a in des.agents] + [des.split_residual])
+    who = ", ".join(str(a.id) for a in des.agents if a.dec.weak > 0) or "every"
     note = (f"agent(s) {who} left a weakly observable direction (margin up to {worst:.2g}) to consensus: the split "
             f"of the error dynamics holds up to {des.split_residual:.2g}")
     if sc.m * sc.n > MAX_DIM:
@@ -131,7 +149,7 @@ def check_full(des: "Design", warnings: list) -> "Design":
     if not _full_meets(des, full):
         des = _raise_to_full(des, warnings)
     if not _full_meets(des, des.full_radius):
-        weakest = min(a.dec.weak for a in des.agents if a.dec.weak > 0)
+        weakest = min([a.dec.weak for a in des.agents if a.dec.weak > 0] or [des.split_residual])
         warnings.append(f"leaving agent(s) {who}'s weak directions to consensus misses the rate on the full error "
                         f"matrix even with more consensus: if the model is accurate to better than {weakest:.2g}, set "
                         f"design.rank_tol below that (e.g. {weakest / 10:.1g}) to count them (larger local gains)")
@@ -140,7 +158,7 @@ def check_full(des: "Design", warnings: list) -> "Design":
 
 
 def _full_meets(des: "Design", full: dict) -> bool:
-    rate = des.rate
+    rate = des.envelope_rate  # lam, or slower when directions no agent sees limit it (they are in the full matrix)
     if des.time == "discrete":
         return max(full.values()) < rate
     return max(v["ode"] for v in full.values()) <= -rate and min(v["sampled"] for v in full.values()) >= rate
@@ -230,8 +248,10 @@ def predicted_rms(des: "Design", graph_index: int = 0) -> np.ndarray:
 
     sc = des.scenario
     M, N = error_dynamics(des, graph_index)
+    if des.excluded:  # the error modulo the directions no agent sees, which do not decay (design.undetectable: exclude)
+        M, N = modulo(M, des.unobserved.W, sc.m), modulo(N, des.unobserved.W, sc.m)
     if np.max(np.abs(np.linalg.eigvals(M))) >= 1.0:
         return np.full(sc.m, math.inf)
     Sigma = sla.solve_discrete_lyapunov(M, N)
-    n = sc.n
+    n = M.shape[0] // sc.m
     return np.sqrt(np.maximum([np.trace(Sigma[i * n:(i + 1) * n, i * n:(i + 1) * n]) for i in range(sc.m)], 0.0))

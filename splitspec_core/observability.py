@@ -77,15 +77,17 @@ and the designer checks the rate on the full error matrix as well.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .errors import AssumptionError
+from .modal import Spectrum
+from .subspaces import complement as _complement
+from .subspaces import difference, intersection
+from .modal import spectrum as modal_spectrum
 
-__all__ = ["DEFAULT_RANK_TOL", "ROUND_OFF", "SPLIT_STEP", "Staircase", "Decomposition", "JointObservability", "threshold_of",
-           "observability_staircase", "observable_basis", "decompose", "unobservable_directions",
-           "joint_observability", "check_joint_observability"]
+__all__ = ["DEFAULT_RANK_TOL", "ROUND_OFF", "SPLIT_STEP", "Staircase", "Decomposition", "threshold_of",
+           "observability_staircase", "decompose", "unobservable_directions"]
 
 
 #: ``design.rank_tol: auto``: the smallest graded margin of a direction an agent counts as seen
@@ -134,16 +136,23 @@ def threshold_of(rank_tol: float | None) -> float:
 
 
 def observability_staircase(A: np.ndarray, C: np.ndarray, *, rank_tol: float | None = None,
-                            keep_full_steps: bool = True) -> Staircase:
+                            keep_full_steps: bool = True, c_scale: float | None = None) -> Staircase:
     """Observable space of ``(C, A)`` by the graded staircase (see the module docstring).
 
     ``keep_full_steps``: count a weak direction reached in a full step (:data:`SPLIT_STEP`), which an
     agent's split needs; the joint decision has no split to keep and counts margins alone.
+    ``c_scale``: measure ``C`` against this norm instead of its own (a cluster's restriction ``C X_k`` against
+    the whole ``|C|``: a mode the sensors see weakly must not look strong because it is alone in its cluster).
     """
     step = SPLIT_STEP if keep_full_steps else math.inf
     n = A.shape[0]
     threshold = threshold_of(rank_tol)
     normC = np.linalg.norm(C, 2) if C.size else 0.0
+    if c_scale is not None:
+        if normC <= ROUND_OFF * c_scale:  # nothing but round-off of the restriction
+            normC = 0.0
+        else:
+            normC = c_scale
     if normC == 0.0:
         return Staircase(np.zeros((n, 0)), np.zeros(0), 0.0, None, threshold)
     # the Krylov space of A' is that of (A - aI)': a shift changes no direction, only the scale
@@ -225,8 +234,10 @@ class Decomposition:
     weak : float
         The largest graded margin of a direction left out (0.0: none above round-off).
     split_residual : float
-        ``max(||Q A V||_2 / ||A - aI||_2, ||C_i V||_2 / ||C_i||_2)``: how far ``V`` is from an exact
-        unobservable space (round-off when ``weak`` is 0).
+        ``max(||Q A V||_2 / ||A - aI||_2, ||C_i V||_2 / ||C_i||_2)`` in balanced coordinates: how far ``V`` is
+        from an exact unobservable space (round-off when ``weak`` is 0).
+    unobserved : int
+        The dimension of the directions no agent sees, taken out of ``V`` (:meth:`without`); 0: none.
     """
 
     V: np.ndarray
@@ -238,10 +249,20 @@ class Decomposition:
     margin: float | None = None
     weak: float = 0.0
     split_residual: float = 0.0
+    unobserved: int = 0
 
     @property
     def n_unobservable(self) -> int:
         return self.V.shape[1]
+
+    def without(self, W: np.ndarray, A: np.ndarray) -> "Decomposition":
+        """The estimator's decomposition when the directions ``W`` (orthonormal, in ``span V``) go unobserved by
+        every agent: ``V`` becomes ``V ⊖ W`` (:mod:`splitspec_core.detectability`); ``Q``, ``Abar``, ``Cbar`` and
+        the margins are the agent's own, unchanged."""
+        if W.shape[1] == 0:
+            return self
+        V = difference(self.V, W)
+        return replace(self, V=V, P=V @ V.T, A_un=V.T @ np.asarray(A) @ V, unobserved=int(W.shape[1]))
 
     @property
     def n_observable(self) -> int:
@@ -271,27 +292,6 @@ def _missed(Cs: np.ndarray, S: np.ndarray | None, W: np.ndarray, threshold: floa
     return V @ Vt[seen].T, s[seen]
 
 
-def observable_basis(A: np.ndarray, C: np.ndarray, *, rank_tol: float | None = None) -> np.ndarray:
-    """Orthonormal basis (columns) of the observable space of ``(C, A)`` as decided by the graded staircase.
-
-    Returns
-    -------
-    W : (n, r) array
-        ``W'W = I``; ``span W`` is the span of the directions whose graded margin is at least the threshold.
-    """
-    return observability_staircase(A, C, rank_tol=rank_tol).W
-
-
-def _complement(W: np.ndarray) -> np.ndarray:
-    """Orthonormal basis of the orthogonal complement of ``span W``."""
-    n, r = W.shape
-    if r == 0:
-        return np.eye(n)
-    # numpy's QR (LAPACK dgeqrf + dorgqr, as scipy.linalg.qr): an agent process then needs no scipy
-    Qfull, _ = np.linalg.qr(W, mode="complete")
-    return Qfull[:, r:]
-
-
 def _split_residual(A: np.ndarray, C: np.ndarray, Q: np.ndarray, V: np.ndarray) -> float:
     if not V.shape[1] or not Q.shape[0]:
         return 0.0
@@ -303,84 +303,77 @@ def _split_residual(A: np.ndarray, C: np.ndarray, Q: np.ndarray, V: np.ndarray) 
     return max(inv, out)
 
 
-def decompose(A: np.ndarray, C: np.ndarray, *, rank_tol: float | None = None) -> Decomposition:
-    """Observability decomposition of ``(C, A)``; see the module docstring."""
-    st = observability_staircase(A, C, rank_tol=rank_tol)
-    W = st.W
-    V = _complement(W)
-    Q = W.T.copy()
+@dataclass(frozen=True)
+class _Decided:
+    """Agent i's decisions in balanced coordinates: ``Vb`` (its unobservable space), the margins counted, the
+    largest margin left out and that direction (balanced coordinates)."""
+
+    Vb: np.ndarray
+    margins: np.ndarray
+    weak: float
+    weak_direction: np.ndarray | None
+
+
+def _decide(sp: Spectrum, C: np.ndarray, rank_tol: float | None, keep_full_steps: bool = True,
+            free=None) -> _Decided:
+    """The unobservable space of ``(C, A)`` cluster by cluster (:mod:`splitspec_core.modal`): each cluster's restricted
+    pair ``(C_b X_k, A_k)`` by the graded staircase, ``C_b`` measured against its whole norm.  A cluster whose
+    eigenvalues all satisfy ``free`` (they decay faster than the local gain's target, so the gain leaves them where
+    they are: :mod:`splitspec_core.gains`) is decided at round-off: seeing it costs no gain, and counting what the
+    sensors see of it, however little, keeps ``C_i V_i = 0`` (leaving it to consensus would couple the split by that
+    much, times the gain).  Its margins are not the agent's (``margins`` holds those of the other clusters)."""
+    Cb = C * sp.d[None, :]
+    normC = float(np.linalg.norm(Cb, 2)) if Cb.size else 0.0
+    parts, margins, weak, weak_dir = [], [], 0.0, None
+    for cl in sp.clusters:
+        if normC == 0.0:
+            parts.append(cl.X)
+            continue
+        alone = free is not None and bool(np.all(free(cl.eigs)))
+        st = observability_staircase(cl.A, Cb @ cl.X, rank_tol=ROUND_OFF if alone else rank_tol,
+                                     keep_full_steps=keep_full_steps, c_scale=normC)
+        parts.append(cl.X @ _complement(st.W))
+        if not alone:
+            margins.append(st.margins)
+        if st.weak > weak:
+            weak, weak_dir = st.weak, cl.X @ st.weak_direction
+    n = sp.A_b.shape[0]
+    V = np.hstack(parts) if parts else np.zeros((n, 0))
+    if V.shape[1]:
+        V, _ = np.linalg.qr(V)  # the clusters' parts are independent (disjoint spectra), not orthogonal
+    return _Decided(V, np.concatenate(margins) if margins else np.zeros(0), weak, weak_dir)
+
+
+def decompose(A: np.ndarray, C: np.ndarray, *, rank_tol: float | None = None,
+              spectrum: Spectrum | None = None, free=None) -> Decomposition:
+    """Observability decomposition of ``(C, A)``, decided cluster by cluster in balanced coordinates.
+
+    ``spectrum``: the skeleton of ``A`` (:func:`splitspec_core.modal.spectrum`, balanced with every agent's
+    rows); computed from ``(A, C)`` when not given.  ``free``: a predicate on eigenvalues, true where a mode decays
+    faster than the local gain's target (:func:`splitspec_core.gains.beyond_target`): such clusters are decided at
+    round-off (:func:`_decide`).  ``V`` and ``Q`` are orthonormal in the user's coordinates; margins, ``weak`` and
+    ``split_residual`` are measured in the balanced ones (unit-free).
+    """
+    A = np.asarray(A, dtype=float)
+    C = np.asarray(C, dtype=float)
+    sp = spectrum if spectrum is not None else modal_spectrum(A, C)
+    dec = _decide(sp, C, rank_tol, free=free)
+    V = sp.to_user(dec.Vb)
+    Q = _complement(V).T
+    residual = _split_residual(sp.A_b, C * sp.d[None, :], _complement(dec.Vb).T, dec.Vb)
     return Decomposition(
         V=V, Q=Q, Abar=Q @ A @ Q.T, Cbar=C @ Q.T, P=V @ V.T, A_un=V.T @ A @ V,
-        margin=st.margin, weak=st.weak, split_residual=_split_residual(A, C, Q, V),
+        margin=float(dec.margins.min()) if dec.margins.size else None, weak=dec.weak, split_residual=residual,
     )
 
 
 def unobservable_directions(A: np.ndarray, Cs, *, rank_tol: float | None = None) -> np.ndarray:
-    """Orthonormal basis of the jointly unobservable space of ``(C, A)`` (as :func:`joint_observability` decides)."""
-    st = observability_staircase(A, np.vstack(list(Cs)), rank_tol=rank_tol, keep_full_steps=False)
-    return _complement(st.W)
-
-
-def _direction_text(v: np.ndarray) -> str:
-    v = v / v[np.argmax(np.abs(v))]
-    v = np.where(np.abs(v) < 5e-4, 0.0, v)
-    return "[" + " ".join(f"{x:.3g}" for x in v) + "]"
-
-
-@dataclass(frozen=True)
-class JointObservability:
-    """Joint observability of ``(C, A)`` as decided (the stacked pair, the same rule as each agent's).
-
-    ``margin``: the smallest graded margin counted; ``weak``: the largest left out (0.0 if none);
-    ``direction``: a direction nobody sees (text), or None.
-    """
-
-    observable: bool
-    margin: float | None
-    weak: float
-    direction: str | None
-    threshold: float
-
-
-def joint_observability(A: np.ndarray, Cs, *, rank_tol: float | None = None) -> JointObservability:
-    """Joint observability of the stacked pair, by margins alone (no split to keep: see :func:`observability_staircase`).
-
-    When it is not observable as decided, ``weak`` is the margin the threshold would have to go below for it to
-    be (the weakest direction of the staircase run down to round-off), 0.0 if not even then, and ``direction``
-    the part of that direction nobody sees at the threshold.
-    """
-    C = np.vstack(list(Cs))
-    st = observability_staircase(A, C, rank_tol=rank_tol, keep_full_steps=False)
+    """Orthonormal basis of what no agent sees: ``V_1 ∩ ... ∩ V_m``, each ``V_i`` decided as :func:`decompose` does
+    (in one skeleton of ``A`` balanced with every agent's rows; :mod:`splitspec_core.detectability`)."""
+    A = np.asarray(A, dtype=float)
+    Cs = [np.asarray(C, dtype=float) for C in Cs]
     n = A.shape[0]
-    if st.W.shape[1] == n:
-        return JointObservability(True, st.margin, st.weak, None, st.threshold)
-    full = observability_staircase(A, C, rank_tol=ROUND_OFF, keep_full_steps=False)
-    if full.W.shape[1] == n:
-        weakest = int(np.argmin(full.margins))
-        weak, v = float(full.margins[weakest]), full.W[:, weakest]
-        v = v - st.W @ (st.W.T @ v)
-        if np.linalg.norm(v) < 1e-6:  # that one is seen: name any direction nobody sees
-            v = _complement(st.W)[:, 0]
-    else:
-        weak, v = 0.0, _complement(full.W)[:, 0]
-    return JointObservability(False, st.margin, weak, _direction_text(v / np.linalg.norm(v)), st.threshold)
-
-
-def check_joint_observability(A: np.ndarray, Cs, *, rank_tol: float | None = None,
-                              who: str = "every agent") -> JointObservability:
-    """Raise :class:`AssumptionError` naming the direction if ``(C, A)`` is not jointly observable as decided.
-
-    A direction left out with a margin above round-off is named with that margin ("only weakly
-    observable"), with the threshold that left it out and how to override it.
-    """
-    jo = joint_observability(A, Cs, rank_tol=rank_tol)
-    if jo.observable:
-        return jo
-    if jo.weak > 0.0:
-        source = "design.rank_tol: auto" if rank_tol is None else f"design.rank_tol: {rank_tol:g}"
-        raise AssumptionError(
-            f"(C, A) is only weakly jointly observable: direction {jo.direction} is seen by {who} with a margin "
-            f"of only {jo.weak:.2g} (< {jo.threshold:g}, {source}); a model accurate to better than that can "
-            f"set design.rank_tol below {jo.weak:.2g} (gains then grow like 1 / margin)")
-    raise AssumptionError(
-        f"(C, A) is not jointly observable: direction {jo.direction} is unobservable to {who}")
+    if not Cs:
+        return np.eye(n)
+    sp = modal_spectrum(A, np.vstack(Cs))
+    return sp.to_user(intersection([_decide(sp, C, rank_tol).Vb for C in Cs], n))

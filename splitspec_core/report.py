@@ -1,4 +1,9 @@
-"""Design output: the JSON contract and the readable report."""
+"""Design output: the JSON contract and the readable report.
+
+Why one module: both render the same :class:`~splitspec_core.designer.Design` and the same verdict
+(:func:`rate_certificate`, the line every command prints), and must say the same thing; the JSON is the
+contract (``../shared/DESIGN.md``), the text its reading.
+"""
 
 from __future__ import annotations
 
@@ -10,6 +15,7 @@ import numpy as np
 from .bounds import QResult
 from .designer import NO_CERTIFIED_RATE, Design
 from .graphs import is_doubly_stochastic, perron_vector
+from .labels import heaviest
 
 __all__ = ["RateCertificate", "rate_certificate", "design_json", "design_text"]
 
@@ -21,19 +27,40 @@ class RateCertificate:
     Attributes
     ----------
     certified : bool
-        The design certifies that every error decays at the rate ``lam``.
+        The design certifies that every error decays at the rate ``lam`` (or at ``rate``, slower, when directions
+        no agent sees limit it: :mod:`splitspec_core.detectability`).
     text : str
         One line: what certifies it, or why nothing does.
+    rate : float or None
+        The rate of the certified envelope (``Design.envelope_rate``) when certified, else None.
     """
 
     certified: bool
     text: str
+    rate: float | None = None
 
 
 MAX_LISTED = 12  # cases whose radius the text report lists (the largest first); --json has them all
 
 def rate_certificate(des: Design, *, sampled: bool = True) -> RateCertificate:
-    """Does the design certify its rate for the estimator as it is run?
+    """Does the design certify its rate for the estimator as it is run?  :func:`_split_certificate`, then what the
+    directions no agent sees do to it (``Design.unobserved``): nothing when they decay faster than ``lam``; they limit
+    the envelope's rate when they decay slower (``Design.envelope_rate``); with ``design.undetectable: exclude`` the
+    certificate covers the error modulo them only."""
+    cert = _split_certificate(des, sampled=sampled)
+    un = des.unobserved
+    text = cert.text
+    if un is not None and un.dim:
+        if des.excluded:
+            text += (f"; on the error modulo the {un.dim} direction{'s' if un.dim != 1 else ''} no agent sees "
+                     f"({un.where()}), which do not all decay (design.undetectable: exclude)")
+        else:
+            text += f"; {un.summary(des.rate)}"
+    return RateCertificate(cert.certified, text, des.envelope_rate if cert.certified else None)
+
+
+def _split_certificate(des: Design, *, sampled: bool = True) -> RateCertificate:
+    """The certificate of the split (the quotient by what no agent sees, when that is not nothing).
 
     * adaptive gain: never (thm. split_continuous_adaptive gives asymptotic
       convergence only, :data:`~splitspec_core.designer.NO_CERTIFIED_RATE`);
@@ -85,9 +112,10 @@ def rate_certificate(des: Design, *, sampled: bool = True) -> RateCertificate:
 
 def _full_certificate(des: Design, *, sampled: bool) -> RateCertificate:
     """An approximate split (``Design.full_radius``): the verdict of the full error matrices, each graph held
-    constant; no switching certificate of the paper covers it (see :func:`splitspec_core.full_matrix.check_full`)."""
+    constant; no switching certificate of the paper covers it (see :func:`splitspec_core.full_matrix.check_full`).
+    The full matrices hold the directions no agent sees too: they are judged against the envelope's rate."""
     sc = des.scenario
-    rate = sc.design.rate
+    rate = des.envelope_rate
     scope = (f"each graph held constant; the split is approximate (residual {des.split_residual:.2g}), "
              "so no switching certificate applies") if len(des.cases) > 1 else \
         f"the split is approximate (residual {des.split_residual:.2g})"
@@ -131,16 +159,29 @@ def _redundancy(des: Design) -> dict:
     return {
         "redundantly_strongly_connected": des.redundantly_strongly_connected,
         "redundantly_jointly_observable": des.redundantly_jointly_observable,
+        "redundantly_jointly_detectable": des.redundantly_jointly_detectable,
         "agent_loss": {
             str(a): {
                 "jointly_observable": r.jointly_observable,
+                "jointly_detectable": r.detectable,
                 "unobservable_direction": r.unobservable_direction,
+                "unobserved": _unobserved_json(r.unobserved, des.rate, full=False),
                 "strongly_connected": r.strongly_connected,
             }
             for a, r in des.agent_losses.items()
         },
         "arc_loss": {name: {f"{j}->{i}": ok for (j, i), ok in res.items()} for name, res in des.arc_losses.items()},
     }
+
+
+def _unobserved_json(un, rate: float, *, full: bool = True) -> dict:
+    """What no agent (of a set) sees: its dimension, the states carrying it, its spectrum and decay (detectability.py)."""
+    out = {"dim": un.dim, "states": heaviest(un.W, un.names, limit=len(un.names) or 1) if un.dim else [],
+           "decays": bool(un.decays), "decay": _num(un.decay), "limits_rate": bool(un.decays and un.limits(rate)),
+           "envelope_rate": _num(un.envelope(rate)) if un.decays else None}
+    if full:
+        out.update(eigenvalues=_complex(un.eigs), residual=_num(un.residual), W=_mat(un.W))
+    return out
 
 
 def _conditioning_json(des: Design) -> dict:
@@ -176,6 +217,8 @@ def design_json(des: Design) -> dict:
         "rate": sc.design.rate,
         "m": sc.m,
         "n": sc.n,
+        "states": list(sc.state_names),
+        "outputs": {str(i): list(sc.output_names(i)) for i in sc.agent_ids},
         "gains": sc.design.gains,
         "agents": [
             {
@@ -185,6 +228,7 @@ def design_json(des: Design) -> dict:
                 "P": _mat(a.P),
                 "poles": _complex(a.gain.poles),
                 "n_unobservable": a.dec.n_unobservable,
+                "n_unobserved": a.dec.unobserved,
                 "unobservable_eigs": _complex(np.linalg.eigvals(a.dec.A_un)) if a.dec.n_unobservable else [],
                 "observability_margin": _num(cond[a.id].observability_margin),
                 "gain_norm": _num(cond[a.id].gain_norm),
@@ -201,10 +245,13 @@ def design_json(des: Design) -> dict:
         ],
         "cases": [c.label for c in des.cases],
         "checks": {
-            "jointly_observable": True,
+            "jointly_observable": des.unobserved is None or des.unobserved.dim == 0,
+            "jointly_detectable": des.unobserved is None or des.unobserved.decays,
             "strongly_connected": {g.name: True for g in des.graphs},
             "redundancy": _redundancy(des),
         },
+        "unobserved": None if des.unobserved is None else {**_unobserved_json(des.unobserved, sc.design.rate),
+                                                            "excluded": des.excluded},
         "error_spectrum": {k: _num(v) for k, v in des.error_radius.items()},
         "rank_tol": "auto" if sc.design.rank_tol is None else sc.design.rank_tol,
         "loss_certificate": _loss_json(des),
@@ -212,7 +259,7 @@ def design_json(des: Design) -> dict:
         "warnings": list(des.warnings) + list(des.conditioning.warnings),
     }
     cert = rate_certificate(des)
-    out.update(certified_rate=cert.certified, certificate=cert.text,
+    out.update(certified_rate=cert.certified, certificate=cert.text, envelope_rate=_num(cert.rate),
                rate_note=NO_CERTIFIED_RATE if des.g_mode == "adaptive" else None)
     if sc.time == "continuous":
         out.update({
@@ -273,22 +320,31 @@ def design_text(des: Design) -> str:
     for a, c in zip(des.agents, cond.agents):
         margin = "-" if c.observability_margin is None else f"{c.observability_margin:.2g}"
         weak = f", weak direction (margin {c.weak:.2g}) left to consensus" if c.weak > 0 else ""
-        lines.append(f"  agent {a.id}: s_i = {a.K.shape[1]}, n_i = {a.dec.n_unobservable}, "
-                     f"poles {_fmt_poles(a.gain.poles)}, margin {margin}, |K| {c.gain_norm:.3g}{weak}")
+        lines.append(f"  agent {a.id}: s_i = {a.K.shape[1]}, n_i = {a.dec.n_unobservable}"
+                     + (f" (+ {a.dec.unobserved} no agent sees)" if a.dec.unobserved else "")
+                     + f", poles {_fmt_poles(a.gain.poles)}, margin {margin}, |K| {c.gain_norm:.3g}{weak}")
     lines += ["", "graphs"]
     for g in des.graphs:
         ds = "doubly stochastic" if is_doubly_stochastic(g.S) else "not doubly stochastic"
         arcs = ", ".join(f"{j}->{i}" for j, i in g.arcs)
         lines.append(f"  {g.name}: strongly connected, {ds}; arcs {arcs}")
-    lines += ["", "checks", "  jointly observable: yes", "  every graph strongly connected: yes"]
-    rsc, rjo = des.redundantly_strongly_connected, des.redundantly_jointly_observable
+    un = des.unobserved
+    if un is None or not un.dim:
+        lines += ["", "checks", "  jointly observable: yes"]
+    else:
+        verdict = "yes" if un.decays else "NO (design.undetectable: exclude)"
+        lines += ["", "checks", f"  jointly observable: no; jointly detectable: {verdict}: {un.summary(d.rate)}"]
+    lines.append("  every graph strongly connected: yes")
+    rsc, rjo, rjd = (des.redundantly_strongly_connected, des.redundantly_jointly_observable,
+                     des.redundantly_jointly_detectable)
     lines.append(f"  redundantly strongly connected: {'yes' if rsc else 'no'}; "
-                 f"redundantly jointly observable: {'yes' if rjo else 'no'}")
+                 f"redundantly jointly observable: {'yes' if rjo else 'no'}"
+                 + ("" if rjo else f"; redundantly jointly detectable: {'yes' if rjd else 'no'}"))
     for a, r in des.agent_losses.items():
         if not r.ok:
             why = []
-            if not r.jointly_observable:
-                why.append(f"direction {r.unobservable_direction} unobserved")
+            if not r.detectable:
+                why.append(f"no agent sees {r.unobservable_direction}, which does not decay")
             why += [f"graph {g} splits (agent {r.unreachable[g][0]} cannot reach {r.unreachable[g][1]})"
                     for g, ok in r.strongly_connected.items() if not ok]
             lines.append(f"    losing agent {a}: " + "; ".join(why))

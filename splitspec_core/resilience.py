@@ -3,8 +3,10 @@
 A network is *redundantly strongly connected* when every graph stays
 strongly connected after any one agent is lost, and *redundantly jointly
 observable* when the survivors of any single loss still jointly observe
-``(C, A)``.  The split-spectrum estimators keep working after such a loss
-provided g or q also covers the survivors' graphs (``design.resilience: 1``).
+``(C, A)``; *redundantly jointly detectable* when what the survivors leave
+unobserved (``W_S``, :mod:`splitspec_core.detectability`) still decays.  The
+split-spectrum estimators keep working after such a loss provided g or q also
+covers the survivors' graphs (``design.resilience: 1``), on the quotient by ``W_S``.
 """
 
 from __future__ import annotations
@@ -13,8 +15,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from typing import Callable
+
+from .detectability import Unobserved, still_text
 from .graphs import arc_positions, find_unreachable
-from .observability import _direction_text, unobservable_directions
 
 __all__ = ["LossReport", "network_verdict", "analyse_agent_losses", "analyse_arc_losses"]
 
@@ -29,28 +33,40 @@ class LossReport:
         ``{graph name: bool}`` for the graphs restricted to the survivors.
     unreachable : dict
         ``{graph name: (j, i)}``: a survivor j that cannot reach survivor i.
-    jointly_observable : bool
-    unobservable_direction : str or None
-        A direction no survivor observes, when not jointly observable.
+    unobserved : Unobserved
+        What no survivor sees (``W_S``), its spectrum and whether it decays.
     """
 
     strongly_connected: dict
     unreachable: dict
-    jointly_observable: bool
-    unobservable_direction: str | None
+    unobserved: Unobserved
+
+    @property
+    def jointly_observable(self) -> bool:
+        return self.unobserved.dim == 0
+
+    @property
+    def detectable(self) -> bool:
+        """What no survivor sees decays (so a rate can still be certified)."""
+        return self.unobserved.decays
+
+    @property
+    def unobservable_direction(self) -> str | None:
+        """The modes no survivor sees that do not decay (named), when not jointly detectable; else None."""
+        return None if self.detectable else still_text(self.unobserved)
 
     @property
     def ok(self) -> bool:
-        return self.jointly_observable and all(self.strongly_connected.values())
+        return self.detectable and all(self.strongly_connected.values())
 
 
-def network_verdict(A: np.ndarray, Cs_by_id: dict, alive, graphs: dict, *,
-                    rank_tol: float | None = None, connected: dict | None = None) -> LossReport:
-    """Strong connectivity of each graph restricted to ``alive`` and joint observability of ``alive``.
+def network_verdict(unobserved_of: Callable, alive, graphs: dict, *, connected: dict | None = None) -> LossReport:
+    """Strong connectivity of each graph restricted to ``alive`` and what ``alive`` leaves unobserved.
 
-    ``graphs`` maps a name to its arcs ``(j, i)`` between agent ids.  ``connected``: ``{name: bool}`` already
-    known (:func:`analyse_agent_losses` decides it for every loss at once); a pair that cannot reach is then
-    searched only for a graph that splits.
+    ``unobserved_of(alive)``: the :class:`~splitspec_core.detectability.Unobserved` of a set of agents (the design's
+    :meth:`~splitspec_core.designer.Design.unobserved_of`).  ``graphs`` maps a name to its arcs ``(j, i)`` between
+    agent ids.  ``connected``: ``{name: bool}`` already known (:func:`analyse_agent_losses` decides it for every
+    loss at once); a pair that cannot reach is then searched only for a graph that splits.
     """
     alive = tuple(sorted(alive))
     sc, unreach = {}, {}
@@ -61,13 +77,7 @@ def network_verdict(A: np.ndarray, Cs_by_id: dict, alive, graphs: dict, *,
         sc[name] = bad is None and bool(alive) and (connected is None or connected[name])
         if bad is not None:
             unreach[name] = (alive[bad[0]], alive[bad[1]])
-    if alive:
-        D = unobservable_directions(A, [Cs_by_id[a] for a in alive], rank_tol=rank_tol)
-    else:
-        D = np.eye(A.shape[0])
-    jo = D.shape[1] == 0
-    return LossReport(strongly_connected=sc, unreachable=unreach, jointly_observable=jo,
-                      unobservable_direction=None if jo else _direction_text(D[:, 0]))
+    return LossReport(strongly_connected=sc, unreachable=unreach, unobserved=unobserved_of(alive))
 
 
 def _components(m: int, rows: np.ndarray, cols: np.ndarray, keep: np.ndarray | None = None) -> int:
@@ -81,19 +91,19 @@ def _components(m: int, rows: np.ndarray, cols: np.ndarray, keep: np.ndarray | N
     return int(connected_components(G, directed=True, connection="strong", return_labels=False))
 
 
-def analyse_agent_losses(A, Cs_by_id: dict, graphs: dict, *, rank_tol: float | None = None) -> dict:
+def analyse_agent_losses(unobserved_of: Callable, ids, graphs: dict) -> dict:
     """``{lost agent id: LossReport}`` for every single agent loss: :func:`network_verdict` of each survivor set,
     with strong connectivity decided for all of them in O(m (m + arcs)) compiled steps by scipy's strongly
     connected components (the survivors are strongly connected iff the graph with the lost agent's arcs removed
     has 2 components, the lost agent alone and the rest)."""
-    ids = tuple(sorted(Cs_by_id))
+    ids = tuple(sorted(ids))
     m = len(ids)
     arrays = {name: arc_positions(ids, arcs) for name, arcs in graphs.items()}
     out = {}
     for k, a in enumerate(ids):
         connected = {name: m == 2 or _components(m, rows, cols, (rows != k) & (cols != k)) == 2
                      for name, (rows, cols) in arrays.items()}
-        out[a] = network_verdict(A, Cs_by_id, ids[:k] + ids[k + 1:], graphs, rank_tol=rank_tol, connected=connected)
+        out[a] = network_verdict(unobserved_of, ids[:k] + ids[k + 1:], graphs, connected=connected)
     return out
 
 

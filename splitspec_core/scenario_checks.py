@@ -26,13 +26,13 @@ _TOP_KEYS = ("name", "time", "system", "graphs", "switching", "design", "faults"
 _NETWORK_KEYS = ("loss", "delay", "deadline", "arcs")
 _DELAY_KEYS = ("mean", "jitter")
 _NETWORK_ARC_KEYS = ("arc", "loss", "delay")
-_SYSTEM_KEYS = ("A", "C", "x0", "process_noise", "measurement_noise")
+_SYSTEM_KEYS = ("A", "C", "x0", "process_noise", "measurement_noise", "states", "outputs")
 _GRAPH_KEYS = ("arcs", "undirected")
 _SWITCHING_KEYS = ("schedule", "period", "random")
 _RANDOM_KEYS = ("graphs", "dwell", "seed")
 _DESIGN_KEYS = (
     "rate", "gains", "K", "g", "g0", "q", "q_method", "q_max", "resilience",
-    "weights", "margin", "rank_tol", "graph_set", "dwell", "riccati", "eigenvalues",
+    "weights", "margin", "rank_tol", "graph_set", "dwell", "riccati", "eigenvalues", "undetectable",
 )
 _RICCATI_KEYS = ("process_weight", "measurement_weight")
 _RUN_KEYS = ("steps", "dt", "seed", "pace")
@@ -217,6 +217,25 @@ def _matrix(value: Any, key: str, *, vector: bool = False) -> np.ndarray:
         raise ScenarioError(f"{key} has empty rows")
     arr = np.array(rows, dtype=float)
     return _frozen(arr[0] if vector else arr)
+
+
+def _names(value: Any, key: str, count: int, what: str) -> tuple:
+    """A list of ``count`` distinct names (:data:`splitspec_core.labels.NAME_PATTERN`), naming ``key`` on failure."""
+    from .labels import NAME_PATTERN
+
+    if not isinstance(value, list):
+        raise ScenarioError(f"{key} must be a list of {count} names ({what}), got {_describe(value)}")
+    if len(value) != count:
+        raise DimensionError(f"{key} has {len(value)} names, expected {count} ({what})")
+    seen: dict = {}
+    for k, name in enumerate(value):
+        if not isinstance(name, str) or not NAME_PATTERN.fullmatch(name):
+            raise ScenarioError(f"{key}[{k + 1}] = {_short(repr(name))} is not a name: letters, digits, _ . - "
+                                "(starting with a letter or _), at most 64 characters")
+        if name in seen:
+            raise ScenarioError(f"{key}[{k + 1}] = {name!r} is also {key}[{seen[name] + 1}]: names must differ")
+        seen[name] = k
+    return tuple(value)
 
 
 def _agent_id(value: Any, key: str) -> int:

@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 
 from .errors import DimensionError
+from .labels import default_output_names, default_state_names
 from .scenario_checks import GAIN_METHODS, MAX_MAGNITUDE, MAX_SEED, Q_METHODS, check_shapes  # noqa: F401
 
 __all__ = [
@@ -63,6 +64,10 @@ class System:
         ``E[v(t) v(s)'] = process_noise I delta(t - s)``).
     measurement_noise : float
         Standard deviation of each measurement noise sample ``w_i``.
+    states : tuple of str or None
+        The states' names (``system.states``); None: ``x1 .. xn``.
+    outputs : dict or None
+        Agent id -> the names of its outputs (``system.outputs``); an agent not in it has ``y<i>``, ``y<i>_k``.
     """
 
     A: np.ndarray
@@ -70,6 +75,8 @@ class System:
     x0: np.ndarray | None
     process_noise: float = 0.0
     measurement_noise: float = 0.0
+    states: tuple | None = None
+    outputs: dict | None = None
 
     @property
     def n(self) -> int:
@@ -137,6 +144,7 @@ class DesignSpec:
     riccati_process_weight: float | None = None
     riccati_measurement_weight: float | None = None
     eigenvalues: str = "auto"  # spectral q's radii: auto, dense or iterative (splitspec_core.spectral)
+    undetectable: str = "refuse"  # refuse | exclude: a mode no agent sees that does not decay (detectability.py)
 
 
 @dataclass(frozen=True)
@@ -243,6 +251,23 @@ class Scenario:
     def index_of(self, agent_id: int) -> int:
         """Position of ``agent_id`` in ``agent_ids``."""
         return self.agent_ids.index(agent_id)
+
+    @property
+    def state_names(self) -> tuple:
+        """The states' names: ``system.states``, else ``x1 .. xn``."""
+        return self.system.states if self.system.states is not None else default_state_names(self.n)
+
+    @property
+    def states_named(self) -> bool:
+        """Whether the scenario names its states (``system.states``)."""
+        return self.system.states is not None
+
+    def output_names(self, agent_id: int) -> tuple:
+        """Agent ``agent_id``'s output names: ``system.outputs.<id>``, else ``y<id>`` / ``y<id>_1 ..``."""
+        given = (self.system.outputs or {}).get(agent_id)
+        if given is not None:
+            return given
+        return default_output_names(agent_id, int(np.shape(self.system.Cs[self.index_of(agent_id)])[0]))
 
     def __post_init__(self) -> None:
         # built directly from the dataclasses, a scenario still meets the parser's shape checks

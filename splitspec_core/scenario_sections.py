@@ -15,7 +15,7 @@ from .errors import ScenarioError
 from .scenario_checks import (_DESIGN_KEYS, _GRAPH_KEYS, _RANDOM_KEYS, _RICCATI_KEYS, _RUN_KEYS, _SWITCHING_KEYS,
                               _SYSTEM_KEYS, _TOP_KEYS, FAULT_ACTIONS, GAIN_METHODS, MAX_Q, MIN_DT, MIN_PACE,
                               MIN_RICCATI_WEIGHT, MIN_SWITCH_STEPS, Q_METHODS, WEIGHTINGS, _agent_id, _arc,
-                              _check_keys, _describe, _ids_text, _integer, _known_agent, _matrix, _number,
+                              _check_keys, _describe, _ids_text, _integer, _known_agent, _matrix, _names, _number,
                               _require_map, _seed, check_shapes, plain)
 from .scenario_model import DesignSpec, Fault, GraphSpec, RunSpec, Scenario, Switching, System
 from .scenario_network import check_heals, parse_groups, parse_network
@@ -51,7 +51,19 @@ def _parse_system(raw: Any) -> tuple[System, tuple]:
         if v < 0:
             raise ScenarioError(f"system.{k} must be >= 0, got {v}")
         noises[k] = v
-    system = System(A=A, Cs=tuple(entries[i] for i in ids), x0=x0, **noises)
+    states = None
+    if sysmap.get("states") is not None:
+        states = _names(sysmap["states"], "system.states", A.shape[0], f"one per state, system.A is {A.shape[0]}x"
+                                                                        f"{A.shape[0]}")
+    outputs = None
+    if sysmap.get("outputs") is not None:
+        omap = _require_map(sysmap["outputs"], "system.outputs")
+        outputs = {}
+        for k, v in omap.items():
+            aid = _known_agent(k, "system.outputs", ids)
+            s_i = entries[aid].shape[0]
+            outputs[aid] = _names(v, f"system.outputs.{aid}", s_i, f"one per row of system.C.{aid}")
+    system = System(A=A, Cs=tuple(entries[i] for i in ids), x0=x0, states=states, outputs=outputs, **noises)
     return system, ids
 
 
@@ -223,6 +235,9 @@ def _parse_design(raw: Any, time: str, system: System, ids: tuple) -> DesignSpec
         dwell = _number(dmap["dwell"], "design.dwell")
         if dwell <= 0:
             raise ScenarioError(f"design.dwell must be > 0, got {dwell:g}")
+    undetectable = str(dmap.get("undetectable", "refuse"))
+    if undetectable not in ("refuse", "exclude"):
+        raise ScenarioError(f"design.undetectable must be refuse or exclude, got {undetectable!r}")
     eigenvalues = str(dmap.get("eigenvalues", "auto"))
     if eigenvalues not in ("auto", "dense", "iterative"):
         raise ScenarioError(f"design.eigenvalues must be auto, dense or iterative, got {eigenvalues!r}")
@@ -239,7 +254,7 @@ def _parse_design(raw: Any, time: str, system: System, ids: tuple) -> DesignSpec
         rate=rate, gains=gains, K=K, g=g, g0=g0, q=q, q_method=q_method, q_max=q_max,
         resilience=resilience, weights=weights, margin=margin, rank_tol=rank_tol,
         graph_set=graph_set, dwell=dwell, riccati_process_weight=pw, riccati_measurement_weight=mw,
-        eigenvalues=eigenvalues,
+        eigenvalues=eigenvalues, undetectable=undetectable,
     )
 
 

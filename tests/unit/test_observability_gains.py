@@ -3,7 +3,7 @@ import pytest
 
 from splitspec_core.errors import AssumptionError
 from splitspec_core.gains import design_gain, meets_rate
-from splitspec_core.observability import check_joint_observability, decompose
+from splitspec_core.observability import decompose, unobservable_directions
 
 
 def _osc():
@@ -32,10 +32,12 @@ def test_rank_decision_is_scale_and_shift_invariant():
         assert decompose(A * scale, C2 * scale).n_unobservable == 2
 
 
-def test_joint_observability_names_the_direction():
+def test_what_no_agent_sees_is_the_intersection():
+    """The second oscillator (x3, x4) is seen by nobody: the intersection of the agents' unobservable spaces."""
     A = _osc()
-    with pytest.raises(AssumptionError, match=r"direction \[0 0 1 0\]|direction \[0 0 0 1\]"):
-        check_joint_observability(A, [np.array([[1.0, 0, 0, 0]]), np.array([[0, 1.0, 0, 0]])])
+    W = unobservable_directions(A, [np.array([[1.0, 0, 0, 0]]), np.array([[0, 1.0, 0, 0]])])
+    assert W.shape == (4, 2) and np.allclose(W @ W.T, np.diag([0, 0, 1.0, 1.0]), atol=1e-12)
+    assert unobservable_directions(A, [np.array([[1.0, 0, 0, 0]]), np.array([[0, 0, 1.0, 0]])]).shape == (4, 0)
 
 
 @pytest.mark.parametrize("time,rate", [("continuous", 1.0), ("discrete", 0.5)])
@@ -88,8 +90,8 @@ def test_ackermann_matches_place_poles_or_declines():
 
 
 @pytest.mark.parametrize("time", ["continuous", "discrete"])
-def test_joint_observability_is_judged_before_explicit_gains(tmp_path, capsys, time):
-    """Not jointly observable, explicit K_i that also miss the rate: the error is the assumption, not K_i."""
+def test_joint_detectability_is_judged_before_explicit_gains(tmp_path, capsys, time):
+    """Not jointly detectable, explicit K_i that also miss the rate: the error is the assumption, not K_i."""
     import yaml
 
     from splitspec_core.designer import design
@@ -107,19 +109,19 @@ def test_joint_observability_is_judged_before_explicit_gains(tmp_path, capsys, t
     with pytest.raises(AssumptionError, match="design.K.3"):
         design_gain(dec3, method="explicit", time=time, rate=sc.design.rate, K=np.asarray(sc.design.K[2]),
                     label="design.K.3")
-    with pytest.raises(AssumptionError, match=r"\(C, A\) is not jointly observable: direction \[") as err:
+    with pytest.raises(AssumptionError, match=r"\(C, A\) is not jointly detectable: no agent sees x\d.*which does "
+                                              r"not decay") as err:
         design(sc)
-    assert "design.K" not in str(err.value)
-    # the named direction is unobservable: C_all O(v) = 0 for the observability matrix of the stacked C
-    v = np.array([float(x) for x in str(err.value).split("direction [")[1].split("]")[0].split()])
-    C = np.vstack([np.asarray(c) for c in sc.system.Cs])
-    A = np.asarray(sc.system.A)
-    obs = np.vstack([C @ np.linalg.matrix_power(A, k) for k in range(sc.n)])
-    assert np.linalg.norm(v) > 0 and np.allclose(obs @ v, 0, atol=1e-9)
+    text = str(err.value)
+    assert "design.K" not in text and "design.undetectable: exclude" in text
+    # the mode named is the oscillator nobody sees: its states, and what would fix it (measure one of them)
+    named = text.split("no agent sees ")[1].split(" (eigenvalue")[0]
+    assert set(named.replace("(0.71)", "").replace(",", " ").split()) == {"x3", "x4"}, named
+    assert "measure one of x" in text and ("x3" in text.split("measure one of")[1])
     # through the CLI: one line naming it, exit 2
     assert cli.main(["design", str(path)]) == 2
     stderr = capsys.readouterr().err
-    assert stderr.count("\n") == 1 and "splitspec: error: (C, A) is not jointly observable" in stderr
+    assert stderr.count("\n") == 1 and "splitspec: error: (C, A) is not jointly detectable" in stderr
 
 
 def _two_oscillators() -> np.ndarray:
@@ -146,8 +148,8 @@ def test_graded_margins_keep_the_split_of_a_rounded_model():
 
 
 def test_weak_joint_observability_is_refused_with_its_margin(tmp_path, capsys):
-    """Nobody sees x3, x4 but through a 1e-5 coupling: refused in one line naming the direction, the margin and
-    design.rank_tol (exit 2); with rank_tol forced below the margin it designs, and warns."""
+    """Nobody sees x3, x4 but through a 1e-5 coupling, and they do not decay: refused in one line naming them, the
+    margin and design.rank_tol (exit 2); with rank_tol forced below the margin it designs, and warns."""
     import yaml
 
     from splitspec_core.designer import design
@@ -158,9 +160,9 @@ def test_weak_joint_observability_is_refused_with_its_margin(tmp_path, capsys):
            "system": {"A": _two_oscillators().tolist(), "C": {1: [[1, 0, 1e-5, 0]], 2: [[0, 1, 0, 0]]}},
            "graphs": {"g": {"undirected": [[1, 2]]}},
            "design": {"rate": 0.5, "gains": "place", "g": "auto"}}
-    with pytest.raises(AssumptionError, match=r"only weakly jointly observable: direction \[0 0 .*\] is seen by "
-                                              r"every agent with a margin of only [0-9.e-]+ \(< 0.001, "
-                                              r"design.rank_tol: auto\)"):
+    with pytest.raises(AssumptionError, match=r"not jointly detectable: no agent sees x[34], x[34] \(eigenvalue 0 \+- "
+                                              r"1.3j\), which does not decay; the agents see it only weakly \(margin "
+                                              r"[0-9.e-]+ < 0.001, design.rank_tol: auto\)"):
         design(parse_scenario(raw))
     path = tmp_path / "weak.yaml"
     path.write_text(yaml.safe_dump(raw))
@@ -169,8 +171,9 @@ def test_weak_joint_observability_is_refused_with_its_margin(tmp_path, capsys):
     assert err.count("\n") == 1 and "set design.rank_tol below" in err and "Traceback" not in err
     raw["design"]["rank_tol"] = 1e-8
     des = design(parse_scenario(raw))
-    assert any("jointly observable only with a margin of" in w and "design.rank_tol: 1e-08" in w
-               for w in des.warnings)
+    assert des.unobserved.dim == 0
+    assert any("agent 1 sees a direction with an observability margin of only" in w
+               for w in des.conditioning.warnings)
 
 
 def test_a_weak_direction_found_first_does_not_hide_a_strong_one():

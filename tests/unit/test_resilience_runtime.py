@@ -6,7 +6,8 @@ import json
 import numpy as np
 import pytest
 
-from splitspec_core.designer import certify_network, design
+from splitspec_core.designer import design
+from splitspec_core.survivors import certify_network
 from splitspec_core.errors import ScenarioError
 from splitspec_core.network import NetworkState, active_arcs, consensus_rows, make_plan
 from splitspec_core.replay import faults_from_events, load_events, with_recorded_faults

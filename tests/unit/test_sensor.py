@@ -207,7 +207,8 @@ def test_bad_sources_name_the_key(sources, run, fragment):
 
 
 def test_the_chain_is_the_publishers_physics_and_its_design_is_certified():
-    """chain.yaml's A is the publisher's exact motion over one event period; each agent sees part of the state."""
+    """chain.yaml's A is the publisher's exact motion over one event period; the middle agent never sees the
+    antisymmetric mode (p1 - p3, v1 - v3), and gets it by consensus."""
     from splitspec_core.designer import design
 
     spec = importlib.util.spec_from_file_location("publisher", ROOT / "examples" / "sensors" / "publisher.py")
@@ -216,7 +217,11 @@ def test_the_chain_is_the_publishers_physics_and_its_design_is_certified():
     sc = load_scenario(CHAIN)
     assert np.max(np.abs(np.asarray(sc.system.A) - pub.step_matrix(1 / sc.run.pace))) < 1e-15
     d = design(sc)
-    assert d.q is not None and all(0 < a.dec.V.shape[1] < sc.n for a in d.agents)
+    assert d.q is not None and d.unobserved.dim == 0
+    V2 = d.agents[1].dec.V
+    anti = np.array([[1, 0, -1, 0, 0, 0], [0, 0, 0, 1, 0, -1]]).T / np.sqrt(2)
+    assert V2.shape[1] == 2 and np.allclose(V2 @ V2.T, anti @ anti.T, atol=1e-9)
+    assert d.agents[0].dec.V.shape[1] == d.agents[2].dec.V.shape[1] == 0  # the end masses see the whole chain
 
 
 # ------------------------------------------------------------------ secure mode

@@ -1,0 +1,80 @@
+"""Names of states and outputs, and directions and subspaces written with them.
+
+A scenario may name its states (``system.states``) and each agent's outputs (``system.outputs``);
+unnamed ones are ``x1 .. xn`` and ``y<i>`` (one output) or ``y<i>_1 .. y<i>_<s_i>``.  Every message,
+report line and record that speaks of a direction of the state space goes through this module, so a
+52-state model's direction reads ``LL_x_EXDC2_1 - 0.42 LL_x_EXDC2_3 (+ 9 smaller)`` instead of 52
+numbers.
+"""
+
+from __future__ import annotations
+
+import re
+
+import numpy as np
+
+__all__ = ["NAME_PATTERN", "default_state_names", "default_output_names", "combination", "heaviest", "spread"]
+
+#: what a state or output name may be: it becomes part of a Rerun entity path and of a file's column name
+NAME_PATTERN = re.compile(r"[A-Za-z_][A-Za-z0-9_.\-]{0,63}")
+#: components shown of a direction or subspace, the largest first
+SHOWN = 5
+#: components smaller than this fraction of the largest are not named
+NEGLIGIBLE = 5e-4
+
+
+def default_state_names(n: int) -> tuple:
+    """``("x1", ..., "xn")``."""
+    return tuple(f"x{k + 1}" for k in range(n))
+
+
+def default_output_names(agent_id: int, s: int) -> tuple:
+    """``("y<i>",)`` for one output, ``("y<i>_1", ..., "y<i>_<s>")`` for several."""
+    return (f"y{agent_id}",) if s == 1 else tuple(f"y{agent_id}_{k + 1}" for k in range(s))
+
+
+def _coefficient(c: float, first: bool) -> str:
+    mag = abs(c)
+    num = "" if abs(mag - 1.0) < 5e-4 else f"{mag:.2g} "
+    sign = ("-" if c < 0 else "") if first else (" - " if c < 0 else " + ")
+    return f"{sign}{num}"
+
+
+def combination(v: np.ndarray, names, *, limit: int = SHOWN) -> str:
+    """A direction as a combination of named states, scaled so its largest component is 1: ``x3 - 0.42 x4 (+ 2
+    smaller)``; an oscillating mode (complex) as the states it moves, with their relative amplitudes:
+    ``x4, x3 (0.71)``."""
+    v = np.asarray(v)
+    if np.iscomplexobj(v) and np.allclose(v.imag, 0.0, atol=1e-12 * max(float(np.abs(v).max(initial=0.0)), 1e-300)):
+        v = v.real
+    mags = np.abs(v)
+    if not mags.size or mags.max() == 0.0:
+        return "0"
+    top = mags.max()
+    order = [int(k) for k in np.argsort(-mags, kind="stable") if mags[k] >= NEGLIGIBLE * top]
+    shown = order[:limit]
+    rest = len(order) - len(shown)
+    more = f" (+ {rest} smaller)" if rest else ""
+    if np.iscomplexobj(v):
+        amp = [names[k] + ("" if abs(mags[k] / top - 1.0) < 5e-4 else f" ({mags[k] / top:.2g})") for k in shown]
+        return ", ".join(amp) + more
+    vals = v / v[np.argmax(mags)]
+    return "".join(_coefficient(float(vals[k]), j == 0) + names[k] for j, k in enumerate(shown)) + more
+
+
+def heaviest(W: np.ndarray, names, *, limit: int = SHOWN) -> list:
+    """The states that carry most of the subspace spanned by the orthonormal columns of ``W`` (the diagonal of the
+    projection ``W W'``: how much of each state lies in it), the largest first, at most ``limit``."""
+    weight = np.sum(np.abs(W) ** 2, axis=1)
+    if not weight.size or weight.max() == 0.0:
+        return []
+    order = [int(k) for k in np.argsort(-weight, kind="stable") if weight[k] >= NEGLIGIBLE * weight.max()]
+    return [names[k] for k in order[:limit]] + ([f"{len(order) - limit} more"] if len(order) > limit else [])
+
+
+def spread(W: np.ndarray, names, *, limit: int = SHOWN) -> str:
+    """:func:`heaviest` as text: ``xf_1, xf_2, xf_3 and 4 more``."""
+    parts = heaviest(W, names, limit=limit)
+    if len(parts) > 1 and parts[-1].endswith(" more"):
+        return ", ".join(parts[:-1]) + " and " + parts[-1]
+    return ", ".join(parts)

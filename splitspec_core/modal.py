@@ -1,0 +1,247 @@
+"""The spectral skeleton of ``A``: balanced coordinates and the invariant subspaces of its eigenvalue clusters.
+
+Why the observability decisions need it
+---------------------------------------
+The unobservable space of ``(C_i, A)`` is A-invariant, so it splits along the spectral subspaces of ``A``:
+with ``X_k`` a basis of the invariant subspace of a cluster of eigenvalues (clusters with disjoint
+spectra), ``V_i = (+)_k X_k V_ik`` where ``V_ik`` is the unobservable space of the restricted pair
+``(C_i X_k, X_k' A X_k)``.  Deciding each cluster on its own keeps the rank decisions local to a time
+scale: one Krylov staircase over the whole of a stiff model (eigenvalues from -80 to 0) chains slow
+modes through the fast ones, and its graded margins shrink like the product of the steps (8.5e-11 on a
+power-system model whose PBH test gives 2.5e-2).  Within a cluster the staircase of
+:mod:`splitspec_core.observability` runs on the cluster's own scale.  For a simple eigenvalue the
+margin is then ``|C_i x_k| / |C_i|`` with ``x_k`` its unit eigenvector: how much of a unit excursion of
+that mode the agent's sensors see (the PBH test ``sigma_min([A - lam I; C])`` of that mode, without
+the distance to the other eigenvalues that the PBH value also carries).
+
+Units
+-----
+A margin measured in the user's coordinates depends on the units of the states (a state in mV instead
+of V scales its column of ``C`` by 1000).  The decisions are made in *balanced* coordinates
+``x_b = D^-1 x``: ``A_b = D^-1 A D``, ``C_b = C D`` with ``D`` diagonal, powers of 2, chosen so that
+every state's row and column norms agree, the measurements counted in the columns (the
+Parlett-Reinsch iteration of LAPACK's ``dgebal``, as SLICOT's ``TB01ID`` applies it to ``[A; C]``).
+Balancing ``D_u^-1 A D_u`` gives the same balanced matrix up to a power of 2 per state, so the
+decisions do not depend on the units, and the margins change by at most a small factor
+(``tests/unit/test_units.py`` measures it).  Only decisions are made there: the subspaces are mapped
+back, and the estimator runs in the user's coordinates.
+
+Clusters
+--------
+Eigenvalues closer than :data:`CLUSTER_REL` of their modulus (or :data:`CLUSTER_ABS` of ``|A_b|``)
+are one cluster, complex pairs always together: within a cluster the eigenvectors of nearly equal
+eigenvalues are ill-determined but their span is not.  Each cluster's basis is the span of its
+eigenvectors (numpy's ``eig``, orthonormalised); when these are nearly dependent (a Jordan block, or
+close to one) or their span is not invariant to round-off, the basis comes from the ordered real Schur
+form instead (LAPACK ``dtrsen`` through scipy, imported then only: agent processes stay numpy-only for
+the usual diagonalisable models).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["CLUSTER_REL", "CLUSTER_ABS", "Cluster", "Spectrum", "balance", "clusters", "invariant_subspace", "spectrum"]
+
+#: eigenvalues closer than this fraction of their modulus are one cluster
+CLUSTER_REL = 0.05
+#: ... or closer than this fraction of ``|A_b|_2`` (eigenvalues near 0)
+CLUSTER_ABS = 1e-8
+#: a cluster's eigenvectors count as independent when the smallest singular value of their unit columns is above this
+INDEPENDENT = 1e-7
+#: and their span as invariant when ``|A_b X - X X' A_b X| <= INVARIANT |A_b|``
+INVARIANT = 1e-10
+_RADIX = 2.0
+
+
+@dataclass(frozen=True)
+class Cluster:
+    """One cluster of eigenvalues: ``X`` (n, p) orthonormal basis of its invariant subspace (balanced
+    coordinates), ``A`` (p, p) ``= X' A_b X`` (``A_b X = X A`` to round-off), ``eigs`` its eigenvalues."""
+
+    X: np.ndarray
+    A: np.ndarray
+    eigs: np.ndarray
+
+
+@dataclass(frozen=True)
+class Spectrum:
+    """Balanced coordinates ``x_b = x / d`` and the clusters of ``A_b = D^-1 A D`` (module docstring)."""
+
+    d: np.ndarray
+    A_b: np.ndarray
+    clusters: tuple
+
+    def to_user(self, Xb: np.ndarray) -> np.ndarray:
+        """An orthonormal basis, in the user's coordinates, of the subspace spanned by ``Xb`` (balanced)."""
+        if Xb.shape[1] == 0:
+            return np.zeros((Xb.shape[0], 0))
+        Q, _ = np.linalg.qr(self.d[:, None] * Xb)
+        return Q
+
+    def to_balanced(self, X: np.ndarray) -> np.ndarray:
+        """An orthonormal basis, in balanced coordinates, of the subspace spanned by ``X`` (user's)."""
+        if X.shape[1] == 0:
+            return np.zeros((X.shape[0], 0))
+        Q, _ = np.linalg.qr(X / self.d[:, None])
+        return Q
+
+
+def balance(A: np.ndarray, C: np.ndarray | None = None) -> np.ndarray:
+    """Scaling ``d`` (powers of 2) with ``D^-1 A D`` balanced, the columns of ``C D`` counted (module docstring).
+
+    The Parlett-Reinsch iteration (LAPACK ``dgebal`` without permutation, 1-norms): state k is scaled by a
+    power of 2 that brings its off-diagonal column norm (plus its column of ``C``) and row norm of ``A``
+    together, until no scaling changes a sum by 5 %.  A state with no row or no column is left as it is.
+    """
+    A = np.array(A, dtype=float)
+    n = A.shape[0]
+    Cabs = np.zeros(n) if C is None or np.size(C) == 0 else np.abs(np.asarray(C, dtype=float)).sum(axis=0)
+    d = np.ones(n)
+    absA = np.abs(A)
+    np.fill_diagonal(absA, 0.0)
+    for _ in range(200):  # converges in a handful of sweeps; the bound only guards against a cycle
+        done = True
+        for k in range(n):
+            c = absA[:, k].sum() + Cabs[k]
+            r = absA[k, :].sum()
+            if c == 0.0 or r == 0.0:
+                continue
+            s, f = c + r, 1.0
+            while c < r / _RADIX:
+                c, r, f = c * _RADIX, r / _RADIX, f * _RADIX
+            while c >= r * _RADIX:
+                c, r, f = c / _RADIX, r * _RADIX, f / _RADIX
+            if c + r < 0.95 * s:
+                done = False
+                d[k] *= f
+                absA[:, k] *= f
+                absA[k, :] /= f
+                Cabs[k] *= f
+        if done:
+            break
+    return d
+
+
+def _clusters_of(w: np.ndarray, scale: float, rel: float) -> list:
+    """Indices of ``w`` grouped: conjugate pairs together, single linkage on ``|w_a - w_b| <= rel max|w| + abs``."""
+    n = len(w)
+    reps = np.where(w.imag < 0, np.conj(w), w)  # a pair is one point of the upper half plane
+    parent = np.arange(n)
+
+    def root(a):
+        while parent[a] != a:
+            parent[a] = parent[parent[a]]
+            a = parent[a]
+        return a
+
+    tol_abs = CLUSTER_ABS * scale
+    for a in range(n):
+        near = np.abs(reps - reps[a]) <= rel * np.maximum(np.abs(reps), abs(reps[a])) + tol_abs
+        for b in np.flatnonzero(near):
+            ra, rb = root(a), root(int(b))
+            if ra != rb:
+                parent[max(ra, rb)] = min(ra, rb)
+    groups: dict = {}
+    for a in range(n):
+        groups.setdefault(root(a), []).append(a)
+    return [np.array(g) for g in groups.values()]
+
+
+def _eigvec_basis(Ab: np.ndarray, X: np.ndarray, idx: np.ndarray, w: np.ndarray) -> np.ndarray | None:
+    """The cluster's invariant subspace from its eigenvectors (real, orthonormal), or None when they are
+    nearly dependent or their span is not invariant to round-off (then: the Schur form)."""
+    cols = []
+    for k in idx:
+        if w[k].imag > 0:
+            cols += [X[:, k].real, X[:, k].imag]
+        elif w[k].imag == 0:
+            cols.append(X[:, k].real)
+    B = np.column_stack(cols)
+    if B.shape[1] != len(idx):  # an eigenvalue of the pair's lower half without its upper half: numpy's order
+        return None
+    B = B / np.linalg.norm(B, axis=0)
+    U, s, _ = np.linalg.svd(B, full_matrices=False)
+    if s[-1] < INDEPENDENT:
+        return None
+    R = Ab @ U
+    if np.linalg.norm(R - U @ (U.T @ R), 2) > INVARIANT * max(np.linalg.norm(Ab, 2), 1e-300):
+        return None
+    return U
+
+
+def _schur_basis(T: np.ndarray, Z: np.ndarray, w_schur: np.ndarray, chosen: np.ndarray) -> np.ndarray:
+    """The invariant subspace of the eigenvalues ``chosen`` (of ``w_schur``, the Schur form's diagonal) by
+    reordering the real Schur form (LAPACK ``dtrsen``)."""
+    from scipy.linalg.lapack import dtrsen
+
+    _, Zs, _, _, p, _, _, info = dtrsen(chosen.astype(np.int32), T, Z, job="N")
+    if info != 0:  # pragma: no cover - dtrsen fails only when two eigenvalues are too close to swap
+        raise np.linalg.LinAlgError(f"reordering the Schur form failed (dtrsen info {info})")
+    return Zs[:, :p]
+
+
+def clusters(M: np.ndarray, *, rel: float = CLUSTER_REL) -> list:
+    """``[Cluster]`` of ``M`` in its own coordinates: the clusters of its eigenvalues with an orthonormal basis of each
+    one's invariant subspace (module docstring: eigenvectors, or the ordered Schur form when they are nearly
+    dependent)."""
+    M = np.asarray(M, dtype=float)
+    n = M.shape[0]
+    if n == 0:
+        return []
+    w, X = np.linalg.eig(M)
+    groups = _clusters_of(w, float(np.linalg.norm(M, 2)), rel)
+    schur = None
+    out = []
+    for idx in groups:
+        U = _eigvec_basis(M, X, idx, w)
+        if U is None:
+            if schur is None:
+                import scipy.linalg as sla
+
+                T, Z = sla.schur(M, output="real")
+                schur = (T, Z, _schur_eigs(T))
+            T, Z, ws = schur
+            chosen = np.zeros(n, dtype=bool)
+            for z in w[idx]:  # each eigenvalue of the cluster claims its nearest one on the Schur diagonal
+                free = np.flatnonzero(~chosen)
+                chosen[free[np.argmin(np.abs(ws[free] - z))]] = True
+            U = _schur_basis(T, Z, ws, chosen)
+        out.append(Cluster(X=U, A=U.T @ M @ U, eigs=w[idx]))
+    return out
+
+
+def invariant_subspace(M: np.ndarray, keep) -> np.ndarray:
+    """Orthonormal basis of the invariant subspace of ``M`` for the clusters whose eigenvalues all satisfy ``keep``
+    (a predicate on an array of eigenvalues, true where kept); a cluster straddling it is left out whole."""
+    M = np.asarray(M, dtype=float)
+    parts = [c.X for c in clusters(M) if np.all(keep(c.eigs))]
+    if not parts:
+        return np.zeros((M.shape[0], 0))
+    U, _ = np.linalg.qr(np.hstack(parts))
+    return U
+
+
+def spectrum(A: np.ndarray, C: np.ndarray | None = None, *, rel: float = CLUSTER_REL) -> Spectrum:
+    """The spectral skeleton of ``A`` (module docstring); ``C`` (all agents' rows stacked) enters the balancing."""
+    A = np.asarray(A, dtype=float)
+    d = balance(A, C)
+    Ab = A / d[:, None] * d[None, :]
+    return Spectrum(d=d, A_b=Ab, clusters=tuple(clusters(Ab, rel=rel)))
+
+
+def _schur_eigs(T: np.ndarray) -> np.ndarray:
+    """The eigenvalues on the diagonal of a real Schur form, in position (a 2x2 block gives its pair)."""
+    n = T.shape[0]
+    out = np.zeros(n, dtype=complex)
+    k = 0
+    while k < n:
+        if k + 1 < n and T[k + 1, k] != 0.0:
+            out[k:k + 2] = np.linalg.eigvals(T[k:k + 2, k:k + 2])
+            k += 2
+        else:
+            out[k] = T[k, k]
+            k += 1
+    return out
