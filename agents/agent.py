@@ -23,9 +23,8 @@ Plausibility (every message is also MAC-checked with the run's key, see
 :mod:`splitspec_core.runtime.wire`): a tick must be newer than the last one and at
 most one event time ahead of it; ``y`` and ``z`` at most one event time
 ahead of the last tick (``z`` also at most two attempts ahead).  Buffers are
-bounded: ``y`` for at most two event times, ``z`` for at most
-``ZBUF_ROUNDS * q * (in-neighbours)`` messages; anything beyond is dropped
-and counted (``future``, ``stale``, ``buffer_full``...).
+bounded: ``y`` for at most two event times, ``z`` for at most ``ZBUF_ROUNDS * q *
+(in-neighbours)`` messages; anything beyond is dropped and counted (``future``, ``stale``...).
 """
 
 from __future__ import annotations
@@ -38,7 +37,7 @@ import numpy as np
 
 from splitspec_core import steps as st
 from splitspec_core.impairment import Impairment, sub_round
-from splitspec_core.designer import design_agent, riccati_weights
+from splitspec_core.designer import design_agent, directions_of, riccati_weights, scenario_spectrum
 from splitspec_core.scenario_load import parse_scenario_text
 from splitspec_core.plant_model import initial_estimate, output_rows
 from splitspec_core.runtime.ticks import TickNetwork
@@ -69,10 +68,11 @@ class AgentNode:
         self.index = sc.agent_ids.index(agent_id)
         d = sc.design
         pw, mw = riccati_weights(sc)
-        # the local, fully distributed part of the design: V_i, P_i, K_i from (A, C_i, lam)
+        # the local part of the design: V_i, P_i, K_i from (A, C_i, lam) (minus W, what no agent sees, if sent)
         local = design_agent(sc.system.A, sc.system.Cs[self.index], time=sc.time, rate=d.rate, method=d.gains,
                              margin=d.margin, K=None if d.K is None else d.K[self.index], rank_tol=d.rank_tol,
-                             process_weight=pw, measurement_weight=mw, agent_id=agent_id)
+                             process_weight=pw, measurement_weight=mw, agent_id=agent_id,
+                             spectrum=scenario_spectrum(sc), unobserved=directions_of(config.get("unobserved"), sc.n))
         self.A = np.array(sc.system.A)
         self.C = np.asarray(sc.system.Cs[self.index])
         self.K, self.P, self.V = local.K, local.P, local.V

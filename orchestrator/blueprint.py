@@ -80,7 +80,7 @@ __all__ = ["ERRORS", "ERRORS_MAX", "ERRORS_LOG10", "ERRORS_LOG10_MAX", "ENVELOPE
            "RESIDUAL", "RESIDUAL_LOG10", "DISAGREEMENT", "DISAGREEMENT_LOG10", "KF_DISTANCE", "KF_DISTANCE_LOG10",
            "MARKS", "MARK_KINDS", "TOPOLOGY", "TOPOLOGY_GRAPH", "TOPOLOGY_LOST",
            "TOPOLOGY_PARTITION", "TOPOLOGY_STATUS", "EVENTS", "TL_EVENT", "TL_TIME", "TL_WALL",
-           "REFERENCE_TAB", "agent_path", "state_path", "color", "circle_positions", "default_blueprint",
+           "REFERENCE_TAB", "agent_path", "state_path", "state_labels", "color", "circle_positions", "default_blueprint",
            "reference_views"]
 
 ERRORS = "errors"
@@ -146,9 +146,18 @@ def agent_path(prefix: str, agent_id: int) -> str:
     return f"{prefix}/agent_{agent_id}"
 
 
-def state_path(k: int, who: str) -> str:
-    """``state/<k>/<who>`` with the 1-based component index ``k``: ``who`` is ``truth``, ``kf`` or ``agents``."""
-    return f"{STATE}/{k}/{who}"
+def state_path(label, who: str) -> str:
+    """``state/<label>/<who>``: ``label`` is the state's name (``system.states``) or its 1-based index; ``who`` is
+    ``truth``, ``kf`` or ``agents``."""
+    return f"{STATE}/{label}/{who}"
+
+
+def state_labels(n: int, names=None) -> tuple:
+    """``((entity label, display name), ...)`` of the n states: the scenario's names (``system.states``) for both,
+    else the 1-based index and ``x<k>``."""
+    if names:
+        return tuple((str(s), str(s)) for s in names)
+    return tuple((str(k), f"x{k}") for k in range(1, n + 1))
 
 
 def color(i: int) -> tuple[int, int, int]:
@@ -190,7 +199,8 @@ def status_label_position(positions: Mapping[int, tuple[float, float]]) -> tuple
 
 
 def default_blueprint(time_mode: str, *, n: int | None = None, envelope: bool = True,
-                      gains: bool = False, truth: bool = True, reference: bool = False, active_tab: int | str = 0):
+                      gains: bool = False, truth: bool = True, reference: bool = False, active_tab: int | str = 0,
+                      states=None):
     """The default layout: log errors (envelope, marks) large; topology and event log beside; the rest in tabs.
 
     Left, tabs: ``errors (log10)`` (the designed envelope and the marks of
@@ -211,16 +221,17 @@ def default_blueprint(time_mode: str, *, n: int | None = None, envelope: bool = 
     the truth): no error tabs at all, the marks on the log10 disagreement, and the states show the
     filter bold in place of the truth.  Neither (a run of the simulated plant): the layout above.
     ``active_tab``: the tab shown first, by index or name (``"rounds"``); the first by default.
+    ``states``: the states' names (``system.states``; :func:`state_labels`).
     """
     import rerun.blueprint as rrb
 
     if n:
         what = ("truth, centralized KF and estimates" if reference else "truth and estimates") if truth \
             else ("centralized KF (after the run) and estimates" if reference else "estimates")
-        states = rrb.Grid(*[rrb.TimeSeriesView(origin=f"{STATE}/{k}", name=f"x{k}: {what}")
-                            for k in range(1, n + 1)], name="states")
+        state_views = rrb.Grid(*[rrb.TimeSeriesView(origin=f"{STATE}/{label}", name=f"{name}: {what}")
+                                 for label, name in state_labels(n, states)], name="states")
     else:
-        states = rrb.TimeSeriesView(origin=STATE, name="states")
+        state_views = rrb.TimeSeriesView(origin=STATE, name="states")
     rounds = rrb.Vertical(*[rrb.TimeSeriesView(origin=f"{ROUNDS}/{s}", name=f"round {s.replace('_', ' ')}")
                             for s in ROUND_SERIES], name="rounds")
     tabs = reference_views(marks=not truth) if reference or not truth else []
@@ -229,7 +240,7 @@ def default_blueprint(time_mode: str, *, n: int | None = None, envelope: bool = 
                                     name="log10 |x_i - x|, designed envelope, marks" if envelope
                                     else "log10 |x_i - x|, marks"),
                  rrb.TimeSeriesView(origin=ERRORS, name="|x_i - x| (linear)")]
-    tabs.append(states)
+    tabs.append(state_views)
     if gains:
         tabs.append(rrb.TimeSeriesView(origin=GAINS, name="adaptive gains g_i"))
     tabs.append(rounds)

@@ -285,6 +285,9 @@ class Orchestrator:
                     "record_y": True}
                 if self.sc.sources:  # live sensors: the agents report the y_i they sampled (recorded)
                     extra["record_y"] = True
+                un = self.des.unobserved
+                if un is not None and un.dim:  # W, the directions no agent sees: P_i projects on V_i minus W
+                    extra["unobserved"] = un.W.tolist()
                 self._reply(a.ref, encode("config", self.keys.run_id, scenario=self.scenario_text,
                                           seed=int(self.sc.run.seed), g=self.des.g, q=self.des.q,
                                           g_mode=self.des.g_mode, key=self.key, **extra))
@@ -404,8 +407,10 @@ class Orchestrator:
         self.rec = Recorder(self.out, agent_ids=sc.agent_ids, n=sc.n, steps=sc.run.steps, time_mode=sc.time,
                             dt=dt, graph_names=sc.graph_names, run_id=self.keys.run_id,
                             scenario_name=sc.name, viewer=self.viewer,
-                            envelope_rate=None if self.des.g_mode == "adaptive" else float(sc.design.rate),
-                            gains=sc.time == "continuous", positions=sc.positions)
+                            envelope_rate=None if self.des.g_mode == "adaptive" or self.des.excluded
+                            else float(self.des.envelope_rate),
+                            gains=sc.time == "continuous", positions=sc.positions,
+                            states=sc.state_names if sc.states_named else None)
         if self.meas is not None:
             self.rec.set_measurements(sc, self.meas)
         if sc.sources:

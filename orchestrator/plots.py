@@ -92,7 +92,8 @@ def errors_figure(traj, *, time: str, rate: float | None, title: str, marks=(), 
     envelope ``c rate^(tau - tau_k)`` / ``c exp(-rate (t - t_k))`` starts afresh
     at every restart ``t_k`` (:func:`splitspec_core.analysis.envelope_restarts`)
     with the smallest constant above the noise-free errors of its piece.
-    ``adaptive``: no envelope (thm. split_continuous_adaptive certifies no rate).
+    ``adaptive``: no envelope (thm. split_continuous_adaptive certifies no rate); ``rate`` None: no envelope either
+    (directions no agent sees that do not decay, ``design.undetectable: exclude``).
     Lines carry ``gid`` ``envelope`` and ``mark:<kind>`` (tests find them there).
     Returns the figure (the caller closes it).
     """
@@ -105,7 +106,7 @@ def errors_figure(traj, *, time: str, rate: float | None, title: str, marks=(), 
     ref = traj if noise_free is None else noise_free
     if noise_free is not None and noise_free is not traj:
         ax.semilogy(ref.t, max_error(ref), color="0.35", lw=1.0, ls=(0, (1, 1)), label="max error, noise-free run")
-    if not adaptive:
+    if not adaptive and rate is not None:
         # Switches faster than the eye can follow leave pieces too short to show a rate (the fitted
         # envelope would trace the error itself): then one constant across them, restarted at rejoins only.
         across = sum(m.kind == "switch" for m in marks) if _dense_switches(marks) else 0
@@ -136,9 +137,19 @@ def errors_figure(traj, *, time: str, rate: float | None, title: str, marks=(), 
 
 def plot_states(traj, path: Path, *, time: str, title: str, marks=(), max_components: int = 8,
                 reference=None) -> None:
+    """Write :func:`states_figure` to ``path`` (PNG)."""
+    fig = states_figure(traj, time=time, title=title, marks=marks, max_components=max_components, reference=reference)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def states_figure(traj, *, time: str, title: str, marks=(), max_components: int = 8, reference=None):
     """Each state component: truth (black) versus every agent's estimate, events marked; without truth,
-    ``reference`` (the centralized Kalman filter on the same measurements, (T, n)) in its place."""
+    ``reference`` (the centralized Kalman filter on the same measurements, (T, n)) in its place.  Each row is
+    labelled with the state's name (``traj.states``: ``system.states``, else ``x1 .. xn``).  Returns the figure (the
+    caller closes it)."""
     n = min(traj.x.shape[1], max_components)
+    names = traj.states or tuple(f"x{c + 1}" for c in range(traj.x.shape[1]))
     fig, axes = plt.subplots(n, 1, figsize=(9.0, 1.6 * n + 0.8), sharex=True, squeeze=False, layout="constrained")
     extra = []
     for c in range(n):
@@ -150,7 +161,7 @@ def plot_states(traj, path: Path, *, time: str, title: str, marks=(), max_compon
         else:
             ax.plot(traj.t, reference[:, c], "k--", lw=1.6, alpha=0.7, label="centralized KF")
         extra = _draw_marks(ax, marks, text=False)
-        ax.set_ylabel(f"x{c + 1}")
+        ax.set_ylabel(names[c])
         ax.grid(True, alpha=0.3)
         big = traj.x[:, c] if reference is None else reference[:, c]
         early = np.nanmax(np.abs(big[: max(2, traj.t.size // 10)]))
@@ -160,7 +171,7 @@ def plot_states(traj, path: Path, *, time: str, title: str, marks=(), max_compon
             dec = [10.0 ** d for d in range(d0, d1 + 1, max(1, math.ceil((d1 - d0 + 1) / 3)))]
             ax.set_yticks([-v for v in dec[::-1]] + [0.0] + dec)  # a few decades each side, readable
             ax.minorticks_off()
-            ax.set_ylabel(f"x{c + 1} (symlog)")
+            ax.set_ylabel(f"{names[c]} (symlog)")
     top = axes[0, 0]  # short labels above the first component
     for m in _labelled(marks):
         top.text(m.t, 1.02, m.label, transform=top.get_xaxis_transform(), rotation=90, va="bottom",
@@ -169,8 +180,7 @@ def plot_states(traj, path: Path, *, time: str, title: str, marks=(), max_compon
     handles, _ = axes[0, 0].get_legend_handles_labels()
     fig.legend(handles=handles + extra, loc="outside right upper", fontsize=8)  # beside all rows, not one
     axes[-1, 0].set_xlabel(_xlabel(time))
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    return fig
 
 
 def plot_monte_carlo(t, stats: dict, path: Path, *, time: str, title: str, marks=()) -> None:

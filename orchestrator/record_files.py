@@ -77,11 +77,13 @@ class RecordFiles:
     failure : the recorder's :class:`~splitspec_orchestrator.recorder.WriteFailure` (``error``,
         ``fail(path, exc, tau) -> RecordsWriteError``)
     sink : the recorder's :class:`RerunSink`, None without Rerun (and once the recorder has dropped it)
+    states : the states' names (``trajectory.npz``'s ``states``)
     """
 
     def __init__(self, out_dir: Path, *, agent_ids: np.ndarray, taken: RowStore, lost: dict,
-                 extra: Callable[[int], dict], failure, sink: RerunSink | None):
+                 extra: Callable[[int], dict], failure, sink: RerunSink | None, states: tuple = ()):
         self.out_dir = out_dir
+        self.states = tuple(states)
         self.agent_ids = agent_ids
         self._d = taken
         self._lost = lost
@@ -119,7 +121,7 @@ class RecordFiles:
             lost, cause = lost_arrays([r for tau, rows in list(self._lost.items()) if tau <= last for r in rows])
             write_trajectory(path, t=D.t[:T], x=D.x[:T], xhat=D.xhat[:T], alive=D.alive[:T], graph=D.graph[:T],
                              agent_ids=self.agent_ids, g=D.g[:T], lost=lost, lost_cause=cause,
-                             extra=self._extra(T))
+                             extra=self._extra(T), states=self.states or None)
         except OSError as exc:
             raise self._failure.fail(path, exc, int(D.tau[T - 1]) if T else None) from None
         self.npz_rows = T

@@ -145,6 +145,7 @@ from typing import Any, Iterable, Mapping
 import numpy as np
 
 from splitspec_core.errors import SplitspecError
+from splitspec_core.labels import default_state_names
 from splitspec_core.trajfile import TRAJECTORY_FILE
 
 from . import blueprint as bp
@@ -251,6 +252,8 @@ class Recorder:
     reserve_bytes : size of the disk-space reserve ``.splitspec-reserve`` kept in ``out_dir``
         until close (at most 1/8 of the free space; ``0``: none)
     envelope_rate : designed rate ``lam`` of ``errors_log10/envelope`` (None: no envelope, e.g. adaptive gain)
+    states : the states' names (``system.states``): the ``state/<name>/...`` entities and ``trajectory.npz``'s
+        ``states``; None: ``state/<k>/...`` and ``x1 .. xn``
     gains : log ``gains/agent_<id>`` (continuous time)
     positions : ``{agent id: (x, y)}`` of the topology's nodes (None: a circle)
 
@@ -265,7 +268,7 @@ class Recorder:
                  viewer: str | None = None, flush_seconds: float = 1.0,
                  viewer_port: int = 9876, connect_timeout: float = 1.0,
                  reserve_bytes: int = RESERVE_BYTES, envelope_rate: float | None = None, gains: bool = False,
-                 positions: Mapping[int, tuple[float, float]] | None = None):
+                 positions: Mapping[int, tuple[float, float]] | None = None, states: tuple | None = None):
         if time_mode not in ("discrete", "continuous"):
             raise RecordingError(f"time_mode must be 'discrete' or 'continuous', got {time_mode!r}")
         ids = [int(a) for a in agent_ids]
@@ -334,20 +337,25 @@ class Recorder:
             self._events = EventLog(self._events_path)  # create / empty events.jsonl
         except OSError as exc:
             raise RecordsWriteError(self._events_path, strerror(exc)) from None
+        if states is not None and len(states) != self.n:
+            raise RecordingError(f"states names {len(states)} states; expected {self.n}")
+        names = tuple(str(s) for s in states) if states is not None else None
         sink: RerunSink | None = None
         try:
             sink = RerunSink(self.out_dir, run_id=self.run_id, scenario_name=self.scenario_name,
                                   agent_ids=self.agent_ids, n=self.n, time_mode=time_mode, dt=self.dt,
                                   graph_names=self.graph_names, envelope=self.envelope_rate is not None,
                                   gains=bool(gains), positions=dict(positions) if positions else None,
-                                  viewer=viewer, viewer_port=viewer_port, connect_timeout=connect_timeout)
+                                  viewer=viewer, viewer_port=viewer_port, connect_timeout=connect_timeout,
+                                  states=names)
         except Exception as exc:  # Rerun must never stop a run
             log.warning("Rerun recording disabled (%s: %s); writing trajectory.npz and events.jsonl only",
                         type(exc).__name__, exc)
             sink = None
         # trajectory.npz and run.rrd (self._rec is its sink)
         self._files = RecordFiles(self.out_dir, agent_ids=self.agent_ids, taken=self._d, lost=self._lost,
-                                  extra=self._meas.arrays, failure=self._failed, sink=sink)
+                                  extra=self._meas.arrays, failure=self._failed, sink=sink,
+                                  states=names or default_state_names(self.n))
         if sink is not None:
             self._files.append_rrd()  # header, properties, styles and blueprint: run.rrd exists from the start
         self._reserve = Reserve(self.out_dir, reserve_bytes)

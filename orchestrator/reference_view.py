@@ -165,8 +165,9 @@ class ReferenceView:
     the truth (the filter's state line is then drawn thinner and grey, beside the truth's).
     """
 
-    def __init__(self, rec, agent_ids, n: int, *, truth: bool, index):
+    def __init__(self, rec, agent_ids, n: int, *, truth: bool, index, labels=None):
         self.rec, self.agent_ids, self.n = rec, [int(a) for a in agent_ids], int(n)
+        self.labels = labels or bp.state_labels(self.n)  # (entity label, display name) per state
         self.truth, self._index = bool(truth), index
 
     def log_static_styles(self, rr) -> None:
@@ -179,11 +180,11 @@ class ReferenceView:
         for i, a in enumerate(self.agent_ids):
             for prefix in (bp.RESIDUAL, bp.RESIDUAL_LOG10, bp.KF_DISTANCE, bp.KF_DISTANCE_LOG10):
                 line(bp.agent_path(prefix, a), f"agent {a}", bp.color(i))
-        for k in range(1, self.n + 1):
+        for label, name in self.labels:
             if self.truth:
-                line(bp.state_path(k, "kf"), f"x{k} centralized KF", bp.KF_BESIDE_TRUTH_COLOR, 2.0)
+                line(bp.state_path(label, "kf"), f"{name} centralized KF", bp.KF_BESIDE_TRUTH_COLOR, 2.0)
             else:
-                line(bp.state_path(k, "kf"), f"x{k} centralized KF", bp.KF_COLOR, 3.0)
+                line(bp.state_path(label, "kf"), f"{name} centralized KF", bp.KF_COLOR, 3.0)
 
     def agent_series(self, agent_id: int) -> list[str]:
         """The row series of one agent alone (what its loss clears)."""
@@ -214,7 +215,8 @@ class ReferenceView:
         seq, t, wall = np.asarray(seq, dtype=np.int64), np.asarray(t), np.asarray(wall)
         idx = self._index(rr, seq, t, wall)
         for c in range(self.n):
-            self.rec.send_columns(bp.state_path(c + 1, "kf"), indexes=idx, columns=rr.Scalars.columns(scalars=kf[:, c]))
+            self.rec.send_columns(bp.state_path(self.labels[c][0], "kf"), indexes=idx,
+                                  columns=rr.Scalars.columns(scalars=kf[:, c]))
         parts = []
         for i, a in enumerate(self.agent_ids):
             parts += known_parts(bp.agent_path(bp.KF_DISTANCE, a), bp.agent_path(bp.KF_DISTANCE_LOG10, a),

@@ -113,11 +113,14 @@ class RerunSink:
 
     def __init__(self, out_dir: Path, *, run_id: str, scenario_name: str, agent_ids: np.ndarray, n: int,
                  time_mode: str, dt: float, graph_names: tuple, envelope: bool, gains: bool,
-                 positions: dict, viewer: str | None, viewer_port: int, connect_timeout: float):
+                 positions: dict, viewer: str | None, viewer_port: int, connect_timeout: float,
+                 states: tuple | None = None):
         import rerun as rr
 
         self.agent_ids = [int(a) for a in agent_ids]
         self.n, self.time_mode, self.envelope, self.gains = int(n), time_mode, bool(envelope), bool(gains)
+        self.states = tuple(states) if states else None  # system.states: the state/<name> entities
+        self.labels = bp.state_labels(self.n, self.states)
         self.positions = bp.node_positions(self.agent_ids, positions)
         self.rrd_file = RrdAppender(Path(out_dir) / RRD_FILE)
         self.pending: list[bytes] = []  # read from Rerun, not yet on disk
@@ -136,14 +139,15 @@ class RerunSink:
         rec.send_recording_name(f"{scenario_name} ({run_id})")
         rec.send_property("splitspec", rr.AnyValues(
             scenario=scenario_name, run_id=run_id, time_mode=time_mode, dt=dt, n=self.n, m=len(self.agent_ids),
-            agent_ids=self.agent_ids, graphs=list(graph_names), envelope=self.envelope, gains=self.gains))
+            agent_ids=self.agent_ids, graphs=list(graph_names), envelope=self.envelope, gains=self.gains,
+            **({"states": list(self.states)} if self.states else {})))
         self._log_static_styles(rr, rec)
 
     # ------------------------------------------------------------------ setup
 
     def blueprint(self):
         return bp.default_blueprint(self.time_mode, n=self.n, envelope=self.envelope, gains=self.gains,
-                                    truth=self.truth, reference=self.reference is not None)
+                                    truth=self.truth, reference=self.reference is not None, states=self.states)
 
     def set_reference(self, rows: ReferenceRows, *, truth: bool) -> None:
         """The run is on measurements (``rows``): log its residuals, disagreement and filter, the errors and the
@@ -151,7 +155,8 @@ class RerunSink:
         import rerun as rr
 
         self.truth, self.reference_rows = bool(truth), rows
-        self.reference = ReferenceView(self.rec, self.agent_ids, self.n, truth=self.truth, index=self._index)
+        self.reference = ReferenceView(self.rec, self.agent_ids, self.n, truth=self.truth, index=self._index,
+                                       labels=self.labels)
         self.reference.log_static_styles(rr)
         self.rec.send_property("measurements", rr.AnyValues(truth=self.truth))
         self.rec.send_blueprint(self.blueprint(), make_active=True, make_default=True)
@@ -203,10 +208,10 @@ class RerunSink:
             if self.gains:
                 line(bp.agent_path(bp.GAINS, a), f"g agent {a}", bp.color(i))
         m = len(self.agent_ids)
-        for k in range(1, self.n + 1):
+        for label, name in self.labels:
             # one batch of m scalars: one name, colour and width per instance (agent)
-            rec.log(bp.state_path(k, "agents"), rr.SeriesLines(
-                names=[f"x{k} agent {a}" for a in self.agent_ids], colors=[bp.color(i) for i in range(m)],
+            rec.log(bp.state_path(label, "agents"), rr.SeriesLines(
+                names=[f"{name} agent {a}" for a in self.agent_ids], colors=[bp.color(i) for i in range(m)],
                 widths=[1.0] * m), static=True)
         for s in bp.ROUND_SERIES:
             line(f"{bp.ROUNDS}/{s}", s.replace("_", " "), bp.ROUND_COLORS[s])
@@ -229,8 +234,8 @@ class RerunSink:
         for i, a in enumerate(self.agent_ids):
             line(bp.agent_path(bp.ERRORS, a), f"agent {a}", bp.color(i))
             line(bp.agent_path(bp.ERRORS_LOG10, a), f"agent {a}", bp.color(i))
-        for k in range(1, self.n + 1):
-            line(bp.state_path(k, "truth"), f"x{k} truth", bp.TRUTH_COLOR, 3.0)
+        for label, name in self.labels:
+            line(bp.state_path(label, "truth"), f"{name} truth", bp.TRUTH_COLOR, 3.0)
 
     def guarded(self, what: str, fn, *args) -> None:
         """Run one Rerun logging step; a failure is a warning, never an exception."""
@@ -299,8 +304,8 @@ class RerunSink:
         shown = np.where(b.show[:, :, None], b.xhat, np.nan)  # (L, m, n)
         for c in range(self.n):
             if self.truth:
-                scalars(bp.state_path(c + 1, "truth"), every, b.x[:, c])
-            scalars(bp.state_path(c + 1, "agents"), every, shown[:, :, c])  # (L, m): a batch of m per row
+                scalars(bp.state_path(self.labels[c][0], "truth"), every, b.x[:, c])
+            scalars(bp.state_path(self.labels[c][0], "agents"), every, shown[:, :, c])  # (L, m): a batch of m per row
         for i, a in enumerate(self.agent_ids):
             mask = b.show[:, i]
             if self.truth:

@@ -178,7 +178,7 @@ def event_marks(t: np.ndarray, alive: np.ndarray, graph: np.ndarray, *, agent_id
     return tuple(marks)
 
 
-def summarize(traj: Trajectory, *, time: str, rate: float, noise_free: Trajectory | None = None,
+def summarize(traj: Trajectory, *, time: str, rate: float | None, noise_free: Trajectory | None = None,
               adaptive: bool = False, certified_rate: bool | None = None) -> dict:
     """Final and max error per agent, measured decay rate vs the designed rate, alive agents.
 
@@ -187,8 +187,11 @@ def summarize(traj: Trajectory, *, time: str, rate: float, noise_free: Trajector
     designed envelope (``envelope_c`` None) and no verdict against the design
     (``measured_meets_design`` None); ``measured_rate`` stays, as information.
     ``certified_rate`` is whether the design certifies ``rate`` (always False
-    for the adaptive gain; default True otherwise).
+    for the adaptive gain; default True otherwise).  ``rate`` None: no envelope and no verdict either (the
+    certificate covers the error modulo directions no agent sees, which do not decay: ``design.undetectable:
+    exclude``).
     """
+    bare = adaptive or rate is None  # nothing to hold the errors against
     e = traj.errors()
     ref = noise_free if noise_free is not None else traj
     xnorm = np.linalg.norm(ref.x, axis=1)
@@ -203,11 +206,11 @@ def summarize(traj: Trajectory, *, time: str, rate: float, noise_free: Trajector
             "alive_at_end": bool(traj.alive[-1, k]),
         }
     meets = None
-    if measured is not None and not adaptive:
+    if measured is not None and not bare:
         meets = bool(measured >= rate * (1 - 1e-3) if time == "continuous" else measured <= rate * (1 + 1e-3))
     restarts = envelope_restarts(ref.alive, ref.graph)
     pieces = []  # [t of the restart, smallest c on that piece], as envelope(..., fit=True)
-    if not adaptive:
+    if not bare:
         emax = max_error(ref)
         for a, k0 in enumerate(restarts):
             k1 = restarts[a + 1] if a + 1 < restarts.size else ref.t.size

@@ -1,11 +1,11 @@
 """The public Python API: build or load a scenario, design, simulate, compare (re-exported by ``splitspec_core``).
 
-Every function here is what a ``splitspec`` command does, minus the files: the CLI's command
-modules call these same functions.  Results are frozen dataclasses whose arrays are read-only.
+Every function here is what a ``splitspec`` command does, minus the files: the CLI's command modules call
+these same functions.  Results are frozen dataclasses whose arrays are read-only.
 
-Validation has one path: :func:`scenario` turns its keywords into the mapping a scenario file
-holds and hands it to :func:`splitspec_core.scenario_load.parse_scenario`, the checker of YAML files,
-so both meet the same checks with the same one-line messages.
+Validation has one path: :func:`scenario` turns its keywords into the mapping a scenario file holds and hands
+it to :func:`splitspec_core.scenario_load.parse_scenario`, the checker of YAML files, so both meet the same
+checks with the same one-line messages.
 """
 
 from __future__ import annotations
@@ -48,8 +48,8 @@ def _readonly(a: Any) -> np.ndarray:
 
 def scenario(*, name: str | None = None, time: str | None = None,
              A: Any = None, C: Mapping | None = None, x0: Any = None,
-             process_noise: float | None = None, measurement_noise: float | None = None,
-             states: Iterable | None = None, outputs: Mapping | None = None,
+             process_noise: float | None = None, measurement_noise: float | None = None, states: Iterable | None = None,
+             outputs: Mapping | None = None,
              graphs: Mapping | None = None, switching: Mapping | None = None, faults: Iterable | None = None,
              positions: Mapping | None = None, network: Mapping | None = None,
              rate: float | None = None, gains: str | None = None, K: Mapping | None = None, g: Any = None,
@@ -146,14 +146,16 @@ class Checks:
 
     Attributes
     ----------
-    jointly_observable : ``(C, A)`` jointly observable (:func:`design` raises when it is not)
+    jointly_observable : every direction is seen by some agent
+    jointly_detectable : what no agent sees decays (else :func:`design` raises, unless ``design.undetectable: exclude``)
+    unobserved : one line naming the directions no agent sees and their decay (None: none; detectability.py)
     strongly_connected : per graph name (:func:`design` raises when one is not)
-    rate_certified : the rate is certified for the estimator as it runs (continuous time: the
-        sampled-data form at ``run.dt`` too); never for the adaptive gain (asymptotic convergence,
-        no certified rate: thm. split_continuous_adaptive)
+    rate_certified : the rate is certified for the estimator as it runs (continuous time: the sampled-data form at
+        ``run.dt`` too); never for the adaptive gain (asymptotic convergence: thm. split_continuous_adaptive)
     certificate : one line: what certifies the rate, or why nothing does (``splitspec design`` says the same)
     sampled_rate : continuous time: the worst decay rate of the sampled-data estimator at ``run.dt``
     warnings : what the design report warns about
+    envelope_rate : the certified envelope's rate: ``rate``, or slower (what no agent sees decays slower); None: none
     """
 
     jointly_observable: bool
@@ -162,6 +164,9 @@ class Checks:
     certificate: str
     sampled_rate: float | None
     warnings: tuple
+    jointly_detectable: bool = True
+    unobserved: str | None = None
+    envelope_rate: float | None = None
 
 
 @dataclass(frozen=True)
@@ -215,8 +220,7 @@ def design(sc: Scenario, *, all_q_methods: bool = False, workers: int | None = N
     Raises
     ------
     AssumptionError
-        A graph is not strongly connected, ``(C, A)`` is not jointly observable, explicit gains
-        miss the rate (the message names the graph, direction or matrix).
+        A graph is not strongly connected, ``(C, A)`` is not jointly detectable, explicit gains miss the rate (named).
     DesignError
         No q below ``design.q_max``, or no g found.
     """
@@ -225,10 +229,12 @@ def design(sc: Scenario, *, all_q_methods: bool = False, workers: int | None = N
     des = _design(sc, compare_q_methods=all_q_methods, workers=workers)
     agents = {a.id: AgentResult(id=a.id, K=_readonly(a.K), V=_readonly(a.V), Q=_readonly(a.dec.Q),
                                 P=_readonly(a.P), poles=_readonly(a.gain.poles)) for a in des.agents}
-    cert = rate_certificate(des)
-    sampled = min(des.sampled_rate.values()) if des.sampled_rate else None
-    checks = Checks(jointly_observable=True, strongly_connected=MappingProxyType({g.name: True for g in des.graphs}),
-                    rate_certified=cert.certified, certificate=cert.text, sampled_rate=sampled, warnings=tuple(des.warnings))
+    un, cert = des.unobserved, rate_certificate(des)
+    checks = Checks(jointly_observable=un.dim == 0, jointly_detectable=un.decays, rate_certified=cert.certified,
+                    strongly_connected=MappingProxyType({g.name: True for g in des.graphs}),
+                    certificate=cert.text, sampled_rate=min(des.sampled_rate.values()) if des.sampled_rate else None,
+                    warnings=tuple(des.warnings), unobserved=un.summary(sc.design.rate) if un.dim else None,
+                    envelope_rate=cert.rate)
     return DesignResult(scenario=sc, time=sc.time, rate=sc.design.rate, q=des.q, g=des.g, g_mode=des.g_mode,
                         agents=MappingProxyType(agents), checks=checks, detail=des)
 

@@ -46,7 +46,7 @@ GAIN_WARN = 1e3
 #: a transient constant above this is warned about
 TRANSIENT_WARN = 1e3
 #: the work (flops) spent on the exact transient constant before falling back to the Lyapunov bound
-MAX_WORK = 1e12
+MAX_WORK = 1e11
 
 
 @dataclass(frozen=True)

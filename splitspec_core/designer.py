@@ -24,7 +24,7 @@ import numpy as np
 from . import bounds
 from .errors import AssumptionError
 from .conditioning import conditioning
-from .detectability import Unobserved, not_detectable_text, quotient_basis, still_text, unobserved_of
+from .detectability import Unobserved, directions_of, not_detectable_text, quotient_basis, still_text, unobserved_of
 from .full_matrix import SPLIT_EXACT, check_full
 from .gains import LocalGain, beyond_target, design_gain
 from .graphs import build_graph, enumerate_strongly_connected
@@ -35,7 +35,7 @@ from .resilience import analyse_agent_losses, analyse_arc_losses
 from .sampled import sampled_g
 from .scenario_model import Scenario
 
-__all__ = ["AgentDesign", "Design", "design", "design_agent", "scenario_dwell", "scenario_spectrum",
+__all__ = ["AgentDesign", "Design", "design", "design_agent", "directions_of", "scenario_dwell", "scenario_spectrum",
            "NO_CERTIFIED_RATE"]
 
 # thm. split_continuous_adaptive: with the adaptive gain (eq. adaptive) every error tends to zero, at no stated rate
@@ -259,9 +259,9 @@ def design(sc: Scenario, *, compare_q_methods: bool = False, workers: int | None
     warnings: list = []
     if not un.decays:
         if d.undetectable != "exclude":
-            raise AssumptionError(not_detectable_text(un, sp, C_all, d.rank_tol))
-        warnings.append(f"design.undetectable: exclude: {still_text(un)} no agent sees, and {'they do' if un.dim > 1 else 'it does'} "
-                        "not decay; the certificate covers the error modulo the unobserved directions only")
+            raise AssumptionError(not_detectable_text(un, decs, d.rank_tol))
+        warnings.append(f"design.undetectable: exclude: no agent sees {still_text(un)}, which does not decay; the "
+                        "certificate covers the error modulo the unobserved directions only")
     pw, mw = riccati_weights(sc)
     agents = tuple(
         design_agent(A, C, time=sc.time, rate=d.rate, method=d.gains, margin=d.margin,

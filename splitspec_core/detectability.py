@@ -58,7 +58,7 @@ from .subspaces import complement, intersection
 from .subspaces import difference as quotient_basis  # V_i ⊖ W: the estimator's V_i
 
 __all__ = ["BACKOFF", "Unobserved", "unobserved", "unobserved_of", "quotient_basis", "still_text", "envelope_rate",
-           "not_detectable_text"]
+           "not_detectable_text", "directions_of"]
 
 #: a W that limits the rate is certified at this fraction of its decay rate (module docstring)
 BACKOFF = 0.99
@@ -156,26 +156,35 @@ class Unobserved:
         """One line: what goes unobserved, how fast it decays, whether that limits the rate."""
         if not self.dim:
             return "every direction is observed by some agent"
-        what = f"{self.dim} direction{'s' if self.dim != 1 else ''} no agent sees ({self.where()})"
+        one = self.dim == 1
+        what = f"{self.dim} direction{'' if one else 's'} no agent sees ({self.where()})"
         if not self.decays:
-            return f"{what} do not all decay"
+            return f"{what} {'does not decay' if one else 'do not all decay'}"
+        verb = "decays" if one else "decay"
         if self.time == "continuous":
-            speed = f"decay at {self.decay:.3g}"
+            speed = f"{verb} at {self.decay:.3g}"
             cmp = f"{'<=' if self.limits(rate) else '>'} rate {rate:g}"
         else:
-            speed = f"decay with radius {self.decay:.3g}"
+            speed = f"{verb} with radius {self.decay:.3g}"
             cmp = f"{'>=' if self.limits(rate) else '<'} rate {rate:g}"
         if self.limits(rate):
-            return f"{what} {speed} {cmp}: they limit the certified rate to {self.envelope(rate):.4g}"
-        return f"{what} {speed} {cmp}: faster than the rate, they do not limit it"
+            return f"{what} {speed} {cmp}: {'it limits' if one else 'they limit'} the certified rate to " \
+                   f"{self.envelope(rate):.4g}"
+        return f"{what} {speed} {cmp}: faster than the rate, {'it does' if one else 'they do'} not limit it"
 
 
-def unobserved(sp: Spectrum, A: np.ndarray, C: np.ndarray, Vs, *, time: str, names) -> Unobserved:
+def unobserved(sp: Spectrum, A: np.ndarray, C: np.ndarray, Vs, *, time: str, names,
+               rank_tol: float | None = None) -> Unobserved:
     """The unobserved space of the agents whose unobservable spaces are ``Vs`` (user's coordinates), with ``C`` their
-    rows stacked (for the residual) and ``sp`` the skeleton of ``A`` (:mod:`splitspec_core.modal`)."""
+    rows stacked (for the residual) and ``sp`` the skeleton of ``A`` (:mod:`splitspec_core.modal`).
+
+    A direction counts as unobserved when it is within the decisions' own threshold (``design.rank_tol``) of every
+    agent's ``V_i``, in balanced coordinates: an agent that left a weakly seen direction out has a ``V_i`` tilted
+    by up to about that much, and consensus could recover a direction that every ``V_i`` holds only that closely
+    only with a gain of order one over its square (the split is then approximate: ``residual``)."""
     A = np.asarray(A, dtype=float)
     n = A.shape[0]
-    Wb = intersection([sp.to_balanced(V) for V in Vs], n)
+    Wb = intersection([sp.to_balanced(V) for V in Vs], n, tol=threshold_of(rank_tol))
     W = sp.to_user(Wb)
     Cb = np.asarray(C, dtype=float) * sp.d[None, :]
     residual = _split_residual(sp.A_b, Cb, complement(Wb).T, Wb) if Wb.shape[1] else 0.0
@@ -204,28 +213,29 @@ def envelope_rate(rate: float, un: Unobserved | None) -> float:
 
 
 def unobserved_of(sc, sp: Spectrum, full_V: dict):
-    """``alive -> Unobserved``: what a set of agents of the scenario ``sc`` leaves unobserved, from their own unobservable
-    spaces ``full_V`` (agent id -> ``V_i``, user's coordinates)."""
+    """``alive -> Unobserved``: what a set of agents of the scenario ``sc`` leaves unobserved, from their own
+    unobservable spaces ``full_V`` (agent id -> ``V_i``, user's coordinates)."""
     Cs = dict(zip(sc.agent_ids, sc.system.Cs))
 
     def of(alive) -> Unobserved:
         ids = [a for a in sc.agent_ids if a in set(alive)]
         C = np.vstack([Cs[a] for a in ids]) if ids else np.zeros((0, sc.n))
-        return unobserved(sp, sc.system.A, C, [full_V[a] for a in ids], time=sc.time, names=sc.state_names)
+        return unobserved(sp, sc.system.A, C, [full_V[a] for a in ids], time=sc.time, names=sc.state_names,
+                          rank_tol=sc.design.rank_tol)
 
     return of
 
 
-def not_detectable_text(un: Unobserved, sp: Spectrum, C: np.ndarray, rank_tol: float | None) -> str:
+def not_detectable_text(un: Unobserved, decs, rank_tol: float | None) -> str:
     """The one line refusing a design whose unobserved directions do not all decay: the modes, named, whether some
-    agent sees them weakly (a margin above round-off but under the threshold), what would fix it."""
+    agent sees them weakly (the largest margin an agent left out along them: ``design.rank_tol`` below it would count
+    it), what would fix it.  ``decs``: the agents' own decompositions."""
     modes = un.still_modes()
-    Cb = C * sp.d[None, :]
-    normC = float(np.linalg.norm(Cb, 2)) or 1.0
     weak = 0.0
-    for _, v in modes:
-        vb = v / sp.d
-        weak = max(weak, float(np.linalg.norm(Cb @ vb)) / (normC * float(np.linalg.norm(vb))))
+    for dec in decs:  # a direction an agent left out that lies in W: the margin the threshold would have to go below
+        v = dec.weak_direction
+        if dec.weak > 0.0 and v is not None and np.linalg.norm(v - un.W @ (un.W.T @ v)) <= 1e-3:
+            weak = max(weak, dec.weak)
     plural = sum(1 for lam, _ in modes if lam.imag >= 0) > 1  # a complex pair is one mode
     hint = ""
     if weak > ROUND_OFF:
@@ -237,3 +247,14 @@ def not_detectable_text(un: Unobserved, sp: Spectrum, C: np.ndarray, rank_tol: f
     who = [w for w in who if not w.endswith(" more")]
     return (f"(C, A) is not jointly detectable: no agent sees {still_text(un)}, which does not decay{hint}; "
             f"measure one of {', '.join(who)}, or set design.undetectable: exclude to estimate the rest")
+
+
+def directions_of(rows, n: int) -> np.ndarray | None:
+    """W as a configuration carries it to an agent process (``unobserved``: n rows of w numbers), checked; None when
+    the design sent none."""
+    if rows is None:
+        return None
+    W = np.array(rows, dtype=float)
+    if W.ndim != 2 or W.shape[0] != n or W.shape[1] > n or not np.all(np.isfinite(W)):
+        raise ValueError(f"the configuration's unobserved directions are not {n} rows of at most {n} finite numbers")
+    return W

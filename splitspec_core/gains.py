@@ -52,7 +52,7 @@ from .observability import Decomposition
 from .subspaces import complement
 
 __all__ = ["LocalGain", "target_poles", "beyond_target", "place_gain", "riccati_gain", "explicit_gain", "meets_rate",
-           "design_gain"]
+           "design_gain", "poles_text"]
 
 
 @dataclass(frozen=True)
@@ -176,15 +176,21 @@ def place_gain(dec: Decomposition, *, time: str, rate: float, margin: float = 0.
         return _lift(dec, np.zeros((r, s)), "place")
     poles = target_poles(U2.shape[1], time, rate, margin)
     T22, B2 = U2.T @ dec.Abar.T @ U2, U2.T @ Ct.T
-    # dual problem on the slow part: eig(T22 - B2 F2) = poles; F = F2 U2' leaves the fast modes where they are
-    F2 = _ackermann(T22, B2, poles) if Ct.shape[0] == 1 else None
-    if F2 is None:
+    # the outputs' combinations that reach the slow part: fewer than the outputs when some output sees only fast
+    # modes (B2 = Br Vr', Br of full column rank); the placement runs on Br, and F2 = Vr F_r
+    Ub, sb, Vbt = np.linalg.svd(B2, full_matrices=False)
+    r_b = int(np.sum(sb > 1e-12 * (sb[0] if sb.size else 0.0)))
+    Br, Vr = Ub[:, :r_b] * sb[:r_b], Vbt[:r_b].T
+    # dual problem on the slow part: eig(T22 - Br F_r) = poles; F = Vr F_r U2' leaves the fast modes where they are
+    Fr = _ackermann(T22, Br, poles) if r_b == 1 else None
+    if Fr is None:
         from scipy.signal import place_poles
 
         try:
-            F2 = place_poles(T22, B2, poles, method="YT").gain_matrix
+            Fr = place_poles(T22, Br, poles, method="YT").gain_matrix
         except ValueError as exc:
             raise DesignError(f"pole placement failed: {exc}") from None
+    F2 = Vr @ Fr
     Kt = -(F2 @ U2.T).T  # (r, rank): eig(Abar + Kt Ct) = fast modes + poles
     # Kbar Cbar = Kt Ct with Cbar = T Ct  =>  Kbar = Kt pinv(T)
     Kbar = Kt @ np.linalg.pinv(T)
@@ -261,11 +267,25 @@ def design_gain(
         raise DesignError(f"unknown gain method {method!r}")
     if not meets_rate(gain.poles, time, rate):
         need = f"real parts < {-rate:g}" if time == "continuous" else f"moduli < {rate:g}"
-        shown = ", ".join(_pole_text(p) for p in gain.poles)
         raise AssumptionError(
-            f"{label}: gain ({method}) puts the observable-part poles at [{shown}], "
+            f"{label}: gain ({method}) puts the observable-part poles at {poles_text(gain.poles, time)}, "
             f"which do not meet rate {rate:g} (need {need})")
     return gain
+
+
+#: poles a message or report line lists at most, the slowest first
+POLES_SHOWN = 6
+
+
+def poles_text(poles, time: str, *, limit: int = POLES_SHOWN) -> str:
+    """``[-0.3, -0.45, -0.6]``; more than ``limit``: the slowest ``limit`` and how many more, down to the fastest."""
+    poles = np.asarray(poles)
+    if poles.size <= limit:
+        return "[" + ", ".join(_pole_text(p) for p in poles) + "]"
+    speed = -poles.real if time == "continuous" else -np.abs(poles)  # the slowest first
+    order = np.argsort(speed, kind="stable")
+    shown = ", ".join(_pole_text(p) for p in poles[order[:limit]])
+    return f"[{shown}, ... {poles.size - limit} more, the fastest {_pole_text(poles[order[-1]])}]"
 
 
 def _pole_text(p: complex) -> str:

@@ -340,5 +340,5 @@ def _batch(des: Design, seeds: tuple, *, steps, noise, trajectories) -> tuple:
         lost_a, cause_a = lost_arrays(lost_rows)
         trajs = tuple(Trajectory(t=t, x=xs[s], xhat=xh[s], alive=al.copy(), graph=plan.graph_seq.copy(),
                                  agent_ids=np.array(sc.agent_ids), gains=gains[s], lost=lost_a.copy(),
-                                 lost_cause=cause_a.copy()) for s in range(N))
+                                 lost_cause=cause_a.copy(), states=sc.state_names) for s in range(N))
     return t, sq, count, trajs

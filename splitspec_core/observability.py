@@ -77,7 +77,7 @@ and the designer checks the rate on the full error matrix as well.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -238,6 +238,8 @@ class Decomposition:
         from an exact unobservable space (round-off when ``weak`` is 0).
     unobserved : int
         The dimension of the directions no agent sees, taken out of ``V`` (:meth:`without`); 0: none.
+    weak_direction : (n,) array or None
+        The direction of ``weak`` (unit, the user's coordinates); None when nothing was left out.
     """
 
     V: np.ndarray
@@ -250,6 +252,7 @@ class Decomposition:
     weak: float = 0.0
     split_residual: float = 0.0
     unobserved: int = 0
+    weak_direction: np.ndarray | None = field(default=None, repr=False, compare=False)
 
     @property
     def n_unobservable(self) -> int:
@@ -361,9 +364,14 @@ def decompose(A: np.ndarray, C: np.ndarray, *, rank_tol: float | None = None,
     V = sp.to_user(dec.Vb)
     Q = _complement(V).T
     residual = _split_residual(sp.A_b, C * sp.d[None, :], _complement(dec.Vb).T, dec.Vb)
+    weak_dir = None
+    if dec.weak_direction is not None:
+        weak_dir = sp.d * dec.weak_direction
+        weak_dir = weak_dir / np.linalg.norm(weak_dir)
     return Decomposition(
         V=V, Q=Q, Abar=Q @ A @ Q.T, Cbar=C @ Q.T, P=V @ V.T, A_un=V.T @ A @ V,
         margin=float(dec.margins.min()) if dec.margins.size else None, weak=dec.weak, split_residual=residual,
+        weak_direction=weak_dir,
     )
 
 
@@ -376,4 +384,4 @@ def unobservable_directions(A: np.ndarray, Cs, *, rank_tol: float | None = None)
     if not Cs:
         return np.eye(n)
     sp = modal_spectrum(A, np.vstack(Cs))
-    return sp.to_user(intersection([_decide(sp, C, rank_tol).Vb for C in Cs], n))
+    return sp.to_user(intersection([_decide(sp, C, rank_tol).Vb for C in Cs], n, tol=threshold_of(rank_tol)))

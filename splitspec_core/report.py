@@ -14,6 +14,7 @@ import numpy as np
 
 from .bounds import QResult
 from .designer import NO_CERTIFIED_RATE, Design
+from .gains import poles_text
 from .graphs import is_doubly_stochastic, perron_vector
 from .labels import heaviest
 
@@ -295,13 +296,6 @@ def design_json(des: Design) -> dict:
     return out
 
 
-def _fmt_poles(z) -> str:
-    parts = []
-    for p in np.asarray(z):
-        parts.append(f"{p.real:.4g}" if abs(p.imag) < 1e-10 else f"{p.real:.4g}{p.imag:+.4g}j")
-    return "[" + ", ".join(parts) + "]" if parts else "[]"
-
-
 def design_text(des: Design) -> str:
     """A readable multi-line report of a design."""
     sc = des.scenario
@@ -322,7 +316,7 @@ def design_text(des: Design) -> str:
         weak = f", weak direction (margin {c.weak:.2g}) left to consensus" if c.weak > 0 else ""
         lines.append(f"  agent {a.id}: s_i = {a.K.shape[1]}, n_i = {a.dec.n_unobservable}"
                      + (f" (+ {a.dec.unobserved} no agent sees)" if a.dec.unobserved else "")
-                     + f", poles {_fmt_poles(a.gain.poles)}, margin {margin}, |K| {c.gain_norm:.3g}{weak}")
+                     + f", poles {poles_text(a.gain.poles, sc.time)}, margin {margin}, |K| {c.gain_norm:.3g}{weak}")
     lines += ["", "graphs"]
     for g in des.graphs:
         ds = "doubly stochastic" if is_doubly_stochastic(g.S) else "not doubly stochastic"

@@ -88,6 +88,8 @@ class Trajectory:
         order, 0.0 where missing; None when a simulated plant drew them
     y_missing : (T, m) bool, optional
         No measurement of agent i at that step (the agent predicted only)
+    states : tuple of str, optional
+        The states' names (``system.states``, else ``x1 .. xn``); None for a file written before they existed
     """
 
     t: np.ndarray
@@ -101,6 +103,7 @@ class Trajectory:
     lost_cause: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int8))
     y: np.ndarray | None = None
     y_missing: np.ndarray | None = None
+    states: tuple | None = None
 
     @property
     def has_truth(self) -> bool:
@@ -116,14 +119,15 @@ class Trajectory:
         write_trajectory(path, t=self.t, x=self.x, xhat=self.xhat, alive=self.alive, graph=self.graph,
                          agent_ids=self.agent_ids, g=self.gains, lost=self.lost, lost_cause=self.lost_cause,
                          extra={**({"y": self.y, "y_missing": self.y_missing} if self.y is not None else {}),
-                                **(extra or {})})
+                                **(extra or {})}, states=self.states)
 
     @classmethod
     def load(cls, path: str | Path) -> "Trajectory":
         with np.load(path) as f:
             extra = {k: f[k] for k in ("lost", "lost_cause", "y", "y_missing") if k in f.files}
+            states = tuple(str(s) for s in f["states"]) if "states" in f.files else None
             return cls(t=f["t"], x=f["x"], xhat=f["xhat"], alive=f["alive"], graph=f["graph"],
-                       agent_ids=f["agent_ids"], gains=f["g"] if "g" in f.files else None, **extra)
+                       agent_ids=f["agent_ids"], gains=f["g"] if "g" in f.files else None, states=states, **extra)
 
 
 # --------------------------------------------------------------------------
@@ -570,7 +574,8 @@ def simulate(des: Design, *, seed: int | None = None, steps: int | None = None, 
     elif ys is not None:
         recorded = {"y": ys, "y_missing": np.zeros((T, m), dtype=bool)}
     return Trajectory(t=plan.times(), x=xs, xhat=xh, alive=al, graph=plan.graph_seq.copy(),
-                      agent_ids=np.array(ids), gains=gains, lost=lost_a, lost_cause=cause_a, **recorded)
+                      agent_ids=np.array(ids), gains=gains, lost=lost_a, lost_cause=cause_a, states=sc.state_names,
+                      **recorded)
 
 
 def _replay_index(lost) -> dict:
@@ -688,4 +693,4 @@ def simulate_exact(des: Design, *, seed: int | None = None, steps: int | None = 
             cache[key] = Phi
         z = Phi @ z
     return Trajectory(t=plan.times(), x=xs, xhat=xh, alive=al, graph=plan.graph_seq.copy(), agent_ids=np.array(ids),
-                      gains=np.where(al, g, np.nan))
+                      gains=np.where(al, g, np.nan), states=sc.state_names)

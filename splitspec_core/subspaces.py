@@ -7,6 +7,8 @@ import numpy as np
 __all__ = ["complement", "intersection", "difference", "INTERSECT_TOL"]
 
 #: a direction lies in every subspace of an intersection when their stacked complements leave less than this of it
+#: (round-off; the observability decisions pass their own threshold: a subspace decided with weak directions left
+#: out is only known to about that much)
 INTERSECT_TOL = 1e-8
 
 
@@ -20,10 +22,10 @@ def complement(W: np.ndarray) -> np.ndarray:
     return Qfull[:, r:]
 
 
-def intersection(Vs, n: int) -> np.ndarray:
+def intersection(Vs, n: int, *, tol: float = INTERSECT_TOL) -> np.ndarray:
     """Orthonormal basis of ``span V_1 ∩ ... ∩ span V_m`` (each ``V_i`` orthonormal, n rows; none: everything): the
     right singular vectors of the stacked orthogonal complements ``[Q_1; ...; Q_m]`` whose singular value is at most
-    :data:`INTERSECT_TOL`."""
+    ``tol`` (the directions within that angle of every ``V_i``)."""
     Vs = list(Vs)
     if not Vs:
         return np.eye(n)
@@ -32,7 +34,7 @@ def intersection(Vs, n: int) -> np.ndarray:
         return np.eye(n)
     _, s, Vt = np.linalg.svd(Q, full_matrices=True)
     s = np.concatenate([s, np.zeros(n - len(s))])
-    return Vt[s <= INTERSECT_TOL].T.copy()
+    return Vt[s <= tol].T.copy()
 
 
 def difference(V: np.ndarray, W: np.ndarray) -> np.ndarray:

@@ -8,7 +8,7 @@ agent is dead and everywhere in discrete time (there is no ``g``); ``lost`` (N, 
 int64: every consensus message that did not count, one row ``(event time,
 sub-round k, sender j, receiver i)`` in that order, and ``lost_cause`` (N,) int8
 (0 loss, 1 late, 2 partition: :mod:`splitspec_core.impairment`); empty on a
-perfect network.
+perfect network; ``states`` (n,) str: the states' names (``system.states``, else ``x1 .. xn``).
 
 The file is written atomically: a temporary file in the same directory,
 flushed and fsynced, then ``os.replace``; a reader never sees a torn file and
@@ -47,7 +47,7 @@ def lost_arrays(rows) -> tuple:
 def write_trajectory(path: str | Path, *, t: np.ndarray, x: np.ndarray, xhat: np.ndarray, alive: np.ndarray,
                      graph: np.ndarray, agent_ids: np.ndarray, g: np.ndarray | None = None,
                      lost: np.ndarray | None = None, lost_cause: np.ndarray | None = None,
-                     extra: dict | None = None) -> None:
+                     extra: dict | None = None, states=None) -> None:
     """Atomically write ``path`` with the trajectory arrays (``g`` all NaN if None).
 
     Raises
@@ -61,6 +61,8 @@ def write_trajectory(path: str | Path, *, t: np.ndarray, x: np.ndarray, xhat: np
                   g=no_gains(T, m) if g is None else g,
                   lost=np.zeros((0, 4), dtype=np.int64) if lost is None else np.asarray(lost, dtype=np.int64),
                   lost_cause=np.zeros(0, dtype=np.int8) if lost_cause is None else np.asarray(lost_cause, np.int8))
+    if states is not None:
+        arrays["states"] = np.array([str(s) for s in states], dtype=str)
     for k, v in (extra or {}).items():
         if k not in OPTIONAL:
             raise ValueError(f"write_trajectory: {k!r} is not an optional array of the contract ({', '.join(OPTIONAL)})")

@@ -261,7 +261,10 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     adaptive = d.g_mode == "adaptive"
     # the certificate of what ran: --exact integrates the ODE itself, else the sampled-data form
     cert = rate_certificate(d.detail, sampled=not args.exact)
-    summary = summarize(traj, time=sc.time, rate=sc.design.rate, noise_free=clean, adaptive=adaptive,
+    # the envelope's rate: the design's, or slower when directions no agent sees limit it; none when some of them do
+    # not decay (design.undetectable: exclude: the certificate is of the error modulo them)
+    envelope_rate = None if d.detail.excluded else d.detail.envelope_rate
+    summary = summarize(traj, time=sc.time, rate=envelope_rate, noise_free=clean, adaptive=adaptive,
                         certified_rate=cert.certified)
     summary.update({"certificate": cert.text, "scenario": sc.name, "seed": seed, "time": sc.time,
                     "g": d.g, "q": d.q, "estimator": "exact ODE" if args.exact else "sampled-data" if
@@ -277,8 +280,8 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         title = f"{sc.name}: {'g = %g' % d.g if d.g is not None else 'q = %d' % d.q if d.q else 'adaptive g'}"
         marks = event_marks(traj.t, traj.alive, traj.graph, agent_ids=traj.agent_ids, faults=sc.faults,
                             graph_names=sc.graph_names, dt=sc.run.dt if sc.time == "continuous" else 1.0)
-        plots.plot_errors(traj, out / "errors.png", time=sc.time, rate=sc.design.rate, title=title, marks=marks,
-                          noise_free=clean, adaptive=adaptive)
+        plots.plot_errors(traj, out / "errors.png", time=sc.time, rate=envelope_rate, title=title,
+                          marks=marks, noise_free=clean, adaptive=adaptive)
         plots.plot_states(traj, out / "states.png", time=sc.time, title=title, marks=marks)
         summary["plots"] = ["errors.png", "states.png"]
         if mc is not None:

@@ -86,8 +86,9 @@ __all__ = ["SCHEMA_VERSION", "DEFAULT_RUN_ID", "Keys", "WireError", "encode", "d
 # 2: one y message for every agent; x_i(tau + 1) doubles as the next z_i(0); 3: binary round messages;
 # 4: xhat reports the consensus messages that did not count, tick names the partition in force; 5: y names the
 # agents without a measurement (missing), xhat carries the measurement the agent used (y); 6: a tick carries the
-# network (rows, alive, incarnation, partition: O(m) to decode in every agent) only when it changed (topology)
-SCHEMA_VERSION = 6
+# network (rows, alive, incarnation, partition: O(m) to decode in every agent) only when it changed (topology); 7: a
+# config carries W, the directions no agent sees (unobserved: the estimator's P_i projects on V_i minus W)
+SCHEMA_VERSION = 7
 DEFAULT_RUN_ID = "default"
 KEY_ROOT = "splitspec"  #: every run's keys live under ``splitspec/<run_id>/``
 #: every run's orchestrator token (``splitspec/<run_id>/alive/orchestrator/0``): which runs a router hosts
@@ -225,8 +226,9 @@ MESSAGE_FIELDS = {
 }
 
 #: optional fields (name -> kind), returned only when present: a run on recorded measurements (their sha256, steps,
-#: whether they hold the truth), whether agents report the y_i they used; a tick's network
-OPTIONAL_FIELDS = {"config": {"measurements": "map", "record_y": "bool"},
+#: whether they hold the truth), whether agents report the y_i they used, the directions no agent sees (W, n rows of
+#: w numbers: splitspec_core.detectability); a tick's network
+OPTIONAL_FIELDS = {"config": {"measurements": "map", "record_y": "bool", "unobserved": "list"},
                    "tick": {"alive": "list", "rows": "map", "incarnation": "map", "partition": "list"}}
 #: optional fields that come all together or not at all: a tick's network is all four (runtime.ticks)
 TOGETHER = {"tick": ("alive", "rows", "incarnation", "partition")}

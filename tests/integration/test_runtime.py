@@ -25,6 +25,8 @@ pytestmark = pytest.mark.slow
     ("paper_continuous", {"run": {"steps": 150}}),  # sampled-data, process noise
     ("paper_continuous_switching", {"run": {"steps": 150}, "system": {"measurement_noise": 0.05}}),
     ("paper_continuous", {"run": {"steps": 150}, "design": {"g": "adaptive", "g0": 1.0}}),
+    ("paper_discrete_filter", {}),  # a state no agent sees: P_i on V_i minus W, W sent in the config
+    ("paper_continuous_filter", {}),
 ])
 def test_run_equals_simulate(tmp_path, example, changes):
     scen = scenario_file(tmp_path, example, **changes)

@@ -108,7 +108,8 @@ def test_trajectory_contract(recorded):
     out, mode, _ = recorded
     x, _, _, alive, graph, expected_xhat = synthetic()
     with np.load(out / "trajectory.npz") as f:
-        assert set(f.files) == {"t", "x", "xhat", "alive", "graph", "agent_ids", "g", "lost", "lost_cause"}
+        assert set(f.files) == {"t", "x", "xhat", "alive", "graph", "agent_ids", "g", "lost", "lost_cause", "states"}
+        assert f["states"].tolist() == [f"x{k + 1}" for k in range(N)]  # no names given: x1 .. xn
         assert f["lost"].shape == (0, 4) and f["lost"].dtype == np.int64  # rows given without losses: none
         assert f["g"].shape == f["alive"].shape and np.isnan(f["g"]).all()  # no gains given
         t, xs, xh, al, gr, ids = (f[k] for k in ("t", "x", "xhat", "alive", "graph", "agent_ids"))
