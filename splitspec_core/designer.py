@@ -32,7 +32,7 @@ from .loss_certificate import loss_certificate
 from .modal import Spectrum, spectrum
 from .observability import Decomposition, decompose
 from .resilience import analyse_agent_losses, analyse_arc_losses
-from .sampled import sampled_g
+from .sampled import exact_g, sampled_g
 from .scenario_model import Scenario
 
 __all__ = ["AgentDesign", "Design", "design", "design_agent", "directions_of", "scenario_dwell", "scenario_spectrum",
@@ -353,6 +353,13 @@ def _design_g(sc: Scenario, cases, switching: bool, warnings: list) -> dict:
         if certified:
             by = min(certified, key=certified.get)
             g = bounds.nice_ceil(certified[by] * (1 + 1e-9))
+            if g == 0.0 and not switching and any(c.nbar for c in cases):
+                # eq. (g) says any g works: the unobservable parts decay at the rate on their own, but only at it (an
+                # estimator exactly at its rate has no finite transient constant); the exact spectrum's g with the
+                # design's margin instead (sampled.exact_g)
+                alt = exact_g(cases, rate, d.margin, g_mins)
+                if alt:
+                    g, by = alt, "spectrum (exact, constant graph)"
         else:
             by = None
             g = bounds.nice_ceil(per_graph * (1 + 1e-9))

@@ -61,7 +61,7 @@ __all__ = ["BACKOFF", "Unobserved", "unobserved", "unobserved_of", "quotient_bas
            "not_detectable_text", "directions_of"]
 
 #: a W that limits the rate is certified at this fraction of its decay rate (module docstring)
-BACKOFF = 0.99
+BACKOFF = 0.9
 #: A on W "does not decay" when its decay rate is below this fraction of |A_b| (continuous) or its radius within it of 1
 STILL = 1e-9
 

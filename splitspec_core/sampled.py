@@ -18,7 +18,7 @@ from .errors import DesignError
 from .scenario_model import Scenario
 from .steps import sampled_data_matrices
 
-__all__ = ["sampled_rates", "sampled_g"]
+__all__ = ["sampled_rates", "sampled_g", "exact_g"]
 
 
 def sampled_rates(sc: Scenario, agents, cases, g: float, *, dt: float | None = None) -> dict:
@@ -48,7 +48,7 @@ def sampled_rates(sc: Scenario, agents, cases, g: float, *, dt: float | None = N
     return out
 
 
-def _exact_g(cases, rate: float, margin: float, g_mins: dict) -> float | None:
+def exact_g(cases, rate: float, margin: float, g_mins: dict) -> float | None:
     """The smallest two-digit g whose exact spectrum beats the rate by ``design.margin`` on every case (abscissa of
     A_V(g) at most ``-(1 + margin) lam``, eq. split_continuous_split, each graph held constant; the margin, as the
     local gains', keeps the decay clear of the rate: a g at the rate's edge leaves a transient that takes the sampled
@@ -75,7 +75,7 @@ def sampled_g(sc: Scenario, agents, cases, kw: dict, switching: bool, warnings: 
     g = kw["g"]
     out = sampled_rates(sc, agents, cases, g)
     if min(out.values()) < d.rate and d.g == "auto" and not switching:
-        alt = _exact_g(cases, d.rate, d.margin, kw["g_mins"])
+        alt = exact_g(cases, d.rate, d.margin, kw["g_mins"])
         if alt is not None and alt < g:
             alt_out = sampled_rates(sc, agents, cases, alt)
             if min(alt_out.values()) > min(out.values()):

@@ -22,7 +22,7 @@ _COL_ROW_ID = "rerun.controls.RowId"
 
 
 #: the entities that hold one batch of values per row (every agent's k-th state component)
-BATCH_ENTITY = re.compile(r"state/\d+/agents")
+BATCH_ENTITY = re.compile(r"state/[^/]+/agents")  # the component: its index, or its name (system.states)
 
 
 def read_rrd(path: str | Path) -> dict[str, list[tuple[int, float]]]:

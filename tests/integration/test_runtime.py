@@ -14,7 +14,7 @@ from splitspec_orchestrator.recover import recover
 from tests.conftest import EXAMPLES, ROOT
 from tests.integration.runtime_helpers import (ENV, assert_all_gone, cli, compare_with_simulate, events, run,
                                                scenario_file, started_pids, wait_for_event, wait_for_rows)
-from tests.rrd_readback import read_rrd, verify_rrd
+from tests.rrd_readback import read_rrd, read_rrd_state, verify_rrd
 
 pytestmark = pytest.mark.slow
 
@@ -56,6 +56,13 @@ def test_run_equals_simulate(tmp_path, example, changes):
         expect = np.linalg.norm(traj["xhat"][:, k] - traj["x"], axis=1)
         assert np.allclose([got[t] for t in range(T)], expect, rtol=1e-9, atol=1e-12)
     assert len(scalars["errors/max"]) == T
+    # the states' names (system.states) name the recording's state entities and trajectory.npz's states
+    names = sc["system"].get("states") or [f"x{k + 1}" for k in range(traj["x"].shape[1])]
+    assert traj["states"].tolist() == names
+    labels = names if "states" in sc["system"] else [str(k + 1) for k in range(len(names))]
+    state = read_rrd_state(out / "run.rrd")
+    assert {f"state/{s}/truth" for s in labels} | {f"state/{s}/agent_{a}" for s in labels for a in agents} \
+        <= set(state), sorted(state)
 
 
 def test_switching_is_logged(tmp_path):

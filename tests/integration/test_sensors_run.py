@@ -145,7 +145,7 @@ def test_a_secure_run_on_live_sensors_converges_and_its_log_replays(sensor_run, 
     ok, why = verify_rrd(r.out / "run.rrd")
     entities = rrd_entities(r.out / "run.rrd")
     assert ok, why
-    assert {"disagreement", "residual/agent_2", "kf_distance/agent_3", "state/1/kf"} <= entities
+    assert {"disagreement", "residual/agent_2", "kf_distance/agent_3", "state/p1/kf"} <= entities
     assert not any(e.startswith("errors") for e in entities)
     # the publisher's log is a measurements file the simulator accepts for this very scenario
     sim = run("simulate", r.scenario, "--out", tmp_path / "sim", "--no-plots", "--measurements", record)
