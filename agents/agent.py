@@ -37,7 +37,7 @@ import numpy as np
 
 from splitspec_core import steps as st
 from splitspec_core.impairment import Impairment, sub_round
-from splitspec_core.designer import design_agent, directions_of, riccati_weights, scenario_spectrum
+from splitspec_core.local_design import directions_of, scenario_agent
 from splitspec_core.scenario_load import parse_scenario_text
 from splitspec_core.plant_model import initial_estimate, output_rows
 from splitspec_core.runtime.ticks import TickNetwork
@@ -67,15 +67,11 @@ class AgentNode:
         self.extra_counts = None  # callable -> {reason: count} of drops outside the node (the inbox)
         self.index = sc.agent_ids.index(agent_id)
         d = sc.design
-        pw, mw = riccati_weights(sc)
         # the local part of the design: V_i, P_i, K_i from (A, C_i, lam) (minus W, what no agent sees, if sent)
-        local = design_agent(sc.system.A, sc.system.Cs[self.index], time=sc.time, rate=d.rate, method=d.gains,
-                             margin=d.margin, K=None if d.K is None else d.K[self.index], rank_tol=d.rank_tol,
-                             process_weight=pw, measurement_weight=mw, agent_id=agent_id,
-                             spectrum=scenario_spectrum(sc), unobserved=directions_of(config.get("unobserved"), sc.n))
+        local = scenario_agent(sc, agent_id, unobserved=directions_of(config.get("unobserved"), sc.n))
         self.A = np.array(sc.system.A)
         self.C = np.asarray(sc.system.Cs[self.index])
-        self.K, self.P, self.V = local.K, local.P, local.V
+        self.K, self.P, self.V = local.K, local.P, local.V_adaptive
         self.n, self.s = sc.n, self.C.shape[0]
         self.continuous = sc.time == "continuous"
         if self.continuous:

@@ -287,7 +287,7 @@ class Orchestrator:
                     extra["record_y"] = True
                 un = self.des.unobserved
                 if un is not None and un.dim:  # W, the directions no agent sees: P_i projects on V_i minus W
-                    extra["unobserved"] = un.W.tolist()
+                    extra["unobserved"] = un.W_working.tolist()  # in the design's working coordinates
                 self._reply(a.ref, encode("config", self.keys.run_id, scenario=self.scenario_text,
                                           seed=int(self.sc.run.seed), g=self.des.g, q=self.des.q,
                                           g_mode=self.des.g_mode, key=self.key, **extra))

@@ -25,6 +25,7 @@ from .scenario_load import ORIGIN, parse_scenario
 from .scenario_load import load_scenario as _load_scenario
 from .scenario_model import Scenario
 from .simulator import Trajectory
+from .subspaces import complement
 
 if TYPE_CHECKING:
     from .montecarlo import MonteCarloRuns
@@ -46,17 +47,16 @@ def _readonly(a: Any) -> np.ndarray:
 # --------------------------------------------------------------------------
 
 
-def scenario(*, name: str | None = None, time: str | None = None,
-             A: Any = None, C: Mapping | None = None, x0: Any = None,
-             process_noise: float | None = None, measurement_noise: float | None = None, states: Iterable | None = None,
-             outputs: Mapping | None = None,
-             graphs: Mapping | None = None, switching: Mapping | None = None, faults: Iterable | None = None,
-             positions: Mapping | None = None, network: Mapping | None = None,
-             rate: float | None = None, gains: str | None = None, K: Mapping | None = None, g: Any = None,
-             g0: float | None = None, q: Any = None, q_method: str | None = None, q_max: int | None = None,
-             resilience: int | None = None, weights: str | None = None, margin: float | None = None,
-             rank_tol: float | None = None, graph_set: str | None = None, dwell: float | None = None,
-             riccati: Mapping | None = None, eigenvalues: str | None = None, undetectable: str | None = None,
+def scenario(*, name: str | None = None, time: str | None = None, A: Any = None, C: Mapping | None = None,
+             x0: Any = None, process_noise: float | None = None, measurement_noise: float | None = None,
+             states: Iterable | None = None, outputs: Mapping | None = None, graphs: Mapping | None = None,
+             switching: Mapping | None = None, faults: Iterable | None = None, positions: Mapping | None = None,
+             network: Mapping | None = None, rate: float | None = None, gains: str | None = None,
+             K: Mapping | None = None, g: Any = None, g0: float | None = None, q: Any = None,
+             q_method: str | None = None, q_max: int | None = None, resilience: int | None = None,
+             weights: str | None = None, margin: float | None = None, rank_tol: float | None = None,
+             graph_set: str | None = None, dwell: float | None = None, riccati: Mapping | None = None,
+             eigenvalues: str | None = None, undetectable: str | None = None, coordinates: str | None = None,
              steps: int | None = None, dt: float | None = None, seed: int | None = None, pace: float | None = None,
              system: Mapping | None = None, design: Mapping | None = None, run: Mapping | None = None,
              **unknown: Any) -> Scenario:
@@ -124,7 +124,8 @@ class AgentResult:
     K : (n, s_i) local gain ``K_i`` (convention ``A + K_i C_i``)
     V : (n, n - r_i) orthonormal basis of the unobservable space of ``(C_i, A)``
     Q : (r_i, n) orthonormal basis of its complement (the observable part)
-    P : (n, n) orthogonal projection ``V_i V_i'`` on the unobservable space
+    P : (n, n) the projection on the unobservable space the estimator runs: ``V_i V_i'``, or with
+        ``design.coordinates: balanced`` the balanced coordinates' orthogonal projection, ``D P_b D^-1``
     poles : (r_i,) spectrum of ``Abar_i + Kbar_i Cbar_i`` (the observable part's error dynamics)
     """
 
@@ -153,8 +154,7 @@ class Checks:
     rate_certified : the rate is certified for the estimator as it runs (continuous time: the sampled-data form at
         ``run.dt`` too); never for the adaptive gain (asymptotic convergence: thm. split_continuous_adaptive)
     certificate : one line: what certifies the rate, or why nothing does (``splitspec design`` says the same)
-    sampled_rate : continuous time: the worst decay rate of the sampled-data estimator at ``run.dt``
-    warnings : what the design report warns about
+    sampled_rate : continuous: the sampled-data estimator's worst decay rate at ``run.dt``; ``warnings``: the report's
     envelope_rate : the certified envelope's rate: ``rate``, or slower (what no agent sees decays slower); None: none
     """
 
@@ -227,7 +227,7 @@ def design(sc: Scenario, *, all_q_methods: bool = False, workers: int | None = N
     from .designer import design as _design
 
     des = _design(sc, compare_q_methods=all_q_methods, workers=workers)
-    agents = {a.id: AgentResult(id=a.id, K=_readonly(a.K), V=_readonly(a.V), Q=_readonly(a.dec.Q),
+    agents = {a.id: AgentResult(id=a.id, K=_readonly(a.K), V=_readonly(a.V_user), Q=_readonly(complement(a.V_user).T),
                                 P=_readonly(a.P), poles=_readonly(a.gain.poles)) for a in des.agents}
     un, cert = des.unobserved, rate_certificate(des)
     checks = Checks(jointly_observable=un.dim == 0, jointly_detectable=un.decays, rate_certified=cert.certified,

@@ -178,15 +178,16 @@ def conditioning(des: "Design") -> Conditioning:
     and, when the scenario has noise, the predicted steady-state RMS error of the first graph."""
     sc = des.scenario
     d = sc.design
-    A = np.asarray(sc.system.A, dtype=float)
+    # the gain's size against the system's own scale, in the design's working coordinates (the user's, or balanced)
+    A = des.A_working
     ref = max(_scale(A), 1.0 if sc.time == "discrete" else (1.0 + d.margin) * d.rate)
     Cs = dict(zip(sc.agent_ids, sc.system.Cs))
     agents = []
     warnings = []
     for a in des.agents:
-        C = np.asarray(Cs[a.id])
+        C = np.asarray(Cs[a.id]) if des.scale is None else np.asarray(Cs[a.id]) * des.scale[None, :]
         gain_norm = float(np.linalg.norm(a.K, 2)) if a.K.size else 0.0
-        ratio = float(np.linalg.norm(a.K @ C, 2)) / ref if a.K.size else 0.0
+        ratio = float(np.linalg.norm(a.gain.K @ C, 2)) / ref if a.K.size else 0.0
         ac = AgentConditioning(id=a.id, observability_margin=a.dec.margin, gain_norm=gain_norm, gain_ratio=ratio,
                                weak=a.dec.weak, split_residual=a.dec.split_residual)
         agents.append(ac)

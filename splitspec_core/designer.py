@@ -24,43 +24,22 @@ import numpy as np
 from . import bounds
 from .errors import AssumptionError
 from .conditioning import conditioning
-from .detectability import Unobserved, directions_of, not_detectable_text, quotient_basis, still_text, unobserved_of
+from .detectability import Unobserved, not_detectable_text, quotient_basis, still_text, unobserved_of
 from .full_matrix import SPLIT_EXACT, check_full
-from .gains import LocalGain, beyond_target, design_gain
+from .gains import beyond_target
 from .graphs import build_graph, enumerate_strongly_connected
 from .loss_certificate import loss_certificate
-from .modal import Spectrum, spectrum
-from .observability import Decomposition, decompose
+from .local_design import AgentDesign, design_agent, riccati_weights, scenario_spectrum, working_scale
+from .modal import Spectrum
+from .observability import decompose
 from .resilience import analyse_agent_losses, analyse_arc_losses
 from .sampled import exact_g, sampled_g
 from .scenario_model import Scenario
 
-__all__ = ["AgentDesign", "Design", "design", "design_agent", "directions_of", "scenario_dwell", "scenario_spectrum",
-           "NO_CERTIFIED_RATE"]
+__all__ = ["Design", "design", "scenario_dwell", "NO_CERTIFIED_RATE"]
 
 # thm. split_continuous_adaptive: with the adaptive gain (eq. adaptive) every error tends to zero, at no stated rate
 NO_CERTIFIED_RATE = "asymptotic convergence only (no certified rate)"
-
-
-@dataclass(frozen=True)
-class AgentDesign:
-    """One agent's local design: decomposition and gain."""
-
-    id: int
-    dec: Decomposition
-    gain: LocalGain
-
-    @property
-    def K(self) -> np.ndarray:
-        return self.gain.K
-
-    @property
-    def V(self) -> np.ndarray:
-        return self.dec.V
-
-    @property
-    def P(self) -> np.ndarray:
-        return self.dec.P
 
 
 @dataclass(frozen=True)
@@ -110,15 +89,29 @@ class Design:
 
     @property
     def Ks(self) -> list:
+        """Every ``K_i`` the estimator runs (the user's coordinates)."""
         return [a.K for a in self.agents]
 
     @property
     def Ps(self) -> list:
+        """Every ``P_i`` the estimator runs (the user's coordinates)."""
         return [a.P for a in self.agents]
 
     @property
     def Vs(self) -> list:
-        return [a.V for a in self.agents]
+        """Every ``R_i`` eq. (adaptive) projects with, in the user's coordinates (:attr:`AgentDesign.V_adaptive`;
+        ``V_i`` itself in the user's own working coordinates)."""
+        return [a.V_adaptive for a in self.agents]
+
+    @property
+    def Ls(self) -> list:
+        """Every ``L_i`` (:attr:`AgentDesign.V_lift`): ``P_i = L_i R_i'`` with ``R_i`` of :attr:`Vs`."""
+        return [a.V_lift for a in self.agents]
+
+    @property
+    def scale(self) -> np.ndarray | None:
+        """The working coordinates ``x = diag(scale) x_w`` (``design.coordinates``; None: the user's)."""
+        return self.agents[0].scale if self.agents else None
 
     @property
     def redundantly_strongly_connected(self) -> bool:
@@ -145,24 +138,31 @@ class Design:
         un = self.unobserved
         return self.rate if un is None or self.excluded else un.envelope(self.rate)
 
+    @property
+    def A_working(self) -> np.ndarray:
+        """``A`` in the working coordinates (``D^-1 A D``)."""
+        A = np.asarray(self.scenario.system.A, dtype=float)
+        return A if self.scale is None else A * self.scale[None, :] / self.scale[:, None]
+
     def unobserved_of(self, alive) -> Unobserved:
         """What the agents ``alive`` leave unobserved (``W_S ⊇ W``, :mod:`splitspec_core.detectability`)."""
         return unobserved_of(self.scenario, self.spectrum, {a.id: self.unobservable_space(a.id)
-                                                            for a in self.agents})(alive)
+                                                            for a in self.agents}, self.scale)(alive)
 
     def survivor_case(self, label: str, graph, un: Unobserved) -> bounds.Case:
         """The certificate's case of the agents of ``graph`` when they leave ``un.W`` unobserved: ``V_i ⊖ W_S``."""
         ad = {a.id: a for a in self.agents}
         if self.unobserved is None or un.dim == self.unobserved.dim:
             return bounds.make_case(label, graph, [ad[i].V for i in graph.ids], [ad[i].dec.A_un for i in graph.ids])
-        A = self.scenario.system.A
-        Vs = [quotient_basis(self.unobservable_space(i), un.W) for i in graph.ids]
+        A = self.A_working
+        Vs = [quotient_basis(self.unobservable_space(i), un.W_working) for i in graph.ids]
         return bounds.make_case(label, graph, Vs, [V.T @ A @ V for V in Vs])
 
     def unobservable_space(self, agent_id: int) -> np.ndarray:
-        """Agent ``agent_id``'s own unobservable space: ``[V_i ⊖ W, W]`` (orthonormal: the two are orthogonal)."""
+        """Agent ``agent_id``'s own unobservable space in the working coordinates: ``[V_i ⊖ W, W]`` (orthonormal: the
+        two are orthogonal there)."""
         a = next(a for a in self.agents if a.id == agent_id)
-        W = self.unobserved.W if self.unobserved is not None else np.zeros((a.V.shape[0], 0))
+        W = self.unobserved.W_working if self.unobserved is not None else np.zeros((a.V.shape[0], 0))
         return np.hstack([a.V, W])
 
     @property
@@ -173,42 +173,6 @@ class Design:
     # on first use (the full error matrices cost more than the design itself at scale):
     loss_certificate = cached_property(loss_certificate)  # under network: and partitions (None without)
     conditioning = cached_property(conditioning)  # margins, gain sizes, transient constant, noise
-
-
-def design_agent(A: np.ndarray, C: np.ndarray, *, time: str, rate: float, method: str = "place",
-                 margin: float = 0.5, K: np.ndarray | None = None, rank_tol: float | None = None,
-                 process_weight: float = 1.0, measurement_weight: float = 1.0, agent_id: int = 0,
-                 spectrum: Spectrum | None = None, unobserved: np.ndarray | None = None,
-                 dec: Decomposition | None = None) -> AgentDesign:
-    """The local, fully distributed part of the design for one agent (``V_i, P_i, K_i``).
-
-    ``spectrum``: the skeleton of ``A`` balanced with every agent's rows (:func:`splitspec_core.modal.spectrum`;
-    the designer and every agent process compute the same one); ``unobserved``: ``W``, the directions no agent
-    sees (the design's, sent to the agents with their configuration): ``P_i`` then projects on ``V_i ⊖ W``;
-    ``dec``: the decomposition already computed (the designer's).
-    """
-    dec = dec if dec is not None else decompose(A, C, rank_tol=rank_tol, spectrum=spectrum,
-                                                free=beyond_target(time, rate, margin))
-    label = f"design.K.{agent_id}" if method == "explicit" else f"agent {agent_id}"
-    gain = design_gain(dec, method=method, time=time, rate=rate, margin=margin, K=K,
-                       process_weight=process_weight, measurement_weight=measurement_weight, label=label)
-    if unobserved is not None and unobserved.shape[1]:
-        dec = dec.without(unobserved, A)
-    return AgentDesign(id=agent_id, dec=dec, gain=gain)
-
-
-def scenario_spectrum(sc: Scenario) -> Spectrum:
-    """The skeleton of the scenario's ``A``, balanced with every agent's rows: what the designer and every agent
-    process decide in (:mod:`splitspec_core.modal`)."""
-    return spectrum(sc.system.A, np.vstack(sc.system.Cs))
-
-
-def riccati_weights(sc: Scenario) -> tuple:
-    """Riccati weights: explicit ``design.riccati`` or the scenario's noise levels, else 1."""
-    d, s = sc.design, sc.system
-    pw = d.riccati_process_weight or (s.process_noise**2 if s.process_noise > 0 else 1.0)
-    mw = d.riccati_measurement_weight or (s.measurement_noise**2 if s.measurement_noise > 0 else 1.0)
-    return pw, mw
 
 
 def scenario_dwell(sc: Scenario) -> float | None:
@@ -251,10 +215,12 @@ def design(sc: Scenario, *, compare_q_methods: bool = False, workers: int | None
     sp = scenario_spectrum(sc)
     C_all = np.vstack(sc.system.Cs)
     free = beyond_target(sc.time, d.rate, d.margin)  # modes the local gains leave alone (gains.py)
-    decs = [decompose(A, C, rank_tol=d.rank_tol, spectrum=sp, free=free) for C in sc.system.Cs]
+    scale = working_scale(sc, sp)  # design.coordinates: the user's (None) or balanced
+    A_w = A if scale is None else np.asarray(A) * scale[None, :] / scale[:, None]
+    decs = [decompose(A, C, rank_tol=d.rank_tol, spectrum=sp, free=free, scale=scale) for C in sc.system.Cs]
     # the standing assumption first ((C, A) of eqs. pre_sys1-pre_sys2 jointly observable, or here detectable):
     # without it no K_i helps, so an explicit K_i that misses the rate on a direction nobody sees is not the error
-    of = unobserved_of(sc, sp, {aid: dec.V for aid, dec in zip(sc.agent_ids, decs)})
+    of = unobserved_of(sc, sp, {aid: dec.V for aid, dec in zip(sc.agent_ids, decs)}, scale)
     un = of(sc.agent_ids)
     warnings: list = []
     if not un.decays:
@@ -266,7 +232,8 @@ def design(sc: Scenario, *, compare_q_methods: bool = False, workers: int | None
     agents = tuple(
         design_agent(A, C, time=sc.time, rate=d.rate, method=d.gains, margin=d.margin,
                      K=None if d.K is None else d.K[k], rank_tol=d.rank_tol,
-                     process_weight=pw, measurement_weight=mw, agent_id=aid, unobserved=un.W, dec=decs[k])
+                     process_weight=pw, measurement_weight=mw, agent_id=aid, unobserved=un.W_working, dec=decs[k],
+                     scale=scale)
         for k, (aid, C) in enumerate(zip(sc.agent_ids, sc.system.Cs))
     )
     graphs = tuple(build_graph(g.name, sc.agent_ids, g.arcs, weights=d.weights) for g in sc.graphs)
@@ -283,7 +250,7 @@ def design(sc: Scenario, *, compare_q_methods: bool = False, workers: int | None
             Vs = [ad[i].V for i in graph.ids]
         else:
             Vs = [quotient_basis(full_V[i], W) for i in graph.ids]
-        return bounds.make_case(label, graph, Vs, [V.T @ A @ V for V in Vs] if W is not None else
+        return bounds.make_case(label, graph, Vs, [V.T @ A_w @ V for V in Vs] if W is not None else
                                 [ad[i].dec.A_un for i in graph.ids])
 
     cases = [case_for(name, by_name[name]) for name in used]
@@ -312,7 +279,7 @@ def design(sc: Scenario, *, compare_q_methods: bool = False, workers: int | None
             for name in used:  # strongly connected: checked just above (rep.strongly_connected)
                 g = build_graph(f"{name} without agent {lost}", survivors, graph_arcs[name], weights=d.weights,
                                 check=False)
-                W_S = rep.unobserved.W
+                W_S = rep.unobserved.W_working
                 cases.append(case_for(g.name, g, None if W_S.shape[1] == un.dim else W_S))
     cases = tuple(cases)
     switching = len(used) > 1 or d.graph_set == "all"

@@ -52,7 +52,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .labels import combination, heaviest, spread
-from .modal import Spectrum
+from .modal import Spectrum, rescale
 from .observability import ROUND_OFF, _split_residual, threshold_of
 from .subspaces import complement, intersection
 from .subspaces import difference as quotient_basis  # V_i ⊖ W: the estimator's V_i
@@ -87,6 +87,9 @@ class Unobserved:
         The state names, for the texts.
     AW : (n, w) array
         ``A W``, for the modes of :meth:`still_modes`.
+    Ww : (n, w) array
+        Orthonormal basis of ``W`` in the design's working coordinates (``design.coordinates``: the user's, or
+        balanced), where the estimator's ``V_i ⊖ W`` is taken; ``W`` itself when they are the user's.
     """
 
     W: np.ndarray
@@ -96,6 +99,12 @@ class Unobserved:
     scale: float = 1.0
     names: tuple = ()
     AW: np.ndarray | None = field(default=None, repr=False, compare=False)
+    Ww: np.ndarray | None = field(default=None, repr=False, compare=False)
+
+    @property
+    def W_working(self) -> np.ndarray:
+        """``W`` in the design's working coordinates (:attr:`Ww`, or ``W``)."""
+        return self.W if self.Ww is None else self.Ww
 
     @property
     def dim(self) -> int:
@@ -174,9 +183,10 @@ class Unobserved:
 
 
 def unobserved(sp: Spectrum, A: np.ndarray, C: np.ndarray, Vs, *, time: str, names,
-               rank_tol: float | None = None) -> Unobserved:
-    """The unobserved space of the agents whose unobservable spaces are ``Vs`` (user's coordinates), with ``C`` their
-    rows stacked (for the residual) and ``sp`` the skeleton of ``A`` (:mod:`splitspec_core.modal`).
+               rank_tol: float | None = None, coords: np.ndarray | None = None) -> Unobserved:
+    """The unobserved space of the agents whose unobservable spaces are ``Vs`` (in the coordinates ``x = diag(coords)
+    x_w``; None: the user's), with ``C`` their rows stacked (for the residual) and ``sp`` the skeleton of ``A``
+    (:mod:`splitspec_core.modal`).
 
     A direction counts as unobserved when it is within the decisions' own threshold (``design.rank_tol``) of every
     agent's ``V_i``, in balanced coordinates: an agent that left a weakly seen direction out has a ``V_i`` tilted
@@ -184,13 +194,14 @@ def unobserved(sp: Spectrum, A: np.ndarray, C: np.ndarray, Vs, *, time: str, nam
     only with a gain of order one over its square (the split is then approximate: ``residual``)."""
     A = np.asarray(A, dtype=float)
     n = A.shape[0]
-    Wb = intersection([sp.to_balanced(V) for V in Vs], n, tol=threshold_of(rank_tol))
+    Wb = intersection([rescale(V, coords, sp.d) for V in Vs], n, tol=threshold_of(rank_tol))
     W = sp.to_user(Wb)
+    Ww = None if coords is None else rescale(Wb, sp.d, coords)
     Cb = np.asarray(C, dtype=float) * sp.d[None, :]
     residual = _split_residual(sp.A_b, Cb, complement(Wb).T, Wb) if Wb.shape[1] else 0.0
     eigs = np.linalg.eigvals(W.T @ A @ W) if W.shape[1] else np.zeros(0, complex)
     return Unobserved(W=W, eigs=eigs, time=time, residual=residual, scale=float(np.linalg.norm(sp.A_b, 2)),
-                      names=tuple(names), AW=A @ W)
+                      names=tuple(names), AW=A @ W, Ww=Ww)
 
 
 def still_text(un: Unobserved) -> str:
@@ -212,16 +223,16 @@ def envelope_rate(rate: float, un: Unobserved | None) -> float:
     return rate if un is None else un.envelope(rate)
 
 
-def unobserved_of(sc, sp: Spectrum, full_V: dict):
+def unobserved_of(sc, sp: Spectrum, full_V: dict, coords: np.ndarray | None = None):
     """``alive -> Unobserved``: what a set of agents of the scenario ``sc`` leaves unobserved, from their own
-    unobservable spaces ``full_V`` (agent id -> ``V_i``, user's coordinates)."""
+    unobservable spaces ``full_V`` (agent id -> ``V_i`` in the coordinates ``x = diag(coords) x_w``)."""
     Cs = dict(zip(sc.agent_ids, sc.system.Cs))
 
     def of(alive) -> Unobserved:
         ids = [a for a in sc.agent_ids if a in set(alive)]
         C = np.vstack([Cs[a] for a in ids]) if ids else np.zeros((0, sc.n))
         return unobserved(sp, sc.system.A, C, [full_V[a] for a in ids], time=sc.time, names=sc.state_names,
-                          rank_tol=sc.design.rank_tol)
+                          rank_tol=sc.design.rank_tol, coords=coords)
 
     return of
 

@@ -45,7 +45,8 @@ import math
 
 import numpy as np
 
-__all__ = ["CLUSTER_REL", "CLUSTER_ABS", "Cluster", "Spectrum", "balance", "clusters", "invariant_subspace", "spectrum"]
+__all__ = ["CLUSTER_REL", "CLUSTER_ABS", "Cluster", "Spectrum", "balance", "clusters", "invariant_subspace", "rescale",
+           "spectrum"]
 
 #: eigenvalues closer than this fraction of their modulus are one cluster
 CLUSTER_REL = 0.2
@@ -84,17 +85,22 @@ class Spectrum:
 
     def to_user(self, Xb: np.ndarray) -> np.ndarray:
         """An orthonormal basis, in the user's coordinates, of the subspace spanned by ``Xb`` (balanced)."""
-        if Xb.shape[1] == 0:
-            return np.zeros((Xb.shape[0], 0))
-        Q, _ = np.linalg.qr(self.d[:, None] * Xb)
-        return Q
+        return rescale(Xb, self.d, None)
 
     def to_balanced(self, X: np.ndarray) -> np.ndarray:
         """An orthonormal basis, in balanced coordinates, of the subspace spanned by ``X`` (user's)."""
-        if X.shape[1] == 0:
-            return np.zeros((X.shape[0], 0))
-        Q, _ = np.linalg.qr(X / self.d[:, None])
-        return Q
+        return rescale(X, None, self.d)
+
+
+def rescale(X: np.ndarray, frm: np.ndarray | None, to: np.ndarray | None) -> np.ndarray:
+    """An orthonormal basis, in the coordinates ``x = diag(to) x_to``, of the subspace spanned by ``X`` given in the
+    coordinates ``x = diag(frm) x_frm`` (None: the user's own, ``diag(1)``)."""
+    if X.shape[1] == 0:
+        return np.zeros((X.shape[0], 0))
+    f = np.ones(X.shape[0]) if frm is None else frm
+    t = np.ones(X.shape[0]) if to is None else to
+    Q, _ = np.linalg.qr((f / t)[:, None] * X)
+    return Q
 
 
 def balance(A: np.ndarray, C: np.ndarray | None = None, *, tol: float = BALANCE_TOL) -> np.ndarray:

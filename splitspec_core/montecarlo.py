@@ -180,8 +180,8 @@ class SeedBatchEstimator(BatchEstimator):
             corr = np.matmul(self.KC, X) - np.matmul(self.Kp, Y) - self.g[:, None, :] * PD
             Xn = np.matmul(self.E, X) + np.matmul(self.D, corr)
             if self.adaptive:
-                # eq. (adaptive): |V_i'(avg_i - x_i)|^2 = diff' P_i diff
-                rate = np.einsum("ijs,ijs->is", diff, PD)
+                # eq. (adaptive): |V_i'(avg_i - x_i)|^2 = diff' R_i R_i' diff (diff' P_i diff for orthogonal P_i)
+                rate = np.einsum("ijs,ijs->is", diff, np.matmul(self.Rgram, diff))
                 self.g = np.where(alive[:, None], self.g + self.dt * rate, self.g)
         elif all(isinstance(S, sp.csr_matrix) for S in Ws):
             # eq. split-discrete-p2: (I - P_i) z_i(k) = (I - P_i) z_i(tau) for every k, so

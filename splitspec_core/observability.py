@@ -81,7 +81,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from .modal import Spectrum
+from .modal import Spectrum, rescale
 from .subspaces import complement as _complement
 from .subspaces import difference, intersection
 from .modal import spectrum as modal_spectrum
@@ -348,20 +348,24 @@ def _decide(sp: Spectrum, C: np.ndarray, rank_tol: float | None, keep_full_steps
 
 
 def decompose(A: np.ndarray, C: np.ndarray, *, rank_tol: float | None = None,
-              spectrum: Spectrum | None = None, free=None) -> Decomposition:
+              spectrum: Spectrum | None = None, free=None, scale: np.ndarray | None = None) -> Decomposition:
     """Observability decomposition of ``(C, A)``, decided cluster by cluster in balanced coordinates.
 
-    ``spectrum``: the skeleton of ``A`` (:func:`splitspec_core.modal.spectrum`, balanced with every agent's
-    rows); computed from ``(A, C)`` when not given.  ``free``: a predicate on eigenvalues, true where a mode decays
-    faster than the local gain's target (:func:`splitspec_core.gains.beyond_target`): such clusters are decided at
-    round-off (:func:`_decide`).  ``V`` and ``Q`` are orthonormal in the user's coordinates; margins, ``weak`` and
-    ``split_residual`` are measured in the balanced ones (unit-free).
+    ``spectrum``: the skeleton of ``A`` (:func:`splitspec_core.modal.spectrum`, all agents' rows stacked for the
+    decoupled states); computed from ``(A, C)`` when not given.  ``free``: a predicate on eigenvalues, true where a
+    mode decays faster than the local gain's target (:func:`splitspec_core.gains.beyond_target`): such clusters are
+    decided at round-off (:func:`_decide`).  ``scale``: the coordinates the decomposition is written in, ``x = diag(scale)
+    x_w`` (None: the user's own; the design's ``design.coordinates``): ``V`` and ``Q`` are orthonormal there, ``Abar``,
+    ``Cbar``, ``P``, ``A_un`` are of ``D^-1 A D`` and ``C D``.  Margins, ``weak`` and ``split_residual`` are measured
+    in the balanced coordinates (unit-free); ``weak_direction`` is in the user's.
     """
     A = np.asarray(A, dtype=float)
     C = np.asarray(C, dtype=float)
     sp = spectrum if spectrum is not None else modal_spectrum(A, C)
     dec = _decide(sp, C, rank_tol, free=free)
-    V = sp.to_user(dec.Vb)
+    if scale is not None:
+        A, C = A * scale[None, :] / scale[:, None], C * scale[None, :]
+    V = rescale(dec.Vb, sp.d, scale)
     Q = _complement(V).T
     residual = _split_residual(sp.A_b, C * sp.d[None, :], _complement(dec.Vb).T, dec.Vb)
     weak_dir = None

@@ -225,7 +225,7 @@ def design_json(des: Design) -> dict:
             {
                 "id": a.id,
                 "K": _mat(a.K),
-                "V": _mat(a.V),
+                "V": _mat(a.V_user),
                 "P": _mat(a.P),
                 "poles": _complex(a.gain.poles),
                 "n_unobservable": a.dec.n_unobservable,
@@ -253,6 +253,8 @@ def design_json(des: Design) -> dict:
         },
         "unobserved": None if des.unobserved is None else {**_unobserved_json(des.unobserved, sc.design.rate),
                                                             "excluded": des.excluded},
+        "coordinates": "given" if des.scale is None else "balanced",
+        "scale": None if des.scale is None else [float(v) for v in des.scale],
         "error_spectrum": {k: _num(v) for k, v in des.error_radius.items()},
         "rank_tol": "auto" if sc.design.rank_tol is None else sc.design.rank_tol,
         "loss_certificate": _loss_json(des),

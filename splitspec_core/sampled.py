@@ -31,13 +31,18 @@ def sampled_rates(sc: Scenario, agents, cases, g: float, *, dt: float | None = N
     import scipy.linalg as sla  # here only: the agents import this module (through the designer) but never call it
 
     dt = sc.run.dt if dt is None else dt
-    E, D, _ = sampled_data_matrices(sc.system.A, dt)
-    Cs = dict(zip(sc.agent_ids, sc.system.Cs))
+    # in the design's working coordinates (the agents' scale: design.coordinates), where Q_i, K_i and V_i live
+    scale = agents[0].scale if agents else None
+    A = np.asarray(sc.system.A, dtype=float)
+    A = A if scale is None else A * scale[None, :] / scale[:, None]
+    E, D, _ = sampled_data_matrices(A, dt)
+    Cs = {i: (np.asarray(C) if scale is None else np.asarray(C) * scale[None, :]) for i, C in
+          zip(sc.agent_ids, sc.system.Cs)}
     obs = math.inf
     for a in agents:
         if a.dec.n_observable:
             Q = a.dec.Q
-            rho = bounds.spectral_radius(Q @ (E + D @ a.K @ Cs[a.id]) @ Q.T)
+            rho = bounds.spectral_radius(Q @ (E + D @ a.gain.K @ Cs[a.id]) @ Q.T)
             obs = min(obs, -math.log(rho) / dt if rho > 0 else math.inf)
     out = {}
     for c in cases:

@@ -32,7 +32,7 @@ _SWITCHING_KEYS = ("schedule", "period", "random")
 _RANDOM_KEYS = ("graphs", "dwell", "seed")
 _DESIGN_KEYS = (
     "rate", "gains", "K", "g", "g0", "q", "q_method", "q_max", "resilience",
-    "weights", "margin", "rank_tol", "graph_set", "dwell", "riccati", "eigenvalues", "undetectable",
+    "weights", "margin", "rank_tol", "graph_set", "dwell", "riccati", "eigenvalues", "undetectable", "coordinates",
 )
 _RICCATI_KEYS = ("process_weight", "measurement_weight")
 _RUN_KEYS = ("steps", "dt", "seed", "pace")

@@ -145,6 +145,7 @@ class DesignSpec:
     riccati_measurement_weight: float | None = None
     eigenvalues: str = "auto"  # spectral q's radii: auto, dense or iterative (splitspec_core.spectral)
     undetectable: str = "refuse"  # refuse | exclude: a mode no agent sees that does not decay (detectability.py)
+    coordinates: str = "auto"  # auto | given | balanced: where the estimator's projections are orthogonal (local_design)
 
 
 @dataclass(frozen=True)

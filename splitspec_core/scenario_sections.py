@@ -238,6 +238,9 @@ def _parse_design(raw: Any, time: str, system: System, ids: tuple) -> DesignSpec
     undetectable = str(dmap.get("undetectable", "refuse"))
     if undetectable not in ("refuse", "exclude"):
         raise ScenarioError(f"design.undetectable must be refuse or exclude, got {undetectable!r}")
+    coordinates = str(dmap.get("coordinates", "auto"))
+    if coordinates not in ("auto", "given", "balanced"):
+        raise ScenarioError(f"design.coordinates must be auto, given or balanced, got {coordinates!r}")
     eigenvalues = str(dmap.get("eigenvalues", "auto"))
     if eigenvalues not in ("auto", "dense", "iterative"):
         raise ScenarioError(f"design.eigenvalues must be auto, dense or iterative, got {eigenvalues!r}")
@@ -254,7 +257,7 @@ def _parse_design(raw: Any, time: str, system: System, ids: tuple) -> DesignSpec
         rate=rate, gains=gains, K=K, g=g, g0=g0, q=q, q_method=q_method, q_max=q_max,
         resilience=resilience, weights=weights, margin=margin, rank_tol=rank_tol,
         graph_set=graph_set, dwell=dwell, riccati_process_weight=pw, riccati_measurement_weight=mw,
-        eigenvalues=eigenvalues, undetectable=undetectable,
+        eigenvalues=eigenvalues, undetectable=undetectable, coordinates=coordinates,
     )
 
 

@@ -185,7 +185,8 @@ class _EstimatorBase:
         self.Cs = [np.asarray(C) for C in sc.system.Cs]
         self.Ks = [np.asarray(K) for K in des.Ks]
         self.Ps = [np.asarray(P) for P in des.Ps]
-        self.Vs = [np.asarray(V) for V in des.Vs]
+        self.Vs = [np.asarray(V) for V in des.Vs]  # R_i: eq. (adaptive) projects with R_i' (= V_i' unless balanced)
+        self.Ls = [np.asarray(L) for L in des.Ls]  # L_i: P_i = L_i R_i' (the working coordinates: local_design.py)
         self.continuous = sc.time == "continuous"
         self.adaptive = self.continuous and des.g_mode == "adaptive"
         if self.continuous:
@@ -255,7 +256,9 @@ class BatchEstimator(_EstimatorBase):
     Discrete sub-rounds run in unobservable-space coordinates: from
     eq. (split-discrete-p2), ``(I - P_i) z_i(k) = (I - P_i) x_i(tau)`` for every
     k, and ``w = V'z`` obeys ``w(k) = c + B w(k-1)`` with ``B = V' Sbar V``
-    (eq. split_discrete_pr2) and ``c = V' Sbar (I - P) x(tau)``.  ``B`` is
+    (eq. split_discrete_pr2) and ``c = V' Sbar (I - P) x(tau)``.  With balanced working coordinates
+    (``design.coordinates``) ``P_i = L_i R_i'`` is oblique in the user's: ``w = R'z``, ``B = R' Sbar L``,
+    ``c = R' Sbar (I - P) x``, ``z = (I - P) x + L w``.  ``B`` is
     block sparse (one ``n_i x n_j`` block per arc), so a sub-round costs one
     sparse product with about ``sum_arcs n_i n_j`` non-zeros.
     """
@@ -273,10 +276,11 @@ class BatchEstimator(_EstimatorBase):
         self.Pst = np.stack(self.Ps)
         if self.continuous:
             self.KC = np.stack([K @ C for K, C in zip(self.Ks, self.Cs)])
+            self.Rgram = np.stack([R @ R.T for R in self.Vs])  # eq. (adaptive): |R_i' d|^2 = d' R_i R_i' d
         else:
             self.Fst = np.stack(self.F)
-            self.Vbig = sp.block_diag([sp.csr_matrix(V) for V in self.Vs], format="csr")  # (mn, nbar)
-            self.VT = self.Vbig.T.tocsr()
+            self.Vbig = sp.block_diag([sp.csr_matrix(L) for L in self.Ls], format="csr")  # (mn, nbar): L
+            self.VT = sp.block_diag([sp.csr_matrix(R.T) for R in self.Vs], format="csr")  # (nbar, mn): R transposed
 
     def weights(self, rows: dict):
         """Row i holds agent i's weights on its alive neighbours.
@@ -309,13 +313,13 @@ class BatchEstimator(_EstimatorBase):
             corr = innov - self.g[:, None] * _bmv(self.Pst, diff)
             Xn = X @ self.E.T + corr @ self.D.T
             if self.adaptive:
-                # eq. (adaptive): |V_i'(avg_i - x_i)|^2 = diff' P_i diff
-                rate = np.einsum("mi,mi->m", diff, _bmv(self.Pst, diff))
+                # eq. (adaptive): |V_i'(avg_i - x_i)|^2 = diff' R_i R_i' diff (diff' P_i diff for orthogonal P_i)
+                rate = np.einsum("mi,mi->m", diff, _bmv(self.Rgram, diff))
                 self.g = np.where(alive, self.g + self.dt * rate, self.g)
         else:
             B, G = W
             U = X - _bmv(self.Pst, X)  # (I - P_i) x_i, fixed through the sub-rounds
-            w = _spmv(self.VT, X.ravel())  # w_i = V_i' x_i
+            w = _spmv(self.VT, X.ravel())  # w_i = R_i' x_i (V_i' x_i), z_i = U_i + L_i w_i
             c = _spmv(G, U.ravel())
             for _ in range(self.q):
                 # eq. split-discrete-p2 in V coordinates: w_i <- V_i' sum_j w_ij z_j

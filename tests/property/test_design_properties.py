@@ -138,22 +138,32 @@ def perron(S: np.ndarray) -> np.ndarray:
     return pi / pi.sum()
 
 
+def working(dsg) -> tuple:
+    """``(A, Cs, Ks, Ps, Vs)`` of a design in its working coordinates (``design.coordinates``: the user's own, or
+    balanced), where ``V_i`` is orthonormal and ``P_i = V_i V_i'``: the paper's objects."""
+    s = dsg.scale
+    Cs = [np.asarray(C) if s is None else np.asarray(C) * s[None, :] for C in dsg.scenario.system.Cs]
+    return (dsg.A_working, Cs, [a.gain.K for a in dsg.agents], [a.dec.P for a in dsg.agents],
+            [a.dec.V for a in dsg.agents])
+
+
 class Full:
-    """The dense matrices of a design (paper Sections 2-3), built independently of ``bounds``."""
+    """The dense matrices of a design (paper Sections 2-3), built independently of ``bounds``, in the design's working
+    coordinates (the user's own unless ``design.coordinates`` balanced them)."""
 
     def __init__(self, dsg):
         sc = dsg.scenario
         self.dsg, self.sc = dsg, sc
         self.n, self.m, self.rate = sc.n, sc.m, sc.design.rate
-        A = sc.system.A
-        self.Abar = block_diagonal([A + K @ C for K, C in zip(dsg.Ks, sc.system.Cs)])
-        self.P = block_diagonal(dsg.Ps)
-        self.V = block_diagonal(dsg.Vs)  # mn x nbar
-        self.Q = block_diagonal([complement(V).T for V in dsg.Vs])  # (mn - nbar) x mn
-        self.sizes = [V.shape[1] for V in dsg.Vs]
+        A, Cs, Ks, Ps, Vs = working(dsg)
+        self.Abar = block_diagonal([A + K @ C for K, C in zip(Ks, Cs)])
+        self.P = block_diagonal(Ps)
+        self.V = block_diagonal(Vs)  # mn x nbar
+        self.Q = block_diagonal([complement(V).T for V in Vs])  # (mn - nbar) x mn
+        self.sizes = [V.shape[1] for V in Vs]
         # bounds.make_case takes A_i = V_i'A V_i (eq. QA2 with C_i V_i = 0); ours carries V_i'K_i C_i V_i,
         # round-off of size |K_i| |C_i| eps: part of the formation scale in cross-checks
-        self.kc = max(norm2(K) * norm2(C) for K, C in zip(dsg.Ks, sc.system.Cs))
+        self.kc = max(norm2(K) * norm2(C) for K, C in zip(Ks, Cs))
         self.nbar = sum(self.sizes)
         # eq. (split_AV): Abar V = V Atil ; eq. (split_QA): Q Abar = Abar_V Q
         self.Atil = self.V.T @ self.Abar @ self.V
@@ -250,11 +260,14 @@ def test_local_decomposition_and_gains(drawn):
     """V_i orthonormal and exactly the constructed unobservable space, C_i V_i = 0, eq. (QA2), rates, S."""
     dsg = designed(drawn)
     sc = dsg.scenario
-    A, n = sc.system.A, sc.n
-    for k, (agent, C) in enumerate(zip(dsg.agents, sc.system.Cs)):
-        V, K, P = agent.V, agent.K, agent.P
-        # the construction fixes the unobservable space: span of T's unowned-block columns
+    n = sc.n
+    A, Cs, Ks, Ps, Vs = working(dsg)
+    for k, (agent, C, K, P, V) in enumerate(zip(dsg.agents, Cs, Ks, Ps, Vs)):
+        # the construction fixes the unobservable space: span of T's unowned-block columns (the user's coordinates;
+        # in the working ones that is its image D^-1 W)
         W = drawn.expected_V_basis(k)
+        assert np.allclose(agent.V_user @ agent.V_user.T, W @ W.T, atol=1e-8)
+        W = W if dsg.scale is None else np.linalg.qr(W / dsg.scale[:, None])[0]
         assert V.shape == (n, W.shape[1])
         assert np.allclose(V.T @ V, np.eye(V.shape[1]), atol=1e-9)
         assert np.allclose(P, W @ W.T, atol=1e-8)

@@ -15,6 +15,7 @@ import yaml
 
 from splitspec_core.conditioning import transient_constant
 from splitspec_core.designer import design
+from splitspec_core.detectability import BACKOFF
 from splitspec_core.errors import AssumptionError
 from splitspec_core.full_matrix import _case_parts, full_error_matrix, modulo
 from splitspec_core.report import design_json, rate_certificate
@@ -84,22 +85,22 @@ def _holds_envelope(des, seeds=range(5)) -> float:
 @pytest.mark.parametrize("a", [0.4, 0.8])
 def test_the_error_stays_under_the_certified_envelope(a):
     """From random initial states the stacked error stays under ``c r^tau |e(0)|`` with the design's transient
-    constant and envelope rate (0.5 when the filter is faster, 0.8^0.99 when it is slower)."""
+    constant and envelope rate (0.5 when the filter is faster, 0.8^BACKOFF when it is slower)."""
     des = design(parse_scenario(filtered(a)))
-    assert des.envelope_rate == pytest.approx(0.5 if a < 0.5 else a ** 0.99, rel=1e-12)
+    assert des.envelope_rate == pytest.approx(0.5 if a < 0.5 else a ** BACKOFF, rel=1e-12)
     assert math.isfinite(des.conditioning.transient_constant)
     assert _holds_envelope(des) <= 1.0 + 1e-9
 
 
 def test_a_slow_filter_limits_the_rate_and_the_run_shows_it():
-    """f decays with radius 0.8 > rate 0.5: the certified rate is 0.8^0.99, said in one line; the simulated error
+    """f decays with radius 0.8 > rate 0.5: the certified rate is 0.8^BACKOFF, said in one line; the simulated error
     does decay at 0.8 (the filter's), not at the rate asked for."""
     from splitspec_core.analysis import fit_decay, max_error
 
     des = design(parse_scenario(filtered(0.8)))
     cert = rate_certificate(des)
-    assert cert.certified and cert.rate == pytest.approx(0.8 ** 0.99, rel=1e-12)
-    assert "decays with radius 0.8 >= rate 0.5: it limits the certified rate to 0.8018" in cert.text
+    assert cert.certified and cert.rate == pytest.approx(0.8 ** BACKOFF, rel=1e-12)
+    assert f"decays with radius 0.8 >= rate 0.5: it limits the certified rate to {0.8 ** BACKOFF:.4g}" in cert.text
     tr = simulate(des, seed=3, steps=200, noise=False)
     assert fit_decay(tr.t, max_error(tr), time="discrete", floor_rel=1e-250) == pytest.approx(0.8, rel=0.02)
 
@@ -180,7 +181,7 @@ def test_losing_the_only_agent_that_sees_a_decaying_mode(d):
     if d < 0.5:
         assert v["envelope_rate"] == 0.5
     else:
-        assert v["envelope_rate"] == pytest.approx(0.9 ** 0.99, rel=1e-12)
+        assert v["envelope_rate"] == pytest.approx(0.9 ** BACKOFF, rel=1e-12)
     # the survivors' certificate is their full error map's: radius below the envelope's rate
     from tests.unit.test_resilience_runtime import full_error_radius
 

@@ -206,6 +206,8 @@ CASES = [
     ("outputs-not-a-map", scenario({"system.outputs": ["a"]}), ["system.outputs must be a mapping"]),
     ("undetectable-bad", scenario({"design.undetectable": "maybe"}),
      ["design.undetectable must be refuse or exclude, got 'maybe'"]),
+    ("coordinates-bad", scenario({"design.coordinates": "polar"}),
+     ["design.coordinates must be auto, given or balanced, got 'polar'"]),
     # --- files -----------------------------------------------------------------------------------
     ("yaml-syntax-error", "name: broken\nsystem:\n  A: [[0, 1], [1, 0]\n  C: {1: [[1, 0]]}\n",
      ["YAML syntax error", "line 4"]),
