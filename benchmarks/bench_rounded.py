@@ -101,7 +101,7 @@ def evaluate(raw: dict) -> dict:
 
 
 def splits(count: int) -> None:
-    from splitspec_core.observability import ROUND_OFF, decompose, joint_observability
+    from splitspec_core.observability import ROUND_OFF, decompose, unobservable_directions
 
     changed = weak_joint = 0
     same = {6: 0, 4: 0}
@@ -116,11 +116,11 @@ def splits(count: int) -> None:
         auto = [d.n_unobservable for d in decs]
         largest_residual = max([largest_residual] + [d.split_residual for d in decs])
         changed += auto != floor
-        weak_joint += not joint_observability(A, Cs).observable
+        weak_joint += unobservable_directions(A, Cs).shape[1] > 0
         for dec in same:
             same[dec] += [decompose(np.round(A, dec), np.round(C, dec)).n_unobservable for C in Cs] == auto
     print(f"# rank decisions over {count} random systems (rank_tol auto): exact splits changed {changed}/{count} "
-          f"(largest split residual {largest_residual:.2g}), only weakly jointly observable {weak_joint}/{count}, "
+          f"(largest split residual {largest_residual:.2g}), with directions no agent sees {weak_joint}/{count}, "
           f"rounded to 6 decimals: the exact split {same[6]}/{count}, to 4 decimals {same[4]}/{count}; "
           f"load {loadavg()}")
 

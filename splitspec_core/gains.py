@@ -51,8 +51,8 @@ from .modal import invariant_subspace
 from .observability import Decomposition
 from .subspaces import complement
 
-__all__ = ["LocalGain", "target_poles", "beyond_target", "place_gain", "riccati_gain", "explicit_gain", "meets_rate",
-           "design_gain", "poles_text"]
+__all__ = ["LocalGain", "GainTarget", "target_poles", "beyond_target", "place_gain", "riccati_gain", "explicit_gain",
+           "meets_rate", "design_gain", "poles_text"]
 
 
 @dataclass(frozen=True)
@@ -141,16 +141,36 @@ def _ackermann(A: np.ndarray, b: np.ndarray, poles: np.ndarray) -> np.ndarray | 
     return f[None, :]
 
 
-def beyond_target(time: str, rate: float, margin: float):
-    """The predicate (on an array of eigenvalues) of a mode that already decays faster than the gain's target:
-    real part below ``-(1 + margin) lam`` (continuous), modulus below ``lam / (1 + margin)`` (discrete).  The gain
-    leaves such modes where they are (module docstring); the observability decisions count them at round-off
-    (:func:`splitspec_core.observability.decompose`)."""
-    if time == "continuous":
-        shift = (1.0 + margin) * rate
-        return lambda z: np.real(z) < -shift
-    alpha = rate / (1.0 + margin)
-    return lambda z: np.abs(z) < alpha
+@dataclass(frozen=True)
+class GainTarget:
+    """Where a local gain moves the observable part's slow modes (:func:`splitspec_core.gains.beyond_target` makes
+    it): past ``-(1 + margin) rate`` (continuous) or inside ``rate / (1 + margin)`` (discrete).  Called on an array of
+    eigenvalues: true where a mode is already there, so the gain leaves it alone."""
+
+    time: str
+    rate: float
+    margin: float
+
+    def __call__(self, z) -> np.ndarray:
+        if self.time == "continuous":
+            return np.real(z) < -(1.0 + self.margin) * self.rate
+        return np.abs(z) < self.rate / (1.0 + self.margin)
+
+    def shift(self, z) -> np.ndarray:
+        """How far each eigenvalue is from the target region (0 inside it): the least the gain moves it."""
+        if self.time == "continuous":
+            return np.maximum(0.0, np.real(z) + (1.0 + self.margin) * self.rate)
+        return np.maximum(0.0, np.abs(z) - self.rate / (1.0 + self.margin))
+
+
+
+def beyond_target(time: str, rate: float, margin: float) -> GainTarget:
+    """Where the gain moves the slow modes (:class:`GainTarget`): called on an array of
+    eigenvalues, true where a mode already decays faster than the gain's target (real part below ``-(1 + margin)
+    lam`` in continuous time, modulus below ``lam / (1 + margin)`` in discrete time).  The gain leaves such modes
+    where they are (module docstring); the observability decisions count them at round-off and measure the other
+    clusters' dynamics against the distance the gain moves them (:func:`splitspec_core.observability.decompose`)."""
+    return GainTarget(time, float(rate), float(margin))
 
 
 def _slow_part(dec: Decomposition, time: str, rate: float, margin: float) -> np.ndarray:
@@ -254,11 +274,13 @@ def design_gain(
     AssumptionError
         If the resulting observable-part poles do not meet the rate.
     """
-    if method == "place":
-        gain = place_gain(dec, time=time, rate=rate, margin=margin)
-    elif method == "riccati":
-        gain = riccati_gain(dec, time=time, rate=rate, margin=margin,
-                            process_weight=process_weight, measurement_weight=measurement_weight)
+    if method in ("place", "riccati"):
+        try:
+            gain = place_gain(dec, time=time, rate=rate, margin=margin) if method == "place" else \
+                riccati_gain(dec, time=time, rate=rate, margin=margin, process_weight=process_weight,
+                             measurement_weight=measurement_weight)
+        except DesignError as exc:  # the numerical failure, said of this agent
+            raise DesignError(f"{label}: {exc}") from None
     elif method == "explicit":
         if K is None:
             raise DesignError(f"{label}: explicit gains need K")

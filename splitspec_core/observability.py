@@ -78,6 +78,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -85,6 +86,9 @@ from .modal import Spectrum, rescale
 from .subspaces import complement as _complement
 from .subspaces import difference, intersection
 from .modal import spectrum as modal_spectrum
+
+if TYPE_CHECKING:  # gains.py imports this module
+    from .gains import GainTarget
 
 __all__ = ["DEFAULT_RANK_TOL", "ROUND_OFF", "SPLIT_STEP", "Staircase", "Decomposition", "threshold_of",
            "observability_staircase", "decompose", "unobservable_directions"]
@@ -136,13 +140,23 @@ def threshold_of(rank_tol: float | None) -> float:
 
 
 def observability_staircase(A: np.ndarray, C: np.ndarray, *, rank_tol: float | None = None,
-                            keep_full_steps: bool = True, c_scale: float | None = None) -> Staircase:
+                            keep_full_steps: bool = True, c_scale: float | None = None,
+                            a_scale: float | None = None, move: float = 0.0) -> Staircase:
     """Observable space of ``(C, A)`` by the graded staircase (see the module docstring).
 
     ``keep_full_steps``: count a weak direction reached in a full step (:data:`SPLIT_STEP`), which an
     agent's split needs; the joint decision has no split to keep and counts margins alone.
     ``c_scale``: measure ``C`` against this norm instead of its own (a cluster's restriction ``C X_k`` against
     the whole ``|C|``: a mode the sensors see weakly must not look strong because it is alone in its cluster).
+    ``a_scale``: the norm of the whole matrix a cluster's ``A`` was cut from.  The cluster's own spread
+    ``|A - aI|`` sets the scale of its images; a spread below :data:`ROUND_OFF` of ``a_scale`` is round-off (a
+    repeated eigenvalue: five integrators of a power-system model came out ``1e-17`` apart) and has no images, and
+    images are known only to ``eps a_scale / spread`` of their weight (a round-off spread scaled up is not a margin).
+    ``move``: how far the local gain must move the cluster's modes (:class:`splitspec_core.gains.GainTarget`): the
+    images are measured against the larger of the spread and that distance.  A direction the staircase reaches in ``j`` steps then has
+    a margin of about the distance over the gain that moves it (the gain grows like ``move^j / |C (A - aI)^j v|``):
+    three governor modes ``5e-4`` apart that the gain must move by ``0.16`` are not seen by a sensor of one of
+    them, however clean their spread looks against itself.
     """
     step = SPLIT_STEP if keep_full_steps else math.inf
     n = A.shape[0]
@@ -157,9 +171,15 @@ def observability_staircase(A: np.ndarray, C: np.ndarray, *, rank_tol: float | N
         return Staircase(np.zeros((n, 0)), np.zeros(0), 0.0, None, threshold)
     # the Krylov space of A' is that of (A - aI)': a shift changes no direction, only the scale
     scale = float(np.linalg.norm(A - (np.trace(A) / n) * np.eye(n), 2))
+    if a_scale is not None and scale <= ROUND_OFF * a_scale:
+        scale = 0.0
+    if scale > 0.0:
+        scale = max(scale, move)
     weak, weak_dir = 0.0, None
 
     eps = np.finfo(float).eps
+    # the images' round-off, relative to their weight (0 for a matrix measured against itself)
+    blur = 16.0 * eps * a_scale / scale if a_scale is not None and scale > 0 else 0.0
 
     def split(U, s, ratio, floor):
         """Keep what is above the floor and either strong (margin >= threshold) or a full step from its parents."""
@@ -194,7 +214,7 @@ def observability_staircase(A: np.ndarray, C: np.ndarray, *, rank_tol: float | N
             leak = noise * float(mu.max())
             parents = np.linalg.norm(Vt * mu[None, :], axis=1)  # the weight of the directions each one came from
             ratio = s / np.maximum(parents, 1e-300)  # its step from them
-            keep = split(U, s, ratio, 10.0 * leak)
+            keep = split(U, s, ratio, max(10.0 * leak, blur * float(mu.max())))
             new, mu = U[:, keep], s[keep]
             if mu.size:
                 # a new direction inherits the error of those it came from, divided by its step from them (a weak
@@ -202,7 +222,7 @@ def observability_staircase(A: np.ndarray, C: np.ndarray, *, rank_tol: float | N
                 noise = max(noise, float(np.max((noise + eps) / ratio[keep])))
             W = np.hstack([W, new])
             margins.append(mu)
-        new, mu = _missed(C / normC, S, W, threshold, max(ROUND_OFF, 10.0 * noise))
+        new, mu = _missed(C / normC, S, W, threshold, max(ROUND_OFF, 10.0 * noise, blur))
         if not mu.size:
             break
         W = np.hstack([W, new])  # and their images, in the loop above
@@ -318,23 +338,27 @@ class _Decided:
 
 
 def _decide(sp: Spectrum, C: np.ndarray, rank_tol: float | None, keep_full_steps: bool = True,
-            free=None) -> _Decided:
+            free: GainTarget | None = None) -> _Decided:
     """The unobservable space of ``(C, A)`` cluster by cluster (:mod:`splitspec_core.modal`): each cluster's restricted
     pair ``(C_b X_k, A_k)`` by the graded staircase, ``C_b`` measured against its whole norm.  A cluster whose
     eigenvalues all satisfy ``free`` (they decay faster than the local gain's target, so the gain leaves them where
     they are: :mod:`splitspec_core.gains`) is decided at round-off: seeing it costs no gain, and counting what the
     sensors see of it, however little, keeps ``C_i V_i = 0`` (leaving it to consensus would couple the split by that
-    much, times the gain).  Its margins are not the agent's (``margins`` holds those of the other clusters)."""
+    much, times the gain).  Its margins are not the agent's (``margins`` holds those of the other clusters).  The
+    other clusters' images are measured against the larger of their spread and the distance ``free.shift`` the gain
+    moves them (:func:`observability_staircase`, ``move``)."""
     Cb = C * sp.d[None, :]
     normC = float(np.linalg.norm(Cb, 2)) if Cb.size else 0.0
+    normA = float(np.linalg.norm(sp.A_b, 1))
     parts, margins, weak, weak_dir = [], [], 0.0, None
     for cl in sp.clusters:
         if normC == 0.0:
             parts.append(cl.X)
             continue
         alone = free is not None and bool(np.all(free(cl.eigs)))
+        move = 0.0 if free is None or alone else float(np.max(free.shift(cl.eigs)))
         st = observability_staircase(cl.A, Cb @ cl.X, rank_tol=ROUND_OFF if alone else rank_tol,
-                                     keep_full_steps=keep_full_steps, c_scale=normC)
+                                     keep_full_steps=keep_full_steps, c_scale=normC, a_scale=normA, move=move)
         parts.append(cl.X @ _complement(st.W))
         if not alone:
             margins.append(st.margins)
@@ -348,13 +372,14 @@ def _decide(sp: Spectrum, C: np.ndarray, rank_tol: float | None, keep_full_steps
 
 
 def decompose(A: np.ndarray, C: np.ndarray, *, rank_tol: float | None = None,
-              spectrum: Spectrum | None = None, free=None, scale: np.ndarray | None = None) -> Decomposition:
+              spectrum: Spectrum | None = None, free: GainTarget | None = None,
+              scale: np.ndarray | None = None) -> Decomposition:
     """Observability decomposition of ``(C, A)``, decided cluster by cluster in balanced coordinates.
 
     ``spectrum``: the skeleton of ``A`` (:func:`splitspec_core.modal.spectrum`, all agents' rows stacked for the
-    decoupled states); computed from ``(A, C)`` when not given.  ``free``: a predicate on eigenvalues, true where a
-    mode decays faster than the local gain's target (:func:`splitspec_core.gains.beyond_target`): such clusters are
-    decided at round-off (:func:`_decide`).  ``scale``: the coordinates the decomposition is written in, ``x = diag(scale)
+    decoupled states); computed from ``(A, C)`` when not given.  ``free``: the local gain's target
+    (:func:`splitspec_core.gains.beyond_target`): clusters already past it are decided at round-off, the others'
+    dynamics are measured against the distance the gain moves them (:func:`_decide`).  ``scale``: the coordinates the decomposition is written in, ``x = diag(scale)
     x_w`` (None: the user's own; the design's ``design.coordinates``): ``V`` and ``Q`` are orthonormal there, ``Abar``,
     ``Cbar``, ``P``, ``A_un`` are of ``D^-1 A D`` and ``C D``.  Margins, ``weak`` and ``split_residual`` are measured
     in the balanced coordinates (unit-free); ``weak_direction`` is in the user's.

@@ -14,6 +14,7 @@ import numpy as np
 
 from .bounds import QResult
 from .designer import NO_CERTIFIED_RATE, Design
+from .full_matrix import MAX_RATE_DIM
 from .gains import poles_text
 from .graphs import is_doubly_stochastic, perron_vector
 from .labels import heaviest
@@ -76,11 +77,24 @@ def _split_certificate(des: Design, *, sampled: bool = True) -> RateCertificate:
       per graph held constant).  ``sampled=False`` judges the exact ODE alone.
     """
     sc = des.scenario
-    rate = sc.design.rate
     if des.g_mode == "adaptive":
         return RateCertificate(False, f"adaptive gain: {NO_CERTIFIED_RATE}")
     if des.full_radius:
         return _full_certificate(des, sampled=sampled)
+    cert = _blocks_certificate(des, sampled=sampled)
+    if cert.certified and not des.split_exact:
+        # an approximate split whose full error matrices were too large to check (full_matrix.check_full): the
+        # certificate covers the split blocks, not the estimator that runs
+        return RateCertificate(False, f"{cert.text}, on the split blocks only: the split is approximate (residual "
+                                      f"{des.split_residual:.2g}) and its full error matrices (m n = "
+                                      f"{sc.m * sc.n} > {MAX_RATE_DIM}) were not checked")
+    return cert
+
+
+def _blocks_certificate(des: Design, *, sampled: bool) -> RateCertificate:
+    """The certificates of the split blocks (:func:`_split_certificate`'s list, after the adaptive gain)."""
+    sc = des.scenario
+    rate = sc.design.rate
     if des.time == "discrete":
         r = des.q_result
         ok = bool(r.certified)

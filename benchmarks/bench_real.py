@@ -1,0 +1,152 @@
+"""Designs of real models (issue "Real systems I"): power-system benchmarks, detectable, stiff, named states.
+
+The models are ANDES's linearised small-signal models of public test cases (``examples/models/*.npz``, made
+by ``examples/models/make_power_models.py``; the tool and its version are in each file's ``meta``): Kundur's
+two-area system (4 generators, 52 states; and a variant with a power-system stabiliser, 61 states), the IEEE
+14-bus system (5 generators, 62 states) and the IEEE 39-bus system (10 generators, 160 states).  One agent per
+generator: ``pmu`` measures its rotor angle and speed, ``more`` adds one exciter and one governor state.  The
+agents talk over a ring (both directions), continuous time, gains ``place``, ``g`` auto, ``run.dt`` 0.01.
+
+For each model and rate it prints:
+
+* ``n``, ``m``; ``W``: the dimension of what no agent sees and its decay rate (``-max Re`` of ``A`` on ``W``);
+* ``design s``: the design's wall time, ``cond s``: the conditioning's (the transient constant);
+* ``g``; ``cert``: the certified rate (the envelope's: ``min(rate, 0.9 x W's decay)``) or why none;
+* ``c``: the transient constant (``exact`` or a ``Lyapunov`` upper bound) and ``c_lo``: the largest
+  ``||M^k|| / r^k`` actually formed (a lower bound of the true constant);
+* from ``--seeds`` noise-free simulations, each from a random initial state and random estimates (the seeds'
+  own draws): ``peak``, the largest ``||e(t)|| / (||e(0)|| exp(-rate t))`` over all seeds and times (must be at
+  most ``c``); ``rate``, the decay measured on the tail (``analysis.fit_decay``, the smallest over the seeds;
+  must be at least the certified rate); ``under``, whether every seed's error stayed under the envelope.
+
+    .venv/bin/python benchmarks/bench_real.py [--seeds 3] [--horizon 60] [--only kundur_full]
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import time
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+import splitspec_core as ss
+from splitspec_core.analysis import fit_decay
+from splitspec_core.errors import SplitspecError
+from splitspec_core.report import rate_certificate
+
+from _common import loadavg
+
+MODELS = Path(__file__).resolve().parent.parent / "examples" / "models"
+
+# (model, measurements, rate, extra design keys)
+CASES = [
+    ("kundur_full", "pmu", 0.2, {}),
+    ("kundur_full", "more", 0.2, {}),
+    ("kundur_full", "more", 0.5, {}),
+    ("kundur_ieeest", "pmu", 0.2, {}),
+    ("ieee14_full", "pmu", 0.2, {}),
+    ("ieee14_full", "more", 0.2, {}),
+    ("ieee39_full", "pmu", 0.2, {}),
+    ("ieee39_full", "pmu", 0.2, {"undetectable": "exclude"}),
+]
+
+
+def scenario(model: str, which: str, rate: float, extra: dict, horizon: float, dt: float) -> ss.Scenario:
+    d = np.load(MODELS / f"{model}.npz", allow_pickle=False)
+    m = len(d["generators"])
+    ring = [(k, k % m + 1) for k in range(1, m + 1)] + [(k % m + 1, k) for k in range(1, m + 1)]
+    return ss.scenario(name=f"{model}-{which}", time="continuous", A=d["A"], states=[str(s) for s in d["states"]],
+                       C={k: d[f"C_{which}_{k}"] for k in range(1, m + 1)}, graphs={"ring": ring}, rate=rate,
+                       gains="place", dt=dt, steps=int(round(horizon / dt)), **extra)
+
+
+def measure(des, seeds: int) -> dict:
+    """Noise-free runs from the seeds' random initial states and estimates, against the envelope."""
+    sc = des.scenario
+    rate = des.envelope_rate
+    peak, rates, under = 0.0, [], True
+    for seed in range(seeds):
+        tr = ss.simulate(des, seed=seed, noise=False)
+        e = tr.xhat - tr.x[:, None, :]
+        if des.excluded:  # the certificate covers the error modulo W (design.undetectable: exclude)
+            W = des.unobserved.W
+            e = e - (e @ W) @ W.T
+        e = np.linalg.norm(e.reshape(e.shape[0], -1), axis=1)
+        ratio = e / (e[0] * np.exp(-rate * tr.t))
+        peak = max(peak, float(np.max(ratio)))
+        c = des.conditioning.transient_constant
+        under &= c is not None and bool(np.all(ratio <= c * (1 + 1e-8)))
+        r = fit_decay(tr.t, e, time=sc.time, scale=np.linalg.norm(tr.x, axis=1))
+        if r is not None:
+            rates.append(r)
+    return {"peak": peak, "rate": min(rates) if rates else None, "under": under}
+
+
+def lower_bound(method: str) -> str:
+    """The peak of the powers formed, from the transient method's text (the exact constant when it is exact)."""
+    if "peak of the first" in method:
+        return method.rsplit(": ", 1)[1].rstrip(")")
+    return "="
+
+
+def row(model: str, which: str, rate: float, extra: dict, args) -> None:
+    name = f"{model} {which} {rate:g}" + ("".join(f" {k}={v}" for k, v in extra.items()))
+    t0 = time.perf_counter()
+    try:
+        sc = scenario(model, which, rate, extra, args.horizon, args.dt)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            des = ss.design(sc).detail
+    except SplitspecError as exc:
+        print(f"{name:<40} refused in {time.perf_counter() - t0:.1f} s: {exc}")
+        return
+    t_design = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    cond = des.conditioning
+    t_cond = time.perf_counter() - t0
+    un = des.unobserved
+    cert = rate_certificate(des)
+    c = cond.transient_constant
+    how = ("exact" if cond.transient_method.endswith("exact") else
+           "Lyapunov" if "Lyapunov" in cond.transient_method else cond.transient_method[-30:])
+    w = f"{un.dim} @ {un.decay:.3g}" if un.dim else "0"
+    g = f"{des.g:.3g}" if des.g is not None else "adaptive"
+    head = (f"{name:<40} {sc.n:>4} {sc.m:>3} {w:>12} {t_design:>8.1f} {t_cond:>6.1f} {g:>8} "
+            f"{(f'{cert.rate:.3g}' if cert.certified else 'no'):>6}")
+    if c is None:
+        print(f"{head} {'-':>9} {'-':>9}   (transient {cond.transient_method})")
+        return
+    if not cert.certified:
+        print(f"{head} {c:>9.3g} {lower_bound(cond.transient_method):>9}   not certified: {cert.text}")
+        return
+    t0 = time.perf_counter()
+    got = measure(des, args.seeds)
+    mrate = f"{got['rate']:.3g}" if got["rate"] is not None else "-"
+    print(f"{head} {c:>9.3g} {lower_bound(cond.transient_method):>9} {got['peak']:>9.3g} {mrate:>7} "
+          f"{'yes' if got['under'] else 'NO':>5}   ({how}; {args.seeds} runs of {sc.run.steps} steps in "
+          f"{time.perf_counter() - t0:.1f} s)")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--seeds", type=int, default=3, help="noise-free runs per certified design (default 3)")
+    ap.add_argument("--horizon", type=float, default=60.0, help="simulated seconds (default 60)")
+    ap.add_argument("--dt", type=float, default=0.01, help="run.dt (default 0.01)")
+    ap.add_argument("--only", default=None, help="only the models whose name contains this")
+    args = ap.parse_args()
+    print(f"# real models, ring graphs, continuous time, gains place, g auto, run.dt {args.dt:g}; "
+          f"load {loadavg()}")
+    print(f"{'model meas rate':<40} {'n':>4} {'m':>3} {'W dim@decay':>12} {'design s':>8} {'cond s':>6} {'g':>8} "
+          f"{'cert':>6} {'c':>9} {'c_lo':>9} {'peak':>9} {'rate':>7} {'under':>5}")
+    for model, which, rate, extra in CASES:
+        if args.only and args.only not in model:
+            continue
+        row(model, which, rate, extra, args)
+    print(f"# load {loadavg()}")
+
+
+if __name__ == "__main__":
+    main()
