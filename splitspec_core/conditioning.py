@@ -102,7 +102,7 @@ def transient_constant(M: np.ndarray, r: float, *, block: int = 1, max_work: flo
         P = sla.solve_discrete_lyapunov(T.T, np.eye(d))  # T' P T - P = -I
         ev = np.linalg.eigvalsh(0.5 * (P + P.T))
     bound = math.sqrt(ev[-1] / ev[0]) if ev[0] > 0 and np.all(np.isfinite(ev)) else math.inf
-    why = (f"the slowest mode decays only {(rho / r) ** -steps:.3g}-fold in the {steps} steps affordable"
+    why = (f"the slowest mode decays only {(rho / r) ** -steps:.5g}-fold in the {steps} steps affordable"
            if hopeless else f"the exact peak needed more than {steps} steps")
     return Transient(max(peak, bound), at, rows,
                      f"Lyapunov bound ({why}; the peak of the first {head}: {peak:.3g})")

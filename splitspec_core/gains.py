@@ -289,9 +289,19 @@ def design_gain(
         raise DesignError(f"unknown gain method {method!r}")
     if not meets_rate(gain.poles, time, rate):
         need = f"real parts < {-rate:g}" if time == "continuous" else f"moduli < {rate:g}"
+        hint = ""
+        if method in ("place", "riccati") and dec.n_observable:
+            # many slow modes moved by few outputs: the placement's conditioning grows fast with that ratio
+            slow = int(np.sum(~beyond_target(time, rate, margin)(np.linalg.eigvals(dec.Abar))))
+            edge = (f"slower than the target -{(1 + margin) * rate:.3g}" if time == "continuous" else
+                    f"outside the target radius {rate / (1 + margin):.3g}")
+            other = "riccati" if method == "place" else "place"
+            hint = (f"; it moves {slow} slow modes ({edge}) with {dec.Cbar.shape[0]} outputs: "
+                    f"a smaller design.margin (fewer modes to move), design.gains: {other} or a slower design.rate "
+                    "may reach it")
         raise AssumptionError(
             f"{label}: gain ({method}) puts the observable-part poles at {poles_text(gain.poles, time)}, "
-            f"which do not meet rate {rate:g} (need {need})")
+            f"which do not meet rate {rate:g} (need {need}){hint}")
     return gain
 
 

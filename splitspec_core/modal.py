@@ -9,7 +9,10 @@ spectra), ``V_i = (+)_k X_k V_ik`` where ``V_ik`` is the unobservable space of t
 scale: one Krylov staircase over the whole of a stiff model (eigenvalues from -80 to 0) chains slow
 modes through the fast ones, and its graded margins shrink like the product of the steps (8.5e-11 on a
 power-system model whose PBH test gives 2.5e-2).  Within a cluster the staircase of
-:mod:`splitspec_core.observability` runs on the cluster's own scale.  For a simple eigenvalue the
+:mod:`splitspec_core.observability` runs on the cluster's own scale: the larger of its spread and the
+distance the local gain must move it (a spread of round-off, a repeated eigenvalue, has no dynamics to
+see through; three modes 5e-4 apart that the gain must move by 0.16 are told apart only by a gain of
+order 0.16 / 5e-4, and count as seen only if that is what the margin says).  For a simple eigenvalue the
 margin is then ``|C_i x_k| / |C_i|`` with ``x_k`` its unit eigenvector: how much of a unit excursion of
 that mode the agent's sensors see (the PBH test ``sigma_min([A - lam I; C])`` of that mode, without
 the distance to the other eigenvalues that the PBH value also carries).

@@ -153,10 +153,10 @@ def observability_staircase(A: np.ndarray, C: np.ndarray, *, rank_tol: float | N
     repeated eigenvalue: five integrators of a power-system model came out ``1e-17`` apart) and has no images, and
     images are known only to ``eps a_scale / spread`` of their weight (a round-off spread scaled up is not a margin).
     ``move``: how far the local gain must move the cluster's modes (:class:`splitspec_core.gains.GainTarget`): the
-    images are measured against the larger of the spread and that distance.  A direction the staircase reaches in ``j`` steps then has
-    a margin of about the distance over the gain that moves it (the gain grows like ``move^j / |C (A - aI)^j v|``):
-    three governor modes ``5e-4`` apart that the gain must move by ``0.16`` are not seen by a sensor of one of
-    them, however clean their spread looks against itself.
+    images are measured against the larger of the spread and that distance.  A direction the staircase reaches
+    in ``j`` steps then has a margin of about the distance over the gain that moves it (the gain grows like
+    ``move^j / |C (A - aI)^j v|``): three governor modes ``5e-4`` apart that the gain must move by ``0.16`` are
+    not seen by a sensor of one of them, however clean their spread looks against itself.
     """
     step = SPLIT_STEP if keep_full_steps else math.inf
     n = A.shape[0]
@@ -379,9 +379,10 @@ def decompose(A: np.ndarray, C: np.ndarray, *, rank_tol: float | None = None,
     ``spectrum``: the skeleton of ``A`` (:func:`splitspec_core.modal.spectrum`, all agents' rows stacked for the
     decoupled states); computed from ``(A, C)`` when not given.  ``free``: the local gain's target
     (:func:`splitspec_core.gains.beyond_target`): clusters already past it are decided at round-off, the others'
-    dynamics are measured against the distance the gain moves them (:func:`_decide`).  ``scale``: the coordinates the decomposition is written in, ``x = diag(scale)
-    x_w`` (None: the user's own; the design's ``design.coordinates``): ``V`` and ``Q`` are orthonormal there, ``Abar``,
-    ``Cbar``, ``P``, ``A_un`` are of ``D^-1 A D`` and ``C D``.  Margins, ``weak`` and ``split_residual`` are measured
+    dynamics are measured against the distance the gain moves them (:func:`_decide`).  ``scale``: the
+    coordinates the decomposition is written in, ``x = diag(scale) x_w`` (None: the user's own; the design's
+    ``design.coordinates``): ``V`` and ``Q`` are orthonormal there, ``Abar``, ``Cbar``, ``P``, ``A_un`` are of
+    ``D^-1 A D`` and ``C D``.  Margins, ``weak`` and ``split_residual`` are measured
     in the balanced coordinates (unit-free); ``weak_direction`` is in the user's.
     """
     A = np.asarray(A, dtype=float)

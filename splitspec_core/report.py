@@ -428,13 +428,19 @@ def _size_lines(des: Design) -> list:
     cond = des.conditioning
     sc = des.scenario
     unit = "rate^tau" if sc.time == "discrete" else "exp(-lam t)"
+    env = des.envelope_rate
+    if env is not None and env != sc.design.rate:  # directions no agent sees set a slower envelope
+        unit = f"{env:.4g}^tau" if sc.time == "discrete" else f"exp(-{env:.4g} t)"
     c = cond.transient_constant
     if c is None:
         out = [f"transient: {cond.transient_method}"]
     else:
         value = "infinite" if math.isinf(c) else f"{c:.3g}"
+        how = cond.transient_method
+        # an upper bound rather than the supremum itself: say so, with the largest power actually formed
+        bound = f"; {how[how.index('Lyapunov bound'):]}" if "Lyapunov bound" in how else ""
         out = [f"transient: ||e(t)|| <= c {unit} ||e(0)|| with c = {value} (transient_constant; "
-               f"graph {cond.transient_case} held constant)"]
+               f"graph {cond.transient_case} held constant{bound})"]
     if cond.predicted_rms is not None:
         vals = list(cond.predicted_rms.values())
         allrms = math.sqrt(sum(v * v for v in vals) / len(vals))

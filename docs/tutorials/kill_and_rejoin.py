@@ -59,7 +59,7 @@ for e in rec.events:
 # rows) and watches the processes: a killed process's Zenoh liveliness token disappears, a frozen one stops
 # answering within its round's time budget. Either way the agent is declared lost, the survivors reweight
 # their consensus over the agents still alive, and after every change the orchestrator re-checks the
-# design for the survivors (`resilience_verdict`: still strongly connected, still jointly observable,
+# design for the survivors (`resilience_verdict`: still strongly connected, still jointly detectable,
 # still certified). At event time 20 the answer is no: with agents 3 and 5 gone and the link 1 -> 6 cut,
 # the graph is no longer strongly connected and nothing certifies a rate; the survivors run on, and the
 # certificate is back once agent 3 rejoins. A restarted process is admitted again at the next event time

@@ -187,3 +187,38 @@ def test_a_weak_direction_found_first_does_not_hide_a_strong_one():
     for rank_tol in (1e-9, None):
         assert decompose(A, C, rank_tol=rank_tol).V.shape == (4, 0)
         assert decompose(A, C[:1], rank_tol=rank_tol).V.shape == (4, 0)  # the first row alone, as a check
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_a_repeated_eigenvalue_is_not_seen_through_round_off(seed):
+    """Five integrators (a power-system model's washouts) in a random orthonormal basis, one sensor of their sum: the
+    agent sees one direction of the five, not more.  Their cluster's spread is round-off (1e-16): scaled up to its own
+    size it looked like dynamics, and the staircase 'saw' one or two more directions through it."""
+    A = np.zeros((6, 6))
+    A[5, 5] = -1.0
+    C = np.array([[1.0, 1.0, 1.0, 1.0, 1.0, 0.0]])
+    Q = np.linalg.qr(np.random.default_rng(seed).standard_normal((6, 6)))[0]
+    dec = decompose(Q @ A @ Q.T, C @ Q.T)
+    assert dec.n_unobservable == 5 and dec.margin > 0.99
+    assert np.linalg.norm(dec.V.T @ (Q @ np.array([1.0, 1, 1, 1, 1, 0]))) < 1e-9  # the sum is what it sees
+
+
+def test_close_modes_the_gain_must_move_are_left_to_consensus():
+    """Three slow modes 5e-4 apart (three governors of one design), one sensor seeing the first in full and the others
+    at 1 %: told apart only through the dynamics, across their 5e-4 spread.  Measured against that spread they look
+    seen (margin 0.01) and placing all three costs a gain of 3e6; measured against the 0.16 the gain must move them
+    to reach -(1 + margin) rate, the two others are left to consensus and the gain is 0.16."""
+    from splitspec_core.gains import beyond_target
+
+    A = np.diag([-0.142, -0.1425, -0.1415, -5.0])
+    C = np.array([[1.0, 0.01, 0.01, 1.0]])
+    Q = np.linalg.qr(np.random.default_rng(0).standard_normal((4, 4)))[0]
+    A, C = Q @ A @ Q.T, C @ Q.T
+    target = beyond_target("continuous", 0.2, 0.5)
+    alone = decompose(A, C)  # no target: the cluster against its own spread
+    moved = decompose(A, C, free=target)
+    assert alone.n_unobservable == 0 and moved.n_unobservable == 2
+    big = design_gain(alone, method="place", time="continuous", rate=0.2, margin=0.5)
+    small = design_gain(moved, method="place", time="continuous", rate=0.2, margin=0.5)
+    assert np.linalg.norm(big.K) > 1e5 and np.linalg.norm(small.K) < 1.0
+    assert 0.0 < moved.weak < 1e-3  # what it left out, it saw only weakly
