@@ -85,6 +85,8 @@ def transient_constant(M: np.ndarray, r: float, *, block: int = 1, max_work: flo
     for k in range(1, head + 1):
         X = T @ X
         f = float(np.linalg.norm(X)) or 1e-300  # 0: nilpotent, nothing after this step
+        if not math.isfinite(f):
+            return Transient(math.inf, k, None, f"infinite: the power {k} of M / rate overflowed")
         logf.append(math.log(f) + logs)
         # the 2-norm falls below 1 before the Frobenius norm (up to sqrt(d) sooner): looked at every 64 steps
         two = logf[-1] <= 0.5 * math.log(d) and k % 64 == 0 and math.log(float(np.linalg.norm(X, 2))) + logs <= 0.0
@@ -109,21 +111,39 @@ def transient_constant(M: np.ndarray, r: float, *, block: int = 1, max_work: flo
 
 
 def _sup_two_norm(T: np.ndarray, logf: list, block: int) -> tuple:
-    """``(max_k ||T^k||_2, k, agent index)`` over the powers whose log Frobenius norms are ``logf`` (k = 0, 1, ...):
-    the 2-norm is at most the Frobenius norm, so the powers are visited largest Frobenius norm first and the search
-    stops at the first one that cannot beat the largest 2-norm found.  A power too large to form (its Frobenius
-    norm above 1e300) counts with its Frobenius norm, an upper bound."""
+    """``(max_k ||T^k||_2, k, agent index)`` over the powers whose log Frobenius norms are ``logf`` (k = 0, 1, ...).
+
+    The 2-norm is at most the Frobenius norm and at least it over sqrt(d): only the powers whose Frobenius norm
+    can beat the largest 2-norm found are looked at, formed again one product at a time as the first pass formed
+    them (``T @ X``, rescaled now and then).  Repeated squaring (``matrix_power``) is not used: on a strongly
+    non-normal ``T`` its round-off grows with the squares and can overflow where the powers themselves stay
+    small.  A power too large to form (its Frobenius norm above 1e300) counts with its Frobenius norm, an upper
+    bound."""
     d = T.shape[0]
+    lf = np.asarray(logf)
+    if lf.max() > 690.0:
+        k = int(np.argmax(lf))
+        return math.inf, k, None
+    floor = float(lf.max()) - 0.5 * math.log(d)  # the largest 2-norm is at least this (log)
     best, at, rows = 1.0, 0, None
-    for k in np.argsort(-np.asarray(logf), kind="stable"):
-        if logf[k] <= math.log(best):
-            break
-        if logf[k] > 690.0:
-            return math.inf, int(k), None
-        P = np.linalg.matrix_power(T, int(k))
-        s = float(np.linalg.norm(P, 2))
+    last = int(np.nonzero(lf > max(floor, 0.0))[0].max()) if np.any(lf > max(floor, 0.0)) else -1
+    X, logs = np.eye(d), 0.0
+    for k in range(0, last + 1):
+        if k:
+            X = T @ X
+        if lf[k] <= math.log(best):
+            continue
+        with np.errstate(all="ignore"):
+            s = float(np.linalg.norm(X, 2)) if np.all(np.isfinite(X)) else math.nan
+        if not math.isfinite(s):  # round-off overflowed: the Frobenius norm of the first pass, an upper bound
+            return math.exp(lf[k]), k, None
+        s *= math.exp(logs)
         if s > best:
-            best, at, rows = s, int(k), np.linalg.norm(P.reshape(d // block, block, d), axis=(1, 2))
+            best, at, rows = s, k, np.linalg.norm(X.reshape(d // block, block, d), axis=(1, 2))
+        f = float(np.linalg.norm(X))
+        if f > 1e100:
+            X /= f
+            logs += math.log(f)
     return best, at, None if rows is None else int(np.argmax(rows))
 
 

@@ -129,6 +129,8 @@ def test_a_perturbed_model_keeps_the_exact_design(seed, time, imperfection):
 @settings(max_examples=examples(20), **COMMON)
 @given(seed=st.integers(0, 10_000), coupling=st.sampled_from([1e-7, 1e-6, 1e-5]),
        time=st.sampled_from(["discrete", "continuous"]))
+# a transient of e^18 whose powers, formed by repeated squaring, overflowed on OpenBLAS's Prescott kernels (CI)
+@example(seed=0, coupling=1e-6, time="continuous")
 def test_a_weakly_observable_system_is_refused_or_warned(seed, coupling, time):
     """Every agent sees one oscillator block only through a coupling of ``coupling``: refused by default with the
     direction and its margin; designed, with a warning, once design.rank_tol is forced below that margin."""
