@@ -99,7 +99,7 @@ class AgentNode:
         self.zbuf: dict = {}  # (tau, attempt, k) -> {j: z_j}
         self.xbuf: dict = {}  # (tau, attempt of round tau - 1) -> {j: x_j(tau)}: the next round's z_j(0)
         rows = output_rows(sc.system.Cs)
-        self.ys = YBuffer(agent_id, rows[self.index], rows[-1].stop)  # y_i(tau), or that there is none
+        self.ys = YBuffer(agent_id, rows[self.index], rows[-1].stop, B=sc.system.B)  # y_i(tau) or none; B u(tau)
         self.sampler = None  # a live sensor's LiveSampler (scenario sources:, agents/sensor.py)
         self.record_y = bool(config.get("record_y", False))  # report the y_i used (measurements, live sensors)
         self.rejected: dict = {}
@@ -338,7 +338,8 @@ class AgentNode:
             if not self.ys.ready(r["tau"]):
                 return out
             y = self.ys.get(r["tau"])  # None: no measurement, the step without its innovation
-            x_next = st.sampled_step(self.x, self.E, self.D, self.K, self.C, y, self.P, self.g, states, ws)
+            bu = self.ys.bu(r["tau"])  # the known input's B u(tau) (None: no inputs)
+            x_next = st.sampled_step(self.x, self.E, self.D, self.K, self.C, y, self.P, self.g, states, ws, bu)
             g_next = self.g
             if self.adaptive:
                 g_next = st.adaptive_gain_step(self.g, st.adaptive_gain_rate(self.V, self.x, states, ws), self.dt)
@@ -358,7 +359,9 @@ class AgentNode:
             return out
         y = self.ys.get(r["tau"])
         # eq. split-discrete-est1, or the prediction without a measurement
-        x_next = st.prediction_update(r["z"], self.A) if y is None else st.measurement_update(r["z"], self.F, self.K, y)
+        bu = self.ys.bu(r["tau"])
+        x_next = st.prediction_update(r["z"], self.A, bu) if y is None else st.measurement_update(r["z"], self.F,
+                                                                                                   self.K, y, bu)
         return out + self._finish(x_next, 0.0, y)
 
     def _finish(self, x_next: np.ndarray, g_next: float, y) -> list:

@@ -1,8 +1,8 @@
 """An agent's measurements ``y_i(tau)``: what it updates with, or that it has none (it then predicts only).
 
 The plant publishes one ``y`` message per event time for every agent (``y/all``: the stacked
-``(y_1, ..., y_m)`` and the ids of the agents without a measurement at that event time, a recorded gap in a
-measurements file).  :class:`YBuffer` keeps agent i's rows of it per event time: at most two event times
+``(y_1, ..., y_m)``, then ``u(tau)`` when the scenario has known inputs, and the ids of the agents without a
+measurement at that event time, a recorded gap in a measurements file).  :class:`YBuffer` keeps agent i's rows of it per event time: at most two event times
 before the first tick, none older than the last tick's, none more than one event time ahead of it; anything
 else is dropped and counted (``stale``, ``future``, ``buffer_full``, ``bad_shape``).
 """
@@ -17,9 +17,13 @@ __all__ = ["YBuffer"]
 class YBuffer:
     """``y_i(tau)`` per event time (None: no measurement at ``tau``); :meth:`ready` before :meth:`get`."""
 
-    def __init__(self, agent_id: int, rows: slice, size: int, limit: int = 2):
-        self.id, self.rows, self.size, self.limit = agent_id, rows, size, limit
+    def __init__(self, agent_id: int, rows: slice, size: int, limit: int = 2, B: np.ndarray | None = None):
+        self.id, self.rows, self.limit = agent_id, rows, limit
+        self.B = None if B is None else np.asarray(B)  # the scenario's known inputs: x+ = A x + B u
+        self.outputs, self.inputs = size, 0 if B is None else int(np.shape(B)[1])
+        self.size = size + self.inputs  # the message's vector: the stacked y, then u(tau) (the scenario's known inputs)
         self.buf: dict = {}
+        self.ubuf: dict = {}
 
     def put_message(self, m: dict, *, last_tau, tick_tau, reject) -> bool:
         """Keep agent i's part of a decoded ``y`` message; False (and ``reject(reason)``) if it is dropped."""
@@ -40,6 +44,8 @@ class YBuffer:
                 return False
             del self.buf[oldest]
         self.buf[tau] = None if self.id in m["missing"] else np.asarray(m["y"][self.rows])
+        if self.inputs:
+            self.ubuf[tau] = np.asarray(m["y"][self.outputs:])
         return True
 
     def put_sample(self, tau: int, y: np.ndarray | None) -> None:
@@ -53,6 +59,11 @@ class YBuffer:
     def get(self, tau: int) -> np.ndarray | None:
         return self.buf[tau]
 
+    def bu(self, tau: int) -> np.ndarray | None:
+        """``B u(tau)``, ``u`` as the plant sent it (the simulator adds ``B @ u`` too); None: no inputs."""
+        return None if self.B is None else self.B @ self.ubuf[tau]
+
     def prune(self, tau: int) -> None:
         """Forget event times before ``tau``."""
         self.buf = {k: v for k, v in self.buf.items() if k >= tau}
+        self.ubuf = {k: v for k, v in self.ubuf.items() if k >= tau}

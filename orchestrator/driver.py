@@ -53,7 +53,7 @@ import numpy as np
 
 from splitspec_core.designer import design
 from splitspec_core.errors import SplitspecError
-from splitspec_core.scenario_load import load_scenario, read_scenario_text
+from splitspec_core.scenario_load import load_scenario, read_scenario_text, resolved_scenario_text
 from splitspec_core.runtime.ticks import TickEncoder
 from splitspec_core.runtime.wire import Keys, WireError, decode, encode, new_run_key
 
@@ -124,7 +124,8 @@ class Orchestrator:
     def __init__(self, scenario_path: str, *, out: Path, run_id: str, listen: str | None, connect: str | None,
                  wait: float | None = None, round_timeout: float = 10.0, viewer: str | None = None,
                  security=None, spawn_local: bool = False, measurements: str | None = None):
-        self.scenario_text = read_scenario_text(scenario_path)
+        # the processes (and scenario.yaml in the records) get the scenario with system.file's arrays written in
+        self.scenario_text = resolved_scenario_text(Path(scenario_path), read_scenario_text(scenario_path))
         self.sc = load_scenario(scenario_path)
         self.des = design(self.sc)
         self.meas, self.measurements_path = None, measurements

@@ -54,6 +54,7 @@ class MeasuredRecords:
         self.truth = True
         self.after_run: tuple | None = None
         self.closed = False  # set by the recorder's close: the next arrays() is the last, with the Kalman filter
+        self.inputs = None  # a measurements file's u rows (known inputs), else the scenario's signal applies
         self._live_rows = None
         self._live: dict = {}  # tau -> (y, missing) from live_y, until the y source has taken it (it keeps it)
 
@@ -114,7 +115,7 @@ class MeasuredRecords:
             D = self._d
             traj = Trajectory(t=D.t[:T], x=D.x[:T], xhat=D.xhat[:T], alive=D.alive[:T], graph=D.graph[:T],
                               agent_ids=np.array(self.agent_ids), y=extra["y"], y_missing=extra["y_missing"])
-            known = no_truth_arrays(traj, sc)
+            known = no_truth_arrays(traj, sc, None if self.inputs is None else self.inputs[:T])
             self.after_run = (T, known)
             extra.update(known)
         return extra

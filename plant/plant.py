@@ -2,7 +2,8 @@
 
 On tick ``tau``: if it is a new event time the plant moves ``x -> x(tau)``
 (process noise), then draws ``y(tau)`` (measurement noise, every agent) and
-publishes ``y_i(tau)`` on ``y/<i>`` and ``x(tau)`` on ``truth``.  With
+publishes ``y(tau)`` on ``y/all`` and ``x(tau)`` on ``truth``; with known inputs (``system.B``) the ``y``
+message's vector carries ``u(tau)`` after the stacked outputs, so every agent adds the plant's own ``B u``.  With
 ``--measurements FILE`` (the file the orchestrator was given, checked by its
 sha256) it plays row ``tau`` of the file instead: its ``y``, the agents without
 a measurement there, and its truth (an empty ``x`` when the file has none).  A re-run of
@@ -46,7 +47,7 @@ class PlantNode:
             if self.meas.sha256 != wanted["sha256"]:
                 raise SplitspecError(f"--measurements {measurements} is not the file the orchestrator plays "
                                      f"(sha256 {self.meas.sha256[:12]}... against {wanted['sha256'][:12]}...)")
-            self.plant = RecordedPlant(self.meas, self.sc.n)
+            self.plant = RecordedPlant(self.meas, self.sc.n, self.sc)
             self.no_x = np.zeros(0)  # a truth message without x: the file has no truth
         else:
             self.plant = Plant(self.sc, int(config["seed"]))
@@ -86,6 +87,9 @@ class PlantNode:
                 raise RuntimeError(f"event time {tau} is past the measurements file's last row ({self.meas.steps})")
             self.tau = tau
             self.y = self.plant.measure()  # (y_1, ..., y_m) stacked in agent order
+            u = self.plant.input()  # u(tau) (None: no inputs), sent after the outputs
+            if u is not None:
+                self.y = np.concatenate([np.asarray(self.y, dtype=float), np.asarray(u, dtype=float)])
         x = self.plant.x if self.meas is None or self.meas.x is not None else self.no_x
         out = [(self.keys.truth, encode("truth", self.run_id, mac_key=self.mac_key, tau=tau, attempt=t["attempt"],
                                         x=x, rejected=self.counts()))]

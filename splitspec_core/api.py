@@ -6,6 +6,9 @@ these same functions.  Results are frozen dataclasses whose arrays are read-only
 Validation has one path: :func:`scenario` turns its keywords into the mapping a scenario file holds and hands
 it to :func:`splitspec_core.scenario_load.parse_scenario`, the checker of YAML files, so both meet the same
 checks with the same one-line messages.
+
+Why one module: it is the public API's one page (what ``help(splitspec_core)`` and the reference show); the
+work is in the modules it calls.
 """
 
 from __future__ import annotations
@@ -21,6 +24,7 @@ from .designer import Design
 from .errors import ScenarioError
 from .report import rate_certificate
 from .scenario_checks import _DESIGN_KEYS, _RUN_KEYS, _SYSTEM_KEYS
+from .scenario_control import plant_keywords
 from .scenario_load import ORIGIN, parse_scenario
 from .scenario_load import load_scenario as _load_scenario
 from .scenario_model import Scenario
@@ -47,8 +51,10 @@ def _readonly(a: Any) -> np.ndarray:
 # --------------------------------------------------------------------------
 
 
-def scenario(*, name: str | None = None, time: str | None = None, A: Any = None, C: Mapping | None = None,
-             x0: Any = None, process_noise: float | None = None, measurement_noise: float | None = None,
+def scenario(*, name: str | None = None, time: str | None = None, plant: Any = None, agents: Mapping | None = None,
+             file: str | None = None, A: Any = None, B: Any = None, u: Any = None, sample: float | None = None,
+             C: Mapping | None = None, x0: Any = None, process_noise: float | None = None,
+             measurement_noise: float | None = None,
              states: Iterable | None = None, outputs: Mapping | None = None, graphs: Mapping | None = None,
              switching: Mapping | None = None, faults: Iterable | None = None, positions: Mapping | None = None,
              network: Mapping | None = None, rate: float | None = None, gains: str | None = None,
@@ -62,15 +68,15 @@ def scenario(*, name: str | None = None, time: str | None = None, A: Any = None,
              **unknown: Any) -> Scenario:
     """A validated scenario from keywords: every scenario-file key, by its own name.
 
-    ``A``, ``C``, ``x0``, ``process_noise``, ``measurement_noise``, ``states`` (n names),
-    ``outputs`` (``{agent id: [names]}``) are the file's ``system.*``;
-    ``rate``, ``gains``, ``K``, ``g``, ``q``, ``q_method``, ... its ``design.*``; ``steps``,
-    ``dt``, ``seed``, ``pace`` its ``run.*`` (``docs/how-to/scenario.md`` lists them all).  Matrices
-    may be numpy arrays or nested lists; ``C`` and ``K`` map agent ids to matrices; a graph
-    is ``{"arcs": [(j, i), ...], "undirected": [...]}`` or just its list of arcs ``[(j, i), ...]``
-    (``j -> i``: agent i hears agent j).  A keyword left at ``None`` is absent from the file,
-    so the file's defaults apply.  The sections ``system=``, ``design=``, ``run=`` may also
-    be given whole, as in the file.
+    ``file`` (relative to the working directory), ``A``, ``B``, ``u``, ``sample``, ``C``, ``x0``, ``process_noise``,
+    ``measurement_noise``, ``states`` (n names), ``outputs`` (``{agent id: [names]}``) are the file's ``system.*``;
+    ``rate``, ``gains``, ``K``, ``g``, ``q``, ``q_method``, ... its ``design.*``; ``steps``, ``dt``, ``seed``,
+    ``pace`` its ``run.*`` (``docs/how-to/scenario.md`` lists them all).  Matrices may be numpy arrays or nested
+    lists; ``C`` and ``K`` map agent ids to matrices; a graph is ``{"arcs": [(j, i), ...], "undirected": [...]}``
+    or its list of arcs ``[(j, i), ...]`` (``j -> i``: agent i hears agent j).  ``plant``: a python-control
+    ``StateSpace`` in place of the system and ``time``, ``agents={id: [its output labels or indices]}``
+    (:mod:`splitspec_core.scenario_control`).  A keyword left at ``None`` is absent from the file, so the file's
+    defaults apply.  The sections ``system=``, ``design=``, ``run=`` may also be given whole, as in the file.
 
     Raises
     ------
@@ -80,6 +86,8 @@ def scenario(*, name: str | None = None, time: str | None = None, A: Any = None,
     """
     given = dict(locals())
     top: dict = {k: v for k, v in unknown.items()}  # the checker names them (and suggests the right key)
+    if plant is not None or agents is not None:
+        plant_keywords(given, plant, agents)
     for key in ("name", "time", "graphs", "switching", "faults", "positions", "network"):
         if given[key] is not None:
             top[key] = given[key]

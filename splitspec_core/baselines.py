@@ -44,8 +44,8 @@ from .errors import DesignError
 from .montecarlo import CHUNK, MonteCarloRuns
 from .network import consensus_rows, make_plan
 from .scenario_model import Scenario
-from .plant_model import (Plant, advanced, initial_estimate, measured, output_rows,  # noqa: F401 - sampled_model:
-                          sampled_model, seed_draws)  # also from here
+from .plant_model import (Plant, advanced, initial_estimate, input_sequence, measured,  # noqa: F401
+                          output_rows, sampled_model, seed_draws)  # sampled_model: also from here
 from .simulator import check_trajectory_memory
 
 __all__ = [
@@ -157,8 +157,10 @@ def kalman_predictor(F: np.ndarray, C: np.ndarray, Q: np.ndarray, R: np.ndarray)
     return KalmanPredictor(L=L, P=P)
 
 
-def run_predictor(F: np.ndarray, C: np.ndarray, L: np.ndarray, ys: np.ndarray, x0: np.ndarray) -> np.ndarray:
-    """Run ``xhat(k+1) = F xhat(k) + L (y(k) - C xhat(k))`` from ``xhat(0) = x0``.
+def run_predictor(F: np.ndarray, C: np.ndarray, L: np.ndarray, ys: np.ndarray, x0: np.ndarray,
+                  gus: np.ndarray | None = None) -> np.ndarray:
+    """Run ``xhat(k+1) = F xhat(k) + L (y(k) - C xhat(k)) [+ G u(k)]`` from ``xhat(0) = x0`` (``gus``: the known
+    inputs' ``G u(k)`` per step, :func:`~splitspec_core.plant_model.input_sequence`).
 
     Parameters
     ----------
@@ -178,6 +180,8 @@ def run_predictor(F: np.ndarray, C: np.ndarray, L: np.ndarray, ys: np.ndarray, x
     A = F - L @ C
     for k, y in enumerate(ys):
         out[k + 1] = A @ out[k] + L @ y
+        if gus is not None:
+            out[k + 1] += gus[k]
     return out
 
 
@@ -321,7 +325,7 @@ class KalmanConsensusFilter:
             self.P[i] = 0.5 * (Pn + Pn.T)
         return xhat @ self.F.T
 
-    def run(self, ys: np.ndarray, X0: np.ndarray, rows: Sequence[slice]) -> np.ndarray:
+    def run(self, ys: np.ndarray, X0: np.ndarray, rows: Sequence[slice], gus: np.ndarray | None = None) -> np.ndarray:
         """Priors of every agent over a run, starting from :meth:`reset`.
 
         Parameters
@@ -346,6 +350,8 @@ class KalmanConsensusFilter:
         out[0] = X
         for k, y in enumerate(ys):
             X = self.step(X, [y[r] for r in rows])
+            if gus is not None:  # every agent's prediction adds the known input, as the plant does
+                X = X + gus[k]
             out[k + 1] = X
         return out
 
@@ -467,8 +473,10 @@ def baseline_trajectories(sc: Scenario, seed: int, *, exchanges: int, steps: int
         plant.advance()
     F, C, Lc, kcf = _filters(sc, exchanges, eps)
     X0 = np.stack([initial_estimate(n, seed, i) for i in range(m)])
-    central = run_predictor(F, C, Lc, ys, X0.mean(axis=0))
-    return {"t": _times(sc, seed, steps), "x": xs, "centralized": central, "kcf": kcf.run(ys, X0, plant.rows)}
+    gus = input_sequence(sc, steps)  # known inputs: the filters add G u(k) as the plant does
+    central = run_predictor(F, C, Lc, ys, X0.mean(axis=0), gus)
+    return {"t": _times(sc, seed, steps), "x": xs, "centralized": central,
+            "kcf": kcf.run(ys, X0, plant.rows, gus)}
 
 
 def baseline_seeds(sc: Scenario, seeds, *, exchanges: int, steps: int | None = None, noise: bool = True,
@@ -477,7 +485,8 @@ def baseline_seeds(sc: Scenario, seeds, *, exchanges: int, steps: int | None = N
 
     Per seed the realisations are :func:`baseline_trajectories`'s bit for bit (:func:`seed_draws`) and the
     estimates its estimates to round-off (:class:`SeedBatchKCF`; the centralized predictor as one ``(n, N)``
-    product per step).  Only squared errors are kept, ``2 N T`` floats; seeds run in chunks of ``chunk``,
+    product per step).  Known inputs (``system.B``) are left out of plant and filters alike: every filter adds the
+    plant's own ``G u(k)``, so the errors do not depend on them.  Only squared errors are kept, ``2 N T`` floats; seeds run in chunks of ``chunk``,
     each holding its noise draws for the whole run.
 
     Returns

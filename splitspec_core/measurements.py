@@ -5,11 +5,14 @@ Files (**contract**), one row per event time (discrete) or per step of ``run.dt`
 NPZ
     ``t`` (T,) strictly increasing; ``y_<id>`` (T, s_i) for every agent id of the scenario (a single output
     may also be (T,)); optional ``x`` (T, n), the truth when the user has it; optional ``missing_<id>``
-    (T,) bool: no measurement of agent ``id`` at that row (the agent then predicts only).
+    (T,) bool: no measurement of agent ``id`` at that row (the agent then predicts only); optional ``u``
+    (T, p): the known inputs at each row (a scenario with ``system.B``, ``p`` its columns).
 CSV
-    a header row ``t, y<id>.<row>, ..., x.<k>, ...`` (``row`` and ``k`` 1-based, any column order), then one
-    row of numbers per event time; an empty ``y`` cell means no measurement of that agent at that row
-    (every cell of the agent's row empty). ``x`` columns are all present or all absent.
+    a header row ``t, y<id>.<row>, ..., x.<k>, ..., u.<k>, ...`` (``row`` and ``k`` 1-based, any column order),
+    then one row of numbers per event time; an empty ``y`` cell means no measurement of that agent at that row
+    (every cell of the agent's row empty). ``x`` columns are all present or all absent, and so are ``u``'s.
+
+A file's ``u`` replaces the scenario's ``system.u`` (the signal); without ``u`` the scenario's signal applies.
 
 Values must be finite (an empty CSV cell is not a value; NaN and infinities are refused), ``t`` strictly
 increasing, at least two rows, every agent's ``y`` present with its ``s_i`` columns.  In continuous time the
@@ -48,7 +51,8 @@ class Measurements:
     """A measurements file, checked against a scenario.
 
     ``y`` (T, sum s_i) stacked in agent order (``C = [C_1; ...; C_m]``, as the plant's ``y``), 0.0 where
-    missing; ``missing`` (T, m) bool; ``x`` (T, n) or None (no truth); ``sha256`` of the file's bytes.
+    missing; ``missing`` (T, m) bool; ``x`` (T, n) or None (no truth); ``sha256`` of the file's bytes;
+    ``u`` (T, p) the known inputs or None (the scenario's ``system.u`` applies).
     """
 
     path: str
@@ -57,6 +61,7 @@ class Measurements:
     missing: np.ndarray
     x: np.ndarray | None
     sha256: str
+    u: np.ndarray | None = None
 
     @property
     def steps(self) -> int:
@@ -113,7 +118,17 @@ def _numeric(path: Path, key: str, a: np.ndarray) -> np.ndarray:
     return a
 
 
-def _from_npz(path: Path, data: bytes, ids, sizes, n) -> tuple:
+def _check_inputs(path: Path, u: np.ndarray | None, p: int, T: int, what: str) -> None:
+    if u is None:
+        return
+    if p == 0:
+        raise _fail(path, f"has {what}, known inputs, and the scenario has no system.B (x+ = A x + B u)")
+    if u.shape != (T, p):
+        raise _fail(path, f"{what} has {u.shape[1] if u.ndim == 2 else u.shape} column(s); system.B has {p} "
+                          f"(one per input): expected ({T}, {p})")
+
+
+def _from_npz(path: Path, data: bytes, ids, sizes, n, p: int = 0) -> tuple:
     arrays = _npz_arrays(path, data)
     if "t" not in arrays:
         raise _fail(path, "has no array t (event times, shape (T,))")
@@ -121,11 +136,11 @@ def _from_npz(path: Path, data: bytes, ids, sizes, n) -> tuple:
     if t.ndim != 1:
         raise _fail(path, f"t has shape {t.shape}; expected (T,)")
     T = len(t)
-    known = {"t", "x"} | {f"y_{i}" for i in ids} | {f"missing_{i}" for i in ids}
+    known = {"t", "x", "u"} | {f"y_{i}" for i in ids} | {f"missing_{i}" for i in ids}
     extra = sorted(set(arrays) - known)
     if extra:
         raise _fail(path, f"has {extra[0]}, which names no agent of the scenario (agents {', '.join(map(str, ids))}; "
-                          "arrays t, y_<id>, missing_<id>, x)")
+                          "arrays t, y_<id>, missing_<id>, x, u)")
     ys, miss = [], np.zeros((T, len(ids)), dtype=bool)
     for k, (i, s) in enumerate(zip(ids, sizes)):
         key = f"y_{i}"
@@ -150,10 +165,16 @@ def _from_npz(path: Path, data: bytes, ids, sizes, n) -> tuple:
         x = _numeric(path, "x", arrays["x"])
         if x.shape != (T, n):
             raise _fail(path, f"x has shape {x.shape}; expected ({T}, {n}) (the truth, n = {n} states)")
-    return t, np.hstack(ys) if ys else np.zeros((T, 0)), miss, x
+    u = None
+    if "u" in arrays:
+        u = _numeric(path, "u", arrays["u"])
+        if u.ndim == 1 and p == 1:
+            u = u[:, None]
+        _check_inputs(path, u, p, T, "u")
+    return t, np.hstack(ys) if ys else np.zeros((T, 0)), miss, x, u
 
 
-def _from_csv(path: Path, data: bytes, ids, sizes, n) -> tuple:
+def _from_csv(path: Path, data: bytes, ids, sizes, n, p: int = 0) -> tuple:
     try:
         text = data.decode("utf-8-sig")
     except UnicodeDecodeError:
@@ -172,10 +193,20 @@ def _from_csv(path: Path, data: bytes, ids, sizes, n) -> tuple:
         raise _fail(path, "header has no column t")
     wanted = {f"y{i}.{r + 1}" for i, s in zip(ids, sizes) for r in range(s)}
     xcols = {f"x.{k + 1}" for k in range(n)}
-    unknown = [h for h in header if h != "t" and h not in wanted and h not in xcols]
+    ucols = [h for h in header if h.startswith("u.")]
+    unknown = [h for h in header if h != "t" and h not in wanted and h not in xcols and h not in ucols]
     if unknown:
         raise _fail(path, f"header column {unknown[0]!r} is not t, y<id>.<row> (agents {', '.join(map(str, ids))}, "
-                          f"rows from 1) or x.<k> (k = 1..{n})")
+                          f"rows from 1), x.<k> (k = 1..{n}) or u.<k> (known inputs)")
+    if ucols:
+        if p == 0:
+            raise _fail(path, f"has column {ucols[0]}, a known input, and the scenario has no system.B "
+                              "(x+ = A x + B u)")
+        expected = [f"u.{k + 1}" for k in range(p)]
+        if set(ucols) != set(expected):
+            extra = sorted(set(ucols) - set(expected)) or sorted(set(expected) - set(ucols))
+            raise _fail(path, f"has u columns {', '.join(sorted(ucols))}; system.B has {p} column(s): expected "
+                              f"{', '.join(expected)} (not {extra[0]})")
     for i, s in zip(ids, sizes):
         for r in range(s):
             if f"y{i}.{r + 1}" not in col:
@@ -190,6 +221,7 @@ def _from_csv(path: Path, data: bytes, ids, sizes, n) -> tuple:
     y = np.zeros((T, sum(sizes)))
     miss = np.zeros((T, len(ids)), dtype=bool)
     x = np.zeros((T, n)) if has_x else None
+    u = np.zeros((T, p)) if ucols else None
     offsets = np.cumsum([0] + list(sizes))
 
     def number(line: int, name: str, cell: str) -> float:
@@ -221,7 +253,10 @@ def _from_csv(path: Path, data: bytes, ids, sizes, n) -> tuple:
         if x is not None:
             for q in range(n):
                 x[r, q] = number(line, f"x.{q + 1}", row[col[f"x.{q + 1}"]])
-    return t, y, miss, x
+        if u is not None:
+            for q in range(p):
+                u[r, q] = number(line, f"u.{q + 1}", row[col[f"u.{q + 1}"]])
+    return t, y, miss, x, u
 
 
 def load_measurements(path, sc, *, steps: int | None = None) -> Measurements:
@@ -237,7 +272,7 @@ def load_measurements(path, sc, *, steps: int | None = None) -> Measurements:
     ids = list(sc.agent_ids)
     sizes = [int(np.shape(C)[0]) for C in sc.system.Cs]
     reader = _from_npz if suffix == ".npz" else _from_csv
-    t, y, miss, x = reader(path, data, ids, sizes, sc.n)
+    t, y, miss, x, u = reader(path, data, ids, sizes, sc.n, sc.system.inputs)
     T = len(t)
     if T < 2:
         raise _fail(path, f"has {T} row(s); at least 2 event times are needed")
@@ -256,11 +291,12 @@ def load_measurements(path, sc, *, steps: int | None = None) -> Measurements:
             raise _fail(path, f"has {T} rows ({T - 1} steps); --steps {steps} asks for more")
         t, y, miss = t[:steps + 1], y[:steps + 1], miss[:steps + 1]
         x = None if x is None else x[:steps + 1]
-    return Measurements(str(path), t, y, miss, x, hashlib.sha256(data).hexdigest())
+        u = None if u is None else u[:steps + 1]
+    return Measurements(str(path), t, y, miss, x, hashlib.sha256(data).hexdigest(), u)
 
 
 def write_measurements(path, *, t: np.ndarray, y: np.ndarray, agent_ids, sizes, x: np.ndarray | None = None,
-                       missing: np.ndarray | None = None) -> None:
+                       missing: np.ndarray | None = None, u: np.ndarray | None = None) -> None:
     """Write a measurements file (``.npz`` or ``.csv`` by suffix) that :func:`load_measurements` reads back exactly.
 
     ``y`` (T, sum s_i) stacked in agent order; CSV numbers are written with 17 significant digits (``repr``),
@@ -278,6 +314,8 @@ def write_measurements(path, *, t: np.ndarray, y: np.ndarray, agent_ids, sizes, 
                 arrays[f"missing_{i}"] = miss[:, k].copy()
         if x is not None:
             arrays["x"] = np.asarray(x, dtype=float)
+        if u is not None:
+            arrays["u"] = np.asarray(u, dtype=float)
         tmp = path.with_name(f".{path.name}.tmp")
         with open(tmp, "wb") as f:
             np.savez(f, **arrays)
@@ -288,6 +326,8 @@ def write_measurements(path, *, t: np.ndarray, y: np.ndarray, agent_ids, sizes, 
     header = ["t"] + [f"y{i}.{r + 1}" for i, s in zip(agent_ids, sizes) for r in range(s)]
     if x is not None:
         header += [f"x.{k + 1}" for k in range(np.shape(x)[1])]
+    if u is not None:
+        header += [f"u.{k + 1}" for k in range(np.shape(u)[1])]
     out = io.StringIO()
     w = csv.writer(out, lineterminator="\n")
     w.writerow(header)
@@ -297,6 +337,8 @@ def write_measurements(path, *, t: np.ndarray, y: np.ndarray, agent_ids, sizes, 
             cells += ["" if miss[r, k] else repr(float(v)) for v in y[r, offsets[k]:offsets[k + 1]]]
         if x is not None:
             cells += [repr(float(v)) for v in x[r]]
+        if u is not None:
+            cells += [repr(float(v)) for v in u[r]]
         w.writerow(cells)
     tmp = path.with_name(f".{path.name}.tmp")
     tmp.write_text(out.getvalue(), encoding="utf-8")

@@ -6,8 +6,9 @@ produce the same numbers for the same scenario and seed:
 
 - ``x(0)`` (n,): :func:`initial_state`, the scenario's ``x0`` or the ``initial_state`` stream;
 - ``x_i(0)`` (n,): :func:`initial_estimate`, agent i's initial estimate (per incarnation);
-- ``x(k+1) = A x(k) + v(k)``, ``y_i(k) = C_i x(k) + w_i(k)``: :class:`Plant` (continuous time: the
-  system sampled with ``dt``, noise of the exact sampled covariance).
+- ``x(k+1) = A x(k) + B u(k) + v(k)``, ``y_i(k) = C_i x(k) + w_i(k)``: :class:`Plant` (continuous time: the
+  system sampled with ``dt``, ``u`` held over the step, noise of the exact sampled covariance); ``u(k)``
+  (:func:`input_of`) is what every agent adds too (:mod:`splitspec_core.inputs`).
 """
 
 from __future__ import annotations
@@ -15,11 +16,48 @@ from __future__ import annotations
 import numpy as np
 
 from . import steps as st
+from .inputs import input_at, input_time
 from .scenario_model import Scenario
 from .streams import stream
 
-__all__ = ["Plant", "advanced", "initial_estimate", "initial_state", "measured", "output_rows", "sampled_model",
-           "seed_draws"]
+__all__ = ["Plant", "advanced", "initial_estimate", "initial_state", "input_matrix", "input_of", "input_period",
+           "input_sequence", "measured",
+           "output_rows", "sampled_model", "seed_draws"]
+
+
+def input_period(sc: Scenario) -> float | None:
+    """Seconds per step for the input signal's time (``run.dt``, or ``system.sample``), None: event times."""
+    return sc.run.dt if sc.time == "continuous" else sc.system.sample
+
+
+def input_matrix(sc: Scenario) -> np.ndarray | None:
+    """``G`` of the plant's step ``x+ = F x + G u``: ``B`` (discrete), ``int_0^dt exp(A s) ds B`` (continuous, ``u``
+    held over the step); None without inputs."""
+    if sc.system.B is None:
+        return None
+    if sc.time == "continuous":
+        _, D, _ = st.sampled_data_matrices(sc.system.A, sc.run.dt)
+        return D @ np.asarray(sc.system.B)
+    return np.array(sc.system.B)
+
+
+def input_sequence(sc: Scenario, steps: int, u: np.ndarray | None = None) -> np.ndarray | None:
+    """``G u(k)`` for ``k = 0 .. steps - 1`` (steps, n): a recorded ``u`` (rows per step) or the scenario's signal;
+    None without inputs.  What the baselines' and the reference's predictions add, as the plant does."""
+    G = input_matrix(sc)
+    if G is None:
+        return None
+    us = np.asarray(u, dtype=float)[:steps] if u is not None else np.array([input_of(sc, k) for k in range(steps)])
+    return us.reshape(steps, -1) @ G.T
+
+
+def input_of(sc: Scenario, k: int) -> np.ndarray | None:
+    """``u(k)`` of the scenario's signal (zero without ``system.u``), None without inputs (no ``system.B``)."""
+    if sc.system.B is None:
+        return None
+    if sc.system.u is None:
+        return np.zeros(sc.system.inputs)
+    return input_at(sc.system.u, input_time(k, input_period(sc)))
 
 
 def output_rows(Cs) -> list:
@@ -46,9 +84,11 @@ def measured(C: np.ndarray, sigma_m: float, x: np.ndarray, w: np.ndarray) -> np.
     return C @ x + sigma_m * w
 
 
-def advanced(F: np.ndarray, L: np.ndarray, x: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """``x+ = F x + L v``: one step of the plant from ``x`` (n,) or a batch of states (n, N)."""
-    return F @ x + L @ v
+def advanced(F: np.ndarray, L: np.ndarray, x: np.ndarray, v: np.ndarray, gu: np.ndarray | None = None) -> np.ndarray:
+    """``x+ = F x + L v [+ G u]``: one step of the plant from ``x`` (n,) or a batch of states (n, N); ``gu`` the
+    known input's ``G u`` (``B u``, or ``D B u`` sampled), None without inputs."""
+    x = F @ x + L @ v
+    return x if gu is None else x + gu
 
 class Plant:
     """The true system and its measurements, drawing noise from the named streams.
@@ -74,9 +114,16 @@ class Plant:
         else:
             self.F = np.array(sc.system.A)
             self.L = sigma_p * np.eye(sc.n)
+        self.G = input_matrix(sc)  # x+ = F x + G u (u held over a continuous step: zero-order hold)
+        self.sc = sc
+        self.k = 0
         self.proc = stream(seed, "process")
         self.meas = stream(seed, "measurement")
         self.x = initial_state(sc, seed)
+
+    def input(self) -> np.ndarray | None:
+        """``u(k)`` at the current step (None: the scenario has no inputs)."""
+        return input_of(self.sc, self.k)
 
     def measure(self) -> np.ndarray:
         """Stacked ``y(k) = (y_1(k), ..., y_m(k))`` (one noise draw of ``sum s_i`` normals)."""
@@ -87,7 +134,10 @@ class Plant:
         return [y[r] for r in self.rows]
 
     def advance(self) -> np.ndarray:
-        self.x = advanced(self.F, self.L, self.x, self.proc.normal(size=self.x.shape[0]))
+        u = self.input()
+        self.x = advanced(self.F, self.L, self.x, self.proc.normal(size=self.x.shape[0]),
+                          None if u is None else self.G @ u)
+        self.k += 1
         return self.x
 
     def missing(self) -> None:
@@ -130,10 +180,17 @@ class RecordedPlant:
     ``measure()`` the stacked ``y`` row, ``missing()`` which agents have no measurement there.
     """
 
-    def __init__(self, meas, n: int):
+    def __init__(self, meas, n: int, sc: Scenario | None = None):
         self.meas = meas
+        self.sc = sc
         self.k = 0
         self._nan = np.full(n, np.nan)
+
+    def input(self) -> np.ndarray | None:
+        """The file's ``u`` row when it has ``u`` columns, else the scenario's signal (None: no inputs)."""
+        if getattr(self.meas, "u", None) is not None:
+            return self.meas.u[self.k]
+        return None if self.sc is None else input_of(self.sc, self.k)
 
     @property
     def x(self) -> np.ndarray:

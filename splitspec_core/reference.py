@@ -25,7 +25,7 @@ from __future__ import annotations
 import numpy as np
 
 from .baselines import regularise, sampled_model
-from .plant_model import output_rows
+from .plant_model import input_sequence, output_rows
 
 __all__ = ["no_truth_arrays", "residuals", "disagreement", "kalman_reference"]
 
@@ -58,9 +58,11 @@ def disagreement(xhat: np.ndarray) -> np.ndarray:
     return out
 
 
-def kalman_reference(sc, y: np.ndarray, missing: np.ndarray) -> np.ndarray:
-    """The centralized time-varying Kalman predictor on ``y`` (module docstring), (T, n)."""
+def kalman_reference(sc, y: np.ndarray, missing: np.ndarray, u: np.ndarray | None = None) -> np.ndarray:
+    """The centralized time-varying Kalman predictor on ``y`` (module docstring), (T, n); with known inputs it adds
+    ``G u(k)`` (``u``: the recorded inputs per row, else the scenario's signal)."""
     F, Q, R = sampled_model(sc)
+    gus = input_sequence(sc, len(y), u)
     Q = regularise(Q)
     R = regularise(R)
     C = np.vstack([np.asarray(c) for c in sc.system.Cs])
@@ -85,16 +87,19 @@ def kalman_reference(sc, y: np.ndarray, missing: np.ndarray) -> np.ndarray:
         else:
             x = F @ x
             P = F @ P @ F.T + Q
+        if gus is not None:
+            x = x + gus[k]
         P = 0.5 * (P + P.T)
     return out
 
 
-def no_truth_arrays(traj, sc) -> dict:
-    """``residual``, ``disagreement``, ``kf`` and ``kf_distance`` of a trajectory that holds its measurements."""
+def no_truth_arrays(traj, sc, u: np.ndarray | None = None) -> dict:
+    """``residual``, ``disagreement``, ``kf`` and ``kf_distance`` of a trajectory that holds its measurements
+    (``u``: a measurements file's inputs, else the scenario's signal applies)."""
     if traj.y is None:
         raise ValueError("no_truth_arrays needs the measurements the estimators were given (trajectory y)")
     missing = traj.y_missing if traj.y_missing is not None else np.zeros(traj.alive.shape, dtype=bool)
-    kf = kalman_reference(sc, traj.y, missing)
+    kf = kalman_reference(sc, traj.y, missing, u)
     return {"residual": residuals(traj.xhat, traj.y, missing, sc.system.Cs),
             "disagreement": disagreement(traj.xhat),
             "kf": kf,

@@ -234,6 +234,10 @@ def design_json(des: Design) -> dict:
         "n": sc.n,
         "states": list(sc.state_names),
         "outputs": {str(i): list(sc.output_names(i)) for i in sc.agent_ids},
+        # a sampled continuous model (system.sample, seconds; null otherwise) and the rate per second it means
+        "sample": sc.system.sample,
+        "continuous_rate": _num(continuous_rate(sc)),
+        "inputs": sc.system.inputs,
         "gains": sc.design.gains,
         "agents": [
             {
@@ -312,6 +316,29 @@ def design_json(des: Design) -> dict:
     return out
 
 
+def continuous_rate(sc) -> float | None:
+    """A sampled continuous model's (``system.sample``) rate per second: ``lam^tau`` per step is
+    ``exp(-a t)`` with ``a = -ln(lam) / dt``; None for other scenarios."""
+    if sc.system.sample is None:
+        return None
+    return -math.log(sc.design.rate) / sc.system.sample
+
+
+def model_lines(sc) -> list:
+    """The report's lines on a sampled model and on known inputs (none for a plain model)."""
+    out = []
+    if sc.system.sample is not None:
+        a = continuous_rate(sc)
+        out.append(f"  sampled: the continuous model with system.sample = {sc.system.sample:g} s (zero-order hold); "
+                   f"lam = {sc.design.rate:g} per step is lam^(1/dt) = {sc.design.rate ** (1 / sc.system.sample):.4g} "
+                   f"per second, errors decaying as exp(-{a:.4g} t)")
+    if sc.system.B is not None:
+        what = "system.u" if sc.system.u is not None else "zero, or a measurements file's u columns"
+        out.append(f"  known inputs: {sc.system.inputs} (system.B; u: {what}); every agent adds B u as the plant "
+                   "does, so they cancel from the errors and the certificate is the one without them")
+    return out
+
+
 def design_text(des: Design) -> str:
     """A readable multi-line report of a design."""
     sc = des.scenario
@@ -322,6 +349,9 @@ def design_text(des: Design) -> str:
         f"splitspec design: {sc.name}  ({sc.time} time, m = {sc.m} agents, n = {sc.n} states)",
         (f"  rate lam = {d.rate:g} for the local gains only; adaptive g: {NO_CERTIFIED_RATE}; gains: {d.gains}"
          if adaptive else f"  rate lam = {d.rate:g}  (errors decay as {unit}); gains: {d.gains}"),
+    ]
+    lines += model_lines(sc)
+    lines += [
         "",
         "agents  (n_i = dim of the unobservable space V_i; poles of Abar_i + Kbar_i Cbar_i; the smallest",
         "         observability margin counted as seen, and ||K_i||)",

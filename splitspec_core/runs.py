@@ -34,6 +34,7 @@ import yaml
 
 from .errors import ScenarioError, SplitspecError
 from .scenario_checks import plain
+from .scenario_files import resolve_model_file
 from .scenario_load import ORIGIN, load_scenario, load_yaml
 from .scenario_model import Scenario
 from .simulator import Trajectory
@@ -112,16 +113,17 @@ def load_run(out: str | Path) -> RunRecord:
 
 
 def _mapping(sc: Scenario | str | Path) -> dict:
+    # system.file's arrays written in: the processes read the scenario from a temporary folder
     if isinstance(sc, (str, Path)):
         load_scenario(sc)  # the file's own checks first: a missing or bad file is one line
-        return load_yaml(Path(sc).read_text(encoding="utf-8"), source=str(sc))
+        return resolve_model_file(load_yaml(Path(sc).read_text(encoding="utf-8"), source=str(sc)), Path(sc).parent)
     origin = getattr(sc, ORIGIN, None)
     if origin is None:
         raise ScenarioError("this Scenario was not made by ss.scenario or ss.load_scenario (e.g. it was changed "
                             "with dataclasses.replace): give ss.run the keywords or the file instead")
     if isinstance(origin, Path):
-        return load_yaml(origin.read_text(encoding="utf-8"), source=str(origin))
-    return origin
+        return resolve_model_file(load_yaml(origin.read_text(encoding="utf-8"), source=str(origin)), origin.parent)
+    return resolve_model_file(origin, None)
 
 
 def run(sc: Scenario | str | Path, *, out: str | Path, faults: Iterable | None = None, secure: bool = True,

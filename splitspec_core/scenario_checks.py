@@ -26,7 +26,8 @@ _TOP_KEYS = ("name", "time", "system", "graphs", "switching", "design", "faults"
 _NETWORK_KEYS = ("loss", "delay", "deadline", "arcs")
 _DELAY_KEYS = ("mean", "jitter")
 _NETWORK_ARC_KEYS = ("arc", "loss", "delay")
-_SYSTEM_KEYS = ("A", "C", "x0", "process_noise", "measurement_noise", "states", "outputs")
+_SYSTEM_KEYS = ("file", "A", "B", "u", "sample", "C", "x0", "process_noise", "measurement_noise", "states",
+                "outputs")
 _GRAPH_KEYS = ("arcs", "undirected")
 _SWITCHING_KEYS = ("schedule", "period", "random")
 _RANDOM_KEYS = ("graphs", "dwell", "seed")
@@ -189,6 +190,9 @@ def _matrix(value: Any, key: str, *, vector: bool = False) -> np.ndarray:
     """Convert a YAML nested list into a finite float array, naming ``key`` on failure."""
     if value is None:
         raise ScenarioError(f"{key} is missing")
+    if isinstance(value, str) and key.startswith("system."):
+        raise ScenarioError(f"{key} is the name {_short(repr(value))}, and system.file is not given: name a .npz or "
+                            ".mat file there to take arrays from, or write the matrix as a list of rows")
     if vector:
         if not isinstance(value, list) or not value:
             raise ScenarioError(f"{key} must be a non-empty list of numbers, got {_describe(value)}")

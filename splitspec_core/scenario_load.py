@@ -27,12 +27,13 @@ from typing import Any
 import yaml
 
 from .errors import ScenarioError
-from .scenario_checks import MAX_FILE_BYTES
+from .scenario_checks import MAX_FILE_BYTES, plain
+from .scenario_files import resolve_model_file
 from .scenario_model import Scenario
 from .scenario_sections import parse_scenario
 
 __all__ = ["load_scenario", "load_yaml", "parse_scenario", "parse_scenario_text", "read_scenario_text",
-           "yaml_loader", "MAX_FILE_BYTES"]
+           "resolved_scenario_text", "yaml_loader", "MAX_FILE_BYTES"]
 
 #: how :func:`splitspec_core.scenario` / :func:`splitspec_core.load_scenario` remember where a scenario came
 #: from (its mapping, or its file), so that :func:`splitspec_core.run` can hand it to the processes as YAML
@@ -125,6 +126,16 @@ def read_scenario_text(path: str | Path) -> str:
             from None
 
 
+def resolved_scenario_text(path: Path, text: str) -> str:
+    """The text the processes of a run receive: ``text`` itself, or, when it names a ``system.file``, the
+    scenario with that file's arrays written in (floats as ``repr``: the same numbers, bit for bit;
+    :mod:`splitspec_core.scenario_files`)."""
+    data = load_yaml(text, source=str(path))
+    if not isinstance(data, dict) or not isinstance(data.get("system"), dict) or "file" not in data["system"]:
+        return text
+    return yaml.safe_dump(plain(resolve_model_file(data, Path(path).parent)), sort_keys=False)
+
+
 def load_scenario(path: str | Path) -> Scenario:
     """Read and validate a YAML scenario file.
 
@@ -142,4 +153,4 @@ def load_scenario(path: str | Path) -> Scenario:
     data = load_yaml(text, source=str(p))
     if data is None:
         raise ScenarioError(f"scenario file {p} is empty")
-    return parse_scenario(data, source=str(p))
+    return parse_scenario(data, source=str(p), base=p.parent)

@@ -68,6 +68,13 @@ class System:
         The states' names (``system.states``); None: ``x1 .. xn``.
     outputs : dict or None
         Agent id -> the names of its outputs (``system.outputs``); an agent not in it has ``y<i>``, ``y<i>_k``.
+    B : (n, p) array or None
+        The known inputs' matrix (``system.B``: ``x+ = A x + B u``); sampled with ``A`` when ``sample`` is set.
+    u : :class:`~splitspec_core.inputs.InputSignal` or None
+        The input signal (``system.u``); None: zero (or a measurements file's ``u`` columns).
+    sample : float or None
+        ``system.sample``: the period a continuous model given as ``A``, ``B`` was sampled with (zero-order hold);
+        ``A`` and ``B`` here are then the sampled ones, ``A_continuous`` the model as given.
     """
 
     A: np.ndarray
@@ -77,6 +84,15 @@ class System:
     measurement_noise: float = 0.0
     states: tuple | None = None
     outputs: dict | None = None
+    B: np.ndarray | None = None
+    u: Any = None
+    sample: float | None = None
+    A_continuous: np.ndarray | None = None
+
+    @property
+    def inputs(self) -> int:
+        """The number of known inputs (columns of ``B``; 0 without ``B``)."""
+        return 0 if self.B is None else int(self.B.shape[1])
 
     @property
     def n(self) -> int:

@@ -17,15 +17,19 @@ from .scenario_checks import (_DESIGN_KEYS, _GRAPH_KEYS, _RANDOM_KEYS, _RICCATI_
                               MIN_RICCATI_WEIGHT, MIN_SWITCH_STEPS, Q_METHODS, WEIGHTINGS, _agent_id, _arc,
                               _check_keys, _describe, _ids_text, _integer, _known_agent, _matrix, _names, _number,
                               _require_map, _seed, check_shapes, plain)
+from .inputs import parse_inputs
+from .scenario_files import resolve_model_file
 from .scenario_model import DesignSpec, Fault, GraphSpec, RunSpec, Scenario, Switching, System
 from .scenario_network import check_heals, parse_groups, parse_network
 from .scenario_sources import parse_sources
 
-def _parse_system(raw: Any) -> tuple[System, tuple]:
+def _parse_system(raw: Any, time: str = "discrete") -> tuple[System, tuple]:
     sysmap = _require_map(raw, "system")
     _check_keys(sysmap, _SYSTEM_KEYS, "system")
     A = _matrix(sysmap.get("A"), "system.A")
     check_shapes(A, {})
+    A_given = A
+    A, B, u, sample = parse_inputs(sysmap, A, time)  # system.B, system.u, system.sample
     craw = sysmap.get("C")
     if craw is None:
         raise ScenarioError("system.C is missing (one output matrix per agent, keyed by agent id)")
@@ -63,7 +67,8 @@ def _parse_system(raw: Any) -> tuple[System, tuple]:
             aid = _known_agent(k, "system.outputs", ids)
             s_i = entries[aid].shape[0]
             outputs[aid] = _names(v, f"system.outputs.{aid}", s_i, f"one per row of system.C.{aid}")
-    system = System(A=A, Cs=tuple(entries[i] for i in ids), x0=x0, states=states, outputs=outputs, **noises)
+    system = System(A=A, Cs=tuple(entries[i] for i in ids), x0=x0, states=states, outputs=outputs, B=B, u=u,
+                    sample=sample, A_continuous=A_given if sample is not None else None, **noises)
     return system, ids
 
 
@@ -321,8 +326,11 @@ def _parse_run(raw: Any, time: str) -> RunSpec:
     return RunSpec(steps=steps, dt=dt, seed=seed, pace=pace)
 
 
-def parse_scenario(data: Any, *, source: str = "<scenario>") -> Scenario:
+def parse_scenario(data: Any, *, source: str = "<scenario>", base: Path | None = None) -> Scenario:
     """Validate a scenario given as a parsed mapping (e.g. from YAML or JSON).
+
+    ``base``: the folder a relative ``system.file`` is read from (None: the working directory;
+    :mod:`splitspec_core.scenario_files`).
 
     Raises
     ------
@@ -331,7 +339,7 @@ def parse_scenario(data: Any, *, source: str = "<scenario>") -> Scenario:
     """
     if data is None:
         raise ScenarioError(f"{source} is empty")
-    data = plain(data)
+    data = plain(resolve_model_file(data, base))
     top = _require_map(data, "the scenario")
     _check_keys(top, _TOP_KEYS, "")
     name = str(top.get("name", Path(source).stem))
@@ -340,7 +348,7 @@ def parse_scenario(data: Any, *, source: str = "<scenario>") -> Scenario:
         raise ScenarioError(f"time must be discrete or continuous, got {_describe(time)}")
     if "system" not in top:
         raise ScenarioError("system is missing (A and one C_i per agent)")
-    system, ids = _parse_system(top["system"])
+    system, ids = _parse_system(top["system"], time)
     graphs = _parse_graphs(top.get("graphs"), ids)
     names = tuple(g.name for g in graphs)
     switching = _parse_switching(top.get("switching"), names, time)
@@ -353,6 +361,9 @@ def parse_scenario(data: Any, *, source: str = "<scenario>") -> Scenario:
     positions = _parse_positions(top.get("positions"), ids)
     network = parse_network(top.get("network"), ids, graphs)
     sources = parse_sources(top.get("sources"), ids, run.pace)
+    if sources and system.B is not None:
+        raise ScenarioError("system.B (known inputs) with live sensors (sources:): the agents would not know u; "
+                            "give the inputs with recorded measurements (u columns) or leave system.B out")
     return Scenario(
         name=name, time=time, agent_ids=ids, system=system, graphs=graphs,
         switching=switching, design=design, faults=faults, run=run, source=source, positions=positions,

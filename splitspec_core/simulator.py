@@ -301,8 +301,9 @@ class BatchEstimator(_EstimatorBase):
         G = (self.VT @ sp.kron(W, sp.identity(self.n), format="csr")).tocsr()
         return (G @ self.Vbig).tocsr(), G
 
-    def step(self, X: np.ndarray, y: np.ndarray, W, alive: np.ndarray, missing=None) -> np.ndarray:
-        """One step; ``missing`` (m,) bool: agents without a measurement this step (prediction only)."""
+    def step(self, X: np.ndarray, y: np.ndarray, W, alive: np.ndarray, missing=None, bu=None) -> np.ndarray:
+        """One step; ``missing`` (m,) bool: agents without a measurement this step (prediction only); ``bu`` (n,):
+        the known input's ``B u`` every agent adds (steps.measurement_update), None without inputs."""
         Y = np.zeros((self.m, self.Kp.shape[2]))
         Y[self._yidx] = y
         if self.continuous:
@@ -311,6 +312,8 @@ class BatchEstimator(_EstimatorBase):
             if missing is not None and missing.any():
                 innov[missing] = 0.0  # steps.sampled_step with y_i None
             corr = innov - self.g[:, None] * _bmv(self.Pst, diff)
+            if bu is not None:
+                corr = corr + bu  # steps.sampled_step: B u(k) held over the step
             Xn = X @ self.E.T + corr @ self.D.T
             if self.adaptive:
                 # eq. (adaptive): |V_i'(avg_i - x_i)|^2 = diff' R_i R_i' diff (diff' P_i diff for orthogonal P_i)
@@ -325,16 +328,17 @@ class BatchEstimator(_EstimatorBase):
                 # eq. split-discrete-p2 in V coordinates: w_i <- V_i' sum_j w_ij z_j
                 w = c + _spmv(B, w)
             Z = U + _spmv(self.Vbig, w).reshape(self.m, self.n)
-            Xn = self._update(Z, Y, missing)
+            Xn = self._update(Z, Y, missing, bu)
         Xn[~alive] = 0.0
         return Xn
 
-    def _update(self, Z: np.ndarray, Y: np.ndarray, missing) -> np.ndarray:
-        """Eq. split-discrete-est1; an agent without a measurement predicts, ``A z_i(q)`` (steps.prediction_update)."""
+    def _update(self, Z: np.ndarray, Y: np.ndarray, missing, bu=None) -> np.ndarray:
+        """Eq. split-discrete-est1; an agent without a measurement predicts, ``A z_i(q)`` (steps.prediction_update);
+        both add the known input's ``B u`` when there is one."""
         Xn = _bmv(self.Fst, Z) - _bmv(self.Kp, Y)
         if missing is not None and missing.any():
             Xn[missing] = Z[missing] @ self.A.T
-        return Xn
+        return Xn if bu is None else Xn + bu
 
 
     def realized(self, rows: dict, entries: tuple, counts: list) -> list:
@@ -361,17 +365,18 @@ class BatchEstimator(_EstimatorBase):
             out.append(_RealizedS(self.m, rk, ci[keep], wk))
         return out
 
-    def step_realized(self, X: np.ndarray, y: np.ndarray, Ws: list, alive: np.ndarray, missing=None) -> np.ndarray:
+    def step_realized(self, X: np.ndarray, y: np.ndarray, Ws: list, alive: np.ndarray, missing=None,
+                      bu=None) -> np.ndarray:
         """One step with a realized consensus matrix per exchange (``Ws``: q sparse ``S_k``, or one in continuous
         time): eq. (split-discrete-p2) as ``z <- z + P_i (S_k z - z)_i``, then eq. (split-discrete-est1)."""
         Y = np.zeros((self.m, self.Kp.shape[2]))
         Y[self._yidx] = y
         if self.continuous:
-            return self.step(X, y, Ws[0], alive, missing)
+            return self.step(X, y, Ws[0], alive, missing, bu)
         Z = X.copy()
         for Wk in Ws:
             Z = Z + _bmv(self.Pst, Wk @ Z - Z)
-        Xn = self._update(Z, Y, missing)
+        Xn = self._update(Z, Y, missing, bu)
         Xn[~alive] = 0.0
         return Xn
 
@@ -390,10 +395,11 @@ class AgentLoopEstimator(_EstimatorBase):
         """Each agent's ``y_i``, None where it has no measurement this step."""
         return [None if missing is not None and missing[k] else y[r] for k, r in enumerate(self.rows)]
 
-    def _update(self, i: int, z: np.ndarray, y_i) -> np.ndarray:
-        return st.prediction_update(z, self.A) if y_i is None else st.measurement_update(z, self.F[i], self.Ks[i], y_i)
+    def _update(self, i: int, z: np.ndarray, y_i, bu=None) -> np.ndarray:
+        return (st.prediction_update(z, self.A, bu) if y_i is None
+                else st.measurement_update(z, self.F[i], self.Ks[i], y_i, bu))
 
-    def step(self, X: np.ndarray, y: np.ndarray, rows: dict, alive: np.ndarray, missing=None) -> np.ndarray:
+    def step(self, X: np.ndarray, y: np.ndarray, rows: dict, alive: np.ndarray, missing=None, bu=None) -> np.ndarray:
         pos = {a: k for k, a in enumerate(self.sc.agent_ids)}
         ys = self._ys(y, missing)
         Xn = np.zeros_like(X)
@@ -403,7 +409,7 @@ class AgentLoopEstimator(_EstimatorBase):
                 i = pos[i_id]
                 states = [X[pos[j]] for j in nbs]
                 Xn[i] = st.sampled_step(X[i], self.E, self.D, self.Ks[i], self.Cs[i], ys[i], self.Ps[i],
-                                        self.g[i], states, ws)
+                                        self.g[i], states, ws, bu)
                 if self.adaptive:
                     g_next[i] = st.adaptive_gain_step(self.g[i], st.adaptive_gain_rate(self.Vs[i], X[i], states, ws),
                                                       self.dt)
@@ -418,7 +424,7 @@ class AgentLoopEstimator(_EstimatorBase):
             Z = Zn
         for i_id in rows:
             i = pos[i_id]
-            Xn[i] = self._update(i, Z[i], ys[i])
+            Xn[i] = self._update(i, Z[i], ys[i], bu)
         return Xn
 
     def realized(self, rows: dict, entries: tuple, counts: list) -> list:
@@ -435,11 +441,12 @@ class AgentLoopEstimator(_EstimatorBase):
                         for i, (nbs, ws) in rows.items()})
         return out
 
-    def step_realized(self, X: np.ndarray, y: np.ndarray, Ws: list, alive: np.ndarray, missing=None) -> np.ndarray:
+    def step_realized(self, X: np.ndarray, y: np.ndarray, Ws: list, alive: np.ndarray, missing=None,
+                      bu=None) -> np.ndarray:
         """One step with each exchange's realized rows (``Ws``: per exchange, ``{i: (nbs, ws)}``), exactly as the
         agent processes compute it (:func:`splitspec_core.impairment.realized_row`)."""
         if self.continuous:
-            return self.step(X, y, Ws[0], alive, missing)
+            return self.step(X, y, Ws[0], alive, missing, bu)
         pos = {a: k for k, a in enumerate(self.sc.agent_ids)}
         ys = self._ys(y, missing)
         Xn = np.zeros_like(X)
@@ -452,7 +459,7 @@ class AgentLoopEstimator(_EstimatorBase):
             Z = Zn
         for i_id in Ws[0]:
             i = pos[i_id]
-            Xn[i] = self._update(i, Z[i], ys[i])
+            Xn[i] = self._update(i, Z[i], ys[i], bu)
         return Xn
 
 
@@ -523,7 +530,8 @@ def simulate(des: Design, *, seed: int | None = None, steps: int | None = None, 
     check_trajectory_memory(sc, plan.steps if plan is not None else steps)
     plan = plan or make_plan(sc, seed, steps)
     est = BatchEstimator(des) if estimator == "batch" else AgentLoopEstimator(des)
-    plant = Plant(sc, seed, noise=noise) if measurements is None else RecordedPlant(measurements, sc.n)
+    plant = Plant(sc, seed, noise=noise) if measurements is None else RecordedPlant(measurements, sc.n, sc)
+    B = None if sc.system.B is None else np.asarray(sc.system.B)
     m, n, T = sc.m, sc.n, plan.steps + 1
     ids = sc.agent_ids
     X = np.stack([initial_estimate(n, seed, i) for i in range(m)])
@@ -568,7 +576,10 @@ def simulate(des: Design, *, seed: int | None = None, steps: int | None = None, 
             rows = net.rows(sc, key[0])
             W = w_cache[key] = (est.weights(rows), rows, _entries(sc, rows))
         Ws = _realized_step(est, sc, W, k, exchanges, imp, replay, net.groups, lost_rows) if impaired else None
-        X = est.step(X, y, W[0], alive, missing) if Ws is None else est.step_realized(X, y, Ws, alive, missing)
+        u = plant.input()
+        bu = None if u is None else B @ u  # the known input every agent adds (as the agent process: B @ u)
+        X = (est.step(X, y, W[0], alive, missing, bu) if Ws is None
+             else est.step_realized(X, y, Ws, alive, missing, bu))
         plant.advance()
         bar.update(k + 1)
     lost_a, cause_a = lost_arrays(lost_rows)

@@ -7,7 +7,9 @@ Discrete two-rate estimator (eqs. split-discrete-est1 .. p3)
 (``w_ij = 1/m_i`` for uniform weights, or the Metropolis weights);
 ``x_i(tau+1) = (A + K_i C_i) z_i(q) - K_i y_i(tau)``, or, when agent i has no measurement at
 ``tau`` (a live sensor silent or stale, a recorded gap), the prediction ``x_i(tau+1) = A z_i(q)``
-(the same update with the innovation ``C_i z_i(q) - y_i`` taken as zero).
+(the same update with the innovation ``C_i z_i(q) - y_i`` taken as zero).  With known inputs
+(``x(tau+1) = A x(tau) + B u(tau)``, :mod:`splitspec_core.inputs`) every update adds the same ``B u(tau)``
+(``bu``) as the plant, so the error recursion, and every certificate, is unchanged.
 
 Continuous time, sampled-data form (one exchange per ``dt``)
 -----------------------------------------------------------
@@ -15,7 +17,7 @@ The estimator of eq. (split_continuous_observer) is sampled with period
 ``dt``: the model part is propagated exactly, the correction terms are held
 over the step (first order):
 
-``x_i(k+1) = E x_i(k) + D [K_i (C_i x_i(k) - y_i(k)) - g_i P_i (x_i(k) - sum_j w_ij x_j(k))]``
+``x_i(k+1) = E x_i(k) + D [K_i (C_i x_i(k) - y_i(k)) - g_i P_i (x_i(k) - sum_j w_ij x_j(k)) + B u(k)]``
 
 with ``E = exp(A dt)`` and ``D = int_0^dt exp(A s) ds``.  If every estimate is
 exact (``x_j = x``, ``y_i = C_i x``) the update is exactly the plant's
@@ -67,14 +69,19 @@ def consensus_subround(z_i: np.ndarray, P_i: np.ndarray, neighbour_states: Seque
     return z_i + P_i @ (avg - z_i)
 
 
-def measurement_update(z_q: np.ndarray, F_i: np.ndarray, K_i: np.ndarray, y_i: np.ndarray) -> np.ndarray:
-    """Eq. (split-discrete-est1): ``x_i(tau+1) = (A + K_i C_i) z_i(q) - K_i y_i(tau)``, ``F_i = A + K_i C_i``."""
-    return F_i @ z_q - K_i @ y_i
+def measurement_update(z_q: np.ndarray, F_i: np.ndarray, K_i: np.ndarray, y_i: np.ndarray,
+                       bu: np.ndarray | None = None) -> np.ndarray:
+    """Eq. (split-discrete-est1): ``x_i(tau+1) = (A + K_i C_i) z_i(q) - K_i y_i(tau) [+ B u(tau)]``,
+    ``F_i = A + K_i C_i``; ``bu`` the known input's ``B u(tau)`` (None: no inputs)."""
+    x = F_i @ z_q - K_i @ y_i
+    return x if bu is None else x + bu
 
 
-def prediction_update(z_q: np.ndarray, A: np.ndarray) -> np.ndarray:
-    """No measurement at ``tau``: ``x_i(tau+1) = A z_i(q)`` (eq. split-discrete-est1 without its innovation)."""
-    return A @ z_q
+def prediction_update(z_q: np.ndarray, A: np.ndarray, bu: np.ndarray | None = None) -> np.ndarray:
+    """No measurement at ``tau``: ``x_i(tau+1) = A z_i(q) [+ B u(tau)]`` (eq. split-discrete-est1 without its
+    innovation)."""
+    x = A @ z_q
+    return x if bu is None else x + bu
 
 
 def sampled_data_matrices(A: np.ndarray, dt: float, *, noise_intensity: float = 0.0) -> tuple:
@@ -103,13 +110,16 @@ def sampled_data_matrices(A: np.ndarray, dt: float, *, noise_intensity: float = 
 
 def sampled_step(x_i: np.ndarray, E: np.ndarray, D: np.ndarray, K_i: np.ndarray, C_i: np.ndarray,
                  y_i: np.ndarray | None, P_i: np.ndarray, g_i: float, neighbour_states: Sequence[np.ndarray],
-                 weights: Sequence[float]) -> np.ndarray:
+                 weights: Sequence[float], bu: np.ndarray | None = None) -> np.ndarray:
     """One sampled-data step of eq. (split_continuous_observer) (see the module docstring); ``y_i`` None: no
-    measurement this step, the innovation term ``K_i (C_i x_i - y_i)`` is left out (prediction and consensus)."""
+    measurement this step, the innovation term ``K_i (C_i x_i - y_i)`` is left out (prediction and consensus);
+    ``bu``: the known input's ``B u(k)``, held over the step (None: no inputs)."""
     avg = weighted_average(neighbour_states, weights)
     corr = -g_i * (P_i @ (x_i - avg))
     if y_i is not None:
         corr = K_i @ (C_i @ x_i - y_i) + corr
+    if bu is not None:
+        corr = corr + bu
     return E @ x_i + D @ corr
 
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import os
 import sys
 from pathlib import Path
 
@@ -82,6 +83,10 @@ def _tune(args: argparse.Namespace, sc) -> int:
         else:
             dd.pop("riccati", None)
         raw["name"] = f"{sc.name}-tuned"
+        model = (raw.get("system") or {}).get("file") if isinstance(raw.get("system"), dict) else None
+        if isinstance(model, str) and not Path(model).expanduser().is_absolute():  # still found from the new file
+            target = Path(args.write).resolve().parent
+            raw["system"]["file"] = os.path.relpath(Path(args.scenario).resolve().parent / model, target)
         try:
             Path(args.write).write_text(f"# {sc.name} tuned for noise by `splitspec design --tune rms`\n"
                                         + yaml.safe_dump(raw, sort_keys=False), encoding="utf-8")
@@ -253,9 +258,11 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     clean = ss.simulate(d, seed=seed, steps=args.steps, noise=False, lost=lost) if noisy and not args.exact else traj
     if args.write_measurements:
         from splitspec_core.measurements import write_measurements
+        from splitspec_core.plant_model import input_of
 
+        u = None if sc.system.B is None else np.array([input_of(sc, k) for k in range(len(traj.t))])
         write_measurements(args.write_measurements, t=traj.t, y=traj.y, agent_ids=sc.agent_ids,
-                           sizes=[np.shape(C)[0] for C in sc.system.Cs], x=traj.x)
+                           sizes=[np.shape(C)[0] for C in sc.system.Cs], x=traj.x, u=u)
         traj = dataclasses.replace(traj, y=None, y_missing=None)  # the file holds them; trajectory.npz as always
     traj.save(out / "trajectory.npz")
     adaptive = d.g_mode == "adaptive"
@@ -302,7 +309,7 @@ def _simulate_measured(args: argparse.Namespace, sc, d, traj, meas, out) -> int:
     from splitspec_core.analysis import event_marks, summarize
     from splitspec_core.reference import no_truth_arrays
 
-    ref = no_truth_arrays(traj, sc)
+    ref = no_truth_arrays(traj, sc, meas.u)
     traj.save(out / "trajectory.npz", extra=ref)
     summary = {"scenario": sc.name, "time": sc.time, "q": d.q, "g": d.g, "measurements": meas.path,
                "sha256": meas.sha256, "truth": meas.has_truth, "steps": int(traj.t.size - 1),

@@ -1,0 +1,51 @@
+"""A model from a file, with known inputs, run as real processes over Zenoh: run == simulate with a nonzero ``u``.
+
+The scenario names its arrays in a ``.npz`` beside it (``system.file``), the plant broadcasts ``u(tau)`` with the
+measurements and every agent adds ``B u`` (:mod:`splitspec_core.inputs`); an agent killed and restarted on the way.
+The processes receive the scenario with the file's arrays written in, so ``scenario.yaml`` in the records stands on
+its own and replays the run.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import yaml
+
+from tests.integration.runtime_helpers import compare_with_simulate, replay, run
+
+pytestmark = pytest.mark.slow
+
+A = [[0, 1, 0, 0], [-1, -0.1, 0, 0], [0, 0, 0, 1], [0, 0, -4, -0.2]]
+
+
+@pytest.mark.parametrize("time", ["continuous", "sampled"])
+def test_a_run_with_known_inputs_from_a_model_file_is_the_simulation(tmp_path, time):
+    folder = tmp_path / "case"
+    folder.mkdir()
+    np.savez(folder / "plant.npz", A=np.array(A), B=np.array([[0, 1], [1, 0], [0, 0], [1, 0]]),
+             C1=np.array([[1.0, 0, 0, 0]]), C2=np.array([[0, 1.0, 0, 0]]), C3=np.array([[0, 0, 1.0, 0]]),
+             names=np.array(["th1", "om1", "th2", "om2"]))
+    system = {"file": "plant.npz", "A": "A", "B": "B", "C": {1: "C1", 2: "C2", 3: "C3"}, "states": "names",
+              "u": {"constant": [0.5, 0.0], "steps": [[1.0, [2.0, -1.0]]],
+                    "sine": [{"amplitude": [0.0, 1.5], "period": 1.3}]}}
+    data = {"name": f"inputs-{time}", "time": "continuous" if time == "continuous" else "discrete",
+            "system": system, "graphs": {"ring": {"undirected": [[1, 2], [2, 3], [3, 1]]}},
+            "design": {"rate": 0.5 if time == "continuous" else 0.9},
+            "faults": [{"at": 1.0 if time == "continuous" else 10, "kill": 2},
+                       {"at": 1.5 if time == "continuous" else 15, "restart": 2}],
+            "run": {"steps": 40, "seed": 9, **({"dt": 0.05} if time == "continuous" else {})}}
+    if time == "sampled":
+        system["sample"] = 0.1
+    path = folder / "scenario.yaml"
+    path.write_text(yaml.safe_dump(data, sort_keys=False))
+    out = tmp_path / "run"
+    r = run("run", path, "--out", out, timeout=240)
+    assert r.returncode == 0, r.stderr[-3000:]
+    # the agents' own processes against the simulator: the estimates are O(10), round-off ~1e-15 of them
+    compare_with_simulate(out, path, tmp_path, 1e-9)
+    x = np.load(out / "trajectory.npz")["x"]
+    assert np.abs(x).max() > 1.0  # the inputs moved the plant
+    saved = yaml.safe_load((out / "scenario.yaml").read_text())
+    assert "file" not in saved["system"] and len(saved["system"]["A"]) == 4  # the arrays written in
+    replay(out, tmp_path / "again", 1e-9)  # the records alone replay the run
