@@ -200,7 +200,7 @@ def status_label_position(positions: Mapping[int, tuple[float, float]]) -> tuple
 
 def default_blueprint(time_mode: str, *, n: int | None = None, envelope: bool = True,
                       gains: bool = False, truth: bool = True, reference: bool = False, active_tab: int | str = 0,
-                      states=None):
+                      states=None, shown=None):
     """The default layout: log errors (envelope, marks) large; topology and event log beside; the rest in tabs.
 
     Left, tabs: ``errors (log10)`` (the designed envelope and the marks of
@@ -221,15 +221,19 @@ def default_blueprint(time_mode: str, *, n: int | None = None, envelope: bool = 
     the truth): no error tabs at all, the marks on the log10 disagreement, and the states show the
     filter bold in place of the truth.  Neither (a run of the simulated plant): the layout above.
     ``active_tab``: the tab shown first, by index or name (``"rounds"``); the first by default.
-    ``states``: the states' names (``system.states``; :func:`state_labels`).
+    ``states``: the states' names (``system.states``; :func:`state_labels`).  ``shown``: the indices of the states
+    the states tab shows (``run.show``, :attr:`splitspec_core.scenario_model.Scenario.shown_states`; None: all);
+    the others stay in the recording, a view away (the viewer's entity tree, ``state/<name>``).
     """
     import rerun.blueprint as rrb
 
     if n:
         what = ("truth, centralized KF and estimates" if reference else "truth and estimates") if truth \
             else ("centralized KF (after the run) and estimates" if reference else "estimates")
+        labels = state_labels(n, states)
+        picked = [labels[k] for k in shown if 0 <= k < n] if shown is not None else list(labels)
         state_views = rrb.Grid(*[rrb.TimeSeriesView(origin=f"{STATE}/{label}", name=f"{name}: {what}")
-                                 for label, name in state_labels(n, states)], name="states")
+                                 for label, name in picked], name="states")
     else:
         state_views = rrb.TimeSeriesView(origin=STATE, name="states")
     rounds = rrb.Vertical(*[rrb.TimeSeriesView(origin=f"{ROUNDS}/{s}", name=f"round {s.replace('_', ' ')}")

@@ -411,7 +411,7 @@ class Orchestrator:
                             envelope_rate=None if self.des.g_mode == "adaptive" or self.des.excluded
                             else float(self.des.envelope_rate),
                             gains=sc.time == "continuous", positions=sc.positions,
-                            states=sc.state_names if sc.states_named else None)
+                            states=sc.state_names if sc.states_named else None, shown=sc.shown_states)
         if self.meas is not None:
             self.rec.set_measurements(sc, self.meas)
         if sc.sources:

@@ -135,25 +135,33 @@ def errors_figure(traj, *, time: str, rate: float | None, title: str, marks=(), 
     return fig
 
 
+#: the most state components one states.png draws (run.show may pick more; run.rrd keeps every one)
+MAX_ROWS = 16
+
+
 def plot_states(traj, path: Path, *, time: str, title: str, marks=(), max_components: int = 8,
-                reference=None) -> None:
+                reference=None, shown=None) -> None:
     """Write :func:`states_figure` to ``path`` (PNG)."""
-    fig = states_figure(traj, time=time, title=title, marks=marks, max_components=max_components, reference=reference)
+    fig = states_figure(traj, time=time, title=title, marks=marks, max_components=max_components, reference=reference,
+                        shown=shown)
     fig.savefig(path, dpi=110)
     plt.close(fig)
 
 
-def states_figure(traj, *, time: str, title: str, marks=(), max_components: int = 8, reference=None):
+def states_figure(traj, *, time: str, title: str, marks=(), max_components: int = 8, reference=None, shown=None):
     """Each state component: truth (black) versus every agent's estimate, events marked; without truth,
     ``reference`` (the centralized Kalman filter on the same measurements, (T, n)) in its place.  Each row is
-    labelled with the state's name (``traj.states``: ``system.states``, else ``x1 .. xn``).  Returns the figure (the
-    caller closes it)."""
-    n = min(traj.x.shape[1], max_components)
+    labelled with the state's name (``traj.states``: ``system.states``, else ``x1 .. xn``).  ``shown``: the
+    components drawn (``run.show``: :attr:`~splitspec_core.scenario_model.Scenario.shown_states`), else the first
+    ``max_components``.  Returns the figure (the caller closes it)."""
+    # at most MAX_ROWS rows: a figure of more is a wall, and the recording has them all
+    comps = list(shown)[:MAX_ROWS] if shown is not None else list(range(min(traj.x.shape[1], max_components)))
+    n = len(comps)
     names = traj.states or tuple(f"x{c + 1}" for c in range(traj.x.shape[1]))
     fig, axes = plt.subplots(n, 1, figsize=(9.0, 1.6 * n + 0.8), sharex=True, squeeze=False, layout="constrained")
     extra = []
-    for c in range(n):
-        ax = axes[c, 0]
+    for row, c in enumerate(comps):
+        ax = axes[row, 0]
         for k, aid in enumerate(traj.agent_ids):
             ax.plot(traj.t, traj.xhat[:, k, c], lw=1.0, label=f"agent {aid}")
         if reference is None:

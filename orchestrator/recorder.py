@@ -268,7 +268,8 @@ class Recorder:
                  viewer: str | None = None, flush_seconds: float = 1.0,
                  viewer_port: int = 9876, connect_timeout: float = 1.0,
                  reserve_bytes: int = RESERVE_BYTES, envelope_rate: float | None = None, gains: bool = False,
-                 positions: Mapping[int, tuple[float, float]] | None = None, states: tuple | None = None):
+                 positions: Mapping[int, tuple[float, float]] | None = None, states: tuple | None = None,
+                 shown: tuple | None = None):
         if time_mode not in ("discrete", "continuous"):
             raise RecordingError(f"time_mode must be 'discrete' or 'continuous', got {time_mode!r}")
         ids = [int(a) for a in agent_ids]
@@ -347,7 +348,7 @@ class Recorder:
                                   graph_names=self.graph_names, envelope=self.envelope_rate is not None,
                                   gains=bool(gains), positions=dict(positions) if positions else None,
                                   viewer=viewer, viewer_port=viewer_port, connect_timeout=connect_timeout,
-                                  states=names)
+                                  states=names, shown=shown)
         except Exception as exc:  # Rerun must never stop a run
             log.warning("Rerun recording disabled (%s: %s); writing trajectory.npz and events.jsonl only",
                         type(exc).__name__, exc)

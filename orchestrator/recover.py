@@ -156,10 +156,13 @@ def _blueprint(rrd: Path):
     n = props.get("n")
     states = props.get("states")
     states = [states] if isinstance(states, str) else states  # a one-element list comes back as its element
+    shown = props.get("shown")
+    shown = [shown] if isinstance(shown, int) else shown
     return default_blueprint(str(props.get("time_mode", "discrete")), n=int(n) if isinstance(n, int) else None,
                              envelope=bool(props.get("envelope", True)), gains=bool(props.get("gains", False)),
                              reference=bool(measured), truth=bool(measured.get("truth", True)),
-                             states=[str(s) for s in states] if isinstance(states, list) and states else None)
+                             states=[str(s) for s in states] if isinstance(states, list) and states else None,
+                             shown=[int(k) for k in shown] if isinstance(shown, list) else None)
 
 
 def _recover_events(events: Path, K: int, t_last: float, rrd_state: str) -> tuple[bool, bool]:

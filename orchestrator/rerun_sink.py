@@ -114,12 +114,13 @@ class RerunSink:
     def __init__(self, out_dir: Path, *, run_id: str, scenario_name: str, agent_ids: np.ndarray, n: int,
                  time_mode: str, dt: float, graph_names: tuple, envelope: bool, gains: bool,
                  positions: dict, viewer: str | None, viewer_port: int, connect_timeout: float,
-                 states: tuple | None = None):
+                 states: tuple | None = None, shown: tuple | None = None):
         import rerun as rr
 
         self.agent_ids = [int(a) for a in agent_ids]
         self.n, self.time_mode, self.envelope, self.gains = int(n), time_mode, bool(envelope), bool(gains)
         self.states = tuple(states) if states else None  # system.states: the state/<name> entities
+        self.shown = None if shown is None else tuple(int(k) for k in shown)  # run.show: the states tab's views
         self.labels = bp.state_labels(self.n, self.states)
         self.positions = bp.node_positions(self.agent_ids, positions)
         self.rrd_file = RrdAppender(Path(out_dir) / RRD_FILE)
@@ -140,14 +141,16 @@ class RerunSink:
         rec.send_property("splitspec", rr.AnyValues(
             scenario=scenario_name, run_id=run_id, time_mode=time_mode, dt=dt, n=self.n, m=len(self.agent_ids),
             agent_ids=self.agent_ids, graphs=list(graph_names), envelope=self.envelope, gains=self.gains,
-            **({"states": list(self.states)} if self.states else {})))
+            **({"states": list(self.states)} if self.states else {}),
+            **({"shown": list(self.shown)} if self.shown is not None else {})))
         self._log_static_styles(rr, rec)
 
     # ------------------------------------------------------------------ setup
 
     def blueprint(self):
         return bp.default_blueprint(self.time_mode, n=self.n, envelope=self.envelope, gains=self.gains,
-                                    truth=self.truth, reference=self.reference is not None, states=self.states)
+                                    truth=self.truth, reference=self.reference is not None, states=self.states,
+                                    shown=self.shown)
 
     def set_reference(self, rows: ReferenceRows, *, truth: bool) -> None:
         """The run is on measurements (``rows``): log its residuals, disagreement and filter, the errors and the

@@ -64,14 +64,14 @@ def scenario(*, name: str | None = None, time: str | None = None, plant: Any = N
              graph_set: str | None = None, dwell: float | None = None, riccati: Mapping | None = None,
              eigenvalues: str | None = None, undetectable: str | None = None, coordinates: str | None = None,
              steps: int | None = None, dt: float | None = None, seed: int | None = None, pace: float | None = None,
-             system: Mapping | None = None, design: Mapping | None = None, run: Mapping | None = None,
+             show: Any = None,             system: Mapping | None = None, design: Mapping | None = None, run: Mapping | None = None,
              **unknown: Any) -> Scenario:
     """A validated scenario from keywords: every scenario-file key, by its own name.
 
     ``file`` (relative to the working directory), ``A``, ``B``, ``u``, ``sample``, ``C``, ``x0``, ``process_noise``,
     ``measurement_noise``, ``states`` (n names), ``outputs`` (``{agent id: [names]}``) are the file's ``system.*``;
     ``rate``, ``gains``, ``K``, ``g``, ``q``, ``q_method``, ... its ``design.*``; ``steps``, ``dt``, ``seed``,
-    ``pace`` its ``run.*`` (``docs/how-to/scenario.md`` lists them all).  Matrices may be numpy arrays or nested
+    ``pace``, ``show`` its ``run.*`` (``docs/how-to/scenario.md`` lists them all).  Matrices may be numpy arrays or nested
     lists; ``C`` and ``K`` map agent ids to matrices; a graph is ``{"arcs": [(j, i), ...], "undirected": [...]}``
     or its list of arcs ``[(j, i), ...]`` (``j -> i``: agent i hears agent j).  ``plant``: a python-control
     ``StateSpace`` in place of the system and ``time``, ``agents={id: [its output labels or indices]}``

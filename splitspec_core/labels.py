@@ -13,7 +13,8 @@ import re
 
 import numpy as np
 
-__all__ = ["NAME_PATTERN", "default_state_names", "default_output_names", "combination", "heaviest", "spread"]
+__all__ = ["NAME_PATTERN", "SHOW_ALL", "default_state_names", "default_output_names", "combination", "heaviest",
+           "shown_states", "spread"]
 
 #: what a state or output name may be: it becomes part of a Rerun entity path and of a file's column name
 NAME_PATTERN = re.compile(r"[A-Za-z_][A-Za-z0-9_.\-]{0,63}")
@@ -21,6 +22,31 @@ NAME_PATTERN = re.compile(r"[A-Za-z_][A-Za-z0-9_.\-]{0,63}")
 SHOWN = 5
 #: components smaller than this fraction of the largest are not named
 NEGLIGIBLE = 5e-4
+
+
+#: a model of at most this many states shows every one in the default views (run.rrd's states tab, states.png);
+#: a larger one shows what ``run.show`` picks, by default at most this many of the states its agents measure
+SHOW_ALL = 8
+
+
+def shown_states(names, show, Cs) -> tuple:
+    """Indices of the states the default views show: those ``show`` names or matches (``fnmatch`` patterns, in the
+    states' order), else every state of a model of at most :data:`SHOW_ALL`, else the state each output row
+    weighs most (agent order, each once), at most :data:`SHOW_ALL` (the first ones when no row picks any)."""
+    import fnmatch
+
+    n = len(names)
+    if show:
+        return tuple(k for k, name in enumerate(names) if any(fnmatch.fnmatchcase(name, p) for p in show))
+    if n <= SHOW_ALL:
+        return tuple(range(n))
+    picked: list = []
+    for C in Cs:
+        for row in np.atleast_2d(np.asarray(C, dtype=float)):
+            k = int(np.argmax(np.abs(row)))
+            if row[k] != 0 and k not in picked:
+                picked.append(k)
+    return tuple(sorted(picked[:SHOW_ALL])) or tuple(range(SHOW_ALL))
 
 
 def default_state_names(n: int) -> tuple:

@@ -36,7 +36,7 @@ _DESIGN_KEYS = (
     "weights", "margin", "rank_tol", "graph_set", "dwell", "riccati", "eigenvalues", "undetectable", "coordinates",
 )
 _RICCATI_KEYS = ("process_weight", "measurement_weight")
-_RUN_KEYS = ("steps", "dt", "seed", "pace")
+_RUN_KEYS = ("steps", "dt", "seed", "pace", "show")
 
 # Limits, each with the key(s) it bounds and why (docs/how-to/scenario.md, "Files and limits").
 # Every number (matrix entries, x0, noise levels, rate, g, g0, margin, times, dt, dwell, pace,

@@ -221,12 +221,14 @@ class NetworkSpec:
 
 @dataclass(frozen=True)
 class RunSpec:
-    """Run options: number of steps, sample time (continuous), seed, pace."""
+    """Run options: number of steps, sample time (continuous), seed, pace, and the states the default views show
+    (``show``: names or ``fnmatch`` patterns; None: :func:`splitspec_core.labels.shown_states`'s default)."""
 
     steps: int = 60
     dt: float | None = None
     seed: int = 0
     pace: float | None = None
+    show: tuple | None = None
 
 
 @dataclass(frozen=True)
@@ -273,6 +275,14 @@ class Scenario:
     def state_names(self) -> tuple:
         """The states' names: ``system.states``, else ``x1 .. xn``."""
         return self.system.states if self.system.states is not None else default_state_names(self.n)
+
+    @property
+    def shown_states(self) -> tuple:
+        """Indices of the states ``run.rrd``'s states tab and ``states.png`` show (``run.show``; every state of a
+        small model, else those the agents measure: :func:`splitspec_core.labels.shown_states`)."""
+        from .labels import shown_states
+
+        return shown_states(self.state_names, self.run.show, self.system.Cs)
 
     @property
     def states_named(self) -> bool:

@@ -18,6 +18,7 @@ from .scenario_checks import (_DESIGN_KEYS, _GRAPH_KEYS, _RANDOM_KEYS, _RICCATI_
                               _check_keys, _describe, _ids_text, _integer, _known_agent, _matrix, _names, _number,
                               _require_map, _seed, check_shapes, plain)
 from .inputs import parse_inputs
+from .labels import default_state_names
 from .scenario_files import resolve_model_file
 from .scenario_model import DesignSpec, Fault, GraphSpec, RunSpec, Scenario, Switching, System
 from .scenario_network import check_heals, parse_groups, parse_network
@@ -304,7 +305,23 @@ def _parse_faults(raw: Any, ids: tuple) -> tuple:
     return out
 
 
-def _parse_run(raw: Any, time: str) -> RunSpec:
+def _parse_show(raw: Any, names: tuple) -> tuple | None:
+    """``run.show``: names or ``fnmatch`` patterns of states, each matching at least one."""
+    import fnmatch
+
+    if raw is None:
+        return None
+    items = [raw] if isinstance(raw, str) else raw
+    if not isinstance(items, list) or not items or not all(isinstance(p, str) and p for p in items):
+        raise ScenarioError(f"run.show must be a list of state names or patterns (x*, delta_*), got {_describe(raw)}")
+    for k, p in enumerate(items):
+        if not any(fnmatch.fnmatchcase(name, p) for name in names):
+            shown = ", ".join(names[:6]) + (" ..." if len(names) > 6 else "")
+            raise ScenarioError(f"run.show[{k + 1}] = {p!r} matches no state (the states: {shown})")
+    return tuple(items)
+
+
+def _parse_run(raw: Any, time: str, names: tuple = ()) -> RunSpec:
     if raw is None:
         raw = {}
     rmap = _require_map(raw, "run")
@@ -323,7 +340,7 @@ def _parse_run(raw: Any, time: str) -> RunSpec:
         pace = _number(rmap["pace"], "run.pace")
         if pace < MIN_PACE:
             raise ScenarioError(f"run.pace must be >= {MIN_PACE:g} event times per second, got {pace:g}")
-    return RunSpec(steps=steps, dt=dt, seed=seed, pace=pace)
+    return RunSpec(steps=steps, dt=dt, seed=seed, pace=pace, show=_parse_show(rmap.get("show"), names))
 
 
 def parse_scenario(data: Any, *, source: str = "<scenario>", base: Path | None = None) -> Scenario:
@@ -356,7 +373,7 @@ def parse_scenario(data: Any, *, source: str = "<scenario>", base: Path | None =
         raise ScenarioError("design is missing (at least design.rate)")
     design = _parse_design(top["design"], time, system, ids)
     faults = _parse_faults(top.get("faults"), ids)
-    run = _parse_run(top.get("run"), time)
+    run = _parse_run(top.get("run"), time, system.states or default_state_names(system.n))
     _check_switching_against_step(switching, run)
     positions = _parse_positions(top.get("positions"), ids)
     network = parse_network(top.get("network"), ids, graphs)

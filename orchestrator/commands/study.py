@@ -289,7 +289,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
                             graph_names=sc.graph_names, dt=sc.run.dt if sc.time == "continuous" else 1.0)
         plots.plot_errors(traj, out / "errors.png", time=sc.time, rate=envelope_rate, title=title,
                           marks=marks, noise_free=clean, adaptive=adaptive)
-        plots.plot_states(traj, out / "states.png", time=sc.time, title=title, marks=marks)
+        plots.plot_states(traj, out / "states.png", time=sc.time, title=title, marks=marks, shown=sc.shown_states)
         summary["plots"] = ["errors.png", "states.png"]
         if mc is not None:
             # faults strike every seed at the same step; a random switching signal may differ per seed
@@ -332,7 +332,7 @@ def _simulate_measured(args: argparse.Namespace, sc, d, traj, meas, out) -> int:
                           adaptive=d.g_mode == "adaptive")
             plots.append("errors.png")
         P.plot_states(traj, out / "states.png", time=sc.time, title=title, marks=marks,
-                      reference=None if meas.has_truth else ref["kf"])
+                      reference=None if meas.has_truth else ref["kf"], shown=sc.shown_states)
         plots.append("states.png")
     summary["plots"] = plots
     (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
