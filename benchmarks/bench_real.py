@@ -22,7 +22,17 @@ For each model and rate it prints:
   most ``c``); ``rate``, the decay measured on the tail (``analysis.fit_decay``, the smallest over the seeds;
   must be at least the certified rate); ``under``, whether every seed's error stayed under the envelope.
 
-    .venv/bin/python benchmarks/bench_real.py [--seeds 3] [--horizon 120] [--only kundur_full]
+Then, for every certified row (``--no-noise`` skips it), a second table under noise (process noise intensity
+``1e-4`` on every state, measurement noise std ``1e-3``, a PMU's order, ``--noise-horizon`` seconds):
+
+* ``rms split``: the steady RMS error of the split-spectrum estimator with ``riccati`` gains (the row's other keys
+  kept), ``rms KF``: the centralized Kalman filter's on the same realisations (``ss.compare``, ``--noise-seeds``
+  seeds; steady: the run's second half), and their ratio;
+* ``ms/event``: the multi-process runtime (``ss.run``: an orchestrator, a plant and m agent processes over Zenoh
+  on loopback) at the model's n, ``1000 / rounds_per_second`` of its ``run_finished`` over ``--run-steps``
+  event times, noise on.
+
+    .venv/bin/python benchmarks/bench_real.py [--seeds 3] [--horizon 120] [--only kundur_full] [--no-noise]
 """
 
 from __future__ import annotations
@@ -60,13 +70,55 @@ CASES = [
 ]
 
 
-def scenario(model: str, which: str, rate: float, extra: dict, horizon: float, dt: float) -> ss.Scenario:
+#: the noise of the second table: process noise intensity on every state, measurement noise std (a PMU's order)
+NOISE = (1e-4, 1e-3)
+
+
+def scenario(model: str, which: str, rate: float, extra: dict, horizon: float, dt: float,
+             noise: tuple = (0.0, 0.0)) -> ss.Scenario:
     d = np.load(MODELS / f"{model}.npz", allow_pickle=False)
     m = len(d["generators"])
     ring = [(k, k % m + 1) for k in range(1, m + 1)] + [(k % m + 1, k) for k in range(1, m + 1)]
     return ss.scenario(name=f"{model}-{which}", time="continuous", A=d["A"], states=[str(s) for s in d["states"]],
                        C={k: d[f"C_{which}_{k}"] for k in range(1, m + 1)}, graphs={"ring": ring},
-                       dt=dt, steps=int(round(horizon / dt)), **{"rate": rate, "gains": "place", **extra})
+                       dt=dt, steps=int(round(horizon / dt)), process_noise=noise[0], measurement_noise=noise[1],
+                       **{"rate": rate, "gains": "place", **extra})
+
+
+def noise_row(model: str, which: str, rate: float, extra: dict, args) -> None:
+    """The split-spectrum estimator (riccati gains) against the centralized KF under noise, and the runtime."""
+    import tempfile
+
+    name = f"{model} {which} {rate:g}" + ("".join(f" {k}={v}" for k, v in extra.items() if k != "gains"))
+    sc = scenario(model, which, rate, {**extra, "gains": "riccati"}, args.noise_horizon, args.dt, NOISE)
+    t0 = time.perf_counter()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        try:
+            res = ss.compare(sc, seeds=args.noise_seeds)
+        except SplitspecError as exc:
+            print(f"{name:<40} compare failed: {exc}")
+            return
+    t_cmp = time.perf_counter() - t0
+    split, kf = res.estimators["split riccati"], res.estimators["centralized KF"]
+    with tempfile.TemporaryDirectory(prefix="bench-real-") as tmp:
+        rec = ss.run(ss.scenario(**{**_keywords(sc), "steps": args.run_steps}), out=Path(tmp) / "run")
+        fin = rec.named("run_finished")[-1]
+    ms = 1e3 / fin["rounds_per_second"]
+    cert = "yes" if split.certified_rate else "no"
+    print(f"{name:<40} {sc.n:>4} {sc.m:>3} {split.rms_mean:>10.3g} {kf.rms_mean:>9.3g} "
+          f"{split.rms_mean / kf.rms_mean:>7.3g} {cert:>5} {ms:>9.2f}   (compare {t_cmp:.0f} s, "
+          f"{args.noise_seeds} seeds of {sc.run.steps} steps; run of {args.run_steps} event times)")
+
+
+def _keywords(sc: ss.Scenario) -> dict:
+    """The keywords that rebuild ``sc`` (for ss.run, which hands them to the processes as YAML)."""
+    d = sc.design
+    return dict(name=sc.name, time=sc.time, A=sc.system.A, states=list(sc.state_names),
+                C={i: C for i, C in zip(sc.agent_ids, sc.system.Cs)},
+                graphs={g.name: [list(a) for a in g.arcs] for g in sc.graphs}, dt=sc.run.dt,
+                process_noise=sc.system.process_noise, measurement_noise=sc.system.measurement_noise,
+                rate=d.rate, gains=d.gains, margin=d.margin, undetectable=d.undetectable)
 
 
 def measure(des, seeds: int) -> dict:
@@ -99,7 +151,7 @@ def lower_bound(method: str) -> str:
     return "="
 
 
-def row(model: str, which: str, rate: float, extra: dict, args) -> None:
+def row(model: str, which: str, rate: float, extra: dict, args) -> bool:
     name = f"{model} {which} {rate:g}" + ("".join(f" {k}={v}" for k, v in extra.items()))
     t0 = time.perf_counter()
     try:
@@ -109,7 +161,7 @@ def row(model: str, which: str, rate: float, extra: dict, args) -> None:
             des = ss.design(sc).detail
     except SplitspecError as exc:
         print(f"{name:<40} refused in {time.perf_counter() - t0:.1f} s: {exc}")
-        return
+        return False
     t_design = time.perf_counter() - t0
     t0 = time.perf_counter()
     cond = des.conditioning
@@ -128,13 +180,14 @@ def row(model: str, which: str, rate: float, extra: dict, args) -> None:
     lo = "-" if c is None else lower_bound(cond.transient_method)
     if not cert.certified:
         print(f"{head} {cs:>9} {lo:>9}   not certified: {cert.text}")
-        return
+        return False
     t0 = time.perf_counter()
     got = measure(des, args.seeds)
     mrate = f"{got['rate']:.3g}" if got["rate"] is not None else "-"
     under = "n/a" if c is None else "yes" if got["under"] else "NO"
     print(f"{head} {cs:>9} {lo:>9} {got['peak']:>9.3g} {mrate:>7} {under:>5}   ({how}; {args.seeds} runs of "
           f"{sc.run.steps} steps in {time.perf_counter() - t0:.1f} s)")
+    return True
 
 
 def main() -> None:
@@ -143,15 +196,30 @@ def main() -> None:
     ap.add_argument("--horizon", type=float, default=120.0, help="simulated seconds (default 120)")
     ap.add_argument("--dt", type=float, default=0.01, help="run.dt (default 0.01)")
     ap.add_argument("--only", default=None, help="only the models whose name contains this")
+    ap.add_argument("--no-noise", action="store_true", help="skip the table under noise (compare and ss.run)")
+    ap.add_argument("--noise-seeds", type=int, default=2, help="seeds of the table under noise (default 2)")
+    ap.add_argument("--noise-horizon", type=float, default=30.0, help="its simulated seconds (default 30)")
+    ap.add_argument("--run-steps", type=int, default=500, help="event times of its multi-process run (default 500)")
     args = ap.parse_args()
     print(f"# real models, ring graphs, continuous time, gains place, g auto, run.dt {args.dt:g}; "
           f"load {loadavg()}")
     print(f"{'model meas rate':<40} {'n':>4} {'m':>3} {'W dim@decay':>12} {'design s':>8} {'cond s':>6} {'g':>8} "
           f"{'cert':>6} {'c':>9} {'c_lo':>9} {'peak':>9} {'rate':>7} {'under':>5}")
+    certified = []
     for model, which, rate, extra in CASES:
         if args.only and args.only not in model:
             continue
-        row(model, which, rate, extra, args)
+        if row(model, which, rate, extra, args):
+            certified.append((model, which, rate, extra))
+    print(f"# load {loadavg()}")
+    if args.no_noise or not certified:
+        return
+    print(f"\n# under noise (process {NOISE[0]:g}, measurement {NOISE[1]:g}), gains riccati, "
+          f"{args.noise_horizon:g} s at run.dt {args.dt:g}; load {loadavg()}")
+    print(f"{'model meas rate':<40} {'n':>4} {'m':>3} {'rms split':>10} {'rms KF':>9} {'ratio':>7} {'cert':>5} "
+          f"{'ms/event':>9}")
+    for case in certified:
+        noise_row(*case, args)
     print(f"# load {loadavg()}")
 
 

@@ -25,14 +25,17 @@ NEGLIGIBLE = 5e-4
 
 
 #: a model of at most this many states shows every one in the default views (run.rrd's states tab, states.png);
-#: a larger one shows what ``run.show`` picks, by default at most this many of the states its agents measure
+#: a larger one shows what ``run.show`` picks, by default at most :data:`SHOW_MEASURED` of the states its agents
+#: measure
 SHOW_ALL = 8
+SHOW_MEASURED = 12
 
 
 def shown_states(names, show, Cs) -> tuple:
     """Indices of the states the default views show: those ``show`` names or matches (``fnmatch`` patterns, in the
     states' order), else every state of a model of at most :data:`SHOW_ALL`, else the state each output row
-    weighs most (agent order, each once), at most :data:`SHOW_ALL` (the first ones when no row picks any)."""
+    weighs most (agent order, each once), at most :data:`SHOW_MEASURED` (the first :data:`SHOW_ALL` when no row
+    picks any)."""
     import fnmatch
 
     n = len(names)
@@ -46,7 +49,7 @@ def shown_states(names, show, Cs) -> tuple:
             k = int(np.argmax(np.abs(row)))
             if row[k] != 0 and k not in picked:
                 picked.append(k)
-    return tuple(sorted(picked[:SHOW_ALL])) or tuple(range(SHOW_ALL))
+    return tuple(sorted(picked[:SHOW_MEASURED])) or tuple(range(SHOW_ALL))
 
 
 def default_state_names(n: int) -> tuple:

@@ -127,7 +127,15 @@ def plant_keywords(given: dict, plant: Any, agents: Any) -> None:
     if isinstance(given.get("system"), Mapping) and given["system"]:
         raise ScenarioError("plant= gives the system: system= cannot be given with it")
     got = from_statespace(plant, agents)
+    if given.get("sample") is not None:  # a continuous plant sampled for the discrete estimator
+        if got["time"] != "continuous":
+            raise ScenarioError(f"sample= samples a continuous plant, and plant= is discrete (its dt = {plant.dt})")
+        if given["time"] not in (None, "discrete"):
+            raise ScenarioError("sample= is for time='discrete' (the discrete estimator of the sampled plant)")
+        got["time"] = "discrete"
     if given["time"] is not None and given["time"] != got["time"]:
-        raise ScenarioError(f"time={given['time']!r}, and plant= is {got['time']} time (its dt = {plant.dt})")
+        raise ScenarioError(f"time={given['time']!r}, and plant= is {got['time']} time (its dt = {plant.dt})"
+                            + ("; sample=dt samples it for the discrete estimator" if got["time"] == "continuous"
+                               else ""))
     given["time"] = got["time"]
     given.update(got["system"])
