@@ -13,7 +13,9 @@ its ``T`` successive ``normal(size=n)`` draws), so a batched run equals ``simula
 every seed to round-off, not bit for bit: the batched matrix products sum in another order, and the
 discrete sub-rounds run as ``z_i <- z_i + P_i (sum_j w_ij z_j - z_i)`` (eq. split-discrete-p2 as
 :func:`~splitspec_core.steps.consensus_subround` writes it) where the single-seed lossless path runs
-them in unobservable-space coordinates (``w <- c + B w``).
+them in unobservable-space coordinates (``w <- c + B w``).  Known inputs (``system.B``,
+:mod:`splitspec_core.inputs`) are left out of plant and estimators alike: both add the same ``B u``, so the
+errors, all that is kept here, do not depend on them (to round-off).
 
 What is batched and what falls back
 -----------------------------------
