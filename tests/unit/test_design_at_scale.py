@@ -361,10 +361,20 @@ def _drawn(eigenvalues):
 def test_the_drawn_case_arpack_failed_on_is_designed_densely():
     """A drawn case (8 agents on one unstable state, 6 of them blind: at q = 27 the radius is 8e-9) on which ARPACK
     raised error 1 of dneupd (the Schur form could not be reordered) under one OpenBLAS kernel and ended the design.
-    Under any kernel the radius is tiny against the rate, so within ``DECIDE`` of it: the iterative design ends on a
-    dense radius (which fallback depends on the kernel) equal to the dense design's."""
+    Under most kernels the radius is so tiny that ARPACK's claimed accuracy is no accuracy at all (relative error 1),
+    so within ``max(DECIDE, accuracy)`` of the rate: the iterative design ends on a dense radius (which fallback
+    depends on the kernel) equal to the dense design's.  scipy 1.13's ARPACK (``make test-lowest``) claims a
+    relative accuracy of 0.34 instead: then its radius stands, far below the rate within what it claims.  Either
+    way the design decides as the dense one does."""
     dense, it = _drawn("dense"), _drawn("iterative")
     (how,) = [c._how[27] for c in it.cases]
+    rate = DRAWN["design"]["rate"]
+    assert it.q == dense.q == 27 and it.q_result.certified == dense.q_result.certified
+    if how.method == "iterative":  # settled by ARPACK: its interval is decisively below the rate
+        assert how.value * (1 + how.tol) < rate * (1 - spectral.DECIDE)
+        assert it.error_radius["g1"] == pytest.approx(dense.error_radius["g1"], rel=how.tol)
+        assert it.q_result.eig["methods"] == {"iterative": 1}
+        return
     assert how.method.startswith("dense (fallback: ")
     # the same dense computation on the same matrix: the same number (compared to round-off all the same)
     assert it.error_radius["g1"] == pytest.approx(dense.error_radius["g1"], rel=1e-12)
