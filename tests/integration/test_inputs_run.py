@@ -49,3 +49,30 @@ def test_a_run_with_known_inputs_from_a_model_file_is_the_simulation(tmp_path, t
     saved = yaml.safe_load((out / "scenario.yaml").read_text())
     assert "file" not in saved["system"] and len(saved["system"]["A"]) == 4  # the arrays written in
     replay(out, tmp_path / "again", 1e-9)  # the records alone replay the run
+
+
+def test_a_run_on_a_measurements_file_with_u_columns_is_the_simulation(tmp_path):
+    """The plant process plays the file's rows and sends each row's u with them; the scenario's own signal is
+    replaced by the file's columns (here the scenario has none: without the file's u, B u would be zero)."""
+    data = {"name": "recorded-inputs", "time": "discrete",
+            "system": {"A": [[0.9, 0.2], [-0.2, 0.9]], "B": [[0.0], [1.0]],
+                       "u": {"steps": [[0, [1.0]], [8, [-2.0]]], "sine": [{"amplitude": [0.5], "period": 5}]},
+                       "C": {1: [[1, 0]], 2: [[0, 1]], 3: [[1, 1]]}},
+            "graphs": {"a": {"undirected": [[1, 2], [2, 3]]}}, "design": {"rate": 0.5},
+            "run": {"steps": 25, "seed": 3}}
+    signal = tmp_path / "signal.yaml"
+    signal.write_text(yaml.safe_dump(data, sort_keys=False))
+    log = tmp_path / "m.csv"
+    r = run("simulate", signal, "--out", tmp_path / "sim0", "--no-plots", "--write-measurements", log)
+    assert r.returncode == 0, r.stderr
+    assert "u.1" in log.read_text().splitlines()[0]
+    del data["system"]["u"]  # the file's u columns are the inputs now
+    plain = tmp_path / "plain.yaml"
+    plain.write_text(yaml.safe_dump(data, sort_keys=False))
+    out = tmp_path / "run"
+    r = run("run", plain, "--out", out, "--measurements", log, timeout=240)
+    assert r.returncode == 0, r.stderr[-3000:]
+    compare_with_simulate(out, plain, tmp_path, 1e-9, "--measurements", log)
+    # and both are the run of the signal itself: the file holds its u bit for bit (repr)
+    ran, sim0 = np.load(out / "trajectory.npz"), np.load(tmp_path / "sim0" / "trajectory.npz")
+    assert np.allclose(ran["xhat"], sim0["xhat"], rtol=0, atol=1e-9 * np.abs(sim0["xhat"]).max())
