@@ -100,7 +100,7 @@ class AgentNode:
         self.xbuf: dict = {}  # (tau, attempt of round tau - 1) -> {j: x_j(tau)}: the next round's z_j(0)
         rows = output_rows(sc.system.Cs)
         self.ys = YBuffer(agent_id, rows[self.index], rows[-1].stop, B=sc.system.B)  # y_i(tau) or none; B u(tau)
-        self.sampler = None  # a live sensor's LiveSampler (scenario sources:, agents/sensor.py)
+        self.sampler = self.input_sampler = None  # live sensor and live inputs (sources:, agents/sensor.py)
         self.record_y = bool(config.get("record_y", False))  # report the y_i used (measurements, live sensors)
         self.rejected: dict = {}
         # a misbehaving network (splitspec_core.impairment): the same draws as the simulator's, a deadline per
@@ -188,7 +188,8 @@ class AgentNode:
         self.xbuf = {k: v for k, v in self.xbuf.items() if k[0] >= tau}
         self.ys.prune(tau)
         if self.sampler is not None and not t["final"]:  # a live sensor: y_i(tau) is its value now (sensor.py)
-            self.ys.put_sample(tau, self.sampler.take())
+            self.ys.put_sample(tau, self.sampler.take(),  # and the live known inputs' u(tau), if any
+                               None if self.input_sampler is None else self.input_sampler.take())
         if self.arrived:
             self.arrived = {k: v for k, v in self.arrived.items() if k[1][0] >= tau}
         if t["final"]:

@@ -24,6 +24,7 @@ class YBuffer:
         self.size = size + self.inputs  # the message's vector: the stacked y, then u(tau) (the scenario's known inputs)
         self.buf: dict = {}
         self.ubuf: dict = {}
+        self.held = np.zeros(self.inputs)  # live inputs (put_input): the last u taken, zero before the first
 
     def put_message(self, m: dict, *, last_tau, tick_tau, reject) -> bool:
         """Keep agent i's part of a decoded ``y`` message; False (and ``reject(reason)``) if it is dropped."""
@@ -48,9 +49,19 @@ class YBuffer:
             self.ubuf[tau] = np.asarray(m["y"][self.outputs:])
         return True
 
-    def put_sample(self, tau: int, y: np.ndarray | None) -> None:
-        """A live sensor's sample at event time ``tau`` (:mod:`splitspec_agents.sensor`); the first one counts."""
+    def put_sample(self, tau: int, y: np.ndarray | None, u: np.ndarray | None = None) -> None:
+        """A live sensor's sample at event time ``tau`` (:mod:`splitspec_agents.sensor`); the first one counts.
+        With known inputs, ``u`` is the live inputs' sample (:meth:`put_input`)."""
         self.buf.setdefault(tau, y)
+        if self.inputs:
+            self.put_input(tau, u)
+
+    def put_input(self, tau: int, u: np.ndarray | None) -> None:
+        """The live known inputs' sample at ``tau`` (``sources.inputs``); None (none fresh): the last one taken is
+        held, zero before the first.  The first one of an event time counts."""
+        if u is not None:
+            self.held = np.asarray(u, dtype=float)
+        self.ubuf.setdefault(tau, self.held)
 
     def ready(self, tau: int) -> bool:
         """Whether ``y_i(tau)`` (or the word that there is none) has arrived."""

@@ -35,7 +35,8 @@ import time
 
 import numpy as np
 
-__all__ = ["LiveSampler", "SensorReject", "decode_payload", "payload_cap", "FLOOD_RATE", "FLOOD_BURST", "attach"]
+__all__ = ["LiveSampler", "SensorReject", "decode_payload", "payload_cap", "FLOOD_RATE", "FLOOD_BURST", "attach",
+           "attach_inputs"]
 
 _NOT_JSON = object()
 
@@ -58,8 +59,9 @@ def payload_cap(size: int) -> int:
     return 1024 + 64 * size
 
 
-def decode_payload(payload: bytes, size: int) -> tuple:
-    """``(y, t)`` from a sensor payload (module docstring: the contract); :class:`SensorReject` otherwise."""
+def decode_payload(payload: bytes, size: int, field: str = "y") -> tuple:
+    """``(y, t)`` from a sensor payload (module docstring: the contract); :class:`SensorReject` otherwise.
+    ``field``: the JSON object's key of the values (``u`` for the live known inputs, ``sources.inputs``)."""
     if len(payload) > payload_cap(size):
         raise SensorReject("too_big")
     try:
@@ -67,7 +69,7 @@ def decode_payload(payload: bytes, size: int) -> tuple:
     except (UnicodeDecodeError, ValueError, RecursionError):
         obj = _NOT_JSON
     if isinstance(obj, dict):
-        return _from_object(obj, size)
+        return _from_object(obj, size, field)
     if len(payload) != 8 * size:  # neither a JSON object nor s_i raw float64
         raise SensorReject("garbage" if obj is _NOT_JSON else "not_object")
     y = np.frombuffer(payload, dtype="<f8").astype(float)
@@ -76,12 +78,12 @@ def decode_payload(payload: bytes, size: int) -> tuple:
     return y, None
 
 
-def _from_object(obj, size: int) -> tuple:
+def _from_object(obj, size: int, field: str = "y") -> tuple:
     if not isinstance(obj, dict):
         raise SensorReject("not_object")
-    ys = obj.get("y")
+    ys = obj.get(field)
     if not isinstance(ys, list) or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in ys):
-        raise SensorReject("bad_y")
+        raise SensorReject(f"bad_{field}")
     if len(ys) != size:
         raise SensorReject("bad_length")
     try:  # JSON integers have no size limit: 400 digits overflow a float
@@ -110,8 +112,8 @@ class LiveSampler:
     ``size``: s_i; ``max_age``: seconds; ``clock``: a monotonic clock (injected in tests).
     """
 
-    def __init__(self, size: int, max_age: float, *, clock=time.monotonic):
-        self.size, self.max_age, self.clock = int(size), float(max_age), clock
+    def __init__(self, size: int, max_age: float, *, clock=time.monotonic, field: str = "y"):
+        self.size, self.max_age, self.clock, self.field = int(size), float(max_age), clock, field
         self._lock = threading.Lock()
         self._slot = None  # (y, t, arrived)
         self._tokens, self._filled = float(FLOOD_BURST), clock()
@@ -133,7 +135,7 @@ class LiveSampler:
                 return False
             self._tokens -= 1.0
         try:
-            y, t = decode_payload(payload, self.size)
+            y, t = decode_payload(payload, self.size, self.field)
         except SensorReject as e:
             self._count(e.reason)
             return False
@@ -171,7 +173,8 @@ class LiveSampler:
 
 
 def attach(node, shell, keys) -> list:
-    """Give an agent with a live sensor its :class:`LiveSampler` and subscribe it; the extra subscriptions.
+    """Give an agent with a live sensor its :class:`LiveSampler` and subscribe it (and the live known inputs',
+    :func:`attach_inputs`, when the scenario has ``sources.inputs``); the extra subscriptions.
 
     The sensor's messages are handled on Zenoh's thread by :meth:`LiveSampler.offer` alone (not under the
     node's lock), so a flooding sensor never holds up the protocol.
@@ -201,4 +204,34 @@ def attach(node, shell, keys) -> list:
     key = keys.sensor(src.key)
     sub = shell.session.declare_subscriber(key, zenoh.handlers.Callback(cb, None, indirect=False))
     shell.log.info("agent %d: live sensor on %s (max_age %g s)", node.id, key, src.max_age)
+    return [sub] + (attach_inputs(node, shell, keys) if node.sc.input_source is not None else [])
+
+
+def attach_inputs(node, shell, keys) -> list:
+    """Give an agent the live known inputs' :class:`LiveSampler` (``sources.inputs``: ``{"u": [...], "t": ...}``
+    or ``8 p`` raw bytes) and subscribe it; refusals are counted as ``inputs_<reason>``."""
+    import zenoh
+
+    src = node.sc.input_source
+    sampler = node.input_sampler = LiveSampler(node.sc.system.inputs, src.max_age, field="u")
+    inbox_counts = node.extra_counts
+
+    def counts() -> dict:
+        out = dict(inbox_counts() if inbox_counts else {})
+        for reason, c in sampler.counts().items():
+            out[f"inputs_{reason}"] = out.get(f"inputs_{reason}", 0) + c
+        return out
+
+    node.extra_counts = counts
+    cap = payload_cap(sampler.size)
+
+    def cb(sample):
+        if len(sample.payload) > cap:
+            sampler._count("too_big")
+            return
+        sampler.offer(sample.payload.to_bytes())
+
+    key = keys.sensor(src.key)
+    sub = shell.session.declare_subscriber(key, zenoh.handlers.Callback(cb, None, indirect=False))
+    shell.log.info("agent %d: live inputs on %s (max_age %g s)", node.id, key, src.max_age)
     return [sub]

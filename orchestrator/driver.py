@@ -162,7 +162,7 @@ class Orchestrator:
 
         kw: dict = {"lease_ms": lease_ms_for("orchestrator")}
         if self.security is not None:  # authentication + access control on the embedded router
-            sensors = {a: src.key for a, src in (self.sc.sources or {}).items()}
+            sensors = self.sc.sensor_keys  # the agents' sensors and the live inputs' publisher (sensor-inputs)
             kw["extra"] = self.security.router_extra(self.keys.run_id, self.sc.agent_ids, sensors)
         if self.connect:
             self.session = open_session("client", connect=[self.connect], **kw)
@@ -416,7 +416,6 @@ class Orchestrator:
             self.rec.set_measurements(sc, self.meas)
         if sc.sources:
             self.rec.set_live_sources(sc)
-            self._announce_sensors()
         self.registry = RunRegistry(self.keys.run_id, {"endpoint": self.connect or self.listen,
                                                        "out": str(self.out.resolve()), "host": HOST})
         now = time.monotonic()
@@ -436,6 +435,8 @@ class Orchestrator:
                            secure=self.security is not None)
             if self.forks is not None:
                 self.rec.event("fork_server_started", 0.0, pid=self.forks.proc.pid)
+            if sc.sources:  # once the router listens: a sensor that connects on this event finds it
+                self._announce_sensors()
             if self.security is None:
                 self.rec.event("insecure_run", 0.0, level="WARN",
                                note="no authentication or access control on the router (--insecure, or no "
@@ -497,11 +498,12 @@ class Orchestrator:
     def _announce_sensors(self) -> None:
         """Where the user's sensors publish, and with which credentials (logged and in events.jsonl)."""
         endpoint = self.connect or local_endpoint(self.listen)
-        keys = {str(a): self.keys.sensor(src.key) for a, src in self.sc.sources.items()}
+        keys = {str(a): self.keys.sensor(key) for a, key in self.sc.sensor_keys.items()}
         creds = None if self.security is None else str(self.security.dir)
         self.rec.event("sensors", 0.0, endpoint=endpoint, run_id=self.keys.run_id, keys=keys, credentials=creds)
         log.warning("live sensors: publish y_i on %s at %s%s", ", ".join(keys.values()), endpoint,
-                    "" if creds is None else f" with --credentials {creds}/sensor-<id>.cred")
+                    "" if creds is None else f" with --credentials {creds}/sensor-<id>.cred"
+                    + (" (u: sensor-inputs.cred)" if self.sc.input_source is not None else ""))
 
     def _safe_event(self, name: str, t: float, **fields) -> None:
         try:

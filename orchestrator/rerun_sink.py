@@ -148,9 +148,8 @@ class RerunSink:
     # ------------------------------------------------------------------ setup
 
     def blueprint(self):
-        return bp.default_blueprint(self.time_mode, n=self.n, envelope=self.envelope, gains=self.gains,
-                                    truth=self.truth, reference=self.reference is not None, states=self.states,
-                                    shown=self.shown)
+        return bp.default_blueprint(self.time_mode, n=self.n, envelope=self.envelope, gains=self.gains, truth=self.truth,
+                                    reference=self.reference is not None, states=self.states, shown=self.shown)
 
     def set_reference(self, rows: ReferenceRows, *, truth: bool) -> None:
         """The run is on measurements (``rows``): log its residuals, disagreement and filter, the errors and the

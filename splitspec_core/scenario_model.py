@@ -248,6 +248,7 @@ class Scenario:
     positions: dict | None = None  # agent id -> (x, y) of the topology drawing; None: a circle
     network: NetworkSpec = field(default_factory=NetworkSpec)
     sources: dict | None = None  # agent id -> scenario_sources.Source: live sensors (run only)
+    input_source: Any = None  # scenario_sources.Source of sources.inputs: where live known inputs u arrive
 
     @property
     def m(self) -> int:
@@ -275,6 +276,15 @@ class Scenario:
     def state_names(self) -> tuple:
         """The states' names: ``system.states``, else ``x1 .. xn``."""
         return self.system.states if self.system.states is not None else default_state_names(self.n)
+
+    @property
+    def sensor_keys(self) -> dict:
+        """``{agent id: key}`` of the live sensors, and ``"inputs": key`` of the live known inputs (relative keys;
+        each publisher is user ``sensor-<id>`` or ``sensor-inputs`` of a secure run)."""
+        out = {a: s.key for a, s in (self.sources or {}).items()}
+        if self.input_source is not None:
+            out["inputs"] = self.input_source.key
+        return out
 
     @property
     def shown_states(self) -> tuple:

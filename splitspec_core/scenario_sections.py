@@ -22,7 +22,7 @@ from .labels import default_state_names
 from .scenario_files import resolve_model_file
 from .scenario_model import DesignSpec, Fault, GraphSpec, RunSpec, Scenario, Switching, System
 from .scenario_network import check_heals, parse_groups, parse_network
-from .scenario_sources import parse_sources
+from .scenario_sources import parse_input_source, parse_sources
 
 def _parse_system(raw: Any, time: str = "discrete") -> tuple[System, tuple]:
     sysmap = _require_map(raw, "system")
@@ -378,13 +378,11 @@ def parse_scenario(data: Any, *, source: str = "<scenario>", base: Path | None =
     positions = _parse_positions(top.get("positions"), ids)
     network = parse_network(top.get("network"), ids, graphs)
     sources = parse_sources(top.get("sources"), ids, run.pace)
-    if sources and system.B is not None:
-        raise ScenarioError("system.B (known inputs) with live sensors (sources:): the agents would not know u; "
-                            "give the inputs with recorded measurements (u columns) or leave system.B out")
+    input_source = parse_input_source(top.get("sources"), run.pace, system.inputs)
     return Scenario(
         name=name, time=time, agent_ids=ids, system=system, graphs=graphs,
         switching=switching, design=design, faults=faults, run=run, source=source, positions=positions,
-        network=network, sources=sources,
+        network=network, sources=sources, input_source=input_source,
     )
 
 

@@ -60,7 +60,7 @@ def cmd_run(args: argparse.Namespace) -> int:
               "that reaches it can connect; messages are still signed with the run's key)", file=sys.stderr)
     code = run_local(str(args.scenario), out, run_id=args.run_id, viewer=viewer, wait=args.wait,
                      round_timeout=args.round_timeout, agent_ids=sc.agent_ids, verbose=args.verbose,
-                     secure=not args.insecure, measurements=args.measurements, sensor_ids=tuple(sc.sources or ()))
+                     secure=not args.insecure, measurements=args.measurements, sensor_ids=tuple(sc.sensor_keys))
     rrd = out / "run.rrd"
     if rrd.exists():
         print(f"recording: {rrd}  (open it with: {_splitspec_command()} view {out})")
@@ -159,7 +159,7 @@ def cmd_credentials(args: argparse.Namespace) -> int:
     from splitspec_core.runtime.security import generate
 
     sc = ss.load_scenario(args.scenario)
-    sensors = tuple(sc.sources or ())
+    sensors = tuple(sc.sensor_keys)  # agent ids, and "inputs" for live known inputs
     cred = generate(args.out, sc.agent_ids, sensors)
     print(f"wrote {cred.dir}/users.txt (for the orchestrator: --secure {cred.dir}) and "
           f"{len(cred.users)} .cred files (plant: --credentials {cred.dir}/plant.cred, agent i: "

@@ -76,3 +76,92 @@ def test_a_run_on_a_measurements_file_with_u_columns_is_the_simulation(tmp_path)
     # and both are the run of the signal itself: the file holds its u bit for bit (repr)
     ran, sim0 = np.load(out / "trajectory.npz"), np.load(tmp_path / "sim0" / "trajectory.npz")
     assert np.allclose(ran["xhat"], sim0["xhat"], rtol=0, atol=1e-9 * np.abs(sim0["xhat"]).max())
+
+
+def _publish_live(sensors: dict, A, B, C, u, stop, publish_u: bool, failed: list) -> None:
+    try:
+        _publish(sensors, A, B, C, u, stop, publish_u)
+    except Exception as exc:  # noqa: BLE001 - reported by the test, not lost in a thread
+        failed.append(repr(exc))
+
+
+def _publish(sensors: dict, A, B, C, u, stop, publish_u: bool) -> None:
+    """The user's side: the plant at its equilibrium for the constant input ``u`` (so the measurements are the same
+    whenever they are sampled), each agent's y_i on its key and u on the inputs' key, with the run's credentials."""
+    import json
+    import time
+    from pathlib import Path
+
+    import zenoh
+
+    x = np.linalg.solve(np.eye(len(A)) - A, B @ u)  # x = A x + B u
+    sessions, pubs = [], []
+    for who, key in sensors["keys"].items():
+        c = zenoh.Config()
+        c.insert_json5("mode", '"client"')
+        c.insert_json5("connect/endpoints", json.dumps([sensors["endpoint"]]))
+        c.insert_json5("scouting/multicast/enabled", "false")
+        user, _, password = (Path(sensors["credentials"]) / f"sensor-{who}.cred").read_text().strip().partition(":")
+        c.insert_json5("transport/auth/usrpwd/user", json.dumps(user))
+        c.insert_json5("transport/auth/usrpwd/password", json.dumps(password))
+        s = zenoh.open(c)
+        sessions.append(s)
+        pubs.append((who, s.declare_publisher(key)))
+    try:
+        while not stop.is_set():
+            for who, pub in pubs:
+                if who == "inputs":
+                    if publish_u:
+                        pub.put(json.dumps({"u": [float(v) for v in u], "t": time.time()}))
+                else:
+                    pub.put(json.dumps({"y": [float(C[int(who) - 1] @ x)], "t": time.time()}))
+            time.sleep(0.02)
+    finally:
+        for s in sessions:
+            s.close()
+
+
+@pytest.mark.parametrize("publish_u", [True, False])
+def test_live_known_inputs_reach_every_agent(tmp_path, publish_u):
+    """Live sensors and live known inputs (``sources.inputs``), a secure run: with u published every agent's
+    estimate explains its measurements (residual ~ 0); without it the agents hold u = 0 and cannot."""
+    import subprocess
+    import threading
+
+    from tests.integration.runtime_helpers import ENV, ROOT, cli, wait_for_event
+
+    A = np.array([[0.9, 0.3], [-0.3, 0.9]])
+    B = np.array([[0.0], [1.0]])
+    C = [np.array([1.0, 0.0]), np.array([0.0, 1.0]), np.array([1.0, 1.0])]
+    data = {"name": "live-inputs", "time": "discrete",
+            "system": {"A": A.tolist(), "B": B.tolist(), "C": {i + 1: [c.tolist()] for i, c in enumerate(C)}},
+            "graphs": {"a": {"undirected": [[1, 2], [2, 3]]}}, "design": {"rate": 0.5},
+            "sources": {1: "live/1", 2: "live/2", 3: "live/3", "inputs": "live/u"},
+            "run": {"steps": 120, "pace": 20, "seed": 1}}  # 6 s: the publisher connects well within it
+    path = tmp_path / "live.yaml"
+    path.write_text(yaml.safe_dump(data, sort_keys=False))
+    out = tmp_path / "out"
+    proc = subprocess.Popen(cli("run", path, "--out", out), cwd=ROOT, env=ENV, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.PIPE, start_new_session=True)
+    stop, failed = threading.Event(), []
+    try:
+        sensors = wait_for_event(out, "sensors", timeout=60)
+        assert set(sensors["keys"]) == {"1", "2", "3", "inputs"}
+        pub = threading.Thread(target=_publish_live, args=(sensors, A, B, C, np.array([3.0]), stop, publish_u,
+                                                           failed))
+        pub.start()
+        _, err = proc.communicate(timeout=120)
+        assert proc.returncode == 0, err[-3000:]
+    finally:
+        stop.set()
+        if proc.poll() is None:
+            proc.kill()
+    pub.join(timeout=10)
+    assert not failed, failed
+    with np.load(out / "trajectory.npz") as f:
+        residual = f["residual"]
+    last = np.nanmax(residual[-5:])
+    if publish_u:
+        assert last < 1e-6, residual[-5:]
+    else:  # the plant's equilibrium needs u = 3: the estimates cannot explain y with u held at 0
+        assert last > 0.1, residual[-5:]

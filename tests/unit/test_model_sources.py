@@ -281,7 +281,36 @@ def test_a_measurements_file_with_u_columns_drives_the_inputs(tmp_path, suffix):
         load_measurements(path, two)
 
 
-def test_live_sensors_with_known_inputs_are_refused():
-    with pytest.raises(ss.ScenarioError, match="system.B .known inputs. with live sensors"):
-        ss.scenario(A=A4, B=[[0], [1], [0], [0]], C=CS, graphs=RING, rate=0.5, time="discrete",
-                    sources={1: "s1", 2: "s2", 3: "s3"}, pace=10)
+def test_live_known_inputs_need_their_key_and_known_inputs():
+    kw = dict(A=A4, C=CS, graphs=RING, rate=0.5, time="discrete", pace=10)
+    with pytest.raises(ss.ScenarioError, match=r"system.B \(known inputs\) with live sensors \(sources:\): give "
+                                               "sources.inputs"):
+        ss.scenario(B=[[0], [1], [0], [0]], sources={1: "s1", 2: "s2", 3: "s3"}, **kw)
+    with pytest.raises(ss.ScenarioError, match="sources.inputs names where u is published, and the scenario has no "
+                                               "system.B"):
+        ss.scenario(sources={1: "s1", 2: "s2", 3: "s3", "inputs": "u"}, **kw)
+    with pytest.raises(ss.ScenarioError, match="sources.inputs.key 's2' is also agent 2's source"):
+        ss.scenario(B=[[0], [1], [0], [0]], sources={1: "s1", 2: "s2", 3: "s3", "inputs": "s2"}, **kw)
+    sc = ss.scenario(B=[[0], [1], [0], [0]], sources={1: "s1", 2: "s2", 3: "s3", "inputs": {"key": "plant/u",
+                                                                                              "max_age": 0.5}}, **kw)
+    assert sc.input_source.key == "plant/u" and sc.input_source.max_age == 0.5
+    assert sc.sensor_keys == {1: "s1", 2: "s2", 3: "s3", "inputs": "plant/u"}
+
+
+def test_an_agent_takes_the_live_inputs_and_holds_them_when_none_is_fresh():
+    from splitspec_agents.measure import YBuffer
+    from splitspec_agents.sensor import LiveSampler
+
+    now = [0.0]
+    sampler = LiveSampler(2, 0.15, clock=lambda: now[0], field="u")
+    ys = YBuffer(1, slice(0, 1), 3, B=np.ones((4, 2)))
+    ys.put_sample(0, np.array([1.0]), sampler.take())  # nothing published yet: zero
+    assert np.array_equal(ys.bu(0), np.zeros(4))
+    assert sampler.offer(b'{"u": [1.0, 2.0], "t": 1.0}') and not sampler.offer(b'{"y": [1.0, 2.0]}')
+    assert sampler.counts() == {"bad_u": 1}
+    now[0] = 0.1
+    ys.put_sample(1, np.array([1.0]), sampler.take())
+    assert np.array_equal(ys.bu(1), np.ones((4, 2)) @ [1.0, 2.0])
+    now[0] = 1.0  # the value is stale: the last one taken is held
+    ys.put_sample(2, np.array([1.0]), sampler.take())
+    assert np.array_equal(ys.bu(2), np.ones((4, 2)) @ [1.0, 2.0])
