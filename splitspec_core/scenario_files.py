@@ -51,18 +51,26 @@ def read_model_file(path: Path, key: str = "system.file") -> dict:
     if not path.is_file():
         raise ScenarioError(f"{key}: {path} is not a regular file")
     suffix = path.suffix.lower()
+    if suffix not in (".npz", ".mat"):
+        raise ScenarioError(f"{key}: {path} is neither .npz nor .mat (numpy.savez or scipy.io.savemat / MATLAB save)")
+    try:
+        with open(path, "rb") as f:
+            head = f.read(128)
+    except OSError as exc:
+        raise ScenarioError(f"{key}: cannot read {path}: {exc.strerror or exc}") from None
     if suffix == ".npz":
+        if not head.startswith(b"PK"):  # numpy would take it for a pickle and say so
+            raise ScenarioError(f"{key}: {path} is not an .npz file (a zip archive of .npy arrays, as numpy.savez "
+                                "writes)")
         try:
             with np.load(path, allow_pickle=False) as z:
                 return {name: z[name] for name in z.files}
         except ValueError as exc:  # an object array (it would need pickle)
             raise ScenarioError(f"{key}: {path} holds an array of Python objects ({exc}); save plain numeric "
                                 "or string arrays (numpy.savez)") from None
-        except (OSError, EOFError) as exc:
-            raise ScenarioError(f"{key}: cannot read {path} as .npz: {exc}") from None
+        except Exception as exc:  # noqa: BLE001 - a damaged archive (BadZipFile, EOFError, OSError...): one line
+            raise ScenarioError(f"{key}: cannot read {path} as .npz: {type(exc).__name__}: {exc}") from None
     if suffix == ".mat":
-        with open(path, "rb") as f:
-            head = f.read(128)
         if head.startswith(_V73):
             raise ScenarioError(f"{key}: {path} is a MATLAB v7.3 (HDF5) file, which splitspec does not read: save "
                                 "it as v7 (MATLAB: save(file, ..., '-v7'); Python: scipy.io.savemat)")
@@ -70,10 +78,10 @@ def read_model_file(path: Path, key: str = "system.file") -> dict:
 
         try:
             data = scipy.io.loadmat(str(path))
-        except (ValueError, TypeError, OSError, NotImplementedError) as exc:
-            raise ScenarioError(f"{key}: cannot read {path} as a .mat file: {exc}") from None
+        except Exception as exc:  # noqa: BLE001 - MatReadError, ValueError, ...: not a .mat it can read, one line
+            raise ScenarioError(f"{key}: cannot read {path} as a .mat file: {type(exc).__name__}: {exc}") from None
         return {k: v for k, v in data.items() if not k.startswith("__")}
-    raise ScenarioError(f"{key}: {path} is neither .npz nor .mat (numpy.savez or scipy.io.savemat / MATLAB save)")
+    raise AssertionError(suffix)  # unreachable: the suffix was checked above
 
 
 def _names_of(a: np.ndarray) -> list:

@@ -109,11 +109,15 @@ def test_the_shipped_power_model_loads_by_name(tmp_path):
     ("names-count", {"states": "three"}, ["system.states has 3 names, expected 4"]),
     ("single-name-for-C", {"C": "C1"}, ["system.C must map agent ids to arrays"]),
     ("v7.3", {"file": "new.mat"}, ["MATLAB v7.3 (HDF5)", "save(file, ..., '-v7')"]),
+    ("not-npz", {"file": "text.npz"}, ["text.npz is not an .npz file"]),
+    ("not-mat", {"file": "text.mat"}, ["cannot read", "text.mat as a .mat file"]),
 ])
 def test_a_bad_model_file_is_one_line_naming_the_key(tmp_path, capsys, case, change, fragments):
     np.savez(tmp_path / "model.npz", A=A4, C1=CS[1], C2=CS[2], C3=CS[3], three=np.array(["a", "b", "c"]),
              bad=np.ones((1, 3)))
     (tmp_path / "model.txt").write_text("A = 1\n")
+    (tmp_path / "text.npz").write_text("A = 1\n")
+    (tmp_path / "text.mat").write_text("A = 1\n")
     # a v7.3 file is HDF5 behind MATLAB's 128-byte text header
     (tmp_path / "new.mat").write_bytes(b"MATLAB 7.3 MAT-file, Platform: GLNXA64".ljust(128, b" ") + b"\x89HDF\r\n")
     system = {"file": "model.npz", "A": "A", "C": {1: "C1", 2: "C2", 3: "C3"}, **change}
