@@ -179,21 +179,34 @@ def attach(node, shell, keys) -> list:
     The sensor's messages are handled on Zenoh's thread by :meth:`LiveSampler.offer` alone (not under the
     node's lock), so a flooding sensor never holds up the protocol.
     """
-    import zenoh
-
     src = node.sc.sources[node.id]
     node.sampler = LiveSampler(node.s, src.max_age)
+    sub = _subscribe(node, shell, keys.sensor(src.key), node.sampler, "sensor")
+    return [sub] + (attach_inputs(node, shell, keys) if node.sc.input_source is not None else [])
+
+
+def attach_inputs(node, shell, keys) -> list:
+    """Give an agent the live known inputs' :class:`LiveSampler` (``sources.inputs``: ``{"u": [...], "t": ...}``
+    or ``8 p`` raw bytes) and subscribe it; refusals are counted as ``inputs_<reason>``."""
+    src = node.sc.input_source
+    node.input_sampler = LiveSampler(node.sc.system.inputs, src.max_age, field="u")
+    return [_subscribe(node, shell, keys.sensor(src.key), node.input_sampler, "inputs")]
+
+
+def _subscribe(node, shell, key: str, sampler: LiveSampler, what: str):
+    """Subscribe ``sampler`` to ``key`` (its refusals in the node's counts as ``<what>_<reason>``); the subscriber."""
+    import zenoh
+
     inbox_counts = node.extra_counts
 
     def counts() -> dict:
         out = dict(inbox_counts() if inbox_counts else {})
-        for reason, c in node.sampler.counts().items():
-            out[f"sensor_{reason}"] = out.get(f"sensor_{reason}", 0) + c
+        for reason, c in sampler.counts().items():
+            out[f"{what}_{reason}"] = out.get(f"{what}_{reason}", 0) + c
         return out
 
     node.extra_counts = counts
-    cap = payload_cap(node.s)
-    sampler = node.sampler
+    cap = payload_cap(sampler.size)
 
     def cb(sample):
         if len(sample.payload) > cap:  # never copied, never decoded
@@ -201,37 +214,6 @@ def attach(node, shell, keys) -> list:
             return
         sampler.offer(sample.payload.to_bytes())
 
-    key = keys.sensor(src.key)
     sub = shell.session.declare_subscriber(key, zenoh.handlers.Callback(cb, None, indirect=False))
-    shell.log.info("agent %d: live sensor on %s (max_age %g s)", node.id, key, src.max_age)
-    return [sub] + (attach_inputs(node, shell, keys) if node.sc.input_source is not None else [])
-
-
-def attach_inputs(node, shell, keys) -> list:
-    """Give an agent the live known inputs' :class:`LiveSampler` (``sources.inputs``: ``{"u": [...], "t": ...}``
-    or ``8 p`` raw bytes) and subscribe it; refusals are counted as ``inputs_<reason>``."""
-    import zenoh
-
-    src = node.sc.input_source
-    sampler = node.input_sampler = LiveSampler(node.sc.system.inputs, src.max_age, field="u")
-    inbox_counts = node.extra_counts
-
-    def counts() -> dict:
-        out = dict(inbox_counts() if inbox_counts else {})
-        for reason, c in sampler.counts().items():
-            out[f"inputs_{reason}"] = out.get(f"inputs_{reason}", 0) + c
-        return out
-
-    node.extra_counts = counts
-    cap = payload_cap(sampler.size)
-
-    def cb(sample):
-        if len(sample.payload) > cap:
-            sampler._count("too_big")
-            return
-        sampler.offer(sample.payload.to_bytes())
-
-    key = keys.sensor(src.key)
-    sub = shell.session.declare_subscriber(key, zenoh.handlers.Callback(cb, None, indirect=False))
-    shell.log.info("agent %d: live inputs on %s (max_age %g s)", node.id, key, src.max_age)
-    return [sub]
+    shell.log.info("agent %d: live %s on %s (max_age %g s)", node.id, what, key, sampler.max_age)
+    return sub
