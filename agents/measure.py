@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from splitspec_core.steps import known_input
+
 __all__ = ["YBuffer"]
 
 
@@ -72,7 +74,7 @@ class YBuffer:
 
     def bu(self, tau: int) -> np.ndarray | None:
         """``B u(tau)``, ``u`` as the plant sent it (the simulator adds ``B @ u`` too); None: no inputs."""
-        return None if self.B is None else self.B @ self.ubuf[tau]
+        return known_input(self.B, self.ubuf[tau] if self.inputs else None)
 
     def prune(self, tau: int) -> None:
         """Forget event times before ``tau``."""

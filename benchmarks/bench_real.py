@@ -102,7 +102,8 @@ def noise_row(model: str, which: str, rate: float, extra: dict, args) -> None:
     t_cmp = time.perf_counter() - t0
     split, kf = res.estimators["split riccati"], res.estimators["centralized KF"]
     with tempfile.TemporaryDirectory(prefix="bench-real-") as tmp:
-        rec = ss.run(ss.scenario(**{**_keywords(sc), "steps": args.run_steps}), out=Path(tmp) / "run")
+        run_sc = scenario(model, which, rate, {**extra, "gains": "riccati"}, args.run_steps * args.dt, args.dt, NOISE)
+        rec = ss.run(run_sc, out=Path(tmp) / "run")
         fin = rec.named("run_finished")[-1]
     ms = 1e3 / fin["rounds_per_second"]
     cert = "yes" if split.certified_rate else "no"
@@ -110,15 +111,6 @@ def noise_row(model: str, which: str, rate: float, extra: dict, args) -> None:
           f"{split.rms_mean / kf.rms_mean:>7.3g} {cert:>5} {ms:>9.2f}   (compare {t_cmp:.0f} s, "
           f"{args.noise_seeds} seeds of {sc.run.steps} steps; run of {args.run_steps} event times)")
 
-
-def _keywords(sc: ss.Scenario) -> dict:
-    """The keywords that rebuild ``sc`` (for ss.run, which hands them to the processes as YAML)."""
-    d = sc.design
-    return dict(name=sc.name, time=sc.time, A=sc.system.A, states=list(sc.state_names),
-                C={i: C for i, C in zip(sc.agent_ids, sc.system.Cs)},
-                graphs={g.name: [list(a) for a in g.arcs] for g in sc.graphs}, dt=sc.run.dt,
-                process_noise=sc.system.process_noise, measurement_noise=sc.system.measurement_noise,
-                rate=d.rate, gains=d.gains, margin=d.margin, undetectable=d.undetectable)
 
 
 def measure(des, seeds: int) -> dict:

@@ -850,7 +850,7 @@ class Recorder:
         from .reference_view import file_rows
 
         self.set_y_source(sc, file_rows(meas), truth=meas.has_truth)
-        self._meas.inputs = getattr(meas, "u", None)
+        self._meas.inputs = meas.u
 
     def set_y_source(self, sc, y_row, *, truth: bool) -> None:
         """The estimators run on measurements ``y_row(tau) -> (y, missing) | None``

@@ -28,6 +28,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from .errors import DimensionError, ScenarioError
+from .scenario_checks import MAX_MAGNITUDE, MIN_DT, _matrix, _number
 
 __all__ = ["InputSignal", "parse_input", "parse_inputs", "input_at", "input_time"]
 
@@ -46,26 +47,18 @@ class InputSignal:
 
 
 def _vector(value: Any, key: str, width: int) -> tuple:
-    import numbers
-
-    if not isinstance(value, list) or not all(isinstance(v, numbers.Real) and not isinstance(v, bool) for v in value):
-        raise ScenarioError(f"{key} must be a list of {width} numbers (one per column of system.B), got {value!r}"[:200])
-    if len(value) != width:
-        raise DimensionError(f"{key} has {len(value)} entries; system.B has {width} columns (one per input)")
-    out = tuple(float(v) for v in value)
-    if not all(math.isfinite(v) and abs(v) <= 1e12 for v in out):
-        raise ScenarioError(f"{key} must be finite numbers of magnitude at most 1e12")
-    return out
+    """``width`` finite numbers (the scenario's own vector check, then the width against ``system.B``)."""
+    out = _matrix(value, key, vector=True).ravel()
+    if len(out) != width:
+        raise DimensionError(f"{key} has {len(out)} entries; system.B has {width} columns (one per input)")
+    return tuple(float(v) for v in out)
 
 
-def _real(value: Any, key: str, *, positive: bool = False) -> float:
-    import numbers
-
-    if not isinstance(value, numbers.Real) or isinstance(value, bool) or not math.isfinite(float(value)):
-        raise ScenarioError(f"{key} must be a finite number, got {value!r}")
-    if positive and not float(value) > 0:
-        raise ScenarioError(f"{key} must be > 0, got {value!r}")
-    return float(value)
+def _positive(value: Any, key: str) -> float:
+    v = _number(value, key)
+    if not v > 0:
+        raise ScenarioError(f"{key} must be > 0, got {v:g}")
+    return v
 
 
 def parse_input(raw: Any, width: int, key: str = "system.u") -> InputSignal:
@@ -86,7 +79,7 @@ def parse_input(raw: Any, width: int, key: str = "system.u") -> InputSignal:
             where = f"{key}.steps[{j + 1}]"
             if not isinstance(item, list) or len(item) != 2:
                 raise ScenarioError(f"{where} must be [t, [{width} numbers]], got {item!r}"[:200])
-            t = _real(item[0], f"{where} (its time)")
+            t = _number(item[0], f"{where} (its time)")
             if steps and not t > steps[-1][0]:
                 raise ScenarioError(f"{where}: times must increase ({t:g} after {steps[-1][0]:g})")
             steps.append((t, _vector(item[1], where, width)))
@@ -104,8 +97,8 @@ def parse_input(raw: Any, width: int, key: str = "system.u") -> InputSignal:
             if "amplitude" not in item or "period" not in item:
                 raise ScenarioError(f"{where} needs amplitude and period")
             sines.append((_vector(item["amplitude"], f"{where}.amplitude", width),
-                          _real(item["period"], f"{where}.period", positive=True),
-                          _real(item.get("phase", 0.0), f"{where}.phase")))
+                          _positive(item["period"], f"{where}.period"),
+                          _number(item.get("phase", 0.0), f"{where}.phase")))
     return InputSignal(width=width, constant=constant, steps=tuple(steps), sines=tuple(sines))
 
 
@@ -136,8 +129,6 @@ def _sampled(A: Any, B: Any, sample: Any, time: str) -> tuple:
     """``system.sample``: ``(exp(A dt), int_0^dt exp(A s) ds B, dt)`` (zero-order hold), or ``(A, B, None)``."""
     if sample is None:
         return A, B, None
-    from .scenario_checks import MAX_MAGNITUDE, MIN_DT, _number
-
     dt = _number(sample, "system.sample")
     if time != "discrete":
         raise ScenarioError("system.sample samples a continuous model for time: discrete; with time: continuous the "
@@ -157,8 +148,6 @@ def _sampled(A: Any, B: Any, sample: Any, time: str) -> tuple:
 def parse_inputs(sysmap: Mapping, A: np.ndarray, time: str) -> tuple:
     """``(A, B, u, sample)`` of ``system:``: ``B`` (n x p) checked against ``A``, ``u`` against ``B``'s width,
     and with ``system.sample`` the sampled ``A`` and ``B``; one-line errors naming the key."""
-    from .scenario_checks import _matrix
-
     B = None
     if sysmap.get("B") is not None:
         B = _matrix(sysmap["B"], "system.B")

@@ -188,7 +188,7 @@ class RecordedPlant:
 
     def input(self) -> np.ndarray | None:
         """The file's ``u`` row when it has ``u`` columns, else the scenario's signal (None: no inputs)."""
-        if getattr(self.meas, "u", None) is not None:
+        if self.meas.u is not None:
             return self.meas.u[self.k]
         return None if self.sc is None else input_of(self.sc, self.k)
 

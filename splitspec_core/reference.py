@@ -99,7 +99,7 @@ def no_truth_arrays(traj, sc, u: np.ndarray | None = None) -> dict:
     if traj.y is None:
         raise ValueError("no_truth_arrays needs the measurements the estimators were given (trajectory y)")
     missing = traj.y_missing if traj.y_missing is not None else np.zeros(traj.alive.shape, dtype=bool)
-    if u is None and getattr(sc, "input_source", None) is not None:
+    if u is None and sc.input_source is not None:
         # live known inputs: the agents do not report the u they took, so the filter cannot be run on it; it is not
         # shown (NaN) rather than run with a u it did not have
         kf = np.full((len(traj.y), sc.n), np.nan)

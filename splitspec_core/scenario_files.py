@@ -30,10 +30,8 @@ import numpy as np
 
 from .errors import ScenarioError
 
-__all__ = ["FILE_KEYS", "read_model_file", "resolve_model_file"]
+__all__ = ["read_model_file", "resolve_model_file"]
 
-#: the keys of ``system:`` whose value may name an array of ``system.file`` (``C`` and ``outputs``: per agent)
-FILE_KEYS = ("A", "B", "C", "x0", "states", "outputs")
 #: a MATLAB v7.3 file is HDF5: its 128-byte header starts with this text
 _V73 = b"MATLAB 7.3 MAT-file"
 

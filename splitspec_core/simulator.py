@@ -576,8 +576,7 @@ def simulate(des: Design, *, seed: int | None = None, steps: int | None = None, 
             rows = net.rows(sc, key[0])
             W = w_cache[key] = (est.weights(rows), rows, _entries(sc, rows))
         Ws = _realized_step(est, sc, W, k, exchanges, imp, replay, net.groups, lost_rows) if impaired else None
-        u = plant.input()
-        bu = None if u is None else B @ u  # the known input every agent adds (as the agent process: B @ u)
+        bu = st.known_input(B, plant.input())  # the known input every agent adds (the agent process: the same)
         X = (est.step(X, y, W[0], alive, missing, bu) if Ws is None
              else est.step_realized(X, y, Ws, alive, missing, bu))
         plant.advance()

@@ -40,6 +40,7 @@ import numpy as np
 __all__ = [
     "weighted_average",
     "consensus_subround",
+    "known_input",
     "measurement_update",
     "prediction_update",
     "sampled_data_matrices",
@@ -67,6 +68,11 @@ def consensus_subround(z_i: np.ndarray, P_i: np.ndarray, neighbour_states: Seque
     """
     avg = weighted_average(neighbour_states, weights)
     return z_i + P_i @ (avg - z_i)
+
+
+def known_input(B: np.ndarray | None, u: np.ndarray | None) -> np.ndarray | None:
+    """``B u(tau)``: what every update adds for the known inputs, as the plant does (None: no inputs)."""
+    return None if B is None or u is None else B @ u
 
 
 def measurement_update(z_q: np.ndarray, F_i: np.ndarray, K_i: np.ndarray, y_i: np.ndarray,
