@@ -67,7 +67,7 @@ test: setup
 	RERUN_ANALYTICS=0 $(BIN)/python -m pytest
 
 # The certificate tests again with every spectral radius of the spectral q computed by ARPACK on the matrix-free
-# operator (splitspec_core/spectral.py), which by default only designs above 300 unknowns take: both paths give
+# operator (splitspec_core/synthesis/spectral.py), which by default only designs above 300 unknowns take: both paths give
 # the same q and verdicts (tests/conftest.py reads SPLITSPEC_TEST_EIGENVALUES).
 CERTIFICATE_TESTS ?= tests/unit/test_certificates.py tests/unit/test_design_at_scale.py tests/unit/test_loss_certificate.py \
 	tests/unit/test_paper_section5.py tests/unit/test_resilience_runtime.py tests/property/test_design_properties.py \

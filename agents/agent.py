@@ -2,7 +2,7 @@
 
 The protocol logic lives in :class:`AgentNode` (no sockets: messages in,
 messages out), the Zenoh shell in :func:`main`.  The math is exactly the
-per-agent step functions of :mod:`splitspec_core.steps`, so a run equals
+per-agent step functions of :mod:`splitspec_core.model.steps`, so a run equals
 ``splitspec simulate`` to round-off.
 
 Round ``(tau, attempt)`` (discrete):  z_i(0) = x_i(tau); for k = 1..q wait
@@ -35,11 +35,11 @@ import time
 
 import numpy as np
 
-from splitspec_core import steps as st
-from splitspec_core.impairment import Impairment, sub_round
-from splitspec_core.local_design import directions_of, scenario_agent
-from splitspec_core.scenario_load import parse_scenario_text
-from splitspec_core.plant_model import initial_estimate, output_rows
+from splitspec_core.model import steps as st
+from splitspec_core.model.impairment import Impairment, sub_round
+from splitspec_core.model.local_design import directions_of, scenario_agent
+from splitspec_core.scenarios.load import parse_scenario_text
+from splitspec_core.model.plant import initial_estimate, output_rows
 from splitspec_core.runtime.ticks import TickNetwork
 from splitspec_core.runtime.wire import Keys, WireError, decode, encode
 
@@ -103,7 +103,7 @@ class AgentNode:
         self.sampler = self.input_sampler = None  # live sensor and live inputs (sources:, agents/sensor.py)
         self.record_y = bool(config.get("record_y", False))  # report the y_i used (measurements, live sensors)
         self.rejected: dict = {}
-        # a misbehaving network (splitspec_core.impairment): the same draws as the simulator's, a deadline per
+        # a misbehaving network (splitspec_core.model.impairment): the same draws as the simulator's, a deadline per
         # sub-round, messages held for their delay; the clock is only read when a deadline or a delay is set
         net = sc.network
         self.imp = Impairment(net, self.seed) if net.impaired else None
@@ -291,7 +291,7 @@ class AgentNode:
 
         Every neighbour's message counts unless a partition in force cuts it, it is drawn lost, or (with a
         deadline) it has not arrived, and been held for its delay, by the deadline: the sub-round then goes on
-        with what it has (:func:`~splitspec_core.impairment.realized_row`) and records what did not count.
+        with what it has (:func:`~splitspec_core.model.impairment.realized_row`) and records what did not count.
         """
         r = self.round
         if k == 0 and r["z0"] is not None:  # eq. split-discrete-p1: z_j(0) = x_j(tau), sent as x_j's report

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from splitspec_core.steps import known_input
+from splitspec_core.model.steps import known_input
 
 __all__ = ["YBuffer"]
 

@@ -15,7 +15,7 @@ arrival.
 :class:`LiveSampler` keeps only the newest valid value and its arrival time (one slot: a flood only
 overwrites it).  At every event time (the tick's arrival: the run is paced, so that is the event time's
 wall-clock instant) the agent takes the value if its age is at most ``max_age``, else it has no
-measurement and predicts (:func:`splitspec_core.steps.prediction_update`).  What is refused is counted
+measurement and predicts (:func:`splitspec_core.model.steps.prediction_update`).  What is refused is counted
 per reason and reaches the orchestrator in the agent's ``xhat`` (``rejected``): ``too_big`` (more than
 :func:`payload_cap` bytes: never decoded), ``garbage`` (neither a JSON object nor ``8 * s_i`` bytes),
 ``not_object`` (JSON, not an object), ``bad_y`` (no list of numbers), ``bad_length`` (not s_i values),

@@ -37,11 +37,11 @@ HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 from _common import loadavg  # noqa: E402
 
-from splitspec_core.baselines import baseline_seeds, baseline_trajectories  # noqa: E402
-from splitspec_core.comparison import compare  # noqa: E402
-from splitspec_core.designer import design  # noqa: E402
-from splitspec_core.generate import ring_scenario  # noqa: E402
-from splitspec_core.scenario_load import load_scenario, parse_scenario  # noqa: E402
+from splitspec_core.studies.baselines import baseline_seeds, baseline_trajectories  # noqa: E402
+from splitspec_core.studies.comparison import compare  # noqa: E402
+from splitspec_core.synthesis.designer import design  # noqa: E402
+from splitspec_core.scenarios.generate import ring_scenario  # noqa: E402
+from splitspec_core.scenarios.load import load_scenario, parse_scenario  # noqa: E402
 
 TOL = 1e-9
 

@@ -5,7 +5,7 @@ Two tables, no timing assertions anywhere (the machine is shared):
 * random jointly observable systems (n = 10, every agent sees part of the
   state) on random strongly connected graphs (a ring plus 2m random arcs),
   discrete (spectral q) and continuous (g_bound + exact g_min), place gains;
-* design at scale: the undirected ring of :func:`splitspec_core.generate.ring_scenario`
+* design at scale: the undirected ring of :func:`splitspec_core.scenarios.generate.ring_scenario`
   (every oscillator block seen by two agents or more, so any single loss leaves a
   jointly observable, strongly connected network), discrete, spectral q, designed
   plain and with ``design.resilience: 1`` (q certified on the m + 1 cases: the ring
@@ -14,10 +14,10 @@ Two tables, no timing assertions anywhere (the machine is shared):
   ``--cli`` times the text report ``splitspec design FILE`` (a fresh process, as a user
   runs it) instead of the in-process ``design()``;
 * how the cost grows with m (``--only scale``): the ring with one random chord per agent
-  (:func:`splitspec_core.generate.chord_arcs`: a ring of 1000 mixes too slowly to be useful), n = 6,
+  (:func:`splitspec_core.scenarios.generate.chord_arcs`: a ring of 1000 mixes too slowly to be useful), n = 6,
   one output per agent, rate 0.9, ``q: auto``, designed plain and resilient, each design in a fresh
   process: wall seconds, the peak resident memory of that process (``wait4``), q, and how the spectral
-  radii were computed (``dense``/``iterative``, :mod:`splitspec_core.spectral`).  Resilient designs run with one
+  radii were computed (``dense``/``iterative``, :mod:`splitspec_core.synthesis.spectral`).  Resilient designs run with one
   process and with every core (:mod:`splitspec_core.parallel`: the loss cases on worker processes); plain and
   resilient alternate per size; the load average is printed beside each.
 
@@ -47,9 +47,9 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from splitspec_core.designer import design
-from splitspec_core.generate import random_strongly_connected_arcs, random_system, ring_scenario
-from splitspec_core.scenario_load import parse_scenario
+from splitspec_core.synthesis.designer import design
+from splitspec_core.scenarios.generate import random_strongly_connected_arcs, random_system, ring_scenario
+from splitspec_core.scenarios.load import parse_scenario
 
 from _common import loadavg
 

@@ -45,9 +45,9 @@ def per_simulation(steps: int, repeat: int) -> tuple:
     import dataclasses
 
     import splitspec_core as ss
-    from splitspec_core.designer import design
-    from splitspec_core.scenario_model import NetworkSpec
-    from splitspec_core.simulator import simulate
+    from splitspec_core.synthesis.designer import design
+    from splitspec_core.scenarios.specs import NetworkSpec
+    from splitspec_core.simulation.simulator import simulate
 
     sc = ss.load_scenario(ROOT / "examples" / "ring10_lossy.yaml")
     des = design(sc)

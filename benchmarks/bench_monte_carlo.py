@@ -42,7 +42,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import loadavg  # noqa: E402
 from bench_simulate import get_design  # noqa: E402
 
-from splitspec_core.montecarlo import simulate_seeds  # noqa: E402
+from splitspec_core.simulation.montecarlo import simulate_seeds  # noqa: E402
 
 REL_TOL = 1e-9
 

@@ -46,9 +46,9 @@ from pathlib import Path
 import numpy as np
 
 import splitspec_core as ss
-from splitspec_core.analysis import fit_decay
+from splitspec_core.simulation.metrics import fit_decay
 from splitspec_core.errors import SplitspecError
-from splitspec_core.report import rate_certificate
+from splitspec_core.synthesis.report import rate_certificate
 
 from _common import loadavg
 

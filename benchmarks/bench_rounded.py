@@ -1,6 +1,6 @@
 """Designs of rounded models (issue "Honest designs on imperfect models"): exact against 6 and 4 decimals.
 
-Random structured systems (:func:`splitspec_core.generate.random_system`: oscillator blocks in a
+Random structured systems (:func:`splitspec_core.scenarios.generate.random_system`: oscillator blocks in a
 random orthogonal basis, each agent one output seeing some blocks, so most agents have a 2- or
 4-dimensional unobservable space), continuous and discrete, 4 to 7 agents, two random strongly
 connected graphs (discrete: random switching between them, as ``tests/unit/test_simulate.py`` draws them;
@@ -20,7 +20,7 @@ rounded to 6 and to 4 decimals (as a model copied from a paper or a data sheet).
 default: a rounded model's weak directions then count as seen).
 
 ``--splits N`` counts, over N random systems (n = 4..10, m = 3..8, continuous and discrete, the
-population of :mod:`splitspec_core.observability`'s docstring), the rank decisions alone: how many exact
+population of :mod:`splitspec_core.model.observability`'s docstring), the rank decisions alone: how many exact
 systems' splits the default rule changes (against the round-off floor), how many rounded models (6 and 4
 decimals) get the exact system's split, and how many exact systems become only weakly jointly observable.
 
@@ -35,12 +35,12 @@ import math
 
 import numpy as np
 
-from splitspec_core.analysis import fit_decay
-from splitspec_core.designer import design
-from splitspec_core.generate import random_strongly_connected_arcs, random_system
-from splitspec_core.report import rate_certificate
-from splitspec_core.scenario_load import parse_scenario
-from splitspec_core.simulator import simulate
+from splitspec_core.simulation.metrics import fit_decay
+from splitspec_core.synthesis.designer import design
+from splitspec_core.scenarios.generate import random_strongly_connected_arcs, random_system
+from splitspec_core.synthesis.report import rate_certificate
+from splitspec_core.scenarios.load import parse_scenario
+from splitspec_core.simulation.simulator import simulate
 
 from _common import loadavg
 
@@ -101,7 +101,7 @@ def evaluate(raw: dict) -> dict:
 
 
 def splits(count: int) -> None:
-    from splitspec_core.observability import ROUND_OFF, decompose, unobservable_directions
+    from splitspec_core.model.observability import ROUND_OFF, decompose, unobservable_directions
 
     changed = weak_joint = 0
     same = {6: 0, 4: 0}

@@ -145,7 +145,7 @@ def runtime_ring(m: int, q: int, steps: int, *, deadline: float | None = None) -
     """The benchmark's ring (random_system, any m >= 3; generate.ring_scenario needs m >= 2 ceil(n / 2)).
 
     ``deadline``: the same ring with ``network: {deadline: D}`` (no loss, no delay)."""
-    from splitspec_core.generate import random_system
+    from splitspec_core.scenarios.generate import random_system
 
     A, Cs = random_system(np.random.default_rng(8), m, 6, time="discrete")
     sc = {"name": f"ring{m}-q{q}", "time": "discrete",

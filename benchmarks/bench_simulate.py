@@ -57,13 +57,13 @@ import numpy as np
 import scipy
 import scipy.linalg as sla
 
-from splitspec_core.designer import design
-from splitspec_core.simulator import _spmv
-from splitspec_core.generate import random_strongly_connected_arcs, random_system
-from splitspec_core.network import consensus_rows
-from splitspec_core.scenario_load import parse_scenario
-from splitspec_core.plant_model import Plant, initial_estimate
-from splitspec_core.simulator import BatchEstimator, simulate
+from splitspec_core.synthesis.designer import design
+from splitspec_core.simulation.simulator import _spmv
+from splitspec_core.scenarios.generate import random_strongly_connected_arcs, random_system
+from splitspec_core.model.network import consensus_rows
+from splitspec_core.scenarios.load import parse_scenario
+from splitspec_core.model.plant import Plant, initial_estimate
+from splitspec_core.simulation.simulator import BatchEstimator, simulate
 
 N = 10
 Q = 10

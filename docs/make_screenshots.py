@@ -97,8 +97,8 @@ def measured_run(run_dir: Path) -> Path:
     """``MEASURED_SCENARIO`` run on its own simulated measurements without the truth, into ``run_dir``."""
     import numpy as np
 
-    from splitspec_core.measurements import load_measurements, write_measurements
-    from splitspec_core.scenario_load import load_scenario
+    from splitspec_core.scenarios.measurements import load_measurements, write_measurements
+    from splitspec_core.scenarios.load import load_scenario
 
     work = run_dir.parent / f"{run_dir.name}-files"
     work.mkdir(parents=True, exist_ok=True)

@@ -46,7 +46,7 @@ says why dots: an edge of a Rerun 0.41 graph has no colour or dash of its own).
 A run on measurements without the truth (``splitspec run --measurements FILE`` whose file has no
 ``x``) logs nothing of ``errors``, ``errors_log10`` and ``state/<k>/truth``: what it cannot know
 is not shown, not even as NaN.  The residuals, the disagreement and the distance to the centralized
-Kalman filter take the errors' place (:mod:`splitspec_core.reference`); with the truth they are
+Kalman filter take the errors' place (:mod:`splitspec_core.studies.no_truth`); with the truth they are
 logged beside the errors
 (:mod:`splitspec_orchestrator.reference_view`).
 
@@ -222,7 +222,7 @@ def default_blueprint(time_mode: str, *, n: int | None = None, envelope: bool = 
     filter bold in place of the truth.  Neither (a run of the simulated plant): the layout above.
     ``active_tab``: the tab shown first, by index or name (``"rounds"``); the first by default.
     ``states``: the states' names (``system.states``; :func:`state_labels`).  ``shown``: the indices of the states
-    the states tab shows (``run.show``, :attr:`splitspec_core.scenario_model.Scenario.shown_states`; None: all);
+    the states tab shows (``run.show``, :attr:`splitspec_core.scenarios.specs.Scenario.shown_states`; None: all);
     the others stay in the recording, a view away (the viewer's entity tree, ``state/<name>``).
     """
     import rerun.blueprint as rrb

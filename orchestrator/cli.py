@@ -23,8 +23,8 @@ from splitspec_core.runtime.cli import seed as _seed
 
 from .commands.operate import SIGNALS, port
 
-MAX_KCF_EPS = 1e12  # as splitspec_core.scenario_model.MAX_MAGNITUDE
-MAX_NETWORK_SECONDS = 60.0  # as splitspec_core.scenario_checks.MAX_NETWORK_SECONDS (this module stays light)
+MAX_KCF_EPS = 1e12  # as splitspec_core.scenarios.specs.MAX_MAGNITUDE
+MAX_NETWORK_SECONDS = 60.0  # as splitspec_core.scenarios.checks.MAX_NETWORK_SECONDS (this module stays light)
 
 
 def _loss_level(text: str) -> float:

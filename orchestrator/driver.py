@@ -20,7 +20,7 @@ What it does, through the machine:
   that misses the round timeout) is lost from that event time on and the
   round in flight is re-run without it (a higher ``attempt``);
 * executes the scenario's faults between rounds, at the step the simulator
-  applies them (:func:`splitspec_core.network.fault_step`): ``kill`` sends
+  applies them (:func:`splitspec_core.model.network.fault_step`): ``kill`` sends
   SIGKILL and ``hang`` SIGSTOP to the agent's process (or, for a process on
   another host, asks it to do so to itself), both lost from that event time;
   ``restart`` spawns a new agent process and admits it with a fresh estimate
@@ -28,7 +28,7 @@ What it does, through the machine:
 * admits at the next event time any agent that (re)appears by hand after a
   loss (``splitspec agent --id I --connect ...``), with a new incarnation;
 * after every change of the network, logs the resilience verdict
-  (:func:`splitspec_core.survivors.certify_network`): still strongly connected,
+  (:func:`splitspec_core.synthesis.survivors.certify_network`): still strongly connected,
   jointly observable, and is the rate still certified by the designed g or q;
 * records ``trajectory.npz``, ``events.jsonl``, ``run.rrd`` and a copy of the
   scenario (``scenario.yaml``), so that ``splitspec simulate scenario.yaml
@@ -51,9 +51,9 @@ from pathlib import Path
 
 import numpy as np
 
-from splitspec_core.designer import design
+from splitspec_core.synthesis.designer import design
 from splitspec_core.errors import SplitspecError
-from splitspec_core.scenario_load import load_scenario, read_scenario_text, resolved_scenario_text
+from splitspec_core.scenarios.load import load_scenario, read_scenario_text, resolved_scenario_text
 from splitspec_core.runtime.ticks import TickEncoder
 from splitspec_core.runtime.wire import Keys, WireError, decode, encode, new_run_key
 
@@ -135,7 +135,7 @@ class Orchestrator:
         if measurements is not None:  # the plant plays the user's file; the file decides the steps
             import dataclasses
 
-            from splitspec_core.measurements import load_measurements
+            from splitspec_core.scenarios.measurements import load_measurements
 
             self.meas = load_measurements(measurements, self.sc)
             self.sc = dataclasses.replace(self.sc, run=dataclasses.replace(self.sc.run, steps=self.meas.steps))

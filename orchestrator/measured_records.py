@@ -5,7 +5,7 @@ A run whose estimators take their ``y`` from a measurements file
 (:meth:`~splitspec_orchestrator.recorder.Recorder.set_live_sources`) records, in addition:
 
 * ``trajectory.npz``: the ``y`` and ``y_missing`` rows of the event times taken so far and, at the close,
-  what is known without the truth (:func:`splitspec_core.reference.no_truth_arrays`: the centralized Kalman
+  what is known without the truth (:func:`splitspec_core.studies.no_truth.no_truth_arrays`: the centralized Kalman
   filter on the same measurements and each agent's distance to it), computed once (:meth:`MeasuredRecords.arrays`);
 * ``run.rrd``: without the truth, an agent is shown where it is alive with a finite estimate (there is no
   error to show, :meth:`MeasuredRecords.row_errors`), and a mark stands on the log10 disagreement
@@ -64,7 +64,7 @@ class MeasuredRecords:
 
     def live_source(self, sc):
         """Live sensors: the :data:`~splitspec_orchestrator.reference_view.YRow` of what :meth:`live_y` is given."""
-        from splitspec_core.plant_model import output_rows
+        from splitspec_core.model.plant import output_rows
 
         self._live_rows = output_rows(sc.system.Cs)
         self._live = {}
@@ -109,8 +109,8 @@ class MeasuredRecords:
         y, missing = rows.measurements(taus)
         extra = {"y": y, "y_missing": missing}
         if self.closed:  # the centralized Kalman filter over the whole run: once, at the end
-            from splitspec_core.reference import no_truth_arrays
-            from splitspec_core.simulator import Trajectory
+            from splitspec_core.studies.no_truth import no_truth_arrays
+            from splitspec_core.simulation.simulator import Trajectory
 
             D = self._d
             traj = Trajectory(t=D.t[:T], x=D.x[:T], xhat=D.xhat[:T], alive=D.alive[:T], graph=D.graph[:T],

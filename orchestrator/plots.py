@@ -18,7 +18,7 @@ def _xlabel(time: str) -> str:
     return "time t" if time == "continuous" else "event time tau"
 
 
-# one style per kind of event (splitspec_core.analysis.Mark.kind)
+# one style per kind of event (splitspec_core.simulation.metrics.Mark.kind)
 MARK_STYLES = {
     "loss": dict(color="#c0392b", ls=":", lw=1.1),
     "rejoin": dict(color="#1e8449", ls="-.", lw=1.1),
@@ -88,16 +88,16 @@ def errors_figure(traj, *, time: str, rate: float | None, title: str, marks=(), 
                   adaptive: bool = False):
     """Error norm per agent, log scale, events marked, with the designed envelope restarted at rejoins and switches.
 
-    ``marks``: :func:`splitspec_core.analysis.event_marks` of the run.  The
+    ``marks``: :func:`splitspec_core.simulation.metrics.event_marks` of the run.  The
     envelope ``c rate^(tau - tau_k)`` / ``c exp(-rate (t - t_k))`` starts afresh
-    at every restart ``t_k`` (:func:`splitspec_core.analysis.envelope_restarts`)
+    at every restart ``t_k`` (:func:`splitspec_core.simulation.metrics.envelope_restarts`)
     with the smallest constant above the noise-free errors of its piece.
     ``adaptive``: no envelope (thm. split_continuous_adaptive certifies no rate); ``rate`` None: no envelope either
     (directions no agent sees that do not decay, ``design.undetectable: exclude``).
     Lines carry ``gid`` ``envelope`` and ``mark:<kind>`` (tests find them there).
     Returns the figure (the caller closes it).
     """
-    from splitspec_core.analysis import NO_CERTIFIED_RATE, envelope, envelope_restarts, max_error
+    from splitspec_core.simulation.metrics import NO_CERTIFIED_RATE, envelope, envelope_restarts, max_error
 
     fig, ax = plt.subplots(figsize=(9.5, 4.4), layout="constrained")
     e = traj.errors()
@@ -152,7 +152,7 @@ def states_figure(traj, *, time: str, title: str, marks=(), max_components: int 
     """Each state component: truth (black) versus every agent's estimate, events marked; without truth,
     ``reference`` (the centralized Kalman filter on the same measurements, (T, n)) in its place.  Each row is
     labelled with the state's name (``traj.states``: ``system.states``, else ``x1 .. xn``).  ``shown``: the
-    components drawn (``run.show``: :attr:`~splitspec_core.scenario_model.Scenario.shown_states`), else the first
+    components drawn (``run.show``: :attr:`~splitspec_core.scenarios.specs.Scenario.shown_states`), else the first
     ``max_components``.  Returns the figure (the caller closes it)."""
     # at most MAX_ROWS rows: a figure of more is a wall, and the recording has them all
     comps = list(shown)[:MAX_ROWS] if shown is not None else list(range(min(traj.x.shape[1], max_components)))
@@ -316,7 +316,7 @@ def plot_network_sweep(res: dict, path: Path) -> None:
 
 
 def plot_reference(traj, ref: dict, path: Path, *, time: str, title: str, marks=()) -> None:
-    """Without truth, what can be known (:mod:`splitspec_core.reference`): each agent's measurement residual,
+    """Without truth, what can be known (:mod:`splitspec_core.studies.no_truth`): each agent's measurement residual,
     the consensus disagreement and each agent's distance to the centralized Kalman filter, log scale."""
     fig, axes = plt.subplots(3, 1, figsize=(9.5, 8.0), sharex=True, layout="constrained")
     panels = [("residual", "|y_i - C_i x_i|"), ("kf_distance", "|x_i - x_KF|")]

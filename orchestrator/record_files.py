@@ -4,7 +4,7 @@
 knows how many rows each file holds on disk:
 
 ``trajectory.npz``
-    rewritten whole and atomically by :func:`splitspec_core.trajfile.write_trajectory` (temporary file
+    rewritten whole and atomically by :func:`splitspec_core.simulation.trajectory_file.write_trajectory` (temporary file
     in ``out_dir``, fsynced, ``os.replace``) with the first rows taken, their consensus messages that did
     not count (``lost``, ``lost_cause``) and, on measurements, the arrays of
     :meth:`splitspec_orchestrator.measured_records.MeasuredRecords.arrays`
@@ -34,7 +34,7 @@ from typing import Callable
 import numpy as np
 
 from splitspec_core.errors import SplitspecError
-from splitspec_core.trajfile import TRAJECTORY_FILE, lost_arrays, write_trajectory
+from splitspec_core.simulation.trajectory_file import TRAJECTORY_FILE, lost_arrays, write_trajectory
 
 from .rerun_sink import RRD_FILE, RerunSink
 from .rowstore import RowStore

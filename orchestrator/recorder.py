@@ -26,7 +26,7 @@ record, flushes it on a background thread, orders the writes, stops at the first
 write failure (:class:`WriteFailure`), salvages and closes.  Its collaborators do
 the rest: :mod:`splitspec_orchestrator.rowstore` (the rows and what each shows),
 :mod:`splitspec_orchestrator.record_files` (``trajectory.npz`` rewritten through
-:func:`splitspec_core.trajfile.write_trajectory`, the one writer shared with
+:func:`splitspec_core.simulation.trajectory_file.write_trajectory`, the one writer shared with
 ``simulate``; ``run.rrd`` appended and finished; the cuts after a failure),
 :mod:`splitspec_orchestrator.measured_records` (what a run on measurements or live
 sensors records beyond the rows), :mod:`splitspec_orchestrator.rerun_sink` (the
@@ -49,7 +49,7 @@ views (its state lines break at the NaN of the rows where it is dead).
 
 The designed envelope (``errors_log10/envelope``) is computed row by row, as a
 live recording can: it restarts at a row whose alive set gains an agent or
-whose graph changed (:func:`splitspec_core.analysis.envelope_restarts`), from
+whose graph changed (:func:`splitspec_core.simulation.metrics.envelope_restarts`), from
 the max error there, and decays as ``c lam^(tau - tau0)`` (discrete) or ``c
 exp(-lam (t - t0))`` (continuous); none with the adaptive gain
 (``envelope_rate=None``).
@@ -145,8 +145,8 @@ from typing import Any, Iterable, Mapping
 import numpy as np
 
 from splitspec_core.errors import SplitspecError
-from splitspec_core.labels import default_state_names
-from splitspec_core.trajfile import TRAJECTORY_FILE
+from splitspec_core.scenarios.labels import default_state_names
+from splitspec_core.simulation.trajectory_file import TRAJECTORY_FILE
 
 from . import blueprint as bp
 from .eventlog import EVENTS_FILE, EventLog, event_level, event_text
@@ -445,7 +445,7 @@ class Recorder:
 
         An arc ``(j, i)`` means agent ``i`` receives from agent ``j`` (drawn j -> i).
         Arcs touching a dead agent are not drawn.  ``partition``: the groups of agent ids of a
-        partition in force (:mod:`splitspec_core.impairment`), None or empty for none: the arcs
+        partition in force (:mod:`splitspec_core.model.impairment`), None or empty for none: the arcs
         between groups are drawn dashed (``topology/partition``) and the graph's label names it.
         """
         if graph_name not in self.graph_names:
@@ -845,7 +845,7 @@ class Recorder:
             self._rows_kept = min(files.npz_rows, files.rrd_rows) if sink is not None else files.npz_rows
 
     def set_measurements(self, sc, meas) -> None:
-        """The run plays a measurements file (:class:`splitspec_core.measurements.Measurements`): see
+        """The run plays a measurements file (:class:`splitspec_core.scenarios.measurements.Measurements`): see
         :meth:`set_y_source`; the truth is the file's ``x`` if it has one."""
         from .reference_view import file_rows
 
@@ -857,7 +857,7 @@ class Recorder:
         (:data:`splitspec_orchestrator.reference_view.YRow`); call before the first row.
 
         ``trajectory.npz`` gets their ``y`` and ``y_missing`` rows, and at the close what is known without
-        truth (:func:`splitspec_core.reference.no_truth_arrays`); ``run.rrd`` the same as it goes
+        truth (:func:`splitspec_core.studies.no_truth.no_truth_arrays`); ``run.rrd`` the same as it goes
         (:mod:`splitspec_orchestrator.reference_view`) and, ``truth=False``, no error and no truth at all.
         """
         from .reference_view import ReferenceRows

@@ -2,7 +2,7 @@
 
 Without the truth the error ``|x_i - x|`` cannot be shown, and nothing shows a
 made-up one (no ``errors``, ``errors_log10`` or ``state/<k>/truth`` entity, not
-even NaN rows).  What can be known (:mod:`splitspec_core.reference`, the same
+even NaN rows).  What can be known (:mod:`splitspec_core.studies.no_truth`, the same
 functions that write ``trajectory.npz``'s arrays) is logged instead; with the
 truth it is logged beside the errors:
 
@@ -38,7 +38,7 @@ from typing import Callable
 
 import numpy as np
 
-from splitspec_core.reference import disagreement, residuals
+from splitspec_core.studies.no_truth import disagreement, residuals
 
 from . import blueprint as bp
 
@@ -49,7 +49,7 @@ YRow = Callable[[int], "tuple[np.ndarray, np.ndarray] | None"]
 
 
 def file_rows(meas) -> YRow:
-    """:data:`YRow` of a measurements file (:class:`splitspec_core.measurements.Measurements`): row ``tau``."""
+    """:data:`YRow` of a measurements file (:class:`splitspec_core.scenarios.measurements.Measurements`): row ``tau``."""
     def y_row(tau: int):
         return (meas.y[tau], meas.missing[tau]) if 0 <= tau < len(meas.y) else None
 

@@ -69,9 +69,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from splitspec_core.survivors import certify_network
-from splitspec_core.impairment import CAUSES
-from splitspec_core.network import NetworkState, make_plan
+from splitspec_core.synthesis.survivors import certify_network
+from splitspec_core.model.impairment import CAUSES
+from splitspec_core.model.network import NetworkState, make_plan
 
 __all__ = ["RoundMachine", "Claim", "STALL_SECONDS", "SUMMARY_SECONDS",
            "Tick", "Record", "Topology", "MarkLost", "Event", "Log", "Signal", "Control", "Spawn", "QueryStatus",
@@ -97,7 +97,7 @@ class Tick:
     incarnation: dict
     fresh: bool = True  # someone starts this round with a fresh estimate: every agent sends its z_i(0)
     prev_attempt: int = 0  # the attempt of round tau - 1 whose estimates x_i(tau) are this round's z_i(0)
-    partition: tuple = ()  # groups of agent ids of a partition in force (splitspec_core.impairment), or ()
+    partition: tuple = ()  # groups of agent ids of a partition in force (splitspec_core.model.impairment), or ()
 
 
 @dataclass(frozen=True)

@@ -120,7 +120,7 @@ class RowStore:
         """The designed envelope at rows ``K`` (sorted; every earlier row already has its piece's start).
 
         Row k starts a piece when k = 0, its alive set gains an agent, or its graph changed
-        (:func:`splitspec_core.analysis.envelope_restarts`); on a piece started at k0:
+        (:func:`splitspec_core.simulation.metrics.envelope_restarts`); on a piece started at k0:
         ``c lam^(t - t_k0)`` or ``c exp(-lam (t - t_k0))``, ``c`` the max error at k0.
         """
         env = np.full(len(K), np.nan)

@@ -42,7 +42,7 @@ from typing import Callable, Iterable, Mapping
 
 import numpy as np
 
-from splitspec_core.impairment import CAUSES, LATE, LOSS, PARTITION, crosses, group_of
+from splitspec_core.model.impairment import CAUSES, LATE, LOSS, PARTITION, crosses, group_of
 
 from . import blueprint as bp
 

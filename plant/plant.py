@@ -8,7 +8,7 @@ message's vector carries ``u(tau)`` after the stacked outputs, so every agent ad
 sha256) it plays row ``tau`` of the file instead: its ``y``, the agents without
 a measurement there, and its truth (an empty ``x`` when the file has none).  A re-run of
 the same tick (a higher attempt) re-publishes the same values.  The draws are
-those of :class:`splitspec_core.simulator.Plant`, in the same order, so the
+those of :class:`splitspec_core.simulation.simulator.Plant`, in the same order, so the
 truth equals the simulator's.  Agents never see the truth.
 """
 
@@ -20,10 +20,10 @@ import logging
 import numpy as np
 
 from splitspec_core.errors import SplitspecError
-from splitspec_core.measurements import load_measurements
-from splitspec_core.plant_model import Plant, RecordedPlant
+from splitspec_core.scenarios.measurements import load_measurements
+from splitspec_core.model.plant import Plant, RecordedPlant
 from splitspec_core.runtime.wire import Keys, WireError, decode, encode
-from splitspec_core.scenario_load import parse_scenario_text
+from splitspec_core.scenarios.load import parse_scenario_text
 
 log = logging.getLogger("splitspec.plant")
 

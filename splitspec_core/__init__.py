@@ -49,7 +49,7 @@ margin           ``margin``            scalar       graded observability margin 
 ===============  ====================  ===========  ==========================================
 
 Layout: the math lives here (pure functions, no I/O); the per-agent steps the simulator and the
-agent processes share are :mod:`splitspec_core.steps`; :mod:`splitspec_core.runtime` holds what
+agent processes share are :mod:`splitspec_core.model.steps`; :mod:`splitspec_core.runtime` holds what
 the processes need (Zenoh bus, wire codec, security) and is never imported by the math.
 """
 
@@ -63,8 +63,8 @@ from typing import Any as _Any
 _PUBLIC = {
     "scenario": "api", "load_scenario": "api", "design": "api", "simulate": "api", "compare": "api",
     "DesignResult": "api", "AgentResult": "api", "Checks": "api", "CompareResult": "api",
-    "EstimatorResult": "api", "network_sweep": "sweeps", "Scenario": "scenario_model", "Trajectory": "simulator",
-    "MonteCarloRuns": "montecarlo",
+    "EstimatorResult": "api", "network_sweep": "studies.sweeps", "Scenario": "scenarios.specs", "Trajectory": "simulation.simulator",
+    "MonteCarloRuns": "simulation.montecarlo",
     "SplitspecError": "errors", "ScenarioError": "errors", "DimensionError": "errors",
     "AssumptionError": "errors", "DesignError": "errors",
     "run": "runs", "load_run": "runs", "view": "runs", "RunRecord": "runs", "RunError": "runs",

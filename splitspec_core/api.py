@@ -4,7 +4,7 @@ Every function here is what a ``splitspec`` command does, minus the files: the C
 these same functions.  Results are frozen dataclasses whose arrays are read-only.
 
 Validation has one path: :func:`scenario` turns its keywords into the mapping a scenario file holds and hands
-it to :func:`splitspec_core.scenario_load.parse_scenario`, the checker of YAML files, so both meet the same
+it to :func:`splitspec_core.scenarios.load.parse_scenario`, the checker of YAML files, so both meet the same
 checks with the same one-line messages.
 
 Why one module: it is the public API's one page (what ``help(splitspec_core)`` and the reference show); the
@@ -20,19 +20,19 @@ from typing import TYPE_CHECKING, Any, Iterable, Mapping
 
 import numpy as np
 
-from .designer import Design
+from .synthesis.designer import Design
 from .errors import ScenarioError
-from .report import rate_certificate
-from .scenario_checks import _DESIGN_KEYS, _RUN_KEYS, _SYSTEM_KEYS
-from .scenario_control import plant_keywords
-from .scenario_load import ORIGIN, parse_scenario
-from .scenario_load import load_scenario as _load_scenario
-from .scenario_model import Scenario
-from .simulator import Trajectory
-from .subspaces import complement
+from .synthesis.report import rate_certificate
+from .scenarios.checks import _DESIGN_KEYS, _RUN_KEYS, _SYSTEM_KEYS
+from .scenarios.control import plant_keywords
+from .scenarios.load import ORIGIN, parse_scenario
+from .scenarios.load import load_scenario as _load_scenario
+from .scenarios.specs import Scenario
+from .simulation.simulator import Trajectory
+from .model.subspaces import complement
 
 if TYPE_CHECKING:
-    from .montecarlo import MonteCarloRuns
+    from .simulation.montecarlo import MonteCarloRuns
 
 __all__ = ["AgentResult", "Checks", "CompareResult", "DesignResult", "EstimatorResult", "compare", "design",
            "load_scenario", "scenario", "simulate"]
@@ -75,7 +75,7 @@ def scenario(*, name: str | None = None, time: str | None = None, plant: Any = N
     lists; ``C`` and ``K`` map agent ids to matrices; a graph is ``{"arcs": [(j, i), ...], "undirected": [...]}``
     or its list of arcs ``[(j, i), ...]`` (``j -> i``: agent i hears agent j).  ``plant``: a python-control
     ``StateSpace`` in place of the system and ``time``, ``agents={id: [its output labels or indices]}``
-    (:mod:`splitspec_core.scenario_control`).  A keyword left at ``None`` is absent from the file, so the file's
+    (:mod:`splitspec_core.scenarios.control`).  A keyword left at ``None`` is absent from the file, so the file's
     defaults apply.  The sections ``system=``, ``design=``, ``run=`` may also be given whole, as in the file.
 
     Raises
@@ -190,7 +190,7 @@ class DesignResult:
     g_mode : continuous: ``auto``, ``given`` or ``adaptive``; else None
     agents : agent id -> :class:`AgentResult`
     checks : :class:`Checks`
-    detail : the full design with every diagnostic (:class:`splitspec_core.designer.Design`)
+    detail : the full design with every diagnostic (:class:`splitspec_core.synthesis.designer.Design`)
     """
 
     scenario: Scenario
@@ -205,13 +205,13 @@ class DesignResult:
 
     def report(self) -> str:
         """The text ``splitspec design`` prints."""
-        from .report import design_text
+        from .synthesis.report import design_text
 
         return design_text(self.detail)
 
     def to_json(self) -> dict:
         """The object ``splitspec design --json`` prints."""
-        from .report import design_json
+        from .synthesis.report import design_json
 
         return design_json(self.detail)
 
@@ -232,7 +232,7 @@ def design(sc: Scenario, *, all_q_methods: bool = False, workers: int | None = N
     DesignError
         No q below ``design.q_max``, or no g found.
     """
-    from .designer import design as _design
+    from .synthesis.designer import design as _design
 
     des = _design(sc, compare_q_methods=all_q_methods, workers=workers)
     agents = {a.id: AgentResult(id=a.id, K=_readonly(a.K), V=_readonly(a.V_user), Q=_readonly(complement(a.V_user).T),
@@ -275,11 +275,11 @@ def simulate(sc: Scenario | DesignResult, *, steps: int | None = None, seed: int
     noise-free instead of the sampled-data estimator.  ``lost``: replay a run's recorded consensus
     losses (its ``trajectory.npz`` ``lost``, or ``(lost, lost_cause)``) instead of drawing the scenario's.
     ``measurements``: the user's recorded ``y`` instead of the simulated plant (a path to an ``.npz`` or
-    ``.csv`` file, :mod:`splitspec_core.measurements`, or a loaded ``Measurements``); ``keep_y`` records the
+    ``.csv`` file, :mod:`splitspec_core.scenarios.measurements`, or a loaded ``Measurements``); ``keep_y`` records the
     simulated plant's measurements in ``Trajectory.y``.
 
     ``seeds``: a Monte Carlo study, every seed of ``seeds`` on the same design, as one batched
-    computation (:mod:`splitspec_core.montecarlo`: the seeds on a trailing axis of the estimates, each
+    computation (:mod:`splitspec_core.simulation.montecarlo`: the seeds on a trailing axis of the estimates, each
     seed drawing exactly the numbers ``simulate(sc, seed=s)`` draws).  What a seed changes beyond the
     noise and the initial values runs the seeds one after another instead, with the same results:
     ``network:`` losses and delays (drawn per seed), random switching drawn from the run's seed,
@@ -308,15 +308,15 @@ def simulate(sc: Scenario | DesignResult, *, steps: int | None = None, seed: int
         ``seed`` and ``seeds`` both given, ``seeds`` empty, ``keep_y`` with ``seeds``,
         or a run that cannot fit in memory.
     """
-    from .simulator import check_trajectory_memory, simulate as _simulate, simulate_exact
+    from .simulation.simulator import check_trajectory_memory, simulate as _simulate, simulate_exact
 
     des = _designed(sc)
     if measurements is not None and not hasattr(measurements, "sha256"):
-        from .measurements import load_measurements
+        from .scenarios.measurements import load_measurements
 
         measurements = load_measurements(measurements, des.scenario, steps=steps)
     if seeds is not None:
-        from .montecarlo import simulate_seeds
+        from .simulation.montecarlo import simulate_seeds
 
         if seed is not None:
             raise ScenarioError("give seed (one run) or seeds (a Monte Carlo study), not both")
@@ -407,7 +407,7 @@ def compare(sc: Scenario, *, seeds: int | Iterable[int] = 5, seed: int | None = 
 
     ``seeds``: a count (seeds ``seed, seed + 1, ...``, ``seed`` defaulting to ``run.seed``) or the seeds.
     """
-    from .comparison import compare as _compare
+    from .studies.comparison import compare as _compare
 
     if isinstance(seeds, (int, np.integer)) and not isinstance(seeds, bool):
         if seeds < 1:

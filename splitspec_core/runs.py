@@ -4,7 +4,7 @@ its recording (:func:`view`).  Re-exported by ``splitspec_core`` as ``ss.run``, 
 A run is real OS processes talking over Zenoh (the orchestrator, the plant, one per agent), so :func:`run`
 starts ``splitspec run`` as a child process of this interpreter (``python -m splitspec_orchestrator``) and waits
 for it: this layer never imports the runtime.  What it returns is what :func:`load_run` reads from the output
-directory, the same :class:`~splitspec_core.simulator.Trajectory` that :func:`splitspec_core.simulate` returns
+directory, the same :class:`~splitspec_core.simulation.simulator.Trajectory` that :func:`splitspec_core.simulate` returns
 (a run equals the simulation of the same scenario and seed to round-off), the events of ``events.jsonl`` and
 the scenario the run wrote (``scenario.yaml``), whose design :meth:`RunRecord.design` gives.
 
@@ -33,11 +33,11 @@ from typing import Iterable
 import yaml
 
 from .errors import ScenarioError, SplitspecError
-from .scenario_checks import plain
-from .scenario_files import resolve_model_file
-from .scenario_load import ORIGIN, load_scenario, load_yaml
-from .scenario_model import Scenario
-from .simulator import Trajectory
+from .scenarios.checks import plain
+from .scenarios.files import resolve_model_file
+from .scenarios.load import ORIGIN, load_scenario, load_yaml
+from .scenarios.specs import Scenario
+from .simulation.simulator import Trajectory
 
 __all__ = ["RunRecord", "RunError", "load_run", "run", "view"]
 

@@ -22,11 +22,11 @@ def pytest_report_header(config):
 
 
 # SPLITSPEC_TEST_EIGENVALUES=iterative (make test-iterative): every spectral radius of a design's spectral q
-# (splitspec_core.bounds.error_radius) by ARPACK on the matrix-free operator, whatever its size, so the
+# (splitspec_core.synthesis.bounds.error_radius) by ARPACK on the matrix-free operator, whatever its size, so the
 # certificate tests check that path too (by default small designs take the dense path).
 if os.environ.get("SPLITSPEC_TEST_EIGENVALUES") == "iterative":
     @pytest.fixture(autouse=True)
     def _iterative_eigenvalues(monkeypatch):
-        from splitspec_core import spectral
+        from splitspec_core.synthesis import spectral
 
         monkeypatch.setattr(spectral, "DENSE_MAX", 0)

@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 import splitspec_core as ss
-from splitspec_core.sweeps import sweep_table
+from splitspec_core.studies.sweeps import sweep_table
 
 out = Path(os.environ.get("SPLITSPEC_OUT", "out/tutorials")) / "lossy_network"
 sc = ss.load_scenario("examples/ring10_lossy.yaml")

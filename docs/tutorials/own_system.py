@@ -92,7 +92,7 @@ for name, r in cmp.estimators.items():
 sim = ss.simulate(sc, keep_y=True)
 missing = np.zeros((len(sim.t), 3), dtype=bool)
 missing[::5, 1] = True
-from splitspec_core.measurements import write_measurements
+from splitspec_core.scenarios.measurements import write_measurements
 
 log = out / "log.csv"
 write_measurements(log, t=sim.t * dt, y=sim.y, agent_ids=sc.agent_ids, sizes=[2, 2, 2], x=sim.x, missing=missing)

@@ -35,9 +35,9 @@ def cmd_orchestrator(args: argparse.Namespace) -> int:
 def cmd_run(args: argparse.Namespace) -> int:
     # the modules the orchestrator itself uses, not the public API (splitspec_core.api imports the simulator
     # and with it scipy: a quarter of a second more before the first process starts)
-    from splitspec_core.designer import design
+    from splitspec_core.synthesis.designer import design
     from splitspec_core.runtime.wire import Keys
-    from splitspec_core.scenario_load import load_scenario
+    from splitspec_core.scenarios.load import load_scenario
 
     from ..launcher import run_local
 
@@ -47,7 +47,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         raise SplitspecError("run --measurements replaces the plant, and this scenario has live sensors (sources:) "
                              "and no plant: drop one (simulate --measurements plays a file for such a scenario)")
     if args.measurements:
-        from splitspec_core.measurements import load_measurements
+        from splitspec_core.scenarios.measurements import load_measurements
 
         load_measurements(args.measurements, sc)  # a bad file: one line, before any process
     if args.run_id is not None:
@@ -104,7 +104,7 @@ def _network_line(sc, out) -> None:
     """On a network that misbehaves: how many consensus messages did not count, by cause, and how to replay them."""
     import numpy as np
 
-    from splitspec_core.impairment import CAUSES
+    from splitspec_core.model.impairment import CAUSES
 
     if not sc.network.impaired and not any(f.action == "partition" for f in sc.faults):
         return

@@ -21,7 +21,7 @@ from splitspec_core.runtime.cli import MAX_SEED, UsageError
 from . import out_dir
 
 
-MAX_KCF_EPS = 1e12  # as splitspec_core.scenario_model.MAX_MAGNITUDE
+MAX_KCF_EPS = 1e12  # as splitspec_core.scenarios.specs.MAX_MAGNITUDE
 
 
 def _seed_range(first: int, count: int, what: str) -> None:
@@ -53,8 +53,8 @@ def _tune(args: argparse.Namespace, sc) -> int:
 
     import yaml
 
-    from splitspec_core.noise import tune
-    from splitspec_core.scenario_load import load_yaml, read_scenario_text
+    from splitspec_core.synthesis.noise_tuning import tune
+    from splitspec_core.scenarios.load import load_yaml, read_scenario_text
 
     res = tune(sc)
     d = res.design
@@ -97,8 +97,8 @@ def _tune(args: argparse.Namespace, sc) -> int:
 
 
 def cmd_compare(args: argparse.Namespace) -> int:
-    from splitspec_core.comparison import certificate_lines, sweep, sweep_line
-    from splitspec_core.simulator import check_trajectory_memory
+    from splitspec_core.studies.comparison import certificate_lines, sweep, sweep_line
+    from splitspec_core.simulation.simulator import check_trajectory_memory
 
     sc = ss.load_scenario(args.scenario)
     seed0 = sc.run.seed if args.seed is None else args.seed
@@ -153,7 +153,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
 
 def _network_sweeps(args: argparse.Namespace, sc, seed0: int) -> int:
     """``compare --sweep-loss / --sweep-deadline``: the design on a misbehaving network, level by level."""
-    from splitspec_core.sweeps import check_sweep, network_sweep, sweep_table
+    from splitspec_core.studies.sweeps import check_sweep, network_sweep, sweep_table
 
     sweeps = [(p, v) for p, v in (("loss", args.sweep_loss), ("deadline", args.sweep_deadline)) if v]
     for parameter, values in sweeps:  # before any work: one line, exit 2
@@ -208,9 +208,9 @@ def _simulate_summary_text(summary: dict, *, time: str, out) -> str:
 
 
 def cmd_simulate(args: argparse.Namespace) -> int:
-    from splitspec_core.analysis import event_marks, summarize
-    from splitspec_core.report import rate_certificate
-    from splitspec_core.simulator import check_trajectory_memory
+    from splitspec_core.simulation.metrics import event_marks, summarize
+    from splitspec_core.synthesis.report import rate_certificate
+    from splitspec_core.simulation.simulator import check_trajectory_memory
 
     sc = ss.load_scenario(args.scenario)
     if sc.sources and not args.measurements:
@@ -218,7 +218,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
                          "have: give --measurements FILE (a sensor's recorded log) or use `splitspec run`")
     lost = None
     if args.faults_from:
-        from splitspec_core.replay import recorded_run, with_recorded_faults
+        from splitspec_core.scenarios.replay import recorded_run, with_recorded_faults
 
         events, lost = recorded_run(args.faults_from)
         sc = with_recorded_faults(sc, events)
@@ -233,13 +233,13 @@ def cmd_simulate(args: argparse.Namespace) -> int:
                              "one realisation: drop one")
     meas = None
     if args.measurements:
-        from splitspec_core.measurements import load_measurements
+        from splitspec_core.scenarios.measurements import load_measurements
 
         meas = load_measurements(args.measurements, sc, steps=args.steps)
     if args.exact and sc.time != "continuous":
         raise UsageError("--exact integrates the continuous-time ODE; this scenario is discrete")
     if args.exact and sc.design.g == "adaptive":
-        from splitspec_core.simulator import EXACT_NEEDS_FIXED_G
+        from splitspec_core.simulation.simulator import EXACT_NEEDS_FIXED_G
 
         raise UsageError(f"--exact: {EXACT_NEEDS_FIXED_G}, or drop --exact")
     seed = sc.run.seed if args.seed is None else args.seed
@@ -257,8 +257,8 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     noisy = sc.system.process_noise > 0 or sc.system.measurement_noise > 0
     clean = ss.simulate(d, seed=seed, steps=args.steps, noise=False, lost=lost) if noisy and not args.exact else traj
     if args.write_measurements:
-        from splitspec_core.measurements import write_measurements
-        from splitspec_core.plant_model import input_of
+        from splitspec_core.scenarios.measurements import write_measurements
+        from splitspec_core.model.plant import input_of
 
         u = None if sc.system.B is None else np.array([input_of(sc, k) for k in range(len(traj.t))])
         write_measurements(args.write_measurements, t=traj.t, y=traj.y, agent_ids=sc.agent_ids,
@@ -306,8 +306,8 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 
 def _simulate_measured(args: argparse.Namespace, sc, d, traj, meas, out) -> int:
     """``simulate --measurements``: the estimates from the user's measurements, judged by what can be known."""
-    from splitspec_core.analysis import event_marks, summarize
-    from splitspec_core.reference import no_truth_arrays
+    from splitspec_core.simulation.metrics import event_marks, summarize
+    from splitspec_core.studies.no_truth import no_truth_arrays
 
     ref = no_truth_arrays(traj, sc, meas.u)
     traj.save(out / "trajectory.npz", extra=ref)

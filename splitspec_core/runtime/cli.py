@@ -29,7 +29,7 @@ EXIT_BAD_INPUT = 2
 EXIT_FAILED = 1
 EXIT_INTERRUPTED = 130
 
-MAX_SEED = 2**63 - 1  # as splitspec_core.scenario_model.MAX_SEED: seeds travel to the processes as 64-bit integers
+MAX_SEED = 2**63 - 1  # as splitspec_core.scenarios.specs.MAX_SEED: seeds travel to the processes as 64-bit integers
 MAX_SECONDS = 1e6  # --wait, --round-timeout: finite waits that threading and time.sleep accept (11.6 days)
 DEFAULT_WAIT = 60.0  # --wait of a plant or agent process (seconds)
 

@@ -12,7 +12,7 @@ then sees it as lost, and its rejoin changes the network, which the next tick ca
 
 from __future__ import annotations
 
-from ..impairment import group_of
+from ..model.impairment import group_of
 from .wire import encode
 
 __all__ = ["TickEncoder", "TickNetwork"]
@@ -47,7 +47,7 @@ class TickEncoder:
 class TickNetwork:
     """Agent ``agent_id``'s view of the network the ticks announce, from the last tick that carried one: its row
     (neighbours as ints, weights as floats; None when it takes no part), whether it is alive, its incarnation,
-    and the partition in force as ``{agent id: group}`` (:func:`splitspec_core.impairment.group_of`; {} for none)."""
+    and the partition in force as ``{agent id: group}`` (:func:`splitspec_core.model.impairment.group_of`; {} for none)."""
 
     def __init__(self, agent_id: int, ids):
         self.id, self.key, self.ids = agent_id, str(agent_id), tuple(ids)

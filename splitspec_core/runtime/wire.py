@@ -227,7 +227,7 @@ MESSAGE_FIELDS = {
 
 #: optional fields (name -> kind), returned only when present: a run on recorded measurements (their sha256, steps,
 #: whether they hold the truth), whether agents report the y_i they used, the directions no agent sees (W, n rows of
-#: w numbers: splitspec_core.detectability); a tick's network
+#: w numbers: splitspec_core.model.detectability); a tick's network
 OPTIONAL_FIELDS = {"config": {"measurements": "map", "record_y": "bool", "unobserved": "list"},
                    "tick": {"alive": "list", "rows": "map", "incarnation": "map", "partition": "list"}}
 #: optional fields that come all together or not at all: a tick's network is all four (runtime.ticks)
@@ -264,7 +264,7 @@ MAP_DEFAULTS = {"y": {"missing": []}, "xhat": {"y": []}}
 #: the most agent ids ``missing`` lists
 MAX_MISSING = 1 << 16
 #: ``lost`` of an ``xhat``: flat ``[k, j, cause, k, j, cause, ...]`` (sub-round, sender, cause) of the consensus
-#: messages the agent did not count in the round (:mod:`splitspec_core.impairment`); at most this many triples
+#: messages the agent did not count in the round (:mod:`splitspec_core.model.impairment`); at most this many triples
 MAX_LOST = 1 << 16
 _BIN_HEAD = struct.Struct("<BBBxI")  # magic, version, type code, pad, CRC-32 of the run id
 _BIN = {t: struct.Struct("<BBBxI" + fmt + "I") for t, (_, fmt, *_rest) in BINARY_LAYOUT.items()}

@@ -1,7 +1,7 @@
 """A model from a file, with known inputs, run as real processes over Zenoh: run == simulate with a nonzero ``u``.
 
 The scenario names its arrays in a ``.npz`` beside it (``system.file``), the plant broadcasts ``u(tau)`` with the
-measurements and every agent adds ``B u`` (:mod:`splitspec_core.inputs`); an agent killed and restarted on the way.
+measurements and every agent adds ``B u`` (:mod:`splitspec_core.scenarios.inputs`); an agent killed and restarted on the way.
 The processes receive the scenario with the file's arrays written in, so ``scenario.yaml`` in the records stands on
 its own and replays the run.
 """

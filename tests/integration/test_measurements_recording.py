@@ -3,7 +3,7 @@ only what can be known (residuals, disagreement, the centralized Kalman filter a
 trajectory.npz's arrays; with the truth, both.
 
 Tolerances: the recording's residuals and disagreement are computed per flush (a batch of rows) by the same
-functions (:mod:`splitspec_core.reference`) that compute trajectory.npz's over all rows at once; the matrix
+functions (:mod:`splitspec_core.studies.no_truth`) that compute trajectory.npz's over all rows at once; the matrix
 product ``x_i C_i'`` of a batch of L rows may be blocked differently by BLAS than that of T rows, so the two can
 differ by a few ulp (CI runs under several OpenBLAS kernels): rtol 1e-12 (and 1e-12 absolute on the log10s);
 measured here, 0.  The filter and the distances to it are the
@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 import yaml
 
-from splitspec_core.measurements import load_measurements, write_measurements
+from splitspec_core.scenarios.measurements import load_measurements, write_measurements
 from tests.integration.runtime_helpers import dump, events, run
 from tests.integration.test_measurements_run import hidden
 from tests.rrd_readback import read_blueprint, read_rrd, read_rrd_clears, rrd_entities, verify_rrd

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 import yaml
 
-from splitspec_core.measurements import load_measurements, write_measurements
-from splitspec_core.scenario_load import load_scenario
+from splitspec_core.scenarios.measurements import load_measurements, write_measurements
+from splitspec_core.scenarios.load import load_scenario
 from tests.integration.runtime_helpers import all_pids, assert_all_gone, compare_with_simulate, events, run
 
 pytestmark = pytest.mark.slow

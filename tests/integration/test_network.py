@@ -1,6 +1,6 @@
 """`splitspec run` on a misbehaving network: real processes lose, cut and wait for messages as `simulate` says.
 
-Injected losses and partitions are drawn from the scenario seed (splitspec_core.impairment), so a run and its
+Injected losses and partitions are drawn from the scenario seed (splitspec_core.model.impairment), so a run and its
 simulation lose the same messages; a deadline with delayed messages makes some arrive too late for real, and the
 replay of what the run recorded (`simulate --faults-from RUN`) gives the run's trajectory.
 """

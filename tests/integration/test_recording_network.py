@@ -13,7 +13,7 @@ from collections import Counter
 import numpy as np
 import pytest
 
-from splitspec_core.impairment import PARTITION
+from splitspec_core.model.impairment import PARTITION
 from splitspec_orchestrator import blueprint as bp
 from tests.conftest import EXAMPLES
 from tests.integration.runtime_helpers import events, run, scenario_file

@@ -17,7 +17,7 @@ independent of it (singular value ratio >= 1e-3), or, with ``near_dependent``,
 one that differs from a multiple of the first by 1e-4..1e-10.
 
 Rank decisions: the scenarios set ``design.rank_tol: 1e-12`` (the round-off floor of
-:mod:`splitspec_core.observability`), so the design takes the construction's exact unobservable
+:mod:`splitspec_core.model.observability`), so the design takes the construction's exact unobservable
 spaces and the paper's split holds exactly: these tests check the paper's certificates.  Under
 the default threshold (graded margin 1e-3) about one drawn system in twelve has an agent whose
 genuinely weak direction (8 states seen through one output: graded margins down to ~1e-4) is left

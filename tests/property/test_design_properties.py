@@ -32,11 +32,11 @@ import scipy.linalg as sla
 from hypothesis import HealthCheck, assume, event, given, settings
 from hypothesis import strategies as st
 
-from splitspec_core.designer import design
+from splitspec_core.synthesis.designer import design
 from splitspec_core.errors import AssumptionError, DesignError
-from splitspec_core.full_matrix import block_diagonal
-from splitspec_core.observability import decompose, threshold_of
-from splitspec_core.scenario_load import parse_scenario
+from splitspec_core.synthesis.error_matrix import block_diagonal
+from splitspec_core.model.observability import decompose, threshold_of
+from splitspec_core.scenarios.load import parse_scenario
 
 from .strategies import graph_sequences, scenarios
 
@@ -636,7 +636,7 @@ def test_nearly_dependent_outputs_keep_the_unobservable_space(rank_tol, data):
 
 
 # --------------------------------------------------------------------------
-# the two eigenvalue paths of the spectral q (splitspec_core.spectral)
+# the two eigenvalue paths of the spectral q (splitspec_core.synthesis.spectral)
 # --------------------------------------------------------------------------
 
 

@@ -1,4 +1,4 @@
-"""Property tests on drawn jointly detectable systems (splitspec_core/detectability.py, modal.py).
+"""Property tests on drawn jointly detectable systems (splitspec_core/model/detectability.py, modal.py).
 
 A system is drawn as an observable part (:mod:`.strategies`: jointly observable by construction) plus a block
 nobody sees: ``w`` states driven by the observable ones (``x_w' = A_wo x_o + A_ww x_w``, as a measurement filter
@@ -20,11 +20,11 @@ import pytest
 from hypothesis import assume, event, given, settings
 from hypothesis import strategies as st
 
-from splitspec_core.designer import design
+from splitspec_core.synthesis.designer import design
 from splitspec_core.errors import AssumptionError
-from splitspec_core.report import rate_certificate
-from splitspec_core.scenario_load import parse_scenario
-from splitspec_core.simulator import simulate
+from splitspec_core.synthesis.report import rate_certificate
+from splitspec_core.scenarios.load import parse_scenario
+from splitspec_core.simulation.simulator import simulate
 
 from .strategies import _system
 from .test_design_properties import COMMON, examples

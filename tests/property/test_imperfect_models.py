@@ -1,14 +1,14 @@
 """Designs of imperfect models: perturbed and rounded structured systems keep the exact system's design.
 
 A model is never exactly structured: the entries of ``A`` and ``C_i`` come rounded (to 6 or 4 decimals)
-or perturbed (by 1e-7..1e-4 of their size).  The rank decisions of :mod:`splitspec_core.observability`
+or perturbed (by 1e-7..1e-4 of their size).  The rank decisions of :mod:`splitspec_core.model.observability`
 (graded margins, threshold 1e-3 by default) must see through that: the same split ``n_i`` as the
 exact system, gains that move by about the perturbation times a modest condition number, the same
 simulated errors, a measured rate that meets the design, and a certificate.  A system whose oscillators
 (they do not decay) are only weakly observable even jointly is refused (one line naming the mode, its
 states and its margin), or designed with a warning when ``design.rank_tol`` is forced below the margin.
 
-Systems: :func:`splitspec_core.generate.random_system` (oscillator blocks in a random orthogonal basis, each
+Systems: :func:`splitspec_core.scenarios.generate.random_system` (oscillator blocks in a random orthogonal basis, each
 agent one output seeing some blocks), 3..7 agents, n = 4, 6 or 8, one random strongly connected graph.
 """
 
@@ -19,15 +19,15 @@ import pytest
 from hypothesis import assume, event, example, given, settings
 from hypothesis import strategies as st
 
-from splitspec_core.analysis import fit_decay
-from splitspec_core.designer import design
+from splitspec_core.simulation.metrics import fit_decay
+from splitspec_core.synthesis.designer import design
 from splitspec_core.errors import AssumptionError, DesignError
-from splitspec_core.generate import random_strongly_connected_arcs, random_system
-from splitspec_core.labels import heaviest
-from splitspec_core.observability import DEFAULT_RANK_TOL, unobservable_directions
-from splitspec_core.report import rate_certificate
-from splitspec_core.scenario_load import parse_scenario
-from splitspec_core.simulator import simulate
+from splitspec_core.scenarios.generate import random_strongly_connected_arcs, random_system
+from splitspec_core.scenarios.labels import heaviest
+from splitspec_core.model.observability import DEFAULT_RANK_TOL, unobservable_directions
+from splitspec_core.synthesis.report import rate_certificate
+from splitspec_core.scenarios.load import parse_scenario
+from splitspec_core.simulation.simulator import simulate
 
 from .test_design_properties import COMMON, examples
 

@@ -10,11 +10,11 @@ import numpy as np
 from hypothesis import HealthCheck, assume, example, given, settings
 from hypothesis import strategies as st
 
-from splitspec_core.analysis import fit_decay, max_error
-from splitspec_core.designer import design
-from splitspec_core.generate import random_strongly_connected_arcs, random_system
-from splitspec_core.scenario_load import parse_scenario
-from splitspec_core.simulator import simulate
+from splitspec_core.simulation.metrics import fit_decay, max_error
+from splitspec_core.synthesis.designer import design
+from splitspec_core.scenarios.generate import random_strongly_connected_arcs, random_system
+from splitspec_core.scenarios.load import parse_scenario
+from splitspec_core.simulation.simulator import simulate
 
 
 def _scenario(seed, m, n, time, rate, gains, extra, dt=0.005):

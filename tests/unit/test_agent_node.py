@@ -243,8 +243,8 @@ def test_a_sub_round_goes_on_without_a_late_neighbour_at_the_deadline():
 
 
 def test_drawn_losses_are_not_waited_for_and_are_reported():
-    from splitspec_core.impairment import Impairment
-    from splitspec_core.scenario_model import NetworkSpec
+    from splitspec_core.model.impairment import Impairment
+    from splitspec_core.scenarios.specs import NetworkSpec
 
     a, now, xhat_of = lossy_node({"loss": 0.5})
     imp = Impairment(NetworkSpec(loss=0.5), 7)  # the scenario's seed
@@ -299,7 +299,7 @@ def one_round(a, y_msg):
 def test_without_a_measurement_the_agent_predicts_and_says_so():
     """The plant's y names agent 2 missing: x_2(1) = A z_2(q) (steps.prediction_update), not the update with
     y_2; with record_y the agent reports the y_i it used (None: none), else [] (not recorded)."""
-    from splitspec_core import steps as st
+    from splitspec_core.model import steps as st
 
     measured = one_round(AgentNode(2, {**config(), "record_y": True}, "r"), y(0, value=0.5))
     a = AgentNode(2, {**config(), "record_y": True}, "r")
@@ -316,9 +316,9 @@ def test_without_a_measurement_the_agent_predicts_and_says_so():
 
 def test_the_plant_plays_the_file_the_orchestrator_was_given(tmp_path):
     from splitspec_core.errors import SplitspecError
-    from splitspec_core.measurements import load_measurements, write_measurements
+    from splitspec_core.scenarios.measurements import load_measurements, write_measurements
     from splitspec_core.runtime.wire import decode
-    from splitspec_core.scenario_load import load_scenario
+    from splitspec_core.scenarios.load import load_scenario
 
     sc = load_scenario(EXAMPLES / "paper_discrete.yaml")
     t = np.arange(4.0)

@@ -12,8 +12,8 @@ import pytest
 import yaml
 
 import splitspec_core as ss
-from splitspec_core.scenario_checks import _DESIGN_KEYS, _RUN_KEYS, _SYSTEM_KEYS
-from splitspec_core.scenario_model import DesignSpec, System
+from splitspec_core.scenarios.checks import _DESIGN_KEYS, _RUN_KEYS, _SYSTEM_KEYS
+from splitspec_core.scenarios.specs import DesignSpec, System
 from splitspec_orchestrator import cli
 from tests.conftest import ROOT
 from tests.numerics import assert_close

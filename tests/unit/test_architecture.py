@@ -117,7 +117,7 @@ def test_the_layers_table_keeps_the_rules():
         assert table[node]["may"] <= {"core", "runtime", node}, table[node]
     assert not {"agents", "plant"} & table["orchestrator"]["may"], table["orchestrator"]
     assert layer_of("splitspec_core.runtime.bus", table) == "runtime"
-    assert layer_of("splitspec_core.steps", table) == "core"
+    assert layer_of("splitspec_core.model.steps", table) == "core"
 
 
 def test_imports_follow_the_layers():
@@ -264,8 +264,8 @@ def test_node_bad_argument_is_one_line(tmp_path, pkg):
 
 #: what no plant or agent process of a discrete-time scenario with pole placement or explicit gains loads
 #: (scipy: about 30 MB of RSS per process; the plotting, recording and simulation modules: the orchestrator's)
-NODE_NEVER = ("scipy", "matplotlib", "rerun", "pyarrow", "splitspec_orchestrator", "splitspec_core.simulator",
-              "splitspec_core.baselines", "splitspec_core.noise", "splitspec_core.report")
+NODE_NEVER = ("scipy", "matplotlib", "rerun", "pyarrow", "splitspec_orchestrator", "splitspec_core.simulation.simulator",
+              "splitspec_core.studies.baselines", "splitspec_core.synthesis.noise_tuning", "splitspec_core.synthesis.report")
 
 
 @pytest.mark.parametrize("example", ["ring10.yaml", "paper_discrete.yaml"])

@@ -5,13 +5,13 @@ import pytest
 import scipy.linalg as sla
 import yaml
 
-from splitspec_core.baselines import (KalmanConsensusFilter, SeedBatchKCF, baseline_seeds, baseline_trajectories,
+from splitspec_core.studies.baselines import (KalmanConsensusFilter, SeedBatchKCF, baseline_seeds, baseline_trajectories,
                                       default_eps, kalman_predictor, run_predictor, sampled_model)
-from splitspec_core.designer import design
+from splitspec_core.synthesis.designer import design
 from splitspec_core.errors import DesignError
-from splitspec_core.plant_model import Plant, output_rows
-from splitspec_core.scenario_load import load_scenario, parse_scenario
-from splitspec_core.simulator import simulate
+from splitspec_core.model.plant import Plant, output_rows
+from splitspec_core.scenarios.load import load_scenario, parse_scenario
+from splitspec_core.simulation.simulator import simulate
 from tests.conftest import EXAMPLES
 from tests.numerics import assert_close
 

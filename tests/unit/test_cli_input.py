@@ -19,11 +19,11 @@ import pytest
 import yaml
 
 from splitspec_orchestrator import cli
-from splitspec_core import scenario_load as scenario_module
+from splitspec_core.scenarios import load as scenario_module
 from splitspec_core.errors import ScenarioError
-from splitspec_core.scenario_load import MAX_FILE_BYTES, load_scenario, parse_scenario_text
-from splitspec_core.scenario_model import MAX_SEED
-from splitspec_core.simulator import check_trajectory_memory
+from splitspec_core.scenarios.load import MAX_FILE_BYTES, load_scenario, parse_scenario_text
+from splitspec_core.scenarios.specs import MAX_SEED
+from splitspec_core.simulation.simulator import check_trajectory_memory
 
 ROOT = Path(__file__).resolve().parents[2]
 EXAMPLES = ROOT / "examples"
@@ -153,15 +153,15 @@ def test_huge_run_steps_still_load_and_design(tmp_path):
 def test_trajectory_memory_check_in_the_core(tmp_path, monkeypatch):
     """simulate, simulate_exact and the baselines refuse before preallocating; the bound is T x m x n x 8 bytes."""
     sc = load_scenario(DISCRETE)  # m = 3, n = 4: 96 bytes per event time
-    monkeypatch.setattr("splitspec_core.simulator.physical_memory", lambda: 96 * 1001)
+    monkeypatch.setattr("splitspec_core.simulation.simulator.physical_memory", lambda: 96 * 1001)
     check_trajectory_memory(sc, 1000)  # exactly fits
     with pytest.raises(ScenarioError, match=r"^steps = 1001 needs 0\.0 GiB for the trajectory"):
         check_trajectory_memory(sc, 1001)
     with pytest.raises(ScenarioError, match=r"^--steps = 500 needs .* for 2 trajectories"):
         check_trajectory_memory(sc, 500, key="--steps", copies=2)
-    from splitspec_core.baselines import baseline_trajectories
-    from splitspec_core.designer import design
-    from splitspec_core.simulator import simulate
+    from splitspec_core.studies.baselines import baseline_trajectories
+    from splitspec_core.synthesis.designer import design
+    from splitspec_core.simulation.simulator import simulate
 
     des = design(sc)
     with pytest.raises(ScenarioError, match="needs"):

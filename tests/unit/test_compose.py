@@ -10,8 +10,8 @@ import pytest
 import yaml
 
 from splitspec_agents.agent import build_parser as agent_parser
-from splitspec_core.designer import design
-from splitspec_core.scenario_load import load_scenario
+from splitspec_core.synthesis.designer import design
+from splitspec_core.scenarios.load import load_scenario
 from splitspec_orchestrator.cli import build_parser
 from splitspec_plant.plant import build_parser as plant_parser
 from tests.conftest import ROOT

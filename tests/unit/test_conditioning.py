@@ -9,11 +9,11 @@ import numpy as np
 import pytest
 import yaml
 
-from splitspec_core.conditioning import transient_constant
-from splitspec_core.full_matrix import full_error_matrix, predicted_rms
-from splitspec_core.designer import design
-from splitspec_core.scenario_load import load_scenario, parse_scenario
-from splitspec_core.simulator import simulate
+from splitspec_core.synthesis.conditioning import transient_constant
+from splitspec_core.synthesis.error_matrix import full_error_matrix, predicted_rms
+from splitspec_core.synthesis.designer import design
+from splitspec_core.scenarios.load import load_scenario, parse_scenario
+from splitspec_core.simulation.simulator import simulate
 from splitspec_orchestrator import cli
 from tests.conftest import EXAMPLES
 
@@ -97,7 +97,7 @@ def test_full_error_matrix_is_eq_split_discrete_error():
 
 def test_margins_and_gain_norms_of_the_paper_example(capsys):
     """C_i = e_i' on two oscillators: each agent's margin is 1, decided on its own oscillator's time scale (the
-    oscillators are two clusters of A's spectrum, splitspec_core.modal): C_i X_k has norm 1 and the rotation
+    oscillators are two clusters of A's spectrum, splitspec_core.model.modal): C_i X_k has norm 1 and the rotation
     (A_k - 0 I) / ||A_k|| takes it to the other direction of the pair with a full step."""
     path = EXAMPLES / "paper_discrete.yaml"
     assert cli.main(["design", str(path), "--json"]) == 0

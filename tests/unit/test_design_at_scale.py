@@ -11,13 +11,13 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import splitspec_core as ss
-from splitspec_core import bounds, spectral
-from splitspec_core.designer import design
+from splitspec_core.synthesis import bounds, spectral
+from splitspec_core.synthesis.designer import design
 from splitspec_core.errors import DesignError
-from splitspec_core.generate import random_system, ring_arcs, ring_scenario, ring_system
-from splitspec_core.graphs import is_strongly_connected
-from splitspec_core.observability import unobservable_directions
-from splitspec_core.scenario_load import load_scenario, parse_scenario
+from splitspec_core.scenarios.generate import random_system, ring_arcs, ring_scenario, ring_system
+from splitspec_core.model.graphs import is_strongly_connected
+from splitspec_core.model.observability import unobservable_directions
+from splitspec_core.scenarios.load import load_scenario, parse_scenario
 from splitspec_orchestrator import cli
 from tests.numerics import assert_close
 
@@ -73,7 +73,7 @@ def resilient_ring(tmp_path):
 
 
 def test_design_computes_other_methods_only_when_asked(resilient_ring, monkeypatch):
-    from splitspec_core import bounds
+    from splitspec_core.synthesis import bounds
 
     asked = []
     real = bounds.choose_q
@@ -224,7 +224,7 @@ def test_warm_started_q_equals_the_search_from_scratch(seed):
     The radii come out of the same matrix products (``_Powers`` is ``matrix_power``, see above) and the same
     eigenvalue routine, so they agree exactly on one machine; compared to 1e-12 (relative) all the same,
     since the point here is the warm start, not the bits.  q, an integer, must be equal.  Under
-    ``make test-iterative`` the design's radii are ARPACK's (splitspec_core.spectral): within DECIDE of the dense
+    ``make test-iterative`` the design's radii are ARPACK's (splitspec_core.synthesis.spectral): within DECIDE of the dense
     ones, the margin under which a comparison with the rate is made again densely."""
     des = design(parse_scenario(random_resilient(seed)))
     assert len(des.cases) == 1 + des.scenario.m
@@ -263,7 +263,7 @@ def test_case_parts_as_the_eager_formulas():
     h and Atil only copy numbers into place: exact."""
     import scipy.linalg as sla
 
-    from splitspec_core.graphs import perron_vector
+    from splitspec_core.model.graphs import perron_vector
 
     des = design(parse_scenario(random_resilient(3)))
     ad = {a.id: a for a in des.agents}
@@ -283,7 +283,7 @@ def test_case_parts_as_the_eager_formulas():
 
 def test_spectral_design_needs_no_perron_vector(monkeypatch):
     """A discrete design with spectral q never uses h or VLV: no Perron vector for the m + 1 cases."""
-    from splitspec_core import graphs
+    from splitspec_core.model import graphs
 
     calls = []
     real = graphs.perron_vector
@@ -298,8 +298,8 @@ def test_spectral_design_needs_no_perron_vector(monkeypatch):
 def test_a_graphs_entries_are_its_matrix_nonzeros(seed):
     """``Graph.entries`` (the spectral path's S, never formed) against the nonzeros of the formed ``S``: the same
     positions and, computed by the same division 1 / (in-neighbours + 1), the same values exactly."""
-    from splitspec_core.generate import chord_arcs
-    from splitspec_core.graphs import build_graph
+    from splitspec_core.scenarios.generate import chord_arcs
+    from splitspec_core.model.graphs import build_graph
 
     rng = np.random.default_rng(seed)
     m = int(rng.integers(4, 40))
@@ -316,7 +316,7 @@ def test_a_graphs_entries_are_its_matrix_nonzeros(seed):
 def test_arc_positions_as_a_lookup_by_hand(seed):
     """The vectorised ``arc_positions`` (a sorted search) against a dictionary lookup arc by arc: the same
     positions in the same order, arcs with an end outside ``ids`` dropped; ``build_graph`` keeps the same arcs."""
-    from splitspec_core.graphs import arc_positions, build_graph
+    from splitspec_core.model.graphs import arc_positions, build_graph
 
     rng = np.random.default_rng(seed)
     m = int(rng.integers(1, 30))

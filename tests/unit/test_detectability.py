@@ -1,4 +1,4 @@
-"""Jointly detectable systems (splitspec_core/detectability.py): what no agent sees, its rate, its certificate.
+"""Jointly detectable systems (splitspec_core/model/detectability.py): what no agent sees, its rate, its certificate.
 
 The systems are the paper's discrete example with one more state nobody measures, a filter of the first
 oscillator's position ``f(tau+1) = a f + (1 - a) x1``: W = span(e_f) exactly, and A on W is ``a``.
@@ -13,15 +13,15 @@ import numpy as np
 import pytest
 import yaml
 
-from splitspec_core.conditioning import transient_constant
-from splitspec_core.designer import design
-from splitspec_core.detectability import BACKOFF
+from splitspec_core.synthesis.conditioning import transient_constant
+from splitspec_core.synthesis.designer import design
+from splitspec_core.model.detectability import BACKOFF
 from splitspec_core.errors import AssumptionError
-from splitspec_core.full_matrix import _case_parts, full_error_matrix, modulo
-from splitspec_core.report import design_json, rate_certificate
-from splitspec_core.scenario_load import load_scenario, parse_scenario
-from splitspec_core.simulator import simulate
-from splitspec_core.survivors import certify_network
+from splitspec_core.synthesis.error_matrix import _case_parts, full_error_matrix, modulo
+from splitspec_core.synthesis.report import design_json, rate_certificate
+from splitspec_core.scenarios.load import load_scenario, parse_scenario
+from splitspec_core.simulation.simulator import simulate
+from splitspec_core.synthesis.survivors import certify_network
 from splitspec_orchestrator import cli
 from tests.conftest import EXAMPLES
 
@@ -95,7 +95,7 @@ def test_the_error_stays_under_the_certified_envelope(a):
 def test_a_slow_filter_limits_the_rate_and_the_run_shows_it():
     """f decays with radius 0.8 > rate 0.5: the certified rate is 0.8^BACKOFF, said in one line; the simulated error
     does decay at 0.8 (the filter's), not at the rate asked for."""
-    from splitspec_core.analysis import fit_decay, max_error
+    from splitspec_core.simulation.metrics import fit_decay, max_error
 
     des = design(parse_scenario(filtered(0.8)))
     cert = rate_certificate(des)

@@ -2,10 +2,10 @@ import numpy as np
 import pytest
 
 from splitspec_core.errors import AssumptionError
-from splitspec_core.graphs import (adjacency, build_graph, enumerate_strongly_connected, find_unreachable,
+from splitspec_core.model.graphs import (adjacency, build_graph, enumerate_strongly_connected, find_unreachable,
                                    graph_sequence, is_doubly_stochastic, metropolis_matrix, neighbour_lists,
                                    perron_vector, stochastic_matrix, switch_times)
-from splitspec_core.scenario_model import Switching
+from splitspec_core.scenarios.specs import Switching
 
 
 def test_stochastic_matrix_averages_in_neighbours():
@@ -77,8 +77,8 @@ def test_enumerate_strongly_connected_small():
 @pytest.mark.parametrize("dt", [1.0, 0.05])
 def test_lazy_switching_signal_equals_the_sequence(switching, dt):
     """The runtime's O(1)-memory signal draws exactly what the simulator's array holds."""
-    from splitspec_core.graphs import SwitchingSignal, graph_sequence, switch_times
-    from splitspec_core.scenario_model import Switching
+    from splitspec_core.model.graphs import SwitchingSignal, graph_sequence, switch_times
+    from splitspec_core.scenarios.specs import Switching
 
     sw = Switching(**switching)
     names = ("a", "b", "c")

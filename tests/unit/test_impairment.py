@@ -8,12 +8,12 @@ import numpy as np
 import pytest
 import yaml
 
-from splitspec_core.designer import design
-from splitspec_core.impairment import (LATE, LOSS, PARTITION, Impairment, crosses, group_of, realized_row, sub_round,
+from splitspec_core.synthesis.designer import design
+from splitspec_core.model.impairment import (LATE, LOSS, PARTITION, Impairment, crosses, group_of, realized_row, sub_round,
                                        u_array, u_scalar)
-from splitspec_core.scenario_load import load_scenario, parse_scenario
-from splitspec_core.scenario_model import NetworkSpec
-from splitspec_core.simulator import simulate
+from splitspec_core.scenarios.load import load_scenario, parse_scenario
+from splitspec_core.scenarios.specs import NetworkSpec
+from splitspec_core.simulation.simulator import simulate
 from tests.conftest import EXAMPLES
 from tests.numerics import assert_close
 
@@ -250,7 +250,7 @@ def test_network_bad_input_is_one_line():
 
 def test_exact_ode_refuses_a_lossy_network():
     from splitspec_core.errors import ScenarioError
-    from splitspec_core.simulator import simulate_exact
+    from splitspec_core.simulation.simulator import simulate_exact
 
     sc = load_scenario(EXAMPLES / "paper_continuous.yaml")
     sc = dataclasses.replace(sc, network=NetworkSpec(loss=0.1))

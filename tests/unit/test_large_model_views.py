@@ -1,5 +1,5 @@
 """Readable recordings of large models: the default views show the states ``run.show`` picks (by default, of a
-model over :data:`~splitspec_core.labels.SHOW_ALL` states, those its agents measure), and the rest stays in the
+model over :data:`~splitspec_core.scenarios.labels.SHOW_ALL` states, those its agents measure), and the rest stays in the
 recording.  A real Recorder writes a real run.rrd, read back."""
 
 from __future__ import annotations
@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 import splitspec_core as ss
-from splitspec_core.labels import SHOW_ALL, shown_states
+from splitspec_core.scenarios.labels import SHOW_ALL, shown_states
 from splitspec_orchestrator import blueprint as bp
 from splitspec_orchestrator.plots import states_figure
 from splitspec_orchestrator.recorder import Recorder

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 import yaml
 
-from splitspec_core.designer import design
-from splitspec_core.scenario_load import load_scenario, parse_scenario
+from splitspec_core.synthesis.designer import design
+from splitspec_core.scenarios.load import load_scenario, parse_scenario
 from splitspec_orchestrator import cli
 from tests.conftest import EXAMPLES
 

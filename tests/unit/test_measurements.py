@@ -7,13 +7,13 @@ import json
 import numpy as np
 import pytest
 
-from splitspec_core.designer import design
+from splitspec_core.synthesis.designer import design
 from splitspec_core.errors import ScenarioError
-from splitspec_core.generate import random_strongly_connected_arcs, random_system
-from splitspec_core.measurements import load_measurements, write_measurements
-from splitspec_core.reference import disagreement, kalman_reference, no_truth_arrays
-from splitspec_core.scenario_load import load_scenario, parse_scenario
-from splitspec_core.simulator import simulate
+from splitspec_core.scenarios.generate import random_strongly_connected_arcs, random_system
+from splitspec_core.scenarios.measurements import load_measurements, write_measurements
+from splitspec_core.studies.no_truth import disagreement, kalman_reference, no_truth_arrays
+from splitspec_core.scenarios.load import load_scenario, parse_scenario
+from splitspec_core.simulation.simulator import simulate
 from tests.conftest import EXAMPLES
 from tests.integration.runtime_helpers import run
 
@@ -185,7 +185,7 @@ def test_nan_where_a_measurement_is_marked_missing_is_accepted(tmp_path, paper):
 
 
 def test_a_small_npz_that_expands_beyond_the_bound_is_refused_before_inflating(tmp_path, paper, monkeypatch):
-    import splitspec_core.measurements as meas
+    import splitspec_core.scenarios.measurements as meas
 
     monkeypatch.setattr(meas, "MAX_FILE_BYTES", 1 << 16)  # the bound scaled down: 4 x 64 KiB expanded
     path = tmp_path / "bomb.npz"

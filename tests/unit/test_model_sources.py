@@ -15,11 +15,11 @@ import scipy.linalg as sla
 import yaml
 
 import splitspec_core as ss
-from splitspec_core.inputs import input_at, parse_input
-from splitspec_core.measurements import load_measurements, write_measurements
-from splitspec_core.plant_model import input_of
-from splitspec_core.scenario_load import load_scenario, resolved_scenario_text
-from splitspec_core.simulator import simulate as simulate_design
+from splitspec_core.scenarios.inputs import input_at, parse_input
+from splitspec_core.scenarios.measurements import load_measurements, write_measurements
+from splitspec_core.model.plant import input_of
+from splitspec_core.scenarios.load import load_scenario, resolved_scenario_text
+from splitspec_core.simulation.simulator import simulate as simulate_design
 from splitspec_orchestrator import cli
 from tests.numerics import assert_close
 
@@ -253,7 +253,7 @@ def test_known_inputs_move_the_state_and_cancel_from_the_errors(time, extra):
     loop = simulate_design(ss.design(with_u).detail, estimator="loop")
     assert_close(loop.xhat, a.xhat, rtol=1e-12, what="loop against batch with inputs")
     # the baselines add G u too: their errors do not depend on the inputs either
-    from splitspec_core.baselines import baseline_trajectories
+    from splitspec_core.studies.baselines import baseline_trajectories
 
     ba, bb = (baseline_trajectories(s, 2, exchanges=3) for s in (with_u, without))
     scale = max(1.0, np.abs(ba["x"]).max())

@@ -1,4 +1,4 @@
-"""Monte Carlo as one batch (splitspec_core.montecarlo): every seed equals its single-seed simulation.
+"""Monte Carlo as one batch (splitspec_core.simulation.montecarlo): every seed equals its single-seed simulation.
 
 Why not bit for bit: the batch steps all seeds with one product each (``(m, n, n) @ (m, n, N)``, a sparse
 ``S @ Z`` with ``n N`` columns, ``(n, n) @ (n, N)`` for the plant), where a single-seed run multiplies
@@ -16,14 +16,14 @@ import numpy as np
 import pytest
 
 import splitspec_core as ss
-from splitspec_core.analysis import monte_carlo_stats
-from splitspec_core.comparison import steady_rms
-from splitspec_core.designer import design
+from splitspec_core.simulation.metrics import monte_carlo_stats
+from splitspec_core.studies.comparison import steady_rms
+from splitspec_core.synthesis.designer import design
 from splitspec_core.errors import ScenarioError
-from splitspec_core.montecarlo import fallback_reason, simulate_seeds
-from splitspec_core.scenario_load import load_scenario
-from splitspec_core.simulator import simulate
-from splitspec_core.streams import stream
+from splitspec_core.simulation.montecarlo import fallback_reason, simulate_seeds
+from splitspec_core.scenarios.load import load_scenario
+from splitspec_core.simulation.simulator import simulate
+from splitspec_core.model.streams import stream
 from splitspec_orchestrator import cli
 from tests.conftest import EXAMPLES
 from tests.numerics import assert_close, max_rel_diff
@@ -170,7 +170,7 @@ def test_cli_monte_carlo_figures_equal_the_looped_version(name, tmp_path, capsys
 
 def test_seeds_over_a_measurements_file_run_one_after_another(tmp_path):
     """One realisation of y: only the initial estimates change with the seed; the loop, the same numbers."""
-    from splitspec_core.measurements import write_measurements
+    from splitspec_core.scenarios.measurements import write_measurements
 
     sc = load_scenario(EXAMPLES / "ring10_noise.yaml")
     tr = ss.simulate(sc, seed=1, steps=40, keep_y=True)

@@ -7,15 +7,15 @@ import json
 import numpy as np
 import pytest
 
-from splitspec_core.analysis import fit_decay, max_error
-from splitspec_core.comparison import steady_rms
-from splitspec_core.designer import design
+from splitspec_core.simulation.metrics import fit_decay, max_error
+from splitspec_core.studies.comparison import steady_rms
+from splitspec_core.synthesis.designer import design
 from splitspec_core.errors import DesignError
-from splitspec_core.impairment import LATE, LOSS
-from splitspec_core.scenario_load import load_scenario
-from splitspec_core.scenario_model import NetworkSpec
-from splitspec_core.sweeps import network_sweep, sweep_table
-from splitspec_core.simulator import simulate
+from splitspec_core.model.impairment import LATE, LOSS
+from splitspec_core.scenarios.load import load_scenario
+from splitspec_core.scenarios.specs import NetworkSpec
+from splitspec_core.studies.sweeps import network_sweep, sweep_table
+from splitspec_core.simulation.simulator import simulate
 from tests.conftest import EXAMPLES
 from tests.integration.runtime_helpers import run
 

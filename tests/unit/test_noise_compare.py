@@ -7,12 +7,12 @@ import numpy as np
 import pytest
 import yaml
 
-from splitspec_core.comparison import compare, settle_time, steady_rms, sweep
-from splitspec_core.designer import design
+from splitspec_core.studies.comparison import compare, settle_time, steady_rms, sweep
+from splitspec_core.synthesis.designer import design
 from splitspec_core.errors import DesignError
-from splitspec_core.noise import error_dynamics, predicted_rms, tune
-from splitspec_core.scenario_load import load_scenario
-from splitspec_core.simulator import simulate
+from splitspec_core.synthesis.noise_tuning import error_dynamics, predicted_rms, tune
+from splitspec_core.scenarios.load import load_scenario
+from splitspec_core.simulation.simulator import simulate
 from tests.conftest import EXAMPLES
 from tests.integration.runtime_helpers import run
 from tests.unit.test_certificates import sampled_error_map

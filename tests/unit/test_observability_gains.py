@@ -2,8 +2,8 @@ import numpy as np
 import pytest
 
 from splitspec_core.errors import AssumptionError
-from splitspec_core.gains import design_gain, meets_rate
-from splitspec_core.observability import decompose, unobservable_directions
+from splitspec_core.model.gains import design_gain, meets_rate
+from splitspec_core.model.observability import decompose, unobservable_directions
 
 
 def _osc():
@@ -68,7 +68,7 @@ def test_ackermann_matches_place_poles_or_declines():
     """Single-output placement (used to spare every agent process the scipy.signal import) is the unique gain."""
     from scipy.signal import place_poles
 
-    from splitspec_core.gains import _ackermann
+    from splitspec_core.model.gains import _ackermann
 
     rng = np.random.default_rng(5)
     used = 0
@@ -94,8 +94,8 @@ def test_joint_detectability_is_judged_before_explicit_gains(tmp_path, capsys, t
     """Not jointly detectable, explicit K_i that also miss the rate: the error is the assumption, not K_i."""
     import yaml
 
-    from splitspec_core.designer import design
-    from splitspec_core.scenario_load import load_scenario
+    from splitspec_core.synthesis.designer import design
+    from splitspec_core.scenarios.load import load_scenario
     from splitspec_orchestrator import cli
     from tests.conftest import EXAMPLES
 
@@ -152,8 +152,8 @@ def test_weak_joint_observability_is_refused_with_its_margin(tmp_path, capsys):
     margin and design.rank_tol (exit 2); with rank_tol forced below the margin it designs, and warns."""
     import yaml
 
-    from splitspec_core.designer import design
-    from splitspec_core.scenario_load import parse_scenario
+    from splitspec_core.synthesis.designer import design
+    from splitspec_core.scenarios.load import parse_scenario
     from splitspec_orchestrator import cli
 
     raw = {"name": "weak", "time": "continuous",
@@ -208,7 +208,7 @@ def test_close_modes_the_gain_must_move_are_left_to_consensus():
     at 1 %: told apart only through the dynamics, across their 5e-4 spread.  Measured against that spread they look
     seen (margin 0.01) and placing all three costs a gain of 3e6; measured against the 0.16 the gain must move them
     to reach -(1 + margin) rate, the two others are left to consensus and the gain is 0.16."""
-    from splitspec_core.gains import beyond_target
+    from splitspec_core.model.gains import beyond_target
 
     A = np.diag([-0.142, -0.1425, -0.1415, -5.0])
     C = np.array([[1.0, 0.01, 0.01, 1.0]])

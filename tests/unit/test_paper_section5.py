@@ -3,9 +3,9 @@
 import numpy as np
 import pytest
 
-from splitspec_core import bounds
-from splitspec_core.designer import design
-from splitspec_core.scenario_load import load_scenario
+from splitspec_core.synthesis import bounds
+from splitspec_core.synthesis.designer import design
+from splitspec_core.scenarios.load import load_scenario
 
 
 @pytest.fixture(scope="module")

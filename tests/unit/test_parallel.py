@@ -15,10 +15,11 @@ import time
 import numpy as np
 import pytest
 
-from splitspec_core import parallel, spectral
-from splitspec_core.designer import design
-from splitspec_core.generate import ring_scenario
-from splitspec_core.scenario_load import parse_scenario
+from splitspec_core import parallel
+from splitspec_core.synthesis import spectral
+from splitspec_core.synthesis.designer import design
+from splitspec_core.scenarios.generate import ring_scenario
+from splitspec_core.scenarios.load import parse_scenario
 from splitspec_orchestrator.registry import pid_running
 
 pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="fork_map forks on Linux only")

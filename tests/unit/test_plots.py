@@ -8,11 +8,11 @@ import pytest
 import yaml
 
 from splitspec_orchestrator import cli, plots
-from splitspec_core.analysis import NO_CERTIFIED_RATE, Mark, event_marks, max_error, summarize
-from splitspec_core.designer import design
-from splitspec_core.scenario_load import load_scenario
-from splitspec_core.scenario_model import Fault
-from splitspec_core.simulator import simulate
+from splitspec_core.simulation.metrics import NO_CERTIFIED_RATE, Mark, event_marks, max_error, summarize
+from splitspec_core.synthesis.designer import design
+from splitspec_core.scenarios.load import load_scenario
+from splitspec_core.scenarios.specs import Fault
+from splitspec_core.simulation.simulator import simulate
 from tests.conftest import EXAMPLES
 
 

@@ -424,7 +424,7 @@ def test_round_loop_calls_never_write_or_wait_for_a_flush(tmp_path, monkeypatch)
     and no fsync in the caller's thread, and return at once while a (slow) background flush is under way."""
     import threading
 
-    import splitspec_core.trajfile as trajfile
+    import splitspec_core.simulation.trajectory_file as trajfile
     import splitspec_orchestrator.rrdfile as rrdfile
 
     main = threading.current_thread()
@@ -508,7 +508,7 @@ def test_slow_trajectory_rewrites_are_spaced_out(tmp_path, monkeypatch):
     """The background thread spends at most about a tenth of its time rewriting trajectory.npz (the whole
     file each time): a rewrite that takes 0.1 s is not repeated within 0.9 s, while run.rrd is appended at
     every flush; close() still writes every row."""
-    import splitspec_core.trajfile as trajfile
+    import splitspec_core.simulation.trajectory_file as trajfile
 
     writes: list[float] = []
     real_write = trajfile.write_trajectory

@@ -6,8 +6,8 @@ import os
 
 import numpy as np
 
-from splitspec_core.reference import kalman_reference
-from splitspec_core.scenario_load import load_scenario
+from splitspec_core.studies.no_truth import kalman_reference
+from splitspec_core.scenarios.load import load_scenario
 from splitspec_orchestrator.recorder import Recorder
 from tests.conftest import EXAMPLES
 

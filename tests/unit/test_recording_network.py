@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from splitspec_core.impairment import LATE, LOSS, PARTITION
+from splitspec_core.model.impairment import LATE, LOSS, PARTITION
 from splitspec_orchestrator import blueprint as bp
 from splitspec_orchestrator.recorder import Recorder, RecordingError
 from splitspec_orchestrator.topology_view import dash_dots, lost_arcs, status_text

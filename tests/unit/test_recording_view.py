@@ -11,9 +11,9 @@ import yaml
 from splitspec_orchestrator.blueprint import circle_positions, node_positions
 from splitspec_orchestrator.eventlog import event_text
 from splitspec_orchestrator.recorder import Recorder, RecordingError
-from splitspec_core.analysis import envelope, envelope_restarts
+from splitspec_core.simulation.metrics import envelope, envelope_restarts
 from splitspec_core.errors import ScenarioError
-from splitspec_core.scenario_load import parse_scenario
+from splitspec_core.scenarios.load import parse_scenario
 from tests.integration.runtime_helpers import EXAMPLES
 from tests.rrd_readback import read_rrd, read_rrd_clears, read_rrd_nodes, read_rrd_state
 

@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from splitspec_core.measurements import Measurements
-from splitspec_core.reference import disagreement, residuals
+from splitspec_core.scenarios.measurements import Measurements
+from splitspec_core.studies.no_truth import disagreement, residuals
 from splitspec_orchestrator import blueprint as bp
 from splitspec_orchestrator.recorder import Recorder, RecordingError
 from splitspec_orchestrator.reference_view import ReferenceRows, file_rows, known_parts, progress_text

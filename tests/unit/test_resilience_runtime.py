@@ -6,13 +6,13 @@ import json
 import numpy as np
 import pytest
 
-from splitspec_core.designer import design
-from splitspec_core.survivors import certify_network
+from splitspec_core.synthesis.designer import design
+from splitspec_core.synthesis.survivors import certify_network
 from splitspec_core.errors import ScenarioError
-from splitspec_core.network import NetworkState, active_arcs, consensus_rows, make_plan
-from splitspec_core.replay import faults_from_events, load_events, with_recorded_faults
-from splitspec_core.scenario_load import load_scenario
-from splitspec_core.simulator import simulate
+from splitspec_core.model.network import NetworkState, active_arcs, consensus_rows, make_plan
+from splitspec_core.scenarios.replay import faults_from_events, load_events, with_recorded_faults
+from splitspec_core.scenarios.load import load_scenario
+from splitspec_core.simulation.simulator import simulate
 from tests.conftest import EXAMPLES
 
 

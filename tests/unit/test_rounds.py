@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 
 from splitspec_orchestrator import rounds as R
-from splitspec_core.designer import design
-from splitspec_core.scenario_load import parse_scenario
+from splitspec_core.synthesis.designer import design
+from splitspec_core.scenarios.load import parse_scenario
 from tests.conftest import EXAMPLES
 
 HOST = "here"
@@ -439,7 +439,7 @@ def play(example, changes=None, events=None):
 
 @pytest.mark.parametrize("example", ["paper_discrete", "paper_continuous_switching"])
 def test_in_process_protocol_equals_simulate(example):
-    from splitspec_core.simulator import simulate
+    from splitspec_core.simulation.simulator import simulate
 
     m, rows = play(example, changes={"run": {"steps": 30}})
     tr = simulate(m.des, seed=m.sc.run.seed, steps=30)
@@ -457,7 +457,7 @@ def test_in_process_protocol_equals_simulate(example):
 def test_in_process_protocol_loses_what_simulate_loses(example, changes):
     """Agents drawing their own losses and cutting a partition, the machine collecting what they report: the
     simulator's lost rows and trajectory (the agents' rule is realized_row, the simulator's loop the same)."""
-    from splitspec_core.simulator import simulate
+    from splitspec_core.simulation.simulator import simulate
 
     m, rows = play(example, changes=changes)
     steps = changes["run"]["steps"]

@@ -275,7 +275,7 @@ CASES = [
     ("g-for-discrete", scenario({"design.g": 10}), ["design.g is for continuous time"]),
     ("dt-for-discrete", scenario({"run.dt": 0.01}), ["run.dt is only for continuous time"]),
     ("bad-time", scenario({"time": "hybrid"}), ["time must be discrete or continuous", "'hybrid'"]),
-    # --- numbers that would overflow later arithmetic (bounds in splitspec_core/scenario_model.py) -----
+    # --- numbers that would overflow later arithmetic (bounds in splitspec_core/scenarios/specs.py) -----
     ("process-noise-1e308", scenario({"system.process_noise": 1e308}),
      ["system.process_noise = 1e+308 is out of range", "within +-1e+12"]),
     ("measurement-noise-huge", scenario({"system.measurement_noise": 1e13}),

@@ -15,7 +15,7 @@ from splitspec_agents.sensor import FLOOD_BURST, FLOOD_RATE, LiveSampler, Sensor
 from splitspec_core.errors import ScenarioError
 from splitspec_core.runtime.security import acl_config, generate
 from splitspec_core.runtime.wire import Keys
-from splitspec_core.scenario_load import load_scenario, parse_scenario_text
+from splitspec_core.scenarios.load import load_scenario, parse_scenario_text
 from tests.conftest import ROOT
 
 CHAIN = ROOT / "examples" / "sensors" / "chain.yaml"
@@ -209,7 +209,7 @@ def test_bad_sources_name_the_key(sources, run, fragment):
 def test_the_chain_is_the_publishers_physics_and_its_design_is_certified():
     """chain.yaml's A is the publisher's exact motion over one event period; the middle agent never sees the
     antisymmetric mode (p1 - p3, v1 - v3), and gets it by consensus."""
-    from splitspec_core.designer import design
+    from splitspec_core.synthesis.designer import design
 
     spec = importlib.util.spec_from_file_location("publisher", ROOT / "examples" / "sensors" / "publisher.py")
     pub = importlib.util.module_from_spec(spec)

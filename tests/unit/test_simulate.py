@@ -5,11 +5,11 @@ import dataclasses
 import numpy as np
 import pytest
 
-from splitspec_core.analysis import fit_decay, max_error
-from splitspec_core.designer import design
-from splitspec_core.generate import random_strongly_connected_arcs, random_system
-from splitspec_core.scenario_load import load_scenario, parse_scenario
-from splitspec_core.simulator import Trajectory, simulate, simulate_exact
+from splitspec_core.simulation.metrics import fit_decay, max_error
+from splitspec_core.synthesis.designer import design
+from splitspec_core.scenarios.generate import random_strongly_connected_arcs, random_system
+from splitspec_core.scenarios.load import load_scenario, parse_scenario
+from splitspec_core.simulation.simulator import Trajectory, simulate, simulate_exact
 from tests.conftest import EXAMPLES
 from tests.numerics import assert_close, max_rel_diff
 
@@ -146,7 +146,7 @@ def _raw(path):
 
 
 def test_envelope_restarts_at_rejoins_and_switches_only():
-    from splitspec_core.analysis import envelope, envelope_restarts
+    from splitspec_core.simulation.metrics import envelope, envelope_restarts
 
     alive = np.ones((10, 2), dtype=bool)
     alive[3:6, 1] = False  # lost at 3 (no restart), rejoins at 6 (restart)

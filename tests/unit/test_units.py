@@ -1,4 +1,4 @@
-"""Rank decisions and margins that mean the same whatever the units (splitspec_core/modal.py).
+"""Rank decisions and margins that mean the same whatever the units (splitspec_core/model/modal.py).
 
 A change of state units is a diagonal similarity: ``x_new = D^-1 x`` gives ``A_new = D^-1 A D`` and
 ``C_new = C D``.  The decisions are made in balanced coordinates, so they must not move: each agent's
@@ -14,8 +14,8 @@ import numpy as np
 import pytest
 import scipy.linalg as sla
 
-from splitspec_core import modal
-from splitspec_core.observability import decompose, unobservable_directions
+from splitspec_core.model import modal
+from splitspec_core.model.observability import decompose, unobservable_directions
 from tests.conftest import EXAMPLES, ROOT
 
 #: the largest ratio of a margin in new units to the same margin in the old ones (measured: 1.013 at worst over

@@ -1,0 +1,11 @@
+"""What every process needs at run time: the estimator's model and the pure per-agent math.
+
+``steps.py`` the per-agent update steps (eqs. split-discrete-*, split_continuous_observer) shared by the
+simulator and the agent processes; ``local_design.py`` one agent's ``V_i, K_i, P_i`` (computed alike by the
+designer and by each agent from the scenario) with ``observability.py`` (the decomposition),
+``gains.py`` (K_i), ``modal.py`` (balanced coordinates, eigenvalue clusters), ``subspaces.py`` and
+``detectability.py`` (what no agent sees); ``graphs.py`` communication graphs and weights;
+``plant.py`` the true system and initial values; ``network.py`` the switching signal and faults as
+a plan, ``impairment.py`` losses, delays and partitions per message, ``streams.py`` the named seed
+streams. Imports ``scenarios`` only: agents and the plant import this, never the design stack.
+"""

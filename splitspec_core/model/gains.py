@@ -1,0 +1,332 @@
+"""Local gains ``K_i = Q_i^-1 Kbar_i`` (paper, proof of prop. error; sign: ``A + K_i C_i``).
+
+Each agent designs ``Kbar_i`` for its observable pair ``(Cbar_i, Abar_i)`` so
+that ``Abar_i + Kbar_i Cbar_i`` decays faster than the rate ``lam``:
+
+* continuous: every pole has real part ``< -lam``;
+* discrete: every pole has modulus ``< lam``.
+
+Only the slow modes move
+------------------------
+A mode of the observable part that already decays faster than the gain's own target (real part below
+``-(1 + margin) lam``, or modulus below ``lam / (1 + margin)``) is kept where it is: the gain acts on the
+quotient by the invariant subspace of those modes only.  In the dual (state feedback) form: with ``U_1``
+an orthonormal basis of the ``Abar_i'``-invariant subspace of the fast eigenvalues and ``U_2`` its
+complement, ``F = F_2 U_2'`` leaves ``U_1`` invariant with its eigenvalues, and places those of
+``T_22 - U_2' Ct' F_2`` (``T_22 = U_2' Abar_i' U_2``): a problem of the size of the slow part.  On a stiff
+model (power systems: exciter and filter modes at -20 to -80, electromechanical modes near -0.5) this is
+the difference between moving 13 poles and moving 32, and between a gain of 1e5 and 1e9; moving a fast
+mode to a slower target only costs gain.  Nothing changes for a model whose modes are all slow (the
+paper's oscillators): every mode moves, as before.
+
+Methods and their documented margin (``design.margin``, default 0.5)
+---------------------------------------------------------------------
+``place``
+    Distinct real poles for the r modes that move.  Continuous: ``-(1 + margin) lam (1 + k/4)``,
+    ``k = 0..r-1``.  Discrete: ``alpha (r - k) / r`` with
+    ``alpha = lam / (1 + margin)``.  Placed on the dual pair
+    ``(T_22, U_2' Ct')``: Ackermann's formula for one effective output (the
+    gain is unique; checked, else the fallback), ``scipy.signal.place_poles``
+    (method YT) otherwise.
+``riccati``
+    Steady-state Kalman gain of the slow part, shifted so the rate is
+    guaranteed: continuous CARE for ``(T_22 + alpha I, U_2' Ct')`` with
+    ``alpha = (1 + margin) lam`` (all poles left of ``-alpha``); discrete DARE
+    for ``(T_22 / alpha, U_2' Ct' / alpha)`` with ``alpha = lam / (1 + margin)``
+    (all poles inside radius ``alpha``).  Weights: process ``W`` and
+    measurement ``R`` (identity multiples; from the scenario's noise levels
+    when they are set, else 1).
+``explicit``
+    The user's ``K_i`` (``Kbar_i = Q_i K_i``), checked against the rate.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import AssumptionError, DesignError
+from .modal import invariant_subspace
+from .observability import Decomposition
+from .subspaces import complement
+
+__all__ = ["LocalGain", "GainTarget", "target_poles", "beyond_target", "place_gain", "riccati_gain", "explicit_gain",
+           "meets_rate", "design_gain", "poles_text"]
+
+
+@dataclass(frozen=True)
+class LocalGain:
+    """A local gain with its diagnostics.
+
+    Attributes
+    ----------
+    K : (n, s_i) array
+        ``K_i``; ``A + K_i C_i`` leaves the unobservable space invariant.
+    Kbar : (r_i, s_i) array
+        ``Kbar_i = Q_i K_i``.
+    poles : (r_i,) complex array
+        Spectrum of ``Abar_i + Kbar_i Cbar_i`` (the part the gain assigns).
+    method : str
+        ``place``, ``riccati`` or ``explicit``.
+    """
+
+    K: np.ndarray
+    Kbar: np.ndarray
+    poles: np.ndarray
+    method: str
+
+
+def meets_rate(poles: np.ndarray, time: str, rate: float) -> bool:
+    """Whether every pole decays strictly faster than the rate."""
+    poles = np.asarray(poles)
+    if poles.size == 0:
+        return True
+    if time == "continuous":
+        return bool(np.max(poles.real) < -rate)
+    return bool(np.max(np.abs(poles)) < rate)
+
+
+def target_poles(r: int, time: str, rate: float, margin: float) -> np.ndarray:
+    """The ``place`` method's poles (see the module docstring)."""
+    k = np.arange(r)
+    if time == "continuous":
+        return -(1.0 + margin) * rate * (1.0 + k / 4.0)
+    alpha = rate / (1.0 + margin)
+    return alpha * (r - k) / r
+
+
+def _output_basis(Cbar: np.ndarray):
+    """Row-space basis of ``Cbar``: ``Cbar = T Ct`` with ``Ct`` orthonormal rows of full rank."""
+    U, s, Wt = np.linalg.svd(Cbar, full_matrices=False)
+    rank = int(np.sum(s > 1e-12 * (s[0] if s.size else 0.0)))
+    return U[:, :rank] * s[:rank], Wt[:rank]
+
+
+def _lift(dec: Decomposition, Kbar: np.ndarray, method: str) -> LocalGain:
+    # K_i = Q_i^-1 Kbar_i with Q_i^-1 = Q_i' (orthonormal rows)
+    K = dec.Q.T @ Kbar
+    poles = np.linalg.eigvals(dec.Abar + Kbar @ dec.Cbar) if dec.n_observable else np.zeros(0, complex)
+    return LocalGain(K=K, Kbar=Kbar, poles=poles, method=method)
+
+
+def _ackermann(A: np.ndarray, b: np.ndarray, poles: np.ndarray) -> np.ndarray | None:
+    """Single-input pole placement: ``f`` (1, r) with ``eig(A - b f) = poles`` (Ackermann's formula).
+
+    The single-input gain is unique, so this is the gain any method finds; returns ``None`` when
+    the controllability matrix is too ill-conditioned for the result to be trusted (the caller then
+    uses ``scipy.signal.place_poles``).
+    """
+    r = A.shape[0]
+    W = np.empty((r, r))
+    col = b[:, 0]
+    for k in range(r):
+        W[:, k] = col
+        col = A @ col
+    coeffs = np.real(np.poly(poles))  # phi(s) = s^r + c1 s^(r-1) + ... + cr
+    phi = np.zeros_like(A)
+    for c in coeffs:  # Horner: phi(A)
+        phi = phi @ A + c * np.eye(r)
+    try:
+        if np.linalg.cond(W) > 1e8:
+            return None
+        e = np.zeros(r)
+        e[-1] = 1.0
+        f = np.linalg.solve(W.T, e) @ phi
+    except np.linalg.LinAlgError:
+        return None
+    got = np.sort_complex(np.linalg.eigvals(A - np.outer(b[:, 0], f)))
+    if np.max(np.abs(got - np.sort_complex(poles.astype(complex)))) > 1e-9 * (1.0 + np.max(np.abs(poles))):
+        return None
+    return f[None, :]
+
+
+@dataclass(frozen=True)
+class GainTarget:
+    """Where a local gain moves the observable part's slow modes (:func:`splitspec_core.model.gains.beyond_target` makes
+    it): past ``-(1 + margin) rate`` (continuous) or inside ``rate / (1 + margin)`` (discrete).  Called on an array of
+    eigenvalues: true where a mode is already there, so the gain leaves it alone."""
+
+    time: str
+    rate: float
+    margin: float
+
+    def __call__(self, z) -> np.ndarray:
+        if self.time == "continuous":
+            return np.real(z) < -(1.0 + self.margin) * self.rate
+        return np.abs(z) < self.rate / (1.0 + self.margin)
+
+    def shift(self, z) -> np.ndarray:
+        """How far each eigenvalue is from the target region (0 inside it): the least the gain moves it."""
+        if self.time == "continuous":
+            return np.maximum(0.0, np.real(z) + (1.0 + self.margin) * self.rate)
+        return np.maximum(0.0, np.abs(z) - self.rate / (1.0 + self.margin))
+
+
+
+def beyond_target(time: str, rate: float, margin: float) -> GainTarget:
+    """Where the gain moves the slow modes (:class:`GainTarget`): called on an array of
+    eigenvalues, true where a mode already decays faster than the gain's target (real part below ``-(1 + margin)
+    lam`` in continuous time, modulus below ``lam / (1 + margin)`` in discrete time).  The gain leaves such modes
+    where they are (module docstring); the observability decisions count them at round-off and measure the other
+    clusters' dynamics against the distance the gain moves them (:func:`splitspec_core.model.observability.decompose`)."""
+    return GainTarget(time, float(rate), float(margin))
+
+
+def _slow_part(dec: Decomposition, time: str, rate: float, margin: float) -> np.ndarray:
+    """``U_2``: orthonormal basis of the complement of the ``Abar_i'``-invariant subspace of the modes that already
+    decay faster than the gain's target (module docstring, "Only the slow modes move")."""
+    return complement(invariant_subspace(dec.Abar.T, beyond_target(time, rate, margin)))
+
+
+def place_gain(dec: Decomposition, *, time: str, rate: float, margin: float = 0.5) -> LocalGain:
+    """Pole placement on the slow modes of the observable part (poles from :func:`target_poles`).
+
+    One effective output: Ackermann's formula (the gain is unique); several: ``scipy.signal.place_poles``
+    (method YT), imported only then because importing ``scipy.signal`` costs over a second of
+    start-up in every agent process.
+    """
+    r = dec.n_observable
+    s = dec.Cbar.shape[0]
+    if r == 0:
+        return _lift(dec, np.zeros((0, s)), "place")
+    T, Ct = _output_basis(dec.Cbar)
+    U2 = _slow_part(dec, time, rate, margin)
+    if U2.shape[1] == 0:  # every observable mode already beats the target: no gain at all
+        return _lift(dec, np.zeros((r, s)), "place")
+    poles = target_poles(U2.shape[1], time, rate, margin)
+    T22, B2 = U2.T @ dec.Abar.T @ U2, U2.T @ Ct.T
+    # the outputs' combinations that reach the slow part: fewer than the outputs when some output sees only fast
+    # modes (B2 = Br Vr', Br of full column rank); the placement runs on Br, and F2 = Vr F_r
+    Ub, sb, Vbt = np.linalg.svd(B2, full_matrices=False)
+    r_b = int(np.sum(sb > 1e-12 * (sb[0] if sb.size else 0.0)))
+    Br, Vr = Ub[:, :r_b] * sb[:r_b], Vbt[:r_b].T
+    # dual problem on the slow part: eig(T22 - Br F_r) = poles; F = Vr F_r U2' leaves the fast modes where they are
+    Fr = _ackermann(T22, Br, poles) if r_b == 1 else None
+    if Fr is None:
+        import warnings
+
+        from scipy.signal import place_poles
+
+        try:
+            # YT's "Convergence was not reached" is a UserWarning on stderr, not an error: the poles it reaches are
+            # checked against the rate below (a failure is one line naming the agent), so it is not shown
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", UserWarning)
+                Fr = place_poles(T22, Br, poles, method="YT").gain_matrix
+        except ValueError as exc:
+            raise DesignError(f"pole placement failed: {exc}") from None
+    F2 = Vr @ Fr
+    Kt = -(F2 @ U2.T).T  # (r, rank): eig(Abar + Kt Ct) = fast modes + poles
+    # Kbar Cbar = Kt Ct with Cbar = T Ct  =>  Kbar = Kt pinv(T)
+    Kbar = Kt @ np.linalg.pinv(T)
+    return _lift(dec, Kbar, "place")
+
+
+def riccati_gain(
+    dec: Decomposition, *, time: str, rate: float, margin: float = 0.5,
+    process_weight: float = 1.0, measurement_weight: float = 1.0,
+) -> LocalGain:
+    """Shifted steady-state Kalman gain on the slow modes of the observable part (module docstring)."""
+    import scipy.linalg as sla  # here only: an agent with pole placement imports no scipy
+
+    r = dec.n_observable
+    s = dec.Cbar.shape[0]
+    if r == 0:
+        return _lift(dec, np.zeros((0, s)), "riccati")
+    T, Ct = _output_basis(dec.Cbar)
+    U2 = _slow_part(dec, time, rate, margin)
+    if U2.shape[1] == 0:  # every observable mode already beats the target: no gain at all
+        return _lift(dec, np.zeros((r, s)), "riccati")
+    k = U2.shape[1]
+    T22, B2 = U2.T @ dec.Abar.T @ U2, U2.T @ Ct.T
+    W = process_weight * np.eye(k)
+    R = measurement_weight * np.eye(Ct.shape[0])
+    try:
+        if time == "continuous":
+            alpha = (1.0 + margin) * rate
+            # CARE of the dual slow part: X makes (T22 + alpha I) - B2 R^-1 B2' X stable
+            X = sla.solve_continuous_are(T22 + alpha * np.eye(k), B2, W, R)
+            F2 = np.linalg.solve(R, B2.T @ X)
+        else:
+            alpha = rate / (1.0 + margin)
+            a, b = T22 / alpha, B2 / alpha
+            # DARE of the dual slow part: a - b G2 is Schur stable, G2 = (R + b'X b)^-1 b'X a
+            X = sla.solve_discrete_are(a, b, W, R)
+            F2 = np.linalg.solve(R + b.T @ X @ b, b.T @ X @ a)
+    except (np.linalg.LinAlgError, ValueError) as exc:
+        raise DesignError(f"Riccati equation failed: {exc}") from None
+    Kt = -(F2 @ U2.T).T
+    Kbar = Kt @ np.linalg.pinv(T)
+    return _lift(dec, Kbar, "riccati")
+
+
+def explicit_gain(dec: Decomposition, K: np.ndarray) -> LocalGain:
+    """The user's ``K_i``; ``Kbar_i = Q_i K_i`` (the part along ``V_i`` does not affect the split)."""
+    Kbar = dec.Q @ K
+    g = _lift(dec, Kbar, "explicit")
+    return LocalGain(K=np.array(K, dtype=float), Kbar=Kbar, poles=g.poles, method="explicit")
+
+
+def design_gain(
+    dec: Decomposition, *, method: str, time: str, rate: float, margin: float = 0.5,
+    K: np.ndarray | None = None, process_weight: float = 1.0, measurement_weight: float = 1.0,
+    label: str = "agent",
+) -> LocalGain:
+    """Design one agent's gain and check that it meets the rate.
+
+    Raises
+    ------
+    AssumptionError
+        If the resulting observable-part poles do not meet the rate.
+    """
+    if method in ("place", "riccati"):
+        try:
+            gain = place_gain(dec, time=time, rate=rate, margin=margin) if method == "place" else \
+                riccati_gain(dec, time=time, rate=rate, margin=margin, process_weight=process_weight,
+                             measurement_weight=measurement_weight)
+        except DesignError as exc:  # the numerical failure, said of this agent
+            raise DesignError(f"{label}: {exc}") from None
+    elif method == "explicit":
+        if K is None:
+            raise DesignError(f"{label}: explicit gains need K")
+        gain = explicit_gain(dec, K)
+    else:
+        raise DesignError(f"unknown gain method {method!r}")
+    if not meets_rate(gain.poles, time, rate):
+        need = f"real parts < {-rate:g}" if time == "continuous" else f"moduli < {rate:g}"
+        hint = ""
+        if method in ("place", "riccati") and dec.n_observable:
+            # many slow modes moved by few outputs: the placement's conditioning grows fast with that ratio
+            slow = int(np.sum(~beyond_target(time, rate, margin)(np.linalg.eigvals(dec.Abar))))
+            edge = (f"slower than the target -{(1 + margin) * rate:.3g}" if time == "continuous" else
+                    f"outside the target radius {rate / (1 + margin):.3g}")
+            other = "riccati" if method == "place" else "place"
+            hint = (f"; it moves {slow} slow modes ({edge}) with {dec.Cbar.shape[0]} outputs: "
+                    f"a smaller design.margin (fewer modes to move), design.gains: {other} or a slower design.rate "
+                    "may reach it")
+        raise AssumptionError(
+            f"{label}: gain ({method}) puts the observable-part poles at {poles_text(gain.poles, time)}, "
+            f"which do not meet rate {rate:g} (need {need}){hint}")
+    return gain
+
+
+#: poles a message or report line lists at most, the slowest first
+POLES_SHOWN = 6
+
+
+def poles_text(poles, time: str, *, limit: int = POLES_SHOWN) -> str:
+    """``[-0.3, -0.45, -0.6]``; more than ``limit``: the slowest ``limit`` and how many more, down to the fastest."""
+    poles = np.asarray(poles)
+    if poles.size <= limit:
+        return "[" + ", ".join(_pole_text(p) for p in poles) + "]"
+    speed = -poles.real if time == "continuous" else -np.abs(poles)  # the slowest first
+    order = np.argsort(speed, kind="stable")
+    shown = ", ".join(_pole_text(p) for p in poles[order[:limit]])
+    return f"[{shown}, ... {poles.size - limit} more, the fastest {_pole_text(poles[order[-1]])}]"
+
+
+def _pole_text(p: complex) -> str:
+    if abs(p.imag) < 1e-12:
+        return f"{p.real:.4g}"
+    return f"{p.real:.4g}{p.imag:+.4g}j"

@@ -1,0 +1,145 @@
+"""The local part of the design: what every agent process computes from the scenario (``V_i, P_i, K_i``).
+
+The paper's design is distributed but for g or q: each agent decides its own unobservable space ``V_i`` and
+local gain ``K_i`` from ``(A, C_i)`` and the rate (proof of prop. error).  Here that takes the skeleton of
+``A`` (:mod:`splitspec_core.model.modal`, the same in every process), the design's working coordinates
+(``design.coordinates``) and, when the design found directions no agent sees, ``W`` (sent with the
+configuration; :mod:`splitspec_core.model.detectability`).  The designer builds every agent's with the same
+functions, so a run's agents and ``simulate`` hold the same matrices.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from functools import cached_property
+
+import numpy as np
+
+from .detectability import directions_of
+from .gains import LocalGain, beyond_target, design_gain
+from .modal import Spectrum, rescale, spectrum
+from .observability import Decomposition, decompose
+from ..scenarios.specs import Scenario
+
+__all__ = ["AgentDesign", "AUTO_COORDINATES", "design_agent", "directions_of", "riccati_weights", "scenario_agent",
+           "scenario_spectrum", "working_scale"]
+
+
+@dataclass(frozen=True)
+class AgentDesign:
+    """One agent's local design: decomposition and gain, in the design's working coordinates ``x = diag(scale) x_w``
+    (``design.coordinates``; ``scale`` None: the user's own).
+
+    The certificates use ``V`` (orthonormal there) and ``dec``; the estimator runs in the user's coordinates with
+    ``K`` and ``P``, the working coordinates' ``K_w`` and ``P_w = V V'`` seen from the user's: ``K = D K_w``,
+    ``P = D P_w D^-1`` (an orthogonal projection in the working coordinates, oblique in the user's when they differ).
+    """
+
+    id: int
+    dec: Decomposition
+    gain: LocalGain
+    scale: np.ndarray | None = field(default=None, repr=False, compare=False)
+
+    @property
+    def V(self) -> np.ndarray:
+        """``V_i`` of the certificates (orthonormal in the working coordinates)."""
+        return self.dec.V
+
+    @cached_property
+    def K(self) -> np.ndarray:
+        """``K_i`` in the user's coordinates (what runs)."""
+        return self.gain.K if self.scale is None else self.scale[:, None] * self.gain.K
+
+    @cached_property
+    def P(self) -> np.ndarray:
+        """``P_i`` in the user's coordinates (what runs): the projection on the unobservable space (minus what no
+        agent sees) along the working coordinates' orthogonal complement."""
+        return self.dec.P if self.scale is None else self.scale[:, None] * self.dec.P / self.scale[None, :]
+
+    @cached_property
+    def V_user(self) -> np.ndarray:
+        """The same subspace as ``V``, orthonormal in the user's coordinates (reports, the API)."""
+        return self.dec.V if self.scale is None else rescale(self.dec.V, self.scale, None)
+
+    @cached_property
+    def V_adaptive(self) -> np.ndarray:
+        """``R_i = D^-1 V_i``: the working coordinates of the unobservable space seen from the user's, ``V_i' x_w =
+        R_i' x`` (eq. adaptive's projection of the disagreement; ``P = L_i R_i'``)."""
+        return self.dec.V if self.scale is None else self.dec.V / self.scale[:, None]
+
+    @cached_property
+    def V_lift(self) -> np.ndarray:
+        """``L_i = D V_i``: the unobservable space's basis in the user's coordinates, ``x = L_i w`` for ``w`` in the
+        working ones (``P = L_i R_i'``, ``R_i' L_i = I``)."""
+        return self.dec.V if self.scale is None else self.scale[:, None] * self.dec.V
+
+
+
+def design_agent(A: np.ndarray, C: np.ndarray, *, time: str, rate: float, method: str = "place",
+                 margin: float = 0.5, K: np.ndarray | None = None, rank_tol: float | None = None,
+                 process_weight: float = 1.0, measurement_weight: float = 1.0, agent_id: int = 0,
+                 spectrum: Spectrum | None = None, unobserved: np.ndarray | None = None,
+                 dec: Decomposition | None = None, scale: np.ndarray | None = None) -> AgentDesign:
+    """The local, fully distributed part of the design for one agent (``V_i, P_i, K_i``).
+
+    ``spectrum``: the skeleton of ``A`` (:func:`scenario_spectrum`; the designer and every agent process compute
+    the same one); ``scale``: the working coordinates ``x = diag(scale) x_w`` (:func:`working_scale`; None: the
+    user's); ``unobserved``: ``W`` in them, the directions no agent sees (the design's, sent to the agents with
+    their configuration): ``P_i`` then projects on ``V_i ⊖ W``; ``dec``: the decomposition already computed (the
+    designer's).  An explicit ``K`` is the user's, in the user's coordinates.
+    """
+    dec = dec if dec is not None else decompose(A, C, rank_tol=rank_tol, spectrum=spectrum,
+                                                free=beyond_target(time, rate, margin), scale=scale)
+    label = f"design.K.{agent_id}" if method == "explicit" else f"agent {agent_id}"
+    if K is not None and scale is not None:
+        K = np.asarray(K, dtype=float) / scale[:, None]  # K_w = D^-1 K
+    gain = design_gain(dec, method=method, time=time, rate=rate, margin=margin, K=K,
+                       process_weight=process_weight, measurement_weight=measurement_weight, label=label)
+    if unobserved is not None and unobserved.shape[1]:
+        A_w = np.asarray(A, dtype=float) if scale is None else np.asarray(A) * scale[None, :] / scale[:, None]
+        dec = dec.without(unobserved, A_w)
+    return AgentDesign(id=agent_id, dec=dec, gain=gain, scale=scale)
+
+
+def scenario_agent(sc: Scenario, agent_id: int, *, unobserved: np.ndarray | None = None,
+                   spectrum: Spectrum | None = None) -> AgentDesign:
+    """Agent ``agent_id``'s local design from the scenario alone (what its process computes; the designer computes
+    the same): :func:`design_agent` with the scenario's options, its skeleton and working coordinates, and
+    ``unobserved`` (W in the working coordinates, as the design sends it)."""
+    d = sc.design
+    k = sc.index_of(agent_id)
+    sp = spectrum if spectrum is not None else scenario_spectrum(sc)
+    pw, mw = riccati_weights(sc)
+    return design_agent(sc.system.A, sc.system.Cs[k], time=sc.time, rate=d.rate, method=d.gains, margin=d.margin,
+                        K=None if d.K is None else d.K[k], rank_tol=d.rank_tol, process_weight=pw,
+                        measurement_weight=mw, agent_id=agent_id, spectrum=sp, scale=working_scale(sc, sp),
+                        unobserved=unobserved)
+
+
+def scenario_spectrum(sc: Scenario) -> Spectrum:
+    """The skeleton of the scenario's ``A`` (every agent's rows for its decoupled states): what the designer and every
+    agent process decide in (:mod:`splitspec_core.model.modal`)."""
+    return spectrum(sc.system.A, np.vstack(sc.system.Cs))
+
+
+#: ``design.coordinates: auto`` works in balanced coordinates when balancing scales states this much apart
+AUTO_COORDINATES = 100.0
+
+
+def working_scale(sc: Scenario, sp: Spectrum) -> np.ndarray | None:
+    """The working coordinates of the design (``design.coordinates``): None for the user's own (``given``), the
+    balancing ``d`` of :mod:`splitspec_core.model.modal` for ``balanced``; ``auto``: balanced when the balancing scales
+    two states more than :data:`AUTO_COORDINATES` apart (the user's units are not comparable: orthogonal projections
+    in them mix meters with millimeters), else the user's (the paper's examples: their numbers are the paper's)."""
+    mode = sc.design.coordinates
+    if mode == "given" or (mode == "auto" and float(sp.d.max() / sp.d.min()) <= AUTO_COORDINATES):
+        return None
+    return sp.d / np.exp(np.mean(np.log(sp.d)))  # a common factor changes nothing: the geometric mean at 1
+
+
+def riccati_weights(sc: Scenario) -> tuple:
+    """Riccati weights: explicit ``design.riccati`` or the scenario's noise levels, else 1."""
+    d, s = sc.design, sc.system
+    pw = d.riccati_process_weight or (s.process_noise**2 if s.process_noise > 0 else 1.0)
+    mw = d.riccati_measurement_weight or (s.measurement_noise**2 if s.measurement_noise > 0 else 1.0)
+    return pw, mw

@@ -1,0 +1,193 @@
+"""The network as it evolves during a run: switching, faults, alive agents, weights.
+
+Shared by the simulator and the orchestrator, so both apply switches and
+faults at the same steps and hand every agent the same neighbour weights.
+
+* the switching signal is sampled once per step (``graph_sequence``);
+* a fault at time ``at`` takes effect at step ``k = ceil(at / dt)``
+  (``dt = 1`` in discrete time): a killed (or hung) agent takes no part from
+  step k on; a restarted agent rejoins at step k with a fresh estimate;
+  ``drop_arc``/``restore_arc`` remove/re-add one arc from every graph (with
+  Metropolis weights, the link in both directions, keeping graphs undirected);
+  ``partition``/``heal`` start/end a partition: the arcs stay, but no consensus
+  message between groups counts (:mod:`splitspec_core.model.impairment`);
+* neighbour sets are the active graph restricted to the alive agents, with
+  the scenario's weights recomputed on that restricted graph.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from .graphs import SwitchingSignal, build_graph, graph_sequence, switch_times
+from ..scenarios.specs import Scenario
+from .streams import stream
+
+__all__ = ["Plan", "make_plan", "active_arcs", "consensus_rows", "fault_step", "NetworkState"]
+
+
+def fault_step(at: float, dt: float) -> int:
+    """Step index at which a fault at time ``at`` takes effect."""
+    return int(math.ceil(at / dt - 1e-9))
+
+
+@dataclass(frozen=True)
+class Plan:
+    """Everything about a run that is fixed by the scenario and the seed, except noise.
+
+    Attributes
+    ----------
+    steps : int
+    dt : float
+        1 for discrete time.
+    graph_seq : (steps + 1,) int array or None
+        Active graph index per step (scenario order); ``None`` for a plan made
+        with ``sequence=False`` (a run of any length), which samples
+        ``signal`` step by step instead (:meth:`graph_at`).
+    faults : dict
+        ``{step: [Fault, ...]}``.
+    """
+
+    steps: int
+    dt: float
+    graph_seq: np.ndarray | None
+    faults: dict
+    signal: SwitchingSignal | None = None
+
+    def times(self) -> np.ndarray:
+        return np.arange(self.steps + 1) * self.dt
+
+    def graph_at(self, k: int) -> int:
+        """Active graph index at step ``k`` (non-decreasing ``k`` when sampled lazily)."""
+        return int(self.graph_seq[k]) if self.graph_seq is not None else self.signal.at(k)
+
+
+def _switching_rng(sc: Scenario, seed: int):
+    sw = sc.switching
+    if sw.kind != "random":
+        return None
+    return np.random.default_rng(sw.seed) if sw.seed is not None else stream(seed, "switching")
+
+
+def make_plan(sc: Scenario, seed: int, steps: int | None = None, *, sequence: bool = True) -> Plan:
+    """The run's switching signal and fault schedule.
+
+    ``sequence=False``: no per-step array (O(1) memory whatever ``steps``); the
+    graph of each step comes from :meth:`Plan.graph_at`, drawn exactly as the
+    array would be.
+    """
+    steps = sc.run.steps if steps is None else steps
+    dt = sc.run.dt if sc.time == "continuous" else 1.0
+    sw = sc.switching
+    seq = signal = None
+    if sequence:
+        pieces = switch_times(sw, sc.graph_names, (steps + 1) * dt, _switching_rng(sc, seed))
+        seq = graph_sequence(pieces, steps + 1, dt=dt)
+    else:
+        signal = SwitchingSignal(sw, sc.graph_names, dt=dt, rng=_switching_rng(sc, seed))
+    faults: dict = {}
+    for f in sc.faults:
+        k = fault_step(f.at, dt)
+        if k <= steps:
+            faults.setdefault(k, []).append(f)
+    return Plan(steps=steps, dt=dt, graph_seq=seq, faults=faults, signal=signal)
+
+
+def active_arcs(sc: Scenario, graph_index: int, dropped=frozenset()) -> tuple:
+    """Arcs ``(j, i)`` of graph ``graph_index`` minus the dropped ones.
+
+    With Metropolis weights (undirected graphs) a dropped arc is a failed link:
+    both directions go.
+    """
+    if sc.design.weights == "metropolis":
+        dropped = set(dropped) | {(i, j) for j, i in dropped}
+    return tuple(a for a in sc.graphs[graph_index].arcs if a not in dropped)
+
+
+def consensus_rows(sc: Scenario, graph_index: int, alive_ids, dropped=frozenset()) -> dict:
+    """``{i: (neighbour ids, weights)}`` for every alive agent i.
+
+    The active graph minus the dropped arcs, restricted to ``alive_ids``;
+    weights are row i of ``S`` of that restricted graph (uniform ``1/m_i`` or
+    Metropolis).  Neighbours are listed self first, then by position.
+    """
+    alive_ids = tuple(a for a in sc.agent_ids if a in set(alive_ids))
+    if not alive_ids:
+        return {}
+    arcs = active_arcs(sc, graph_index, dropped)
+    g = build_graph(sc.graphs[graph_index].name, alive_ids, arcs, weights=sc.design.weights, check=False)
+    rows = {}
+    for r, i in enumerate(g.ids):
+        cols = [r] + [c for c in range(g.m) if c != r and g.S[r, c] != 0]
+        rows[i] = (tuple(g.ids[c] for c in cols), tuple(float(g.S[r, c]) for c in cols))
+    return rows
+
+
+class NetworkState:
+    """Alive agents, incarnations and dropped arcs as faults apply (agent positions are 0-based).
+
+    ``apply`` returns ``(killed, rejoined)``: positions that stopped taking part
+    and ``(position, incarnation)`` of agents that rejoin with a fresh estimate.
+    A hang is handled as a loss (the runtime declares a frozen agent lost).
+    """
+
+    def __init__(self, sc: Scenario):
+        self.ids = sc.agent_ids
+        self.alive = np.ones(sc.m, dtype=bool)
+        self.incarnation = np.zeros(sc.m, dtype=int)
+        self.dropped: set = set()
+        self.groups: tuple | None = None  # a partition in force (impairment: no message crosses between groups)
+
+    def lose(self, i: int) -> bool:
+        """Agent at position ``i`` stops taking part; False if it was not alive."""
+        if not self.alive[i]:
+            return False
+        self.alive[i] = False
+        return True
+
+    def rejoin(self, i: int) -> int | None:
+        """Agent at position ``i`` rejoins with a fresh estimate; its new incarnation (None if alive)."""
+        if self.alive[i]:
+            return None
+        self.incarnation[i] += 1
+        self.alive[i] = True
+        return int(self.incarnation[i])
+
+    def apply(self, faults) -> tuple:
+        killed, rejoined = [], []
+        for f in faults:
+            if f.action in ("kill", "hang"):
+                i = self.ids.index(f.agent)
+                if self.lose(i):
+                    killed.append(i)
+            elif f.action == "restart":
+                i = self.ids.index(f.agent)
+                inc = self.rejoin(i)
+                if inc is not None:
+                    rejoined.append((i, inc))
+            elif f.action == "drop_arc":
+                self.dropped.add(f.arc)
+            elif f.action == "restore_arc":
+                self.dropped.discard(f.arc)
+            elif f.action == "partition":
+                self.groups = f.groups
+            elif f.action == "heal":
+                self.groups = None
+        return killed, rejoined
+
+    def alive_ids(self) -> list:
+        return [a for a, ok in zip(self.ids, self.alive) if ok]
+
+    def key(self, graph_index: int) -> tuple:
+        """Hashable description of the active network (for caching weights)."""
+        return (int(graph_index), self.alive.tobytes(), frozenset(self.dropped), self.groups)
+
+    def rows(self, sc: Scenario, graph_index: int) -> dict:
+        return consensus_rows(sc, graph_index, self.alive_ids(), frozenset(self.dropped))
+
+    def arcs(self, sc: Scenario, graph_index: int) -> tuple:
+        """Arcs of the active graph that still exist (see :func:`active_arcs`)."""
+        return active_arcs(sc, graph_index, self.dropped)

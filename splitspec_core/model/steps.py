@@ -1,0 +1,120 @@
+"""Per-agent step functions: pure, no I/O.  The agent process calls exactly these.
+
+Discrete two-rate estimator (eqs. split-discrete-est1 .. p3)
+------------------------------------------------------------
+``z_i(0) = x_i(tau)``;  for ``k = 1..q``:
+``z_i(k) = (I - P_i) z_i(k-1) + P_i sum_{j in N_i} w_ij z_j(k-1)``
+(``w_ij = 1/m_i`` for uniform weights, or the Metropolis weights);
+``x_i(tau+1) = (A + K_i C_i) z_i(q) - K_i y_i(tau)``, or, when agent i has no measurement at
+``tau`` (a live sensor silent or stale, a recorded gap), the prediction ``x_i(tau+1) = A z_i(q)``
+(the same update with the innovation ``C_i z_i(q) - y_i`` taken as zero).  With known inputs
+(``x(tau+1) = A x(tau) + B u(tau)``, :mod:`splitspec_core.scenarios.inputs`) every update adds the same ``B u(tau)``
+(``bu``) as the plant, so the error recursion, and every certificate, is unchanged.
+
+Continuous time, sampled-data form (one exchange per ``dt``)
+-----------------------------------------------------------
+The estimator of eq. (split_continuous_observer) is sampled with period
+``dt``: the model part is propagated exactly, the correction terms are held
+over the step (first order):
+
+``x_i(k+1) = E x_i(k) + D [K_i (C_i x_i(k) - y_i(k)) - g_i P_i (x_i(k) - sum_j w_ij x_j(k)) + B u(k)]``
+
+with ``E = exp(A dt)`` and ``D = int_0^dt exp(A s) ds``.  If every estimate is
+exact (``x_j = x``, ``y_i = C_i x``) the update is exactly the plant's
+``x(k+1) = E x(k)``, so noise-free errors converge to zero; the error
+recursion is ``I + dt (A + K_i C_i - g P_i (I - Sbar)) + O(dt^2)``, so the
+trajectory converges to the exact ODE as ``dt -> 0`` (first order); and since
+``E``, ``D`` commute with the observability decomposition, the split of the
+spectrum (prop. error) holds exactly for every ``dt``.
+
+Adaptive gain (eq. adaptive), forward Euler with the same ``dt``:
+``g_i(k+1) = g_i(k) + dt |V_i' sum_j w_ij (x_j(k) - x_i(k))|^2``.
+"""
+
+from __future__ import annotations
+
+from typing import Sequence
+
+import numpy as np
+
+from ..scenarios.sampling import sampled_data_matrices
+
+__all__ = [
+    "weighted_average",
+    "consensus_subround",
+    "known_input",
+    "measurement_update",
+    "prediction_update",
+    "sampled_data_matrices",
+    "sampled_step",
+    "adaptive_gain_rate",
+    "adaptive_gain_step",
+]
+
+
+def weighted_average(states: Sequence[np.ndarray], weights: Sequence[float]) -> np.ndarray:
+    """``sum_j w_ij z_j`` over agent i's neighbours (itself included)."""
+    acc = np.zeros_like(states[0], dtype=float)
+    for w, z in zip(weights, states):
+        acc = acc + w * z
+    return acc
+
+
+def consensus_subround(z_i: np.ndarray, P_i: np.ndarray, neighbour_states: Sequence[np.ndarray],
+                       weights: Sequence[float]) -> np.ndarray:
+    """One consensus sub-round (eq. split-discrete-p1..p3, middle line).
+
+    ``z_i(k) = (I - P_i) z_i(k-1) + P_i sum_j w_ij z_j(k-1)``, written as
+    ``z_i + P_i (avg - z_i)``.  ``neighbour_states`` and ``weights`` cover
+    every ``j in N_i``, agent i included.
+    """
+    avg = weighted_average(neighbour_states, weights)
+    return z_i + P_i @ (avg - z_i)
+
+
+def known_input(B: np.ndarray | None, u: np.ndarray | None) -> np.ndarray | None:
+    """``B u(tau)``: what every update adds for the known inputs, as the plant does (None: no inputs)."""
+    return None if B is None or u is None else B @ u
+
+
+def measurement_update(z_q: np.ndarray, F_i: np.ndarray, K_i: np.ndarray, y_i: np.ndarray,
+                       bu: np.ndarray | None = None) -> np.ndarray:
+    """Eq. (split-discrete-est1): ``x_i(tau+1) = (A + K_i C_i) z_i(q) - K_i y_i(tau) [+ B u(tau)]``,
+    ``F_i = A + K_i C_i``; ``bu`` the known input's ``B u(tau)`` (None: no inputs)."""
+    x = F_i @ z_q - K_i @ y_i
+    return x if bu is None else x + bu
+
+
+def prediction_update(z_q: np.ndarray, A: np.ndarray, bu: np.ndarray | None = None) -> np.ndarray:
+    """No measurement at ``tau``: ``x_i(tau+1) = A z_i(q) [+ B u(tau)]`` (eq. split-discrete-est1 without its
+    innovation)."""
+    x = A @ z_q
+    return x if bu is None else x + bu
+
+
+def sampled_step(x_i: np.ndarray, E: np.ndarray, D: np.ndarray, K_i: np.ndarray, C_i: np.ndarray,
+                 y_i: np.ndarray | None, P_i: np.ndarray, g_i: float, neighbour_states: Sequence[np.ndarray],
+                 weights: Sequence[float], bu: np.ndarray | None = None) -> np.ndarray:
+    """One sampled-data step of eq. (split_continuous_observer) (see the module docstring); ``y_i`` None: no
+    measurement this step, the innovation term ``K_i (C_i x_i - y_i)`` is left out (prediction and consensus);
+    ``bu``: the known input's ``B u(k)``, held over the step (None: no inputs)."""
+    avg = weighted_average(neighbour_states, weights)
+    corr = -g_i * (P_i @ (x_i - avg))
+    if y_i is not None:
+        corr = K_i @ (C_i @ x_i - y_i) + corr
+    if bu is not None:
+        corr = corr + bu
+    return E @ x_i + D @ corr
+
+
+def adaptive_gain_rate(V_i: np.ndarray, x_i: np.ndarray, neighbour_states: Sequence[np.ndarray],
+                       weights: Sequence[float]) -> float:
+    """Eq. (adaptive): ``dg_i/dt = |V_i' sum_j w_ij (x_j - x_i)|_2^2``."""
+    diff = weighted_average(neighbour_states, weights) - x_i
+    v = V_i.T @ diff
+    return float(v @ v)
+
+
+def adaptive_gain_step(g_i: float, rate: float, dt: float) -> float:
+    """Forward-Euler step of eq. (adaptive)."""
+    return g_i + dt * rate

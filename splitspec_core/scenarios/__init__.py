@@ -1,0 +1,12 @@
+"""The problem statement: what a scenario file (or ``ss.scenario``) says, checked, and nothing computed from it.
+
+``specs.py`` the frozen :class:`Scenario` and its sections' dataclasses; ``checks.py`` value checks (one-line
+errors naming the key); ``sections.py`` the parsers of each section, ``network_section.py`` the ``network:``
+section (losses, delays, partitions), ``sources.py`` live sources; ``load.py`` the one validation path
+(``load_scenario``, ``parse_scenario_text``); ``files.py`` models in ``.npz``/``.mat`` files (``system.file``),
+``control.py`` python-control plants; ``inputs.py`` known inputs (``system.B``, ``system.u``) and
+``sampling.py`` the zero-order hold of ``system.sample``; ``labels.py`` state and output names;
+``measurements.py`` recorded measurements files, ``replay.py`` a recorded run's faults as a scenario,
+``generate.py`` random scenarios. Imports nothing of splitspec_core but ``errors``: every other layer
+stands on it.
+"""

@@ -1,0 +1,293 @@
+"""The value checkers of scenarios: every number, matrix, id and key is checked here, by name.
+
+One path for files and Python: :func:`splitspec_core.scenario` builds the mapping a file holds,
+:func:`plain` turns numpy arrays and tuples into the YAML data model, and the section parsers of
+:mod:`splitspec_core.scenarios.sections` call these checkers, whose one-line messages name the key
+(``system.C.3 has 5 columns, system.A is 4x4``).  The limits are here, each with its reason.
+"""
+
+from __future__ import annotations
+
+import math
+import numbers
+from typing import Any, Mapping
+
+import numpy as np
+
+from ..errors import DimensionError, ScenarioError
+
+GAIN_METHODS = ("place", "riccati", "explicit")
+Q_METHODS = ("spectral", "weighted", "two-norm", "mixed")
+WEIGHTINGS = ("uniform", "metropolis")
+FAULT_ACTIONS = ("kill", "restart", "hang", "drop_arc", "restore_arc", "partition", "heal")
+
+_TOP_KEYS = ("name", "time", "system", "graphs", "switching", "design", "faults", "run", "positions", "network",
+             "sources")
+_NETWORK_KEYS = ("loss", "delay", "deadline", "arcs")
+_DELAY_KEYS = ("mean", "jitter")
+_NETWORK_ARC_KEYS = ("arc", "loss", "delay")
+_SYSTEM_KEYS = ("file", "A", "B", "u", "sample", "C", "x0", "process_noise", "measurement_noise", "states",
+                "outputs")
+_GRAPH_KEYS = ("arcs", "undirected")
+_SWITCHING_KEYS = ("schedule", "period", "random")
+_RANDOM_KEYS = ("graphs", "dwell", "seed")
+_DESIGN_KEYS = (
+    "rate", "gains", "K", "g", "g0", "q", "q_method", "q_max", "resilience",
+    "weights", "margin", "rank_tol", "graph_set", "dwell", "riccati", "eigenvalues", "undetectable", "coordinates",
+)
+_RICCATI_KEYS = ("process_weight", "measurement_weight")
+_RUN_KEYS = ("steps", "dt", "seed", "pace", "show")
+
+# Limits, each with the key(s) it bounds and why (docs/how-to/scenario.md, "Files and limits").
+# Every number (matrix entries, x0, noise levels, rate, g, g0, margin, times, dt, dwell, pace,
+# riccati weights): |x| <= 1e12, so squares and products of a few of them stay far below the
+# float limit 1.8e308 (system.process_noise: 1e308 overflowed in process_noise**2, the Riccati weight).
+MAX_MAGNITUDE = 1e12
+# run.dt >= 1e-9: the sampled model integrates exp(A s) over [0, dt]; at dt = 1e-300 it underflows and the SVD fails.
+MIN_DT = 1e-9
+# run.pace >= 1e-6 event times per second: the orchestrator sleeps 1/pace s per event time.
+MIN_PACE = 1e-6
+# design.riccati.*_weight >= 1e-12: the Riccati equations are solved with these as covariances.
+MIN_RICCATI_WEIGHT = 1e-12
+# switching.random.dwell and switching.period >= 1e-3 sample steps (dt, or 1 event time): the switching
+# signal is built piece by piece (memory ~ horizon / dwell), and switching within a step is not seen.
+MIN_SWITCH_STEPS = 1e-3
+# network.delay (mean + jitter) and network.deadline <= 60 s: a consensus sub-round that waits longer is no
+# longer a network impairment but a stalled run (the orchestrator's round timeout is 10 s by default).
+MAX_NETWORK_SECONDS = 60.0
+# design.q_max <= 1e6: q is the number of consensus exchanges per event time.
+MAX_Q = 1_000_000
+# run.seed, switching.random.seed <= 2**63 - 1: seeds travel to the processes as msgpack 64-bit integers.
+MAX_SEED = 2**63 - 1
+# scenario files: regular files of at most 16 MB (16,000,000 bytes), read with a bounded read; a scenario
+# is a few kB, and the checks below cost about 0.6 s per MB with libyaml's C loader.
+MAX_FILE_BYTES = 16_000_000
+
+
+def _frozen(a: np.ndarray) -> np.ndarray:
+    a = np.array(a, dtype=float)
+    a.setflags(write=False)
+    return a
+
+
+def _require_map(value: Any, key: str) -> Mapping:
+    if not isinstance(value, Mapping):
+        raise ScenarioError(f"{key} must be a mapping, got {_describe(value)}")
+    return value
+
+
+def _describe(value: Any) -> str:
+    if value is None:
+        return "nothing (null)"
+    if isinstance(value, str):
+        return f"the string {_short(repr(value))}"
+    if isinstance(value, bool):
+        return f"the boolean {value}"
+    if isinstance(value, list):
+        return f"a list of {len(value)} items"
+    if isinstance(value, Mapping):
+        return "a mapping"
+    if isinstance(value, np.ndarray):
+        return f"an array of shape {value.shape}"
+    return f"{type(value).__name__} {_short(repr(value))}"
+
+
+def _short(text: str, limit: int = 60) -> str:
+    """One line of at most ``limit`` characters (error messages are one line)."""
+    text = " ".join(text.split())
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def plain(value: Any, depth: int = 0) -> Any:
+    """The YAML data model of a value built in Python: arrays and tuples as lists, numpy scalars as
+    Python numbers, mappings as dicts.  Applied to every scenario before validation, so a file and
+    :func:`splitspec_core.scenario` (numpy arrays welcome) meet the same checks with the same messages."""
+    if depth > 8:  # deeper than any scenario key: left for the checks to refuse
+        return value
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, (list, tuple)):
+        return [plain(v, depth + 1) for v in value]
+    if isinstance(value, Mapping):
+        return {plain(k, depth + 1): plain(v, depth + 1) for k, v in value.items()}
+    return value
+
+
+def _check_keys(mapping: Mapping, allowed: tuple, key: str) -> None:
+    for k in mapping:
+        if k not in allowed:
+            where = f"{key}.{k}" if key else str(k)
+            raise ScenarioError(f"unknown key {where} (expected one of: {', '.join(allowed)}){_did_you_mean(k)}")
+
+
+# every key of the file by its dotted place, for "did you mean" hints
+_ALL_KEYS = (
+    *_TOP_KEYS, *(f"system.{k}" for k in _SYSTEM_KEYS), *(f"design.{k}" for k in _DESIGN_KEYS),
+    *(f"run.{k}" for k in _RUN_KEYS), *(f"switching.{k}" for k in _SWITCHING_KEYS),
+    *(f"design.riccati.{k}" for k in _RICCATI_KEYS), *(f"network.{k}" for k in _NETWORK_KEYS),
+    *(f"network.delay.{k}" for k in _DELAY_KEYS),
+)
+
+
+def _did_you_mean(key: Any) -> str:
+    """``; did you mean design.q_method?`` when ``key`` is (close to) a key that belongs elsewhere."""
+    import difflib
+
+    word = str(key)
+    places = {k: k.rpartition(".")[2] for k in _ALL_KEYS}
+    exact = [k for k, last in places.items() if last == word]
+    close = exact or [k for k in _ALL_KEYS if places[k] in difflib.get_close_matches(word, places.values(), n=1)]
+    return f"; did you mean {close[0]}?" if close else ""
+
+
+def _float(value: numbers.Real) -> float:
+    """``float(value)``, with integers too large for a float (YAML ``1000...0``) as +-inf."""
+    try:
+        return float(value)
+    except OverflowError:
+        return math.inf if value > 0 else -math.inf
+
+
+def _bounded(x: float, key: str) -> float:
+    """``x`` if ``|x| <= MAX_MAGNITUDE``, else a one-line :class:`ScenarioError` naming ``key``."""
+    if not math.isfinite(x):
+        raise ScenarioError(f"{key} must be finite, got {x}")
+    if abs(x) > MAX_MAGNITUDE:
+        raise ScenarioError(f"{key} = {x:g} is out of range: numbers must be within +-{MAX_MAGNITUDE:g} "
+                            "(larger ones overflow later arithmetic)")
+    return x
+
+
+def _number(value: Any, key: str) -> float:
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
+        raise ScenarioError(f"{key} must be a number, got {_describe(value)}")
+    return _bounded(_float(value), key)
+
+
+def _seed(value: Any, key: str) -> int:
+    v = _integer(value, key, minimum=0)
+    if v > MAX_SEED:
+        raise ScenarioError(f"{key} must be <= 2**63 - 1 = {MAX_SEED} (seeds travel to the processes as "
+                            f"64-bit integers), got {v}")
+    return v
+
+
+def _integer(value: Any, key: str, *, minimum: int | None = None) -> int:
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral):
+        if isinstance(value, float) and value.is_integer():
+            value = int(value)
+        else:
+            raise ScenarioError(f"{key} must be an integer, got {_describe(value)}")
+    v = int(value)
+    if minimum is not None and v < minimum:
+        raise ScenarioError(f"{key} must be >= {minimum}, got {v}")
+    return v
+
+
+def _matrix(value: Any, key: str, *, vector: bool = False) -> np.ndarray:
+    """Convert a YAML nested list into a finite float array, naming ``key`` on failure."""
+    if value is None:
+        raise ScenarioError(f"{key} is missing")
+    if isinstance(value, str) and key.startswith("system."):
+        raise ScenarioError(f"{key} is the name {_short(repr(value))}, and system.file is not given: name a .npz or "
+                            ".mat file there to take arrays from, or write the matrix as a list of rows")
+    if vector:
+        if not isinstance(value, list) or not value:
+            raise ScenarioError(f"{key} must be a non-empty list of numbers, got {_describe(value)}")
+        rows = [value]
+    else:
+        if not isinstance(value, list) or not value:
+            raise ScenarioError(f"{key} must be a non-empty list of rows, got {_describe(value)}")
+        if all(isinstance(r, numbers.Real) and not isinstance(r, bool) for r in value):
+            rows = [value]  # a single row written flat: [1, 0, 0]
+        else:
+            rows = value
+    width = None
+    for r, row in enumerate(rows):
+        if not isinstance(row, list):
+            raise ScenarioError(f"{key} row {r + 1} must be a list of numbers, got {_describe(row)}")
+        if width is None:
+            width = len(row)
+        elif len(row) != width:
+            raise DimensionError(f"{key} row {r + 1} has {len(row)} entries, row 1 has {width}")
+        for c, x in enumerate(row):
+            where = f"{key}[{c + 1}]" if vector else f"{key}[{r + 1}][{c + 1}]"
+            if isinstance(x, bool) or not isinstance(x, numbers.Real):
+                raise ScenarioError(f"{where} must be a number, got {_describe(x)}")
+            _bounded(_float(x), where)
+    if width == 0:
+        raise ScenarioError(f"{key} has empty rows")
+    arr = np.array(rows, dtype=float)
+    return _frozen(arr[0] if vector else arr)
+
+
+def _names(value: Any, key: str, count: int, what: str) -> tuple:
+    """A list of ``count`` distinct names (:data:`splitspec_core.scenarios.labels.NAME_PATTERN`), naming ``key`` on failure."""
+    from .labels import NAME_PATTERN
+
+    if not isinstance(value, list):
+        raise ScenarioError(f"{key} must be a list of {count} names ({what}), got {_describe(value)}")
+    if len(value) != count:
+        raise DimensionError(f"{key} has {len(value)} names, expected {count} ({what})")
+    seen: dict = {}
+    for k, name in enumerate(value):
+        if not isinstance(name, str) or not NAME_PATTERN.fullmatch(name):
+            raise ScenarioError(f"{key}[{k + 1}] = {_short(repr(name))} is not a name: letters, digits, _ . - "
+                                "(starting with a letter or _), at most 64 characters")
+        if name in seen:
+            raise ScenarioError(f"{key}[{k + 1}] = {name!r} is also {key}[{seen[name] + 1}]: names must differ")
+        seen[name] = k
+    return tuple(value)
+
+
+def _agent_id(value: Any, key: str) -> int:
+    if isinstance(value, str) and value.strip().isdigit():
+        value = int(value)
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral) or int(value) < 1:
+        raise ScenarioError(f"{key}: agent ids must be positive integers, got {_describe(value)}")
+    return int(value)
+
+
+def _known_agent(value: Any, key: str, ids: tuple) -> int:
+    aid = _agent_id(value, key)
+    if aid not in ids:
+        raise ScenarioError(f"{key} names agent {aid}, which is not in system.C (agents: {_ids_text(ids)})")
+    return aid
+
+
+def _ids_text(ids: tuple) -> str:
+    return ", ".join(str(i) for i in ids)
+
+
+def _arc(value: Any, key: str, ids: tuple) -> tuple:
+    if not isinstance(value, list) or len(value) != 2:
+        raise ScenarioError(f"{key} must be a pair [j, i] of agent ids, got {_describe(value)}")
+    j = _known_agent(value[0], key, ids)
+    i = _known_agent(value[1], key, ids)
+    return (j, i)
+
+
+def check_shapes(A: Any, Cs: Mapping, x0: Any = None, Ks: Mapping | None = None) -> None:
+    """The system's shapes, each mismatch one line naming the matrix: ``A`` square, ``C_i`` with n columns,
+    ``x0`` of n entries, ``K_i`` n x s_i.  ``Cs`` and ``Ks`` map agent ids to matrices.  The scenario
+    parser and :class:`~splitspec_core.scenarios.specs.Scenario` itself both call it, so a scenario
+    built from its dataclasses cannot skip it."""
+    shape = np.shape(A)
+    if len(shape) != 2 or shape[0] != shape[1]:
+        raise DimensionError(f"system.A must be square, got {'x'.join(map(str, shape))}")
+    n = shape[0]
+    for aid, C in Cs.items():
+        cs = np.shape(C)
+        if len(cs) != 2 or cs[1] != n:
+            raise DimensionError(f"system.C.{aid} has {cs[-1] if cs else 0} columns, system.A is {n}x{n}")
+    if x0 is not None and np.shape(x0) != (n,):
+        raise DimensionError(f"system.x0 has {np.size(x0)} entries, system.A is {n}x{n}")
+    for aid, K in (Ks or {}).items():
+        s_i, ks = np.shape(Cs[aid])[0], np.shape(K)
+        if ks != (n, s_i):
+            # no guessing: a flat row [a, b, ...] is 1 x n, not the column n x 1
+            hint = "; write a column as [[a], [b], ...]" if s_i == 1 else ""
+            raise DimensionError(f"design.K.{aid} is {'x'.join(map(str, ks))}, expected {n}x{s_i} "
+                                 f"(n x s_i with system.C.{aid} {s_i}x{n}{hint})")

@@ -1,0 +1,148 @@
+"""Models kept in files: ``system.file`` (a ``.npz`` or a MATLAB ``.mat``) and the arrays it names.
+
+A scenario may keep its matrices in a file beside it instead of as YAML literals (a 160-state ``A`` is a
+160 x 160 literal)::
+
+    system:
+      file: kundur.npz          # relative to the scenario file's folder (ss.scenario: the working directory)
+      A: A                      # a string where a matrix goes names an array of the file
+      C: {1: C_G1, 2: C_G2}
+      B: B
+      states: state_names       # an array of strings (npz), a char matrix or a cell array (mat)
+
+:func:`resolve_model_file` replaces each such name by the array, as a nested list, before the scenario's own
+checks run, so an array of the wrong shape gets the same one-line message as a literal of the wrong shape (and
+a missing file, a missing array, a MATLAB v7.3 file get their own line naming the key).  The processes of a
+run receive the scenario with the arrays written in
+(:func:`splitspec_core.scenarios.load.resolved_scenario_text`), so an agent on another
+machine needs no copy of the file, and ``scenario.yaml`` in a run's records is self-contained.
+
+The file is read with ``numpy.load(allow_pickle=False)`` (``.npz``) or ``scipy.io.loadmat`` (``.mat``, v4 to
+v7); nothing in it is executed.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any, Mapping
+
+import numpy as np
+
+from ..errors import ScenarioError
+
+__all__ = ["read_model_file", "resolve_model_file"]
+
+#: a MATLAB v7.3 file is HDF5: its 128-byte header starts with this text
+_V73 = b"MATLAB 7.3 MAT-file"
+
+
+def read_model_file(path: Path, key: str = "system.file") -> dict:
+    """The arrays of a ``.npz`` or ``.mat`` file by name (``.mat``: MATLAB's own ``__header__`` etc. left out).
+
+    Raises
+    ------
+    ScenarioError
+        One line naming ``key`` and the file: missing, not a file, another suffix, unreadable, a v7.3 ``.mat``.
+    """
+    if not path.exists():
+        raise ScenarioError(f"{key}: {path} does not exist")
+    if not path.is_file():
+        raise ScenarioError(f"{key}: {path} is not a regular file")
+    suffix = path.suffix.lower()
+    if suffix not in (".npz", ".mat"):
+        raise ScenarioError(f"{key}: {path} is neither .npz nor .mat (numpy.savez or scipy.io.savemat / MATLAB save)")
+    try:
+        with open(path, "rb") as f:
+            head = f.read(128)
+    except OSError as exc:
+        raise ScenarioError(f"{key}: cannot read {path}: {exc.strerror or exc}") from None
+    if suffix == ".npz":
+        if not head.startswith(b"PK"):  # numpy would take it for a pickle and say so
+            raise ScenarioError(f"{key}: {path} is not an .npz file (a zip archive of .npy arrays, as numpy.savez "
+                                "writes)")
+        try:
+            with np.load(path, allow_pickle=False) as z:
+                return {name: z[name] for name in z.files}
+        except ValueError as exc:  # an object array (it would need pickle)
+            raise ScenarioError(f"{key}: {path} holds an array of Python objects ({exc}); save plain numeric "
+                                "or string arrays (numpy.savez)") from None
+        except Exception as exc:  # noqa: BLE001 - a damaged archive (BadZipFile, EOFError, OSError...): one line
+            raise ScenarioError(f"{key}: cannot read {path} as .npz: {type(exc).__name__}: {exc}") from None
+    if suffix == ".mat":
+        if head.startswith(_V73):
+            raise ScenarioError(f"{key}: {path} is a MATLAB v7.3 (HDF5) file, which splitspec does not read: save "
+                                "it as v7 (MATLAB: save(file, ..., '-v7'); Python: scipy.io.savemat)")
+        import scipy.io  # here only: most scenarios have no file
+
+        try:
+            data = scipy.io.loadmat(str(path))
+        except Exception as exc:  # noqa: BLE001 - MatReadError, ValueError, ...: not a .mat it can read, one line
+            raise ScenarioError(f"{key}: cannot read {path} as a .mat file: {type(exc).__name__}: {exc}") from None
+        return {k: v for k, v in data.items() if not k.startswith("__")}
+    raise AssertionError(suffix)  # unreachable: the suffix was checked above
+
+
+def _names_of(a: np.ndarray) -> list:
+    """Names from an array of strings (npz), a char matrix (one name per row, blank-padded) or a cell array."""
+    if a.dtype.kind == "U":
+        return [str(s).strip() for s in a.reshape(-1)]
+    if a.dtype.kind == "O":  # a MATLAB cell array: each cell an array holding one string
+        return [str(np.asarray(c).reshape(-1)[0]).strip() if np.asarray(c).size else "" for c in a.reshape(-1)]
+    return a.tolist()  # not strings: the names' check says so
+
+
+def _value(arrays: dict, name: str, key: str, source: str, *, names: bool = False, vector: bool = False) -> Any:
+    if name not in arrays:
+        have = ", ".join(sorted(arrays)[:12]) + (" ..." if len(arrays) > 12 else "")
+        raise ScenarioError(f"{key} names array {name!r}, which {source} does not hold (it has: {have or 'nothing'})")
+    a = np.asarray(arrays[name])
+    if names:
+        return _names_of(a)
+    if a.dtype.kind not in "biuf":
+        raise ScenarioError(f"{key}: array {name!r} of {source} is not numeric (dtype {a.dtype})")
+    if vector:
+        if a.ndim == 2 and 1 in a.shape:  # MATLAB keeps every vector as a matrix
+            a = a.reshape(-1)
+        return a.astype(float).tolist()
+    if a.ndim == 1:  # one output row, or a 1 x 1 model's A
+        a = a.reshape(1, -1)
+    if a.ndim != 2:
+        raise ScenarioError(f"{key}: array {name!r} of {source} has {a.ndim} dimensions {a.shape}, expected a matrix")
+    return a.astype(float).tolist()
+
+
+def resolve_model_file(data: Any, base: Path | None) -> Any:
+    """``data`` (a scenario's mapping) with ``system.file``'s named arrays written in and ``system.file`` gone.
+
+    ``base``: the folder a relative ``system.file`` is taken from (None: the working directory).  A mapping
+    without ``system.file`` is returned as it is.  Anything not a string is left for the scenario's checks.
+    """
+    if not isinstance(data, Mapping) or not isinstance(data.get("system"), Mapping) or "file" not in data["system"]:
+        return data
+    system = dict(data["system"])
+    raw = system.pop("file")
+    if not isinstance(raw, str) or not raw.strip():
+        raise ScenarioError(f"system.file must be the path of a .npz or .mat file, got {raw!r}")
+    path = Path(raw).expanduser()
+    if not path.is_absolute() and base is not None:
+        path = base / path
+    arrays = read_model_file(path)
+    source = f"system.file {raw}"
+    for key in ("A", "B"):
+        if isinstance(system.get(key), str):
+            system[key] = _value(arrays, system[key], f"system.{key}", source)
+    if isinstance(system.get("x0"), str):
+        system["x0"] = _value(arrays, system["x0"], "system.x0", source, vector=True)
+    if isinstance(system.get("states"), str):
+        system["states"] = _value(arrays, system["states"], "system.states", source, names=True)
+    for key, names in (("C", False), ("outputs", True)):
+        part = system.get(key)
+        if isinstance(part, Mapping):
+            system[key] = {aid: (_value(arrays, v, f"system.{key}.{aid}", source, names=names)
+                                 if isinstance(v, str) else v) for aid, v in part.items()}
+        elif isinstance(part, str):
+            raise ScenarioError(f"system.{key} must map agent ids to arrays of {source} (e.g. {key}: {{1: "
+                                f"{part}}}), got the single name {part!r}")
+    out = dict(data)
+    out["system"] = system
+    return out

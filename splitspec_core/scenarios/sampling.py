@@ -1,0 +1,36 @@
+"""Sampling a continuous model: the zero-order hold of ``system.sample`` and of the sampled-data estimator.
+
+``exp(A dt)``, ``int_0^dt exp(A s) ds`` and the sampled process-noise covariance, by one block exponential
+(Van Loan). The scenario uses it to sample ``(A, B)``; the pure steps (:mod:`splitspec_core.model.steps`), the
+plant and the certificates use the same function, so every path samples alike.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["sampled_data_matrices"]
+
+
+def sampled_data_matrices(A: np.ndarray, dt: float, *, noise_intensity: float = 0.0) -> tuple:
+    """``(E, D, Qd)`` for step ``dt``: ``E = exp(A dt)``, ``D = int_0^dt exp(A s) ds`` and the
+    process-noise covariance ``Qd = sigma^2 int_0^dt exp(A s) exp(A s)' ds`` (Van Loan)."""
+    import scipy.linalg as sla  # here only: a discrete-time agent imports no scipy
+
+    n = A.shape[0]
+    M = np.zeros((2 * n, 2 * n))
+    M[:n, :n] = A
+    M[:n, n:] = np.eye(n)
+    F = sla.expm(M * dt)
+    E, D = F[:n, :n], F[:n, n:]
+    if noise_intensity > 0:
+        VL = np.zeros((2 * n, 2 * n))
+        VL[:n, :n] = -A
+        VL[:n, n:] = noise_intensity * np.eye(n)
+        VL[n:, n:] = A.T
+        G = sla.expm(VL * dt)
+        Qd = G[n:, n:].T @ G[:n, n:]
+        Qd = 0.5 * (Qd + Qd.T)
+    else:
+        Qd = np.zeros((n, n))
+    return E, D, Qd

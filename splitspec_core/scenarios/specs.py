@@ -1,0 +1,316 @@
+"""The frozen scenario: :class:`Scenario` and its parts, each checked when built.
+
+A scenario is one YAML file holding the system ``(A, C_i)``, the neighbour
+graphs, the switching signal, the design options, faults and run options (see
+``docs/how-to/scenario.md`` and ``../shared/DESIGN.md``).  This module holds what it
+becomes: frozen dataclasses whose ``__post_init__`` checks (e.g. the shapes of
+``A``, ``C_i`` and ``K_i`` through :func:`splitspec_core.scenarios.checks.check_shapes`)
+hold for a scenario built directly as well as for one parsed from a file.
+
+Three modules, one path, imported in one direction: the value checkers
+(:mod:`splitspec_core.scenarios.checks`), this one (the frozen data), the section
+parsers (:mod:`splitspec_core.scenarios.sections`, which build this module's
+dataclasses), and the entry points that read, parse and validate a file or text
+(:mod:`splitspec_core.scenarios.load`: ``load_scenario``, ``parse_scenario``,
+``parse_scenario_text``, ``load_yaml``, ``read_scenario_text``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from ..errors import DimensionError
+from .labels import default_output_names, default_state_names
+from .checks import GAIN_METHODS, MAX_MAGNITUDE, MAX_SEED, Q_METHODS, check_shapes  # noqa: F401
+
+__all__ = [
+    "System",
+    "GraphSpec",
+    "Switching",
+    "DesignSpec",
+    "Fault",
+    "NetworkSpec",
+    "RunSpec",
+    "Scenario",
+    "MAX_MAGNITUDE",
+    "MAX_SEED",
+    "GAIN_METHODS",
+    "Q_METHODS",
+]
+
+
+# --------------------------------------------------------------------------
+# frozen data
+# --------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class System:
+    """The plant ``x+ = A x + v``, ``y_i = C_i x + w_i``.
+
+    Attributes
+    ----------
+    A : (n, n) array
+        System matrix ``A``.
+    Cs : tuple of (s_i, n) arrays
+        Output matrices ``C_i`` in agent order (see ``Scenario.agent_ids``).
+    x0 : (n,) array or None
+        Initial state; ``None`` means drawn from the seed.
+    process_noise : float
+        Standard deviation of ``v`` (discrete) or its intensity (continuous:
+        ``E[v(t) v(s)'] = process_noise I delta(t - s)``).
+    measurement_noise : float
+        Standard deviation of each measurement noise sample ``w_i``.
+    states : tuple of str or None
+        The states' names (``system.states``); None: ``x1 .. xn``.
+    outputs : dict or None
+        Agent id -> the names of its outputs (``system.outputs``); an agent not in it has ``y<i>``, ``y<i>_k``.
+    B : (n, p) array or None
+        The known inputs' matrix (``system.B``: ``x+ = A x + B u``); sampled with ``A`` when ``sample`` is set.
+    u : :class:`~splitspec_core.scenarios.inputs.InputSignal` or None
+        The input signal (``system.u``); None: zero (or a measurements file's ``u`` columns).
+    sample : float or None
+        ``system.sample``: the period a continuous model given as ``A``, ``B`` was sampled with (zero-order hold);
+        ``A`` and ``B`` here are then the sampled ones, ``A_continuous`` the model as given.
+    """
+
+    A: np.ndarray
+    Cs: tuple
+    x0: np.ndarray | None
+    process_noise: float = 0.0
+    measurement_noise: float = 0.0
+    states: tuple | None = None
+    outputs: dict | None = None
+    B: np.ndarray | None = None
+    u: Any = None
+    sample: float | None = None
+    A_continuous: np.ndarray | None = None
+
+    @property
+    def inputs(self) -> int:
+        """The number of known inputs (columns of ``B``; 0 without ``B``)."""
+        return 0 if self.B is None else int(self.B.shape[1])
+
+    @property
+    def n(self) -> int:
+        return self.A.shape[0]
+
+
+@dataclass(frozen=True)
+class GraphSpec:
+    """A named neighbour graph: arcs ``(j, i)`` mean agent i hears agent j.
+
+    Self-arcs are implicit and not listed; arcs are agent ids, deduplicated.
+    """
+
+    name: str
+    arcs: tuple  # tuple[tuple[int, int], ...]
+
+
+@dataclass(frozen=True)
+class Switching:
+    """The switching signal.
+
+    ``kind`` is ``constant`` (first graph forever), ``schedule`` (pieces
+    ``(start, graph)``, optionally repeated every ``period``) or ``random``
+    (Poisson switching among ``graphs`` with mean dwell ``dwell``).
+    Times are event times (discrete) or seconds (continuous).
+    """
+
+    kind: str
+    schedule: tuple = ()  # tuple[tuple[float, str], ...]
+    period: float | None = None
+    graphs: tuple = ()  # graph names used by random switching
+    dwell: float | None = None
+    seed: int | None = None
+
+    def graph_names(self, all_names: tuple) -> tuple:
+        """Names of the graphs this signal can select, in scenario order."""
+        if self.kind == "constant":
+            return (all_names[0],)
+        used = {g for _, g in self.schedule} if self.kind == "schedule" else set(self.graphs)
+        return tuple(name for name in all_names if name in used)
+
+
+@dataclass(frozen=True)
+class DesignSpec:
+    """Design options (``design:`` section).
+
+    ``g`` is a float, ``"auto"`` or ``"adaptive"`` (continuous only);
+    ``q`` an int or ``"auto"`` (discrete only).
+    """
+
+    rate: float
+    gains: str = "place"
+    K: tuple | None = None  # explicit gains, tuple of (n, s_i) arrays in agent order
+    g: Any = "auto"
+    g0: float = 0.0
+    q: Any = "auto"
+    q_method: str = "spectral"
+    q_max: int = 100_000
+    resilience: int = 0
+    weights: str = "uniform"
+    margin: float = 0.5
+    rank_tol: float | None = None  # None: auto (observability.DEFAULT_RANK_TOL)
+    graph_set: str = "scenario"
+    dwell: float | None = None
+    riccati_process_weight: float | None = None
+    riccati_measurement_weight: float | None = None
+    eigenvalues: str = "auto"  # spectral q's radii: auto, dense or iterative (splitspec_core.synthesis.spectral)
+    undetectable: str = "refuse"  # refuse | exclude: a mode no agent sees that does not decay (detectability.py)
+    coordinates: str = "auto"  # auto | given | balanced: where the estimator's projections are orthogonal (local_design)
+
+
+@dataclass(frozen=True)
+class Fault:
+    """One scheduled fault: ``action`` at time ``at`` on ``agent``, ``arc`` or ``groups``.
+
+    ``partition``: ``groups`` (a tuple of tuples of agent ids; agents named in no group form one more
+    group): no consensus message crosses between groups until a ``heal`` (no operand) ends it.
+    """
+
+    at: float
+    action: str
+    agent: int | None = None
+    arc: tuple | None = None
+    groups: tuple | None = None
+
+
+@dataclass(frozen=True)
+class NetworkSpec:
+    """``network:``: what happens to consensus messages (see :mod:`splitspec_core.model.impairment`).
+
+    ``loss``: probability that one consensus message does not count in its sub-round (every arc);
+    ``delay_mean``, ``delay_jitter``: seconds added to every message in ``run`` (uniform in
+    ``mean +- jitter``, never negative); ``deadline``: seconds a sub-round waits for its neighbours
+    (None: for all of them, lossless); ``arcs``: ``{(j, i): {"loss": p, "delay_mean": s,
+    "delay_jitter": s}}`` overrides per arc.
+    """
+
+    loss: float = 0.0
+    delay_mean: float = 0.0
+    delay_jitter: float = 0.0
+    deadline: float | None = None
+    arcs: dict = field(default_factory=dict)
+
+    @property
+    def lossy(self) -> bool:
+        """Some message may be lost by draw (a loss probability above 0 somewhere)."""
+        return self.loss > 0 or any(o.get("loss", 0.0) > 0 for o in self.arcs.values())
+
+    @property
+    def delayed(self) -> bool:
+        return self.delay_mean > 0 or self.delay_jitter > 0 or any(
+            o.get("delay_mean", 0.0) > 0 or o.get("delay_jitter", 0.0) > 0 for o in self.arcs.values())
+
+    @property
+    def impaired(self) -> bool:
+        """Anything beyond the perfect network (today's behaviour: every message, on time)."""
+        return self.lossy or self.delayed or self.deadline is not None
+
+    def loss_of(self, arc: tuple) -> float:
+        return self.arcs.get(arc, {}).get("loss", self.loss)
+
+    def delay_of(self, arc: tuple) -> tuple:
+        o = self.arcs.get(arc, {})
+        return o.get("delay_mean", self.delay_mean), o.get("delay_jitter", self.delay_jitter)
+
+
+@dataclass(frozen=True)
+class RunSpec:
+    """Run options: number of steps, sample time (continuous), seed, pace, and the states the default views show
+    (``show``: names or ``fnmatch`` patterns; None: :func:`splitspec_core.scenarios.labels.shown_states`'s default)."""
+
+    steps: int = 60
+    dt: float | None = None
+    seed: int = 0
+    pace: float | None = None
+    show: tuple | None = None
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """A validated scenario.  Agent order everywhere is ``agent_ids`` order."""
+
+    name: str
+    time: str
+    agent_ids: tuple
+    system: System
+    graphs: tuple  # tuple[GraphSpec, ...]
+    switching: Switching
+    design: DesignSpec
+    faults: tuple = ()
+    run: RunSpec = field(default_factory=RunSpec)
+    source: str = "<scenario>"
+    positions: dict | None = None  # agent id -> (x, y) of the topology drawing; None: a circle
+    network: NetworkSpec = field(default_factory=NetworkSpec)
+    sources: dict | None = None  # agent id -> scenario_sources.Source: live sensors (run only)
+    input_source: Any = None  # scenario_sources.Source of sources.inputs: where live known inputs u arrive
+
+    @property
+    def m(self) -> int:
+        return len(self.agent_ids)
+
+    @property
+    def n(self) -> int:
+        return self.system.n
+
+    @property
+    def graph_names(self) -> tuple:
+        return tuple(g.name for g in self.graphs)
+
+    def graph(self, name: str) -> GraphSpec:
+        for g in self.graphs:
+            if g.name == name:
+                return g
+        raise KeyError(name)
+
+    def index_of(self, agent_id: int) -> int:
+        """Position of ``agent_id`` in ``agent_ids``."""
+        return self.agent_ids.index(agent_id)
+
+    @property
+    def state_names(self) -> tuple:
+        """The states' names: ``system.states``, else ``x1 .. xn``."""
+        return self.system.states if self.system.states is not None else default_state_names(self.n)
+
+    @property
+    def sensor_keys(self) -> dict:
+        """``{agent id: key}`` of the live sensors, and ``"inputs": key`` of the live known inputs (relative keys;
+        each publisher is user ``sensor-<id>`` or ``sensor-inputs`` of a secure run)."""
+        out = {a: s.key for a, s in (self.sources or {}).items()}
+        if self.input_source is not None:
+            out["inputs"] = self.input_source.key
+        return out
+
+    @property
+    def shown_states(self) -> tuple:
+        """Indices of the states ``run.rrd``'s states tab and ``states.png`` show (``run.show``; every state of a
+        small model, else those the agents measure: :func:`splitspec_core.scenarios.labels.shown_states`)."""
+        from .labels import shown_states
+
+        return shown_states(self.state_names, self.run.show, self.system.Cs)
+
+    @property
+    def states_named(self) -> bool:
+        """Whether the scenario names its states (``system.states``)."""
+        return self.system.states is not None
+
+    def output_names(self, agent_id: int) -> tuple:
+        """Agent ``agent_id``'s output names: ``system.outputs.<id>``, else ``y<id>`` / ``y<id>_1 ..``."""
+        given = (self.system.outputs or {}).get(agent_id)
+        if given is not None:
+            return given
+        return default_output_names(agent_id, int(np.shape(self.system.Cs[self.index_of(agent_id)])[0]))
+
+    def __post_init__(self) -> None:
+        # built directly from the dataclasses, a scenario still meets the parser's shape checks
+        if len(self.agent_ids) != len(self.system.Cs):
+            raise DimensionError(f"agent_ids lists {len(self.agent_ids)} agents, system.Cs holds "
+                                 f"{len(self.system.Cs)} output matrices")
+        Cs = dict(zip(self.agent_ids, self.system.Cs))
+        Ks = None if self.design.K is None else dict(zip(self.agent_ids, self.design.K))
+        check_shapes(self.system.A, Cs, self.system.x0, Ks)

@@ -1,0 +1,7 @@
+"""Trajectories: the reference simulator and what is measured on its output.
+
+``simulator.py`` the batch simulator (the same pure steps as the agent processes: run == simulate),
+``montecarlo.py`` many seeds of one design as one batch, ``trajectory_file.py`` the ``trajectory.npz``
+contract, ``metrics.py`` what a trajectory shows (errors, decay fits, envelopes, steady RMS, summaries).
+Imports ``scenarios``, ``model`` and ``synthesis``.
+"""

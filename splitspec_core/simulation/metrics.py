@@ -1,0 +1,261 @@
+"""Summaries of trajectories: errors per agent, measured decay rate, Monte Carlo statistics."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..synthesis.designer import NO_CERTIFIED_RATE
+from ..model.network import fault_step
+from .simulator import Trajectory
+
+__all__ = ["max_error", "fit_decay", "envelope_constant", "envelope_restarts", "envelope", "Mark", "event_marks",
+           "summarize", "monte_carlo_stats", "rms_stats", "NO_CERTIFIED_RATE"]
+
+
+def max_error(traj: Trajectory) -> np.ndarray:
+    """``max_i |x_i(t) - x(t)|`` over alive agents, shape (T,) (NaN when nobody is alive)."""
+    e = traj.errors()
+    out = np.full(e.shape[0], np.nan)
+    ok = np.any(np.isfinite(e), axis=1)
+    out[ok] = np.nanmax(e[ok], axis=1)
+    return out
+
+
+def fit_decay(t: np.ndarray, err: np.ndarray, *, time: str, scale: np.ndarray | None = None,
+              floor_rel: float = 1e-9) -> float | None:
+    """Exponential decay measured over the tail of a noise-free error curve.
+
+    Least-squares slope of ``log err`` against ``t`` over the second half of
+    the samples above the round-off floor.  The floor is
+    ``floor_rel * max(scale(t), max err)``: pass ``scale = |x(t)|`` since
+    round-off grows with the state (an unstable plant makes it grow).  Returns
+    the rate ``lam`` in the scenario's convention: continuous ``err ~ exp(-lam t)``,
+    discrete ``err ~ lam^tau``; ``None`` with fewer than 6 usable samples.
+    """
+    err = np.asarray(err, dtype=float)
+    ok = np.isfinite(err)
+    if not ok.any():
+        return None
+    floor = floor_rel * max(np.nanmax(err), 1e-300)
+    if scale is not None:
+        floor = np.maximum(floor, floor_rel * np.asarray(scale, dtype=float))
+    below = np.nonzero(~ok | (err <= floor))[0]
+    end = below[0] if below.size else err.size
+    start = end // 2
+    if end - start < 6:
+        return None
+    slope = np.polyfit(t[start:end], np.log(err[start:end]), 1)[0]
+    return -slope if time == "continuous" else math.exp(slope)
+
+
+def envelope_constant(t: np.ndarray, err: np.ndarray, *, time: str, rate: float,
+                      scale: np.ndarray | None = None, floor_rel: float = 1e-9) -> float:
+    """Smallest ``c`` with ``err(t) <= c rate^t`` (discrete) or ``c exp(-rate t)`` (continuous).
+
+    Samples at the round-off floor (``floor_rel * scale(t)``, as in
+    :func:`fit_decay`) are ignored: there the error is float noise, not decay.
+    """
+    env = np.exp(-rate * t) if time == "continuous" else rate ** t
+    err = np.asarray(err, dtype=float)
+    if scale is not None:
+        err = np.where(err > floor_rel * np.asarray(scale, dtype=float), err, np.nan)
+    ratio = err / env
+    return float(np.nanmax(ratio[np.isfinite(ratio)])) if np.isfinite(ratio).any() else float("nan")
+
+
+def envelope_restarts(alive: np.ndarray, graph: np.ndarray) -> np.ndarray:
+    """Steps where the designed envelope starts afresh: 0, every rejoin and every graph switch.
+
+    A rejoining agent starts from a fresh estimate, so the guarantee (``|e| <= c lam^tau``, or
+    ``c exp(-lam t)``) holds again from that step with a new constant; a switch moves the error
+    dynamics to another matrix (``A_V(tau)``, eq. split_discrete_ench), whose certificate is its own.
+    A loss alone does not restart it: the survivors' errors keep decaying.
+    """
+    alive = np.asarray(alive, dtype=bool)
+    graph = np.asarray(graph)
+    T = alive.shape[0]
+    if T == 0:
+        return np.zeros(0, dtype=int)
+    rejoin = np.zeros(T, dtype=bool)
+    rejoin[1:] = (alive[1:] & ~alive[:-1]).any(axis=1)
+    switch = np.zeros(T, dtype=bool)
+    switch[1:] = graph[1:] != graph[:-1]
+    switch[0] = rejoin[0] = True
+    return np.nonzero(rejoin | switch)[0]
+
+
+def envelope(t: np.ndarray, err_max: np.ndarray, restarts, *, time: str, rate: float, fit: bool = False,
+             scale: np.ndarray | None = None, floor_rel: float = 1e-9) -> np.ndarray:
+    """The designed envelope, restarted at ``restarts`` (see :func:`envelope_restarts`), shape (T,).
+
+    On each piece ``[k0, k1)``: ``c lam^(t - t_k0)`` (discrete) or ``c exp(-lam (t - t_k0))``
+    (continuous).  ``fit=False`` (what a live recording can know): ``c = err_max[k0]``, the envelope
+    starts at the error it restarts from.  ``fit=True`` (a finished trajectory): ``c`` is the
+    smallest constant above the piece's errors (samples at the round-off floor
+    ``floor_rel * scale`` ignored, as in :func:`envelope_constant`).  NaN where there is no error.
+    """
+    t = np.asarray(t, dtype=float)
+    err = np.asarray(err_max, dtype=float)
+    T = t.shape[0]
+    env = np.full(T, np.nan)
+    starts = [int(k) for k in restarts if 0 <= int(k) < T]
+    if not starts or starts[0] != 0:
+        starts = [0] + starts
+    for a, k0 in enumerate(starts):
+        k1 = starts[a + 1] if a + 1 < len(starts) else T
+        dt = t[k0:k1] - t[k0]
+        decay = np.exp(-rate * dt) if time == "continuous" else rate ** dt
+        piece = err[k0:k1]
+        if fit:
+            sc = None if scale is None else np.asarray(scale, dtype=float)[k0:k1]
+            c = envelope_constant(dt, piece, time=time, rate=rate, scale=sc, floor_rel=floor_rel)
+        else:
+            c = piece[0]
+        if np.isfinite(c) and c > 0:
+            env[k0:k1] = c * decay
+    return env
+
+
+@dataclass(frozen=True)
+class Mark:
+    """One event of a run, to mark on a plot: ``kind`` is ``loss``, ``rejoin``, ``switch`` or ``arc``."""
+
+    step: int
+    t: float
+    kind: str
+    label: str
+
+
+MARK_KINDS = ("loss", "rejoin", "switch", "arc")
+
+
+def event_marks(t: np.ndarray, alive: np.ndarray, graph: np.ndarray, *, agent_ids, faults=(),
+                graph_names=None, dt: float = 1.0) -> tuple:
+    """Losses, rejoins, graph switches and arc faults of a run, one :class:`Mark` per (step, kind).
+
+    Losses, rejoins and switches come from the recorded ``alive`` (T, m) and
+    ``graph`` (T,) (``trajectory.npz``), so a recording marks what happened.
+    ``faults`` (the scenario's :class:`~splitspec_core.scenarios.specs.Fault` list)
+    names the loss (``killed``, ``hung``) and adds what ``alive`` and
+    ``graph`` cannot show: ``drop_arc`` / ``restore_arc`` at step
+    ``ceil(at / dt)`` (as :func:`splitspec_core.model.network.fault_step`).
+    """
+    t = np.asarray(t, dtype=float)
+    alive = np.asarray(alive, dtype=bool)
+    graph = np.asarray(graph)
+    ids = [int(a) for a in agent_ids]
+    T = t.shape[0]
+    why = {}  # (step, agent id) -> word from the fault list
+    arcs: dict = {}  # step -> ["1-6 down", ...]
+    for f in faults:
+        k = fault_step(f.at, dt)
+        if k >= T:
+            continue
+        if f.arc is not None:
+            arcs.setdefault(k, []).append(f"{f.arc[0]}-{f.arc[1]} {'down' if f.action == 'drop_arc' else 'up'}")
+        elif f.action in ("kill", "hang"):
+            why[(k, int(f.agent))] = "killed" if f.action == "kill" else "hung"
+    marks = []
+    for k in range(1, T):
+        lost = np.nonzero(alive[k - 1] & ~alive[k])[0]
+        back = np.nonzero(~alive[k - 1] & alive[k])[0]
+        if lost.size:
+            words = [f"{ids[a]} {why.get((k, ids[a]), 'lost')}" for a in lost]
+            marks.append(Mark(k, float(t[k]), "loss", ", ".join(words)))
+        if back.size:
+            marks.append(Mark(k, float(t[k]), "rejoin", ", ".join(str(ids[a]) for a in back) + " rejoins"))
+        if graph[k] != graph[k - 1]:
+            g = int(graph[k])
+            name = graph_names[g] if graph_names is not None and g < len(graph_names) else str(g)
+            marks.append(Mark(k, float(t[k]), "switch", f"graph {name}"))
+        if k in arcs:
+            marks.append(Mark(k, float(t[k]), "arc", "arc " + ", ".join(arcs[k])))
+    if 0 in arcs:
+        marks.insert(0, Mark(0, float(t[0]), "arc", "arc " + ", ".join(arcs[0])))
+    return tuple(marks)
+
+
+def summarize(traj: Trajectory, *, time: str, rate: float | None, noise_free: Trajectory | None = None,
+              adaptive: bool = False, certified_rate: bool | None = None) -> dict:
+    """Final and max error per agent, measured decay rate vs the designed rate, alive agents.
+
+    ``adaptive=True`` (the adaptive gain, thm. split_continuous_adaptive): the
+    estimator converges asymptotically with no certified rate, so there is no
+    designed envelope (``envelope_c`` None) and no verdict against the design
+    (``measured_meets_design`` None); ``measured_rate`` stays, as information.
+    ``certified_rate`` is whether the design certifies ``rate`` (always False
+    for the adaptive gain; default True otherwise).  ``rate`` None: no envelope and no verdict either (the
+    certificate covers the error modulo directions no agent sees, which do not decay: ``design.undetectable:
+    exclude``).
+    """
+    bare = adaptive or rate is None  # nothing to hold the errors against
+    e = traj.errors()
+    ref = noise_free if noise_free is not None else traj
+    xnorm = np.linalg.norm(ref.x, axis=1)
+    measured = fit_decay(ref.t, max_error(ref), time=time, scale=xnorm)
+    per_agent = {}
+    for k, aid in enumerate(traj.agent_ids.tolist()):
+        col = e[:, k]
+        finite = np.isfinite(col)
+        per_agent[str(aid)] = {
+            "final_error": float(col[-1]) if finite[-1] else None,
+            "max_error": float(np.nanmax(col)) if finite.any() else None,
+            "alive_at_end": bool(traj.alive[-1, k]),
+        }
+    meets = None
+    if measured is not None and not bare:
+        meets = bool(measured >= rate * (1 - 1e-3) if time == "continuous" else measured <= rate * (1 + 1e-3))
+    restarts = envelope_restarts(ref.alive, ref.graph)
+    pieces = []  # [t of the restart, smallest c on that piece], as envelope(..., fit=True)
+    if not bare:
+        emax = max_error(ref)
+        for a, k0 in enumerate(restarts):
+            k1 = restarts[a + 1] if a + 1 < restarts.size else ref.t.size
+            c = envelope_constant(ref.t[k0:k1] - ref.t[k0], emax[k0:k1], time=time, rate=rate, scale=xnorm[k0:k1])
+            pieces.append([float(ref.t[k0]), c if math.isfinite(c) else None])
+    env_c = pieces[0][1] if len(pieces) == 1 else None  # one constant only where the envelope never restarts
+    return {
+        "steps": int(traj.t.size - 1),
+        "designed_rate": None if adaptive else rate,
+        "certified_rate": False if adaptive else (True if certified_rate is None else bool(certified_rate)),
+        "rate_note": NO_CERTIFIED_RATE if adaptive else None,
+        "measured_rate": measured,
+        "measured_meets_design": meets,
+        "envelope_c": env_c,
+        "envelope_pieces": pieces,
+        "alive_at_end": [int(a) for a, ok in zip(traj.agent_ids, traj.alive[-1]) if ok],
+        "agents": per_agent,
+    }
+
+
+def monte_carlo_stats(trajs: list, *, tail: float = 0.2) -> dict:
+    """Mean and spread across seeds of the RMS error over agents.
+
+    Returns per-time mean/std/10%/90% curves and scalar steady-state
+    statistics over the last ``tail`` fraction of the run (:func:`rms_stats` of the
+    trajectories' RMS errors; a batched Monte Carlo run gives the same from
+    :meth:`splitspec_core.simulation.montecarlo.MonteCarloRuns.stats` without keeping trajectories).
+    """
+    rms = np.stack([np.sqrt(np.nanmean(tr.errors() ** 2, axis=1)) for tr in trajs])  # (N, T)
+    return rms_stats(rms, tail=tail)
+
+
+def rms_stats(rms: np.ndarray, *, tail: float = 0.2) -> dict:
+    """:func:`monte_carlo_stats` of ``rms`` (N, T), the RMS error over agents per seed and step."""
+    rms = np.asarray(rms, dtype=float)
+    k0 = int((1 - tail) * rms.shape[1])
+    steady = np.sqrt(np.mean(rms[:, k0:] ** 2, axis=1))  # per seed
+    return {
+        "seeds": int(rms.shape[0]),
+        "mean": rms.mean(axis=0),
+        "std": rms.std(axis=0),
+        "p10": np.percentile(rms, 10, axis=0),
+        "p90": np.percentile(rms, 90, axis=0),
+        "steady_rms_mean": float(steady.mean()),
+        "steady_rms_std": float(steady.std()),
+        "final_rms_mean": float(rms[:, -1].mean()),
+        "final_rms_std": float(rms[:, -1].std()),
+    }

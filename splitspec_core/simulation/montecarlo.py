@@ -1,0 +1,346 @@
+"""Monte Carlo: many seeds of one design as one batched computation.
+
+A seed fixes a run's initial state, initial estimates and noise (the named streams of
+:mod:`splitspec_core.model.streams`); N seeds of the same design share everything else (the matrices,
+the switching signal when it does not depend on the seed, the faults).  So the estimates of all N
+runs can be stepped together: the state is ``X`` (m, n, N), seeds on the trailing axis, and every
+product of :class:`~splitspec_core.simulation.simulator.BatchEstimator` becomes one product over all seeds
+(a sparse ``S @ Z`` with ``n N`` columns, batched ``P_i``, ``A + K_i C_i``, ``K_i`` products).
+
+Per seed the numbers drawn are exactly those of a single-seed :func:`~splitspec_core.simulation.simulator.simulate`
+(each seed's streams are opened and drawn in the same order; a stream's ``normal(size=(T, n))`` is
+its ``T`` successive ``normal(size=n)`` draws), so a batched run equals ``simulate(des, seed=s)`` for
+every seed to round-off, not bit for bit: the batched matrix products sum in another order, and the
+discrete sub-rounds run as ``z_i <- z_i + P_i (sum_j w_ij z_j - z_i)`` (eq. split-discrete-p2 as
+:func:`~splitspec_core.model.steps.consensus_subround` writes it) where the single-seed lossless path runs
+them in unobservable-space coordinates (``w <- c + B w``).  Known inputs (``system.B``,
+:mod:`splitspec_core.scenarios.inputs`) are left out of plant and estimators alike: both add the same ``B u``, so the
+errors, all that is kept here, do not depend on them (to round-off).
+
+What is batched and what falls back
+-----------------------------------
+Batched: discrete and continuous time (fixed or adaptive g), noise or not, faults (kill, hang,
+restart, drop_arc, restore_arc, partition, heal: they strike every seed at the same step), and
+switching that does not depend on the seed (constant, periodic, dwell, or random with its own
+``switching.seed``).  Per-seed loop over :func:`~splitspec_core.simulation.simulator.simulate` (the same
+results, one seed after another), with the reason in :attr:`MonteCarloRuns.fallback`: random
+switching drawn from the run's seed, a lossy or late network (``network:``: its losses are drawn per
+seed), a replay of recorded losses, measurements from a file (one realisation anyway: only the initial
+estimates change with the seed), and the exact ODE.
+
+Memory
+------
+Nothing of size ``N x T x m x n`` is kept unless trajectories are asked for: per seed and step only
+the squared error summed over the alive agents and their number (``2 N T`` floats), from which the
+Monte Carlo statistics of :func:`splitspec_core.simulation.metrics.monte_carlo_stats` follow.  Seeds run in
+chunks of :data:`CHUNK` (default); a chunk holds its noise draws for the whole run,
+``chunk x T x (n + sum s_i)`` float64 (32 seeds x 500 steps x 210 values = 27 MB for m = 200, n = 10),
+and a few ``m x n x chunk`` state arrays.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+
+from .metrics import rms_stats
+from ..synthesis.designer import Design
+from ..errors import ScenarioError
+from ..model.network import NetworkState, make_plan
+from ..model.plant import advanced, initial_estimate, measured, seed_draws
+from .simulator import BatchEstimator, Trajectory, _entries, _realized_step, check_trajectory_memory, simulate
+
+__all__ = ["CHUNK", "MonteCarloRuns", "SeedBatchEstimator", "fallback_reason", "simulate_seeds"]
+
+CHUNK = 32  # seeds per batch: a chunk's state (m n CHUNK float64, 0.5 MB at m = 200, n = 10) stays in cache
+
+
+@dataclass(frozen=True)
+class MonteCarloRuns:
+    """The runs of one design over many seeds (``ss.simulate(..., seeds=...)``).
+
+    Attributes
+    ----------
+    seeds : tuple of int
+        The seeds, in the order of every seed axis.
+    t : (T,) float
+        Event index (discrete) or time (continuous).
+    sq_error : (N, T) float
+        Per seed and step, ``sum_i |x_i - x|_2^2`` over the alive agents.
+    alive_count : (N, T) int
+        How many agents were alive (the same for every seed: faults do not depend on it).
+    batched : bool
+        True when the seeds ran as one batched computation, False for the per-seed loop.
+    fallback : str or None
+        Why the per-seed loop ran (None when batched).
+    trajectories : tuple of Trajectory or None
+        Every seed's full trajectory, only when asked for (``trajectories=True``).
+    """
+
+    seeds: tuple
+    t: np.ndarray
+    sq_error: np.ndarray
+    alive_count: np.ndarray
+    batched: bool
+    fallback: str | None = None
+    trajectories: tuple | None = None
+
+    def rms(self) -> np.ndarray:
+        """RMS error over the alive agents, (N, T): ``sqrt(sq_error / alive_count)``, NaN where none is alive."""
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return np.where(self.alive_count > 0, np.sqrt(self.sq_error / np.maximum(self.alive_count, 1)), np.nan)
+
+    def steady_rms(self, *, start: int | None = None) -> np.ndarray:
+        """Per seed, RMS over agents and steps from ``start`` (default: the last half, as ``compare``), (N,)."""
+        k0 = self.t.size // 2 if start is None else start
+        return np.sqrt(self.sq_error[:, k0:].sum(axis=1) / self.alive_count[:, k0:].sum(axis=1))
+
+    def stats(self, *, tail: float = 0.2) -> dict:
+        """The Monte Carlo statistics of :func:`splitspec_core.simulation.metrics.monte_carlo_stats` (same keys, same numbers
+        to round-off): per-step mean, std, 10 % and 90 % of the RMS error over seeds, and the steady-state (last
+        ``tail`` of the run) and final RMS error, mean and std over seeds."""
+        return rms_stats(self.rms(), tail=tail)
+
+
+def fallback_reason(des: Design, *, lost=None, measurements=None, exact: bool = False) -> str | None:
+    """Why N seeds of ``des`` cannot run as one batch (see the module docstring), or None."""
+    sc = des.scenario
+    if exact:
+        return "the exact ODE integrates one seed at a time"
+    if measurements is not None:
+        return "measurements from a file are one realisation"
+    if lost is not None:
+        return "a replay of recorded losses"
+    if sc.network.impaired:
+        return "network: losses and delays are drawn per seed"
+    if sc.switching.kind == "random" and sc.switching.seed is None:
+        return "random switching drawn from each run's seed"
+    return None
+
+
+try:  # the CSR kernel writing into a given array (scipy's product allocates a new one every call)
+    from scipy.sparse._sparsetools import csr_matvecs as _csr_matvecs
+except ImportError:  # pragma: no cover - private API moved: fall back to the public product
+    _csr_matvecs = None
+
+
+def _spmm(S: sp.csr_matrix, Z: np.ndarray, out: np.ndarray) -> np.ndarray:
+    """``out = S @ Z`` for a CSR matrix and a C-contiguous float64 matrix; each row sums in entry order."""
+    if _csr_matvecs is None:
+        out[...] = S @ Z
+        return out
+    out.fill(0.0)
+    _csr_matvecs(S.shape[0], S.shape[1], Z.shape[1], S.indptr, S.indices, S.data, Z.ravel(), out.ravel())
+    return out
+
+
+class SeedBatchEstimator(BatchEstimator):
+    """:class:`~splitspec_core.simulation.simulator.BatchEstimator` with a trailing seed axis: state ``X`` (m, n, N).
+
+    Discrete sub-rounds run as eq. (split-discrete-p2) in full coordinates,
+    ``Z <- Z + P (S Z - Z)`` (one sparse product with ``n N`` columns, one batched ``P_i`` product); the update
+    is eq. (split-discrete-est1).  Continuous time is the sampled-data step of
+    :func:`~splitspec_core.model.steps.sampled_step`; the adaptive gains ``g`` are (m, N), one per agent and seed.
+    """
+
+    def __init__(self, des: Design, seeds: int):
+        super().__init__(des)
+        self.N = int(seeds)
+        if self.continuous:
+            self.g = np.repeat(self.g[:, None], self.N, axis=1)
+
+    def weights(self, rows: dict) -> sp.csr_matrix:
+        """``S`` (m x m, sparse): row i holds agent i's weights on its alive neighbours."""
+        pos = {a: k for k, a in enumerate(self.sc.agent_ids)}
+        ri = [pos[i] for i, (nbs, _) in rows.items() for _ in nbs]
+        ci = [pos[j] for _, (nbs, _) in rows.items() for j in nbs]
+        w = [x for _, (_, ws) in rows.items() for x in ws]
+        return sp.csr_matrix((w, (ri, ci)), shape=(self.m, self.m))
+
+    def _Y(self, y: np.ndarray) -> np.ndarray:
+        """Stacked ``y`` (sum s_i, N) to per-agent, zero-padded (m, s_max, N)."""
+        Y = np.zeros((self.m, self.Kp.shape[2], self.N))
+        Y[self._yidx] = y
+        return Y
+
+    def step(self, X: np.ndarray, y: np.ndarray, W, alive: np.ndarray, missing=None) -> np.ndarray:
+        """One step of every seed; ``W`` one ``S`` for every exchange (lossless)."""
+        return self.step_realized(X, y, [W] * (1 if self.continuous else self.q), alive)
+
+    def step_realized(self, X: np.ndarray, y: np.ndarray, Ws: list, alive: np.ndarray, missing=None) -> np.ndarray:
+        """One step of every seed with one ``S_k`` per exchange (sparse or :class:`_RealizedS`, the same for every
+        seed: a partition, never a drawn loss)."""
+        m, n, N = X.shape
+        Y = self._Y(y)
+        if self.continuous:
+            S = Ws[0]
+            diff = X - (S @ X.reshape(m, n * N)).reshape(m, n, N)
+            PD = np.matmul(self.Pst, diff)
+            # steps.sampled_step: x_i <- E x_i + D [K_i (C_i x_i - y_i) - g_i P_i (x_i - sum_j w_ij x_j)]
+            corr = np.matmul(self.KC, X) - np.matmul(self.Kp, Y) - self.g[:, None, :] * PD
+            Xn = np.matmul(self.E, X) + np.matmul(self.D, corr)
+            if self.adaptive:
+                # eq. (adaptive): |V_i'(avg_i - x_i)|^2 = diff' R_i R_i' diff (diff' P_i diff for orthogonal P_i)
+                rate = np.einsum("ijs,ijs->is", diff, np.matmul(self.Rgram, diff))
+                self.g = np.where(alive[:, None], self.g + self.dt * rate, self.g)
+        elif all(isinstance(S, sp.csr_matrix) for S in Ws):
+            # eq. split-discrete-p2: (I - P_i) z_i(k) = (I - P_i) z_i(tau) for every k, so
+            # z_i <- (I - P_i) x_i + P_i sum_j w_ij z_j, in place (no temporary of the state's size)
+            U = X - np.matmul(self.Pst, X)
+            Z = X.copy()
+            SZ = np.empty((m, n * N))
+            for S in Ws:
+                _spmm(S, Z.reshape(m, n * N), SZ)
+                np.matmul(self.Pst, SZ.reshape(m, n, N), out=Z)
+                Z += U
+        else:  # realized graphs of a partition (a _RealizedS per exchange)
+            Z = X
+            for S in Ws:
+                # eq. split-discrete-p2: z_i <- z_i + P_i (sum_j w_ij z_j - z_i)
+                Z = Z + np.matmul(self.Pst, (S @ Z.reshape(m, n * N)).reshape(m, n, N) - Z)
+        if not self.continuous:
+            # eq. split-discrete-est1: x_i <- (A + K_i C_i) z_i(q) - K_i y_i
+            Xn = np.matmul(self.Fst, Z) - np.matmul(self.Kp, Y)
+        Xn[~alive] = 0.0
+        return Xn
+
+
+def simulate_seeds(des: Design, seeds, *, steps: int | None = None, noise: bool = True,
+                   trajectories: bool = False, chunk: int = CHUNK, lost=None, measurements=None,
+                   exact: bool = False, force_loop: bool = False) -> MonteCarloRuns:
+    """Run every seed of ``seeds`` on ``des``: one batched computation, or the per-seed loop where a seed changes
+    more than the noise and initial values (:func:`fallback_reason`).
+
+    Parameters
+    ----------
+    seeds : iterable of int
+    steps : int, optional
+        Defaults to ``run.steps`` (or the measurements' length).
+    noise : bool
+        False zeroes process and measurement noise (the draws still happen).
+    trajectories : bool
+        Also keep every seed's :class:`~splitspec_core.simulation.simulator.Trajectory` (``N`` trajectories in memory:
+        checked against this machine's memory first).
+    chunk : int
+        Seeds per batch.
+    lost, measurements, exact
+        As :func:`splitspec_core.api.simulate`; each makes the seeds run one after another.
+    force_loop : bool
+        Run the per-seed loop even where the batch applies (the reference the batch is tested against).
+
+    Returns
+    -------
+    MonteCarloRuns
+        Per seed and step the squared error over the alive agents; ``sq_error[k]`` equals
+        ``nansum(simulate(des, seed=seeds[k]).errors() ** 2, axis=1)`` to round-off.
+    """
+    seeds = tuple(int(s) for s in seeds)
+    if not seeds:
+        raise ScenarioError("seeds is empty: give at least one seed")
+    if chunk < 1:
+        raise ScenarioError(f"chunk must be >= 1, got {chunk}")
+    sc = des.scenario
+    if trajectories and measurements is None:
+        check_trajectory_memory(sc, steps, copies=len(seeds), key="steps" if steps is not None else None)
+    reason = fallback_reason(des, lost=lost, measurements=measurements, exact=exact)
+    if force_loop and reason is None:
+        reason = "per-seed loop asked for"
+    if reason is not None:
+        return _loop(des, seeds, steps=steps, noise=noise, trajectories=trajectories, lost=lost,
+                     measurements=measurements, exact=exact, reason=reason)
+    parts = [_batch(des, seeds[a:a + chunk], steps=steps, noise=noise, trajectories=trajectories)
+             for a in range(0, len(seeds), chunk)]
+    trajs = tuple(tr for p in parts for tr in p[3]) if trajectories else None
+    return MonteCarloRuns(seeds=seeds, t=parts[0][0], sq_error=np.concatenate([p[1] for p in parts]),
+                          alive_count=np.concatenate([p[2] for p in parts]), batched=True, trajectories=trajs)
+
+
+def _loop(des: Design, seeds: tuple, *, steps, noise, trajectories, lost, measurements, exact, reason):
+    """The per-seed loop: :func:`~splitspec_core.simulation.simulator.simulate` (or ``simulate_exact``) once per seed."""
+    from .simulator import simulate_exact
+
+    sq, count, kept = [], [], []
+    tr = None
+    for s in seeds:
+        if exact:
+            tr = simulate_exact(des, seed=s, steps=steps)
+        else:
+            tr = simulate(des, seed=s, steps=steps, noise=noise, lost=lost, measurements=measurements)
+        e2 = np.linalg.norm(tr.xhat - tr.x[:, None, :], axis=2) ** 2
+        sq.append(np.where(tr.alive, e2, 0.0).sum(axis=1))  # NaN stays where the truth is unknown (measurements)
+        count.append(tr.alive.sum(axis=1))
+        if trajectories:
+            kept.append(tr)
+    return MonteCarloRuns(seeds=seeds, t=tr.t, sq_error=np.stack(sq), alive_count=np.stack(count), batched=False,
+                          fallback=reason, trajectories=tuple(kept) if trajectories else None)
+
+
+def _batch(des: Design, seeds: tuple, *, steps, noise, trajectories) -> tuple:
+    """``(t, sq_error (N, T), alive_count (N, T), trajectories)`` of one chunk of seeds, stepped together.
+
+    The driver of :func:`~splitspec_core.simulation.simulator.simulate`, step for step (faults, record, measure, update,
+    advance), with every seed's plant and estimates on a trailing axis.
+    """
+    sc = des.scenario
+    N = len(seeds)
+    plan = make_plan(sc, seeds[0], steps)  # the same for every seed here (fallback_reason)
+    est = SeedBatchEstimator(des, N)
+    m, n, T = sc.m, sc.n, plan.steps + 1
+    # x (n, N), v (T-1, n, N), w (T-1, sum s_i, N): each seed's Plant, bit for bit
+    plant, x, v, w = seed_draws(sc, seeds, T - 1, noise=noise)
+    F, L, C, sigma_m = plant.F, plant.L, plant.C, plant.sigma_m
+    X = np.stack([np.stack([initial_estimate(n, s, i) for s in seeds], axis=1) for i in range(m)])  # (m, n, N)
+    net = NetworkState(sc)
+    alive = net.alive
+    sq = np.zeros((N, T))
+    count = np.zeros((N, T), dtype=np.int64)
+    if trajectories:
+        xs = np.zeros((N, T, n))
+        xh = np.full((N, T, m, n), np.nan)
+        al = np.zeros((T, m), dtype=bool)
+        gains = np.full((N, T, m), np.nan)
+        lost_rows: list = []
+    impaired = any(f.action == "partition" for f in sc.faults)  # the only loss that is the same for every seed
+    exchanges = 1 if est.continuous else int(des.q)
+    w_cache: dict = {}
+    for k in range(T):
+        killed, rejoined = net.apply(plan.faults.get(k, ()))
+        for i in killed:
+            X[i] = 0.0
+        for i, inc in rejoined:
+            X[i] = np.stack([initial_estimate(n, s, i, inc) for s in seeds], axis=1)
+            if est.adaptive:
+                est.g[i] = sc.design.g0
+        e2 = np.einsum("ijs,ijs->is", X - x[None], X - x[None])  # (m, N)
+        sq[:, k] = e2[alive].sum(axis=0)
+        count[:, k] = int(alive.sum())
+        if trajectories:
+            xs[:, k] = x.T
+            xh[:, k, alive] = X[alive].transpose(2, 0, 1)
+            al[k] = alive
+            if est.continuous:
+                gains[:, k, alive] = est.g[alive].T
+        if k == plan.steps:
+            break
+        y = measured(C, sigma_m, x, w[k])  # the plant's formulas (plant_model), on every seed's state
+        key = net.key(plan.graph_seq[k])
+        W = w_cache.get(key)
+        if W is None:
+            rows = net.rows(sc, key[0])
+            W = w_cache[key] = (est.weights(rows), rows, _entries(sc, rows))
+        Ws = _realized_step(est, sc, W, k, exchanges, None, None, net.groups,
+                            lost_rows if trajectories else []) if impaired else None
+        X = est.step(X, y, W[0], alive) if Ws is None else est.step_realized(X, y, Ws, alive)
+        x = advanced(F, L, x, v[k])
+    t = plan.times()
+    trajs = ()
+    if trajectories:
+        from .trajectory_file import lost_arrays
+
+        lost_a, cause_a = lost_arrays(lost_rows)
+        trajs = tuple(Trajectory(t=t, x=xs[s], xhat=xh[s], alive=al.copy(), graph=plan.graph_seq.copy(),
+                                 agent_ids=np.array(sc.agent_ids), gains=gains[s], lost=lost_a.copy(),
+                                 lost_cause=cause_a.copy(), states=sc.state_names) for s in range(N))
+    return t, sq, count, trajs

@@ -1,0 +1,710 @@
+"""Reference simulator: the ground truth for the multi-process runtime.
+
+Three estimators share one driver (plant, noise streams, switching, faults):
+
+* :class:`BatchEstimator` - vectorised across agents, exploiting the block
+  structure: per sub-round one sparse product with ``B = V' Sbar V`` (one
+  block per arc: cost grows with the arcs); never a dense ``mn x mn`` matrix;
+* :class:`AgentLoopEstimator` - a plain loop calling the per-agent step
+  functions of :mod:`splitspec_core.model.steps` (exactly what agent processes run);
+* :func:`simulate_exact` - continuous time only: the exact ODE of
+  eq. (split_continuous_observer), integrated with a matrix exponential per
+  step (graphs piecewise constant), noise-free, for comparison.
+
+Step order at step k (time ``t_k``): apply faults at k; record
+``x(k), x_i(k)``; measure ``y_i(k) = C_i x(k) + w_i(k)``; every alive agent
+updates to ``x_i(k+1)``; the plant moves to ``x(k+1)``.
+
+Why one module: the three estimators share one driver (plant, seed streams, switching,
+faults, restarts); split, the driver's step order -- the contract ``splitspec run`` reproduces --
+would be spread over files.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+import time as _time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import scipy.linalg as sla
+import scipy.sparse as sp
+
+from ..model import steps as st
+from ..synthesis.designer import Design
+from ..errors import ScenarioError
+from ..model.network import NetworkState, Plan, make_plan
+from ..model.plant import Plant, RecordedPlant, initial_estimate, initial_state, output_rows
+from ..model.impairment import PARTITION, Impairment, crosses, group_of, realized_row
+from ..scenarios.specs import Scenario
+from .trajectory_file import lost_arrays, write_trajectory
+
+__all__ = [
+    "Trajectory",
+    "check_trajectory_memory",
+    "simulate",
+    "simulate_exact",
+    "EXACT_NEEDS_FIXED_G",
+    "BatchEstimator",
+    "AgentLoopEstimator",
+]
+
+
+# --------------------------------------------------------------------------
+# trajectory
+# --------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Trajectory:
+    """A simulated or recorded run (``trajectory.npz`` contract).
+
+    Attributes
+    ----------
+    t : (T,) float
+        Event index (discrete time) or time (continuous time)
+    x : (T, n) float
+        The true state (all NaN when unknown: measurements without their truth)
+    xhat : (T, m, n) float
+        The estimates, NaN where the agent is dead
+    alive : (T, m) bool
+        Which agents ran at each step
+    graph : (T,) int
+        The active graph's index (scenario order)
+    agent_ids : (m,) int
+        The agents' ids, in the order of every agent axis
+    gains : (T, m) float
+        The gains g_i (``g`` in the file): adaptive g_i(t) or the fixed continuous g, NaN where
+        dead and in discrete time; None only for a file written before ``g`` existed
+    lost : (N, 4) int64
+        Every consensus message that did not count, one row ``(event time, sub-round k, sender j,
+        receiver i)`` (agent ids), sorted (:mod:`splitspec_core.model.impairment`); empty on a perfect network
+    lost_cause : (N,) int8
+        Why each did not count: 0 loss, 1 late, 2 partition (``impairment.CAUSES``)
+    y : (T, sum s_i), optional
+        The measurements the estimators were given (a measurements file or live sensors), stacked in agent
+        order, 0.0 where missing; None when a simulated plant drew them
+    y_missing : (T, m) bool, optional
+        No measurement of agent i at that step (the agent predicted only)
+    states : tuple of str, optional
+        The states' names (``system.states``, else ``x1 .. xn``); None for a file written before they existed
+    """
+
+    t: np.ndarray
+    x: np.ndarray
+    xhat: np.ndarray
+    alive: np.ndarray
+    graph: np.ndarray
+    agent_ids: np.ndarray
+    gains: np.ndarray | None = None
+    lost: np.ndarray = field(default_factory=lambda: np.zeros((0, 4), dtype=np.int64))
+    lost_cause: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int8))
+    y: np.ndarray | None = None
+    y_missing: np.ndarray | None = None
+    states: tuple | None = None
+
+    @property
+    def has_truth(self) -> bool:
+        """``x`` is known (a simulated plant, or measurements with their truth); else it is all NaN."""
+        return bool(np.isfinite(self.x).any())
+
+    def errors(self) -> np.ndarray:
+        """``|x_i(t) - x(t)|_2`` per agent, shape (T, m), NaN where dead."""
+        return np.linalg.norm(self.xhat - self.x[:, None, :], axis=2)
+
+    def save(self, path: str | Path, extra: dict | None = None) -> None:
+        """Atomically write ``path`` (the one writer of the contract, :func:`~splitspec_core.simulation.trajectory_file.write_trajectory`)."""
+        write_trajectory(path, t=self.t, x=self.x, xhat=self.xhat, alive=self.alive, graph=self.graph,
+                         agent_ids=self.agent_ids, g=self.gains, lost=self.lost, lost_cause=self.lost_cause,
+                         extra={**({"y": self.y, "y_missing": self.y_missing} if self.y is not None else {}),
+                                **(extra or {})}, states=self.states)
+
+    @classmethod
+    def load(cls, path: str | Path) -> "Trajectory":
+        with np.load(path) as f:
+            extra = {k: f[k] for k in ("lost", "lost_cause", "y", "y_missing") if k in f.files}
+            states = tuple(str(s) for s in f["states"]) if "states" in f.files else None
+            return cls(t=f["t"], x=f["x"], xhat=f["xhat"], alive=f["alive"], graph=f["graph"],
+                       agent_ids=f["agent_ids"], gains=f["g"] if "g" in f.files else None, states=states, **extra)
+
+
+# --------------------------------------------------------------------------
+# initial conditions and plant (shared with the plant and agent processes)
+# --------------------------------------------------------------------------
+
+
+def physical_memory() -> int | None:
+    """Bytes of physical memory (``SC_PHYS_PAGES * SC_PAGE_SIZE``), or None where unknown."""
+    try:
+        return os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    except (ValueError, OSError, AttributeError):
+        return None
+
+
+def check_trajectory_memory(sc: Scenario, steps: int | None = None, *, key: str | None = None,
+                            copies: int = 1) -> None:
+    """Refuse a run whose preallocated trajectory cannot fit in this machine's memory.
+
+    :func:`simulate`, :func:`simulate_exact` and the baselines preallocate
+    ``(T, m, n)`` float64 arrays, ``T = steps + 1``; ``copies`` of them are
+    held at once (e.g. a Monte Carlo run).  The multi-process ``run`` grows
+    its rows as it goes and does not call this.
+
+    Raises
+    ------
+    ScenarioError
+        ``run.steps = S needs X GiB for the trajectory (T x m x n float64); this machine has Y GiB``
+        (``key`` names the option, default ``run.steps`` or ``steps``).
+    """
+    given = steps is not None
+    steps = sc.run.steps if steps is None else int(steps)
+    need = copies * (steps + 1) * sc.m * sc.n * 8
+    have = physical_memory()
+    if have is None or need <= have:
+        return
+    key = key or ("steps" if given else "run.steps")
+    what = "the trajectory (T x m x n float64)" if copies == 1 else \
+        f"{copies} trajectories ({copies} x T x m x n float64)"
+    raise ScenarioError(f"{key} = {steps} needs {need / 2**30:.1f} GiB for {what}; "
+                        f"this machine has {have / 2**30:.1f} GiB")
+
+
+# --------------------------------------------------------------------------
+# estimators
+# --------------------------------------------------------------------------
+
+
+class _EstimatorBase:
+    def __init__(self, des: Design):
+        sc = des.scenario
+        self.des, self.sc = des, sc
+        self.m, self.n = sc.m, sc.n
+        self.A = np.array(sc.system.A)
+        self.Cs = [np.asarray(C) for C in sc.system.Cs]
+        self.Ks = [np.asarray(K) for K in des.Ks]
+        self.Ps = [np.asarray(P) for P in des.Ps]
+        self.Vs = [np.asarray(V) for V in des.Vs]  # R_i: eq. (adaptive) projects with R_i' (= V_i' unless balanced)
+        self.Ls = [np.asarray(L) for L in des.Ls]  # L_i: P_i = L_i R_i' (the working coordinates: local_design.py)
+        self.continuous = sc.time == "continuous"
+        self.adaptive = self.continuous and des.g_mode == "adaptive"
+        if self.continuous:
+            self.E, self.D, _ = st.sampled_data_matrices(self.A, sc.run.dt)
+            self.dt = sc.run.dt
+            self.g = np.full(self.m, sc.design.g0 if self.adaptive else float(des.g))
+        else:
+            self.q = int(des.q)
+            self.F = [self.A + K @ C for K, C in zip(self.Ks, self.Cs)]
+
+
+try:  # the CSR kernel without scipy's per-call dispatch (about 10 us a call at this size)
+    from scipy.sparse._sparsetools import csr_matvec as _csr_matvec
+except ImportError:  # pragma: no cover - private API moved: fall back to the public product
+    _csr_matvec = None
+
+
+def _spmv(A: sp.csr_matrix, x: np.ndarray) -> np.ndarray:
+    """``A @ x`` for a CSR matrix and a float64 vector."""
+    if _csr_matvec is None:
+        return A @ x
+    y = np.zeros(A.shape[0])
+    _csr_matvec(A.shape[0], A.shape[1], A.indptr, A.indices, A.data, x, y)
+    return y
+
+
+def _bmv(M: np.ndarray, X: np.ndarray) -> np.ndarray:
+    """Batched matrix-vector product: row i is ``M[i] @ X[i]``."""
+    return np.matmul(M, X[:, :, None])[:, :, 0]
+
+
+def _entries(sc: Scenario, rows: dict) -> tuple:
+    """``(row, col, weight, off-diagonal)`` arrays (agent positions) of ``rows``, sorted by row, in its order within."""
+    pos = {a: k for k, a in enumerate(sc.agent_ids)}
+    ri = np.array([pos[i] for i, (nbs, _) in rows.items() for _ in nbs], dtype=np.int64)
+    ci = np.array([pos[j] for _, (nbs, _) in rows.items() for j in nbs], dtype=np.int64)
+    w = np.array([x for _, (_, ws) in rows.items() for x in ws], dtype=float)
+    order = np.argsort(ri, kind="stable")  # by receiver, each row's own order kept (a realized S sums rows)
+    ri, ci, w = ri[order], ci[order], w[order]
+    return ri, ci, w, ri != ci
+
+
+class _RealizedS:
+    """A realized consensus matrix ``S`` (m x m) as entries sorted by row, every present row non-empty (its own
+    weight): ``S @ Z`` sums each row's ``w_ij z_j`` in entry order, as a CSR product does."""
+
+    __slots__ = ("m", "cols", "w", "starts", "present")
+
+    def __init__(self, m: int, rows: np.ndarray, cols: np.ndarray, w: np.ndarray):
+        self.m, self.cols, self.w = m, cols, w
+        new_row = np.ones(len(rows), dtype=bool)
+        new_row[1:] = rows[1:] != rows[:-1]
+        self.starts = np.flatnonzero(new_row)
+        self.present = rows[self.starts]
+
+    def __matmul__(self, Z: np.ndarray) -> np.ndarray:
+        out = np.zeros((self.m,) + Z.shape[1:])
+        if len(self.cols):
+            out[self.present] = np.add.reduceat(self.w.reshape((-1,) + (1,) * (Z.ndim - 1)) * Z[self.cols],
+                                                self.starts, axis=0)
+        return out
+
+
+class BatchEstimator(_EstimatorBase):
+    """Vectorised estimator: state ``X`` (m, n); sparse weights; batched per-agent matrices.
+
+    Discrete sub-rounds run in unobservable-space coordinates: from
+    eq. (split-discrete-p2), ``(I - P_i) z_i(k) = (I - P_i) x_i(tau)`` for every
+    k, and ``w = V'z`` obeys ``w(k) = c + B w(k-1)`` with ``B = V' Sbar V``
+    (eq. split_discrete_pr2) and ``c = V' Sbar (I - P) x(tau)``.  With balanced working coordinates
+    (``design.coordinates``) ``P_i = L_i R_i'`` is oblique in the user's: ``w = R'z``, ``B = R' Sbar L``,
+    ``c = R' Sbar (I - P) x``, ``z = (I - P) x + L w``.  ``B`` is
+    block sparse (one ``n_i x n_j`` block per arc), so a sub-round costs one
+    sparse product with about ``sum_arcs n_i n_j`` non-zeros.
+    """
+
+    def __init__(self, des: Design):
+        super().__init__(des)
+        s_max = max(C.shape[0] for C in self.Cs)
+        self.Kp = np.zeros((self.m, self.n, s_max))
+        rows, cols = [], []
+        for i, (K, C) in enumerate(zip(self.Ks, self.Cs)):
+            self.Kp[i, :, : K.shape[1]] = K
+            rows += [i] * C.shape[0]
+            cols += list(range(C.shape[0]))
+        self._yidx = (np.array(rows), np.array(cols))
+        self.Pst = np.stack(self.Ps)
+        if self.continuous:
+            self.KC = np.stack([K @ C for K, C in zip(self.Ks, self.Cs)])
+            self.Rgram = np.stack([R @ R.T for R in self.Vs])  # eq. (adaptive): |R_i' d|^2 = d' R_i R_i' d
+        else:
+            self.Fst = np.stack(self.F)
+            self.Vbig = sp.block_diag([sp.csr_matrix(L) for L in self.Ls], format="csr")  # (mn, nbar): L
+            self.VT = sp.block_diag([sp.csr_matrix(R.T) for R in self.Vs], format="csr")  # (nbar, mn): R transposed
+
+    def weights(self, rows: dict):
+        """Row i holds agent i's weights on its alive neighbours.
+
+        Continuous: sparse ``W`` (m x m).  Discrete: ``(B, G)`` with
+        ``B = V'(W (x) I)V`` and ``G = V'(W (x) I)``, both sparse.
+        """
+        pos = {a: k for k, a in enumerate(self.sc.agent_ids)}
+        ri, ci, vals = [], [], []
+        for i, (nbs, ws) in rows.items():
+            for j, w in zip(nbs, ws):
+                ri.append(pos[i])
+                ci.append(pos[j])
+                vals.append(w)
+        W = sp.csr_matrix((vals, (ri, ci)), shape=(self.m, self.m))
+        if self.continuous:
+            return W
+        G = (self.VT @ sp.kron(W, sp.identity(self.n), format="csr")).tocsr()
+        return (G @ self.Vbig).tocsr(), G
+
+    def step(self, X: np.ndarray, y: np.ndarray, W, alive: np.ndarray, missing=None, bu=None) -> np.ndarray:
+        """One step; ``missing`` (m,) bool: agents without a measurement this step (prediction only); ``bu`` (n,):
+        the known input's ``B u`` every agent adds (steps.measurement_update), None without inputs."""
+        Y = np.zeros((self.m, self.Kp.shape[2]))
+        Y[self._yidx] = y
+        if self.continuous:
+            diff = X - W @ X
+            innov = _bmv(self.KC, X) - _bmv(self.Kp, Y)
+            if missing is not None and missing.any():
+                innov[missing] = 0.0  # steps.sampled_step with y_i None
+            corr = innov - self.g[:, None] * _bmv(self.Pst, diff)
+            if bu is not None:
+                corr = corr + bu  # steps.sampled_step: B u(k) held over the step
+            Xn = X @ self.E.T + corr @ self.D.T
+            if self.adaptive:
+                # eq. (adaptive): |V_i'(avg_i - x_i)|^2 = diff' R_i R_i' diff (diff' P_i diff for orthogonal P_i)
+                rate = np.einsum("mi,mi->m", diff, _bmv(self.Rgram, diff))
+                self.g = np.where(alive, self.g + self.dt * rate, self.g)
+        else:
+            B, G = W
+            U = X - _bmv(self.Pst, X)  # (I - P_i) x_i, fixed through the sub-rounds
+            w = _spmv(self.VT, X.ravel())  # w_i = R_i' x_i (V_i' x_i), z_i = U_i + L_i w_i
+            c = _spmv(G, U.ravel())
+            for _ in range(self.q):
+                # eq. split-discrete-p2 in V coordinates: w_i <- V_i' sum_j w_ij z_j
+                w = c + _spmv(B, w)
+            Z = U + _spmv(self.Vbig, w).reshape(self.m, self.n)
+            Xn = self._update(Z, Y, missing, bu)
+        Xn[~alive] = 0.0
+        return Xn
+
+    def _update(self, Z: np.ndarray, Y: np.ndarray, missing, bu=None) -> np.ndarray:
+        """Eq. split-discrete-est1; an agent without a measurement predicts, ``A z_i(q)`` (steps.prediction_update);
+        both add the known input's ``B u`` when there is one."""
+        Xn = _bmv(self.Fst, Z) - _bmv(self.Kp, Y)
+        if missing is not None and missing.any():
+            Xn[missing] = Z[missing] @ self.A.T
+        return Xn if bu is None else Xn + bu
+
+
+    def realized(self, rows: dict, entries: tuple, counts: list) -> list:
+        """``S_k`` (m x m) of each exchange's realized graph: :func:`impairment.realized_row`, vectorised.
+
+        ``entries``: :func:`_entries` of ``rows`` (sorted by receiver); ``counts[k]``: a boolean per off-diagonal
+        entry, True where the message counts.  Each ``S_k`` is a :class:`_RealizedS` (a segmented sum: building a
+        scipy matrix per sub-round cost more than the whole step).
+        """
+        ri, ci, w, off = entries
+        offi = np.flatnonzero(off)
+        out = []
+        for ok in counts:
+            keep = ~off
+            keep[offi[ok]] = True
+            rk = ri[keep]
+            if self.sc.design.weights == "metropolis":  # the missing weights go to the receiver itself
+                wk = w.copy()
+                kept = keep & off
+                wk[~off] = (1.0 - np.bincount(ri[kept], weights=w[kept], minlength=self.m))[ri[~off]]
+                wk = wk[keep]
+            else:  # 1 / (1 + #counted): row i of the realized graph's S
+                wk = 1.0 / np.bincount(rk, minlength=self.m)[rk]
+            out.append(_RealizedS(self.m, rk, ci[keep], wk))
+        return out
+
+    def step_realized(self, X: np.ndarray, y: np.ndarray, Ws: list, alive: np.ndarray, missing=None,
+                      bu=None) -> np.ndarray:
+        """One step with a realized consensus matrix per exchange (``Ws``: q sparse ``S_k``, or one in continuous
+        time): eq. (split-discrete-p2) as ``z <- z + P_i (S_k z - z)_i``, then eq. (split-discrete-est1)."""
+        Y = np.zeros((self.m, self.Kp.shape[2]))
+        Y[self._yidx] = y
+        if self.continuous:
+            return self.step(X, y, Ws[0], alive, missing, bu)
+        Z = X.copy()
+        for Wk in Ws:
+            Z = Z + _bmv(self.Pst, Wk @ Z - Z)
+        Xn = self._update(Z, Y, missing, bu)
+        Xn[~alive] = 0.0
+        return Xn
+
+
+class AgentLoopEstimator(_EstimatorBase):
+    """Plain per-agent loop over the step functions of :mod:`splitspec_core.model.steps`."""
+
+    def __init__(self, des: Design):
+        super().__init__(des)
+        self.rows = output_rows(self.Cs)
+
+    def weights(self, rows: dict) -> dict:
+        return rows
+
+    def _ys(self, y: np.ndarray, missing) -> list:
+        """Each agent's ``y_i``, None where it has no measurement this step."""
+        return [None if missing is not None and missing[k] else y[r] for k, r in enumerate(self.rows)]
+
+    def _update(self, i: int, z: np.ndarray, y_i, bu=None) -> np.ndarray:
+        return (st.prediction_update(z, self.A, bu) if y_i is None
+                else st.measurement_update(z, self.F[i], self.Ks[i], y_i, bu))
+
+    def step(self, X: np.ndarray, y: np.ndarray, rows: dict, alive: np.ndarray, missing=None, bu=None) -> np.ndarray:
+        pos = {a: k for k, a in enumerate(self.sc.agent_ids)}
+        ys = self._ys(y, missing)
+        Xn = np.zeros_like(X)
+        if self.continuous:
+            g_next = self.g.copy()
+            for i_id, (nbs, ws) in rows.items():
+                i = pos[i_id]
+                states = [X[pos[j]] for j in nbs]
+                Xn[i] = st.sampled_step(X[i], self.E, self.D, self.Ks[i], self.Cs[i], ys[i], self.Ps[i],
+                                        self.g[i], states, ws, bu)
+                if self.adaptive:
+                    g_next[i] = st.adaptive_gain_step(self.g[i], st.adaptive_gain_rate(self.Vs[i], X[i], states, ws),
+                                                      self.dt)
+            self.g = g_next
+            return Xn
+        Z = X.copy()
+        for _ in range(self.q):
+            Zn = np.zeros_like(Z)
+            for i_id, (nbs, ws) in rows.items():
+                i = pos[i_id]
+                Zn[i] = st.consensus_subround(Z[i], self.Ps[i], [Z[pos[j]] for j in nbs], ws)
+            Z = Zn
+        for i_id in rows:
+            i = pos[i_id]
+            Xn[i] = self._update(i, Z[i], ys[i], bu)
+        return Xn
+
+    def realized(self, rows: dict, entries: tuple, counts: list) -> list:
+        """Each exchange's realized rows ``{i: (nbs, ws)}``, by the agents' own :func:`impairment.realized_row`."""
+        ri, ci, _, off = entries
+        ids = self.sc.agent_ids
+        offi = np.flatnonzero(off)
+        out = []
+        for ok in counts:
+            counted: dict = {}
+            for e in offi[ok]:
+                counted.setdefault(ids[ri[e]], set()).add(ids[ci[e]])
+            out.append({i: realized_row(nbs, ws, counted.get(i, ()), self.sc.design.weights)
+                        for i, (nbs, ws) in rows.items()})
+        return out
+
+    def step_realized(self, X: np.ndarray, y: np.ndarray, Ws: list, alive: np.ndarray, missing=None,
+                      bu=None) -> np.ndarray:
+        """One step with each exchange's realized rows (``Ws``: per exchange, ``{i: (nbs, ws)}``), exactly as the
+        agent processes compute it (:func:`splitspec_core.model.impairment.realized_row`)."""
+        if self.continuous:
+            return self.step(X, y, Ws[0], alive, missing, bu)
+        pos = {a: k for k, a in enumerate(self.sc.agent_ids)}
+        ys = self._ys(y, missing)
+        Xn = np.zeros_like(X)
+        Z = X.copy()
+        for rows in Ws:
+            Zn = np.zeros_like(Z)
+            for i_id, (nbs, ws) in rows.items():
+                i = pos[i_id]
+                Zn[i] = st.consensus_subround(Z[i], self.Ps[i], [Z[pos[j]] for j in nbs], ws)
+            Z = Zn
+        for i_id in Ws[0]:
+            i = pos[i_id]
+            Xn[i] = self._update(i, Z[i], ys[i], bu)
+        return Xn
+
+
+# --------------------------------------------------------------------------
+# driver
+# --------------------------------------------------------------------------
+
+
+class _Progress:
+    """A one-line progress bar on stderr, only when it is a terminal and the run is long."""
+
+    def __init__(self, total: int, enabled: bool | None, *, label: str = "simulating", min_total: int = 2000):
+        self.total, self.label = total, label
+        self.enabled = sys.stderr.isatty() if enabled is None else enabled
+        self.enabled = self.enabled and total >= min_total
+        self.t0 = _time.monotonic()
+        self.last = 0.0
+
+    def update(self, k: int) -> None:
+        if not self.enabled:
+            return
+        now = _time.monotonic()
+        if now - self.last < 0.2 and k < self.total:
+            return
+        self.last = now
+        frac = k / self.total
+        bar = "#" * int(30 * frac)
+        sys.stderr.write(f"\r{self.label} [{bar:<30}] {100 * frac:5.1f}%  {now - self.t0:6.1f}s")
+        if k >= self.total:
+            sys.stderr.write("\n")
+        sys.stderr.flush()
+
+
+def simulate(des: Design, *, seed: int | None = None, steps: int | None = None, noise: bool = True,
+             estimator: str = "batch", progress: bool | None = False, plan: Plan | None = None,
+             lost=None, measurements=None, keep_y: bool = False) -> Trajectory:
+    """Simulate the scenario of a design (see the module docstring).
+
+    Parameters
+    ----------
+    seed : int, optional
+        Defaults to ``run.seed``; fixes initial state, estimates, noise and random switching.
+    steps : int, optional
+        Defaults to ``run.steps``.
+    noise : bool
+        False zeroes process and measurement noise (the draws still happen).
+    estimator : str
+        ``batch`` (vectorised) or ``loop`` (per-agent step functions).
+    progress : bool or None
+        None shows a progress bar when stderr is a terminal and the run is long.
+    lost : (N, 4) int array, or ``(lost, lost_cause)``, optional
+        Replay: exactly these consensus messages do not count (a run's recorded ``lost``), instead of the
+        scenario's drawn losses (:mod:`splitspec_core.model.impairment`).
+    measurements : :class:`~splitspec_core.scenarios.measurements.Measurements`, optional
+        The user's recorded ``y`` instead of the simulated plant: ``steps`` defaults to the file's (``T - 1``),
+        ``x`` is the file's truth (NaN without one), an agent without a measurement at a row predicts only;
+        the trajectory then also holds ``y`` and ``y_missing``.
+    keep_y : bool
+        Also record the simulated plant's measurements in ``y`` (what ``simulate --write-measurements`` writes).
+    """
+    sc = des.scenario
+    seed = sc.run.seed if seed is None else seed
+    if measurements is not None:
+        if steps is not None and steps > measurements.steps:
+            raise ScenarioError(f"measurements {measurements.path} has {measurements.steps} steps; "
+                                f"{steps} asked for")
+        steps = measurements.steps if steps is None else steps
+    check_trajectory_memory(sc, plan.steps if plan is not None else steps)
+    plan = plan or make_plan(sc, seed, steps)
+    est = BatchEstimator(des) if estimator == "batch" else AgentLoopEstimator(des)
+    plant = Plant(sc, seed, noise=noise) if measurements is None else RecordedPlant(measurements, sc.n, sc)
+    B = None if sc.system.B is None else np.asarray(sc.system.B)
+    m, n, T = sc.m, sc.n, plan.steps + 1
+    ids = sc.agent_ids
+    X = np.stack([initial_estimate(n, seed, i) for i in range(m)])
+    net = NetworkState(sc)
+    alive = net.alive
+    xs = np.zeros((T, n))
+    xh = np.full((T, m, n), np.nan)
+    al = np.zeros((T, m), dtype=bool)
+    gains = np.full((T, m), np.nan)  # g_i(t): adaptive or fixed in continuous time; none in discrete time
+    bar = _Progress(plan.steps, progress)
+    w_cache: dict = {}  # active network -> the estimator's weights
+    # a misbehaving network (impairment.py): messages that do not count, drawn (or replayed from a run's record)
+    imp = Impairment(sc.network, seed) if sc.network.impaired and lost is None else None
+    replay = _replay_index(lost) if lost is not None else None
+    impaired = imp is not None or replay is not None or any(f.action == "partition" for f in sc.faults)
+    exchanges = 1 if est.continuous else int(des.q)
+    lost_rows: list = []
+    ys = np.zeros((T, sum(np.shape(C)[0] for C in sc.system.Cs))) if keep_y else None
+    for k in range(T):
+        killed, rejoined = net.apply(plan.faults.get(k, ()))
+        for i in killed:
+            X[i] = 0.0
+        for i, inc in rejoined:
+            X[i] = initial_estimate(n, seed, i, inc)
+            if est.continuous and est.adaptive:
+                est.g[i] = sc.design.g0
+        xs[k] = plant.x
+        xh[k][alive] = X[alive]
+        al[k] = alive
+        if est.continuous:
+            gains[k][alive] = est.g[alive]
+        if k == plan.steps:
+            if ys is not None and measurements is None:
+                ys[k] = plant.measure()  # the last row's measurement (drawn after every other draw)
+            break
+        y, missing = plant.measure(), plant.missing()
+        if ys is not None and measurements is None:
+            ys[k] = y
+        key = net.key(plan.graph_seq[k])
+        W = w_cache.get(key)
+        if W is None:
+            rows = net.rows(sc, key[0])
+            W = w_cache[key] = (est.weights(rows), rows, _entries(sc, rows))
+        Ws = _realized_step(est, sc, W, k, exchanges, imp, replay, net.groups, lost_rows) if impaired else None
+        bu = st.known_input(B, plant.input())  # the known input every agent adds (the agent process: the same)
+        X = (est.step(X, y, W[0], alive, missing, bu) if Ws is None
+             else est.step_realized(X, y, Ws, alive, missing, bu))
+        plant.advance()
+        bar.update(k + 1)
+    lost_a, cause_a = lost_arrays(lost_rows)
+    recorded = {}
+    if measurements is not None:  # what the estimators were given, for the views without truth
+        recorded = {"y": measurements.y[:T].copy(), "y_missing": measurements.missing[:T].copy()}
+    elif ys is not None:
+        recorded = {"y": ys, "y_missing": np.zeros((T, m), dtype=bool)}
+    return Trajectory(t=plan.times(), x=xs, xhat=xh, alive=al, graph=plan.graph_seq.copy(),
+                      agent_ids=np.array(ids), gains=gains, lost=lost_a, lost_cause=cause_a, states=sc.state_names,
+                      **recorded)
+
+
+def _replay_index(lost) -> dict:
+    """``{(tau, k): {(j, i): cause}}`` from recorded ``(lost, lost_cause)`` arrays (or rows ``(tau, k, j, i)``)."""
+    rows, causes = (lost if isinstance(lost, tuple) else (lost, None))
+    rows = np.asarray(rows, dtype=np.int64).reshape(-1, 4)
+    causes = np.zeros(len(rows), dtype=np.int64) if causes is None else np.asarray(causes)
+    out: dict = {}
+    for (tau, k, j, i), c in zip(rows.tolist(), causes.tolist()):
+        out.setdefault((tau, k), {})[(j, i)] = int(c)
+    return out
+
+
+def _realized_step(est, sc: Scenario, W: tuple, tau: int, exchanges: int, imp, replay, groups, lost_rows: list):
+    """The realized weights of step ``tau``'s exchanges, or None when every message counts (the lossless path).
+
+    A message ``(tau, k, j, i)`` does not count when a partition in force separates j and i, when it is drawn
+    lost (or late past the deadline, emulated), or, in a replay, when the run recorded it so; its row
+    ``(tau, k, j, i, cause)`` goes to ``lost_rows``.
+    """
+    _, rows, entries = W
+    ri, ci, _, off = entries
+    ids = np.array(sc.agent_ids)
+    js, is_ = ids[ci[off]], ids[ri[off]]
+    if not len(js):
+        return None
+    gmap = group_of(groups, sc.agent_ids)
+    cross = np.array([crosses(gmap, int(j), int(i)) for j, i in zip(js, is_)]) if gmap else None
+    counts, any_lost = [], False
+    # every sub-round's draws at once (the same numbers as one sub-round at a time: counter-based)
+    drawn = imp.dropped(tau, np.arange(1, exchanges + 1)[:, None], js, is_) if imp is not None and replay is None \
+        else None
+    for kk in range(1, exchanges + 1):
+        cause = np.full(len(js), -1, dtype=np.int64)
+        if replay is not None:
+            rec = replay.get((tau, kk))
+            if rec:
+                cause = np.array([rec.get((int(j), int(i)), -1) for j, i in zip(js, is_)], dtype=np.int64)
+        else:
+            if cross is not None:
+                cause[cross] = PARTITION
+            if drawn is not None:
+                cause = np.where(cause < 0, drawn[kk - 1], cause)
+        gone = np.flatnonzero(cause >= 0)
+        if gone.size:
+            any_lost = True
+            lost_rows.extend((tau, kk, int(js[e]), int(is_[e]), int(cause[e])) for e in gone)
+        counts.append(cause < 0)
+    return est.realized(rows, entries, counts) if any_lost else None
+
+
+# eq. (adaptive) makes each g_i(t) a state of its own: the ODE is no longer linear, so no matrix exponential
+EXACT_NEEDS_FIXED_G = ("the exact ODE needs one fixed g, and design.g is adaptive (each agent's g_i(t), eq. adaptive): "
+                       "give design.g a number or auto")
+
+
+def simulate_exact(des: Design, *, seed: int | None = None, steps: int | None = None) -> Trajectory:
+    """Continuous time, noise-free: the exact ODE of eq. (split_continuous_observer).
+
+    The augmented state ``(x, x_1, ..., x_m)`` obeys a linear ODE that is
+    constant between steps (graph and alive set held), integrated with one
+    matrix exponential per distinct step matrix.  Same initial conditions,
+    switching and faults as :func:`simulate`.
+    """
+    sc = des.scenario
+    if sc.time != "continuous":
+        raise ScenarioError("the exact ODE is continuous time; this scenario is discrete (time: discrete)")
+    if des.g_mode == "adaptive":
+        raise ScenarioError(EXACT_NEEDS_FIXED_G)
+    if sc.network.impaired or any(f.action == "partition" for f in sc.faults):
+        raise ScenarioError("the exact ODE has no messages to lose: it cannot model network: or partition faults "
+                            "(simulate without --exact)")
+    seed = sc.run.seed if seed is None else seed
+    check_trajectory_memory(sc, steps)
+    plan = make_plan(sc, seed, steps)
+    m, n, T = sc.m, sc.n, plan.steps + 1
+    ids = sc.agent_ids
+    A = np.array(sc.system.A)
+    g = float(des.g)
+    z = np.concatenate([initial_state(sc, seed)] + [initial_estimate(n, seed, i) for i in range(m)])
+    net = NetworkState(sc)
+    alive = net.alive
+    xs = np.zeros((T, n))
+    xh = np.full((T, m, n), np.nan)
+    al = np.zeros((T, m), dtype=bool)
+    cache: dict = {}
+    for k in range(T):
+        for i, inc in net.apply(plan.faults.get(k, ()))[1]:
+            z[n * (i + 1):n * (i + 2)] = initial_estimate(n, seed, i, inc)
+        xs[k] = z[:n]
+        for i in range(m):
+            if alive[i]:
+                xh[k, i] = z[n * (i + 1):n * (i + 2)]
+        al[k] = alive
+        if k == plan.steps:
+            break
+        key = net.key(plan.graph_seq[k])
+        Phi = cache.get(key)
+        if Phi is None:
+            rows = net.rows(sc, key[0])
+            M = np.zeros(((m + 1) * n, (m + 1) * n))
+            M[:n, :n] = A
+            pos = {a: r for r, a in enumerate(ids)}
+            for i_id, (nbs, ws) in rows.items():
+                i = pos[i_id]
+                bi = slice(n * (i + 1), n * (i + 2))
+                K, C, P = des.Ks[i], sc.system.Cs[i], des.Ps[i]
+                # dx_i = (A + K_i C_i) x_i - K_i C_i x - g P_i (x_i - sum_j w_ij x_j)
+                M[bi, bi] += A + K @ C - g * P
+                M[bi, :n] += -K @ C
+                for j_id, w in zip(nbs, ws):
+                    bj = slice(n * (pos[j_id] + 1), n * (pos[j_id] + 2))
+                    M[bi, bj] += g * w * P
+            Phi = sla.expm(M * plan.dt)
+            cache[key] = Phi
+        z = Phi @ z
+    return Trajectory(t=plan.times(), x=xs, xhat=xh, alive=al, graph=plan.graph_seq.copy(), agent_ids=np.array(ids),
+                      gains=np.where(al, g, np.nan), states=sc.state_names)

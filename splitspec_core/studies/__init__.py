@@ -1,0 +1,7 @@
+"""Studies over designs and trajectories: baselines, comparisons, sweeps, runs without a truth.
+
+``baselines.py`` the centralized Kalman predictor and the KCF, ``comparison.py`` ``ss.compare`` (the
+estimator against them under noise), ``sweeps.py`` ``ss.network_sweep``, ``no_truth.py`` what a run on
+measurements shows without the true state (residuals, disagreement, a reference Kalman filter).
+Imports every layer below it; nothing below imports it.
+"""

@@ -1,0 +1,219 @@
+"""`splitspec compare`: the split-spectrum estimator against the best possible and a consensus Kalman filter.
+
+Every estimator sees the same noise realisations and initial conditions (the
+simulator's named streams, :mod:`splitspec_core.model.streams`):
+
+``split (scenario)``   the scenario's own design (when its gains are explicit)
+``split place``        split-spectrum, ``place`` gains
+``split riccati``      split-spectrum, ``riccati`` gains (weights: the noise levels)
+``split tuned``        split-spectrum, the noise-optimised design of :func:`noise.tune`
+``centralized KF``     steady-state Kalman predictor seeing every measurement: the bound
+                       no distributed estimator can beat
+``KCF``                Olfati-Saber's discrete-time Kalman-consensus filter on the same
+                       graph, with as many exchanges per event time as split place
+
+Figures per estimator: steady-state RMS error (over the last half of the run,
+RMS over agents, then mean and std over seeds), its ratio to the centralized
+filter, the predicted (exact) steady-state RMS where available (not for the adaptive
+gain, which has no steady state), the noise-free time until the error stays
+below 1e-3 of its initial value, messages per event time (one message = one
+vector sent by one agent), and for the split-spectrum estimators the rate
+certificate of :func:`~splitspec_core.synthesis.report.rate_certificate` (the adaptive
+gain: asymptotic convergence only, no certified rate).
+
+Every estimator runs its seeds as one batch, the same numbers per seed to
+round-off: the split-spectrum variants by
+:func:`splitspec_core.simulation.montecarlo.simulate_seeds`, the two baselines by
+:func:`splitspec_core.studies.baselines.baseline_seeds`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+
+from ..simulation.metrics import fit_decay
+from ..simulation.montecarlo import simulate_seeds
+from .baselines import baseline_seeds, baseline_trajectories, kalman_predictor, sampled_model
+from ..synthesis.bounds import nice_ceil
+from ..synthesis.designer import NO_CERTIFIED_RATE, design
+from ..errors import DesignError
+from ..synthesis.noise_tuning import predicted_rms, tune
+from ..synthesis.report import rate_certificate
+from ..scenarios.specs import Scenario
+from ..simulation.simulator import check_trajectory_memory, simulate
+
+__all__ = ["compare", "sweep", "sweep_line", "certificate_lines", "steady_rms", "settle_time"]
+
+
+def steady_rms(err: np.ndarray) -> float:
+    """RMS over agents and over the last half of the run; ``err`` is (T,) or (T, m) error norms."""
+    e = np.asarray(err, dtype=float)
+    e = e.reshape(e.shape[0], -1)[e.shape[0] // 2:]
+    return float(np.sqrt(np.nanmean(e ** 2)))
+
+
+def settle_time(t: np.ndarray, err: np.ndarray, *, rel: float = 1e-3) -> float | None:
+    """First time after which the (worst agent's) error stays below ``rel`` times its initial value."""
+    e = np.asarray(err, dtype=float).reshape(len(t), -1)
+    worst = np.nanmax(e, axis=1)
+    above = np.nonzero(worst > rel * worst[0])[0]
+    if above.size == 0:
+        return float(t[0])
+    k = above[-1] + 1
+    return float(t[k]) if k < len(t) else None
+
+
+def _errors(xhat: np.ndarray, x: np.ndarray) -> np.ndarray:
+    if xhat.ndim == 2:
+        return np.linalg.norm(xhat - x, axis=1)
+    return np.linalg.norm(xhat - x[:, None, :], axis=2)
+
+
+def _variant(sc: Scenario, gains: str) -> Scenario:
+    d = dataclasses.replace(sc.design, gains=gains, K=None)
+    return dataclasses.replace(sc, design=d)
+
+
+def compare(sc: Scenario, *, seeds, steps: int | None = None, eps: float | None = None) -> dict:
+    """Run every estimator on the same realisations; JSON-ready results plus mean error curves."""
+    seeds = list(seeds)
+    check_trajectory_memory(sc, steps)
+    if sc.system.process_noise <= 0 and sc.system.measurement_noise <= 0:
+        raise DesignError("compare needs noise: set system.process_noise and/or system.measurement_noise")
+    variants = {}
+    if sc.design.gains == "explicit":
+        variants["split (scenario)"] = design(sc)
+    variants["split place"] = design(_variant(sc, "place"))
+    variants["split riccati"] = design(_variant(sc, "riccati"))
+    tuned = None
+    try:
+        tuned = tune(sc)
+        variants["split tuned"] = tuned.design
+    except DesignError:
+        pass
+    discrete = sc.time == "discrete"
+    exchanges = variants["split place"].q if discrete else 1
+    # every seed at once, per seed the errors of a single-seed run to round-off: the split-spectrum variants by
+    # montecarlo.simulate_seeds, the baselines by baselines.baseline_seeds (the same MonteCarloRuns statistics)
+    runs = {name: simulate_seeds(des, seeds, steps=steps) for name, des in variants.items()}
+    b = baseline_seeds(sc, seeds, exchanges=exchanges, steps=steps, eps=eps)
+    runs.update({"centralized KF": b["centralized"], "KCF": b["kcf"]})
+    curves = {name: list(r.rms()) for name, r in runs.items()}
+    rms = {name: list(r.steady_rms()) for name, r in runs.items()}
+    T = runs["split place"].t
+    # noise-free transients (first seed)
+    settle = {}
+    rate = {}
+    for name, des in variants.items():
+        tr = simulate(des, seed=seeds[0], steps=steps, noise=False, progress=False)
+        e = tr.errors()
+        settle[name] = settle_time(tr.t, e)
+        rate[name] = fit_decay(tr.t, np.nanmax(e, axis=1), time=sc.time, scale=np.linalg.norm(tr.x, axis=1))
+    b0 = baseline_trajectories(sc, seeds[0], exchanges=exchanges, steps=steps, noise=False, eps=eps)
+    for name, key in (("centralized KF", "centralized"), ("KCF", "kcf")):
+        e = _errors(b0[key], b0["x"])
+        settle[name] = settle_time(b0["t"], e)
+        worst = e if e.ndim == 1 else np.nanmax(e, axis=1)
+        rate[name] = fit_decay(b0["t"], worst, time=sc.time, scale=np.linalg.norm(b0["x"], axis=1))
+    F, Q, R = sampled_model(sc)
+    C = np.vstack([np.asarray(c) for c in sc.system.Cs])
+    kp = kalman_predictor(F, C, Q, R)
+    # the adaptive gain has no steady state (g_i(t) keeps moving), so no predicted RMS
+    predicted = {name: float(np.sqrt(np.mean(predicted_rms(des) ** 2))) for name, des in variants.items()
+                 if des.g_mode != "adaptive"}
+    predicted["centralized KF"] = float(math.sqrt(np.trace(kp.P)))
+    m = sc.m
+    messages = {name: m * des.q if discrete else m for name, des in variants.items()}
+    messages["KCF"] = m * exchanges
+    messages["centralized KF"] = m  # every agent sends its measurement to the centre
+    central = float(np.mean(rms["centralized KF"]))
+    table = {}
+    for name in list(variants) + ["centralized KF", "KCF"]:
+        r = np.asarray(rms[name])
+        des = variants.get(name)
+        table[name] = {
+            "rms_mean": float(r.mean()), "rms_std": float(r.std(ddof=1)) if len(r) > 1 else 0.0,
+            "ratio_to_centralized": float(r.mean() / central) if central > 0 else None,
+            "predicted_rms": predicted.get(name),
+            "settle_time_1e-3": settle[name], "measured_rate": rate[name],
+            "messages_per_event": messages[name],
+            "q": None if des is None else des.q, "g": None if des is None else des.g,
+            "gains": None if des is None else des.scenario.design.gains,
+        }
+        if des is not None:
+            cert = rate_certificate(des)
+            table[name].update(certified_rate=cert.certified, certificate=cert.text,
+                               rate_note=NO_CERTIFIED_RATE if des.g_mode == "adaptive" else None)
+    out = {"scenario": sc.name, "time": sc.time, "seeds": seeds, "steps": int(len(T) - 1),
+           "rate": sc.design.rate, "process_noise": sc.system.process_noise,
+           "measurement_noise": sc.system.measurement_noise, "exchanges": exchanges, "kcf_eps": eps,
+           "estimators": table}
+    if tuned is not None:
+        cd = tuned.design.scenario.design
+        out["tuned"] = {"gains": cd.gains, "process_weight": cd.riccati_process_weight,
+                        "measurement_weight": cd.riccati_measurement_weight, "q": tuned.design.q,
+                        "g": tuned.design.g, "predicted_rms": tuned.rms, "baseline_predicted_rms": tuned.baseline_rms}
+    out["_curves"] = {"t": T, **{k: np.mean(v, axis=0) for k, v in curves.items()}}
+    return out
+
+
+def sweep(sc: Scenario, *, seed: int, steps: int | None = None, values=None) -> dict:
+    """RMS error (predicted and simulated) and measured rate against q (discrete) or g (continuous).
+
+    A row is ``certified`` as :func:`~splitspec_core.synthesis.report.rate_certificate`
+    judges the design at that value, for the estimator the row simulates
+    (continuous: the sampled-data form with ``run.dt``, so a g certified for
+    the ODE alone is not certified); ``certificate`` says why in one line.
+    """
+    base = design(sc)
+    discrete = sc.time == "discrete"
+    if values is None:
+        if discrete:
+            q0 = base.q
+            values = list(range(1, max(2 * q0, q0 + 6) + 1))
+        else:  # the adaptive gain: fixed values around the auto g (eq. g) for comparison
+            g0 = base.g if base.g is not None else nice_ceil(max(base.g_bounds.values()) * (1 + 1e-9)) or 1.0
+            values = [g0 * f for f in (0.25, 0.5, 0.75, 1.0, 1.5, 2.0, 3.0, 4.0)]
+    rows = []
+    for v in values:
+        d = dataclasses.replace(sc.design, **({"q": int(v)} if discrete else {"g": float(v)}))
+        try:
+            des = design(dataclasses.replace(sc, design=d))
+        except DesignError as exc:
+            rows.append({"value": v, "error": str(exc)})
+            continue
+        cert = rate_certificate(des)
+        noisy = simulate(des, seed=seed, steps=steps, progress=False)
+        clean = simulate(des, seed=seed, steps=steps, noise=False, progress=False)
+        e = clean.errors()
+        rate = fit_decay(clean.t, np.nanmax(e, axis=1), time=sc.time, scale=np.linalg.norm(clean.x, axis=1))
+        pred = predicted_rms(des)
+        rows.append({"value": v, "certified": cert.certified, "certificate": cert.text, "predicted_rms": float(np.sqrt(np.mean(pred ** 2))),
+                     "simulated_rms": steady_rms(noisy.errors()), "measured_rate": rate})
+    return {"scenario": sc.name, "parameter": "q" if discrete else "g", "designed": base.q if discrete else base.g,
+            "designed_note": f"adaptive gain: {NO_CERTIFIED_RATE}" if base.g_mode == "adaptive" else None,
+            "rate": sc.design.rate, "seed": seed, "rows": rows}
+
+
+def certificate_lines(res: dict) -> list:
+    """One line per split-spectrum estimator of a :func:`compare` result: its rate certificate."""
+    lines = []
+    for name, r in res["estimators"].items():
+        if "certificate" not in r:
+            continue
+        verdict = "" if r["rate_note"] else ("rate certified: " if r["certified_rate"] else "rate NOT certified: ")
+        lines.append(f"  {name}: {verdict}{r['certificate']}")
+    return lines
+
+
+def sweep_line(sw: dict) -> str:
+    """The one-line summary of a :func:`sweep`: predicted RMS per value, certified values starred."""
+    text = f"  sweep of {sw['parameter']}: " + ", ".join(
+        f"{r['value']:g}: RMS {r['predicted_rms']:.3g}{'*' if r['certified'] else ''}" for r in sw["rows"]
+        if "error" not in r) + "  (* rate certified)"
+    if sw.get("designed_note"):
+        text += f"; fixed values for comparison, the scenario's {sw['designed_note']}"
+    return text

@@ -1,0 +1,111 @@
+"""When there is no truth: what can be known about the estimates of a run on the user's own measurements.
+
+Without ``x`` the error ``|x_i - x|`` cannot be shown, and nothing shows a made-up one.  Instead
+(:func:`no_truth_arrays`, written to ``trajectory.npz`` and shown by the plots and the recording):
+
+``residual`` (T, m)
+    ``|y_i(tau) - C_i x_i(tau)|_2``: how far agent i's estimate is from explaining its own measurement
+    (the innovation of eq. split-discrete-est1 / the sampled-data step); NaN where the agent is dead or
+    has no measurement.  With noise it settles at the measurement noise's level, not at zero.
+``disagreement`` (T,)
+    ``max_ij |x_i(tau) - x_j(tau)|_2`` over the alive agents: consensus, which must go to zero
+    (to the noise level) for every agent to hold the whole state.
+``kf`` (T, n) and ``kf_distance`` (T, m)
+    the centralized Kalman filter on the same measurements (every agent's ``y_i`` at once: the best any
+    estimator can do with them, a one-step predictor like the agents' ``x_i(tau)``), and
+    ``|x_i(tau) - kf(tau)|_2``: the distance to that reference instead of the error to the truth.
+    Time-varying (rows without a measurement are left out of that step's update), started at the
+    scenario's ``x0`` (covariance 0) or at 0 with covariance ``I`` (the prior the simulator draws
+    ``x(0)`` from); ``Q``, ``R`` from the scenario's noise levels (:func:`baselines.sampled_model`),
+    regularised when zero (:func:`baselines.regularise`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .baselines import regularise, sampled_model
+from ..model.plant import input_sequence, output_rows
+
+__all__ = ["no_truth_arrays", "residuals", "disagreement", "kalman_reference"]
+
+
+def residuals(xhat: np.ndarray, y: np.ndarray, missing: np.ndarray, Cs) -> np.ndarray:
+    """``|y_i - C_i x_i|`` per step and agent, (T, m); NaN where dead (NaN estimate) or missing."""
+    T, m, _ = xhat.shape
+    out = np.full((T, m), np.nan)
+    for k, (C, r) in enumerate(zip(Cs, output_rows(Cs))):
+        pred = xhat[:, k, :] @ np.asarray(C).T
+        out[:, k] = np.linalg.norm(y[:, r] - pred, axis=1)
+    out[missing] = np.nan
+    return out
+
+
+def disagreement(xhat: np.ndarray) -> np.ndarray:
+    """``max_ij |x_i - x_j|`` over the agents alive (finite estimates) at each step, (T,); NaN with none alive."""
+    T = xhat.shape[0]
+    out = np.full(T, np.nan)
+    for k in range(T):
+        X = xhat[k][np.isfinite(xhat[k]).all(axis=1)]
+        if len(X) == 0:
+            continue
+        # differences, not the Gram matrix (|a|^2 + |b|^2 - 2ab cancels: 1e-8 where the estimates agree to 1e-15)
+        chunk = max(1, int(1e6 // max(1, X.size)))
+        best = 0.0
+        for a in range(0, len(X), chunk):
+            best = max(best, float(np.max(np.linalg.norm(X[a:a + chunk, None, :] - X[None, :, :], axis=2))))
+        out[k] = best
+    return out
+
+
+def kalman_reference(sc, y: np.ndarray, missing: np.ndarray, u: np.ndarray | None = None) -> np.ndarray:
+    """The centralized time-varying Kalman predictor on ``y`` (module docstring), (T, n); with known inputs it adds
+    ``G u(k)`` (``u``: the recorded inputs per row, else the scenario's signal)."""
+    F, Q, R = sampled_model(sc)
+    gus = input_sequence(sc, len(y), u)
+    Q = regularise(Q)
+    R = regularise(R)
+    C = np.vstack([np.asarray(c) for c in sc.system.Cs])
+    rows = output_rows(sc.system.Cs)
+    n = sc.n
+    if sc.system.x0 is not None:
+        x, P = np.asarray(sc.system.x0, dtype=float), regularise(np.zeros((n, n)))
+    else:
+        x, P = np.zeros(n), np.eye(n)
+    T = len(y)
+    out = np.zeros((T, n))
+    for k in range(T):
+        out[k] = x
+        use = np.concatenate([np.arange(r.start, r.stop) for r, miss in zip(rows, missing[k]) if not miss] or
+                             [np.zeros(0, dtype=int)])
+        if use.size:
+            Ca = C[use]
+            S = Ca @ P @ Ca.T + R[np.ix_(use, use)]
+            L = np.linalg.solve(S, Ca @ P @ F.T).T  # F P Ca' S^-1
+            x = F @ x + L @ (y[k, use] - Ca @ x)
+            P = F @ P @ F.T + Q - L @ S @ L.T
+        else:
+            x = F @ x
+            P = F @ P @ F.T + Q
+        if gus is not None:
+            x = x + gus[k]
+        P = 0.5 * (P + P.T)
+    return out
+
+
+def no_truth_arrays(traj, sc, u: np.ndarray | None = None) -> dict:
+    """``residual``, ``disagreement``, ``kf`` and ``kf_distance`` of a trajectory that holds its measurements
+    (``u``: a measurements file's inputs, else the scenario's signal applies)."""
+    if traj.y is None:
+        raise ValueError("no_truth_arrays needs the measurements the estimators were given (trajectory y)")
+    missing = traj.y_missing if traj.y_missing is not None else np.zeros(traj.alive.shape, dtype=bool)
+    if u is None and sc.input_source is not None:
+        # live known inputs: the agents do not report the u they took, so the filter cannot be run on it; it is not
+        # shown (NaN) rather than run with a u it did not have
+        kf = np.full((len(traj.y), sc.n), np.nan)
+    else:
+        kf = kalman_reference(sc, traj.y, missing, u)
+    return {"residual": residuals(traj.xhat, traj.y, missing, sc.system.Cs),
+            "disagreement": disagreement(traj.xhat),
+            "kf": kf,
+            "kf_distance": np.linalg.norm(traj.xhat - kf[:, None, :], axis=2)}

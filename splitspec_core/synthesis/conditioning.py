@@ -1,0 +1,278 @@
+"""What a certificate does not say: observability margins, gain sizes, transient peaks and noise.
+
+A certificate bounds the *rate* at which the errors decay; it says nothing of their *size* on the way.
+With the fixed-graph error dynamics ``e(k+1) = M e(k)`` the whole story is
+
+``||e(k)|| <= c r^k ||e(0)||``,  ``c = sup_k ||M^k||_2 / r^k``
+
+(``r = lam`` per event time in discrete time; ``r = exp(-lam dt)`` per step of the sampled-data form
+that ``simulate`` and ``run`` execute in continuous time).  ``c`` (``transient_constant``) is 1 for a
+contraction and can be 1e8 for a design whose local gains are huge: that is what a model rounded to a
+few decimals used to produce before the rank decisions fit the data (:mod:`.observability`).
+
+``M`` is the full error matrix of one step, every agent's error stacked
+(:func:`splitspec_core.synthesis.error_matrix.full_error_matrix`), of a graph held constant.
+
+``c`` is computed exactly (up to round-off): ``X_k = (M / r)^k`` is formed until ``||X_N||_2 <= 1``;
+every later power is then a product of ``X_N`` and an earlier one, so the supremum is the largest
+norm seen before ``N``.  When that takes more than :data:`MAX_WORK` flops the bound of the
+Lyapunov function of ``M / r`` is used instead (``c <= sqrt(cond(P))``, ``(M/r)' P (M/r) - P = -I``),
+and ``transient_method`` says so.  Above ``mn = MAX_DIM`` nothing is formed (``None``).
+
+The report also carries, when the scenario has noise, the predicted steady-state RMS error of every
+agent (:func:`splitspec_core.synthesis.error_matrix.predicted_rms`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from .error_matrix import MAX_DIM, _case_parts, full_error_matrix, modulo, predicted_rms
+
+if TYPE_CHECKING:  # the designer imports this module
+    from .designer import Design
+
+__all__ = ["AgentConditioning", "Conditioning", "Transient", "conditioning", "transient_constant",
+           "MARGIN_WARN", "GAIN_WARN", "TRANSIENT_WARN"]
+
+#: a kept direction with a graded margin below this is warned about (10 x the default threshold)
+MARGIN_WARN = 1e-2
+#: ``||K_i C_i||_2`` above this many times the system's own scale is warned about
+GAIN_WARN = 1e3
+#: a transient constant above this is warned about
+TRANSIENT_WARN = 1e3
+#: the work (flops) spent on the exact transient constant before falling back to the Lyapunov bound
+MAX_WORK = 1e11
+
+
+@dataclass(frozen=True)
+class Transient:
+    """``sup_k ||M^k||_2 / r^k`` (``constant``), the step attaining it, the agent whose error peaks there, how."""
+
+    constant: float | None
+    step: int | None
+    agent_index: int | None
+    method: str
+
+
+def transient_constant(M: np.ndarray, r: float, *, block: int = 1, max_work: float = MAX_WORK) -> Transient:
+    """The transient constant of ``e(k+1) = M e(k)`` at rate ``r`` per step (module docstring).
+
+    ``block``: the size of each agent's block of rows (the agent whose rows peak is reported).  The powers are
+    formed once each, with only their Frobenius norms kept (an upper bound of the 2-norm); once one falls below 1 the
+    2-norms of the candidates, largest Frobenius norm first, are computed until no remaining one can exceed the
+    largest 2-norm found (:func:`_sup_two_norm`).
+    """
+    d = M.shape[0]
+    if d == 0:
+        return Transient(1.0, 0, None, "exact")
+    rho = float(np.max(np.abs(np.linalg.eigvals(M))))
+    if not rho < r:
+        return Transient(math.inf, None, None, f"infinite: the spectral radius {rho:.4g} is not below {r:.4g}")
+    T = M / r
+    X = np.eye(d)  # (M / r)^k = exp(logs) X: rescaled now and then, so a huge transient cannot overflow
+    logs, logf = 0.0, [0.0]  # log ||T^k||_F (k = 0: the identity counts as 1, its 2-norm)
+    steps = int(max(1, max_work // max(1.0, 2.0 * d ** 3)))
+    # the slowest mode of M / r shrinks by rho(M / r)^steps within the budget: above 1/10 the powers cannot
+    # fall below 1 in time unless that mode carries almost nothing, so only a head is formed (a lower bound, the
+    # peak it reports) and the Lyapunov bound is taken at once
+    hopeless = (rho / r) ** steps > 0.1
+    head = max(1, steps // 4) if hopeless else steps
+    for k in range(1, head + 1):
+        X = T @ X
+        f = float(np.linalg.norm(X)) or 1e-300  # 0: nilpotent, nothing after this step
+        if not math.isfinite(f):
+            return Transient(math.inf, k, None, f"infinite: the power {k} of M / rate overflowed")
+        logf.append(math.log(f) + logs)
+        # the 2-norm falls below 1 before the Frobenius norm (up to sqrt(d) sooner): looked at every 64 steps
+        two = logf[-1] <= 0.5 * math.log(d) and k % 64 == 0 and math.log(float(np.linalg.norm(X, 2))) + logs <= 0.0
+        if logf[-1] <= 0.0 or two:
+            # ||X_k|| <= 1: any later power is X_k times an earlier one, so the supremum is over the powers so far
+            peak, at, rows = _sup_two_norm(T, logf, block)
+            return Transient(peak, at, rows, "exact")
+        if f > 1e100:
+            X /= f
+            logs += math.log(f)
+    peak, at, rows = _sup_two_norm(T, logf, block)
+    import scipy.linalg as sla
+
+    with np.errstate(all="ignore"):
+        P = sla.solve_discrete_lyapunov(T.T, np.eye(d))  # T' P T - P = -I
+        ev = np.linalg.eigvalsh(0.5 * (P + P.T))
+    bound = math.sqrt(ev[-1] / ev[0]) if ev[0] > 0 and np.all(np.isfinite(ev)) else math.inf
+    why = (f"the slowest mode decays only {(rho / r) ** -steps:.5g}-fold in the {steps} steps affordable"
+           if hopeless else f"the exact peak needed more than {steps} steps")
+    return Transient(max(peak, bound), at, rows,
+                     f"Lyapunov bound ({why}; the peak of the first {head}: {peak:.3g})")
+
+
+def _sup_two_norm(T: np.ndarray, logf: list, block: int) -> tuple:
+    """``(max_k ||T^k||_2, k, agent index)`` over the powers whose log Frobenius norms are ``logf`` (k = 0, 1, ...).
+
+    The 2-norm is at most the Frobenius norm and at least it over sqrt(d): only the powers whose Frobenius norm
+    can beat the largest 2-norm found are looked at, formed again one product at a time as the first pass formed
+    them (``T @ X``, rescaled now and then).  Repeated squaring (``matrix_power``) is not used: on a strongly
+    non-normal ``T`` its round-off grows with the squares and can overflow where the powers themselves stay
+    small.  A power too large to form (its Frobenius norm above 1e300) counts with its Frobenius norm, an upper
+    bound."""
+    d = T.shape[0]
+    lf = np.asarray(logf)
+    if lf.max() > 690.0:
+        k = int(np.argmax(lf))
+        return math.inf, k, None
+    floor = float(lf.max()) - 0.5 * math.log(d)  # the largest 2-norm is at least this (log)
+    best, at, rows = 1.0, 0, None
+    last = int(np.nonzero(lf > max(floor, 0.0))[0].max()) if np.any(lf > max(floor, 0.0)) else -1
+    X, logs = np.eye(d), 0.0
+    for k in range(0, last + 1):
+        if k:
+            X = T @ X
+        if lf[k] <= math.log(best):
+            continue
+        with np.errstate(all="ignore"):
+            s = float(np.linalg.norm(X, 2)) if np.all(np.isfinite(X)) else math.nan
+        if not math.isfinite(s):  # round-off overflowed: the Frobenius norm of the first pass, an upper bound
+            return math.exp(lf[k]), k, None
+        s *= math.exp(logs)
+        if s > best:
+            best, at, rows = s, k, np.linalg.norm(X.reshape(d // block, block, d), axis=(1, 2))
+        f = float(np.linalg.norm(X))
+        if f > 1e100:
+            X /= f
+            logs += math.log(f)
+    return best, at, None if rows is None else int(np.argmax(rows))
+
+
+# --------------------------------------------------------------------------
+# the report
+# --------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class AgentConditioning:
+    """One agent's local design, sized.
+
+    Attributes
+    ----------
+    id : agent id
+    observability_margin : float or None
+        The smallest graded margin of a direction the agent counts as seen (:mod:`.observability`);
+        None when it sees nothing.
+    gain_norm : float
+        ``||K_i||_2``.
+    gain_ratio : float
+        ``||K_i C_i||_2`` over the system's own scale (``max(||A - aI||_2, 1)`` in discrete time,
+        ``max(||A - aI||_2, (1 + margin) lam)`` in continuous time): scale-free, warned about above
+        :data:`GAIN_WARN`.
+    weak : float
+        The largest graded margin of a direction left to consensus (0.0 if none).
+    split_residual : float
+        How far ``V_i`` is from an exact unobservable space (round-off when ``weak`` is 0).
+    """
+
+    id: int
+    observability_margin: float | None
+    gain_norm: float
+    gain_ratio: float
+    weak: float
+    split_residual: float
+
+
+@dataclass(frozen=True)
+class Conditioning:
+    """A design sized (module docstring); ``warnings`` are one line each, naming the agent and the knob."""
+
+    agents: tuple
+    transient_constant: float | None
+    transient_case: str | None
+    transient_method: str
+    predicted_rms: dict | None  # agent id -> steady-state RMS error (graph ``predicted_graph`` held constant)
+    predicted_graph: str | None
+    warnings: tuple
+
+
+def _scale(A: np.ndarray) -> float:
+    n = A.shape[0]
+    return float(np.linalg.norm(A - (np.trace(A) / n) * np.eye(n), 2))
+
+
+def conditioning(des: "Design") -> Conditioning:
+    """Margins, gain sizes, the transient constant over the graphs the scenario uses (each held constant),
+    and, when the scenario has noise, the predicted steady-state RMS error of the first graph."""
+    sc = des.scenario
+    d = sc.design
+    # the gain's size against the system's own scale, in the design's working coordinates (the user's, or balanced)
+    A = des.A_working
+    ref = max(_scale(A), 1.0 if sc.time == "discrete" else (1.0 + d.margin) * d.rate)
+    Cs = dict(zip(sc.agent_ids, sc.system.Cs))
+    agents = []
+    warnings = []
+    for a in des.agents:
+        C = np.asarray(Cs[a.id]) if des.scale is None else np.asarray(Cs[a.id]) * des.scale[None, :]
+        gain_norm = float(np.linalg.norm(a.K, 2)) if a.K.size else 0.0
+        ratio = float(np.linalg.norm(a.gain.K @ C, 2)) / ref if a.K.size else 0.0
+        ac = AgentConditioning(id=a.id, observability_margin=a.dec.margin, gain_norm=gain_norm, gain_ratio=ratio,
+                               weak=a.dec.weak, split_residual=a.dec.split_residual)
+        agents.append(ac)
+        if ac.observability_margin is not None and ac.observability_margin < MARGIN_WARN:
+            warnings.append(f"agent {a.id} sees a direction with an observability margin of only "
+                            f"{ac.observability_margin:.2g} (< {MARGIN_WARN:g}; its gain grows like 1 / margin): "
+                            f"unless the model is that accurate, set design.rank_tol above "
+                            f"{ac.observability_margin:.2g} to leave it to consensus")
+        if ratio > GAIN_WARN:
+            warnings.append(f"agent {a.id}'s gain is large: ||K_{a.id} C_{a.id}|| = {ratio:.2g} times the system's "
+                            f"own scale (> {GAIN_WARN:g}); a slower design.rate, a smaller design.margin or "
+                            f"design.gains: riccati would shrink it")
+    const, case_label, method = _transient(des, warnings)
+    rms, graph = None, None
+    s = sc.system
+    if (s.process_noise > 0 or s.measurement_noise > 0) and des.g_mode != "adaptive" \
+            and sc.m * sc.n <= MAX_DIM:
+        k = sc.graph_names.index(sc.switching.graph_names(sc.graph_names)[0])
+        graph = sc.graph_names[k]
+        rms = {i: float(v) for i, v in zip(sc.agent_ids, predicted_rms(des, k))}
+    return Conditioning(agents=tuple(agents), transient_constant=const, transient_case=case_label,
+                        transient_method=method, predicted_rms=rms, predicted_graph=graph,
+                        warnings=tuple(warnings))
+
+
+def _transient(des: "Design", warnings: list) -> tuple:
+    sc = des.scenario
+    if des.time == "continuous" and des.g is None:
+        return None, None, "not defined for the adaptive gain (g changes with time)"
+    if sc.m * sc.n > MAX_DIM:
+        return None, None, f"not computed: m n = {sc.m * sc.n} > {MAX_DIM}"
+    used = set(sc.switching.graph_names(sc.graph_names))
+    cases = [c for c in des.cases if c.label in used] or list(des.cases[:1])
+    A = np.asarray(sc.system.A)
+    # at the envelope's rate: lam, or slower when directions no agent sees limit it (detectability.py)
+    rate = des.envelope_rate
+    r = rate if sc.time == "discrete" else math.exp(-rate * sc.run.dt)
+    block = sc.n - (des.unobserved.dim if des.excluded else 0)
+    worst = None
+    for case in cases:
+        Cs, Ks, Ps = _case_parts(des, case)
+        M = full_error_matrix(A, Cs, Ks, Ps, case.graph.S, time=sc.time, q=des.q, g=des.g,
+                              dt=sc.run.dt if sc.time == "continuous" else None)
+        if des.excluded:  # the certificate covers the error modulo W only (design.undetectable: exclude)
+            M = modulo(M, des.unobserved.W, len(Cs))
+        t = transient_constant(M, r, block=block)
+        if worst is None or (t.constant or 0.0) > (worst[0].constant or 0.0):
+            worst = (t, case)
+    t, case = worst
+    where = "per event time" if sc.time == "discrete" else f"at the sample times of run.dt = {sc.run.dt:g}"
+    what = "the full error matrix" + (" modulo the directions no agent sees" if des.excluded else "")
+    at = "" if rate == sc.design.rate else f" (at the envelope's rate {rate:.4g})"
+    method = f"sup_k ||M^k|| / rate^k of {what}{at}, {where}, graph {case.label} held constant: " + t.method
+    if t.constant is not None and t.constant > TRANSIENT_WARN:
+        who = "" if t.agent_index is None else f", agent {case.graph.ids[t.agent_index]}'s error peaking"
+        knob = "design.q" if sc.time == "discrete" else "design.g"
+        value = "infinite" if math.isinf(t.constant) else f"{t.constant:.2g}"
+        warnings.append(f"errors can grow {value}-fold before they decay (transient_constant, graph {case.label}"
+                        f"{who}; > {TRANSIENT_WARN:g}): a larger {knob}, a slower design.rate or smaller local "
+                        "gains (design.rank_tol, design.margin) would reduce it")
+    return t.constant, case.label, method

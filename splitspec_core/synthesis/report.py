@@ -1,0 +1,480 @@
+"""Design output: the JSON contract and the readable report.
+
+Why one module: both render the same :class:`~splitspec_core.synthesis.designer.Design` and the same verdict
+(:func:`rate_certificate`, the line every command prints), and must say the same thing; the JSON is the
+contract (``../shared/DESIGN.md``), the text its reading.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from .bounds import QResult
+from .designer import NO_CERTIFIED_RATE, Design
+from .error_matrix import MAX_RATE_DIM
+from ..model.gains import poles_text
+from ..model.graphs import is_doubly_stochastic, perron_vector
+from ..scenarios.labels import heaviest
+
+__all__ = ["RateCertificate", "rate_certificate", "design_json", "design_text"]
+
+
+@dataclass(frozen=True)
+class RateCertificate:
+    """A design's verdict on its rate: the one every command reports.
+
+    Attributes
+    ----------
+    certified : bool
+        The design certifies that every error decays at the rate ``lam`` (or at ``rate``, slower, when directions
+        no agent sees limit it: :mod:`splitspec_core.model.detectability`).
+    text : str
+        One line: what certifies it, or why nothing does.
+    rate : float or None
+        The rate of the certified envelope (``Design.envelope_rate``) when certified, else None.
+    """
+
+    certified: bool
+    text: str
+    rate: float | None = None
+
+
+MAX_LISTED = 12  # cases whose radius the text report lists (the largest first); --json has them all
+
+def rate_certificate(des: Design, *, sampled: bool = True) -> RateCertificate:
+    """Does the design certify its rate for the estimator as it is run?  :func:`_split_certificate`, then what the
+    directions no agent sees do to it (``Design.unobserved``): nothing when they decay faster than ``lam``; they limit
+    the envelope's rate when they decay slower (``Design.envelope_rate``); with ``design.undetectable: exclude`` the
+    certificate covers the error modulo them only."""
+    cert = _split_certificate(des, sampled=sampled)
+    un = des.unobserved
+    text = cert.text
+    if un is not None and un.dim:
+        if des.excluded:
+            text += (f"; on the error modulo the {un.dim} direction{'s' if un.dim != 1 else ''} no agent sees "
+                     f"({un.where()}), which do not all decay (design.undetectable: exclude)")
+        else:
+            text += f"; {un.summary(des.rate)}"
+    return RateCertificate(cert.certified, text, des.envelope_rate if cert.certified else None)
+
+
+def _split_certificate(des: Design, *, sampled: bool = True) -> RateCertificate:
+    """The certificate of the split (the quotient by what no agent sees, when that is not nothing).
+
+    * adaptive gain: never (thm. split_continuous_adaptive gives asymptotic
+      convergence only, :data:`~splitspec_core.synthesis.designer.NO_CERTIFIED_RATE`);
+    * discrete: the certificate of q's method (``QResult``); the estimator
+      runs exactly ``A_V = Atil B^q`` (eq. split_discrete_ench), so the bound
+      is about what runs; a per-graph method on a switching scenario says so;
+    * continuous: g certified for the ODE (eq. g, thm. arb,
+      eq. split_continuous_g, or the exact spectrum of eq. split_continuous_split)
+      and, with ``sampled`` (what ``simulate`` and ``run`` integrate: the
+      sampled-data form with step ``run.dt``, :mod:`splitspec_core.model.steps`),
+      its error map decaying at the rate too (``Design.sampled_rate``: exact,
+      per graph held constant).  ``sampled=False`` judges the exact ODE alone.
+    """
+    sc = des.scenario
+    if des.g_mode == "adaptive":
+        return RateCertificate(False, f"adaptive gain: {NO_CERTIFIED_RATE}")
+    if des.full_radius:
+        return _full_certificate(des, sampled=sampled)
+    cert = _blocks_certificate(des, sampled=sampled)
+    if cert.certified and not des.split_exact:
+        # an approximate split whose full error matrices were too large to check (full_matrix.check_full): the
+        # certificate covers the split blocks, not the estimator that runs
+        return RateCertificate(False, f"{cert.text}, on the split blocks only: the split is approximate (residual "
+                                      f"{des.split_residual:.2g}) and its full error matrices (m n = "
+                                      f"{sc.m * sc.n} > {MAX_RATE_DIM}) were not checked")
+    return cert
+
+
+def _blocks_certificate(des: Design, *, sampled: bool) -> RateCertificate:
+    """The certificates of the split blocks (:func:`_split_certificate`'s list, after the adaptive gain)."""
+    sc = des.scenario
+    rate = sc.design.rate
+    if des.time == "discrete":
+        r = des.q_result
+        ok = bool(r.certified)
+        scope = "" if r.switching or len(des.cases) == 1 else " (each graph held constant)"
+        return RateCertificate(ok, f"q = {r.q}: {r.method} bound {r.bound:.4g} {'<=' if ok else '>'} rate {rate:g}"
+                                   + scope)
+    g = des.g
+    if des.g_certified_by is None:
+        worst = max(des.error_radius.values(), default=-math.inf)
+        if worst > -rate:  # eq. (split_continuous_split): the ODE's error decays as exp(abscissa t)
+            return RateCertificate(False, f"g = {g:g} misses rate {rate:g} even for the ODE (spectral abscissa "
+                                          f"of A_V {worst:.4g} > -{rate:g})")
+        return RateCertificate(False, f"g = {g:g} meets rate {rate:g} for each graph held constant, but no bound "
+                                      "covers the switching (thm. arb, eq. split_continuous_g)")
+    ode = f"g = {g:g} certified by {des.g_certified_by} for the ODE"
+    if not sampled or not des.sampled_rate:
+        return RateCertificate(True, ode)
+    dt = sc.run.dt
+    worst = min(des.sampled_rate.values())
+    if worst <= 0:
+        return RateCertificate(False, f"{ode}, but its sampled-data form with run.dt = {dt:g} is UNSTABLE (decay "
+                                      f"rate {worst:.4g}): reduce run.dt or g")
+    if worst < rate:
+        return RateCertificate(False, f"{ode}, but its sampled-data form with run.dt = {dt:g} decays at only "
+                                      f"{worst:.4g} < rate {rate:g}: reduce run.dt")
+    scope = " (each graph held constant)" if len(des.cases) > 1 else ""
+    return RateCertificate(True, f"{ode}; its sampled-data form with run.dt = {dt:g} decays at {worst:.4g} >= "
+                                 f"{rate:g}{scope}")
+
+
+def _full_certificate(des: Design, *, sampled: bool) -> RateCertificate:
+    """An approximate split (``Design.full_radius``): the verdict of the full error matrices, each graph held
+    constant; no switching certificate of the paper covers it (see :func:`splitspec_core.synthesis.error_matrix.check_full`).
+    The full matrices hold the directions no agent sees too: they are judged against the envelope's rate."""
+    sc = des.scenario
+    rate = des.envelope_rate
+    scope = (f"each graph held constant; the split is approximate (residual {des.split_residual:.2g}), "
+             "so no switching certificate applies") if len(des.cases) > 1 else \
+        f"the split is approximate (residual {des.split_residual:.2g})"
+    if des.time == "discrete":
+        worst = max(des.full_radius.values())
+        ok = worst < rate
+        return RateCertificate(ok, f"q = {des.q}: spectral radius of the full error matrix {worst:.4g} "
+                                   f"{'<' if ok else '>='} rate {rate:g} ({scope})")
+    ode = max(v["ode"] for v in des.full_radius.values())
+    smp = min(v["sampled"] for v in des.full_radius.values())
+    ok = ode <= -rate and (smp >= rate or not sampled)
+    text = f"g = {des.g:g}: spectral abscissa of the full error matrix {ode:.4g} {'<=' if ode <= -rate else '>'} -{rate:g}"
+    if sampled:
+        text += f", its sampled-data form with run.dt = {sc.run.dt:g} decays at {smp:.4g}"
+    return RateCertificate(ok, f"{text} ({scope})")
+
+
+def _mat(M: np.ndarray) -> list:
+    return np.asarray(M, dtype=float).tolist()
+
+
+def _complex(z) -> list:
+    return [[float(np.real(x)), float(np.imag(x))] for x in np.asarray(z)]
+
+
+def _num(x):
+    if x is None:
+        return None
+    x = float(x)
+    return x if math.isfinite(x) else None
+
+
+def _q_json(r) -> dict | str:
+    if isinstance(r, str):
+        return {"error": r}
+    return {"q": r.q, "bound": _num(r.bound), "certified": bool(r.certified), "switching": bool(r.switching),
+            "p": r.p, "pbar": r.pbar}
+
+
+def _redundancy(des: Design) -> dict:
+    return {
+        "redundantly_strongly_connected": des.redundantly_strongly_connected,
+        "redundantly_jointly_observable": des.redundantly_jointly_observable,
+        "redundantly_jointly_detectable": des.redundantly_jointly_detectable,
+        "agent_loss": {
+            str(a): {
+                "jointly_observable": r.jointly_observable,
+                "jointly_detectable": r.detectable,
+                "unobservable_direction": r.unobservable_direction,
+                "unobserved": _unobserved_json(r.unobserved, des.rate, full=False),
+                "strongly_connected": r.strongly_connected,
+            }
+            for a, r in des.agent_losses.items()
+        },
+        "arc_loss": {name: {f"{j}->{i}": ok for (j, i), ok in res.items()} for name, res in des.arc_losses.items()},
+    }
+
+
+def _unobserved_json(un, rate: float, *, full: bool = True) -> dict:
+    """What no agent (of a set) sees: its dimension, the states carrying it, its spectrum and decay (detectability.py)."""
+    out = {"dim": un.dim, "states": heaviest(un.W, un.names, limit=len(un.names) or 1) if un.dim else [],
+           "decays": bool(un.decays), "decay": _num(un.decay), "limits_rate": bool(un.decays and un.limits(rate)),
+           "envelope_rate": _num(un.envelope(rate)) if un.decays else None}
+    if full:
+        out.update(eigenvalues=_complex(un.eigs), residual=_num(un.residual), W=_mat(un.W))
+    return out
+
+
+def _conditioning_json(des: Design) -> dict:
+    cond = des.conditioning
+    return {
+        "transient_constant": _num(cond.transient_constant) if cond.transient_constant != math.inf else "inf",
+        "transient": {"constant": _num(cond.transient_constant) if cond.transient_constant != math.inf else "inf",
+                      "graph": cond.transient_case, "method": cond.transient_method},
+        "split_residual": _num(des.split_residual),
+        "split_exact": bool(des.split_exact),
+        "full_error_matrix": {k: (v if isinstance(v, dict) else _num(v)) for k, v in des.full_radius.items()},
+        "predicted_rms": None if cond.predicted_rms is None else {
+            "graph": cond.predicted_graph, "agents": {str(i): _num(v) for i, v in cond.predicted_rms.items()},
+            "all": _num(math.sqrt(sum(v * v for v in cond.predicted_rms.values()) / len(cond.predicted_rms)))},
+    }
+
+
+def _loss_json(des: Design) -> dict | None:
+    c = des.loss_certificate
+    if c is None:
+        return None
+    return {"certified": bool(c.certified), "text": c.text, "max_lost": c.max_lost, "beta": _num(c.beta),
+            "bound": _num(c.bound), "q_needed": c.q_needed, "p_more": _num(c.p_more), "graphs": c.graphs}
+
+
+def design_json(des: Design) -> dict:
+    """The ``splitspec design --json`` object (contract in ``../shared/DESIGN.md``)."""
+    sc = des.scenario
+    cond = {a.id: a for a in des.conditioning.agents}
+    out = {
+        "name": sc.name,
+        "time": sc.time,
+        "rate": sc.design.rate,
+        "m": sc.m,
+        "n": sc.n,
+        "states": list(sc.state_names),
+        "outputs": {str(i): list(sc.output_names(i)) for i in sc.agent_ids},
+        # a sampled continuous model (system.sample, seconds; null otherwise) and the rate per second it means
+        "sample": sc.system.sample,
+        "continuous_rate": _num(continuous_rate(sc)),
+        "inputs": sc.system.inputs,
+        "gains": sc.design.gains,
+        "agents": [
+            {
+                "id": a.id,
+                "K": _mat(a.K),
+                "V": _mat(a.V_user),
+                "P": _mat(a.P),
+                "poles": _complex(a.gain.poles),
+                "n_unobservable": a.dec.n_unobservable,
+                "n_unobserved": a.dec.unobserved,
+                "unobservable_eigs": _complex(np.linalg.eigvals(a.dec.A_un)) if a.dec.n_unobservable else [],
+                "observability_margin": _num(cond[a.id].observability_margin),
+                "gain_norm": _num(cond[a.id].gain_norm),
+                "gain_ratio": _num(cond[a.id].gain_ratio),
+                "weak_margin": _num(cond[a.id].weak),
+                "split_residual": _num(cond[a.id].split_residual),
+            }
+            for a in des.agents
+        ],
+        "graphs": [
+            {"name": g.name, "arcs": [list(a) for a in g.arcs], "S": _mat(g.S),
+             "doubly_stochastic": is_doubly_stochastic(g.S), "perron": _mat(perron_vector(g.S))}
+            for g in des.graphs
+        ],
+        "cases": [c.label for c in des.cases],
+        "checks": {
+            "jointly_observable": des.unobserved is None or des.unobserved.dim == 0,
+            "jointly_detectable": des.unobserved is None or des.unobserved.decays,
+            "strongly_connected": {g.name: True for g in des.graphs},
+            "redundancy": _redundancy(des),
+        },
+        "unobserved": None if des.unobserved is None else {**_unobserved_json(des.unobserved, sc.design.rate),
+                                                            "excluded": des.excluded},
+        "coordinates": "given" if des.scale is None else "balanced",
+        "scale": None if des.scale is None else [float(v) for v in des.scale],
+        "error_spectrum": {k: _num(v) for k, v in des.error_radius.items()},
+        "rank_tol": "auto" if sc.design.rank_tol is None else sc.design.rank_tol,
+        "loss_certificate": _loss_json(des),
+        **_conditioning_json(des),
+        "warnings": list(des.warnings) + list(des.conditioning.warnings),
+    }
+    cert = rate_certificate(des)
+    out.update(certified_rate=cert.certified, certificate=cert.text, envelope_rate=_num(cert.rate),
+               rate_note=NO_CERTIFIED_RATE if des.g_mode == "adaptive" else None)
+    if sc.time == "continuous":
+        out.update({
+            "g": _num(des.g),
+            "g_mode": des.g_mode,
+            "g_bound": _num(max(des.g_bounds.values())),
+            "g_min": _num(max(des.g_mins.values())),
+            "g_bounds": {k: _num(v) for k, v in des.g_bounds.items()},
+            "g_mins": {k: _num(v) for k, v in des.g_mins.items()},
+            "g_dwell_bound": _num(des.g_dwell),
+            "dwell": _num(des.dwell),
+            "g_arbitrary_bound": _num(des.g_arbitrary),
+            "g_certified_by": des.g_certified_by,
+            "g0": sc.design.g0 if des.g_mode == "adaptive" else None,
+            "dt": sc.run.dt,
+            "sampled_rate": {k: _num(v) for k, v in des.sampled_rate.items()},
+        })
+    else:
+        r: QResult = des.q_result
+        out.update({
+            "q": des.q,
+            "q_method": r.method,
+            "q_bound": _num(r.bound),
+            "q_certified": bool(r.certified),
+            "q_switching_certificate": bool(r.switching),
+            "p": r.p,
+            "pbar": r.pbar,
+            # how the spectral radii behind q were computed: {"methods": {dense|iterative|dense (fallback): count},
+            # "tolerance": ARPACK's relative tolerance, 0 when every radius is dense} (splitspec_core.synthesis.spectral)
+            "q_eigenvalues": r.eig,
+            "q_methods": {k: _q_json(v) for k, v in des.q_methods.items()},
+        })
+    return out
+
+
+def continuous_rate(sc) -> float | None:
+    """A sampled continuous model's (``system.sample``) rate per second: ``lam^tau`` per step is
+    ``exp(-a t)`` with ``a = -ln(lam) / dt``; None for other scenarios."""
+    if sc.system.sample is None:
+        return None
+    return -math.log(sc.design.rate) / sc.system.sample
+
+
+def model_lines(sc) -> list:
+    """The report's lines on a sampled model and on known inputs (none for a plain model)."""
+    out = []
+    if sc.system.sample is not None:
+        a = continuous_rate(sc)
+        out.append(f"  sampled: the continuous model with system.sample = {sc.system.sample:g} s (zero-order hold); "
+                   f"lam = {sc.design.rate:g} per step is lam^(1/dt) = {sc.design.rate ** (1 / sc.system.sample):.4g} "
+                   f"per second, errors decaying as exp(-{a:.4g} t)")
+    if sc.system.B is not None:
+        what = "system.u" if sc.system.u is not None else "zero, or a measurements file's u columns"
+        out.append(f"  known inputs: {sc.system.inputs} (system.B; u: {what}); every agent adds B u as the plant "
+                   "does, so they cancel from the errors and the certificate is the one without them")
+    return out
+
+
+def design_text(des: Design) -> str:
+    """A readable multi-line report of a design."""
+    sc = des.scenario
+    d = sc.design
+    unit = "exp(-lam t)" if sc.time == "continuous" else "lam^tau"
+    adaptive = des.g_mode == "adaptive"
+    lines = [
+        f"splitspec design: {sc.name}  ({sc.time} time, m = {sc.m} agents, n = {sc.n} states)",
+        (f"  rate lam = {d.rate:g} for the local gains only; adaptive g: {NO_CERTIFIED_RATE}; gains: {d.gains}"
+         if adaptive else f"  rate lam = {d.rate:g}  (errors decay as {unit}); gains: {d.gains}"),
+    ]
+    lines += model_lines(sc)
+    lines += [
+        "",
+        "agents  (n_i = dim of the unobservable space V_i; poles of Abar_i + Kbar_i Cbar_i; the smallest",
+        "         observability margin counted as seen, and ||K_i||)",
+    ]
+    cond = des.conditioning
+    for a, c in zip(des.agents, cond.agents):
+        margin = "-" if c.observability_margin is None else f"{c.observability_margin:.2g}"
+        weak = f", weak direction (margin {c.weak:.2g}) left to consensus" if c.weak > 0 else ""
+        lines.append(f"  agent {a.id}: s_i = {a.K.shape[1]}, n_i = {a.dec.n_unobservable}"
+                     + (f" (+ {a.dec.unobserved} no agent sees)" if a.dec.unobserved else "")
+                     + f", poles {poles_text(a.gain.poles, sc.time)}, margin {margin}, |K| {c.gain_norm:.3g}{weak}")
+    lines += ["", "graphs"]
+    for g in des.graphs:
+        ds = "doubly stochastic" if is_doubly_stochastic(g.S) else "not doubly stochastic"
+        arcs = ", ".join(f"{j}->{i}" for j, i in g.arcs)
+        lines.append(f"  {g.name}: strongly connected, {ds}; arcs {arcs}")
+    un = des.unobserved
+    if un is None or not un.dim:
+        lines += ["", "checks", "  jointly observable: yes"]
+    else:
+        verdict = "yes" if un.decays else "NO (design.undetectable: exclude)"
+        lines += ["", "checks", f"  jointly observable: no; jointly detectable: {verdict}: {un.summary(d.rate)}"]
+    lines.append("  every graph strongly connected: yes")
+    rsc, rjo, rjd = (des.redundantly_strongly_connected, des.redundantly_jointly_observable,
+                     des.redundantly_jointly_detectable)
+    lines.append(f"  redundantly strongly connected: {'yes' if rsc else 'no'}; "
+                 f"redundantly jointly observable: {'yes' if rjo else 'no'}"
+                 + ("" if rjo else f"; redundantly jointly detectable: {'yes' if rjd else 'no'}"))
+    for a, r in des.agent_losses.items():
+        if not r.ok:
+            why = []
+            if not r.detectable:
+                why.append(f"no agent sees {r.unobservable_direction}, which does not decay")
+            why += [f"graph {g} splits (agent {r.unreachable[g][0]} cannot reach {r.unreachable[g][1]})"
+                    for g, ok in r.strongly_connected.items() if not ok]
+            lines.append(f"    losing agent {a}: " + "; ".join(why))
+    for name, res in des.arc_losses.items():
+        crit = [f"{j}->{i}" for (j, i), ok in res.items() if not ok]
+        if crit:
+            lines.append(f"    graph {name}: losing arc {', '.join(crit)} breaks strong connectivity")
+    lines += ["", f"cases covered: {', '.join(c.label for c in des.cases)}"]
+    if sc.time == "continuous":
+        lines.append("")
+        if des.g_mode == "adaptive":
+            lines.append(f"g: adaptive (eq. adaptive), each agent integrates its own g_i from g0 = {d.g0:g}")
+        else:
+            by = f"certified by {des.g_certified_by}" if des.g_certified_by else "NOT certified"
+            lines.append(f"g = {des.g:g}  ({des.g_mode}; {by})")
+        if adaptive:
+            lines.append("  for comparison, a fixed g meeting the rate would need:")
+        for label in des.g_bounds:
+            lines.append(f"  {label}: g_bound (eq. g) = {des.g_bounds[label]:.4g}, "
+                         f"g_min (exact spectrum) = {des.g_mins[label]:.4g}"
+                         + (f", abscissa of A_V at g = {des.error_radius[label]:.4g}" if label in des.error_radius
+                            else ""))
+        if des.g_dwell is not None:
+            lines.append(f"  average dwell time {des.dwell:g}: g >= {des.g_dwell:.4g} (eq. split_continuous_g)")
+        if des.g_arbitrary is not None:
+            lines.append(f"  arbitrary switching, doubly stochastic: g >= {des.g_arbitrary:.4g} (thm. arb)")
+        if des.sampled_rate:
+            worst = min(des.sampled_rate.values())
+            lines.append(f"  sampled-data form with run.dt = {sc.run.dt:g}: decay rate {worst:.4g} "
+                         f"({'meets' if worst >= d.rate else 'MISSES'} rate {d.rate:g})")
+    else:
+        r = des.q_result
+        extra = f" (p = {r.p}, pbar = {r.pbar})" if r.p else ""
+        scope = "arbitrary switching among the cases" if r.switching else "each graph held constant"
+        lines += ["", f"q = {r.q}  ({d.q_method}{extra}); certified bound {r.bound:.4g} "
+                      f"{'<=' if r.certified else '>'} {d.rate:g} for {scope}"]
+        radii = sorted(des.error_radius.items(), key=lambda kv: -kv[1])
+        shown = radii if len(radii) <= MAX_LISTED else radii[:MAX_LISTED - 1]
+        for label, rad in shown:
+            lines.append(f"  {label}: spectral radius of Atil B^q = {rad:.4g}")
+        if len(shown) < len(radii):
+            lines.append(f"  ... and {len(radii) - len(shown)} more cases, each at most {radii[len(shown)][1]:.4g}")
+        if r.eig and r.eig.get("methods"):
+            how = ", ".join(f"{k} {v}" for k, v in r.eig["methods"].items())
+            tol = f" (ARPACK relative tolerance {r.eig['tolerance']:g})" if r.eig.get("tolerance") else ""
+            lines.append(f"  spectral radii computed: {how}{tol}")
+        if len(des.q_methods) > 1:
+            lines.append("  other methods:")
+            for meth, res in des.q_methods.items():
+                if meth == d.q_method:
+                    continue
+                if isinstance(res, str):
+                    lines.append(f"    {meth}: {res}")
+                else:
+                    ex = f" (p = {res.p}, pbar = {res.pbar})" if res.p else ""
+                    lines.append(f"    {meth}: q = {res.q}{ex}, bound {res.bound:.4g}")
+    cert = rate_certificate(des)
+    verdict = "rate" if adaptive else f"rate {'certified' if cert.certified else 'NOT certified'}"
+    lines += ["", f"{verdict}: {cert.text}"]
+    if des.loss_certificate is not None:
+        lines.append(des.loss_certificate.text)  # "rate certified under loss: ..." or "not certified under loss: ..."
+    lines += _size_lines(des)
+    warnings = list(des.warnings) + list(cond.warnings)
+    if warnings:
+        lines += [""] + [f"warning: {w}" for w in warnings]
+    return "\n".join(lines)
+
+
+def _size_lines(des: Design) -> list:
+    """The errors' size: the transient constant, and the predicted steady-state error under noise."""
+    cond = des.conditioning
+    sc = des.scenario
+    unit = "rate^tau" if sc.time == "discrete" else "exp(-lam t)"
+    env = des.envelope_rate
+    if env is not None and env != sc.design.rate:  # directions no agent sees set a slower envelope
+        unit = f"{env:.4g}^tau" if sc.time == "discrete" else f"exp(-{env:.4g} t)"
+    c = cond.transient_constant
+    if c is None:
+        out = [f"transient: {cond.transient_method}"]
+    else:
+        value = "infinite" if math.isinf(c) else f"{c:.3g}"
+        how = cond.transient_method
+        # an upper bound rather than the supremum itself: say so, with the largest power actually formed
+        bound = f"; {how[how.index('Lyapunov bound'):]}" if "Lyapunov bound" in how else ""
+        out = [f"transient: ||e(t)|| <= c {unit} ||e(0)|| with c = {value} (transient_constant; "
+               f"graph {cond.transient_case} held constant{bound})"]
+    if cond.predicted_rms is not None:
+        vals = list(cond.predicted_rms.values())
+        allrms = math.sqrt(sum(v * v for v in vals) / len(vals))
+        per = ", ".join(f"{i}: {v:.3g}" for i, v in cond.predicted_rms.items())
+        out.append(f"noise: predicted steady-state RMS error {allrms:.3g} (per agent {per}; graph "
+                   f"{cond.predicted_graph} held constant, discrete Lyapunov equation)")
+    return out
