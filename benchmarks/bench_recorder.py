@@ -139,7 +139,10 @@ def worker(args) -> None:
         tmp = Path(tempfile.mkdtemp(prefix="bench-rec-pkg."))
         pkg = before_package(args.worker, tmp)
         sys.path.insert(0, str(tmp))
-    Recorder = importlib.import_module(f"{pkg}.recorder").Recorder
+    try:  # the recorder's module: records/recorder.py since the layout by role, recorder.py before
+        Recorder = importlib.import_module(f"{pkg}.records.recorder").Recorder
+    except ModuleNotFoundError:
+        Recorder = importlib.import_module(f"{pkg}.recorder").Recorder
     with tempfile.TemporaryDirectory(prefix="bench-rec.") as d:
         paced = feed(Recorder, Path(d) / "paced", args.m, args.rows, args.rate)
         burst = feed(Recorder, Path(d) / "burst", args.m, args.burst, None, seed=1)

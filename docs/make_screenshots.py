@@ -74,7 +74,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from splitspec_orchestrator.view import start_web_viewer, stop_viewer  # noqa: E402  (the same server as `splitspec view`)
+from splitspec_orchestrator.recording.viewer import start_web_viewer, stop_viewer  # noqa: E402  (the same server as `splitspec view`)
 
 CHROMIUM = "/usr/bin/chromium"
 CHROMIUM_ARGS = ["--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
@@ -281,8 +281,8 @@ def with_tab(run_dir: Path, tab: str, dest: Path) -> Path:
     """A copy of ``run_dir``'s ``run.rrd`` in ``dest`` whose default blueprint opens on ``tab``; events.jsonl beside it."""
     import shutil
 
-    from splitspec_orchestrator.blueprint import default_blueprint
-    from splitspec_orchestrator.rrdfile import rewrite_rrd
+    from splitspec_orchestrator.recording.blueprint import default_blueprint
+    from splitspec_orchestrator.recording.rrd_file import rewrite_rrd
 
     info = recording_info(run_dir / "run.rrd")
     measured = info["measurements"]

@@ -3,7 +3,7 @@
 ``splitspec orchestrator SCENARIO --listen ENDPOINT --out DIR [--run-id ID]``
 
 This module only moves things between the world and
-:class:`splitspec_orchestrator.rounds.RoundMachine`: it decodes messages (MAC, schema,
+:class:`splitspec_orchestrator.rounds.machine.RoundMachine`: it decodes messages (MAC, schema,
 shapes) and hands their values to the machine, and executes the machine's
 actions (publish a tick, record, log, signal, spawn, query statuses, stop).
 What it does, through the machine:
@@ -57,8 +57,8 @@ from splitspec_core.scenarios.load import load_scenario, read_scenario_text, res
 from splitspec_core.runtime.ticks import TickEncoder
 from splitspec_core.runtime.wire import Keys, WireError, decode, encode, new_run_key
 
-from . import rounds as R
-from .outdir import OutputDirError, check_output_dir
+from .rounds import machine as R
+from .records.outdir import OutputDirError, check_output_dir
 
 log = logging.getLogger("splitspec.orchestrator")
 
@@ -76,7 +76,7 @@ class RunFailed(SplitspecError, RuntimeError):
 
 class Progress:
     """One status line on a terminal: event time, max error (without truth: the consensus disagreement,
-    :func:`~splitspec_orchestrator.reference_view.progress_text`), alive agents, rounds per second."""
+    :func:`~splitspec_orchestrator.recording.reference_view.progress_text`), alive agents, rounds per second."""
 
     def __init__(self, steps: int, m: int):
         self.enabled = sys.stderr.isatty()
@@ -90,7 +90,7 @@ class Progress:
         now = time.monotonic()
         if now - self.last < 0.25 and not force:
             return
-        from .reference_view import progress_text
+        from .recording.reference_view import progress_text
 
         figure = f"max error {max_err:9.3e}" if xhat is None else progress_text(max_err, xhat, alive_mask)
         self.last = now
@@ -119,7 +119,7 @@ def _is_splitspec_process(pid: int) -> bool:
 
 
 class Orchestrator:
-    """The shell around :class:`~splitspec_orchestrator.rounds.RoundMachine`.  ``run()`` returns the process exit code."""
+    """The shell around :class:`~splitspec_orchestrator.rounds.machine.RoundMachine`.  ``run()`` returns the process exit code."""
 
     def __init__(self, scenario_path: str, *, out: Path, run_id: str, listen: str | None, connect: str | None,
                  wait: float | None = None, round_timeout: float = 10.0, viewer: str | None = None,
@@ -392,7 +392,7 @@ class Orchestrator:
     # ------------------------------------------------------------------ run
 
     def run(self) -> int:
-        from .recorder import Recorder, RecordsWriteError
+        from .records.recorder import Recorder, RecordsWriteError
         from .registry import RunRegistry
 
         sc = self.sc

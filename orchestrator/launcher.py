@@ -91,7 +91,7 @@ def run_local(scenario: str, out: Path, *, run_id: str, viewer: str | None, wait
     its exit status.  ``secure`` (the default): generate credentials for this run in a private
     directory under the runtime directory, start the router with authentication and access control,
     and delete them at the end.  If the orchestrator itself dies (a signal), the others die with it
-    (``PR_SET_PDEATHSIG``), the records are recovered (:func:`splitspec_orchestrator.recover.recover`) and the
+    (``PR_SET_PDEATHSIG``), the records are recovered (:func:`splitspec_orchestrator.records.recover.recover`) and the
     exit status is :data:`EXIT_ORCHESTRATOR_LOST`.  ``sensor_ids``: agents with a live sensor (scenario
     ``sources:``): the orchestrator starts no plant, and a secure run's directory also holds
     ``sensor-<i>.cred`` for the user's sensor processes (the orchestrator says where).
@@ -154,7 +154,7 @@ def _orchestrator_lost(pid: int, signum: int, out: Path) -> int:
         name = f"signal {signum}"
     what = "its records could not be recovered"
     try:
-        from .recover import recover
+        from .records.recover import recover
 
         res = recover(out)
         what = f"records recovered: {res['rows']} event times in {out}"

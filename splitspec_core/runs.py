@@ -209,6 +209,6 @@ def view(out: str | Path, *, web: bool = False, port: int | None = None, inline:
     if inline:
         # The widget lives with the rest of Rerun in the orchestrator package (this layer never imports Rerun):
         # loaded by name, in this process, only when asked for.
-        return importlib.import_module("splitspec_orchestrator.notebook_view").notebook_viewer(out)
+        return importlib.import_module("splitspec_orchestrator.recording.notebook_view").notebook_viewer(out)
     cmd = [sys.executable, "-m", "splitspec_orchestrator", "view", str(out)] + (["--web"] if web else [])
     return subprocess.Popen(cmd + (["--port", str(port)] if port is not None else []))

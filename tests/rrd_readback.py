@@ -10,8 +10,8 @@ import math
 import re
 from pathlib import Path
 
-from splitspec_orchestrator.blueprint import EVENTS, STATE, TL_EVENT, TOPOLOGY
-from splitspec_orchestrator.recorder import RecordingError, verify_rrd
+from splitspec_orchestrator.recording.blueprint import EVENTS, STATE, TL_EVENT, TOPOLOGY
+from splitspec_orchestrator.records.recorder import RecordingError, verify_rrd
 
 __all__ = ["read_rrd", "read_rrd_vectors", "read_rrd_state", "read_rrd_logs", "read_rrd_clears", "read_rrd_nodes",
            "read_rrd_graph", "rrd_entities", "verify_rrd"]

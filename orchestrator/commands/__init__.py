@@ -13,6 +13,6 @@ from __future__ import annotations
 
 def out_dir(path):
     """``--out`` as a Path: created if missing and proven writable, or one clear line (exit 2)."""
-    from ..outdir import check_output_dir
+    from ..records.outdir import check_output_dir
 
     return check_output_dir(path)

@@ -11,7 +11,7 @@ from splitspec_core.runtime.cli import integer as _integer
 
 
 def cmd_recover(args: argparse.Namespace) -> int:
-    from ..recover import RecoverError, recover
+    from ..records.recover import RecoverError, recover
 
     try:
         result = recover(args.out)
@@ -23,7 +23,7 @@ def cmd_recover(args: argparse.Namespace) -> int:
 
 
 def cmd_view(args: argparse.Namespace) -> int:
-    from ..view import view
+    from ..recording.viewer import view
 
     return view(args.out, web=args.web, port=args.port, grpc_port=args.grpc_port)
 

@@ -85,7 +85,7 @@ def lease_ms_for(role: str) -> int:
     wakes up, so a short client lease would close every link after an orchestrator freeze of a
     second; with 10 s an orchestrator frozen or starved for up to ~9 s is waited for, and a loaded
     machine never closes a link.  A killed process closes its sockets and is seen at once; a frozen
-    agent is found by the orchestrator's status probe (:mod:`splitspec_orchestrator.rounds`) in about 1.1 s.
+    agent is found by the orchestrator's status probe (:mod:`splitspec_orchestrator.rounds.machine`) in about 1.1 s.
     """
     return _env_ms("SPLITSPEC_LEASE_MS", 10_000)
 

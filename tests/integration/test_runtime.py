@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import yaml
 
-from splitspec_orchestrator.recover import recover
+from splitspec_orchestrator.records.recover import recover
 from tests.conftest import EXAMPLES, ROOT
 from tests.integration.runtime_helpers import (ENV, assert_all_gone, cli, compare_with_simulate, events, run,
                                                scenario_file, started_pids, wait_for_event, wait_for_rows)

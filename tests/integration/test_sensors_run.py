@@ -142,7 +142,7 @@ def test_a_secure_run_on_live_sensors_converges_and_its_log_replays(sensor_run, 
     assert f"live sensors: {used} of 180 (event time, agent) measurements used" in said, said
     assert f"with --credentials {r.sensors['credentials']}/sensor-<id>.cred" in said
     # run.rrd: what is known without a truth, as for a measurements file, and no error
-    from splitspec_orchestrator.recorder import verify_rrd
+    from splitspec_orchestrator.records.recorder import verify_rrd
     from tests.rrd_readback import rrd_entities
 
     ok, why = verify_rrd(r.out / "run.rrd")

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from splitspec_orchestrator.recorder import Recorder, RecordingError
+from splitspec_orchestrator.records.recorder import Recorder, RecordingError
 from tests.rrd_readback import read_rrd, read_rrd_state, read_rrd_vectors, rrd_entities, verify_rrd
 
 os.environ.setdefault("RERUN_ANALYTICS", "0")
@@ -425,7 +425,7 @@ def test_round_loop_calls_never_write_or_wait_for_a_flush(tmp_path, monkeypatch)
     import threading
 
     import splitspec_core.simulation.trajectory_file as trajfile
-    import splitspec_orchestrator.rrdfile as rrdfile
+    import splitspec_orchestrator.recording.rrd_file as rrdfile
 
     main = threading.current_thread()
     calls: list[tuple[str, bool]] = []  # (what, in the caller's thread)
@@ -435,7 +435,7 @@ def test_round_loop_calls_never_write_or_wait_for_a_flush(tmp_path, monkeypatch)
     monkeypatch.setattr(rrdfile.RrdAppender, "append", lambda self, piece: (
         calls.append(("run.rrd", threading.current_thread() is main)), real_append(self, piece))[1])
     real_write = trajfile.write_trajectory
-    monkeypatch.setattr("splitspec_orchestrator.record_files.write_trajectory", lambda *a, **kw: (
+    monkeypatch.setattr("splitspec_orchestrator.records.files.write_trajectory", lambda *a, **kw: (
         calls.append(("trajectory.npz", threading.current_thread() is main)), real_write(*a, **kw))[1])
     rec = Recorder(tmp_path, agent_ids=IDS, n=N, steps=T, time_mode="discrete", dt=1.0, graph_names=GRAPHS,
                    run_id="bg", scenario_name="bg", flush_seconds=0.05)
@@ -518,7 +518,7 @@ def test_slow_trajectory_rewrites_are_spaced_out(tmp_path, monkeypatch):
         time.sleep(0.1)
         real_write(*args, **kwargs)
 
-    monkeypatch.setattr("splitspec_orchestrator.record_files.write_trajectory", slow_write)
+    monkeypatch.setattr("splitspec_orchestrator.records.files.write_trajectory", slow_write)
     rec = Recorder(tmp_path, agent_ids=IDS, n=N, steps=200, time_mode="discrete", dt=1.0, graph_names=GRAPHS,
                    run_id="npz", scenario_name="npz", flush_seconds=0.05)
     appends = []

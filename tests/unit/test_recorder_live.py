@@ -8,7 +8,7 @@ import numpy as np
 
 from splitspec_core.studies.no_truth import kalman_reference
 from splitspec_core.scenarios.load import load_scenario
-from splitspec_orchestrator.recorder import Recorder
+from splitspec_orchestrator.records.recorder import Recorder
 from tests.conftest import EXAMPLES
 
 os.environ.setdefault("RERUN_ANALYTICS", "0")

@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 import yaml
 
-from splitspec_orchestrator.blueprint import circle_positions, node_positions
-from splitspec_orchestrator.eventlog import event_text
-from splitspec_orchestrator.recorder import Recorder, RecordingError
+from splitspec_orchestrator.recording.blueprint import circle_positions, node_positions
+from splitspec_orchestrator.records.events import event_text
+from splitspec_orchestrator.records.recorder import Recorder, RecordingError
 from splitspec_core.simulation.metrics import envelope, envelope_restarts
 from splitspec_core.errors import ScenarioError
 from splitspec_core.scenarios.load import parse_scenario
@@ -139,7 +139,7 @@ def test_a_mark_waits_for_its_own_row(tmp_path, flush):
 
 def test_a_mark_still_waiting_for_its_row_is_written_at_exit(tmp_path):
     """The interpreter's exit flush (a run that never called close) writes a mark whose row never came."""
-    from splitspec_orchestrator.recorder import _flush_open_recorders
+    from splitspec_orchestrator.records.recorder import _flush_open_recorders
 
     x, xhat, alive, graph, g = rows()
     rec = Recorder(tmp_path, agent_ids=IDS, n=N, steps=T - 1, time_mode="discrete", dt=DT, graph_names=("a", "b"),
@@ -218,7 +218,7 @@ def test_mark_height_is_the_last_positive_max_error_and_cheap():
     one; errors that reached exactly 0 (or rows with nobody alive) are skipped without a row-by-row scan."""
     import time
 
-    from splitspec_orchestrator.rowstore import RowStore
+    from splitspec_orchestrator.records.rowstore import RowStore
 
     m, n, rows = 4, 3, 20000
     S = RowStore(m, n, capacity=rows)

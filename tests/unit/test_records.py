@@ -15,9 +15,9 @@ import numpy as np
 import pytest
 
 from splitspec_orchestrator.cli import main
-from splitspec_orchestrator.outdir import RESERVE_FILE, OutputDirError, check_output_dir
-from splitspec_orchestrator.recorder import Recorder, RecordsWriteError
-from splitspec_orchestrator.recover import recover
+from splitspec_orchestrator.records.outdir import RESERVE_FILE, OutputDirError, check_output_dir
+from splitspec_orchestrator.records.recorder import Recorder, RecordsWriteError
+from splitspec_orchestrator.records.recover import recover
 from splitspec_core.errors import SplitspecError
 from tests.rrd_readback import read_rrd, read_rrd_logs, verify_rrd
 

@@ -8,9 +8,9 @@ import pytest
 
 from splitspec_core.scenarios.measurements import Measurements
 from splitspec_core.studies.no_truth import disagreement, residuals
-from splitspec_orchestrator import blueprint as bp
-from splitspec_orchestrator.recorder import Recorder, RecordingError
-from splitspec_orchestrator.reference_view import ReferenceRows, file_rows, known_parts, progress_text
+from splitspec_orchestrator.recording import blueprint as bp
+from splitspec_orchestrator.records.recorder import Recorder, RecordingError
+from splitspec_orchestrator.recording.reference_view import ReferenceRows, file_rows, known_parts, progress_text
 from tests.rrd_readback import read_rrd, read_rrd_clears, rrd_entities, verify_rrd
 from tests.unit.test_measurements import hidden_scenario
 
@@ -163,7 +163,7 @@ def test_a_killed_run_without_truth_is_recovered_with_its_layout(tmp_path):
     rebuilds the blueprint from the recording's properties, the reference views and no error view."""
     import shutil
 
-    from splitspec_orchestrator.recover import recover
+    from splitspec_orchestrator.records.recover import recover
     from tests.rrd_readback import read_blueprint
 
     sc = hidden_scenario(3)

@@ -11,7 +11,7 @@ import signal
 import numpy as np
 import pytest
 
-from splitspec_orchestrator import rounds as R
+from splitspec_orchestrator.rounds import machine as R
 from splitspec_core.synthesis.designer import design
 from splitspec_core.scenarios.load import parse_scenario
 from tests.conftest import EXAMPLES

@@ -1,6 +1,6 @@
 """The communication graph of a run's recording: ``topology`` and what a misbehaving network adds to it.
 
-:class:`TopologyView` logs, for :class:`splitspec_orchestrator.rerun_sink.RerunSink`, the topology
+:class:`TopologyView` logs, for :class:`splitspec_orchestrator.recording.sink.RerunSink`, the topology
 (``topology``: the agents at fixed positions, the arcs among the alive ones; ``topology/graph``: the
 active graph's name) and what the view shows of a network that misbehaves: arcs that lost
 messages, a partition's cut.

@@ -48,7 +48,7 @@ A run on measurements without the truth (``splitspec run --measurements FILE`` w
 is not shown, not even as NaN.  The residuals, the disagreement and the distance to the centralized
 Kalman filter take the errors' place (:mod:`splitspec_core.studies.no_truth`); with the truth they are
 logged beside the errors
-(:mod:`splitspec_orchestrator.reference_view`).
+(:mod:`splitspec_orchestrator.recording.reference_view`).
 
 Entities per run: ``2m + 2n + 16`` (with the envelope; ``m`` more with gains, up to 3 more on a
 network that loses messages or is partitioned; ``4m + n + 2`` more on measurements, of which the

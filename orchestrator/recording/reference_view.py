@@ -25,7 +25,7 @@ The recorder is told the measurement behind each event time by a function
 agent order as the plant's ``y`` (``C = [C_1; ...; C_m]``), ``missing`` (m,)
 bool; None when no measurement of ``tau`` is known (every residual of that row
 unknown).  :func:`file_rows` is that function for a measurements file; a live
-source gives its own (:meth:`splitspec_orchestrator.recorder.Recorder.set_y_source`).
+source gives its own (:meth:`splitspec_orchestrator.records.recorder.Recorder.set_y_source`).
 :class:`ReferenceRows` computes the rows (no I/O, no Rerun), :class:`ReferenceView`
 logs them (on the recorder's flush path only, like every other row series).
 """

@@ -1,8 +1,8 @@
 """What the recorder records of a run on measurements or on live sensors, beside the rows every run has.
 
 A run whose estimators take their ``y`` from a measurements file
-(:meth:`splitspec_orchestrator.recorder.Recorder.set_measurements`) or from live sensors
-(:meth:`~splitspec_orchestrator.recorder.Recorder.set_live_sources`) records, in addition:
+(:meth:`splitspec_orchestrator.records.recorder.Recorder.set_measurements`) or from live sensors
+(:meth:`~splitspec_orchestrator.records.recorder.Recorder.set_live_sources`) records, in addition:
 
 * ``trajectory.npz``: the ``y`` and ``y_missing`` rows of the event times taken so far and, at the close,
   what is known without the truth (:func:`splitspec_core.studies.no_truth.no_truth_arrays`: the centralized Kalman
@@ -15,9 +15,9 @@ A run whose estimators take their ``y`` from a measurements file
 With live sensors the measurement of event time ``tau`` is the ``y_i`` each agent reports having used
 (:meth:`MeasuredRecords.live_y`, from its ``xhat``), held until the rows' measurements take it.
 
-:class:`MeasuredRecords` holds this state for one :class:`~splitspec_orchestrator.recorder.Recorder` (which
+:class:`MeasuredRecords` holds this state for one :class:`~splitspec_orchestrator.records.recorder.Recorder` (which
 keeps the buffering, the flushes and their order); it reads the recorder's taken rows (a
-:class:`~splitspec_orchestrator.rowstore.RowStore`) and shares its lock for the live measurements.
+:class:`~splitspec_orchestrator.records.rowstore.RowStore`) and shares its lock for the live measurements.
 """
 
 from __future__ import annotations
@@ -26,7 +26,7 @@ import threading
 
 import numpy as np
 
-from .reference_view import ReferenceRows
+from ..recording.reference_view import ReferenceRows
 from .rowstore import RowStore
 
 __all__ = ["MeasuredRecords"]
@@ -63,7 +63,7 @@ class MeasuredRecords:
         self.source, self.truth = (sc, rows), bool(truth)
 
     def live_source(self, sc):
-        """Live sensors: the :data:`~splitspec_orchestrator.reference_view.YRow` of what :meth:`live_y` is given."""
+        """Live sensors: the :data:`~splitspec_orchestrator.recording.reference_view.YRow` of what :meth:`live_y` is given."""
         from splitspec_core.model.plant import output_rows
 
         self._live_rows = output_rows(sc.system.Cs)
@@ -123,7 +123,7 @@ class MeasuredRecords:
     def send_after_run(self, sink) -> None:
         """At the close, after the last flush: the centralized Kalman filter and each agent's distance to it,
         the very arrays the last ``trajectory.npz`` got (:meth:`arrays`), to Rerun (``sink``: a
-        :class:`~splitspec_orchestrator.rerun_sink.RerunSink` or None)."""
+        :class:`~splitspec_orchestrator.recording.sink.RerunSink` or None)."""
         done = self.after_run
         if sink is None or sink.reference is None or done is None or done[0] != self._d.rows:
             return

@@ -24,14 +24,14 @@ keeps three records of the run in ``out_dir``:
 This module keeps the coordination: :class:`Recorder` buffers what its callers
 record, flushes it on a background thread, orders the writes, stops at the first
 write failure (:class:`WriteFailure`), salvages and closes.  Its collaborators do
-the rest: :mod:`splitspec_orchestrator.rowstore` (the rows and what each shows),
-:mod:`splitspec_orchestrator.record_files` (``trajectory.npz`` rewritten through
+the rest: :mod:`splitspec_orchestrator.records.rowstore` (the rows and what each shows),
+:mod:`splitspec_orchestrator.records.files` (``trajectory.npz`` rewritten through
 :func:`splitspec_core.simulation.trajectory_file.write_trajectory`, the one writer shared with
 ``simulate``; ``run.rrd`` appended and finished; the cuts after a failure),
-:mod:`splitspec_orchestrator.measured_records` (what a run on measurements or live
-sensors records beyond the rows), :mod:`splitspec_orchestrator.rerun_sink` (the
+:mod:`splitspec_orchestrator.records.measured` (what a run on measurements or live
+sensors records beyond the rows), :mod:`splitspec_orchestrator.recording.sink` (the
 Rerun stream; entity paths and the default blueprint in
-:mod:`splitspec_orchestrator.blueprint`) and :mod:`splitspec_orchestrator.eventlog`
+:mod:`splitspec_orchestrator.recording.blueprint`) and :mod:`splitspec_orchestrator.records.events`
 (``events.jsonl`` and each event's sentence).  Why one module: the buffer, the two
 locks, the background flusher and the close are one invariant (the three files
 agree on K rows, and no caller of the round loop waits for a write) that is easier
@@ -105,7 +105,7 @@ every later call raises it again, and the background thread stops.
 thread never reports a failed write): the recording logs into an
 ``rr.binary_stream()`` and each flush appends the bytes read from it to
 ``run.rrd`` with ordinary file calls that raise ``OSError`` (see
-:mod:`splitspec_orchestrator.rrdfile` for the format).  During the run ``run.rrd`` is a
+:mod:`splitspec_orchestrator.recording.rrd_file` for the format).  During the run ``run.rrd`` is a
 footer-less RRD stream, readable with ``RrdReader(path).stream()``; at
 :meth:`Recorder.close` it is rewritten as one RRD with footer, which ``rerun
 rrd verify`` accepts.  ``events.jsonl`` and ``run.rrd`` are opened per write
@@ -119,14 +119,14 @@ flush under way; on a long run, those since the last rewrite of
 ``trajectory.npz``, which ``splitspec recover`` cuts ``run.rrd`` back to)
 from both.  ``close(finished=False)`` after a write failure does
 not raise: it removes the disk-space reserve (``.splitspec-reserve``, a few
-MB preallocated at start, :class:`splitspec_orchestrator.outdir.Reserve`), writes what
+MB preallocated at start, :class:`splitspec_orchestrator.records.outdir.Reserve`), writes what
 the failure left unwritten, and leaves K = :attr:`Recorder.rows_kept` rows in
 ``trajectory.npz``, the data of those K event times only in ``run.rrd``
 (rewritten, verifiable; text log and topology up to the next event time) and
 a last ``recording_closed`` event with ``rows: K`` in ``events.jsonl`` -- each
 as far as the disk allows.  On a read-only file system nothing more can be
 written: K is what the last successful flush left in both ``trajectory.npz``
-and the footer-less ``run.rrd``; ``splitspec recover`` (:mod:`splitspec_orchestrator.recover`)
+and the footer-less ``run.rrd``; ``splitspec recover`` (:mod:`splitspec_orchestrator.records.recover`)
 finishes the job once the disk is writable.  The same command repairs the
 records of a killed run.
 """
@@ -148,15 +148,15 @@ from splitspec_core.errors import SplitspecError
 from splitspec_core.scenarios.labels import default_state_names
 from splitspec_core.simulation.trajectory_file import TRAJECTORY_FILE
 
-from . import blueprint as bp
-from .eventlog import EVENTS_FILE, EventLog, event_level, event_text
-from .measured_records import MeasuredRecords
+from ..recording import blueprint as bp
+from .events import EVENTS_FILE, EventLog, event_level, event_text
+from .measured import MeasuredRecords
 from .outdir import Reserve
-from .record_files import RecordFiles, RecordsWriteError, strerror
-from .rerun_sink import RRD_FILE, RerunSink, RowBatch
-from .rrdfile import verify_rrd
+from .files import RecordFiles, RecordsWriteError, strerror
+from ..recording.sink import RRD_FILE, RerunSink, RowBatch
+from ..recording.rrd_file import verify_rrd
 from .rowstore import RowStore
-from .topology_view import cut_arcs, partition_text
+from ..recording.topology_view import cut_arcs, partition_text
 
 __all__ = ["Recorder", "RecordingError", "RecordsWriteError", "WriteFailure", "verify_rrd", "TRAJECTORY_FILE",
            "EVENTS_FILE", "RRD_FILE"]
@@ -209,7 +209,7 @@ class RecordingError(SplitspecError, ValueError):
 
 class WriteFailure:
     """The first failed write of a recorder's records (the recording stops at it), and whether a caller has
-    seen it (raised to it); shared with :class:`~splitspec_orchestrator.record_files.RecordFiles`."""
+    seen it (raised to it); shared with :class:`~splitspec_orchestrator.records.files.RecordFiles`."""
 
     def __init__(self, lock: threading.RLock):
         self._lock = lock  # the recorder's _lock
@@ -412,7 +412,7 @@ class Recorder:
         seconds in continuous time); the TextLog is placed at ``tau = t`` or
         ``tau = round(t / dt)``.  Level WARN when the name contains
         lost/rejected/error/failed, else INFO, unless ``level`` is given.
-        The Rerun text is one short sentence (:func:`splitspec_orchestrator.eventlog.event_text`;
+        The Rerun text is one short sentence (:func:`splitspec_orchestrator.records.events.event_text`;
         ``note`` replaces it); ``events.jsonl`` always has every field.  Losses,
         rejoins, graph switches and link faults also get a point on ``marks/<kind>``.
         """
@@ -847,20 +847,20 @@ class Recorder:
     def set_measurements(self, sc, meas) -> None:
         """The run plays a measurements file (:class:`splitspec_core.scenarios.measurements.Measurements`): see
         :meth:`set_y_source`; the truth is the file's ``x`` if it has one."""
-        from .reference_view import file_rows
+        from ..recording.reference_view import file_rows
 
         self.set_y_source(sc, file_rows(meas), truth=meas.has_truth)
         self._meas.inputs = meas.u
 
     def set_y_source(self, sc, y_row, *, truth: bool) -> None:
         """The estimators run on measurements ``y_row(tau) -> (y, missing) | None``
-        (:data:`splitspec_orchestrator.reference_view.YRow`); call before the first row.
+        (:data:`splitspec_orchestrator.recording.reference_view.YRow`); call before the first row.
 
         ``trajectory.npz`` gets their ``y`` and ``y_missing`` rows, and at the close what is known without
         truth (:func:`splitspec_core.studies.no_truth.no_truth_arrays`); ``run.rrd`` the same as it goes
-        (:mod:`splitspec_orchestrator.reference_view`) and, ``truth=False``, no error and no truth at all.
+        (:mod:`splitspec_orchestrator.recording.reference_view`) and, ``truth=False``, no error and no truth at all.
         """
-        from .reference_view import ReferenceRows
+        from ..recording.reference_view import ReferenceRows
 
         rows = ReferenceRows(sc.system.Cs, y_row)
         with self._io, self._lock:

@@ -31,9 +31,9 @@ import numpy as np
 from splitspec_core.errors import SplitspecError
 
 from .outdir import RESERVE_FILE
-from .blueprint import default_blueprint
+from ..recording.blueprint import default_blueprint
 from .recorder import EVENTS_FILE, RRD_FILE, TRAJECTORY_FILE, verify_rrd
-from .rrdfile import has_footer, read_chunks, rewrite_rrd, whole_messages_length
+from ..recording.rrd_file import has_footer, read_chunks, rewrite_rrd, whole_messages_length
 
 __all__ = ["RecoverError", "recover"]
 

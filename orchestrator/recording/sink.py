@@ -1,15 +1,15 @@
 """The Rerun side of the recorder: one recording stream, its live viewer, and ``run.rrd`` appended by Python.
 
-:class:`RerunSink` logs what :class:`splitspec_orchestrator.recorder.Recorder` hands it
+:class:`RerunSink` logs what :class:`splitspec_orchestrator.records.recorder.Recorder` hands it
 (batches of rows, text events, topology, marks, loss clears) with
 ``send_columns``, one chunk per entity per batch, on the timelines ``event``
 (sequence ``tau``), ``time`` (duration) and ``wall`` (timestamp).  Entity paths,
-colours and the default blueprint are in :mod:`splitspec_orchestrator.blueprint`;
+colours and the default blueprint are in :mod:`splitspec_orchestrator.recording.blueprint`;
 the topology and what a misbehaving network draws over it (arcs that lost
-messages, a partition's cut) in :mod:`splitspec_orchestrator.topology_view`.
+messages, a partition's cut) in :mod:`splitspec_orchestrator.recording.topology_view`.
 
 A run on measurements (:meth:`RerunSink.set_reference`) also logs what
-:mod:`splitspec_orchestrator.reference_view` computes (residuals, disagreement,
+:mod:`splitspec_orchestrator.recording.reference_view` computes (residuals, disagreement,
 after the run the centralized Kalman filter); without the truth it logs no
 error and no truth at all: their styles are logged with the first rows, once
 that is known, and the default blueprint is sent again.
@@ -27,7 +27,7 @@ is noticed after they were logged), and a NaN breaks the line as well.
 The recording logs into an ``rr.binary_stream()`` (plus a ``GrpcSink`` for a
 live viewer); :meth:`RerunSink.write_pending` appends what it encoded to
 ``run.rrd`` with ordinary file calls whose ``OSError`` the recorder reports
-(see :mod:`splitspec_orchestrator.rrdfile`).  Rerun itself never stops a run: a viewer
+(see :mod:`splitspec_orchestrator.recording.rrd_file`).  Rerun itself never stops a run: a viewer
 that cannot be spawned or reached is a warning and the recording goes on.
 """
 
@@ -46,7 +46,7 @@ import numpy as np
 
 from . import blueprint as bp
 from .reference_view import ReferenceRows, ReferenceView
-from .rrdfile import RrdAppender, rerun_command, rewrite_rrd
+from .rrd_file import RrdAppender, rerun_command, rewrite_rrd
 from .topology_view import TopologyView
 
 __all__ = ["RerunSink", "RowBatch", "APPLICATION_ID", "RRD_FILE"]
@@ -358,11 +358,11 @@ class RerunSink:
                 self.rec.send_columns(path, indexes=idx, columns=rr.Clear.columns(is_recursive=[False]))
 
     def send_topology(self, queued: list[tuple]) -> None:
-        """See :meth:`splitspec_orchestrator.topology_view.TopologyView.send_topology`."""
+        """See :meth:`splitspec_orchestrator.recording.topology_view.TopologyView.send_topology`."""
         self.topology.send_topology(queued)
 
     def send_lost(self, rows: list[tuple]) -> None:
-        """See :meth:`splitspec_orchestrator.topology_view.TopologyView.send_lost`."""
+        """See :meth:`splitspec_orchestrator.recording.topology_view.TopologyView.send_lost`."""
         self.topology.send_lost(rows)
 
     # ------------------------------------------------------------------ run.rrd

@@ -1,17 +1,17 @@
 """The recorder's two files of rows on disk: ``trajectory.npz`` rewritten, ``run.rrd`` appended and finished.
 
-:class:`RecordFiles` writes what a :class:`~splitspec_orchestrator.recorder.Recorder` flush took and
+:class:`RecordFiles` writes what a :class:`~splitspec_orchestrator.records.recorder.Recorder` flush took and
 knows how many rows each file holds on disk:
 
 ``trajectory.npz``
     rewritten whole and atomically by :func:`splitspec_core.simulation.trajectory_file.write_trajectory` (temporary file
     in ``out_dir``, fsynced, ``os.replace``) with the first rows taken, their consensus messages that did
     not count (``lost``, ``lost_cause``) and, on measurements, the arrays of
-    :meth:`splitspec_orchestrator.measured_records.MeasuredRecords.arrays`
+    :meth:`splitspec_orchestrator.records.measured.MeasuredRecords.arrays`
     (:meth:`RecordFiles.write_trajectory`);
 ``run.rrd``
     appended with what Rerun encoded since the last flush (:meth:`RecordFiles.append_rrd`, through the
-    :class:`~splitspec_orchestrator.rerun_sink.RerunSink`; the format in :mod:`splitspec_orchestrator.rrdfile`)
+    :class:`~splitspec_orchestrator.recording.sink.RerunSink`; the format in :mod:`splitspec_orchestrator.recording.rrd_file`)
     and, at the close, rewritten as one verifiable RRD, cut after the K-th row after a write failure
     (:meth:`RecordFiles.finish_rrd`).
 
@@ -20,7 +20,7 @@ After a write failure the two files are made to agree on K rows, as far as the d
 :meth:`RecordFiles.finish_rrd_fitting` (fewer rows, a tenth less each try, when the rewrites do not
 fit on a full disk) and :meth:`RecordFiles.cut_trajectory`.  When to write, in which order, and what a
 failure stops are the recorder's (its module docstring, "Write failures and consistency"); a failed
-write is reported to the recorder's :class:`~splitspec_orchestrator.recorder.WriteFailure`, which keeps
+write is reported to the recorder's :class:`~splitspec_orchestrator.records.recorder.WriteFailure`, which keeps
 the first one and gives the :class:`RecordsWriteError` to raise.
 """
 
@@ -36,7 +36,7 @@ import numpy as np
 from splitspec_core.errors import SplitspecError
 from splitspec_core.simulation.trajectory_file import TRAJECTORY_FILE, lost_arrays, write_trajectory
 
-from .rerun_sink import RRD_FILE, RerunSink
+from ..recording.sink import RRD_FILE, RerunSink
 from .rowstore import RowStore
 
 __all__ = ["RecordFiles", "RecordsWriteError"]
@@ -74,7 +74,7 @@ class RecordFiles:
     taken : the rows taken by the recorder's flushes (its ``_d``; everything here runs under its ``_io``)
     lost : ``{tau: rows (tau, k, j, i, cause)}`` of the consensus messages that did not count (the recorder's)
     extra : ``extra(T)``, the further arrays of a ``trajectory.npz`` with the first ``T`` rows
-    failure : the recorder's :class:`~splitspec_orchestrator.recorder.WriteFailure` (``error``,
+    failure : the recorder's :class:`~splitspec_orchestrator.records.recorder.WriteFailure` (``error``,
         ``fail(path, exc, tau) -> RecordsWriteError``)
     sink : the recorder's :class:`RerunSink`, None without Rerun (and once the recorder has dropped it)
     states : the states' names (``trajectory.npz``'s ``states``)
