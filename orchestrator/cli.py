@@ -42,16 +42,28 @@ _loss_level.__name__ = "loss probability"
 
 
 def _cmd_plant(args: argparse.Namespace) -> int:
-    import importlib
+    # `splitspec plant` and `splitspec agent` hand their arguments to the process shells: this module is the one
+    # place of the orchestrator package that imports them (the "entry" layer, docs/explanation/architecture.md)
+    from splitspec_plant.plant import cli_main
 
-    # the orchestrator never imports the process shells; the CLI hands the arguments to them
-    return importlib.import_module("splitspec_plant.plant").cli_main(args.rest, prog="splitspec plant")
+    return cli_main(args.rest, prog="splitspec plant")
 
 
 def _cmd_agent(args: argparse.Namespace) -> int:
-    import importlib
+    from splitspec_agents.agent import cli_main
 
-    return importlib.import_module("splitspec_agents.agent").cli_main(args.rest, prog="splitspec agent")
+    return cli_main(args.rest, prog="splitspec agent")
+
+
+def _commands_module(module: str):
+    """The module of :mod:`.commands` holding a command, imported when the command runs."""
+    if module == "study":
+        from .commands import study as mod
+    elif module == "deploy":
+        from .commands import deploy as mod
+    else:
+        from .commands import operate as mod
+    return mod
 
 
 def _command(target: str) -> Callable[[argparse.Namespace], int]:
@@ -59,10 +71,11 @@ def _command(target: str) -> Callable[[argparse.Namespace], int]:
     (``splitspec kill`` must start fast: it does not load numpy or scipy)."""
     module, _, name = target.partition(":")
 
-    def run(args: argparse.Namespace) -> int:
-        import importlib
+    if module not in ("study", "deploy", "operate"):
+        raise ValueError(f"no commands module {module!r}")
 
-        return getattr(importlib.import_module(f".commands.{module}", __package__), name)(args)
+    def run(args: argparse.Namespace) -> int:
+        return getattr(_commands_module(module), name)(args)
 
     run.__name__ = name
     return run

@@ -23,7 +23,7 @@ import numpy as np
 from .synthesis.designer import Design
 from .errors import ScenarioError
 from .synthesis.report import rate_certificate
-from .scenarios.checks import _DESIGN_KEYS, _RUN_KEYS, _SYSTEM_KEYS
+from .scenarios.checks import DESIGN_KEYS, RUN_KEYS, SYSTEM_KEYS
 from .scenarios.control import plant_keywords
 from .scenarios.load import ORIGIN, parse_scenario
 from .scenarios.load import load_scenario as _load_scenario
@@ -37,7 +37,7 @@ if TYPE_CHECKING:
 __all__ = ["AgentResult", "Checks", "CompareResult", "DesignResult", "EstimatorResult", "compare", "design",
            "load_scenario", "scenario", "simulate"]
 
-_SECTIONS = {"system": _SYSTEM_KEYS, "design": _DESIGN_KEYS, "run": _RUN_KEYS}
+_SECTIONS = {"system": SYSTEM_KEYS, "design": DESIGN_KEYS, "run": RUN_KEYS}
 
 
 def _readonly(a: Any) -> np.ndarray:

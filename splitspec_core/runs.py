@@ -19,7 +19,6 @@ the scenario the run wrote (``scenario.yaml``), whose design :meth:`RunRecord.de
 
 from __future__ import annotations
 
-import importlib
 import importlib.util
 import json
 import signal
@@ -207,8 +206,10 @@ def view(out: str | Path, *, web: bool = False, port: int | None = None, inline:
     if inline is None:
         inline = not web and port is None and _in_jupyter() and importlib.util.find_spec("rerun_notebook") is not None
     if inline:
-        # The widget lives with the rest of Rerun in the orchestrator package (this layer never imports Rerun):
-        # loaded by name, in this process, only when asked for.
-        return importlib.import_module("splitspec_orchestrator.recording.notebook_view").notebook_viewer(out)
+        # The widget lives with the rest of Rerun in the orchestrator package (this layer never imports Rerun): its
+        # one module this layer may import ("widget", docs/explanation/architecture.md), only when asked for.
+        from splitspec_orchestrator.recording.notebook_view import notebook_viewer
+
+        return notebook_viewer(out)
     cmd = [sys.executable, "-m", "splitspec_orchestrator", "view", str(out)] + (["--web"] if web else [])
     return subprocess.Popen(cmd + (["--port", str(port)] if port is not None else []))

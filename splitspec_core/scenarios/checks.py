@@ -21,22 +21,22 @@ Q_METHODS = ("spectral", "weighted", "two-norm", "mixed")
 WEIGHTINGS = ("uniform", "metropolis")
 FAULT_ACTIONS = ("kill", "restart", "hang", "drop_arc", "restore_arc", "partition", "heal")
 
-_TOP_KEYS = ("name", "time", "system", "graphs", "switching", "design", "faults", "run", "positions", "network",
+TOP_KEYS = ("name", "time", "system", "graphs", "switching", "design", "faults", "run", "positions", "network",
              "sources")
-_NETWORK_KEYS = ("loss", "delay", "deadline", "arcs")
-_DELAY_KEYS = ("mean", "jitter")
-_NETWORK_ARC_KEYS = ("arc", "loss", "delay")
-_SYSTEM_KEYS = ("file", "A", "B", "u", "sample", "C", "x0", "process_noise", "measurement_noise", "states",
+NETWORK_KEYS = ("loss", "delay", "deadline", "arcs")
+DELAY_KEYS = ("mean", "jitter")
+NETWORK_ARC_KEYS = ("arc", "loss", "delay")
+SYSTEM_KEYS = ("file", "A", "B", "u", "sample", "C", "x0", "process_noise", "measurement_noise", "states",
                 "outputs")
-_GRAPH_KEYS = ("arcs", "undirected")
-_SWITCHING_KEYS = ("schedule", "period", "random")
-_RANDOM_KEYS = ("graphs", "dwell", "seed")
-_DESIGN_KEYS = (
+GRAPH_KEYS = ("arcs", "undirected")
+SWITCHING_KEYS = ("schedule", "period", "random")
+RANDOM_KEYS = ("graphs", "dwell", "seed")
+DESIGN_KEYS = (
     "rate", "gains", "K", "g", "g0", "q", "q_method", "q_max", "resilience",
     "weights", "margin", "rank_tol", "graph_set", "dwell", "riccati", "eigenvalues", "undetectable", "coordinates",
 )
-_RICCATI_KEYS = ("process_weight", "measurement_weight")
-_RUN_KEYS = ("steps", "dt", "seed", "pace", "show")
+RICCATI_KEYS = ("process_weight", "measurement_weight")
+RUN_KEYS = ("steps", "dt", "seed", "pace", "show")
 
 # Limits, each with the key(s) it bounds and why (docs/how-to/scenario.md, "Files and limits").
 # Every number (matrix entries, x0, noise levels, rate, g, g0, margin, times, dt, dwell, pace,
@@ -70,13 +70,13 @@ def _frozen(a: np.ndarray) -> np.ndarray:
     return a
 
 
-def _require_map(value: Any, key: str) -> Mapping:
+def require_map(value: Any, key: str) -> Mapping:
     if not isinstance(value, Mapping):
-        raise ScenarioError(f"{key} must be a mapping, got {_describe(value)}")
+        raise ScenarioError(f"{key} must be a mapping, got {describe(value)}")
     return value
 
 
-def _describe(value: Any) -> str:
+def describe(value: Any) -> str:
     if value is None:
         return "nothing (null)"
     if isinstance(value, str):
@@ -115,7 +115,7 @@ def plain(value: Any, depth: int = 0) -> Any:
     return value
 
 
-def _check_keys(mapping: Mapping, allowed: tuple, key: str) -> None:
+def check_keys(mapping: Mapping, allowed: tuple, key: str) -> None:
     for k in mapping:
         if k not in allowed:
             where = f"{key}.{k}" if key else str(k)
@@ -124,10 +124,10 @@ def _check_keys(mapping: Mapping, allowed: tuple, key: str) -> None:
 
 # every key of the file by its dotted place, for "did you mean" hints
 _ALL_KEYS = (
-    *_TOP_KEYS, *(f"system.{k}" for k in _SYSTEM_KEYS), *(f"design.{k}" for k in _DESIGN_KEYS),
-    *(f"run.{k}" for k in _RUN_KEYS), *(f"switching.{k}" for k in _SWITCHING_KEYS),
-    *(f"design.riccati.{k}" for k in _RICCATI_KEYS), *(f"network.{k}" for k in _NETWORK_KEYS),
-    *(f"network.delay.{k}" for k in _DELAY_KEYS),
+    *TOP_KEYS, *(f"system.{k}" for k in SYSTEM_KEYS), *(f"design.{k}" for k in DESIGN_KEYS),
+    *(f"run.{k}" for k in RUN_KEYS), *(f"switching.{k}" for k in SWITCHING_KEYS),
+    *(f"design.riccati.{k}" for k in RICCATI_KEYS), *(f"network.{k}" for k in NETWORK_KEYS),
+    *(f"network.delay.{k}" for k in DELAY_KEYS),
 )
 
 
@@ -160,33 +160,33 @@ def _bounded(x: float, key: str) -> float:
     return x
 
 
-def _number(value: Any, key: str) -> float:
+def check_number(value: Any, key: str) -> float:
     if isinstance(value, bool) or not isinstance(value, numbers.Real):
-        raise ScenarioError(f"{key} must be a number, got {_describe(value)}")
+        raise ScenarioError(f"{key} must be a number, got {describe(value)}")
     return _bounded(_float(value), key)
 
 
-def _seed(value: Any, key: str) -> int:
-    v = _integer(value, key, minimum=0)
+def check_seed(value: Any, key: str) -> int:
+    v = check_integer(value, key, minimum=0)
     if v > MAX_SEED:
         raise ScenarioError(f"{key} must be <= 2**63 - 1 = {MAX_SEED} (seeds travel to the processes as "
                             f"64-bit integers), got {v}")
     return v
 
 
-def _integer(value: Any, key: str, *, minimum: int | None = None) -> int:
+def check_integer(value: Any, key: str, *, minimum: int | None = None) -> int:
     if isinstance(value, bool) or not isinstance(value, numbers.Integral):
         if isinstance(value, float) and value.is_integer():
             value = int(value)
         else:
-            raise ScenarioError(f"{key} must be an integer, got {_describe(value)}")
+            raise ScenarioError(f"{key} must be an integer, got {describe(value)}")
     v = int(value)
     if minimum is not None and v < minimum:
         raise ScenarioError(f"{key} must be >= {minimum}, got {v}")
     return v
 
 
-def _matrix(value: Any, key: str, *, vector: bool = False) -> np.ndarray:
+def check_matrix(value: Any, key: str, *, vector: bool = False) -> np.ndarray:
     """Convert a YAML nested list into a finite float array, naming ``key`` on failure."""
     if value is None:
         raise ScenarioError(f"{key} is missing")
@@ -195,11 +195,11 @@ def _matrix(value: Any, key: str, *, vector: bool = False) -> np.ndarray:
                             ".mat file there to take arrays from, or write the matrix as a list of rows")
     if vector:
         if not isinstance(value, list) or not value:
-            raise ScenarioError(f"{key} must be a non-empty list of numbers, got {_describe(value)}")
+            raise ScenarioError(f"{key} must be a non-empty list of numbers, got {describe(value)}")
         rows = [value]
     else:
         if not isinstance(value, list) or not value:
-            raise ScenarioError(f"{key} must be a non-empty list of rows, got {_describe(value)}")
+            raise ScenarioError(f"{key} must be a non-empty list of rows, got {describe(value)}")
         if all(isinstance(r, numbers.Real) and not isinstance(r, bool) for r in value):
             rows = [value]  # a single row written flat: [1, 0, 0]
         else:
@@ -207,7 +207,7 @@ def _matrix(value: Any, key: str, *, vector: bool = False) -> np.ndarray:
     width = None
     for r, row in enumerate(rows):
         if not isinstance(row, list):
-            raise ScenarioError(f"{key} row {r + 1} must be a list of numbers, got {_describe(row)}")
+            raise ScenarioError(f"{key} row {r + 1} must be a list of numbers, got {describe(row)}")
         if width is None:
             width = len(row)
         elif len(row) != width:
@@ -215,7 +215,7 @@ def _matrix(value: Any, key: str, *, vector: bool = False) -> np.ndarray:
         for c, x in enumerate(row):
             where = f"{key}[{c + 1}]" if vector else f"{key}[{r + 1}][{c + 1}]"
             if isinstance(x, bool) or not isinstance(x, numbers.Real):
-                raise ScenarioError(f"{where} must be a number, got {_describe(x)}")
+                raise ScenarioError(f"{where} must be a number, got {describe(x)}")
             _bounded(_float(x), where)
     if width == 0:
         raise ScenarioError(f"{key} has empty rows")
@@ -223,12 +223,12 @@ def _matrix(value: Any, key: str, *, vector: bool = False) -> np.ndarray:
     return _frozen(arr[0] if vector else arr)
 
 
-def _names(value: Any, key: str, count: int, what: str) -> tuple:
+def check_names(value: Any, key: str, count: int, what: str) -> tuple:
     """A list of ``count`` distinct names (:data:`splitspec_core.scenarios.labels.NAME_PATTERN`), naming ``key`` on failure."""
     from .labels import NAME_PATTERN
 
     if not isinstance(value, list):
-        raise ScenarioError(f"{key} must be a list of {count} names ({what}), got {_describe(value)}")
+        raise ScenarioError(f"{key} must be a list of {count} names ({what}), got {describe(value)}")
     if len(value) != count:
         raise DimensionError(f"{key} has {len(value)} names, expected {count} ({what})")
     seen: dict = {}
@@ -242,30 +242,30 @@ def _names(value: Any, key: str, count: int, what: str) -> tuple:
     return tuple(value)
 
 
-def _agent_id(value: Any, key: str) -> int:
+def check_agent_id(value: Any, key: str) -> int:
     if isinstance(value, str) and value.strip().isdigit():
         value = int(value)
     if isinstance(value, bool) or not isinstance(value, numbers.Integral) or int(value) < 1:
-        raise ScenarioError(f"{key}: agent ids must be positive integers, got {_describe(value)}")
+        raise ScenarioError(f"{key}: agent ids must be positive integers, got {describe(value)}")
     return int(value)
 
 
-def _known_agent(value: Any, key: str, ids: tuple) -> int:
-    aid = _agent_id(value, key)
+def check_known_agent(value: Any, key: str, ids: tuple) -> int:
+    aid = check_agent_id(value, key)
     if aid not in ids:
-        raise ScenarioError(f"{key} names agent {aid}, which is not in system.C (agents: {_ids_text(ids)})")
+        raise ScenarioError(f"{key} names agent {aid}, which is not in system.C (agents: {ids_text(ids)})")
     return aid
 
 
-def _ids_text(ids: tuple) -> str:
+def ids_text(ids: tuple) -> str:
     return ", ".join(str(i) for i in ids)
 
 
-def _arc(value: Any, key: str, ids: tuple) -> tuple:
+def check_arc(value: Any, key: str, ids: tuple) -> tuple:
     if not isinstance(value, list) or len(value) != 2:
-        raise ScenarioError(f"{key} must be a pair [j, i] of agent ids, got {_describe(value)}")
-    j = _known_agent(value[0], key, ids)
-    i = _known_agent(value[1], key, ids)
+        raise ScenarioError(f"{key} must be a pair [j, i] of agent ids, got {describe(value)}")
+    j = check_known_agent(value[0], key, ids)
+    i = check_known_agent(value[1], key, ids)
     return (j, i)
 
 

@@ -28,7 +28,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from ..errors import DimensionError, ScenarioError
-from .checks import MAX_MAGNITUDE, MIN_DT, _matrix, _number
+from .checks import MAX_MAGNITUDE, MIN_DT, check_matrix, check_number
 
 __all__ = ["InputSignal", "parse_input", "parse_inputs", "input_at", "input_time"]
 
@@ -48,14 +48,14 @@ class InputSignal:
 
 def _vector(value: Any, key: str, width: int) -> tuple:
     """``width`` finite numbers (the scenario's own vector check, then the width against ``system.B``)."""
-    out = _matrix(value, key, vector=True).ravel()
+    out = check_matrix(value, key, vector=True).ravel()
     if len(out) != width:
         raise DimensionError(f"{key} has {len(out)} entries; system.B has {width} columns (one per input)")
     return tuple(float(v) for v in out)
 
 
 def _positive(value: Any, key: str) -> float:
-    v = _number(value, key)
+    v = check_number(value, key)
     if not v > 0:
         raise ScenarioError(f"{key} must be > 0, got {v:g}")
     return v
@@ -79,7 +79,7 @@ def parse_input(raw: Any, width: int, key: str = "system.u") -> InputSignal:
             where = f"{key}.steps[{j + 1}]"
             if not isinstance(item, list) or len(item) != 2:
                 raise ScenarioError(f"{where} must be [t, [{width} numbers]], got {item!r}"[:200])
-            t = _number(item[0], f"{where} (its time)")
+            t = check_number(item[0], f"{where} (its time)")
             if steps and not t > steps[-1][0]:
                 raise ScenarioError(f"{where}: times must increase ({t:g} after {steps[-1][0]:g})")
             steps.append((t, _vector(item[1], where, width)))
@@ -98,7 +98,7 @@ def parse_input(raw: Any, width: int, key: str = "system.u") -> InputSignal:
                 raise ScenarioError(f"{where} needs amplitude and period")
             sines.append((_vector(item["amplitude"], f"{where}.amplitude", width),
                           _positive(item["period"], f"{where}.period"),
-                          _number(item.get("phase", 0.0), f"{where}.phase")))
+                          check_number(item.get("phase", 0.0), f"{where}.phase")))
     return InputSignal(width=width, constant=constant, steps=tuple(steps), sines=tuple(sines))
 
 
@@ -129,7 +129,7 @@ def _sampled(A: Any, B: Any, sample: Any, time: str) -> tuple:
     """``system.sample``: ``(exp(A dt), int_0^dt exp(A s) ds B, dt)`` (zero-order hold), or ``(A, B, None)``."""
     if sample is None:
         return A, B, None
-    dt = _number(sample, "system.sample")
+    dt = check_number(sample, "system.sample")
     if time != "discrete":
         raise ScenarioError("system.sample samples a continuous model for time: discrete; with time: continuous the "
                             "estimator itself runs in continuous time (its step is run.dt): leave system.sample out")
@@ -150,7 +150,7 @@ def parse_inputs(sysmap: Mapping, A: np.ndarray, time: str) -> tuple:
     and with ``system.sample`` the sampled ``A`` and ``B``; one-line errors naming the key."""
     B = None
     if sysmap.get("B") is not None:
-        B = _matrix(sysmap["B"], "system.B")
+        B = check_matrix(sysmap["B"], "system.B")
         if B.shape[0] != A.shape[0]:
             raise DimensionError(f"system.B has {B.shape[0]} rows, system.A is {A.shape[0]}x{A.shape[0]} (B is n x p, "
                                  "one column per input)")

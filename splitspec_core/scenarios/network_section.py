@@ -10,22 +10,22 @@ from __future__ import annotations
 from typing import Any
 
 from ..errors import ScenarioError
-from .checks import (_DELAY_KEYS, _NETWORK_ARC_KEYS, _NETWORK_KEYS, MAX_NETWORK_SECONDS, _arc, _check_keys,
-                              _describe, _ids_text, _known_agent, _number, _require_map)
+from .checks import (DELAY_KEYS, NETWORK_ARC_KEYS, NETWORK_KEYS, MAX_NETWORK_SECONDS, check_arc, check_keys,
+                              describe, ids_text, check_known_agent, check_number, require_map)
 from .specs import NetworkSpec
 
 __all__ = ["parse_network", "parse_groups", "check_heals"]
 
 
 def _probability(value: Any, key: str) -> float:
-    p = _number(value, key)
+    p = check_number(value, key)
     if not 0.0 <= p < 1.0:
         raise ScenarioError(f"{key} must be in [0, 1) (the probability that a message is lost), got {p:g}")
     return p
 
 
 def _seconds(value: Any, key: str, *, positive: bool = False) -> float:
-    s = _number(value, key)
+    s = check_number(value, key)
     if positive and not s > 0:
         raise ScenarioError(f"{key} must be > 0 seconds, got {s:g}")
     if s < 0:
@@ -36,8 +36,8 @@ def _seconds(value: Any, key: str, *, positive: bool = False) -> float:
 
 
 def _delay(raw: Any, key: str) -> tuple:
-    dmap = _require_map(raw, key)
-    _check_keys(dmap, _DELAY_KEYS, key)
+    dmap = require_map(raw, key)
+    check_keys(dmap, DELAY_KEYS, key)
     mean = _seconds(dmap.get("mean", 0.0), f"{key}.mean")
     jitter = _seconds(dmap.get("jitter", 0.0), f"{key}.jitter")
     if mean + jitter > MAX_NETWORK_SECONDS:
@@ -50,8 +50,8 @@ def parse_network(raw: Any, ids: tuple, graphs: tuple) -> NetworkSpec:
     """The ``network:`` section (absent: a perfect network)."""
     if raw is None:
         return NetworkSpec()
-    nmap = _require_map(raw, "network")
-    _check_keys(nmap, _NETWORK_KEYS, "network")
+    nmap = require_map(raw, "network")
+    check_keys(nmap, NETWORK_KEYS, "network")
     loss = _probability(nmap.get("loss", 0.0), "network.loss")
     mean, jitter = _delay(nmap["delay"], "network.delay") if nmap.get("delay") is not None else (0.0, 0.0)
     deadline = None
@@ -60,15 +60,15 @@ def parse_network(raw: Any, ids: tuple, graphs: tuple) -> NetworkSpec:
     arcs: dict = {}
     raw_arcs = nmap.get("arcs") or []
     if not isinstance(raw_arcs, list):
-        raise ScenarioError(f"network.arcs must be a list of {{arc: [j, i], loss: p}}, got {_describe(raw_arcs)}")
+        raise ScenarioError(f"network.arcs must be a list of {{arc: [j, i], loss: p}}, got {describe(raw_arcs)}")
     known = {a for g in graphs for a in g.arcs}
     for k, item in enumerate(raw_arcs, 1):
         key = f"network.arcs[{k}]"
-        amap = _require_map(item, key)
-        _check_keys(amap, _NETWORK_ARC_KEYS, key)
+        amap = require_map(item, key)
+        check_keys(amap, NETWORK_ARC_KEYS, key)
         if "arc" not in amap:
             raise ScenarioError(f"{key}.arc is missing (the arc [j, i] it overrides)")
-        arc = _arc(amap["arc"], f"{key}.arc", ids)
+        arc = check_arc(amap["arc"], f"{key}.arc", ids)
         if arc not in known:
             raise ScenarioError(f"{key}.arc [{arc[0]}, {arc[1]}] is not an arc of any graph (agent {arc[1]} never "
                                 f"hears agent {arc[0]})")
@@ -87,14 +87,14 @@ def parse_groups(raw: Any, key: str, ids: tuple) -> tuple:
     """``partition: [[ids], [ids], ...]``: disjoint groups of known agents (the unnamed ones are one more group)."""
     if not isinstance(raw, list) or not raw:
         raise ScenarioError(f"{key} must be a list of groups of agent ids, e.g. [[1, 2], [3, 4]], got "
-                            f"{_describe(raw)}")
+                            f"{describe(raw)}")
     groups, seen = [], {}
     for g, group in enumerate(raw, 1):
         if not isinstance(group, list) or not group:
-            raise ScenarioError(f"{key}[{g}] must be a non-empty list of agent ids, got {_describe(group)}")
+            raise ScenarioError(f"{key}[{g}] must be a non-empty list of agent ids, got {describe(group)}")
         members = []
         for item in group:
-            aid = _known_agent(item, f"{key}[{g}]", ids)
+            aid = check_known_agent(item, f"{key}[{g}]", ids)
             if aid in seen:
                 where = "twice in this group" if seen[aid] == g else f"in group {seen[aid]} too"
                 raise ScenarioError(f"{key}[{g}] names agent {aid} {where}: the groups of a partition do not overlap")
@@ -103,7 +103,7 @@ def parse_groups(raw: Any, key: str, ids: tuple) -> tuple:
         groups.append(tuple(members))
     rest = tuple(a for a in ids if a not in seen)
     if len(groups) + (1 if rest else 0) < 2:
-        raise ScenarioError(f"{key} puts every agent ({_ids_text(ids)}) in one group: nothing is cut")
+        raise ScenarioError(f"{key} puts every agent ({ids_text(ids)}) in one group: nothing is cut")
     return tuple(groups)
 
 

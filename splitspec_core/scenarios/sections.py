@@ -12,11 +12,11 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import ScenarioError
-from .checks import (_DESIGN_KEYS, _GRAPH_KEYS, _RANDOM_KEYS, _RICCATI_KEYS, _RUN_KEYS, _SWITCHING_KEYS,
-                              _SYSTEM_KEYS, _TOP_KEYS, FAULT_ACTIONS, GAIN_METHODS, MAX_Q, MIN_DT, MIN_PACE,
-                              MIN_RICCATI_WEIGHT, MIN_SWITCH_STEPS, Q_METHODS, WEIGHTINGS, _agent_id, _arc,
-                              _check_keys, _describe, _ids_text, _integer, _known_agent, _matrix, _names, _number,
-                              _require_map, _seed, check_shapes, plain)
+from .checks import (DESIGN_KEYS, GRAPH_KEYS, RANDOM_KEYS, RICCATI_KEYS, RUN_KEYS, SWITCHING_KEYS,
+                              SYSTEM_KEYS, TOP_KEYS, FAULT_ACTIONS, GAIN_METHODS, MAX_Q, MIN_DT, MIN_PACE,
+                              MIN_RICCATI_WEIGHT, MIN_SWITCH_STEPS, Q_METHODS, WEIGHTINGS, check_agent_id, check_arc,
+                              check_keys, describe, ids_text, check_integer, check_known_agent, check_matrix, check_names, check_number,
+                              require_map, check_seed, check_shapes, plain)
 from .inputs import parse_inputs
 from .labels import default_state_names
 from .files import resolve_model_file
@@ -25,49 +25,49 @@ from .network_section import check_heals, parse_groups, parse_network
 from .sources import parse_input_source, parse_sources
 
 def _parse_system(raw: Any, time: str = "discrete") -> tuple[System, tuple]:
-    sysmap = _require_map(raw, "system")
-    _check_keys(sysmap, _SYSTEM_KEYS, "system")
-    A = _matrix(sysmap.get("A"), "system.A")
+    sysmap = require_map(raw, "system")
+    check_keys(sysmap, SYSTEM_KEYS, "system")
+    A = check_matrix(sysmap.get("A"), "system.A")
     check_shapes(A, {})
     A_given = A
     A, B, u, sample = parse_inputs(sysmap, A, time)  # system.B, system.u, system.sample
     craw = sysmap.get("C")
     if craw is None:
         raise ScenarioError("system.C is missing (one output matrix per agent, keyed by agent id)")
-    cmap = _require_map(craw, "system.C")
+    cmap = require_map(craw, "system.C")
     if not cmap:
         raise ScenarioError("system.C has no agents")
     entries = {}
     for k, v in cmap.items():
-        aid = _agent_id(k, "system.C")
+        aid = check_agent_id(k, "system.C")
         if aid in entries:
             raise ScenarioError(f"system.C.{aid} is given twice")
-        C = _matrix(v, f"system.C.{aid}")
+        C = check_matrix(v, f"system.C.{aid}")
         check_shapes(A, {aid: C})
         entries[aid] = C
     ids = tuple(sorted(entries))
     x0 = None
     if sysmap.get("x0") is not None:
-        x0 = _matrix(sysmap["x0"], "system.x0", vector=True)
+        x0 = check_matrix(sysmap["x0"], "system.x0", vector=True)
         check_shapes(A, {}, x0)
     noises = {}
     for k in ("process_noise", "measurement_noise"):
-        v = _number(sysmap.get(k, 0.0), f"system.{k}")
+        v = check_number(sysmap.get(k, 0.0), f"system.{k}")
         if v < 0:
             raise ScenarioError(f"system.{k} must be >= 0, got {v}")
         noises[k] = v
     states = None
     if sysmap.get("states") is not None:
-        states = _names(sysmap["states"], "system.states", A.shape[0], f"one per state, system.A is {A.shape[0]}x"
+        states = check_names(sysmap["states"], "system.states", A.shape[0], f"one per state, system.A is {A.shape[0]}x"
                                                                         f"{A.shape[0]}")
     outputs = None
     if sysmap.get("outputs") is not None:
-        omap = _require_map(sysmap["outputs"], "system.outputs")
+        omap = require_map(sysmap["outputs"], "system.outputs")
         outputs = {}
         for k, v in omap.items():
-            aid = _known_agent(k, "system.outputs", ids)
+            aid = check_known_agent(k, "system.outputs", ids)
             s_i = entries[aid].shape[0]
-            outputs[aid] = _names(v, f"system.outputs.{aid}", s_i, f"one per row of system.C.{aid}")
+            outputs[aid] = check_names(v, f"system.outputs.{aid}", s_i, f"one per row of system.C.{aid}")
     system = System(A=A, Cs=tuple(entries[i] for i in ids), x0=x0, states=states, outputs=outputs, B=B, u=u,
                     sample=sample, A_continuous=A_given if sample is not None else None, **noises)
     return system, ids
@@ -76,7 +76,7 @@ def _parse_system(raw: Any, time: str = "discrete") -> tuple[System, tuple]:
 def _parse_graphs(raw: Any, ids: tuple) -> tuple:
     if raw is None:
         raise ScenarioError("graphs is missing (at least one named neighbour graph)")
-    gmap = _require_map(raw, "graphs")
+    gmap = require_map(raw, "graphs")
     if not gmap:
         raise ScenarioError("graphs has no graph")
     out = []
@@ -85,8 +85,8 @@ def _parse_graphs(raw: Any, ids: tuple) -> tuple:
         key = f"graphs.{gname}"
         if isinstance(spec, list):  # shorthand: a graph given as its list of arcs
             spec = {"arcs": spec}
-        spec = _require_map(spec, key)
-        _check_keys(spec, _GRAPH_KEYS, key)
+        spec = require_map(spec, key)
+        check_keys(spec, GRAPH_KEYS, key)
         if "arcs" not in spec and "undirected" not in spec:
             raise ScenarioError(f"{key} needs arcs or undirected")
         arcs: list = []
@@ -95,9 +95,9 @@ def _parse_graphs(raw: Any, ids: tuple) -> tuple:
             if items is None:
                 continue
             if not isinstance(items, list):
-                raise ScenarioError(f"{key}.{field_name} must be a list of [j, i] pairs, got {_describe(items)}")
+                raise ScenarioError(f"{key}.{field_name} must be a list of [j, i] pairs, got {describe(items)}")
             for n_item, item in enumerate(items):
-                j, i = _arc(item, f"{key}.{field_name}[{n_item + 1}]", ids)
+                j, i = check_arc(item, f"{key}.{field_name}[{n_item + 1}]", ids)
                 for arc in ((j, i), (i, j)) if both else ((j, i),):
                     if arc[0] != arc[1] and arc not in arcs:
                         arcs.append(arc)
@@ -108,8 +108,8 @@ def _parse_graphs(raw: Any, ids: tuple) -> tuple:
 def _parse_switching(raw: Any, names: tuple, time: str) -> Switching:
     if raw is None:
         return Switching(kind="constant")
-    smap = _require_map(raw, "switching")
-    _check_keys(smap, _SWITCHING_KEYS, "switching")
+    smap = require_map(raw, "switching")
+    check_keys(smap, SWITCHING_KEYS, "switching")
     if ("schedule" in smap) == ("random" in smap):
         raise ScenarioError("switching needs exactly one of schedule or random")
 
@@ -122,13 +122,13 @@ def _parse_switching(raw: Any, names: tuple, time: str) -> Switching:
     if "schedule" in smap:
         sched = smap["schedule"]
         if not isinstance(sched, list) or not sched:
-            raise ScenarioError(f"switching.schedule must be a non-empty list of [time, graph], got {_describe(sched)}")
+            raise ScenarioError(f"switching.schedule must be a non-empty list of [time, graph], got {describe(sched)}")
         pieces = []
         for k, piece in enumerate(sched):
             key = f"switching.schedule[{k + 1}]"
             if not isinstance(piece, list) or len(piece) != 2:
-                raise ScenarioError(f"{key} must be a pair [time, graph], got {_describe(piece)}")
-            t = _number(piece[0], f"{key} time")
+                raise ScenarioError(f"{key} must be a pair [time, graph], got {describe(piece)}")
+            t = check_number(piece[0], f"{key} time")
             if pieces and t <= pieces[-1][0]:
                 raise ScenarioError(f"{key} time {t:g} is not after the previous piece ({pieces[-1][0]:g})")
             pieces.append((t, known_graph(piece[1], key)))
@@ -136,7 +136,7 @@ def _parse_switching(raw: Any, names: tuple, time: str) -> Switching:
             raise ScenarioError(f"switching.schedule must start at time 0, starts at {pieces[0][0]:g}")
         period = None
         if smap.get("period") is not None:
-            period = _number(smap["period"], "switching.period")
+            period = check_number(smap["period"], "switching.period")
             if period <= pieces[-1][0]:
                 raise ScenarioError(
                     f"switching.period ({period:g}) must be after the last piece's start ({pieces[-1][0]:g})")
@@ -144,27 +144,27 @@ def _parse_switching(raw: Any, names: tuple, time: str) -> Switching:
 
     if "period" in smap:
         raise ScenarioError("switching.period is only for switching.schedule")
-    rmap = _require_map(smap["random"], "switching.random")
-    _check_keys(rmap, _RANDOM_KEYS, "switching.random")
+    rmap = require_map(smap["random"], "switching.random")
+    check_keys(rmap, RANDOM_KEYS, "switching.random")
     graphs = rmap.get("graphs", list(names))
     if not isinstance(graphs, list) or len(graphs) < 2:
-        raise ScenarioError(f"switching.random.graphs must list at least two graphs, got {_describe(graphs)}")
+        raise ScenarioError(f"switching.random.graphs must list at least two graphs, got {describe(graphs)}")
     gs = tuple(known_graph(g, f"switching.random.graphs[{k + 1}]") for k, g in enumerate(graphs))
     if "dwell" not in rmap:
         raise ScenarioError("switching.random.dwell is missing (the average dwell time)")
-    dwell = _number(rmap["dwell"], "switching.random.dwell")
+    dwell = check_number(rmap["dwell"], "switching.random.dwell")
     if dwell <= 0:
         raise ScenarioError(f"switching.random.dwell must be > 0, got {dwell:g}")
-    seed = None if rmap.get("seed") is None else _seed(rmap["seed"], "switching.random.seed")
+    seed = None if rmap.get("seed") is None else check_seed(rmap["seed"], "switching.random.seed")
     return Switching(kind="random", graphs=gs, dwell=dwell, seed=seed)
 
 
 def _parse_design(raw: Any, time: str, system: System, ids: tuple) -> DesignSpec:
-    dmap = _require_map(raw, "design")
-    _check_keys(dmap, _DESIGN_KEYS, "design")
+    dmap = require_map(raw, "design")
+    check_keys(dmap, DESIGN_KEYS, "design")
     if "rate" not in dmap:
         raise ScenarioError("design.rate is missing (the decay rate lambda)")
-    rate = _number(dmap["rate"], "design.rate")
+    rate = check_number(dmap["rate"], "design.rate")
     if time == "continuous" and not rate > 0:
         raise ScenarioError(f"design.rate must be > 0 for continuous time, got {rate:g}")
     if time == "discrete" and not 0 < rate < 1:
@@ -177,14 +177,14 @@ def _parse_design(raw: Any, time: str, system: System, ids: tuple) -> DesignSpec
         kraw = dmap.get("K")
         if kraw is None:
             raise ScenarioError("design.K is missing (design.gains is explicit: one n x s_i matrix per agent)")
-        kmap = _require_map(kraw, "design.K")
+        kmap = require_map(kraw, "design.K")
         given = {}
         for k, v in kmap.items():
-            aid = _known_agent(k, "design.K", ids)
-            given[aid] = _matrix(v, f"design.K.{aid}")
+            aid = check_known_agent(k, "design.K", ids)
+            given[aid] = check_matrix(v, f"design.K.{aid}")
         missing = [i for i in ids if i not in given]
         if missing:
-            raise ScenarioError(f"design.K has no gain for agent(s) {_ids_text(tuple(missing))}")
+            raise ScenarioError(f"design.K has no gain for agent(s) {ids_text(tuple(missing))}")
         Ks = []
         for aid, C in zip(ids, system.Cs):
             K_i = given[aid]
@@ -198,39 +198,39 @@ def _parse_design(raw: Any, time: str, system: System, ids: tuple) -> DesignSpec
     if time == "discrete" and "g" in dmap:
         raise ScenarioError("design.g is for continuous time; discrete time uses design.q")
     if g not in ("auto", "adaptive"):
-        g = _number(g, "design.g")
+        g = check_number(g, "design.g")
         if g < 0:
             raise ScenarioError(f"design.g must be >= 0, 'auto' or 'adaptive', got {g:g}")
-    g0 = _number(dmap.get("g0", 0.0), "design.g0")
+    g0 = check_number(dmap.get("g0", 0.0), "design.g0")
     if g0 < 0:
         raise ScenarioError(f"design.g0 must be >= 0, got {g0:g}")
     q = dmap.get("q", "auto")
     if time == "continuous" and "q" in dmap:
         raise ScenarioError("design.q is for discrete time; continuous time uses design.g")
     if q != "auto":
-        q = _integer(q, "design.q", minimum=1)
+        q = check_integer(q, "design.q", minimum=1)
     q_method = str(dmap.get("q_method", "spectral"))
     if q_method not in Q_METHODS:
         raise ScenarioError(f"design.q_method must be one of {', '.join(Q_METHODS)}, got {q_method!r}")
-    q_max = _integer(dmap.get("q_max", 100_000), "design.q_max", minimum=1)
+    q_max = check_integer(dmap.get("q_max", 100_000), "design.q_max", minimum=1)
     if q_max > MAX_Q:
         raise ScenarioError(f"design.q_max must be <= {MAX_Q} (consensus exchanges per event time), got {q_max}")
     if q != "auto" and q > q_max:
         raise ScenarioError(f"design.q = {q} exceeds design.q_max = {q_max}")
-    resilience = _integer(dmap.get("resilience", 0), "design.resilience", minimum=0)
+    resilience = check_integer(dmap.get("resilience", 0), "design.resilience", minimum=0)
     if resilience > 1:
         raise ScenarioError(f"design.resilience must be 0 or 1, got {resilience}")
     weights = str(dmap.get("weights", "uniform"))
     if weights not in WEIGHTINGS:
         raise ScenarioError(f"design.weights must be one of {', '.join(WEIGHTINGS)}, got {weights!r}")
-    margin = _number(dmap.get("margin", 0.5), "design.margin")
+    margin = check_number(dmap.get("margin", 0.5), "design.margin")
     if not 0 < margin <= 10:
         raise ScenarioError(f"design.margin must be in (0, 10], got {margin:g}")
     rank_tol = dmap.get("rank_tol", "auto")  # auto: observability.DEFAULT_RANK_TOL (graded margins)
     if rank_tol == "auto" or rank_tol is None:
         rank_tol = None
     else:
-        rank_tol = _number(rank_tol, "design.rank_tol")
+        rank_tol = check_number(rank_tol, "design.rank_tol")
         if not 0 < rank_tol < 1:
             raise ScenarioError(f"design.rank_tol must be auto or a number in (0, 1), got {rank_tol:g}")
     graph_set = str(dmap.get("graph_set", "scenario"))
@@ -238,7 +238,7 @@ def _parse_design(raw: Any, time: str, system: System, ids: tuple) -> DesignSpec
         raise ScenarioError(f"design.graph_set must be scenario or all, got {graph_set!r}")
     dwell = None
     if dmap.get("dwell") is not None:
-        dwell = _number(dmap["dwell"], "design.dwell")
+        dwell = check_number(dmap["dwell"], "design.dwell")
         if dwell <= 0:
             raise ScenarioError(f"design.dwell must be > 0, got {dwell:g}")
     undetectable = str(dmap.get("undetectable", "refuse"))
@@ -252,10 +252,10 @@ def _parse_design(raw: Any, time: str, system: System, ids: tuple) -> DesignSpec
         raise ScenarioError(f"design.eigenvalues must be auto, dense or iterative, got {eigenvalues!r}")
     pw = mw = None
     if dmap.get("riccati") is not None:
-        rmap = _require_map(dmap["riccati"], "design.riccati")
-        _check_keys(rmap, _RICCATI_KEYS, "design.riccati")
-        for k in _RICCATI_KEYS:
-            if k in rmap and not _number(rmap[k], f"design.riccati.{k}") >= MIN_RICCATI_WEIGHT:
+        rmap = require_map(dmap["riccati"], "design.riccati")
+        check_keys(rmap, RICCATI_KEYS, "design.riccati")
+        for k in RICCATI_KEYS:
+            if k in rmap and not check_number(rmap[k], f"design.riccati.{k}") >= MIN_RICCATI_WEIGHT:
                 raise ScenarioError(f"design.riccati.{k} must be >= {MIN_RICCATI_WEIGHT:g}, got {rmap[k]}")
         pw = None if "process_weight" not in rmap else float(rmap["process_weight"])
         mw = None if "measurement_weight" not in rmap else float(rmap["measurement_weight"])
@@ -271,15 +271,15 @@ def _parse_faults(raw: Any, ids: tuple) -> tuple:
     if raw is None:
         return ()
     if not isinstance(raw, list):
-        raise ScenarioError(f"faults must be a list of {{at: T, <action>: ...}}, got {_describe(raw)}")
+        raise ScenarioError(f"faults must be a list of {{at: T, <action>: ...}}, got {describe(raw)}")
     out = []
     for k, item in enumerate(raw):
         key = f"faults[{k + 1}]"
-        fmap = _require_map(item, key)
-        _check_keys(fmap, ("at",) + FAULT_ACTIONS, key)
+        fmap = require_map(item, key)
+        check_keys(fmap, ("at",) + FAULT_ACTIONS, key)
         if "at" not in fmap:
             raise ScenarioError(f"{key}.at is missing (the time of the fault)")
-        at = _number(fmap["at"], f"{key}.at")
+        at = check_number(fmap["at"], f"{key}.at")
         if at < 0:
             raise ScenarioError(f"{key}.at must be >= 0, got {at:g}")
         actions = [a for a in FAULT_ACTIONS if a in fmap]
@@ -290,16 +290,16 @@ def _parse_faults(raw: Any, ids: tuple) -> tuple:
             out.append(Fault(at=at, action=action, groups=parse_groups(fmap[action], f"{key}.partition", ids)))
         elif action == "heal":
             if fmap[action] is not True:
-                raise ScenarioError(f"{key}.heal must be true (it ends every partition), got {_describe(fmap[action])}")
+                raise ScenarioError(f"{key}.heal must be true (it ends every partition), got {describe(fmap[action])}")
             out.append(Fault(at=at, action=action))
         elif action.endswith("_arc"):
-            arc = _arc(fmap[action], f"{key}.{action}", ids)
+            arc = check_arc(fmap[action], f"{key}.{action}", ids)
             if arc[0] == arc[1]:
                 raise ScenarioError(f"{key}.{action} [{arc[0]}, {arc[1]}] is a self-arc: self-arcs are implicit "
                                     "and cannot be dropped or restored")
             out.append(Fault(at=at, action=action, arc=arc))
         else:
-            out.append(Fault(at=at, action=action, agent=_known_agent(fmap[action], f"{key}.{action}", ids)))
+            out.append(Fault(at=at, action=action, agent=check_known_agent(fmap[action], f"{key}.{action}", ids)))
     out = tuple(sorted(out, key=lambda f: f.at))
     check_heals(out)
     return out
@@ -313,7 +313,7 @@ def _parse_show(raw: Any, names: tuple) -> tuple | None:
         return None
     items = [raw] if isinstance(raw, str) else raw
     if not isinstance(items, list) or not items or not all(isinstance(p, str) and p for p in items):
-        raise ScenarioError(f"run.show must be a list of state names or patterns (x*, delta_*), got {_describe(raw)}")
+        raise ScenarioError(f"run.show must be a list of state names or patterns (x*, delta_*), got {describe(raw)}")
     for k, p in enumerate(items):
         if not any(fnmatch.fnmatchcase(name, p) for name in names):
             shown = ", ".join(names[:6]) + (" ..." if len(names) > 6 else "")
@@ -324,20 +324,20 @@ def _parse_show(raw: Any, names: tuple) -> tuple | None:
 def _parse_run(raw: Any, time: str, names: tuple = ()) -> RunSpec:
     if raw is None:
         raw = {}
-    rmap = _require_map(raw, "run")
-    _check_keys(rmap, _RUN_KEYS, "run")
-    steps = _integer(rmap.get("steps", 60), "run.steps", minimum=1)
+    rmap = require_map(raw, "run")
+    check_keys(rmap, RUN_KEYS, "run")
+    steps = check_integer(rmap.get("steps", 60), "run.steps", minimum=1)
     dt = None
     if time == "continuous":
-        dt = _number(rmap.get("dt", 0.01), "run.dt")
+        dt = check_number(rmap.get("dt", 0.01), "run.dt")
         if dt < MIN_DT:
             raise ScenarioError(f"run.dt must be >= {MIN_DT:g}, got {dt:g}")
     elif "dt" in rmap:
         raise ScenarioError("run.dt is only for continuous time (discrete steps are event times)")
-    seed = _seed(rmap.get("seed", 0), "run.seed")
+    seed = check_seed(rmap.get("seed", 0), "run.seed")
     pace = None
     if rmap.get("pace") is not None:
-        pace = _number(rmap["pace"], "run.pace")
+        pace = check_number(rmap["pace"], "run.pace")
         if pace < MIN_PACE:
             raise ScenarioError(f"run.pace must be >= {MIN_PACE:g} event times per second, got {pace:g}")
     return RunSpec(steps=steps, dt=dt, seed=seed, pace=pace, show=_parse_show(rmap.get("show"), names))
@@ -357,12 +357,12 @@ def parse_scenario(data: Any, *, source: str = "<scenario>", base: Path | None =
     if data is None:
         raise ScenarioError(f"{source} is empty")
     data = plain(resolve_model_file(data, base))
-    top = _require_map(data, "the scenario")
-    _check_keys(top, _TOP_KEYS, "")
+    top = require_map(data, "the scenario")
+    check_keys(top, TOP_KEYS, "")
     name = str(top.get("name", Path(source).stem))
     time = top.get("time", "discrete")
     if time not in ("discrete", "continuous"):
-        raise ScenarioError(f"time must be discrete or continuous, got {_describe(time)}")
+        raise ScenarioError(f"time must be discrete or continuous, got {describe(time)}")
     if "system" not in top:
         raise ScenarioError("system is missing (A and one C_i per agent)")
     system, ids = _parse_system(top["system"], time)
@@ -390,17 +390,17 @@ def _parse_positions(raw: Any, ids: tuple) -> dict | None:
     """``positions: {id: [x, y], ...}``: where each agent is drawn in the topology view (every agent, distinct)."""
     if raw is None:
         return None
-    mapping = _require_map(raw, "positions")
+    mapping = require_map(raw, "positions")
     out: dict = {}
     for key, value in mapping.items():
-        aid = _known_agent(key, "positions", ids)
+        aid = check_known_agent(key, "positions", ids)
         where = f"positions.{aid}"
         if isinstance(value, (str, bytes)) or not isinstance(value, (list, tuple)) or len(value) != 2:
-            raise ScenarioError(f"{where} must be a pair [x, y], got {_describe(value)}")
-        out[aid] = (_number(value[0], f"{where}[0]"), _number(value[1], f"{where}[1]"))
+            raise ScenarioError(f"{where} must be a pair [x, y], got {describe(value)}")
+        out[aid] = (check_number(value[0], f"{where}[0]"), check_number(value[1], f"{where}[1]"))
     missing = [a for a in ids if a not in out]
     if missing:
-        raise ScenarioError(f"positions has no [x, y] for agents {_ids_text(tuple(missing))} (give every agent one)")
+        raise ScenarioError(f"positions has no [x, y] for agents {ids_text(tuple(missing))} (give every agent one)")
     seen: dict = {}
     for aid, p in out.items():
         if p in seen:

@@ -29,7 +29,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from ..errors import ScenarioError
-from .checks import _check_keys, _describe, _ids_text, _known_agent, _number, _require_map
+from .checks import check_keys, describe, ids_text, check_known_agent, check_number, require_map
 
 __all__ = ["Source", "parse_sources", "parse_input_source", "DEFAULT_AGE_PERIODS", "INPUTS", "MAX_AGE", "SOURCE_KEYS"]
 
@@ -56,14 +56,14 @@ def parse_sources(raw: Any, ids: tuple, pace: float | None) -> dict | None:
     """``{agent id: Source}`` in ``ids`` order, or None without a ``sources:`` section."""
     if raw is None:
         return None
-    smap = _require_map(raw, "sources")
+    smap = require_map(raw, "sources")
     if pace is None:
         raise ScenarioError("sources needs run.pace (event times per second): live sensors are sampled at "
                             "wall-clock event times")
     out: dict = {}
     seen: dict = {}
     for k, v in smap.items():
-        aid = k if k == INPUTS else _known_agent(k, "sources", ids)
+        aid = k if k == INPUTS else check_known_agent(k, "sources", ids)
         src = _source(v, f"sources.{aid}", f"chain/{aid}", pace)
         if src.key in seen:
             raise ScenarioError(f"sources.{aid}.key {src.key!r} is also {_whose(seen[src.key])} source (one key "
@@ -73,7 +73,7 @@ def parse_sources(raw: Any, ids: tuple, pace: float | None) -> dict | None:
             out[aid] = src
     missing = [a for a in ids if a not in out]
     if missing:
-        raise ScenarioError(f"sources has no key for agent{'s' * (len(missing) > 1)} {_ids_text(tuple(missing))} "
+        raise ScenarioError(f"sources has no key for agent{'s' * (len(missing) > 1)} {ids_text(tuple(missing))} "
                             "(every agent needs its sensor)")
     return {a: out[a] for a in ids}
 
@@ -85,16 +85,16 @@ def _whose(aid) -> str:
 def _source(v: Any, where: str, example: str, pace: float) -> Source:
     if isinstance(v, str):
         v = {"key": v}
-    vmap = _require_map(v, where)
-    _check_keys(vmap, SOURCE_KEYS, where)
+    vmap = require_map(v, where)
+    check_keys(vmap, SOURCE_KEYS, where)
     key = vmap.get("key")
     if not isinstance(key, str) or not _KEY.fullmatch(key):
         raise ScenarioError(f"{where}.key must be a key like {example} (chunks of letters, digits, _ . - "
                             f"separated by /, no wildcard; relative to splitspec/<run>/sensors/), got "
-                            f"{_describe(key)}")
+                            f"{describe(key)}")
     age = DEFAULT_AGE_PERIODS / pace
     if vmap.get("max_age") is not None:
-        age = _number(vmap["max_age"], f"{where}.max_age")
+        age = check_number(vmap["max_age"], f"{where}.max_age")
         if not 0 < age <= MAX_AGE:
             raise ScenarioError(f"{where}.max_age must be > 0 and <= {MAX_AGE:g} seconds, got {age:g}")
     return Source(key=key, max_age=float(age))

@@ -12,7 +12,7 @@ import pytest
 import yaml
 
 import splitspec_core as ss
-from splitspec_core.scenarios.checks import _DESIGN_KEYS, _RUN_KEYS, _SYSTEM_KEYS
+from splitspec_core.scenarios.checks import DESIGN_KEYS, RUN_KEYS, SYSTEM_KEYS
 from splitspec_core.scenarios.specs import DesignSpec, System
 from splitspec_orchestrator import cli
 from tests.conftest import ROOT
@@ -20,7 +20,7 @@ from tests.numerics import assert_close
 from tests.unit import test_scenario_errors as errors_suite
 
 EXAMPLES = ROOT / "examples"
-SECTIONS = {"system": _SYSTEM_KEYS, "design": _DESIGN_KEYS, "run": _RUN_KEYS}
+SECTIONS = {"system": SYSTEM_KEYS, "design": DESIGN_KEYS, "run": RUN_KEYS}
 
 
 def as_keywords(data: dict) -> dict:
