@@ -74,7 +74,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from splitspec_orchestrator.recording.viewer import start_web_viewer, stop_viewer  # noqa: E402  (the same server as `splitspec view`)
+from splitspec_orchestrator.view import start_web_viewer, stop_viewer  # noqa: E402  (the same server as `splitspec view`)
 
 CHROMIUM = "/usr/bin/chromium"
 CHROMIUM_ARGS = ["--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",

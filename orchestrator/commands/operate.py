@@ -23,7 +23,7 @@ def cmd_recover(args: argparse.Namespace) -> int:
 
 
 def cmd_view(args: argparse.Namespace) -> int:
-    from ..recording.viewer import view
+    from ..view import view
 
     return view(args.out, web=args.web, port=args.port, grpc_port=args.grpc_port)
 

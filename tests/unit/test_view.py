@@ -8,7 +8,7 @@ import urllib.parse
 
 import pytest
 
-from splitspec_orchestrator.recording.viewer import has_display, recording_path, viewer_url
+from splitspec_orchestrator.view import has_display, recording_path, viewer_url
 from splitspec_core.errors import ScenarioError
 from tests.conftest import ROOT
 

@@ -30,7 +30,7 @@ from pathlib import Path
 from splitspec_core.errors import ScenarioError, SplitspecError
 from splitspec_core.runtime.cli import sigterm_at_parent_death
 
-from ..launcher import free_port
+from .launcher import free_port
 
 log = logging.getLogger("splitspec.view")
 
