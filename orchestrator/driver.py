@@ -5,7 +5,7 @@
 This module only moves things between the world and
 :class:`splitspec_orchestrator.rounds.machine.RoundMachine`: it decodes messages (MAC, schema,
 shapes) and hands their values to the machine, and executes the machine's
-actions (publish a tick, record, log, signal, spawn, query statuses, stop).
+actions (:mod:`.rounds.actions`: publish a tick, record, log, signal, spawn, query statuses, stop).
 What it does, through the machine:
 
 * opens Zenoh as a router on ENDPOINT (no external router needed), or as a
@@ -57,7 +57,8 @@ from splitspec_core.scenarios.load import load_scenario, read_scenario_text, res
 from splitspec_core.runtime.ticks import TickEncoder
 from splitspec_core.runtime.wire import Keys, WireError, decode, encode, new_run_key
 
-from .rounds import machine as R
+from .rounds import actions as A
+from .rounds.machine import RoundMachine
 from .records.outdir import OutputDirError, check_output_dir
 
 log = logging.getLogger("splitspec.orchestrator")
@@ -259,12 +260,12 @@ class Orchestrator:
     def _execute(self, actions: list) -> None:
         for a in actions:
             kind = type(a)
-            if kind is R.Tick:
+            if kind is A.Tick:
                 self.pub_tick.put(self.ticks.encode(
                     tau=a.tau, attempt=a.attempt, graph=a.graph, final=a.final, fresh=a.fresh,
                     prev_attempt=a.prev_attempt, alive=a.alive, rows=a.rows, incarnation=a.incarnation,
                     partition=a.partition))
-            elif kind is R.Record:
+            elif kind is A.Record:
                 gains = a.gains if self.sc.time == "continuous" else None  # no g in discrete time
                 if self.sc.sources:  # before the row: a flush in between writes both
                     self.rec.live_y(a.tau, a.y)
@@ -272,15 +273,15 @@ class Orchestrator:
                              rejected=a.rejected, wall_ms=(time.monotonic() - a.started) * 1e3, lost=a.lost)
                 self.progress.update(a.tau, a.max_error, int(a.alive.sum()), force=a.tau == self.machine.plan.steps,
                                      xhat=a.xhat, alive_mask=a.alive)
-            elif kind is R.Event:
+            elif kind is A.Event:
                 self.rec.event(a.name, a.t, **a.fields)
-            elif kind is R.Log:
+            elif kind is A.Log:
                 log.log(logging.WARNING if a.level == "warning" else logging.INFO, "%s", a.message)
-            elif kind is R.Topology:
+            elif kind is A.Topology:
                 self.rec.topology(a.tau, a.graph_name, list(a.alive), list(a.arcs), partition=a.partition)
-            elif kind is R.MarkLost:
+            elif kind is A.MarkLost:
                 self.rec.mark_lost(a.tau, a.agent)
-            elif kind is R.ReplyConfig:
+            elif kind is A.ReplyConfig:
                 extra = {} if self.meas is None else {
                     "measurements": {"sha256": self.meas.sha256, "steps": self.meas.steps, "truth": self.meas.has_truth},
                     "record_y": True}
@@ -292,32 +293,32 @@ class Orchestrator:
                 self._reply(a.ref, encode("config", self.keys.run_id, scenario=self.scenario_text,
                                           seed=int(self.sc.run.seed), g=self.des.g, q=self.des.q,
                                           g_mode=self.des.g_mode, key=self.key, **extra))
-            elif kind is R.ReplyRefused:
+            elif kind is A.ReplyRefused:
                 self._reply(a.ref, encode("refused", self.keys.run_id, reason=a.reason, holder_pid=a.holder_pid,
                                           holder_host=a.holder_host))
-            elif kind is R.RegistryUpdate:
+            elif kind is A.RegistryUpdate:
                 self.registry.data["agents"] = {str(k): v for k, v in self.machine.procs.items() if k != "plant"}
                 if "plant" in self.machine.procs:
                     self.registry.data["plant"] = self.machine.procs["plant"]
                 self.registry.update()
-            elif kind is R.Signal:
+            elif kind is A.Signal:
                 if _is_splitspec_process(a.pid):
                     try:
                         os.kill(a.pid, a.sig)
                     except ProcessLookupError:
                         pass
-            elif kind is R.Control:
+            elif kind is A.Control:
                 self.pub_control.put(encode("control", self.keys.run_id, mac_key=self.key, cmd=a.cmd))
-            elif kind is R.Spawn:
+            elif kind is A.Spawn:
                 began = time.monotonic()
                 p = self._spawn(a.role, a.ident)
                 self._execute(self.machine.on_spawned(a.role, a.ident, p.pid, time.monotonic(), began=began))
-            elif kind is R.QueryStatus:
+            elif kind is A.QueryStatus:
                 agents, plant = self._answering(a.timeout)
                 self._execute(self.machine.on_status(agents, time.monotonic(), plant=plant))
-            elif kind is R.Stop:
+            elif kind is A.Stop:
                 raise RunFailed(a.message)
-            elif kind is R.Finished:
+            elif kind is A.Finished:
                 self.finished = True
 
     @staticmethod
@@ -419,8 +420,8 @@ class Orchestrator:
         self.registry = RunRegistry(self.keys.run_id, {"endpoint": self.connect or self.listen,
                                                        "out": str(self.out.resolve()), "host": HOST})
         now = time.monotonic()
-        self.machine = m = R.RoundMachine(sc, self.des, host=HOST, wait=self.wait, round_timeout=self.round_timeout,
-                                          spawned=self.spawn_local, now=now)
+        self.machine = m = RoundMachine(sc, self.des, host=HOST, wait=self.wait, round_timeout=self.round_timeout,
+                                        spawned=self.spawn_local, now=now)
         self.progress = Progress(m.plan.steps, sc.m)
         code = EXIT_OK
         write_error = None

@@ -1,6 +1,11 @@
 """The rules of a run's rounds, I/O-free: what the orchestrator does on each message and each timeout.
 
-``machine.py`` the :class:`RoundMachine` (claims, liveness, the two-rate round of q exchanges per event
-time, topology switches, the survivors' verdict) which returns actions for its shell
-(``splitspec_orchestrator.driver``) to carry out; nothing here opens a socket, a file or a process.
+``machine.py`` the :class:`RoundMachine` (the two-rate round of q exchanges per event time, admissions,
+losses, retries, restarts, the faults between rounds) and its :class:`Phase`; it returns actions
+(``actions.py``) for its shell (``splitspec_orchestrator.driver``) to carry out, and keeps its state in
+small collaborators: ``claims.py`` (the claim identity and the process table), ``liveness.py`` (spawned,
+frozen and restarted processes, silent sensors, the orchestrator's own freezes), ``rejections.py``
+(rejected messages, summarised), ``topology.py`` (the agents' network and the survivors' verdict) and
+``collected.py`` (the round in flight's truth and estimates).  Nothing here opens a socket, a file or a
+process; each module imports only ``actions.py`` of its neighbours, but ``machine.py`` which imports them all.
 """
