@@ -1,4 +1,4 @@
-"""Summaries of trajectories: errors per agent, measured decay rate, Monte Carlo statistics."""
+"""Summaries of trajectories: errors per agent, measured decay rate, steady-state RMS error, Monte Carlo statistics."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ from ..model.network import fault_step
 from .simulator import Trajectory
 
 __all__ = ["max_error", "fit_decay", "envelope_constant", "envelope_restarts", "envelope", "Mark", "event_marks",
-           "summarize", "monte_carlo_stats", "rms_stats", "NO_CERTIFIED_RATE"]
+           "summarize", "steady_rms", "monte_carlo_stats", "rms_stats", "NO_CERTIFIED_RATE"]
 
 
 def max_error(traj: Trajectory) -> np.ndarray:
@@ -231,6 +231,44 @@ def summarize(traj: Trajectory, *, time: str, rate: float | None, noise_free: Tr
     }
 
 
+def steady_rms(err=None, *, sq_error=None, count=None, tail: float = 0.5, start: int | None = None,
+               per_step: bool = False):
+    """The steady-state RMS error: the one definition behind every "steady RMS" figure.
+
+    The RMS error over the agents alive and the steps of the run's last ``tail`` (from step ``int((1 - tail) T)``,
+    or from ``start``).  The errors come either as ``err``, one run's ``|x_i - x|`` per step and agent, (T,) or
+    (T, m) (``Trajectory.errors()``, NaN while an agent is dead), or as ``sq_error`` (..., T), per step the squared
+    errors summed over the agents counted, with ``count`` (..., T) how many (None: one, ``sq_error`` is already a
+    per-step mean square); time on the last axis (:class:`~splitspec_core.simulation.montecarlo.MonteCarloRuns`:
+    a row per seed).  What distinguishes its users:
+
+    ``per_step=False``, ``tail=0.5`` (``compare``, ``sweep``, the network sweeps, ``MonteCarloRuns.steady_rms``):
+        every alive agent at every step weighs the same, ``sqrt(sum_k sq_k / sum_k count_k)``;
+    ``per_step=True``, ``tail=0.2`` (the Monte Carlo statistics, :func:`rms_stats`):
+        every step weighs the same, ``sqrt(mean_k sq_k / count_k)``, the RMS over steps of the per-step RMS over agents.
+
+    The two differ only when agents die or rejoin in the tail.  NaN where nobody is counted.  Returns a float for
+    ``err``, else an array of ``sq_error.shape[:-1]``.
+    """
+    if (err is None) == (sq_error is None):
+        raise TypeError("steady_rms: give err, or sq_error (and count)")
+    if err is not None:  # (T, m): every agent's squared error, counted where it is alive
+        e = np.asarray(err, dtype=float)
+        e = e.reshape(e.shape[0], -1)
+        n = ~np.isnan(e)
+        sq = np.where(n, e ** 2, 0.0)
+    else:  # (..., T, 1): the sums over the agents
+        sq = np.asarray(sq_error, dtype=float)[..., None]
+        n = np.ones(sq.shape) if count is None else np.asarray(count)[..., None]
+    k0 = int((1 - tail) * sq.shape[-2]) if start is None else int(start)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        if per_step:
+            out = np.sqrt(np.mean(sq[..., k0:, :].sum(axis=-1) / n[..., k0:, :].sum(axis=-1), axis=-1))
+        else:
+            out = np.sqrt(sq[..., k0:, :].sum(axis=(-2, -1)) / n[..., k0:, :].sum(axis=(-2, -1)))
+    return float(out) if err is not None else out
+
+
 def monte_carlo_stats(trajs: list, *, tail: float = 0.2) -> dict:
     """Mean and spread across seeds of the RMS error over agents.
 
@@ -246,8 +284,7 @@ def monte_carlo_stats(trajs: list, *, tail: float = 0.2) -> dict:
 def rms_stats(rms: np.ndarray, *, tail: float = 0.2) -> dict:
     """:func:`monte_carlo_stats` of ``rms`` (N, T), the RMS error over agents per seed and step."""
     rms = np.asarray(rms, dtype=float)
-    k0 = int((1 - tail) * rms.shape[1])
-    steady = np.sqrt(np.mean(rms[:, k0:] ** 2, axis=1))  # per seed
+    steady = steady_rms(sq_error=rms ** 2, tail=tail, per_step=True)  # per seed: every step weighs the same
     return {
         "seeds": int(rms.shape[0]),
         "mean": rms.mean(axis=0),

@@ -45,7 +45,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
-from .metrics import rms_stats
+from .metrics import rms_stats, steady_rms
 from ..synthesis.designer import Design
 from ..errors import ScenarioError
 from ..model.network import NetworkState, make_plan
@@ -93,9 +93,9 @@ class MonteCarloRuns:
             return np.where(self.alive_count > 0, np.sqrt(self.sq_error / np.maximum(self.alive_count, 1)), np.nan)
 
     def steady_rms(self, *, start: int | None = None) -> np.ndarray:
-        """Per seed, RMS over agents and steps from ``start`` (default: the last half, as ``compare``), (N,)."""
-        k0 = self.t.size // 2 if start is None else start
-        return np.sqrt(self.sq_error[:, k0:].sum(axis=1) / self.alive_count[:, k0:].sum(axis=1))
+        """Per seed, RMS over agents and steps from ``start`` (default: the last half, as ``compare``), (N,):
+        :func:`splitspec_core.simulation.metrics.steady_rms` of ``sq_error`` and ``alive_count``."""
+        return steady_rms(sq_error=self.sq_error, count=self.alive_count, start=start)
 
     def stats(self, *, tail: float = 0.2) -> dict:
         """The Monte Carlo statistics of :func:`splitspec_core.simulation.metrics.monte_carlo_stats` (same keys, same numbers

@@ -12,8 +12,8 @@ simulator's named streams, :mod:`splitspec_core.model.streams`):
 ``KCF``                Olfati-Saber's discrete-time Kalman-consensus filter on the same
                        graph, with as many exchanges per event time as split place
 
-Figures per estimator: steady-state RMS error (over the last half of the run,
-RMS over agents, then mean and std over seeds), its ratio to the centralized
+Figures per estimator: steady-state RMS error (:func:`~splitspec_core.simulation.metrics.steady_rms`: over the
+last half of the run, RMS over agents, then mean and std over seeds), its ratio to the centralized
 filter, the predicted (exact) steady-state RMS where available (not for the adaptive
 gain, which has no steady state), the noise-free time until the error stays
 below 1e-3 of its initial value, messages per event time (one message = one
@@ -34,7 +34,7 @@ import math
 
 import numpy as np
 
-from ..simulation.metrics import fit_decay
+from ..simulation.metrics import fit_decay, steady_rms
 from ..simulation.montecarlo import simulate_seeds
 from .baselines import baseline_seeds, baseline_trajectories, kalman_predictor, sampled_model
 from ..synthesis.bounds import nice_ceil
@@ -45,14 +45,7 @@ from ..synthesis.report import rate_certificate
 from ..scenarios.specs import Scenario
 from ..simulation.simulator import check_trajectory_memory, simulate
 
-__all__ = ["compare", "sweep", "sweep_line", "certificate_lines", "steady_rms", "settle_time"]
-
-
-def steady_rms(err: np.ndarray) -> float:
-    """RMS over agents and over the last half of the run; ``err`` is (T,) or (T, m) error norms."""
-    e = np.asarray(err, dtype=float)
-    e = e.reshape(e.shape[0], -1)[e.shape[0] // 2:]
-    return float(np.sqrt(np.nanmean(e ** 2)))
+__all__ = ["compare", "sweep", "sweep_line", "certificate_lines", "settle_time"]
 
 
 def settle_time(t: np.ndarray, err: np.ndarray, *, rel: float = 1e-3) -> float | None:
@@ -102,7 +95,7 @@ def compare(sc: Scenario, *, seeds, steps: int | None = None, eps: float | None 
     b = baseline_seeds(sc, seeds, exchanges=exchanges, steps=steps, eps=eps)
     runs.update({"centralized KF": b["centralized"], "KCF": b["kcf"]})
     curves = {name: list(r.rms()) for name, r in runs.items()}
-    rms = {name: list(r.steady_rms()) for name, r in runs.items()}
+    rms = {name: list(r.steady_rms()) for name, r in runs.items()}  # metrics.steady_rms, per seed
     T = runs["split place"].t
     # noise-free transients (first seed)
     settle = {}

@@ -12,7 +12,7 @@ so level ``p`` with seed ``s`` is exactly ``splitspec simulate`` of the scenario
 Figures per level, each a mean over seeds (with its spread): the measured decay rate (noise-free run, the
 tail fit of :func:`~splitspec_core.simulation.metrics.fit_decay` on the worst agent's error; the scenario's
 convention, discrete ``lam^tau``, continuous ``exp(-lam t)``), how many seeds meet the designed rate, the
-steady-state RMS error when the scenario has noise (:func:`~splitspec_core.studies.comparison.steady_rms`), the
+steady-state RMS error when the scenario has noise (:func:`~splitspec_core.simulation.metrics.steady_rms`), the
 messages that did not count (per event time, and as a fraction of those sent), and the certificate under
 loss of :mod:`splitspec_core.synthesis.loss_certificate` at that level.  Beside them: the designed rate and the
 *lossless* figures (the same seeds on a perfect network).
@@ -25,8 +25,7 @@ import math
 
 import numpy as np
 
-from ..simulation.metrics import fit_decay
-from .comparison import steady_rms
+from ..simulation.metrics import fit_decay, steady_rms
 from ..synthesis.designer import design
 from ..errors import DesignError
 from ..scenarios.specs import NetworkSpec, Scenario

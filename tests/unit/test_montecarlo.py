@@ -17,7 +17,7 @@ import pytest
 
 import splitspec_core as ss
 from splitspec_core.simulation.metrics import monte_carlo_stats
-from splitspec_core.studies.comparison import steady_rms
+from splitspec_core.simulation.metrics import steady_rms
 from splitspec_core.synthesis.designer import design
 from splitspec_core.errors import ScenarioError
 from splitspec_core.simulation.montecarlo import fallback_reason, simulate_seeds

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from splitspec_core.simulation.metrics import fit_decay, max_error
-from splitspec_core.studies.comparison import steady_rms
+from splitspec_core.simulation.metrics import steady_rms
 from splitspec_core.synthesis.designer import design
 from splitspec_core.errors import DesignError
 from splitspec_core.model.impairment import LATE, LOSS

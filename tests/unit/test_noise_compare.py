@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 import yaml
 
-from splitspec_core.studies.comparison import compare, settle_time, steady_rms, sweep
+from splitspec_core.simulation.metrics import steady_rms
+from splitspec_core.studies.comparison import compare, settle_time, sweep
 from splitspec_core.synthesis.designer import design
 from splitspec_core.errors import DesignError
 from splitspec_core.synthesis.noise_tuning import error_dynamics, predicted_rms, tune
