@@ -207,25 +207,23 @@ def plot_monte_carlo(t, stats: dict, path: Path, *, time: str, title: str, marks
     plt.close(fig)
 
 
-def plot_compare(res: dict, errors_path: Path, ratios_path: Path) -> None:
-    """RMS error over time per estimator (mean over seeds) and the bar chart of ratios to the centralized KF."""
-    curves = res["_curves"]
-    t = curves["t"]
+def plot_compare(res, errors_path: Path, ratios_path: Path) -> None:
+    """RMS error over time per estimator (mean over seeds) and the bar chart of ratios to the centralized KF, of a
+    :class:`splitspec_core.CompareResult`."""
+    t = res.t
     fig, ax = plt.subplots(figsize=(9.0, 4.2), layout="constrained")
-    for name, c in curves.items():
-        if name == "t":
-            continue
+    for name, c in res.curves.items():
         style = {"centralized KF": dict(color="k", lw=2.0), "KCF": dict(ls="--")}.get(name, {})
         ax.semilogy(t, c, label=name, **style)
-    ax.set_xlabel(_xlabel(res["time"]))
+    ax.set_xlabel(_xlabel(res.time))
     ax.set_ylabel("RMS over agents of |x_i - x|")
-    ax.set_title(f"{res['scenario']}: mean over {len(res['seeds'])} seeds")
+    ax.set_title(f"{res.scenario}: mean over {len(res.seeds)} seeds")
     ax.grid(True, which="both", alpha=0.3)
     legend_outside(ax)
     fig.savefig(errors_path, dpi=120)
     plt.close(fig)
-    names = list(res["estimators"])
-    ratios = [res["estimators"][n]["ratio_to_centralized"] or 0.0 for n in names]
+    names = list(res.estimators)
+    ratios = [res.estimators[n].ratio_to_centralized or 0.0 for n in names]
     fig, ax = plt.subplots(figsize=(7.5, 3.6))
     bars = ax.bar(range(len(names)), ratios, color=["#888" if n == "centralized KF" else "C0" for n in names])
     for b, r in zip(bars, ratios):
@@ -233,7 +231,7 @@ def plot_compare(res: dict, errors_path: Path, ratios_path: Path) -> None:
     ax.axhline(1.0, color="k", lw=0.8)
     ax.set_xticks(range(len(names)), names, rotation=20, fontsize=8)
     ax.set_ylabel("steady RMS / centralized KF")
-    ax.set_title(f"{res['scenario']}: estimation quality under noise")
+    ax.set_title(f"{res.scenario}: estimation quality under noise")
     fig.tight_layout()
     fig.savefig(ratios_path, dpi=120)
     plt.close(fig)

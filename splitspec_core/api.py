@@ -30,6 +30,8 @@ from .scenarios.load import load_scenario as _load_scenario
 from .scenarios.specs import Scenario
 from .simulation.simulator import Trajectory
 from .model.subspaces import complement
+from .studies.comparison import CompareResult, EstimatorResult
+from .studies.comparison import compare as _compare
 
 if TYPE_CHECKING:
     from .simulation.montecarlo import MonteCarloRuns
@@ -342,87 +344,16 @@ def simulate(sc: Scenario | DesignResult, *, steps: int | None = None, seed: int
 # --------------------------------------------------------------------------
 
 
-@dataclass(frozen=True)
-class EstimatorResult:
-    """One estimator's figures in :func:`compare` (RMS over agents, then mean and std over seeds)."""
-
-    rms_mean: float
-    rms_std: float
-    ratio_to_centralized: float | None
-    predicted_rms: float | None
-    settle_time: float | None  # noise-free: first time after which the error stays below 1e-3 of its start
-    measured_rate: float | None
-    messages_per_event: int
-    q: int | None
-    g: float | None
-    gains: str | None
-    certified_rate: bool | None = None  # split-spectrum rows: the design's certificate (None for the baselines)
-    certificate: str | None = None
-    rate_note: str | None = None  # the adaptive gain: asymptotic convergence only (no certified rate)
-
-
-_CERTIFICATE_FIELDS = ("certified_rate", "certificate", "rate_note")
-
-
-@dataclass(frozen=True)
-class CompareResult:
-    """``splitspec compare``: split-spectrum variants against the centralized Kalman filter and the KCF.
-
-    ``estimators`` maps names (``split place``, ``split riccati``, ``split tuned``, ``centralized KF``,
-    ``KCF``, and ``split (scenario)`` with explicit gains) to :class:`EstimatorResult`; ``t`` and
-    ``curves`` (name -> (T,) RMS error over agents, mean over seeds) are the error curves.
-    """
-
-    scenario: str
-    time: str
-    seeds: tuple
-    steps: int
-    rate: float
-    process_noise: float
-    measurement_noise: float
-    exchanges: int
-    kcf_eps: float | None
-    estimators: Mapping[str, EstimatorResult]
-    tuned: Mapping[str, Any] | None
-    t: np.ndarray
-    curves: Mapping[str, np.ndarray]
-
-    def to_json(self) -> dict:
-        """The ``compare.json`` object."""
-        out = {"scenario": self.scenario, "time": self.time, "seeds": list(self.seeds), "steps": self.steps,
-               "rate": self.rate, "process_noise": self.process_noise,
-               "measurement_noise": self.measurement_noise, "exchanges": self.exchanges, "kcf_eps": self.kcf_eps,
-               "estimators": {k: {("settle_time_1e-3" if f == "settle_time" else f): getattr(v, f)
-                                  for f in v.__dataclass_fields__
-                                  if v.certificate is not None or f not in _CERTIFICATE_FIELDS}
-                              for k, v in self.estimators.items()}}
-        if self.tuned is not None:
-            out["tuned"] = dict(self.tuned)
-        return out
-
-
 def compare(sc: Scenario, *, seeds: int | Iterable[int] = 5, seed: int | None = None, steps: int | None = None,
             kcf_eps: float | None = None) -> CompareResult:
     """Estimation quality under noise (``splitspec compare``): every estimator on the same realisations.
 
     ``seeds``: a count (seeds ``seed, seed + 1, ...``, ``seed`` defaulting to ``run.seed``) or the seeds.
+    Returns a :class:`CompareResult` (built by :mod:`splitspec_core.studies.comparison`; ``to_json()``: compare.json).
     """
-    from .studies.comparison import compare as _compare
-
     if isinstance(seeds, (int, np.integer)) and not isinstance(seeds, bool):
         if seeds < 1:
             raise ScenarioError(f"seeds must be >= 1, got {seeds}")
         first = sc.run.seed if seed is None else int(seed)
         seeds = range(first, first + int(seeds))
-    raw = _compare(sc, seeds=[int(s) for s in seeds], steps=steps, eps=kcf_eps)
-    curves = raw.pop("_curves")
-    t = curves.pop("t")
-    est = {k: EstimatorResult(settle_time=v["settle_time_1e-3"],
-                              **{f: v[f] for f in EstimatorResult.__dataclass_fields__ if f in v})
-           for k, v in raw["estimators"].items()}
-    return CompareResult(scenario=raw["scenario"], time=raw["time"], seeds=tuple(raw["seeds"]), steps=raw["steps"],
-                         rate=raw["rate"], process_noise=raw["process_noise"],
-                         measurement_noise=raw["measurement_noise"], exchanges=raw["exchanges"], kcf_eps=raw["kcf_eps"],
-                         estimators=MappingProxyType(est),
-                         tuned=None if "tuned" not in raw else MappingProxyType(raw["tuned"]),
-                         t=_readonly(t), curves=MappingProxyType({k: _readonly(v) for k, v in curves.items()}))
+    return _compare(sc, seeds=[int(s) for s in seeds], steps=steps, eps=kcf_eps)

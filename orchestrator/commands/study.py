@@ -110,19 +110,18 @@ def cmd_compare(args: argparse.Namespace) -> int:
         return _network_sweeps(args, sc, seed0)
     out = out_dir(args.out)
     result = ss.compare(sc, seeds=args.seeds, seed=seed0, steps=args.steps, kcf_eps=args.kcf_eps)
-    res = result.to_json()
-    lines = [f"{sc.name}: {len(res['seeds'])} seeds x {res['steps']} steps; process noise {sc.system.process_noise:g}, "
-             f"measurement noise {sc.system.measurement_noise:g}",
+    lines = [f"{sc.name}: {len(result.seeds)} seeds x {result.steps} steps; process noise "
+             f"{sc.system.process_noise:g}, measurement noise {sc.system.measurement_noise:g}",
              f"  {'estimator':<17} {'steady RMS':>11} {'+-':>9} {'/ central':>9} {'predicted':>10} "
              f"{'settle 1e-3':>11} {'msgs/event':>10}"]
-    for name, r in res["estimators"].items():
-        pred = "-" if r["predicted_rms"] is None else f"{r['predicted_rms']:.4g}"
-        st = "never" if r["settle_time_1e-3"] is None else f"{r['settle_time_1e-3']:g}"
-        lines.append(f"  {name:<17} {r['rms_mean']:11.4g} {r['rms_std']:9.2g} {r['ratio_to_centralized']:9.3f} "
-                     f"{pred:>10} {st:>11} {r['messages_per_event']:>10}")
-    lines += certificate_lines(res)
-    if "tuned" in res:
-        tnd = res["tuned"]
+    for name, r in result.estimators.items():
+        pred = "-" if r.predicted_rms is None else f"{r.predicted_rms:.4g}"
+        st = "never" if r.settle_time is None else f"{r.settle_time:g}"
+        lines.append(f"  {name:<17} {r.rms_mean:11.4g} {r.rms_std:9.2g} {r.ratio_to_centralized:9.3f} "
+                     f"{pred:>10} {st:>11} {r.messages_per_event:>10}")
+    lines += certificate_lines(result)
+    if result.tuned is not None:
+        tnd = result.tuned
         what = f"q = {tnd['q']}" if tnd["q"] is not None else f"g = {tnd['g']:g}"
         w = "" if tnd["gains"] == "place" else (f" (process_weight {tnd['process_weight']:.3g}, measurement_weight "
                                                 f"{tnd['measurement_weight']:.3g})")
@@ -132,7 +131,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
     if not args.no_plots:
         from .. import plots as P
 
-        P.plot_compare({**res, "_curves": {"t": result.t, **result.curves}}, out / "compare_errors.png", out / "compare_ratios.png")
+        P.plot_compare(result, out / "compare_errors.png", out / "compare_ratios.png")
         plots = ["compare_errors.png", "compare_ratios.png"]
     if args.sweep:
         sw = sweep(sc, seed=seed0, steps=args.steps)
@@ -143,7 +142,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
             P.plot_sweep(sw, out / "sweep.png")
             plots.append("sweep.png")
         lines.append(sweep_line(sw))
-    res["plots"] = plots
+    res = {**result.to_json(), "plots": plots}
     (out / "compare.json").write_text(json.dumps(res, indent=2) + "\n")
     lines.append(f"wrote {out}/compare.json" + "".join(f", {p}" for p in plots) +
                  (", sweep.json" if args.sweep else ""))

@@ -12,8 +12,9 @@ simulator's named streams, :mod:`splitspec_core.model.streams`):
 ``KCF``                Olfati-Saber's discrete-time Kalman-consensus filter on the same
                        graph, with as many exchanges per event time as split place
 
-Figures per estimator: steady-state RMS error (:func:`~splitspec_core.simulation.metrics.steady_rms`: over the
-last half of the run, RMS over agents, then mean and std over seeds), its ratio to the centralized
+Figures per estimator (:class:`EstimatorResult`, one row of the :class:`CompareResult` :func:`compare`
+returns): steady-state RMS error (:func:`~splitspec_core.simulation.metrics.steady_rms`: over the last half
+of the run, RMS over agents, then mean and std over seeds), its ratio to the centralized
 filter, the predicted (exact) steady-state RMS where available (not for the adaptive
 gain, which has no steady state), the noise-free time until the error stays
 below 1e-3 of its initial value, messages per event time (one message = one
@@ -31,6 +32,9 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from dataclasses import dataclass
+from types import MappingProxyType
+from typing import Any, Mapping
 
 import numpy as np
 
@@ -45,7 +49,72 @@ from ..synthesis.report import rate_certificate
 from ..scenarios.specs import Scenario
 from ..simulation.simulator import check_trajectory_memory, simulate
 
-__all__ = ["compare", "sweep", "sweep_line", "certificate_lines", "settle_time"]
+__all__ = ["CompareResult", "EstimatorResult", "compare", "sweep", "sweep_line", "certificate_lines", "settle_time"]
+
+
+@dataclass(frozen=True)
+class EstimatorResult:
+    """One estimator's figures in :func:`compare` (RMS over agents, then mean and std over seeds)."""
+
+    rms_mean: float
+    rms_std: float
+    ratio_to_centralized: float | None
+    predicted_rms: float | None
+    settle_time: float | None  # noise-free: first time after which the error stays below 1e-3 of its start
+    measured_rate: float | None
+    messages_per_event: int
+    q: int | None
+    g: float | None
+    gains: str | None
+    certified_rate: bool | None = None  # split-spectrum rows: the design's certificate (None for the baselines)
+    certificate: str | None = None
+    rate_note: str | None = None  # the adaptive gain: asymptotic convergence only (no certified rate)
+
+
+_CERTIFICATE_FIELDS = ("certified_rate", "certificate", "rate_note")
+
+
+@dataclass(frozen=True)
+class CompareResult:
+    """``splitspec compare``: split-spectrum variants against the centralized Kalman filter and the KCF.
+
+    ``estimators`` maps names (``split place``, ``split riccati``, ``split tuned``, ``centralized KF``,
+    ``KCF``, and ``split (scenario)`` with explicit gains) to :class:`EstimatorResult`; ``t`` and
+    ``curves`` (name -> (T,) RMS error over agents, mean over seeds) are the error curves.
+    """
+
+    scenario: str
+    time: str
+    seeds: tuple
+    steps: int
+    rate: float
+    process_noise: float
+    measurement_noise: float
+    exchanges: int
+    kcf_eps: float | None
+    estimators: Mapping[str, EstimatorResult]
+    tuned: Mapping[str, Any] | None
+    t: np.ndarray
+    curves: Mapping[str, np.ndarray]
+
+    def to_json(self) -> dict:
+        """The ``compare.json`` object."""
+        out = {"scenario": self.scenario, "time": self.time, "seeds": list(self.seeds), "steps": self.steps,
+               "rate": self.rate, "process_noise": self.process_noise,
+               "measurement_noise": self.measurement_noise, "exchanges": self.exchanges, "kcf_eps": self.kcf_eps,
+               "estimators": {k: {("settle_time_1e-3" if f == "settle_time" else f): getattr(v, f)
+                                  for f in v.__dataclass_fields__
+                                  if v.certificate is not None or f not in _CERTIFICATE_FIELDS}
+                              for k, v in self.estimators.items()}}
+        if self.tuned is not None:
+            out["tuned"] = dict(self.tuned)
+        return out
+
+
+def _readonly(a) -> np.ndarray:
+    a = np.array(a)
+    a.setflags(write=False)
+    return a
 
 
 def settle_time(t: np.ndarray, err: np.ndarray, *, rel: float = 1e-3) -> float | None:
@@ -70,8 +139,8 @@ def _variant(sc: Scenario, gains: str) -> Scenario:
     return dataclasses.replace(sc, design=d)
 
 
-def compare(sc: Scenario, *, seeds, steps: int | None = None, eps: float | None = None) -> dict:
-    """Run every estimator on the same realisations; JSON-ready results plus mean error curves."""
+def compare(sc: Scenario, *, seeds, steps: int | None = None, eps: float | None = None) -> CompareResult:
+    """Run every estimator on the same realisations: their figures and mean error curves (frozen, read-only)."""
     seeds = list(seeds)
     check_trajectory_memory(sc, steps)
     if sc.system.process_noise <= 0 and sc.system.measurement_noise <= 0:
@@ -94,8 +163,8 @@ def compare(sc: Scenario, *, seeds, steps: int | None = None, eps: float | None 
     runs = {name: simulate_seeds(des, seeds, steps=steps) for name, des in variants.items()}
     b = baseline_seeds(sc, seeds, exchanges=exchanges, steps=steps, eps=eps)
     runs.update({"centralized KF": b["centralized"], "KCF": b["kcf"]})
-    curves = {name: list(r.rms()) for name, r in runs.items()}
-    rms = {name: list(r.steady_rms()) for name, r in runs.items()}  # metrics.steady_rms, per seed
+    curves = {name: r.rms() for name, r in runs.items()}
+    rms = {name: r.steady_rms() for name, r in runs.items()}  # metrics.steady_rms, per seed
     T = runs["split place"].t
     # noise-free transients (first seed)
     settle = {}
@@ -125,32 +194,30 @@ def compare(sc: Scenario, *, seeds, steps: int | None = None, eps: float | None 
     central = float(np.mean(rms["centralized KF"]))
     table = {}
     for name in list(variants) + ["centralized KF", "KCF"]:
-        r = np.asarray(rms[name])
+        r = rms[name]
         des = variants.get(name)
-        table[name] = {
-            "rms_mean": float(r.mean()), "rms_std": float(r.std(ddof=1)) if len(r) > 1 else 0.0,
-            "ratio_to_centralized": float(r.mean() / central) if central > 0 else None,
-            "predicted_rms": predicted.get(name),
-            "settle_time_1e-3": settle[name], "measured_rate": rate[name],
-            "messages_per_event": messages[name],
-            "q": None if des is None else des.q, "g": None if des is None else des.g,
-            "gains": None if des is None else des.scenario.design.gains,
-        }
-        if des is not None:
-            cert = rate_certificate(des)
-            table[name].update(certified_rate=cert.certified, certificate=cert.text,
-                               rate_note=NO_CERTIFIED_RATE if des.g_mode == "adaptive" else None)
-    out = {"scenario": sc.name, "time": sc.time, "seeds": seeds, "steps": int(len(T) - 1),
-           "rate": sc.design.rate, "process_noise": sc.system.process_noise,
-           "measurement_noise": sc.system.measurement_noise, "exchanges": exchanges, "kcf_eps": eps,
-           "estimators": table}
+        cert = None if des is None else rate_certificate(des)
+        table[name] = EstimatorResult(
+            rms_mean=float(r.mean()), rms_std=float(r.std(ddof=1)) if len(r) > 1 else 0.0,
+            ratio_to_centralized=float(r.mean() / central) if central > 0 else None,
+            predicted_rms=predicted.get(name), settle_time=settle[name], measured_rate=rate[name],
+            messages_per_event=messages[name],
+            q=None if des is None else des.q, g=None if des is None else des.g,
+            gains=None if des is None else des.scenario.design.gains,
+            certified_rate=None if cert is None else cert.certified, certificate=None if cert is None else cert.text,
+            rate_note=NO_CERTIFIED_RATE if des is not None and des.g_mode == "adaptive" else None)
+    tuned_json = None
     if tuned is not None:
         cd = tuned.design.scenario.design
-        out["tuned"] = {"gains": cd.gains, "process_weight": cd.riccati_process_weight,
-                        "measurement_weight": cd.riccati_measurement_weight, "q": tuned.design.q,
-                        "g": tuned.design.g, "predicted_rms": tuned.rms, "baseline_predicted_rms": tuned.baseline_rms}
-    out["_curves"] = {"t": T, **{k: np.mean(v, axis=0) for k, v in curves.items()}}
-    return out
+        tuned_json = MappingProxyType({
+            "gains": cd.gains, "process_weight": cd.riccati_process_weight,
+            "measurement_weight": cd.riccati_measurement_weight, "q": tuned.design.q, "g": tuned.design.g,
+            "predicted_rms": tuned.rms, "baseline_predicted_rms": tuned.baseline_rms})
+    return CompareResult(
+        scenario=sc.name, time=sc.time, seeds=tuple(seeds), steps=int(len(T) - 1), rate=sc.design.rate,
+        process_noise=sc.system.process_noise, measurement_noise=sc.system.measurement_noise, exchanges=exchanges,
+        kcf_eps=eps, estimators=MappingProxyType(table), tuned=tuned_json, t=_readonly(T),
+        curves=MappingProxyType({k: _readonly(np.mean(v, axis=0)) for k, v in curves.items()}))
 
 
 def sweep(sc: Scenario, *, seed: int, steps: int | None = None, values=None) -> dict:
@@ -191,14 +258,14 @@ def sweep(sc: Scenario, *, seed: int, steps: int | None = None, values=None) -> 
             "rate": sc.design.rate, "seed": seed, "rows": rows}
 
 
-def certificate_lines(res: dict) -> list:
+def certificate_lines(res: CompareResult) -> list:
     """One line per split-spectrum estimator of a :func:`compare` result: its rate certificate."""
     lines = []
-    for name, r in res["estimators"].items():
-        if "certificate" not in r:
+    for name, r in res.estimators.items():
+        if r.certificate is None:
             continue
-        verdict = "" if r["rate_note"] else ("rate certified: " if r["certified_rate"] else "rate NOT certified: ")
-        lines.append(f"  {name}: {verdict}{r['certificate']}")
+        verdict = "" if r.rate_note else ("rate certified: " if r.certified_rate else "rate NOT certified: ")
+        lines.append(f"  {name}: {verdict}{r.certificate}")
     return lines
 
 

@@ -60,17 +60,17 @@ def test_tune_is_certified_and_no_worse_than_the_design():
 def test_compare_on_the_paper_example():
     sc = load_scenario(EXAMPLES / "paper_discrete_noise.yaml")
     res = compare(sc, seeds=range(3), steps=60)
-    est = res["estimators"]
+    est = res.estimators
     assert set(est) == {"split (scenario)", "split place", "split riccati", "split tuned", "centralized KF", "KCF"}
-    assert est["centralized KF"]["ratio_to_centralized"] == pytest.approx(1.0)
-    central = est["centralized KF"]["rms_mean"]
+    assert est["centralized KF"].ratio_to_centralized == pytest.approx(1.0)
+    central = est["centralized KF"].rms_mean
     for name, r in est.items():
-        assert r["rms_mean"] >= 0.95 * central, name  # nobody beats the centralized Kalman filter
+        assert r.rms_mean >= 0.95 * central, name  # nobody beats the centralized Kalman filter
     for name in ("split place", "split riccati", "split tuned"):
-        assert est[name]["messages_per_event"] == 3 * est[name]["q"]
-        assert est[name]["predicted_rms"] == pytest.approx(est[name]["rms_mean"], rel=0.3)
-    assert est["centralized KF"]["messages_per_event"] == 3
-    assert res["_curves"]["t"].shape == (61,)
+        assert est[name].messages_per_event == 3 * est[name].q
+        assert est[name].predicted_rms == pytest.approx(est[name].rms_mean, rel=0.3)
+    assert est["centralized KF"].messages_per_event == 3
+    assert res.t.shape == (61,)
 
 
 def test_sweep_marks_certified_values():
