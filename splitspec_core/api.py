@@ -29,6 +29,7 @@ from .scenarios.load import ORIGIN, parse_scenario
 from .scenarios.load import load_scenario as _load_scenario
 from .scenarios.specs import Scenario
 from .simulation.simulator import Trajectory
+from .model.graphs import arc_positions, is_strongly_connected
 from .model.subspaces import complement
 from .studies.comparison import CompareResult, EstimatorResult
 from .studies.comparison import compare as _compare
@@ -153,14 +154,19 @@ class AgentResult:
 
 @dataclass(frozen=True)
 class Checks:
-    """The design's assumptions and its certificate.
+    """The design's assumptions and its certificate (:meth:`of`: computed from a design, whatever built it).
 
     Attributes
     ----------
-    jointly_observable : every direction is seen by some agent
-    jointly_detectable : what no agent sees decays (else :func:`design` raises, unless ``design.undetectable: exclude``)
+    jointly_observable : every direction is seen by some agent: ``W = V_1 ∩ ... ∩ V_m`` is zero (the paper's
+        standing assumption on ``(C, A)``, eqs. pre_sys1-pre_sys2); False when ``(C, A)`` is only detectable (what no
+        agent sees decays: :func:`design` goes on, detectability.py)
+    jointly_detectable : what no agent sees decays; :func:`design` refuses a system where it does not (AssumptionError)
+        unless ``design.undetectable: exclude``, so False only then
     unobserved : one line naming the directions no agent sees and their decay (None: none; detectability.py)
-    strongly_connected : per graph name (:func:`design` raises when one is not)
+    strongly_connected : per graph name, whether every agent reaches every other along its arcs
+        (:func:`splitspec_core.model.graphs.is_strongly_connected` of the design's graphs); :func:`design` refuses a
+        scenario with a graph that is not (AssumptionError), so False only for a design built otherwise
     rate_certified : the rate is certified for the estimator as it runs (continuous time: the sampled-data form at
         ``run.dt`` too); never for the adaptive gain (asymptotic convergence: thm. split_continuous_adaptive)
     certificate : one line: what certifies the rate, or why nothing does (``splitspec design`` says the same)
@@ -177,6 +183,20 @@ class Checks:
     jointly_detectable: bool = True
     unobserved: str | None = None
     envelope_rate: float | None = None
+
+    @classmethod
+    def of(cls, des: Design) -> Checks:
+        """The checks of ``des``, each computed from it: what its agents leave unobserved (``Design.unobserved``, or
+        for a design built without it what its agents' ``V_i`` leave), its graphs' arcs, its certificate."""
+        un = des.unobserved if des.unobserved is not None else des.unobserved_of(des.scenario.agent_ids)
+        cert = rate_certificate(des)
+        connected = {g.name: is_strongly_connected(g.m, zip(*(a.tolist() for a in arc_positions(g.ids, g.arcs))))
+                     for g in des.graphs}
+        return cls(jointly_observable=un.dim == 0, jointly_detectable=un.decays, rate_certified=cert.certified,
+                   strongly_connected=MappingProxyType(connected), certificate=cert.text,
+                   sampled_rate=min(des.sampled_rate.values()) if des.sampled_rate else None,
+                   warnings=tuple(des.warnings), unobserved=un.summary(des.rate) if un.dim else None,
+                   envelope_rate=cert.rate)
 
 
 @dataclass(frozen=True)
@@ -239,14 +259,8 @@ def design(sc: Scenario, *, all_q_methods: bool = False, workers: int | None = N
     des = _design(sc, compare_q_methods=all_q_methods, workers=workers)
     agents = {a.id: AgentResult(id=a.id, K=_readonly(a.K), V=_readonly(a.V_user), Q=_readonly(complement(a.V_user).T),
                                 P=_readonly(a.P), poles=_readonly(a.gain.poles)) for a in des.agents}
-    un, cert = des.unobserved, rate_certificate(des)
-    checks = Checks(jointly_observable=un.dim == 0, jointly_detectable=un.decays, rate_certified=cert.certified,
-                    strongly_connected=MappingProxyType({g.name: True for g in des.graphs}),
-                    certificate=cert.text, sampled_rate=min(des.sampled_rate.values()) if des.sampled_rate else None,
-                    warnings=tuple(des.warnings), unobserved=un.summary(sc.design.rate) if un.dim else None,
-                    envelope_rate=cert.rate)
     return DesignResult(scenario=sc, time=sc.time, rate=sc.design.rate, q=des.q, g=des.g, g_mode=des.g_mode,
-                        agents=MappingProxyType(agents), checks=checks, detail=des)
+                        agents=MappingProxyType(agents), checks=Checks.of(des), detail=des)
 
 
 # --------------------------------------------------------------------------

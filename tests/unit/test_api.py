@@ -123,6 +123,23 @@ def test_results_are_frozen():
         cmp.estimators["KCF"].rms_mean = 0.0
 
 
+def test_checks_are_computed_from_the_design():
+    """``jointly_observable`` is False for a detectable but unobservable system (``design`` goes on), and
+    ``strongly_connected`` says what each graph of the design handed to ``Checks.of`` is (``design`` itself refuses a
+    scenario graph that is not, so a design with the survivors' graph after two losses shows the False)."""
+    from splitspec_core.model.graphs import build_graph
+
+    d = ss.design(ss.load_scenario(EXAMPLES / "paper_discrete_filter.yaml"))
+    assert d.checks.jointly_observable is False and d.checks.jointly_detectable is True and d.checks.unobserved
+    d = ss.design(ss.load_scenario(EXAMPLES / "ring10.yaml"))
+    assert d.checks.jointly_observable is True and dict(d.checks.strongly_connected) == {"ring": True}
+    assert ss.Checks.of(d.detail) == d.checks
+    ring = d.detail.graphs[0]
+    cut = build_graph("ring without 3, 6", tuple(i for i in ring.ids if i not in (3, 6)), ring.arcs, check=False)
+    checks = ss.Checks.of(dataclasses.replace(d.detail, graphs=(ring, cut)))
+    assert dict(checks.strongly_connected) == {"ring": True, "ring without 3, 6": False}
+
+
 def test_a_scenario_built_from_its_dataclasses_is_checked_too():
     sc = ss.load_scenario(EXAMPLES / "paper_discrete.yaml")
     bad = dataclasses.replace(sc.system, Cs=(np.ones((1, 5)), *sc.system.Cs[1:]))
