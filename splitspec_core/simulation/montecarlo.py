@@ -50,7 +50,7 @@ from ..synthesis.designer import Design
 from ..errors import ScenarioError
 from ..model.network import NetworkState, make_plan
 from ..model.plant import advanced, initial_estimate, measured, seed_draws
-from .simulator import BatchEstimator, Trajectory, _entries, _realized_step, check_trajectory_memory, simulate
+from .simulator import BatchEstimator, Trajectory, weight_entries, realized_step, check_trajectory_memory, simulate
 
 __all__ = ["CHUNK", "MonteCarloRuns", "SeedBatchEstimator", "fallback_reason", "simulate_seeds"]
 
@@ -329,8 +329,8 @@ def _batch(des: Design, seeds: tuple, *, steps, noise, trajectories) -> tuple:
         W = w_cache.get(key)
         if W is None:
             rows = net.rows(sc, key[0])
-            W = w_cache[key] = (est.weights(rows), rows, _entries(sc, rows))
-        Ws = _realized_step(est, sc, W, k, exchanges, None, None, net.groups,
+            W = w_cache[key] = (est.weights(rows), rows, weight_entries(sc, rows))
+        Ws = realized_step(est, sc, W, k, exchanges, None, None, net.groups,
                             lost_rows if trajectories else []) if impaired else None
         X = est.step(X, y, W[0], alive) if Ws is None else est.step_realized(X, y, Ws, alive)
         x = advanced(F, L, x, v[k])

@@ -218,7 +218,7 @@ def _bmv(M: np.ndarray, X: np.ndarray) -> np.ndarray:
     return np.matmul(M, X[:, :, None])[:, :, 0]
 
 
-def _entries(sc: Scenario, rows: dict) -> tuple:
+def weight_entries(sc: Scenario, rows: dict) -> tuple:
     """``(row, col, weight, off-diagonal)`` arrays (agent positions) of ``rows``, sorted by row, in its order within."""
     pos = {a: k for k, a in enumerate(sc.agent_ids)}
     ri = np.array([pos[i] for i, (nbs, _) in rows.items() for _ in nbs], dtype=np.int64)
@@ -344,7 +344,7 @@ class BatchEstimator(_EstimatorBase):
     def realized(self, rows: dict, entries: tuple, counts: list) -> list:
         """``S_k`` (m x m) of each exchange's realized graph: :func:`impairment.realized_row`, vectorised.
 
-        ``entries``: :func:`_entries` of ``rows`` (sorted by receiver); ``counts[k]``: a boolean per off-diagonal
+        ``entries``: :func:`weight_entries` of ``rows`` (sorted by receiver); ``counts[k]``: a boolean per off-diagonal
         entry, True where the message counts.  Each ``S_k`` is a :class:`_RealizedS` (a segmented sum: building a
         scipy matrix per sub-round cost more than the whole step).
         """
@@ -468,7 +468,7 @@ class AgentLoopEstimator(_EstimatorBase):
 # --------------------------------------------------------------------------
 
 
-class _Progress:
+class Progress:
     """A one-line progress bar on stderr, only when it is a terminal and the run is long."""
 
     def __init__(self, total: int, enabled: bool | None, *, label: str = "simulating", min_total: int = 2000):
@@ -541,7 +541,7 @@ def simulate(des: Design, *, seed: int | None = None, steps: int | None = None, 
     xh = np.full((T, m, n), np.nan)
     al = np.zeros((T, m), dtype=bool)
     gains = np.full((T, m), np.nan)  # g_i(t): adaptive or fixed in continuous time; none in discrete time
-    bar = _Progress(plan.steps, progress)
+    bar = Progress(plan.steps, progress)
     w_cache: dict = {}  # active network -> the estimator's weights
     # a misbehaving network (impairment.py): messages that do not count, drawn (or replayed from a run's record)
     imp = Impairment(sc.network, seed) if sc.network.impaired and lost is None else None
@@ -574,8 +574,8 @@ def simulate(des: Design, *, seed: int | None = None, steps: int | None = None, 
         W = w_cache.get(key)
         if W is None:
             rows = net.rows(sc, key[0])
-            W = w_cache[key] = (est.weights(rows), rows, _entries(sc, rows))
-        Ws = _realized_step(est, sc, W, k, exchanges, imp, replay, net.groups, lost_rows) if impaired else None
+            W = w_cache[key] = (est.weights(rows), rows, weight_entries(sc, rows))
+        Ws = realized_step(est, sc, W, k, exchanges, imp, replay, net.groups, lost_rows) if impaired else None
         bu = st.known_input(B, plant.input())  # the known input every agent adds (the agent process: the same)
         X = (est.step(X, y, W[0], alive, missing, bu) if Ws is None
              else est.step_realized(X, y, Ws, alive, missing, bu))
@@ -603,7 +603,7 @@ def _replay_index(lost) -> dict:
     return out
 
 
-def _realized_step(est, sc: Scenario, W: tuple, tau: int, exchanges: int, imp, replay, groups, lost_rows: list):
+def realized_step(est, sc: Scenario, W: tuple, tau: int, exchanges: int, imp, replay, groups, lost_rows: list):
     """The realized weights of step ``tau``'s exchanges, or None when every message counts (the lossless path).
 
     A message ``(tau, k, j, i)`` does not count when a partition in force separates j and i, when it is drawn

@@ -29,7 +29,7 @@ from ..simulation.metrics import fit_decay, steady_rms
 from ..synthesis.designer import design
 from ..errors import DesignError
 from ..scenarios.specs import NetworkSpec, Scenario
-from ..simulation.simulator import _Progress, check_trajectory_memory, simulate
+from ..simulation.simulator import Progress, check_trajectory_memory, simulate
 
 __all__ = ["check_sweep", "network_sweep", "sweep_table", "PARAMETERS", "MAX_LEVELS"]
 
@@ -124,7 +124,7 @@ def network_sweep(sc: Scenario, parameter: str, values, *, seeds, steps: int | N
     base = design(sc)
     noisy = sc.system.process_noise > 0 or sc.system.measurement_noise > 0
     per_sim = 2 if noisy else 1
-    bar = _Progress((len(values) + 1) * len(seeds), progress, label=f"{parameter} sweep",
+    bar = Progress((len(values) + 1) * len(seeds), progress, label=f"{parameter} sweep",
                     min_total=1 if per_sim * len(seeds) * (len(values) + 1) >= 20 else 10 ** 9)
     done = [0]
     lossless_sc = _with_level(sc, parameter, None)
