@@ -1,8 +1,8 @@
 """The Rerun side of the recorder: one recording stream, its live viewer, and ``run.rrd`` appended by Python.
 
 :class:`RerunSink` logs what :class:`splitspec_orchestrator.records.recorder.Recorder` hands it
-(batches of rows, text events, topology, marks, loss clears) with
-``send_columns``, one chunk per entity per batch, on the timelines ``event``
+(:mod:`splitspec_orchestrator.recording.handoff`: batches of rows, text events, topology, marks, loss clears)
+with ``send_columns``, one chunk per entity per batch, on the timelines ``event``
 (sequence ``tau``), ``time`` (duration) and ``wall`` (timestamp).  Entity paths,
 colours and the default blueprint are in :mod:`splitspec_orchestrator.recording.blueprint`;
 the topology and what a misbehaving network draws over it (arcs that lost
@@ -37,7 +37,6 @@ import logging
 import os
 import socket
 import sys
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 from urllib.parse import urlsplit
@@ -45,43 +44,18 @@ from urllib.parse import urlsplit
 import numpy as np
 
 from . import blueprint as bp
+from .handoff import LossClear, LostRow, Mark, RowBatch, TextLine, TopologyLog
 from .reference_view import ReferenceRows, ReferenceView
 from .rrd_file import RrdAppender, rerun_command, rewrite_rrd
 from .topology_view import TopologyView
 
-__all__ = ["RerunSink", "RowBatch", "APPLICATION_ID", "RRD_FILE"]
+__all__ = ["RerunSink", "RowBatch", "open_sink", "APPLICATION_ID", "RRD_FILE"]
 
 log = logging.getLogger(__name__)
 
 APPLICATION_ID = "splitspec"
 RRD_FILE = "run.rrd"
 DEFAULT_VIEWER_PORT = 9876
-
-
-@dataclass
-class RowBatch:
-    """Rows to log (L of them, increasing ``tau``); per-agent arrays are (L, m).
-
-    ``show``: where an agent's values are logged (alive, finite); ``clear``:
-    where a value shown by an earlier batch is no longer true (Clear).
-    ``env``: the designed envelope, NaN where none; ``rounds``: (L, 4) wall ms,
-    attempts, rejected, consensus messages lost (NaN unknown).
-    """
-
-    seq: np.ndarray
-    t: np.ndarray
-    wall: np.ndarray
-    x: np.ndarray
-    xhat: np.ndarray
-    err: np.ndarray
-    show: np.ndarray
-    clear: np.ndarray
-    err_max: np.ndarray
-    show_max: np.ndarray
-    clear_max: np.ndarray
-    env: np.ndarray
-    gains: np.ndarray
-    rounds: np.ndarray
 
 
 def _reachable(host: str, port: int, timeout: float) -> bool:
@@ -106,6 +80,17 @@ def _url_host_port(url: str) -> tuple[str, int]:
 def _log10(v: np.ndarray) -> np.ndarray:
     with np.errstate(divide="ignore", invalid="ignore"):
         return np.log10(v)
+
+
+def open_sink(out_dir: Path, **options) -> "RerunSink | None":
+    """The run's :class:`RerunSink` (``options``: its keyword arguments), or None -- file records only -- with a
+    warning when Rerun fails to start: Rerun must never stop a run."""
+    try:
+        return RerunSink(out_dir, **options)
+    except Exception as exc:
+        log.warning("Rerun recording disabled (%s: %s); writing trajectory.npz and events.jsonl only",
+                    type(exc).__name__, exc)
+        return None
 
 
 class RerunSink:
@@ -329,39 +314,39 @@ class RerunSink:
         for s, col in zip(bp.ROUND_SERIES, b.rounds.T):
             scalars(f"{bp.ROUNDS}/{s}", np.isfinite(col), col)
 
-    def send_events(self, queued: list[tuple[int, float, str, str, int]]) -> None:
-        """``(tau, t, text, level, wall_ns)`` as one TextLog chunk on ``events``, in call order."""
+    def send_events(self, lines: list[TextLine]) -> None:
+        """One TextLog chunk on ``events``, in call order."""
         import rerun as rr
 
-        taus, seconds, texts, levels, walls = zip(*queued)
-        self.rec.send_columns(bp.EVENTS, indexes=self._index(rr, taus, seconds, walls),
-                              columns=rr.TextLog.columns(text=list(texts), level=list(levels)))
+        self.rec.send_columns(bp.EVENTS, indexes=self._index(rr, [e.tau for e in lines], [e.t for e in lines],
+                                                             [e.wall for e in lines]),
+                              columns=rr.TextLog.columns(text=[e.text for e in lines], level=[e.level for e in lines]))
 
-    def send_marks(self, queued: list[tuple[int, float, str, float, int]]) -> None:
-        """``(tau, t, kind, y, wall_ns)``: one point per event on ``marks/<kind>``."""
+    def send_marks(self, marks: list[Mark], heights: list[float]) -> None:
+        """One point per mark on ``marks/<kind>``, at its height (one chunk per kind)."""
         import rerun as rr
 
         for kind in bp.MARK_KINDS:
-            rows = [q for q in queued if q[2] == kind]
+            rows = [(m, y) for m, y in zip(marks, heights) if m.kind == kind]
             if rows:
-                taus, seconds, _, ys, walls = zip(*rows)
-                self.rec.send_columns(f"{bp.MARKS}/{kind}", indexes=self._index(rr, taus, seconds, walls),
-                                      columns=rr.Scalars.columns(scalars=np.asarray(ys, dtype=float)))
+                self.rec.send_columns(f"{bp.MARKS}/{kind}", indexes=self._index(
+                    rr, [m.tau for m, _ in rows], [m.t for m, _ in rows], [m.wall for m, _ in rows]),
+                    columns=rr.Scalars.columns(scalars=np.asarray([y for _, y in rows], dtype=float)))
 
-    def send_loss_clears(self, queued: list[tuple[int, float, int, int]]) -> None:
-        """``(tau, t, agent id, wall_ns)``: a non-recursive Clear on each of the agent's series at ``tau``."""
+    def send_loss_clears(self, clears: list[LossClear]) -> None:
+        """A non-recursive Clear on each of the lost agent's series at the loss's event time."""
         import rerun as rr
 
-        for tau, t, a, wall in queued:
-            idx = self._index(rr, [tau], [t], [wall])
-            for path in self.agent_series(a):
+        for c in clears:
+            idx = self._index(rr, [c.tau], [c.t], [c.wall])
+            for path in self.agent_series(c.agent):
                 self.rec.send_columns(path, indexes=idx, columns=rr.Clear.columns(is_recursive=[False]))
 
-    def send_topology(self, queued: list[tuple]) -> None:
+    def send_topology(self, logs: list[TopologyLog]) -> None:
         """See :meth:`splitspec_orchestrator.recording.topology_view.TopologyView.send_topology`."""
-        self.topology.send_topology(queued)
+        self.topology.send_topology(logs)
 
-    def send_lost(self, rows: list[tuple]) -> None:
+    def send_lost(self, rows: list[LostRow]) -> None:
         """See :meth:`splitspec_orchestrator.recording.topology_view.TopologyView.send_lost`."""
         self.topology.send_lost(rows)
 

@@ -164,9 +164,10 @@ class TopologyView:
         self._overlaid: dict[int, tuple] = {}  # tau -> (tau, t, wall_ns, lost) of every overlay logged
         self._dash_cache: dict[tuple, tuple] = {}  # (j, i, label of j, label of i) -> dash_dots of arc j -> i
 
-    def send_topology(self, queued: list[tuple]) -> None:
-        """``(tau, t, graph name, alive ids, edges, wall_ns, cut, partition)``: GraphNodes (fixed positions, lost
-        grey) + the edges not ``cut`` (a subset of ``edges``, the arcs a partition in force cuts).
+    def send_topology(self, logs: list) -> None:
+        """One row per topology logged (:class:`~splitspec_orchestrator.recording.handoff.TopologyLog`): GraphNodes
+        (fixed positions, lost grey) + the edges not ``cut`` (a subset of ``edges``, the arcs a partition in force
+        cuts).
 
         The active graph's name (and ``partition``, its text, if any) is a label node on ``topology/graph``
         above the agents; the cut arcs are dashed on ``topology/partition`` (logged while a partition is in
@@ -179,19 +180,20 @@ class TopologyView:
         pos = [self.positions[a] for a in ids]
         node_ids, labels, colors, positions, edges, edge_counts = [], [], [], [], [], []
         cut_dots: list[tuple] = []
-        for tau, _, _, alive, row_edges, _, cut, _ in queued:
+        for g in logs:
             node_ids += [str(a) for a in ids]
-            row_labels = [f"agent {a}" if a in alive else f"agent {a} (lost)" for a in ids]
+            row_labels = [f"agent {a}" if a in g.alive else f"agent {a} (lost)" for a in ids]
             labels += row_labels
-            colors += [bp.color(k) if a in alive else bp.DEAD_COLOR for k, a in enumerate(ids)]
+            colors += [bp.color(k) if a in g.alive else bp.DEAD_COLOR for k, a in enumerate(ids)]
             positions += pos
-            kept = [e for e in row_edges if e not in cut]
+            kept = [e for e in g.edges if e not in g.cut]
             edges += kept
             edge_counts.append(len(kept))
-            self._topology_at(int(tau), kept, dict(zip(ids, row_labels)))
-            cut_dots.append(self._dots(sorted((int(j), int(i)) for j, i in cut), self._labels))
-        taus, seconds, names, _, _, walls, cuts, parts = zip(*queued)
-        rows = len(queued)
+            self._topology_at(int(g.tau), kept, dict(zip(ids, row_labels)))
+            cut_dots.append(self._dots(sorted((int(j), int(i)) for j, i in g.cut), self._labels))
+        taus, seconds, walls = [g.tau for g in logs], [g.t for g in logs], [g.wall for g in logs]
+        names, cuts, parts = [g.graph for g in logs], [g.cut for g in logs], [g.partition for g in logs]
+        rows = len(logs)
         index = self._index(rr, taus, seconds, walls)
         columns = [*rr.GraphNodes.columns(node_ids=node_ids, labels=labels, colors=colors,
                                           positions=positions).partition([len(ids)] * rows),
@@ -251,8 +253,8 @@ class TopologyView:
                                    colors=colors).partition([len(d[0]) for d in dots]),
             *rr.GraphNodes.columns(show_labels=[False] * len(dots))])
 
-    def send_lost(self, rows: list[tuple[int, float, int, tuple, bool]]) -> None:
-        """``(tau, t, wall_ns, lost rows, the previous row lost some)`` per recorded row, in the order taken.
+    def send_lost(self, rows: list) -> None:
+        """One :class:`~splitspec_orchestrator.recording.handoff.LostRow` per row taken, in the order taken.
 
         An event time whose consensus messages did not all count (``lost``: ``(tau, k, j, i, cause)``) gets
         ``topology`` edges without its arcs that lost one, those arcs dashed on ``topology/lost`` and its
@@ -261,7 +263,7 @@ class TopologyView:
         """
         import rerun as rr
 
-        todo = [(tau, t, wall, lost) for tau, t, wall, lost, prev in rows if lost or prev or tau in self._overlaid]
+        todo = [(r.tau, r.t, r.wall, r.lost) for r in rows if r.lost or r.prev or r.tau in self._overlaid]
         if todo:
             self._send_overlays(rr, todo)
 

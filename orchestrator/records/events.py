@@ -1,13 +1,11 @@
 """The run's event log: ``events.jsonl`` (one JSON object per line) and the one-sentence text shown in Rerun.
 
-``events.jsonl`` holds ``{"event", "t", "wall", **fields}`` per line, flushed
-line by line; the file is opened for each write only (no file of the run stays
-open between calls) and a line torn by a failed write is cut back.
-:func:`event_text` turns an event into the short, complete sentence of the
-``events`` TextLog (``agent 3 lost: killed by the scenario (SIGKILL)``,
+What ``events.jsonl`` holds (its line, the events and their fields): docs/reference/files.md, section
+"Event log".  :class:`EventLog` opens the file for each write only (no file of the run stays open between
+calls) and cuts back a line torn by a failed write.  :func:`event_text` turns an event into the short,
+complete sentence of the ``events`` TextLog (``agent 3 lost: killed by the scenario (SIGKILL)``,
 ``graph a -> b``, ``arc 1 -> 6 dropped``, ``12 consensus messages did not count (12 loss)``); unknown
-events read
-``<event> k=v ...``.
+events read ``<event> k=v ...``.
 """
 
 from __future__ import annotations
@@ -121,6 +119,10 @@ class EventLog:
 
     def write(self, event: str, t: float, wall: float, fields: dict) -> None:
         self._write(self.line(event, t, wall, fields))
+
+    def append(self, line: bytes) -> None:
+        """Append a line made by :meth:`line`."""
+        self._write(line)
 
     def _write(self, data: bytes, *, mode: str = "ab") -> None:
         try:

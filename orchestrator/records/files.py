@@ -19,15 +19,18 @@ After a write failure the two files are made to agree on K rows, as far as the d
 :meth:`RecordFiles.salvage` (the rows both hold, ``trajectory.npz`` cut to them),
 :meth:`RecordFiles.finish_rrd_fitting` (fewer rows, a tenth less each try, when the rewrites do not
 fit on a full disk) and :meth:`RecordFiles.cut_trajectory`.  When to write, in which order, and what a
-failure stops are the recorder's (its module docstring, "Write failures and consistency"); a failed
-write is reported to the recorder's :class:`~splitspec_orchestrator.records.recorder.WriteFailure`, which keeps
-the first one and gives the :class:`RecordsWriteError` to raise.
+failure stops are :mod:`splitspec_orchestrator.records.writer`'s ("Write failures and consistency"); a
+failed write is reported to the recorder's :class:`WriteFailure`, which keeps the first one and gives the
+:class:`RecordsWriteError` to raise.  What the files hold: docs/reference/files.md, sections "Trajectory
+file" and "Rerun recording".
 """
 
 from __future__ import annotations
 
 import errno
+import logging
 import os
+import threading
 from pathlib import Path
 from typing import Callable
 
@@ -39,7 +42,9 @@ from splitspec_core.simulation.trajectory_file import TRAJECTORY_FILE, lost_arra
 from ..recording.sink import RRD_FILE, RerunSink
 from .rowstore import RowStore
 
-__all__ = ["RecordFiles", "RecordsWriteError"]
+__all__ = ["RecordFiles", "RecordsWriteError", "WriteFailure"]
+
+log = logging.getLogger(__name__)
 
 
 class RecordsWriteError(SplitspecError, RuntimeError):
@@ -64,6 +69,33 @@ def strerror(exc: OSError) -> str:
     return str(exc) or type(exc).__name__
 
 
+class WriteFailure:
+    """The first failed write of a recorder's records (the recording stops at it), and whether a caller has
+    seen it (raised to it); shared by the recorder, its :class:`~splitspec_orchestrator.records.writer.RecordWriter`
+    and its :class:`RecordFiles`."""
+
+    def __init__(self, lock: threading.RLock):
+        self._lock = lock  # the recorder's _lock
+        self.error: RecordsWriteError | None = None
+        self.reported = False
+
+    def fail(self, path: Path, exc: OSError, tau: int | None) -> RecordsWriteError:
+        """The :class:`RecordsWriteError` of ``exc``; the first one is kept (the recording stops)."""
+        err = RecordsWriteError(path, strerror(exc), tau)
+        with self._lock:
+            if self.error is None:
+                self.error = err
+                log.info("recording stopped: %s", err)  # the driver prints the one line
+            self.reported = True  # raised to the caller (the background flusher resets this)
+        return err
+
+    def check(self) -> None:
+        """After a write failure the recording has stopped: every recorder call raises it again."""
+        if self.error is not None:
+            self.reported = True
+            raise self.error
+
+
 class RecordFiles:
     """``trajectory.npz`` and ``run.rrd`` of one recorder, and the rows each holds on disk.
 
@@ -71,11 +103,10 @@ class RecordFiles:
     ----------
     out_dir : directory of the run
     agent_ids : agent ids in the scenario's order
-    taken : the rows taken by the recorder's flushes (its ``_d``; everything here runs under its ``_io``)
+    taken : the rows taken by the recorder's flushes (its writer's ``rows``; everything here runs under its ``_io``)
     lost : ``{tau: rows (tau, k, j, i, cause)}`` of the consensus messages that did not count (the recorder's)
     extra : ``extra(T)``, the further arrays of a ``trajectory.npz`` with the first ``T`` rows
-    failure : the recorder's :class:`~splitspec_orchestrator.records.recorder.WriteFailure` (``error``,
-        ``fail(path, exc, tau) -> RecordsWriteError``)
+    failure : the recorder's :class:`WriteFailure`
     sink : the recorder's :class:`RerunSink`, None without Rerun (and once the recorder has dropped it)
     states : the states' names (``trajectory.npz``'s ``states``)
     """

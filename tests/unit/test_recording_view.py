@@ -139,7 +139,7 @@ def test_a_mark_waits_for_its_own_row(tmp_path, flush):
 
 def test_a_mark_still_waiting_for_its_row_is_written_at_exit(tmp_path):
     """The interpreter's exit flush (a run that never called close) writes a mark whose row never came."""
-    from splitspec_orchestrator.records.recorder import _flush_open_recorders
+    from splitspec_orchestrator.records.flusher import _flush_open_recorders
 
     x, xhat, alive, graph, g = rows()
     rec = Recorder(tmp_path, agent_ids=IDS, n=N, steps=T - 1, time_mode="discrete", dt=DT, graph_names=("a", "b"),
