@@ -1,61 +1,14 @@
 """Rerun entity paths of a run's recording, its colours and node positions, and its default blueprint.
 
-Entity paths (DESIGN.md "Rerun recording" is the contract for the first ones;
-``<id>`` is an agent id, ``<k>`` = 1..n a state component):
+What each entity holds, its timelines, and which entities exist in which run are the contract of
+docs/reference/files.md, section "Rerun recording"; the constants below are their paths in the code.  The
+topology and what a misbehaving network draws over it: :mod:`splitspec_orchestrator.recording.topology_view`
+(dots, because an edge of a Rerun 0.41 graph has no colour or dash of its own); a run on measurements:
+:mod:`splitspec_orchestrator.recording.reference_view`.
 
-==============================  ===============================================================
-``errors/agent_<id>``           ``|x_i(tau) - x(tau)|_2``, alive agents only
-``errors/max``                  ``max_i |x_i(tau) - x(tau)|_2`` over alive agents
-``errors_log10/agent_<id>``     ``log10 |x_i(tau) - x(tau)|_2``
-``errors_log10/max``            ``log10 max_i |x_i(tau) - x(tau)|_2``
-``errors_log10/envelope``       ``log10`` of the designed envelope (no entity with the adaptive gain)
-``state/<k>/truth``             ``x_k(tau)`` (bold)
-``state/<k>/kf``                the centralized Kalman filter's ``x_k(tau)`` (runs on measurements,
-                                logged after the run; bold in place of the truth when there is none)
-``state/<k>/agents``            one batch of m scalars per event time: ``x_{i,k}(tau)`` of every
-                                agent, instance i = the i-th agent of the scenario (thin lines,
-                                named ``x<k> agent <id>``), NaN where the agent is dead
-``gains/agent_<id>``            ``g_i(tau)`` (continuous time only)
-``residual/agent_<id>``         ``|y_i(tau) - C_i x_i(tau)|_2`` (runs on measurements; a Clear where the agent is
-                                dead or has no measurement), ``residual_log10/agent_<id>`` its log10
-``disagreement``                ``max_ij |x_i(tau) - x_j(tau)|_2`` over alive agents (runs on measurements),
-                                ``disagreement_log10`` its log10
-``kf_distance/agent_<id>``      ``|x_i(tau) - kf(tau)|_2``, the distance to the centralized Kalman filter (runs on
-                                measurements, logged after the run), ``kf_distance_log10/agent_<id>`` its log10
-``rounds/wall_ms``              wall time of the round of ``tau``, first tick to record
-``rounds/attempts``             attempts of that round (1 = no re-run)
-``rounds/rejected``             messages rejected since the previous round's record
-``rounds/lost``                 consensus messages of the round that did not count (loss, late, partition)
-``marks/<kind>``                a point at each loss, rejoin, graph switch, scenario fault,
-                                partition and heal, at the height of the log10 max error (without
-                                the truth: of the log10 disagreement)
-``topology``                    GraphNodes (fixed positions, lost agents grey) + GraphEdges: the arcs
-                                that carried every message (a partition's cut and, per event time,
-                                the arcs that lost a message are drawn dashed instead)
-``topology/graph``              one label node: the active graph's name (and a partition in force)
-``topology/lost``               dots drawing dashed the arcs that lost a message in this event time
-                                (red: lost, orange: late); none when nothing was lost
-``topology/partition``          dots drawing dashed (purple) the arcs cut by a partition in force
-``topology/status``             one label node: how many messages did not count, by cause
-``events``                      TextLog, one short sentence per event
-==============================  ===============================================================
-
-The last three exist only in a run whose network misbehaves (:mod:`splitspec_orchestrator.lossview`
-says why dots: an edge of a Rerun 0.41 graph has no colour or dash of its own).
-
-A run on measurements without the truth (``splitspec run --measurements FILE`` whose file has no
-``x``) logs nothing of ``errors``, ``errors_log10`` and ``state/<k>/truth``: what it cannot know
-is not shown, not even as NaN.  The residuals, the disagreement and the distance to the centralized
-Kalman filter take the errors' place (:mod:`splitspec_core.studies.no_truth`); with the truth they are
-logged beside the errors
-(:mod:`splitspec_orchestrator.recording.reference_view`).
-
-Entities per run: ``2m + 2n + 16`` (with the envelope; ``m`` more with gains, up to 3 more on a
-network that loses messages or is partitioned; ``4m + n + 2`` more on measurements, of which the
-``2m + n`` of the filter are logged once, after the run; ``2m + n + 3`` fewer without the truth): at m = 32,
-n = 6, 92 instead of the 278 of one entity per agent and state component
-(``state/<k>/agent_<id>``, ``n (m + 1)`` of them with the truth), which the recorder paid for
-in every flush (one ``send_columns`` chunk per entity) and the viewer in every query.
+Entities per run (counted in docs/reference/files.md): at m = 32, n = 6, 92 instead of the 278 of one entity
+per agent and state component (``state/<k>/agent_<id>``, ``n (m + 1)`` of them with the truth), which the
+recorder paid for in every flush (one ``send_columns`` chunk per entity) and the viewer in every query.
 
 Why a batch per component and not one entity per agent holding its n components: the
 default blueprint keeps one view per state component (m + 1 lines each), and a Rerun 0.41

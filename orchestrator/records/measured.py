@@ -2,7 +2,8 @@
 
 A run whose estimators take their ``y`` from a measurements file
 (:meth:`splitspec_orchestrator.records.recorder.Recorder.set_measurements`) or from live sensors
-(:meth:`~splitspec_orchestrator.records.recorder.Recorder.set_live_sources`) records, in addition:
+(:meth:`~splitspec_orchestrator.records.recorder.Recorder.set_live_sources`) records, in addition (the arrays
+and entities: docs/reference/files.md, sections "Trajectory file" and "Rerun recording"):
 
 * ``trajectory.npz``: the ``y`` and ``y_missing`` rows of the event times taken so far and, at the close,
   what is known without the truth (:func:`splitspec_core.studies.no_truth.no_truth_arrays`: the centralized Kalman
