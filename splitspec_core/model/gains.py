@@ -47,6 +47,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import AssumptionError, DesignError
+from .gain_target import GainTarget, beyond_target  # re-exported: gains.beyond_target as before
 from .modal import invariant_subspace
 from .observability import Decomposition
 from .subspaces import complement
@@ -139,38 +140,6 @@ def _ackermann(A: np.ndarray, b: np.ndarray, poles: np.ndarray) -> np.ndarray | 
     if np.max(np.abs(got - np.sort_complex(poles.astype(complex)))) > 1e-9 * (1.0 + np.max(np.abs(poles))):
         return None
     return f[None, :]
-
-
-@dataclass(frozen=True)
-class GainTarget:
-    """Where a local gain moves the observable part's slow modes (:func:`splitspec_core.model.gains.beyond_target` makes
-    it): past ``-(1 + margin) rate`` (continuous) or inside ``rate / (1 + margin)`` (discrete).  Called on an array of
-    eigenvalues: true where a mode is already there, so the gain leaves it alone."""
-
-    time: str
-    rate: float
-    margin: float
-
-    def __call__(self, z) -> np.ndarray:
-        if self.time == "continuous":
-            return np.real(z) < -(1.0 + self.margin) * self.rate
-        return np.abs(z) < self.rate / (1.0 + self.margin)
-
-    def shift(self, z) -> np.ndarray:
-        """How far each eigenvalue is from the target region (0 inside it): the least the gain moves it."""
-        if self.time == "continuous":
-            return np.maximum(0.0, np.real(z) + (1.0 + self.margin) * self.rate)
-        return np.maximum(0.0, np.abs(z) - self.rate / (1.0 + self.margin))
-
-
-
-def beyond_target(time: str, rate: float, margin: float) -> GainTarget:
-    """Where the gain moves the slow modes (:class:`GainTarget`): called on an array of
-    eigenvalues, true where a mode already decays faster than the gain's target (real part below ``-(1 + margin)
-    lam`` in continuous time, modulus below ``lam / (1 + margin)`` in discrete time).  The gain leaves such modes
-    where they are (module docstring); the observability decisions count them at round-off and measure the other
-    clusters' dynamics against the distance the gain moves them (:func:`splitspec_core.model.observability.decompose`)."""
-    return GainTarget(time, float(rate), float(margin))
 
 
 def _slow_part(dec: Decomposition, time: str, rate: float, margin: float) -> np.ndarray:

@@ -78,17 +78,14 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, replace
-from typing import TYPE_CHECKING
 
 import numpy as np
 
+from .gain_target import GainTarget
 from .modal import Spectrum, rescale
 from .subspaces import complement as _complement
 from .subspaces import difference, intersection
 from .modal import spectrum as modal_spectrum
-
-if TYPE_CHECKING:  # gains.py imports this module
-    from .gains import GainTarget
 
 __all__ = ["DEFAULT_RANK_TOL", "ROUND_OFF", "SPLIT_STEP", "Staircase", "Decomposition", "threshold_of",
            "observability_staircase", "decompose", "unobservable_directions"]
@@ -152,8 +149,9 @@ def observability_staircase(A: np.ndarray, C: np.ndarray, *, rank_tol: float | N
     ``|A - aI|`` sets the scale of its images; a spread below :data:`ROUND_OFF` of ``a_scale`` is round-off (a
     repeated eigenvalue: five integrators of a power-system model came out ``1e-17`` apart) and has no images, and
     images are known only to ``eps a_scale / spread`` of their weight (a round-off spread scaled up is not a margin).
-    ``move``: how far the local gain must move the cluster's modes (:class:`splitspec_core.model.gains.GainTarget`): the
-    images are measured against the larger of the spread and that distance.  A direction the staircase reaches
+    ``move``: how far the local gain must move the cluster's modes
+    (:class:`splitspec_core.model.gain_target.GainTarget`): the images are measured against the larger of the spread
+    and that distance.  A direction the staircase reaches
     in ``j`` steps then has a margin of about the distance over the gain that moves it (the gain grows like
     ``move^j / |C (A - aI)^j v|``): three governor modes ``5e-4`` apart that the gain must move by ``0.16`` are
     not seen by a sensor of one of them, however clean their spread looks against itself.
