@@ -48,6 +48,7 @@ import numpy as np
 import splitspec_core as ss
 from splitspec_core.simulation.metrics import fit_decay
 from splitspec_core.errors import SplitspecError
+from splitspec_core.synthesis.conditioning import conditioning
 from splitspec_core.synthesis.report import rate_certificate
 
 from _common import loadavg
@@ -127,7 +128,7 @@ def measure(des, seeds: int) -> dict:
         e = np.linalg.norm(e.reshape(e.shape[0], -1), axis=1)
         ratio = e / (e[0] * np.exp(-rate * tr.t))
         peak = max(peak, float(np.max(ratio)))
-        c = des.conditioning.transient_constant
+        c = conditioning(des).transient_constant
         if c is not None:
             under &= bool(np.all(ratio <= c * (1 + 1e-8)))
         r = fit_decay(tr.t, e, time=sc.time, scale=np.linalg.norm(tr.x, axis=1))
@@ -156,7 +157,7 @@ def row(model: str, which: str, rate: float, extra: dict, args) -> bool:
         return False
     t_design = time.perf_counter() - t0
     t0 = time.perf_counter()
-    cond = des.conditioning
+    cond = conditioning(des)
     t_cond = time.perf_counter() - t0
     un = des.unobserved
     cert = rate_certificate(des)

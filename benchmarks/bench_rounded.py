@@ -36,6 +36,7 @@ import math
 import numpy as np
 
 from splitspec_core.simulation.metrics import fit_decay
+from splitspec_core.synthesis.conditioning import conditioning
 from splitspec_core.synthesis.designer import design
 from splitspec_core.scenarios.generate import random_strongly_connected_arcs, random_system
 from splitspec_core.synthesis.report import rate_certificate
@@ -88,7 +89,7 @@ def evaluate(raw: dict) -> dict:
     e = tr.errors()
     err = np.nanmax(e, axis=1)
     rate = fit_decay(tr.t, err, time=sc.time, scale=np.linalg.norm(tr.x, axis=1))
-    cond = des.conditioning
+    cond = conditioning(des)
     return {
         "n_i": [a.dec.n_unobservable for a in des.agents],
         "K": max(c.gain_norm for c in cond.agents),

@@ -22,7 +22,7 @@ import numpy as np
 
 from .synthesis.designer import Design
 from .errors import ScenarioError
-from .synthesis.report import rate_certificate
+from .synthesis.verdict import rate_certificate
 from .scenarios.checks import DESIGN_KEYS, RUN_KEYS, SYSTEM_KEYS
 from .scenarios.control import plant_keywords
 from .scenarios.load import ORIGIN, parse_scenario

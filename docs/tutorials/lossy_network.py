@@ -24,6 +24,7 @@ import numpy as np
 
 import splitspec_core as ss
 from splitspec_core.studies.sweeps import sweep_table
+from splitspec_core.synthesis.loss_certificate import loss_certificate
 
 out = Path(os.environ.get("SPLITSPEC_OUT", "out/tutorials")) / "lossy_network"
 sc = ss.load_scenario("examples/ring10_lossy.yaml")
@@ -41,7 +42,7 @@ print(f"{sc.m} agents, rate {sc.design.rate}, loss {sc.network.loss}, deadline {
 d = ss.design(sc)
 print("q =", d.q)
 print("perfect network:", d.checks.certificate)
-cert = d.detail.loss_certificate
+cert = loss_certificate(d.detail)
 print("under this network:", cert.text)
 
 # %% [markdown]

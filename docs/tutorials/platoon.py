@@ -30,6 +30,7 @@ from pathlib import Path
 import numpy as np
 
 import splitspec_core as ss
+from splitspec_core.synthesis.conditioning import conditioning
 
 out = Path(os.environ.get("SPLITSPEC_OUT", "out/tutorials")) / "platoon"
 sc = ss.load_scenario("examples/platoon.yaml")
@@ -94,7 +95,7 @@ a1.set_ylabel("speed (m/s)")
 a1.set_title("v1..v4: truth (grey), every car's estimates", fontsize=9)
 e = free.errors()
 a2.semilogy(free.t * 0.1, e, lw=1)
-a2.semilogy(free.t * 0.1, e[0].max() * d.detail.conditioning.transient_constant * 0.7 ** free.t, "k--", lw=1,
+a2.semilogy(free.t * 0.1, e[0].max() * conditioning(d.detail).transient_constant * 0.7 ** free.t, "k--", lw=1,
             label="certified envelope")
 a2.set_xlabel("t (s)")
 a2.set_ylabel(r"$\|\hat x_i - x\|$")

@@ -27,6 +27,7 @@ import numpy as np
 
 from ..simulation.metrics import fit_decay, steady_rms
 from ..synthesis.designer import design
+from ..synthesis.loss_certificate import loss_certificate
 from ..errors import DesignError
 from ..scenarios.specs import NetworkSpec, Scenario
 from ..simulation.simulator import Progress, check_trajectory_memory, simulate
@@ -134,7 +135,7 @@ def network_sweep(sc: Scenario, parameter: str, values, *, seeds, steps: int | N
         sv = _with_level(sc, parameter, v)
         dv = dataclasses.replace(base, scenario=sv)  # the design does not depend on the network: only its use
         row = {"value": v, **_level(dv, sv, seeds, steps, noisy, bar, done)}
-        cert = dv.loss_certificate
+        cert = loss_certificate(dv)
         row.update(certified=bool(cert.certified) if cert is not None else True,
                    certificate=cert.text if cert is not None else "a perfect network: the design's own certificate")
         rows.append(row)

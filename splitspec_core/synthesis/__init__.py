@@ -1,10 +1,12 @@
 """Design and certificates: a scenario in, a :class:`~splitspec_core.synthesis.designer.Design` and its verdicts out.
 
-``designer.py`` the design (Sections 2-4: g or q over every graph the switching can use);
-``bounds.py`` the certificates' bounds for g and q, ``spectral.py`` spectral radii (exact or matrix-free,
-never claiming more than was computed), ``sampled_rates.py`` g for the sampled-data form;
+``designer.py`` the design (Sections 2-4: g or q over every graph the switching can use, and the policy for an
+approximate split), ``design_data.py`` the ``Design`` it returns (data; its analyses are functions of it, cached
+per design); ``bounds.py`` the certificates' bounds for g and q, ``spectral.py`` spectral radii (exact or
+matrix-free, never claiming more than was computed), ``sampled_rates.py`` g for the sampled-data form;
 ``error_matrix.py`` the full mn x mn error map, ``conditioning.py`` margins and the transient constant;
 ``resilience.py`` single agent and arc losses, ``loss_certificate.py`` lossy networks,
 ``survivors.py`` the runtime's survivor verdict; ``noise_tuning.py`` the gains' tuning under noise;
-``report.py`` the verdict and its rendering (``splitspec design``). Imports ``scenarios`` and ``model``.
+``verdict.py`` the certificate's verdict, computed once, ``report.py`` its rendering (``splitspec design``).
+Imports ``scenarios`` and ``model``.
 """

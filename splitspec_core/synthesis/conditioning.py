@@ -27,14 +27,11 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .error_matrix import MAX_DIM, _case_parts, full_error_matrix, modulo, predicted_rms
-
-if TYPE_CHECKING:  # the designer imports this module
-    from .designer import Design
+from .design_data import Design, cached_analysis
+from .error_matrix import MAX_DIM, case_parts, full_error_matrix, modulo, predicted_rms
 
 __all__ = ["AgentConditioning", "Conditioning", "Transient", "conditioning", "transient_constant",
            "MARGIN_WARN", "GAIN_WARN", "TRANSIENT_WARN"]
@@ -200,7 +197,8 @@ def _scale(A: np.ndarray) -> float:
     return float(np.linalg.norm(A - (np.trace(A) / n) * np.eye(n), 2))
 
 
-def conditioning(des: "Design") -> Conditioning:
+@cached_analysis  # once per design, on first use: the full error matrices cost more than the design at scale
+def conditioning(des: Design) -> Conditioning:
     """Margins, gain sizes, the transient constant over the graphs the scenario uses (each held constant),
     and, when the scenario has noise, the predicted steady-state RMS error of the first graph."""
     sc = des.scenario
@@ -240,7 +238,7 @@ def conditioning(des: "Design") -> Conditioning:
                         warnings=tuple(warnings))
 
 
-def _transient(des: "Design", warnings: list) -> tuple:
+def _transient(des: Design, warnings: list) -> tuple:
     sc = des.scenario
     if des.time == "continuous" and des.g is None:
         return None, None, "not defined for the adaptive gain (g changes with time)"
@@ -255,7 +253,7 @@ def _transient(des: "Design", warnings: list) -> tuple:
     block = sc.n - (des.unobserved.dim if des.excluded else 0)
     worst = None
     for case in cases:
-        Cs, Ks, Ps = _case_parts(des, case)
+        Cs, Ks, Ps = case_parts(des, case)
         M = full_error_matrix(A, Cs, Ks, Ps, case.graph.S, time=sc.time, q=des.q, g=des.g,
                               dt=sc.run.dt if sc.time == "continuous" else None)
         if des.excluded:  # the certificate covers the error modulo W only (design.undetectable: exclude)

@@ -11,168 +11,36 @@ Steps (paper, Sections 2-4):
 4. centralised: g (continuous) or q (discrete) covering every graph the
    switching signal can use (and, with ``design.resilience: 1``, every graph
    left after a single agent loss), on the quotient by ``W``;
-5. resilience analysis (single agent and single arc losses).
+5. resilience analysis (single agent and single arc losses);
+6. an approximate split (a weakly observable direction left to consensus): the rate checked on the full error
+   matrices, an automatic q or g raised until they meet it (:func:`check_full`).
+
+The :class:`Design` it returns holds data (:mod:`.design_data`); its verdict, conditioning and certificate under
+loss are functions of it (:mod:`.verdict`, :mod:`.conditioning`, :mod:`.loss_certificate`).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-from functools import cached_property
+import dataclasses
+import re
 
 import numpy as np
 
 from . import bounds
 from ..errors import AssumptionError
-from .conditioning import conditioning
-from ..model.detectability import Unobserved, not_detectable_text, quotient_basis, still_text, unobserved_of
-from .error_matrix import SPLIT_EXACT, check_full
+from .design_data import SPLIT_EXACT, Design
+from ..model.detectability import not_detectable_text, quotient_basis, still_text, unobserved_of
+from .error_matrix import MAX_RATE_DIM, full_radius
 from ..model.gains import beyond_target
 from ..model.graphs import build_graph, enumerate_strongly_connected
-from .loss_certificate import loss_certificate
-from ..model.local_design import AgentDesign, design_agent, riccati_weights, scenario_spectrum, working_scale
-from ..model.modal import Spectrum
+from ..model.local_design import design_agent, riccati_weights, scenario_spectrum, working_scale
 from ..model.observability import decompose
 from .resilience import analyse_agent_losses, analyse_arc_losses
 from .sampled_rates import exact_g, sampled_g
 from ..scenarios.specs import Scenario
+from .verdict import NO_CERTIFIED_RATE  # re-exported: designer.NO_CERTIFIED_RATE as before
 
-__all__ = ["Design", "design", "scenario_dwell", "NO_CERTIFIED_RATE"]
-
-# thm. split_continuous_adaptive: with the adaptive gain (eq. adaptive) every error tends to zero, at no stated rate
-NO_CERTIFIED_RATE = "asymptotic convergence only (no certified rate)"
-
-
-@dataclass(frozen=True)
-class Design:
-    """A complete design with diagnostics (see ``design_json`` for the contract).
-
-    ``g`` is ``None`` for discrete time and for the adaptive estimator;
-    ``q`` is ``None`` for continuous time.  ``g_certified_by`` names what
-    certifies g for the ODE (None: nothing, or the adaptive gain); the verdict
-    for the estimator as run is :func:`splitspec_core.synthesis.report.rate_certificate`.
-    """
-
-    scenario: Scenario
-    agents: tuple
-    graphs: tuple  # Graph per scenario graph, scenario order
-    cases: tuple  # bounds.Case covered by g or q
-    g: float | None = None
-    g_mode: str | None = None  # auto | given | adaptive
-    g_bounds: dict = field(default_factory=dict)  # case label -> eq. (g)
-    g_mins: dict = field(default_factory=dict)  # case label -> exact smallest g
-    g_dwell: float | None = None
-    dwell: float | None = None
-    g_arbitrary: float | None = None
-    g_certified_by: str | None = None
-    q: int | None = None
-    q_result: bounds.QResult | None = None
-    q_methods: dict = field(default_factory=dict)  # the q method's result; every method's with compare_q_methods
-    error_radius: dict = field(default_factory=dict)  # case label -> spectral radius / abscissa of A_V
-    sampled_rate: dict = field(default_factory=dict)  # continuous: case label -> decay rate of the sampled-data form
-    agent_losses: dict = field(default_factory=dict)
-    arc_losses: dict = field(default_factory=dict)
-    warnings: tuple = ()
-    # max over agents of Decomposition.split_residual (and W's); above round-off, full_radius: conditioning.check_full
-    split_residual: float = 0.0
-    full_radius: dict = field(default_factory=dict)
-    # what no agent sees (detectability.py): W, its spectrum, whether it decays; None only for a design built by hand
-    unobserved: Unobserved | None = None
-    spectrum: Spectrum | None = field(default=None, repr=False, compare=False)  # modal.py: A balanced, its clusters
-
-    @property
-    def time(self) -> str:
-        return self.scenario.time
-
-    @property
-    def rate(self) -> float:
-        return self.scenario.design.rate
-
-    @property
-    def Ks(self) -> list:
-        """Every ``K_i`` the estimator runs (the user's coordinates)."""
-        return [a.K for a in self.agents]
-
-    @property
-    def Ps(self) -> list:
-        """Every ``P_i`` the estimator runs (the user's coordinates)."""
-        return [a.P for a in self.agents]
-
-    @property
-    def Vs(self) -> list:
-        """Every ``R_i`` eq. (adaptive) projects with, in the user's coordinates (:attr:`AgentDesign.V_adaptive`;
-        ``V_i`` itself in the user's own working coordinates)."""
-        return [a.V_adaptive for a in self.agents]
-
-    @property
-    def Ls(self) -> list:
-        """Every ``L_i`` (:attr:`AgentDesign.V_lift`): ``P_i = L_i R_i'`` with ``R_i`` of :attr:`Vs`."""
-        return [a.V_lift for a in self.agents]
-
-    @property
-    def scale(self) -> np.ndarray | None:
-        """The working coordinates ``x = diag(scale) x_w`` (``design.coordinates``; None: the user's)."""
-        return self.agents[0].scale if self.agents else None
-
-    @property
-    def redundantly_strongly_connected(self) -> bool:
-        return all(all(r.strongly_connected.values()) for r in self.agent_losses.values())
-
-    @property
-    def redundantly_jointly_observable(self) -> bool:
-        return all(r.jointly_observable for r in self.agent_losses.values())
-
-    @property
-    def redundantly_jointly_detectable(self) -> bool:
-        return all(r.detectable for r in self.agent_losses.values())
-
-    @property
-    def excluded(self) -> bool:
-        """``design.undetectable: exclude`` took effect: directions no agent sees do not decay, and the certificate
-        covers the error modulo them only."""
-        return self.unobserved is not None and not self.unobserved.decays
-
-    @property
-    def envelope_rate(self) -> float:
-        """The rate of the certified envelope: ``lam``, or slower when the unobserved directions limit it
-        (:meth:`splitspec_core.model.detectability.Unobserved.envelope`); with :attr:`excluded`, ``lam`` (modulo them)."""
-        un = self.unobserved
-        return self.rate if un is None or self.excluded else un.envelope(self.rate)
-
-    @property
-    def A_working(self) -> np.ndarray:
-        """``A`` in the working coordinates (``D^-1 A D``)."""
-        A = np.asarray(self.scenario.system.A, dtype=float)
-        return A if self.scale is None else A * self.scale[None, :] / self.scale[:, None]
-
-    def unobserved_of(self, alive) -> Unobserved:
-        """What the agents ``alive`` leave unobserved (``W_S ⊇ W``, :mod:`splitspec_core.model.detectability`)."""
-        return unobserved_of(self.scenario, self.spectrum, {a.id: self.unobservable_space(a.id)
-                                                            for a in self.agents}, self.scale)(alive)
-
-    def survivor_case(self, label: str, graph, un: Unobserved) -> bounds.Case:
-        """The certificate's case of the agents of ``graph`` when they leave ``un.W`` unobserved: ``V_i ⊖ W_S``."""
-        ad = {a.id: a for a in self.agents}
-        if self.unobserved is None or un.dim == self.unobserved.dim:
-            return bounds.make_case(label, graph, [ad[i].V for i in graph.ids], [ad[i].dec.A_un for i in graph.ids])
-        A = self.A_working
-        Vs = [quotient_basis(self.unobservable_space(i), un.W_working) for i in graph.ids]
-        return bounds.make_case(label, graph, Vs, [V.T @ A @ V for V in Vs])
-
-    def unobservable_space(self, agent_id: int) -> np.ndarray:
-        """Agent ``agent_id``'s own unobservable space in the working coordinates: ``[V_i ⊖ W, W]`` (orthonormal: the
-        two are orthogonal there)."""
-        a = next(a for a in self.agents if a.id == agent_id)
-        W = self.unobserved.W_working if self.unobserved is not None else np.zeros((a.V.shape[0], 0))
-        return np.hstack([a.V, W])
-
-    @property
-    def split_exact(self) -> bool:
-        """Every V_i an unobservable space to round-off: the split of prop. error holds, the certificates apply."""
-        return self.split_residual <= SPLIT_EXACT
-
-    # on first use (the full error matrices cost more than the design itself at scale):
-    loss_certificate = cached_property(loss_certificate)  # under network: and partitions (None without)
-    conditioning = cached_property(conditioning)  # margins, gain sizes, transient constant, noise
+__all__ = ["Design", "design", "scenario_dwell", "check_full", "NO_CERTIFIED_RATE"]
 
 
 def scenario_dwell(sc: Scenario) -> float | None:
@@ -374,3 +242,92 @@ def _design_q(sc: Scenario, cases, switching: bool, warnings: list, compare: boo
     # rho(Atil B^q) per case (eq. split_discrete_rho); the spectral q search has computed them already
     radius = {c.label: bounds.error_radius(c, result.q, rate=rate, method=d.eigenvalues) for c in cases}
     return dict(q=result.q, q_result=result, q_methods=others, error_radius=radius)
+
+
+def check_full(des: Design, warnings: list) -> Design:
+    """An approximate split (a weakly observable direction left to consensus): the rate on the full error matrices.
+
+    Prop. error (and errordis) split the spectrum exactly only when every V_i is an exact unobservable space;
+    with ``split_residual`` above round-off the certificates' split blocks are an approximation, so the
+    rate is checked on the full error matrix of every case held constant
+    (:func:`splitspec_core.synthesis.error_matrix.full_radius`), and an automatic q or g raised until it meets it
+    (:func:`_raise_to_full`): design policy, so here and not with the matrices.
+    No switching certificate of the paper covers an approximate split.
+    """
+    sc = des.scenario
+    worst = max([a.dec.weak for a in des.agents] + [des.split_residual])
+    who = ", ".join(str(a.id) for a in des.agents if a.dec.weak > 0) or "every"
+    note = (f"agent(s) {who} left a weakly observable direction (margin up to {worst:.2g}) to consensus: the split "
+            f"of the error dynamics holds up to {des.split_residual:.2g}")
+    if sc.m * sc.n > MAX_RATE_DIM:  # the certificate then says it covers the split blocks only (verdict.py)
+        warnings.append(f"{note}; the full error matrices (m n = {sc.m * sc.n} > {MAX_RATE_DIM}) were not checked")
+        return dataclasses.replace(des, warnings=tuple(warnings))
+    full = full_radius(des, des.cases, q=des.q, g=des.g)
+    warnings.append(f"{note}; the rate is checked on the full error matrix of each graph held constant")
+    des = dataclasses.replace(des, full_radius=full, warnings=tuple(warnings))
+    if not _full_meets(des, full):
+        des = _raise_to_full(des, warnings)
+    if not _full_meets(des, des.full_radius):
+        if des.time == "continuous" and max(v["ode"] for v in des.full_radius.values()) > -des.envelope_rate:
+            # sampled_rates.py's run.dt advice was computed on the split blocks: no run.dt helps when the ODE misses
+            warnings[:] = [w for w in warnings if not re.match(r"(the sampled-data estimator is UNSTABLE with g|"
+                                                              r"with run\.dt = \S+ the sampled-data estimator)", w)]
+        weakest = min([a.dec.weak for a in des.agents if a.dec.weak > 0] or [des.split_residual])
+        warnings.append(f"leaving agent(s) {who}'s weak directions to consensus misses the rate on the full error "
+                        f"matrix even with more consensus: if the model is accurate to better than {weakest:.2g}, set "
+                        f"design.rank_tol below that (e.g. {weakest / 10:.1g}) to count them (larger local gains)")
+        des = dataclasses.replace(des, warnings=tuple(warnings))
+    return des
+
+
+def _full_meets(des: Design, full: dict) -> bool:
+    rate = des.envelope_rate  # lam, or slower when directions no agent sees limit it (they are in the full matrix)
+    if des.time == "discrete":
+        return max(full.values()) < rate
+    return max(v["ode"] for v in full.values()) <= -rate and min(v["sampled"] for v in full.values()) >= rate
+
+
+def _raise_to_full(des: Design, warnings: list) -> Design:
+    """An automatic q or g that the full error matrices miss (an approximate split): raised until they meet the rate.
+
+    The split's own certificate chose q (or g) on the split blocks; with the split only approximate the
+    coupling it leaves can take the full matrix past the rate, and more consensus (a larger q, a larger g)
+    is what brings it back.  Discrete: q + 1, q + 2, ... up to ``min(design.q_max, 4 q + 64)``; continuous:
+    g grown by 25 % at a time (from the rate when the split's g is 0), up to 100 times the split's g, stopping
+    early when four raises in a row do not improve the full matrix's abscissa (the weak directions then couple
+    through the local gains, which no consensus undoes: 21 raises cost a minute at m n = 1600).  A q or g the
+    user gave is left alone (the certificate then says it misses the rate).
+    """
+    sc = des.scenario
+    d = sc.design
+    if des.time == "discrete":
+        if d.q != "auto":
+            return des
+        for q in range(des.q + 1, min(d.q_max, 4 * des.q + 64) + 1):
+            full = full_radius(des, des.cases, q=q)
+            if _full_meets(des, full):
+                result = bounds.choose_q(d.q_method, des.cases, d.rate, q=q, q_max=d.q_max)
+                warnings.append(f"q raised from {des.q} to {q}: with the approximate split, q = {des.q} leaves the full "
+                                f"error matrix's spectral radius at {max(des.full_radius.values()):.4g} >= rate {d.rate:g}")
+                return dataclasses.replace(des, q=q, q_result=result, full_radius=full, warnings=tuple(warnings),
+                                           error_radius={c.label: bounds.error_radius(c, q) for c in des.cases})
+        return des
+    if d.g != "auto":
+        return des
+    g = des.g if des.g > 0 else d.rate / 1.25
+    best, stale = max(v["ode"] for v in des.full_radius.values()), 0
+    for _ in range(21):
+        g *= 1.25
+        full = full_radius(des, des.cases, g=bounds.nice_ceil(g))
+        ode = max(v["ode"] for v in full.values())
+        best, stale = (ode, 0) if ode < best - 1e-9 * max(1.0, abs(best)) else (best, stale + 1)
+        if stale == 4:
+            break
+        if _full_meets(des, full):
+            g = bounds.nice_ceil(g)
+            worst = max(v["ode"] for v in des.full_radius.values())
+            warnings.append(f"g raised from {des.g:g} to {g:g}: with the approximate split, g = {des.g:g} leaves the full "
+                            f"error matrix's spectral abscissa at {worst:.4g} > -{d.rate:g}")
+            return dataclasses.replace(des, g=g, full_radius=full, warnings=tuple(warnings),
+                                       error_radius={c.label: bounds.abscissa(c, g) for c in des.cases})
+    return des

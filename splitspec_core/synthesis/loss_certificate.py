@@ -37,6 +37,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .design_data import Design, cached_analysis
 from ..model.graphs import build_graph, find_unreachable
 
 __all__ = ["LossCertificate", "loss_certificate", "MAX_LOST_CHECKED"]
@@ -90,7 +91,8 @@ def _realized_S(base, lost: set, ids, weights: str) -> np.ndarray:
     return S
 
 
-def loss_certificate(des) -> LossCertificate | None:
+@cached_analysis  # once per design, on first use (the realized graphs' two-norms)
+def loss_certificate(des: Design) -> LossCertificate | None:
     """The certificate under loss of a design whose scenario has ``network:`` impairments or partitions (else None)."""
     sc = des.scenario
     net = sc.network

@@ -21,7 +21,7 @@ import numpy as np
 from .designer import Design, design
 from ..errors import DesignError
 from .error_matrix import error_dynamics, predicted_rms
-from .report import rate_certificate
+from .verdict import rate_certificate
 from ..scenarios.specs import Scenario
 
 __all__ = ["error_dynamics", "predicted_rms", "TuneResult", "tune"]

@@ -1,151 +1,31 @@
 """Design output: the JSON contract and the readable report.
 
-Why one module: both render the same :class:`~splitspec_core.synthesis.designer.Design` and the same verdict
-(:func:`rate_certificate`, the line every command prints), and must say the same thing; the JSON is the
+Both render the same :class:`~splitspec_core.synthesis.design_data.Design`, the same verdict (computed once by
+:func:`splitspec_core.synthesis.verdict.rate_certificate`, the line every command prints; re-exported here) and
+the same analyses of it (:func:`~splitspec_core.synthesis.conditioning.conditioning`,
+:func:`~splitspec_core.synthesis.loss_certificate.loss_certificate`), and must say the same thing; the JSON is the
 contract (``../shared/DESIGN.md``), the text its reading.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import numpy as np
 
 from .bounds import QResult
-from .designer import NO_CERTIFIED_RATE, Design
-from .error_matrix import MAX_RATE_DIM
+from .conditioning import conditioning
+from .design_data import Design
+from .loss_certificate import loss_certificate
 from ..model.gains import poles_text
 from ..model.graphs import is_doubly_stochastic, perron_vector
 from ..scenarios.labels import heaviest
+from .verdict import NO_CERTIFIED_RATE, RateCertificate, rate_certificate  # the verdict, rendered here
 
 __all__ = ["RateCertificate", "rate_certificate", "design_json", "design_text"]
 
 
-@dataclass(frozen=True)
-class RateCertificate:
-    """A design's verdict on its rate: the one every command reports.
-
-    Attributes
-    ----------
-    certified : bool
-        The design certifies that every error decays at the rate ``lam`` (or at ``rate``, slower, when directions
-        no agent sees limit it: :mod:`splitspec_core.model.detectability`).
-    text : str
-        One line: what certifies it, or why nothing does.
-    rate : float or None
-        The rate of the certified envelope (``Design.envelope_rate``) when certified, else None.
-    """
-
-    certified: bool
-    text: str
-    rate: float | None = None
-
-
 MAX_LISTED = 12  # cases whose radius the text report lists (the largest first); --json has them all
-
-def rate_certificate(des: Design, *, sampled: bool = True) -> RateCertificate:
-    """Does the design certify its rate for the estimator as it is run?  :func:`_split_certificate`, then what the
-    directions no agent sees do to it (``Design.unobserved``): nothing when they decay faster than ``lam``; they limit
-    the envelope's rate when they decay slower (``Design.envelope_rate``); with ``design.undetectable: exclude`` the
-    certificate covers the error modulo them only."""
-    cert = _split_certificate(des, sampled=sampled)
-    un = des.unobserved
-    text = cert.text
-    if un is not None and un.dim:
-        if des.excluded:
-            text += (f"; on the error modulo the {un.dim} direction{'s' if un.dim != 1 else ''} no agent sees "
-                     f"({un.where()}), which do not all decay (design.undetectable: exclude)")
-        else:
-            text += f"; {un.summary(des.rate)}"
-    return RateCertificate(cert.certified, text, des.envelope_rate if cert.certified else None)
-
-
-def _split_certificate(des: Design, *, sampled: bool = True) -> RateCertificate:
-    """The certificate of the split (the quotient by what no agent sees, when that is not nothing).
-
-    * adaptive gain: never (thm. split_continuous_adaptive gives asymptotic
-      convergence only, :data:`~splitspec_core.synthesis.designer.NO_CERTIFIED_RATE`);
-    * discrete: the certificate of q's method (``QResult``); the estimator
-      runs exactly ``A_V = Atil B^q`` (eq. split_discrete_ench), so the bound
-      is about what runs; a per-graph method on a switching scenario says so;
-    * continuous: g certified for the ODE (eq. g, thm. arb,
-      eq. split_continuous_g, or the exact spectrum of eq. split_continuous_split)
-      and, with ``sampled`` (what ``simulate`` and ``run`` integrate: the
-      sampled-data form with step ``run.dt``, :mod:`splitspec_core.model.steps`),
-      its error map decaying at the rate too (``Design.sampled_rate``: exact,
-      per graph held constant).  ``sampled=False`` judges the exact ODE alone.
-    """
-    sc = des.scenario
-    if des.g_mode == "adaptive":
-        return RateCertificate(False, f"adaptive gain: {NO_CERTIFIED_RATE}")
-    if des.full_radius:
-        return _full_certificate(des, sampled=sampled)
-    cert = _blocks_certificate(des, sampled=sampled)
-    if cert.certified and not des.split_exact:
-        # an approximate split whose full error matrices were too large to check (full_matrix.check_full): the
-        # certificate covers the split blocks, not the estimator that runs
-        return RateCertificate(False, f"{cert.text}, on the split blocks only: the split is approximate (residual "
-                                      f"{des.split_residual:.2g}) and its full error matrices (m n = "
-                                      f"{sc.m * sc.n} > {MAX_RATE_DIM}) were not checked")
-    return cert
-
-
-def _blocks_certificate(des: Design, *, sampled: bool) -> RateCertificate:
-    """The certificates of the split blocks (:func:`_split_certificate`'s list, after the adaptive gain)."""
-    sc = des.scenario
-    rate = sc.design.rate
-    if des.time == "discrete":
-        r = des.q_result
-        ok = bool(r.certified)
-        scope = "" if r.switching or len(des.cases) == 1 else " (each graph held constant)"
-        return RateCertificate(ok, f"q = {r.q}: {r.method} bound {r.bound:.4g} {'<=' if ok else '>'} rate {rate:g}"
-                                   + scope)
-    g = des.g
-    if des.g_certified_by is None:
-        worst = max(des.error_radius.values(), default=-math.inf)
-        if worst > -rate:  # eq. (split_continuous_split): the ODE's error decays as exp(abscissa t)
-            return RateCertificate(False, f"g = {g:g} misses rate {rate:g} even for the ODE (spectral abscissa "
-                                          f"of A_V {worst:.4g} > -{rate:g})")
-        return RateCertificate(False, f"g = {g:g} meets rate {rate:g} for each graph held constant, but no bound "
-                                      "covers the switching (thm. arb, eq. split_continuous_g)")
-    ode = f"g = {g:g} certified by {des.g_certified_by} for the ODE"
-    if not sampled or not des.sampled_rate:
-        return RateCertificate(True, ode)
-    dt = sc.run.dt
-    worst = min(des.sampled_rate.values())
-    if worst <= 0:
-        return RateCertificate(False, f"{ode}, but its sampled-data form with run.dt = {dt:g} is UNSTABLE (decay "
-                                      f"rate {worst:.4g}): reduce run.dt or g")
-    if worst < rate:
-        return RateCertificate(False, f"{ode}, but its sampled-data form with run.dt = {dt:g} decays at only "
-                                      f"{worst:.4g} < rate {rate:g}: reduce run.dt")
-    scope = " (each graph held constant)" if len(des.cases) > 1 else ""
-    return RateCertificate(True, f"{ode}; its sampled-data form with run.dt = {dt:g} decays at {worst:.4g} >= "
-                                 f"{rate:g}{scope}")
-
-
-def _full_certificate(des: Design, *, sampled: bool) -> RateCertificate:
-    """An approximate split (``Design.full_radius``): the verdict of the full error matrices, each graph held
-    constant; no switching certificate of the paper covers it (see :func:`splitspec_core.synthesis.error_matrix.check_full`).
-    The full matrices hold the directions no agent sees too: they are judged against the envelope's rate."""
-    sc = des.scenario
-    rate = des.envelope_rate
-    scope = (f"each graph held constant; the split is approximate (residual {des.split_residual:.2g}), "
-             "so no switching certificate applies") if len(des.cases) > 1 else \
-        f"the split is approximate (residual {des.split_residual:.2g})"
-    if des.time == "discrete":
-        worst = max(des.full_radius.values())
-        ok = worst < rate
-        return RateCertificate(ok, f"q = {des.q}: spectral radius of the full error matrix {worst:.4g} "
-                                   f"{'<' if ok else '>='} rate {rate:g} ({scope})")
-    ode = max(v["ode"] for v in des.full_radius.values())
-    smp = min(v["sampled"] for v in des.full_radius.values())
-    ok = ode <= -rate and (smp >= rate or not sampled)
-    text = f"g = {des.g:g}: spectral abscissa of the full error matrix {ode:.4g} {'<=' if ode <= -rate else '>'} -{rate:g}"
-    if sampled:
-        text += f", its sampled-data form with run.dt = {sc.run.dt:g} decays at {smp:.4g}"
-    return RateCertificate(ok, f"{text} ({scope})")
 
 
 def _mat(M: np.ndarray) -> list:
@@ -200,7 +80,7 @@ def _unobserved_json(un, rate: float, *, full: bool = True) -> dict:
 
 
 def _conditioning_json(des: Design) -> dict:
-    cond = des.conditioning
+    cond = conditioning(des)
     return {
         "transient_constant": _num(cond.transient_constant) if cond.transient_constant != math.inf else "inf",
         "transient": {"constant": _num(cond.transient_constant) if cond.transient_constant != math.inf else "inf",
@@ -215,7 +95,7 @@ def _conditioning_json(des: Design) -> dict:
 
 
 def _loss_json(des: Design) -> dict | None:
-    c = des.loss_certificate
+    c = loss_certificate(des)
     if c is None:
         return None
     return {"certified": bool(c.certified), "text": c.text, "max_lost": c.max_lost, "beta": _num(c.beta),
@@ -225,7 +105,7 @@ def _loss_json(des: Design) -> dict | None:
 def design_json(des: Design) -> dict:
     """The ``splitspec design --json`` object (contract in ``../shared/DESIGN.md``)."""
     sc = des.scenario
-    cond = {a.id: a for a in des.conditioning.agents}
+    cond = {a.id: a for a in conditioning(des).agents}
     out = {
         "name": sc.name,
         "time": sc.time,
@@ -277,7 +157,7 @@ def design_json(des: Design) -> dict:
         "rank_tol": "auto" if sc.design.rank_tol is None else sc.design.rank_tol,
         "loss_certificate": _loss_json(des),
         **_conditioning_json(des),
-        "warnings": list(des.warnings) + list(des.conditioning.warnings),
+        "warnings": list(des.warnings) + list(conditioning(des).warnings),
     }
     cert = rate_certificate(des)
     out.update(certified_rate=cert.certified, certificate=cert.text, envelope_rate=_num(cert.rate),
@@ -356,7 +236,7 @@ def design_text(des: Design) -> str:
         "agents  (n_i = dim of the unobservable space V_i; poles of Abar_i + Kbar_i Cbar_i; the smallest",
         "         observability margin counted as seen, and ||K_i||)",
     ]
-    cond = des.conditioning
+    cond = conditioning(des)
     for a, c in zip(des.agents, cond.agents):
         margin = "-" if c.observability_margin is None else f"{c.observability_margin:.2g}"
         weak = f", weak direction (margin {c.weak:.2g}) left to consensus" if c.weak > 0 else ""
@@ -444,8 +324,9 @@ def design_text(des: Design) -> str:
     cert = rate_certificate(des)
     verdict = "rate" if adaptive else f"rate {'certified' if cert.certified else 'NOT certified'}"
     lines += ["", f"{verdict}: {cert.text}"]
-    if des.loss_certificate is not None:
-        lines.append(des.loss_certificate.text)  # "rate certified under loss: ..." or "not certified under loss: ..."
+    loss = loss_certificate(des)
+    if loss is not None:
+        lines.append(loss.text)  # "rate certified under loss: ..." or "not certified under loss: ..."
     lines += _size_lines(des)
     warnings = list(des.warnings) + list(cond.warnings)
     if warnings:
@@ -455,7 +336,7 @@ def design_text(des: Design) -> str:
 
 def _size_lines(des: Design) -> list:
     """The errors' size: the transient constant, and the predicted steady-state error under noise."""
-    cond = des.conditioning
+    cond = conditioning(des)
     sc = des.scenario
     unit = "rate^tau" if sc.time == "discrete" else "exp(-lam t)"
     env = des.envelope_rate

@@ -64,7 +64,7 @@ def network_verdict(unobserved_of: Callable, alive, graphs: dict, *, connected: 
     """Strong connectivity of each graph restricted to ``alive`` and what ``alive`` leaves unobserved.
 
     ``unobserved_of(alive)``: the :class:`~splitspec_core.model.detectability.Unobserved` of a set of agents (the design's
-    :meth:`~splitspec_core.synthesis.designer.Design.unobserved_of`).  ``graphs`` maps a name to its arcs ``(j, i)`` between
+    :meth:`~splitspec_core.synthesis.design_data.Design.unobserved_of`).  ``graphs`` maps a name to its arcs ``(j, i)`` between
     agent ids.  ``connected``: ``{name: bool}`` already known (:func:`analyse_agent_losses` decides it for every
     loss at once); a pair that cannot reach is then searched only for a graph that splits.
     """

@@ -20,6 +20,7 @@ import pytest
 from hypothesis import assume, event, given, settings
 from hypothesis import strategies as st
 
+from splitspec_core.synthesis.conditioning import conditioning
 from splitspec_core.synthesis.designer import design
 from splitspec_core.errors import AssumptionError
 from splitspec_core.synthesis.report import rate_certificate
@@ -104,8 +105,8 @@ def test_a_detectable_system_designs_and_its_error_stays_under_the_envelope(draw
     cert = rate_certificate(des)
     assume(cert.certified)  # q or g within limits and the sampled-data form at run.dt: checked elsewhere
     event("W limits the rate" if un.limits(des.rate) else "W faster than the rate")
-    c = des.conditioning.transient_constant
-    assert c is not None and math.isfinite(c), des.conditioning.transient_method  # certified: the envelope is finite
+    c = conditioning(des).transient_constant
+    assert c is not None and math.isfinite(c), conditioning(des).transient_method  # certified: the envelope is finite
     sc = des.scenario
     r = cert.rate if sc.time == "discrete" else math.exp(-cert.rate * sc.run.dt)
     tr = simulate(des, noise=False)

@@ -20,6 +20,7 @@ from hypothesis import assume, event, example, given, settings
 from hypothesis import strategies as st
 
 from splitspec_core.simulation.metrics import fit_decay
+from splitspec_core.synthesis.conditioning import conditioning
 from splitspec_core.synthesis.designer import design
 from splitspec_core.errors import AssumptionError, DesignError
 from splitspec_core.scenarios.generate import random_strongly_connected_arcs, random_system
@@ -99,8 +100,8 @@ def test_a_perturbed_model_keeps_the_exact_design(seed, time, imperfection):
         for a, b in changed:
             if a.dec.n_unobservable < b.dec.n_unobservable:  # sees more than the exact model: weakly
                 assert any(f"agent {a.id} sees a direction with an observability margin of only" in w
-                           and "design.rank_tol" in w for w in imperfect.conditioning.warnings), \
-                    (a.id, imperfect.conditioning.warnings)
+                           and "design.rank_tol" in w for w in conditioning(imperfect).warnings), \
+                    (a.id, conditioning(imperfect).warnings)
             else:  # sees less: a direction left to consensus, said so
                 assert any("weakly observable direction" in w for w in imperfect.warnings), imperfect.warnings
         assert delta >= 1e-4, (delta, [a.id for a, _ in changed])
@@ -123,7 +124,7 @@ def test_a_perturbed_model_keeps_the_exact_design(seed, time, imperfection):
     # an approximate split is checked on the full error matrix (and said so)
     if not imperfect.split_exact:
         assert imperfect.full_radius and any("weakly observable direction" in w for w in imperfect.warnings)
-    assert imperfect.conditioning.transient_constant <= 2 * exact.conditioning.transient_constant
+    assert conditioning(imperfect).transient_constant <= 2 * conditioning(exact).transient_constant
 
 
 @settings(max_examples=examples(20), **COMMON)
@@ -175,4 +176,4 @@ def test_a_weakly_observable_system_is_refused_or_warned(seed, coupling, time):
         assert margin < 1e-6 and "do not meet rate" in str(exc), (margin, str(exc))
     else:
         assert any("agent 1 sees a direction with an observability margin of only" in w
-                   for w in forced.conditioning.warnings), forced.conditioning.warnings
+                   for w in conditioning(forced).warnings), conditioning(forced).warnings

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import yaml
 
-from splitspec_core.synthesis.conditioning import transient_constant
+from splitspec_core.synthesis.conditioning import conditioning, transient_constant
 from splitspec_core.synthesis.error_matrix import full_error_matrix, predicted_rms
 from splitspec_core.synthesis.designer import design
 from splitspec_core.scenarios.load import load_scenario, parse_scenario
@@ -50,7 +50,7 @@ def test_transient_constant_falls_back_to_a_lyapunov_bound():
 def test_the_constant_bounds_the_simulated_errors(example):
     """||e(k)|| <= c r^k ||e(0)|| along a noise-free simulation on the constant graph, and c is nearly attained."""
     des = design(load_scenario(EXAMPLES / f"{example}.yaml"))
-    c = des.conditioning.transient_constant
+    c = conditioning(des).transient_constant
     assert 1.0 <= c < 1e3
     sc = des.scenario
     r = sc.design.rate if sc.time == "discrete" else math.exp(-sc.design.rate * sc.run.dt)
@@ -169,7 +169,7 @@ def test_a_forced_tolerance_counts_a_weak_direction_and_warns():
     assert any("agent(s) 1 left a weakly observable direction" in w for w in auto.warnings)
     forced = design(parse_scenario(two_agents([1, 0, 1e-6, 0], [0, 0, 1, 0], rank_tol=1e-9)))
     assert forced.agents[0].dec.n_unobservable == 0
-    cond = forced.conditioning
+    cond = conditioning(forced)
     assert cond.agents[0].observability_margin < 1e-5
     assert cond.agents[0].gain_norm > 1e4 * cond.agents[1].gain_norm
     text = " ".join(cond.warnings)

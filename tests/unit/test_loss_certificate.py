@@ -10,6 +10,7 @@ import pytest
 import yaml
 
 from splitspec_core.synthesis.designer import design
+from splitspec_core.synthesis.loss_certificate import loss_certificate
 from splitspec_core.scenarios.load import load_scenario, parse_scenario
 from splitspec_orchestrator import cli
 from tests.conftest import EXAMPLES
@@ -26,7 +27,7 @@ def test_a_lossy_chord_is_certified_with_enough_consensus_and_the_bound_holds_fo
     """The paper's graph a, only the message 1 -> 3 lossy: a sub-round realizes graph a or b.  At q = 9 every
     one of the 2^9 sequences of realized graphs maps the error by at most the certified two-norm bound."""
     des = lossy("paper_discrete", {"arcs": [{"arc": [1, 3], "loss": 0.3}]}, q=9)
-    c = des.loss_certificate
+    c = loss_certificate(des)
     assert c.certified and c.graphs == 2 and c.bound <= 0.5 and c.text.startswith("rate certified under loss")
     sc = des.scenario
     Vs = [a.V for a in des.agents]
@@ -49,31 +50,31 @@ def test_a_lossy_chord_is_certified_with_enough_consensus_and_the_bound_holds_fo
         worst = max(worst, np.linalg.norm(M, 2))
     assert worst <= c.bound * (1 + 1e-12) and worst <= 0.5
     # the designed q = 6 is not enough for the bound, and the certificate names the q that is
-    c6 = lossy("paper_discrete", {"arcs": [{"arc": [1, 3], "loss": 0.3}]}).loss_certificate
+    c6 = loss_certificate(lossy("paper_discrete", {"arcs": [{"arc": [1, 3], "loss": 0.3}]}))
     assert not c6.certified and c6.q_needed == 9 and "q >= 9 would certify" in c6.text
 
 
 def test_every_arc_lossy_is_never_certified_and_says_why():
-    c = lossy("ring10", {"loss": 0.1}).loss_certificate
+    c = loss_certificate(lossy("ring10", {"loss": 0.1}))
     assert not c.certified and c.max_lost == 1 and c.graphs == 25  # the ring, and it minus each of its 24 arcs
     # P(more than 1 of 24 independent losses of probability 0.1) = 1 - 0.9^24 - 24 0.1 0.9^23
     assert c.p_more == pytest.approx(1 - 0.9 ** 24 - 24 * 0.1 * 0.9 ** 23, rel=1e-12)
     assert "certified only for sub-rounds that lose at most 1 message" in c.text and "probability 0.708" in c.text
     # one lost message that cuts an agent off: nothing to certify
-    c = lossy("paper_discrete", {"loss": 0.1}).loss_certificate
+    c = loss_certificate(lossy("paper_discrete", {"loss": 0.1}))
     assert not c.certified and c.max_lost == 0 and "leaves graph a not strongly connected" in c.text
     # with a deadline any message can be late: no bound on how many
-    c = lossy("ring10", {"deadline": 0.02}).loss_certificate
+    c = loss_certificate(lossy("ring10", {"deadline": 0.02}))
     assert not c.certified and "any number of messages can be late" in c.text
     # continuous time: switching every run.dt
-    c = lossy("paper_continuous", {"loss": 0.1}).loss_certificate
+    c = loss_certificate(lossy("paper_continuous", {"loss": 0.1}))
     assert not c.certified and "switches the graph for one step of run.dt" in c.text
 
 
 def test_partitions_are_named_and_a_perfect_network_has_no_certificate_under_loss():
-    c = design(load_scenario(EXAMPLES / "ring10_partition.yaml")).loss_certificate
+    c = loss_certificate(design(load_scenario(EXAMPLES / "ring10_partition.yaml")))
     assert "nothing is certified while partitioned (from 5 to 35" in c.text
-    assert design(load_scenario(EXAMPLES / "ring10.yaml")).loss_certificate is None
+    assert loss_certificate(design(load_scenario(EXAMPLES / "ring10.yaml"))) is None
 
 
 def test_design_reports_it(capsys):

@@ -16,6 +16,7 @@ import yaml
 
 import splitspec_core as ss
 from splitspec_core.scenarios.inputs import input_at, parse_input
+from splitspec_core.synthesis.conditioning import conditioning
 from splitspec_core.scenarios.measurements import load_measurements, write_measurements
 from splitspec_core.model.plant import input_of
 from splitspec_core.scenarios.load import load_scenario, resolved_scenario_text
@@ -215,7 +216,7 @@ def test_a_continuous_model_sampled_for_the_discrete_estimator(capsys, tmp_path)
     # and the estimator's error decays at least as the certificate says, in seconds
     tr = ss.simulate(sc)
     err = np.nanmax(np.abs(tr.xhat - tr.x[:, None, :]), axis=(1, 2))
-    const = ss.design(sc).detail.conditioning.transient_constant
+    const = conditioning(ss.design(sc).detail).transient_constant
     assert err[-1] <= err[0] * 0.8 ** 60 * const * math.sqrt(4 * 3), (err[-1], err[0], const)
 
 

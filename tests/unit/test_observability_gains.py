@@ -152,6 +152,7 @@ def test_weak_joint_observability_is_refused_with_its_margin(tmp_path, capsys):
     margin and design.rank_tol (exit 2); with rank_tol forced below the margin it designs, and warns."""
     import yaml
 
+    from splitspec_core.synthesis.conditioning import conditioning
     from splitspec_core.synthesis.designer import design
     from splitspec_core.scenarios.load import parse_scenario
     from splitspec_orchestrator import cli
@@ -173,7 +174,7 @@ def test_weak_joint_observability_is_refused_with_its_margin(tmp_path, capsys):
     des = design(parse_scenario(raw))
     assert des.unobserved.dim == 0
     assert any("agent 1 sees a direction with an observability margin of only" in w
-               for w in des.conditioning.warnings)
+               for w in conditioning(des).warnings)
 
 
 def test_a_weak_direction_found_first_does_not_hide_a_strong_one():

@@ -1,0 +1,175 @@
+"""The :class:`Design` result: the data a design produces, and the per-design cache of what is computed from it.
+
+``Design`` holds the design (agents, graphs, cases, g or q and their bounds, the losses analysed, the warnings)
+with its cheap derived properties; the analyses of a design are functions of it, elsewhere: the verdict
+(:mod:`.verdict`), its conditioning (:mod:`.conditioning`), its certificate under loss (:mod:`.loss_certificate`).
+They are costly (the full error matrices cost more than the design itself at scale), so each is computed once
+per design, on first use (:func:`cached_analysis`).  :mod:`.designer` builds it and re-exports it.
+"""
+
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from . import bounds
+from ..model.detectability import Unobserved, quotient_basis, unobserved_of
+from ..model.modal import Spectrum
+from ..scenarios.specs import Scenario
+
+__all__ = ["Design", "cached_analysis", "SPLIT_EXACT"]
+
+#: a split residual below this is round-off: the split is exact
+SPLIT_EXACT = 1e-9
+
+
+@dataclass(frozen=True)
+class Design:
+    """A complete design with diagnostics (see ``design_json`` for the contract).
+
+    ``g`` is ``None`` for discrete time and for the adaptive estimator;
+    ``q`` is ``None`` for continuous time.  ``g_certified_by`` names what
+    certifies g for the ODE (None: nothing, or the adaptive gain); the verdict
+    for the estimator as run is :func:`splitspec_core.synthesis.verdict.rate_certificate`.
+
+    It holds data: what is computed from it (the verdict, :func:`~splitspec_core.synthesis.conditioning.conditioning`,
+    :func:`~splitspec_core.synthesis.loss_certificate.loss_certificate`) are functions of it, cached per design by
+    :func:`cached_analysis` (a design changed with ``dataclasses.replace`` starts with none).
+    """
+
+    scenario: Scenario
+    agents: tuple
+    graphs: tuple  # Graph per scenario graph, scenario order
+    cases: tuple  # bounds.Case covered by g or q
+    g: float | None = None
+    g_mode: str | None = None  # auto | given | adaptive
+    g_bounds: dict = field(default_factory=dict)  # case label -> eq. (g)
+    g_mins: dict = field(default_factory=dict)  # case label -> exact smallest g
+    g_dwell: float | None = None
+    dwell: float | None = None
+    g_arbitrary: float | None = None
+    g_certified_by: str | None = None
+    q: int | None = None
+    q_result: bounds.QResult | None = None
+    q_methods: dict = field(default_factory=dict)  # the q method's result; every method's with compare_q_methods
+    error_radius: dict = field(default_factory=dict)  # case label -> spectral radius / abscissa of A_V
+    sampled_rate: dict = field(default_factory=dict)  # continuous: case label -> decay rate of the sampled-data form
+    agent_losses: dict = field(default_factory=dict)
+    arc_losses: dict = field(default_factory=dict)
+    warnings: tuple = ()
+    # max over agents of Decomposition.split_residual (and W's); above round-off, full_radius: designer.check_full
+    split_residual: float = 0.0
+    full_radius: dict = field(default_factory=dict)
+    # what no agent sees (detectability.py): W, its spectrum, whether it decays; None only for a design built by hand
+    unobserved: Unobserved | None = None
+    spectrum: Spectrum | None = field(default=None, repr=False, compare=False)  # modal.py: A balanced, its clusters
+    # the analyses computed from it so far (cached_analysis); not an argument, so a replaced design starts empty
+    _analyses: dict = field(default_factory=dict, init=False, repr=False, compare=False)
+
+    @property
+    def time(self) -> str:
+        return self.scenario.time
+
+    @property
+    def rate(self) -> float:
+        return self.scenario.design.rate
+
+    @property
+    def Ks(self) -> list:
+        """Every ``K_i`` the estimator runs (the user's coordinates)."""
+        return [a.K for a in self.agents]
+
+    @property
+    def Ps(self) -> list:
+        """Every ``P_i`` the estimator runs (the user's coordinates)."""
+        return [a.P for a in self.agents]
+
+    @property
+    def Vs(self) -> list:
+        """Every ``R_i`` eq. (adaptive) projects with, in the user's coordinates (:attr:`AgentDesign.V_adaptive`;
+        ``V_i`` itself in the user's own working coordinates)."""
+        return [a.V_adaptive for a in self.agents]
+
+    @property
+    def Ls(self) -> list:
+        """Every ``L_i`` (:attr:`AgentDesign.V_lift`): ``P_i = L_i R_i'`` with ``R_i`` of :attr:`Vs`."""
+        return [a.V_lift for a in self.agents]
+
+    @property
+    def scale(self) -> np.ndarray | None:
+        """The working coordinates ``x = diag(scale) x_w`` (``design.coordinates``; None: the user's)."""
+        return self.agents[0].scale if self.agents else None
+
+    @property
+    def redundantly_strongly_connected(self) -> bool:
+        return all(all(r.strongly_connected.values()) for r in self.agent_losses.values())
+
+    @property
+    def redundantly_jointly_observable(self) -> bool:
+        return all(r.jointly_observable for r in self.agent_losses.values())
+
+    @property
+    def redundantly_jointly_detectable(self) -> bool:
+        return all(r.detectable for r in self.agent_losses.values())
+
+    @property
+    def excluded(self) -> bool:
+        """``design.undetectable: exclude`` took effect: directions no agent sees do not decay, and the certificate
+        covers the error modulo them only."""
+        return self.unobserved is not None and not self.unobserved.decays
+
+    @property
+    def envelope_rate(self) -> float:
+        """The rate of the certified envelope: ``lam``, or slower when the unobserved directions limit it
+        (:meth:`splitspec_core.model.detectability.Unobserved.envelope`); with :attr:`excluded`, ``lam`` (modulo them)."""
+        un = self.unobserved
+        return self.rate if un is None or self.excluded else un.envelope(self.rate)
+
+    @property
+    def A_working(self) -> np.ndarray:
+        """``A`` in the working coordinates (``D^-1 A D``)."""
+        A = np.asarray(self.scenario.system.A, dtype=float)
+        return A if self.scale is None else A * self.scale[None, :] / self.scale[:, None]
+
+    def unobserved_of(self, alive) -> Unobserved:
+        """What the agents ``alive`` leave unobserved (``W_S ⊇ W``, :mod:`splitspec_core.model.detectability`)."""
+        return unobserved_of(self.scenario, self.spectrum, {a.id: self.unobservable_space(a.id)
+                                                            for a in self.agents}, self.scale)(alive)
+
+    def survivor_case(self, label: str, graph, un: Unobserved) -> bounds.Case:
+        """The certificate's case of the agents of ``graph`` when they leave ``un.W`` unobserved: ``V_i ⊖ W_S``."""
+        ad = {a.id: a for a in self.agents}
+        if self.unobserved is None or un.dim == self.unobserved.dim:
+            return bounds.make_case(label, graph, [ad[i].V for i in graph.ids], [ad[i].dec.A_un for i in graph.ids])
+        A = self.A_working
+        Vs = [quotient_basis(self.unobservable_space(i), un.W_working) for i in graph.ids]
+        return bounds.make_case(label, graph, Vs, [V.T @ A @ V for V in Vs])
+
+    def unobservable_space(self, agent_id: int) -> np.ndarray:
+        """Agent ``agent_id``'s own unobservable space in the working coordinates: ``[V_i ⊖ W, W]`` (orthonormal: the
+        two are orthogonal there)."""
+        a = next(a for a in self.agents if a.id == agent_id)
+        W = self.unobserved.W_working if self.unobserved is not None else np.zeros((a.V.shape[0], 0))
+        return np.hstack([a.V, W])
+
+    @property
+    def split_exact(self) -> bool:
+        """Every V_i an unobservable space to round-off: the split of prop. error holds, the certificates apply."""
+        return self.split_residual <= SPLIT_EXACT
+
+
+def cached_analysis(fn):
+    """``fn(des, **options)`` computed once per design and options, on first use (kept in the design's own cache:
+    the design is frozen, and a design made from it by ``dataclasses.replace`` starts with an empty one)."""
+    name = f"{fn.__module__}.{fn.__qualname__}"
+
+    @functools.wraps(fn)
+    def cached(des: Design, **options):
+        key = (name, *sorted(options.items()))
+        if key not in des._analyses:
+            des._analyses[key] = fn(des, **options)
+        return des._analyses[key]
+
+    return cached

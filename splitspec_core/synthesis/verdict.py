@@ -1,0 +1,230 @@
+"""The certificate's verdict on a design's rate, computed here once and rendered by :mod:`.report`.
+
+:func:`rate_certificate` is the verdict on the estimator as it is run: what ``splitspec design`` prints, what
+``Checks`` (``ss.design``), ``compare`` and the noise tuning report (cached per design).
+:func:`survivors_certificate` is the same certificate recomputed on what is left after losses, for the runtime
+(:func:`splitspec_core.synthesis.survivors.certify_network`, at every loss of a run); its one line is phrased by
+the same helpers (:func:`q_text`, :func:`sampled_shortfall`, :data:`ADAPTIVE`), so both say the same thing.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from . import bounds
+from .design_data import Design, cached_analysis
+from .error_matrix import MAX_RATE_DIM
+from ..model.graphs import build_graph
+from .sampled_rates import sampled_rates
+
+__all__ = ["RateCertificate", "rate_certificate", "survivors_certificate", "q_text", "sampled_shortfall",
+           "NO_CERTIFIED_RATE", "ADAPTIVE"]
+
+# thm. split_continuous_adaptive: with the adaptive gain (eq. adaptive) every error tends to zero, at no stated rate
+NO_CERTIFIED_RATE = "asymptotic convergence only (no certified rate)"
+#: the verdict's line for the adaptive gain
+ADAPTIVE = f"adaptive gain: {NO_CERTIFIED_RATE}"
+
+
+@dataclass(frozen=True)
+class RateCertificate:
+    """A design's verdict on its rate: the one every command reports.
+
+    Attributes
+    ----------
+    certified : bool or None
+        The design certifies that every error decays at the rate ``lam`` (or at ``rate``, slower, when directions
+        no agent sees limit it: :mod:`splitspec_core.model.detectability`).  None only in the runtime's verdict on
+        the adaptive gain (:func:`survivors_certificate`: no rate is claimed either way); the design's own verdict
+        on it is False.
+    text : str
+        One line: what certifies it, or why nothing does.
+    rate : float or None
+        The rate of the certified envelope (``Design.envelope_rate``) when certified, else None.
+    by : str or None
+        What certifies it when certified: the q method (discrete), ``Design.g_certified_by`` (continuous),
+        ``full error matrix`` (an approximate split), ``eq:g`` or ``spectrum`` (the survivors' g); else None.
+    """
+
+    certified: bool | None
+    text: str
+    rate: float | None = None
+    by: str | None = None
+
+
+def q_text(q: int, r: bounds.QResult, rate: float, cases: int, *, held: str = "each") -> str:
+    """``q = ...: <method> bound ... <= rate ...``: the line of q's certificate (``r``) over ``cases`` cases; a
+    per-graph method on more than one says so (``held``: ``each`` in the design's report, ``per`` at runtime)."""
+    ok = bool(r.certified)
+    return (f"q = {q}: {r.method} bound {r.bound:.4g} {'<=' if ok else '>'} rate {rate:g}"
+            + ("" if r.switching or cases == 1 else f" ({held} graph held constant)"))
+
+
+def sampled_shortfall(dt: float, worst: float, rate: float) -> str:
+    """Why a g certified for the ODE is not for what runs: its sampled-data form (:mod:`splitspec_core.model.steps`)
+    with step ``dt`` decays at only ``worst``."""
+    if worst <= 0:
+        return f"its sampled-data form with run.dt = {dt:g} is UNSTABLE (decay rate {worst:.4g})"
+    return f"its sampled-data form with run.dt = {dt:g} decays at only {worst:.4g} < rate {rate:g}"
+
+
+def rate_certificate(des: Design, *, sampled: bool = True) -> RateCertificate:
+    """Does the design certify its rate for the estimator as it is run?  :func:`_split_certificate`, then what the
+    directions no agent sees do to it (``Design.unobserved``): nothing when they decay faster than ``lam``; they limit
+    the envelope's rate when they decay slower (``Design.envelope_rate``); with ``design.undetectable: exclude`` the
+    certificate covers the error modulo them only.  Computed once per design (and ``sampled``)."""
+    return _rate_certificate(des, sampled=bool(sampled))
+
+
+@cached_analysis
+def _rate_certificate(des: Design, *, sampled: bool) -> RateCertificate:
+    cert = _split_certificate(des, sampled=sampled)
+    un = des.unobserved
+    text = cert.text
+    if un is not None and un.dim:
+        if des.excluded:
+            text += (f"; on the error modulo the {un.dim} direction{'s' if un.dim != 1 else ''} no agent sees "
+                     f"({un.where()}), which do not all decay (design.undetectable: exclude)")
+        else:
+            text += f"; {un.summary(des.rate)}"
+    return RateCertificate(cert.certified, text, des.envelope_rate if cert.certified else None,
+                           cert.by if cert.certified else None)
+
+
+def _split_certificate(des: Design, *, sampled: bool = True) -> RateCertificate:
+    """The certificate of the split (the quotient by what no agent sees, when that is not nothing).
+
+    * adaptive gain: never (thm. split_continuous_adaptive gives asymptotic
+      convergence only, :data:`NO_CERTIFIED_RATE`);
+    * discrete: the certificate of q's method (``QResult``); the estimator
+      runs exactly ``A_V = Atil B^q`` (eq. split_discrete_ench), so the bound
+      is about what runs; a per-graph method on a switching scenario says so;
+    * continuous: g certified for the ODE (eq. g, thm. arb,
+      eq. split_continuous_g, or the exact spectrum of eq. split_continuous_split)
+      and, with ``sampled`` (what ``simulate`` and ``run`` integrate: the
+      sampled-data form with step ``run.dt``, :mod:`splitspec_core.model.steps`),
+      its error map decaying at the rate too (``Design.sampled_rate``: exact,
+      per graph held constant).  ``sampled=False`` judges the exact ODE alone.
+    """
+    sc = des.scenario
+    if des.g_mode == "adaptive":
+        return RateCertificate(False, ADAPTIVE)
+    if des.full_radius:
+        return _full_certificate(des, sampled=sampled)
+    cert = _blocks_certificate(des, sampled=sampled)
+    if cert.certified and not des.split_exact:
+        # an approximate split whose full error matrices were too large to check (designer.check_full): the
+        # certificate covers the split blocks, not the estimator that runs
+        return RateCertificate(False, f"{cert.text}, on the split blocks only: the split is approximate (residual "
+                                      f"{des.split_residual:.2g}) and its full error matrices (m n = "
+                                      f"{sc.m * sc.n} > {MAX_RATE_DIM}) were not checked")
+    return cert
+
+
+def _blocks_certificate(des: Design, *, sampled: bool) -> RateCertificate:
+    """The certificates of the split blocks (:func:`_split_certificate`'s list, after the adaptive gain)."""
+    sc = des.scenario
+    rate = sc.design.rate
+    if des.time == "discrete":
+        r = des.q_result
+        ok = bool(r.certified)
+        return RateCertificate(ok, q_text(r.q, r, rate, len(des.cases)), by=r.method)
+    g = des.g
+    if des.g_certified_by is None:
+        worst = max(des.error_radius.values(), default=-math.inf)
+        if worst > -rate:  # eq. (split_continuous_split): the ODE's error decays as exp(abscissa t)
+            return RateCertificate(False, f"g = {g:g} misses rate {rate:g} even for the ODE (spectral abscissa "
+                                          f"of A_V {worst:.4g} > -{rate:g})")
+        return RateCertificate(False, f"g = {g:g} meets rate {rate:g} for each graph held constant, but no bound "
+                                      "covers the switching (thm. arb, eq. split_continuous_g)")
+    by = des.g_certified_by
+    ode = f"g = {g:g} certified by {by} for the ODE"
+    if not sampled or not des.sampled_rate:
+        return RateCertificate(True, ode, by=by)
+    dt = sc.run.dt
+    worst = min(des.sampled_rate.values())
+    if worst <= 0:
+        return RateCertificate(False, f"{ode}, but {sampled_shortfall(dt, worst, rate)}: reduce run.dt or g")
+    if worst < rate:
+        return RateCertificate(False, f"{ode}, but {sampled_shortfall(dt, worst, rate)}: reduce run.dt")
+    scope = " (each graph held constant)" if len(des.cases) > 1 else ""
+    return RateCertificate(True, f"{ode}; its sampled-data form with run.dt = {dt:g} decays at {worst:.4g} >= "
+                                 f"{rate:g}{scope}", by=by)
+
+
+def _full_certificate(des: Design, *, sampled: bool) -> RateCertificate:
+    """An approximate split (``Design.full_radius``): the verdict of the full error matrices, each graph held
+    constant; no switching certificate of the paper covers it (see :func:`splitspec_core.synthesis.designer.check_full`).
+    The full matrices hold the directions no agent sees too: they are judged against the envelope's rate."""
+    sc = des.scenario
+    rate = des.envelope_rate
+    scope = (f"each graph held constant; the split is approximate (residual {des.split_residual:.2g}), "
+             "so no switching certificate applies") if len(des.cases) > 1 else \
+        f"the split is approximate (residual {des.split_residual:.2g})"
+    by = "full error matrix"
+    if des.time == "discrete":
+        worst = max(des.full_radius.values())
+        ok = worst < rate
+        return RateCertificate(ok, f"q = {des.q}: spectral radius of the full error matrix {worst:.4g} "
+                                   f"{'<' if ok else '>='} rate {rate:g} ({scope})", by=by)
+    ode = max(v["ode"] for v in des.full_radius.values())
+    smp = min(v["sampled"] for v in des.full_radius.values())
+    ok = ode <= -rate and (smp >= rate or not sampled)
+    text = f"g = {des.g:g}: spectral abscissa of the full error matrix {ode:.4g} {'<=' if ode <= -rate else '>'} -{rate:g}"
+    if sampled:
+        text += f", its sampled-data form with run.dt = {sc.run.dt:g} decays at {smp:.4g}"
+    return RateCertificate(ok, f"{text} ({scope})", by=by)
+
+
+def survivors_certificate(des: Design, alive: tuple, arcs: dict, network, *, excluded: bool) -> RateCertificate:
+    """The design's own certificate recomputed on what is left after losses (no bisection, no search: cheap enough
+    for every event of a run).
+
+    ``alive``: the surviving agents; ``arcs``: per graph the switching uses, its arcs still up; ``network``: their
+    :func:`~splitspec_core.synthesis.resilience.network_verdict`; ``excluded``: what they leave unobserved is no more
+    than ``design.undetectable: exclude`` set aside.  Nothing without strong connectivity and detectability;
+    else ``q`` with the design's q method (rho(Atil B^q) <= lam for ``spectral``, eq. split_discrete_rho), ``g``
+    against eq. (g) or, failing that, the exact spectrum of A_V(g) (eq. split_continuous_split) per graph held
+    constant, on the survivors' graphs on the quotient by ``W_S``; a continuous g must also make the sampled-data
+    form with ``run.dt`` decay at the rate (as :func:`rate_certificate`).  ``certified`` is None for the
+    adaptive gain; ``rate`` the survivors' envelope rate when certified."""
+    sc = des.scenario
+    un_S = network.unobserved
+    rate = sc.design.rate
+    used = list(arcs)
+    by = None
+    if not (network.detectable or excluded) or not all(network.strongly_connected.values()):
+        cert, text = False, "no rate: " + ("the survivors leave a mode unobserved that does not decay"
+                                            if not (network.detectable or excluded) else
+                                            "a graph is not strongly connected")
+    elif des.time == "discrete":
+        cases = [des.survivor_case(name, build_graph(name, alive, arcs[name], weights=sc.design.weights), un_S)
+                 for name in used]
+        res = bounds.choose_q(sc.design.q_method, cases, rate, q=des.q, q_max=sc.design.q_max,
+                              eig=sc.design.eigenvalues)
+        cert, text, by = bool(res.certified), q_text(des.q, res, rate, len(cases), held="per"), res.method
+    elif des.g is None:
+        cert, text = None, ADAPTIVE
+    else:
+        ad = {a.id: a for a in des.agents}
+        cases = [des.survivor_case(name, build_graph(name, alive, arcs[name], weights=sc.design.weights), un_S)
+                 for name in used]
+        gb = max(bounds.g_bound(c, rate) for c in cases)
+        if des.g >= gb:
+            cert, text, by = True, f"g = {des.g:g} >= eq. (g) bound {gb:.4g} on the survivors' graphs", "eq:g"
+        else:
+            worst = max(bounds.abscissa(c, des.g) for c in cases)
+            cert, by = worst <= -rate, "spectrum"
+            text = (f"g = {des.g:g} < eq. (g) bound {gb:.4g}; exact spectral abscissa {worst:.4g} "
+                    f"{'<=' if cert else '>'} -{rate:g} (per graph held constant)")
+        if cert:  # what runs is the sampled-data form (steps.py): it must decay at the rate too
+            dt, sampled = sc.run.dt, min(sampled_rates(sc, [ad[i] for i in alive], cases, des.g).values())
+            if sampled < rate:
+                cert = False
+                text += f"; but {sampled_shortfall(dt, sampled, rate)}"
+    envelope = rate
+    if cert and un_S.dim and not excluded:
+        envelope = un_S.envelope(rate)
+        text += f"; {un_S.summary(rate)}"
+    return RateCertificate(cert, text, envelope if cert else None, by if cert else None)
