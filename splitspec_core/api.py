@@ -29,7 +29,6 @@ from .scenarios.load import ORIGIN, parse_scenario
 from .scenarios.load import load_scenario as _load_scenario
 from .scenarios.specs import Scenario
 from .simulation.simulator import Trajectory
-from .model.graphs import arc_positions, is_strongly_connected
 from .model.subspaces import complement
 from .studies.comparison import CompareResult, EstimatorResult
 from .studies.comparison import compare as _compare
@@ -165,7 +164,7 @@ class Checks:
         unless ``design.undetectable: exclude``, so False only then
     unobserved : one line naming the directions no agent sees and their decay (None: none; detectability.py)
     strongly_connected : per graph name, whether every agent reaches every other along its arcs
-        (:func:`splitspec_core.model.graphs.is_strongly_connected` of the design's graphs); :func:`design` refuses a
+        (:attr:`splitspec_core.model.graphs.Graph.strongly_connected` of the design's graphs); :func:`design` refuses a
         scenario with a graph that is not (AssumptionError), so False only for a design built otherwise
     rate_certified : the rate is certified for the estimator as it runs (continuous time: the sampled-data form at
         ``run.dt`` too); never for the adaptive gain (asymptotic convergence: thm. split_continuous_adaptive)
@@ -190,8 +189,7 @@ class Checks:
         for a design built without it what its agents' ``V_i`` leave), its graphs' arcs, its certificate."""
         un = des.unobserved if des.unobserved is not None else des.unobserved_of(des.scenario.agent_ids)
         cert = rate_certificate(des)
-        connected = {g.name: is_strongly_connected(g.m, zip(*(a.tolist() for a in arc_positions(g.ids, g.arcs))))
-                     for g in des.graphs}
+        connected = {g.name: g.strongly_connected for g in des.graphs}
         return cls(jointly_observable=un.dim == 0, jointly_detectable=un.decays, rate_certified=cert.certified,
                    strongly_connected=MappingProxyType(connected), certificate=cert.text,
                    sampled_rate=min(des.sampled_rate.values()) if des.sampled_rate else None,

@@ -53,7 +53,7 @@ import numpy as np
 
 from ..scenarios.labels import combination, heaviest, spread
 from .modal import Spectrum, rescale
-from .observability import ROUND_OFF, _split_residual, threshold_of
+from .observability import ROUND_OFF, split_residual_of, threshold_of
 from .subspaces import complement, intersection
 from .subspaces import difference as quotient_basis  # V_i ⊖ W: the estimator's V_i
 
@@ -198,7 +198,7 @@ def unobserved(sp: Spectrum, A: np.ndarray, C: np.ndarray, Vs, *, time: str, nam
     W = sp.to_user(Wb)
     Ww = None if coords is None else rescale(Wb, sp.d, coords)
     Cb = np.asarray(C, dtype=float) * sp.d[None, :]
-    residual = _split_residual(sp.A_b, Cb, complement(Wb).T, Wb) if Wb.shape[1] else 0.0
+    residual = split_residual_of(sp.A_b, Cb, complement(Wb).T, Wb) if Wb.shape[1] else 0.0
     eigs = np.linalg.eigvals(W.T @ A @ W) if W.shape[1] else np.zeros(0, complex)
     return Unobserved(W=W, eigs=eigs, time=time, residual=residual, scale=float(np.linalg.norm(sp.A_b, 2)),
                       names=tuple(names), AW=A @ W, Ww=Ww)

@@ -75,6 +75,11 @@ class Graph:
         return len(self.ids)
 
     @property
+    def strongly_connected(self) -> bool:
+        """Every agent reaches every other along the arcs (computed from them, each time: a breadth-first search)."""
+        return is_strongly_connected(self.m, zip(*(a.tolist() for a in arc_positions(self.ids, self.arcs))))
+
+    @property
     def _idx(self) -> tuple:
         # computed on each use (vectorised, well under a millisecond for thousands of arcs): the m + 1 graphs of a
         # resilient design of 1000 agents would otherwise keep 180 MB of these arrays and of ``entries``

@@ -313,7 +313,7 @@ def _missed(Cs: np.ndarray, S: np.ndarray | None, W: np.ndarray, threshold: floa
     return V @ Vt[seen].T, s[seen]
 
 
-def _split_residual(A: np.ndarray, C: np.ndarray, Q: np.ndarray, V: np.ndarray) -> float:
+def split_residual_of(A: np.ndarray, C: np.ndarray, Q: np.ndarray, V: np.ndarray) -> float:
     if not V.shape[1] or not Q.shape[0]:
         return 0.0
     n = A.shape[0]
@@ -391,7 +391,7 @@ def decompose(A: np.ndarray, C: np.ndarray, *, rank_tol: float | None = None,
         A, C = A * scale[None, :] / scale[:, None], C * scale[None, :]
     V = rescale(dec.Vb, sp.d, scale)
     Q = _complement(V).T
-    residual = _split_residual(sp.A_b, C * sp.d[None, :], _complement(dec.Vb).T, dec.Vb)
+    residual = split_residual_of(sp.A_b, C * sp.d[None, :], _complement(dec.Vb).T, dec.Vb)
     weak_dir = None
     if dec.weak_direction is not None:
         weak_dir = sp.d * dec.weak_direction

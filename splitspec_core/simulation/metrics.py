@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..synthesis.designer import NO_CERTIFIED_RATE
+from ..synthesis.verdict import NO_CERTIFIED_RATE
 from ..model.network import fault_step
 from .simulator import Trajectory
 

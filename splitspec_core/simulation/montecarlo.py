@@ -46,7 +46,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from .metrics import rms_stats, steady_rms
-from ..synthesis.designer import Design
+from ..synthesis.design_data import Design
 from ..errors import ScenarioError
 from ..model.network import NetworkState, make_plan
 from ..model.plant import advanced, initial_estimate, measured, seed_draws

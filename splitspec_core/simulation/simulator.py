@@ -33,7 +33,7 @@ import scipy.linalg as sla
 import scipy.sparse as sp
 
 from ..model import steps as st
-from ..synthesis.designer import Design
+from ..synthesis.design_data import Design
 from ..errors import ScenarioError
 from ..model.network import NetworkState, Plan, make_plan
 from ..model.plant import Plant, RecordedPlant, initial_estimate, initial_state, output_rows

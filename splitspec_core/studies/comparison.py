@@ -42,7 +42,8 @@ from ..simulation.metrics import fit_decay, steady_rms
 from ..simulation.montecarlo import simulate_seeds
 from .baselines import baseline_seeds, baseline_trajectories, kalman_predictor, sampled_model
 from ..synthesis.bounds import nice_ceil
-from ..synthesis.designer import NO_CERTIFIED_RATE, design
+from ..synthesis.designer import design
+from ..synthesis.verdict import ADAPTIVE, NO_CERTIFIED_RATE
 from ..errors import DesignError
 from ..synthesis.noise_tuning import predicted_rms, tune
 from ..synthesis.report import rate_certificate
@@ -254,7 +255,7 @@ def sweep(sc: Scenario, *, seed: int, steps: int | None = None, values=None) -> 
         rows.append({"value": v, "certified": cert.certified, "certificate": cert.text, "predicted_rms": float(np.sqrt(np.mean(pred ** 2))),
                      "simulated_rms": steady_rms(noisy.errors()), "measured_rate": rate})
     return {"scenario": sc.name, "parameter": "q" if discrete else "g", "designed": base.q if discrete else base.g,
-            "designed_note": f"adaptive gain: {NO_CERTIFIED_RATE}" if base.g_mode == "adaptive" else None,
+            "designed_note": ADAPTIVE if base.g_mode == "adaptive" else None,
             "rate": sc.design.rate, "seed": seed, "rows": rows}
 
 

@@ -146,7 +146,7 @@ def design_json(des: Design) -> dict:
         "checks": {
             "jointly_observable": des.unobserved is None or des.unobserved.dim == 0,
             "jointly_detectable": des.unobserved is None or des.unobserved.decays,
-            "strongly_connected": {g.name: True for g in des.graphs},
+            "strongly_connected": {g.name: g.strongly_connected for g in des.graphs},
             "redundancy": _redundancy(des),
         },
         "unobserved": None if des.unobserved is None else {**_unobserved_json(des.unobserved, sc.design.rate),

@@ -12,6 +12,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import scipy.linalg as sla
 
 from . import bounds
 from ..errors import DesignError
@@ -28,8 +29,6 @@ def sampled_rates(sc: Scenario, agents, cases, g: float, *, dt: float | None = N
     :func:`bounds.sampled_decay`.  Both are exact for the discretisation used
     by ``simulate`` and ``run`` (see :mod:`splitspec_core.model.steps`).
     """
-    import scipy.linalg as sla  # here only: the agents import this module (through the designer) but never call it
-
     dt = sc.run.dt if dt is None else dt
     # in the design's working coordinates (the agents' scale: design.coordinates), where Q_i, K_i and V_i live
     scale = agents[0].scale if agents else None
