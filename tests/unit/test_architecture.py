@@ -277,6 +277,23 @@ def test_every_package_says_what_it_holds():
     assert not bad, bad
 
 
+SUBPACKAGES = ["splitspec_core.scenarios", "splitspec_core.model", "splitspec_core.synthesis",
+               "splitspec_core.simulation", "splitspec_core.studies", "splitspec_orchestrator.rounds",
+               "splitspec_orchestrator.records", "splitspec_orchestrator.recording"]
+
+
+@pytest.mark.parametrize("subpackage", SUBPACKAGES)
+def test_a_subpackage_names_each_of_its_modules(subpackage):
+    """The docstring of each subpackage by role names every module in it (``name.py``), so that reading it says
+    where a change goes."""
+    package = subpackage.split(".")[0]
+    mods = modules(package)
+    doc = ast.get_docstring(ast.parse(mods[subpackage].read_text())) or ""
+    missing = [name for name in mods if name.rpartition(".")[0] == subpackage
+               and f"{name.rpartition('.')[2]}.py" not in doc]
+    assert not missing, missing
+
+
 def test_long_modules_say_why():
     long = []
     for package in FOLDERS:
