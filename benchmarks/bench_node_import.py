@@ -31,7 +31,8 @@ FOLDERS = {"splitspec_core": "splitspec_core", "splitspec_agents": "agents", "sp
 
 WORKER = r"""
 import json, resource, sys, time
-sys.path.insert(0, sys.argv[1]) if sys.argv[1] else None
+if sys.argv[1]:  # the "before" revision's packages first
+    sys.path.insert(0, sys.argv[1])
 node, example = sys.argv[2], sys.argv[3]
 t0 = time.perf_counter()
 if node == "agent":
@@ -44,10 +45,10 @@ import splitspec_core
 assert splitspec_core.__file__.startswith(sys.argv[4]), splitspec_core.__file__
 from pathlib import Path
 from splitspec_core.runtime.wire import encode, new_run_key
-key = new_run_key()
-cfg = {"scenario": Path(example).read_text(), "seed": 7, "g": None, "q": 3, "g_mode": None, "key": key}
 from splitspec_agents.agent import AgentNode
 from splitspec_plant.plant import PlantNode
+key = new_run_key()
+cfg = {"scenario": Path(example).read_text(), "seed": 7, "g": None, "q": 3, "g_mode": None, "key": key}
 agent, plant = AgentNode(1, cfg, "r"), PlantNode(cfg, "r")
 ids = agent.sc.agent_ids
 tick = encode("tick", "r", mac_key=key, tau=0, attempt=0, graph=0, final=False, alive=ids,
