@@ -50,7 +50,7 @@ agent is lost about 1.1 s after it froze, while links keep a long lease (a loade
 or the orchestrator's own freeze, never closes a link); a killed process
 closes its sockets and is lost at once through its liveliness token.
 
-*Time.*  A gap of more than :data:`STALL_SECONDS` between two calls means
+*Time.*  A gap of more than :data:`~.liveness.STALL_SECONDS` between two calls means
 the orchestrator itself was frozen or starved: every deadline moves by the
 gap (``orchestrator_stalled``), so nobody is blamed for the orchestrator's
 own pause.  The time inside a spawn of its own processes is not such a gap
@@ -79,18 +79,17 @@ import numpy as np
 from splitspec_core.model.impairment import CAUSES
 from splitspec_core.model.network import make_plan
 
-from .actions import (Control, Event, Finished, Log, MarkLost, QueryStatus, Record, RegistryUpdate, ReplyConfig,
-                      ReplyRefused, Signal, Spawn, Stop, Tick, Topology)
-from .claims import Claim, ClaimTable, describe_status
+from .actions import (Control, Event, Finished, Log, QueryStatus, Record, RegistryUpdate, ReplyConfig, ReplyRefused,
+                      Signal, Spawn, Stop, Tick)
+from .claims import ClaimTable, describe_status
 from .collected import Collected
-from .liveness import PROBE_ANSWER_SECONDS, PROBE_SECONDS, STALL_SECONDS, Liveness
-from .rejections import SUMMARY_SECONDS, Rejections
+from .liveness import PROBE_ANSWER_SECONDS, PROBE_SECONDS, Liveness
+from .rejections import Rejections
 from .topology import TopologyState
 
-# the action vocabulary, the claim and the timings are importable from here too (test_rounds.py reads R.<name>)
-__all__ = ["RoundMachine", "Phase", "Claim", "describe_status", "STALL_SECONDS", "SUMMARY_SECONDS", "PROBE_SECONDS",
-           "PROBE_ANSWER_SECONDS", "Tick", "Record", "Topology", "MarkLost", "Event", "Log", "Signal", "Control",
-           "Spawn", "QueryStatus", "ReplyConfig", "ReplyRefused", "RegistryUpdate", "Stop", "Finished"]
+# the actions test_rounds.py checks are importable from here too (it reads R.<name>); the rest are in .actions
+__all__ = ["RoundMachine", "Phase", "Tick", "Record", "Event", "Log", "Signal", "Control", "Spawn", "QueryStatus",
+           "ReplyConfig", "ReplyRefused", "RegistryUpdate", "Stop", "Finished"]
 
 
 class Phase(str, Enum):
@@ -126,7 +125,7 @@ class RoundMachine:
     def __init__(self, sc, des, *, host: str, wait: float, round_timeout: float, spawned: bool = False,
                  now: float = 0.0):
         self.sc, self.des = sc, des
-        self.host, self.wait, self.round_timeout = host, float(wait), float(round_timeout)
+        self.wait, self.round_timeout = float(wait), float(round_timeout)
         self.spawned = spawned
         #: live sensors (scenario sources:): no plant process, no truth (x recorded as NaN)
         self.plantless = bool(getattr(sc, "sources", None))
@@ -155,7 +154,7 @@ class RoundMachine:
         self.round_started = math.nan  # `now` of the round in flight's first tick (for Record)
 
     # the collaborators' state, where the shell and the tests read it
-    claims = property(lambda self: self.identity.claims, doc="(role, ident) -> :class:`Claim`")
+    claims = property(lambda self: self.identity.claims, doc="(role, ident) -> :class:`.claims.Claim`")
     procs = property(lambda self: self.identity.procs, doc='"plant" / agent id -> {"pid", "host"}')
     alive = property(lambda self: self.topology.alive, doc="ids of the agents in the network")
     joinable = property(lambda self: self.topology.joinable, doc="ids of agents back, to join at the next tau")

@@ -96,7 +96,7 @@ class TopologyState:
         if self.last_graph is not None and graph != self.last_graph:
             out.append(Event("graph_switched", t, {"graph": name, "previous": self.sc.graph_names[self.last_graph]}))
         out.append(Topology(tau, name, tuple(sorted(self.alive)), tuple(self.net.arcs(self.sc, graph)),
-                            partition=tuple(self.net.groups or ())))
+                            partition=tuple(self.groups)))
         self.last_graph, self.dirty = graph, False
         return out
 
