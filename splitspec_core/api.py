@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING, Any, Iterable, Mapping
 
 import numpy as np
 
-from .synthesis.designer import Design
+from .synthesis.design_data import Design
 from .errors import ScenarioError
 from .synthesis.verdict import rate_certificate
 from .scenarios.checks import DESIGN_KEYS, RUN_KEYS, SYSTEM_KEYS
@@ -210,7 +210,7 @@ class DesignResult:
     g_mode : continuous: ``auto``, ``given`` or ``adaptive``; else None
     agents : agent id -> :class:`AgentResult`
     checks : :class:`Checks`
-    detail : the full design with every diagnostic (:class:`splitspec_core.synthesis.designer.Design`)
+    detail : the full design with every diagnostic (:class:`splitspec_core.synthesis.design_data.Design`)
     """
 
     scenario: Scenario

@@ -47,13 +47,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import AssumptionError, DesignError
-from .gain_target import GainTarget, beyond_target  # re-exported: gains.beyond_target as before
+from .gain_target import beyond_target
 from .modal import invariant_subspace
 from .observability import Decomposition
 from .subspaces import complement
 
-__all__ = ["LocalGain", "GainTarget", "target_poles", "beyond_target", "place_gain", "riccati_gain", "explicit_gain",
-           "meets_rate", "design_gain", "poles_text"]
+__all__ = ["LocalGain", "target_poles", "place_gain", "riccati_gain", "explicit_gain", "meets_rate", "design_gain",
+           "poles_text"]
 
 
 @dataclass(frozen=True)
@@ -148,6 +148,27 @@ def _slow_part(dec: Decomposition, time: str, rate: float, margin: float) -> np.
     return complement(invariant_subspace(dec.Abar.T, beyond_target(time, rate, margin)))
 
 
+def _slow_gain(dec: Decomposition, time: str, rate: float, margin: float, method: str, solve) -> LocalGain:
+    """What ``place`` and ``riccati`` share: the gain on the slow part (module docstring, "Only the slow modes move").
+
+    ``solve(T22, B2)`` is the method's own step: ``F2`` for the dual slow part ``(T22, B2)``
+    (``T22 = U2' Abar' U2``, ``B2 = U2' Ct'``); then ``F = F2 U2'`` leaves the fast modes where they are.
+    """
+    r = dec.n_observable
+    s = dec.Cbar.shape[0]
+    if r == 0:
+        return _lift(dec, np.zeros((0, s)), method)
+    T, Ct = _output_basis(dec.Cbar)
+    U2 = _slow_part(dec, time, rate, margin)
+    if U2.shape[1] == 0:  # every observable mode already beats the target: no gain at all
+        return _lift(dec, np.zeros((r, s)), method)
+    F2 = solve(U2.T @ dec.Abar.T @ U2, U2.T @ Ct.T)
+    Kt = -(F2 @ U2.T).T  # (r, rank): eig(Abar + Kt Ct) = fast modes + the method's poles
+    # Kbar Cbar = Kt Ct with Cbar = T Ct  =>  Kbar = Kt pinv(T)
+    Kbar = Kt @ np.linalg.pinv(T)
+    return _lift(dec, Kbar, method)
+
+
 def place_gain(dec: Decomposition, *, time: str, rate: float, margin: float = 0.5) -> LocalGain:
     """Pole placement on the slow modes of the observable part (poles from :func:`target_poles`).
 
@@ -155,41 +176,32 @@ def place_gain(dec: Decomposition, *, time: str, rate: float, margin: float = 0.
     (method YT), imported only then because importing ``scipy.signal`` costs over a second of
     start-up in every agent process.
     """
-    r = dec.n_observable
-    s = dec.Cbar.shape[0]
-    if r == 0:
-        return _lift(dec, np.zeros((0, s)), "place")
-    T, Ct = _output_basis(dec.Cbar)
-    U2 = _slow_part(dec, time, rate, margin)
-    if U2.shape[1] == 0:  # every observable mode already beats the target: no gain at all
-        return _lift(dec, np.zeros((r, s)), "place")
-    poles = target_poles(U2.shape[1], time, rate, margin)
-    T22, B2 = U2.T @ dec.Abar.T @ U2, U2.T @ Ct.T
-    # the outputs' combinations that reach the slow part: fewer than the outputs when some output sees only fast
-    # modes (B2 = Br Vr', Br of full column rank); the placement runs on Br, and F2 = Vr F_r
-    Ub, sb, Vbt = np.linalg.svd(B2, full_matrices=False)
-    r_b = int(np.sum(sb > 1e-12 * (sb[0] if sb.size else 0.0)))
-    Br, Vr = Ub[:, :r_b] * sb[:r_b], Vbt[:r_b].T
-    # dual problem on the slow part: eig(T22 - Br F_r) = poles; F = Vr F_r U2' leaves the fast modes where they are
-    Fr = _ackermann(T22, Br, poles) if r_b == 1 else None
-    if Fr is None:
-        import warnings
 
-        from scipy.signal import place_poles
+    def solve(T22: np.ndarray, B2: np.ndarray) -> np.ndarray:
+        poles = target_poles(T22.shape[0], time, rate, margin)
+        # the outputs' combinations that reach the slow part: fewer than the outputs when some output sees only fast
+        # modes (B2 = Br Vr', Br of full column rank); the placement runs on Br, and F2 = Vr F_r
+        Ub, sb, Vbt = np.linalg.svd(B2, full_matrices=False)
+        r_b = int(np.sum(sb > 1e-12 * (sb[0] if sb.size else 0.0)))
+        Br, Vr = Ub[:, :r_b] * sb[:r_b], Vbt[:r_b].T
+        # dual problem on the slow part: eig(T22 - Br F_r) = poles
+        Fr = _ackermann(T22, Br, poles) if r_b == 1 else None
+        if Fr is None:
+            import warnings
 
-        try:
-            # YT's "Convergence was not reached" is a UserWarning on stderr, not an error: the poles it reaches are
-            # checked against the rate below (a failure is one line naming the agent), so it is not shown
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore", UserWarning)
-                Fr = place_poles(T22, Br, poles, method="YT").gain_matrix
-        except ValueError as exc:
-            raise DesignError(f"pole placement failed: {exc}") from None
-    F2 = Vr @ Fr
-    Kt = -(F2 @ U2.T).T  # (r, rank): eig(Abar + Kt Ct) = fast modes + poles
-    # Kbar Cbar = Kt Ct with Cbar = T Ct  =>  Kbar = Kt pinv(T)
-    Kbar = Kt @ np.linalg.pinv(T)
-    return _lift(dec, Kbar, "place")
+            from scipy.signal import place_poles
+
+            try:
+                # YT's "Convergence was not reached" is a UserWarning on stderr, not an error: the poles it reaches
+                # are checked against the rate below (a failure is one line naming the agent), so it is not shown
+                with warnings.catch_warnings():
+                    warnings.simplefilter("ignore", UserWarning)
+                    Fr = place_poles(T22, Br, poles, method="YT").gain_matrix
+            except ValueError as exc:
+                raise DesignError(f"pole placement failed: {exc}") from None
+        return Vr @ Fr
+
+    return _slow_gain(dec, time, rate, margin, "place", solve)
 
 
 def riccati_gain(
@@ -197,37 +209,28 @@ def riccati_gain(
     process_weight: float = 1.0, measurement_weight: float = 1.0,
 ) -> LocalGain:
     """Shifted steady-state Kalman gain on the slow modes of the observable part (module docstring)."""
-    import scipy.linalg as sla  # here only: an agent with pole placement imports no scipy
 
-    r = dec.n_observable
-    s = dec.Cbar.shape[0]
-    if r == 0:
-        return _lift(dec, np.zeros((0, s)), "riccati")
-    T, Ct = _output_basis(dec.Cbar)
-    U2 = _slow_part(dec, time, rate, margin)
-    if U2.shape[1] == 0:  # every observable mode already beats the target: no gain at all
-        return _lift(dec, np.zeros((r, s)), "riccati")
-    k = U2.shape[1]
-    T22, B2 = U2.T @ dec.Abar.T @ U2, U2.T @ Ct.T
-    W = process_weight * np.eye(k)
-    R = measurement_weight * np.eye(Ct.shape[0])
-    try:
-        if time == "continuous":
-            alpha = (1.0 + margin) * rate
-            # CARE of the dual slow part: X makes (T22 + alpha I) - B2 R^-1 B2' X stable
-            X = sla.solve_continuous_are(T22 + alpha * np.eye(k), B2, W, R)
-            F2 = np.linalg.solve(R, B2.T @ X)
-        else:
+    def solve(T22: np.ndarray, B2: np.ndarray) -> np.ndarray:
+        import scipy.linalg as sla  # here only: an agent with pole placement imports no scipy
+
+        k = T22.shape[0]
+        W = process_weight * np.eye(k)
+        R = measurement_weight * np.eye(B2.shape[1])
+        try:
+            if time == "continuous":
+                alpha = (1.0 + margin) * rate
+                # CARE of the dual slow part: X makes (T22 + alpha I) - B2 R^-1 B2' X stable
+                X = sla.solve_continuous_are(T22 + alpha * np.eye(k), B2, W, R)
+                return np.linalg.solve(R, B2.T @ X)
             alpha = rate / (1.0 + margin)
             a, b = T22 / alpha, B2 / alpha
             # DARE of the dual slow part: a - b G2 is Schur stable, G2 = (R + b'X b)^-1 b'X a
             X = sla.solve_discrete_are(a, b, W, R)
-            F2 = np.linalg.solve(R + b.T @ X @ b, b.T @ X @ a)
-    except (np.linalg.LinAlgError, ValueError) as exc:
-        raise DesignError(f"Riccati equation failed: {exc}") from None
-    Kt = -(F2 @ U2.T).T
-    Kbar = Kt @ np.linalg.pinv(T)
-    return _lift(dec, Kbar, "riccati")
+            return np.linalg.solve(R + b.T @ X @ b, b.T @ X @ a)
+        except (np.linalg.LinAlgError, ValueError) as exc:
+            raise DesignError(f"Riccati equation failed: {exc}") from None
+
+    return _slow_gain(dec, time, rate, margin, "riccati", solve)
 
 
 def explicit_gain(dec: Decomposition, K: np.ndarray) -> LocalGain:

@@ -16,7 +16,8 @@ from functools import cached_property
 import numpy as np
 
 from .detectability import directions_of
-from .gains import LocalGain, beyond_target, design_gain
+from .gain_target import beyond_target
+from .gains import LocalGain, design_gain
 from .modal import Spectrum, rescale, spectrum
 from .observability import Decomposition, decompose
 from ..scenarios.specs import Scenario

@@ -376,7 +376,7 @@ def decompose(A: np.ndarray, C: np.ndarray, *, rank_tol: float | None = None,
 
     ``spectrum``: the skeleton of ``A`` (:func:`splitspec_core.model.modal.spectrum`, all agents' rows stacked for the
     decoupled states); computed from ``(A, C)`` when not given.  ``free``: the local gain's target
-    (:func:`splitspec_core.model.gains.beyond_target`): clusters already past it are decided at round-off, the others'
+    (:func:`splitspec_core.model.gain_target.beyond_target`): clusters already past it are decided at round-off, the others'
     dynamics are measured against the distance the gain moves them (:func:`_decide`).  ``scale``: the
     coordinates the decomposition is written in, ``x = diag(scale) x_w`` (None: the user's own; the design's
     ``design.coordinates``): ``V`` and ``Q`` are orthonormal there, ``Abar``, ``Cbar``, ``P``, ``A_un`` are of

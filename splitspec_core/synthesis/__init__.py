@@ -1,4 +1,4 @@
-"""Design and certificates: a scenario in, a :class:`~splitspec_core.synthesis.designer.Design` and its verdicts out.
+"""Design and certificates: a scenario in, a :class:`~splitspec_core.synthesis.design_data.Design` and its verdicts out.
 
 ``designer.py`` the design (Sections 2-4: g or q over every graph the switching can use, and the policy for an
 approximate split), ``design_data.py`` the ``Design`` it returns (data; its analyses are functions of it, cached

@@ -8,7 +8,7 @@ With the fixed-graph error dynamics ``e(k+1) = M e(k)`` the whole story is
 (``r = lam`` per event time in discrete time; ``r = exp(-lam dt)`` per step of the sampled-data form
 that ``simulate`` and ``run`` execute in continuous time).  ``c`` (``transient_constant``) is 1 for a
 contraction and can be 1e8 for a design whose local gains are huge: that is what a model rounded to a
-few decimals used to produce before the rank decisions fit the data (:mod:`.observability`).
+few decimals used to produce before the rank decisions fit the data (:mod:`splitspec_core.model.observability`).
 
 ``M`` is the full error matrix of one step, every agent's error stacked
 (:func:`splitspec_core.synthesis.error_matrix.full_error_matrix`), of a graph held constant.
@@ -157,7 +157,7 @@ class AgentConditioning:
     ----------
     id : agent id
     observability_margin : float or None
-        The smallest graded margin of a direction the agent counts as seen (:mod:`.observability`);
+        The smallest graded margin of a direction the agent counts as seen (:mod:`splitspec_core.model.observability`);
         None when it sees nothing.
     gain_norm : float
         ``||K_i||_2``.

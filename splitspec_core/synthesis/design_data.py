@@ -4,7 +4,7 @@
 with its cheap derived properties; the analyses of a design are functions of it, elsewhere: the verdict
 (:mod:`.verdict`), its conditioning (:mod:`.conditioning`), its certificate under loss (:mod:`.loss_certificate`).
 They are costly (the full error matrices cost more than the design itself at scale), so each is computed once
-per design, on first use (:func:`cached_analysis`).  :mod:`.designer` builds it and re-exports it.
+per design, on first use (:func:`cached_analysis`).  :mod:`.designer` builds it.
 """
 
 from __future__ import annotations

@@ -28,19 +28,18 @@ import numpy as np
 
 from . import bounds
 from ..errors import AssumptionError
-from .design_data import SPLIT_EXACT, Design
+from .design_data import Design
 from ..model.detectability import not_detectable_text, quotient_basis, still_text, unobserved_of
 from .error_matrix import MAX_RATE_DIM, full_radius
-from ..model.gains import beyond_target
+from ..model.gain_target import beyond_target
 from ..model.graphs import build_graph, enumerate_strongly_connected
 from ..model.local_design import design_agent, riccati_weights, scenario_spectrum, working_scale
 from ..model.observability import decompose
 from .resilience import analyse_agent_losses, analyse_arc_losses
 from .sampled_rates import exact_g, sampled_g
 from ..scenarios.specs import Scenario
-from .verdict import NO_CERTIFIED_RATE  # re-exported: designer.NO_CERTIFIED_RATE as before
 
-__all__ = ["Design", "design", "scenario_dwell", "check_full", "NO_CERTIFIED_RATE"]
+__all__ = ["design", "scenario_dwell", "check_full"]
 
 
 def scenario_dwell(sc: Scenario) -> float | None:
@@ -82,7 +81,7 @@ def design(sc: Scenario, *, compare_q_methods: bool = False, workers: int | None
     A = sc.system.A
     sp = scenario_spectrum(sc)
     C_all = np.vstack(sc.system.Cs)
-    free = beyond_target(sc.time, d.rate, d.margin)  # modes the local gains leave alone (gains.py)
+    free = beyond_target(sc.time, d.rate, d.margin)  # modes the local gains leave alone (gain_target.py)
     scale = working_scale(sc, sp)  # design.coordinates: the user's (None) or balanced
     A_w = A if scale is None else np.asarray(A) * scale[None, :] / scale[:, None]
     decs = [decompose(A, C, rank_tol=d.rank_tol, spectrum=sp, free=free, scale=scale) for C in sc.system.Cs]
@@ -182,7 +181,7 @@ def _design_g(sc: Scenario, cases, switching: bool, warnings: list) -> dict:
     else:
         certified = {k: v for k, v in (("thm:arb", g_arb), ("eq:split_continuous_g", g_dw)) if v is not None}
     if d.g == "adaptive":
-        g, mode, by = None, "adaptive", None  # thm. split_continuous_adaptive: NO_CERTIFIED_RATE
+        g, mode, by = None, "adaptive", None  # thm. split_continuous_adaptive: verdict.NO_CERTIFIED_RATE
     elif d.g == "auto":
         mode = "auto"
         if certified:

@@ -5,13 +5,13 @@ The full error matrix of one step, for the agents of a case with consensus matri
 
 discrete (eq. split-discrete-error)
     ``M = blkdiag(A + K_i C_i) W^q``,  ``W = I - P (I - Sbar)`` (the consensus sub-round), ``Sbar = S (x) I_n``;
-continuous, sampled-data form (:mod:`.steps`)
+continuous, sampled-data form (:mod:`splitspec_core.model.steps`)
     ``M = blkdiag(E + D K_i C_i) - g blkdiag(D P_i) (I - Sbar)``, ``E = exp(A dt)``, ``D = int_0^dt exp(A s) ds``;
     and the ODE's own matrix ``Abar - g P (I - Sbar)`` (eq. split_continuous_em).
 
 With an exact observability split these have the spectrum of the split blocks (prop. error,
 prop. errordis), which is what the certificates of :mod:`.bounds` use.  When a weakly observable
-direction was left to consensus (:mod:`.observability`) the split holds only up to
+direction was left to consensus (:mod:`splitspec_core.model.observability`) the split holds only up to
 ``split_residual``: :func:`full_radius` gives these full matrices' decay for every case held constant, which
 the designer checks the rate on (:func:`splitspec_core.synthesis.designer.check_full`: it raises an automatic
 q or g until they meet it, and says so).

@@ -3,7 +3,7 @@
 The split-spectrum estimators are linear, so with a constant graph the stacked error follows
 ``e(k+1) = M e(k) + noise``; its steady-state covariance solves a discrete Lyapunov equation
 (:func:`splitspec_core.synthesis.error_matrix.error_dynamics` and :func:`~splitspec_core.synthesis.error_matrix.predicted_rms`,
-re-exported here): no simulation, no sampling error, what a long simulation's RMS converges to (tested).
+the latter re-exported here): no simulation, no sampling error, what a long simulation's RMS converges to (tested).
 
 :func:`tune` searches q (discrete) or g (continuous) and the gain design
 (``place``, or ``riccati`` over a range of process/measurement weight ratios)
@@ -18,13 +18,14 @@ import math
 
 import numpy as np
 
-from .designer import Design, design
+from .design_data import Design
+from .designer import design
 from ..errors import DesignError
-from .error_matrix import error_dynamics, predicted_rms
+from .error_matrix import predicted_rms
 from .verdict import rate_certificate
 from ..scenarios.specs import Scenario
 
-__all__ = ["error_dynamics", "predicted_rms", "TuneResult", "tune"]
+__all__ = ["predicted_rms", "TuneResult", "tune"]
 
 
 @dataclasses.dataclass(frozen=True)

@@ -20,9 +20,9 @@ from .loss_certificate import loss_certificate
 from ..model.gains import poles_text
 from ..model.graphs import is_doubly_stochastic, perron_vector
 from ..scenarios.labels import heaviest
-from .verdict import NO_CERTIFIED_RATE, RateCertificate, rate_certificate  # the verdict, rendered here
+from .verdict import NO_CERTIFIED_RATE, rate_certificate  # the verdict, rendered here
 
-__all__ = ["RateCertificate", "rate_certificate", "design_json", "design_text"]
+__all__ = ["rate_certificate", "design_json", "design_text"]
 
 
 MAX_LISTED = 12  # cases whose radius the text report lists (the largest first); --json has them all
@@ -81,17 +81,22 @@ def _unobserved_json(un, rate: float, *, full: bool = True) -> dict:
 
 def _conditioning_json(des: Design) -> dict:
     cond = conditioning(des)
+    constant = _num(cond.transient_constant) if cond.transient_constant != math.inf else "inf"
     return {
-        "transient_constant": _num(cond.transient_constant) if cond.transient_constant != math.inf else "inf",
-        "transient": {"constant": _num(cond.transient_constant) if cond.transient_constant != math.inf else "inf",
-                      "graph": cond.transient_case, "method": cond.transient_method},
+        "transient_constant": constant,
+        "transient": {"constant": constant, "graph": cond.transient_case, "method": cond.transient_method},
         "split_residual": _num(des.split_residual),
         "split_exact": bool(des.split_exact),
         "full_error_matrix": {k: (v if isinstance(v, dict) else _num(v)) for k, v in des.full_radius.items()},
         "predicted_rms": None if cond.predicted_rms is None else {
             "graph": cond.predicted_graph, "agents": {str(i): _num(v) for i, v in cond.predicted_rms.items()},
-            "all": _num(math.sqrt(sum(v * v for v in cond.predicted_rms.values()) / len(cond.predicted_rms)))},
+            "all": _num(_all_rms(cond.predicted_rms))},
     }
+
+
+def _all_rms(per_agent: dict) -> float:
+    """The RMS over agents of their predicted steady-state RMS errors."""
+    return math.sqrt(sum(v * v for v in per_agent.values()) / len(per_agent))
 
 
 def _loss_json(des: Design) -> dict | None:
@@ -353,8 +358,7 @@ def _size_lines(des: Design) -> list:
         out = [f"transient: ||e(t)|| <= c {unit} ||e(0)|| with c = {value} (transient_constant; "
                f"graph {cond.transient_case} held constant{bound})"]
     if cond.predicted_rms is not None:
-        vals = list(cond.predicted_rms.values())
-        allrms = math.sqrt(sum(v * v for v in vals) / len(vals))
+        allrms = _all_rms(cond.predicted_rms)
         per = ", ".join(f"{i}: {v:.3g}" for i, v in cond.predicted_rms.items())
         out.append(f"noise: predicted steady-state RMS error {allrms:.3g} (per agent {per}; graph "
                    f"{cond.predicted_graph} held constant, discrete Lyapunov equation)")

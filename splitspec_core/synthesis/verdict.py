@@ -192,15 +192,18 @@ def survivors_certificate(des: Design, alive: tuple, arcs: dict, network, *, exc
     sc = des.scenario
     un_S = network.unobserved
     rate = sc.design.rate
-    used = list(arcs)
     by = None
+
+    def survivor_cases() -> list:  # the certificate's case per graph, on the survivors' graphs modulo W_S
+        return [des.survivor_case(name, build_graph(name, alive, arcs[name], weights=sc.design.weights), un_S)
+                for name in arcs]
+
     if not (network.detectable or excluded) or not all(network.strongly_connected.values()):
         cert, text = False, "no rate: " + ("the survivors leave a mode unobserved that does not decay"
                                             if not (network.detectable or excluded) else
                                             "a graph is not strongly connected")
     elif des.time == "discrete":
-        cases = [des.survivor_case(name, build_graph(name, alive, arcs[name], weights=sc.design.weights), un_S)
-                 for name in used]
+        cases = survivor_cases()
         res = bounds.choose_q(sc.design.q_method, cases, rate, q=des.q, q_max=sc.design.q_max,
                               eig=sc.design.eigenvalues)
         cert, text, by = bool(res.certified), q_text(des.q, res, rate, len(cases), held="per"), res.method
@@ -208,8 +211,7 @@ def survivors_certificate(des: Design, alive: tuple, arcs: dict, network, *, exc
         cert, text = None, ADAPTIVE
     else:
         ad = {a.id: a for a in des.agents}
-        cases = [des.survivor_case(name, build_graph(name, alive, arcs[name], weights=sc.design.weights), un_S)
-                 for name in used]
+        cases = survivor_cases()
         gb = max(bounds.g_bound(c, rate) for c in cases)
         if des.g >= gb:
             cert, text, by = True, f"g = {des.g:g} >= eq. (g) bound {gb:.4g} on the survivors' graphs", "eq:g"

@@ -15,9 +15,10 @@ import pytest
 import scipy.linalg as sla
 import yaml
 
-from splitspec_core.synthesis.designer import NO_CERTIFIED_RATE, design
+from splitspec_core.synthesis.designer import design
 from splitspec_core.synthesis.survivors import certify_network
 from splitspec_core.synthesis.report import design_json, design_text, rate_certificate
+from splitspec_core.synthesis.verdict import NO_CERTIFIED_RATE
 from splitspec_core.scenarios.load import load_scenario
 from splitspec_orchestrator import cli
 from tests.conftest import EXAMPLES

@@ -209,7 +209,7 @@ def test_close_modes_the_gain_must_move_are_left_to_consensus():
     at 1 %: told apart only through the dynamics, across their 5e-4 spread.  Measured against that spread they look
     seen (margin 0.01) and placing all three costs a gain of 3e6; measured against the 0.16 the gain must move them
     to reach -(1 + margin) rate, the two others are left to consensus and the gain is 0.16."""
-    from splitspec_core.model.gains import beyond_target
+    from splitspec_core.model.gain_target import beyond_target
 
     A = np.diag([-0.142, -0.1425, -0.1415, -5.0])
     C = np.array([[1.0, 0.01, 0.01, 1.0]])
