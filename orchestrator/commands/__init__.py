@@ -5,7 +5,8 @@
 - :mod:`.operate`: ``kill``, ``recover``, ``view``.
 
 ``splitspec plant`` and ``splitspec agent`` hand their arguments to the process packages
-(``splitspec_plant``, ``splitspec_agents``), which the orchestrator never imports.
+(``splitspec_plant``, ``splitspec_agents``) from :mod:`splitspec_orchestrator.cli`, the one module that imports
+them (the "entry" layer of docs/explanation/architecture.md); the commands here never do.
 """
 
 from __future__ import annotations
