@@ -49,7 +49,7 @@ import splitspec_core as ss
 from splitspec_core.simulation.metrics import fit_decay
 from splitspec_core.errors import SplitspecError
 from splitspec_core.synthesis.conditioning import conditioning
-from splitspec_core.synthesis.report import rate_certificate
+from splitspec_core.synthesis.verdict import rate_certificate
 
 from _common import loadavg
 

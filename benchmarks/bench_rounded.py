@@ -39,7 +39,7 @@ from splitspec_core.simulation.metrics import fit_decay
 from splitspec_core.synthesis.conditioning import conditioning
 from splitspec_core.synthesis.designer import design
 from splitspec_core.scenarios.generate import random_strongly_connected_arcs, random_system
-from splitspec_core.synthesis.report import rate_certificate
+from splitspec_core.synthesis.verdict import rate_certificate
 from splitspec_core.scenarios.load import parse_scenario
 from splitspec_core.simulation.simulator import simulate
 

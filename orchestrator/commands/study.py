@@ -208,7 +208,7 @@ def _simulate_summary_text(summary: dict, *, time: str, out) -> str:
 
 def cmd_simulate(args: argparse.Namespace) -> int:
     from splitspec_core.simulation.metrics import event_marks, summarize
-    from splitspec_core.synthesis.report import rate_certificate
+    from splitspec_core.synthesis.verdict import rate_certificate
     from splitspec_core.simulation.simulator import check_trajectory_memory
 
     sc = ss.load_scenario(args.scenario)

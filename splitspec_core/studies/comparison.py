@@ -19,7 +19,7 @@ filter, the predicted (exact) steady-state RMS where available (not for the adap
 gain, which has no steady state), the noise-free time until the error stays
 below 1e-3 of its initial value, messages per event time (one message = one
 vector sent by one agent), and for the split-spectrum estimators the rate
-certificate of :func:`~splitspec_core.synthesis.report.rate_certificate` (the adaptive
+certificate of :func:`~splitspec_core.synthesis.verdict.rate_certificate` (the adaptive
 gain: asymptotic convergence only, no certified rate).
 
 Every estimator runs its seeds as one batch, the same numbers per seed to
@@ -45,8 +45,9 @@ from ..synthesis.bounds import nice_ceil
 from ..synthesis.designer import design
 from ..synthesis.verdict import ADAPTIVE, NO_CERTIFIED_RATE
 from ..errors import DesignError
-from ..synthesis.noise_tuning import predicted_rms, tune
-from ..synthesis.report import rate_certificate
+from ..synthesis.error_matrix import predicted_rms
+from ..synthesis.noise_tuning import tune
+from ..synthesis.verdict import rate_certificate
 from ..scenarios.specs import Scenario
 from ..simulation.simulator import check_trajectory_memory, simulate
 
@@ -224,7 +225,7 @@ def compare(sc: Scenario, *, seeds, steps: int | None = None, eps: float | None 
 def sweep(sc: Scenario, *, seed: int, steps: int | None = None, values=None) -> dict:
     """RMS error (predicted and simulated) and measured rate against q (discrete) or g (continuous).
 
-    A row is ``certified`` as :func:`~splitspec_core.synthesis.report.rate_certificate`
+    A row is ``certified`` as :func:`~splitspec_core.synthesis.verdict.rate_certificate`
     judges the design at that value, for the estimator the row simulates
     (continuous: the sampled-data form with ``run.dt``, so a g certified for
     the ODE alone is not certified); ``certificate`` says why in one line.

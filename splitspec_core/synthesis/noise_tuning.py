@@ -2,8 +2,8 @@
 
 The split-spectrum estimators are linear, so with a constant graph the stacked error follows
 ``e(k+1) = M e(k) + noise``; its steady-state covariance solves a discrete Lyapunov equation
-(:func:`splitspec_core.synthesis.error_matrix.error_dynamics` and :func:`~splitspec_core.synthesis.error_matrix.predicted_rms`,
-the latter re-exported here): no simulation, no sampling error, what a long simulation's RMS converges to (tested).
+(:func:`splitspec_core.synthesis.error_matrix.error_dynamics` and :func:`~splitspec_core.synthesis.error_matrix.predicted_rms`):
+no simulation, no sampling error, what a long simulation's RMS converges to (tested).
 
 :func:`tune` searches q (discrete) or g (continuous) and the gain design
 (``place``, or ``riccati`` over a range of process/measurement weight ratios)
@@ -25,7 +25,7 @@ from .error_matrix import predicted_rms
 from .verdict import rate_certificate
 from ..scenarios.specs import Scenario
 
-__all__ = ["predicted_rms", "TuneResult", "tune"]
+__all__ = ["TuneResult", "tune"]
 
 
 @dataclasses.dataclass(frozen=True)

@@ -1,7 +1,7 @@
 """Design output: the JSON contract and the readable report.
 
 Both render the same :class:`~splitspec_core.synthesis.design_data.Design`, the same verdict (computed once by
-:func:`splitspec_core.synthesis.verdict.rate_certificate`, the line every command prints; re-exported here) and
+:func:`splitspec_core.synthesis.verdict.rate_certificate`, the line every command prints) and
 the same analyses of it (:func:`~splitspec_core.synthesis.conditioning.conditioning`,
 :func:`~splitspec_core.synthesis.loss_certificate.loss_certificate`), and must say the same thing; the JSON is the
 contract (``../shared/DESIGN.md``), the text its reading.
@@ -22,7 +22,7 @@ from ..model.graphs import is_doubly_stochastic, perron_vector
 from ..scenarios.labels import heaviest
 from .verdict import NO_CERTIFIED_RATE, rate_certificate  # the verdict, rendered here
 
-__all__ = ["rate_certificate", "design_json", "design_text"]
+__all__ = ["design_json", "design_text"]
 
 
 MAX_LISTED = 12  # cases whose radius the text report lists (the largest first); --json has them all

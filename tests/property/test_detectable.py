@@ -23,7 +23,7 @@ from hypothesis import strategies as st
 from splitspec_core.synthesis.conditioning import conditioning
 from splitspec_core.synthesis.designer import design
 from splitspec_core.errors import AssumptionError
-from splitspec_core.synthesis.report import rate_certificate
+from splitspec_core.synthesis.verdict import rate_certificate
 from splitspec_core.scenarios.load import parse_scenario
 from splitspec_core.simulation.simulator import simulate
 

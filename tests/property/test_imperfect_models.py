@@ -26,7 +26,7 @@ from splitspec_core.errors import AssumptionError, DesignError
 from splitspec_core.scenarios.generate import random_strongly_connected_arcs, random_system
 from splitspec_core.scenarios.labels import heaviest
 from splitspec_core.model.observability import DEFAULT_RANK_TOL, unobservable_directions
-from splitspec_core.synthesis.report import rate_certificate
+from splitspec_core.synthesis.verdict import rate_certificate
 from splitspec_core.scenarios.load import parse_scenario
 from splitspec_core.simulation.simulator import simulate
 

@@ -17,7 +17,8 @@ import yaml
 
 from splitspec_core.synthesis.designer import design
 from splitspec_core.synthesis.survivors import certify_network
-from splitspec_core.synthesis.report import design_json, design_text, rate_certificate
+from splitspec_core.synthesis.report import design_json, design_text
+from splitspec_core.synthesis.verdict import rate_certificate
 from splitspec_core.synthesis.verdict import NO_CERTIFIED_RATE
 from splitspec_core.scenarios.load import load_scenario
 from splitspec_orchestrator import cli

@@ -18,7 +18,8 @@ from splitspec_core.synthesis.designer import design
 from splitspec_core.model.detectability import BACKOFF
 from splitspec_core.errors import AssumptionError
 from splitspec_core.synthesis.error_matrix import case_parts as _case_parts, full_error_matrix, modulo
-from splitspec_core.synthesis.report import design_json, rate_certificate
+from splitspec_core.synthesis.report import design_json
+from splitspec_core.synthesis.verdict import rate_certificate
 from splitspec_core.scenarios.load import load_scenario, parse_scenario
 from splitspec_core.simulation.simulator import simulate
 from splitspec_core.synthesis.survivors import certify_network

@@ -12,7 +12,8 @@ from splitspec_core.studies.comparison import compare, settle_time, sweep
 from splitspec_core.synthesis.designer import design
 from splitspec_core.errors import DesignError
 from splitspec_core.synthesis.error_matrix import error_dynamics
-from splitspec_core.synthesis.noise_tuning import predicted_rms, tune
+from splitspec_core.synthesis.error_matrix import predicted_rms
+from splitspec_core.synthesis.noise_tuning import tune
 from splitspec_core.scenarios.load import load_scenario
 from splitspec_core.simulation.simulator import simulate
 from tests.conftest import EXAMPLES

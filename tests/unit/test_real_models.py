@@ -14,7 +14,7 @@ import pytest
 import splitspec_core as ss
 from splitspec_core.errors import AssumptionError
 from splitspec_core.scenarios.labels import NAME_PATTERN
-from splitspec_core.synthesis.report import rate_certificate
+from splitspec_core.synthesis.verdict import rate_certificate
 
 MODELS = Path(__file__).resolve().parents[2] / "examples" / "models"
 
