@@ -42,7 +42,8 @@ from splitspec_core.studies.no_truth import disagreement, residuals
 
 from . import blueprint as bp
 
-__all__ = ["YRow", "file_rows", "ReferenceBatch", "ReferenceRows", "ReferenceView", "known_parts", "progress_text"]
+__all__ = ["YRow", "file_rows", "ReferenceBatch", "ReferenceRows", "ReferenceView", "known_parts", "log10",
+           "progress_text"]
 
 #: the measurement behind event time ``tau``: ``(y (sum s_i,), missing (m,) bool)``, or None if unknown
 YRow = Callable[[int], "tuple[np.ndarray, np.ndarray] | None"]
@@ -63,7 +64,8 @@ def _grown(a: np.ndarray, rows: int, fill) -> np.ndarray:
     return out
 
 
-def _log10(v: np.ndarray) -> np.ndarray:
+def log10(v: np.ndarray) -> np.ndarray:
+    """``np.log10(v)`` without warnings: -inf at 0, NaN at NaN or below 0."""
     with np.errstate(divide="ignore", invalid="ignore"):
         return np.log10(v)
 
@@ -72,7 +74,7 @@ def known_parts(path: str, log_path: str, values: np.ndarray) -> list[tuple[str,
     """``[(entity, values, known)]`` of one series and its log10: ``known`` where a value is logged, a ``Clear``
     elsewhere (NaN: dead, missing, none alive; the log10 of 0 or of NaN)."""
     values = np.asarray(values, dtype=float)
-    logs = _log10(values)
+    logs = log10(values)
     return [(path, values, np.isfinite(values)), (log_path, logs, np.isfinite(logs))]
 
 

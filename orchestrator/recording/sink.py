@@ -45,11 +45,11 @@ import numpy as np
 
 from . import blueprint as bp
 from .handoff import LossClear, LostRow, Mark, RowBatch, TextLine, TopologyLog
-from .reference_view import ReferenceRows, ReferenceView
+from .reference_view import ReferenceRows, ReferenceView, log10
 from .rrd_file import RrdAppender, rerun_command, rewrite_rrd
 from .topology_view import TopologyView
 
-__all__ = ["RerunSink", "RowBatch", "open_sink", "APPLICATION_ID", "RRD_FILE"]
+__all__ = ["RerunSink", "open_sink", "APPLICATION_ID", "RRD_FILE"]
 
 log = logging.getLogger(__name__)
 
@@ -75,11 +75,6 @@ def _url_host_port(url: str) -> tuple[str, int]:
     parts = urlsplit(url)
     default = 443 if parts.scheme.endswith("https") else DEFAULT_VIEWER_PORT
     return parts.hostname or "127.0.0.1", parts.port or default
-
-
-def _log10(v: np.ndarray) -> np.ndarray:
-    with np.errstate(divide="ignore", invalid="ignore"):
-        return np.log10(v)
 
 
 def open_sink(out_dir: Path, **options) -> "RerunSink | None":
@@ -287,7 +282,7 @@ class RerunSink:
                 send(path, indexes=index(mask), columns=clears[cnt])
 
         every = np.ones(L, dtype=bool)
-        lerr, lmax = _log10(b.err), _log10(b.err_max)
+        lerr, lmax = log10(b.err), log10(b.err_max)
         shown = np.where(b.show[:, :, None], b.xhat, np.nan)  # (L, m, n)
         for c in range(self.n):
             if self.truth:
@@ -309,7 +304,7 @@ class RerunSink:
             clear(bp.ERRORS_MAX, b.clear_max)
             clear(bp.ERRORS_LOG10_MAX, b.clear_max)
         if self.envelope and self.truth:
-            lenv = _log10(b.env)
+            lenv = log10(b.env)
             scalars(bp.ENVELOPE, np.isfinite(lenv), lenv)
         for s, col in zip(bp.ROUND_SERIES, b.rounds.T):
             scalars(f"{bp.ROUNDS}/{s}", np.isfinite(col), col)

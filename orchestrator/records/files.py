@@ -96,6 +96,12 @@ class WriteFailure:
             raise self.error
 
 
+def _fewer(K: int) -> int:
+    """The rows of the next try of :meth:`RecordFiles.finish_rrd_fitting`: a tenth less (at least one less, at
+    least one row)."""
+    return max(1, K - max(1, K // 10))
+
+
 class RecordFiles:
     """``trajectory.npz`` and ``run.rrd`` of one recorder, and the rows each holds on disk.
 
@@ -186,7 +192,7 @@ class RecordFiles:
             if K != self.npz_rows and not self.cut_trajectory(K):
                 if K <= 1:
                     break
-                K = max(1, K - max(1, K // 10))
+                K = _fewer(K)
                 continue
             try:
                 self.sink.finish(int(self._d.tau[K - 1]) + 1)
@@ -194,7 +200,7 @@ class RecordFiles:
                 if exc.errno != errno.ENOSPC or K <= 1:
                     self._failure.fail(self.rrd_path, exc, int(self._d.tau[K - 1]))
                     break
-                K = max(1, K - max(1, K // 10))
+                K = _fewer(K)
                 continue
             break
         return min(K, self.npz_rows)

@@ -82,10 +82,8 @@ def _flush_open_recorders() -> None:
             with f.io, f.lock:  # waits for a background flush under way
                 if not f.closed and f.failure.error is None:
                     f.flush(final=True)  # the last flush: a mark still waiting for its row goes too
-                    # run.rrd with its footer, as a Rerun FileSink would leave it; nothing is recorded after this
-                    f.closed = True
-                    f.stop.set()
-                    f.wake.set()
+                    f.close()  # nothing is recorded after this
+                    # run.rrd with its footer, as a Rerun FileSink would leave it
                     f.writer.files.finish_rrd(f.writer.rows_kept)
                     f.reserve.release()
         except Exception as exc:

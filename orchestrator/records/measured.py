@@ -39,7 +39,7 @@ class MeasuredRecords:
     Parameters
     ----------
     lock : the recorder's ``_lock`` (what its callers record); guards the live measurements
-    taken : the rows taken by the recorder's flushes (its ``_d``, read under its ``_io``)
+    taken : the rows taken by the recorder's flushes (its writer's ``rows``, read under its ``_io``)
     agent_ids : agent ids in the scenario's order
     pos : ``{agent id: column}``
     """

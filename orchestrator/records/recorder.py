@@ -42,7 +42,7 @@ from splitspec_core.simulation.trajectory_file import TRAJECTORY_FILE
 
 from ..recording.handoff import cut_edges
 from ..recording.rrd_file import verify_rrd
-from ..recording.sink import RRD_FILE, RerunSink, open_sink
+from ..recording.sink import DEFAULT_VIEWER_PORT, RRD_FILE, RerunSink, open_sink
 from .checks import RecordingError, check_row, check_run, check_topology
 from .events import EVENTS_FILE, EventLog, event_level, event_text
 from .files import RecordFiles, RecordsWriteError, WriteFailure, strerror
@@ -52,7 +52,7 @@ from .outdir import Reserve
 from .rowstore import RowStore
 from .writer import RecordWriter
 
-__all__ = ["Recorder", "RecordingError", "RecordsWriteError", "WriteFailure", "verify_rrd", "TRAJECTORY_FILE",
+__all__ = ["Recorder", "RecordingError", "RecordsWriteError", "verify_rrd", "TRAJECTORY_FILE",
            "EVENTS_FILE", "RRD_FILE"]
 
 RESERVE_BYTES = 4 << 20  # disk-space reserve released on ENOSPC to write the final records
@@ -98,7 +98,7 @@ class Recorder:
     def __init__(self, out_dir: Path, *, agent_ids: tuple[int, ...], n: int, steps: int, time_mode: str,
                  dt: float, graph_names: tuple[str, ...], run_id: str, scenario_name: str,
                  viewer: str | None = None, flush_seconds: float = 1.0,
-                 viewer_port: int = 9876, connect_timeout: float = 1.0,
+                 viewer_port: int = DEFAULT_VIEWER_PORT, connect_timeout: float = 1.0,
                  reserve_bytes: int = RESERVE_BYTES, envelope_rate: float | None = None, gains: bool = False,
                  positions: Mapping[int, tuple[float, float]] | None = None, states: tuple | None = None,
                  shown: tuple | None = None):
@@ -134,11 +134,11 @@ class Recorder:
 
         # Write failures (records.writer's docstring): the first one and whether a caller has seen it.
         self._failed = WriteFailure(self._lock)
-        self._events_path = self.out_dir / EVENTS_FILE
+        events_path = self.out_dir / EVENTS_FILE
         try:
-            self._events = EventLog(self._events_path)  # create / empty events.jsonl
+            self._events = EventLog(events_path)  # create / empty events.jsonl
         except OSError as exc:
-            raise RecordsWriteError(self._events_path, strerror(exc)) from None
+            raise RecordsWriteError(events_path, strerror(exc)) from None
         if states is not None and len(states) != self.n:
             raise RecordingError(f"states names {len(states)} states; expected {self.n}")
         names = tuple(str(s) for s in states) if states is not None else None
@@ -167,7 +167,7 @@ class Recorder:
         return float(tau) if self.time_mode == "discrete" else tau * self.dt
 
     def _tau_of_t(self, t: float) -> int:
-        return int(round(t)) if self.time_mode == "discrete" else int(round(t / self.dt))
+        return self._w.tau_of_t(t)
 
     @property
     def _rec(self) -> RerunSink | None:
@@ -228,7 +228,7 @@ class Recorder:
             try:
                 self._events.append(line)
             except OSError as exc:
-                raise self._failed.fail(self._events_path, exc, self._tau_of_t(t)) from None
+                raise self._failed.fail(self._events.path, exc, self._tau_of_t(t)) from None
             if self._rec is not None:
                 self._f.logs.event(event, self._tau_of_t(t), float(t), event_text(event, fields, note), level)
         self._f.write_through()

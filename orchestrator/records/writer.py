@@ -101,6 +101,10 @@ class RecordWriter:
         self.rows_kept = 0  # rows (event times) that trajectory.npz and run.rrd both hold on disk
         self.npz_next = 0.0  # monotonic time before which the background thread does not rewrite trajectory.npz
 
+    def tau_of_t(self, t: float) -> int:
+        """The event time of time ``t`` (``t = tau`` or ``t = tau * dt``)."""
+        return int(round(t)) if self.time_mode == "discrete" else int(round(t / self.dt))
+
     @property
     def sink(self) -> RerunSink | None:
         """The Rerun sink (None: file records only, or after :meth:`disconnect`)."""
@@ -185,7 +189,7 @@ class RecordWriter:
 
     def _close_event(self, t: float, level: str, fields: dict[str, Any]) -> None:
         """The last event, ``recording_closed``: to ``events.jsonl`` and ``run.rrd`` if they can take it."""
-        tau = int(round(t)) if self.time_mode == "discrete" else int(round(t / self.dt))
+        tau = self.tau_of_t(t)
         try:
             self.events.write("recording_closed", t, time.time(), fields)
         except OSError as exc:
