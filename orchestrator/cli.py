@@ -240,6 +240,16 @@ def build_parser() -> argparse.ArgumentParser:
                    "several, they are listed and nothing is signalled)")
     p.set_defaults(func=_command("operate:cmd_kill"))
 
+    p = sub.add_parser("stop", help="end a running run as it would end by itself: records closed, run_finished",
+                       description="Ask a run started on this machine to stop (SIGTERM to its orchestrator, found "
+                                   "through the registry). A run without run.steps ends as finished (exit 0, "
+                                   "run_finished with reason 'stopped'); a run with steps ends interrupted.")
+    p.add_argument("--run-id", help="the run's id (default: the only live run of yours on this machine; with "
+                   "several, they are listed and nothing is signalled)")
+    p.add_argument("--wait", type=float, default=30.0, metavar="SECONDS",
+                   help="wait this long for the orchestrator to exit (0: do not wait; default 30)")
+    p.set_defaults(func=_command("operate:cmd_stop"))
+
     p = sub.add_parser("recover", help="after a crash: make trajectory.npz, events.jsonl and run.rrd agree",
                        description="Take trajectory.npz (K event times) as the authority: rewrite run.rrd with the "
                                    "event times before K so that rerun rrd verify passes, drop a torn last line "

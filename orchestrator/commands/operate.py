@@ -1,4 +1,4 @@
-"""The operating commands on a run: ``splitspec kill`` (fault injection), ``recover``, ``view``."""
+"""The operating commands on a run: ``splitspec kill`` (fault injection), ``stop``, ``recover``, ``view``."""
 
 from __future__ import annotations
 
@@ -65,4 +65,39 @@ def cmd_kill(args: argparse.Namespace) -> int:
         raise UsageError(f"{what} (pid {pid}) is not running any more") from None
     print(f"sent {SIGNALS[args.signal]} to {what} (pid {pid}) of run {rid!r} "
           f"(orchestrator pid {entry['orchestrator']['pid']}, records in {entry.get('out')})")
+    return 0
+
+
+def cmd_stop(args: argparse.Namespace) -> int:
+    """``splitspec stop [--run-id ID]``: SIGTERM to the run's orchestrator, then wait for it to exit."""
+    import signal
+    import socket
+    import time
+
+    from ..registry import RunChoiceError, describe_run, is_own_splitspec_process, pid_running, resolve
+
+    try:
+        pid, host, entry = resolve(args.run_id, "orchestrator", None)
+    except RunChoiceError as exc:
+        print(f"splitspec: error: {exc}", file=sys.stderr)
+        for run in exc.runs:
+            print(f"  {describe_run(run)}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    rid = entry["run_id"]
+    if host and host != socket.gethostname():
+        raise UsageError(f"run {rid!r} is orchestrated on host {host} (pid {pid}), not here: run splitspec stop there")
+    if not is_own_splitspec_process(pid, started_before=entry.get("written")):
+        raise UsageError(f"the orchestrator (pid {pid}) of run {rid!r} is not running any more; nothing to stop")
+    try:
+        os.kill(pid, signal.SIGTERM)
+    except ProcessLookupError:
+        raise UsageError(f"the orchestrator (pid {pid}) of run {rid!r} is not running any more") from None
+    deadline = time.monotonic() + max(0.0, float(args.wait))
+    while args.wait > 0 and pid_running(pid) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    if args.wait > 0 and pid_running(pid):
+        print(f"splitspec: error: run {rid!r} (orchestrator pid {pid}) still running {args.wait:g} s after SIGTERM",
+              file=sys.stderr)
+        return EXIT_FAILED
+    print(f"stopped run {rid!r} (orchestrator pid {pid}); records in {entry.get('out')}")
     return 0

@@ -8,6 +8,8 @@ one-line :class:`~splitspec_core.errors.ScenarioError` naming the key.
 
 from __future__ import annotations
 
+import dataclasses
+
 from pathlib import Path
 from typing import Any
 
@@ -379,6 +381,8 @@ def parse_scenario(data: Any, *, source: str = "<scenario>", base: Path | None =
     network = parse_network(top.get("network"), ids, graphs)
     sources = parse_sources(top.get("sources"), ids, run.pace)
     input_source = parse_input_source(top.get("sources"), run.pace, system.inputs)
+    if (run.pace or sources) and "steps" not in (top.get("run") or {}):
+        run = dataclasses.replace(run, until_stopped=True)  # a deployment: it runs until stopped
     return Scenario(
         name=name, time=time, agent_ids=ids, system=system, graphs=graphs,
         switching=switching, design=design, faults=faults, run=run, source=source, positions=positions,

@@ -222,13 +222,19 @@ class NetworkSpec:
 @dataclass(frozen=True)
 class RunSpec:
     """Run options: number of steps, sample time (continuous), seed, pace, and the states the default views show
-    (``show``: names or ``fnmatch`` patterns; None: :func:`splitspec_core.scenarios.labels.shown_states`'s default)."""
+    (``show``: names or ``fnmatch`` patterns; None: :func:`splitspec_core.scenarios.labels.shown_states`'s default).
+
+    ``until_stopped``: ``run.steps`` was omitted from a paced run or one fed by live sensors (``sources:``):
+    ``splitspec run`` goes on until it is stopped (Ctrl-C, SIGTERM, ``splitspec stop``); ``steps`` is then 60,
+    the horizon of ``simulate`` (which needs one) when given no ``--steps``.
+    """
 
     steps: int = 60
     dt: float | None = None
     seed: int = 0
     pace: float | None = None
     show: tuple | None = None
+    until_stopped: bool = False
 
 
 @dataclass(frozen=True)

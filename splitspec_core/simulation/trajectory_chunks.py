@@ -1,0 +1,317 @@
+"""A run's rows on disk as append-only chunks: ``chunks/rows-<tau>.arrows`` (Arrow IPC streams), written and read.
+
+``splitspec run`` appends the rows of every flush of its recorder to the current segment file as one Arrow
+record batch and never rewrites a byte: a flush costs what it adds, whatever the run's length, and a run
+killed at any moment keeps every batch it finished (the reader stops at a torn last batch).  A segment is
+an Arrow IPC *stream* (the schema message, then one record batch per flush; no end-of-stream marker until
+the recorder closes it), so any Arrow reader opens it (``pyarrow.ipc.open_stream``, ``polars.read_ipc_stream``).
+A new segment starts when the current one holds ``segment_bytes`` (64 MiB by default); its name is the
+event time of its first row (``rows-000000012345.arrows``), so a time window reads only the segments it
+overlaps.
+
+Columns, one row per event time (the contract of ``trajectory.npz``, docs/reference/files.md, section
+"Trajectory file", plus what the recorder measured of the round): ``tau`` int64, ``t`` float64, ``x`` (n),
+``xhat`` (m * n, agent-major: ``xhat[i * n + k]``), ``alive`` (m) bool, ``graph`` int64, ``g`` (m),
+``wall`` int64 (``time.time_ns()`` of the row's arrival), ``round`` (5): the round's wall ms, attempts, messages
+rejected, consensus messages lost, and its lateness against ``run.pace`` in ms (NaN unpaced); ``lost``: the
+consensus messages of this event time that did not count, flattened ``(k, j, i, cause)`` quadruples; and on
+measurements or live sensors ``y`` (sum s_i) and ``y_missing`` (m).  The schema's metadata holds
+``agent_ids`` and ``states`` (JSON).  A row written again (an agent declared lost after its row was
+flushed) is appended again: the last batch that holds an event time wins.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+from typing import Iterator
+
+import numpy as np
+
+__all__ = ["CHUNKS_DIR", "ROUND_FIELDS", "ChunkWriter", "chunk_segments", "read_chunks", "has_chunks"]
+
+CHUNKS_DIR = "chunks"
+#: the ``round`` column's fields, in order
+ROUND_FIELDS = ("wall_ms", "attempts", "rejected", "lost", "late_ms")
+_SEGMENT_BYTES = 64 << 20
+_PREFIX, _SUFFIX = "rows-", ".arrows"
+_FORMAT = b"splitspec-rows/1"
+
+
+def _schema(m: int, n: int, p: int, agent_ids, states, dt: float):
+    import pyarrow as pa
+
+    f64, b = pa.float64(), pa.bool_()
+    fields = [("tau", pa.int64()), ("t", f64), ("x", pa.list_(f64, n)), ("xhat", pa.list_(f64, m * n)),
+              ("alive", pa.list_(b, m)), ("graph", pa.int64()), ("g", pa.list_(f64, m)), ("wall", pa.int64()),
+              ("round", pa.list_(f64, len(ROUND_FIELDS))), ("lost", pa.list_(pa.int64()))]
+    if p:
+        fields += [("y", pa.list_(f64, p)), ("y_missing", pa.list_(b, m))]
+    meta = {b"format": _FORMAT, b"agent_ids": json.dumps([int(a) for a in agent_ids]).encode(),
+            b"states": json.dumps([str(s) for s in states]).encode(), b"dt": repr(float(dt)).encode()}
+    return pa.schema(fields, metadata=meta)
+
+
+def _fixed(values: np.ndarray, width: int, typ):
+    import pyarrow as pa
+
+    flat = pa.array(np.ascontiguousarray(values).reshape(-1), type=typ)
+    return pa.FixedSizeListArray.from_arrays(flat, width)
+
+
+class ChunkWriter:
+    """Appends rows to ``out_dir/chunks/`` (see the module docstring); the directory is made at the first append.
+
+    Parameters
+    ----------
+    out_dir : the run's directory
+    agent_ids, states : the schema's metadata
+    n : state dimension
+    dt : the sampling step (1 in discrete time): ``t = tau * dt``, in the metadata (time windows)
+    p : width of ``y`` (0: no ``y`` / ``y_missing`` columns)
+    segment_bytes : a new segment starts when the current one holds this many bytes
+    """
+
+    def __init__(self, out_dir: str | Path, *, agent_ids, states, n: int, dt: float = 1.0, p: int = 0,
+                 segment_bytes: int = _SEGMENT_BYTES):
+        self.dir = Path(out_dir) / CHUNKS_DIR
+        self.m, self.n, self.p = len(agent_ids), int(n), int(p)
+        self.schema = _schema(self.m, self.n, self.p, agent_ids, states, dt)
+        self.segment_bytes = int(segment_bytes)
+        self.path: Path | None = None  # the current segment
+        self.size = 0  # its bytes on disk
+        self.bytes_written = 0  # all segments' bytes written by this writer
+        self.segments: list[tuple[Path, int]] = []  # (path, last tau) of the segments this writer finished
+        self._name = -1  # the current segment's name (an event time)
+        self._last_tau = -1
+
+    def batch(self, cols: dict):
+        """The record batch of ``cols``: ``tau`` (L,), ``t``, ``x`` (L, n), ``xhat`` (L, m, n), ``alive`` (L, m),
+        ``graph``, ``g`` (L, m), ``wall``, ``round`` (L, 5), ``lost`` (a list of L int arrays of 4 k values), and
+        ``y`` (L, p) / ``y_missing`` (L, m) when ``p``."""
+        import pyarrow as pa
+
+        L, f64 = len(cols["tau"]), pa.float64()
+        lost = [np.asarray(r, dtype=np.int64).reshape(-1) for r in cols["lost"]]
+        arrays = [pa.array(np.asarray(cols["tau"], np.int64)), pa.array(np.asarray(cols["t"], float)),
+                  _fixed(np.asarray(cols["x"], float), self.n, f64),
+                  _fixed(np.asarray(cols["xhat"], float), self.m * self.n, f64),
+                  _fixed(np.asarray(cols["alive"], bool), self.m, pa.bool_()),
+                  pa.array(np.asarray(cols["graph"], np.int64)), _fixed(np.asarray(cols["g"], float), self.m, f64),
+                  pa.array(np.asarray(cols["wall"], np.int64)),
+                  _fixed(np.asarray(cols["round"], float), len(ROUND_FIELDS), f64),
+                  pa.array(lost, type=pa.list_(pa.int64()))]
+        if self.p:
+            arrays += [_fixed(np.asarray(cols["y"], float), self.p, f64),
+                       _fixed(np.asarray(cols["y_missing"], bool), self.m, pa.bool_())]
+        assert all(len(a) == L for a in arrays)
+        return pa.record_batch(arrays, schema=self.schema)
+
+    def append(self, cols: dict) -> int:
+        """Append the rows ``cols`` (:meth:`batch`) as one record batch, fsynced; a new segment first when the
+        current one is full.  Returns the bytes written.
+
+        Raises
+        ------
+        OSError
+            If the segment cannot be written; it is cut back to its last whole batch (removed if new).
+        """
+        if len(cols["tau"]) == 0:
+            return 0
+        body = self.batch(cols).serialize().to_pybytes()
+        new = self.path is None or self.size + len(body) > self.segment_bytes
+        if new:
+            self.dir.mkdir(exist_ok=True)
+            if self.path is not None:
+                self.segments.append((self.path, self._last_tau))
+            # named by its first event time; strictly after the previous segment's name (a batch of rows
+            # written again may start before it)
+            self._name = max(int(np.min(cols["tau"])), self._name + 1)
+            path = self.dir / f"{_PREFIX}{self._name:012d}{_SUFFIX}"
+            data, mode = self.schema.serialize().to_pybytes() + body, "wb"
+        else:
+            path, data, mode = self.path, body, "ab"
+        try:
+            with open(path, mode) as f:
+                f.write(data)
+                f.flush()
+                os.fsync(f.fileno())
+        except OSError:
+            try:
+                if new:
+                    path.unlink(missing_ok=True)
+                else:
+                    os.truncate(path, self.size)
+            except OSError:
+                pass
+            raise
+        if new:
+            self.path, self.size = path, 0
+        self.size += len(data)
+        self.bytes_written += len(data)
+        self._last_tau = int(np.max(cols["tau"]))
+        return len(data)
+
+    def forget_before(self, tau: int) -> list[Path]:
+        """Remove the finished segments whose rows all precede event time ``tau`` (``run.keep``); their paths."""
+        gone = [p for p, last in self.segments if last < tau]
+        for p in gone:
+            p.unlink(missing_ok=True)
+        self.segments = [(p, last) for p, last in self.segments if last >= tau]
+        return gone
+
+
+def chunk_segments(out: str | Path) -> list[tuple[int, Path]]:
+    """``(first event time, path)`` of the run's segments, in order (empty when it has none)."""
+    d = Path(out) / CHUNKS_DIR
+    if not d.is_dir():
+        return []
+    segs = []
+    for p in d.iterdir():
+        if p.name.startswith(_PREFIX) and p.name.endswith(_SUFFIX):
+            try:
+                segs.append((int(p.name[len(_PREFIX):-len(_SUFFIX)]), p))
+            except ValueError:
+                continue
+    return sorted(segs)
+
+
+def has_chunks(out: str | Path) -> bool:
+    return bool(chunk_segments(out))
+
+
+def _batches(path: Path) -> Iterator:
+    """The whole record batches of a segment (a torn last batch, from a kill mid-write, is left out)."""
+    import pyarrow as pa
+
+    try:
+        reader = pa.ipc.open_stream(pa.memory_map(str(path)))
+    except (OSError, pa.ArrowInvalid):
+        return  # not even a whole schema: a segment created as the run was killed
+    while True:
+        try:
+            yield reader.read_next_batch()
+        except StopIteration:
+            return
+        except (OSError, pa.ArrowInvalid):
+            return
+
+
+def whole_length(path: str | Path) -> int:
+    """Bytes of a segment's whole messages (what ``splitspec recover`` cuts a torn segment back to)."""
+    import pyarrow as pa
+
+    size = os.path.getsize(path)
+    with open(path, "rb") as f:
+        data = f.read()
+    buf = pa.py_buffer(data)
+    stream = pa.BufferReader(buf)
+    good = 0
+    try:
+        reader = pa.ipc.open_stream(stream)
+        good = stream.tell()
+        while True:
+            reader.read_next_batch()
+            good = stream.tell()
+    except StopIteration:
+        pass
+    except (OSError, pa.ArrowInvalid):
+        pass
+    return min(good, size)
+
+
+def read_chunks(out: str | Path, *, start: float | None = None, end: float | None = None) -> dict | None:
+    """The rows of a run's chunks with ``start <= t <= end`` (None: no bound), as arrays; None if it has none.
+
+    Returns the arrays of the ``trajectory.npz`` contract (``t``, ``x``, ``xhat`` (T, m, n), ``alive``,
+    ``graph``, ``agent_ids``, ``g``, ``lost`` (N, 4), ``lost_cause``, ``states``, and ``y``/``y_missing`` when
+    recorded) plus ``tau``, ``wall`` and ``round`` (T, 5, :data:`ROUND_FIELDS`): one row per event time, in
+    order, the last one written where an event time was written twice.
+    """
+    import pyarrow as pa
+
+    segs = chunk_segments(out)
+    if not segs:
+        return None
+    dt = _dt_of(segs[0][1])
+    firsts = [f for f, _ in segs]
+    chosen = []
+    for k, (first, path) in enumerate(segs):
+        # segment k holds the rows from its first event time up to the next one's first, and rows written
+        # again a little later: it may hold event times up to the first of segment k + 2
+        if end is not None and first * dt > end:
+            break
+        if start is not None and k + 2 < len(firsts) and firsts[k + 2] * dt < start:
+            continue
+        chosen.append(path)
+    batches, schema = [], None
+    for path in chosen:
+        for b in _batches(path):
+            schema = b.schema
+            batches.append(b)
+    if schema is None:
+        schema = _schema_of(segs[0][1])
+        if schema is None:
+            return None
+    meta = schema.metadata or {}
+    agent_ids = np.array(json.loads(meta[b"agent_ids"]), dtype=np.int64)
+    states = tuple(json.loads(meta[b"states"]))
+    m, n = len(agent_ids), len(states)
+    table = pa.Table.from_batches(batches, schema=schema)
+
+    def col(name, width=None, dtype=float):
+        c = table.column(name).combine_chunks() if table.num_rows else None
+        if c is None:
+            return np.zeros((0,) if width is None else (0, width), dtype=dtype)
+        if width is None:
+            return c.to_numpy(zero_copy_only=False).astype(dtype)
+        return c.flatten().to_numpy(zero_copy_only=False).astype(dtype).reshape(-1, width)
+
+    tau = col("tau", dtype=np.int64)
+    # the last row written of each event time, in event-time order
+    rev = tau[::-1]
+    _, first_rev = np.unique(rev, return_index=True)
+    keep = (len(tau) - 1 - first_rev)  # sorted by tau (np.unique sorts)
+    t = col("t")[keep]
+    if start is not None or end is not None:
+        sel = np.ones(len(keep), dtype=bool)
+        if start is not None:
+            sel &= t >= start
+        if end is not None:
+            sel &= t <= end
+        keep, t = keep[sel], t[sel]
+    out_arrays = {"tau": tau[keep], "t": t, "x": col("x", n)[keep], "xhat": col("xhat", m * n)[keep].reshape(-1, m, n),
+                  "alive": col("alive", m, bool)[keep], "graph": col("graph", dtype=np.int64)[keep],
+                  "g": col("g", m)[keep], "wall": col("wall", dtype=np.int64)[keep],
+                  "round": col("round", len(ROUND_FIELDS))[keep], "agent_ids": agent_ids, "states": states}
+    lost_col = table.column("lost").to_pylist() if table.num_rows else []
+    quads = [np.asarray(lost_col[int(k)], dtype=np.int64).reshape(-1, 4) for k in keep]
+    rows = [np.column_stack([np.full(len(qd), tv, dtype=np.int64), qd]) for tv, qd in zip(out_arrays["tau"], quads)
+            if len(qd)]
+    lost5 = np.concatenate(rows) if rows else np.zeros((0, 5), dtype=np.int64)
+    order = np.lexsort(tuple(lost5[:, c] for c in (3, 2, 1, 0))) if len(lost5) else np.zeros(0, dtype=np.int64)
+    lost5 = lost5[order]
+    out_arrays["lost"], out_arrays["lost_cause"] = lost5[:, :4].copy(), lost5[:, 4].astype(np.int8)
+    if "y" in table.column_names:
+        p = table.schema.field("y").type.list_size
+        out_arrays["y"] = col("y", p)[keep]
+        out_arrays["y_missing"] = col("y_missing", m, bool)[keep]
+    return out_arrays
+
+
+def _dt_of(path: Path) -> float:
+    schema = _schema_of(path)
+    try:
+        return float((schema.metadata or {})[b"dt"])
+    except (AttributeError, KeyError, ValueError):
+        return 1.0
+
+
+def _schema_of(path: Path):
+    import pyarrow as pa
+
+    try:
+        return pa.ipc.open_stream(pa.memory_map(str(path))).schema
+    except (OSError, pa.ArrowInvalid):
+        return None
