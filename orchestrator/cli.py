@@ -61,6 +61,8 @@ def _commands_module(module: str):
         from .commands import study as mod
     elif module == "deploy":
         from .commands import deploy as mod
+    elif module == "pace":
+        from .commands import pace as mod
     else:
         from .commands import operate as mod
     return mod
@@ -71,7 +73,7 @@ def _command(target: str) -> Callable[[argparse.Namespace], int]:
     (``splitspec kill`` must start fast: it does not load numpy or scipy)."""
     module, _, name = target.partition(":")
 
-    if module not in ("study", "deploy", "operate"):
+    if module not in ("study", "deploy", "pace", "operate"):
         raise ValueError(f"no commands module {module!r}")
 
     def run(args: argparse.Namespace) -> int:
@@ -181,6 +183,23 @@ def build_parser() -> argparse.ArgumentParser:
                    ".csv, as simulate --measurements; the file decides the steps) instead of simulating the system")
     add_run_id_option(p)
     p.set_defaults(func=_command("deploy:cmd_run"))
+
+    p = sub.add_parser("pace", help="before a deployment: can this machine keep the scenario's pace? (a short real "
+                       "run, one verdict line)",
+                       description="Run the scenario as `splitspec run` does (real processes over Zenoh), unpaced "
+                                   "and without its faults (network impairments kept), for about --seconds of "
+                                   "rounds, and measure the wall time per event time in steady state. Pace P is "
+                                   "feasible when the 90th percentile of it is below 90 % of a period (0.9 * "
+                                   "1000 / P ms). Prints one line; exit status 0 feasible (or no pace: the "
+                                   "capacity only), 1 not feasible, 2 bad input.")
+    p.add_argument("scenario", help="scenario YAML file")
+    p.add_argument("--pace", type=_positive(1e9), metavar="P", help="event times per second to check (default "
+                   "the scenario's run.pace; without either, report the capacity only)")
+    p.add_argument("--seconds", type=_positive(3600.0), default=5.0, metavar="S",
+                   help="seconds of rounds to measure, start-up not counted (default 5)")
+    p.add_argument("--out", metavar="DIR", help="keep the measuring run's records in DIR (new or empty; default: a "
+                   "temporary directory, deleted)")
+    p.set_defaults(func=_command("pace:cmd_pace"))
 
     p = sub.add_parser("orchestrator", help="the round driver (embedded Zenoh router); records the run",
                        description="Serve the scenario and the centralised design, drive the rounds, record.")

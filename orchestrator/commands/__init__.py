@@ -2,6 +2,7 @@
 
 - :mod:`.study`: ``design``, ``simulate``, ``compare`` (the public API, then files and plots);
 - :mod:`.deploy`: ``run``, ``orchestrator``, ``router``, ``credentials``;
+- :mod:`.pace`: ``pace`` (can this machine keep a scenario's pace? measured on a short real run);
 - :mod:`.operate`: ``kill``, ``recover``, ``view``.
 
 ``splitspec plant`` and ``splitspec agent`` hand their arguments to the process packages

@@ -1,0 +1,116 @@
+"""`splitspec pace`: a short real run (the processes of `splitspec run`) decides whether a pace is feasible.
+
+The two runtime tests run ring10 for real, against a pace no machine keeps (exit 1, NOT feasible) and a modest
+one (exit 0, feasible); the others check the measure on rows of known wall times, the rule's margin, and the
+one-line refusals, without starting any process.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import yaml
+
+from splitspec_core.simulation.trajectory_chunks import ChunkWriter
+from splitspec_orchestrator.commands.pace import (MARGIN, PROBE_STEPS, WARMUP_ROWS, PaceMeasurement, measure,
+                                                  verdict)
+from tests.integration.runtime_helpers import all_pids, assert_all_gone, events, run, scenario_file
+
+PREFIX = "splitspec: error: "
+SECONDS = "1.5"  # of rounds per measuring run (start-up not counted): two runs stay well under 30 s
+
+
+def assert_one_line_error(r, *fragments) -> None:
+    assert "Traceback" not in r.stderr, r.stderr
+    assert r.returncode == 2, (r.returncode, r.stderr)
+    lines = r.stderr.splitlines()
+    assert len(lines) == 1 and lines[0].startswith(PREFIX), r.stderr
+    assert r.stdout == "", r.stdout
+    for f in fragments:
+        assert f in lines[0], (f, lines[0])
+
+
+@pytest.mark.parametrize("value", ["0", "-1", "nan"])
+def test_bad_seconds_is_one_line_exit_2(tmp_path, value):
+    r = run("pace", scenario_file(tmp_path, "ring10"), f"--seconds={value}", timeout=60)
+    assert_one_line_error(r, "--seconds must be a number in (0, 3600]")
+
+
+def test_out_holding_records_is_refused_before_any_process(tmp_path):
+    """The measure reads the records it finds in --out: a directory with an earlier run's is refused."""
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "events.jsonl").write_text('{"event": "run_started", "t": 0.0, "wall": 1.0}\n')
+    r = run("pace", scenario_file(tmp_path, "ring10"), "--pace", "5", "--out", out, timeout=60)
+    assert_one_line_error(r, f"--out {out} already holds a run's records (events.jsonl)")
+    assert sorted(p.name for p in out.iterdir()) == ["events.jsonl"]
+
+
+def _rows(out, walls_ms) -> None:
+    """Chunks of a 2-agent, 1-state run whose row tau arrived at ``walls_ms[tau]`` ms."""
+    T = len(walls_ms)
+    w = ChunkWriter(out, agent_ids=(1, 2), states=("x1",), n=1)
+    w.append({"tau": np.arange(T), "t": np.arange(T, dtype=float), "x": np.zeros((T, 1)),
+              "xhat": np.zeros((T, 2, 1)), "alive": np.ones((T, 2), bool), "graph": np.zeros(T, np.int64),
+              "g": np.full((T, 2), np.nan), "wall": (np.asarray(walls_ms) * 1e6).astype(np.int64),
+              "round": np.zeros((T, 5)), "lost": [np.zeros(0, np.int64)] * T})
+
+
+def test_measure_uses_the_rows_wall_times_after_the_warm_up(tmp_path):
+    # a slow start-up row, then rounds of 10 ms with every fifth one 30 ms
+    steps = [500.0] * WARMUP_ROWS + [30.0 if k % 5 == 4 else 10.0 for k in range(100)]
+    _rows(tmp_path, np.concatenate([[0.0], np.cumsum(steps)]) + 1e6)
+    meas = measure(tmp_path)
+    kept = np.array(steps[6:])  # 103 intervals: the warm-up left out is max(3, ceil(5 % of 103)) = 6
+    assert meas.event_times == kept.size == 97
+    assert meas.mean_ms == pytest.approx(kept.mean(), abs=1e-9)
+    assert meas.p90_ms == pytest.approx(np.percentile(kept, 90), abs=1e-9)
+    assert meas.median_ms == pytest.approx(10.0)
+    assert 10.0 < meas.p90_ms <= 30.0  # the slow rounds count: the mean alone would hide them
+
+
+def test_rule_is_the_p90_against_90_percent_of_a_period():
+    meas = PaceMeasurement(mean_ms=5.0, event_times=100, p90_ms=9.0, median_ms=5.0)
+    edge = MARGIN * 1000.0 / 9.0  # p90 exactly 90 % of a period: not feasible (strictly below is)
+    ok, line = verdict(meas, edge * 0.999, about="m = 3")
+    assert ok and line.startswith(f"pace {edge * 0.999:g}: feasible on this machine: 5 ms per event time")
+    assert line.endswith("; m = 3")
+    ok, line = verdict(meas, edge)
+    assert not ok and "NOT feasible" in line and "capacity about 200 event times per second;" in line
+    ok, line = verdict(meas, 250.0)  # capacity 200 < 250
+    assert not ok and "capacity about 200 event times per second < 250" in line and "highest pace" in line
+    ok, line = verdict(PaceMeasurement(mean_ms=5.0, event_times=100), 150.0)  # no p90: the mean is judged
+    assert ok and "75 % used by the mean" in line
+    ok, line = verdict(meas, None)
+    assert ok and line.startswith("capacity on this machine:") and "about 100" in line  # 0.9 * 1000 / 9
+
+
+@pytest.mark.slow
+def test_a_pace_no_machine_keeps_is_not_feasible(tmp_path):
+    r = run("pace", scenario_file(tmp_path, "ring10"), "--pace", "100000", "--seconds", SECONDS, timeout=120)
+    assert "Traceback" not in r.stderr, r.stderr
+    assert r.returncode == 1, r.stdout + r.stderr
+    lines = r.stdout.splitlines()
+    assert len(lines) == 1, r.stdout
+    assert lines[0].startswith("pace 100000: NOT feasible on this machine: "), lines[0]
+    assert lines[0].endswith("m = 10, n = 8, q = 6"), lines[0]
+
+
+@pytest.mark.slow
+def test_a_modest_pace_is_feasible_faults_removed(tmp_path):
+    """ring10_faults at pace 5 (200 ms a period): feasible; the measuring run had no fault, no pace, and left no
+    process behind."""
+    scen = scenario_file(tmp_path, "ring10_faults", run={"pace": 5})  # --pace defaults to run.pace
+    out = tmp_path / "out"
+    r = run("pace", scen, "--seconds", SECONDS, "--out", out, timeout=120)
+    assert "Traceback" not in r.stderr, r.stderr
+    assert r.returncode == 0, r.stdout + r.stderr
+    lines = r.stdout.splitlines()
+    assert len(lines) == 1 and lines[0].startswith("pace 5: feasible on this machine: "), r.stdout
+    ms = float(lines[0].split(": ")[2].split(" ms per event time")[0])
+    assert 0 < ms < MARGIN * 200, lines[0]
+    copy = yaml.safe_load((out / "scenario.yaml").read_text())
+    assert copy["faults"] == [] and "pace" not in copy["run"] and copy["run"]["steps"] == PROBE_STEPS
+    names = {e["event"] for e in events(out)}
+    assert "run_started" in names and not names & {"agent_lost", "arc_dropped", "agent_restarting"}, names
+    assert_all_gone(all_pids(out))
