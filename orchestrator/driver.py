@@ -42,6 +42,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import math
 import os
 import signal
 import socket
@@ -59,6 +60,7 @@ from splitspec_core.runtime.wire import Keys, WireError, decode, encode, new_run
 
 from .rounds import actions as A
 from .rounds.machine import RoundMachine
+from .rounds.tally import RunTally
 from .records.outdir import OutputDirError, check_output_dir
 
 log = logging.getLogger("splitspec.orchestrator")
@@ -69,6 +71,8 @@ POLL_SECONDS = 0.5  # the event loop wakes at least this often (timers, child pr
 #: waitpids per turn were m (m + 1) per round (6% of the orchestrator at m = 100); their liveliness tokens
 #: still report a death at once
 CHILD_POLL_SECONDS = 0.05
+#: rows a run that goes on until stopped holds in memory (at most about twice as many; older ones are on disk)
+WINDOW_ROWS = 1024
 
 
 class RunFailed(SplitspecError, RuntimeError):
@@ -79,7 +83,7 @@ class Progress:
     """One status line on a terminal: event time, max error (without truth: the consensus disagreement,
     :func:`~splitspec_orchestrator.recording.reference_view.progress_text`), alive agents, rounds per second."""
 
-    def __init__(self, steps: int, m: int):
+    def __init__(self, steps: int | None, m: int):
         self.enabled = sys.stderr.isatty()
         self.steps, self.m = steps, m
         self.t0 = self.last = time.monotonic()
@@ -96,7 +100,8 @@ class Progress:
         figure = f"max error {max_err:9.3e}" if xhat is None else progress_text(max_err, xhat, alive_mask)
         self.last = now
         rps = tau / max(now - self.t0, 1e-9)
-        sys.stderr.write(f"\revent {tau:>6}/{self.steps}  {figure}  alive {alive}/{self.m}  "
+        total = "" if self.steps is None else f"/{self.steps}"
+        sys.stderr.write(f"\revent {tau:>6}{total}  {figure}  alive {alive}/{self.m}  "
                          f"{rps:7.1f} rounds/s ")
         if force:
             sys.stderr.write("\n")
@@ -153,6 +158,7 @@ class Orchestrator:
         self.key = new_run_key()
         self.ticks = TickEncoder(self.keys.run_id, mac_key=self.key)  # the network only when it changed
         self.stop_requested = False
+        self.stop_signal: str | None = None  # the signal that asked a run until stopped to stop
         self.children: dict = {}  # pid -> Popen (or forks.ForkedProcess) of the processes this orchestrator started
         self.forks = None  # the agent fork server of a local run (forks.ForkServer), started with the run
 
@@ -270,11 +276,14 @@ class Orchestrator:
                 if self.sc.sources:  # before the row: a flush in between writes both
                     self.rec.live_y(a.tau, a.y)
                 self.rec.row(a.tau, a.x, a.xhat, a.alive, a.graph, gains=gains, attempts=a.attempts,
-                             rejected=a.rejected, wall_ms=(time.monotonic() - a.started) * 1e3, lost=a.lost)
+                             rejected=a.rejected, wall_ms=(time.monotonic() - a.started) * 1e3, lost=a.lost,
+                             late_ms=a.late * 1e3 if math.isfinite(a.late) else None)
+                self.tally.record(a)
                 self.progress.update(a.tau, a.max_error, int(a.alive.sum()), force=a.tau == self.machine.plan.steps,
                                      xhat=a.xhat, alive_mask=a.alive)
             elif kind is A.Event:
-                self.rec.event(a.name, a.t, **a.fields)
+                self.tally.event(a)
+                self.rec.event(a.name, a.t, level=a.level, **a.fields)
             elif kind is A.Log:
                 log.log(logging.WARNING if a.level == "warning" else logging.INFO, "%s", a.message)
             elif kind is A.Topology:
@@ -412,7 +421,8 @@ class Orchestrator:
                             envelope_rate=None if self.des.g_mode == "adaptive" or self.des.excluded
                             else float(self.des.envelope_rate),
                             gains=sc.time == "continuous", positions=sc.positions,
-                            states=sc.state_names if sc.states_named else None, shown=sc.shown_states)
+                            states=sc.state_names if sc.states_named else None, shown=sc.shown_states,
+                            window_rows=WINDOW_ROWS if sc.run.until_stopped else None)
         if self.meas is not None:
             self.rec.set_measurements(sc, self.meas)
         if sc.sources:
@@ -422,8 +432,10 @@ class Orchestrator:
         now = time.monotonic()
         self.machine = m = RoundMachine(sc, self.des, host=HOST, wait=self.wait, round_timeout=self.round_timeout,
                                         spawned=self.spawn_local, now=now)
-        self.progress = Progress(m.plan.steps, sc.m)
+        self.progress = Progress(None if sc.run.until_stopped else m.plan.steps, sc.m)
+        self.tally = RunTally()
         code = EXIT_OK
+        t_run = None
         write_error = None
         t_start = time.monotonic()
         try:
@@ -443,9 +455,10 @@ class Orchestrator:
                                note="no authentication or access control on the router (--insecure, or no "
                                     "--secure DIR); messages are still signed with the run's key")
             self._execute(m.start(time.monotonic()))
-            t_run = None
             while not self.finished:
                 if self.stop_requested:
+                    if sc.run.until_stopped:  # the way such a run ends: as finished
+                        break
                     raise KeyboardInterrupt
                 now = time.monotonic()
                 item = self.inbox.get(timeout=max(0.0, min(POLL_SECONDS, m.next_deadline() - now)))
@@ -461,19 +474,22 @@ class Orchestrator:
                     t_run = time.monotonic()
             secs = time.monotonic() - (t_run or t_start)
             self._execute(m.finish_summaries(time.monotonic()))
-            self.rec.event("run_finished", float(m.plan.steps) * dt, rounds=m.plan.steps, seconds=round(secs, 3),
-                           rounds_per_second=round(m.plan.steps / max(secs, 1e-9), 2),
-                           rejected_messages=m.rejected_total, alive=sorted(m.alive),
+            last = self.tally.last.tau if self.tally.last is not None else 0
+            rounds = m.plan.steps if not sc.run.until_stopped else last
+            reason = "steps" if not sc.run.until_stopped else f"stopped ({self.stop_signal or 'signal'})"
+            self.rec.event("run_finished", float(rounds) * dt, rounds=rounds, reason=reason,
+                           **_summary(self.tally, m, secs), rejected_messages=m.rejected_total, alive=sorted(m.alive),
                            stalled_seconds=round(m.stalled_seconds, 3))
             log.info("run finished: %d event times in %.2f s (%.1f rounds/s), %d messages rejected",
-                     m.plan.steps, secs, m.plan.steps / max(secs, 1e-9), m.rejected_total)
+                     rounds, secs, rounds / max(secs, 1e-9), m.rejected_total)
         except KeyboardInterrupt:
             code = EXIT_INTERRUPTED
-            self.rec.event("run_interrupted", m.t())
+            self._safe_event("run_interrupted", m.t(), **_summary(self.tally, m, time.monotonic() - (t_run or t_start)))
             log.warning("interrupted at event time %d; records written so far are kept", m.tau)
         except RunFailed as exc:
             code = EXIT_FAILED
-            self._safe_event("run_failed", m.t(), reason=str(exc))
+            self._safe_event("run_failed", m.t(), reason=str(exc),
+                             **_summary(self.tally, m, time.monotonic() - (t_run or t_start)))
             print(f"splitspec: error: {exc}", file=sys.stderr)
         except RecordsWriteError as exc:  # the records cannot be kept: stop at once, say what is left
             code = EXIT_FAILED
@@ -549,6 +565,18 @@ class Orchestrator:
                     log.warning("shutdown: closing the Zenoh session: %s", str(exc).split(" at ")[0])
 
 
+def _summary(tally: RunTally, machine: RoundMachine, seconds: float) -> dict:
+    """What the run did (:class:`~splitspec_orchestrator.rounds.tally.RunTally`): the end event's fields."""
+    from splitspec_core.studies.no_truth import disagreement
+
+    def spread(xhat, alive):
+        xh = np.array(xhat, dtype=float)
+        xh[~np.asarray(alive, dtype=bool)] = np.nan
+        return float(disagreement(xh[None])[0])
+
+    return tally.fields(seconds=seconds, pace=machine.pace, disagreement=spread)
+
+
 def main(args: argparse.Namespace) -> int:
     """``splitspec orchestrator SCENARIO --listen ENDPOINT --out DIR [--run-id ID] [--connect ENDPOINT]``."""
     # Rerun's Rust side logs a failed write to stderr; the one line the user gets is ours (RUST_LOG overrides)
@@ -569,8 +597,9 @@ def main(args: argparse.Namespace) -> int:
                         spawn_local=getattr(args, "spawn_local", False),
                         measurements=getattr(args, "measurements", None))
 
-    def on_signal(*_):
+    def on_signal(signum, _frame):
         orch.stop_requested = True
+        orch.stop_signal = signal.Signals(signum).name
         if hasattr(orch, "inbox"):
             orch.inbox.put(("signal", "", b""))
 

@@ -84,7 +84,7 @@ EXIT_ORCHESTRATOR_LOST = 3  #: `splitspec run`'s exit status when the orchestrat
 
 def run_local(scenario: str, out: Path, *, run_id: str, viewer: str | None, wait: float | None,
               round_timeout: float, agent_ids: tuple, verbose: bool = False, secure: bool = True,
-              measurements: str | None = None, sensor_ids: tuple = ()) -> int:
+              measurements: str | None = None, sensor_ids: tuple = (), until_stopped: bool = False) -> int:
     """Start the orchestrator, which starts and parents the plant and the agents; return the exit code.
 
     The orchestrator is their parent, so it sees a process that dies during start-up at once, with
@@ -94,7 +94,8 @@ def run_local(scenario: str, out: Path, *, run_id: str, viewer: str | None, wait
     (``PR_SET_PDEATHSIG``), the records are recovered (:func:`splitspec_orchestrator.records.recover.recover`) and the
     exit status is :data:`EXIT_ORCHESTRATOR_LOST`.  ``sensor_ids``: agents with a live sensor (scenario
     ``sources:``): the orchestrator starts no plant, and a secure run's directory also holds
-    ``sensor-<i>.cred`` for the user's sensor processes (the orchestrator says where).
+    ``sensor-<i>.cred`` for the user's sensor processes (the orchestrator says where).  ``until_stopped``: the
+    scenario runs until stopped, so Ctrl-C or SIGTERM ends it as finished (exit 0), not interrupted (130).
     """
     port = free_port()
     endpoint = f"tcp/127.0.0.1:{port}"
@@ -135,7 +136,7 @@ def run_local(scenario: str, out: Path, *, run_id: str, viewer: str | None, wait
         code = procs[0].wait()
         if code < 0:  # killed by a signal: nothing of its own was said
             return _orchestrator_lost(procs[0].pid, -code, out)
-        return 130 if interrupted and code == 0 else code
+        return 130 if interrupted and code == 0 and not until_stopped else code
     finally:
         stop_all(procs)
         for s, h in old.items():

@@ -38,7 +38,7 @@ from .scenarios.load import ORIGIN, load_scenario, load_yaml
 from .scenarios.specs import Scenario
 from .simulation.simulator import Trajectory
 
-__all__ = ["RunRecord", "RunError", "load_run", "run", "view"]
+__all__ = ["RunRecord", "RunError", "load_run", "run", "view", "read_events", "end_event", "closing_line"]
 
 
 
@@ -60,7 +60,7 @@ class RunRecord:
     scenario : Scenario
         ``out/scenario.yaml``, the scenario the run played
     trajectory : Trajectory
-        ``out/trajectory.npz``: ``t``, ``x`` (NaN rows where the truth is unknown), ``xhat`` (T, m, n), ``alive``,
+        ``out/trajectory.npz`` (or the chunks, ``out/chunks/``): ``t``, ``x`` (NaN rows where the truth is unknown), ``xhat`` (T, m, n), ``alive``,
         ``graph``, ``gains``, ``lost``, and ``y``/``y_missing`` on measurements or live sensors
     events : tuple of dict
         ``out/events.jsonl``, one dict per line (``event``, ``t``, ``wall`` and the event's fields)
@@ -81,10 +81,25 @@ class RunRecord:
         """The events called ``event``, in order."""
         return [e for e in self.events if e.get("event") == event]
 
+    @property
+    def summary(self) -> dict | None:
+        """The event that ended the run (``run_finished``, ``run_interrupted`` or ``run_failed``) with what it did:
+        ``event_times``, ``seconds``, ``rounds_per_second``, ``final_max_error`` or ``final_disagreement``,
+        ``agents_lost``, ``agents_rejoined``, ``messages_lost`` and, paced, ``pace``, ``pace_kept``,
+        ``late_event_times``, ``max_lateness_ms``; None if the run never ended (killed)."""
+        return end_event(self.events)
 
-def _events(path: Path) -> tuple:
+    @property
+    def closing_line(self) -> str | None:
+        """The one line ``splitspec run`` ends with (:func:`closing_line`); None if the run never ended."""
+        end = self.summary
+        return None if end is None else closing_line(end)
+
+
+def read_events(path: str | Path) -> tuple:
+    """``events.jsonl`` as a tuple of dicts (a line torn by a crash is skipped)."""
     out = []
-    for line in path.read_text(encoding="utf-8").splitlines():
+    for line in Path(path).read_text(encoding="utf-8").splitlines():
         try:
             out.append(json.loads(line))
         except ValueError:  # a line torn by a crash (the recorder cuts them back; a copy may still hold one)
@@ -92,23 +107,78 @@ def _events(path: Path) -> tuple:
     return tuple(out)
 
 
-def load_run(out: str | Path) -> RunRecord:
+_END_EVENTS = ("run_finished", "run_interrupted", "run_failed")
+
+
+def end_event(events: Iterable[dict]) -> dict | None:
+    """The event that ended the run (``run_finished``, ``run_interrupted`` or ``run_failed``), None if none."""
+    ends = [e for e in events if e.get("event") in _END_EVENTS]
+    return ends[-1] if ends else None
+
+
+def closing_line(end: dict) -> str:
+    """One line of what a run did, from its end event (:func:`end_event`): how it ended, event times, wall time
+    and rate (against the pace, and whether it was kept), the largest error at the end (or, without truth, the
+    consensus disagreement), agents lost and rejoined, consensus messages that did not count."""
+    how = {"run_finished": "run finished", "run_interrupted": "run interrupted", "run_failed": "run failed"}
+    head = how.get(end.get("event"), str(end.get("event")))
+    if end.get("reason") and end.get("event") == "run_finished" and end["reason"] != "steps":
+        head += f" ({end['reason']})"
+    if "event_times" not in end:  # records of an older splitspec
+        return head
+    first = (f"{end['event_times']} event times in {end.get('seconds', 0):g} s "
+             f"({end.get('rounds_per_second', 0):g} per second")
+    if end.get("pace"):
+        late = end.get("late_event_times", 0)
+        worst = end.get("max_lateness_ms", 0.0)
+        first += (f", pace {end['pace']:g} kept" if end.get("pace_kept", True) else
+                  f", pace {end['pace']:g} NOT kept") + (f": {late} late, up to {worst:g} ms" if late else "")
+    parts = [first + ")"]
+    if end.get("final_max_error") is not None:
+        parts.append(f"largest error at the end {end['final_max_error']:.3g}")
+    elif end.get("final_disagreement") is not None:
+        parts.append(f"consensus disagreement at the end {end['final_disagreement']:.3g} (no truth)")
+    parts.append(f"agents lost {end.get('agents_lost', 0)}, rejoined {end.get('agents_rejoined', 0)}")
+    parts.append(f"consensus messages lost {end.get('messages_lost', 0)}")
+    return f"{head}: " + "; ".join(parts)
+
+
+def load_run(out: str | Path, *, start: float | None = None, end: float | None = None) -> RunRecord:
     """Read a run's records back: any ``splitspec run`` (or orchestrator) output directory.
+
+    The rows come from ``trajectory.npz``, or from the append-only chunks (``chunks/``,
+    :mod:`splitspec_core.simulation.trajectory_chunks`) of a run that went on until stopped, or when a time window
+    is asked for: ``start <= t <= end`` (either may be None), reading only the chunks' segments it overlaps.
+    Where a run has both, they hold the same rows (the chunks may hold a few more of a run that was killed).
 
     Raises
     ------
     ScenarioError
-        One line naming what is missing (``OUT has no trajectory.npz: not a run's output directory``).
+        One line naming what is missing (``OUT has no trajectory.npz or chunks/: not a run's output directory``).
     """
+    from .simulation.trajectory_chunks import has_chunks, read_chunks
+
     out = Path(out)
     if not out.is_dir():
-        raise ScenarioError(f"{out} is not a directory (a run's output directory holds trajectory.npz, "
+        raise ScenarioError(f"{out} is not a directory (a run's output directory holds trajectory.npz or chunks/, "
                             "events.jsonl and scenario.yaml)")
-    for name in ("trajectory.npz", "scenario.yaml", "events.jsonl"):
+    for name in ("scenario.yaml", "events.jsonl"):
         if not (out / name).is_file():
             raise ScenarioError(f"{out} has no {name}: not a run's output directory (or the run never started)")
-    return RunRecord(out=out, scenario=load_scenario(out / "scenario.yaml"),
-                     trajectory=Trajectory.load(out / "trajectory.npz"), events=_events(out / "events.jsonl"))
+    npz = out / "trajectory.npz"
+    windowed = start is not None or end is not None
+    if has_chunks(out) and (windowed or not npz.is_file()):
+        arrays = read_chunks(out, start=start, end=end)
+        traj = Trajectory.from_arrays(arrays)
+    elif npz.is_file():
+        traj = Trajectory.load(npz)
+        if windowed:
+            traj = traj.window(start, end)
+    else:
+        raise ScenarioError(f"{out} has no trajectory.npz or chunks/: not a run's output directory (or the run "
+                            "never recorded a row)")
+    return RunRecord(out=out, scenario=load_scenario(out / "scenario.yaml"), trajectory=traj,
+                     events=read_events(out / "events.jsonl"))
 
 
 def _mapping(sc: Scenario | str | Path) -> dict:

@@ -60,14 +60,24 @@ def cmd_run(args: argparse.Namespace) -> int:
               "that reaches it can connect; messages are still signed with the run's key)", file=sys.stderr)
     code = run_local(str(args.scenario), out, run_id=args.run_id, viewer=viewer, wait=args.wait,
                      round_timeout=args.round_timeout, agent_ids=sc.agent_ids, verbose=args.verbose,
-                     secure=not args.insecure, measurements=args.measurements, sensor_ids=tuple(sc.sensor_keys))
+                     secure=not args.insecure, measurements=args.measurements, sensor_ids=tuple(sc.sensor_keys),
+                     until_stopped=sc.run.until_stopped)
     rrd = out / "run.rrd"
     if rrd.exists():
+        from splitspec_core.runs import end_event, closing_line, read_events
+
         print(f"recording: {rrd}  (open it with: {_splitspec_command()} view {out})")
-        print(f"trajectory: {out / 'trajectory.npz'}  events: {out / 'events.jsonl'}")
+        rows = out / "trajectory.npz" if (out / "trajectory.npz").exists() else out / "chunks"
+        print(f"trajectory: {rows}  events: {out / 'events.jsonl'}")
         _network_line(sc, out)
         if args.measurements or sc.sources:
             _reference_line(out, sensors=not args.measurements)
+        try:
+            end = end_event(read_events(out / "events.jsonl"))
+        except OSError:
+            end = None
+        if end is not None:
+            print(closing_line(end))
     return code
 
 

@@ -206,6 +206,20 @@ def _simulate_summary_text(summary: dict, *, time: str, out) -> str:
     return "\n".join(lines)
 
 
+def _chunked_run(out, sc, lost):
+    """A run whose rows are in its chunks only (it went on until stopped): the consensus messages that did not
+    count (``lost``, when ``trajectory.npz`` gave none) and its last event time (the steps to replay; None for a
+    run of ``run.steps``)."""
+    from splitspec_core.simulation.trajectory_chunks import has_chunks, read_chunks
+
+    if (out / "trajectory.npz").is_file() or not has_chunks(out):
+        return lost, None
+    rows = read_chunks(out)
+    if lost is None and len(rows["lost"]):
+        lost = (rows["lost"], rows["lost_cause"])
+    return lost, (int(rows["tau"][-1]) if sc.run.until_stopped and len(rows["tau"]) else None)
+
+
 def cmd_simulate(args: argparse.Namespace) -> int:
     from splitspec_core.simulation.metrics import event_marks, summarize
     from splitspec_core.synthesis.verdict import rate_certificate
@@ -221,6 +235,9 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 
         events, lost = recorded_run(args.faults_from)
         sc = with_recorded_faults(sc, events)
+        lost, steps = _chunked_run(events.parent, sc, lost)
+        if args.steps is None and steps is not None:
+            args.steps = steps  # a run until stopped: replay as many event times as it recorded
         if lost is None and sc.network.impaired:
             lost = (np.zeros((0, 4), dtype=np.int64), None)  # the run lost nothing: replay that, draw nothing
     if args.measurements or args.write_measurements:

@@ -50,10 +50,10 @@ KF_DISTANCE = "kf_distance"
 KF_DISTANCE_LOG10 = "kf_distance_log10"
 GAINS = "gains"
 ROUNDS = "rounds"
-ROUND_SERIES = ("wall_ms", "attempts", "rejected", "lost")
+ROUND_SERIES = ("wall_ms", "attempts", "rejected", "lost", "late_ms")  # late_ms: behind run.pace (paced runs)
 # mid-tone colours, drawn on the light theme as on the dark one; lost: the red of the dashed arcs
 ROUND_COLORS = {"wall_ms": (31, 119, 180), "attempts": (44, 160, 44), "rejected": (255, 127, 14),
-                "lost": (214, 39, 40)}
+                "lost": (214, 39, 40), "late_ms": (148, 103, 189)}
 MARKS = "marks"
 TOPOLOGY = "topology"
 TOPOLOGY_GRAPH = "topology/graph"

@@ -36,8 +36,8 @@ class RowBatch:
 
     ``show``: where an agent's values are logged (alive, finite); ``clear``:
     where a value shown by an earlier batch is no longer true (Clear).
-    ``env``: the designed envelope, NaN where none; ``rounds``: (L, 4) wall ms,
-    attempts, rejected, consensus messages lost (NaN unknown).
+    ``env``: the designed envelope, NaN where none; ``rounds``: (L, 5) wall ms,
+    attempts, rejected, consensus messages lost, lateness against ``run.pace`` in ms (NaN unknown).
     """
 
     seq: np.ndarray

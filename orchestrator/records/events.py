@@ -75,9 +75,12 @@ _TEXTS = {
     "sensor_back": lambda f: f"agent {f.get('agent')}'s sensor back at event time {f.get('tau')} (silent for "
                              f"{f.get('silent')} event times)",
     "round_retried": lambda f: f"round {f.get('tau')} re-run (attempt {f.get('attempt')}; late: {f.get('late')})",
-    "run_started": lambda f: f"run started ({len(f.get('agents', []))} agents, {f.get('steps')} steps)",
+    "run_started": lambda f: f"run started ({len(f.get('agents', []))} agents, "
+                             + (f"{f['steps']} steps)" if f.get("steps") is not None else "until stopped)"),
     "run_finished": lambda f: f"run finished ({f.get('rounds')} rounds in {f.get('seconds')} s)",
     "run_interrupted": lambda f: "run interrupted",
+    "pace_not_kept": lambda f: f"cannot keep pace {f.get('pace')}: {f.get('achieved_rate')} event times per second, "
+                               f"{f.get('late_ms')} ms behind; limited by {f.get('limit')}",
     "orchestrator_started": lambda f: f"orchestrator started (pid {f.get('pid')})",
     "orchestrator_stalled": lambda f: f"orchestrator frozen for {f.get('seconds')} s",
     "recording_closed": lambda f: f"recording closed ({f.get('rows')} rows"

@@ -37,6 +37,7 @@ from typing import Callable
 import numpy as np
 
 from splitspec_core.errors import SplitspecError
+from splitspec_core.simulation.trajectory_chunks import ChunkWriter
 from splitspec_core.simulation.trajectory_file import TRAJECTORY_FILE, lost_arrays, write_trajectory
 
 from ..recording.sink import RRD_FILE, RerunSink
@@ -115,11 +116,20 @@ class RecordFiles:
     failure : the recorder's :class:`WriteFailure`
     sink : the recorder's :class:`RerunSink`, None without Rerun (and once the recorder has dropped it)
     states : the states' names (``trajectory.npz``'s ``states``)
+    y_rows : ``y_rows(taus)``: ``(y, y_missing)`` of those event times on measurements or live sensors, else None
+    npz : keep ``trajectory.npz`` (rewritten); False: a run until stopped, whose rows are only in the chunks
+    dt : the sampling step (1 in discrete time)
     """
 
     def __init__(self, out_dir: Path, *, agent_ids: np.ndarray, taken: RowStore, lost: dict,
-                 extra: Callable[[int], dict], failure, sink: RerunSink | None, states: tuple = ()):
+                 extra: Callable[[int], dict], failure, sink: RerunSink | None, states: tuple = (),
+                 y_rows: Callable | None = None, npz: bool = True, dt: float = 1.0):
         self.out_dir = out_dir
+        self.npz = bool(npz)
+        self._y_rows = y_rows
+        self.chunks: ChunkWriter | None = None  # made at the first append (the width of y is known then)
+        self._dt = float(dt)
+        self.chunk_rows = 0  # rows (counted from the run's first) the chunks hold on disk
         self.states = tuple(states)
         self.agent_ids = agent_ids
         self._d = taken
@@ -129,7 +139,7 @@ class RecordFiles:
         self.sink = sink
         self.rrd_path = out_dir / RRD_FILE
         self.npz_rows = 0  # rows trajectory.npz holds on disk
-        self.rrd_rows = 0  # rows run.rrd holds on disk
+        self.rrd_rows = 0  # rows run.rrd holds on disk (counted from the run's first, like chunk_rows)
         self.npz_dirty = False  # rows taken since trajectory.npz was last written (under the recorder's _io)
 
     def last_tau(self) -> int | None:
@@ -146,11 +156,37 @@ class RecordFiles:
             self.sink.write_pending()
         except OSError as exc:
             raise self._failure.fail(self.rrd_path, exc, self.last_tau()) from None
-        self.rrd_rows = taken
+        self.rrd_rows = self._d.base + taken
+
+    def append_chunk(self, K: np.ndarray) -> None:
+        """Append the taken rows ``K`` (and the consensus messages of their event times that did not count) to the
+        chunks, one record batch (:class:`~splitspec_core.simulation.trajectory_chunks.ChunkWriter`)."""
+        D = self._d
+        if len(K):
+            taus = D.tau[K]
+            ys = self._y_rows(taus) if self._y_rows is not None else None
+            if self.chunks is None:
+                self.chunks = ChunkWriter(self.out_dir, agent_ids=self.agent_ids, states=self.states, n=D.n,
+                                          dt=self._dt, p=0 if ys is None else ys[0].shape[1])
+            cols = {"tau": taus, "t": D.t[K], "x": D.x[K], "xhat": D.xhat[K], "alive": D.alive[K],
+                    "graph": D.graph[K], "g": D.g[K], "wall": D.wall[K], "round": D.round[K],
+                    "lost": [[r[1:] for r in self._lost.get(int(tau), ())] for tau in taus.tolist()]}
+            if ys is not None and self.chunks.p:
+                cols["y"], cols["y_missing"] = ys
+            try:
+                self.chunks.append(cols)
+            except OSError as exc:
+                path = self.chunks.path or self.out_dir / "chunks"
+                raise self._failure.fail(path, exc, int(taus.max())) from None
+        self.chunk_rows = D.base + D.rows
 
     def write_trajectory(self, rows: int | None = None) -> None:
-        """Atomically (re)write ``trajectory.npz`` with the first ``rows`` rows taken (default: all)."""
+        """Atomically (re)write ``trajectory.npz`` with the first ``rows`` rows taken (default: all); nothing
+        for a run until stopped (no ``trajectory.npz``: its rows are in the chunks)."""
         D = self._d
+        if not self.npz:
+            self.npz_dirty = False
+            return
         T = D.rows if rows is None else rows
         path = self.out_dir / TRAJECTORY_FILE
         try:
@@ -165,12 +201,24 @@ class RecordFiles:
         if T == D.rows:
             self.npz_dirty = False
 
+    @property
+    def kept_rows(self) -> int:
+        """Rows of the record of rows on disk: ``trajectory.npz``'s, or the chunks' for a run until stopped."""
+        return self.npz_rows if self.npz else self.chunk_rows
+
+    def _tau(self, K: int) -> int | None:
+        """The event time of the run's row ``K - 1`` if it is held (a run until stopped holds a window)."""
+        k = K - 1 - self._d.base
+        return int(self._d.tau[k]) if 0 <= k < self._d.rows else None
+
     def salvage(self) -> int:
         """After a write failure and the last flush: make the rows on disk agree.  Never raises.
 
         Returns K = all rows if ``run.rrd`` and ``trajectory.npz`` could be written, else the rows both hold
         on disk (``trajectory.npz`` is cut to them if it holds more and can be rewritten).
         """
+        if not self.npz:  # a run until stopped: the chunks are never cut (append only), run.rrd is
+            return min(self.rrd_rows, self.chunk_rows) if self.sink is not None else self.chunk_rows
         if self.sink is None:
             return self.npz_rows
         K = min(self.rrd_rows, self.npz_rows)
@@ -185,7 +233,7 @@ class RecordFiles:
         """After a write failure: finish ``run.rrd`` and cut ``trajectory.npz`` to K rows, or to fewer (a tenth
         less each try) when the rewrites do not fit on the full disk.  The trajectory is cut first: a shorter
         trajectory frees room for the rrd's rewrite.  Returns the rows kept (what the close event states)."""
-        if self.sink is None or K == 0:
+        if self.sink is None or K == 0 or not self.npz:
             self.finish_rrd(K)
             return K
         for _ in range(40):
@@ -227,9 +275,10 @@ class RecordFiles:
         if self.sink is None:
             return
         cutoff = None
-        if self._failure.error is not None or K < self._d.rows:
-            cutoff = int(self._d.tau[K - 1]) + 1 if K else 0
+        if self._failure.error is not None or K < self._d.base + self._d.rows:
+            tau = self._tau(K)
+            cutoff = 0 if not K else (tau + 1 if tau is not None else None)
         try:
             self.sink.finish(cutoff)
         except OSError as exc:
-            self._failure.fail(self.rrd_path, exc, int(self._d.tau[K - 1]) if K else None)
+            self._failure.fail(self.rrd_path, exc, self._tau(K))

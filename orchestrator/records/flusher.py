@@ -108,10 +108,14 @@ class Flusher:
     flush_seconds : period of the background flushes; ``0``: none, every call flushes (:meth:`write_through`)
     started : ``time.monotonic()`` when the recorder started (the first background flush comes
         ``flush_seconds`` after it)
+    window : None: hold every row; a number: once more than twice this many rows are held, forget the oldest
+        written ones down to this many (:meth:`trim`; a run that goes on until stopped)
     """
 
     def __init__(self, rows: RowStore, writer: RecordWriter, failure: WriteFailure, reserve: Reserve, *,
-                 io: threading.RLock, lock: threading.RLock, lost: dict, flush_seconds: float, started: float):
+                 io: threading.RLock, lock: threading.RLock, lost: dict, flush_seconds: float, started: float,
+                 window: int | None = None):
+        self.window = None if window is None else max(1, int(window))
         self.rows, self.writer, self.failure, self.reserve = rows, writer, failure, reserve
         self.io, self.lock = io, lock
         self.lost = lost
@@ -283,7 +287,34 @@ class Flusher:
                     self.failure.reported = False
             except Exception as exc:
                 log.warning("background flush failed (%s: %s)", type(exc).__name__, exc)
+            else:
+                self.trim()
         return True
+
+    def trim(self) -> None:
+        """A run that goes on until stopped (``window``): once more than ``2 window`` rows are held, forget the
+        oldest down to ``window`` -- only rows a flush took and wrote, and none changed since -- in both the rows
+        recorded and the rows taken (same indices), with their consensus messages that did not count.  ``io``
+        held, right after a successful write."""
+        W = self.window
+        if W is None:
+            return
+        with self.lock:
+            S, D = self.rows, self.writer.rows
+            if S.rows <= 2 * W:
+                return
+            d = min(S.rows - W, self.taken, min(self.changed, default=self.taken))
+            if d <= 0:
+                return
+            S.drop(d)
+            D.drop(d)
+            self.taken -= d
+            self.changed = {k - d for k in self.changed}
+            if self.request is not None:
+                self.request = max(0, self.request - d)
+            first = int(S.tau[0]) if S.rows else None
+            for tau in [t for t in self.lost if first is None or t < first]:
+                del self.lost[tau]
 
     def flush(self, *, final: bool = False) -> None:
         """Take what was recorded (under ``lock``, memory only), then write it out (``io`` held, not ``lock``).
@@ -301,6 +332,8 @@ class Flusher:
             with self.lock:
                 taken = self.take(None, final=final)
             self.writer.write(*taken)
+            if not final:
+                self.trim()
 
     def take(self, upto: int | None, *, final: bool = False) -> tuple:
         """Copy the rows recorded since the last flush (and changed ones) into the taken rows; take the

@@ -86,6 +86,13 @@ class MeasuredRecords:
         with self._lock:
             self._live[int(tau)] = (y, missing)
 
+    def y_rows(self, taus: np.ndarray):
+        """``(y, y_missing)`` of event times ``taus`` on measurements or live sensors (the chunks' columns), else
+        None."""
+        if self.source is None:
+            return None
+        return self.source[1].measurements(np.asarray(taus).astype(int))
+
     def row_errors(self, K: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``|x_i - x|`` of rows ``K`` and where a row shows agent i: alive with a finite error, or without the
         truth (whose errors are never logged) alive with a finite estimate."""

@@ -87,6 +87,7 @@ class Recorder:
     states : the states' names (``system.states``): the ``state/<name>/...`` entities and ``trajectory.npz``'s
         ``states``; None: ``state/<k>/...`` and ``x1 .. xn``
     gains : log ``gains/agent_<id>`` (continuous time)
+    window_rows : None: hold every row; a number (a run until stopped): no ``trajectory.npz``, ~2x that held
     positions : ``{agent id: (x, y)}`` of the topology's nodes (None: a circle)
 
     Raises
@@ -101,7 +102,7 @@ class Recorder:
                  viewer_port: int = DEFAULT_VIEWER_PORT, connect_timeout: float = 1.0,
                  reserve_bytes: int = RESERVE_BYTES, envelope_rate: float | None = None, gains: bool = False,
                  positions: Mapping[int, tuple[float, float]] | None = None, states: tuple | None = None,
-                 shown: tuple | None = None):
+                 shown: tuple | None = None, window_rows: int | None = None):
         ids = check_run(agent_ids=agent_ids, n=n, time_mode=time_mode, dt=dt, graph_names=graph_names,
                         flush_seconds=flush_seconds, envelope_rate=envelope_rate, positions=positions)
 
@@ -151,7 +152,8 @@ class Recorder:
         # trajectory.npz and run.rrd (self._rec is its sink), written by the flushes
         files = RecordFiles(self.out_dir, agent_ids=self.agent_ids, taken=taken, lost=self._lost,
                             extra=self._meas.arrays, failure=self._failed, sink=sink,
-                            states=names or default_state_names(self.n))
+                            states=names or default_state_names(self.n), y_rows=self._meas.y_rows,
+                            npz=window_rows is None, dt=self.dt if time_mode == "continuous" else 1.0)
         self._w = RecordWriter(taken, files, self._meas, self._events, self._failed, self._lock,
                                envelope_rate=self.envelope_rate, time_mode=time_mode, dt=self.dt)
         if sink is not None:
@@ -159,7 +161,8 @@ class Recorder:
         self._reserve = Reserve(self.out_dir, reserve_bytes)
         # what the callers record (the buffer, self._s) and the flushes, on a background thread with flush_seconds > 0
         self._f = Flusher(self._s, self._w, self._failed, self._reserve, io=self._io, lock=self._lock,
-                          lost=self._lost, flush_seconds=self.flush_seconds, started=started)
+                          lost=self._lost, flush_seconds=self.flush_seconds, started=started,
+                          window=window_rows)
 
     # ------------------------------------------------------------------ time helpers
 
@@ -193,7 +196,8 @@ class Recorder:
     @property
     def rows_recorded(self) -> int:
         """Number of rows (distinct event times) recorded so far: T of ``trajectory.npz``."""
-        return self._s.rows
+        return self._s.base + self._s.rows
+
 
     @property
     def rows_kept(self) -> int:
@@ -253,12 +257,12 @@ class Recorder:
 
     def row(self, tau: int, x: np.ndarray, xhat: np.ndarray, alive: np.ndarray, graph: int, *,
             gains: np.ndarray | None = None, wall_ms: float | None = None, attempts: int | None = None,
-            rejected: int | None = None, lost=None) -> None:
+            rejected: int | None = None, lost=None, late_ms: float | None = None) -> None:
         """Record event time ``tau``: ``x`` (n,), ``xhat`` (m, n), ``alive`` (m,) bool, graph index.
 
         ``gains`` (m,): each agent's ``g_i(tau)`` (None: no gain, discrete
         time); ``wall_ms``, ``attempts``, ``rejected``: the round's
-        diagnostics (``rounds/...``), None if unknown; ``lost``: the round's
+        diagnostics (``rounds/...``), None if unknown, and ``late_ms`` behind ``run.pace``; ``lost``: the round's
         consensus messages that did not count, rows ``(tau, k, j, i, cause)``
         (``trajectory.npz`` ``lost``/``lost_cause``; their count is ``rounds/lost``;
         None: unknown, as in a recorder fed by hand).
@@ -273,7 +277,7 @@ class Recorder:
         x, xhat, alive, g = check_row(self.m, self.n, len(self.graph_names), x, xhat, alive, graph, gains,
                                       self._no_gains)
         diag = [np.nan if v is None else float(v) for v in (wall_ms, attempts, rejected,
-                                                             None if lost is None else len(lost))]
+                                                             None if lost is None else len(lost), late_ms)]
         with self._lock:
             if lost is not None:
                 self._lost[tau] = tuple(tuple(int(v) for v in r) for r in lost)

@@ -2,16 +2,20 @@
 
 Row ``k`` holds event time ``tau[k]``: ``t`` (T,), ``x`` (T, n), ``xhat``
 (T, m, n) NaN where dead, ``alive`` (T, m), ``graph`` (T,), ``g`` (T, m) NaN
-where dead or none, ``round`` (T, 4) wall ms / attempts / rejected / lost, ``wall``
+where dead or none, ``round`` (T, 5) wall ms / attempts / rejected / lost / late ms
+(:data:`splitspec_core.simulation.trajectory_chunks.ROUND_FIELDS`), ``wall``
 (T,) ``time.time_ns()`` of the row's last arrival; ``shown``/``shown_max``:
 what Rerun currently shows (retracted with a Clear when it stops being
-true); ``env_start``: the row where the designed envelope's piece of row k
-starts.  ``rows`` = T.  No I/O and no lock: the recorder holds its locks.
+true); ``env_c``/``env_t0``: the max error and the time where the designed envelope's piece of
+row k starts.  ``rows`` = T.  No I/O and no lock: the recorder holds its locks.
+
+A run that goes on until stopped keeps a window of rows: :meth:`RowStore.drop` forgets the first rows once
+they are on disk; ``base`` counts them (row ``k`` is the run's row ``base + k``).
 
 The recorder keeps two: the rows as its callers record them, and the rows as
 its flushes took them (:meth:`RowStore.take`), which the flushes write out
 while the callers go on recording; ``shown``, ``shown_max`` and ``env_start``
-are only kept up to date in the second.
+are only kept up to date in the second (``env_c``, ``env_t0`` likewise).
 """
 
 from __future__ import annotations
@@ -19,6 +23,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
+
+from splitspec_core.simulation.trajectory_chunks import ROUND_FIELDS
 
 __all__ = ["RowStore"]
 
@@ -37,12 +43,14 @@ class RowStore:
         self.tau = np.zeros(cap, dtype=np.int64)
         self.wall = np.zeros(cap, dtype=np.int64)  # time.time_ns() of the row's (last) arrival
         self.g = np.full((cap, m), np.nan)  # g_i(tau), NaN where dead or none
-        self.round = np.full((cap, 4), np.nan)  # round diagnostics: wall ms, attempts, rejected, lost
-        self.env_start = np.zeros(cap, dtype=np.int64)  # row where the envelope's piece of the row starts
+        self.round = np.full((cap, len(ROUND_FIELDS)), np.nan)  # wall ms, attempts, rejected, lost, late ms
+        self.env_c = np.full(cap, np.nan)  # the envelope's piece of the row: its max error at the piece's start
+        self.env_t0 = np.zeros(cap)  # and the time of that start
         # What is currently shown in Rerun per row (to retract with Clear when it stops being true).
         self.shown = np.zeros((cap, m), dtype=bool)
         self.shown_max = np.zeros(cap, dtype=bool)
         self.rows = 0
+        self.base = 0  # rows forgotten before row 0 (drop)
         self.row_of_tau: dict[int, int] = {}
 
     def append_slot(self, tau: int) -> int:
@@ -75,7 +83,7 @@ class RowStore:
             self.grow(max(2 * cap, int(capacity)))
 
     _FILL = {"t": 0.0, "x": 0.0, "xhat": np.nan, "alive": False, "graph": 0, "tau": 0, "wall": 0, "g": np.nan,
-             "round": np.nan, "env_start": 0, "shown": False, "shown_max": False}
+             "round": np.nan, "env_c": np.nan, "env_t0": 0.0, "shown": False, "shown_max": False}
 
     def spare(self, capacity: int) -> dict[str, np.ndarray]:
         """Empty columns for ``capacity`` rows, filled (the memory touched): for :meth:`adopt`, later.
@@ -117,23 +125,39 @@ class RowStore:
         return e if math.isfinite(e) else math.nan
 
     def envelope(self, K: np.ndarray, lam: float | None, time_mode: str) -> np.ndarray:
-        """The designed envelope at rows ``K`` (sorted; every earlier row already has its piece's start).
+        """The designed envelope at rows ``K`` (sorted; every earlier row already has its piece).
 
-        Row k starts a piece when k = 0, its alive set gains an agent, or its graph changed
+        Row k starts a piece when it is the run's first, its alive set gains an agent, or its graph changed
         (:func:`splitspec_core.simulation.metrics.envelope_restarts`); on a piece started at k0:
-        ``c lam^(t - t_k0)`` or ``c exp(-lam (t - t_k0))``, ``c`` the max error at k0.
+        ``c lam^(t - t_k0)`` or ``c exp(-lam (t - t_k0))``, ``c`` the max error at k0.  The first row of a
+        window (``base > 0``) keeps the piece it had.
         """
         env = np.full(len(K), np.nan)
         for r, k in enumerate(K.tolist()):
-            restart = k == 0 or bool((self.alive[k] & ~self.alive[k - 1]).any()) \
-                or self.graph[k] != self.graph[k - 1]
-            self.env_start[k] = k0 = k if restart else self.env_start[k - 1]
+            if k == 0 and self.base:
+                pass  # its row before is forgotten: its piece stays as computed
+            elif k == 0 or bool((self.alive[k] & ~self.alive[k - 1]).any()) or self.graph[k] != self.graph[k - 1]:
+                self.env_c[k], self.env_t0[k] = self.max_error(k), self.t[k]
+            else:
+                self.env_c[k], self.env_t0[k] = self.env_c[k - 1], self.env_t0[k - 1]
             if lam is None:
                 continue
-            c, dt = self.max_error(int(k0)), self.t[k] - self.t[k0]
+            c, dt = float(self.env_c[k]), self.t[k] - self.env_t0[k]
             if math.isfinite(c) and c > 0:
                 env[r] = c * (math.exp(-lam * dt) if time_mode == "continuous" else lam ** dt)
         return env
+
+    def drop(self, d: int) -> None:
+        """Forget the first ``d`` rows (on disk already): the others move to the front, ``base`` grows by ``d``."""
+        d = min(int(d), self.rows)
+        if d <= 0:
+            return
+        keep = self.rows - d
+        for name in self._FILL:
+            a = getattr(self, name)
+            a[:keep] = a[d:self.rows]
+        self.rows, self.base = keep, self.base + d
+        self.row_of_tau = {int(tau): k for k, tau in enumerate(self.tau[:keep].tolist())}
 
     def mark_y(self, tau: int) -> float:
         """Height of a mark at ``tau`` on the log10 error axis: log10 of the max error at (or before) ``tau``.

@@ -148,12 +148,13 @@ class RecordWriter:
         files = self.files
         if len(K) or logs or (sink is not None and sink.pending):
             files.append_rrd()
-        if trajectory and (files.npz_dirty or files.npz_rows != D.rows):
+        files.append_chunk(K)  # after run.rrd: the chunks never hold an event time run.rrd lacks
+        if files.npz and trajectory and (files.npz_dirty or files.npz_rows != D.rows):
             t0 = time.monotonic()
             files.write_trajectory()
             self.npz_next = time.monotonic() + (time.monotonic() - t0) * (1 - _NPZ_DUTY) / _NPZ_DUTY
         with self._lock:
-            self.rows_kept = min(files.npz_rows, files.rrd_rows) if sink is not None else files.npz_rows
+            self.rows_kept = min(files.kept_rows, files.rrd_rows) if sink is not None else files.kept_rows
 
     def _batch(self, K: np.ndarray, err: np.ndarray, show: np.ndarray) -> RowBatch:
         """Rows ``K`` (taken) as the sink logs them."""
@@ -176,7 +177,9 @@ class RecordWriter:
         if failure is not None:
             K = self.rows_kept = self.files.finish_rrd_fitting(K)
         fields: dict[str, Any] = {"finished": ok, "rows": K}
-        t = float(self.rows.t[K - 1]) if K else 0.0
+        last = K - 1 - self.rows.base  # the row K - 1 in the rows held (a run until stopped holds a window)
+        t = float(self.rows.t[last]) if K and 0 <= last < self.rows.rows else (
+            float(self.rows.t[self.rows.rows - 1]) if self.rows.rows else 0.0)
         if failure is not None:
             fields["error"] = str(failure)
             try:

@@ -6,6 +6,8 @@ losses, retries, restarts, the faults between rounds) and its :class:`Phase`; it
 small collaborators: ``claims.py`` (the claim identity and the process table), ``liveness.py`` (spawned,
 frozen and restarted processes, silent sensors, the orchestrator's own freezes), ``rejections.py``
 (rejected messages, summarised), ``topology.py`` (the agents' network and the survivors' verdict) and
-``collected.py`` (the round in flight's truth and estimates).  Nothing here opens a socket, a file or a
+``collected.py`` (the round in flight's truth and estimates), ``pace.py`` (each event time's lateness against
+``run.pace``, the warning when the run falls behind); ``tally.py`` counts what the run did for the shell (its
+end event and closing line).  Nothing here opens a socket, a file or a
 process; each module imports only ``actions.py`` of its neighbours, but ``machine.py`` which imports them all.
 """

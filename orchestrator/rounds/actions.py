@@ -45,6 +45,7 @@ class Record:
     started: float = math.nan  # `now` of the round's first tick (driver clock)
     lost: tuple = ()  # (tau, k, j, i, cause) of every consensus message of the round that did not count
     y: tuple = ()  # live sensors: (agent id, y_i(tau) used or None) of the agents alive
+    late: float = math.nan  # seconds the round started behind run.pace (NaN: unpaced)
 
     @property
     def max_error(self) -> float:
@@ -73,6 +74,7 @@ class Event:
     name: str
     t: float
     fields: dict = field(default_factory=dict)
+    level: str | None = None  # None: the recorder's rule (WARN when the name says lost/rejected/error/failed)
 
 
 @dataclass(frozen=True)

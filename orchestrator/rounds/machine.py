@@ -72,6 +72,7 @@ is in the collaborators above, and this module is that class and its docstring o
 from __future__ import annotations
 
 import math
+import os
 from enum import Enum
 
 import numpy as np
@@ -84,6 +85,7 @@ from .actions import (Control, Event, Finished, Log, QueryStatus, Record, Regist
 from .claims import ClaimTable, describe_status
 from .collected import Collected
 from .liveness import PROBE_ANSWER_SECONDS, PROBE_SECONDS, Liveness
+from .pace import PaceWatch
 from .rejections import Rejections
 from .topology import TopologyState
 
@@ -104,6 +106,10 @@ class Phase(str, Enum):
     ROUND = "round"  # a round in flight
     STATUS = "status"  # a status query in flight (answered by on_status)
     DONE = "done"
+
+
+#: the plan's length of a run that goes on until stopped (``run.until_stopped``): never reached
+ENDLESS = 1 << 62
 
 
 # ---------------------------------------------------------------------- the machine
@@ -130,7 +136,8 @@ class RoundMachine:
         #: live sensors (scenario sources:): no plant process, no truth (x recorded as NaN)
         self.plantless = bool(getattr(sc, "sources", None))
         self.dt = sc.run.dt if sc.time == "continuous" else 1.0
-        self.plan = make_plan(sc, sc.run.seed, sequence=False)  # O(1) memory: steps may be huge
+        # O(1) memory: steps may be huge, or endless (run.steps omitted: the run goes on until stopped)
+        self.plan = make_plan(sc, sc.run.seed, ENDLESS if sc.run.until_stopped else None, sequence=False)
         self.identity = ClaimTable(sc.agent_ids, wait=self.wait, plantless=self.plantless)  # claims, process table
         self.live = Liveness(now, host=host)  # children, frozen processes, pending losses, sensors, the stall clock
         self.rejections = Rejections(now)
@@ -152,6 +159,9 @@ class RoundMachine:
         self.gains = np.full(sc.m, g_start)
         self.t_run = None
         self.round_started = math.nan  # `now` of the round in flight's first tick (for Record)
+        self.round_late = math.nan  # how late it started against run.pace (seconds; NaN unpaced)
+        self.last_in: int | None = None  # the agent whose estimate came last in the round in flight
+        self.pace = PaceWatch.of(sc, des, cores=os.cpu_count())  # run.pace: each event time's lateness, or None
 
     # the collaborators' state, where the shell and the tests read it
     claims = property(lambda self: self.identity.claims, doc="(role, ident) -> :class:`.claims.Claim`")
@@ -322,7 +332,7 @@ class RoundMachine:
             return out
         self.quiet_since = now
         if tau == self.tau + 1:
-            self.gains[self.index[aid]] = g
+            self.gains[self.index[aid]], self.last_in = g, aid
         return out + self._progress(now)
 
     # ------------------------------------------------------------------ timers and status
@@ -455,7 +465,8 @@ class RoundMachine:
         self.tau = 0
         self.faults_left = list(self.plan.faults.get(0, ()))
         self.phase = Phase.BETWEEN
-        return [Event("run_started", 0.0, {"agents": list(self.sc.agent_ids), "steps": self.plan.steps})]
+        steps = None if self.sc.run.until_stopped else self.plan.steps  # None: until stopped
+        return [Event("run_started", 0.0, {"agents": list(self.sc.agent_ids), "steps": steps})]
 
     def _between(self, now: float) -> list:
         """Pending losses, then the faults due at tau (one at a time: a restart waits), then admissions."""
@@ -504,6 +515,8 @@ class RoundMachine:
         self.attempt = 0
         self.retried = False
         self.round_started = now
+        if self.sc.run.pace:  # its time was t_run + tau / pace (the PACING deadline)
+            self.round_late = max(0.0, now - (self.t_run + self.tau / self.sc.run.pace))
         return self._tick(now)
 
     def _rerun(self, now: float) -> list:
@@ -527,7 +540,10 @@ class RoundMachine:
         x, xh, mask, gains, lost, used = self.collected.take(self.tau, self.alive)
         out = [Record(self.tau, x, xh, mask, self.plan.graph_at(self.tau), gains, attempts=self.attempt + 1,
                       rejected=self.rejections.since_record(), started=self.round_started, lost=lost,
-                      y=tuple((a, used.get(a)) for a in sorted(self.alive)))]
+                      y=tuple((a, used.get(a)) for a in sorted(self.alive)), late=self.round_late)]
+        if self.pace is not None:
+            out += self.pace.observe(self.tau, self.round_late, self.round_started, now, self.last_in, self.t())
+        self.last_in = None
         if self.plantless and self.tau < self.plan.steps:  # the last tick takes no measurement
             out += self.live.sensor_events(self.alive, used, self.tau, self.t())
         if lost:  # one line per event time, never one per message

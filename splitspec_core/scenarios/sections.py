@@ -8,8 +8,6 @@ one-line :class:`~splitspec_core.errors.ScenarioError` naming the key.
 
 from __future__ import annotations
 
-import dataclasses
-
 from pathlib import Path
 from typing import Any
 
@@ -323,7 +321,7 @@ def _parse_show(raw: Any, names: tuple) -> tuple | None:
     return tuple(items)
 
 
-def _parse_run(raw: Any, time: str, names: tuple = ()) -> RunSpec:
+def _parse_run(raw: Any, time: str, names: tuple = (), live: bool = False) -> RunSpec:
     if raw is None:
         raw = {}
     rmap = require_map(raw, "run")
@@ -342,7 +340,7 @@ def _parse_run(raw: Any, time: str, names: tuple = ()) -> RunSpec:
         pace = check_number(rmap["pace"], "run.pace")
         if pace < MIN_PACE:
             raise ScenarioError(f"run.pace must be >= {MIN_PACE:g} event times per second, got {pace:g}")
-    return RunSpec(steps=steps, dt=dt, seed=seed, pace=pace, show=_parse_show(rmap.get("show"), names))
+    return RunSpec(steps, dt, seed, pace, _parse_show(rmap.get("show"), names), "steps" not in rmap and bool(pace or live))
 
 
 def parse_scenario(data: Any, *, source: str = "<scenario>", base: Path | None = None) -> Scenario:
@@ -375,14 +373,12 @@ def parse_scenario(data: Any, *, source: str = "<scenario>", base: Path | None =
         raise ScenarioError("design is missing (at least design.rate)")
     design = _parse_design(top["design"], time, system, ids)
     faults = _parse_faults(top.get("faults"), ids)
-    run = _parse_run(top.get("run"), time, system.states or default_state_names(system.n))
+    run = _parse_run(top.get("run"), time, system.states or default_state_names(system.n), bool(top.get("sources")))
     _check_switching_against_step(switching, run)
     positions = _parse_positions(top.get("positions"), ids)
     network = parse_network(top.get("network"), ids, graphs)
     sources = parse_sources(top.get("sources"), ids, run.pace)
     input_source = parse_input_source(top.get("sources"), run.pace, system.inputs)
-    if (run.pace or sources) and "steps" not in (top.get("run") or {}):
-        run = dataclasses.replace(run, until_stopped=True)  # a deployment: it runs until stopped
     return Scenario(
         name=name, time=time, agent_ids=ids, system=system, graphs=graphs,
         switching=switching, design=design, faults=faults, run=run, source=source, positions=positions,

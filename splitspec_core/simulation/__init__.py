@@ -2,6 +2,7 @@
 
 ``simulator.py`` the batch simulator (the same pure steps as the agent processes: run == simulate),
 ``montecarlo.py`` many seeds of one design as one batch, ``trajectory_file.py`` the ``trajectory.npz``
-contract, ``metrics.py`` what a trajectory shows (errors, decay fits, envelopes, steady RMS, summaries).
+contract, ``trajectory_chunks.py`` a run's rows as append-only Arrow chunks (the one module here that imports
+``pyarrow``, when it reads or writes them), ``metrics.py`` what a trajectory shows (errors, decay fits, envelopes, steady RMS, summaries).
 Imports ``scenarios``, ``model`` and ``synthesis``.
 """

@@ -22,6 +22,8 @@ would be spread over files.
 
 from __future__ import annotations
 
+import dataclasses
+
 import os
 import sys
 import time as _time
@@ -124,10 +126,37 @@ class Trajectory:
     @classmethod
     def load(cls, path: str | Path) -> "Trajectory":
         with np.load(path) as f:
-            extra = {k: f[k] for k in ("lost", "lost_cause", "y", "y_missing") if k in f.files}
-            states = tuple(str(s) for s in f["states"]) if "states" in f.files else None
-            return cls(t=f["t"], x=f["x"], xhat=f["xhat"], alive=f["alive"], graph=f["graph"],
-                       agent_ids=f["agent_ids"], gains=f["g"] if "g" in f.files else None, states=states, **extra)
+            return cls.from_arrays({k: f[k] for k in f.files})
+
+    @classmethod
+    def from_arrays(cls, a: dict) -> "Trajectory":
+        """From the arrays of the contract (``trajectory.npz``'s, or
+        :func:`~splitspec_core.simulation.trajectory_chunks.read_chunks`'s; other keys are ignored)."""
+        extra = {k: a[k] for k in ("lost", "lost_cause", "y", "y_missing") if k in a}
+        states = tuple(str(s) for s in a["states"]) if "states" in a else None
+        return cls(t=a["t"], x=a["x"], xhat=a["xhat"], alive=a["alive"], graph=a["graph"], agent_ids=a["agent_ids"],
+                   gains=a.get("g"), states=states, **extra)
+
+    def window(self, start: float | None = None, end: float | None = None) -> "Trajectory":
+        """The rows with ``start <= t <= end`` (None: no bound), and the lost messages of their event times."""
+        keep = np.ones(len(self.t), dtype=bool)
+        if start is not None:
+            keep &= self.t >= start
+        if end is not None:
+            keep &= self.t <= end
+        rows = np.nonzero(keep)[0]
+        lost, cause = self.lost, self.lost_cause
+        if len(lost) and len(rows):
+            step = self.t[1] - self.t[0] if len(self.t) > 1 else 1.0
+            taus = np.rint(self.t[rows] / step).astype(np.int64)
+            sel = np.isin(lost[:, 0], taus)
+            lost, cause = lost[sel], cause[sel]
+        elif not len(rows):
+            lost, cause = lost[:0], cause[:0]
+        pick = lambda v: None if v is None else v[rows]  # noqa: E731
+        return dataclasses.replace(self, t=self.t[rows], x=self.x[rows], xhat=self.xhat[rows], alive=self.alive[rows],
+                                   graph=self.graph[rows], gains=pick(self.gains), lost=lost, lost_cause=cause,
+                                   y=pick(self.y), y_missing=pick(self.y_missing))
 
 
 # --------------------------------------------------------------------------

@@ -102,7 +102,7 @@ def test_huge_steps_hint_allocates_little(tmp_path):
     rec = recorder(tmp_path, steps=10**9, flush_seconds=3600.0)
     try:
         S = rec._s  # the recorder's RowStore
-        arrays = [S.t, S.x, S.xhat, S.alive, S.graph, S.tau, S.wall, S.shown, S.shown_max, S.g, S.round, S.env_start]
+        arrays = [S.t, S.x, S.xhat, S.alive, S.graph, S.tau, S.wall, S.shown, S.shown_max, S.g, S.round, S.env_c, S.env_t0]
         assert all(a.shape[0] <= 1024 for a in arrays)
         assert sum(a.nbytes for a in arrays) < 1 << 20
         cap = S.t.shape[0]
