@@ -71,8 +71,6 @@ POLL_SECONDS = 0.5  # the event loop wakes at least this often (timers, child pr
 #: waitpids per turn were m (m + 1) per round (6% of the orchestrator at m = 100); their liveliness tokens
 #: still report a death at once
 CHILD_POLL_SECONDS = 0.05
-#: rows a run that goes on until stopped holds in memory (at most about twice as many; older ones are on disk)
-WINDOW_ROWS = 1024
 
 
 class RunFailed(SplitspecError, RuntimeError):
@@ -402,6 +400,7 @@ class Orchestrator:
     # ------------------------------------------------------------------ run
 
     def run(self) -> int:
+        from .records.files import Continuous
         from .records.recorder import Recorder, RecordsWriteError
         from .registry import RunRegistry
 
@@ -422,7 +421,7 @@ class Orchestrator:
                             else float(self.des.envelope_rate),
                             gains=sc.time == "continuous", positions=sc.positions,
                             states=sc.state_names if sc.states_named else None, shown=sc.shown_states,
-                            window_rows=WINDOW_ROWS if sc.run.until_stopped else None)
+                            continuous=Continuous.from_env() if sc.run.until_stopped else None)
         if self.meas is not None:
             self.rec.set_measurements(sc, self.meas)
         if sc.sources:

@@ -126,7 +126,7 @@ def run_local(scenario: str, out: Path, *, run_id: str, viewer: str | None, wait
         nonlocal interrupted
         interrupted = True
         if procs and procs[0].poll() is None:
-            procs[0].send_signal(signal.SIGINT)  # the orchestrator writes its records and stops the others
+            procs[0].send_signal(signum)  # the same: the orchestrator writes its records and stops the others
 
     old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     try:

@@ -43,7 +43,7 @@ from pathlib import Path
 from typing import Any, Iterator
 
 __all__ = ["RrdAppender", "split_stream", "whole_messages_length", "rewrite_rrd", "has_footer", "rerun_command",
-           "verify_rrd"]
+           "verify_rrd", "segment_path", "rrd_segments"]
 
 log = logging.getLogger(__name__)
 
@@ -51,6 +51,7 @@ _HEADER_LEN = 12
 _MAGIC = b"RRF2"
 _MSG = struct.Struct("<QQ")  # kind, payload length
 _END = 0  # kind of the end-of-stream message
+_STORE_INFO = 1  # kind of the message that opens a store (the recording's, the blueprint's): SetStoreInfo
 _FOOTER_LEN = 32
 _FOOTER_MAGIC = b"RRF2FOOT"
 
@@ -83,6 +84,36 @@ def split_stream(data: bytes) -> tuple[bytes, bytes]:
     if len(data) - off != _FOOTER_LEN or data[-12:-4] != _FOOTER_MAGIC:
         raise ValueError(f"RRD stream has {len(data) - off} bytes after its end message; expected the footer")
     return data[:_HEADER_LEN], data[_HEADER_LEN:end]
+
+
+def store_infos(body: bytes) -> bytes:
+    """The store-opening messages (``SetStoreInfo``, kind 1) among a stream's messages ``body``: what a rolled
+    segment (:func:`segment_path`) starts with, so that it is a recording of its own."""
+    off, out = 0, []
+    while off + _MSG.size <= len(body):
+        kind, length = _MSG.unpack_from(body, off)
+        if kind == _STORE_INFO:
+            out.append(body[off:off + _MSG.size + length])
+        off += _MSG.size + length
+    return b"".join(out)
+
+
+def segment_path(path: str | Path, k: int) -> Path:
+    """The ``k``-th segment of a rolled recording: ``run.rrd`` (k = 0), then ``run-0001.rrd``, ``run-0002.rrd`` ..."""
+    path = Path(path)
+    return path if k == 0 else path.with_name(f"{path.stem}-{k:04d}{path.suffix}")
+
+
+def rrd_segments(path: str | Path) -> list[Path]:
+    """The segments of the recording ``path`` (``run.rrd``) that exist, in order: all of them open together
+    in the viewer as one recording (``rerun run.rrd run-0001.rrd ...``)."""
+    path = Path(path)
+    segs = [path] if path.exists() else []
+    k = 1
+    while segment_path(path, k).exists():
+        segs.append(segment_path(path, k))
+        k += 1
+    return segs
 
 
 def whole_messages_length(path: str | Path) -> int:
@@ -122,16 +153,18 @@ class RrdAppender:
     piece (if it can), so the file never ends in a torn message by our doing.
     """
 
-    def __init__(self, path: Path):
+    def __init__(self, path: Path, *, prefix: bytes = b""):
         self.path = Path(path)
         self.size = 0  # bytes of whole pieces on disk
         self._header: bytes | None = None
+        self.prefix = prefix  # messages written after the header (a rolled segment: the stores' SetStoreInfo)
+        self.infos = prefix  # the store-opening messages of this file (a next segment starts with them)
 
     def append(self, piece: bytes) -> None:
         header, body = split_stream(piece)
         if self._header is not None and header != self._header:
             raise ValueError("RRD stream header changed between flushes")
-        data = body if self.size else header + body
+        data = body if self.size else header + self.prefix + body
         mode = "ab" if self.size else "wb"
         try:
             with open(self.path, mode) as f:
@@ -141,6 +174,8 @@ class RrdAppender:
         except OSError:
             self._cut_back()
             raise
+        if not self.size and not self.prefix:
+            self.infos = store_infos(body)
         self._header = header
         self.size += len(data)
 

@@ -46,7 +46,7 @@ import numpy as np
 from . import blueprint as bp
 from .handoff import LossClear, LostRow, Mark, RowBatch, TextLine, TopologyLog
 from .reference_view import ReferenceRows, ReferenceView, log10
-from .rrd_file import RrdAppender, rerun_command, rewrite_rrd
+from .rrd_file import RrdAppender, rerun_command, rewrite_rrd, segment_path
 from .topology_view import TopologyView
 
 __all__ = ["RerunSink", "open_sink", "APPLICATION_ID", "RRD_FILE"]
@@ -94,7 +94,7 @@ class RerunSink:
     def __init__(self, out_dir: Path, *, run_id: str, scenario_name: str, agent_ids: np.ndarray, n: int,
                  time_mode: str, dt: float, graph_names: tuple, envelope: bool, gains: bool,
                  positions: dict, viewer: str | None, viewer_port: int, connect_timeout: float,
-                 states: tuple | None = None, shown: tuple | None = None):
+                 states: tuple | None = None, shown: tuple | None = None, roll_bytes: int | None = None):
         import rerun as rr
 
         self.agent_ids = [int(a) for a in agent_ids]
@@ -104,6 +104,8 @@ class RerunSink:
         self.labels = bp.state_labels(self.n, self.states)
         self.positions = bp.node_positions(self.agent_ids, positions)
         self.rrd_file = RrdAppender(Path(out_dir) / RRD_FILE)
+        self.roll_bytes = roll_bytes  # run.rrd rolls to run-0001.rrd ... past this size (None: never)
+        self.segment = 0  # the segment being written (0: run.rrd)
         self.pending: list[bytes] = []  # read from Rerun, not yet on disk
         self._viewer_warned = False
         # a run on measurements (set_reference): whether it has the truth, its rows and its view
@@ -117,13 +119,19 @@ class RerunSink:
         if live is not None:
             sinks.append(live)
         rec.set_sinks(*sinks, default_blueprint=self.blueprint())  # both sinks at once (a tee)
-        rec.send_recording_name(f"{scenario_name} ({run_id})")
-        rec.send_property("splitspec", rr.AnyValues(
+        self._name = f"{scenario_name} ({run_id})"
+        self._properties = dict(
             scenario=scenario_name, run_id=run_id, time_mode=time_mode, dt=dt, n=self.n, m=len(self.agent_ids),
             agent_ids=self.agent_ids, graphs=list(graph_names), envelope=self.envelope, gains=self.gains,
             **({"states": list(self.states)} if self.states else {}),
-            **({"shown": list(self.shown)} if self.shown is not None else {})))
-        self._log_static_styles(rr, rec)
+            **({"shown": list(self.shown)} if self.shown is not None else {}))
+        self._log_statics(rr)
+
+    def _log_statics(self, rr) -> None:
+        """What every segment of ``run.rrd`` holds: the recording's name and properties, the series' styles."""
+        self.rec.send_recording_name(self._name)
+        self.rec.send_property("splitspec", rr.AnyValues(**self._properties))
+        self._log_static_styles(rr, self.rec)
 
     # ------------------------------------------------------------------ setup
 
@@ -373,6 +381,36 @@ class RerunSink:
             except ValueError as exc:  # not what rerun 0.41 encodes: drop it rather than tear the file
                 log.warning("Rerun bytes not appended to %s (%s)", RRD_FILE, exc)
             self.pending.pop(0)
+        if self.roll_bytes is not None and self.rrd_file.size >= self.roll_bytes:
+            self.roll()
+
+    def roll(self) -> None:
+        """Finish the segment being written (footer and manifest: a rewrite of at most about ``roll_bytes``) and
+        write the next ones to the next segment (``run-0001.rrd`` ...), which starts with the stores' openings and
+        gets the static data again (name, properties, styles, blueprint): each segment opens alone, and all
+        together as one recording.
+
+        Raises
+        ------
+        OSError
+            If the finished segment cannot be rewritten.
+        """
+        import rerun as rr
+
+        self.finish(None)
+        infos = self.rrd_file.infos
+        self.segment += 1
+        self.rrd_file = RrdAppender(segment_path(self._first_path(), self.segment), prefix=infos)
+        self._log_statics(rr)
+        if self._truth_styled:
+            self._log_truth_styles(rr)
+        if self.reference is not None:
+            self.reference.log_static_styles(rr)
+        self.rec.send_blueprint(self.blueprint(), make_active=False, make_default=True)
+
+    def _first_path(self) -> Path:
+        """``run.rrd``, the first segment's path."""
+        return self.rrd_file.path.with_name(RRD_FILE)
 
     def finish(self, cutoff: int | None) -> None:
         """Rewrite ``run.rrd`` as one verifiable RRD (with the blueprint), cut at ``cutoff`` if given.

@@ -31,6 +31,7 @@ import errno
 import logging
 import os
 import threading
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
 
@@ -43,7 +44,7 @@ from splitspec_core.simulation.trajectory_file import TRAJECTORY_FILE, lost_arra
 from ..recording.sink import RRD_FILE, RerunSink
 from .rowstore import RowStore
 
-__all__ = ["RecordFiles", "RecordsWriteError", "WriteFailure"]
+__all__ = ["RecordFiles", "RecordsWriteError", "WriteFailure", "Continuous"]
 
 log = logging.getLogger(__name__)
 
@@ -103,6 +104,32 @@ def _fewer(K: int) -> int:
     return max(1, K - max(1, K // 10))
 
 
+@dataclass(frozen=True)
+class Continuous:
+    """How a run that goes on until stopped keeps its records bounded (docs/reference/files.md, "Runs until
+    stopped"): ``window_rows`` rows held in memory (at most about twice as many), a new chunk segment past
+    ``chunk_bytes``, ``run.rrd`` rolled to ``run-0001.rrd`` ... past ``rrd_bytes``.  :meth:`from_env` reads
+    ``SPLITSPEC_WINDOW_ROWS``, ``SPLITSPEC_CHUNK_MB`` and ``SPLITSPEC_RRD_ROLL_MB`` (defaults 1024, 64, 256)."""
+
+    window_rows: int = 1024
+    chunk_bytes: int = 64 << 20
+    rrd_bytes: int = 256 << 20
+
+    @classmethod
+    def from_env(cls) -> "Continuous":
+        def mb(name: str, default: int) -> int:
+            try:
+                return max(1 << 16, int(float(os.environ.get(name, default)) * (1 << 20)))
+            except ValueError:
+                return default << 20
+
+        try:
+            window = max(16, int(os.environ.get("SPLITSPEC_WINDOW_ROWS", 1024)))
+        except ValueError:
+            window = 1024
+        return cls(window, mb("SPLITSPEC_CHUNK_MB", 64), mb("SPLITSPEC_RRD_ROLL_MB", 256))
+
+
 class RecordFiles:
     """``trajectory.npz`` and ``run.rrd`` of one recorder, and the rows each holds on disk.
 
@@ -117,15 +144,17 @@ class RecordFiles:
     sink : the recorder's :class:`RerunSink`, None without Rerun (and once the recorder has dropped it)
     states : the states' names (``trajectory.npz``'s ``states``)
     y_rows : ``y_rows(taus)``: ``(y, y_missing)`` of those event times on measurements or live sensors, else None
-    npz : keep ``trajectory.npz`` (rewritten); False: a run until stopped, whose rows are only in the chunks
+    continuous : None: keep ``trajectory.npz`` (rewritten); else a run until stopped, whose rows are only in the
+        chunks (segments of ``continuous.chunk_bytes``)
     dt : the sampling step (1 in discrete time)
     """
 
     def __init__(self, out_dir: Path, *, agent_ids: np.ndarray, taken: RowStore, lost: dict,
                  extra: Callable[[int], dict], failure, sink: RerunSink | None, states: tuple = (),
-                 y_rows: Callable | None = None, npz: bool = True, dt: float = 1.0):
+                 y_rows: Callable | None = None, continuous: Continuous | None = None, dt: float = 1.0):
         self.out_dir = out_dir
-        self.npz = bool(npz)
+        self.npz = continuous is None
+        self._chunk_bytes = (continuous or Continuous()).chunk_bytes
         self._y_rows = y_rows
         self.chunks: ChunkWriter | None = None  # made at the first append (the width of y is known then)
         self._dt = float(dt)
@@ -167,7 +196,8 @@ class RecordFiles:
             ys = self._y_rows(taus) if self._y_rows is not None else None
             if self.chunks is None:
                 self.chunks = ChunkWriter(self.out_dir, agent_ids=self.agent_ids, states=self.states, n=D.n,
-                                          dt=self._dt, p=0 if ys is None else ys[0].shape[1])
+                                          dt=self._dt, p=0 if ys is None else ys[0].shape[1],
+                                          segment_bytes=self._chunk_bytes)
             cols = {"tau": taus, "t": D.t[K], "x": D.x[K], "xhat": D.xhat[K], "alive": D.alive[K],
                     "graph": D.graph[K], "g": D.g[K], "wall": D.wall[K], "round": D.round[K],
                     "lost": [[r[1:] for r in self._lost.get(int(tau), ())] for tau in taus.tolist()]}

@@ -45,7 +45,7 @@ from ..recording.rrd_file import verify_rrd
 from ..recording.sink import DEFAULT_VIEWER_PORT, RRD_FILE, RerunSink, open_sink
 from .checks import RecordingError, check_row, check_run, check_topology
 from .events import EVENTS_FILE, EventLog, event_level, event_text
-from .files import RecordFiles, RecordsWriteError, WriteFailure, strerror
+from .files import Continuous, RecordFiles, RecordsWriteError, WriteFailure, strerror
 from .flusher import Flusher
 from .measured import MeasuredRecords
 from .outdir import Reserve
@@ -87,7 +87,7 @@ class Recorder:
     states : the states' names (``system.states``): the ``state/<name>/...`` entities and ``trajectory.npz``'s
         ``states``; None: ``state/<k>/...`` and ``x1 .. xn``
     gains : log ``gains/agent_<id>`` (continuous time)
-    window_rows : None: hold every row; a number (a run until stopped): no ``trajectory.npz``, ~2x that held
+    continuous : a run until stopped (:class:`~.files.Continuous`): no ``trajectory.npz``, a window of rows held
     positions : ``{agent id: (x, y)}`` of the topology's nodes (None: a circle)
 
     Raises
@@ -102,7 +102,7 @@ class Recorder:
                  viewer_port: int = DEFAULT_VIEWER_PORT, connect_timeout: float = 1.0,
                  reserve_bytes: int = RESERVE_BYTES, envelope_rate: float | None = None, gains: bool = False,
                  positions: Mapping[int, tuple[float, float]] | None = None, states: tuple | None = None,
-                 shown: tuple | None = None, window_rows: int | None = None):
+                 shown: tuple | None = None, continuous: Continuous | None = None):
         ids = check_run(agent_ids=agent_ids, n=n, time_mode=time_mode, dt=dt, graph_names=graph_names,
                         flush_seconds=flush_seconds, envelope_rate=envelope_rate, positions=positions)
 
@@ -148,12 +148,12 @@ class Recorder:
                          graph_names=self.graph_names, envelope=self.envelope_rate is not None,
                          gains=bool(gains), positions=dict(positions) if positions else None,
                          viewer=viewer, viewer_port=viewer_port, connect_timeout=connect_timeout,
-                         states=names, shown=shown)  # None: Rerun failed to start (it never stops a run)
+                         states=names, shown=shown, roll_bytes=continuous.rrd_bytes if continuous else None)
         # trajectory.npz and run.rrd (self._rec is its sink), written by the flushes
         files = RecordFiles(self.out_dir, agent_ids=self.agent_ids, taken=taken, lost=self._lost,
                             extra=self._meas.arrays, failure=self._failed, sink=sink,
                             states=names or default_state_names(self.n), y_rows=self._meas.y_rows,
-                            npz=window_rows is None, dt=self.dt if time_mode == "continuous" else 1.0)
+                            continuous=continuous, dt=self.dt if time_mode == "continuous" else 1.0)
         self._w = RecordWriter(taken, files, self._meas, self._events, self._failed, self._lock,
                                envelope_rate=self.envelope_rate, time_mode=time_mode, dt=self.dt)
         if sink is not None:
@@ -162,7 +162,7 @@ class Recorder:
         # what the callers record (the buffer, self._s) and the flushes, on a background thread with flush_seconds > 0
         self._f = Flusher(self._s, self._w, self._failed, self._reserve, io=self._io, lock=self._lock,
                           lost=self._lost, flush_seconds=self.flush_seconds, started=started,
-                          window=window_rows)
+                          window=continuous.window_rows if continuous else None)
 
     # ------------------------------------------------------------------ time helpers
 

@@ -1,10 +1,11 @@
 """``splitspec recover OUT``: make the records of a killed run agree again.
 
-A run whose orchestrator was killed (SIGKILL, power loss) leaves
-``trajectory.npz`` as of its last flush, ``run.rrd`` without a footer (``rerun
-rrd verify`` fails; a message may be torn) and possibly a torn last line in
-``events.jsonl``.  :func:`recover` takes ``trajectory.npz`` (K rows, event
-times 0..K-1) as the authority and
+A run whose orchestrator was killed (SIGKILL, power loss) leaves its chunks (``chunks/``) as of its last
+flush (a record batch may be torn), ``trajectory.npz`` as of its last rewrite (a run of ``run.steps``), ``run.rrd``
+(or its last segment, ``run-000k.rrd``, of a rolled recording) without a footer (``rerun rrd verify`` fails; a
+message may be torn) and possibly a torn last line in ``events.jsonl``.  :func:`recover` takes the chunks (K
+rows, event times 0..K-1; ``trajectory.npz`` of a run before chunks existed) as the authority, cuts a torn
+batch off, rewrites ``trajectory.npz`` from them if the run kept one with fewer rows, and
 
 - rewrites ``run.rrd`` from its whole messages with the data of event times
   ``< K`` and the static data, blueprint, text log and topology up to ``K``
@@ -29,11 +30,14 @@ from typing import Any
 import numpy as np
 
 from splitspec_core.errors import SplitspecError
+from splitspec_core.simulation.simulator import Trajectory
+from splitspec_core.simulation.trajectory_chunks import chunk_segments, whole_length
+from splitspec_core.simulation.trajectory_chunks import read_chunks as read_rows
 
 from .outdir import RESERVE_FILE
 from ..recording.blueprint import default_blueprint
 from .recorder import EVENTS_FILE, RRD_FILE, TRAJECTORY_FILE, verify_rrd
-from ..recording.rrd_file import has_footer, read_chunks, rewrite_rrd, whole_messages_length
+from ..recording.rrd_file import has_footer, read_chunks, rewrite_rrd, rrd_segments, whole_messages_length
 
 __all__ = ["RecoverError", "recover"]
 
@@ -64,16 +68,25 @@ def recover(out_dir: str | os.PathLike) -> dict[str, Any]:
     traj, events, rrd = out / TRAJECTORY_FILE, out / EVENTS_FILE, out / RRD_FILE
     if not out.is_dir():
         raise RecoverError(f"{out} is not a directory")
-    if not traj.exists():
-        raise RecoverError(f"{out} holds no {TRAJECTORY_FILE} to recover from")
-    try:
-        with np.load(traj) as f:
-            t = np.asarray(f["t"])
-    except Exception as exc:
-        raise RecoverError(f"cannot read {traj}: {exc}") from None
-    K = int(t.shape[0])
-    t_last = float(t[-1]) if K else 0.0
     changed = False
+    if chunk_segments(out):  # the chunks, written at every flush, are the authority
+        try:
+            K, t_last, changed = _recover_chunks(out, traj)
+        except OSError as exc:
+            raise RecoverError(f"cannot recover {out}: {exc.filename or out}: {exc.strerror or exc}") from None
+    elif not traj.exists():
+        raise RecoverError(f"{out} holds no {TRAJECTORY_FILE} or chunks/ to recover from")
+    else:
+        try:
+            with np.load(traj) as f:
+                t = np.asarray(f["t"])
+        except Exception as exc:
+            raise RecoverError(f"cannot read {traj}: {exc}") from None
+        K = int(t.shape[0])
+        t_last = float(t[-1]) if K else 0.0
+    rows_file = TRAJECTORY_FILE if traj.exists() else "chunks/"
+    segments = rrd_segments(rrd)
+    rrd = segments[-1] if segments else rrd  # a rolled recording: only its last segment was being written
     try:
         # Leftovers of the recorder: the reserve first (it may be the room the rewrite needs).
         for leftover in [out / RESERVE_FILE, *out.glob(".trajectory.*.npz.tmp"), *out.glob(".run.*.rrd.tmp")]:
@@ -87,9 +100,9 @@ def recover(out_dir: str | os.PathLike) -> dict[str, Any]:
     except OSError as exc:
         raise RecoverError(f"cannot recover {out}: {exc.filename or out}: {exc.strerror or exc}") from None
     if rrd_state == "missing":
-        where = f"{TRAJECTORY_FILE} and {EVENTS_FILE} (no {RRD_FILE})"
+        where = f"{rows_file} and {EVENTS_FILE} (no {RRD_FILE})"
     else:
-        where = f"{TRAJECTORY_FILE}, {EVENTS_FILE} and {RRD_FILE}"
+        where = f"{rows_file}, {EVENTS_FILE} and {rrd.name}"
     how = {"rewritten": f"{RRD_FILE} rewritten, verified" if verified else f"{RRD_FILE} rewritten, NOT verified",
            "kept": "nothing to change" if not changed else f"{RRD_FILE} already complete",
            "missing": "nothing to change" if not changed else f"{EVENTS_FILE} repaired"}[rrd_state]
@@ -98,6 +111,33 @@ def recover(out_dir: str | os.PathLike) -> dict[str, Any]:
     return {"rows": K, "rrd": rrd_state, "rrd_verified": verified, "events_torn_line_dropped": torn,
             "events_appended": appended, "changed": changed,
             "message": f"recovered {out}: {K} event times kept in {where} ({how})"}
+
+
+def _recover_chunks(out: Path, traj: Path) -> tuple[int, float, bool]:
+    """The chunks cut back to their whole record batches (a batch torn by the kill); ``trajectory.npz``, if the run
+    kept one, rewritten from them when they hold more rows (they are written at every flush, it less often).
+    Returns ``(K, t of the last row, changed)``."""
+    changed = False
+    for _, path in chunk_segments(out):
+        whole, size = whole_length(path), path.stat().st_size
+        if whole == 0:
+            path.unlink()  # not even its schema: created as the run was killed
+            changed = True
+        elif whole < size:
+            os.truncate(path, whole)
+            changed = True
+    rows = read_rows(out)
+    K = 0 if rows is None else len(rows["tau"])
+    if rows is not None and traj.exists():
+        try:
+            with np.load(traj) as f:
+                T = int(f["t"].shape[0])
+        except Exception:  # noqa: BLE001 - unreadable: the chunks replace it
+            T = -1
+        if T < K:
+            Trajectory.from_arrays(rows).save(traj)
+            changed = True
+    return K, float(rows["t"][-1]) if K else 0.0, changed
 
 
 def _recover_rrd(rrd: Path, K: int) -> tuple[str, bool | None]:

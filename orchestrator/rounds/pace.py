@@ -3,8 +3,8 @@
 A paced run starts the round of event time ``tau`` at ``t_run + tau / pace`` on the orchestrator's clock
 (:class:`~splitspec_orchestrator.rounds.machine.RoundMachine`); a round that starts later than that is *late*
 by the difference.  Lateness is measured per event time (``rounds/late_ms`` in the recording, the chunks'
-``round`` column) and counted as late above :data:`LATE_SHARE` of a period.  When every event time of the last
-:data:`SUSTAINED_SECONDS` of pace (at least :data:`SUSTAINED_MIN` event times) was late, the run cannot keep
+``round`` column) and counted as late above :data:`LATE_SHARE` of a period.  When every event time for
+:data:`SUSTAINED_SECONDS` of wall time (at least :data:`SUSTAINED_MIN` event times) was late, the run cannot keep
 its pace: :class:`PaceWatch` says so once, with the rate achieved over those event times and what limits it:
 
 * the rounds themselves take longer than a period: the network's deadline when ``q`` sub-rounds at the
@@ -18,7 +18,6 @@ reports (late event times, the largest lateness).
 
 from __future__ import annotations
 
-import math
 from collections import Counter, deque
 
 from .actions import Event, Log
@@ -27,10 +26,11 @@ __all__ = ["PaceWatch", "LATE_SHARE", "SUSTAINED_SECONDS", "SUSTAINED_MIN"]
 
 #: an event time is late when its round starts more than this share of a period after its time
 LATE_SHARE = 0.1
-#: behind when every event time of this many seconds of pace was late ...
+#: behind when every event time was late for this many seconds of wall time ...
 SUSTAINED_SECONDS = 2.0
 #: ... and at least this many event times
 SUSTAINED_MIN = 10
+_RECENT = 200  # event times whose rounds tell what limits the rate
 
 
 class PaceWatch:
@@ -44,8 +44,9 @@ class PaceWatch:
         self.pace = float(pace)
         self.period = 1.0 / self.pace
         self.q, self.m, self.deadline_s, self.cores = int(q), int(m), deadline_s, cores
-        self.need = max(SUSTAINED_MIN, int(math.ceil(SUSTAINED_SECONDS * self.pace)))
-        self.recent: deque = deque(maxlen=self.need)  # (start, lateness, round seconds, last agent) of the last ones
+        self.recent: deque = deque(maxlen=_RECENT)  # (start, round seconds, last agent) of the last event times
+        self.streak = 0  # event times late in a row
+        self.streak_since = 0.0  # the start of the first of them
         self.late_count = 0
         self.max_late = 0.0
         self.warned = False
@@ -63,38 +64,36 @@ class PaceWatch:
         ``done``; ``last_agent``: whose estimate completed it.  The warning, once, when the run fell behind."""
         late = max(0.0, float(late))
         self.max_late = max(self.max_late, late)
-        is_late = late > LATE_SHARE * self.period
-        self.late_count += is_late
-        self.recent.append((started, late, done - started, last_agent, is_late))
-        if self.warned or len(self.recent) < self.need or not all(r[4] for r in self.recent):
+        self.recent.append((started, done - started, last_agent))
+        if late <= LATE_SHARE * self.period:
+            self.streak = 0
+            return []
+        self.late_count += 1
+        if self.streak == 0:
+            self.streak_since = started
+        self.streak += 1
+        if self.warned or self.streak < SUSTAINED_MIN or started - self.streak_since < SUSTAINED_SECONDS:
             return []
         self.warned = True
-        achieved = self.achieved()
+        achieved = (self.streak - 1) / max(started - self.streak_since, 1e-9)
         why = self.limit()
         text = (f"cannot keep pace {self.pace:g}: {achieved:.1f} event times per second over the last "
-                f"{len(self.recent)}, {late * 1e3:.0f} ms behind at event time {tau}; limited by {why}")
+                f"{self.streak}, {late * 1e3:.0f} ms behind at event time {tau}; limited by {why}")
         fields = {"pace": self.pace, "achieved_rate": round(achieved, 2), "late_ms": round(late * 1e3, 1),
                   "limit": why}
         return [Event("pace_not_kept", t, fields, level="WARN"), Log("warning", text)]
 
-    def achieved(self) -> float:
-        """Event times per second over the recent ones (their starts)."""
-        r = self.recent
-        if len(r) < 2 or r[-1][0] <= r[0][0]:
-            return math.nan
-        return (len(r) - 1) / (r[-1][0] - r[0][0])
-
     def limit(self) -> str:
         """What limits the rate, from the recent rounds (see the module docstring)."""
         r = list(self.recent)
-        durations = sorted(x[2] for x in r)
+        durations = sorted(x[1] for x in r)
         median = durations[len(durations) // 2]
         period_ms = self.period * 1e3
         if median >= 0.9 * self.period:
             if self.deadline_s is not None and self.q * self.deadline_s >= 0.5 * self.period:
                 return (f"the network deadline: q = {self.q} sub-rounds of up to {self.deadline_s * 1e3:g} ms in a "
                         f"period of {period_ms:.1f} ms")
-            last = Counter(x[3] for x in r if x[3] is not None).most_common(1)
+            last = Counter(x[2] for x in r if x[2] is not None).most_common(1)
             who = f"; agent {last[0][0]}'s estimate came last in {last[0][1]} of {len(r)}" if last else ""
             cores = f" on {self.cores} cores" if self.cores else ""
             return (f"the machine: a round takes {median * 1e3:.1f} ms (median) against a period of "

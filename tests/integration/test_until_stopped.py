@@ -1,0 +1,173 @@
+"""Runs until stopped: real processes over Zenoh, stopped after seconds (Ctrl-C, `splitspec stop`, SIGKILL of the
+orchestrator), their records read back and replayed; a pace the machine cannot keep, said while running and at
+the end."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import time
+
+import numpy as np
+import pytest
+import yaml
+
+import splitspec_core as ss
+from splitspec_core.runs import closing_line, end_event
+from splitspec_core.simulation.simulator import Trajectory
+from splitspec_core.simulation.trajectory_chunks import chunk_segments, read_chunks
+from splitspec_orchestrator.recording.rrd_file import rrd_segments
+from tests.integration.runtime_helpers import (ENV, EXAMPLES, ROOT, all_pids, assert_all_gone, cli, dump, events,
+                                               run, start, wait_for_event)
+from tests.rrd_readback import read_rrd, verify_rrd
+
+pytestmark = pytest.mark.slow
+
+
+def endless(tmp_path, example: str, pace: float):
+    """A copy of an example paced at ``pace``, without run.steps and without faults: it runs until stopped."""
+    raw = yaml.safe_load((EXAMPLES / f"{example}.yaml").read_text())
+    raw["run"] = {"pace": pace, "seed": (raw.get("run") or {}).get("seed", 0)}
+    raw.pop("faults", None)
+    path = tmp_path / f"{example}_endless.yaml"
+    path.write_text(yaml.safe_dump(raw))
+    return path
+
+
+def rows_on_disk(out) -> int:
+    rows = read_chunks(out)
+    return 0 if rows is None else len(rows["tau"])
+
+
+def wait_rows(out, rows: int, p, log, timeout: float = 90.0) -> None:
+    deadline = time.monotonic() + timeout
+    while rows_on_disk(out) < rows:
+        assert p.poll() is None and time.monotonic() < deadline, dump(log)
+        time.sleep(0.2)
+
+
+def replayed(out, tmp_path) -> float:
+    """``simulate scenario.yaml --faults-from OUT`` against the run's chunks: the largest difference."""
+    r = run("simulate", out / "scenario.yaml", "--out", tmp_path / "sim", "--no-plots", "--faults-from", out)
+    assert r.returncode == 0, r.stderr
+    rec, sim = ss.load_run(out).trajectory, Trajectory.load(tmp_path / "sim" / "trajectory.npz")
+    assert np.array_equal(rec.t, sim.t) and np.array_equal(rec.alive, sim.alive)
+    assert np.array_equal(np.isnan(rec.xhat), np.isnan(sim.xhat))
+    diff = float(np.nanmax(np.abs(rec.xhat - sim.xhat)))
+    # other processes, other summation orders: round-off only
+    assert diff <= 1e-9 * max(1.0, float(np.nanmax(np.abs(sim.xhat)))), diff
+    return diff
+
+
+def test_ctrl_c_ends_a_run_until_stopped_as_finished(tmp_path):
+    scen, out, log = endless(tmp_path, "ring10", 25), tmp_path / "out", tmp_path / "run.log"
+    p = start("run", scen, "--out", out, log=log, env_extra={"SPLITSPEC_RUNTIME_DIR": str(tmp_path / "rt")})
+    try:
+        wait_rows(out, 60, p, log)
+        os.killpg(p.pid, signal.SIGINT)  # Ctrl-C: the terminal signals the whole process group
+        assert p.wait(timeout=120) == 0, dump(log)
+    finally:
+        if p.poll() is None:
+            os.killpg(p.pid, signal.SIGKILL)
+    text = log.read_text()
+    end = end_event(events(out))
+    assert end["event"] == "run_finished" and end["reason"] == "stopped (SIGINT)", end
+    assert closing_line(end) in text and end["pace_kept"]  # the one closing line, and a pace kept ...
+    assert "cannot keep pace" not in text and not [e for e in events(out) if e["event"] == "pace_not_kept"]
+    rec = ss.load_run(out)
+    T = len(rec.trajectory.t)
+    assert not (out / "trajectory.npz").exists() and T == end["event_times"] >= 60
+    assert rec.trajectory.t.tolist() == list(range(T))
+    assert events(out)[-1]["event"] == "recording_closed" and events(out)[-1]["rows"] == T
+    ok, msg = verify_rrd(out / "run.rrd")
+    assert ok, msg
+    assert rec.closing_line == closing_line(end) and rec.summary["event_times"] == T
+    replayed(out, tmp_path)
+    assert_all_gone(all_pids(out))
+
+
+def test_splitspec_stop_with_a_window_of_rows_and_rolled_records(tmp_path):
+    env = {"SPLITSPEC_RUNTIME_DIR": str(tmp_path / "rt"), "SPLITSPEC_WINDOW_ROWS": "32",
+           "SPLITSPEC_CHUNK_MB": "0.06", "SPLITSPEC_RRD_ROLL_MB": "0.4"}
+    scen, out, log = endless(tmp_path, "ring10", 40), tmp_path / "out", tmp_path / "run.log"
+    p = start("run", scen, "--out", out, "--run-id", "rstopme1", log=log, env_extra=env)
+    try:
+        wait_rows(out, 220, p, log)
+        r = subprocess.run(cli("stop", "--run-id", "rstopme1"), cwd=ROOT, env={**ENV, **env}, capture_output=True,
+                           text=True, timeout=60)
+        assert r.returncode == 0 and "stopped run 'rstopme1'" in r.stdout, (r.stdout, r.stderr)
+        assert p.wait(timeout=60) == 0, dump(log)
+    finally:
+        if p.poll() is None:
+            os.killpg(p.pid, signal.SIGKILL)
+    end = end_event(events(out))
+    assert end["reason"] == "stopped (SIGTERM)"
+    rec = ss.load_run(out)
+    T = len(rec.trajectory.t)
+    # held 32 to 64 rows at a time, and yet every row is on disk, in order, and replays to round-off
+    assert T == end["event_times"] >= 220 and rec.trajectory.t.tolist() == list(range(T))
+    replayed(out, tmp_path)
+    assert len(chunk_segments(out)) >= 2
+    window = ss.load_run(out, start=100, end=150).trajectory
+    assert window.t.tolist() == list(range(100, 151))
+    assert np.array_equal(window.xhat, rec.trajectory.xhat[100:151])  # exact: the same values read twice
+    segs = rrd_segments(out / "run.rrd")
+    assert len(segs) >= 2
+    taus = set()
+    for path in segs:
+        ok, msg = verify_rrd(path)
+        assert ok, (path.name, msg)
+        taus |= {tau for tau, _ in read_rrd(path).get("errors/max", [])}
+    assert taus == set(range(T))
+    assert_all_gone(all_pids(out))
+
+
+def test_a_run_killed_at_any_moment_keeps_every_chunk_it_finished(tmp_path):
+    env = {"SPLITSPEC_RUNTIME_DIR": str(tmp_path / "rt"), "SPLITSPEC_CHUNK_MB": "0.05"}
+    scen, out, log = endless(tmp_path, "ring10", 40), tmp_path / "out", tmp_path / "run.log"
+    p = start("run", scen, "--out", out, log=log, env_extra=env)
+    try:
+        wait_rows(out, 150, p, log)
+        before = {path: path.read_bytes() for _, path in chunk_segments(out)}
+        rows_before = read_chunks(out)
+        orch = next(e["pid"] for e in events(out) if e["event"] == "orchestrator_started")
+        os.kill(orch, signal.SIGKILL)
+        assert p.wait(timeout=120) == 3, dump(log)  # the orchestrator was lost; records recovered
+    finally:
+        if p.poll() is None:
+            os.killpg(p.pid, signal.SIGKILL)
+    assert "records recovered" in log.read_text()
+    for path, data in before.items():  # append only: what was on disk is still there, byte for byte
+        assert path.read_bytes()[:len(data)] == data
+    rows = read_chunks(out)
+    K = len(rows["tau"])
+    assert K >= len(rows_before["tau"]) and rows["tau"].tolist() == list(range(K))
+    assert np.array_equal(rows["xhat"][:len(rows_before["tau"])], rows_before["xhat"])  # exact: same bytes
+    assert events(out)[-1]["event"] == "records_recovered" and events(out)[-1]["rows"] == K
+    ok, msg = verify_rrd(out / "run.rrd")
+    assert ok, msg
+    replayed(out, tmp_path)
+    assert_all_gone(all_pids(out))
+
+
+def test_a_pace_far_above_the_machine_is_reported_while_running_and_at_the_end(tmp_path):
+    scen, out, log = endless(tmp_path, "ring10", 5000), tmp_path / "out", tmp_path / "run.log"
+    p = start("run", scen, "--out", out, log=log, env_extra={"SPLITSPEC_RUNTIME_DIR": str(tmp_path / "rt")})
+    try:
+        warned = wait_for_event(out, "pace_not_kept", timeout=90)  # while the run goes on
+        assert p.poll() is None and "cannot keep pace 5000" in log.read_text()
+        assert warned["achieved_rate"] < 5000 * 0.5 and warned["limit"]
+        wait_rows(out, rows_on_disk(out) + 20, p, log)
+        os.killpg(p.pid, signal.SIGINT)
+        assert p.wait(timeout=120) == 0, dump(log)
+    finally:
+        if p.poll() is None:
+            os.killpg(p.pid, signal.SIGKILL)
+    end = end_event(events(out))
+    assert not end["pace_kept"] and end["late_event_times"] > 0 and end["max_lateness_ms"] > 0
+    assert "pace 5000 NOT kept" in closing_line(end) and closing_line(end) in log.read_text()
+    assert len([e for e in events(out) if e["event"] == "pace_not_kept"]) == 1  # once
+    late = read_chunks(out)["round"][:, 4]
+    assert np.isfinite(late).all() and late[-1] > late[len(late) // 2] > 0  # ever later
+    assert_all_gone(all_pids(out))
