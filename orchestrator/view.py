@@ -73,6 +73,14 @@ def recording_path(out) -> Path:
     return rrd
 
 
+def _segments(rrd: Path) -> list[str]:
+    """``run.rrd`` and the segments it rolled into (``run-0001.rrd`` ..., a long run until stopped): opened together,
+    one recording."""
+    from .recording.rrd_file import rrd_segments
+
+    return [str(p) for p in rrd_segments(rrd)] or [str(rrd)]
+
+
 def rerun_executable() -> str:
     """The ``rerun`` binary bundled with rerun-sdk (package ``rerun_cli``), else ``rerun`` on PATH.
 
@@ -100,9 +108,9 @@ def viewer_url(web_port: int, grpc_port: int, *, host: str = LOOPBACK) -> str:
 
 
 def web_viewer_command(rrd: Path, *, web_port: int, grpc_port: int) -> list:
-    """``rerun --web-viewer`` serving ``rrd`` on loopback only, at the two given ports."""
+    """``rerun --web-viewer`` serving ``rrd`` (and its rolled segments) on loopback only, at the two given ports."""
     return [rerun_executable(), "--web-viewer", "--bind", LOOPBACK, "--web-viewer-port", str(web_port),
-            "--port", str(grpc_port), str(rrd)]
+            "--port", str(grpc_port), *_segments(rrd)]
 
 
 def _answers_http(url: str) -> bool:
@@ -198,7 +206,8 @@ def serve(rrd: Path, *, port: int | None = None, grpc_port: int | None = None, s
 
 def open_native(rrd: Path) -> int:
     """``rerun rrd`` in the foreground (Ctrl-C reaches it through the terminal); its exit status."""
-    proc = subprocess.Popen([rerun_executable(), str(rrd)], stdin=subprocess.DEVNULL, preexec_fn=sigterm_at_parent_death)
+    proc = subprocess.Popen([rerun_executable(), *_segments(rrd)], stdin=subprocess.DEVNULL,
+                            preexec_fn=sigterm_at_parent_death)
     try:
         return proc.wait()
     except KeyboardInterrupt:  # the viewer got the same SIGINT from the terminal; make sure it is gone
