@@ -1,0 +1,698 @@
+"""Soak: a paced `splitspec run` without ``run.steps`` (it runs until stopped) for many minutes, watched from outside.
+
+What it measures, sampled every ``--sample-seconds`` from /proc and the records folder while the run goes on:
+
+1. memory: the RSS (``VmRSS`` of /proc/PID/status; ``RssAnon`` beside it, which page cache does not move) of
+   every process of the run's tree (the ``/proc/*/stat`` parent links from the `splitspec run` process), each
+   labelled by its command line: ``run``, ``orchestrator``, ``fork server``, ``plant``, ``agent <id>`` (the
+   agents are forks of the fork server and share its command line; their process name says which);  per role,
+   after the warm-up: first, last and largest RSS and the slope by least squares in MB per hour (agents: the
+   median and the largest slope over the agents), PASS below 10 MB/h;
+2. records: the size and inode of every file under ``--out`` (``chunks/rows-<tau>.arrows``, ``run.rrd``,
+   ``events.jsonl``, ``trajectory.npz`` if any): bytes at the end, bytes per hour, the R^2 of a straight line
+   through the total size against time after the warm-up (1: the records grow by what is added, with no
+   rewrite spikes), and the rewrites seen (a file that shrank or whose inode changed between two samples;
+   counted per file while running and, separately, between the last sample and the run's exit, when the
+   closing flush may fix files up).  The chunks are append-only: any rewrite of one is a FAIL.  ``run.rrd`` is
+   appended too, but each of its segments is finished (footer, a rewrite through a new inode) when it rolls past
+   256 MiB to ``run-0001.rrd`` ... and at the exit (docs/reference/files.md, "Runs until stopped"): those
+   rewrites are expected, reported with the lateness of the event times around each;
+3. rows: the event times in the chunks (``read_chunks``; past 1 GiB of segments only the three columns used, with
+   pyarrow, by the same last-write-wins rule) and their rate against ``run.pace`` (from the chunks' ``wall``
+   column, first to last row);
+4. lateness: the chunks' ``round`` column ``late_ms`` (how late each event time started against the pace):
+   p50, p90, p99, max and the event times later than 10% of a period; and the end event's own summary
+   (``reason``, ``late_event_times``, ``max_lateness_ms``, ``achieved_rate``, ``pace``), n/a where absent.
+
+The clock of ``--minutes`` and ``--warmup-minutes`` starts at the run's ``run_started`` event (its first round;
+start-up, which includes the design, is reported apart).  At the end it sends SIGINT to `splitspec run` (as
+Ctrl-C does; a run without steps ends as finished) and waits up to 120 s for it to exit.  Ctrl-C on this script
+does the same early and still reports.  The machine is shared: quote the load averages printed beside the
+figures.  A criterion that fails is printed as FAIL; the exit status is 0 all the same (a benchmark).
+
+The default scenario is generated: m agents on an undirected ring, discrete time, n states in n/2 lightly
+damped 2x2 rotations (spectral radius 0.999, distinct frequencies; a real mode 0.95 when n is odd), agent i
+measuring the first state of the blocks i, i + m, i + 2m, ... (jointly observable, no agent alone),
+process and measurement noise 0.01, ``design: {rate: --rate, gains: place, q: auto, q_method: spectral}``,
+``run: {pace: --pace, seed: 1}``.  ``--model power`` runs ``examples/ieee14_pmu.yaml`` instead (the IEEE 14-bus
+system, 62 states, 5 generators' agents with PMUs at 50 Hz, continuous time); ``--scenario FILE`` any
+scenario file.  Either way ``run.steps`` is removed and ``run.pace`` set to ``--pace``; the scenario that ran
+is written beside ``--out`` (``<out>.soak.yaml``, with the run's stdout and stderr in ``<out>.stdout.log``
+and ``<out>.stderr.log``).
+
+    .venv/bin/python benchmarks/bench_soak.py [--minutes 30] [--m 10] [--n 50] [--pace 50] [--sample-seconds 5]
+        [--warmup-minutes W] [--out DIR] [--model ring|power | --scenario FILE] [--rate 0.9] [--json FILE]
+
+    # a short check of the script itself
+    .venv/bin/python benchmarks/bench_soak.py --minutes 1 --sample-seconds 2 --m 4 --n 8
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from _common import loadavg
+
+ROOT = Path(__file__).resolve().parents[1]
+ENV = {**os.environ, "RERUN_ANALYTICS": "0"}
+POWER_SCENARIO = ROOT / "examples" / "ieee14_pmu.yaml"
+SLOPE_LIMIT_MB_H = 10.0  #: a role's RSS may grow at most this fast after the warm-up
+STARTUP_TIMEOUT = 600.0  #: seconds from the spawn to the first round (the design of a large model takes a while)
+EXIT_TIMEOUT = 120.0  #: seconds to wait for `splitspec run` to exit after the SIGINT
+LATE_FRACTION = 0.1  #: an event time later than this fraction of a period counts as late
+#: the events of every run's start and end (the report counts the others: warnings, losses, restarts)
+WHOLE_READ_BYTES = 1 << 30  #: chunks up to this size are read whole with read_chunks (a 30 min default soak: ~0.4 GB)
+QUIET_EVENTS = {"orchestrator_started", "fork_server_started", "process_started", "process_ready", "run_started",
+                "run_finished", "run_interrupted", "recording_closed", "insecure_run"}
+
+
+# ------------------------------------------------------------------ the scenario
+
+def ring_soak_scenario(m: int, n: int, pace: float, rate: float, damping: float = 0.999) -> dict:
+    """m agents on an undirected ring; n states in lightly damped rotations; agent i sees blocks i, i + m, ..."""
+    nb = n // 2
+    freqs = 0.2 + 1.6 * (np.arange(nb) + 0.5) / max(nb, 1)  # distinct, in (0.2, 1.8) rad per step
+    A = np.zeros((n, n))
+    for b, w in enumerate(freqs):
+        c, s = damping * math.cos(w), damping * math.sin(w)
+        A[2 * b:2 * b + 2, 2 * b:2 * b + 2] = [[c, s], [-s, c]]
+    if n % 2:
+        A[n - 1, n - 1] = 0.95
+
+    def row(k: int) -> list:
+        r = [0.0] * n
+        r[k] = 1.0
+        return r
+
+    C = {}
+    for i in range(m):
+        rows = [row(2 * b) for b in range(i, nb, m)]
+        if n % 2 and i == 0:
+            rows.append(row(n - 1))
+        if not rows:  # more agents than blocks: the second state of a block someone else sees the first of
+            rows.append(row(2 * (i % nb) + 1) if nb else row(n - 1))
+        C[i + 1] = rows
+    return {"name": f"soak-ring{m}-n{n}", "time": "discrete",
+            "system": {"A": np.round(A, 12).tolist(), "C": C, "process_noise": 0.01, "measurement_noise": 0.01},
+            "graphs": {"ring": {"undirected": [[i, i % m + 1] for i in range(1, m + 1)]}},
+            "design": {"rate": rate, "gains": "place", "q": "auto", "q_method": "spectral"},
+            "run": {"pace": pace, "seed": 1}}
+
+
+def file_scenario(path: Path, pace: float) -> dict:
+    """The scenario of ``path`` with ``run.steps`` removed, ``run.pace`` set and a relative ``system.file`` made
+    absolute (the copy is written elsewhere)."""
+    sc = yaml.safe_load(path.read_text())
+    run = dict(sc.get("run") or {})
+    run.pop("steps", None)
+    run["pace"] = pace
+    sc["run"] = run
+    system = sc.get("system") or {}
+    if isinstance(system.get("file"), str) and not Path(system["file"]).is_absolute():
+        system["file"] = str((path.parent / system["file"]).resolve())
+    return sc
+
+
+# ------------------------------------------------------------------ sampling
+
+def _read(path: str) -> str | None:
+    try:
+        with open(path, "rb") as f:
+            return f.read().decode(errors="replace")
+    except OSError:
+        return None
+
+
+def process_tree(root: int) -> list[int]:
+    """``root`` and its descendants, from the parent links of /proc/*/stat."""
+    children: dict = {}
+    for d in os.listdir("/proc"):
+        if not d.isdigit():
+            continue
+        stat = _read(f"/proc/{d}/stat")
+        if stat is None:
+            continue
+        try:
+            ppid = int(stat.rsplit(")", 1)[1].split()[1])
+        except (IndexError, ValueError):
+            continue
+        children.setdefault(ppid, []).append(int(d))
+    out, todo = [], [root]
+    while todo:
+        pid = todo.pop()
+        out.append(pid)
+        todo.extend(children.get(pid, ()))
+    return out
+
+
+def label(pid: int, root: int) -> str | None:
+    """What the process is, from its command line (and, for a forked agent, its name); None if it is gone."""
+    cmd = _read(f"/proc/{pid}/cmdline")
+    comm = (_read(f"/proc/{pid}/comm") or "").strip()
+    if cmd is None:
+        return None
+    args = cmd.split("\0")
+    if pid == root:
+        return "run"
+    if comm.startswith("agent "):
+        return comm
+    if "splitspec_agents.forkserver" in args:
+        return "fork server"
+    if "splitspec_plant" in args:
+        return "plant"
+    if "splitspec_agents" in args:
+        return f"agent {args[args.index('--id') + 1]}" if "--id" in args[:-1] else "agent ?"
+    if "splitspec_orchestrator" in args and "orchestrator" in args:
+        return "orchestrator"
+    return comm or "?"
+
+
+def memory(pid: int) -> tuple | None:
+    """``(VmRSS, RssAnon)`` in kB, or None if the process is gone (or a zombie: no VmRSS)."""
+    status = _read(f"/proc/{pid}/status")
+    if status is None:
+        return None
+    vals = {}
+    for line in status.splitlines():
+        key, _, rest = line.partition(":")
+        if key in ("VmRSS", "RssAnon"):
+            vals[key] = int(rest.split()[0])
+    if "VmRSS" not in vals:
+        return None
+    return vals["VmRSS"], vals.get("RssAnon", 0)
+
+
+def cpu_seconds(pid: int) -> float | None:
+    stat = _read(f"/proc/{pid}/stat")
+    try:
+        f = stat.rsplit(")", 1)[1].split()
+        return (int(f[11]) + int(f[12])) / os.sysconf("SC_CLK_TCK")
+    except (AttributeError, IndexError, ValueError):
+        return None
+
+
+def processes(root: int) -> dict:
+    """``{"<label>/<pid>": {"label", "pid", "rss_kb", "anon_kb", "cpu_s"}}`` of the run's process tree now."""
+    out = {}
+    for pid in process_tree(root):
+        lab, mem = label(pid, root), memory(pid)
+        if lab is None or mem is None:
+            continue
+        out[f"{lab}/{pid}"] = {"label": lab, "pid": pid, "rss_kb": mem[0], "anon_kb": mem[1], "cpu_s": cpu_seconds(pid)}
+    return out
+
+
+def record_files(out: Path) -> dict:
+    """``{relative path: (bytes, inode)}`` of every file under ``out``."""
+    files = {}
+    for dirpath, _dirs, names in os.walk(out):
+        for name in names:
+            p = Path(dirpath) / name
+            try:
+                st = p.stat()
+            except OSError:
+                continue
+            files[str(p.relative_to(out))] = (st.st_size, st.st_ino)
+    return files
+
+
+class FileWatch:
+    """Per file: rewrites (it shrank or its inode changed since the previous sample) and removals."""
+
+    def __init__(self):
+        self.last: dict = {}
+        self.rewrites: dict = {}  # path -> count while running
+        self.rewrites_close: dict = {}  # path -> count between the last sample and the exit
+        self.removed: dict = {}  # path -> count (gone between two samples)
+        self.notes: list = []
+        self.walls: list = []  # (the sample's Unix time, path) of every rewrite while running
+
+    def see(self, files: dict, t: float, *, wall: float = math.nan, closing: bool = False) -> None:
+        into = self.rewrites_close if closing else self.rewrites
+        for path, (size, ino) in files.items():
+            prev = self.last.get(path)
+            if prev is not None and (size < prev[0] or ino != prev[1]):
+                into[path] = into.get(path, 0) + 1
+                if not closing:
+                    self.walls.append((wall, path))
+                self.notes.append(f"{t:8.1f} s {path}: {'inode changed' if ino != prev[1] else 'shrank'} "
+                                  f"({prev[0]} -> {size} bytes){' at close' if closing else ''}")
+        for path in self.last.keys() - files.keys():
+            self.removed[path] = self.removed.get(path, 0) + 1
+            self.notes.append(f"{t:8.1f} s {path}: removed{' at close' if closing else ''}")
+        self.last = dict(files)
+
+
+def events(out: Path) -> list:
+    text = _read(str(out / "events.jsonl")) or ""
+    evs = []
+    for line in text.splitlines():
+        try:
+            evs.append(json.loads(line))
+        except ValueError:
+            continue  # a torn last line while it is being written
+    return evs
+
+
+def first_event(evs: list, *names: str) -> dict | None:
+    return next((e for e in evs if e.get("event") in names), None)
+
+
+# ------------------------------------------------------------------ the run's rows
+
+def chunk_rows(out: Path, *, whole_limit: int = WHOLE_READ_BYTES) -> dict | None:
+    """``tau``, ``wall`` and ``round`` of every event time in the chunks (the last row written of each), plus ``m``,
+    ``n``, ``segments`` and ``how`` they were read; None without chunks.
+
+    Up to ``whole_limit`` bytes of segments: ``read_chunks(out)``.  Beyond (a long soak: ``read_chunks`` holds
+    every column, ``xhat`` too, several times over while it converts): the three columns alone, segment by
+    segment with pyarrow, by the same rule (segments in order, the last batch holding an event time wins; a torn
+    last batch is left out).  Not ``read_chunks`` by time windows: a window's ``end`` misses a row written again
+    into the segment that starts after it."""
+    import pyarrow as pa
+
+    from splitspec_core.simulation.trajectory_chunks import chunk_segments, read_chunks
+
+    segs = chunk_segments(out)
+    if not segs:
+        return None
+    size = sum(p.stat().st_size for _, p in segs if p.exists())
+    if size <= whole_limit:
+        c = read_chunks(out)
+        if c is None:
+            return None
+        return {"tau": c["tau"], "wall": c["wall"], "round": c["round"], "m": len(c["agent_ids"]),
+                "n": len(c["states"]), "segments": len(segs), "how": "read_chunks"}
+    taus, walls, rounds, meta = [], [], [], None
+    for _, path in segs:
+        try:
+            reader = pa.ipc.open_stream(pa.memory_map(str(path)))
+        except (OSError, pa.ArrowInvalid):
+            continue
+        meta = meta or reader.schema.metadata
+        while True:
+            try:
+                b = reader.read_next_batch()
+            except StopIteration:
+                break
+            except (OSError, pa.ArrowInvalid):
+                break  # a torn last batch
+            taus.append(b.column("tau").to_numpy(zero_copy_only=False).astype(np.int64))
+            walls.append(b.column("wall").to_numpy(zero_copy_only=False).astype(np.int64))
+            rounds.append(b.column("round").flatten().to_numpy(zero_copy_only=False).astype(float)
+                          .reshape(-1, b.schema.field("round").type.list_size))
+    if not taus:
+        return None
+    tau, wall, rnd = np.concatenate(taus), np.concatenate(walls), np.concatenate(rounds)
+    _, first_rev = np.unique(tau[::-1], return_index=True)
+    keep = len(tau) - 1 - first_rev  # the last row written of each event time, in event-time order
+    meta = meta or {}
+    m = len(json.loads(meta.get(b"agent_ids", b"[]")))
+    n = len(json.loads(meta.get(b"states", b"[]")))
+    return {"tau": tau[keep], "wall": wall[keep], "round": rnd[keep], "m": m, "n": n, "segments": len(segs),
+            "how": f"pyarrow, 3 columns ({size / 2 ** 30:.1f} GiB of segments)"}
+
+
+# ------------------------------------------------------------------ figures
+
+def slope_r2(t: np.ndarray, y: np.ndarray) -> tuple:
+    """Least-squares slope of y against t and the fit's R^2 (nan with fewer than 3 points; R^2 1 if y is flat)."""
+    if len(t) < 3 or np.ptp(t) == 0:
+        return math.nan, math.nan
+    a, b = np.polyfit(t, y, 1)
+    ss = float(np.sum((y - y.mean()) ** 2))
+    r2 = 1.0 if ss == 0 else 1.0 - float(np.sum((y - (a * t + b)) ** 2)) / ss
+    return float(a), r2
+
+
+def fmt(v, spec: str = ".1f", na: str = "n/a") -> str:
+    if v is None or (isinstance(v, float) and not math.isfinite(v)):
+        return na
+    return format(v, spec)
+
+
+def machine() -> str:
+    cpu = "n/a"
+    for line in (_read("/proc/cpuinfo") or "").splitlines():
+        if line.startswith("model name"):
+            cpu = line.split(":", 1)[1].strip()
+            break
+    mem = "n/a"
+    for line in (_read("/proc/meminfo") or "").splitlines():
+        if line.startswith("MemTotal:"):
+            mem = f"{int(line.split()[1]) / 1024 ** 2:.1f} GiB"
+            break
+    try:
+        usable = len(os.sched_getaffinity(0))
+    except AttributeError:
+        usable = os.cpu_count()
+    return f"{cpu}; {os.cpu_count()} cores ({usable} usable); {mem} memory"
+
+
+KIND_ORDER = ["chunks/rows-*.arrows", "run*.rrd", "events.jsonl", "trajectory.npz"]
+
+
+def kind(path: str) -> str:
+    """The records table's row of a file: the chunk segments together, the rrd segments together, others alone."""
+    if path.startswith("chunks/") and path.endswith(".arrows"):
+        return KIND_ORDER[0]
+    if "/" not in path and path.startswith("run") and path.endswith(".rrd"):
+        return KIND_ORDER[1]
+    return path
+
+
+def role_of(lab: str) -> str:
+    return "agent" if lab.startswith("agent ") else lab
+
+
+def progress(t: float, sample: dict) -> None:
+    """One line of a sample while the run goes on: RSS per role (agents: median and largest), records' bytes."""
+    rss: dict = {}
+    for p in sample["procs"].values():
+        rss.setdefault(role_of(p["label"]), []).append(p["rss_kb"] / 1024)
+    parts = []
+    for role, v in rss.items():
+        parts.append(f"agents {np.median(v):.1f} (max {max(v):.1f})" if role == "agent" and len(v) > 1
+                     else f"{role} {max(v):.1f}")
+    size = sum(b for b, _ in sample["files"].values())
+    print(f"# {t / 60:6.2f} min: RSS MB {', '.join(parts)}; records {size / 1e6:.2f} MB; load {loadavg()}", flush=True)
+
+
+# ------------------------------------------------------------------ main
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--minutes", type=float, default=30.0, help="minutes of running (from the first round)")
+    ap.add_argument("--m", type=int, default=10, help="agents of the generated ring")
+    ap.add_argument("--n", type=int, default=50, help="states of the generated ring")
+    ap.add_argument("--pace", type=float, default=50.0, help="event times per second (run.pace)")
+    ap.add_argument("--rate", type=float, default=0.9, help="design.rate of the generated ring (0.9: q = 4 at m = 10, "
+                    "n = 50)")
+    ap.add_argument("--sample-seconds", type=float, default=5.0)
+    ap.add_argument("--warmup-minutes", type=float, help="default: min(5, 20%% of --minutes)")
+    ap.add_argument("--out", type=Path, help="the run's records (default: a fresh folder under /tmp)")
+    ap.add_argument("--model", choices=("ring", "power"), default="ring",
+                    help=f"ring: the generated ring (--m, --n); power: {POWER_SCENARIO.relative_to(ROOT)}")
+    ap.add_argument("--scenario", type=Path, help="this scenario file instead (run.steps removed, run.pace set)")
+    ap.add_argument("--json", type=Path, help="write every sample and the results here")
+    args = ap.parse_args()
+    if not args.minutes > 0 or not args.sample_seconds > 0 or not args.pace > 0:
+        ap.error("--minutes, --sample-seconds and --pace must be positive")
+    if args.model == "ring" and args.scenario is None and (args.m < 2 or args.n < 2):
+        ap.error("the generated ring needs --m >= 2 and --n >= 2")
+    if args.scenario is not None and args.model != "ring":
+        ap.error("--scenario and --model power are exclusive")
+    warmup = min(5.0, 0.2 * args.minutes) if args.warmup_minutes is None else args.warmup_minutes
+    if not 0 <= warmup < args.minutes:
+        ap.error("--warmup-minutes must be in [0, --minutes)")
+
+    if args.out is None:
+        out = Path(tempfile.mkdtemp(prefix="bench_soak_")) / "run"
+    else:
+        out = args.out.resolve()
+        if out.exists() and any(out.iterdir()):
+            ap.error(f"--out {out}: not empty")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    if args.scenario is not None:
+        sc = file_scenario(args.scenario.resolve(), args.pace)
+    elif args.model == "power":
+        sc = file_scenario(POWER_SCENARIO, args.pace)
+    else:
+        sc = ring_soak_scenario(args.m, args.n, args.pace, args.rate)
+    scen = out.parent / f"{out.name}.soak.yaml"
+    scen.write_text(yaml.safe_dump(sc, sort_keys=False))
+    run_id = f"soak-{os.getpid()}"
+
+    load_start = loadavg()
+    print(f"# machine: {machine()}", flush=True)
+    print(f"# load average at start {load_start}", flush=True)
+    print(f"# scenario {scen} ({sc.get('name')}); records {out}; run id {run_id}", flush=True)
+    print(f"# {args.minutes:g} min from the first round, warm-up {warmup:g} min, a sample every "
+          f"{args.sample_seconds:g} s, pace {args.pace:g}/s", flush=True)
+
+    stdout = open(out.parent / f"{out.name}.stdout.log", "w")
+    stderr = open(out.parent / f"{out.name}.stderr.log", "w")
+    t_spawn = time.monotonic()
+    # its own session: a Ctrl-C of this script reaches the run only as the SIGINT sent below (once)
+    proc = subprocess.Popen([sys.executable, "-m", "splitspec_orchestrator", "run", str(scen), "--out", str(out),
+                             "--run-id", run_id], cwd=ROOT, env=ENV, stdout=stdout, stderr=stderr,
+                            stdin=subprocess.DEVNULL, start_new_session=True)
+    samples: list = []  # {"t" (s since the first round, None before), "wall", "procs", "files"}
+    watch = FileWatch()
+    t_first = None  # monotonic time of run_started
+    startup_s = None
+    ended_by_itself = None
+    stopped_by_user = False
+    next_at = time.monotonic()
+    next_progress = 0.0  # a progress line every minute of running
+    try:
+        while True:
+            now = time.monotonic()
+            if t_first is None:
+                started = first_event(events(out), "run_started")
+                if started is not None:
+                    # its wall time, on the monotonic clock (seen up to a sample late)
+                    t_first = now - min(max(0.0, time.time() - float(started.get("wall", time.time()))),
+                                        args.sample_seconds)
+                    startup_s = t_first - t_spawn
+                    print(f"# first round {startup_s:.1f} s after the spawn (start-up, design included)", flush=True)
+                elif now - t_spawn > STARTUP_TIMEOUT:
+                    print(f"# no run_started within {STARTUP_TIMEOUT:g} s: stopping", flush=True)
+                    break
+            t = now - t_first if t_first is not None else None  # None: before the first round
+            if proc.poll() is not None:
+                ended_by_itself = now - (t_first or t_spawn)
+                break
+            files = record_files(out) if out.exists() else {}
+            wall = time.time()
+            watch.see(files, math.nan if t is None else t, wall=wall)
+            samples.append({"t": None if t is None else round(t, 3), "wall": wall,
+                            "procs": processes(proc.pid), "files": files})
+            if t is not None and t >= next_progress:
+                progress(t, samples[-1])
+                next_progress += 60.0
+            if t is not None and t >= args.minutes * 60:
+                break
+            next_at += args.sample_seconds
+            time.sleep(max(0.0, next_at - time.monotonic()))
+    except KeyboardInterrupt:
+        stopped_by_user = True
+        print("# interrupted (Ctrl-C): stopping the run and reporting what there is", flush=True)
+    t_stop = time.monotonic()
+    code = proc.poll()
+    exit_s = None
+    if code is None:
+        proc.send_signal(signal.SIGINT)
+        try:
+            code = proc.wait(timeout=EXIT_TIMEOUT)
+            exit_s = time.monotonic() - t_stop
+        except subprocess.TimeoutExpired:
+            print(f"# `splitspec run` still running {EXIT_TIMEOUT:g} s after SIGINT: killing its process group",
+                  flush=True)
+            os.killpg(proc.pid, signal.SIGKILL)
+            code = proc.wait()
+    stdout.close()
+    stderr.close()
+    final_files = record_files(out) if out.exists() else {}
+    watch.see(final_files, (t_stop - t_first) if t_first is not None else math.nan, closing=True)
+    load_end = loadavg()
+
+    # ---------------------------------------------------------------- report
+    evs = events(out)
+    orch = first_event(evs, "orchestrator_started") or {}
+    end = first_event(evs, "run_finished", "run_interrupted", "run_failed") or {}
+    rows = chunk_rows(out)
+    m = rows["m"] if rows else (args.m if args.model == "ring" and args.scenario is None else None)
+    n = rows["n"] if rows else (args.n if args.model == "ring" and args.scenario is None else None)
+    ran_s = (t_stop - t_first) if t_first is not None else 0.0
+    print()
+    print(f"machine: {machine()}")
+    print(f"load average: start {load_start}; end {load_end}")
+    q_or_g = (f"q {orch['q']}" if orch.get("q") is not None else f"g {orch['g']:.4g}" if orch.get("g") is not None
+              else "q/g n/a")
+    print(f"run: {sc.get('name')} m {fmt(m, 'd')} n {fmt(n, 'd')} {q_or_g} pace {args.pace:g}/s; "
+          f"{ran_s / 60:.2f} of {args.minutes:g} min run (from the first round), start-up "
+          f"{fmt(startup_s, '.1f')} s, warm-up {warmup:g} min")
+    errlog = out.parent / f"{out.name}.stderr.log"
+    errors = [line for line in (_read(str(errlog)) or "").splitlines() if "error" in line.lower()]
+    if ended_by_itself is not None:
+        started = "" if t_first is not None else " before its first round"
+        print(f"NOTE: the run ended by itself{started} after {ended_by_itself:.1f} s (exit {code}), before the "
+              f"{args.minutes:g} min" + (": it does not run until stopped (yet?)" if code == 0 else "")
+              + "; what it recorded is reported below")
+    else:
+        print(f"stop: SIGINT{' (Ctrl-C of this script)' if stopped_by_user else ''}; `splitspec run` exited "
+              f"{code} after {fmt(exit_s, '.1f')} s")
+    if code != 0 or errors:
+        print(f"  its stderr ({errlog}): " + (errors[-1] if errors else "no line with 'error'"))
+
+    # memory, per role
+    results: dict = {"machine": machine(), "load_start": load_start, "load_end": load_end, "m": m, "n": n,
+                     "q": orch.get("q"), "g": orch.get("g"), "pace": args.pace, "minutes": args.minutes,
+                     "ran_minutes": ran_s / 60, "startup_s": startup_s, "warmup_minutes": warmup, "exit": code,
+                     "ended_by_itself_s": ended_by_itself, "end_event": end, "roles": {}}
+    after = [s for s in samples if s["t"] is not None and s["t"] >= warmup * 60]
+    series: dict = {}  # "<label>/<pid>" -> [(t, rss MB, anon MB, cpu s)]
+    for s in after:
+        for key, p in s["procs"].items():
+            series.setdefault(key, []).append((s["t"], p["rss_kb"] / 1024, p["anon_kb"] / 1024, p["cpu_s"]))
+    print(f"\nmemory after the warm-up ({len(after)} samples; slope by least squares, limit "
+          f"{SLOPE_LIMIT_MB_H:g} MB/h; anon: RssAnon's slope; CPU: % of one core)")
+    print(f"{'process':>13} {'n':>3} {'first MB':>8} {'last MB':>8} {'max MB':>8} {'MB/h':>8} {'anon MB/h':>9} "
+          f"{'CPU %':>6}  verdict")
+    by_role: dict = {}
+    for key, pts in series.items():
+        by_role.setdefault(role_of(key.split("/")[0]), []).append((key, pts))
+    order = ["run", "orchestrator", "fork server", "plant", "agent"]
+    for role in order + sorted(set(by_role) - set(order)):
+        if role not in by_role:
+            continue
+        per = []
+        for key, pts in by_role[role]:
+            a = np.array([(p[0], p[1], p[2]) for p in pts])
+            cpu = [(p[0], p[3]) for p in pts if p[3] is not None]
+            slope, _ = slope_r2(a[:, 0] / 3600, a[:, 1])
+            anon, _ = slope_r2(a[:, 0] / 3600, a[:, 2])
+            pct = (100 * (cpu[-1][1] - cpu[0][1]) / (cpu[-1][0] - cpu[0][0])
+                   if len(cpu) > 1 and cpu[-1][0] > cpu[0][0] else math.nan)
+            per.append({"process": key, "samples": len(pts), "first_mb": float(a[0, 1]), "last_mb": float(a[-1, 1]),
+                        "max_mb": float(a[:, 1].max()), "slope_mb_h": slope, "anon_slope_mb_h": anon, "cpu_pct": pct})
+        slopes = [p["slope_mb_h"] for p in per if math.isfinite(p["slope_mb_h"])]
+        worst = max(slopes) if slopes else math.nan
+        verdict = "n/a" if not slopes else "PASS" if worst < SLOPE_LIMIT_MB_H else "FAIL"
+        results["roles"][role] = {"processes": per, "verdict": verdict}
+        if role == "agent":
+            med = float(np.median(slopes)) if slopes else math.nan
+            anons = [p["anon_slope_mb_h"] for p in per if math.isfinite(p["anon_slope_mb_h"])]
+            print(f"{'agents':>13} {len(per):>3} {np.median([p['first_mb'] for p in per]):>8.1f} "
+                  f"{np.median([p['last_mb'] for p in per]):>8.1f} {max(p['max_mb'] for p in per):>8.1f} "
+                  f"{fmt(med, '8.2f'):>8} {fmt(float(np.median(anons)) if anons else math.nan, '9.2f'):>9} "
+                  f"{fmt(float(np.nanmedian([p['cpu_pct'] for p in per])), '6.1f'):>6}  median over the agents "
+                  "(first, last: medians; max: the largest)")
+            print(f"{'':>13} {'':>3} {'':>8} {'':>8} {'':>8} {fmt(worst, '8.2f'):>8} "
+                  f"{fmt(max(anons) if anons else math.nan, '9.2f'):>9} {'':>6}  the largest slope: {verdict}")
+            results["roles"][role].update(median_slope_mb_h=med, max_slope_mb_h=worst)
+            if len(per) > (m or len(per)):
+                print(f"{'':>13} note: {len(per)} agent processes for {m} agents (some restarted)")
+        else:
+            for p in per:
+                name = p["process"].split("/")[0] + ("" if len(per) == 1 else f" ({p['process'].split('/')[1]})")
+                print(f"{name:>13} {1:>3} {p['first_mb']:>8.1f} {p['last_mb']:>8.1f} {p['max_mb']:>8.1f} "
+                      f"{fmt(p['slope_mb_h'], '8.2f'):>8} {fmt(p['anon_slope_mb_h'], '9.2f'):>9} "
+                      f"{fmt(p['cpu_pct'], '6.1f'):>6}  {verdict}")
+    if not series:
+        print("  no samples after the warm-up")
+
+    # records
+    total_end = sum(size for size, _ in final_files.values())
+    ta = np.array([s["t"] for s in after], dtype=float)
+    tot = np.array([sum(size for size, _ in s["files"].values()) for s in after], dtype=float)
+    rate_b, r2 = slope_r2(ta / 3600, tot)
+    chunk_paths = sorted(p for p in set(final_files) | set(watch.rewrites) | set(watch.removed)
+                         | set(watch.rewrites_close) if p.startswith("chunks/"))
+    chunk_rewrites = sum(watch.rewrites.get(p, 0) + watch.rewrites_close.get(p, 0) for p in chunk_paths)
+    print(f"\nrecords: {total_end / 1e6:.2f} MB at the end in {len(final_files)} files; "
+          f"{fmt(rate_b / 1e6 if math.isfinite(rate_b) else rate_b, '.1f')} MB/h after the warm-up "
+          f"(R^2 of a straight line: {fmt(r2, '.5f')}); rewrites of the chunks: {chunk_rewrites} "
+          f"({'n/a' if not chunk_paths else 'PASS' if chunk_rewrites == 0 else 'FAIL'}: append-only)")
+    print(f"{'files':>22} {'count':>5} {'bytes':>12} {'MB/h':>8} {'R^2':>8} {'rewrites':>8} {'at close':>8} "
+          f"{'removed':>7}")
+    groups: dict = {}
+    for path in set(final_files) | set(watch.removed) | set(watch.rewrites) | set(watch.rewrites_close):
+        groups.setdefault(kind(path), []).append(path)
+    per_kind = {}
+    for name in sorted(groups, key=lambda k: (k not in KIND_ORDER, KIND_ORDER.index(k) if k in KIND_ORDER else 0, k)):
+        paths = groups[name]
+        ys = np.array([sum(s["files"][p][0] for p in paths if p in s["files"]) for s in after], dtype=float)
+        sl, fr2 = slope_r2(ta / 3600, ys)
+        size = sum(final_files[p][0] for p in paths if p in final_files)
+        count = sum(p in final_files for p in paths)
+        rw, rc, rm = (sum(d.get(p, 0) for p in paths) for d in (watch.rewrites, watch.rewrites_close, watch.removed))
+        per_kind[name] = {"files": count, "bytes": size, "mb_h": sl / 1e6 if math.isfinite(sl) else None, "r2": fr2,
+                          "rewrites": rw, "rewrites_at_close": rc, "removed": rm}
+        print(f"{name:>22} {count:>5} {size if count else 'gone':>12} {fmt(sl / 1e6, '8.2f'):>8} {fmt(fr2, '8.5f'):>8} "
+              f"{rw:>8} {rc:>8} {rm:>7}")
+    for note in watch.notes[:20]:
+        print(f"  {note}")
+    if len(watch.notes) > 20:
+        print(f"  ... {len(watch.notes) - 20} more (--json has them all)")
+    results["records"] = {"bytes_end": total_end, "mb_h": rate_b / 1e6 if math.isfinite(rate_b) else None, "r2": r2,
+                          "chunk_rewrites": chunk_rewrites, "kinds": per_kind, "notes": watch.notes,
+                          "files_end": {p: size for p, (size, _) in final_files.items()}}
+
+    # rows and lateness
+    period_ms = 1e3 / args.pace
+    if rows is None:
+        print("\nrows: no chunks (chunks/rows-*.arrows) in the records")
+        results["rows"] = None
+    else:
+        tau, wall, late = rows["tau"], rows["wall"], rows["round"][:, 4]
+        span = (wall[-1] - wall[0]) / 1e9 if len(wall) > 1 else math.nan
+        rps = (len(tau) - 1) / span if span and math.isfinite(span) and span > 0 else math.nan
+        gaps = int(tau[-1] - tau[0] + 1 - len(tau)) if len(tau) else 0
+        print(f"\nrows ({rows['how']}): {len(tau)} event times in {rows['segments']} chunk segment(s) (tau {tau[0]}..{tau[-1]}, "
+              f"{gaps} missing); {fmt(rps, '.2f')} per second over {fmt(span, '.1f')} s of wall clock, "
+              f"{fmt(rps / args.pace if math.isfinite(rps) else math.nan, '.4f')} x pace")
+        fin = late[np.isfinite(late)]
+        results["rows"] = {"rows": int(len(tau)), "missing": gaps, "rows_per_second": rps, "segments": rows["segments"],
+                           "late_ms_recorded": int(len(fin))}
+        if len(fin):
+            p50, p90, p99 = np.percentile(fin, [50, 90, 99])
+            nlate = int(np.sum(fin > LATE_FRACTION * period_ms))
+            print(f"lateness (late_ms of {len(fin)} event times, period {period_ms:g} ms): p50 {p50:.2f} p90 {p90:.2f} "
+                  f"p99 {p99:.2f} max {fin.max():.2f} ms; later than {LATE_FRACTION:.0%} of a period "
+                  f"({LATE_FRACTION * period_ms:g} ms): {nlate} ({100 * nlate / len(fin):.2f}%)")
+            results["rows"].update(late_p50=p50, late_p90=p90, late_p99=p99, late_max=float(fin.max()),
+                                   late_over_10pct=nlate)
+            # a file rewritten while running (run.rrd's segment finished as it rolls): the lateness around it
+            near = []
+            for w, path in watch.walls:
+                lo, hi = (w - args.sample_seconds - 5.0) * 1e9, (w + 5.0) * 1e9
+                sel = (wall >= lo) & (wall <= hi) & np.isfinite(late)
+                near.append({"path": path, "wall": w, "rows": int(sel.sum()),
+                             "late_max": float(late[sel].max()) if sel.any() else None,
+                             "late_over_10pct": int(np.sum(late[sel] > LATE_FRACTION * period_ms))})
+            for e in near[:10]:
+                print(f"  around the rewrite of {e['path']} (the sample's {args.sample_seconds:g} s before it, 5 s "
+                      f"either side): {e['rows']} event times, max late {fmt(e['late_max'], '.1f')} ms, "
+                      f"{e['late_over_10pct']} later than {LATE_FRACTION:.0%} of a period")
+            results["rows"]["around_rewrites"] = near
+        else:
+            print("lateness: n/a (the chunks' late_ms is NaN or absent in every row)")
+    keys = ("reason", "late_event_times", "max_lateness_ms", "achieved_rate", "pace", "pace_kept")
+    print(f"end event: {end.get('event', 'none')}: " + ", ".join(f"{k} {end[k] if k in end else 'n/a'}" for k in keys)
+          + f"; event_times {end.get('event_times', 'n/a')}, rounds_per_second {end.get('rounds_per_second', 'n/a')}, "
+            f"messages_lost {end.get('messages_lost', 'n/a')}, agents_lost {end.get('agents_lost', 'n/a')}")
+
+    counts: dict = {}
+    for e in evs:  # what happened besides the start-up: warnings, losses, restarts
+        if e.get("event") not in QUIET_EVENTS:
+            counts[e.get("event")] = counts.get(e.get("event"), 0) + 1
+    print("other events: " + (", ".join(f"{k} {v}" for k, v in sorted(counts.items())) or "none"))
+    results["event_counts"] = counts
+    last = [line for line in (_read(str(out.parent / f"{out.name}.stdout.log")) or "").splitlines() if line.strip()]
+    if last:
+        print(f"splitspec run said: {last[-1]}")
+
+    if args.json is not None:
+        args.json.write_text(json.dumps({"args": {k: str(v) if isinstance(v, Path) else v for k, v in vars(args).items()},
+                                         "scenario": str(scen), "out": str(out), "results": results,
+                                         "samples": samples}, default=float, indent=1))
+        print(f"# samples and results in {args.json}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
