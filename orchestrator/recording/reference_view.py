@@ -112,6 +112,7 @@ class ReferenceRows:
         self._dis = np.full(64, np.nan)  # the disagreement of each event time batched so far, by tau
         # the measurements y_row gave, by tau (a None is asked again: a live source may know it later)
         self._y, self._miss, self._known = np.zeros((64, self.size)), np.ones((64, self.m), bool), np.zeros(64, bool)
+        self._base = 0  # the event time of row 0 of these arrays (forget_before)
 
     def measurements(self, taus) -> tuple[np.ndarray, np.ndarray]:
         """``y`` (L, sum s_i) and ``missing`` (L, m) of event times ``taus`` (0.0 and missing where unknown).
@@ -125,20 +126,36 @@ class ReferenceRows:
             If ``y_row`` gives a row of the wrong shape.
         """
         taus = np.asarray(taus, dtype=np.int64).reshape(-1)
-        if len(taus) and int(taus.max()) >= len(self._known):
-            cap = max(2 * len(self._known), int(taus.max()) + 1)
+        idx = taus - self._base  # a run until stopped forgets the oldest (forget_before): unknown there
+        held = idx >= 0
+        if held.any() and int(idx.max()) >= len(self._known):
+            cap = max(2 * len(self._known), int(idx.max()) + 1)
             self._y, self._miss, self._known = (_grown(a, cap, fill) for a, fill in
                                                 ((self._y, 0.0), (self._miss, True), (self._known, False)))
-        for tau in taus[~self._known[taus]].tolist():
-            got = self.y_row(int(tau))
+        for k in idx[held][~self._known[idx[held]]].tolist():
+            got = self.y_row(int(k + self._base))
             if got is None:
                 continue
             y, miss = np.asarray(got[0], dtype=float).reshape(-1), np.asarray(got[1], dtype=bool).reshape(-1)
             if y.shape != (self.size,) or miss.shape != (self.m,):
-                raise ValueError(f"the measurement of event time {tau} has y {y.shape} and missing {miss.shape}; "
-                                 f"expected ({self.size},) and ({self.m},)")
-            self._y[tau], self._miss[tau], self._known[tau] = y, miss, True
-        return self._y[taus], self._miss[taus]
+                raise ValueError(f"the measurement of event time {k + self._base} has y {y.shape} and missing "
+                                 f"{miss.shape}; expected ({self.size},) and ({self.m},)")
+            self._y[k], self._miss[k], self._known[k] = y, miss, True
+        Y, missing = np.zeros((len(taus), self.size)), np.ones((len(taus), self.m), dtype=bool)
+        Y[held], missing[held] = self._y[idx[held]], self._miss[idx[held]]
+        return Y, missing
+
+    def forget_before(self, tau: int) -> None:
+        """Forget the event times before ``tau`` (a run until stopped holds a window of rows; they are on disk)."""
+        d = int(tau) - self._base
+        if d <= 0:
+            return
+        for name, fill in (("_y", 0.0), ("_miss", True), ("_known", False), ("_dis", np.nan)):
+            a = getattr(self, name)
+            keep = max(0, len(a) - d)
+            a[:keep] = a[len(a) - keep:]
+            a[keep:] = fill
+        self._base = int(tau)
 
     def batch(self, seq, t, wall, xhat: np.ndarray) -> ReferenceBatch:
         """Rows of event times ``seq`` with estimates ``xhat`` (L, m, n), NaN where an agent is dead."""
@@ -146,16 +163,17 @@ class ReferenceRows:
         Y, missing = self.measurements(seq)
         dis = disagreement(xhat)
         if len(seq):
-            if int(seq.max()) >= len(self._dis):
-                self._dis = _grown(self._dis, max(2 * len(self._dis), int(seq.max()) + 1), np.nan)
-            self._dis[seq] = dis
+            k = seq - self._base
+            if int(k.max()) >= len(self._dis):
+                self._dis = _grown(self._dis, max(2 * len(self._dis), int(k.max()) + 1), np.nan)
+            self._dis[k[k >= 0]] = dis[k >= 0]
         return ReferenceBatch(seq=seq, t=np.asarray(t), wall=np.asarray(wall),
                               residual=residuals(xhat, Y, missing, self.Cs), disagreement=dis)
 
     def mark_y(self, tau: int) -> float:
         """Height of a mark at ``tau`` on the log10 disagreement axis: at the last event time at or before ``tau``
         with a positive disagreement; 0.0 if there is none."""
-        dis = self._dis[:max(0, min(int(tau) + 1, len(self._dis)))]
+        dis = self._dis[:max(0, min(int(tau) + 1 - self._base, len(self._dis)))]
         ok = np.nonzero(np.isfinite(dis) & (dis > 0))[0]
         return math.log10(float(dis[ok[-1]])) if ok.size else 0.0
 

@@ -43,7 +43,7 @@ from pathlib import Path
 from typing import Any, Iterator
 
 __all__ = ["RrdAppender", "split_stream", "whole_messages_length", "rewrite_rrd", "has_footer", "rerun_command",
-           "verify_rrd", "segment_path", "rrd_segments"]
+           "verify_rrd", "segment_path", "rrd_segments", "finish_in_child", "wait_finished"]
 
 log = logging.getLogger(__name__)
 
@@ -319,3 +319,46 @@ def verify_rrd(path: str | Path, *, timeout: float = 120.0) -> tuple[bool, str]:
     except (OSError, subprocess.TimeoutExpired) as exc:
         return False, f"could not run rerun rrd verify: {exc}"
     return proc.returncode == 0, (proc.stdout + proc.stderr).strip()
+
+
+def finish_in_child(path: str | Path, blueprint_args: dict):
+    """Start a child process that rewrites the footer-less segment ``path`` as one RRD with footer (:func:`rewrite_rrd`,
+    with :func:`~splitspec_orchestrator.recording.blueprint.default_blueprint` of ``blueprint_args``); its ``Popen``.
+    A rolled segment is finished beside the run: its rewrite's memory is the child's, not the recorder's."""
+    import json
+
+    cmd = [sys.executable, "-m", "splitspec_orchestrator.recording.rrd_file", str(path), json.dumps(blueprint_args)]
+    return subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                            env={**os.environ, "RERUN_ANALYTICS": os.environ.get("RERUN_ANALYTICS", "0")})
+
+
+def wait_finished(procs, timeout: float = 300.0) -> None:
+    """Wait for :func:`finish_in_child`'s children; one that fails leaves its segment footer-less (a warning: the
+    viewer and ``RrdReader`` still read it, ``splitspec recover`` finishes it)."""
+    for p in procs:
+        try:
+            _, err = p.communicate(timeout=timeout)
+        except subprocess.TimeoutExpired:
+            p.kill()
+            _, err = p.communicate()
+        if p.returncode != 0:
+            last = (err or b"").decode(errors="replace").strip().splitlines()
+            log.warning("could not finish a rolled segment of run.rrd (%s); it is readable but has no footer",
+                        last[-1] if last else f"exit status {p.returncode}")
+
+
+def _finish_main(argv: list) -> int:
+    """``python -m splitspec_orchestrator.recording.rrd_file PATH BLUEPRINT_JSON``: :func:`finish_in_child`'s child."""
+    import json
+
+    from .blueprint import default_blueprint
+
+    path, args = Path(argv[0]), json.loads(argv[1])
+    if has_footer(path):
+        return 0
+    rewrite_rrd(path, path, blueprint=default_blueprint(**args))
+    return 0 if has_footer(path) else 1
+
+
+if __name__ == "__main__":
+    sys.exit(_finish_main(sys.argv[1:]))

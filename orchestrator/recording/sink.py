@@ -46,7 +46,7 @@ import numpy as np
 from . import blueprint as bp
 from .handoff import LossClear, LostRow, Mark, RowBatch, TextLine, TopologyLog
 from .reference_view import ReferenceRows, ReferenceView, log10
-from .rrd_file import RrdAppender, rerun_command, rewrite_rrd, segment_path
+from .rrd_file import RrdAppender, finish_in_child, rerun_command, rewrite_rrd, segment_path, wait_finished
 from .topology_view import TopologyView
 
 __all__ = ["RerunSink", "open_sink", "APPLICATION_ID", "RRD_FILE"]
@@ -106,6 +106,7 @@ class RerunSink:
         self.rrd_file = RrdAppender(Path(out_dir) / RRD_FILE)
         self.roll_bytes = roll_bytes  # run.rrd rolls to run-0001.rrd ... past this size (None: never)
         self.segment = 0  # the segment being written (0: run.rrd)
+        self.finishing: list = []  # child processes finishing rolled segments (finish_in_child)
         self.pending: list[bytes] = []  # read from Rerun, not yet on disk
         self._viewer_warned = False
         # a run on measurements (set_reference): whether it has the truth, its rows and its view
@@ -136,8 +137,13 @@ class RerunSink:
     # ------------------------------------------------------------------ setup
 
     def blueprint(self):
-        return bp.default_blueprint(self.time_mode, n=self.n, envelope=self.envelope, gains=self.gains, truth=self.truth,
-                                    reference=self.reference is not None, states=self.states, shown=self.shown)
+        return bp.default_blueprint(**self.blueprint_args())
+
+    def blueprint_args(self) -> dict:
+        """The arguments of :func:`~splitspec_orchestrator.recording.blueprint.default_blueprint` (JSON)."""
+        return dict(time_mode=self.time_mode, n=self.n, envelope=self.envelope, gains=self.gains, truth=self.truth,
+                    reference=self.reference is not None, states=list(self.states) if self.states else None,
+                    shown=list(self.shown) if self.shown is not None else None)
 
     def set_reference(self, rows: ReferenceRows, *, truth: bool) -> None:
         """The run is on measurements (``rows``): log its residuals, disagreement and filter, the errors and the
@@ -381,23 +387,24 @@ class RerunSink:
             except ValueError as exc:  # not what rerun 0.41 encodes: drop it rather than tear the file
                 log.warning("Rerun bytes not appended to %s (%s)", RRD_FILE, exc)
             self.pending.pop(0)
+        self.finishing = [p for p in self.finishing if p.poll() is None]  # reaped
         if self.roll_bytes is not None and self.rrd_file.size >= self.roll_bytes:
             self.roll()
 
     def roll(self) -> None:
-        """Finish the segment being written (footer and manifest: a rewrite of at most about ``roll_bytes``) and
-        write the next ones to the next segment (``run-0001.rrd`` ...), which starts with the stores' openings and
+        """Finish the segment being written (footer and manifest: a rewrite of at most about ``roll_bytes``, by a
+        child process, so that this one's memory does not depend on it) and write the next ones to the next segment (``run-0001.rrd`` ...), which starts with the stores' openings and
         gets the static data again (name, properties, styles, blueprint): each segment opens alone, and all
         together as one recording.
 
-        Raises
-        ------
-        OSError
-            If the finished segment cannot be rewritten.
         """
         import rerun as rr
 
-        self.finish(None)
+        try:
+            self.rec.flush(timeout_sec=10.0)
+        except Exception:
+            pass
+        self.finishing.append(finish_in_child(self.rrd_file.path, self.blueprint_args()))
         infos = self.rrd_file.infos
         self.segment += 1
         self.rrd_file = RrdAppender(segment_path(self._first_path(), self.segment), prefix=infos)
@@ -420,6 +427,8 @@ class RerunSink:
         OSError
             If ``run.rrd`` cannot be rewritten; other failures leave the footer-less file with a warning.
         """
+        wait_finished(self.finishing)  # the rolled segments (a run's end: all its records complete)
+        self.finishing = []
         if self.rrd_file.size == 0:
             return
         try:

@@ -315,6 +315,8 @@ class Flusher:
             first = int(S.tau[0]) if S.rows else None
             for tau in [t for t in self.lost if first is None or t < first]:
                 del self.lost[tau]
+            if first is not None:
+                self.writer.meas.forget_before(first)
 
     def flush(self, *, final: bool = False) -> None:
         """Take what was recorded (under ``lock``, memory only), then write it out (``io`` held, not ``lock``).

@@ -93,6 +93,11 @@ class MeasuredRecords:
             return None
         return self.source[1].measurements(np.asarray(taus).astype(int))
 
+    def forget_before(self, tau: int) -> None:
+        """A run until stopped forgot its rows before ``tau`` (on disk): so do the measurements behind them."""
+        if self.source is not None:
+            self.source[1].forget_before(tau)
+
     def row_errors(self, K: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``|x_i - x|`` of rows ``K`` and where a row shows agent i: alive with a finite error, or without the
         truth (whose errors are never logged) alive with a finite estimate."""

@@ -126,7 +126,6 @@ class TopologyState:
         else:
             msg = f"agents {survivors}: still strongly connected and jointly observable; {v['certificate']}"
         self.dirty = True
-        return [Event("resilience_verdict", t, {"level": "INFO" if v["ok"] else "WARN",
-                                                "note": f"{after} at event time {tau}: {msg}",
-                                                "after": after, "tau": tau, **v}),
+        return [Event("resilience_verdict", t, {"note": f"{after} at event time {tau}: {msg}", "after": after,
+                                                "tau": tau, **v}, level="INFO" if v["ok"] else "WARN"),
                 Log("info" if v["ok"] else "warning", f"{after} at event time {tau}: {msg}")]

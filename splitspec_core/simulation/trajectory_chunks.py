@@ -16,8 +16,9 @@ Columns, one row per event time (the contract of ``trajectory.npz``, docs/refere
 rejected, consensus messages lost, and its lateness against ``run.pace`` in ms (NaN unpaced); ``lost``: the
 consensus messages of this event time that did not count, flattened ``(k, j, i, cause)`` quadruples; and on
 measurements or live sensors ``y`` (sum s_i) and ``y_missing`` (m).  The schema's metadata holds
-``agent_ids`` and ``states`` (JSON).  A row written again (an agent declared lost after its row was
-flushed) is appended again: the last batch that holds an event time wins.
+``agent_ids``, ``states`` (JSON) and ``dt``.  A row written again (an agent declared lost after its row was
+flushed) is appended again, to the segment being written: the last batch that holds an event time wins, and a
+time window reads the first segment past its end as well.
 """
 
 from __future__ import annotations
@@ -240,8 +241,8 @@ def read_chunks(out: str | Path, *, start: float | None = None, end: float | Non
     for k, (first, path) in enumerate(segs):
         # segment k holds the rows from its first event time up to the next one's first, and rows written
         # again a little later: it may hold event times up to the first of segment k + 2
-        if end is not None and first * dt > end:
-            break
+        if end is not None and k > 0 and firsts[k - 1] * dt > end:
+            break  # (the first segment past the window is read: it may hold rows of the window written again)
         if start is not None and k + 2 < len(firsts) and firsts[k + 2] * dt < start:
             continue
         chosen.append(path)

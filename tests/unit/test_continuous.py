@@ -75,6 +75,18 @@ def test_chunks_read_back_whole_by_window_and_the_last_write_wins(tmp_path):
     assert set(part["lost"][:, 0].tolist()) == {t for t in range(21, 34) if t % 3 == 0}
 
 
+def test_a_window_sees_a_row_written_again_in_the_next_segment(tmp_path):
+    w = ChunkWriter(tmp_path, agent_ids=IDS, states=("a", "b", "c", "d"), n=N, segment_bytes=4000)
+    for k in range(0, 75, 5):
+        w.append(_cols(range(k, k + 5), seed=k))
+    again = _cols([71], seed=7)  # written again after the segment of 70.. began (a loss noticed late)
+    w.append(again)
+    assert w.path.name == f"rows-{70:012d}.arrows" or chunk_segments(tmp_path)[-2][0] <= 71
+    part = read_chunks(tmp_path, start=60, end=71.5)
+    assert part["tau"].tolist() == list(range(60, 72))
+    assert np.array_equal(part["xhat"][-1], again["xhat"][0])  # the last write, not the first
+
+
 def test_a_torn_batch_is_left_out_and_recover_cuts_it(tmp_path):
     (tmp_path / "events.jsonl").write_text('{"event": "run_started", "t": 0.0, "wall": 0.0}\n')
     w = ChunkWriter(tmp_path, agent_ids=IDS, states=("a", "b", "c", "d"), n=N)
@@ -113,9 +125,9 @@ def _feed(rec: Recorder, T: int, *, lose_at: int | None = None) -> None:
 
 
 def test_a_recorder_until_stopped_holds_a_window_and_loses_no_row(tmp_path):
-    cont = Continuous(window_rows=16, chunk_bytes=6000, rrd_bytes=60_000)
+    cont = Continuous(window_rows=16, chunk_bytes=6000, rrd_bytes=1_500_000)  # a segment holds ~200 kB of statics
     rec = _recorder(tmp_path / "until", continuous=cont)
-    _feed(rec, 300, lose_at=150)
+    _feed(rec, 160, lose_at=90)
     held = rec._s.rows
     rec.close()
     assert held <= 2 * 16 + 1  # the window, not the run
@@ -123,7 +135,7 @@ def test_a_recorder_until_stopped_holds_a_window_and_loses_no_row(tmp_path):
     assert not (out / "trajectory.npz").exists() and len(chunk_segments(out)) > 2
     full = tmp_path / "full"  # the same rows into a recorder of a run of run.steps: trajectory.npz and chunks
     rec2 = _recorder(full)
-    _feed(rec2, 300, lose_at=150)
+    _feed(rec2, 160, lose_at=90)
     rec2.close()
     npz = Trajectory.load(full / "trajectory.npz")
     for rows in (read_chunks(out), read_chunks(full)):
@@ -131,8 +143,8 @@ def test_a_recorder_until_stopped_holds_a_window_and_loses_no_row(tmp_path):
         assert np.array_equal(rows["t"], npz.t) and np.array_equal(rows["alive"], npz.alive)
         assert np.array_equal(rows["xhat"], npz.xhat, equal_nan=True) and np.array_equal(rows["x"], npz.x)
         assert np.array_equal(rows["lost"], npz.lost) and np.array_equal(rows["lost_cause"], npz.lost_cause)
-        assert rows["round"][:, 4].tolist() == [float(t % 3) for t in range(300)]  # late_ms
-    assert not npz.alive[150:, 1].any() and npz.alive[:150, 1].all()
+        assert rows["round"][:, 4].tolist() == [float(t % 3) for t in range(160)]  # late_ms
+    assert not npz.alive[90:, 1].any() and npz.alive[:90, 1].all()
     segs = rrd_segments(out / "run.rrd")
     assert len(segs) >= 2
     taus = []
@@ -140,9 +152,9 @@ def test_a_recorder_until_stopped_holds_a_window_and_loses_no_row(tmp_path):
         ok, msg = verify_rrd(p)
         assert ok, (p.name, msg)
         taus += [tau for tau, _ in read_rrd(p).get("errors/max", [])]
-    assert sorted(set(taus)) == list(range(300))  # every row in one segment or another
+    assert sorted(set(taus)) == list(range(160))  # every row in one segment or another
     closed = [line for line in (out / "events.jsonl").read_text().splitlines() if "recording_closed" in line]
-    assert '"rows": 300' in closed[0]
+    assert "\"rows\": 160" in closed[0]
 
 
 # ---------------------------------------------------------------------------------------------- the pace watch
@@ -210,3 +222,29 @@ def test_the_closing_line_says_what_happened():
 def test_bad_steps_still_one_line(bad):
     with pytest.raises(ss.ScenarioError, match="run.steps"):
         _scenario(bad)
+
+
+def test_the_measurements_behind_a_window_are_forgotten_with_it():
+    from splitspec_orchestrator.recording.reference_view import ReferenceRows
+
+    asked = []
+
+    def y_row(tau):
+        asked.append(tau)
+        return np.full(2, float(tau)), np.zeros(2, dtype=bool)
+
+    rows = ReferenceRows([np.eye(2)[[0]], np.eye(2)[[1]]], y_row)
+    y, _ = rows.measurements(np.arange(100))
+    rows.batch(np.arange(100), np.arange(100.0), np.zeros(100), np.ones((100, 2, 2)) * np.arange(2)[None, :, None])
+    rows.forget_before(80)
+    held = len(rows._y)
+    y2, miss2 = rows.measurements(np.array([79, 80, 99]))
+    assert miss2[0].all() and y2[0].tolist() == [0.0, 0.0]  # forgotten: unknown
+    assert y2[1:].tolist() == y[[80, 99]].tolist() and not miss2[1:].any()  # kept, not asked again
+    assert asked == list(range(100))
+    assert rows.mark_y(99) == pytest.approx(np.log10(np.sqrt(2)))  # |x_1 - x_2| = sqrt 2 at every kept event time
+    assert rows.mark_y(79) == 0.0  # forgotten
+    for k in range(10):  # a long run: the arrays stay the size of the window, not of the run
+        rows.forget_before(100 + 100 * k)
+        rows.measurements(np.arange(100 + 100 * k, 200 + 100 * k))
+    assert len(rows._y) <= max(held, 256)
