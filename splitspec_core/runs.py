@@ -162,21 +162,21 @@ def load_run(out: str | Path, *, start: float | None = None, end: float | None =
     if not out.is_dir():
         raise ScenarioError(f"{out} is not a directory (a run's output directory holds trajectory.npz or chunks/, "
                             "events.jsonl and scenario.yaml)")
+    npz = out / "trajectory.npz"
+    if not npz.is_file() and not has_chunks(out):
+        raise ScenarioError(f"{out} has no trajectory.npz or chunks/: not a run's output directory (or the run "
+                            "never recorded a row)")
     for name in ("scenario.yaml", "events.jsonl"):
         if not (out / name).is_file():
             raise ScenarioError(f"{out} has no {name}: not a run's output directory (or the run never started)")
-    npz = out / "trajectory.npz"
     windowed = start is not None or end is not None
     if has_chunks(out) and (windowed or not npz.is_file()):
         arrays = read_chunks(out, start=start, end=end)
         traj = Trajectory.from_arrays(arrays)
-    elif npz.is_file():
+    else:
         traj = Trajectory.load(npz)
         if windowed:
             traj = traj.window(start, end)
-    else:
-        raise ScenarioError(f"{out} has no trajectory.npz or chunks/: not a run's output directory (or the run "
-                            "never recorded a row)")
     return RunRecord(out=out, scenario=load_scenario(out / "scenario.yaml"), trajectory=traj,
                      events=read_events(out / "events.jsonl"))
 
@@ -205,7 +205,9 @@ def run(sc: Scenario | str | Path, *, out: str | Path, faults: Iterable | None =
     ``[{"at": 10, "kill": 3}, {"at": 20, "restart": 3}]``).  ``secure``, ``measurements``, ``round_timeout``,
     ``wait``: as the command's options.  ``progress``: let the command write its progress and summary to this
     process's terminal (else they are kept, and the last line is the error on failure).  ``timeout``: seconds
-    before the run is interrupted (its records are still written).
+    before the run is interrupted (its records are still written); a run until stopped (a paced scenario without
+    ``run.steps``) ends as finished then, or when stopped from outside (``splitspec stop``).  The result's
+    :attr:`RunRecord.closing_line` and :attr:`RunRecord.summary` say what happened.
 
     Returns
     -------

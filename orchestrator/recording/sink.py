@@ -27,8 +27,13 @@ is noticed after they were logged), and a NaN breaks the line as well.
 The recording logs into an ``rr.binary_stream()`` (plus a ``GrpcSink`` for a
 live viewer); :meth:`RerunSink.write_pending` appends what it encoded to
 ``run.rrd`` with ordinary file calls whose ``OSError`` the recorder reports
-(see :mod:`splitspec_orchestrator.recording.rrd_file`).  Rerun itself never stops a run: a viewer
-that cannot be spawned or reached is a warning and the recording goes on.
+(see :mod:`splitspec_orchestrator.recording.rrd_file`), rolled into segments on a run until stopped
+(:meth:`RerunSink.roll`).  Rerun itself never stops a run: a viewer that cannot be spawned or reached is a
+warning and the recording goes on.
+
+Why one module: it is the one holder of the run's Rerun recording stream; every method logs one kind of thing
+to it or moves its bytes to ``run.rrd``, and the views that compute what to log live beside it
+(:mod:`.topology_view`, :mod:`.reference_view`).
 """
 
 from __future__ import annotations

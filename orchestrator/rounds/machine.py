@@ -541,9 +541,8 @@ class RoundMachine:
         out = [Record(self.tau, x, xh, mask, self.plan.graph_at(self.tau), gains, attempts=self.attempt + 1,
                       rejected=self.rejections.since_record(), started=self.round_started, lost=lost,
                       y=tuple((a, used.get(a)) for a in sorted(self.alive)), late=self.round_late)]
-        if self.pace is not None:
-            out += self.pace.observe(self.tau, self.round_late, self.round_started, now, self.last_in, self.t())
-        self.last_in = None
+        out += self.pace.observe(self.tau, self.round_late, self.round_started, now, self.last_in, self.t()) \
+            if self.pace is not None else []
         if self.plantless and self.tau < self.plan.steps:  # the last tick takes no measurement
             out += self.live.sensor_events(self.alive, used, self.tau, self.t())
         if lost:  # one line per event time, never one per message

@@ -47,7 +47,7 @@ def test_a_python_scenario_with_faults_given_to_run(tmp_path):
 
 
 def test_bad_input_to_the_api_is_one_line(tmp_path):
-    with pytest.raises(ss.ScenarioError, match="has no trajectory.npz: not a run's output directory"):
+    with pytest.raises(ss.ScenarioError, match="has no trajectory.npz or chunks/: not a run's output directory"):
         ss.load_run(tmp_path)
     with pytest.raises(ss.ScenarioError, match="is not a directory"):
         ss.load_run(tmp_path / "absent")
