@@ -160,7 +160,9 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("run", help="local multi-process deployment: orchestrator, plant and one process per agent",
                        description="Run the scenario as real processes talking over Zenoh on loopback: the "
                                    "orchestrator (embedded router), the plant and one process per agent. Writes "
-                                   "trajectory.npz, events.jsonl and run.rrd to --out. With live sensors (the "
+                                   "trajectory.npz, chunks/, events.jsonl and run.rrd to --out, and ends with one "
+                                   "line of what happened. A paced scenario without run.steps runs until Ctrl-C, "
+                                   "SIGTERM or splitspec stop (docs/how-to/continuous.md). With live sensors (the "
                                    "scenario's sources:) there is no plant: your sensor processes publish y_i "
                                    "under splitspec/<run-id>/sensors/, and the orchestrator says where and with "
                                    "which credentials (stderr and the sensors event of events.jsonl; "

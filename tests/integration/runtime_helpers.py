@@ -174,11 +174,25 @@ def compare_trajectories(a_path: Path, b_path: Path, tol: float = 1e-9) -> float
     return diff
 
 
+def assert_chunks_hold_the_trajectory(out: Path) -> None:
+    """A run of run.steps keeps its rows twice: ``trajectory.npz`` and the append-only chunks; they must agree
+    exactly (both hold the values the recorder was given, copied, never computed along another path)."""
+    from splitspec_core.simulation.trajectory_chunks import read_chunks
+
+    rows = read_chunks(out)
+    assert rows is not None, f"{out} has no chunks/"
+    with np.load(out / "trajectory.npz") as z:
+        for k in ("t", "x", "xhat", "alive", "graph", "g", "lost", "lost_cause", "agent_ids", "y", "y_missing"):
+            if k in z.files:
+                assert np.array_equal(z[k], rows[k], equal_nan=z[k].dtype.kind == "f"), k
+
+
 def compare_with_simulate(out: Path, scenario: Path, tmp: Path, tol: float = 1e-9, *extra) -> float:
-    """``splitspec simulate SCENARIO [EXTRA]`` must give the run's trajectory."""
+    """``splitspec simulate SCENARIO [EXTRA]`` must give the run's trajectory (and its chunks hold it too)."""
     sim = tmp / "sim"
     r = run("simulate", scenario, "--out", sim, "--no-plots", *extra)
     assert r.returncode == 0, r.stderr
+    assert_chunks_hold_the_trajectory(out)
     return compare_trajectories(out / "trajectory.npz", sim / "trajectory.npz", tol)
 
 

@@ -171,3 +171,15 @@ def test_a_pace_far_above_the_machine_is_reported_while_running_and_at_the_end(t
     late = read_chunks(out)["round"][:, 4]
     assert np.isfinite(late).all() and late[-1] > late[len(late) // 2] > 0  # ever later
     assert_all_gone(all_pids(out))
+
+
+def test_ss_run_of_a_run_until_stopped_ends_at_its_timeout_with_the_closing_line(tmp_path):
+    sc = ss.load_scenario(endless(tmp_path, "paper_discrete", 30))
+    assert sc.run.until_stopped
+    rec = ss.run(sc, out=tmp_path / "out", timeout=8)  # the timeout stops it as Ctrl-C does: finished
+    end = rec.summary
+    assert end["event"] == "run_finished" and end["reason"] == "stopped (SIGINT)"
+    assert rec.closing_line.startswith("run finished (stopped (SIGINT)): ") and "pace 30" in rec.closing_line
+    assert len(rec.trajectory.t) == end["event_times"] > 0 and end["agents_lost"] == 0
+    assert end["final_max_error"] == pytest.approx(
+        float(np.nanmax(np.linalg.norm(rec.trajectory.xhat[-1] - rec.trajectory.x[-1], axis=1))), rel=1e-5)
