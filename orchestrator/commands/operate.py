@@ -33,6 +33,20 @@ def port(text: str) -> int:
     return _integer(text, minimum=1, maximum=65535)
 
 
+def _resolve_or_say(run_id, role: str, ident):
+    """``(pid, host, entry)`` of a process of a live run (:func:`~splitspec_orchestrator.registry.resolve`), or None
+    after saying on stderr why not and which runs there are (none, or several: choose with ``--run-id``)."""
+    from ..registry import RunChoiceError, describe_run, resolve
+
+    try:
+        return resolve(run_id, role, ident)
+    except RunChoiceError as exc:
+        print(f"splitspec: error: {exc}", file=sys.stderr)
+        for run in exc.runs:
+            print(f"  {describe_run(run)}", file=sys.stderr)
+        return None
+
+
 SIGNALS = {"KILL": "SIGKILL", "STOP": "SIGSTOP", "CONT": "SIGCONT", "TERM": "SIGTERM", "INT": "SIGINT"}
 
 
@@ -41,16 +55,13 @@ def cmd_kill(args: argparse.Namespace) -> int:
     import signal
     import socket
 
-    from ..registry import RunChoiceError, describe_run, is_own_splitspec_process, resolve
+    from ..registry import is_own_splitspec_process
 
     role, ident = ("plant", None) if args.plant else ("orchestrator", None) if args.orchestrator else ("agent", args.agent)
-    try:
-        pid, host, entry = resolve(args.run_id, role, ident)
-    except RunChoiceError as exc:
-        print(f"splitspec: error: {exc}", file=sys.stderr)
-        for run in exc.runs:
-            print(f"  {describe_run(run)}", file=sys.stderr)
+    found = _resolve_or_say(args.run_id, role, ident)
+    if found is None:
         return EXIT_BAD_INPUT
+    pid, host, entry = found
     rid = entry["run_id"]
     what = {"plant": "the plant", "orchestrator": "the orchestrator"}.get(role, f"agent {ident}")
     if host and host != socket.gethostname():
@@ -74,15 +85,12 @@ def cmd_stop(args: argparse.Namespace) -> int:
     import socket
     import time
 
-    from ..registry import RunChoiceError, describe_run, is_own_splitspec_process, pid_running, resolve
+    from ..registry import is_own_splitspec_process, pid_running
 
-    try:
-        pid, host, entry = resolve(args.run_id, "orchestrator", None)
-    except RunChoiceError as exc:
-        print(f"splitspec: error: {exc}", file=sys.stderr)
-        for run in exc.runs:
-            print(f"  {describe_run(run)}", file=sys.stderr)
+    found = _resolve_or_say(args.run_id, "orchestrator", None)
+    if found is None:
         return EXIT_BAD_INPUT
+    pid, host, entry = found
     rid = entry["run_id"]
     if host and host != socket.gethostname():
         raise UsageError(f"run {rid!r} is orchestrated on host {host} (pid {pid}), not here: run splitspec stop there")
