@@ -148,6 +148,8 @@ def main(argv: list | None = None) -> int:
     args = p.parse_args(argv)
     try:
         return serve(args.requests, args.replies)
+    except KeyboardInterrupt:  # Ctrl-C reaches the whole process group: the orchestrator says what happened
+        return 130
     except OSError as exc:  # a descriptor that is not the orchestrator's pipe
         print(f"splitspec_agents.forkserver: error: {exc.strerror} (--requests {args.requests}, --replies "
               f"{args.replies})", file=sys.stderr)

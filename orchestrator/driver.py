@@ -324,6 +324,8 @@ class Orchestrator:
                 agents, plant = self._answering(a.timeout)
                 self._execute(self.machine.on_status(agents, time.monotonic(), plant=plant))
             elif kind is A.Stop:
+                if self.stop_requested:  # Ctrl-C reached the whole process group: a process lost now is its doing
+                    return
                 raise RunFailed(a.message)
             elif kind is A.Finished:
                 self.finished = True
@@ -464,9 +466,11 @@ class Orchestrator:
                 now = time.monotonic()
                 if item is not None:
                     self._execute(self._handle(item, now))
-                    # drain what is already queued before looking at timers and children
-                    while not self.finished and (item := self.inbox.get(timeout=0)) is not None:
+                    # drain what is already queued before looking at timers and children (a stop asked for first)
+                    while not (self.finished or self.stop_requested) and (item := self.inbox.get(0)) is not None:
                         self._execute(self._handle(item, time.monotonic()))
+                if self.stop_requested:
+                    continue  # the processes a Ctrl-C also reached are not lost: the run stops
                 now = time.monotonic()
                 self._execute(self._poll_processes(now) + m.on_timer(now))
                 if t_run is None and m.started:
