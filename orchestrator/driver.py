@@ -570,14 +570,9 @@ class Orchestrator:
 
 def _summary(tally: RunTally, machine: RoundMachine, seconds: float) -> dict:
     """What the run did (:class:`~splitspec_orchestrator.rounds.tally.RunTally`): the end event's fields."""
-    from splitspec_core.studies.no_truth import disagreement
+    from .recording.reference_view import row_disagreement
 
-    def spread(xhat, alive):
-        xh = np.array(xhat, dtype=float)
-        xh[~np.asarray(alive, dtype=bool)] = np.nan
-        return float(disagreement(xh[None])[0])
-
-    return tally.fields(seconds=seconds, pace=machine.pace, disagreement=spread)
+    return tally.fields(seconds=seconds, pace=machine.pace, disagreement=row_disagreement)
 
 
 def main(args: argparse.Namespace) -> int:

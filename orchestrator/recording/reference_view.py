@@ -42,7 +42,7 @@ from splitspec_core.studies.no_truth import disagreement, residuals
 
 from . import blueprint as bp
 
-__all__ = ["YRow", "file_rows", "ReferenceBatch", "ReferenceRows", "ReferenceView", "known_parts", "log10",
+__all__ = ["YRow", "file_rows", "ReferenceBatch", "ReferenceRows", "ReferenceView", "known_parts", "log10", "row_disagreement",
            "progress_text"]
 
 #: the measurement behind event time ``tau``: ``(y (sum s_i,), missing (m,) bool)``, or None if unknown
@@ -250,7 +250,13 @@ def progress_text(max_error: float, xhat: np.ndarray, alive: np.ndarray | None =
     cannot know.  For the orchestrator's ``Progress`` line (``rounds.Record.max_error`` is NaN without truth)."""
     if math.isfinite(max_error):
         return f"max error {max_error:9.3e}"
+    return f"disagreement {row_disagreement(xhat, alive):9.3e}"
+
+
+def row_disagreement(xhat: np.ndarray, alive: np.ndarray | None = None) -> float:
+    """``max_ij |x_i - x_j|`` over the ``alive`` rows of one event time's ``xhat`` (m, n) (NaN with none alive):
+    :func:`splitspec_core.studies.no_truth.disagreement` of that row."""
     xhat = np.array(xhat, dtype=float)
     if alive is not None:
         xhat[~np.asarray(alive, dtype=bool)] = np.nan
-    return f"disagreement {float(disagreement(xhat[None])[0]):9.3e}"
+    return float(disagreement(xhat[None])[0])

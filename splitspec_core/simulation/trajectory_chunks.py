@@ -204,21 +204,18 @@ def whole_length(path: str | Path) -> int:
     import pyarrow as pa
 
     size = os.path.getsize(path)
-    with open(path, "rb") as f:
-        data = f.read()
-    buf = pa.py_buffer(data)
-    stream = pa.BufferReader(buf)
     good = 0
-    try:
-        reader = pa.ipc.open_stream(stream)
-        good = stream.tell()
-        while True:
-            reader.read_next_batch()
+    with pa.memory_map(str(path)) as stream:  # not read into memory: a segment is up to 64 MiB
+        try:
+            reader = pa.ipc.open_stream(stream)
             good = stream.tell()
-    except StopIteration:
-        pass
-    except (OSError, pa.ArrowInvalid):
-        pass
+            while True:
+                reader.read_next_batch()
+                good = stream.tell()
+        except StopIteration:
+            pass
+        except (OSError, pa.ArrowInvalid):
+            pass
     return min(good, size)
 
 
