@@ -51,6 +51,14 @@ log = logging.getLogger("splitspec.agent")
 ZBUF_ROUNDS = 6
 
 
+def local_part(gain: dict, n: int, s: int) -> tuple:
+    """``(K_i, P_i, R_i)`` from the configuration's ``gain`` (the design's, sent when it chose the gain centrally):
+    ``K`` (n x s_i), the consensus ``whole`` (``P_i = I``) or ``split`` with its ``P`` (n x n)."""
+    K = np.asarray(gain["K"], dtype=float).reshape(n, s)
+    P = np.eye(n) if gain["consensus"] == "whole" else np.asarray(gain["P"], dtype=float).reshape(n, n)
+    return K, P, np.zeros((n, 0))
+
+
 class AgentNode:
     """Protocol state of agent ``agent_id``; ``on_*`` methods return ``[(key, payload), ...]`` to publish."""
 
@@ -67,14 +75,28 @@ class AgentNode:
         self.extra_counts = None  # callable -> {reason: count} of drops outside the node (the inbox)
         self.index = sc.agent_ids.index(agent_id)
         d = sc.design
-        # the local part of the design: V_i, P_i, K_i from (A, C_i, lam) (minus W, what no agent sees, if sent)
-        local = scenario_agent(sc, agent_id, unobserved=directions_of(config.get("unobserved"), sc.n))
         self.A = np.array(sc.system.A)
         self.C = np.asarray(sc.system.Cs[self.index])
-        self.K, self.P, self.V = local.K, local.P, local.V_adaptive
         self.n, self.s = sc.n, self.C.shape[0]
-        self.continuous = sc.time == "continuous"
-        if self.continuous:
+        gain = config.get("gain")
+        if gain is not None:  # a gain the design chose centrally (design.gains: optimal, or design.consensus: whole)
+            self.K, self.P, self.V = local_part(gain, self.n, self.s)
+            self.whole = gain["consensus"] == "whole"
+        else:
+            # the local part of the design: V_i, P_i, K_i from (A, C_i, lam) (minus W, what no agent sees, if sent)
+            local = scenario_agent(sc, agent_id, unobserved=directions_of(config.get("unobserved"), sc.n))
+            self.K, self.P, self.V = local.K, local.P, local.V_adaptive
+            self.whole = False
+        # continuous: the paper's sampled-data form with g; the whole-state design runs q exchanges per run.dt
+        self.continuous = sc.time == "continuous" and not self.whole
+        self.G = None
+        if self.whole:  # update, then average q times, on the per-step model (steps.step_matrices)
+            dt = sc.run.dt if sc.time == "continuous" else None
+            self.A, self.F, self.K, self.G = st.step_matrices(self.A, self.K, self.C, dt=dt)
+            self.exchanges = int(config["q"])
+            self.adaptive = False
+            self.g0 = 0.0
+        elif self.continuous:
             self.E, self.D, _ = st.sampled_data_matrices(self.A, sc.run.dt)
             self.dt = sc.run.dt
             self.adaptive = config["g_mode"] == "adaptive"
@@ -201,7 +223,9 @@ class AgentNode:
         self.round = {"tau": tau, "attempt": attempt, "nbs": nbs, "ws": ws, "k": 0, "z": self.x.copy(),
                       "z0": None if explicit else (tau, int(t["prev_attempt"])), "groups": self.net.groups,
                       "lost": [], "open": self.clock() if self.deadline is not None else None}
-        if explicit:
+        if self.whole:  # z_i(0) is the updated estimate, sent once y_i(tau) is in (_advance)
+            self.round["z0"] = None
+        elif explicit:
             out.append(self._z(0, self.round["z"]))
         return out + self._advance()
 
@@ -329,6 +353,8 @@ class AgentNode:
         out = []
         if r is None:
             return out
+        if self.whole:
+            return self._advance_whole(r)
         if self.continuous:
             if "realized" not in r:
                 got = self._neighbour_states(0)
@@ -364,6 +390,32 @@ class AgentNode:
         x_next = st.prediction_update(r["z"], self.A, bu) if y is None else st.measurement_update(r["z"], self.F,
                                                                                                    self.K, y, bu)
         return out + self._finish(x_next, 0.0, y)
+
+    def _advance_whole(self, r: dict) -> list:
+        """The whole-state design's round (synthesis/whole_state.py): once ``y_i(tau)`` is in, the update
+        ``z_i(0) = F_i x_i(tau) - K_i y_i(tau) [+ B u]`` (its prediction without a measurement), sent; then q sub-rounds
+        ``z_i(k) = sum_j w_ij z_j(k - 1)``; ``x_i(tau + 1) = z_i(q)``."""
+        out = []
+        if "y" not in r:
+            if not self.ys.ready(r["tau"]):
+                return out
+            y = r["y"] = self.ys.get(r["tau"])
+            bu = st.step_input(self.G, self.ys.bu(r["tau"]))
+            r["z"] = st.prediction_update(self.x, self.A, bu) if y is None else \
+                st.measurement_update(self.x, self.F, self.K, y, bu)
+            self._opened()
+            out.append(self._z(0, r["z"]))
+        while r["k"] < self.exchanges:
+            got = self._neighbour_states(r["k"])
+            if got is None:
+                return out
+            _, ws, states = got
+            r["z"] = st.weighted_average(states, ws)  # eq. split-discrete-p2 with P_i = I
+            r["k"] += 1
+            self._opened()
+            if r["k"] < self.exchanges:
+                out.append(self._z(r["k"], r["z"]))
+        return out + self._finish(r["z"], 0.0, r["y"])
 
     def _finish(self, x_next: np.ndarray, g_next: float, y) -> list:
         r = self.round
@@ -407,7 +459,7 @@ def main(args: argparse.Namespace) -> int:
         handlers = {"tick": lambda key, p: node.on_tick(p), "z": node.on_z, "x": node.on_x,
                     "y": lambda key, p: node.on_y(p)}
         subscriptions = ([(keys.tick, "tick"), (keys.y, "y")] + [(keys.z(j), "z") for j in node.in_neighbours]
-                         + [(keys.xhat(j), "x") for j in node.in_neighbours])
+                         + ([] if node.whole else [(keys.xhat(j), "x") for j in node.in_neighbours]))
         if node.sc.sources:
             from .sensor import attach
 

@@ -53,6 +53,7 @@ from pathlib import Path
 import numpy as np
 
 from splitspec_core.synthesis.designer import design
+from splitspec_core.synthesis.whole_state import agent_gain as central_gain
 from splitspec_core.errors import SplitspecError
 from splitspec_core.scenarios.load import load_scenario, read_scenario_text, resolved_scenario_text
 from splitspec_core.runtime.ticks import TickEncoder
@@ -295,7 +296,10 @@ class Orchestrator:
                 if self.sc.sources:  # live sensors: the agents report the y_i they sampled (recorded)
                     extra["record_y"] = True
                 un = self.des.unobserved
-                if un is not None and un.dim:  # W, the directions no agent sees: P_i projects on V_i minus W
+                gain = central_gain(self.des, a.ident) if a.role == "agent" else None
+                if gain is not None:  # a gain the design chose centrally: K_i (and P_i) as the simulator holds them
+                    extra["gain"] = gain
+                elif un is not None and un.dim:  # W, the directions no agent sees: P_i projects on V_i minus W
                     extra["unobserved"] = un.W_working.tolist()  # in the design's working coordinates
                 self._reply(a.ref, encode("config", self.keys.run_id, scenario=self.scenario_text,
                                           seed=int(self.sc.run.seed), g=self.des.g, q=self.des.q,

@@ -65,6 +65,7 @@ def scenario(*, name: str | None = None, time: str | None = None, plant: Any = N
              weights: str | None = None, margin: float | None = None, rank_tol: float | None = None,
              graph_set: str | None = None, dwell: float | None = None, riccati: Mapping | None = None,
              eigenvalues: str | None = None, undetectable: str | None = None, coordinates: str | None = None,
+             consensus: str | None = None,
              steps: int | None = None, dt: float | None = None, seed: int | None = None, pace: float | None = None,
              show: Any = None,             system: Mapping | None = None, design: Mapping | None = None, run: Mapping | None = None,
              **unknown: Any) -> Scenario:

@@ -112,6 +112,8 @@ class QueryStatus:
 @dataclass(frozen=True)
 class ReplyConfig:
     ref: object
+    role: str = "agent"  # who asked: its configuration may hold what is its own (an agent's central gain)
+    ident: int = 0
 
 
 @dataclass(frozen=True)

@@ -88,7 +88,7 @@ class ClaimTable:
         key = self.key(role, ident)
         c = self.claims.get(key)
         if c is not None and c.nonce == h["nonce"]:
-            return [ReplyConfig(ref)]  # the same process asking again
+            return [ReplyConfig(ref, role, ident)]  # the same process asking again
         if c is not None and c.live(now, self.wait):
             reason = f"{who} is held by pid {c.pid} on host {c.host}; refusing a second process for it"
             return [
@@ -103,7 +103,7 @@ class ClaimTable:
             return self._refuse(ref, h, t, "the run is under way: the plant must be present from event time 0")
         self.claims[key] = Claim(nonce=h["nonce"], pid=int(h["pid"]), host=str(h["host"]), since=now)
         self.procs["plant" if role == "plant" else ident] = {"pid": int(h["pid"]), "host": str(h["host"])}
-        return [ReplyConfig(ref), RegistryUpdate(),
+        return [ReplyConfig(ref, role, ident), RegistryUpdate(),
                 Event("process_started", t, {"role": role, "id": ident, "pid": h["pid"], "host": h["host"]})]
 
     @staticmethod

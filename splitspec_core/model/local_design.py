@@ -23,7 +23,7 @@ from .observability import Decomposition, decompose
 from ..scenarios.specs import Scenario
 
 __all__ = ["AgentDesign", "AUTO_COORDINATES", "design_agent", "directions_of", "riccati_weights", "scenario_agent",
-           "scenario_spectrum", "working_scale"]
+           "scenario_spectrum", "whole_placeholder", "with_gain", "working_scale"]
 
 
 @dataclass(frozen=True)
@@ -40,6 +40,9 @@ class AgentDesign:
     dec: Decomposition
     gain: LocalGain
     scale: np.ndarray | None = field(default=None, repr=False, compare=False)
+    #: what the agent takes from its neighbours: ``split`` (the paper's: its unobservable space, ``P_i = V_i V_i'``)
+    #: or ``whole`` (every state, ``P_i = I``: :mod:`splitspec_core.synthesis.whole_state`)
+    consensus: str = "split"
 
     @property
     def V(self) -> np.ndarray:
@@ -54,7 +57,10 @@ class AgentDesign:
     @cached_property
     def P(self) -> np.ndarray:
         """``P_i`` in the user's coordinates (what runs): the projection on the unobservable space (minus what no
-        agent sees) along the working coordinates' orthogonal complement."""
+        agent sees) along the working coordinates' orthogonal complement; the identity when the agent takes the whole
+        state from its neighbours (``consensus == "whole"``)."""
+        if self.consensus == "whole":
+            return np.eye(self.dec.P.shape[0])
         return self.dec.P if self.scale is None else self.scale[:, None] * self.dec.P / self.scale[None, :]
 
     @cached_property
@@ -100,6 +106,29 @@ def design_agent(A: np.ndarray, C: np.ndarray, *, time: str, rate: float, method
         A_w = np.asarray(A, dtype=float) if scale is None else np.asarray(A) * scale[None, :] / scale[:, None]
         dec = dec.without(unobserved, A_w)
     return AgentDesign(id=agent_id, dec=dec, gain=gain, scale=scale)
+
+
+def whole_placeholder(A: np.ndarray, dec: Decomposition, agent_id: int, unobserved: np.ndarray | None,
+                      scale: np.ndarray | None) -> AgentDesign:
+    """Agent ``agent_id`` of a whole-state design before its gain is chosen (:func:`with_gain`): its decomposition
+    (what it sees, for the reports and the loss analysis; minus ``unobserved``, W, as :func:`design_agent` does), no
+    gain, ``P_i = I``."""
+    if unobserved is not None and unobserved.shape[1]:
+        A_w = np.asarray(A, dtype=float) if scale is None else np.asarray(A) * scale[None, :] / scale[:, None]
+        dec = dec.without(unobserved, A_w)
+    s = dec.Cbar.shape[0]
+    zero = LocalGain(K=np.zeros((dec.P.shape[0], s)), Kbar=np.zeros((dec.n_observable, s)),
+                     poles=np.zeros(0, complex), method="whole")
+    return AgentDesign(id=agent_id, dec=dec, gain=zero, scale=scale, consensus="whole")
+
+
+def with_gain(agent: AgentDesign, K: np.ndarray, method: str) -> AgentDesign:
+    """``agent`` with the gain ``K`` (the user's coordinates) a design chose centrally (the whole-state design's
+    ``K_i``, :mod:`splitspec_core.synthesis.whole_state`); ``poles`` empty: no pole of its own is assigned."""
+    K = np.asarray(K, dtype=float)
+    K_w = K if agent.scale is None else K / agent.scale[:, None]  # K = D K_w
+    gain = LocalGain(K=K_w, Kbar=agent.dec.Q @ K_w, poles=np.zeros(0, complex), method=method)
+    return AgentDesign(id=agent.id, dec=agent.dec, gain=gain, scale=agent.scale, consensus=agent.consensus)
 
 
 def scenario_agent(sc: Scenario, agent_id: int, *, unobserved: np.ndarray | None = None,

@@ -27,6 +27,17 @@ trajectory converges to the exact ODE as ``dt -> 0`` (first order); and since
 ``E``, ``D`` commute with the observability decomposition, the split of the
 spectrum (prop. error) holds exactly for every ``dt``.
 
+Whole-state consensus (:mod:`splitspec_core.synthesis.whole_state`)
+------------------------------------------------------------------
+The same two-rate estimator with ``P_i = I``, each agent's estimate its averaged state (eq. split-discrete-p3):
+it updates with its own measurement, then averages ``q`` times,
+
+``z_i(0) = (A + K_i C_i) x_i(tau) - K_i y_i(tau) [+ B u(tau)]`` (:func:`measurement_update` on ``x_i``; without a
+measurement :func:`prediction_update`), ``z_i(k) = sum_j w_ij z_j(k-1)`` (:func:`weighted_average`),
+``x_i(tau+1) = z_i(q)``.  In continuous time on the sampled model, one event time per ``run.dt``:
+``z_i(0) = E x_i + D [K_i (C_i x_i - y_i) + B u]``, the same functions with the matrices of
+:func:`step_matrices`.
+
 Adaptive gain (eq. adaptive), forward Euler with the same ``dt``:
 ``g_i(k+1) = g_i(k) + dt |V_i' sum_j w_ij (x_j(k) - x_i(k))|^2``.
 """
@@ -49,6 +60,8 @@ __all__ = [
     "sampled_step",
     "adaptive_gain_rate",
     "adaptive_gain_step",
+    "step_matrices",
+    "step_input",
 ]
 
 
@@ -118,3 +131,27 @@ def adaptive_gain_rate(V_i: np.ndarray, x_i: np.ndarray, neighbour_states: Seque
 def adaptive_gain_step(g_i: float, rate: float, dt: float) -> float:
     """Forward-Euler step of eq. (adaptive)."""
     return g_i + dt * rate
+
+
+def step_matrices(A: np.ndarray, K_i: np.ndarray, C_i: np.ndarray, *, dt: float | None = None,
+                  sampled: tuple | None = None) -> tuple:
+    """``(A_s, F_i, K_s, G)``: one event time of the whole-state estimator (module docstring) on the per-step model.
+
+    Discrete (``dt`` None): ``(A, A + K_i C_i, K_i, None)``.  Continuous, sampled with ``dt``:
+    ``(E, E + (D K_i) C_i, D K_i, D)`` with ``E = exp(A dt)``, ``D = int_0^dt exp(A s) ds``
+    (``sampled``: ``(E, D)`` already computed by :func:`sampled_data_matrices`, the same floats); ``G`` maps the
+    known input's ``B u`` to the step's (:func:`step_input`).  The agent processes and the simulator both call this,
+    so they hold the same floats.
+    """
+    A = np.asarray(A, dtype=float)
+    if dt is None:
+        return A, A + K_i @ C_i, K_i, None
+    E, D = sampled if sampled is not None else sampled_data_matrices(A, dt)[:2]
+    K_s = D @ K_i
+    return E, E + K_s @ C_i, K_s, D
+
+
+def step_input(G: np.ndarray | None, bu: np.ndarray | None) -> np.ndarray | None:
+    """The known input of one event time of :func:`step_matrices`: ``B u`` itself (discrete), ``D B u`` (continuous:
+    ``u`` held over the step); None without inputs."""
+    return bu if G is None or bu is None else G @ bu

@@ -227,8 +227,9 @@ MESSAGE_FIELDS = {
 
 #: optional fields (name -> kind), returned only when present: a run on recorded measurements (their sha256, steps,
 #: whether they hold the truth), whether agents report the y_i they used, the directions no agent sees (W, n rows of
-#: w numbers: splitspec_core.model.detectability); a tick's network
-OPTIONAL_FIELDS = {"config": {"measurements": "map", "record_y": "bool", "unobserved": "list"},
+#: w numbers: splitspec_core.model.detectability), the agent's gain when the design chose it centrally ({K, consensus,
+#: P}: splitspec_core.synthesis.whole_state.agent_gain); a tick's network
+OPTIONAL_FIELDS = {"config": {"measurements": "map", "record_y": "bool", "unobserved": "list", "gain": "map"},
                    "tick": {"alive": "list", "rows": "map", "incarnation": "map", "partition": "list"}}
 #: optional fields that come all together or not at all: a tick's network is all four (runtime.ticks)
 TOGETHER = {"tick": ("alive", "rows", "incarnation", "partition")}

@@ -16,7 +16,10 @@ import numpy as np
 
 from ..errors import DimensionError, ScenarioError
 
-GAIN_METHODS = ("place", "riccati", "explicit")
+GAIN_METHODS = ("place", "riccati", "explicit", "optimal")
+# design.consensus: what each agent takes from its neighbours (synthesis/whole_state.py): the paper's split (its
+# unobservable subspace), the whole state, or auto (the noise decides: design.gains optimal)
+CONSENSUS = ("auto", "split", "whole")
 Q_METHODS = ("spectral", "weighted", "two-norm", "mixed")
 WEIGHTINGS = ("uniform", "metropolis")
 FAULT_ACTIONS = ("kill", "restart", "hang", "drop_arc", "restore_arc", "partition", "heal")
@@ -34,6 +37,7 @@ RANDOM_KEYS = ("graphs", "dwell", "seed")
 DESIGN_KEYS = (
     "rate", "gains", "K", "g", "g0", "q", "q_method", "q_max", "resilience",
     "weights", "margin", "rank_tol", "graph_set", "dwell", "riccati", "eigenvalues", "undetectable", "coordinates",
+    "consensus",
 )
 RICCATI_KEYS = ("process_weight", "measurement_weight")
 RUN_KEYS = ("steps", "dt", "seed", "pace", "show")

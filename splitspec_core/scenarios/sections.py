@@ -13,7 +13,7 @@ from typing import Any
 
 from ..errors import ScenarioError
 from .checks import (DESIGN_KEYS, GRAPH_KEYS, RANDOM_KEYS, RICCATI_KEYS, RUN_KEYS, SWITCHING_KEYS,
-                              SYSTEM_KEYS, TOP_KEYS, FAULT_ACTIONS, GAIN_METHODS, MAX_Q, MIN_DT, MIN_PACE,
+                              SYSTEM_KEYS, TOP_KEYS, FAULT_ACTIONS, GAIN_METHODS, CONSENSUS, MAX_Q, MIN_DT, MIN_PACE,
                               MIN_RICCATI_WEIGHT, MIN_SWITCH_STEPS, Q_METHODS, WEIGHTINGS, check_agent_id, check_arc,
                               check_keys, describe, ids_text, check_integer, check_known_agent, check_matrix, check_names, check_number,
                               require_map, check_seed, check_shapes, plain)
@@ -169,9 +169,21 @@ def _parse_design(raw: Any, time: str, system: System, ids: tuple) -> DesignSpec
         raise ScenarioError(f"design.rate must be > 0 for continuous time, got {rate:g}")
     if time == "discrete" and not 0 < rate < 1:
         raise ScenarioError(f"design.rate must be in (0, 1) for discrete time, got {rate:g}")
-    gains = str(dmap.get("gains", "place"))
+    # no design.gains: the noise-optimal design when the scenario states noise (synthesis/whole_state.py), else place
+    gains = str(dmap.get("gains", "optimal" if _noisy(system) else "place"))
     if gains not in GAIN_METHODS:
         raise ScenarioError(f"design.gains must be one of {', '.join(GAIN_METHODS)}, got {gains!r}")
+    consensus = str(dmap.get("consensus", "auto"))
+    if consensus not in CONSENSUS:
+        raise ScenarioError(f"design.consensus must be one of {', '.join(CONSENSUS)}, got {consensus!r}")
+    if consensus == "whole" and gains == "place":
+        raise ScenarioError("design.consensus: whole takes design.gains optimal, riccati or explicit (place sets the "
+                            "split's local poles)")
+    if gains == "optimal" and not _noisy(system):
+        raise ScenarioError("design.gains: optimal minimizes the error under noise: set system.process_noise and/or "
+                            "system.measurement_noise")
+    # the whole-state design exchanges q times per event time (continuous: per run.dt) and has no g
+    whole_possible = consensus == "whole" or (consensus == "auto" and gains == "optimal")
     K = None
     if gains == "explicit":
         kraw = dmap.get("K")
@@ -197,6 +209,12 @@ def _parse_design(raw: Any, time: str, system: System, ids: tuple) -> DesignSpec
     g = dmap.get("g", "auto")
     if time == "discrete" and "g" in dmap:
         raise ScenarioError("design.g is for continuous time; discrete time uses design.q")
+    if consensus == "whole" and "g" in dmap:
+        raise ScenarioError("design.g is the split design's consensus gain; design.consensus: whole exchanges "
+                            "design.q times per run.dt")
+    if gains == "optimal" and g == "adaptive":
+        raise ScenarioError("design.g: adaptive has no steady state to optimize for noise: with it use design.gains "
+                            "place or riccati")
     if g not in ("auto", "adaptive"):
         g = check_number(g, "design.g")
         if g < 0:
@@ -205,8 +223,9 @@ def _parse_design(raw: Any, time: str, system: System, ids: tuple) -> DesignSpec
     if g0 < 0:
         raise ScenarioError(f"design.g0 must be >= 0, got {g0:g}")
     q = dmap.get("q", "auto")
-    if time == "continuous" and "q" in dmap:
-        raise ScenarioError("design.q is for discrete time; continuous time uses design.g")
+    if time == "continuous" and "q" in dmap and not whole_possible:
+        raise ScenarioError("design.q is for discrete time and the whole-state design; the split design in continuous "
+                            "time uses design.g")
     if q != "auto":
         q = check_integer(q, "design.q", minimum=1)
     q_method = str(dmap.get("q_method", "spectral"))
@@ -263,8 +282,13 @@ def _parse_design(raw: Any, time: str, system: System, ids: tuple) -> DesignSpec
         rate=rate, gains=gains, K=K, g=g, g0=g0, q=q, q_method=q_method, q_max=q_max,
         resilience=resilience, weights=weights, margin=margin, rank_tol=rank_tol,
         graph_set=graph_set, dwell=dwell, riccati_process_weight=pw, riccati_measurement_weight=mw,
-        eigenvalues=eigenvalues, undetectable=undetectable, coordinates=coordinates,
+        eigenvalues=eigenvalues, undetectable=undetectable, coordinates=coordinates, consensus=consensus,
     )
+
+
+def _noisy(system: System) -> bool:
+    """The scenario states noise: process or measurement noise above zero."""
+    return system.process_noise > 0 or system.measurement_noise > 0
 
 
 def _parse_faults(raw: Any, ids: tuple) -> tuple:

@@ -162,6 +162,7 @@ class DesignSpec:
     eigenvalues: str = "auto"  # spectral q's radii: auto, dense or iterative (splitspec_core.synthesis.spectral)
     undetectable: str = "refuse"  # refuse | exclude: a mode no agent sees that does not decay (detectability.py)
     coordinates: str = "auto"  # auto | given | balanced: where the estimator's projections are orthogonal (local_design)
+    consensus: str = "auto"  # auto | split | whole: what each agent takes from its neighbours (synthesis/whole_state.py)
 
 
 @dataclass(frozen=True)

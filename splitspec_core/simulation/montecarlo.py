@@ -169,11 +169,23 @@ class SeedBatchEstimator(BatchEstimator):
         """One step of every seed; ``W`` one ``S`` for every exchange (lossless)."""
         return self.step_realized(X, y, [W] * (1 if self.continuous else self.q), alive)
 
+    def _whole(self, X: np.ndarray, Y: np.ndarray, Ws: list, alive: np.ndarray) -> np.ndarray:
+        """The whole-state design (whole_state.py): ``z_i(0) = F_i x_i - K_s,i y_i``, then ``z <- S_k z`` per
+        exchange."""
+        m, n, N = X.shape
+        Z = np.matmul(self.Fst, X) - np.matmul(self.Kp, Y)
+        for S in Ws:
+            Z = (S @ Z.reshape(m, n * N)).reshape(m, n, N)
+        Z[~alive] = 0.0
+        return Z
+
     def step_realized(self, X: np.ndarray, y: np.ndarray, Ws: list, alive: np.ndarray, missing=None) -> np.ndarray:
         """One step of every seed with one ``S_k`` per exchange (sparse or :class:`_RealizedS`, the same for every
         seed: a partition, never a drawn loss)."""
         m, n, N = X.shape
         Y = self._Y(y)
+        if self.whole:
+            return self._whole(X, Y, Ws, alive)
         if self.continuous:
             S = Ws[0]
             diff = X - (S @ X.reshape(m, n * N)).reshape(m, n, N)

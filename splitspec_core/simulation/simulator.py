@@ -216,12 +216,24 @@ class _EstimatorBase:
         self.Ps = [np.asarray(P) for P in des.Ps]
         self.Vs = [np.asarray(V) for V in des.Vs]  # R_i: eq. (adaptive) projects with R_i' (= V_i' unless balanced)
         self.Ls = [np.asarray(L) for L in des.Ls]  # L_i: P_i = L_i R_i' (the working coordinates: local_design.py)
-        self.continuous = sc.time == "continuous"
+        # the whole-state design (synthesis/whole_state.py): update, then average q times, on the per-step model in
+        # both times; ``continuous`` below means the paper's sampled-data form with g
+        self.whole = des.consensus == "whole"
+        self.continuous = sc.time == "continuous" and not self.whole
         self.adaptive = self.continuous and des.g_mode == "adaptive"
+        self.G = None  # the whole-state step's map of the known input B u (continuous: D), None: itself
         if self.continuous:
             self.E, self.D, _ = st.sampled_data_matrices(self.A, sc.run.dt)
             self.dt = sc.run.dt
             self.g = np.full(self.m, sc.design.g0 if self.adaptive else float(des.g))
+        elif self.whole:
+            self.q = int(des.q)
+            dt = sc.run.dt if sc.time == "continuous" else None
+            ED = None if dt is None else st.sampled_data_matrices(self.A, dt)[:2]
+            mats = [st.step_matrices(self.A, K, C, dt=dt, sampled=ED) for K, C in zip(self.Ks, self.Cs)]
+            self.A_step, self.G = mats[0][0], mats[0][3]
+            self.F = [mt[1] for mt in mats]
+            self.Ks = [mt[2] for mt in mats]  # K_s,i = K_i, or D K_i: what the step applies to y_i
         else:
             self.q = int(des.q)
             self.F = [self.A + K @ C for K, C in zip(self.Ks, self.Cs)]
@@ -306,6 +318,8 @@ class BatchEstimator(_EstimatorBase):
         if self.continuous:
             self.KC = np.stack([K @ C for K, C in zip(self.Ks, self.Cs)])
             self.Rgram = np.stack([R @ R.T for R in self.Vs])  # eq. (adaptive): |R_i' d|^2 = d' R_i R_i' d
+        elif self.whole:
+            self.Fst = np.stack(self.F)
         else:
             self.Fst = np.stack(self.F)
             self.Vbig = sp.block_diag([sp.csr_matrix(L) for L in self.Ls], format="csr")  # (mn, nbar): L
@@ -325,7 +339,7 @@ class BatchEstimator(_EstimatorBase):
                 ci.append(pos[j])
                 vals.append(w)
         W = sp.csr_matrix((vals, (ri, ci)), shape=(self.m, self.m))
-        if self.continuous:
+        if self.continuous or self.whole:
             return W
         G = (self.VT @ sp.kron(W, sp.identity(self.n), format="csr")).tocsr()
         return (G @ self.Vbig).tocsr(), G
@@ -335,6 +349,8 @@ class BatchEstimator(_EstimatorBase):
         the known input's ``B u`` every agent adds (steps.measurement_update), None without inputs."""
         Y = np.zeros((self.m, self.Kp.shape[2]))
         Y[self._yidx] = y
+        if self.whole:
+            return self.step_realized(X, y, [W] * self.q, alive, missing, bu)
         if self.continuous:
             diff = X - W @ X
             innov = _bmv(self.KC, X) - _bmv(self.Kp, Y)
@@ -363,10 +379,12 @@ class BatchEstimator(_EstimatorBase):
 
     def _update(self, Z: np.ndarray, Y: np.ndarray, missing, bu=None) -> np.ndarray:
         """Eq. split-discrete-est1; an agent without a measurement predicts, ``A z_i(q)`` (steps.prediction_update);
-        both add the known input's ``B u`` when there is one."""
+        both add the known input's ``B u`` when there is one.  The whole-state design: the same on the per-step model
+        (steps.step_matrices: ``A_s``, ``F_i``, ``K_s,i``, the input ``G B u``)."""
         Xn = _bmv(self.Fst, Z) - _bmv(self.Kp, Y)
         if missing is not None and missing.any():
-            Xn[missing] = Z[missing] @ self.A.T
+            Xn[missing] = Z[missing] @ (self.A_step if self.whole else self.A).T
+        bu = st.step_input(self.G, bu)
         return Xn if bu is None else Xn + bu
 
 
@@ -402,6 +420,12 @@ class BatchEstimator(_EstimatorBase):
         Y[self._yidx] = y
         if self.continuous:
             return self.step(X, y, Ws[0], alive, missing, bu)
+        if self.whole:  # update, then average q times (whole_state.py): z_i <- sum_j w_ij z_j
+            Z = self._update(X, Y, missing, bu)
+            for Wk in Ws:
+                Z = Wk @ Z
+            Z[~alive] = 0.0
+            return Z
         Z = X.copy()
         for Wk in Ws:
             Z = Z + _bmv(self.Pst, Wk @ Z - Z)
@@ -425,12 +449,33 @@ class AgentLoopEstimator(_EstimatorBase):
         return [None if missing is not None and missing[k] else y[r] for k, r in enumerate(self.rows)]
 
     def _update(self, i: int, z: np.ndarray, y_i, bu=None) -> np.ndarray:
+        if self.whole:  # the per-step model (steps.step_matrices), as the agent process runs it
+            bu = st.step_input(self.G, bu)
+            return (st.prediction_update(z, self.A_step, bu) if y_i is None
+                    else st.measurement_update(z, self.F[i], self.Ks[i], y_i, bu))
         return (st.prediction_update(z, self.A, bu) if y_i is None
                 else st.measurement_update(z, self.F[i], self.Ks[i], y_i, bu))
+
+    def _whole(self, X: np.ndarray, ys: list, rounds: list, bu) -> np.ndarray:
+        """The whole-state design's event time (whole_state.py): every agent updates, then averages with its
+        neighbours once per entry of ``rounds`` (each exchange's rows ``{i: (nbs, ws)}``)."""
+        pos = {a: k for k, a in enumerate(self.sc.agent_ids)}
+        Z = np.zeros_like(X)
+        for i_id in rounds[0]:
+            i = pos[i_id]
+            Z[i] = self._update(i, X[i], ys[i], bu)
+        for rows in rounds:
+            Zn = np.zeros_like(Z)
+            for i_id, (nbs, ws) in rows.items():
+                Zn[pos[i_id]] = st.weighted_average([Z[pos[j]] for j in nbs], ws)  # eq. split-discrete-p2, P_i = I
+            Z = Zn
+        return Z
 
     def step(self, X: np.ndarray, y: np.ndarray, rows: dict, alive: np.ndarray, missing=None, bu=None) -> np.ndarray:
         pos = {a: k for k, a in enumerate(self.sc.agent_ids)}
         ys = self._ys(y, missing)
+        if self.whole:
+            return self._whole(X, ys, [rows] * self.q, bu)
         Xn = np.zeros_like(X)
         if self.continuous:
             g_next = self.g.copy()
@@ -476,6 +521,8 @@ class AgentLoopEstimator(_EstimatorBase):
         agent processes compute it (:func:`splitspec_core.model.impairment.realized_row`)."""
         if self.continuous:
             return self.step(X, y, Ws[0], alive, missing, bu)
+        if self.whole:
+            return self._whole(X, self._ys(y, missing), Ws, bu)
         pos = {a: k for k, a in enumerate(self.sc.agent_ids)}
         ys = self._ys(y, missing)
         Xn = np.zeros_like(X)
@@ -576,7 +623,7 @@ def simulate(des: Design, *, seed: int | None = None, steps: int | None = None, 
     imp = Impairment(sc.network, seed) if sc.network.impaired and lost is None else None
     replay = _replay_index(lost) if lost is not None else None
     impaired = imp is not None or replay is not None or any(f.action == "partition" for f in sc.faults)
-    exchanges = 1 if est.continuous else int(des.q)
+    exchanges = 1 if est.continuous else int(des.q)  # the whole-state design: q in both times
     lost_rows: list = []
     ys = np.zeros((T, sum(np.shape(C)[0] for C in sc.system.Cs))) if keep_y else None
     for k in range(T):

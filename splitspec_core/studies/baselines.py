@@ -40,7 +40,7 @@ from typing import Mapping, Sequence
 import numpy as np
 import scipy.linalg as sla
 
-from ..errors import DesignError
+from ..synthesis.kalman import REGULARISATION, KalmanPredictor, kalman_predictor, regularise  # noqa: F401
 from ..simulation.montecarlo import CHUNK, MonteCarloRuns
 from ..model.network import consensus_rows, make_plan
 from ..scenarios.specs import Scenario
@@ -62,99 +62,9 @@ __all__ = [
     "baseline_seeds",
 ]
 
-REGULARISATION = 1e-9
-"""Relative size of the identity added to a singular covariance (see :func:`regularise`)."""
-
-
 # --------------------------------------------------------------------------
-# model
+# centralized steady-state Kalman predictor (synthesis.kalman) and its run
 # --------------------------------------------------------------------------
-
-
-def regularise(M: np.ndarray) -> np.ndarray:
-    """A symmetric PSD matrix made positive definite if it is (numerically) singular.
-
-    If the smallest eigenvalue of ``M`` is at most ``1e-12 max(1, |M|_2)``,
-    returns ``M + REGULARISATION max(1, |M|_2) I`` (``REGULARISATION = 1e-9``);
-    otherwise ``M`` unchanged.  Used for noise-free measurements (``R = 0``) and
-    zero (or rank-deficient) process noise, where the Riccati equation has no
-    stabilising solution or its solver needs ``R`` invertible.
-    """
-    M = 0.5 * (np.asarray(M, dtype=float) + np.asarray(M, dtype=float).T)
-    if M.size == 0:
-        return M
-    scale = max(1.0, float(np.linalg.norm(M, 2)))
-    if np.linalg.eigvalsh(M)[0] <= 1e-12 * scale:
-        return M + REGULARISATION * scale * np.eye(M.shape[0])
-    return M
-
-
-# --------------------------------------------------------------------------
-# centralized steady-state Kalman predictor
-# --------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class KalmanPredictor:
-    """Steady-state one-step Kalman predictor ``xhat(k+1) = F xhat(k) + L (y(k) - C xhat(k))``.
-
-    Attributes
-    ----------
-    L : (n, p) array
-        Predictor gain ``F P C' (C P C' + R)^-1``.
-    P : (n, n) array
-        Steady-state prediction-error covariance ``E[(x(k) - xhat(k))(x(k) - xhat(k))']``.
-    """
-
-    L: np.ndarray
-    P: np.ndarray
-
-
-def _detectable(F: np.ndarray, C: np.ndarray, tol: float = 1e-9) -> bool:
-    """PBH test: ``[lam I - F; C]`` has full column rank for every eigenvalue ``|lam| >= 1``."""
-    n = F.shape[0]
-    for lam in np.linalg.eigvals(F):
-        if abs(lam) < 1.0 - tol:
-            continue
-        M = np.vstack([lam * np.eye(n) - F, C.astype(complex)])
-        s = np.linalg.svd(M, compute_uv=False)
-        if s[-1] <= tol * max(1.0, s[0]):
-            return False
-    return True
-
-
-def kalman_predictor(F: np.ndarray, C: np.ndarray, Q: np.ndarray, R: np.ndarray) -> KalmanPredictor:
-    """Steady-state one-step predictor of ``x+ = F x + v``, ``y = C x + w`` (``cov v = Q``, ``cov w = R``).
-
-    ``P`` is the stabilising solution of the DARE
-    ``P = F P F' - F P C' (C P C' + R)^-1 C P F' + Q`` (solved by
-    ``scipy.linalg.solve_discrete_are(F', C', Q, R)``) and
-    ``L = F P C' (C P C' + R)^-1``.
-
-    A singular ``R`` (noise-free measurements) or a singular ``Q`` (e.g. no
-    process noise) is regularised first with :func:`regularise`: ``1e-9
-    max(1, |.|_2) I`` is added, so the predictor is the limit of small noise.
-
-    Raises
-    ------
-    DesignError
-        If ``(C, F)`` is not detectable or the solver fails.
-    """
-    F = np.asarray(F, dtype=float)
-    C = np.atleast_2d(np.asarray(C, dtype=float))
-    if not _detectable(F, C):
-        raise DesignError("kalman_predictor: (C, F) is not detectable: an unstable mode of F is unobserved")
-    Qr, Rr = regularise(Q), regularise(R)
-    try:
-        P = sla.solve_discrete_are(F.T, C.T, Qr, Rr)
-    except (np.linalg.LinAlgError, ValueError) as exc:
-        raise DesignError(f"kalman_predictor: the Riccati solver failed ({exc})".replace("\n", " ")) from None
-    P = 0.5 * (P + P.T)
-    S = C @ P @ C.T + Rr
-    L = np.linalg.solve(S, C @ P @ F.T).T  # F P C' S^-1 (S symmetric)
-    if not np.all(np.isfinite(P)) or np.max(np.abs(np.linalg.eigvals(F - L @ C)), initial=0.0) >= 1.0:
-        raise DesignError("kalman_predictor: no stabilising Riccati solution (F - L C is not Schur)")
-    return KalmanPredictor(L=L, P=P)
 
 
 def run_predictor(F: np.ndarray, C: np.ndarray, L: np.ndarray, ys: np.ndarray, x0: np.ndarray,

@@ -7,6 +7,9 @@ matrix-free, never claiming more than was computed), ``sampled_rates.py`` g for 
 ``error_matrix.py`` the full mn x mn error map, ``conditioning.py`` margins and the transient constant;
 ``resilience.py`` single agent and arc losses, ``loss_certificate.py`` lossy networks,
 ``survivors.py`` the runtime's survivor verdict; ``noise_tuning.py`` the gains' tuning under noise;
+``kalman.py`` the centralized Kalman predictor and its rate-shifted variant (the references under noise);
+``whole_state.py`` the whole-state design (every agent averages its neighbours' whole estimates, gains from the
+noise: ``design.consensus``, ``design.gains: optimal``);
 ``verdict.py`` the certificate's verdict, computed once, ``report.py`` its rendering (``splitspec design``).
 Imports ``scenarios`` and ``model``.
 """

@@ -31,7 +31,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from .design_data import Design, cached_analysis
-from .error_matrix import MAX_DIM, case_parts, full_error_matrix, modulo, predicted_rms
+from .error_matrix import MAX_DIM, MAX_NOISE_DIM, case_parts, full_error_matrix, modulo, predicted_rms
+from .kalman import references
 
 __all__ = ["AgentConditioning", "Conditioning", "Transient", "conditioning", "transient_constant",
            "MARGIN_WARN", "GAIN_WARN", "TRANSIENT_WARN"]
@@ -190,6 +191,10 @@ class Conditioning:
     predicted_rms: dict | None  # agent id -> steady-state RMS error (graph ``predicted_graph`` held constant)
     predicted_graph: str | None
     warnings: tuple
+    # the references under noise (kalman.references): the centralized Kalman filter's predicted steady RMS, and the
+    # best centralized estimator's certified at the rate (None: no noise, or none exists)
+    kalman_rms: float | None = None
+    reference_rms: float | None = None
 
 
 def _scale(A: np.ndarray) -> float:
@@ -216,6 +221,8 @@ def conditioning(des: Design) -> Conditioning:
         ac = AgentConditioning(id=a.id, observability_margin=a.dec.margin, gain_norm=gain_norm, gain_ratio=ratio,
                                weak=a.dec.weak, split_residual=a.dec.split_residual)
         agents.append(ac)
+        if des.consensus == "whole":  # no local observer: margins and local gain sizes are the split's concerns
+            continue
         if ac.observability_margin is not None and ac.observability_margin < MARGIN_WARN:
             warnings.append(f"agent {a.id} sees a direction with an observability margin of only "
                             f"{ac.observability_margin:.2g} (< {MARGIN_WARN:g}; its gain grows like 1 / margin): "
@@ -226,21 +233,23 @@ def conditioning(des: Design) -> Conditioning:
                             f"own scale (> {GAIN_WARN:g}); a slower design.rate, a smaller design.margin or "
                             f"design.gains: riccati would shrink it")
     const, case_label, method = _transient(des, warnings)
-    rms, graph = None, None
+    rms, graph, kf_rms, ref_rms = None, None, None, None
     s = sc.system
-    if (s.process_noise > 0 or s.measurement_noise > 0) and des.g_mode != "adaptive" \
-            and sc.m * sc.n <= MAX_DIM:
-        k = sc.graph_names.index(sc.switching.graph_names(sc.graph_names)[0])
-        graph = sc.graph_names[k]
-        rms = {i: float(v) for i, v in zip(sc.agent_ids, predicted_rms(des, k))}
+    if s.process_noise > 0 or s.measurement_noise > 0:
+        if not des.adaptive and sc.m * sc.n <= MAX_NOISE_DIM:
+            k = sc.graph_names.index(sc.switching.graph_names(sc.graph_names)[0])
+            graph = sc.graph_names[k]
+            rms = {i: float(v) for i, v in zip(sc.agent_ids, predicted_rms(des, k))}
+        kf, ref = references(sc, des.envelope_rate)
+        kf_rms, ref_rms = (None if kf is None else kf.rms), (None if ref is None else ref.rms)
     return Conditioning(agents=tuple(agents), transient_constant=const, transient_case=case_label,
                         transient_method=method, predicted_rms=rms, predicted_graph=graph,
-                        warnings=tuple(warnings))
+                        warnings=tuple(warnings), kalman_rms=kf_rms, reference_rms=ref_rms)
 
 
 def _transient(des: Design, warnings: list) -> tuple:
     sc = des.scenario
-    if des.time == "continuous" and des.g is None:
+    if des.adaptive:
         return None, None, "not defined for the adaptive gain (g changes with time)"
     if sc.m * sc.n > MAX_DIM:
         return None, None, f"not computed: m n = {sc.m * sc.n} > {MAX_DIM}"
@@ -255,7 +264,7 @@ def _transient(des: Design, warnings: list) -> tuple:
     for case in cases:
         Cs, Ks, Ps = case_parts(des, case)
         M = full_error_matrix(A, Cs, Ks, Ps, case.graph.S, time=sc.time, q=des.q, g=des.g,
-                              dt=sc.run.dt if sc.time == "continuous" else None)
+                              dt=sc.run.dt if sc.time == "continuous" else None, consensus=des.consensus)
         if des.excluded:  # the certificate covers the error modulo W only (design.undetectable: exclude)
             M = modulo(M, des.unobserved.W, len(Cs))
         t = transient_constant(M, r, block=block)
@@ -268,7 +277,7 @@ def _transient(des: Design, warnings: list) -> tuple:
     method = f"sup_k ||M^k|| / rate^k of {what}{at}, {where}, graph {case.label} held constant: " + t.method
     if t.constant is not None and t.constant > TRANSIENT_WARN:
         who = "" if t.agent_index is None else f", agent {case.graph.ids[t.agent_index]}'s error peaking"
-        knob = "design.q" if sc.time == "discrete" else "design.g"
+        knob = "design.q" if des.two_rate else "design.g"
         value = "infinite" if math.isinf(t.constant) else f"{t.constant:.2g}"
         warnings.append(f"errors can grow {value}-fold before they decay (transient_constant, graph {case.label}"
                         f"{who}; > {TRANSIENT_WARN:g}): a larger {knob}, a slower design.rate or smaller local "

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import functools
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -65,12 +66,29 @@ class Design:
     # what no agent sees (detectability.py): W, its spectrum, whether it decays; None only for a design built by hand
     unobserved: Unobserved | None = None
     spectrum: Spectrum | None = field(default=None, repr=False, compare=False)  # modal.py: A balanced, its clusters
+    # what each agent takes from its neighbours: split (the paper's) or whole (P_i = I: whole_state.py), and what the
+    # whole-state design chose (whole_state.WholeState; None for the split)
+    consensus: str = "split"
+    whole: Any = field(default=None, repr=False, compare=False)
+    # design.gains: optimal that chose the split: why (None otherwise); design.consensus: auto's verdict in one line
+    chosen: str | None = None
     # the analyses computed from it so far (cached_analysis); not an argument, so a replaced design starts empty
     _analyses: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
     @property
     def time(self) -> str:
         return self.scenario.time
+
+    @property
+    def adaptive(self) -> bool:
+        """The adaptive gain (eq. adaptive): no fixed g, no steady state, no certified rate."""
+        return self.g_mode == "adaptive"
+
+    @property
+    def two_rate(self) -> bool:
+        """q consensus exchanges per event time: discrete time, or the whole-state design in continuous time (one
+        event time per ``run.dt``)."""
+        return self.time == "discrete" or self.consensus == "whole"
 
     @property
     def rate(self) -> float:

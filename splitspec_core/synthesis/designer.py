@@ -22,21 +22,25 @@ loss are functions of it (:mod:`.verdict`, :mod:`.conditioning`, :mod:`.loss_cer
 from __future__ import annotations
 
 import dataclasses
+import math
 import re
 
 import numpy as np
 
 from . import bounds
-from ..errors import AssumptionError
+from ..errors import AssumptionError, DesignError
 from .design_data import Design
 from ..model.detectability import not_detectable_text, quotient_basis, still_text, unobserved_of
-from .error_matrix import MAX_RATE_DIM, full_radius
+from .error_matrix import MAX_NOISE_DIM, MAX_RATE_DIM, full_radius, predicted_rms
 from ..model.gain_target import beyond_target
 from ..model.graphs import build_graph, enumerate_strongly_connected
-from ..model.local_design import design_agent, riccati_weights, scenario_spectrum, working_scale
+from ..model.local_design import (design_agent, riccati_weights, scenario_spectrum, whole_placeholder, with_gain,
+                                  working_scale)
 from ..model.observability import decompose
 from .resilience import analyse_agent_losses, analyse_arc_losses
 from .sampled_rates import exact_g, sampled_g
+from .verdict import rate_certificate
+from .whole_state import design_whole
 from ..scenarios.specs import Scenario
 
 __all__ = ["design", "scenario_dwell", "check_full"]
@@ -63,6 +67,11 @@ def scenario_dwell(sc: Scenario) -> float | None:
 def design(sc: Scenario, *, compare_q_methods: bool = False, workers: int | None = None) -> Design:
     """Run the whole design for a scenario.
 
+    ``design.consensus`` picks what each agent takes from its neighbours: ``split`` the paper's (its unobservable
+    space), ``whole`` the whole state (:mod:`.whole_state`); ``auto`` (the default) the split, but for
+    ``design.gains: optimal`` (the default when the scenario states noise), which designs both and keeps the
+    certified one with the smaller predicted steady RMS (:func:`_choose`).
+
     ``compare_q_methods`` (discrete time) also computes, for information, the q of every other
     q method over the same cases (``Design.q_methods``; ``splitspec design --all-methods``).
     ``workers``: processes for the spectral radii of many large cases (a resilient design of hundreds of
@@ -76,81 +85,193 @@ def design(sc: Scenario, *, compare_q_methods: bool = False, workers: int | None
         is asked of a network that is not redundant.
     DesignError
         No g or q could be found within limits.
+
+    Examples
+    --------
+    >>> import splitspec_core as ss
+    >>> des = design(ss.load_scenario("examples/paper_discrete.yaml"))
+    >>> des.q, des.consensus
+    (6, 'split')
     """
     d = sc.design
-    A = sc.system.A
-    sp = scenario_spectrum(sc)
-    C_all = np.vstack(sc.system.Cs)
-    free = beyond_target(sc.time, d.rate, d.margin)  # modes the local gains leave alone (gain_target.py)
-    scale = working_scale(sc, sp)  # design.coordinates: the user's (None) or balanced
-    A_w = A if scale is None else np.asarray(A) * scale[None, :] / scale[:, None]
-    decs = [decompose(A, C, rank_tol=d.rank_tol, spectrum=sp, free=free, scale=scale) for C in sc.system.Cs]
-    # the standing assumption first ((C, A) of eqs. pre_sys1-pre_sys2 jointly observable, or here detectable):
-    # without it no K_i helps, so an explicit K_i that misses the rate on a direction nobody sees is not the error
-    of = unobserved_of(sc, sp, {aid: dec.V for aid, dec in zip(sc.agent_ids, decs)}, scale)
-    un = of(sc.agent_ids)
-    warnings: list = []
-    if not un.decays:
-        if d.undetectable != "exclude":
-            raise AssumptionError(not_detectable_text(un, decs, d.rank_tol))
-        warnings.append(f"design.undetectable: exclude: no agent sees {still_text(un)}, which does not decay; the "
-                        "certificate covers the error modulo the unobserved directions only")
-    pw, mw = riccati_weights(sc)
-    agents = tuple(
-        design_agent(A, C, time=sc.time, rate=d.rate, method=d.gains, margin=d.margin,
-                     K=None if d.K is None else d.K[k], rank_tol=d.rank_tol,
-                     process_weight=pw, measurement_weight=mw, agent_id=aid, unobserved=un.W_working, dec=decs[k],
-                     scale=scale)
-        for k, (aid, C) in enumerate(zip(sc.agent_ids, sc.system.Cs))
-    )
-    graphs = tuple(build_graph(g.name, sc.agent_ids, g.arcs, weights=d.weights) for g in sc.graphs)
-    used = sc.switching.graph_names(sc.graph_names)
-    by_name = {g.name: g for g in graphs}
-    ad = {a.id: a for a in agents}
+    if d.consensus == "whole":
+        return _design(sc, "whole", compare_q_methods, workers)
+    if d.consensus == "auto" and d.gains == "optimal":
+        return _choose(sc, compare_q_methods, workers)
+    return _design(sc, "split", compare_q_methods, workers)
 
-    full_V = {aid: dec.V for aid, dec in zip(sc.agent_ids, decs)}
 
-    def case_for(label, graph, W=None):
-        """The case of ``graph``; ``W``: what its agents leave unobserved when it is not the design's (after a loss):
-        then ``V_i ⊖ W`` (detectability.py)."""
-        if W is None:
-            Vs = [ad[i].V for i in graph.ids]
-        else:
+def _choose(sc: Scenario, compare_q_methods: bool, workers: int | None) -> Design:
+    """``design.gains: optimal`` with ``design.consensus: auto``: the whole-state design and the split (its gains the
+    Riccati design with the scenario's noise) both, and the certified one with the smaller predicted steady RMS kept;
+    when neither noise can be predicted (``m n`` above ``MAX_NOISE_DIM``) the split, which costs fewer exchanges;
+    neither certified: the one with the smaller predicted RMS.  ``Design.chosen`` says which and why."""
+    pre = _Prelude.of(sc)
+    found, errors = {}, {}
+    for structure in ("whole", "split"):
+        try:
+            found[structure] = _design(pre, structure, compare_q_methods, workers)
+        except (AssumptionError, DesignError) as exc:
+            errors[structure] = exc
+    if not found:  # the split's refusal is the paper's: say it, and what the whole state met
+        raise type(errors["split"])(f"{errors['split']} (and the whole-state design: {errors['whole']})")
+    figures = {k: (bool(rate_certificate(des).certified), _predicted_all(des)) for k, des in found.items()}
+    certified = [k for k, (ok, _) in figures.items() if ok] or list(figures)
+    if len(certified) == 1:
+        pick = certified[0]
+    else:
+        w, s_ = (figures[k][1] for k in ("whole", "split"))
+        pick = "split" if w is None and s_ is None else \
+            ("whole" if (math.inf if w is None else w) <= (math.inf if s_ is None else s_) else "split")
+    other = "split" if pick == "whole" else "whole"
+    return dataclasses.replace(found[pick], chosen=_chosen_text(pick, other, figures, errors))
+
+
+def _predicted_all(des: Design) -> float | None:
+    """RMS over agents of the predicted steady RMS errors, None when not computed (too large, or adaptive)."""
+    sc = des.scenario
+    if des.adaptive or sc.m * sc.n > MAX_NOISE_DIM:
+        return None
+    r = predicted_rms(des)
+    return float(np.sqrt(np.mean(r ** 2)))
+
+
+def _chosen_text(pick: str, other: str, figures: dict, errors: dict) -> str:
+    """One line: which consensus subspace ``design.consensus: auto`` chose, and why."""
+    name = {"whole": "the whole state", "split": "the split"}
+
+    def fig(k):
+        ok, rms = figures[k]
+        return (f"predicted steady RMS {rms:.4g}" if rms is not None else "noise not predicted") + \
+            ("" if ok else ", rate NOT certified")
+
+    text = f"design.consensus: auto chose {name[pick]} ({fig(pick)})"
+    if other in figures:
+        return text + f" over {name[other]} ({fig(other)})"
+    return text + f"; {name[other]} failed: {errors[other]}"
+
+
+@dataclasses.dataclass
+class _Prelude:
+    """What both consensus structures share: the decompositions, what no agent sees, the graphs, the cases and the
+    losses analysed (steps 1, 2, 4, 5 of the module docstring)."""
+
+    sc: Scenario
+    sp: object
+    scale: object
+    A_w: np.ndarray
+    decs: list  # every agent's decomposition (before W is taken out)
+    un: object
+    warnings: list
+    graphs: tuple
+    cases: tuple
+    agent_losses: dict
+    arc_losses: dict
+    switching: bool
+
+    @classmethod
+    def of(cls, sc: Scenario) -> "_Prelude":
+        d = sc.design
+        A = sc.system.A
+        sp = scenario_spectrum(sc)
+        free = beyond_target(sc.time, d.rate, d.margin)  # modes the local gains leave alone (gain_target.py)
+        scale = working_scale(sc, sp)  # design.coordinates: the user's (None) or balanced
+        A_w = A if scale is None else np.asarray(A) * scale[None, :] / scale[:, None]
+        decs = [decompose(A, C, rank_tol=d.rank_tol, spectrum=sp, free=free, scale=scale) for C in sc.system.Cs]
+        # the standing assumption first ((C, A) of eqs. pre_sys1-pre_sys2 jointly observable, or here detectable):
+        # without it no K_i helps, so an explicit K_i that misses the rate on a direction nobody sees is not the error
+        of = unobserved_of(sc, sp, {aid: dec.V for aid, dec in zip(sc.agent_ids, decs)}, scale)
+        un = of(sc.agent_ids)
+        warnings: list = []
+        if not un.decays:
+            if d.undetectable != "exclude":
+                raise AssumptionError(not_detectable_text(un, decs, d.rank_tol))
+            warnings.append(f"design.undetectable: exclude: no agent sees {still_text(un)}, which does not decay; "
+                            "the certificate covers the error modulo the unobserved directions only")
+        # each agent's V_i minus W (what design_agent and whole_placeholder hold): the certificates' cases
+        seen = [dec.without(un.W_working, A_w) if un.W_working.shape[1] else dec for dec in decs]
+        ad = dict(zip(sc.agent_ids, seen))
+        graphs = tuple(build_graph(g.name, sc.agent_ids, g.arcs, weights=d.weights) for g in sc.graphs)
+        used = sc.switching.graph_names(sc.graph_names)
+        by_name = {g.name: g for g in graphs}
+        full_V = {aid: dec.V for aid, dec in zip(sc.agent_ids, decs)}
+
+        def case_for(label, graph, W=None):
+            """The case of ``graph``; ``W``: what its agents leave unobserved when it is not the design's (after a
+            loss): then ``V_i ⊖ W`` (detectability.py)."""
+            if W is None:
+                return bounds.make_case(label, graph, [ad[i].V for i in graph.ids], [ad[i].A_un for i in graph.ids])
             Vs = [quotient_basis(full_V[i], W) for i in graph.ids]
-        return bounds.make_case(label, graph, Vs, [V.T @ A_w @ V for V in Vs] if W is not None else
-                                [ad[i].dec.A_un for i in graph.ids])
+            return bounds.make_case(label, graph, Vs, [V.T @ A_w @ V for V in Vs])
 
-    cases = [case_for(name, by_name[name]) for name in used]
-    if d.graph_set == "all":
-        for k, arcs in enumerate(enumerate_strongly_connected(sc.m)):
-            arcs_ids = tuple((sc.agent_ids[j], sc.agent_ids[i]) for j, i in arcs)
-            g = build_graph(f"all#{k + 1}", sc.agent_ids, arcs_ids, weights=d.weights)
-            cases.append(case_for(g.name, g))
-
-    graph_arcs = {g.name: g.arcs for g in sc.graphs}
-    agent_losses = analyse_agent_losses(of, sc.agent_ids, graph_arcs) if sc.m > 1 else {}
-    arc_losses = analyse_arc_losses(sc.agent_ids, graph_arcs)
-    if d.resilience:
-        for lost, rep in agent_losses.items():
-            if not rep.detectable:
-                raise AssumptionError(
-                    f"design.resilience: 1 needs a redundantly jointly detectable network: without agent {lost}, no "
-                    f"agent sees {rep.unobservable_direction}, which does not decay")
-            for name in used:
-                if not rep.strongly_connected[name]:
-                    j, i = rep.unreachable[name]
+        cases = [case_for(name, by_name[name]) for name in used]
+        if d.graph_set == "all":
+            for k, arcs in enumerate(enumerate_strongly_connected(sc.m)):
+                arcs_ids = tuple((sc.agent_ids[j], sc.agent_ids[i]) for j, i in arcs)
+                g = build_graph(f"all#{k + 1}", sc.agent_ids, arcs_ids, weights=d.weights)
+                cases.append(case_for(g.name, g))
+        graph_arcs = {g.name: g.arcs for g in sc.graphs}
+        agent_losses = analyse_agent_losses(of, sc.agent_ids, graph_arcs) if sc.m > 1 else {}
+        arc_losses = analyse_arc_losses(sc.agent_ids, graph_arcs)
+        if d.resilience:
+            for lost, rep in agent_losses.items():
+                if not rep.detectable:
                     raise AssumptionError(
-                        f"design.resilience: 1 needs a redundantly strongly connected network: without agent "
-                        f"{lost}, graph {name} is not strongly connected (agent {j} cannot reach agent {i})")
-            survivors = tuple(i for i in sc.agent_ids if i != lost)
-            for name in used:  # strongly connected: checked just above (rep.strongly_connected)
-                g = build_graph(f"{name} without agent {lost}", survivors, graph_arcs[name], weights=d.weights,
-                                check=False)
-                W_S = rep.unobserved.W_working
-                cases.append(case_for(g.name, g, None if W_S.shape[1] == un.dim else W_S))
-    cases = tuple(cases)
-    switching = len(used) > 1 or d.graph_set == "all"
+                        f"design.resilience: 1 needs a redundantly jointly detectable network: without agent {lost}, "
+                        f"no agent sees {rep.unobservable_direction}, which does not decay")
+                for name in used:
+                    if not rep.strongly_connected[name]:
+                        j, i = rep.unreachable[name]
+                        raise AssumptionError(
+                            f"design.resilience: 1 needs a redundantly strongly connected network: without agent "
+                            f"{lost}, graph {name} is not strongly connected (agent {j} cannot reach agent {i})")
+                survivors = tuple(i for i in sc.agent_ids if i != lost)
+                for name in used:  # strongly connected: checked just above (rep.strongly_connected)
+                    g = build_graph(f"{name} without agent {lost}", survivors, graph_arcs[name], weights=d.weights,
+                                    check=False)
+                    W_S = rep.unobserved.W_working
+                    cases.append(case_for(g.name, g, None if W_S.shape[1] == un.dim else W_S))
+        return cls(sc=sc, sp=sp, scale=scale, A_w=A_w, decs=decs, un=un, warnings=warnings, graphs=graphs,
+                   cases=tuple(cases), agent_losses=agent_losses, arc_losses=arc_losses,
+                   switching=len(used) > 1 or d.graph_set == "all")
 
+
+def _design(pre: "_Prelude | Scenario", structure: str, compare_q_methods: bool, workers: int | None) -> Design:
+    """The design with the consensus ``structure`` (``split`` or ``whole``) on what :class:`_Prelude` computed."""
+    pre = pre if isinstance(pre, _Prelude) else _Prelude.of(pre)
+    sc, un, scale = pre.sc, pre.un, pre.scale
+    d = sc.design
+    A = sc.system.A
+    warnings = list(pre.warnings)
+    cases, switching = pre.cases, pre.switching
+    if structure == "whole":
+        if not un.decays:
+            raise AssumptionError("design.consensus: whole needs every mode no agent sees to decay (the centralized "
+                                  "filter it spreads has none for the others): design.consensus: split")
+        agents = tuple(whole_placeholder(A, dec, aid, un.W_working, scale) for aid, dec in zip(sc.agent_ids, pre.decs))
+    else:
+        pw, mw = riccati_weights(sc)
+        method = "riccati" if d.gains == "optimal" else d.gains  # the split's own gains for the noise: Riccati
+        agents = tuple(
+            design_agent(A, C, time=sc.time, rate=d.rate, method=method, margin=d.margin,
+                         K=None if d.K is None else d.K[k], rank_tol=d.rank_tol,
+                         process_weight=pw, measurement_weight=mw, agent_id=aid, unobserved=un.W_working,
+                         dec=pre.decs[k], scale=scale)
+            for k, (aid, C) in enumerate(zip(sc.agent_ids, sc.system.Cs))
+        )
+    residual = max([a.dec.split_residual for a in agents] + [un.residual])
+    common = dict(scenario=sc, graphs=pre.graphs, cases=cases, agent_losses=pre.agent_losses,
+                  arc_losses=pre.arc_losses, split_residual=residual, unobserved=un, spectrum=pre.sp)
+    if structure == "whole":
+        Ks, q, info, radii, cert = design_whole(sc, cases, rate=un.envelope(d.rate),
+                                                dwell=scenario_dwell(sc) if switching else None, warnings=warnings)
+        method, bound, certified, switches = cert
+        agents = tuple(with_gain(a, K, d.gains) for a, K in zip(agents, Ks))
+        result = bounds.QResult(q=q, method=method, bound=bound, certified=bool(certified), switching=switches)
+        if not certified:
+            warnings.append(f"q = {q} does NOT meet rate {d.rate:g} by the {method} ({bound:.6g})")
+        return Design(agents=agents, warnings=tuple(warnings), q=q, q_result=result, q_methods={method: result},
+                      error_radius=radii, full_radius=radii, consensus="whole", whole=info, **common)
     kw: dict = {}
     if sc.time == "continuous":
         kw.update(_design_g(sc, cases, switching, warnings))
@@ -158,10 +279,7 @@ def design(sc: Scenario, *, compare_q_methods: bool = False, workers: int | None
             kw.update(sampled_g(sc, agents, cases, kw, switching, warnings))
     else:
         kw.update(_design_q(sc, cases, switching, warnings, compare_q_methods, workers))
-    residual = max([a.dec.split_residual for a in agents] + [un.residual])
-    des = Design(scenario=sc, agents=agents, graphs=graphs, cases=cases, agent_losses=agent_losses,
-                 arc_losses=arc_losses, warnings=tuple(warnings), split_residual=residual, unobserved=un, spectrum=sp,
-                 **kw)
+    des = Design(agents=agents, warnings=tuple(warnings), **common, **kw)
     if des.split_exact or (sc.time == "continuous" and des.g is None):
         return des
     return check_full(des, warnings)  # an approximate split: the rate on the full error matrices

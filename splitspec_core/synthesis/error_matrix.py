@@ -34,7 +34,8 @@ if TYPE_CHECKING:  # annotations only: the data of a design, which imports nothi
     from .design_data import Design
 
 __all__ = ["full_error_matrix", "ode_error_matrix", "modulo", "case_parts", "full_radius", "error_dynamics",
-           "predicted_rms", "MAX_DIM", "MAX_RATE_DIM"]
+           "predicted_rms", "MAX_DIM", "MAX_RATE_DIM", "MAX_NOISE_DIM",
+           "block_diagonal", "step_blocks", "whole_matrix", "whole_noise"]
 
 #: the largest ``m n`` for which the full error matrices' powers and Lyapunov equations are formed (the transient
 #: constant, the predicted noise)
@@ -42,6 +43,9 @@ MAX_DIM = 1000
 #: the largest ``m n`` for which an approximate split's rate is checked on the full error matrices (their
 #: eigenvalues only: a few seconds per graph at 2000)
 MAX_RATE_DIM = 2000
+#: the largest ``m n`` for which the steady-state noise is predicted (one discrete Lyapunov equation: about 8 s at
+#: 1700 on one core)
+MAX_NOISE_DIM = 2000
 
 
 def block_diagonal(blocks) -> np.ndarray:
@@ -56,11 +60,46 @@ def block_diagonal(blocks) -> np.ndarray:
     return out
 
 
+def step_blocks(A: np.ndarray, Ks, Cs, *, dt: float | None = None) -> tuple:
+    """``(F_i, K_s,i)`` per agent of the whole-state estimator: one event time's error map and noise gain
+    (:func:`splitspec_core.model.steps.step_matrices`: ``A + K_i C_i`` and ``K_i``, or ``E + D K_i C_i`` and ``D K_i``
+    in continuous time, ``dt`` = ``run.dt``)."""
+    from ..model.steps import sampled_data_matrices, step_matrices
+
+    ED = None if dt is None else sampled_data_matrices(np.asarray(A, dtype=float), dt)[:2]
+    out = [step_matrices(A, np.asarray(K, dtype=float), np.asarray(C, dtype=float), dt=dt, sampled=ED)[1:3]
+           for K, C in zip(Ks, Cs)]
+    return [F for F, _ in out], [K for _, K in out]
+
+
+def whole_matrix(Fs, S: np.ndarray, q: int) -> np.ndarray:
+    """``(S^q (x) I) blkdiag(F_i)``: the whole-state estimator's full error matrix of one event time
+    (:mod:`splitspec_core.synthesis.whole_state`: update, then average q times)."""
+    n = Fs[0].shape[0]
+    Sq = np.linalg.matrix_power(np.asarray(S, dtype=float), int(q))
+    return np.kron(Sq, np.eye(n)) @ block_diagonal(Fs)
+
+
+def whole_noise(Kss, S: np.ndarray, q: int, R: np.ndarray, Qn: np.ndarray) -> np.ndarray:
+    """The covariance of the noise entering one event time of the whole-state estimator:
+    ``W blkdiag(K_s,i) R blkdiag(K_s,i)' W' + 11' (x) Q``, ``W = S^q (x) I``."""
+    m, n = len(Kss), Kss[0].shape[0]
+    W = np.kron(np.linalg.matrix_power(np.asarray(S, dtype=float), int(q)), np.eye(n))
+    G = W @ block_diagonal(Kss)
+    one = np.kron(np.ones((m, 1)), np.eye(n))
+    N = G @ R @ G.T + one @ Qn @ one.T
+    return 0.5 * (N + N.T)
+
+
 def full_error_matrix(A: np.ndarray, Cs, Ks, Ps, S: np.ndarray, *, time: str, q: int | None = None,
-                      g: float | None = None, dt: float | None = None) -> np.ndarray:
-    """The full error matrix of one event time (discrete) or one sampled-data step (continuous); module docstring."""
+                      g: float | None = None, dt: float | None = None, consensus: str = "split") -> np.ndarray:
+    """The full error matrix of one event time (discrete) or one sampled-data step (continuous); module docstring.
+    ``consensus="whole"``: the whole-state estimator's (:func:`whole_matrix`; ``Ps`` unused, ``q`` exchanges per
+    event time in both times)."""
     A = np.asarray(A, dtype=float)
     n, m = A.shape[0], len(Cs)
+    if consensus == "whole":
+        return whole_matrix(step_blocks(A, Ks, Cs, dt=dt if time == "continuous" else None)[0], S, int(q))
     SI = np.kron(S, np.eye(n))
     if time == "discrete":
         W = np.eye(m * n) - block_diagonal(Ps) @ (np.eye(m * n) - SI)  # eq. (split-discrete-p1..p3), one sub-round
@@ -117,7 +156,11 @@ def full_radius(des: "Design", cases, *, q: int | None = None, g: float | None =
 
     for case in cases:
         Cs, Ks, Ps = case_parts(des, case)
-        if sc.time == "discrete":
+        if des.consensus == "whole":  # one event time (continuous: one run.dt) of the whole-state estimator
+            M = mod(full_error_matrix(A, Cs, Ks, Ps, case.graph.S, time=sc.time, q=q, dt=sc.run.dt,
+                                      consensus="whole"), len(Cs))
+            out[case.label] = float(np.max(np.abs(np.linalg.eigvals(M))))
+        elif sc.time == "discrete":
             M = mod(full_error_matrix(A, Cs, Ks, Ps, case.graph.S, time="discrete", q=q), len(Cs))
             out[case.label] = float(np.max(np.abs(np.linalg.eigvals(M))))
         else:
@@ -148,6 +191,9 @@ def error_dynamics(des: "Design", graph_index: int = 0) -> tuple:
     Ks = [np.asarray(K) for K in des.Ks]
     Cs = [np.asarray(C) for C in sc.system.Cs]
     Ps = [np.asarray(P) for P in des.Ps]
+    if des.consensus == "whole":
+        Fs, Kss = step_blocks(sc.system.A, Ks, Cs, dt=sc.run.dt if sc.time == "continuous" else None)
+        return whole_matrix(Fs, S, des.q), whole_noise(Kss, S, des.q, R, Qn)
     if sc.time == "discrete":
         M = full_error_matrix(sc.system.A, Cs, Ks, Ps, S, time="discrete", q=des.q)
         G = block_diagonal(Ks)

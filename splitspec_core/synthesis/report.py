@@ -19,7 +19,7 @@ from .design_data import Design
 from .loss_certificate import loss_certificate
 from ..model.gains import poles_text
 from ..model.graphs import is_doubly_stochastic, perron_vector
-from ..scenarios.labels import heaviest
+from ..scenarios.labels import heaviest, spread
 from .verdict import NO_CERTIFIED_RATE, rate_certificate  # the verdict, rendered here
 
 __all__ = ["design_json", "design_text"]
@@ -230,24 +230,18 @@ def design_text(des: Design) -> str:
     d = sc.design
     unit = "exp(-lam t)" if sc.time == "continuous" else "lam^tau"
     adaptive = des.g_mode == "adaptive"
+    consensus = "the whole state" if des.consensus == "whole" else "the split (each agent's unobservable space)"
     lines = [
         f"splitspec design: {sc.name}  ({sc.time} time, m = {sc.m} agents, n = {sc.n} states)",
         (f"  rate lam = {d.rate:g} for the local gains only; adaptive g: {NO_CERTIFIED_RATE}; gains: {d.gains}"
-         if adaptive else f"  rate lam = {d.rate:g}  (errors decay as {unit}); gains: {d.gains}"),
+         if adaptive else f"  rate lam = {d.rate:g}  (errors decay as {unit}); gains: {d.gains}; consensus on "
+                          f"{consensus}"),
     ]
+    if des.chosen:
+        lines.append(f"  {des.chosen}")
     lines += model_lines(sc)
-    lines += [
-        "",
-        "agents  (n_i = dim of the unobservable space V_i; poles of Abar_i + Kbar_i Cbar_i; the smallest",
-        "         observability margin counted as seen, and ||K_i||)",
-    ]
     cond = conditioning(des)
-    for a, c in zip(des.agents, cond.agents):
-        margin = "-" if c.observability_margin is None else f"{c.observability_margin:.2g}"
-        weak = f", weak direction (margin {c.weak:.2g}) left to consensus" if c.weak > 0 else ""
-        lines.append(f"  agent {a.id}: s_i = {a.K.shape[1]}, n_i = {a.dec.n_unobservable}"
-                     + (f" (+ {a.dec.unobserved} no agent sees)" if a.dec.unobserved else "")
-                     + f", poles {poles_text(a.gain.poles, sc.time)}, margin {margin}, |K| {c.gain_norm:.3g}{weak}")
+    lines += [""] + agent_lines(des, cond)
     lines += ["", "graphs"]
     for g in des.graphs:
         ds = "doubly stochastic" if is_doubly_stochastic(g.S) else "not doubly stochastic"
@@ -278,7 +272,7 @@ def design_text(des: Design) -> str:
         if crit:
             lines.append(f"    graph {name}: losing arc {', '.join(crit)} breaks strong connectivity")
     lines += ["", f"cases covered: {', '.join(c.label for c in des.cases)}"]
-    if sc.time == "continuous":
+    if sc.time == "continuous" and des.consensus != "whole":
         lines.append("")
         if des.g_mode == "adaptive":
             lines.append(f"g: adaptive (eq. adaptive), each agent integrates its own g_i from g0 = {d.g0:g}")
@@ -300,6 +294,8 @@ def design_text(des: Design) -> str:
             worst = min(des.sampled_rate.values())
             lines.append(f"  sampled-data form with run.dt = {sc.run.dt:g}: decay rate {worst:.4g} "
                          f"({'meets' if worst >= d.rate else 'MISSES'} rate {d.rate:g})")
+    elif des.consensus == "whole":
+        lines += [""] + whole_lines(des)
     else:
         r = des.q_result
         extra = f" (p = {r.p}, pbar = {r.pbar})" if r.p else ""
@@ -360,6 +356,70 @@ def _size_lines(des: Design) -> list:
     if cond.predicted_rms is not None:
         allrms = _all_rms(cond.predicted_rms)
         per = ", ".join(f"{i}: {v:.3g}" for i, v in cond.predicted_rms.items())
-        out.append(f"noise: predicted steady-state RMS error {allrms:.3g} (per agent {per}; graph "
-                   f"{cond.predicted_graph} held constant, discrete Lyapunov equation)")
+        out.append(f"noise: predicted steady-state RMS error {allrms:.3g}{reference_text(allrms, cond)} (per agent "
+                   f"{per}; graph {cond.predicted_graph} held constant, discrete Lyapunov equation)")
+    elif cond.kalman_rms is not None:
+        out.append(f"noise: the steady-state error is not predicted (m n = {sc.m * sc.n}); the centralized Kalman "
+                   f"filter's is {cond.kalman_rms:.3g}")
+    return out
+
+
+def reference_text(rms: float, cond) -> str:
+    """`` = 1.09x the centralized Kalman filter's 0.236 (...)``: a predicted RMS against the two references."""
+    kf, ref = cond.kalman_rms, cond.reference_rms
+    if kf is None or not kf > 0:
+        return ""
+    text = f" = {rms / kf:.3g}x the centralized Kalman filter's {kf:.3g}"
+    if ref is not None and ref > kf * (1 + 1e-9):
+        text += f", {rms / ref:.3g}x the best centralized estimator certified at the rate ({ref:.3g})"
+    return text
+
+
+def agent_lines(des: Design, cond) -> list:
+    """Per agent: what it corrects locally and what it takes from its neighbours, named by their largest states."""
+    sc = des.scenario
+    names = sc.state_names
+    if des.consensus == "whole":
+        w = des.whole
+        out = ["agents  (consensus on the whole state: each agent updates with its own measurement, then averages its",
+               "         neighbours' updated estimates q times; K_i = -L_i / pi_i, L the centralized filter's gain and",
+               "         pi_i the agent's weight in the consensus average; what K_i corrects, by its largest states)"]
+        for k, (a, c) in enumerate(zip(des.agents, cond.agents)):
+            U = np.linalg.svd(np.asarray(a.K, dtype=float), full_matrices=False)[0] if a.K.size else a.K
+            out.append(f"  agent {a.id}: s_i = {a.K.shape[1]}, corrects locally {spread(U, names) or 'nothing'}; "
+                       f"takes every state from its neighbours; pi_i = {w.pi[k]:.3g}, |K| {c.gain_norm:.3g}")
+        return out
+    out = ["agents  (n_i = dim of the unobservable space V_i, which it takes from its neighbours; poles of",
+           "         Abar_i + Kbar_i Cbar_i; the smallest observability margin counted as seen, and ||K_i||)"]
+    for a, c in zip(des.agents, cond.agents):
+        margin = "-" if c.observability_margin is None else f"{c.observability_margin:.2g}"
+        weak = f", weak direction (margin {c.weak:.2g}) left to consensus" if c.weak > 0 else ""
+        takes = f", from its neighbours: {spread(a.V_user, names)}" if a.dec.n_unobservable else ""
+        out.append(f"  agent {a.id}: s_i = {a.K.shape[1]}, n_i = {a.dec.n_unobservable}"
+                   + (f" (+ {a.dec.unobserved} no agent sees)" if a.dec.unobserved else "")
+                   + f", poles {poles_text(a.gain.poles, sc.time)}, margin {margin}, |K| {c.gain_norm:.3g}{weak}"
+                   + takes)
+    return out
+
+
+def whole_lines(des: Design) -> list:
+    """The whole-state design's q, its certificate per case, and the centralized filter it spreads."""
+    sc = des.scenario
+    r, w = des.q_result, des.whole
+    per = "event time" if sc.time == "discrete" else f"run.dt = {sc.run.dt:g}"
+    scope = ("arbitrary switching among the graphs" if r.method == "mixing bound" else
+             "switching with the scenario's dwell time" if r.method == "dwell-time bound" else "each graph held constant")
+    raised = "" if des.q == w.q_certified else f"; raised from {w.q_certified} for the noise"
+    out = [f"q = {des.q} exchanges per {per}  (whole-state consensus; the smallest the {r.method} certifies"
+           f"{raised}); bound {r.bound:.6g} {'<' if r.certified else '>='} {w.lam_step:.6g} per step for {scope}"]
+    radii = sorted(des.full_radius.items(), key=lambda kv: -kv[1])
+    shown = radii if len(radii) <= MAX_LISTED else radii[:MAX_LISTED - 1]
+    for label, rad in shown:
+        out.append(f"  {label}: spectral radius of the full error matrix = {rad:.6g}")
+    if len(shown) < len(radii):
+        out.append(f"  ... and {len(radii) - len(shown)} more cases, each at most {radii[len(shown)][1]:.6g}")
+    if w.method != "explicit":
+        which = "the Kalman predictor" if w.alpha == 1.0 else f"the Riccati design shifted by alpha = {w.alpha:.6g}"
+        out.append(f"  the centralized filter it spreads: {which} of the per-step model with the scenario's noise, "
+                   f"radius {w.central_radius:.6g}, predicted steady RMS {w.central_rms:.4g}")
     return out

@@ -18,7 +18,7 @@ from .error_matrix import MAX_RATE_DIM
 from ..model.graphs import build_graph
 from .sampled_rates import sampled_rates
 
-__all__ = ["RateCertificate", "rate_certificate", "survivors_certificate", "q_text", "sampled_shortfall",
+__all__ = ["RateCertificate", "rate_certificate", "survivors_certificate", "q_text", "whole_text", "sampled_shortfall",
            "NO_CERTIFIED_RATE", "ADAPTIVE"]
 
 # thm. split_continuous_adaptive: with the adaptive gain (eq. adaptive) every error tends to zero, at no stated rate
@@ -110,6 +110,8 @@ def _split_certificate(des: Design, *, sampled: bool = True) -> RateCertificate:
     sc = des.scenario
     if des.g_mode == "adaptive":
         return RateCertificate(False, ADAPTIVE)
+    if des.consensus == "whole":
+        return _whole_certificate(des)
     if des.full_radius:
         return _full_certificate(des, sampled=sampled)
     cert = _blocks_certificate(des, sampled=sampled)
@@ -151,6 +153,36 @@ def _blocks_certificate(des: Design, *, sampled: bool) -> RateCertificate:
     scope = " (each graph held constant)" if len(des.cases) > 1 else ""
     return RateCertificate(True, f"{ode}; its sampled-data form with run.dt = {dt:g} decays at {worst:.4g} >= "
                                  f"{rate:g}{scope}", by=by)
+
+
+def whole_text(q: int, r: bounds.QResult, des: Design, cases: int, *, held: str = "each") -> str:
+    """The line of the whole-state design's certificate ``r`` at ``q`` over ``cases`` cases (:mod:`.whole_state`):
+    what certifies it, its bound against the rate per event time (continuous time: per ``run.dt``, and the decay
+    rate per second it means), and its scope."""
+    sc = des.scenario
+    lam = des.whole.lam_step if des.whole is not None else des.rate
+    what = {"full error matrix": "spectral radius of the full error matrix", "mixing bound": "mixing bound",
+            "dwell-time bound": "dwell-time bound"}.get(r.method, r.method)
+    ok = bool(r.certified)
+    if sc.time == "discrete":
+        text = f"q = {q}: {what} {r.bound:.6g} {'<' if ok else '>='} rate {lam:.6g}"
+    else:
+        per_s = -math.log(r.bound) / sc.run.dt if 0 < r.bound < math.inf else 0.0
+        text = (f"q = {q} exchanges per run.dt = {sc.run.dt:g}: {what} {r.bound:.6g} {'<' if ok else '>='} "
+                f"{lam:.6g} per step (decay rate {per_s:.4g} {'>=' if ok else '<'} {-math.log(lam) / sc.run.dt:.4g})")
+    if r.method == "mixing bound":
+        text += " under arbitrary switching among doubly stochastic graphs"
+    elif r.method == "dwell-time bound":
+        text += " under switching with the scenario's dwell time"
+    elif cases > 1:
+        text += f" ({held} graph held constant)"
+    return text + "; whole-state consensus"
+
+
+def _whole_certificate(des: Design) -> RateCertificate:
+    """The whole-state design (:mod:`.whole_state`): its q's certificate, computed by the design."""
+    r = des.q_result
+    return RateCertificate(bool(r.certified), whole_text(des.q, r, des, len(des.cases)), by=r.method)
 
 
 def _full_certificate(des: Design, *, sampled: bool) -> RateCertificate:

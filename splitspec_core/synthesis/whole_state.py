@@ -1,0 +1,423 @@
+"""The whole-state design: every agent averages its neighbours' whole estimates, its gain chosen for the noise.
+
+The paper's split gives each agent, to estimate *by itself*, every direction it sees at all, however weakly, and
+takes from its neighbours only what it does not see (``P_i`` the projection on its unobservable space).  On a
+coupled physical system every sensor sees almost everything, weakly: the local gains are huge and each sensor's
+noise is amplified.  Here the consensus subspace is the whole state (``P_i = I``), and the gains come from the noise.
+
+The estimator
+-------------
+The paper's two-rate estimator (eqs. split-discrete-est1 .. p3) with ``P_i = I``, each agent's estimate its
+*averaged state* (eq. split-discrete-p3): per event time ``tau`` it updates with its own measurement, then averages
+``q`` times with its neighbours (:mod:`splitspec_core.model.steps`)::
+
+    z_i(0) = (A + K_i C_i) x_i(tau) - K_i y_i(tau) [+ B u(tau)]
+    z_i(k) = sum_j w_ij z_j(k - 1),        k = 1 .. q
+    x_i(tau + 1) = z_i(q)
+
+In continuous time it runs on the sampled model, one event time per ``run.dt`` (``q`` exchanges per step; no g):
+``z_i(0) = E x_i + D [K_i (C_i x_i - y_i) + B u]``, ``E = exp(A dt)``, ``D = int_0^dt exp(A s) ds``.
+
+The error ``e_i = x_i - x`` (``F_i = A + K_i C_i``, or ``E + D K_i C_i``; ``W = S^q (x) I_n``)::
+
+    e(tau + 1) = W blkdiag(F_i) e(tau) - W blkdiag(K_i) w(tau) - 1 (x) v(tau)
+
+``W blkdiag(F_i)`` has the eigenvalues of the paper's ``blkdiag(F_i) W`` (eq. split-discrete-error with ``P = I``;
+``AB`` and ``BA`` share their spectrum): the same certificate of the rate.  What changes is what an agent reports:
+the average of its neighbours' updated estimates, which carries every sensor's information, instead of its own
+innovation amplified.
+
+The gains
+---------
+With ``pi`` the stationary weights of consensus (``pi' S = pi'``, ``sum pi = 1``; ``1/m`` for doubly stochastic
+weights), when every estimate agrees the weighted average follows ``sum_i pi_i (F_i xbar - K_i y_i)``.  With
+``K_i = -L_i / pi_i`` (``L = [L_1 .. L_m]`` a centralized predictor gain, its columns per agent) that is the
+centralized predictor ``xbar+ = (F - L C) xbar + L y``: consensus spreads it, ``q`` sets how closely.  ``L`` is the
+Kalman predictor of the per-step model (:func:`~splitspec_core.model.plant.sampled_model`: the scenario's real noise
+levels) when it decays faster than the rate with a small margin; else the Riccati design of ``F`` shifted by the
+largest ``alpha`` whose filter does (:func:`~splitspec_core.synthesis.kalman.shifted_predictor`): among this family,
+the smallest centralized error at the rate.  Several margins are tried; ``q`` is the smallest the certificate takes,
+raised while the predicted steady RMS (the Lyapunov equation of the full error system) still falls by more than
+:data:`Q_GAIN` per exchange (at most :data:`Q_EXTRA` more); the candidate with the smallest predicted RMS wins
+(``design.gains: optimal``).  ``design.gains: riccati`` takes the centralized Riccati design shifted by the rate
+itself (no search); ``explicit`` the user's ``K_i``.
+
+What certifies it
+-----------------
+* every case held constant (each graph the switching uses, and with ``design.resilience: 1`` each single agent
+  loss, the gains kept): the spectral radius of the full error matrix ``< lam`` per event time (``m n <=``
+  :data:`~splitspec_core.synthesis.error_matrix.MAX_RATE_DIM`);
+* switching among graphs, or ``m n`` beyond that: the **mixing bound** (:func:`mixing_bound`), for doubly
+  stochastic weights: the error's average ``ebar`` and disagreement ``delta`` obey, in the norm of a Lyapunov
+  function ``X`` of ``Fbar = mean F_i`` and the two-norm, ``[|ebar+|_X, |delta+|] <= G [|ebar|_X, |delta|]``
+  with ``G = [[a, b], [s c, s d]]``, ``a = |Fbar|_X``, ``b = |[F_1 .. F_m]|_{2->X} / m``,
+  ``c = |[F_i - Fbar]_i|_{X->2}``, ``d = max |F_i|_2``, ``s = max |S^q - 11'/m|_2`` over the graphs: every
+  sequence of them decays at ``rho(G)``: arbitrary switching, any size (only ``n x n`` and ``m x m`` matrices);
+* switching with a known dwell time (weights not doubly stochastic): ``r c^(1/tau_D) <= lam`` with ``c`` the largest
+  transient constant ``sup_k |M^k| / r^k`` of the graphs held constant (:func:`dwell_bound`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.linalg as sla
+
+from ..errors import DesignError
+from ..model import steps as st
+from ..model.graphs import is_doubly_stochastic, perron_vector
+from ..model.plant import output_rows, sampled_model
+from ..scenarios.specs import Scenario
+from .conditioning import transient_constant
+from .error_matrix import MAX_NOISE_DIM, MAX_RATE_DIM, step_blocks, whole_matrix, whole_noise
+from .kalman import kalman_predictor, per_step_rate, shifted_predictor, spectral_radius
+
+__all__ = ["WholeState", "Q_GAIN", "Q_EXTRA", "Q_CAP", "MARGINS", "case_radius", "mixing_bound",
+           "dwell_bound", "design_whole", "whole_gains", "agent_gain"]
+
+#: q is raised while one more exchange lowers the predicted steady RMS by more than this fraction
+Q_GAIN = 0.01
+#: ... by at most this many exchanges past the smallest certified q
+Q_EXTRA = 8
+#: the largest q the automatic search tries (design.q_max lowers it)
+Q_CAP = 512
+#: the centralized filter's margins tried when the Kalman filter is too slow for the rate: its radius at most
+#: ``lam^(1 + margin)`` per step (the distributed estimator approaches it as q grows)
+MARGINS = (0.03, 0.1, 0.3)
+
+
+@dataclass(frozen=True)
+class WholeState:
+    """What the whole-state design chose, and its references (the report's and ``--json``'s ``whole_state``).
+
+    Attributes
+    ----------
+    alpha : float
+        The shift of the centralized Riccati design (1: the Kalman predictor itself).
+    L : (n, p) array
+        The centralized predictor gain per step; agent i's ``K_i`` is ``-L_i / pi_i`` (``D^-1`` of it in continuous
+        time).
+    pi : (m,) array
+        The stationary weights of consensus on the scenario's first graph.
+    lam_step : float
+        The rate per event time (``lam``, or ``exp(-lam dt)``; the envelope's when directions no agent sees limit it).
+    central_radius, central_rms : float
+        ``rho(F - L C)`` and the centralized predictor's steady RMS with this ``L``.
+    kf_radius, kf_rms : float
+        The Kalman predictor's.
+    reference_rms : float or None
+        The rate-certified centralized reference: the Riccati design shifted by the rate (None: it has no solution).
+    q_certified : int
+        The smallest q the certificate takes.
+    tried : tuple
+        ``(margin, alpha, q, radius, predicted RMS or None)`` of each candidate.
+    method : str
+        ``optimal``, ``riccati`` or ``explicit``.
+    """
+
+    alpha: float
+    L: np.ndarray = field(repr=False)
+    pi: np.ndarray = field(repr=False)
+    lam_step: float
+    central_radius: float
+    central_rms: float
+    kf_radius: float | None
+    kf_rms: float | None
+    reference_rms: float | None
+    q_certified: int
+    tried: tuple = ()
+    method: str = "optimal"
+
+
+def case_radius(sc: Scenario, Fs_by_id: dict, case, q: int) -> float:
+    """The spectral radius of the full error matrix of ``case`` (its graph and agents held constant) at ``q``."""
+    return spectral_radius(whole_matrix([Fs_by_id[i] for i in case.graph.ids], case.graph.S, q))
+
+
+def _predicted(sc: Scenario, Fs, Kss, S, q: int, Qn, R) -> float | None:
+    """The RMS over agents of the predicted steady RMS errors (None: not computed, or unstable)."""
+    m, n = len(Fs), sc.n
+    if m * n > MAX_NOISE_DIM:
+        return None
+    M = whole_matrix(Fs, S, q)
+    if spectral_radius(M) >= 1.0:
+        return None
+    Sigma = sla.solve_discrete_lyapunov(M, whole_noise(Kss, S, q, R, Qn))
+    tr = [np.trace(Sigma[i * n:(i + 1) * n, i * n:(i + 1) * n]) for i in range(m)]
+    return float(np.sqrt(max(np.mean(tr), 0.0)))
+
+
+def mixing_bound(Fs, Ss, q: int, lam: float) -> float:
+    """The decay rate the mixing bound certifies for the whole-state error under arbitrary switching among the doubly
+    stochastic ``Ss`` (module docstring); ``inf`` when the average's own map ``Fbar`` does not decay faster than
+    ``lam`` or a weight matrix is not doubly stochastic."""
+    if not all(is_doubly_stochastic(np.asarray(S)) for S in Ss):
+        return math.inf
+    m, n = len(Fs), Fs[0].shape[0]
+    Fbar = sum(Fs) / m
+    r = spectral_radius(Fbar)
+    if r >= lam:
+        return math.inf
+    J = np.full((m, m), 1.0 / m)
+    s = max(float(np.linalg.norm(np.linalg.matrix_power(np.asarray(S, dtype=float), int(q)) - J, 2)) for S in Ss)
+    d = max(float(np.linalg.norm(F, 2)) for F in Fs)
+    Fcat = np.hstack(Fs)
+    Dcat = np.vstack([F - Fbar for F in Fs])
+    best = math.inf
+    for t in (0.25, 0.5, 0.75, 0.9):  # the Lyapunov function of Fbar / rr, rr between its radius and lam
+        rr = r + t * (lam - r)
+        try:
+            X = sla.solve_discrete_lyapunov((Fbar / rr).T, np.eye(n))  # Fbar' X Fbar <= rr^2 X
+            Xh = np.linalg.cholesky(0.5 * (X + X.T)).T  # |v|_X = |Xh v|
+        except (np.linalg.LinAlgError, ValueError):
+            continue
+        Xi = np.linalg.inv(Xh)
+        a = float(np.linalg.norm(Xh @ Fbar @ Xi, 2))
+        b = float(np.linalg.norm(Xh @ Fcat, 2)) / m
+        c = float(np.linalg.norm(Dcat @ Xi, 2))
+        G = np.array([[a, b], [s * c, s * d]])
+        best = min(best, spectral_radius(G))
+    return best
+
+
+def dwell_bound(Ms, lam: float, dwell_steps: float) -> float:
+    """The rate certified under switching with average dwell ``dwell_steps`` event times among the constant-graph
+    maps ``Ms``: ``min_r r c(r)^(1 / tau_D)``, ``c(r) = max sup_k |M^k|_2 / r^k`` (:func:`transient_constant`)."""
+    rho = max(spectral_radius(M) for M in Ms)
+    if rho >= lam or not dwell_steps or dwell_steps <= 0:
+        return math.inf
+    best = math.inf
+    for t in (0.25, 0.5, 0.75):
+        r = rho + t * (lam - rho)
+        cs = [transient_constant(M, r).constant for M in Ms]
+        if any(c is None or not math.isfinite(c) for c in cs):
+            continue
+        best = min(best, r * max(cs) ** (1.0 / dwell_steps))
+    return best
+
+
+def whole_gains(sc: Scenario, L: np.ndarray, pi: np.ndarray) -> list:
+    """Every agent's ``K_i`` (the user's coordinates, the scenario's time) from the centralized per-step gain ``L``:
+    ``K_s,i = -L_i / pi_i``; continuous time ``K_i = D^-1 K_s,i`` (the step applies ``D K_i``)."""
+    rows = output_rows(sc.system.Cs)
+    Kss = [-L[:, r] / pi[k] for k, r in enumerate(rows)]
+    if sc.time == "discrete":
+        return Kss
+    _, D, _ = st.sampled_data_matrices(np.asarray(sc.system.A, dtype=float), sc.run.dt)
+    return [np.linalg.solve(D, K_s) for K_s in Kss]
+
+
+def _alpha_for(F, C, Q, R, target: float, kf) -> tuple:
+    """The largest ``alpha`` in ``[target, 1]`` whose shifted predictor's radius is at most ``target`` (bisection;
+    ``alpha = target`` always is: ``rho < alpha``); its predictor.  ``kf``: the Kalman predictor (None: none)."""
+    if kf is not None and kf.radius <= target:
+        return 1.0, kf
+    lo, hi = target, 1.0
+    best = shifted_predictor(F, C, Q, R, lo)
+    for _ in range(40):
+        if hi - lo <= 1e-6 * (1.0 - target) + 1e-15:
+            break
+        mid = 0.5 * (lo + hi)
+        try:
+            p = shifted_predictor(F, C, Q, R, mid)
+        except DesignError:
+            hi = mid
+            continue
+        if p.radius <= target:
+            lo, best = mid, p
+        else:
+            hi = mid
+    return lo, best
+
+
+def design_whole(sc: Scenario, cases, *, rate: float, dwell: float | None, warnings: list) -> tuple:
+    """The whole-state design of ``sc`` over ``cases`` (the graphs held constant the certificate covers, the first
+    one the scenario's first used graph) at ``rate`` (``lam``, or the envelope's when directions no agent sees limit
+    it; ``dwell``: the switching's average dwell time, scenario units, for the dwell-time bound):
+    ``(Ks, q, WholeState, radii, certificate)``.
+
+    ``Ks``: every agent's ``K_i`` in the user's coordinates; ``radii``: the full error matrix's spectral radius per
+    case at ``q`` (empty above :data:`MAX_RATE_DIM`); ``certificate``: ``(method, bound, certified, switching)``.
+
+    Raises
+    ------
+    DesignError
+        Nothing in the family meets the rate within ``q <=`` :data:`Q_CAP` (the message says what limits it).
+    """
+    d = sc.design
+    F, Qn, R = sampled_model(sc)
+    Cs = [np.asarray(C, dtype=float) for C in sc.system.Cs]
+    C = np.vstack(Cs)
+    lam = per_step_rate(sc, rate)
+    first = cases[0].graph
+    pi = perron_vector(first.S) if first.ids == sc.agent_ids else np.full(sc.m, 1.0 / sc.m)
+    try:
+        kf = kalman_predictor(F, C, Qn, R)
+    except DesignError:
+        kf = None
+    try:
+        ref = shifted_predictor(F, C, Qn, R, lam)
+    except DesignError:
+        ref = None
+    q_given = None if d.q == "auto" else int(d.q)
+    q_cap = min(d.q_max, Q_CAP)
+    candidates = []
+    if d.gains == "explicit":
+        candidates.append((None, None, None, [np.asarray(K, dtype=float) for K in d.K]))
+    elif d.gains == "riccati":
+        if ref is None:
+            raise DesignError(_no_centralized(lam))
+        candidates.append((None, lam, ref, whole_gains(sc, ref.L, pi)))
+    else:
+        seen = set()
+        for margin in MARGINS:
+            try:
+                alpha, p = _alpha_for(F, C, Qn, R, lam ** (1.0 + margin), kf)
+            except DesignError:
+                continue
+            if alpha in seen:
+                continue
+            seen.add(alpha)
+            candidates.append((margin, alpha, p, whole_gains(sc, p.L, pi)))
+        if not candidates:
+            raise DesignError(_no_centralized(lam))
+    tried, best = [], None
+    for margin, alpha, p, Ks in candidates:
+        Fs, Kss = step_blocks(sc.system.A, Ks, Cs, dt=sc.run.dt if sc.time == "continuous" else None)
+        by_id = dict(zip(sc.agent_ids, Fs))
+        q_cert = _smallest_q(sc, by_id, cases, lam, q_cap) if q_given is None else q_given
+        if q_cert is None:
+            tried.append((margin, alpha, None, None, None))
+            continue
+        q, rms = _noise_q(sc, Fs, Kss, first.S, q_cert, Qn, R, q_cap) if q_given is None else \
+            (q_given, _predicted(sc, Fs, Kss, first.S, q_given, Qn, R))
+        radius = _radius_at(sc, by_id, cases, q)
+        tried.append((margin, alpha, q, radius, rms))
+        key = (math.inf if rms is None else rms, q)
+        if best is None or _better(key, best[0]):
+            best = (key, margin, alpha, p, Ks, q, q_cert, Fs)
+    if best is None:
+        raise DesignError(f"no whole-state design meets rate {lam:.6g} per event time with q <= {q_cap}: "
+                          "the consensus cannot keep up with the gains (a slower design.rate, or a graph that mixes "
+                          "faster)")
+    _, margin, alpha, p, Ks, q, q_cert, Fs = best
+    radii, cert = _certify(sc, dict(zip(sc.agent_ids, Fs)), cases, q, lam, dwell, warnings)
+    Lp = p.L if p is not None else np.zeros((sc.n, C.shape[0]))
+    info = WholeState(alpha=alpha if alpha is not None else float("nan"), L=Lp, pi=pi, lam_step=lam,
+                      central_radius=p.radius if p is not None else float("nan"),
+                      central_rms=p.rms if p is not None else float("nan"),
+                      kf_radius=None if kf is None else kf.radius, kf_rms=None if kf is None else kf.rms,
+                      reference_rms=None if ref is None else ref.rms, q_certified=q_cert, tried=tuple(tried),
+                      method=d.gains)
+    return Ks, q, info, radii, cert
+
+
+def _better(key: tuple, other: tuple) -> bool:
+    """A candidate's ``(rms, q)`` beats another's: a smaller RMS by more than 2 %, or as good within 2 % and fewer
+    exchanges."""
+    (r, q), (r0, q0) = key, other
+    if math.isinf(r) or math.isinf(r0):
+        return (r, q) < (r0, q0)
+    if r < r0 * 0.98:
+        return True
+    return r <= r0 * 1.02 and q < q0
+
+
+def _radius_at(sc: Scenario, by_id: dict, cases, q: int) -> dict:
+    if sc.m * sc.n > MAX_RATE_DIM:
+        return {}
+    return {c.label: case_radius(sc, by_id, c, q) for c in cases}
+
+
+def _smallest_q(sc: Scenario, by_id: dict, cases, lam: float, q_cap: int) -> int | None:
+    """The smallest q whose full error matrices (each case held constant) all have radius below ``lam`` (doubling,
+    then bisection); above :data:`MAX_RATE_DIM` the mixing bound's; None when none up to ``q_cap`` does."""
+    def ok(q: int) -> bool:
+        if sc.m * sc.n > MAX_RATE_DIM:
+            groups = _same_agents(cases)
+            return all(mixing_bound([by_id[i] for i in ids], Ss, q, lam) < lam for ids, Ss in groups.items())
+        return all(case_radius(sc, by_id, c, q) < lam for c in cases)
+
+    q = 1
+    while not ok(q):
+        if q >= q_cap:
+            return None
+        q = min(2 * q, q_cap)
+    lo = q // 2  # ok(lo) failed (or lo = 0)
+    while q - lo > 1:
+        mid = (lo + q) // 2
+        if ok(mid):
+            q = mid
+        else:
+            lo = mid
+    return q
+
+
+def _noise_q(sc: Scenario, Fs, Kss, S, q0: int, Qn, R, q_cap: int) -> tuple:
+    """From the smallest certified ``q0``: raised while one more exchange lowers the predicted RMS by more than
+    :data:`Q_GAIN` (at most :data:`Q_EXTRA` more); ``(q, rms)`` (``rms`` None when not computed)."""
+    rms = _predicted(sc, Fs, Kss, S, q0, Qn, R)
+    q = q0
+    while rms is not None and q < min(q0 + Q_EXTRA, q_cap):
+        nxt = _predicted(sc, Fs, Kss, S, q + 1, Qn, R)
+        if nxt is None or nxt > rms * (1.0 - Q_GAIN):
+            break
+        q, rms = q + 1, nxt
+    return q, rms
+
+
+def _same_agents(cases) -> dict:
+    """``{agent ids: [S of each case over exactly them]}``: the graphs the mixing bound takes together."""
+    out: dict = {}
+    for c in cases:
+        out.setdefault(tuple(c.graph.ids), []).append(c.graph.S)
+    return out
+
+
+def _certify(sc: Scenario, by_id: dict, cases, q: int, lam: float, dwell: float | None, warnings: list) -> tuple:
+    """``(radii, (method, bound, certified, switching))`` at ``q``: the full error matrices held constant, and for
+    switching (or beyond :data:`MAX_RATE_DIM`) the mixing bound or the dwell-time bound."""
+    radii = _radius_at(sc, by_id, cases, q)
+    groups = _same_agents(cases)
+    switching = any(len(Ss) > 1 for Ss in groups.values())
+    if radii and not switching:
+        worst = max(radii.values())
+        return radii, ("full error matrix", worst, worst < lam, False)
+    mix = max(mixing_bound([by_id[i] for i in ids], Ss, q, lam) for ids, Ss in groups.items())
+    if mix < lam:
+        return radii, ("mixing bound", mix, True, True)
+    if radii:
+        worst = max(radii.values())
+        steps = None if dwell is None else (dwell if sc.time == "discrete" else dwell / sc.run.dt)
+        if steps:
+            Ms = [whole_matrix([by_id[i] for i in c.graph.ids], c.graph.S, q) for c in cases]
+            dw = dwell_bound(Ms, lam, steps)
+            if dw < lam:
+                return radii, ("dwell-time bound", dw, True, True)
+        warnings.append("the whole-state design is certified for each graph held constant; no switching certificate "
+                        "holds (the mixing bound needs doubly stochastic weights, design.weights: metropolis on "
+                        "undirected graphs; the dwell-time bound a longer dwell)")
+        return radii, ("full error matrix", worst, worst < lam, False)
+    return radii, ("mixing bound", mix, False, True)
+
+
+def _no_centralized(lam: float) -> str:
+    return (f"no centralized Riccati design meets {lam:.6g} per event time: a mode no agent sees decays slower than "
+            "that")
+
+
+
+def agent_gain(des, agent_id: int) -> dict | None:
+    """What agent ``agent_id``'s process is sent when the design chose its gain centrally (the whole-state design, or
+    ``design.gains: optimal`` whatever consensus it chose), else None (the agent computes its own part of the
+    design, :func:`splitspec_core.model.local_design.scenario_agent`): ``{"K": K_i, "consensus": ..., "P": P_i}``
+    in the user's coordinates, exactly the floats the simulator holds (``Design.agents``)."""
+    if des.consensus != "whole" and des.scenario.design.gains != "optimal":
+        return None
+    a = next(a for a in des.agents if a.id == agent_id)
+    out = {"K": np.asarray(a.K, dtype=float).tolist(), "consensus": des.consensus}
+    if des.consensus != "whole":
+        out["P"] = np.asarray(a.P, dtype=float).tolist()
+    return out
