@@ -228,7 +228,7 @@ def conditioning(des: Design) -> Conditioning:
     const, case_label, method = _transient(des, warnings)
     rms, graph = None, None
     s = sc.system
-    if (s.process_noise > 0 or s.measurement_noise > 0) and des.g_mode != "adaptive" \
+    if s.has_noise and des.g_mode != "adaptive" \
             and sc.m * sc.n <= MAX_DIM:
         k = sc.graph_names.index(sc.switching.graph_names(sc.graph_names)[0])
         graph = sc.graph_names[k]
