@@ -41,6 +41,14 @@ PSD_TOLERANCE = 1e-10
 SYMMETRY_TOLERANCE = 1e-12
 
 
+def _not_a_name(value: Any, key: str) -> None:
+    """A string where a number or a matrix goes names an array of ``system.file``, which resolves it first."""
+    if isinstance(value, str):
+        name = repr(value) if len(repr(value)) <= 40 else repr(value)[:37] + "..."
+        raise ScenarioError(f"{key} is the name {name}, and system.file is not given (or does not "
+                            "resolve it): name a .npz or .mat file there to take arrays from, or write the numbers")
+
+
 def _std(value: Any, key: str) -> float:
     v = check_number(value, key)
     if v < 0:
@@ -67,6 +75,7 @@ def parse_process_noise(value: Any, n: int, key: str = "system.process_noise") -
     """
     if isinstance(value, np.ndarray):
         value = value.tolist()
+    _not_a_name(value, key)
     if not isinstance(value, list):
         if isinstance(value, bool) or not isinstance(value, numbers.Real):
             raise ScenarioError(f"{key} must be a number, a list of {n} (one per state) or a {n}x{n} matrix, "
@@ -110,6 +119,7 @@ def parse_measurement_noise(value: Any, outputs: Mapping[int, int],
     """
     if isinstance(value, np.ndarray) and value.ndim == 0:
         value = value.item()
+    _not_a_name(value, key)
     if not isinstance(value, Mapping):
         if isinstance(value, bool) or not isinstance(value, numbers.Real):
             raise ScenarioError(f"{key} must be a number or a mapping {{agent id: std or [one std per output]}}, "
@@ -126,6 +136,7 @@ def parse_measurement_noise(value: Any, outputs: Mapping[int, int],
         where = f"{key}.{aid}"
         if isinstance(v, np.ndarray):
             v = v.tolist()
+        _not_a_name(v, where)
         if isinstance(v, (list, tuple)):
             if len(v) != outputs[aid]:
                 what = "output" if outputs[aid] == 1 else "outputs"
