@@ -89,7 +89,8 @@ def parse_process_noise(value: Any, n: int, key: str = "system.process_noise") -
         return _frozen([_std(v, f"{key}[{k + 1}]") for k, v in enumerate(value)])
     if len(value) != n or any(not isinstance(r, list) or len(r) != n for r in value):
         rows = [len(r) if isinstance(r, list) else 1 for r in value]
-        shape = f"{len(value)}x{rows[0]}" if len(set(rows)) == 1 else f"{len(value)} rows of {', '.join(map(str, rows))}"
+        widths = ", ".join(map(str, rows))
+        shape = f"{len(value)}x{rows[0]}" if len(set(rows)) == 1 else f"{len(value)} rows of {widths}"
         raise DimensionError(f"{key} is {shape}, system.A is {n}x{n} (a matrix must be {n}x{n})")
     M = np.array([[check_number(x, f"{key}[{r + 1}][{c + 1}]") for c, x in enumerate(row)]
                   for r, row in enumerate(value)], dtype=float)
