@@ -55,8 +55,8 @@ def _readonly(a: Any) -> np.ndarray:
 
 def scenario(*, name: str | None = None, time: str | None = None, plant: Any = None, agents: Mapping | None = None,
              file: str | None = None, A: Any = None, B: Any = None, u: Any = None, sample: float | None = None,
-             C: Mapping | None = None, x0: Any = None, process_noise: float | None = None,
-             measurement_noise: float | None = None,
+             C: Mapping | None = None, x0: Any = None, process_noise: Any = None,
+             measurement_noise: float | Mapping | None = None,
              states: Iterable | None = None, outputs: Mapping | None = None, graphs: Mapping | None = None,
              switching: Mapping | None = None, faults: Iterable | None = None, positions: Mapping | None = None,
              network: Mapping | None = None, rate: float | None = None, gains: str | None = None,
@@ -72,7 +72,9 @@ def scenario(*, name: str | None = None, time: str | None = None, plant: Any = N
     """A validated scenario from keywords: every scenario-file key, by its own name.
 
     ``file`` (relative to the working directory), ``A``, ``B``, ``u``, ``sample``, ``C``, ``x0``, ``process_noise``,
-    ``measurement_noise``, ``states`` (n names), ``outputs`` (``{agent id: [names]}``) are the file's ``system.*``;
+    ``measurement_noise``, ``states`` (n names), ``outputs`` (``{agent id: [names]}``) are the file's ``system.*``
+    (``process_noise``: a number, n numbers or an n x n matrix; ``measurement_noise``: a number or ``{agent id: std
+    or [one per output]}``; numpy arrays welcome);
     ``rate``, ``gains``, ``K``, ``g``, ``q``, ``q_method``, ... its ``design.*``; ``steps``, ``dt``, ``seed``,
     ``pace``, ``show`` its ``run.*`` (``docs/how-to/scenario.md`` lists them all).  Matrices may be numpy arrays or nested
     lists; ``C`` and ``K`` map agent ids to matrices; a graph is ``{"arcs": [(j, i), ...], "undirected": [...]}``

@@ -17,6 +17,7 @@ import numpy as np
 
 import splitspec_core as ss
 from splitspec_core.runtime.cli import MAX_SEED, UsageError
+from splitspec_core.scenarios.noise import noise_text
 
 from . import out_dir
 
@@ -68,7 +69,8 @@ def _tune(args: argparse.Namespace, sc) -> int:
         json.dump(summary, sys.stdout, indent=None if args.compact else 2)
         sys.stdout.write("\n")
     else:
-        print(f"tuned for noise (process {sc.system.process_noise:g}, measurement {sc.system.measurement_noise:g}): "
+        print(f"tuned for noise (process {noise_text(sc.system.process_noise)}, measurement "
+              f"{noise_text(sc.system.measurement_noise)}): "
               f"gains {cd.gains}" + (f" {weights}" if weights else "") + f", {what[0]} = {what[1]:g}")
         print(f"  predicted steady-state RMS error {res.rms:.4g} (the scenario's design: {res.baseline_rms:.4g}, "
               f"{len(res.candidates)} candidates, all with the rate certified unless marked)")
@@ -111,7 +113,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
     out = out_dir(args.out)
     result = ss.compare(sc, seeds=args.seeds, seed=seed0, steps=args.steps, kcf_eps=args.kcf_eps)
     lines = [f"{sc.name}: {len(result.seeds)} seeds x {result.steps} steps; process noise "
-             f"{sc.system.process_noise:g}, measurement noise {sc.system.measurement_noise:g}",
+             f"{noise_text(sc.system.process_noise)}, measurement noise {noise_text(sc.system.measurement_noise)}",
              f"  {'estimator':<17} {'steady RMS':>11} {'+-':>9} {'/ central':>9} {'predicted':>10} "
              f"{'settle 1e-3':>11} {'msgs/event':>10}"]
     for name, r in result.estimators.items():
@@ -270,7 +272,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
                        keep_y=bool(args.write_measurements))
     if meas is not None:
         return _simulate_measured(args, sc, d, traj, meas, out)
-    noisy = sc.system.process_noise > 0 or sc.system.measurement_noise > 0
+    noisy = sc.system.has_noise
     clean = ss.simulate(d, seed=seed, steps=args.steps, noise=False, lost=lost) if noisy and not args.exact else traj
     if args.write_measurements:
         from splitspec_core.scenarios.measurements import write_measurements

@@ -168,8 +168,16 @@ def working_scale(sc: Scenario, sp: Spectrum) -> np.ndarray | None:
 
 
 def riccati_weights(sc: Scenario) -> tuple:
-    """Riccati weights: explicit ``design.riccati`` or the scenario's noise levels, else 1."""
+    """``(process weight, measurement weight)``, the identity multiples of the Riccati gains: explicit
+    ``design.riccati``, else the square of the scenario's noise level, else 1.
+
+    The level is one number (``System.process_noise_level``, ``System.measurement_noise_level``): a scalar noise
+    is itself (``process_noise ** 2``, ``measurement_noise ** 2``); a vector or matrix process noise stands as
+    its root mean variance (discrete) or mean intensity (continuous), per-agent or per-output measurement noise
+    as the root mean square of every output's std, so equal entries weigh as the scalar they repeat.  Only the
+    ratio of the two shapes the gain; the weights stay scalar, as every agent computes its gain alike."""
     d, s = sc.design, sc.system
-    pw = d.riccati_process_weight or (s.process_noise**2 if s.process_noise > 0 else 1.0)
-    mw = d.riccati_measurement_weight or (s.measurement_noise**2 if s.measurement_noise > 0 else 1.0)
+    p_level, m_level = s.process_noise_level, s.measurement_noise_level
+    pw = d.riccati_process_weight or (p_level**2 if p_level > 0 else 1.0)
+    mw = d.riccati_measurement_weight or (m_level**2 if m_level > 0 else 1.0)
     return pw, mw

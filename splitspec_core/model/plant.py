@@ -22,7 +22,7 @@ from .streams import stream
 
 __all__ = ["Plant", "advanced", "initial_estimate", "initial_state", "input_matrix", "input_of", "input_period",
            "input_sequence", "measured",
-           "output_rows", "sampled_model", "seed_draws"]
+           "output_rows", "psd_sqrt", "sampled_model", "seed_draws"]
 
 
 def input_period(sc: Scenario) -> float | None:
@@ -79,9 +79,14 @@ def initial_estimate(n: int, seed: int, agent_index: int, incarnation: int = 0) 
 
 
 
-def measured(C: np.ndarray, sigma_m: float, x: np.ndarray, w: np.ndarray) -> np.ndarray:
-    """``y = C x + sigma_m w``: the stacked outputs of state ``x`` (n,) or of a batch of states (n, N)."""
-    return C @ x + sigma_m * w
+def measured(C: np.ndarray, sigma_m: float | np.ndarray, x: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """``y = C x + sigma_m w``: the stacked outputs of state ``x`` (n,) or of a batch of states (n, N).
+
+    ``sigma_m``: one std for every output (a float: exactly ``C @ x + sigma_m * w``), or one per output (p,)
+    (``System.measurement_std``), applied to each row of ``w`` (p,) or (p, N)."""
+    if np.ndim(sigma_m) == 0:
+        return C @ x + sigma_m * w
+    return C @ x + (sigma_m if np.ndim(w) == 1 else sigma_m[:, None]) * w
 
 
 def advanced(F: np.ndarray, L: np.ndarray, x: np.ndarray, v: np.ndarray, gu: np.ndarray | None = None) -> np.ndarray:
@@ -93,27 +98,38 @@ def advanced(F: np.ndarray, L: np.ndarray, x: np.ndarray, v: np.ndarray, gu: np.
 class Plant:
     """The true system and its measurements, drawing noise from the named streams.
 
-    Discrete: ``x(k+1) = A x(k) + sigma_p v`` (``process_noise`` = std
-    ``sigma_p``); continuous (sampled with ``dt``): ``x(k+1) = E x(k) + chol(Qd) v``
-    with ``Qd`` the exact covariance over a step of white noise of intensity
-    ``process_noise`` (``E[v(t) v(s)'] = process_noise I delta(t - s)``).
-    Measurements ``y = C x(k) + sigma_m w`` are drawn for every agent every
-    step, stacked in agent order (``C = [C_1; ...; C_m]``).
+    ``x(k+1) = F x(k) + L v`` with ``v`` standard normal (n,) and ``L L'`` the covariance per step: discrete,
+    ``F = A`` and ``L = sigma_p I`` (``process_noise`` a number, the std ``sigma_p``), ``diag(v)`` (a vector of
+    stds) or :func:`psd_sqrt` of the covariance matrix; continuous (sampled with ``dt``), ``F = exp(A dt)`` and
+    ``L`` a square root of ``Qd``, the exact covariance over a step of white noise of intensity ``process_noise``
+    (``q I``, ``diag(v)`` or the matrix: ``E[v(t) v(s)'] = Qc delta(t - s)``), by Cholesky for a number as always,
+    by :func:`psd_sqrt` otherwise.  Measurements ``y = C x(k) + sigma_m w`` (``sigma_m`` a number, or one std
+    per output: ``System.measurement_std``) are drawn for every agent every step, stacked in agent order
+    (``C = [C_1; ...; C_m]``).
     """
 
     def __init__(self, sc: Scenario, seed: int, *, noise: bool = True):
         self.Cs = [np.asarray(C) for C in sc.system.Cs]
         self.C = np.vstack(self.Cs)
         self.rows = output_rows(self.Cs)
-        self.sigma_m = sc.system.measurement_noise if noise else 0.0
-        sigma_p = sc.system.process_noise if noise else 0.0
+        s = sc.system
+        scalar_m = not isinstance(s.measurement_noise, dict)
+        self.sigma_m = (s.measurement_noise if scalar_m else s.measurement_std) if noise else 0.0
+        sigma_p = s.process_noise if noise else 0.0
+        scalar_p = np.ndim(sigma_p) == 0
         if sc.time == "continuous":
-            E, _, Qd = st.sampled_data_matrices(sc.system.A, sc.run.dt, noise_intensity=sigma_p)
+            E, _, Qd = st.sampled_data_matrices(s.A, sc.run.dt,
+                                                noise_intensity=sigma_p if scalar_p else s.process_covariance)
             self.F = E
-            self.L = _psd_sqrt(Qd)
+            self.L = _psd_sqrt(Qd) if scalar_p else psd_sqrt(Qd)
         else:
-            self.F = np.array(sc.system.A)
-            self.L = sigma_p * np.eye(sc.n)
+            self.F = np.array(s.A)
+            if scalar_p:
+                self.L = sigma_p * np.eye(sc.n)
+            elif np.ndim(sigma_p) == 1:
+                self.L = np.diag(np.asarray(sigma_p, dtype=float))  # the stds: L L' = diag(v^2)
+            else:
+                self.L = psd_sqrt(s.process_covariance)
         self.G = input_matrix(sc)  # x+ = F x + G u (u held over a continuous step: zero-order hold)
         self.sc = sc
         self.k = 0
@@ -149,7 +165,8 @@ def seed_draws(sc: Scenario, seeds, steps: int, *, noise: bool = True) -> tuple:
     """Every seed's plant for a run of ``steps`` steps at once, for the batched Monte Carlo paths.
 
     Returns ``(plant, x0, v, w)``: ``plant`` the first seed's :class:`Plant` (its ``F``, ``L``, ``C``,
-    ``sigma_m`` and ``rows`` are every seed's), ``x0`` (n, N) the initial states, ``v`` (steps, n, N) and
+    ``sigma_m`` (a number, or one std per output) and ``rows`` are every seed's), ``x0`` (n, N) the initial
+    states, ``v`` (steps, n, N) and
     ``w`` (steps, sum s_i, N) the process and measurement draws, so that step k is ``y = measured(C, sigma_m,
     x, w[k])`` then ``x = advanced(F, L, x, v[k])``, as :class:`Plant` runs it.  Each stream's draws for the
     whole run at once are the same numbers as one step at a time (a stream's ``normal(size=(T, n))`` is its
@@ -163,7 +180,16 @@ def seed_draws(sc: Scenario, seeds, steps: int, *, noise: bool = True) -> tuple:
     return plants[0], x0, v, w
 
 
+def psd_sqrt(Q: np.ndarray) -> np.ndarray:
+    """A square root ``L`` (``L L' = Q``) of a symmetric positive semidefinite ``Q`` (n, n), singular ones included:
+    the symmetric root ``U diag(sqrt(max(w, 0))) U'`` of the eigendecomposition ``Q = U diag(w) U'`` (numpy only:
+    the plant process of a discrete scenario loads no scipy)."""
+    w, U = np.linalg.eigh(0.5 * (Q + Q.T))
+    return (U * np.sqrt(np.clip(w, 0.0, None))) @ U.T
+
+
 def _psd_sqrt(Q: np.ndarray) -> np.ndarray:
+    """The plant's root of a scalar intensity's ``Qd`` (Cholesky; eigenvalues when it is singular), as ever."""
     if not np.any(Q):
         return np.zeros_like(Q)
     try:
@@ -220,14 +246,15 @@ def sampled_model(sc: Scenario) -> tuple:
         ``A`` (discrete) or ``exp(A dt)`` (continuous, sampled with ``run.dt``).
     Q : (n, n) array
         ``L L'`` with ``L`` the plant's noise input, computed by :class:`Plant`
-        itself: ``sigma_p^2 I`` (discrete) or the exact ``Qd`` of white noise of
-        intensity ``process_noise`` over a step (continuous).
+        itself: ``System.process_covariance`` (discrete: ``sigma_p^2 I``, ``diag(v^2)`` or the matrix) or the
+        exact ``Qd`` over a step of white noise of intensity ``System.process_covariance`` (continuous).
     R : (p, p) array
-        ``sigma_m^2 I``, ``p = sum s_i``.
+        ``System.measurement_covariance``: ``diag`` of every output's variance (``sigma_m^2 I`` for one std),
+        ``p = sum s_i``, block diagonal per agent (``System.measurement_covariances``).
     """
     plant = Plant(sc, 0)  # the plant's own F and L: no second copy of its formulas
     F = np.array(plant.F, dtype=float)
     Q = plant.L @ plant.L.T
     Q = 0.5 * (Q + Q.T)
-    R = sc.system.measurement_noise ** 2 * np.eye(plant.C.shape[0])
+    R = sc.system.measurement_covariance
     return F, Q, R

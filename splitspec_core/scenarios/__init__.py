@@ -4,7 +4,8 @@
 errors naming the key); ``sections.py`` the parsers of each section, ``network_section.py`` the ``network:``
 section (losses, delays, partitions), ``sources.py`` live sources; ``load.py`` the one validation path
 (``load_scenario``, ``parse_scenario_text``); ``files.py`` models in ``.npz``/``.mat`` files (``system.file``),
-``control.py`` python-control plants; ``inputs.py`` known inputs (``system.B``, ``system.u``) and
+``control.py`` python-control plants; ``noise.py`` the process and measurement noise (per state, per
+agent, per output) and the covariances they mean; ``inputs.py`` known inputs (``system.B``, ``system.u``) and
 ``sampling.py`` the zero-order hold of ``system.sample``; ``labels.py`` state and output names;
 ``measurements.py`` recorded measurements files, ``replay.py`` a recorded run's faults as a scenario,
 ``generate.py`` random scenarios. Imports nothing of splitspec_core but ``errors``: every other layer

@@ -9,6 +9,8 @@ A scenario may keep its matrices in a file beside it instead of as YAML literals
       C: {1: C_G1, 2: C_G2}
       B: B
       states: state_names       # an array of strings (npz), a char matrix or a cell array (mat)
+      process_noise: Q          # a number (one value), a vector (1 x n, n x 1 or flat) or an n x n matrix
+      measurement_noise: {1: r1, 2: 0.1}   # per agent: an array (one value, or one per output) or a number
 
 :func:`resolve_model_file` replaces each such name by the array, as a nested list, before the scenario's own
 checks run, so an array of the wrong shape gets the same one-line message as a literal of the wrong shape (and
@@ -91,7 +93,8 @@ def _names_of(a: np.ndarray) -> list:
     return a.tolist()  # not strings: the names' check says so
 
 
-def _value(arrays: dict, name: str, key: str, source: str, *, names: bool = False, vector: bool = False) -> Any:
+def _value(arrays: dict, name: str, key: str, source: str, *, names: bool = False, vector: bool = False,
+           noise: bool = False) -> Any:
     if name not in arrays:
         have = ", ".join(sorted(arrays)[:12]) + (" ..." if len(arrays) > 12 else "")
         raise ScenarioError(f"{key} names array {name!r}, which {source} does not hold (it has: {have or 'nothing'})")
@@ -100,6 +103,10 @@ def _value(arrays: dict, name: str, key: str, source: str, *, names: bool = Fals
         return _names_of(a)
     if a.dtype.kind not in "biuf":
         raise ScenarioError(f"{key}: array {name!r} of {source} is not numeric (dtype {a.dtype})")
+    if noise:  # a number, a vector or a matrix: a single value (MATLAB's 1 x 1) is a number, a 1 x k or k x 1 a vector
+        if a.size == 1:
+            return float(a.reshape(-1)[0])
+        vector = a.ndim == 1 or (a.ndim == 2 and 1 in a.shape)
     if vector:
         if a.ndim == 2 and 1 in a.shape:  # MATLAB keeps every vector as a matrix
             a = a.reshape(-1)
@@ -135,6 +142,14 @@ def resolve_model_file(data: Any, base: Path | None) -> Any:
         system["x0"] = _value(arrays, system["x0"], "system.x0", source, vector=True)
     if isinstance(system.get("states"), str):
         system["states"] = _value(arrays, system["states"], "system.states", source, names=True)
+    if isinstance(system.get("process_noise"), str):
+        system["process_noise"] = _value(arrays, system["process_noise"], "system.process_noise", source, noise=True)
+    noise = system.get("measurement_noise")
+    if isinstance(noise, str):
+        system["measurement_noise"] = _value(arrays, noise, "system.measurement_noise", source, noise=True)
+    elif isinstance(noise, Mapping):
+        system["measurement_noise"] = {aid: (_value(arrays, v, f"system.measurement_noise.{aid}", source, noise=True)
+                                             if isinstance(v, str) else v) for aid, v in noise.items()}
     for key, names in (("C", False), ("outputs", True)):
         part = system.get(key)
         if isinstance(part, Mapping):

@@ -12,9 +12,11 @@ import numpy as np
 __all__ = ["sampled_data_matrices"]
 
 
-def sampled_data_matrices(A: np.ndarray, dt: float, *, noise_intensity: float = 0.0) -> tuple:
-    """``(E, D, Qd)`` for step ``dt``: ``E = exp(A dt)``, ``D = int_0^dt exp(A s) ds`` and the
-    process-noise covariance ``Qd = sigma^2 int_0^dt exp(A s) exp(A s)' ds`` (Van Loan)."""
+def sampled_data_matrices(A: np.ndarray, dt: float, *, noise_intensity: float | np.ndarray = 0.0) -> tuple:
+    """``(E, D, Qd)`` for step ``dt``: ``E = exp(A dt)``, ``D = int_0^dt exp(A s) ds`` and the process-noise
+    covariance per step ``Qd = int_0^dt exp(A s) Qc exp(A s)' ds`` of white noise of intensity ``Qc``
+    (``E[v(t) v(s)'] = Qc delta(t - s)``): ``noise_intensity`` a number ``q`` (``Qc = q I``), a vector
+    (``diag``) or an ``n x n`` matrix (Van Loan: ``Qd = G22' G12`` of ``exp([[-A, Qc], [0, A']] dt)``)."""
     import scipy.linalg as sla  # here only: a discrete-time agent imports no scipy
 
     n = A.shape[0]
@@ -23,10 +25,15 @@ def sampled_data_matrices(A: np.ndarray, dt: float, *, noise_intensity: float = 
     M[:n, n:] = np.eye(n)
     F = sla.expm(M * dt)
     E, D = F[:n, :n], F[:n, n:]
-    if noise_intensity > 0:
+    scalar = np.ndim(noise_intensity) == 0
+    if noise_intensity > 0 if scalar else np.any(noise_intensity):
         VL = np.zeros((2 * n, 2 * n))
         VL[:n, :n] = -A
-        VL[:n, n:] = noise_intensity * np.eye(n)
+        if scalar:
+            VL[:n, n:] = noise_intensity * np.eye(n)
+        else:
+            Qc = np.asarray(noise_intensity, dtype=float)
+            VL[:n, n:] = np.diag(Qc) if Qc.ndim == 1 else Qc
         VL[n:, n:] = A.T
         G = sla.expm(VL * dt)
         Qd = G[n:, n:].T @ G[:n, n:]

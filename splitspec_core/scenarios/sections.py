@@ -19,6 +19,7 @@ from .checks import (DESIGN_KEYS, GRAPH_KEYS, RANDOM_KEYS, RICCATI_KEYS, RUN_KEY
                               require_map, check_seed, check_shapes, plain)
 from .inputs import parse_inputs
 from .labels import default_state_names
+from .noise import parse_measurement_noise, parse_process_noise
 from .files import resolve_model_file
 from .specs import DesignSpec, Fault, GraphSpec, RunSpec, Scenario, Switching, System
 from .network_section import check_heals, parse_groups, parse_network
@@ -50,12 +51,9 @@ def _parse_system(raw: Any, time: str = "discrete") -> tuple[System, tuple]:
     if sysmap.get("x0") is not None:
         x0 = check_matrix(sysmap["x0"], "system.x0", vector=True)
         check_shapes(A, {}, x0)
-    noises = {}
-    for k in ("process_noise", "measurement_noise"):
-        v = check_number(sysmap.get(k, 0.0), f"system.{k}")
-        if v < 0:
-            raise ScenarioError(f"system.{k} must be >= 0, got {v}")
-        noises[k] = v
+    noises = {"process_noise": parse_process_noise(sysmap.get("process_noise", 0.0), A.shape[0]),
+              "measurement_noise": parse_measurement_noise(sysmap.get("measurement_noise", 0.0),
+                                                           {i: entries[i].shape[0] for i in ids})}
     states = None
     if sysmap.get("states") is not None:
         states = check_names(sysmap["states"], "system.states", A.shape[0], f"one per state, system.A is {A.shape[0]}x"
@@ -69,7 +67,7 @@ def _parse_system(raw: Any, time: str = "discrete") -> tuple[System, tuple]:
             s_i = entries[aid].shape[0]
             outputs[aid] = check_names(v, f"system.outputs.{aid}", s_i, f"one per row of system.C.{aid}")
     system = System(A=A, Cs=tuple(entries[i] for i in ids), x0=x0, states=states, outputs=outputs, B=B, u=u,
-                    sample=sample, A_continuous=A_given if sample is not None else None, **noises)
+                    sample=sample, A_continuous=A_given if sample is not None else None, time=time, **noises)
     return system, ids
 
 
@@ -287,8 +285,8 @@ def _parse_design(raw: Any, time: str, system: System, ids: tuple) -> DesignSpec
 
 
 def _noisy(system: System) -> bool:
-    """The scenario states noise: process or measurement noise above zero."""
-    return system.process_noise > 0 or system.measurement_noise > 0
+    """The scenario states noise: process or measurement noise above zero (``System.has_noise``)."""
+    return system.has_noise
 
 
 def _parse_faults(raw: Any, ids: tuple) -> tuple:

@@ -22,9 +22,12 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import DimensionError
+from ..errors import DimensionError, ScenarioError
 from .labels import default_output_names, default_state_names
-from .checks import GAIN_METHODS, MAX_MAGNITUDE, MAX_SEED, Q_METHODS, check_shapes  # noqa: F401
+from .checks import (GAIN_METHODS, MAX_MAGNITUDE, MAX_SEED, Q_METHODS, check_agent_id, check_shapes,  # noqa: F401
+                     ids_text, plain)
+from .noise import (measurement_level, measurement_std, parse_measurement_noise, parse_process_noise,
+                    process_covariance, process_level)
 
 __all__ = [
     "System",
@@ -59,11 +62,16 @@ class System:
         Output matrices ``C_i`` in agent order (see ``Scenario.agent_ids``).
     x0 : (n,) array or None
         Initial state; ``None`` means drawn from the seed.
-    process_noise : float
-        Standard deviation of ``v`` (discrete) or its intensity (continuous:
-        ``E[v(t) v(s)'] = process_noise I delta(t - s)``).
-    measurement_noise : float
-        Standard deviation of each measurement noise sample ``w_i``.
+    process_noise : float or (n,) array or (n, n) array
+        ``system.process_noise`` as given (for text and JSON; compute with :attr:`process_covariance`).  A
+        number: discrete, the std ``sigma`` of every state's ``v`` (covariance ``sigma^2 I`` per step);
+        continuous, the intensity ``q`` (``E[v(t) v(s)'] = q I delta(t - s)``).  A vector: the same per state
+        (discrete: stds, covariance ``diag(v^2)``; continuous: intensities, ``diag(v)``).  A matrix: the
+        covariance per step (discrete) or the intensity matrix (continuous), symmetric positive semidefinite.
+    measurement_noise : float or dict
+        ``system.measurement_noise`` as given (compute with :attr:`measurement_std` and the covariances): a
+        number, the std of every output's noise sample; or ``{agent id: std or (one std per output)}`` in agent
+        order, every agent listed.
     states : tuple of str or None
         The states' names (``system.states``); None: ``x1 .. xn``.
     outputs : dict or None
@@ -75,19 +83,100 @@ class System:
     sample : float or None
         ``system.sample``: the period a continuous model given as ``A``, ``B`` was sampled with (zero-order hold);
         ``A`` and ``B`` here are then the sampled ones, ``A_continuous`` the model as given.
+    time : str
+        ``discrete`` or ``continuous``, the scenario's ``time`` (how ``A`` and the process noise are read).
+
+    The noise's derived quantities (:mod:`splitspec_core.scenarios.noise`), which every computation uses:
+    :attr:`process_covariance`, :attr:`measurement_std`, :attr:`measurement_covariance`,
+    :attr:`measurement_covariances`, :attr:`process_noise_present`, :attr:`measurement_noise_present`,
+    :attr:`has_noise`, and the one-number summaries :attr:`process_noise_level`, :attr:`measurement_noise_level`.
     """
 
     A: np.ndarray
     Cs: tuple
     x0: np.ndarray | None
-    process_noise: float = 0.0
-    measurement_noise: float = 0.0
+    process_noise: Any = 0.0
+    measurement_noise: Any = 0.0
     states: tuple | None = None
     outputs: dict | None = None
     B: np.ndarray | None = None
     u: Any = None
     sample: float | None = None
     A_continuous: np.ndarray | None = None
+    time: str = "discrete"
+
+    def __post_init__(self) -> None:
+        # built directly, a system still meets the parser's noise checks (and holds what they return)
+        n = np.shape(self.A)[0]
+        object.__setattr__(self, "process_noise", parse_process_noise(plain(self.process_noise), n))
+        raw = plain(self.measurement_noise)
+        if isinstance(raw, dict):
+            if len(raw) != len(self.Cs):
+                raise DimensionError(f"system.measurement_noise lists {len(raw)} agents, system.Cs holds "
+                                     f"{len(self.Cs)} output matrices")
+            sizes = {check_agent_id(k, "system.measurement_noise"): int(np.shape(C)[0])
+                     for k, C in zip(raw, self.Cs)}
+            raw = parse_measurement_noise(raw, sizes)
+        else:
+            raw = parse_measurement_noise(raw, {})
+        object.__setattr__(self, "measurement_noise", raw)
+
+    @property
+    def output_sizes(self) -> tuple:
+        """``(s_1, ..., s_m)``: the number of outputs of each agent, in agent order."""
+        return tuple(int(np.shape(C)[0]) for C in self.Cs)
+
+    @property
+    def process_covariance(self) -> np.ndarray:
+        """``(n, n)``: discrete, the covariance of ``v`` per step (``sigma^2 I``, ``diag(v^2)`` or the matrix);
+        continuous, the intensity matrix of white ``v`` (``q I``, ``diag(v)`` or the matrix; the plant samples
+        it exactly, :func:`splitspec_core.scenarios.sampling.sampled_data_matrices`)."""
+        return process_covariance(self.process_noise, self.n, self.time)
+
+    @property
+    def measurement_std(self) -> np.ndarray:
+        """``(p,)``, ``p = sum s_i``: every output's noise std, stacked in agent order like ``y``."""
+        return measurement_std(self.measurement_noise, self.output_sizes)
+
+    @property
+    def measurement_covariance(self) -> np.ndarray:
+        """``(p, p)``: ``R = diag(std^2)``, the stacked outputs' noise covariance (``sigma^2 I`` for a number)."""
+        if not isinstance(self.measurement_noise, dict):
+            return self.measurement_noise ** 2 * np.eye(sum(self.output_sizes))
+        return np.diag(self.measurement_std ** 2)
+
+    @property
+    def measurement_covariances(self) -> list:
+        """``[R_1, ..., R_m]``: each agent's ``(s_i, s_i)`` noise covariance, in agent order."""
+        R = self.measurement_covariance
+        offsets = np.cumsum((0,) + self.output_sizes)
+        return [R[a:b, a:b] for a, b in zip(offsets[:-1], offsets[1:])]
+
+    @property
+    def process_noise_present(self) -> bool:
+        """Some process noise (a covariance or intensity that is not zero)."""
+        return bool(np.any(self.process_covariance))
+
+    @property
+    def measurement_noise_present(self) -> bool:
+        """Some output has measurement noise (a std above 0)."""
+        return bool(np.any(self.measurement_std > 0))
+
+    @property
+    def has_noise(self) -> bool:
+        """Process or measurement noise present."""
+        return self.process_noise_present or self.measurement_noise_present
+
+    @property
+    def process_noise_level(self) -> float:
+        """One number for the process noise in a scalar's units (the number itself; for a vector or a matrix
+        :func:`splitspec_core.scenarios.noise.process_level`: the root mean variance, or the mean intensity)."""
+        return process_level(self.process_noise, self.n, self.time)
+
+    @property
+    def measurement_noise_level(self) -> float:
+        """One number for the measurement noise: the number itself, or the root mean square of the outputs' stds."""
+        return measurement_level(self.measurement_noise, self.output_sizes)
 
     @property
     def inputs(self) -> int:
@@ -321,3 +410,9 @@ class Scenario:
         Cs = dict(zip(self.agent_ids, self.system.Cs))
         Ks = None if self.design.K is None else dict(zip(self.agent_ids, self.design.K))
         check_shapes(self.system.A, Cs, self.system.x0, Ks)
+        if self.system.time != self.time:
+            raise ScenarioError(f"system.time is {self.system.time!r}, the scenario's time is {self.time!r}")
+        given = self.system.measurement_noise
+        if isinstance(given, dict) and tuple(given) != tuple(self.agent_ids):
+            raise ScenarioError(f"system.measurement_noise lists agents {ids_text(tuple(given))}, the scenario's "
+                                f"agents are {ids_text(tuple(self.agent_ids))}")

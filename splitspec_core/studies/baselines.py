@@ -8,8 +8,8 @@ the estimate of ``x(k+1)`` is produced.  The model is the one the plant
 ``x(k+1) = F x(k) + v(k)``, ``E[v v'] = Q``;  ``y(k) = C x(k) + w(k)``, ``E[w w'] = R``
 
 with ``F = A`` (discrete) or ``exp(A dt)`` (continuous, sampled), ``Q`` the
-exact per-step process covariance and ``R = sigma_m^2 I``
-(:func:`sampled_model`).
+exact per-step process covariance and ``R`` the outputs' noise covariance, diagonal (``sigma_m^2 I`` for one
+std, else each output's variance; :func:`sampled_model`).
 
 * :func:`kalman_predictor` / :func:`run_predictor` - the steady-state
   centralized predictor seeing every measurement, the bound no distributed
@@ -448,7 +448,6 @@ def _filters(sc: Scenario, exchanges: int, eps: float | None) -> tuple:
     pos = {a: k for k, a in enumerate(sc.agent_ids)}
     rows = consensus_rows(sc, 0, sc.agent_ids)
     neighbours = {pos[i]: [pos[j] for j in nbs if j != i] for i, (nbs, _) in rows.items()}
-    sigma2 = sc.system.measurement_noise ** 2
-    Rs = [sigma2 * np.eye(Ci.shape[0]) for Ci in Cs]
+    Rs = sc.system.measurement_covariances  # each agent's own R_i (its outputs' variances)
     kcf = KalmanConsensusFilter(F, Cs, Q, Rs, neighbours, eps=eps, exchanges=exchanges)
     return F, C, kalman_predictor(F, C, Q, R).L, kcf

@@ -48,6 +48,7 @@ from ..errors import DesignError
 from ..synthesis.error_matrix import predicted_rms
 from ..synthesis.noise_tuning import tune
 from ..synthesis.verdict import rate_certificate
+from ..scenarios.noise import noise_json
 from ..scenarios.specs import Scenario
 from ..simulation.simulator import check_trajectory_memory, simulate
 
@@ -90,8 +91,8 @@ class CompareResult:
     seeds: tuple
     steps: int
     rate: float
-    process_noise: float
-    measurement_noise: float
+    process_noise: Any  # as the scenario gives it (System.process_noise): a number, a vector or a matrix
+    measurement_noise: Any  # a number, or {agent id: std or (one per output)}
     exchanges: int
     kcf_eps: float | None
     estimators: Mapping[str, EstimatorResult]
@@ -102,8 +103,9 @@ class CompareResult:
     def to_json(self) -> dict:
         """The ``compare.json`` object."""
         out = {"scenario": self.scenario, "time": self.time, "seeds": list(self.seeds), "steps": self.steps,
-               "rate": self.rate, "process_noise": self.process_noise,
-               "measurement_noise": self.measurement_noise, "exchanges": self.exchanges, "kcf_eps": self.kcf_eps,
+               "rate": self.rate, "process_noise": noise_json(self.process_noise),  # numbers stay numbers
+               "measurement_noise": noise_json(self.measurement_noise), "exchanges": self.exchanges,
+               "kcf_eps": self.kcf_eps,
                "estimators": {k: {("settle_time_1e-3" if f == "settle_time" else f): getattr(v, f)
                                   for f in v.__dataclass_fields__
                                   if v.certificate is not None or f not in _CERTIFICATE_FIELDS}
@@ -145,7 +147,7 @@ def compare(sc: Scenario, *, seeds, steps: int | None = None, eps: float | None 
     """Run every estimator on the same realisations: their figures and mean error curves (frozen, read-only)."""
     seeds = list(seeds)
     check_trajectory_memory(sc, steps)
-    if sc.system.process_noise <= 0 and sc.system.measurement_noise <= 0:
+    if not sc.system.has_noise:
         raise DesignError("compare needs noise: set system.process_noise and/or system.measurement_noise")
     variants = {}
     if sc.design.gains == "explicit":

@@ -123,7 +123,7 @@ def network_sweep(sc: Scenario, parameter: str, values, *, seeds, steps: int | N
     check_sweep(sc, parameter, values)
     check_trajectory_memory(sc, steps, key="--steps" if steps is not None else "run.steps")
     base = design(sc)
-    noisy = sc.system.process_noise > 0 or sc.system.measurement_noise > 0
+    noisy = sc.system.has_noise
     per_sim = 2 if noisy else 1
     bar = Progress((len(values) + 1) * len(seeds), progress, label=f"{parameter} sweep",
                     min_total=1 if per_sim * len(seeds) * (len(values) + 1) >= 20 else 10 ** 9)

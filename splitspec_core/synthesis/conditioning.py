@@ -235,7 +235,7 @@ def conditioning(des: Design) -> Conditioning:
     const, case_label, method = _transient(des, warnings)
     rms, graph, kf_rms, ref_rms = None, None, None, None
     s = sc.system
-    if s.process_noise > 0 or s.measurement_noise > 0:
+    if s.has_noise:
         if not des.adaptive and sc.m * sc.n <= MAX_NOISE_DIM:
             k = sc.graph_names.index(sc.switching.graph_names(sc.graph_names)[0])
             graph = sc.graph_names[k]

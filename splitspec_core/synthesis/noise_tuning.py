@@ -53,25 +53,27 @@ def tune(sc: Scenario, *, extra: int = 6, ratios=(1e-2, 1e-1, 1.0, 1e1, 1e2)) ->
 
     Candidates: gains ``place`` and ``riccati`` with process/measurement weights
     ``(r * sigma_p^2, sigma_m^2)`` for each ratio ``r`` (the Kalman choice is
-    ``r = 1``); discrete: ``q`` from the certified one to ``q + extra``;
+    ``r = 1``; ``sigma_p``, ``sigma_m`` the noise levels of
+    :func:`splitspec_core.model.local_design.riccati_weights`); discrete: ``q`` from the certified one to ``q + extra``;
     continuous: ``g`` from the certified one to ``3 g`` (7 values).  The
     baseline is the scenario's own design.  The covariance is that of the
     first graph held constant (a switching scenario is tuned for it).
     """
     s = sc.system
-    if s.process_noise <= 0 and s.measurement_noise <= 0:
+    if not s.has_noise:
         raise DesignError("tuning for noise needs system.process_noise or system.measurement_noise > 0")
     if sc.time == "continuous" and sc.design.g == "adaptive":
         raise DesignError("the adaptive gain cannot be tuned for noise (it has no steady state); give g")
     base = design(sc)
     baseline = _rms_all(base)
-    pw0 = s.process_noise ** 2 if s.process_noise > 0 else 1e-6
-    mw0 = s.measurement_noise ** 2 if s.measurement_noise > 0 else 1e-6
+    p_level, m_level = s.process_noise_level, s.measurement_noise_level  # one number each (riccati_weights)
+    pw0 = p_level ** 2 if p_level > 0 else 1e-6
+    mw0 = m_level ** 2 if m_level > 0 else 1e-6
     gain_options = [("place", None, None)] + [("riccati", r * pw0, mw0) for r in ratios]
     cands = []
     best = None
     for gains, pw, mw in gain_options:
-        d = dataclasses.replace(sc.design, gains=gains, K=None, q="auto" if sc.time == "discrete" else sc.design.q,
+        d = dataclasses.replace(sc.design, gains=gains, K=None, consensus="split", q="auto" if sc.time == "discrete" else sc.design.q,
                                 riccati_process_weight=pw, riccati_measurement_weight=mw)
         try:
             des0 = design(dataclasses.replace(sc, design=d))

@@ -27,6 +27,13 @@ pytestmark = pytest.mark.slow
     ("paper_continuous", {"run": {"steps": 150}, "design": {"g": "adaptive", "g0": 1.0}}),
     ("paper_discrete_filter", {}),  # a state no agent sees: P_i on V_i minus W, W sent in the config
     ("paper_continuous_filter", {}),
+    # noise per state, per agent and per output: the plant process draws what the simulator draws
+    ("paper_discrete_switching", {"system": {"process_noise": [0.1, 0.05, 0.0, 0.2],
+                                             "measurement_noise": {1: 0.05, 2: [0.1], 3: 0.0}}}),
+    ("paper_continuous", {"run": {"steps": 150},
+                          "system": {"process_noise": [[0.3, 0.1, 0, 0], [0.1, 0.2, 0, 0], [0, 0, 0.25, 0],
+                                                       [0, 0, 0, 0]],  # an intensity matrix, singular
+                                     "measurement_noise": {1: 0.05, 2: [0.02], 3: 0.1}}}),
 ])
 def test_run_equals_simulate(tmp_path, example, changes):
     scen = scenario_file(tmp_path, example, **changes)
