@@ -114,13 +114,20 @@ def cmd_compare(args: argparse.Namespace) -> int:
     result = ss.compare(sc, seeds=args.seeds, seed=seed0, steps=args.steps, kcf_eps=args.kcf_eps)
     lines = [f"{sc.name}: {len(result.seeds)} seeds x {result.steps} steps; process noise "
              f"{noise_text(sc.system.process_noise)}, measurement noise {noise_text(sc.system.measurement_noise)}",
-             f"  {'estimator':<17} {'steady RMS':>11} {'+-':>9} {'/ central':>9} {'predicted':>10} "
-             f"{'settle 1e-3':>11} {'msgs/event':>10}"]
+             "  steady RMS: from the end of each estimator's certified transient (steady from) to the end of the run",
+             f"  {'estimator':<22} {'steady RMS':>11} {'+-':>9} {'/ central':>9} {'predicted':>10} "
+             f"{'steady from':>11} {'settle 1e-3':>11} {'msgs/event':>10}"]
     for name, r in result.estimators.items():
         pred = "-" if r.predicted_rms is None else f"{r.predicted_rms:.4g}"
         st = "never" if r.settle_time is None else f"{r.settle_time:g}"
-        lines.append(f"  {name:<17} {r.rms_mean:11.4g} {r.rms_std:9.2g} {r.ratio_to_centralized:9.3f} "
-                     f"{pred:>10} {st:>11} {r.messages_per_event:>10}")
+        if r.steady_from is None:
+            lines.append(f"  {name:<22} {'-':>11} {'':>9} {'-':>9} {pred:>10} {'not settled':>11} {st:>11} "
+                         f"{r.messages_per_event:>10}")
+            continue
+        lines.append(f"  {name:<22} {r.rms_mean:11.4g} {r.rms_std:9.2g} {r.ratio_to_centralized:9.3f} "
+                     f"{pred:>10} {r.steady_from:11g} {st:>11} {r.messages_per_event:>10}")
+    lines += [f"  {name}: {r.note}" for name, r in result.estimators.items() if r.note]
+    lines += [f"  {name}: not designed: {why}" for name, why in result.failed.items()]
     lines += certificate_lines(result)
     if result.tuned is not None:
         tnd = result.tuned
@@ -128,7 +135,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
         w = "" if tnd["gains"] == "place" else (f" (process_weight {tnd['process_weight']:.3g}, measurement_weight "
                                                 f"{tnd['measurement_weight']:.3g})")
         lines.append(f"  tuned design: gains {tnd['gains']}{w}, {what}: predicted RMS {tnd['predicted_rms']:.4g} "
-                     f"vs {tnd['baseline_predicted_rms']:.4g} for the scenario's design")
+                     f"vs {tnd["baseline_predicted_rms"]:.4g} for the split design it started from")
     plots = []
     if not args.no_plots:
         from .. import plots as P

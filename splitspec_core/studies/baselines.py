@@ -390,47 +390,57 @@ def baseline_trajectories(sc: Scenario, seed: int, *, exchanges: int, steps: int
 
 
 def baseline_seeds(sc: Scenario, seeds, *, exchanges: int, steps: int | None = None, noise: bool = True,
-                   eps: float | None = None, chunk: int = CHUNK) -> dict:
+                   eps: float | None = None, chunk: int = CHUNK, gains: dict | None = None) -> dict:
     """Both baselines over many seeds as one batched computation: the errors of :func:`baseline_trajectories`.
 
     Per seed the realisations are :func:`baseline_trajectories`'s bit for bit (:func:`seed_draws`) and the
     estimates its estimates to round-off (:class:`SeedBatchKCF`; the centralized predictor as one ``(n, N)``
     product per step).  Known inputs (``system.B``) are left out of plant and filters alike: every filter adds the
-    plant's own ``G u(k)``, so the errors do not depend on them.  Only squared errors are kept, ``2 N T`` floats; seeds run in chunks of ``chunk``,
-    each holding its noise draws for the whole run.
+    plant's own ``G u(k)``, so the errors do not depend on them.  Only squared errors are kept, ``2 N T`` floats;
+    seeds run in chunks of ``chunk``, each holding its noise draws for the whole run.  ``gains``: more centralized
+    predictors to run on the same realisations, ``{name: L}`` (``xhat+ = (F - L C) xhat + L y``; the rate-certified
+    reference of :func:`splitspec_core.synthesis.kalman.references`).
 
     Returns
     -------
     dict
-        ``{"centralized": runs, "kcf": runs}``, each a :class:`~splitspec_core.simulation.montecarlo.MonteCarloRuns` (the
-        split-spectrum estimator's Monte Carlo result, so the same statistics apply): ``sq_error`` (N, T) is
-        ``|xhat(k) - x(k)|^2`` of the centralized predictor (one estimate: ``alive_count`` 1) and ``sum_i
-        |xbar_i(k) - x(k)|^2`` over the m agents of the KCF (``alive_count`` m).
+        ``{"centralized": runs, "kcf": runs}`` and one entry per name of ``gains``, each a
+        :class:`~splitspec_core.simulation.montecarlo.MonteCarloRuns` (the split-spectrum estimator's Monte Carlo
+        result, so the same statistics apply): ``sq_error`` (N, T) is ``|xhat(k) - x(k)|^2`` of a centralized
+        predictor (one estimate: ``alive_count`` 1) and ``sum_i |xbar_i(k) - x(k)|^2`` over the m agents of the KCF
+        (``alive_count`` m).
     """
     seeds = tuple(int(s) for s in seeds)
     steps = sc.run.steps if steps is None else int(steps)
     m, n, T = sc.m, sc.n, steps + 1
     F, C, Lc, kcf = _filters(sc, exchanges, eps)
     Ac, batch = F - Lc @ C, SeedBatchKCF(kcf)
+    others = {name: (F - L @ C, np.asarray(L)) for name, L in (gains or {}).items()}  # more centralized predictors
     sq_c, sq_k = np.zeros((len(seeds), T)), np.zeros((len(seeds), T))
+    sq_o = {name: np.zeros((len(seeds), T)) for name in others}
     for a in range(0, len(seeds), chunk):
         part = seeds[a:a + chunk]
         plant, x, v, w = seed_draws(sc, part, steps, noise=noise)
         batch.reset()
         X = np.stack([np.stack([initial_estimate(n, s, i) for s in part], axis=1) for i in range(m)])  # (m, n, N)
         xc = X.mean(axis=0)  # the centralized predictor starts from the agents' mean
+        xo = {name: xc.copy() for name in others}
         for k in range(T):
             sq_c[a:a + len(part), k] = np.sum((xc - x) ** 2, axis=0)
             sq_k[a:a + len(part), k] = np.sum((X - x[None]) ** 2, axis=(0, 1))
+            for name, xe in xo.items():
+                sq_o[name][a:a + len(part), k] = np.sum((xe - x) ** 2, axis=0)
             if k == steps:
                 break
             y = measured(plant.C, plant.sigma_m, x, w[k])
             xc = Ac @ xc + Lc @ y  # run_predictor's step: xhat+ = (F - L C) xhat + L y
+            for name, (A_o, L_o) in others.items():
+                xo[name] = A_o @ xo[name] + L_o @ y
             X = batch.step(X, y)
             x = advanced(plant.F, plant.L, x, v[k])
     t = _times(sc, seeds[0], steps)
     return {name: MonteCarloRuns(seeds=seeds, t=t, sq_error=sq, alive_count=np.full(sq.shape, count), batched=True)
-            for name, sq, count in (("centralized", sq_c, 1), ("kcf", sq_k, m))}
+            for name, sq, count in (("centralized", sq_c, 1), ("kcf", sq_k, m), *((k, v, 1) for k, v in sq_o.items()))}
 
 
 def _times(sc: Scenario, seed: int, steps: int) -> np.ndarray:

@@ -40,12 +40,14 @@ import numpy as np
 
 from ..simulation.metrics import fit_decay, steady_rms
 from ..simulation.montecarlo import simulate_seeds
-from .baselines import baseline_seeds, baseline_trajectories, kalman_predictor, sampled_model
+from .baselines import baseline_seeds, baseline_trajectories, sampled_model
 from ..synthesis.bounds import nice_ceil
+from ..synthesis.conditioning import conditioning, transient_constant
 from ..synthesis.designer import design
+from ..synthesis.kalman import per_step_rate, references
 from ..synthesis.verdict import ADAPTIVE, NO_CERTIFIED_RATE
 from ..errors import DesignError
-from ..synthesis.error_matrix import predicted_rms
+from ..synthesis.error_matrix import MAX_NOISE_DIM, predicted_rms
 from ..synthesis.noise_tuning import tune
 from ..synthesis.verdict import rate_certificate
 from ..scenarios.noise import noise_json
@@ -72,6 +74,9 @@ class EstimatorResult:
     certified_rate: bool | None = None  # split-spectrum rows: the design's certificate (None for the baselines)
     certificate: str | None = None
     rate_note: str | None = None  # the adaptive gain: asymptotic convergence only (no certified rate)
+    steady_from: float | None = None  # the steady RMS is measured from here (compare.steady_start); None: not settled
+    note: str | None = None  # why there is no steady figure
+    consensus: str | None = None  # split or whole (the designs' rows)
 
 
 _CERTIFICATE_FIELDS = ("certified_rate", "certificate", "rate_note")
@@ -81,9 +86,10 @@ _CERTIFICATE_FIELDS = ("certified_rate", "certificate", "rate_note")
 class CompareResult:
     """``splitspec compare``: split-spectrum variants against the centralized Kalman filter and the KCF.
 
-    ``estimators`` maps names (``split place``, ``split riccati``, ``split tuned``, ``centralized KF``,
-    ``KCF``, and ``split (scenario)`` with explicit gains) to :class:`EstimatorResult`; ``t`` and
-    ``curves`` (name -> (T,) RMS error over agents, mean over seeds) are the error curves.
+    ``estimators`` maps names (the scenario's own design, e.g. ``optimal (whole state)`` or ``split (explicit)``;
+    ``split place``, ``split riccati``, ``split tuned``, ``centralized KF``, ``centralized at rate`` when the Kalman
+    filter is slower than the rate, ``KCF``) to :class:`EstimatorResult`; ``t`` and ``curves`` (name -> (T,) RMS
+    error over agents, mean over seeds) are the error curves; ``failed`` the rows that could not be designed.
     """
 
     scenario: str
@@ -99,6 +105,7 @@ class CompareResult:
     tuned: Mapping[str, Any] | None
     t: np.ndarray
     curves: Mapping[str, np.ndarray]
+    failed: Mapping[str, str] = dataclasses.field(default_factory=lambda: MappingProxyType({}))  # rows not designed, why
 
     def to_json(self) -> dict:
         """The ``compare.json`` object."""
@@ -112,6 +119,8 @@ class CompareResult:
                               for k, v in self.estimators.items()}}
         if self.tuned is not None:
             out["tuned"] = dict(self.tuned)
+        if self.failed:
+            out["failed"] = dict(self.failed)
         return out
 
 
@@ -139,40 +148,84 @@ def _errors(xhat: np.ndarray, x: np.ndarray) -> np.ndarray:
 
 
 def _variant(sc: Scenario, gains: str) -> Scenario:
-    d = dataclasses.replace(sc.design, gains=gains, K=None)
+    d = dataclasses.replace(sc.design, gains=gains, K=None, consensus="split")
     return dataclasses.replace(sc, design=d)
 
 
+#: ``split tuned`` (:func:`~splitspec_core.synthesis.noise_tuning.tune`: about 40 designs) only up to this m n
+TUNE_MAX = 400
+#: the steady state starts when the certified envelope of the transient is below this fraction of the predicted
+#: steady RMS error (:func:`steady_start`)
+SETTLED = 0.05
+
+
+def steady_start(c: float | None, r: float, e0: float, floor: float, T: int) -> int | None:
+    """The first step after the transient: where the certified envelope ``c r^k e0`` of the stacked error (``c`` the
+    transient constant, ``r`` the rate per step, ``e0`` the largest initial stacked error over the seeds) falls below
+    :data:`SETTLED` of ``floor`` (the predicted steady stacked RMS); None when that is past the run's ``T`` steps or
+    nothing bounds it (``c`` unknown or infinite, ``r >= 1``)."""
+    if c is None or not math.isfinite(c) or not 0 < r < 1 or not floor > 0:
+        return None
+    k = max(0, math.ceil(math.log(SETTLED * floor / (c * max(e0, floor))) / math.log(r)))
+    return k if k < T else None
+
+
+def _scenario_row(sc: Scenario, des) -> str:
+    """The name of the scenario's own design in :func:`compare`."""
+    if sc.design.gains == "optimal":
+        return f"optimal ({'whole state' if des.consensus == 'whole' else 'split'})"
+    if des.consensus == "whole":
+        return f"whole ({sc.design.gains})"
+    return f"split ({sc.design.gains})" if sc.design.gains == "explicit" else f"split {sc.design.gains}"
+
+
 def compare(sc: Scenario, *, seeds, steps: int | None = None, eps: float | None = None) -> CompareResult:
-    """Run every estimator on the same realisations: their figures and mean error curves (frozen, read-only)."""
+    """Run every estimator on the same realisations: their figures and mean error curves (frozen, read-only).
+
+    Rows: the scenario's own design (``optimal (whole state)`` by default under noise), the paper's split with
+    ``place`` and ``riccati`` gains and tuned (:func:`~splitspec_core.synthesis.noise_tuning.tune`, up to
+    ``m n`` = :data:`TUNE_MAX`), the centralized Kalman filter, the best centralized estimator certified at the rate
+    (``centralized at rate``: :func:`~splitspec_core.synthesis.kalman.references`; only when the Kalman filter is
+    slower than the rate) and the KCF with as many exchanges as the scenario's design.  Each row's steady RMS is
+    measured after its own transient: from :func:`steady_start` of its certified envelope (the Kalman filter's from
+    its radius and transient constant; the KCF, which certifies nothing, from the latest of the others'); a row
+    whose transient outlasts the run has none (``steady_from`` None) and says so in ``note``.
+    """
     seeds = list(seeds)
     check_trajectory_memory(sc, steps)
     if not sc.system.has_noise:
         raise DesignError("compare needs noise: set system.process_noise and/or system.measurement_noise")
-    variants = {}
-    if sc.design.gains == "explicit":
-        variants["split (scenario)"] = design(sc)
-    variants["split place"] = design(_variant(sc, "place"))
-    variants["split riccati"] = design(_variant(sc, "riccati"))
-    tuned = None
-    try:
-        tuned = tune(sc)
-        variants["split tuned"] = tuned.design
-    except DesignError:
-        pass
-    discrete = sc.time == "discrete"
-    exchanges = variants["split place"].q if discrete else 1
+    own = design(sc)
+    variants = {_scenario_row(sc, own): own}
+    for gains in ("place", "riccati"):
+        name = f"split {gains}"
+        if name not in variants:
+            try:
+                variants[name] = design(_variant(sc, gains))
+            except DesignError as exc:  # e.g. a local Riccati equation without a solution at this rate
+                variants[name] = str(exc)
+    tuned, notes = None, {}
+    if sc.m * sc.n <= TUNE_MAX:
+        try:
+            tuned = tune(_variant(sc, "riccati") if sc.design.gains == "optimal" else sc)
+            variants["split tuned"] = tuned.design
+        except DesignError:
+            pass
+    failed = {k: v for k, v in variants.items() if isinstance(v, str)}
+    variants = {k: v for k, v in variants.items() if not isinstance(v, str)}
+    two_rate = own.two_rate
+    exchanges = own.q if two_rate else 1
     # every seed at once, per seed the errors of a single-seed run to round-off: the split-spectrum variants by
     # montecarlo.simulate_seeds, the baselines by baselines.baseline_seeds (the same MonteCarloRuns statistics)
     runs = {name: simulate_seeds(des, seeds, steps=steps) for name, des in variants.items()}
-    b = baseline_seeds(sc, seeds, exchanges=exchanges, steps=steps, eps=eps)
-    runs.update({"centralized KF": b["centralized"], "KCF": b["kcf"]})
+    kf, ref = references(sc, own.envelope_rate)
+    extra = {} if ref is None or ref is kf else {"centralized at rate": ref.L}
+    b = baseline_seeds(sc, seeds, exchanges=exchanges, steps=steps, eps=eps, gains=extra)
+    runs.update({"centralized KF": b["centralized"], "KCF": b["kcf"], **{k: b[k] for k in extra}})
     curves = {name: r.rms() for name, r in runs.items()}
-    rms = {name: r.steady_rms() for name, r in runs.items()}  # metrics.steady_rms, per seed
-    T = runs["split place"].t
+    T = runs["centralized KF"].t
     # noise-free transients (first seed)
-    settle = {}
-    rate = {}
+    settle, rate = {}, {}
     for name, des in variants.items():
         tr = simulate(des, seed=seeds[0], steps=steps, noise=False, progress=False)
         e = tr.errors()
@@ -184,32 +237,42 @@ def compare(sc: Scenario, *, seeds, steps: int | None = None, eps: float | None 
         settle[name] = settle_time(b0["t"], e)
         worst = e if e.ndim == 1 else np.nanmax(e, axis=1)
         rate[name] = fit_decay(b0["t"], worst, time=sc.time, scale=np.linalg.norm(b0["x"], axis=1))
-    F, Q, R = sampled_model(sc)
-    C = np.vstack([np.asarray(c) for c in sc.system.Cs])
-    kp = kalman_predictor(F, C, Q, R)
-    # the adaptive gain has no steady state (g_i(t) keeps moving), so no predicted RMS
-    predicted = {name: float(np.sqrt(np.mean(predicted_rms(des) ** 2))) for name, des in variants.items()
-                 if des.g_mode != "adaptive"}
-    predicted["centralized KF"] = float(math.sqrt(np.trace(kp.P)))
+    # the adaptive gain has no steady state (g_i(t) keeps moving), so no predicted RMS; none above MAX_NOISE_DIM
+    predicted = {name: _predicted_all(des) for name, des in variants.items()}
+    predicted["centralized KF"] = None if kf is None else kf.rms
+    if extra:
+        predicted["centralized at rate"] = ref.rms
+    starts = _steady_starts(sc, variants, runs, predicted, kf, ref if extra else None, len(T))
     m = sc.m
-    messages = {name: m * des.q if discrete else m for name, des in variants.items()}
+    messages = {name: m * des.q if des.two_rate else m for name, des in variants.items()}
     messages["KCF"] = m * exchanges
-    messages["centralized KF"] = m  # every agent sends its measurement to the centre
+    for name in ("centralized KF", *extra):
+        messages[name] = m  # every agent sends its measurement to the centre
+    rms = {name: (r.steady_rms(start=starts[name]) if starts[name] is not None else np.full(len(seeds), np.nan))
+           for name, r in runs.items()}
     central = float(np.mean(rms["centralized KF"]))
     table = {}
-    for name in list(variants) + ["centralized KF", "KCF"]:
+    for name in list(variants) + ["centralized KF", *extra, "KCF"]:
         r = rms[name]
         des = variants.get(name)
         cert = None if des is None else rate_certificate(des)
+        k0 = starts[name]
+        notes[name] = (None if k0 is not None else
+                       f"its transient outlasts the {len(T) - 1} steps of the run (no steady state measured): "
+                       "compare --steps longer")
         table[name] = EstimatorResult(
             rms_mean=float(r.mean()), rms_std=float(r.std(ddof=1)) if len(r) > 1 else 0.0,
-            ratio_to_centralized=float(r.mean() / central) if central > 0 else None,
-            predicted_rms=predicted.get(name), settle_time=settle[name], measured_rate=rate[name],
+            ratio_to_centralized=float(r.mean() / central) if central > 0 and k0 is not None else None,
+            predicted_rms=predicted.get(name), settle_time=settle.get(name), measured_rate=rate.get(name),
             messages_per_event=messages[name],
             q=None if des is None else des.q, g=None if des is None else des.g,
             gains=None if des is None else des.scenario.design.gains,
             certified_rate=None if cert is None else cert.certified, certificate=None if cert is None else cert.text,
-            rate_note=NO_CERTIFIED_RATE if des is not None and des.g_mode == "adaptive" else None)
+            rate_note=NO_CERTIFIED_RATE if des is not None and des.adaptive else None,
+            steady_from=None if k0 is None else float(T[k0]), note=notes[name],
+            consensus=None if des is None else des.consensus)
+    for name, why in failed.items():
+        notes[name] = why
     tuned_json = None
     if tuned is not None:
         cd = tuned.design.scenario.design
@@ -221,7 +284,43 @@ def compare(sc: Scenario, *, seeds, steps: int | None = None, eps: float | None 
         scenario=sc.name, time=sc.time, seeds=tuple(seeds), steps=int(len(T) - 1), rate=sc.design.rate,
         process_noise=sc.system.process_noise, measurement_noise=sc.system.measurement_noise, exchanges=exchanges,
         kcf_eps=eps, estimators=MappingProxyType(table), tuned=tuned_json, t=_readonly(T),
-        curves=MappingProxyType({k: _readonly(np.mean(v, axis=0)) for k, v in curves.items()}))
+        curves=MappingProxyType({k: _readonly(np.mean(v, axis=0)) for k, v in curves.items()}),
+        failed=MappingProxyType(failed))
+
+
+def _predicted_all(des) -> float | None:
+    """RMS over agents of a design's predicted steady RMS errors; None when not computed (adaptive gain, or ``m n``
+    above ``MAX_NOISE_DIM``)."""
+    sc = des.scenario
+    if des.adaptive or sc.m * sc.n > MAX_NOISE_DIM:
+        return None
+    return float(np.sqrt(np.mean(predicted_rms(des) ** 2)))
+
+
+def _steady_starts(sc: Scenario, variants: dict, runs: dict, predicted: dict, kf, ref, T: int) -> dict:
+    """Each row's first steady step (:func:`steady_start`): a design from its transient constant and envelope rate
+    (:func:`~splitspec_core.synthesis.conditioning.conditioning`), the centralized predictors from theirs (``n x n``),
+    the KCF from the latest of the others."""
+    out = {}
+    for name, des in variants.items():
+        cond = conditioning(des)
+        r = per_step_rate(sc, des.envelope_rate)
+        e0 = float(np.sqrt(np.max(runs[name].sq_error[:, 0])))
+        floor = predicted[name] * math.sqrt(sc.m) if predicted[name] is not None else None
+        out[name] = steady_start(cond.transient_constant, r, e0, floor or 0.0, T) if floor else None
+    F, _, _ = sampled_model(sc)
+    C = np.vstack([np.asarray(c, dtype=float) for c in sc.system.Cs])
+    for name, p in (("centralized KF", kf), ("centralized at rate", ref)):
+        if p is None or name not in runs:
+            continue
+        A_c = F - p.L @ C
+        r = p.radius ** 0.9  # a rate just slower than its radius: a finite constant
+        c = transient_constant(A_c, r).constant
+        e0 = float(np.sqrt(np.max(runs[name].sq_error[:, 0])))
+        out[name] = steady_start(c, r, e0, p.rms, T)
+    settled = [k for k in out.values() if k is not None]
+    out["KCF"] = max(settled) if settled else None
+    return out
 
 
 def sweep(sc: Scenario, *, seed: int, steps: int | None = None, values=None) -> dict:

@@ -106,6 +106,12 @@ def loss_certificate(des: Design) -> LossCertificate | None:
                + (f" to {heals[0]:g}" if heals else "") + ": the graph is not strongly connected)")
     if not net.impaired:
         return LossCertificate(True, f"under loss: no message is lost outside the partitions{cut}")
+    if des.consensus == "whole":
+        return LossCertificate(False, "not certified under loss: the whole-state design's certificates (the full error "
+                                      "matrix, the mixing bound) hold the graph constant within an event time and its "
+                                      "weights doubly stochastic; a lost message changes both within a sub-round and "
+                                      "moves the consensus average (what loss costs is measured by splitspec compare "
+                                      f"--sweep-loss){cut}")
     if sc.time == "continuous":
         return LossCertificate(False, "not certified under loss: in continuous time a lost message switches the graph "
                                       f"for one step of run.dt = {sc.run.dt:g}, and no certificate of the paper covers "

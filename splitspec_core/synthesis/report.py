@@ -79,6 +79,20 @@ def _unobserved_json(un, rate: float, *, full: bool = True) -> dict:
     return out
 
 
+def _whole_json(des: Design) -> dict | None:
+    """The whole-state design's choices (:class:`~splitspec_core.synthesis.whole_state.WholeState`), None for the
+    split."""
+    w = des.whole
+    if w is None:
+        return None
+    return {"method": w.method, "alpha": _num(w.alpha), "pi": [float(v) for v in w.pi], "rate_per_step": _num(w.lam_step),
+            "central_radius": _num(w.central_radius), "central_rms": _num(w.central_rms),
+            "kalman_radius": _num(w.kf_radius), "kalman_rms": _num(w.kf_rms), "reference_rms": _num(w.reference_rms),
+            "q_certified": w.q_certified, "exchanges_per": "event time" if des.time == "discrete" else "run.dt",
+            "tried": [{"margin": m, "alpha": _num(a), "q": q, "radius": {k: _num(v) for k, v in (r or {}).items()},
+                       "predicted_rms": _num(rms)} for m, a, q, r, rms in w.tried]}
+
+
 def _conditioning_json(des: Design) -> dict:
     cond = conditioning(des)
     constant = _num(cond.transient_constant) if cond.transient_constant != math.inf else "inf"
@@ -90,8 +104,15 @@ def _conditioning_json(des: Design) -> dict:
         "full_error_matrix": {k: (v if isinstance(v, dict) else _num(v)) for k, v in des.full_radius.items()},
         "predicted_rms": None if cond.predicted_rms is None else {
             "graph": cond.predicted_graph, "agents": {str(i): _num(v) for i, v in cond.predicted_rms.items()},
-            "all": _num(_all_rms(cond.predicted_rms))},
+            "all": _num(_all_rms(cond.predicted_rms)), "kalman": _num(cond.kalman_rms),
+            "ratio_to_kalman": _num(_ratio(_all_rms(cond.predicted_rms), cond.kalman_rms)),
+            "reference": _num(cond.reference_rms),
+            "ratio_to_reference": _num(_ratio(_all_rms(cond.predicted_rms), cond.reference_rms))},
     }
+
+
+def _ratio(a: float, b: float | None) -> float | None:
+    return None if b is None or not b > 0 else a / b
 
 
 def _all_rms(per_agent: dict) -> float:
@@ -167,7 +188,8 @@ def design_json(des: Design) -> dict:
     cert = rate_certificate(des)
     out.update(certified_rate=cert.certified, certificate=cert.text, envelope_rate=_num(cert.rate),
                rate_note=NO_CERTIFIED_RATE if des.g_mode == "adaptive" else None)
-    if sc.time == "continuous":
+    out.update(consensus=des.consensus, consensus_choice=des.chosen, whole_state=_whole_json(des))
+    if sc.time == "continuous" and des.consensus != "whole":
         out.update({
             "g": _num(des.g),
             "g_mode": des.g_mode,

@@ -14,9 +14,11 @@ from dataclasses import dataclass
 
 from . import bounds
 from .design_data import Design, cached_analysis
-from .error_matrix import MAX_RATE_DIM
+from .error_matrix import MAX_RATE_DIM, step_blocks, whole_matrix
+from .kalman import spectral_radius
 from ..model.graphs import build_graph
 from .sampled_rates import sampled_rates
+from .whole_state import mixing_bound
 
 __all__ = ["RateCertificate", "rate_certificate", "survivors_certificate", "q_text", "whole_text", "sampled_shortfall",
            "NO_CERTIFIED_RATE", "ADAPTIVE"]
@@ -209,6 +211,30 @@ def _full_certificate(des: Design, *, sampled: bool) -> RateCertificate:
     return RateCertificate(ok, f"{text} ({scope})", by=by)
 
 
+def _whole_survivors(des: Design, alive: tuple, arcs: dict) -> tuple:
+    """``(certified, text, by)`` of the whole-state design on what is left: every survivor keeps its gain; the full
+    error matrix of each graph the switching uses, restricted to the survivors and the arcs still up, held constant
+    (:data:`MAX_RATE_DIM`), or the mixing bound of them all (doubly stochastic weights, any size)."""
+    sc = des.scenario
+    lam = des.whole.lam_step
+    ad = {a.id: a for a in des.agents}
+    Cs = dict(zip(sc.agent_ids, sc.system.Cs))
+    Fs, _ = step_blocks(sc.system.A, [ad[i].K for i in alive], [Cs[i] for i in alive],
+                        dt=sc.run.dt if sc.time == "continuous" else None)
+    Ss = [build_graph(name, alive, arcs[name], weights=sc.design.weights, check=False).S for name in arcs]
+    per = "per event time" if sc.time == "discrete" else "per step"
+    if len(alive) * sc.n <= MAX_RATE_DIM and (len(Ss) == 1 or des.q_result.method != "mixing bound"):
+        worst = max(spectral_radius(whole_matrix(Fs, S, des.q)) for S in Ss)
+        ok = worst < lam
+        held = " (per graph held constant)" if len(Ss) > 1 else ""
+        return ok, (f"q = {des.q}, the gains kept: spectral radius of the survivors' full error matrix {worst:.6g} "
+                    f"{'<' if ok else '>='} {lam:.6g} {per}{held}; whole-state consensus"), "full error matrix"
+    bound = mixing_bound(Fs, Ss, des.q, lam)
+    ok = bound < lam
+    return ok, (f"q = {des.q}, the gains kept: mixing bound of the survivors {bound:.6g} {'<' if ok else '>='} "
+                f"{lam:.6g} {per}; whole-state consensus"), "mixing bound"
+
+
 def survivors_certificate(des: Design, alive: tuple, arcs: dict, network, *, excluded: bool) -> RateCertificate:
     """The design's own certificate recomputed on what is left after losses (no bisection, no search: cheap enough
     for every event of a run).
@@ -234,6 +260,9 @@ def survivors_certificate(des: Design, alive: tuple, arcs: dict, network, *, exc
         cert, text = False, "no rate: " + ("the survivors leave a mode unobserved that does not decay"
                                             if not (network.detectable or excluded) else
                                             "a graph is not strongly connected")
+    elif des.consensus == "whole":  # the gains kept: the survivors' full error matrices (whole_state.py)
+        cert, text, by = _whole_survivors(des, alive, arcs)
+        un_S = network.unobserved if cert else un_S
     elif des.time == "discrete":
         cases = survivor_cases()
         res = bounds.choose_q(sc.design.q_method, cases, rate, q=des.q, q_max=sc.design.q_max,
