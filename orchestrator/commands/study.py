@@ -135,7 +135,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
         w = "" if tnd["gains"] == "place" else (f" (process_weight {tnd['process_weight']:.3g}, measurement_weight "
                                                 f"{tnd['measurement_weight']:.3g})")
         lines.append(f"  tuned design: gains {tnd['gains']}{w}, {what}: predicted RMS {tnd['predicted_rms']:.4g} "
-                     f"vs {tnd["baseline_predicted_rms"]:.4g} for the split design it started from")
+                     f"vs {tnd['baseline_predicted_rms']:.4g} for the split design it started from")
     plots = []
     if not args.no_plots:
         from .. import plots as P
