@@ -228,7 +228,12 @@ def riccati_gain(
             X = sla.solve_discrete_are(a, b, W, R)
             return np.linalg.solve(R + b.T @ X @ b, b.T @ X @ a)
         except (np.linalg.LinAlgError, ValueError) as exc:
-            raise DesignError(f"Riccati equation failed: {exc}") from None
+            shift = (f"left of -{(1.0 + margin) * rate:.4g}" if time == "continuous" else
+                     f"inside radius {rate / (1.0 + margin):.4g}")
+            why = str(exc).strip().rstrip(".") or type(exc).__name__
+            raise DesignError(f"the Riccati design of its slow modes has no stabilising solution with every pole "
+                              f"{shift} (rate {rate:g} with design.margin {margin:g}): a mode it counts as seen is "
+                              f"too weakly observable to move that far (solver: {why})") from None
 
     return _slow_gain(dec, time, rate, margin, "riccati", solve)
 

@@ -43,7 +43,7 @@ from .verdict import rate_certificate
 from .whole_state import design_whole
 from ..scenarios.specs import Scenario
 
-__all__ = ["design", "scenario_dwell", "check_full"]
+__all__ = ["design", "scenario_dwell", "check_full", "highest_rate", "RateReach", "RATE_PROBES"]
 
 
 def scenario_dwell(sc: Scenario) -> float | None:
@@ -93,12 +93,63 @@ def design(sc: Scenario, *, compare_q_methods: bool = False, workers: int | None
     >>> des.q, des.consensus
     (6, 'split')
     """
+    try:
+        return _dispatch(sc, compare_q_methods, workers)
+    except (AssumptionError, DesignError) as exc:
+        reach = highest_rate(sc)
+        if reach is None:
+            raise
+        raise type(exc)(f"{exc}; {reach.text}") from None
+
+
+def _dispatch(sc: Scenario, compare_q_methods: bool, workers: int | None) -> Design:
     d = sc.design
     if d.consensus == "whole":
         return _design(sc, "whole", compare_q_methods, workers)
     if d.consensus == "auto" and d.gains == "optimal":
         return _choose(sc, compare_q_methods, workers)
     return _design(sc, "split", compare_q_methods, workers)
+
+
+#: the bisection of :func:`highest_rate`: at most this many designs
+RATE_PROBES = 7
+
+
+@dataclasses.dataclass(frozen=True)
+class RateReach:
+    """The fastest rate a scenario's design keys certify (:func:`highest_rate`): ``rate`` certified, ``refused``
+    not (the bisection's bracket), and the line that says so."""
+
+    rate: float
+    refused: float
+    text: str
+
+
+def highest_rate(sc: Scenario, *, probes: int = RATE_PROBES) -> RateReach | None:
+    """When a design at ``design.rate`` is refused or not certified: the fastest rate the same design keys certify,
+    found by bisection between the rate asked and one far slower (a hundredth of it; discrete time:
+    ``1 - (1 - lam) / 100``), with the line that says it (``the fastest rate these design keys certify is about
+    0.31 ...``); None when even the slow end is refused (the refusal is not about the rate)."""
+    d = sc.design
+
+    def ok(rate: float) -> bool:
+        try:
+            des = _dispatch(dataclasses.replace(sc, design=dataclasses.replace(d, rate=rate)), False, None)
+        except (AssumptionError, DesignError):
+            return False
+        return bool(rate_certificate(des).certified)
+
+    # a faster rate is a larger one in continuous time, a smaller lam in discrete time
+    slow = d.rate / 100.0 if sc.time == "continuous" else 1.0 - (1.0 - d.rate) / 100.0
+    if not ok(slow):
+        return None
+    good, bad = slow, d.rate
+    for _ in range(max(0, probes - 1)):
+        mid = math.sqrt(good * bad) if sc.time == "continuous" else 1.0 - math.sqrt((1.0 - good) * (1.0 - bad))
+        good, bad = (mid, bad) if ok(mid) else (good, mid)
+    unit = "" if sc.time == "continuous" else " per event time"
+    return RateReach(good, bad, f"the fastest rate these design keys certify is about {good:.3g}{unit} (design.rate "
+                                f"{good:.3g} certified, {bad:.3g} not; {probes} designs)")
 
 
 def _choose(sc: Scenario, compare_q_methods: bool, workers: int | None) -> Design:

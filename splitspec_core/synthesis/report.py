@@ -15,7 +15,8 @@ import numpy as np
 
 from .bounds import QResult
 from .conditioning import conditioning
-from .design_data import Design
+from .design_data import Design, cached_analysis
+from .designer import highest_rate
 from .loss_certificate import loss_certificate
 from ..model.gains import poles_text
 from ..model.graphs import is_doubly_stochastic, perron_vector
@@ -186,8 +187,10 @@ def design_json(des: Design) -> dict:
         "warnings": list(des.warnings) + list(conditioning(des).warnings),
     }
     cert = rate_certificate(des)
+    reach = fastest_rate(des)
     out.update(certified_rate=cert.certified, certificate=cert.text, envelope_rate=_num(cert.rate),
-               rate_note=NO_CERTIFIED_RATE if des.g_mode == "adaptive" else None)
+               rate_note=NO_CERTIFIED_RATE if des.g_mode == "adaptive" else None,
+               fastest_certified_rate=None if reach is None else {"rate": reach.rate, "refused": reach.refused})
     out.update(consensus=des.consensus, consensus_choice=des.chosen, whole_state=_whole_json(des))
     if sc.time == "continuous" and des.consensus != "whole":
         out.update({
@@ -221,6 +224,15 @@ def design_json(des: Design) -> dict:
             "q_methods": {k: _q_json(v) for k, v in des.q_methods.items()},
         })
     return out
+
+
+@cached_analysis
+def fastest_rate(des: Design):
+    """A design whose rate is not certified (the adaptive gain aside): the fastest rate its keys certify
+    (:func:`~splitspec_core.synthesis.designer.highest_rate`, a bisection of a few designs), else None."""
+    if des.adaptive or rate_certificate(des).certified:
+        return None
+    return highest_rate(des.scenario)
 
 
 def continuous_rate(sc) -> float | None:
@@ -347,6 +359,9 @@ def design_text(des: Design) -> str:
     cert = rate_certificate(des)
     verdict = "rate" if adaptive else f"rate {'certified' if cert.certified else 'NOT certified'}"
     lines += ["", f"{verdict}: {cert.text}"]
+    reach = fastest_rate(des)
+    if reach is not None:
+        lines.append(f"  {reach.text}")
     loss = loss_certificate(des)
     if loss is not None:
         lines.append(loss.text)  # "rate certified under loss: ..." or "not certified under loss: ..."
