@@ -266,6 +266,32 @@ def plot_sweep(res: dict, path: Path) -> None:
     plt.close(fig)
 
 
+def plot_rate_sweep(res: dict, path: Path) -> None:
+    """Steady RMS against the rate asked (``compare --sweep-rate``): the designs predicted (filled: rate certified,
+    hollow: not), the centralized references, the KCF measured."""
+    rows = res["rows"]
+    x = [r["rate"] for r in rows]
+    fig, ax = plt.subplots(figsize=(7.5, 4.6), layout="constrained")
+    for key, label, color in (("whole", "whole state (design.consensus: whole)", "C0"),
+                              ("split", "split (the paper's, riccati gains)", "C1")):
+        y = [np.nan if r[key]["rms"] is None else r[key]["rms"] for r in rows]
+        ax.plot(x, y, "-", color=color, label=label)
+        for xi, yi, r in zip(x, y, rows):
+            ax.plot(xi, yi, "o", color=color, mfc=color if r[key]["certified"] else "white")
+    for key, label, style in (("kalman", "centralized Kalman filter", "k--"),
+                              ("reference", "centralized, certified at the rate", "k:"),
+                              ("kcf", "KCF (measured, no certificate)", "C2-.")):
+        ax.plot(x, [np.nan if r[key] is None else r[key] for r in rows], style, label=label)
+    ax.set_yscale("log")
+    ax.set_xlabel("rate asked" + (" (per second)" if res["time"] == "continuous" else " (lam per event time)"))
+    ax.set_ylabel("steady-state RMS error")
+    ax.grid(True, alpha=0.3)
+    ax.legend(fontsize=7)
+    fig.suptitle(f"{res['scenario']}: what each rate costs in noise (filled: rate certified)")
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
 def plot_network_sweep(res: dict, path: Path) -> None:
     """Measured decay rate (and steady-state RMS when noisy) against loss or deadline, with the designed and the
     lossless rates; each seed a dot, the mean a line, levels certified under loss marked green."""

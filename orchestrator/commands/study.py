@@ -106,6 +106,11 @@ def cmd_compare(args: argparse.Namespace) -> int:
     seed0 = sc.run.seed if args.seed is None else args.seed
     _seed_range(seed0, args.seeds, "--seeds")
     check_trajectory_memory(sc, args.steps, key="--steps" if args.steps is not None else "run.steps")
+    if args.sweep_rate:
+        if args.sweep or args.sweep_loss or args.sweep_deadline:
+            raise UsageError("--sweep-rate is a study of its own: run it without --sweep, --sweep-loss or "
+                             "--sweep-deadline")
+        return _rate_sweep(args, sc, seed0)
     if args.sweep_loss or args.sweep_deadline:
         if args.sweep:
             raise UsageError("--sweep (q or g) and --sweep-loss/--sweep-deadline are separate studies: run one at a time")
@@ -155,6 +160,24 @@ def cmd_compare(args: argparse.Namespace) -> int:
     (out / "compare.json").write_text(json.dumps(res, indent=2) + "\n")
     lines.append(f"wrote {out}/compare.json" + "".join(f", {p}" for p in plots) +
                  (", sweep.json" if args.sweep else ""))
+    print("\n".join(lines))
+    return 0
+
+
+def _rate_sweep(args: argparse.Namespace, sc, seed0: int) -> int:
+    """``compare --sweep-rate``: the steady RMS of each estimator against the rate asked."""
+    from splitspec_core.studies.rate_sweep import check_rates, rate_sweep, rate_sweep_table
+
+    rates = check_rates(sc, args.sweep_rate)  # before any work: one line, exit 2
+    out = out_dir(args.out)
+    res = rate_sweep(sc, rates, seeds=range(seed0, seed0 + args.seeds), steps=args.steps)
+    (out / "rate_sweep.json").write_text(json.dumps(res, indent=2) + "\n")
+    lines = rate_sweep_table(res)
+    if not args.no_plots:
+        from .. import plots as P
+
+        P.plot_rate_sweep(res, out / "rate_sweep.png")
+    lines.append(f"wrote {out}/rate_sweep.json" + ("" if args.no_plots else ", rate_sweep.png"))
     print("\n".join(lines))
     return 0
 

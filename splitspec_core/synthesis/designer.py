@@ -160,10 +160,18 @@ def _choose(sc: Scenario, compare_q_methods: bool, workers: int | None) -> Desig
     pre = _Prelude.of(sc)
     found, errors = {}, {}
     for structure in ("whole", "split"):
+        if structure == "split" and _near_kalman(found.get("whole")):
+            break  # no estimator beats the centralized Kalman filter: the split cannot win by more than NEAR_KALMAN
         try:
             found[structure] = _design(pre, structure, compare_q_methods, workers)
         except (AssumptionError, DesignError) as exc:
             errors[structure] = exc
+    if set(found) == {"whole"} and not errors:
+        w = found["whole"]
+        rms, kf = _predicted_all(w), w.whole.kf_rms
+        return _annotated(w, f"design.consensus: auto chose the whole state (predicted steady RMS {rms:.4g}, within "
+                             f"{NEAR_KALMAN - 1:.0%} of the centralized Kalman filter's {kf:.4g}: no estimator does "
+                             "better; the split was not designed)")
     if not found:  # the split's refusal is the paper's: say it, and what the whole state met
         raise type(errors["split"])(f"{errors['split']} (and the whole-state design: {errors['whole']})")
     figures = {k: (bool(rate_certificate(des).certified), _predicted_all(des)) for k, des in found.items()}
@@ -175,7 +183,28 @@ def _choose(sc: Scenario, compare_q_methods: bool, workers: int | None) -> Desig
         pick = "split" if w is None and s_ is None else \
             ("whole" if (math.inf if w is None else w) <= (math.inf if s_ is None else s_) else "split")
     other = "split" if pick == "whole" else "whole"
-    return dataclasses.replace(found[pick], chosen=_chosen_text(pick, other, figures, errors))
+    return _annotated(found[pick], _chosen_text(pick, other, figures, errors))
+
+
+def _annotated(des: Design, chosen: str) -> Design:
+    """``des`` with the line saying why it was chosen; its analyses kept (the line changes none of them)."""
+    out = dataclasses.replace(des, chosen=chosen)
+    out._analyses.update(des._analyses)
+    return out
+
+
+#: a certified whole-state design within this factor of the centralized Kalman filter's predicted RMS is kept without
+#: designing the split (which cannot beat the Kalman filter either)
+NEAR_KALMAN = 1.1
+
+
+def _near_kalman(des: Design | None) -> bool:
+    """A certified whole-state design whose predicted steady RMS is within :data:`NEAR_KALMAN` of the Kalman
+    filter's."""
+    if des is None or des.whole is None or des.whole.kf_rms is None or not rate_certificate(des).certified:
+        return False
+    rms = _predicted_all(des)
+    return rms is not None and rms <= NEAR_KALMAN * des.whole.kf_rms
 
 
 def _predicted_all(des: Design) -> float | None:

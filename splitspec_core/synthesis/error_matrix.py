@@ -30,7 +30,9 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-if TYPE_CHECKING:  # annotations only: the data of a design, which imports nothing of this module
+from .design_data import cached_analysis
+
+if TYPE_CHECKING:  # annotations only
     from .design_data import Design
 
 __all__ = ["full_error_matrix", "ode_error_matrix", "modulo", "case_parts", "full_radius", "error_dynamics",
@@ -211,7 +213,13 @@ def error_dynamics(des: "Design", graph_index: int = 0) -> tuple:
 
 
 def predicted_rms(des: "Design", graph_index: int = 0) -> np.ndarray:
-    """Steady-state RMS error ``sqrt(trace Sigma_ii)`` of every agent (inf if the error map is unstable)."""
+    """Steady-state RMS error ``sqrt(trace Sigma_ii)`` of every agent (inf if the error map is unstable); computed
+    once per design and graph (a Lyapunov equation of size ``m n``: seconds at 1700)."""
+    return _predicted_rms(des, graph_index=int(graph_index)).copy()
+
+
+@cached_analysis
+def _predicted_rms(des: "Design", *, graph_index: int) -> np.ndarray:
     import scipy.linalg as sla
 
     sc = des.scenario

@@ -74,7 +74,7 @@ from .conditioning import transient_constant
 from .error_matrix import MAX_NOISE_DIM, MAX_RATE_DIM, step_blocks, whole_matrix, whole_noise
 from .kalman import kalman_predictor, per_step_rate, shifted_predictor, spectral_radius
 
-__all__ = ["WholeState", "Q_GAIN", "Q_EXTRA", "Q_CAP", "MARGINS", "case_radius", "mixing_bound",
+__all__ = ["WholeState", "Q_GAIN", "Q_EXTRA", "Q_CAP", "SEARCH_DIM", "MARGINS", "case_radius", "mixing_bound",
            "dwell_bound", "design_whole", "whole_gains", "agent_gain"]
 
 #: q is raised while one more exchange lowers the predicted steady RMS by more than this fraction
@@ -83,6 +83,11 @@ Q_GAIN = 0.01
 Q_EXTRA = 8
 #: the largest q the automatic search tries (design.q_max lowers it)
 Q_CAP = 512
+#: bisection steps of the shift alpha of the centralized filter (:func:`_alpha_for`)
+ALPHA_STEPS = 12
+#: up to this m n every candidate centralized filter is designed and the smallest predicted RMS kept; above it the
+#: first (the smallest centralized error) that certifies
+SEARCH_DIM = 400
 #: the centralized filter's margins tried when the Kalman filter is too slow for the rate: its radius at most
 #: ``lam^(1 + margin)`` per step (the distributed estimator approaches it as q grows)
 MARGINS = (0.03, 0.1, 0.3)
@@ -134,6 +139,21 @@ class WholeState:
 def case_radius(sc: Scenario, Fs_by_id: dict, case, q: int) -> float:
     """The spectral radius of the full error matrix of ``case`` (its graph and agents held constant) at ``q``."""
     return spectral_radius(whole_matrix([Fs_by_id[i] for i in case.graph.ids], case.graph.S, q))
+
+
+class _Radii(dict):
+    """Every agent's ``F_i`` (agent id -> matrix) and the case radii computed with them, each once (a dense
+    eigenvalue problem of size m n: a second at 1700)."""
+
+    def __init__(self, by_id: dict):
+        super().__init__(by_id)
+        self.cache: dict = {}
+
+    def of(self, sc: Scenario, case, q: int) -> float:
+        key = (case.label, int(q))
+        if key not in self.cache:
+            self.cache[key] = case_radius(sc, self, case, q)
+        return self.cache[key]
 
 
 def _predicted(sc: Scenario, Fs, Kss, S, q: int, Qn, R) -> float | None:
@@ -216,10 +236,8 @@ def _alpha_for(F, C, Q, R, target: float, kf) -> tuple:
         return 1.0, kf
     lo, hi = target, 1.0
     best = shifted_predictor(F, C, Q, R, lo)
-    for _ in range(40):
-        if hi - lo <= 1e-6 * (1.0 - target) + 1e-15:
-            break
-        mid = 0.5 * (lo + hi)
+    for _ in range(ALPHA_STEPS):  # on log(1 - alpha): alpha's distance to 1 within a few per cent
+        mid = 1.0 - math.sqrt((1.0 - lo) * (1.0 - hi)) if hi < 1.0 else 1.0 - 0.5 * (1.0 - lo)
         try:
             p = shifted_predictor(F, C, Q, R, mid)
         except DesignError:
@@ -283,10 +301,15 @@ def design_whole(sc: Scenario, cases, *, rate: float, dwell: float | None, warni
             candidates.append((margin, alpha, p, whole_gains(sc, p.L, pi)))
         if not candidates:
             raise DesignError(_no_centralized(lam))
+    # the smallest centralized error first; above SEARCH_DIM the first candidate that certifies is kept (each one
+    # costs eigenvalue and Lyapunov problems of size m n: seconds each at 1700)
+    candidates.sort(key=lambda c: math.inf if c[2] is None else c[2].rms)
     tried, best = [], None
     for margin, alpha, p, Ks in candidates:
+        if best is not None and sc.m * sc.n > SEARCH_DIM:
+            break
         Fs, Kss = step_blocks(sc.system.A, Ks, Cs, dt=sc.run.dt if sc.time == "continuous" else None)
-        by_id = dict(zip(sc.agent_ids, Fs))
+        by_id = _Radii(dict(zip(sc.agent_ids, Fs)))
         q_cert = _smallest_q(sc, by_id, cases, lam, q_cap) if q_given is None else q_given
         if q_cert is None:
             tried.append((margin, alpha, None, None, None))
@@ -297,13 +320,13 @@ def design_whole(sc: Scenario, cases, *, rate: float, dwell: float | None, warni
         tried.append((margin, alpha, q, radius, rms))
         key = (math.inf if rms is None else rms, q)
         if best is None or _better(key, best[0]):
-            best = (key, margin, alpha, p, Ks, q, q_cert, Fs)
+            best = (key, margin, alpha, p, Ks, q, q_cert, by_id)
     if best is None:
         raise DesignError(f"no whole-state design meets rate {lam:.6g} per event time with q <= {q_cap}: "
                           "the consensus cannot keep up with the gains (a slower design.rate, or a graph that mixes "
                           "faster)")
-    _, margin, alpha, p, Ks, q, q_cert, Fs = best
-    radii, cert = _certify(sc, dict(zip(sc.agent_ids, Fs)), cases, q, lam, dwell, warnings)
+    _, margin, alpha, p, Ks, q, q_cert, by_id = best
+    radii, cert = _certify(sc, by_id, cases, q, lam, dwell, warnings)
     Lp = p.L if p is not None else np.zeros((sc.n, C.shape[0]))
     info = WholeState(alpha=alpha if alpha is not None else float("nan"), L=Lp, pi=pi, lam_step=lam,
                       central_radius=p.radius if p is not None else float("nan"),
@@ -328,7 +351,7 @@ def _better(key: tuple, other: tuple) -> bool:
 def _radius_at(sc: Scenario, by_id: dict, cases, q: int) -> dict:
     if sc.m * sc.n > MAX_RATE_DIM:
         return {}
-    return {c.label: case_radius(sc, by_id, c, q) for c in cases}
+    return {c.label: by_id.of(sc, c, q) for c in cases}
 
 
 def _smallest_q(sc: Scenario, by_id: dict, cases, lam: float, q_cap: int) -> int | None:
@@ -338,7 +361,7 @@ def _smallest_q(sc: Scenario, by_id: dict, cases, lam: float, q_cap: int) -> int
         if sc.m * sc.n > MAX_RATE_DIM:
             groups = _same_agents(cases)
             return all(mixing_bound([by_id[i] for i in ids], Ss, q, lam) < lam for ids, Ss in groups.items())
-        return all(case_radius(sc, by_id, c, q) < lam for c in cases)
+        return all(by_id.of(sc, c, q) < lam for c in cases)
 
     q = 1
     while not ok(q):
@@ -357,14 +380,16 @@ def _smallest_q(sc: Scenario, by_id: dict, cases, lam: float, q_cap: int) -> int
 
 def _noise_q(sc: Scenario, Fs, Kss, S, q0: int, Qn, R, q_cap: int) -> tuple:
     """From the smallest certified ``q0``: raised while one more exchange lowers the predicted RMS by more than
-    :data:`Q_GAIN` (at most :data:`Q_EXTRA` more); ``(q, rms)`` (``rms`` None when not computed)."""
+    :data:`Q_GAIN` (at most :data:`Q_EXTRA` more; above :data:`SEARCH_DIM` two more at a time, once);
+    ``(q, rms)`` (``rms`` None when not computed)."""
     rms = _predicted(sc, Fs, Kss, S, q0, Qn, R)
     q = q0
-    while rms is not None and q < min(q0 + Q_EXTRA, q_cap):
-        nxt = _predicted(sc, Fs, Kss, S, q + 1, Qn, R)
-        if nxt is None or nxt > rms * (1.0 - Q_GAIN):
+    step, extra = (1, Q_EXTRA) if sc.m * sc.n <= SEARCH_DIM else (2, 2)
+    while rms is not None and q + step <= min(q0 + extra, q_cap):
+        nxt = _predicted(sc, Fs, Kss, S, q + step, Qn, R)
+        if nxt is None or nxt > rms * (1.0 - step * Q_GAIN):
             break
-        q, rms = q + 1, nxt
+        q, rms = q + step, nxt
     return q, rms
 
 
