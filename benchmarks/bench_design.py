@@ -16,10 +16,11 @@ Two tables, no timing assertions anywhere (the machine is shared):
 * how the cost grows with m (``--only scale``): the ring with one random chord per agent
   (:func:`splitspec_core.scenarios.generate.chord_arcs`: a ring of 1000 mixes too slowly to be useful), n = 6,
   one output per agent, rate 0.9, ``q: auto``, designed plain and resilient, each design in a fresh
-  process: wall seconds, the peak resident memory of that process (``wait4``), q, and how the spectral
+  process: wall seconds (median of ``--scale-repeat``), CPU seconds of the design and its workers (what it costs
+  whatever else loads the machine), the peak resident memory of that process (``wait4``), q, and how the spectral
   radii were computed (``dense``/``iterative``, :mod:`splitspec_core.synthesis.spectral`).  Resilient designs run with one
   process and with every core (:mod:`splitspec_core.parallel`: the loss cases on worker processes); plain and
-  resilient alternate per size; the load average is printed beside each.
+  resilient alternate per size; the 1-minute load average after each run is printed beside them.
 
     .venv/bin/python benchmarks/bench_design.py [--sizes 5 20 50 100] [--repeat 1]
     .venv/bin/python benchmarks/bench_design.py --only ring [--ring-sizes 50 100] [--ring-n 4] [--ring-repeat 3] [--cli]
@@ -109,11 +110,21 @@ def _timer(raw: dict, cli: bool, tmp: Path):
 def _child(m: int, resilience: int, rate: float, n: int, workers: int) -> None:
     """One design in this (fresh) process: prints its JSON line (the parent measures its memory)."""
     sc = parse_scenario(ring_scenario(m, n, resilience=resilience, rate=rate, chords=True), source="<bench>")
+    c0 = _cpu_seconds()
     t0 = time.perf_counter()
     des = design(sc, workers=workers or None)
     t = time.perf_counter() - t0
-    print(json.dumps({"seconds": t, "q": des.q, "nbar": des.cases[0].nbar, "cases": len(des.cases),
-                      "eig": des.q_result.eig}))
+    print(json.dumps({"seconds": t, "cpu": _cpu_seconds() - c0, "q": des.q, "nbar": des.cases[0].nbar,
+                      "cases": len(des.cases), "eig": des.q_result.eig}))
+
+
+def _cpu_seconds() -> float:
+    """User + system CPU seconds of this process and of its workers that have ended (a design's pool is shut down,
+    its workers waited for, before it returns): what a design costs whatever else loads the machine."""
+    import resource
+
+    own, ended = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+    return own.ru_utime + own.ru_stime + ended.ru_utime + ended.ru_stime
 
 
 def _pss_mb(pid: int) -> float:
@@ -178,8 +189,8 @@ def scale_table(args) -> None:
           f"fresh process; OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS', 'unset')}; "
           f"resilient designs with 1 process and with every core ({cores} workers); memory: the process's peak "
           f"RSS, and the peak proportional set size of the process and its workers together (sampled every 0.1 s)")
-    print(f"{'m':>5} {'nbar':>6} {'design':>14} {'cases':>6} {'q':>3} {'seconds':>9} {'peak MB':>8} {'PSS MB':>8}  "
-          f"{'spectral radii':<28} loadavg")
+    print(f"{'m':>5} {'nbar':>6} {'design':>14} {'cases':>6} {'q':>3} {'seconds':>9} {'CPU s':>8} {'peak MB':>8} "
+          f"{'PSS MB':>8}  {'spectral radii':<28} loadavg (after each run)")
     for m in args.scale_sizes:
         kinds = [("plain", 0, 1)]
         if m <= args.scale_resilient_max:
@@ -193,10 +204,12 @@ def scale_table(args) -> None:
             res = [r for r, _ in rows[k]]
             r = res[0]
             secs = statistics.median(x["seconds"] for x in res)
+            cpu = statistics.median(x["cpu"] for x in res)
             peak = max(x["peak_mb"] for x in res)
             total = max(x["pss_mb"] for x in res)
-            print(f"{m:>5} {r['nbar']:>6} {k[0]:>14} {r['cases']:>6} {r['q']:>3} {secs:>9.2f} {peak:>8.0f} "
-                  f"{total:>8.0f}  {_eig(r['eig']):<28} {rows[k][-1][1]}", flush=True)
+            loads = "; ".join(load.split()[0] for _, load in rows[k])
+            print(f"{m:>5} {r['nbar']:>6} {k[0]:>14} {r['cases']:>6} {r['q']:>3} {secs:>9.2f} {cpu:>8.2f} {peak:>8.0f} "
+                  f"{total:>8.0f}  {_eig(r['eig']):<28} {loads}", flush=True)
         secs = {k[0]: statistics.median(x["seconds"] for x, _ in rows[k]) for k in kinds}
         for k in kinds[1:]:
             print(f"{'':>5} {k[0]} / plain: {secs[k[0]] / secs['plain']:.2f}", flush=True)

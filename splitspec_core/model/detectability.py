@@ -42,6 +42,8 @@ After losses the survivors' ``W_S`` (the intersection over the survivors) contai
 argument, with ``W_S`` in place of ``W``, gives their certificate: the quotient by ``W_S``
 (:func:`quotient_basis` of the design's ``V_i``) and the decay of ``A`` on ``W_S`` (the consensus still
 running on ``W_S ⊖ W`` only speeds that part up: its error map there is ``exp(A_22 t) (x) exp(-g (I - S) t)``).
+The design asks it of every single loss at once (:func:`unobserved_without_each`): the m intersections of m - 1
+subspaces share their triangular factors, O(m) factorizations in all.
 """
 
 from __future__ import annotations
@@ -54,11 +56,11 @@ import numpy as np
 from ..scenarios.labels import combination, heaviest, spread
 from .modal import Spectrum, rescale
 from .observability import ROUND_OFF, split_residual_of, threshold_of
-from .subspaces import complement, intersection
+from .subspaces import complement, intersection, intersections_without_each, triangular_without_each
 from .subspaces import difference as quotient_basis  # V_i ⊖ W: the estimator's V_i
 
-__all__ = ["BACKOFF", "Unobserved", "unobserved", "unobserved_of", "quotient_basis", "still_text", "envelope_rate",
-           "not_detectable_text", "directions_of"]
+__all__ = ["BACKOFF", "Unobserved", "UnobservedOf", "unobserved", "unobserved_of", "unobserved_without_each",
+           "quotient_basis", "still_text", "envelope_rate", "not_detectable_text", "directions_of"]
 
 #: a W that limits the rate is certified at this fraction of its decay rate (module docstring)
 BACKOFF = 0.9
@@ -193,11 +195,35 @@ def unobserved(sp: Spectrum, A: np.ndarray, C: np.ndarray, Vs, *, time: str, nam
     by up to about that much, and consensus could recover a direction that every ``V_i`` holds only that closely
     only with a gain of order one over its square (the split is then approximate: ``residual``)."""
     A = np.asarray(A, dtype=float)
+    Wb = intersection([rescale(V, coords, sp.d) for V in Vs], A.shape[0], tol=threshold_of(rank_tol))
+    return _unobserved_in(sp, A, np.asarray(C, dtype=float) * sp.d[None, :], Wb, time=time, names=names,
+                          coords=coords)
+
+
+def unobserved_without_each(sp: Spectrum, A: np.ndarray, Cs, Vs, *, time: str, names,
+                            rank_tol: float | None = None, coords: np.ndarray | None = None) -> list:
+    """``[unobserved(...) of every agent but k for k]`` (``Cs``, ``Vs``: each agent's ``C_i`` and ``V_i``): the
+    survivors' ``W_S`` of every single loss, equal to :func:`unobserved` of the survivors to round-off (the same
+    test on the same singular values; a basis of ``W_S`` may be another rotation of it), in O(m) factorizations
+    of at most ``2n`` rows (:func:`~splitspec_core.model.subspaces.triangular_without_each`) instead of m of
+    ``(m - 1) n`` rows.  The residual's ``|C_b W_b|`` and ``|C_b|`` (2-norms) are those of the survivors' rows'
+    triangular factor, computed only when some ``W_S`` is not empty."""
+    A = np.asarray(A, dtype=float)
     n = A.shape[0]
-    Wb = intersection([rescale(V, coords, sp.d) for V in Vs], n, tol=threshold_of(rank_tol))
+    Wbs = intersections_without_each([rescale(V, coords, sp.d) for V in Vs], n, tol=threshold_of(rank_tol))
+    if any(Wb.shape[1] for Wb in Wbs):
+        Rs = triangular_without_each([np.asarray(C, dtype=float) * sp.d[None, :] for C in Cs], n)
+    else:
+        Rs = [np.zeros((0, n))] * len(Wbs)  # the residual of an empty W_S is 0: no rows read
+    return [_unobserved_in(sp, A, R, Wb, time=time, names=names, coords=coords) for R, Wb in zip(Rs, Wbs)]
+
+
+def _unobserved_in(sp: Spectrum, A: np.ndarray, Cb: np.ndarray, Wb: np.ndarray, *, time: str, names,
+                   coords: np.ndarray | None) -> Unobserved:
+    """The :class:`Unobserved` of ``W_b`` (orthonormal, balanced coordinates); ``C_b``: the agents' rows in balanced
+    coordinates, or any matrix with their 2-norms on every subspace (their triangular factor)."""
     W = sp.to_user(Wb)
     Ww = None if coords is None else rescale(Wb, sp.d, coords)
-    Cb = np.asarray(C, dtype=float) * sp.d[None, :]
     residual = split_residual_of(sp.A_b, Cb, complement(Wb).T, Wb) if Wb.shape[1] else 0.0
     eigs = np.linalg.eigvals(W.T @ A @ W) if W.shape[1] else np.zeros(0, complex)
     return Unobserved(W=W, eigs=eigs, time=time, residual=residual, scale=float(np.linalg.norm(sp.A_b, 2)),
@@ -223,18 +249,41 @@ def envelope_rate(rate: float, un: Unobserved | None) -> float:
     return rate if un is None else un.envelope(rate)
 
 
-def unobserved_of(sc, sp: Spectrum, full_V: dict, coords: np.ndarray | None = None):
+class UnobservedOf:
     """``alive -> Unobserved``: what a set of agents of the scenario ``sc`` leaves unobserved, from their own
-    unobservable spaces ``full_V`` (agent id -> ``V_i`` in the coordinates ``x = diag(coords) x_w``)."""
-    Cs = dict(zip(sc.agent_ids, sc.system.Cs))
+    unobservable spaces ``full_V`` (agent id -> ``V_i`` in the coordinates ``x = diag(coords) x_w``); and
+    :meth:`without_each`, every single loss at once."""
 
-    def of(alive) -> Unobserved:
-        ids = [a for a in sc.agent_ids if a in set(alive)]
-        C = np.vstack([Cs[a] for a in ids]) if ids else np.zeros((0, sc.n))
-        return unobserved(sp, sc.system.A, C, [full_V[a] for a in ids], time=sc.time, names=sc.state_names,
-                          rank_tol=sc.design.rank_tol, coords=coords)
+    def __init__(self, sc, sp: Spectrum, full_V: dict, coords: np.ndarray | None = None):
+        self._sc, self._sp, self._full_V, self._coords = sc, sp, full_V, coords
+        self._Cs = dict(zip(sc.agent_ids, sc.system.Cs))
 
-    return of
+    def _kw(self) -> dict:
+        sc = self._sc
+        return dict(time=sc.time, names=sc.state_names, rank_tol=sc.design.rank_tol, coords=self._coords)
+
+    def __call__(self, alive) -> Unobserved:
+        sc = self._sc
+        alive = set(alive)
+        ids = [a for a in sc.agent_ids if a in alive]
+        C = np.vstack([self._Cs[a] for a in ids]) if ids else np.zeros((0, sc.n))
+        return unobserved(self._sp, sc.system.A, C, [self._full_V[a] for a in ids], **self._kw())
+
+    def without_each(self, ids) -> dict:
+        """``{k: self(ids without k) for k in ids}`` to round-off (:func:`unobserved_without_each`: O(m), not
+        O(m^2), factorizations)."""
+        chosen = set(ids)
+        ids = [a for a in self._sc.agent_ids if a in chosen]
+        each = unobserved_without_each(self._sp, self._sc.system.A, [self._Cs[a] for a in ids],
+                                       [self._full_V[a] for a in ids], **self._kw())
+        return dict(zip(ids, each))
+
+
+def unobserved_of(sc, sp: Spectrum, full_V: dict, coords: np.ndarray | None = None) -> UnobservedOf:
+    """``alive -> Unobserved`` (an :class:`UnobservedOf`): what a set of agents of the scenario ``sc`` leaves
+    unobserved, from their own unobservable spaces ``full_V`` (agent id -> ``V_i`` in the coordinates
+    ``x = diag(coords) x_w``)."""
+    return UnobservedOf(sc, sp, full_V, coords)
 
 
 def not_detectable_text(un: Unobserved, decs, rank_tol: float | None) -> str:

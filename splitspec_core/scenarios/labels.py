@@ -22,6 +22,8 @@ NAME_PATTERN = re.compile(r"[A-Za-z_][A-Za-z0-9_.\-]{0,63}")
 SHOWN = 5
 #: components smaller than this fraction of the largest are not named
 NEGLIGIBLE = 5e-4
+#: components within this fraction of the largest of each other are equal (round-off): named in the states' order
+TIE = 1e-9
 
 
 #: a model of at most this many states shows every one in the default views (run.rrd's states tab, states.png);
@@ -62,6 +64,21 @@ def default_output_names(agent_id: int, s: int) -> tuple:
     return (f"y{agent_id}",) if s == 1 else tuple(f"y{agent_id}_{k + 1}" for k in range(s))
 
 
+def _largest_first(values: np.ndarray) -> list:
+    """Indices of the non-negligible ``values`` (at least :data:`NEGLIGIBLE` of the largest), the largest first;
+    values equal to within :data:`TIE` of the largest (a run of them, each that close to the next) in index order,
+    so the order does not depend on the round-off of the path that computed them."""
+    top = float(values.max())
+    order = [int(k) for k in np.argsort(-values, kind="stable") if values[k] >= NEGLIGIBLE * top]
+    out, run = [], []
+    for k in order:
+        if run and values[run[-1]] - values[k] > TIE * top:
+            out += sorted(run)
+            run = []
+        run.append(k)
+    return out + sorted(run)
+
+
 def _coefficient(c: float, first: bool) -> str:
     mag = abs(c)
     num = "" if abs(mag - 1.0) < 5e-4 else f"{mag:.2g} "
@@ -80,14 +97,14 @@ def combination(v: np.ndarray, names, *, limit: int = SHOWN) -> str:
     if not mags.size or mags.max() == 0.0:
         return "0"
     top = mags.max()
-    order = [int(k) for k in np.argsort(-mags, kind="stable") if mags[k] >= NEGLIGIBLE * top]
+    order = _largest_first(mags)
     shown = order[:limit]
     rest = len(order) - len(shown)
     more = f" (+ {rest} smaller)" if rest else ""
     if np.iscomplexobj(v):
         amp = [names[k] + ("" if abs(mags[k] / top - 1.0) < 5e-4 else f" ({mags[k] / top:.2g})") for k in shown]
         return ", ".join(amp) + more
-    vals = v / v[np.argmax(mags)]
+    vals = v / v[order[0]]
     return "".join(_coefficient(float(vals[k]), j == 0) + names[k] for j, k in enumerate(shown)) + more
 
 
@@ -97,7 +114,7 @@ def heaviest(W: np.ndarray, names, *, limit: int = SHOWN) -> list:
     weight = np.sum(np.abs(W) ** 2, axis=1)
     if not weight.size or weight.max() == 0.0:
         return []
-    order = [int(k) for k in np.argsort(-weight, kind="stable") if weight[k] >= NEGLIGIBLE * weight.max()]
+    order = _largest_first(weight)
     return [names[k] for k in order[:limit]] + ([f"{len(order) - limit} more"] if len(order) > limit else [])
 
 
