@@ -23,6 +23,7 @@ import numpy as np
 from .synthesis.design_data import Design
 from .errors import ScenarioError
 from .synthesis.verdict import rate_certificate
+from .synthesis.report import design_warnings
 from .scenarios.checks import DESIGN_KEYS, RUN_KEYS, SYSTEM_KEYS
 from .scenarios.control import plant_keywords
 from .scenarios.load import ORIGIN, parse_scenario
@@ -196,7 +197,7 @@ class Checks:
         return cls(jointly_observable=un.dim == 0, jointly_detectable=un.decays, rate_certified=cert.certified,
                    strongly_connected=MappingProxyType(connected), certificate=cert.text,
                    sampled_rate=min(des.sampled_rate.values()) if des.sampled_rate else None,
-                   warnings=tuple(des.warnings), unobserved=un.summary(des.rate) if un.dim else None,
+                   warnings=tuple(design_warnings(des)), unobserved=un.summary(des.rate) if un.dim else None,
                    envelope_rate=cert.rate)
 
 

@@ -129,7 +129,8 @@ def cmd_compare(args: argparse.Namespace) -> int:
             lines.append(f"  {name:<22} {'-':>11} {'':>9} {'-':>9} {pred:>10} {'not settled':>11} {st:>11} "
                          f"{r.messages_per_event:>10}")
             continue
-        lines.append(f"  {name:<22} {r.rms_mean:11.4g} {r.rms_std:9.2g} {r.ratio_to_centralized:9.3f} "
+        ratio = "-" if r.ratio_to_centralized is None else f"{r.ratio_to_centralized:.3f}"
+        lines.append(f"  {name:<22} {r.rms_mean:11.4g} {r.rms_std:9.2g} {ratio:>9} "
                      f"{pred:>10} {r.steady_from:11g} {st:>11} {r.messages_per_event:>10}")
     lines += [f"  {name}: {r.note}" for name, r in result.estimators.items() if r.note]
     lines += [f"  {name}: not designed: {why}" for name, why in result.failed.items()]

@@ -43,7 +43,7 @@ from ..simulation.montecarlo import simulate_seeds
 from .baselines import baseline_seeds, baseline_trajectories, sampled_model
 from ..synthesis.bounds import nice_ceil
 from ..synthesis.conditioning import conditioning, transient_constant
-from ..synthesis.designer import design
+from ..synthesis.designer import SPLIT_BESIDE, design
 from ..synthesis.kalman import per_step_rate, references
 from ..synthesis.verdict import ADAPTIVE, NO_CERTIFIED_RATE
 from ..errors import DesignError
@@ -176,7 +176,7 @@ def _scenario_row(sc: Scenario, des) -> str:
         return f"optimal ({'whole state' if des.consensus == 'whole' else 'split'})"
     if des.consensus == "whole":
         return f"whole ({sc.design.gains})"
-    return f"split ({sc.design.gains})" if sc.design.gains == "explicit" else f"split {sc.design.gains}"
+    return "split (scenario)" if sc.design.gains == "explicit" else f"split {sc.design.gains}"
 
 
 def compare(sc: Scenario, *, seeds, steps: int | None = None, eps: float | None = None) -> CompareResult:
@@ -199,11 +199,16 @@ def compare(sc: Scenario, *, seeds, steps: int | None = None, eps: float | None 
     variants = {_scenario_row(sc, own): own}
     for gains in ("place", "riccati"):
         name = f"split {gains}"
-        if name not in variants:
-            try:
-                variants[name] = design(_variant(sc, gains))
-            except DesignError as exc:  # e.g. a local Riccati equation without a solution at this rate
-                variants[name] = str(exc)
+        if name in variants:
+            continue
+        if sc.m * sc.n > SPLIT_BESIDE and own.consensus == "whole":
+            variants[name] = (f"not designed at m n = {sc.m * sc.n} (the split's full error matrices and g search cost "
+                              "minutes there): splitspec design with design.consensus: split designs it")
+            continue
+        try:
+            variants[name] = design(_variant(sc, gains))
+        except DesignError as exc:  # e.g. a local Riccati equation without a solution at this rate
+            variants[name] = str(exc)
     tuned, notes = None, {}
     if sc.m * sc.n <= TUNE_MAX:
         try:
@@ -225,24 +230,26 @@ def compare(sc: Scenario, *, seeds, steps: int | None = None, eps: float | None 
     curves = {name: r.rms() for name, r in runs.items()}
     T = runs["centralized KF"].t
     # noise-free transients (first seed)
-    settle, rate = {}, {}
+    settle, rate, clean = {}, {}, {}  # clean: the noise-free stacked error ||e(k)||, (T,)
     for name, des in variants.items():
         tr = simulate(des, seed=seeds[0], steps=steps, noise=False, progress=False)
         e = tr.errors()
         settle[name] = settle_time(tr.t, e)
         rate[name] = fit_decay(tr.t, np.nanmax(e, axis=1), time=sc.time, scale=np.linalg.norm(tr.x, axis=1))
+        clean[name] = np.sqrt(np.nansum(e ** 2, axis=1))
     b0 = baseline_trajectories(sc, seeds[0], exchanges=exchanges, steps=steps, noise=False, eps=eps)
     for name, key in (("centralized KF", "centralized"), ("KCF", "kcf")):
         e = _errors(b0[key], b0["x"])
         settle[name] = settle_time(b0["t"], e)
         worst = e if e.ndim == 1 else np.nanmax(e, axis=1)
         rate[name] = fit_decay(b0["t"], worst, time=sc.time, scale=np.linalg.norm(b0["x"], axis=1))
+        clean[name] = e if e.ndim == 1 else np.sqrt(np.nansum(e ** 2, axis=1))
     # the adaptive gain has no steady state (g_i(t) keeps moving), so no predicted RMS; none above MAX_NOISE_DIM
     predicted = {name: _predicted_all(des) for name, des in variants.items()}
     predicted["centralized KF"] = None if kf is None else kf.rms
     if extra:
         predicted["centralized at rate"] = ref.rms
-    starts = _steady_starts(sc, variants, runs, predicted, kf, ref if extra else None, len(T))
+    starts, how = _steady_starts(sc, variants, runs, predicted, kf, ref if extra else None, len(T), clean)
     m = sc.m
     messages = {name: m * des.q if des.two_rate else m for name, des in variants.items()}
     messages["KCF"] = m * exchanges
@@ -257,7 +264,7 @@ def compare(sc: Scenario, *, seeds, steps: int | None = None, eps: float | None 
         des = variants.get(name)
         cert = None if des is None else rate_certificate(des)
         k0 = starts[name]
-        notes[name] = (None if k0 is not None else
+        notes[name] = (how.get(name) if k0 is not None else
                        f"its transient outlasts the {len(T) - 1} steps of the run (no steady state measured): "
                        "compare --steps longer")
         table[name] = EstimatorResult(
@@ -297,17 +304,26 @@ def _predicted_all(des) -> float | None:
     return float(np.sqrt(np.mean(predicted_rms(des) ** 2)))
 
 
-def _steady_starts(sc: Scenario, variants: dict, runs: dict, predicted: dict, kf, ref, T: int) -> dict:
-    """Each row's first steady step (:func:`steady_start`): a design from its transient constant and envelope rate
-    (:func:`~splitspec_core.synthesis.conditioning.conditioning`), the centralized predictors from theirs (``n x n``),
-    the KCF from the latest of the others."""
-    out = {}
+def _steady_starts(sc: Scenario, variants: dict, runs: dict, predicted: dict, kf, ref, T: int, clean: dict) -> tuple:
+    """``(start, how)``: each row's first steady step (:func:`steady_start`) and, where it was not certified, why.
+
+    A design from its transient constant and envelope rate (:func:`~splitspec_core.synthesis.conditioning.conditioning`),
+    the centralized predictors from theirs (``n x n``); where no constant was computed (``m n`` above ``MAX_DIM``),
+    measured: the first step after which the noise-free run's stacked error (``clean``, same initial values) stays
+    below :data:`SETTLED` of the predicted steady one; the KCF, which certifies nothing, from the latest of the others.
+    """
+    out, how = {}, {}
+    floors = {name: (predicted[name] * math.sqrt(sc.m) if predicted[name] is not None else None) for name in variants}
     for name, des in variants.items():
-        cond = conditioning(des)
-        r = per_step_rate(sc, des.envelope_rate)
+        c = conditioning(des).transient_constant
         e0 = float(np.sqrt(np.max(runs[name].sq_error[:, 0])))
-        floor = predicted[name] * math.sqrt(sc.m) if predicted[name] is not None else None
-        out[name] = steady_start(cond.transient_constant, r, e0, floor or 0.0, T) if floor else None
+        floor = floors[name]
+        out[name] = steady_start(c, per_step_rate(sc, des.envelope_rate), e0, floor, T) if floor else None
+        if out[name] is None and c is None and floor and name in clean:
+            out[name] = _measured_start(clean[name], floor)
+            if out[name] is not None:
+                how[name] = (f"steady from the noise-free run's error below {SETTLED:g} of the predicted (no certified "
+                             f"transient constant at m n = {sc.m * sc.n})")
     F, _, _ = sampled_model(sc)
     C = np.vstack([np.asarray(c, dtype=float) for c in sc.system.Cs])
     for name, p in (("centralized KF", kf), ("centralized at rate", ref)):
@@ -320,7 +336,14 @@ def _steady_starts(sc: Scenario, variants: dict, runs: dict, predicted: dict, kf
         out[name] = steady_start(c, r, e0, p.rms, T)
     settled = [k for k in out.values() if k is not None]
     out["KCF"] = max(settled) if settled else None
-    return out
+    return out, how
+
+
+def _measured_start(err: np.ndarray, floor: float) -> int | None:
+    """The first step after which ``err`` stays below :data:`SETTLED` of ``floor`` (None: it never does)."""
+    above = np.flatnonzero(~(np.asarray(err) <= SETTLED * floor))
+    k = 0 if above.size == 0 else int(above[-1]) + 1
+    return k if k < len(err) else None
 
 
 def sweep(sc: Scenario, *, seed: int, steps: int | None = None, values=None) -> dict:

@@ -35,7 +35,7 @@ from .error_matrix import MAX_DIM, MAX_NOISE_DIM, case_parts, full_error_matrix,
 from .kalman import references
 
 __all__ = ["AgentConditioning", "Conditioning", "Transient", "conditioning", "transient_constant",
-           "MARGIN_WARN", "GAIN_WARN", "TRANSIENT_WARN"]
+           "time_scale_warning", "MARGIN_WARN", "GAIN_WARN", "TRANSIENT_WARN", "TIME_SCALE_WARN"]
 
 #: a kept direction with a graded margin below this is warned about (10 x the default threshold)
 MARGIN_WARN = 1e-2
@@ -221,17 +221,11 @@ def conditioning(des: Design) -> Conditioning:
         ac = AgentConditioning(id=a.id, observability_margin=a.dec.margin, gain_norm=gain_norm, gain_ratio=ratio,
                                weak=a.dec.weak, split_residual=a.dec.split_residual)
         agents.append(ac)
-        if des.consensus == "whole":  # no local observer: margins and local gain sizes are the split's concerns
-            continue
-        if ac.observability_margin is not None and ac.observability_margin < MARGIN_WARN:
-            warnings.append(f"agent {a.id} sees a direction with an observability margin of only "
-                            f"{ac.observability_margin:.2g} (< {MARGIN_WARN:g}; its gain grows like 1 / margin): "
-                            f"unless the model is that accurate, set design.rank_tol above "
-                            f"{ac.observability_margin:.2g} to leave it to consensus")
-        if ratio > GAIN_WARN:
-            warnings.append(f"agent {a.id}'s gain is large: ||K_{a.id} C_{a.id}|| = {ratio:.2g} times the system's "
-                            f"own scale (> {GAIN_WARN:g}); a slower design.rate, a smaller design.margin or "
-                            f"design.gains: riccati would shrink it")
+    if des.consensus != "whole":  # no local observer in the whole state: margins and local gains are the split's
+        warnings += _agent_warnings(agents)
+    scale_note = time_scale_warning(sc)
+    if scale_note:
+        warnings.append(scale_note)
     const, case_label, method = _transient(des, warnings)
     rms, graph, kf_rms, ref_rms = None, None, None, None
     s = sc.system
@@ -245,6 +239,65 @@ def conditioning(des: Design) -> Conditioning:
     return Conditioning(agents=tuple(agents), transient_constant=const, transient_case=case_label,
                         transient_method=method, predicted_rms=rms, predicted_graph=graph,
                         warnings=tuple(warnings), kalman_rms=kf_rms, reference_rms=ref_rms)
+
+
+#: a continuous plant whose fastest mode moves less than this fraction per run.dt is told that run.dt is far off
+TIME_SCALE_WARN = 1e-4
+
+
+def _duration(seconds: float) -> str:
+    for unit, size in (("h", 3600.0), ("min", 60.0), ("s", 1.0), ("ms", 1e-3)):
+        if seconds >= size or unit == "ms":
+            return f"{seconds / size:.3g} {unit}"
+    return f"{seconds:.3g} s"  # pragma: no cover
+
+
+def time_scale_warning(sc) -> str | None:
+    """A continuous plant whose time constants are far from ``run.dt`` (hours against the default 0.01 s): its
+    fastest mode (the largest ``|eig(A)|``) moves less than :data:`TIME_SCALE_WARN` of itself per step, so a run of
+    ``run.steps`` steps shows nothing happen; None when they fit (or in discrete time)."""
+    if sc.time != "continuous":
+        return None
+    ev = np.abs(np.linalg.eigvals(np.asarray(sc.system.A, dtype=float)))
+    fastest = float(ev.max()) if ev.size else 0.0
+    dt = sc.run.dt
+    if fastest == 0.0 or fastest * dt >= TIME_SCALE_WARN:
+        return None
+    tau = 1.0 / fastest
+    slowest = 1.0 / float(ev[ev > 0].min())
+    span = _duration(tau) if slowest <= tau * 1.01 else f"{_duration(tau)} to {_duration(slowest)}"
+    return (f"the plant's time constants are {span} against run.dt = {_duration(dt)}: a run of {sc.run.steps} steps "
+            f"covers {_duration(sc.run.steps * dt)}, {sc.run.steps * dt / tau:.2g} of the fastest; set run.dt near "
+            f"a tenth of it ({_duration(tau / 10)}) and design.rate in the plant's units")
+
+
+def _agents_text(ids) -> str:
+    ids = list(ids)
+    return f"agent {ids[0]}" if len(ids) == 1 else "agents " + ", ".join(map(str, ids[:-1])) + f" and {ids[-1]}"
+
+
+def _span(values) -> str:
+    lo, hi = min(values), max(values)
+    return f"{lo:.2g}" if f"{lo:.2g}" == f"{hi:.2g}" else f"{lo:.2g} to {hi:.2g}"
+
+
+def _agent_warnings(agents) -> list:
+    """One line per kind, naming every agent it concerns (not one line per agent): observability margins below
+    :data:`MARGIN_WARN`, gains above :data:`GAIN_WARN` times the system's scale.  What to do about them is the
+    report's advice, each knob tried (:mod:`.advice`)."""
+    out = []
+    weak = [a for a in agents if a.observability_margin is not None and a.observability_margin < MARGIN_WARN]
+    if weak:
+        out.append(f"{_agents_text(a.id for a in weak)} {'sees a direction' if len(weak) == 1 else 'see directions'} "
+                   f"with an observability margin of only {_span([a.observability_margin for a in weak])} "
+                   f"(< {MARGIN_WARN:g}): the local gain grows like 1 / margin, and so does its noise; a model less "
+                   f"accurate than that does not really show it (design.rank_tol above "
+                   f"{max(a.observability_margin for a in weak):.2g} leaves it to consensus)")
+    big = [a for a in agents if a.gain_ratio > GAIN_WARN]
+    if big:
+        out.append(f"{_agents_text(a.id for a in big)}: ||K_i C_i|| is {_span([a.gain_ratio for a in big])} times the "
+                   f"system's own scale (> {GAIN_WARN:g}): large local gains amplify each sensor's noise")
+    return out
 
 
 def _transient(des: Design, warnings: list) -> tuple:
@@ -277,9 +330,7 @@ def _transient(des: Design, warnings: list) -> tuple:
     method = f"sup_k ||M^k|| / rate^k of {what}{at}, {where}, graph {case.label} held constant: " + t.method
     if t.constant is not None and t.constant > TRANSIENT_WARN:
         who = "" if t.agent_index is None else f", agent {case.graph.ids[t.agent_index]}'s error peaking"
-        knob = "design.q" if des.two_rate else "design.g"
         value = "infinite" if math.isinf(t.constant) else f"{t.constant:.2g}"
         warnings.append(f"errors can grow {value}-fold before they decay (transient_constant, graph {case.label}"
-                        f"{who}; > {TRANSIENT_WARN:g}): a larger {knob}, a slower design.rate or smaller local "
-                        "gains (design.rank_tol, design.margin) would reduce it")
+                        f"{who}; > {TRANSIENT_WARN:g})")
     return t.constant, case.label, method

@@ -180,7 +180,8 @@ class Design:
 
 def cached_analysis(fn):
     """``fn(des, **options)`` computed once per design and options, on first use (kept in the design's own cache:
-    the design is frozen, and a design made from it by ``dataclasses.replace`` starts with an empty one)."""
+    the design is frozen, and a design made from it by ``dataclasses.replace`` starts with an empty one).
+    ``cached.remember(des, value, **options)`` keeps a value the design computed on its way instead."""
     name = f"{fn.__module__}.{fn.__qualname__}"
 
     @functools.wraps(fn)
@@ -190,4 +191,8 @@ def cached_analysis(fn):
             des._analyses[key] = fn(des, **options)
         return des._analyses[key]
 
+    def remember(des: Design, value, **options) -> None:
+        des._analyses[(name, *sorted(options.items()))] = value
+
+    cached.remember = remember
     return cached

@@ -31,7 +31,7 @@ from . import bounds
 from ..errors import AssumptionError, DesignError
 from .design_data import Design
 from ..model.detectability import not_detectable_text, quotient_basis, still_text, unobserved_of
-from .error_matrix import MAX_NOISE_DIM, MAX_RATE_DIM, full_radius, predicted_rms
+from .error_matrix import MAX_NOISE_DIM, MAX_RATE_DIM, full_radius, predicted_rms, remember_predicted
 from ..model.gain_target import beyond_target
 from ..model.graphs import build_graph, enumerate_strongly_connected
 from ..model.local_design import (design_agent, riccati_weights, scenario_spectrum, whole_placeholder, with_gain,
@@ -159,19 +159,19 @@ def _choose(sc: Scenario, compare_q_methods: bool, workers: int | None) -> Desig
     neither certified: the one with the smaller predicted RMS.  ``Design.chosen`` says which and why."""
     pre = _Prelude.of(sc)
     found, errors = {}, {}
+    skip = None
     for structure in ("whole", "split"):
-        if structure == "split" and _near_kalman(found.get("whole")):
-            break  # no estimator beats the centralized Kalman filter: the split cannot win by more than NEAR_KALMAN
+        if structure == "split":
+            skip = _skip_split(found.get("whole"))
+            if skip:
+                break
         try:
             found[structure] = _design(pre, structure, compare_q_methods, workers)
         except (AssumptionError, DesignError) as exc:
             errors[structure] = exc
-    if set(found) == {"whole"} and not errors:
-        w = found["whole"]
-        rms, kf = _predicted_all(w), w.whole.kf_rms
-        return _annotated(w, f"design.consensus: auto chose the whole state (predicted steady RMS {rms:.4g}, within "
-                             f"{NEAR_KALMAN - 1:.0%} of the centralized Kalman filter's {kf:.4g}: no estimator does "
-                             "better; the split was not designed)")
+    if skip:
+        return _annotated(found["whole"], f"design.consensus: auto chose the whole state ({skip}; the split was not "
+                                          "designed: design.consensus: split designs it)")
     if not found:  # the split's refusal is the paper's: say it, and what the whole state met
         raise type(errors["split"])(f"{errors['split']} (and the whole-state design: {errors['whole']})")
     figures = {k: (bool(rate_certificate(des).certified), _predicted_all(des)) for k, des in found.items()}
@@ -198,13 +198,26 @@ def _annotated(des: Design, chosen: str) -> Design:
 NEAR_KALMAN = 1.1
 
 
-def _near_kalman(des: Design | None) -> bool:
-    """A certified whole-state design whose predicted steady RMS is within :data:`NEAR_KALMAN` of the Kalman
-    filter's."""
-    if des is None or des.whole is None or des.whole.kf_rms is None or not rate_certificate(des).certified:
-        return False
-    rms = _predicted_all(des)
-    return rms is not None and rms <= NEAR_KALMAN * des.whole.kf_rms
+#: above this m n the split is not designed beside a certified whole-state design (its approximate split's full error
+#: matrices and g search cost minutes there: ieee39, m n = 1700)
+SPLIT_BESIDE = 1000
+
+
+def _skip_split(des: Design | None) -> str | None:
+    """Why ``design.consensus: auto`` need not design the split beside the whole-state design ``des``, or None: ``des``
+    certified and within :data:`NEAR_KALMAN` of the Kalman filter's predicted RMS (no estimator does better), or
+    ``m n`` above :data:`SPLIT_BESIDE`."""
+    if des is None or not rate_certificate(des).certified:
+        return None
+    rms, kf = _predicted_all(des), des.whole.kf_rms
+    figure = "noise not predicted" if rms is None else f"predicted steady RMS {rms:.4g}"
+    if rms is not None and kf is not None and rms <= NEAR_KALMAN * kf:
+        return (f"{figure}, within {NEAR_KALMAN - 1:.0%} of the centralized Kalman filter's {kf:.4g}: no estimator "
+                "does better")
+    sc = des.scenario
+    if sc.m * sc.n > SPLIT_BESIDE:
+        return f"{figure}, certified; at m n = {sc.m * sc.n} the split's design costs minutes"
+    return None
 
 
 def _predicted_all(des: Design) -> float | None:
@@ -350,8 +363,11 @@ def _design(pre: "_Prelude | Scenario", structure: str, compare_q_methods: bool,
         result = bounds.QResult(q=q, method=method, bound=bound, certified=bool(certified), switching=switches)
         if not certified:
             warnings.append(f"q = {q} does NOT meet rate {d.rate:g} by the {method} ({bound:.6g})")
-        return Design(agents=agents, warnings=tuple(warnings), q=q, q_result=result, q_methods={method: result},
-                      error_radius=radii, full_radius=radii, consensus="whole", whole=info, **common)
+        des = Design(agents=agents, warnings=tuple(warnings), q=q, q_result=result, q_methods={method: result},
+                     error_radius=radii, full_radius=radii, consensus="whole", whole=info, **common)
+        if info.predicted is not None:  # its noise, predicted on its first graph while q was chosen: kept
+            remember_predicted(des, sc.graph_names.index(cases[0].graph.name), info.predicted)
+        return des
     kw: dict = {}
     if sc.time == "continuous":
         kw.update(_design_g(sc, cases, switching, warnings))

@@ -37,7 +37,7 @@ if TYPE_CHECKING:  # annotations only
 
 __all__ = ["full_error_matrix", "ode_error_matrix", "modulo", "case_parts", "full_radius", "error_dynamics",
            "predicted_rms", "MAX_DIM", "MAX_RATE_DIM", "MAX_NOISE_DIM",
-           "block_diagonal", "step_blocks", "whole_matrix", "whole_noise"]
+           "block_diagonal", "step_blocks", "whole_matrix", "whole_noise", "remember_predicted"]
 
 #: the largest ``m n`` for which the full error matrices' powers and Lyapunov equations are formed (the transient
 #: constant, the predicted noise)
@@ -216,6 +216,12 @@ def predicted_rms(des: "Design", graph_index: int = 0) -> np.ndarray:
     """Steady-state RMS error ``sqrt(trace Sigma_ii)`` of every agent (inf if the error map is unstable); computed
     once per design and graph (a Lyapunov equation of size ``m n``: seconds at 1700)."""
     return _predicted_rms(des, graph_index=int(graph_index)).copy()
+
+
+def remember_predicted(des: "Design", graph_index: int, values: np.ndarray) -> None:
+    """Keep ``values`` as ``des``'s :func:`predicted_rms` on graph ``graph_index``: the design computed them already
+    (:mod:`.whole_state`, while choosing q)."""
+    _predicted_rms.remember(des, np.asarray(values, dtype=float), graph_index=int(graph_index))
 
 
 @cached_analysis

@@ -13,6 +13,7 @@ import math
 
 import numpy as np
 
+from .advice import advice, advice_lines
 from .bounds import QResult
 from .conditioning import conditioning
 from .design_data import Design, cached_analysis
@@ -23,7 +24,7 @@ from ..model.graphs import is_doubly_stochastic, perron_vector
 from ..scenarios.labels import heaviest, spread
 from .verdict import NO_CERTIFIED_RATE, rate_certificate  # the verdict, rendered here
 
-__all__ = ["design_json", "design_text"]
+__all__ = ["design_json", "design_text", "design_warnings"]
 
 
 MAX_LISTED = 12  # cases whose radius the text report lists (the largest first); --json has them all
@@ -184,7 +185,9 @@ def design_json(des: Design) -> dict:
         "rank_tol": "auto" if sc.design.rank_tol is None else sc.design.rank_tol,
         "loss_certificate": _loss_json(des),
         **_conditioning_json(des),
-        "warnings": list(des.warnings) + list(conditioning(des).warnings),
+        "warnings": design_warnings(des),
+        "advice": [{"knob": t.knob, "certified": t.certified, "transient_constant": _num(t.transient),
+                    "predicted_rms": _num(t.rms), "refused": t.error} for t in advice(des)],
     }
     cert = rate_certificate(des)
     reach = fastest_rate(des)
@@ -366,10 +369,23 @@ def design_text(des: Design) -> str:
     if loss is not None:
         lines.append(loss.text)  # "rate certified under loss: ..." or "not certified under loss: ..."
     lines += _size_lines(des)
-    warnings = list(des.warnings) + list(cond.warnings)
+    warnings = design_warnings(des)
     if warnings:
         lines += [""] + [f"warning: {w}" for w in warnings]
+    more = advice_lines(des)
+    if more:
+        lines += [""] + more
     return "\n".join(lines)
+
+
+def design_warnings(des: Design) -> list:
+    """Every warning of a design, each once: the design's own and its conditioning's (what ``splitspec design``
+    prints, ``--json`` lists and ``ss.design(...).checks.warnings`` holds)."""
+    out = []
+    for w in list(des.warnings) + list(conditioning(des).warnings):
+        if w not in out:
+            out.append(w)
+    return out
 
 
 def _size_lines(des: Design) -> list:

@@ -134,6 +134,7 @@ class WholeState:
     q_certified: int
     tried: tuple = ()
     method: str = "optimal"
+    predicted: np.ndarray | None = field(default=None, repr=False)  # every agent's predicted RMS at q, first graph
 
 
 def case_radius(sc: Scenario, Fs_by_id: dict, case, q: int) -> float:
@@ -148,6 +149,7 @@ class _Radii(dict):
     def __init__(self, by_id: dict):
         super().__init__(by_id)
         self.cache: dict = {}
+        self.rms: dict = {}  # q -> every agent's predicted steady RMS (first graph)
 
     def of(self, sc: Scenario, case, q: int) -> float:
         key = (case.label, int(q))
@@ -156,8 +158,10 @@ class _Radii(dict):
         return self.cache[key]
 
 
-def _predicted(sc: Scenario, Fs, Kss, S, q: int, Qn, R) -> float | None:
-    """The RMS over agents of the predicted steady RMS errors (None: not computed, or unstable)."""
+def _predicted(sc: Scenario, Fs, Kss, S, q: int, Qn, R, per_agent: dict | None = None) -> float | None:
+    """The RMS over agents of the predicted steady RMS errors (None: not computed, or unstable); ``per_agent``: where
+    to keep each agent's, by q (the design's own figures: :func:`~splitspec_core.synthesis.error_matrix.predicted_rms`
+    is seeded with them, a Lyapunov equation of size m n is seconds at 1700)."""
     m, n = len(Fs), sc.n
     if m * n > MAX_NOISE_DIM:
         return None
@@ -165,8 +169,10 @@ def _predicted(sc: Scenario, Fs, Kss, S, q: int, Qn, R) -> float | None:
     if spectral_radius(M) >= 1.0:
         return None
     Sigma = sla.solve_discrete_lyapunov(M, whole_noise(Kss, S, q, R, Qn))
-    tr = [np.trace(Sigma[i * n:(i + 1) * n, i * n:(i + 1) * n]) for i in range(m)]
-    return float(np.sqrt(max(np.mean(tr), 0.0)))
+    tr = np.maximum([np.trace(Sigma[i * n:(i + 1) * n, i * n:(i + 1) * n]) for i in range(m)], 0.0)
+    if per_agent is not None:
+        per_agent[int(q)] = np.sqrt(tr)
+    return float(np.sqrt(np.mean(tr)))
 
 
 def mixing_bound(Fs, Ss, q: int, lam: float) -> float:
@@ -314,17 +320,15 @@ def design_whole(sc: Scenario, cases, *, rate: float, dwell: float | None, warni
         if q_cert is None:
             tried.append((margin, alpha, None, None, None))
             continue
-        q, rms = _noise_q(sc, Fs, Kss, first.S, q_cert, Qn, R, q_cap) if q_given is None else \
-            (q_given, _predicted(sc, Fs, Kss, first.S, q_given, Qn, R))
+        q, rms = _noise_q(sc, Fs, Kss, first.S, q_cert, Qn, R, q_cap, by_id.rms) if q_given is None else \
+            (q_given, _predicted(sc, Fs, Kss, first.S, q_given, Qn, R, by_id.rms))
         radius = _radius_at(sc, by_id, cases, q)
         tried.append((margin, alpha, q, radius, rms))
         key = (math.inf if rms is None else rms, q)
         if best is None or _better(key, best[0]):
             best = (key, margin, alpha, p, Ks, q, q_cert, by_id)
     if best is None:
-        raise DesignError(f"no whole-state design meets rate {lam:.6g} per event time with q <= {q_cap}: "
-                          "the consensus cannot keep up with the gains (a slower design.rate, or a graph that mixes "
-                          "faster)")
+        raise DesignError(_why_not(sc, candidates, cases, lam, q_cap, Cs))
     _, margin, alpha, p, Ks, q, q_cert, by_id = best
     radii, cert = _certify(sc, by_id, cases, q, lam, dwell, warnings)
     Lp = p.L if p is not None else np.zeros((sc.n, C.shape[0]))
@@ -333,8 +337,26 @@ def design_whole(sc: Scenario, cases, *, rate: float, dwell: float | None, warni
                       central_rms=p.rms if p is not None else float("nan"),
                       kf_radius=None if kf is None else kf.radius, kf_rms=None if kf is None else kf.rms,
                       reference_rms=None if ref is None else ref.rms, q_certified=q_cert, tried=tuple(tried),
-                      method=d.gains)
+                      method=d.gains, predicted=by_id.rms.get(int(q)))
     return Ks, q, info, radii, cert
+
+
+def _why_not(sc: Scenario, candidates, cases, lam: float, q_cap: int, Cs) -> str:
+    """Why no candidate certifies: as q grows a case's map tends to its agents' average ``sum_i pi_i F_i`` (``pi`` its
+    graph's stationary weights); a case where that decays no faster than the rate is one no q helps (an agent loss
+    the kept gains do not survive), else the consensus needs more than ``q_cap`` exchanges."""
+    _, _, _, Ks = candidates[0]
+    Fs, _ = step_blocks(sc.system.A, Ks, Cs, dt=sc.run.dt if sc.time == "continuous" else None)
+    by_id = dict(zip(sc.agent_ids, Fs))
+    per = "per event time" if sc.time == "discrete" else "per step"
+    for c in cases:
+        pi_c = perron_vector(c.graph.S)
+        limit = spectral_radius(sum(w * by_id[i] for w, i in zip(pi_c, c.graph.ids)))
+        if limit >= lam:
+            return (f"no whole-state design meets rate {lam:.6g} {per} on {c.label}: with the gains kept, its agents' "
+                    f"average decays at only {limit:.6g} {per}, whatever q (the split keeps each agent's own gain)")
+    return (f"no whole-state design meets rate {lam:.6g} {per} with q <= {q_cap}: the consensus cannot keep up with "
+            "the gains (a slower design.rate, or a graph that mixes faster)")
 
 
 def _better(key: tuple, other: tuple) -> bool:
@@ -378,15 +400,15 @@ def _smallest_q(sc: Scenario, by_id: dict, cases, lam: float, q_cap: int) -> int
     return q
 
 
-def _noise_q(sc: Scenario, Fs, Kss, S, q0: int, Qn, R, q_cap: int) -> tuple:
+def _noise_q(sc: Scenario, Fs, Kss, S, q0: int, Qn, R, q_cap: int, per_agent: dict) -> tuple:
     """From the smallest certified ``q0``: raised while one more exchange lowers the predicted RMS by more than
     :data:`Q_GAIN` (at most :data:`Q_EXTRA` more; above :data:`SEARCH_DIM` two more at a time, once);
     ``(q, rms)`` (``rms`` None when not computed)."""
-    rms = _predicted(sc, Fs, Kss, S, q0, Qn, R)
+    rms = _predicted(sc, Fs, Kss, S, q0, Qn, R, per_agent)
     q = q0
     step, extra = (1, Q_EXTRA) if sc.m * sc.n <= SEARCH_DIM else (2, 2)
     while rms is not None and q + step <= min(q0 + extra, q_cap):
-        nxt = _predicted(sc, Fs, Kss, S, q + step, Qn, R)
+        nxt = _predicted(sc, Fs, Kss, S, q + step, Qn, R, per_agent)
         if nxt is None or nxt > rms * (1.0 - step * Q_GAIN):
             break
         q, rms = q + step, nxt

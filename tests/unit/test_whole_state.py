@@ -242,7 +242,8 @@ def test_resilience_falls_back_to_the_split_and_says_why():
 
 
 def test_a_refusal_names_the_fastest_rate_its_keys_certify():
-    sc = two_agents(gains="place", rate=1e-3)
+    sc = ss.load_scenario(EXAMPLES / "paper_discrete.yaml")  # explicit gains: observable-part poles 0.2 and 0.3
+    sc = dataclasses.replace(sc, design=dataclasses.replace(sc.design, rate=0.25))
     with pytest.raises(ss.SplitspecError) as info:
         design(sc)
     assert "the fastest rate these design keys certify is about" in str(info.value)
@@ -285,7 +286,7 @@ def test_continuous_whole_takes_q_and_refuses_g():
 def test_the_report_says_what_each_agent_corrects_and_takes_and_against_which_references():
     des = design(two_agents())
     text = design_text(des)
-    assert "agent 1: s_i = 1, corrects locally x1; takes every state from its neighbours" in text
+    assert "agent 1: s_i = 1, corrects locally x1, x2; takes every state from its neighbours" in text
     assert "x the centralized Kalman filter's" in text and "auto chose the whole state" in text
     js = design_json(des)
     assert js["consensus"] == "whole" and js["whole_state"]["alpha"] == 1.0

@@ -1,0 +1,129 @@
+"""Advice that was tried: the knobs a report would name, each designed on the scenario and measured.
+
+A warning about a split design (observability margins, large local gains, a large transient, a steady error far
+above the centralized Kalman filter's) used to end with knobs to turn; on real models some of them did not help
+when followed (a smaller ``design.rank_tol`` or a slower rate changed nothing; only a smaller ``design.margin``
+did).  Here each candidate knob is designed on the scenario and what it gives is said beside it: the rate's
+verdict, the transient constant, the predicted steady RMS.  The knobs, each changed alone:
+
+* ``design.gains: optimal`` with ``design.consensus: whole`` (when the scenario has noise): the whole-state design
+  (:mod:`.whole_state`), which needs no local observer and so no margin;
+* ``design.margin: 0.1`` (when it is larger): the local gains move the slow modes less far;
+* ``design.rank_tol`` above the smallest warned margin: the weak directions left to consensus;
+* a slower ``design.rate`` (four fifths of it; discrete: ``lam^0.8``).
+
+Only up to ``m n`` = :data:`ADVICE_DIM` (each knob is a design and its conditioning: seconds each), and never
+more than what was computed: a knob whose design is refused says so in its one line.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import SplitspecError
+from .conditioning import MARGIN_WARN, TRANSIENT_WARN, conditioning
+from .design_data import Design, cached_analysis
+from .designer import design
+from .error_matrix import MAX_NOISE_DIM, predicted_rms
+from .verdict import rate_certificate
+
+__all__ = ["Tried", "advice", "advice_lines", "ADVICE_DIM", "NOISE_WARN"]
+
+#: advice is tried up to this m n
+ADVICE_DIM = 400
+#: a predicted steady RMS above this many times the centralized Kalman filter's is a problem worth advice
+NOISE_WARN = 2.0
+
+
+@dataclass(frozen=True)
+class Tried:
+    """One knob, designed: ``knob`` as the scenario would say it, and what it gave (None where not computed)."""
+
+    knob: str
+    certified: bool | None = None
+    transient: float | None = None
+    rms: float | None = None
+    error: str | None = None
+
+
+def _figures(des: Design) -> tuple:
+    """``(certified, transient constant, predicted RMS over agents)`` of a design."""
+    sc = des.scenario
+    rms = None
+    if sc.system.has_noise and not des.adaptive and sc.m * sc.n <= MAX_NOISE_DIM:
+        rms = float(np.sqrt(np.mean(predicted_rms(des) ** 2)))
+    return bool(rate_certificate(des).certified), conditioning(des).transient_constant, rms
+
+
+def _problems(des: Design) -> bool:
+    """The design has something advice is for: a split design with warned margins or gains, a transient above
+    :data:`TRANSIENT_WARN`, or a steady error above :data:`NOISE_WARN` times the Kalman filter's."""
+    if des.consensus == "whole" or des.adaptive:
+        return False
+    cond = conditioning(des)
+    weak = any(a.observability_margin is not None and a.observability_margin < MARGIN_WARN for a in cond.agents)
+    c = cond.transient_constant
+    noisy = False
+    if cond.predicted_rms and cond.kalman_rms:
+        rms = math.sqrt(sum(v * v for v in cond.predicted_rms.values()) / len(cond.predicted_rms))
+        noisy = rms > NOISE_WARN * cond.kalman_rms
+    return weak or bool(cond.warnings) or (c is not None and c > TRANSIENT_WARN) or noisy
+
+
+@cached_analysis
+def advice(des: Design) -> tuple:
+    """The knobs tried on ``des``'s scenario (module docstring), as :class:`Tried`; empty when there is nothing to
+    advise or the design is larger than :data:`ADVICE_DIM`."""
+    sc = des.scenario
+    d = sc.design
+    if sc.m * sc.n > ADVICE_DIM or not _problems(des):
+        return ()
+    knobs = []
+    if sc.system.has_noise:
+        knobs.append(("design.gains: optimal, design.consensus: whole", dict(gains="optimal", consensus="whole",
+                                                                             K=None)))
+    if d.margin > 0.1 and d.gains in ("place", "riccati"):
+        knobs.append(("design.margin: 0.1", dict(margin=0.1)))
+    margins = [a.observability_margin for a in conditioning(des).agents
+               if a.observability_margin is not None and a.observability_margin < MARGIN_WARN]
+    if margins and d.gains in ("place", "riccati", "optimal"):
+        tol = float(f"{10 * max(margins):.1g}")
+        if tol < 1:
+            knobs.append((f"design.rank_tol: {tol:g}", dict(rank_tol=tol)))
+    slower = d.rate * 0.8 if sc.time == "continuous" else d.rate ** 0.8
+    knobs.append((f"design.rate: {slower:.3g}", dict(rate=slower)))
+    out = []
+    for text, keys in knobs:
+        try:
+            alt = design(dataclasses.replace(sc, design=dataclasses.replace(d, **keys)))
+        except SplitspecError as exc:
+            out.append(Tried(text, error=str(exc).split(";")[0]))
+            continue
+        ok, c, rms = _figures(alt)
+        out.append(Tried(text, certified=ok, transient=c, rms=rms))
+    return tuple(out)
+
+
+def advice_lines(des: Design) -> list:
+    """The report's lines: what each knob gave against the design's own figures."""
+    tried = advice(des)
+    if not tried:
+        return []
+    ok, c, rms = _figures(des)
+
+    def figs(t_ok, t_c, t_rms) -> str:
+        parts = ["rate certified" if t_ok else "rate NOT certified"]
+        if t_c is not None:
+            parts.append(f"transient {'infinite' if math.isinf(t_c) else f'{t_c:.3g}'}")
+        if t_rms is not None:
+            parts.append(f"predicted RMS {t_rms:.4g}")
+        return ", ".join(parts)
+
+    lines = [f"advice (each knob designed on this scenario; this design: {figs(ok, c, rms)}):"]
+    for t in tried:
+        lines.append(f"  {t.knob}: " + (f"refused: {t.error}" if t.error else figs(t.certified, t.transient, t.rms)))
+    return lines
