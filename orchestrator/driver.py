@@ -271,7 +271,7 @@ class Orchestrator:
                     prev_attempt=a.prev_attempt, alive=a.alive, rows=a.rows, incarnation=a.incarnation,
                     partition=a.partition))
             elif kind is A.Record:
-                gains = a.gains if self.sc.time == "continuous" else None  # no g in discrete time
+                gains = None if self.des.two_rate else a.gains  # no g in discrete time, nor for the whole-state design
                 if self.sc.sources:  # before the row: a flush in between writes both
                     self.rec.live_y(a.tau, a.y)
                 self.rec.row(a.tau, a.x, a.xhat, a.alive, a.graph, gains=gains, attempts=a.attempts,

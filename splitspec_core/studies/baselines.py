@@ -266,6 +266,10 @@ class KalmanConsensusFilter:
         return out
 
 
+#: the KCF's covariances have converged when one step changes them by at most this much of their size
+CONVERGED = 1e-15
+
+
 class SeedBatchKCF:
     """:class:`KalmanConsensusFilter` on many seeds at once: priors ``X`` (m, n, N), seeds on the trailing axis.
 
@@ -277,7 +281,9 @@ class SeedBatchKCF:
     ``K_i (y_J - C_J xbar_i)`` over a padded gather of ``y``, the consensus term ``gamma_i M_i sum_{j in N_i}
     (x_j - x_i)`` with one sparse adjacency product.  Per seed the numbers are :meth:`KalmanConsensusFilter.run`'s
     to round-off (other summation orders: the padded solve, ``(gamma_i M_i) d`` for ``gamma_i (M_i d)``,
-    the adjacency product for the neighbour sum), not bit for bit.
+    the adjacency product for the neighbour sum), not bit for bit.  Once the covariances repeat themselves to
+    round-off (:data:`CONVERGED`) the gains are kept and the Riccati-like recursion stops: a long run costs the
+    estimates' products only.
     """
 
     def __init__(self, kcf: KalmanConsensusFilter):
@@ -305,6 +311,7 @@ class SeedBatchKCF:
     def reset(self) -> None:
         """Every ``P_i`` back to ``P0``."""
         self.P = np.tile(self.P0, (self.m, 1, 1))
+        self.fixed = None  # (K, gamma M) once P has converged to round-off: every later step has the same
 
     def _disagreement(self, X: np.ndarray) -> np.ndarray:
         """``sum_{j in N_i} (x_j - x_i)`` of every agent and seed, (m, n, N)."""
@@ -317,20 +324,27 @@ class SeedBatchKCF:
         Updates :attr:`P` (the same for every seed).  The equations of :meth:`KalmanConsensusFilter.step`.
         """
         P, CJ, RJ = self.P, self.CJ, self.RJ
-        CJt = CJ.transpose(0, 2, 1)
-        S = CJ @ P @ CJt + RJ
-        K = np.linalg.solve(S, CJ @ P).transpose(0, 2, 1)  # P C_J' S^-1, zero columns on the padding
-        IKC = np.eye(self.n) - K @ CJ
-        M = IKC @ P @ IKC.transpose(0, 2, 1) + K @ RJ @ K.transpose(0, 2, 1)  # Joseph form: (P^-1 + U_i)^-1
-        M = 0.5 * (M + M.transpose(0, 2, 1))
-        gM = (self.eps / (1.0 + np.linalg.norm(M, "fro", axis=(1, 2))))[:, None, None] * M  # gamma_i M_i
+        if self.fixed is None:
+            CJt = CJ.transpose(0, 2, 1)
+            S = CJ @ P @ CJt + RJ
+            K = np.linalg.solve(S, CJ @ P).transpose(0, 2, 1)  # P C_J' S^-1, zero columns on the padding
+            IKC = np.eye(self.n) - K @ CJ
+            M = IKC @ P @ IKC.transpose(0, 2, 1) + K @ RJ @ K.transpose(0, 2, 1)  # Joseph form: (P^-1 + U_i)^-1
+            M = 0.5 * (M + M.transpose(0, 2, 1))
+            gM = (self.eps / (1.0 + np.linalg.norm(M, "fro", axis=(1, 2))))[:, None, None] * M  # gamma_i M_i
+            Pn = self.F @ M @ self.F.T + self.Q
+            Pn = 0.5 * (Pn + Pn.transpose(0, 2, 1))
+            # P_i never sees a measurement: once it repeats itself to round-off, so do K_i and gamma_i M_i, for good
+            if np.max(np.abs(Pn - P)) <= CONVERGED * np.max(np.abs(Pn)):
+                self.fixed = (K, gM)
+            self.P = Pn
+        else:
+            K, gM = self.fixed
         yJ = np.concatenate([y, np.zeros((1, y.shape[1]))])[self.gather]  # (m, smax, N), zeros on the padding
         # xhat_i = xbar_i + K (y_J - C_J xbar_i) + gamma_i M_i sum_{j in N_i} (xbar_j - xbar_i)
         Xh = X + K @ (yJ - CJ @ X) + gM @ self._disagreement(X)
         for _ in range(self.exchanges - 1):  # multi-step extension: consensus on the estimates
             Xh = Xh + gM @ self._disagreement(Xh)
-        Pn = self.F @ M @ self.F.T + self.Q
-        self.P = 0.5 * (Pn + Pn.transpose(0, 2, 1))
         return np.matmul(self.F, Xh)
 
 

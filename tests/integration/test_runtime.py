@@ -199,3 +199,49 @@ def test_run_equals_simulate_in_balanced_coordinates(tmp_path):
     r = run("run", scen, "--out", out)
     assert r.returncode == 0, r.stdout + r.stderr
     compare_with_simulate(out, scen, tmp_path)
+
+
+NOISY_DISCRETE = {
+    "name": "ring-whole", "time": "discrete",
+    "system": {"A": [[0.955336, 0.29552, 0, 0], [-0.29552, 0.955336, 0, 0], [0, 0, 0.877583, 0.479426],
+                     [0, 0, -0.479426, 0.877583]],
+               "C": {1: [[1, 0, 0, 0]], 2: [[0, 0, 1, 0]], 3: [[0, 1, 0, 0]], 4: [[0, 0, 0, 1]]},
+               "process_noise": 0.05, "measurement_noise": {1: 0.1, 2: 0.2, 3: [0.05], 4: 0.1}},
+    "graphs": {"ring": {"undirected": [[1, 2], [2, 3], [3, 4], [4, 1]]}},
+    "design": {"rate": 0.8},
+    "faults": [{"at": 12, "kill": 3}, {"at": 20, "restart": 3}],
+    "run": {"steps": 40, "seed": 5},
+}
+NOISY_CONTINUOUS = {
+    "name": "osc-whole", "time": "continuous",
+    "system": {"A": [[0, 1, 0, 0], [-1, 0, 0, 0], [0, 0, 0, 1], [0, 0, -2, 0]],
+               "C": {1: [[1, 0, 0, 0]], 2: [[0, 1, 0, 0]], 3: [[0, 0, 1, 0]]},
+               "process_noise": 0.25, "measurement_noise": 0.05},
+    "graphs": {"a": {"arcs": [[1, 2], [2, 1], [2, 3], [3, 2], [1, 3], [3, 1]]}},
+    "design": {"rate": 1.0, "consensus": "whole", "q": 3},
+    "faults": [{"at": 0.3, "kill": 2}, {"at": 0.6, "restart": 2}],
+    "run": {"steps": 100, "dt": 0.01, "seed": 7},
+}
+
+
+@pytest.mark.parametrize("raw", [NOISY_DISCRETE, NOISY_CONTINUOUS], ids=["discrete", "continuous"])
+def test_run_equals_simulate_for_the_noise_optimal_design(tmp_path, raw):
+    """The default design under noise (design.gains: optimal: the whole-state consensus, every agent's gain sent with
+    its configuration): real processes through a kill and a restart give simulate's trajectory, to round-off, and
+    the replay of the run's records gives it again."""
+    import splitspec_core as ss
+
+    scen = tmp_path / f"{raw['name']}.yaml"
+    scen.write_text(yaml.safe_dump(raw))
+    des = ss.design(ss.load_scenario(scen))
+    assert des.detail.consensus == "whole" and des.checks.rate_certified
+    out = tmp_path / "out"
+    r = run("run", scen, "--out", out)
+    assert r.returncode == 0, r.stdout + r.stderr
+    compare_with_simulate(out, scen, tmp_path)
+    traj = np.load(out / "trajectory.npz")
+    k = 3 if raw["time"] == "discrete" else 2
+    alive = traj["alive"][:, k - 1]
+    assert not alive.all() and alive[-1]  # killed, then back
+    names = [e["event"] for e in events(out)]
+    assert "agent_lost" in names or "process_exited" in names or any("lost" in n for n in names)
