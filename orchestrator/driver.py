@@ -425,7 +425,7 @@ class Orchestrator:
                             scenario_name=sc.name, viewer=self.viewer,
                             envelope_rate=None if self.des.g_mode == "adaptive" or self.des.excluded
                             else float(self.des.envelope_rate),
-                            gains=sc.time == "continuous", positions=sc.positions,
+                            gains=not self.des.two_rate, positions=sc.positions,
                             states=sc.state_names if sc.states_named else None, shown=sc.shown_states,
                             continuous=Continuous.from_env() if sc.run.until_stopped else None)
         if self.meas is not None:

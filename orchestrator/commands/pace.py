@@ -216,8 +216,8 @@ def probe_mapping(path: Path) -> tuple[dict, bool]:
 
 def _describe(design) -> str:
     sc = design.scenario
-    if sc.time == "discrete":
-        gain = f"q = {design.q}"
+    if design.two_rate:
+        gain = f"q = {design.q}" + ("" if sc.time == "discrete" else " per run.dt")
     elif design.g_mode == "adaptive":
         gain = "g adaptive"
     else:

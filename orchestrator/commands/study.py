@@ -323,8 +323,8 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     summary = summarize(traj, time=sc.time, rate=envelope_rate, noise_free=clean, adaptive=adaptive,
                         certified_rate=cert.certified)
     summary.update({"certificate": cert.text, "scenario": sc.name, "seed": seed, "time": sc.time,
-                    "g": d.g, "q": d.q, "estimator": "exact ODE" if args.exact else "sampled-data" if
-                    sc.time == "continuous" else "discrete two-rate"})
+                    "g": d.g, "q": d.q, "estimator": "exact ODE" if args.exact else "discrete two-rate" if
+                    d.detail.two_rate else "sampled-data"})
     mc = None
     if args.monte_carlo:
         # the seeds as one batch (or one after another where a seed changes more than the noise: MonteCarloRuns)

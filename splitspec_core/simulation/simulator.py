@@ -735,6 +735,10 @@ def simulate_exact(des: Design, *, seed: int | None = None, steps: int | None = 
         raise ScenarioError("the exact ODE is continuous time; this scenario is discrete (time: discrete)")
     if des.g_mode == "adaptive":
         raise ScenarioError(EXACT_NEEDS_FIXED_G)
+    if des.consensus == "whole":
+        raise ScenarioError("the exact ODE is the split's continuous estimator (eq. split_continuous_observer); the "
+                            "whole-state design runs on the sampled model, q exchanges per run.dt: simulate without "
+                            "--exact")
     if sc.network.impaired or any(f.action == "partition" for f in sc.faults):
         raise ScenarioError("the exact ODE has no messages to lose: it cannot model network: or partition faults "
                             "(simulate without --exact)")

@@ -355,7 +355,7 @@ def sweep(sc: Scenario, *, seed: int, steps: int | None = None, values=None) -> 
     the ODE alone is not certified); ``certificate`` says why in one line.
     """
     base = design(sc)
-    discrete = sc.time == "discrete"
+    discrete = base.two_rate  # q exchanges per event time: discrete time, or the whole-state design
     if values is None:
         if discrete:
             q0 = base.q

@@ -66,7 +66,7 @@ def _messages_sent(traj, des, exchanges: int) -> int:
 
 def _level(des, sc: Scenario, seeds, steps, noisy: bool, bar, done: list) -> dict:
     rates, rms, lost, sent = [], [], [], []
-    exchanges = 1 if sc.time == "continuous" else int(des.q)
+    exchanges = int(des.q) if des.two_rate else 1
     for s in seeds:
         clean = simulate(des, seed=s, steps=steps, noise=False)
         e = clean.errors()
