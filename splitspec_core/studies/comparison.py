@@ -183,8 +183,9 @@ def compare(sc: Scenario, *, seeds, steps: int | None = None, eps: float | None 
     """Run every estimator on the same realisations: their figures and mean error curves (frozen, read-only).
 
     Rows: the scenario's own design (``optimal (whole state)`` by default under noise), the paper's split with
-    ``place`` and ``riccati`` gains and tuned (:func:`~splitspec_core.synthesis.noise_tuning.tune`, up to
-    ``m n`` = :data:`TUNE_MAX`), the centralized Kalman filter, the best centralized estimator certified at the rate
+    ``place`` and ``riccati`` gains (not beside a whole-state design above ``m n`` = ``SPLIT_BESIDE``) and, when
+    the scenario's design is a split, tuned (:func:`~splitspec_core.synthesis.noise_tuning.tune`, up to ``m n`` =
+    :data:`TUNE_MAX`), the centralized Kalman filter, the best centralized estimator certified at the rate
     (``centralized at rate``: :func:`~splitspec_core.synthesis.kalman.references`; only when the Kalman filter is
     slower than the rate) and the KCF with as many exchanges as the scenario's design.  Each row's steady RMS is
     measured after its own transient: from :func:`steady_start` of its certified envelope (the Kalman filter's from
@@ -210,7 +211,7 @@ def compare(sc: Scenario, *, seeds, steps: int | None = None, eps: float | None 
         except DesignError as exc:  # e.g. a local Riccati equation without a solution at this rate
             variants[name] = str(exc)
     tuned, notes = None, {}
-    if sc.m * sc.n <= TUNE_MAX:
+    if sc.m * sc.n <= TUNE_MAX and own.consensus == "split":  # the split's own search for the noise (~40 designs)
         try:
             tuned = tune(_variant(sc, "riccati") if sc.design.gains == "optimal" else sc)
             variants["split tuned"] = tuned.design

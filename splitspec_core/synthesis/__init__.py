@@ -10,6 +10,7 @@ matrix-free, never claiming more than was computed), ``sampled_rates.py`` g for 
 ``kalman.py`` the centralized Kalman predictor and its rate-shifted variant (the references under noise);
 ``whole_state.py`` the whole-state design (every agent averages its neighbours' whole estimates, gains from the
 noise: ``design.consensus``, ``design.gains: optimal``);
-``verdict.py`` the certificate's verdict, computed once, ``report.py`` its rendering (``splitspec design``).
+``verdict.py`` the certificate's verdict, computed once, ``report.py`` its rendering (``splitspec design``),
+``advice.py`` the knobs a warning would name, each designed on the scenario and measured.
 Imports ``scenarios`` and ``model``.
 """

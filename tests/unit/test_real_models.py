@@ -62,4 +62,7 @@ def test_the_39_bus_system_as_linearised_is_refused_naming_what_nobody_sees():
     text = str(err.value)
     assert text.startswith("(C, A) is not jointly detectable: no agent sees ") and "which does not decay" in text
     named = text.split("measure one of ")[1].split(", or set")[0].split(", ")
-    assert named and all(name.startswith("WO_x_IEEEST_") for name in named)  # the stabilisers' washouts
+    # the stabilisers' washouts first, then what else carries those integrators; which of the equal-weight states of a
+    # three-fold null space are named depends on round-off (OpenBLAS threads pick another basis of it): stabiliser
+    # states, a washout first, whatever the path
+    assert named and named[0].startswith("WO_x_IEEEST_") and all("_IEEEST_" in name for name in named)
