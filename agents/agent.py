@@ -25,6 +25,13 @@ most one event time ahead of it; ``y`` and ``z`` at most one event time
 ahead of the last tick (``z`` also at most two attempts ahead).  Buffers are
 bounded: ``y`` for at most two event times, ``z`` for at most ``ZBUF_ROUNDS * q *
 (in-neighbours)`` messages; anything beyond is dropped and counted (``future``, ``stale``...).
+
+The whole-state design (``config["gain"]`` with ``consensus: whole``, :mod:`splitspec_core.synthesis.whole_state`)
+runs the other order: once ``y_i(tau)`` is in, the update ``z_i(0) = F_i x_i(tau) - K_i y_i(tau)`` (sent), then q
+sub-rounds ``z_i(k) = sum_j w_ij z_j(k - 1)`` and ``x_i(tau + 1) = z_i(q)``; in continuous time on the sampled model.
+
+Why one module: the protocol's state machine (:class:`AgentNode`) and the few lines of its Zenoh shell are one
+process; what a message does to a round is read in one place.
 """
 
 from __future__ import annotations
@@ -37,7 +44,7 @@ import numpy as np
 
 from splitspec_core.model import steps as st
 from splitspec_core.model.impairment import Impairment, sub_round
-from splitspec_core.model.local_design import directions_of, scenario_agent
+from splitspec_core.model.local_design import central_part, directions_of, scenario_agent
 from splitspec_core.scenarios.load import parse_scenario_text
 from splitspec_core.model.plant import initial_estimate, output_rows
 from splitspec_core.runtime.ticks import TickNetwork
@@ -49,14 +56,6 @@ log = logging.getLogger("splitspec.agent")
 
 #: z messages buffered for at most this many (event time, attempt) rounds per sub-round and neighbour
 ZBUF_ROUNDS = 6
-
-
-def local_part(gain: dict, n: int, s: int) -> tuple:
-    """``(K_i, P_i, R_i)`` from the configuration's ``gain`` (the design's, sent when it chose the gain centrally):
-    ``K`` (n x s_i), the consensus ``whole`` (``P_i = I``) or ``split`` with its ``P`` (n x n)."""
-    K = np.asarray(gain["K"], dtype=float).reshape(n, s)
-    P = np.eye(n) if gain["consensus"] == "whole" else np.asarray(gain["P"], dtype=float).reshape(n, n)
-    return K, P, np.zeros((n, 0))
 
 
 class AgentNode:
@@ -80,7 +79,7 @@ class AgentNode:
         self.n, self.s = sc.n, self.C.shape[0]
         gain = config.get("gain")
         if gain is not None:  # a gain the design chose centrally (design.gains: optimal, or design.consensus: whole)
-            self.K, self.P, self.V = local_part(gain, self.n, self.s)
+            self.K, self.P, self.V = central_part(gain, self.n, self.s)
             self.whole = gain["consensus"] == "whole"
         else:
             # the local part of the design: V_i, P_i, K_i from (A, C_i, lam) (minus W, what no agent sees, if sent)

@@ -173,13 +173,12 @@ def _rate_sweep(args: argparse.Namespace, sc, seed0: int) -> int:
     out = out_dir(args.out)
     res = rate_sweep(sc, rates, seeds=range(seed0, seed0 + args.seeds), steps=args.steps)
     (out / "rate_sweep.json").write_text(json.dumps(res, indent=2) + "\n")
-    lines = rate_sweep_table(res)
     if not args.no_plots:
-        from .. import plots as P
+        from ..plots import plot_rate_sweep
 
-        P.plot_rate_sweep(res, out / "rate_sweep.png")
-    lines.append(f"wrote {out}/rate_sweep.json" + ("" if args.no_plots else ", rate_sweep.png"))
-    print("\n".join(lines))
+        plot_rate_sweep(res, out / "rate_sweep.png")
+    wrote = f"wrote {out}/rate_sweep.json" + ("" if args.no_plots else ", rate_sweep.png")
+    print("\n".join(rate_sweep_table(res) + [wrote]))
     return 0
 
 

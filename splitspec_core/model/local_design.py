@@ -22,7 +22,8 @@ from .modal import Spectrum, rescale, spectrum
 from .observability import Decomposition, decompose
 from ..scenarios.specs import Scenario
 
-__all__ = ["AgentDesign", "AUTO_COORDINATES", "design_agent", "directions_of", "riccati_weights", "scenario_agent",
+__all__ = ["AgentDesign", "AUTO_COORDINATES", "central_part", "design_agent", "directions_of", "riccati_weights",
+           "scenario_agent",
            "scenario_spectrum", "whole_placeholder", "with_gain", "working_scale"]
 
 
@@ -129,6 +130,15 @@ def with_gain(agent: AgentDesign, K: np.ndarray, method: str) -> AgentDesign:
     K_w = K if agent.scale is None else K / agent.scale[:, None]  # K = D K_w
     gain = LocalGain(K=K_w, Kbar=agent.dec.Q @ K_w, poles=np.zeros(0, complex), method=method)
     return AgentDesign(id=agent.id, dec=agent.dec, gain=gain, scale=agent.scale, consensus=agent.consensus)
+
+
+def central_part(gain: dict, n: int, s: int) -> tuple:
+    """``(K_i, P_i, R_i)`` of an agent from the configuration's ``gain``, sent when the design chose its gain centrally
+    (:func:`splitspec_core.synthesis.whole_state.agent_gain`): ``K`` (n x s_i), the consensus ``whole``
+    (``P_i = I``) or ``split`` with its ``P`` (n x n); no ``R_i`` (no adaptive gain)."""
+    K = np.asarray(gain["K"], dtype=float).reshape(n, s)
+    P = np.eye(n) if gain["consensus"] == "whole" else np.asarray(gain["P"], dtype=float).reshape(n, n)
+    return K, P, np.zeros((n, 0))
 
 
 def scenario_agent(sc: Scenario, agent_id: int, *, unobserved: np.ndarray | None = None,

@@ -1,7 +1,8 @@
 """The problem statement: what a scenario file (or ``ss.scenario``) says, checked, and nothing computed from it.
 
 ``specs.py`` the frozen :class:`Scenario` and its sections' dataclasses; ``checks.py`` value checks (one-line
-errors naming the key); ``sections.py`` the parsers of each section, ``network_section.py`` the ``network:``
+errors naming the key); ``sections.py`` the parsers of each section, ``design_section.py`` the ``design:``
+section (gains, consensus, g or q), ``network_section.py`` the ``network:``
 section (losses, delays, partitions), ``sources.py`` live sources; ``load.py`` the one validation path
 (``load_scenario``, ``parse_scenario_text``); ``files.py`` models in ``.npz``/``.mat`` files (``system.file``),
 ``control.py`` python-control plants; ``noise.py`` the process and measurement noise (per state, per

@@ -1,7 +1,8 @@
 """Design and certificates: a scenario in, a :class:`~splitspec_core.synthesis.design_data.Design` and its verdicts out.
 
-``designer.py`` the design (Sections 2-4: g or q over every graph the switching can use, and the policy for an
-approximate split), ``design_data.py`` the ``Design`` it returns (data; its analyses are functions of it, cached
+``designer.py`` the design (Sections 2-4: g or q over every graph the switching can use; the choice between the split
+and the whole state), ``prelude.py`` what both share (decompositions, what nobody sees, cases, losses),
+``approximate.py`` the policy for an approximate split, ``design_data.py`` the ``Design`` it returns (data; its analyses are functions of it, cached
 per design); ``bounds.py`` the certificates' bounds for g and q, ``spectral.py`` spectral radii (exact or
 matrix-free, never claiming more than was computed), ``sampled_rates.py`` g for the sampled-data form;
 ``error_matrix.py`` the full mn x mn error map, ``conditioning.py`` margins and the transient constant;
@@ -9,7 +10,8 @@ matrix-free, never claiming more than was computed), ``sampled_rates.py`` g for 
 ``survivors.py`` the runtime's survivor verdict; ``noise_tuning.py`` the gains' tuning under noise;
 ``kalman.py`` the centralized Kalman predictor and its rate-shifted variant (the references under noise);
 ``whole_state.py`` the whole-state design (every agent averages its neighbours' whole estimates, gains from the
-noise: ``design.consensus``, ``design.gains: optimal``);
+noise: ``design.consensus``, ``design.gains: optimal``), ``mixing.py`` what certifies it under switching (the mixing
+and dwell-time bounds);
 ``verdict.py`` the certificate's verdict, computed once, ``report.py`` its rendering (``splitspec design``),
 ``advice.py`` the knobs a warning would name, each designed on the scenario and measured.
 Imports ``scenarios`` and ``model``.

@@ -60,7 +60,7 @@ class Design:
     agent_losses: dict = field(default_factory=dict)
     arc_losses: dict = field(default_factory=dict)
     warnings: tuple = ()
-    # max over agents of Decomposition.split_residual (and W's); above round-off, full_radius: designer.check_full
+    # max over agents of Decomposition.split_residual (and W's); above round-off, full_radius: approximate.check_full
     split_residual: float = 0.0
     full_radius: dict = field(default_factory=dict)
     # what no agent sees (detectability.py): W, its spectrum, whether it decays; None only for a design built by hand

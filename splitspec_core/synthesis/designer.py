@@ -13,7 +13,12 @@ Steps (paper, Sections 2-4):
    left after a single agent loss), on the quotient by ``W``;
 5. resilience analysis (single agent and single arc losses);
 6. an approximate split (a weakly observable direction left to consensus): the rate checked on the full error
-   matrices, an automatic q or g raised until they meet it (:func:`check_full`).
+   matrices, an automatic q or g raised until they meet it (:func:`~.approximate.check_full`).
+
+Steps 1, 2, 4 and 5 are shared (:class:`~.prelude.Prelude`) with the whole-state design (:mod:`.whole_state`:
+every agent takes the whole state from its neighbours, its gain from the noise), which replaces step 3 and g;
+``design.consensus: auto`` with ``design.gains: optimal`` designs both and keeps the certified one with the smaller
+predicted noise.  A refusal or an uncertified rate says the fastest rate the same keys certify (:func:`highest_rate`).
 
 The :class:`Design` it returns holds data (:mod:`.design_data`); its verdict, conditioning and certificate under
 loss are functions of it (:mod:`.verdict`, :mod:`.conditioning`, :mod:`.loss_certificate`).
@@ -23,27 +28,22 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import re
 
 import numpy as np
 
 from . import bounds
+from .approximate import check_full
 from ..errors import AssumptionError, DesignError
 from .design_data import Design
-from ..model.detectability import not_detectable_text, quotient_basis, still_text, unobserved_of
-from .error_matrix import MAX_NOISE_DIM, MAX_RATE_DIM, full_radius, predicted_rms, remember_predicted
-from ..model.gain_target import beyond_target
-from ..model.graphs import build_graph, enumerate_strongly_connected
-from ..model.local_design import (design_agent, riccati_weights, scenario_spectrum, whole_placeholder, with_gain,
-                                  working_scale)
-from ..model.observability import decompose
-from .resilience import analyse_agent_losses, analyse_arc_losses
+from .error_matrix import MAX_NOISE_DIM, predicted_rms, remember_predicted
+from ..model.local_design import design_agent, riccati_weights, whole_placeholder, with_gain
+from .prelude import Prelude
 from .sampled_rates import exact_g, sampled_g
 from .verdict import rate_certificate
 from .whole_state import design_whole
 from ..scenarios.specs import Scenario
 
-__all__ = ["design", "scenario_dwell", "check_full", "highest_rate", "RateReach", "RATE_PROBES"]
+__all__ = ["design", "scenario_dwell", "highest_rate", "RateReach", "RATE_PROBES"]
 
 
 def scenario_dwell(sc: Scenario) -> float | None:
@@ -157,7 +157,7 @@ def _choose(sc: Scenario, compare_q_methods: bool, workers: int | None) -> Desig
     Riccati design with the scenario's noise) both, and the certified one with the smaller predicted steady RMS kept;
     when neither noise can be predicted (``m n`` above ``MAX_NOISE_DIM``) the split, which costs fewer exchanges;
     neither certified: the one with the smaller predicted RMS.  ``Design.chosen`` says which and why."""
-    pre = _Prelude.of(sc)
+    pre = Prelude.of(sc)
     found, errors = {}, {}
     skip = None
     for structure in ("whole", "split"):
@@ -244,94 +244,9 @@ def _chosen_text(pick: str, other: str, figures: dict, errors: dict) -> str:
     return text + f"; {name[other]} failed: {errors[other]}"
 
 
-@dataclasses.dataclass
-class _Prelude:
-    """What both consensus structures share: the decompositions, what no agent sees, the graphs, the cases and the
-    losses analysed (steps 1, 2, 4, 5 of the module docstring)."""
-
-    sc: Scenario
-    sp: object
-    scale: object
-    A_w: np.ndarray
-    decs: list  # every agent's decomposition (before W is taken out)
-    un: object
-    warnings: list
-    graphs: tuple
-    cases: tuple
-    agent_losses: dict
-    arc_losses: dict
-    switching: bool
-
-    @classmethod
-    def of(cls, sc: Scenario) -> "_Prelude":
-        d = sc.design
-        A = sc.system.A
-        sp = scenario_spectrum(sc)
-        free = beyond_target(sc.time, d.rate, d.margin)  # modes the local gains leave alone (gain_target.py)
-        scale = working_scale(sc, sp)  # design.coordinates: the user's (None) or balanced
-        A_w = A if scale is None else np.asarray(A) * scale[None, :] / scale[:, None]
-        decs = [decompose(A, C, rank_tol=d.rank_tol, spectrum=sp, free=free, scale=scale) for C in sc.system.Cs]
-        # the standing assumption first ((C, A) of eqs. pre_sys1-pre_sys2 jointly observable, or here detectable):
-        # without it no K_i helps, so an explicit K_i that misses the rate on a direction nobody sees is not the error
-        of = unobserved_of(sc, sp, {aid: dec.V for aid, dec in zip(sc.agent_ids, decs)}, scale)
-        un = of(sc.agent_ids)
-        warnings: list = []
-        if not un.decays:
-            if d.undetectable != "exclude":
-                raise AssumptionError(not_detectable_text(un, decs, d.rank_tol))
-            warnings.append(f"design.undetectable: exclude: no agent sees {still_text(un)}, which does not decay; "
-                            "the certificate covers the error modulo the unobserved directions only")
-        # each agent's V_i minus W (what design_agent and whole_placeholder hold): the certificates' cases
-        seen = [dec.without(un.W_working, A_w) if un.W_working.shape[1] else dec for dec in decs]
-        ad = dict(zip(sc.agent_ids, seen))
-        graphs = tuple(build_graph(g.name, sc.agent_ids, g.arcs, weights=d.weights) for g in sc.graphs)
-        used = sc.switching.graph_names(sc.graph_names)
-        by_name = {g.name: g for g in graphs}
-        full_V = {aid: dec.V for aid, dec in zip(sc.agent_ids, decs)}
-
-        def case_for(label, graph, W=None):
-            """The case of ``graph``; ``W``: what its agents leave unobserved when it is not the design's (after a
-            loss): then ``V_i ⊖ W`` (detectability.py)."""
-            if W is None:
-                return bounds.make_case(label, graph, [ad[i].V for i in graph.ids], [ad[i].A_un for i in graph.ids])
-            Vs = [quotient_basis(full_V[i], W) for i in graph.ids]
-            return bounds.make_case(label, graph, Vs, [V.T @ A_w @ V for V in Vs])
-
-        cases = [case_for(name, by_name[name]) for name in used]
-        if d.graph_set == "all":
-            for k, arcs in enumerate(enumerate_strongly_connected(sc.m)):
-                arcs_ids = tuple((sc.agent_ids[j], sc.agent_ids[i]) for j, i in arcs)
-                g = build_graph(f"all#{k + 1}", sc.agent_ids, arcs_ids, weights=d.weights)
-                cases.append(case_for(g.name, g))
-        graph_arcs = {g.name: g.arcs for g in sc.graphs}
-        agent_losses = analyse_agent_losses(of, sc.agent_ids, graph_arcs) if sc.m > 1 else {}
-        arc_losses = analyse_arc_losses(sc.agent_ids, graph_arcs)
-        if d.resilience:
-            for lost, rep in agent_losses.items():
-                if not rep.detectable:
-                    raise AssumptionError(
-                        f"design.resilience: 1 needs a redundantly jointly detectable network: without agent {lost}, "
-                        f"no agent sees {rep.unobservable_direction}, which does not decay")
-                for name in used:
-                    if not rep.strongly_connected[name]:
-                        j, i = rep.unreachable[name]
-                        raise AssumptionError(
-                            f"design.resilience: 1 needs a redundantly strongly connected network: without agent "
-                            f"{lost}, graph {name} is not strongly connected (agent {j} cannot reach agent {i})")
-                survivors = tuple(i for i in sc.agent_ids if i != lost)
-                for name in used:  # strongly connected: checked just above (rep.strongly_connected)
-                    g = build_graph(f"{name} without agent {lost}", survivors, graph_arcs[name], weights=d.weights,
-                                    check=False)
-                    W_S = rep.unobserved.W_working
-                    cases.append(case_for(g.name, g, None if W_S.shape[1] == un.dim else W_S))
-        return cls(sc=sc, sp=sp, scale=scale, A_w=A_w, decs=decs, un=un, warnings=warnings, graphs=graphs,
-                   cases=tuple(cases), agent_losses=agent_losses, arc_losses=arc_losses,
-                   switching=len(used) > 1 or d.graph_set == "all")
-
-
-def _design(pre: "_Prelude | Scenario", structure: str, compare_q_methods: bool, workers: int | None) -> Design:
-    """The design with the consensus ``structure`` (``split`` or ``whole``) on what :class:`_Prelude` computed."""
-    pre = pre if isinstance(pre, _Prelude) else _Prelude.of(pre)
+def _design(pre: "Prelude | Scenario", structure: str, compare_q_methods: bool, workers: int | None) -> Design:
+    """The design with the consensus ``structure`` (``split`` or ``whole``) on what :class:`~.prelude.Prelude` computed."""
+    pre = pre if isinstance(pre, Prelude) else Prelude.of(pre)
     sc, un, scale = pre.sc, pre.un, pre.scale
     d = sc.design
     A = sc.system.A
@@ -455,92 +370,3 @@ def _design_q(sc: Scenario, cases, switching: bool, warnings: list, compare: boo
     # rho(Atil B^q) per case (eq. split_discrete_rho); the spectral q search has computed them already
     radius = {c.label: bounds.error_radius(c, result.q, rate=rate, method=d.eigenvalues) for c in cases}
     return dict(q=result.q, q_result=result, q_methods=others, error_radius=radius)
-
-
-def check_full(des: Design, warnings: list) -> Design:
-    """An approximate split (a weakly observable direction left to consensus): the rate on the full error matrices.
-
-    Prop. error (and errordis) split the spectrum exactly only when every V_i is an exact unobservable space;
-    with ``split_residual`` above round-off the certificates' split blocks are an approximation, so the
-    rate is checked on the full error matrix of every case held constant
-    (:func:`splitspec_core.synthesis.error_matrix.full_radius`), and an automatic q or g raised until it meets it
-    (:func:`_raise_to_full`): design policy, so here and not with the matrices.
-    No switching certificate of the paper covers an approximate split.
-    """
-    sc = des.scenario
-    worst = max([a.dec.weak for a in des.agents] + [des.split_residual])
-    who = ", ".join(str(a.id) for a in des.agents if a.dec.weak > 0) or "every"
-    note = (f"agent(s) {who} left a weakly observable direction (margin up to {worst:.2g}) to consensus: the split "
-            f"of the error dynamics holds up to {des.split_residual:.2g}")
-    if sc.m * sc.n > MAX_RATE_DIM:  # the certificate then says it covers the split blocks only (verdict.py)
-        warnings.append(f"{note}; the full error matrices (m n = {sc.m * sc.n} > {MAX_RATE_DIM}) were not checked")
-        return dataclasses.replace(des, warnings=tuple(warnings))
-    full = full_radius(des, des.cases, q=des.q, g=des.g)
-    warnings.append(f"{note}; the rate is checked on the full error matrix of each graph held constant")
-    des = dataclasses.replace(des, full_radius=full, warnings=tuple(warnings))
-    if not _full_meets(des, full):
-        des = _raise_to_full(des, warnings)
-    if not _full_meets(des, des.full_radius):
-        if des.time == "continuous" and max(v["ode"] for v in des.full_radius.values()) > -des.envelope_rate:
-            # sampled_rates.py's run.dt advice was computed on the split blocks: no run.dt helps when the ODE misses
-            warnings[:] = [w for w in warnings if not re.match(r"(the sampled-data estimator is UNSTABLE with g|"
-                                                              r"with run\.dt = \S+ the sampled-data estimator)", w)]
-        weakest = min([a.dec.weak for a in des.agents if a.dec.weak > 0] or [des.split_residual])
-        warnings.append(f"leaving agent(s) {who}'s weak directions to consensus misses the rate on the full error "
-                        f"matrix even with more consensus: if the model is accurate to better than {weakest:.2g}, set "
-                        f"design.rank_tol below that (e.g. {weakest / 10:.1g}) to count them (larger local gains)")
-        des = dataclasses.replace(des, warnings=tuple(warnings))
-    return des
-
-
-def _full_meets(des: Design, full: dict) -> bool:
-    rate = des.envelope_rate  # lam, or slower when directions no agent sees limit it (they are in the full matrix)
-    if des.time == "discrete":
-        return max(full.values()) < rate
-    return max(v["ode"] for v in full.values()) <= -rate and min(v["sampled"] for v in full.values()) >= rate
-
-
-def _raise_to_full(des: Design, warnings: list) -> Design:
-    """An automatic q or g that the full error matrices miss (an approximate split): raised until they meet the rate.
-
-    The split's own certificate chose q (or g) on the split blocks; with the split only approximate the
-    coupling it leaves can take the full matrix past the rate, and more consensus (a larger q, a larger g)
-    is what brings it back.  Discrete: q + 1, q + 2, ... up to ``min(design.q_max, 4 q + 64)``; continuous:
-    g grown by 25 % at a time (from the rate when the split's g is 0), up to 100 times the split's g, stopping
-    early when four raises in a row do not improve the full matrix's abscissa (the weak directions then couple
-    through the local gains, which no consensus undoes: 21 raises cost a minute at m n = 1600).  A q or g the
-    user gave is left alone (the certificate then says it misses the rate).
-    """
-    sc = des.scenario
-    d = sc.design
-    if des.time == "discrete":
-        if d.q != "auto":
-            return des
-        for q in range(des.q + 1, min(d.q_max, 4 * des.q + 64) + 1):
-            full = full_radius(des, des.cases, q=q)
-            if _full_meets(des, full):
-                result = bounds.choose_q(d.q_method, des.cases, d.rate, q=q, q_max=d.q_max)
-                warnings.append(f"q raised from {des.q} to {q}: with the approximate split, q = {des.q} leaves the full "
-                                f"error matrix's spectral radius at {max(des.full_radius.values()):.4g} >= rate {d.rate:g}")
-                return dataclasses.replace(des, q=q, q_result=result, full_radius=full, warnings=tuple(warnings),
-                                           error_radius={c.label: bounds.error_radius(c, q) for c in des.cases})
-        return des
-    if d.g != "auto":
-        return des
-    g = des.g if des.g > 0 else d.rate / 1.25
-    best, stale = max(v["ode"] for v in des.full_radius.values()), 0
-    for _ in range(21):
-        g *= 1.25
-        full = full_radius(des, des.cases, g=bounds.nice_ceil(g))
-        ode = max(v["ode"] for v in full.values())
-        best, stale = (ode, 0) if ode < best - 1e-9 * max(1.0, abs(best)) else (best, stale + 1)
-        if stale == 4:
-            break
-        if _full_meets(des, full):
-            g = bounds.nice_ceil(g)
-            worst = max(v["ode"] for v in des.full_radius.values())
-            warnings.append(f"g raised from {des.g:g} to {g:g}: with the approximate split, g = {des.g:g} leaves the full "
-                            f"error matrix's spectral abscissa at {worst:.4g} > -{d.rate:g}")
-            return dataclasses.replace(des, g=g, full_radius=full, warnings=tuple(warnings),
-                                       error_radius={c.label: bounds.abscissa(c, g) for c in des.cases})
-    return des

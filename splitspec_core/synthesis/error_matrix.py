@@ -1,5 +1,5 @@
 """The full ``mn x mn`` error dynamics of a design: its matrices, their spectra and noise (matrices only: what a
-design does with them is the designer's, :func:`splitspec_core.synthesis.designer.check_full`).
+design does with them is the designer's, :func:`splitspec_core.synthesis.approximate.check_full`).
 
 The full error matrix of one step, for the agents of a case with consensus matrix ``S``:
 
@@ -13,7 +13,7 @@ With an exact observability split these have the spectrum of the split blocks (p
 prop. errordis), which is what the certificates of :mod:`.bounds` use.  When a weakly observable
 direction was left to consensus (:mod:`splitspec_core.model.observability`) the split holds only up to
 ``split_residual``: :func:`full_radius` gives these full matrices' decay for every case held constant, which
-the designer checks the rate on (:func:`splitspec_core.synthesis.designer.check_full`: it raises an automatic
+the designer checks the rate on (:func:`splitspec_core.synthesis.approximate.check_full`: it raises an automatic
 q or g until they meet it, and says so).
 
 Steady-state noise (:func:`predicted_rms`): with process noise ``v`` (covariance ``Q``) and measurement

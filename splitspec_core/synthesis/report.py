@@ -5,6 +5,10 @@ Both render the same :class:`~splitspec_core.synthesis.design_data.Design`, the 
 the same analyses of it (:func:`~splitspec_core.synthesis.conditioning.conditioning`,
 :func:`~splitspec_core.synthesis.loss_certificate.loss_certificate`), and must say the same thing; the JSON is the
 contract (``../shared/DESIGN.md``), the text its reading.
+
+Why one module: the JSON and the text are two renderings of one design that must not drift apart (the same
+figures, the same verdict, the same warnings, each once): side by side, a field added to one is seen missing from
+the other.
 """
 
 from __future__ import annotations

@@ -18,7 +18,7 @@ from .error_matrix import MAX_RATE_DIM, step_blocks, whole_matrix
 from .kalman import spectral_radius
 from ..model.graphs import build_graph
 from .sampled_rates import sampled_rates
-from .whole_state import mixing_bound
+from .mixing import mixing_bound
 
 __all__ = ["RateCertificate", "rate_certificate", "survivors_certificate", "q_text", "whole_text", "sampled_shortfall",
            "NO_CERTIFIED_RATE", "ADAPTIVE"]
@@ -118,7 +118,7 @@ def _split_certificate(des: Design, *, sampled: bool = True) -> RateCertificate:
         return _full_certificate(des, sampled=sampled)
     cert = _blocks_certificate(des, sampled=sampled)
     if cert.certified and not des.split_exact:
-        # an approximate split whose full error matrices were too large to check (designer.check_full): the
+        # an approximate split whose full error matrices were too large to check (approximate.check_full): the
         # certificate covers the split blocks, not the estimator that runs
         return RateCertificate(False, f"{cert.text}, on the split blocks only: the split is approximate (residual "
                                       f"{des.split_residual:.2g}) and its full error matrices (m n = "
@@ -189,7 +189,7 @@ def _whole_certificate(des: Design) -> RateCertificate:
 
 def _full_certificate(des: Design, *, sampled: bool) -> RateCertificate:
     """An approximate split (``Design.full_radius``): the verdict of the full error matrices, each graph held
-    constant; no switching certificate of the paper covers it (see :func:`splitspec_core.synthesis.designer.check_full`).
+    constant; no switching certificate of the paper covers it (see :func:`splitspec_core.synthesis.approximate.check_full`).
     The full matrices hold the directions no agent sees too: they are judged against the envelope's rate."""
     sc = des.scenario
     rate = des.envelope_rate

@@ -44,17 +44,10 @@ itself (no search); ``explicit`` the user's ``K_i``.
 
 What certifies it
 -----------------
-* every case held constant (each graph the switching uses, and with ``design.resilience: 1`` each single agent
-  loss, the gains kept): the spectral radius of the full error matrix ``< lam`` per event time (``m n <=``
-  :data:`~splitspec_core.synthesis.error_matrix.MAX_RATE_DIM`);
-* switching among graphs, or ``m n`` beyond that: the **mixing bound** (:func:`mixing_bound`), for doubly
-  stochastic weights: the error's average ``ebar`` and disagreement ``delta`` obey, in the norm of a Lyapunov
-  function ``X`` of ``Fbar = mean F_i`` and the two-norm, ``[|ebar+|_X, |delta+|] <= G [|ebar|_X, |delta|]``
-  with ``G = [[a, b], [s c, s d]]``, ``a = |Fbar|_X``, ``b = |[F_1 .. F_m]|_{2->X} / m``,
-  ``c = |[F_i - Fbar]_i|_{X->2}``, ``d = max |F_i|_2``, ``s = max |S^q - 11'/m|_2`` over the graphs: every
-  sequence of them decays at ``rho(G)``: arbitrary switching, any size (only ``n x n`` and ``m x m`` matrices);
-* switching with a known dwell time (weights not doubly stochastic): ``r c^(1/tau_D) <= lam`` with ``c`` the largest
-  transient constant ``sup_k |M^k| / r^k`` of the graphs held constant (:func:`dwell_bound`).
+Every case held constant (each graph the switching uses, and with ``design.resilience: 1`` each single agent loss,
+the gains kept): the spectral radius of the full error matrix ``< lam`` per event time (``m n <=``
+:data:`~splitspec_core.synthesis.error_matrix.MAX_RATE_DIM`); switching, or ``m n`` beyond that, the mixing bound
+or the dwell-time bound (:mod:`.mixing`).
 """
 
 from __future__ import annotations
@@ -67,15 +60,15 @@ import scipy.linalg as sla
 
 from ..errors import DesignError
 from ..model import steps as st
-from ..model.graphs import is_doubly_stochastic, perron_vector
+from ..model.graphs import perron_vector
 from ..model.plant import output_rows, sampled_model
 from ..scenarios.specs import Scenario
-from .conditioning import transient_constant
 from .error_matrix import MAX_NOISE_DIM, MAX_RATE_DIM, step_blocks, whole_matrix, whole_noise
+from .mixing import certify, mixing_bound, same_agents
 from .kalman import kalman_predictor, per_step_rate, shifted_predictor, spectral_radius
 
-__all__ = ["WholeState", "Q_GAIN", "Q_EXTRA", "Q_CAP", "SEARCH_DIM", "MARGINS", "case_radius", "mixing_bound",
-           "dwell_bound", "design_whole", "whole_gains", "agent_gain"]
+__all__ = ["WholeState", "Q_GAIN", "Q_EXTRA", "Q_CAP", "SEARCH_DIM", "MARGINS", "case_radius", "radius_at", "design_whole",
+           "whole_gains", "agent_gain"]
 
 #: q is raised while one more exchange lowers the predicted steady RMS by more than this fraction
 Q_GAIN = 0.01
@@ -173,55 +166,6 @@ def _predicted(sc: Scenario, Fs, Kss, S, q: int, Qn, R, per_agent: dict | None =
     if per_agent is not None:
         per_agent[int(q)] = np.sqrt(tr)
     return float(np.sqrt(np.mean(tr)))
-
-
-def mixing_bound(Fs, Ss, q: int, lam: float) -> float:
-    """The decay rate the mixing bound certifies for the whole-state error under arbitrary switching among the doubly
-    stochastic ``Ss`` (module docstring); ``inf`` when the average's own map ``Fbar`` does not decay faster than
-    ``lam`` or a weight matrix is not doubly stochastic."""
-    if not all(is_doubly_stochastic(np.asarray(S)) for S in Ss):
-        return math.inf
-    m, n = len(Fs), Fs[0].shape[0]
-    Fbar = sum(Fs) / m
-    r = spectral_radius(Fbar)
-    if r >= lam:
-        return math.inf
-    J = np.full((m, m), 1.0 / m)
-    s = max(float(np.linalg.norm(np.linalg.matrix_power(np.asarray(S, dtype=float), int(q)) - J, 2)) for S in Ss)
-    d = max(float(np.linalg.norm(F, 2)) for F in Fs)
-    Fcat = np.hstack(Fs)
-    Dcat = np.vstack([F - Fbar for F in Fs])
-    best = math.inf
-    for t in (0.25, 0.5, 0.75, 0.9):  # the Lyapunov function of Fbar / rr, rr between its radius and lam
-        rr = r + t * (lam - r)
-        try:
-            X = sla.solve_discrete_lyapunov((Fbar / rr).T, np.eye(n))  # Fbar' X Fbar <= rr^2 X
-            Xh = np.linalg.cholesky(0.5 * (X + X.T)).T  # |v|_X = |Xh v|
-        except (np.linalg.LinAlgError, ValueError):
-            continue
-        Xi = np.linalg.inv(Xh)
-        a = float(np.linalg.norm(Xh @ Fbar @ Xi, 2))
-        b = float(np.linalg.norm(Xh @ Fcat, 2)) / m
-        c = float(np.linalg.norm(Dcat @ Xi, 2))
-        G = np.array([[a, b], [s * c, s * d]])
-        best = min(best, spectral_radius(G))
-    return best
-
-
-def dwell_bound(Ms, lam: float, dwell_steps: float) -> float:
-    """The rate certified under switching with average dwell ``dwell_steps`` event times among the constant-graph
-    maps ``Ms``: ``min_r r c(r)^(1 / tau_D)``, ``c(r) = max sup_k |M^k|_2 / r^k`` (:func:`transient_constant`)."""
-    rho = max(spectral_radius(M) for M in Ms)
-    if rho >= lam or not dwell_steps or dwell_steps <= 0:
-        return math.inf
-    best = math.inf
-    for t in (0.25, 0.5, 0.75):
-        r = rho + t * (lam - rho)
-        cs = [transient_constant(M, r).constant for M in Ms]
-        if any(c is None or not math.isfinite(c) for c in cs):
-            continue
-        best = min(best, r * max(cs) ** (1.0 / dwell_steps))
-    return best
 
 
 def whole_gains(sc: Scenario, L: np.ndarray, pi: np.ndarray) -> list:
@@ -322,7 +266,7 @@ def design_whole(sc: Scenario, cases, *, rate: float, dwell: float | None, warni
             continue
         q, rms = _noise_q(sc, Fs, Kss, first.S, q_cert, Qn, R, q_cap, by_id.rms) if q_given is None else \
             (q_given, _predicted(sc, Fs, Kss, first.S, q_given, Qn, R, by_id.rms))
-        radius = _radius_at(sc, by_id, cases, q)
+        radius = radius_at(sc, by_id, cases, q)
         tried.append((margin, alpha, q, radius, rms))
         key = (math.inf if rms is None else rms, q)
         if best is None or _better(key, best[0]):
@@ -330,7 +274,7 @@ def design_whole(sc: Scenario, cases, *, rate: float, dwell: float | None, warni
     if best is None:
         raise DesignError(_why_not(sc, candidates, cases, lam, q_cap, Cs))
     _, margin, alpha, p, Ks, q, q_cert, by_id = best
-    radii, cert = _certify(sc, by_id, cases, q, lam, dwell, warnings)
+    radii, cert = certify(sc, by_id, cases, q, lam, dwell, warnings)
     Lp = p.L if p is not None else np.zeros((sc.n, C.shape[0]))
     info = WholeState(alpha=alpha if alpha is not None else float("nan"), L=Lp, pi=pi, lam_step=lam,
                       central_radius=p.radius if p is not None else float("nan"),
@@ -370,7 +314,7 @@ def _better(key: tuple, other: tuple) -> bool:
     return r <= r0 * 1.02 and q < q0
 
 
-def _radius_at(sc: Scenario, by_id: dict, cases, q: int) -> dict:
+def radius_at(sc: Scenario, by_id: dict, cases, q: int) -> dict:
     if sc.m * sc.n > MAX_RATE_DIM:
         return {}
     return {c.label: by_id.of(sc, c, q) for c in cases}
@@ -381,7 +325,7 @@ def _smallest_q(sc: Scenario, by_id: dict, cases, lam: float, q_cap: int) -> int
     then bisection); above :data:`MAX_RATE_DIM` the mixing bound's; None when none up to ``q_cap`` does."""
     def ok(q: int) -> bool:
         if sc.m * sc.n > MAX_RATE_DIM:
-            groups = _same_agents(cases)
+            groups = same_agents(cases)
             return all(mixing_bound([by_id[i] for i in ids], Ss, q, lam) < lam for ids, Ss in groups.items())
         return all(by_id.of(sc, c, q) < lam for c in cases)
 
@@ -413,41 +357,6 @@ def _noise_q(sc: Scenario, Fs, Kss, S, q0: int, Qn, R, q_cap: int, per_agent: di
             break
         q, rms = q + step, nxt
     return q, rms
-
-
-def _same_agents(cases) -> dict:
-    """``{agent ids: [S of each case over exactly them]}``: the graphs the mixing bound takes together."""
-    out: dict = {}
-    for c in cases:
-        out.setdefault(tuple(c.graph.ids), []).append(c.graph.S)
-    return out
-
-
-def _certify(sc: Scenario, by_id: dict, cases, q: int, lam: float, dwell: float | None, warnings: list) -> tuple:
-    """``(radii, (method, bound, certified, switching))`` at ``q``: the full error matrices held constant, and for
-    switching (or beyond :data:`MAX_RATE_DIM`) the mixing bound or the dwell-time bound."""
-    radii = _radius_at(sc, by_id, cases, q)
-    groups = _same_agents(cases)
-    switching = any(len(Ss) > 1 for Ss in groups.values())
-    if radii and not switching:
-        worst = max(radii.values())
-        return radii, ("full error matrix", worst, worst < lam, False)
-    mix = max(mixing_bound([by_id[i] for i in ids], Ss, q, lam) for ids, Ss in groups.items())
-    if mix < lam:
-        return radii, ("mixing bound", mix, True, True)
-    if radii:
-        worst = max(radii.values())
-        steps = None if dwell is None else (dwell if sc.time == "discrete" else dwell / sc.run.dt)
-        if steps:
-            Ms = [whole_matrix([by_id[i] for i in c.graph.ids], c.graph.S, q) for c in cases]
-            dw = dwell_bound(Ms, lam, steps)
-            if dw < lam:
-                return radii, ("dwell-time bound", dw, True, True)
-        warnings.append("the whole-state design is certified for each graph held constant; no switching certificate "
-                        "holds (the mixing bound needs doubly stochastic weights, design.weights: metropolis on "
-                        "undirected graphs; the dwell-time bound a longer dwell)")
-        return radii, ("full error matrix", worst, worst < lam, False)
-    return radii, ("mixing bound", mix, False, True)
 
 
 def _no_centralized(lam: float) -> str:

@@ -19,7 +19,7 @@ from splitspec_core.model.detectability import still_text
 from splitspec_core.model.subspaces import intersection, intersections_without_each, triangular_without_each
 from splitspec_core.scenarios.generate import ring_scenario
 from splitspec_core.scenarios.load import load_scenario, parse_scenario
-from splitspec_core.synthesis import designer
+from splitspec_core.synthesis import prelude
 from splitspec_core.synthesis.designer import design
 from tests.conftest import EXAMPLES
 
@@ -47,7 +47,7 @@ def factorizations_of_the_loss_analysis(monkeypatch, m: int) -> int:
 
     for name in ("qr", "svd"):
         monkeypatch.setattr(np.linalg, name, counted(getattr(np.linalg, name)))
-    real = designer.analyse_agent_losses
+    real = prelude.analyse_agent_losses
 
     def analysed(*args, **kwargs):
         inside[0] = True
@@ -56,7 +56,7 @@ def factorizations_of_the_loss_analysis(monkeypatch, m: int) -> int:
         finally:
             inside[0] = False
 
-    monkeypatch.setattr(designer, "analyse_agent_losses", analysed)
+    monkeypatch.setattr(prelude, "analyse_agent_losses", analysed)
     des = design(parse_scenario(ring_scenario(m, 6, rate=0.9, chords=True), source="<test>"))
     assert len(des.agent_losses) == m and all(rep.ok for rep in des.agent_losses.values())
     return count[0]

@@ -21,7 +21,8 @@ from splitspec_core.synthesis.kalman import kalman_predictor, shifted_predictor,
 from splitspec_core.synthesis.report import design_json, design_text
 from splitspec_core.synthesis.survivors import certify_network
 from splitspec_core.synthesis.verdict import rate_certificate
-from splitspec_core.synthesis.whole_state import agent_gain, mixing_bound
+from splitspec_core.synthesis.mixing import mixing_bound
+from splitspec_core.synthesis.whole_state import agent_gain
 from tests.conftest import EXAMPLES
 
 OSC = [[0.955336, 0.29552], [-0.29552, 0.955336]]  # a lightly rotating oscillator, radius 1
