@@ -153,8 +153,8 @@ def highest_rate(sc: Scenario, *, probes: int = RATE_PROBES) -> RateReach | None
 
 
 def _choose(sc: Scenario, compare_q_methods: bool, workers: int | None) -> Design:
-    """``design.gains: optimal`` with ``design.consensus: auto``: the whole-state design and the split (its gains the
-    Riccati design with the scenario's noise) both, and the certified one with the smaller predicted steady RMS kept;
+    """``design.gains: optimal`` with ``design.consensus: auto``: the whole-state design and the split (its ``riccati``
+    or ``place`` gains, :func:`_best_split`) both, and the certified one with the smaller predicted steady RMS kept;
     when neither noise can be predicted (``m n`` above ``MAX_NOISE_DIM``) the split, which costs fewer exchanges;
     neither certified: the one with the smaller predicted RMS.  ``Design.chosen`` says which and why."""
     pre = Prelude.of(sc)
@@ -166,7 +166,8 @@ def _choose(sc: Scenario, compare_q_methods: bool, workers: int | None) -> Desig
             if skip:
                 break
         try:
-            found[structure] = _design(pre, structure, compare_q_methods, workers)
+            found[structure] = _design(pre, structure, compare_q_methods, workers) if structure == "whole" else \
+                _best_split(pre, compare_q_methods, workers)
         except (AssumptionError, DesignError) as exc:
             errors[structure] = exc
     if skip:
@@ -183,7 +184,25 @@ def _choose(sc: Scenario, compare_q_methods: bool, workers: int | None) -> Desig
         pick = "split" if w is None and s_ is None else \
             ("whole" if (math.inf if w is None else w) <= (math.inf if s_ is None else s_) else "split")
     other = "split" if pick == "whole" else "whole"
-    return _annotated(found[pick], _chosen_text(pick, other, figures, errors))
+    return _annotated(found[pick], _chosen_text(pick, other, figures, errors, found))
+
+
+def _best_split(pre: Prelude, compare_q_methods: bool, workers: int | None) -> Design:
+    """The paper's split for ``design.gains: optimal``: its ``riccati`` gains (weights: the noise) and its ``place``
+    gains both, the certified one with the smaller predicted steady RMS kept (the first refusal said when neither
+    designs)."""
+    found, first = [], None
+    for method in ("riccati", "place"):
+        try:
+            des = _design(pre, "split", compare_q_methods, workers, split_gains=method)
+        except (AssumptionError, DesignError) as exc:
+            first = first or exc
+            continue
+        rms = _predicted_all(des)
+        found.append((not rate_certificate(des).certified, math.inf if rms is None else rms, des))
+    if not found:
+        raise first
+    return min(found, key=lambda f: f[:2])[2]
 
 
 def _annotated(des: Design, chosen: str) -> Design:
@@ -229,9 +248,10 @@ def _predicted_all(des: Design) -> float | None:
     return float(np.sqrt(np.mean(r ** 2)))
 
 
-def _chosen_text(pick: str, other: str, figures: dict, errors: dict) -> str:
+def _chosen_text(pick: str, other: str, figures: dict, errors: dict, found: dict) -> str:
     """One line: which consensus subspace ``design.consensus: auto`` chose, and why."""
-    name = {"whole": "the whole state", "split": "the split"}
+    gains = found["split"].agents[0].gain.method if "split" in found and found["split"].agents else "riccati"
+    name = {"whole": "the whole state", "split": f"the split ({gains} gains)"}
 
     def fig(k):
         ok, rms = figures[k]
@@ -244,8 +264,10 @@ def _chosen_text(pick: str, other: str, figures: dict, errors: dict) -> str:
     return text + f"; {name[other]} failed: {errors[other]}"
 
 
-def _design(pre: "Prelude | Scenario", structure: str, compare_q_methods: bool, workers: int | None) -> Design:
-    """The design with the consensus ``structure`` (``split`` or ``whole``) on what :class:`~.prelude.Prelude` computed."""
+def _design(pre: "Prelude | Scenario", structure: str, compare_q_methods: bool, workers: int | None, *,
+            split_gains: str | None = None) -> Design:
+    """The design with the consensus ``structure`` (``split`` or ``whole``) on what :class:`~.prelude.Prelude` computed;
+    ``split_gains``: the split's gain method for ``design.gains: optimal`` (default ``riccati``)."""
     pre = pre if isinstance(pre, Prelude) else Prelude.of(pre)
     sc, un, scale = pre.sc, pre.un, pre.scale
     d = sc.design
@@ -259,7 +281,7 @@ def _design(pre: "Prelude | Scenario", structure: str, compare_q_methods: bool, 
         agents = tuple(whole_placeholder(A, dec, aid, un.W_working, scale) for aid, dec in zip(sc.agent_ids, pre.decs))
     else:
         pw, mw = riccati_weights(sc)
-        method = "riccati" if d.gains == "optimal" else d.gains  # the split's own gains for the noise: Riccati
+        method = (split_gains or "riccati") if d.gains == "optimal" else d.gains  # the split's gains for the noise
         agents = tuple(
             design_agent(A, C, time=sc.time, rate=d.rate, method=method, margin=d.margin,
                          K=None if d.K is None else d.K[k], rank_tol=d.rank_tol,

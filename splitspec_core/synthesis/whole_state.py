@@ -264,7 +264,8 @@ def design_whole(sc: Scenario, cases, *, rate: float, dwell: float | None, warni
         if q_cert is None:
             tried.append((margin, alpha, None, None, None))
             continue
-        q, rms = _noise_q(sc, Fs, Kss, first.S, q_cert, Qn, R, q_cap, by_id.rms) if q_given is None else \
+        q, rms = _noise_q(sc, Fs, Kss, first.S, q_cert, Qn, R, q_cap, by_id.rms,
+                          lambda q: _certifies(sc, by_id, cases, lam, q)) if q_given is None else \
             (q_given, _predicted(sc, Fs, Kss, first.S, q_given, Qn, R, by_id.rms))
         radius = radius_at(sc, by_id, cases, q)
         tried.append((margin, alpha, q, radius, rms))
@@ -320,14 +321,20 @@ def radius_at(sc: Scenario, by_id: dict, cases, q: int) -> dict:
     return {c.label: by_id.of(sc, c, q) for c in cases}
 
 
+def _certifies(sc: Scenario, by_id, cases, lam: float, q: int) -> bool:
+    """Every case's full error matrix at ``q`` has radius below ``lam`` (above :data:`MAX_RATE_DIM`: the mixing bound
+    of each agent set's graphs)."""
+    if sc.m * sc.n > MAX_RATE_DIM:
+        groups = same_agents(cases)
+        return all(mixing_bound([by_id[i] for i in ids], Ss, q, lam) < lam for ids, Ss in groups.items())
+    return all(by_id.of(sc, c, q) < lam for c in cases)
+
+
 def _smallest_q(sc: Scenario, by_id: dict, cases, lam: float, q_cap: int) -> int | None:
     """The smallest q whose full error matrices (each case held constant) all have radius below ``lam`` (doubling,
     then bisection); above :data:`MAX_RATE_DIM` the mixing bound's; None when none up to ``q_cap`` does."""
     def ok(q: int) -> bool:
-        if sc.m * sc.n > MAX_RATE_DIM:
-            groups = same_agents(cases)
-            return all(mixing_bound([by_id[i] for i in ids], Ss, q, lam) < lam for ids, Ss in groups.items())
-        return all(by_id.of(sc, c, q) < lam for c in cases)
+        return _certifies(sc, by_id, cases, lam, q)
 
     q = 1
     while not ok(q):
@@ -344,18 +351,22 @@ def _smallest_q(sc: Scenario, by_id: dict, cases, lam: float, q_cap: int) -> int
     return q
 
 
-def _noise_q(sc: Scenario, Fs, Kss, S, q0: int, Qn, R, q_cap: int, per_agent: dict) -> tuple:
-    """From the smallest certified ``q0``: raised while one more exchange lowers the predicted RMS by more than
-    :data:`Q_GAIN` (at most :data:`Q_EXTRA` more; above :data:`SEARCH_DIM` two more at a time, once);
-    ``(q, rms)`` (``rms`` None when not computed)."""
+def _noise_q(sc: Scenario, Fs, Kss, S, q0: int, Qn, R, q_cap: int, per_agent: dict, ok=None) -> tuple:
+    """From the smallest certified ``q0``: raised while more exchanges lower the predicted RMS by more than
+    :data:`Q_GAIN` each (at most :data:`Q_EXTRA` more; above :data:`SEARCH_DIM` two at a time, once);
+    ``(q, rms)`` (``rms`` None when not computed).  The radius is not monotone in q (a q between two certified ones
+    can miss the rate: the disagreement's modes rotate), so a q that ``ok`` does not certify is stepped over."""
     rms = _predicted(sc, Fs, Kss, S, q0, Qn, R, per_agent)
-    q = q0
+    q, cand = q0, q0
     step, extra = (1, Q_EXTRA) if sc.m * sc.n <= SEARCH_DIM else (2, 2)
-    while rms is not None and q + step <= min(q0 + extra, q_cap):
-        nxt = _predicted(sc, Fs, Kss, S, q + step, Qn, R, per_agent)
-        if nxt is None or nxt > rms * (1.0 - step * Q_GAIN):
+    while rms is not None and cand + step <= min(q0 + extra, q_cap):
+        cand += step
+        if ok is not None and not ok(cand):
+            continue  # not certified at this q: the next one may be
+        nxt = _predicted(sc, Fs, Kss, S, cand, Qn, R, per_agent)
+        if nxt is None or nxt > rms * (1.0 - (cand - q) * Q_GAIN):
             break
-        q, rms = q + step, nxt
+        q, rms = cand, nxt
     return q, rms
 
 
