@@ -26,3 +26,8 @@ echo "compare figures written to docs/figures"
 cp out/figures/loss_sweep/loss_sweep.png docs/figures/loss_sweep.png
 cp out/figures/deadline_sweep/deadline_sweep.png docs/figures/deadline_sweep.png
 echo "sweep figures written to docs/figures"
+# what each rate costs in noise (docs/how-to/compare.md)
+"$BIN/splitspec" compare examples/ieee14_pmu.yaml --out out/figures/rate_sweep --seeds 2 --steps 3000 \
+  --sweep-rate 0.1 0.2 0.3 0.4 0.5 0.7 1.0 > /dev/null
+cp out/figures/rate_sweep/rate_sweep.png docs/figures/rate_sweep_ieee14.png
+echo "rate sweep figure written to docs/figures"
