@@ -313,12 +313,19 @@ class QResult:
 _SCAN = 64  # _smallest scans k = 1.._SCAN one by one, then doubles and bisects
 
 
-def _smallest(pred, q_max: int, *, what: str) -> int:
-    """Smallest k in [1, q_max] with pred(k): linear scan to 64, then doubling and bisection."""
-    for k in range(1, min(_SCAN, q_max) + 1):
+def smallest(pred, q_max: int, *, what: str, scan: int = _SCAN) -> int:
+    """Smallest k in [1, q_max] with pred(k): linear scan to ``scan`` (every k: a predicate need not be monotone
+    there), then doubling and bisection.
+
+    Raises
+    ------
+    DesignError
+        No k up to ``q_max`` (one line naming ``what``).
+    """
+    for k in range(1, min(scan, q_max) + 1):
         if pred(k):
             return k
-    lo, hi = _SCAN, 2 * _SCAN
+    lo, hi = scan, 2 * scan
     while True:
         if hi >= q_max:
             hi = q_max
@@ -338,7 +345,7 @@ def _smallest(pred, q_max: int, *, what: str) -> int:
 
 
 def _smallest_max(preds, q_max: int, *, whats) -> int:
-    """``max(_smallest(pred) for pred in preds)``, the same number, warm-started from the cases already searched.
+    """``max(smallest(pred) for pred in preds)``, the same number, warm-started from the cases already searched.
 
     Once q is the max over the cases searched so far, a case with ``pred(q)`` true and ``q <= 64``
     (inside the linear scan of :func:`_smallest`) has its own smallest k at most q, so it cannot
@@ -352,7 +359,7 @@ def _smallest_max(preds, q_max: int, *, whats) -> int:
     for pred, what in zip(preds, whats):
         if q is not None and q <= min(_SCAN, q_max) and pred(q):
             continue
-        k = _smallest(pred, q_max, what=what)
+        k = smallest(pred, q_max, what=what)
         q = k if q is None else max(q, k)
     return q
 
@@ -463,7 +470,7 @@ def q_spectral(cases, rate: float, *, q: int | None = None, q_max: int = 100_000
         return f"q (spectral, {case.label})"
 
     if q is None and cases:
-        first = _smallest(pred(cases[0]), q_max, what=what(cases[0]))  # remembered: _smallest_max replays it
+        first = smallest(pred(cases[0]), q_max, what=what(cases[0]))  # remembered: _smallest_max replays it
         _prefetch(cases[1:], first, rate=rate, method=method, warm=warm.get(first), workers=workers)
         q = _smallest_max((pred(c) for c in cases), q_max, whats=(what(c) for c in cases))
     elif q is not None:
@@ -527,7 +534,7 @@ def q_two_norm(cases, rate: float, *, q: int | None = None, q_max: int = 100_000
         p = _smallest_max((p_pred(c) for c in live), q_max,
                           whats=(f"p (two-norm, {c.label})" for c in live)) if live else 1
         Bp = [_power(c.B, p) for c in live]
-        pbar = _smallest(lambda k: all(norm2(c.Atil @ _power(b, k)) <= rate for c, b in zip(live, Bp)),
+        pbar = smallest(lambda k: all(norm2(c.Atil @ _power(b, k)) <= rate for c, b in zip(live, Bp)),
                          max(1, q_max // p), what="pbar (two-norm)")
         q = p * pbar
     else:

@@ -343,12 +343,7 @@ def design_text(des: Design) -> str:
         scope = "arbitrary switching among the cases" if r.switching else "each graph held constant"
         lines += ["", f"q = {r.q}  ({d.q_method}{extra}); certified bound {r.bound:.4g} "
                       f"{'<=' if r.certified else '>'} {d.rate:g} for {scope}"]
-        radii = sorted(des.error_radius.items(), key=lambda kv: -kv[1])
-        shown = radii if len(radii) <= MAX_LISTED else radii[:MAX_LISTED - 1]
-        for label, rad in shown:
-            lines.append(f"  {label}: spectral radius of Atil B^q = {rad:.4g}")
-        if len(shown) < len(radii):
-            lines.append(f"  ... and {len(radii) - len(shown)} more cases, each at most {radii[len(shown)][1]:.4g}")
+        lines += radius_lines(des.error_radius, "spectral radius of Atil B^q", ".4g")
         if r.eig and r.eig.get("methods"):
             how = ", ".join(f"{k} {v}" for k, v in r.eig["methods"].items())
             tol = f" (ARPACK relative tolerance {r.eig['tolerance']:g})" if r.eig.get("tolerance") else ""
@@ -459,6 +454,16 @@ def agent_lines(des: Design, cond) -> list:
     return out
 
 
+def radius_lines(radii: dict, what: str, fmt: str) -> list:
+    """One line per case, the largest first, at most :data:`MAX_LISTED` (the rest counted): ``  label: what = r``."""
+    ordered = sorted(radii.items(), key=lambda kv: -kv[1])
+    shown = ordered if len(ordered) <= MAX_LISTED else ordered[:MAX_LISTED - 1]
+    out = [f"  {label}: {what} = {rad:{fmt}}" for label, rad in shown]
+    if len(shown) < len(ordered):
+        out.append(f"  ... and {len(ordered) - len(shown)} more cases, each at most {ordered[len(shown)][1]:{fmt}}")
+    return out
+
+
 def whole_lines(des: Design) -> list:
     """The whole-state design's q, its certificate per case, and the centralized filter it spreads."""
     sc = des.scenario
@@ -469,12 +474,7 @@ def whole_lines(des: Design) -> list:
     raised = "" if des.q == w.q_certified else f"; raised from {w.q_certified} for the noise"
     out = [f"q = {des.q} exchanges per {per}  (whole-state consensus; the smallest the {r.method} certifies"
            f"{raised}); bound {r.bound:.6g} {'<' if r.certified else '>='} {w.lam_step:.6g} per step for {scope}"]
-    radii = sorted(des.full_radius.items(), key=lambda kv: -kv[1])
-    shown = radii if len(radii) <= MAX_LISTED else radii[:MAX_LISTED - 1]
-    for label, rad in shown:
-        out.append(f"  {label}: spectral radius of the full error matrix = {rad:.6g}")
-    if len(shown) < len(radii):
-        out.append(f"  ... and {len(radii) - len(shown)} more cases, each at most {radii[len(shown)][1]:.6g}")
+    out += radius_lines(des.full_radius, "spectral radius of the full error matrix", ".6g")
     if w.method != "explicit":
         which = "the Kalman predictor" if w.alpha == 1.0 else f"the Riccati design shifted by alpha = {w.alpha:.6g}"
         out.append(f"  the centralized filter it spreads: {which} of the per-step model with the scenario's noise, "

@@ -65,6 +65,7 @@ from ..model.plant import output_rows, sampled_model
 from ..scenarios.specs import Scenario
 from .error_matrix import MAX_NOISE_DIM, MAX_RATE_DIM, step_blocks, whole_matrix, whole_noise
 from .mixing import certify, mixing_bound, same_agents
+from .bounds import smallest
 from .kalman import kalman_predictor, per_step_rate, shifted_predictor, spectral_radius
 
 __all__ = ["WholeState", "Q_GAIN", "Q_EXTRA", "Q_CAP", "SEARCH_DIM", "MARGINS", "case_radius", "radius_at", "design_whole",
@@ -76,6 +77,8 @@ Q_GAIN = 0.01
 Q_EXTRA = 8
 #: the largest q the automatic search tries (design.q_max lowers it)
 Q_CAP = 512
+#: the smallest q is looked for among every q up to this (above it by doubling and bisection)
+SCAN = 16
 #: bisection steps of the shift alpha of the centralized filter (:func:`_alpha_for`)
 ALPHA_STEPS = 12
 #: up to this m n every candidate centralized filter is designed and the smallest predicted RMS kept; above it the
@@ -333,22 +336,11 @@ def _certifies(sc: Scenario, by_id, cases, lam: float, q: int) -> bool:
 def _smallest_q(sc: Scenario, by_id: dict, cases, lam: float, q_cap: int) -> int | None:
     """The smallest q whose full error matrices (each case held constant) all have radius below ``lam`` (doubling,
     then bisection); above :data:`MAX_RATE_DIM` the mixing bound's; None when none up to ``q_cap`` does."""
-    def ok(q: int) -> bool:
-        return _certifies(sc, by_id, cases, lam, q)
-
-    q = 1
-    while not ok(q):
-        if q >= q_cap:
-            return None
-        q = min(2 * q, q_cap)
-    lo = q // 2  # ok(lo) failed (or lo = 0)
-    while q - lo > 1:
-        mid = (lo + q) // 2
-        if ok(mid):
-            q = mid
-        else:
-            lo = mid
-    return q
+    try:  # every q up to a few (the radius need not be monotone in q), then doubling and bisection
+        return smallest(lambda q: _certifies(sc, by_id, cases, lam, q), q_cap, what="q",
+                        scan=SCAN if sc.m * sc.n <= SEARCH_DIM else 4)
+    except DesignError:
+        return None
 
 
 def _noise_q(sc: Scenario, Fs, Kss, S, q0: int, Qn, R, q_cap: int, per_agent: dict, ok=None) -> tuple:

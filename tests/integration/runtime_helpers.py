@@ -66,10 +66,14 @@ def run(*args, timeout=180, **kw) -> subprocess.CompletedProcess:
 
 
 def events(out: Path) -> list:
+    """The run's events so far: every whole line of its events.jsonl (a line the orchestrator is still writing, with
+    no newline yet, is left for the next read: read while running, the file can end mid-line)."""
     p = out / "events.jsonl"
     if not p.exists():
         return []
-    return [json.loads(line) for line in p.read_text().splitlines() if line.strip()]
+    text = p.read_text()
+    whole = text if text.endswith("\n") else text[:text.rfind("\n") + 1]
+    return [json.loads(line) for line in whole.splitlines() if line.strip()]
 
 
 def wait_for_event(out: Path, name: str, timeout: float = 60.0, **where) -> dict:

@@ -105,6 +105,12 @@ def test_a_detectable_system_designs_and_its_error_stays_under_the_envelope(draw
     cert = rate_certificate(des)
     assume(cert.certified)  # q or g within limits and the sampled-data form at run.dt: checked elsewhere
     event("W limits the rate" if un.limits(des.rate) else "W faster than the rate")
+    assert_under_the_envelope(des, cert)
+
+
+def assert_under_the_envelope(des, cert) -> None:
+    """From the scenario's random initial estimates, the noise-free error stays under the certified envelope
+    ``c r^k |e(0)|`` (``c`` the transient constant, finite since the rate is certified; ``r`` the envelope's rate)."""
     c = conditioning(des).transient_constant
     assert c is not None and math.isfinite(c), conditioning(des).transient_method  # certified: the envelope is finite
     sc = des.scenario

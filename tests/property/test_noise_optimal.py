@@ -22,14 +22,13 @@ from hypothesis import strategies as st
 from splitspec_core.errors import SplitspecError
 from splitspec_core.scenarios.load import parse_scenario
 from splitspec_core.simulation.montecarlo import simulate_seeds
-from splitspec_core.simulation.simulator import simulate
 from splitspec_core.synthesis.conditioning import conditioning
 from splitspec_core.synthesis.designer import design
 from splitspec_core.synthesis.error_matrix import predicted_rms
 from splitspec_core.synthesis.verdict import rate_certificate
 
 from .test_design_properties import COMMON, examples
-from .test_detectable import detectable
+from .test_detectable import assert_under_the_envelope, detectable
 
 pytestmark = pytest.mark.filterwarnings("ignore:Convergence was not reached:UserWarning")
 
@@ -68,15 +67,7 @@ def test_the_noise_optimal_designs_error_stays_under_its_certified_envelope(data
     cert = rate_certificate(des)
     assume(cert.certified)
     event(f"consensus {des.consensus}")
-    c = conditioning(des).transient_constant
-    assert c is not None and math.isfinite(c), conditioning(des).transient_method
-    sc = des.scenario
-    r = cert.rate if sc.time == "discrete" else math.exp(-cert.rate * sc.run.dt)
-    tr = simulate(des, noise=False)
-    e = tr.xhat - tr.x[:, None, :]
-    e = np.linalg.norm(e.reshape(e.shape[0], -1), axis=1)
-    k = np.arange(e.size)
-    assert np.all(e <= c * r ** k * e[0] * (1 + 1e-8) + 1e-280), float(np.max(e / (c * r ** k * e[0])))
+    assert_under_the_envelope(des, cert)
 
 
 @settings(max_examples=examples(15), **COMMON)
