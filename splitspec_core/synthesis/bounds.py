@@ -310,7 +310,7 @@ class QResult:
     eig: dict | None = None  # spectral q: how the radii were computed (spectral.summary: method, tolerance)
 
 
-_SCAN = 64  # _smallest scans k = 1.._SCAN one by one, then doubles and bisects
+_SCAN = 64  # smallest scans k = 1.._SCAN one by one, then doubles and bisects
 
 
 def smallest(pred, q_max: int, *, what: str, scan: int = _SCAN) -> int:
@@ -348,7 +348,7 @@ def _smallest_max(preds, q_max: int, *, whats) -> int:
     """``max(smallest(pred) for pred in preds)``, the same number, warm-started from the cases already searched.
 
     Once q is the max over the cases searched so far, a case with ``pred(q)`` true and ``q <= 64``
-    (inside the linear scan of :func:`_smallest`) has its own smallest k at most q, so it cannot
+    (inside the linear scan of :func:`smallest`) has its own smallest k at most q, so it cannot
     raise the max: one evaluation instead of a search.  Only a case with ``pred(q)`` false is
     searched from scratch (its evaluations memoised by the caller), exactly as before, so the
     result and any error are those of the searches from scratch, also for a predicate that is

@@ -187,7 +187,7 @@ def test_warm_started_max_equals_searches_from_scratch(tables, q_max):
             return str(exc)
 
     whats = [f"case {i}" for i in range(len(tables))]
-    scratch = outcome(lambda: max(bounds._smallest(p, q_max, what=w) for p, w in zip(preds(), whats)))
+    scratch = outcome(lambda: max(bounds.smallest(p, q_max, what=w) for p, w in zip(preds(), whats)))
     assert outcome(lambda: bounds._smallest_max(preds(), q_max, whats=whats)) == scratch
 
 
@@ -196,13 +196,13 @@ def spectral_from_scratch(cases, rate, q_max=100_000):
     def rho(case, k):
         return bounds.spectral_radius(case.Atil @ np.linalg.matrix_power(case.B, k)) if case.nbar else 0.0
 
-    q = max(bounds._smallest(lambda k, c=c: rho(c, k) < rate, q_max, what=c.label) for c in cases)
+    q = max(bounds.smallest(lambda k, c=c: rho(c, k) < rate, q_max, what=c.label) for c in cases)
     return q, max(rho(c, q) for c in cases), {c.label: rho(c, q) for c in cases}
 
 
 def two_norm_p_from_scratch(cases):
     live = [c for c in cases if c.nbar]
-    return max([bounds._smallest(lambda k, c=c: np.linalg.norm(np.linalg.matrix_power(c.B, k), 2) < 1.0, 100_000,
+    return max([bounds.smallest(lambda k, c=c: np.linalg.norm(np.linalg.matrix_power(c.B, k), 2) < 1.0, 100_000,
                                  what=c.label) for c in live] or [1])
 
 
