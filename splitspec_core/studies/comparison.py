@@ -335,6 +335,11 @@ def _steady_starts(sc: Scenario, variants: dict, runs: dict, predicted: dict, kf
         c = transient_constant(A_c, r).constant
         e0 = float(np.sqrt(np.max(runs[name].sq_error[:, 0])))
         out[name] = steady_start(c, r, e0, p.rms, T)
+        if out[name] is None and name in clean:  # the bound is loose at n = 170 (IEEE 39-bus): measure it
+            out[name] = _measured_start(clean[name], p.rms)
+            if out[name] is not None:
+                how[name] = (f"steady from the noise-free run's error below {SETTLED:g} of the predicted (its "
+                             f"certified envelope, constant {c:.3g} at rate {r:.6g} per step, outlasts the run)")
     settled = [k for k in out.values() if k is not None]
     out["KCF"] = max(settled) if settled else None
     return out, how
