@@ -46,7 +46,7 @@ from ..synthesis.conditioning import conditioning, transient_constant
 from ..synthesis.designer import SPLIT_BESIDE, design
 from ..synthesis.kalman import per_step_rate, references
 from ..synthesis.verdict import ADAPTIVE, NO_CERTIFIED_RATE
-from ..errors import DesignError
+from ..errors import AssumptionError, DesignError
 from ..synthesis.error_matrix import MAX_NOISE_DIM, predicted_rms
 from ..synthesis.noise_tuning import tune
 from ..synthesis.verdict import rate_certificate
@@ -208,14 +208,14 @@ def compare(sc: Scenario, *, seeds, steps: int | None = None, eps: float | None 
             continue
         try:
             variants[name] = design(_variant(sc, gains))
-        except DesignError as exc:  # e.g. a local Riccati equation without a solution at this rate
-            variants[name] = str(exc)
+        except (DesignError, AssumptionError) as exc:  # e.g. a local Riccati equation without a solution, or
+            variants[name] = str(exc)  # place's poles outside the rate: that row fails, the others are compared
     tuned, notes = None, {}
     if sc.m * sc.n <= TUNE_MAX and own.consensus == "split":  # the split's own search for the noise (~40 designs)
         try:
             tuned = tune(_variant(sc, "riccati") if sc.design.gains == "optimal" else sc)
             variants["split tuned"] = tuned.design
-        except DesignError:
+        except (DesignError, AssumptionError):
             pass
     failed = {k: v for k, v in variants.items() if isinstance(v, str)}
     variants = {k: v for k, v in variants.items() if not isinstance(v, str)}
@@ -374,7 +374,7 @@ def sweep(sc: Scenario, *, seed: int, steps: int | None = None, values=None) -> 
         d = dataclasses.replace(sc.design, **({"q": int(v)} if discrete else {"g": float(v)}))
         try:
             des = design(dataclasses.replace(sc, design=d))
-        except DesignError as exc:
+        except (DesignError, AssumptionError) as exc:
             rows.append({"value": v, "error": str(exc)})
             continue
         cert = rate_certificate(des)

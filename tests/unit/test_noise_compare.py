@@ -183,3 +183,15 @@ def test_a_kalman_filter_whose_certified_transient_outlasts_the_run_is_measured_
     assert res.estimators[own].ratio_to_centralized is not None
     # measured from its own settling, the KF's figure is the honest run's to sampling error
     assert kf.rms_mean == pytest.approx(honest.estimators["centralized KF"].rms_mean, rel=0.1)
+
+
+def test_a_split_whose_gains_miss_the_rate_is_a_failed_row_not_a_failed_compare():
+    """IEEE 14-bus at 0.5 /s: place's local poles miss the rate (an AssumptionError), riccati has no solution; the
+    whole-state design is certified.  compare returns it and the baselines, and says why each split failed."""
+    sc = load_scenario(EXAMPLES / "ieee14_pmu.yaml")
+    sc = dataclasses.replace(sc, design=dataclasses.replace(sc.design, rate=0.5))
+    res = compare(sc, seeds=[0], steps=300)
+    assert "optimal (whole state)" in res.estimators and "centralized KF" in res.estimators
+    assert "split place" in res.failed and "do not meet rate 0.5" in res.failed["split place"]
+    assert "split place" not in res.estimators
+    assert res.estimators["optimal (whole state)"].certified_rate
