@@ -66,6 +66,7 @@ from ..scenarios.specs import Scenario
 from .error_matrix import MAX_NOISE_DIM, MAX_RATE_DIM, step_blocks, whole_matrix, whole_noise
 from .mixing import certify, mixing_bound, same_agents
 from .bounds import smallest
+from ..model.observability import unobservable_directions
 from .kalman import kalman_predictor, per_step_rate, shifted_predictor, spectral_radius
 
 __all__ = ["WholeState", "Q_GAIN", "Q_EXTRA", "Q_CAP", "SEARCH_DIM", "MARGINS", "case_radius", "radius_at", "design_whole",
@@ -239,7 +240,7 @@ def design_whole(sc: Scenario, cases, *, rate: float, dwell: float | None, warni
         candidates.append((None, None, None, [np.asarray(K, dtype=float) for K in d.K]))
     elif d.gains == "riccati":
         if ref is None:
-            raise DesignError(_no_centralized(lam))
+            raise DesignError(_no_centralized(lam, F, Cs))
         candidates.append((None, lam, ref, whole_gains(sc, ref.L, pi)))
     else:
         seen = set()
@@ -253,7 +254,7 @@ def design_whole(sc: Scenario, cases, *, rate: float, dwell: float | None, warni
             seen.add(alpha)
             candidates.append((margin, alpha, p, whole_gains(sc, p.L, pi)))
         if not candidates:
-            raise DesignError(_no_centralized(lam))
+            raise DesignError(_no_centralized(lam, F, Cs))
     # the smallest centralized error first; above SEARCH_DIM the first candidate that certifies is kept (each one
     # costs eigenvalue and Lyapunov problems of size m n: seconds each at 1700)
     candidates.sort(key=lambda c: math.inf if c[2] is None else c[2].rms)
@@ -362,9 +363,19 @@ def _noise_q(sc: Scenario, Fs, Kss, S, q0: int, Qn, R, q_cap: int, per_agent: di
     return q, rms
 
 
-def _no_centralized(lam: float) -> str:
-    return (f"no centralized Riccati design meets {lam:.6g} per event time: a mode no agent sees decays slower than "
-            "that")
+def _no_centralized(lam: float, F: np.ndarray, Cs) -> str:
+    """Why no centralized Riccati design meets ``lam`` per event time, as computed: the slowest mode no agent sees
+    (``F`` on :func:`~splitspec_core.model.observability.unobservable_directions`), or, when every such mode is
+    faster, the seen modes too weakly observable for the shifted Riccati equation."""
+    V = unobservable_directions(F, Cs)
+    slowest = float(np.max(np.abs(np.linalg.eigvals(V.T @ F @ V)))) if V.shape[1] else None
+    head = f"no centralized Riccati design meets {lam:.6g} per event time: "
+    if slowest is not None and slowest >= lam:
+        return head + f"a mode no agent sees decays with radius {slowest:.6g} per event time, slower than that"
+    unseen = ("" if slowest is None else
+              f" (the modes no agent sees decay faster, radius {slowest:.6g})")
+    return head + ("the shifted Riccati equation has no stabilising solution: a mode the sensors see is too weakly "
+                   f"observable to move that far{unseen}")
 
 
 

@@ -22,7 +22,7 @@ from splitspec_core.synthesis.report import design_json, design_text
 from splitspec_core.synthesis.survivors import certify_network
 from splitspec_core.synthesis.verdict import rate_certificate
 from splitspec_core.synthesis.mixing import mixing_bound
-from splitspec_core.synthesis.whole_state import agent_gain
+from splitspec_core.synthesis.whole_state import _no_centralized, agent_gain
 from tests.conftest import EXAMPLES
 
 OSC = [[0.955336, 0.29552], [-0.29552, 0.955336]]  # a lightly rotating oscillator, radius 1
@@ -254,6 +254,18 @@ def test_a_refusal_names_the_fastest_rate_its_keys_certify():
     with pytest.raises(ss.SplitspecError):
         design(dataclasses.replace(sc, design=dataclasses.replace(sc.design, rate=reach.refused)))
 
+
+
+def test_a_centralized_refusal_says_what_it_computed():
+    """No centralized Riccati design at the rate: the slowest mode no agent sees when it is the reason (a third
+    state nobody measures, decaying at 0.9 per step, against 0.85 per step; the designer itself designs such a
+    scenario at its envelope's rate, so the message is read from the function), else the seen modes (as the IEEE 14-bus
+    model at 30 /s says: its unseen modes decay at radius 0.368 per 20 ms, the Riccati equation fails all the same)."""
+    F = np.array([[*OSC[0], 0], [*OSC[1], 0], [0, 0, 0.9]])
+    why = _no_centralized(0.85, F, [np.array([[1.0, 0, 0]]), np.array([[0, 1.0, 0]])])
+    assert "a mode no agent sees decays with radius 0.9 per event time" in why
+    why = _no_centralized(0.95, F, [np.array([[1.0, 0, 0]]), np.array([[0, 1.0, 0]])])
+    assert "too weakly observable" in why and "radius 0.9)" in why
 
 # ------------------------------------------------------------------------------------------------ keys, reports
 
