@@ -5,12 +5,14 @@ is also the Zenoh router of a local run.  It starts the plant and the agents as 
 imports them (``tests/unit/test_architecture.py``).
 
 - the command: :mod:`.cli` (parser, error boundary) and :mod:`.commands` (``design``, ``simulate``, ``run``, ...);
-  :mod:`.launcher` (``splitspec run``), :mod:`.view` (``splitspec view``), :mod:`.recover`, :mod:`.registry`;
+  :mod:`.launcher` (``splitspec run``), :mod:`.view` (``splitspec view``), :mod:`.registry` (where running runs
+  are found), :mod:`.forks` (the agents' fork server), :mod:`.plots` (PNG figures);
 - the orchestrator: :mod:`.rounds` (its rules, no I/O: admission, losses, retries, faults) and :mod:`.driver`
   (its process shell: Zenoh, child processes, the recorder);
-- the records: :mod:`.recorder` (buffering, the flush thread, consistency, close) with :mod:`.rowstore`,
-  :mod:`.record_files` (``trajectory.npz``, ``run.rrd``), :mod:`.measured_records` (runs on measurements
-  and live sensors), :mod:`.eventlog` (``events.jsonl``), :mod:`.outdir`; the Rerun side :mod:`.rerun_sink`,
-  :mod:`.rrdfile`, :mod:`.blueprint` (entity paths, default layout), :mod:`.topology_view`, :mod:`.reference_view`;
-  :mod:`.plots` (PNG figures).
+- the records: :mod:`.records` (the recorder, its rows and flushes, ``trajectory.npz``, ``events.jsonl``, the
+  output folder and ``splitspec recover``);
+- the Rerun recording: :mod:`.recording` (the sink, ``run.rrd`` itself, the default layout, the topology and
+  no-truth panels, the notebook widget).
+
+Each package's own docstring names its modules (``tests/unit/test_architecture.py`` checks that they exist).
 """

@@ -29,12 +29,11 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterable
 
-import yaml
 
 from .errors import ScenarioError, SplitspecError
 from .scenarios.checks import plain
 from .scenarios.files import resolve_model_file
-from .scenarios.load import ORIGIN, load_scenario, load_yaml
+from .scenarios.load import ORIGIN, dump_yaml, load_scenario, load_yaml
 from .scenarios.specs import Scenario
 from .simulation.simulator import Trajectory
 
@@ -227,7 +226,7 @@ def run(sc: Scenario | str | Path, *, out: str | Path, faults: Iterable | None =
     out = Path(out)
     with tempfile.TemporaryDirectory(prefix="splitspec-run-") as tmp:
         path = Path(tmp) / "scenario.yaml"
-        path.write_text(yaml.safe_dump(plain(data), sort_keys=False), encoding="utf-8")
+        path.write_text(dump_yaml(plain(data)), encoding="utf-8")
         cmd = [sys.executable, "-m", "splitspec_orchestrator", "run", str(path), "--out", str(out),
                "--secure" if secure else "--insecure"]
         for flag, value in (("--measurements", measurements), ("--round-timeout", round_timeout),

@@ -293,10 +293,8 @@ def cmd_pace(args: argparse.Namespace) -> int:
     Returns 0 when the pace is feasible (or none is given), :data:`EXIT_NOT_FEASIBLE` when it is not;
     a measuring run that fails is one error line and exit status 1.
     """
-    import yaml
-
     from splitspec_core.scenarios.checks import plain
-    from splitspec_core.scenarios.load import load_scenario
+    from splitspec_core.scenarios.load import dump_yaml, load_scenario
     from splitspec_core.synthesis.designer import design
 
     path = Path(args.scenario)
@@ -306,7 +304,7 @@ def cmd_pace(args: argparse.Namespace) -> int:
     keep = _fresh_out(args.out) if args.out else None
     with tempfile.TemporaryDirectory(prefix="splitspec-pace-") as tmp:
         probe = Path(tmp) / "scenario.yaml"
-        probe.write_text(yaml.safe_dump(plain(data), sort_keys=False), encoding="utf-8")
+        probe.write_text(dump_yaml(plain(data)), encoding="utf-8")
         des = design(load_scenario(probe))  # fail fast, with one line, before any process starts
         out = keep if keep is not None else Path(tmp) / "run"
         print(f"splitspec: pace: running {sc.name} unpaced for {args.seconds:g} s of rounds ({sc.m} agents, no "

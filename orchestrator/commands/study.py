@@ -52,10 +52,8 @@ def cmd_design(args: argparse.Namespace) -> int:
 def _tune(args: argparse.Namespace, sc) -> int:
     from pathlib import Path
 
-    import yaml
-
     from splitspec_core.synthesis.noise_tuning import tune
-    from splitspec_core.scenarios.load import load_yaml, read_scenario_text
+    from splitspec_core.scenarios.load import dump_yaml, load_yaml, read_scenario_text
 
     res = tune(sc)
     d = res.design
@@ -91,7 +89,7 @@ def _tune(args: argparse.Namespace, sc) -> int:
             raw["system"]["file"] = os.path.relpath(Path(args.scenario).resolve().parent / model, target)
         try:
             Path(args.write).write_text(f"# {sc.name} tuned for noise by `splitspec design --tune rms`\n"
-                                        + yaml.safe_dump(raw, sort_keys=False), encoding="utf-8")
+                                        + dump_yaml(raw), encoding="utf-8")
         except OSError as exc:
             raise UsageError(f"cannot write {args.write}: {exc.strerror}") from None
         print(f"wrote {args.write}") if not args.json else None

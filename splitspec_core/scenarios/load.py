@@ -30,9 +30,10 @@ from ..errors import ScenarioError
 from .checks import MAX_FILE_BYTES, plain
 from .files import resolve_model_file
 from .specs import Scenario
+from .yaml12 import dumper, loader_for
 from .sections import parse_scenario
 
-__all__ = ["load_scenario", "load_yaml", "parse_scenario", "parse_scenario_text", "read_scenario_text",
+__all__ = ["dump_yaml", "load_scenario", "load_yaml", "parse_scenario", "parse_scenario_text", "read_scenario_text",
            "resolved_scenario_text", "yaml_loader", "MAX_FILE_BYTES"]
 
 #: how :func:`splitspec_core.scenario` / :func:`splitspec_core.load_scenario` remember where a scenario came
@@ -41,11 +42,18 @@ ORIGIN = "_splitspec_origin"
 
 
 def yaml_loader() -> type:
-    """The YAML loader for scenarios: libyaml's ``CSafeLoader`` when PyYAML has it, else ``SafeLoader``.
+    """The YAML loader for scenarios: libyaml's ``CSafeLoader`` when PyYAML has it, else ``SafeLoader``, reading
+    numbers as YAML 1.2 does (``1e-3`` is a float; :mod:`splitspec_core.scenarios.yaml12`).
 
     The C loader parses a 10 MB scenario several times faster than the pure-Python one.
     """
-    return yaml.CSafeLoader if getattr(yaml, "__with_libyaml__", False) else yaml.SafeLoader
+    return loader_for(yaml.CSafeLoader if getattr(yaml, "__with_libyaml__", False) else yaml.SafeLoader)
+
+
+def dump_yaml(data: Any) -> str:
+    """Scenario data (plain Python: :func:`~splitspec_core.scenarios.checks.plain`) as YAML text that
+    :func:`load_yaml` reads back to the same values (block style, keys in order)."""
+    return yaml.dump(data, Dumper=dumper, sort_keys=False)
 
 
 def load_yaml(text: str, *, source: str = "<scenario>") -> Any:
@@ -133,7 +141,7 @@ def resolved_scenario_text(path: Path, text: str) -> str:
     data = load_yaml(text, source=str(path))
     if not isinstance(data, dict) or not isinstance(data.get("system"), dict) or "file" not in data["system"]:
         return text
-    return yaml.safe_dump(plain(resolve_model_file(data, Path(path).parent)), sort_keys=False)
+    return dump_yaml(plain(resolve_model_file(data, Path(path).parent)))
 
 
 def load_scenario(path: str | Path) -> Scenario:

@@ -294,6 +294,46 @@ def test_a_subpackage_names_each_of_its_modules(subpackage):
     assert not missing, missing
 
 
+def _named_in(doc: str, package: str, folder: Path) -> list[tuple[str, Path | None]]:
+    """What a package docstring names: ``name.py`` files of its folder and :mod:`.x` / :mod:`pkg.x.y` modules,
+    each with the file or folder it must be (None: a name outside splitspec's packages, not checked)."""
+    out = [(m, folder / m) for m in re.findall(r"``([a-z_0-9]+\.py)``", doc)]
+    for ref in re.findall(r":mod:`~?([.\w]+)`", doc):
+        if ref.startswith("."):
+            parts, base = ref[1:].split("."), folder
+        else:
+            top, *parts = ref.split(".")
+            if top not in FOLDERS:
+                out.append((ref, None))
+                continue
+            base = ROOT / FOLDERS[top]
+        out.append((ref, base.joinpath(*parts)))
+    return out
+
+
+def test_package_docstrings_name_only_modules_that_exist():
+    """Every module a package's docstring names (``name.py`` or :mod:`...`) exists: a docstring that still names
+    modules that have moved sends a newcomer to files that are not there."""
+    bad = []
+    for package, folder in FOLDERS.items():
+        for init in sorted((ROOT / folder).rglob("__init__.py")):
+            doc = ast.get_docstring(ast.parse(init.read_text())) or ""
+            for name, path in _named_in(doc, package, init.parent):
+                if path is not None and not (path.with_suffix(".py").is_file() or (path / "__init__.py").is_file()
+                                             or path.is_file()):
+                    bad.append((str(init.relative_to(ROOT)), name))
+    assert not bad, bad
+
+
+def test_the_docstring_check_sees_a_moved_module(tmp_path):
+    """The check above on a docstring naming one module that exists and two that do not."""
+    (tmp_path / "here.py").write_text("")
+    doc = "``here.py`` the one; ``gone.py`` moved; :mod:`.away` too; :mod:`numpy.linalg` not ours"
+    missing = [n for n, p in _named_in(doc, "splitspec_core", tmp_path)
+               if p is not None and not (p.with_suffix(".py").is_file() or p.is_file())]
+    assert missing == ["gone.py", ".away"]
+
+
 def test_long_modules_say_why():
     long = []
     for package in FOLDERS:

@@ -216,9 +216,35 @@ def test_file_of_exactly_16_mb_is_read(tmp_path):
 
 def test_yaml_loader_is_the_c_loader_when_libyaml_is_there(monkeypatch):
     expected = yaml.CSafeLoader if yaml.__with_libyaml__ else yaml.SafeLoader
-    assert scenario_module.yaml_loader() is expected
+    assert issubclass(scenario_module.yaml_loader(), expected)
     monkeypatch.setattr(yaml, "__with_libyaml__", False)
-    assert scenario_module.yaml_loader() is yaml.SafeLoader
+    assert issubclass(scenario_module.yaml_loader(), yaml.SafeLoader)
+    assert not issubclass(scenario_module.yaml_loader(), yaml.CSafeLoader)
+
+
+@pytest.mark.parametrize("text, value", [
+    ("1e-3", 1e-3), ("1E5", 1e5), ("+1e3", 1e3), ("-2.5e-1", -0.25), (".5", 0.5), ("1.", 1.0), ("6.02e+23", 6.02e23),
+    ("017", 17), ("-2", -2), ("+3", 3), ("0o17", 15), ("0x1F", 31), (".inf", float("inf")), ("-.Inf", float("-inf")),
+    ("1:20", "1:20"), ("1_000", "1_000"), ("0b101", "0b101"), ("1e", "1e"), ("true", True), ("yes", True),
+    ("'1e-3'", "1e-3"), ("~", None),
+])
+@pytest.mark.parametrize("libyaml", [True, False])
+def test_scenario_yaml_reads_numbers_as_yaml_1_2(monkeypatch, text, value, libyaml):
+    """YAML 1.2's core schema for numbers (1.1 read 1e-3 as a string, 017 as octal 15, 1:20 as 80); booleans as
+    before; the C and the pure-Python loader alike."""
+    if libyaml and not yaml.__with_libyaml__:
+        pytest.skip("PyYAML without libyaml")
+    monkeypatch.setattr(yaml, "__with_libyaml__", libyaml)
+    got = scenario_module.load_yaml(f"v: {text}\n")["v"]
+    assert got == value and type(got) is type(value)
+
+
+def test_a_scenario_takes_an_exponent_without_a_dot_and_writes_strings_that_look_like_numbers_quoted():
+    text = DISCRETE.read_text(encoding="utf-8").replace("design:", "design:\n  rank_tol: 1e-3", 1)
+    assert parse_scenario_text(text, source="s").design.rank_tol == 1e-3
+    data = {"name": "1e3", "rate": 1e-05, "q": 17, "label": "017", "inf": float("inf")}
+    back = scenario_module.load_yaml(scenario_module.dump_yaml(data))
+    assert back == data and type(back["name"]) is str and type(back["label"]) is str
 
 
 def test_every_scenario_parse_goes_through_the_helper(monkeypatch):
