@@ -13,6 +13,7 @@ work is in the modules it calls.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
 from types import MappingProxyType
@@ -280,10 +281,23 @@ def _designed(sc_or_design: Scenario | DesignResult | Design) -> Design:
     raise TypeError(f"expected a Scenario or a DesignResult, got {type(sc_or_design).__name__}")
 
 
+def _with_faults(sc: Scenario | DesignResult | Design, faults: Iterable) -> Scenario | Design:
+    """``sc`` (a scenario or a design of one) with its ``faults:`` replaced by ``faults`` (the file's format)."""
+    from .scenarios.sections import parse_faults
+
+    if isinstance(sc, DesignResult):
+        sc = sc.detail
+    base = sc.scenario if isinstance(sc, Design) else sc
+    if not isinstance(base, Scenario):
+        raise TypeError(f"expected a Scenario or a DesignResult, got {type(sc).__name__}")
+    new = dataclasses.replace(base, faults=parse_faults(list(faults), base.agent_ids))
+    return dataclasses.replace(sc, scenario=new) if isinstance(sc, Design) else new
+
+
 def simulate(sc: Scenario | DesignResult, *, steps: int | None = None, seed: int | None = None,
              seeds: Iterable[int] | None = None, noise: bool = True, exact: bool = False,
              progress: bool | None = False, lost=None, measurements=None, keep_y: bool = False,
-             trajectories: bool = False) -> "Trajectory | MonteCarloRuns":
+             trajectories: bool = False, faults: Iterable | None = None) -> "Trajectory | MonteCarloRuns":
     """Simulate in-process: the reference the multi-process ``splitspec run`` reproduces.
 
     The same scenario and seed give the trajectory ``splitspec simulate`` writes (and, to
@@ -294,7 +308,9 @@ def simulate(sc: Scenario | DesignResult, *, steps: int | None = None, seed: int
     losses (its ``trajectory.npz`` ``lost``, or ``(lost, lost_cause)``) instead of drawing the scenario's.
     ``measurements``: the user's recorded ``y`` instead of the simulated plant (a path to an ``.npz`` or
     ``.csv`` file, :mod:`splitspec_core.scenarios.measurements`, or a loaded ``Measurements``); ``keep_y`` records the
-    simulated plant's measurements in ``Trajectory.y``.
+    simulated plant's measurements in ``Trajectory.y``.  ``faults``: the scenario's ``faults:`` replaced by these,
+    as :func:`splitspec_core.run` takes them (the file's format, e.g. ``[{"at": 10, "kill": 3}, {"at": 20,
+    "restart": 3}]``); the trajectory is then the one ``run`` with the same ``faults`` records.
 
     ``seeds``: a Monte Carlo study, every seed of ``seeds`` on the same design, as one batched
     computation (:mod:`splitspec_core.simulation.montecarlo`: the seeds on a trailing axis of the estimates, each
@@ -328,7 +344,7 @@ def simulate(sc: Scenario | DesignResult, *, steps: int | None = None, seed: int
     """
     from .simulation.simulator import check_trajectory_memory, simulate as _simulate, simulate_exact
 
-    des = _designed(sc)
+    des = _designed(sc if faults is None else _with_faults(sc, faults))
     if measurements is not None and not hasattr(measurements, "sha256"):
         from .scenarios.measurements import load_measurements
 

@@ -9,6 +9,6 @@ section (losses, delays, partitions), ``sources.py`` live sources; ``load.py`` t
 agent, per output) and the covariances they mean; ``inputs.py`` known inputs (``system.B``, ``system.u``) and
 ``sampling.py`` the zero-order hold of ``system.sample``; ``labels.py`` state and output names;
 ``measurements.py`` recorded measurements files, ``replay.py`` a recorded run's faults as a scenario,
-``generate.py`` random scenarios. Imports nothing of splitspec_core but ``errors``: every other layer
+``generate.py`` random scenarios, ``summary.py`` what ``print(scenario)`` shows. Imports nothing of splitspec_core but ``errors``: every other layer
 stands on it.
 """

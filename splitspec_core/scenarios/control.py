@@ -20,6 +20,10 @@ from ..errors import ScenarioError
 __all__ = ["from_statespace", "label_name", "plant_keywords"]
 
 
+#: the names python-control gives a system nobody named (``sys[3]``, ``sys[3]$sampled``): not a scenario's name
+GENERIC_NAME = re.compile(r"sys\[\d+\](\$\w+)*")
+
+
 def label_name(label: str, fallback: str) -> str:
     """A python-control label as a scenario name: ``x[3]`` -> ``x_3``, other characters a name cannot hold -> ``_``."""
     from .labels import NAME_PATTERN
@@ -127,6 +131,9 @@ def plant_keywords(given: dict, plant: Any, agents: Any) -> None:
     if isinstance(given.get("system"), Mapping) and given["system"]:
         raise ScenarioError("plant= gives the system: system= cannot be given with it")
     got = from_statespace(plant, agents)
+    own = getattr(plant, "name", None)  # the plant's own name, unless python-control made it up (sys[3], sys[3]$sampled)
+    if given.get("name") is None and isinstance(own, str) and own.strip() and not GENERIC_NAME.fullmatch(own):
+        given["name"] = own
     if given.get("sample") is not None:  # a continuous plant sampled for the discrete estimator
         if got["time"] != "continuous":
             raise ScenarioError(f"sample= samples a continuous plant, and plant= is discrete (its dt = {plant.dt})")

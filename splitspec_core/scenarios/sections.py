@@ -157,7 +157,9 @@ def _parse_switching(raw: Any, names: tuple, time: str) -> Switching:
     return Switching(kind="random", graphs=gs, dwell=dwell, seed=seed)
 
 
-def _parse_faults(raw: Any, ids: tuple) -> tuple:
+def parse_faults(raw: Any, ids: tuple) -> tuple:
+    """A scenario's ``faults:`` list (or ``ss.run``'s and ``ss.simulate``'s ``faults=``) for agents ``ids``: the
+    :class:`~splitspec_core.scenarios.specs.Fault` tuple sorted by time; one line naming the entry when it is wrong."""
     if raw is None:
         return ()
     if not isinstance(raw, list):
@@ -262,7 +264,7 @@ def parse_scenario(data: Any, *, source: str = "<scenario>", base: Path | None =
     if "design" not in top:
         raise ScenarioError("design is missing (at least design.rate)")
     design = parse_design(top["design"], time, system, ids)
-    faults = _parse_faults(top.get("faults"), ids)
+    faults = parse_faults(top.get("faults"), ids)
     run = _parse_run(top.get("run"), time, system.states or default_state_names(system.n), bool(top.get("sources")))
     _check_switching_against_step(switching, run)
     positions = _parse_positions(top.get("positions"), ids)

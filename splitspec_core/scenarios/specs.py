@@ -1,11 +1,10 @@
 """The frozen scenario: :class:`Scenario` and its parts, each checked when built.
 
-A scenario is one YAML file holding the system ``(A, C_i)``, the neighbour
-graphs, the switching signal, the design options, faults and run options (see
-``docs/how-to/scenario.md`` and ``../shared/DESIGN.md``).  This module holds what it
-becomes: frozen dataclasses whose ``__post_init__`` checks (e.g. the shapes of
-``A``, ``C_i`` and ``K_i`` through :func:`splitspec_core.scenarios.checks.check_shapes`)
-hold for a scenario built directly as well as for one parsed from a file.
+A scenario is one YAML file holding the system ``(A, C_i)``, the neighbour graphs, the switching signal, the design
+options, faults and run options (see ``docs/how-to/scenario.md`` and ``../shared/DESIGN.md``).  This module holds
+what it becomes: frozen dataclasses whose ``__post_init__`` checks (e.g. the shapes of ``A``, ``C_i`` and ``K_i``
+through :func:`splitspec_core.scenarios.checks.check_shapes`) hold for a scenario built directly as well as for one
+parsed from a file.
 
 Three modules, one path, imported in one direction: the value checkers
 (:mod:`splitspec_core.scenarios.checks`), this one (the frozen data), the section
@@ -24,6 +23,7 @@ import numpy as np
 
 from ..errors import DimensionError, ScenarioError
 from .labels import default_output_names, default_state_names
+from .summary import summary
 from .checks import (GAIN_METHODS, MAX_MAGNITUDE, MAX_SEED, Q_METHODS, check_agent_id, check_shapes,  # noqa: F401
                      ids_text, plain)
 from .noise import (measurement_level, measurement_std, parse_measurement_noise, parse_process_noise,
@@ -345,6 +345,8 @@ class Scenario:
     network: NetworkSpec = field(default_factory=NetworkSpec)
     sources: dict | None = None  # agent id -> scenario_sources.Source: live sensors (run only)
     input_source: Any = None  # scenario_sources.Source of sources.inputs: where live known inputs u arrive
+
+    __repr__ = summary  # print(scenario): a summary, not every matrix (scenarios/summary.py)
 
     @property
     def m(self) -> int:

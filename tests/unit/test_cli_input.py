@@ -277,3 +277,16 @@ def test_cli_parser_errors_are_one_line_in_process(capsys):
         cli.build_parser().parse_args(["simulate", str(DISCRETE), "--out", "x", "--seed", "-5"])
     assert info.value.code == 2
     assert capsys.readouterr().err == "splitspec: error: --seed must be >= 0, got -5\n"
+
+
+def test_print_of_a_scenario_is_a_summary_not_every_matrix():
+    import splitspec_core as ss
+
+    sc = ss.load_scenario(EXAMPLES / "ieee14_pmu.yaml")
+    text = repr(sc)
+    assert str(sc) == text and len(text.splitlines()) == 8 and len(text) < 1000
+    assert "Scenario 'ieee14-pmu' (continuous time" in text and "n = 62 states (delta_GENROU_1" in text
+    assert "m = 5" in text and "ring (10 arcs)" in text and "gains optimal" in text and "dt 0.02, 1500 steps" in text
+    assert f"{sc.system.A[0, 1]:.6f}" not in text  # no matrix entries
+    faulty = ss.load_scenario(EXAMPLES / "ring10_faults.yaml")
+    assert "resilience 1" in repr(faulty) and "kill at 10" in repr(faulty)

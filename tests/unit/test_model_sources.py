@@ -161,6 +161,13 @@ def test_a_python_control_statespace_as_the_plant():
     assert sd.time == "discrete" and sd.state_names == ("x_0", "x_1", "x_2", "x_3") and sd.system.B is None
     assert sd.output_names(2) == ("y_2", "y_3")
     ss.design(sd)  # and it designs
+    # the plant's own name is the scenario's, unless python-control made it up or name= is given
+    assert sc.name == "scenario" and plant.name.startswith("sys[")
+    named = control.ss(Ac, Bc, C, 0, name="two-area")
+    kw = {"agents": {1: [0, 1], 2: [2]}, "graphs": {"a": [(1, 2), (2, 1)]}, "rate": 0.3}
+    assert ss.scenario(plant=named, **kw).name == "two-area"
+    assert ss.scenario(plant=named, name="mine", **kw).name == "mine"
+    assert ss.scenario(plant=plant.sample(0.05), **kw).name == "scenario"  # sys[N]$sampled
 
 
 @pytest.mark.parametrize("plant, agents, extra, fragment", [

@@ -175,3 +175,26 @@ def test_exact_refuses_what_it_cannot_integrate():
     assert "simulate_exact" not in str(err.value)
     with pytest.raises(ScenarioError, match="time: discrete"):
         simulate_exact(design(load_scenario(EXAMPLES / "paper_discrete.yaml")), steps=5)
+
+
+def test_simulate_takes_faults_as_run_does():
+    """``ss.simulate(sc, faults=...)`` is the scenario with that ``faults:`` list: the same trajectory as the file that
+    writes it (the same operations in the same order: compared exactly), from a scenario or a design; a wrong entry
+    is one line naming it."""
+    import dataclasses
+
+    import splitspec_core as ss
+
+    listed = [{"at": 10, "kill": 3}, {"at": 15, "drop_arc": [1, 6]}, {"at": 20, "hang": 5}, {"at": 30, "restart": 3},
+              {"at": 35, "restart": 5}, {"at": 40, "restore_arc": [1, 6]}]
+    filed = ss.load_scenario(EXAMPLES / "ring10_faults.yaml")
+    assert len(filed.faults) == len(listed)
+    bare = dataclasses.replace(filed, faults=())
+    want = ss.simulate(filed)
+    for source in (bare, ss.design(bare)):
+        got = ss.simulate(source, faults=listed)
+        np.testing.assert_array_equal(got.alive, want.alive)
+        np.testing.assert_array_equal(got.xhat, want.xhat)
+    assert not np.array_equal(ss.simulate(bare).alive, want.alive)
+    with pytest.raises(ss.ScenarioError, match=r"^faults\[1\]\.kill names agent 99, which is not in system.C"):
+        ss.simulate(bare, faults=[{"at": 1, "kill": 99}])
