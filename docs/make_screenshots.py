@@ -81,7 +81,7 @@ CHROMIUM_ARGS = ["--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-
                  "--disable-background-networking", "--disable-component-update", "--disable-sync"]
 TIMELINE = "event"
 DEFAULT_SCENARIO = ROOT / "examples" / "ring10_faults_switching.yaml"
-# kill 3 at 10, arc 1->6 dropped at 15, hang 5 at 20, restart 3 at 30 and 5 at 35, arc back at 40,
+# kill 3 at 10, arc 1->6 dropped at 15, freeze 5 at 20, restart 3 at 30 and 5 at 35, arc back at 40,
 # graph ring -> ring2 at 45 and back at 52
 DEFAULT_TIMES = {"kill": 24, "rejoin": 38, "switch": 48, "end": 60}
 # --network: (scenario, {screenshot name: event time}, tab in front or None), written to docs/<name>.png

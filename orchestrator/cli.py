@@ -257,7 +257,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("kill", help="inject a fault from outside: signal an agent (or the plant) of a running run",
                        description="Send a signal to one process of a run started on this machine (found through "
-                                   "the orchestrator's registry). KILL (default) is a crash, STOP a hang (CONT "
+                                   "the orchestrator's registry). KILL (default) is a crash, STOP a freeze (CONT "
                                    "resumes it); the orchestrator detects either and carries on without the agent.")
     who = p.add_mutually_exclusive_group(required=True)
     who.add_argument("--agent", type=int, metavar="I", help="agent id")

@@ -21,7 +21,7 @@ What it does, through the machine:
   round in flight is re-run without it (a higher ``attempt``);
 * executes the scenario's faults between rounds, at the step the simulator
   applies them (:func:`splitspec_core.model.network.fault_step`): ``kill`` sends
-  SIGKILL and ``hang`` SIGSTOP to the agent's process (or, for a process on
+  SIGKILL and ``freeze`` SIGSTOP to the agent's process (or, for a process on
   another host, asks it to do so to itself), both lost from that event time;
   ``restart`` spawns a new agent process and admits it with a fresh estimate
   once its token appears; ``drop_arc``/``restore_arc`` change the links;
@@ -108,7 +108,6 @@ class Progress:
 
 
 HOST = socket.gethostname()
-_FAULT_SIGNAL = {"kill": signal.SIGKILL, "hang": signal.SIGSTOP}
 
 
 def local_endpoint(endpoint: str) -> str:
@@ -541,7 +540,7 @@ class Orchestrator:
         try:
             if session is not None:
                 self.pub_control.put(encode("control", self.keys.run_id, mac_key=self.key, cmd="stop"))
-            for pid in (machine.hung if machine else ()):  # frozen processes cannot obey a stop
+            for pid in (machine.stopped if machine else ()):  # frozen processes cannot obey a stop
                 if _is_splitspec_process(pid):
                     try:
                         os.kill(pid, signal.SIGKILL)

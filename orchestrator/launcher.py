@@ -67,7 +67,7 @@ def stop_all(procs: list, *, grace: float = 5.0) -> None:
         if p.poll() is None:
             p.terminate()
             try:
-                p.send_signal(signal.SIGCONT)  # a stopped (hung) process acts on the SIGTERM only once resumed
+                p.send_signal(signal.SIGCONT)  # a stopped (frozen) process acts on the SIGTERM only once resumed
             except ProcessLookupError:
                 pass
     deadline = time.monotonic() + grace

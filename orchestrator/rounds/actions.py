@@ -92,7 +92,7 @@ class Signal:
 
 @dataclass(frozen=True)
 class Control:
-    """Broadcast a control command (``stop``, ``kill agent/<i>``, ``hang agent/<i>``)."""
+    """Broadcast a control command (``stop``, ``kill agent/<i>``, ``freeze agent/<i>``)."""
     cmd: str
 
 

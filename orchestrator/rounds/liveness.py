@@ -29,7 +29,7 @@ class Liveness:
         self.host = host  # this machine's host name (processes elsewhere are asked to signal themselves)
         self.children: dict = {}  # pid -> (role, ident) of processes this orchestrator spawned
         self.spawn_times: dict = {}  # pid -> when it was spawned, until its liveliness token appears
-        self.hung: set = set()  # pids of frozen processes on this host (killed at the end)
+        self.stopped: set = set()  # pids of frozen (SIGSTOPped) processes on this host (killed at the end)
         self.pending_loss: dict = {}  # agent id -> why it is lost (applied in the round or between rounds)
         self.sensor_since: dict = {}  # agent id -> event time its live sensor went silent, or None: it is heard
         self.restart: tuple | None = None  # (agent id, spawned pid or None) of a restart by the scenario
@@ -73,12 +73,12 @@ class Liveness:
         return self.children.pop(int(pid), (None, None))
 
     def signal_agent(self, aid: int, action: str, info: dict | None) -> tuple:
-        """Kill or hang (``action``) agent ``aid`` whose granted process is ``info`` ({"pid", "host"} or None):
-        ``(how, actions)``; a process hung on this host is killed at the end."""
+        """Kill or freeze (``action``) agent ``aid`` whose granted process is ``info`` ({"pid", "host"} or None):
+        ``(how, actions)``; a process frozen on this host is killed at the end."""
         sig = signal.SIGKILL if action == "kill" else signal.SIGSTOP
         if info and info["host"] == self.host:
-            if action == "hang":
-                self.hung.add(int(info["pid"]))
+            if action == "freeze":
+                self.stopped.add(int(info["pid"]))
             return f"{signal.Signals(sig).name} to pid {info['pid']}", [Signal(int(info["pid"]), int(sig))]
         # another host (or unknown pid): the agent signals itself
         where = info["host"] if info else "an unknown host"
@@ -89,10 +89,10 @@ class Liveness:
         one, if it still holds its token; ``info``: its {"pid", "host"})."""
         out = []
         if old_pid is not None:
-            # the old process still holds its token (hung, or its death not yet seen): kill it; its claim is
+            # the old process still holds its token (frozen, or its death not yet seen): kill it; its claim is
             # superseded now, so its token can neither block nor be confused with the new one
             how, acts = self.signal_agent(aid, "kill", info)
-            self.hung.discard(old_pid)
+            self.stopped.discard(old_pid)
             out += acts + [Log("info", f"restart of agent {aid}: killed the old process ({how})")]
         self.restart = (aid, None)
         return out + [Event("agent_restarting", t, {"id": aid, "tau": tau}), Spawn("agent", aid)]
@@ -115,7 +115,7 @@ class Liveness:
             self.pending_loss[a] = why
             info = procs.get(a)
             if info and info["host"] == self.host:
-                self.hung.add(int(info["pid"]))  # cannot obey the final stop: killed then
+                self.stopped.add(int(info["pid"]))  # cannot obey the final stop: killed then
 
     # ------------------------------------------------------------------ live sensors
 

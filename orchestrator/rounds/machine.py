@@ -58,7 +58,7 @@ own pause.  The time inside a spawn of its own processes is not such a gap
 on a busy machine, and a warning about them would be a false alarm.
 
 *Between rounds* (at the step the simulator applies them): pending losses,
-then the scenario's faults in order (kill, hang, restart, drop/restore an
+then the scenario's faults in order (kill, freeze, restart, drop/restore an
 arc), then agents that came back by hand (a rejoin with a new incarnation).
 
 *Rejections* are counted per (process, reason) and logged as one summary
@@ -168,7 +168,7 @@ class RoundMachine:
     procs = property(lambda self: self.identity.procs, doc='"plant" / agent id -> {"pid", "host"}')
     alive = property(lambda self: self.topology.alive, doc="ids of the agents in the network")
     joinable = property(lambda self: self.topology.joinable, doc="ids of agents back, to join at the next tau")
-    hung = property(lambda self: self.live.hung, doc="pids of frozen processes on this host")
+    stopped = property(lambda self: self.live.stopped, doc="pids of frozen (SIGSTOPped) processes on this host")
     pending_loss = property(lambda self: self.live.pending_loss, doc="agent id -> why it is to be lost")
     stalled_seconds = property(lambda self: self.live.stalled_seconds, doc="the orchestrator's own freezes")
     rejected_total = property(lambda self: self.rejections.total, doc="messages rejected so far")
@@ -474,14 +474,14 @@ class RoundMachine:
         t = self.t()
         while self.faults_left:
             f = self.faults_left.pop(0)
-            if f.action in ("kill", "hang"):
+            if f.action in ("kill", "freeze"):
                 if f.agent not in self.alive:
                     out.append(Event("fault_skipped", t, {"action": f.action, "id": f.agent,
                                                           "reason": "agent not alive"}))
                     continue
                 how, acts = self.live.signal_agent(f.agent, f.action, self.procs.get(f.agent))
                 out += acts
-                out += self._lose(f.agent, f"{'killed' if f.action == 'kill' else 'hung'} by the scenario ({how})")
+                out += self._lose(f.agent, f"{'killed' if f.action == 'kill' else 'frozen'} by the scenario ({how})")
             elif f.action == "restart":
                 if f.agent in self.alive:
                     out.append(Event("fault_skipped", t, {"action": "restart", "id": f.agent,

@@ -5,7 +5,7 @@ faults at the same steps and hand every agent the same neighbour weights.
 
 * the switching signal is sampled once per step (``graph_sequence``);
 * a fault at time ``at`` takes effect at step ``k = ceil(at / dt)``
-  (``dt = 1`` in discrete time): a killed (or hung) agent takes no part from
+  (``dt = 1`` in discrete time): a killed (or frozen) agent takes no part from
   step k on; a restarted agent rejoins at step k with a fresh estimate;
   ``drop_arc``/``restore_arc`` remove/re-add one arc from every graph (with
   Metropolis weights, the link in both directions, keeping graphs undirected);
@@ -131,7 +131,7 @@ class NetworkState:
 
     ``apply`` returns ``(killed, rejoined)``: positions that stopped taking part
     and ``(position, incarnation)`` of agents that rejoin with a fresh estimate.
-    A hang is handled as a loss (the runtime declares a frozen agent lost).
+    A freeze is handled as a loss (the runtime declares a frozen agent lost).
     """
 
     def __init__(self, sc: Scenario):
@@ -159,7 +159,7 @@ class NetworkState:
     def apply(self, faults) -> tuple:
         killed, rejoined = [], []
         for f in faults:
-            if f.action in ("kill", "hang"):
+            if f.action in ("kill", "freeze"):
                 i = self.ids.index(f.agent)
                 if self.lose(i):
                     killed.append(i)

@@ -346,7 +346,7 @@ class NodeShell:
                     self.log.info("%s: stop from the orchestrator", name)
                     break
                 action, _, target = cmd.partition(" ")
-                if action in ("kill", "hang") and target == me:
+                if action in ("kill", "freeze") and target == me:
                     # a scenario fault for a process the orchestrator cannot signal (another host)
                     self.log.warning("%s: %s requested by the orchestrator", name, action)
                     os.kill(os.getpid(), signal.SIGKILL if action == "kill" else signal.SIGSTOP)

@@ -53,7 +53,7 @@ key                         from -> to              payload
                                                     also the next round's z_i(0)
 ``sensors/<key>``            sensor -> agent i       y_i as JSON ``{"y": [...], "t": ...}`` or raw float64 (scenario
                                                     ``sources:``; unsigned, see :mod:`splitspec_agents.sensor`)
-``control``                 orchestrator -> all     ``stop``; ``kill agent/<i>``, ``hang agent/<i>`` (faults)
+``control``                 orchestrator -> all     ``stop``; ``kill agent/<i>``, ``freeze agent/<i>`` (faults)
 ``status/<role>/<id>/<n>``  queryable (every proc.) a ``hello``: the process answers (not frozen)
 ``alive/<role>/<id>/<n>``   liveliness token        presence; DELETE is a death (n: the process's nonce)
 ==========================  ======================  ==========================================

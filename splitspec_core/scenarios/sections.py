@@ -12,10 +12,10 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import ScenarioError
-from .checks import (GRAPH_KEYS, RANDOM_KEYS, RUN_KEYS, SWITCHING_KEYS, SYSTEM_KEYS, TOP_KEYS, FAULT_ACTIONS, MIN_DT,
-                     MIN_PACE, MIN_SWITCH_STEPS, check_agent_id, check_arc, check_keys, describe, ids_text, check_integer,
-                     check_known_agent, check_matrix, check_names, check_number, require_map, check_seed, check_shapes,
-                     plain)
+from .checks import (GRAPH_KEYS, RANDOM_KEYS, RUN_KEYS, SWITCHING_KEYS, SYSTEM_KEYS, TOP_KEYS, FAULT_ACTIONS,
+                     FAULT_ALIASES, MIN_DT, MIN_PACE, MIN_SWITCH_STEPS, check_agent_id, check_arc, check_keys,
+                     describe, ids_text, check_integer, check_known_agent, check_matrix, check_names, check_number,
+                     require_map, check_seed, check_shapes, plain)
 from .inputs import parse_inputs
 from .labels import default_state_names
 from .noise import parse_measurement_noise, parse_process_noise
@@ -168,16 +168,17 @@ def parse_faults(raw: Any, ids: tuple) -> tuple:
     for k, item in enumerate(raw):
         key = f"faults[{k + 1}]"
         fmap = require_map(item, key)
-        check_keys(fmap, ("at",) + FAULT_ACTIONS, key)
+        check_keys(fmap, ("at",) + FAULT_ACTIONS + tuple(FAULT_ALIASES), key)
         if "at" not in fmap:
             raise ScenarioError(f"{key}.at is missing (the time of the fault)")
         at = check_number(fmap["at"], f"{key}.at")
         if at < 0:
             raise ScenarioError(f"{key}.at must be >= 0, got {at:g}")
-        actions = [a for a in FAULT_ACTIONS if a in fmap]
+        actions = [a for a in FAULT_ACTIONS + tuple(FAULT_ALIASES) if a in fmap]
         if len(actions) != 1:
             raise ScenarioError(f"{key} needs exactly one of {', '.join(FAULT_ACTIONS)}")
-        action = actions[0]
+        action = FAULT_ALIASES.get(actions[0], actions[0])  # hang, the older spelling, is freeze
+        fmap = {**fmap, action: fmap[actions[0]]}
         if action == "partition":
             out.append(Fault(at=at, action=action, groups=parse_groups(fmap[action], f"{key}.partition", ids)))
         elif action == "heal":

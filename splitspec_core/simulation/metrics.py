@@ -139,7 +139,7 @@ def event_marks(t: np.ndarray, alive: np.ndarray, graph: np.ndarray, *, agent_id
     Losses, rejoins and switches come from the recorded ``alive`` (T, m) and
     ``graph`` (T,) (``trajectory.npz``), so a recording marks what happened.
     ``faults`` (the scenario's :class:`~splitspec_core.scenarios.specs.Fault` list)
-    names the loss (``killed``, ``hung``) and adds what ``alive`` and
+    names the loss (``killed``, ``frozen``) and adds what ``alive`` and
     ``graph`` cannot show: ``drop_arc`` / ``restore_arc`` at step
     ``ceil(at / dt)`` (as :func:`splitspec_core.model.network.fault_step`).
     """
@@ -156,8 +156,8 @@ def event_marks(t: np.ndarray, alive: np.ndarray, graph: np.ndarray, *, agent_id
             continue
         if f.arc is not None:
             arcs.setdefault(k, []).append(f"{f.arc[0]}-{f.arc[1]} {'down' if f.action == 'drop_arc' else 'up'}")
-        elif f.action in ("kill", "hang"):
-            why[(k, int(f.agent))] = "killed" if f.action == "kill" else "hung"
+        elif f.action in ("kill", "freeze"):
+            why[(k, int(f.agent))] = "killed" if f.action == "kill" else "frozen"
     marks = []
     for k in range(1, T):
         lost = np.nonzero(alive[k - 1] & ~alive[k])[0]

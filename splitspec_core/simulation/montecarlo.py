@@ -19,7 +19,7 @@ errors, all that is kept here, do not depend on them (to round-off).
 
 What is batched and what falls back
 -----------------------------------
-Batched: discrete and continuous time (fixed or adaptive g), noise or not, faults (kill, hang,
+Batched: discrete and continuous time (fixed or adaptive g), noise or not, faults (kill, freeze,
 restart, drop_arc, restore_arc, partition, heal: they strike every seed at the same step), and
 switching that does not depend on the seed (constant, periodic, dwell, or random with its own
 ``switching.seed``).  Per-seed loop over :func:`~splitspec_core.simulation.simulator.simulate` (the same

@@ -55,7 +55,7 @@ def agent_errors(out):
 
 
 def test_scenario_faults_execute_for_real_and_equal_simulate(tmp_path):
-    """kill / drop_arc / hang / restart / restore_arc from the scenario: real signals, real respawns."""
+    """kill / drop_arc / freeze / restart / restore_arc from the scenario: real signals, real respawns."""
     scen = EXAMPLES / "ring10_faults.yaml"
     out = tmp_path / "out"
     r = run("run", scen, "--out", out, "--run-id", run_id())
@@ -71,7 +71,7 @@ def test_scenario_faults_execute_for_real_and_equal_simulate(tmp_path):
     # a restart is a new OS process
     pids3 = [e["pid"] for e in ev if e["event"] == "process_started" and e["role"] == "agent" and e["id"] == 3]
     assert len(pids3) == 2 and pids3[0] != pids3[1]
-    assert_all_gone(all_pids(out))  # the hung process included
+    assert_all_gone(all_pids(out))  # the frozen process included
     # every change has a verdict; ring10 is designed with resilience: 1, so single losses stay certified
     verdicts = [e for e in ev if e["event"] == "resilience_verdict"]
     assert len(verdicts) == 6 and all(v["rate_certified"] for v in verdicts if len(v["alive"]) == 9)
@@ -120,8 +120,8 @@ def test_hang_then_kill_and_rejoin_by_hand(tmp_path):
         wait_for_rows(out, 20, timeout=90)
         r = run("kill", "--agent", 7, "--signal", "STOP", "--run-id", rid, timeout=30)
         assert r.returncode == 0 and "SIGSTOP" in r.stdout, r.stderr
-        hung = wait_for_event(out, "agent_lost", timeout=30, id=7)
-        assert "frozen" in hung["reason"]  # found by the orchestrator's status probe
+        frozen = wait_for_event(out, "agent_lost", timeout=30, id=7)
+        assert "frozen" in frozen["reason"]  # found by the orchestrator's status probe
         r = run("kill", "--agent", 2, "--run-id", rid, timeout=30)
         assert r.returncode == 0 and "SIGKILL" in r.stdout, r.stderr
         wait_for_event(out, "agent_lost", timeout=30, id=2)

@@ -59,13 +59,13 @@ def test_ring10_faults_errors_marks_losses_rejoins_and_arcs(ring10_faults):
     ax = fig.axes[0]
     at = {kind: sorted(float(ln.get_xdata()[0]) for ln in _lines(ax, f"mark:{kind}"))
           for kind in ("loss", "rejoin", "arc", "switch")}
-    # examples/ring10_faults.yaml: kill 3 at 10, hang 5 at 20, restarts at 30 and 35, arc 1-6 down 15 / up 40
+    # examples/ring10_faults.yaml: kill 3 at 10, freeze 5 at 20, restarts at 30 and 35, arc 1-6 down 15 / up 40
     assert at == {"loss": [10.0, 20.0], "rejoin": [30.0, 35.0], "arc": [15.0, 40.0], "switch": []}
     styles = {kind: (_lines(ax, f"mark:{kind}")[0].get_linestyle(), _lines(ax, f"mark:{kind}")[0].get_color())
               for kind in ("loss", "rejoin", "arc")}
     assert len(set(styles.values())) == 3  # one style per kind
     labels = sorted(tx.get_text().strip() for tx in ax.texts)
-    assert labels == ["3 killed", "3 rejoins", "5 hung", "5 rejoins", "arc 1-6 down", "arc 1-6 up"]
+    assert labels == ["3 killed", "3 rejoins", "5 frozen", "5 rejoins", "arc 1-6 down", "arc 1-6 up"]
 
 
 def test_ring10_faults_legend_outside_the_axes(ring10_faults):

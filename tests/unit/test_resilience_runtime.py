@@ -105,7 +105,7 @@ def test_replay_events_reproduce_scenario_faults():
     sc = load_scenario(EXAMPLES / "ring10_faults.yaml")
     evs = []
     for f in sc.faults:
-        name = {"kill": "agent_lost", "hang": "agent_lost", "restart": "agent_rejoined",
+        name = {"kill": "agent_lost", "freeze": "agent_lost", "restart": "agent_rejoined",
                 "drop_arc": "arc_dropped", "restore_arc": "arc_restored"}[f.action]
         e = {"event": name, "tau": int(f.at)}
         e.update({"id": f.agent} if f.agent is not None else {"arc": list(f.arc)})

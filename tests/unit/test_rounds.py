@@ -274,7 +274,7 @@ def test_a_frozen_agent_is_found_by_the_probe_and_lost():
     assert of(m.on_timer(1.45), R.QueryStatus) and m.probing  # 0.3 s without news of the round
     out = m.on_status({1, 3}, 2.45)  # agent 2 does not answer within the second
     (lost,) = events(out, "agent_lost")
-    assert lost.fields["id"] == 2 and "frozen" in lost.fields["reason"] and 201 in m.hung
+    assert lost.fields["id"] == 2 and "frozen" in lost.fields["reason"] and 201 in m.stopped
     assert [(t.tau, t.attempt) for t in of(out, R.Tick)] == [(0, 1)]
 
 
@@ -333,7 +333,7 @@ def test_scenario_faults_kill_hang_restart_and_arcs():
         acts = finish_round(m, t)
         if m.tau == 20:
             assert R.Signal(m.procs[5]["pid"], int(signal.SIGSTOP)) in of(acts, R.Signal)
-            assert m.procs[5]["pid"] in m.hung
+            assert m.procs[5]["pid"] in m.stopped
     assert m.phase == "restarting" and of(acts, R.Spawn) == [R.Spawn("agent", 3)]
     assert not of(acts, R.Tick)  # the run waits for the restarted agent
     m.on_spawned("agent", 3, 777, t)

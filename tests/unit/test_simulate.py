@@ -185,7 +185,7 @@ def test_simulate_takes_faults_as_run_does():
 
     import splitspec_core as ss
 
-    listed = [{"at": 10, "kill": 3}, {"at": 15, "drop_arc": [1, 6]}, {"at": 20, "hang": 5}, {"at": 30, "restart": 3},
+    listed = [{"at": 10, "kill": 3}, {"at": 15, "drop_arc": [1, 6]}, {"at": 20, "freeze": 5}, {"at": 30, "restart": 3},
               {"at": 35, "restart": 5}, {"at": 40, "restore_arc": [1, 6]}]
     filed = ss.load_scenario(EXAMPLES / "ring10_faults.yaml")
     assert len(filed.faults) == len(listed)
@@ -198,3 +198,18 @@ def test_simulate_takes_faults_as_run_does():
     assert not np.array_equal(ss.simulate(bare).alive, want.alive)
     with pytest.raises(ss.ScenarioError, match=r"^faults\[1\]\.kill names agent 99, which is not in system.C"):
         ss.simulate(bare, faults=[{"at": 1, "kill": 99}])
+
+
+def test_hang_is_read_as_freeze_the_one_word_for_a_frozen_process():
+    """Scenario files and recorded runs written before the fault was named ``freeze`` say ``hang``: read as freeze;
+    both at once is two actions (refused in one line)."""
+    import splitspec_core as ss
+
+    base = ss.load_scenario(EXAMPLES / "ring10_faults.yaml")
+    old = [{"at": 20, "hang": 5}, {"at": 35, "restart": 5}]
+    new = [{"at": 20, "freeze": 5}, {"at": 35, "restart": 5}]
+    a, b = ss.simulate(base, faults=old), ss.simulate(base, faults=new)
+    np.testing.assert_array_equal(a.alive, b.alive)  # the same faults: the same operations in the same order
+    assert [f.action for f in dataclasses.replace(base, faults=()).faults] == []
+    with pytest.raises(ss.ScenarioError, match=r"faults\[1\] needs exactly one of kill, restart, freeze"):
+        ss.simulate(base, faults=[{"at": 20, "hang": 5, "freeze": 5}])
