@@ -85,6 +85,38 @@ def scenario(*, name: str | None = None, time: str | None = None, plant: Any = N
     (:mod:`splitspec_core.scenarios.control`).  A keyword left at ``None`` is absent from the file, so the file's
     defaults apply.  The sections ``system=``, ``design=``, ``run=`` may also be given whole, as in the file.
 
+    Parameters
+    ----------
+    name, time : str, optional
+        The scenario's name (default ``scenario``; a python-control plant's own name) and ``discrete`` (default) or
+        ``continuous``.
+    plant, agents : control.StateSpace, mapping, optional
+        A python-control plant and ``{agent id: [its output labels or indices]}``, in place of ``A``, ``B``, ``C``.
+    file, A, B, u, sample, C, x0, process_noise, measurement_noise, states, outputs : optional
+        The file's ``system.*`` keys.
+    graphs, switching, faults, positions, network : optional
+        The file's sections of those names.
+    rate, gains, K, g, g0, q, q_method, q_max, resilience, weights, margin, rank_tol, graph_set, dwell, riccati, \
+eigenvalues, undetectable, coordinates, consensus : optional
+        The file's ``design.*`` keys (``rate`` is required).
+    steps, dt, seed, pace, show : optional
+        The file's ``run.*`` keys.
+    system, design, run : mapping, optional
+        A section given whole, as in the file.
+
+    Returns
+    -------
+    Scenario
+        Frozen and validated; ``print`` shows a summary.
+
+    Examples
+    --------
+    >>> import splitspec_core as ss
+    >>> sc = ss.scenario(A=[[0.9, 0.2], [0, 0.8]], C={1: [[1, 0]], 2: [[0, 1]]},
+    ...                  graphs={"a": [(1, 2), (2, 1)]}, rate=0.5)
+    >>> sc.n, sc.m, sc.time
+    (2, 2, 'discrete')
+
     Raises
     ------
     ScenarioError
@@ -118,7 +150,30 @@ def scenario(*, name: str | None = None, time: str | None = None, plant: Any = N
 
 
 def load_scenario(path: str | Path) -> Scenario:
-    """A validated scenario from a YAML file (the same checks as :func:`scenario`)."""
+    """A validated scenario from a YAML file (the same checks as :func:`scenario`).
+
+    Parameters
+    ----------
+    path : str or Path
+        A scenario file (``docs/how-to/scenario.md``); ``system.file`` is found beside it.
+
+    Returns
+    -------
+    Scenario
+        Frozen and validated; ``print`` shows a summary.
+
+    Raises
+    ------
+    ScenarioError
+        One line naming the file and the key (a missing file, bad YAML, a wrong value).
+
+    Examples
+    --------
+    >>> import splitspec_core as ss
+    >>> sc = ss.load_scenario("examples/paper_discrete.yaml")
+    >>> sc.name, sc.n, sc.m
+    ('paper-discrete', 4, 3)
+    """
     sc = _load_scenario(path)
     object.__setattr__(sc, ORIGIN, Path(path))  # what ss.run hands to the processes
     return sc
@@ -250,6 +305,30 @@ def design(sc: Scenario, *, all_q_methods: bool = False, workers: int | None = N
     at once; ``None`` (default): every core this process may use; 1: none besides this one.  The same
     numbers either way.
 
+    Parameters
+    ----------
+    sc : Scenario
+        From :func:`scenario` or :func:`load_scenario`.
+    all_q_methods : bool
+        Also compute the q of every other certificate, for information.
+    workers : int, optional
+        Processes for a large resilient design's spectral radii.
+
+    Returns
+    -------
+    DesignResult
+        ``q`` (discrete) or ``g`` (continuous), every agent's ``K``, ``V``, ``P``, the ``checks`` (the certificate in
+        one line), ``report()`` (what ``splitspec design`` prints) and ``to_json()``.
+
+    Examples
+    --------
+    >>> import splitspec_core as ss
+    >>> d = ss.design(ss.load_scenario("examples/paper_discrete.yaml"))
+    >>> d.q, d.checks.rate_certified
+    (6, True)
+    >>> d.checks.certificate
+    'q = 6: spectral bound 0.4736 <= rate 0.5'
+
     Raises
     ------
     AssumptionError
@@ -336,6 +415,29 @@ def simulate(sc: Scenario | DesignResult, *, steps: int | None = None, seed: int
         ``trajectories``.  Per seed it equals the single-seed run to round-off, not bit for bit (the
         batched products sum in another order): relative differences of order 1e-12 are measured.
 
+    Parameters
+    ----------
+    sc : Scenario or DesignResult
+        What to simulate (a scenario is designed first).
+    steps, seed : int, optional
+        Default ``run.steps`` and ``run.seed``.
+    seeds : iterable of int, optional
+        A Monte Carlo study (returns :class:`MonteCarloRuns`).
+    noise, exact, progress, lost, measurements, keep_y, trajectories, faults
+        As described above.
+
+    Examples
+    --------
+    >>> import splitspec_core as ss
+    >>> tr = ss.simulate(ss.load_scenario("examples/paper_discrete.yaml"), steps=40, seed=1)
+    >>> tr.xhat.shape
+    (41, 3, 4)
+    >>> bool(tr.errors()[-1].max() < 1e-6)
+    True
+    >>> killed = ss.simulate(ss.load_scenario("examples/ring10.yaml"), faults=[{"at": 5, "kill": 3}])
+    >>> int(killed.alive[-1].sum())
+    9
+
     Raises
     ------
     ScenarioError
@@ -381,7 +483,41 @@ def compare(sc: Scenario, *, seeds: int | Iterable[int] = 5, seed: int | None = 
     """Estimation quality under noise (``splitspec compare``): every estimator on the same realisations.
 
     ``seeds``: a count (seeds ``seed, seed + 1, ...``, ``seed`` defaulting to ``run.seed``) or the seeds.
-    Returns a :class:`CompareResult` (built by :mod:`splitspec_core.studies.comparison`; ``to_json()``: compare.json).
+
+    Parameters
+    ----------
+    sc : Scenario
+        A scenario with noise (``system.process_noise`` and/or ``system.measurement_noise``).
+    seeds : int or iterable of int
+        A count (from ``seed``) or the seeds themselves.
+    seed : int, optional
+        The first seed of a count (default ``run.seed``).
+    steps : int, optional
+        Default ``run.steps``; each row's steady RMS is measured after its own certified transient.
+    kcf_eps : float, optional
+        The Kalman consensus filter's consensus gain (default: its stable choice).
+
+    Returns
+    -------
+    CompareResult
+        ``estimators`` (the scenario's design, the paper's split with place and riccati gains, the centralized
+        Kalman filter, the best centralized estimator certified at the rate when the KF is slower, the KCF), the
+        rows that could not be designed (``failed``), mean error curves; ``to_json()`` is compare.json (built by
+        :mod:`splitspec_core.studies.comparison`).
+
+    Raises
+    ------
+    DesignError
+        The scenario has no noise, or its own design fails.
+
+    Examples
+    --------
+    >>> import splitspec_core as ss
+    >>> res = ss.compare(ss.load_scenario("examples/paper_discrete_noise.yaml"), seeds=3, steps=60)
+    >>> sorted(res.estimators)
+    ['KCF', 'centralized KF', 'split (scenario)', 'split place', 'split riccati', 'split tuned']
+    >>> res.estimators["centralized KF"].ratio_to_centralized
+    1.0
     """
     if isinstance(seeds, (int, np.integer)) and not isinstance(seeds, bool):
         if seeds < 1:

@@ -150,10 +150,31 @@ def load_run(out: str | Path, *, start: float | None = None, end: float | None =
     is asked for: ``start <= t <= end`` (either may be None), reading only the chunks' segments it overlaps.
     Where a run has both, they hold the same rows (the chunks may hold a few more of a run that was killed).
 
+    Parameters
+    ----------
+    out : str or Path
+        The run's output directory.
+    start, end : float, optional
+        A time window (scenario units) read from the chunks.
+
+    Returns
+    -------
+    RunRecord
+        ``trajectory`` (the rows), ``events`` (events.jsonl), ``scenario`` (the scenario the run played, which
+        :func:`splitspec_core.simulate` replays), ``summary`` and ``closing_line``.
+
     Raises
     ------
     ScenarioError
         One line naming what is missing (``OUT has no trajectory.npz or chunks/: not a run's output directory``).
+
+    Examples
+    --------
+    >>> import splitspec_core as ss
+    >>> rec = ss.load_run("out/demo")  # doctest: +SKIP
+    >>> sim = ss.simulate(rec.scenario)  # doctest: +SKIP
+    >>> float(abs(rec.trajectory.xhat - sim.xhat).max()) < 1e-9  # doctest: +SKIP
+    True
     """
     from .simulation.trajectory_chunks import has_chunks, read_chunks
 
@@ -208,6 +229,17 @@ def run(sc: Scenario | str | Path, *, out: str | Path, faults: Iterable | None =
     ``run.steps``) ends as finished then, or when stopped from outside (``splitspec stop``).  The result's
     :attr:`RunRecord.closing_line` and :attr:`RunRecord.summary` say what happened.
 
+    Parameters
+    ----------
+    sc : Scenario, str or Path
+        From :func:`splitspec_core.scenario` or :func:`splitspec_core.load_scenario` (not changed since), or a file.
+    out : str or Path
+        The run's output directory (created).
+    faults : iterable of mapping, optional
+        Replaces the scenario's ``faults:``.
+    secure, measurements, round_timeout, wait, progress, timeout
+        As described above.
+
     Returns
     -------
     RunRecord
@@ -219,6 +251,14 @@ def run(sc: Scenario | str | Path, *, out: str | Path, faults: Iterable | None =
         A scenario that cannot be handed to the processes (one line).
     RunError
         The run ended with a non-zero status (its one-line message; ``status`` the exit status).
+
+    Examples
+    --------
+    >>> import splitspec_core as ss
+    >>> sc = ss.load_scenario("examples/ring10.yaml")
+    >>> rec = ss.run(sc, out="out/ring10", faults=[{"at": 10, "kill": 3}])  # doctest: +SKIP
+    >>> [e["event"] for e in rec.events if e["event"] == "agent_lost"]  # doctest: +SKIP
+    ['agent_lost']
     """
     data = dict(_mapping(sc))
     if faults is not None:
@@ -266,10 +306,31 @@ def view(out: str | Path, *, web: bool = False, port: int | None = None, inline:
     Rerun viewer with a display, else (or with ``web``, or a ``port``) the web viewer served on 127.0.0.1, its
     URL printed; returns the viewer's process (``.send_signal(signal.SIGINT)`` stops it as Ctrl-C does).
 
+    Parameters
+    ----------
+    out : str or Path
+        The run's output directory.
+    web : bool
+        The web viewer even with a display.
+    port : int, optional
+        The web viewer's port (default: a free one).
+    inline : bool, optional
+        Rerun's notebook widget (default inside Jupyter when ``rerun-notebook`` is installed).
+
+    Returns
+    -------
+    subprocess.Popen or the notebook widget
+        The viewer.
+
     Raises
     ------
     ScenarioError
         ``out`` has no ``run.rrd``; ``inline=True`` without ``rerun-notebook`` installed.
+
+    Examples
+    --------
+    >>> import splitspec_core as ss
+    >>> viewer = ss.view("out/demo", web=True)  # doctest: +SKIP
     """
     out = Path(out)
     if not (out / "run.rrd").is_file():
