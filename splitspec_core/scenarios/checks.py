@@ -42,6 +42,20 @@ DESIGN_KEYS = (
     "weights", "margin", "rank_tol", "graph_set", "dwell", "riccati", "eigenvalues", "undetectable", "coordinates",
     "consensus",
 )
+#: the design keys that take one of a few words: ``{key: (the words, the default)}``, declared once.  The design
+#: section parses them from here (one line naming the key and the words), ``DesignSpec``'s defaults are these
+#: (a test), and docs/how-to/scenario.md lists every word on the key's line (a test).  ``gains`` defaults to
+#: ``optimal`` when the scenario states noise (design_section.py).
+DESIGN_CHOICES = {
+    "gains": (GAIN_METHODS, "place"),
+    "consensus": (CONSENSUS, "auto"),
+    "q_method": (Q_METHODS, "spectral"),
+    "weights": (WEIGHTINGS, "uniform"),
+    "graph_set": (("scenario", "all"), "scenario"),
+    "undetectable": (("refuse", "exclude"), "refuse"),
+    "coordinates": (("auto", "given", "balanced"), "auto"),
+    "eigenvalues": (("auto", "dense", "iterative"), "auto"),
+}
 RICCATI_KEYS = ("process_weight", "measurement_weight")
 RUN_KEYS = ("steps", "dt", "seed", "pace", "show")
 

@@ -8,9 +8,8 @@ from __future__ import annotations
 from typing import Any
 
 from ..errors import ScenarioError
-from .checks import (CONSENSUS, DESIGN_KEYS, GAIN_METHODS, MAX_Q, MIN_RICCATI_WEIGHT, Q_METHODS, RICCATI_KEYS,
-                     WEIGHTINGS, check_integer, check_keys, check_known_agent, check_matrix, check_number, check_shapes,
-                     ids_text, require_map)
+from .checks import (DESIGN_CHOICES, DESIGN_KEYS, MAX_Q, MIN_RICCATI_WEIGHT, RICCATI_KEYS, check_integer, check_keys,
+                     check_known_agent, check_matrix, check_number, check_shapes, ids_text, require_map)
 from .specs import DesignSpec, System
 
 __all__ = ["parse_design"]
@@ -29,12 +28,8 @@ def parse_design(raw: Any, time: str, system: System, ids: tuple) -> DesignSpec:
     if time == "discrete" and not 0 < rate < 1:
         raise ScenarioError(f"design.rate must be in (0, 1) for discrete time, got {rate:g}")
     # no design.gains: the noise-optimal design when the scenario states noise (synthesis/whole_state.py), else place
-    gains = str(dmap.get("gains", "optimal" if _noisy(system) else "place"))
-    if gains not in GAIN_METHODS:
-        raise ScenarioError(f"design.gains must be one of {', '.join(GAIN_METHODS)}, got {gains!r}")
-    consensus = str(dmap.get("consensus", "auto"))
-    if consensus not in CONSENSUS:
-        raise ScenarioError(f"design.consensus must be one of {', '.join(CONSENSUS)}, got {consensus!r}")
+    gains = _choice(dmap, "gains", default="optimal" if _noisy(system) else None)
+    consensus = _choice(dmap, "consensus")
     if consensus == "whole" and gains == "place":
         raise ScenarioError("design.consensus: whole takes design.gains optimal, riccati or explicit (place sets the "
                             "split's local poles)")
@@ -87,9 +82,7 @@ def parse_design(raw: Any, time: str, system: System, ids: tuple) -> DesignSpec:
                             "time uses design.g")
     if q != "auto":
         q = check_integer(q, "design.q", minimum=1)
-    q_method = str(dmap.get("q_method", "spectral"))
-    if q_method not in Q_METHODS:
-        raise ScenarioError(f"design.q_method must be one of {', '.join(Q_METHODS)}, got {q_method!r}")
+    q_method = _choice(dmap, "q_method")
     q_max = check_integer(dmap.get("q_max", 100_000), "design.q_max", minimum=1)
     if q_max > MAX_Q:
         raise ScenarioError(f"design.q_max must be <= {MAX_Q} (consensus exchanges per event time), got {q_max}")
@@ -98,9 +91,7 @@ def parse_design(raw: Any, time: str, system: System, ids: tuple) -> DesignSpec:
     resilience = check_integer(dmap.get("resilience", 0), "design.resilience", minimum=0)
     if resilience > 1:
         raise ScenarioError(f"design.resilience must be 0 or 1, got {resilience}")
-    weights = str(dmap.get("weights", "uniform"))
-    if weights not in WEIGHTINGS:
-        raise ScenarioError(f"design.weights must be one of {', '.join(WEIGHTINGS)}, got {weights!r}")
+    weights = _choice(dmap, "weights")
     margin = check_number(dmap.get("margin", 0.5), "design.margin")
     if not 0 < margin <= 10:
         raise ScenarioError(f"design.margin must be in (0, 10], got {margin:g}")
@@ -111,23 +102,15 @@ def parse_design(raw: Any, time: str, system: System, ids: tuple) -> DesignSpec:
         rank_tol = check_number(rank_tol, "design.rank_tol")
         if not 0 < rank_tol < 1:
             raise ScenarioError(f"design.rank_tol must be auto or a number in (0, 1), got {rank_tol:g}")
-    graph_set = str(dmap.get("graph_set", "scenario"))
-    if graph_set not in ("scenario", "all"):
-        raise ScenarioError(f"design.graph_set must be scenario or all, got {graph_set!r}")
+    graph_set = _choice(dmap, "graph_set")
     dwell = None
     if dmap.get("dwell") is not None:
         dwell = check_number(dmap["dwell"], "design.dwell")
         if dwell <= 0:
             raise ScenarioError(f"design.dwell must be > 0, got {dwell:g}")
-    undetectable = str(dmap.get("undetectable", "refuse"))
-    if undetectable not in ("refuse", "exclude"):
-        raise ScenarioError(f"design.undetectable must be refuse or exclude, got {undetectable!r}")
-    coordinates = str(dmap.get("coordinates", "auto"))
-    if coordinates not in ("auto", "given", "balanced"):
-        raise ScenarioError(f"design.coordinates must be auto, given or balanced, got {coordinates!r}")
-    eigenvalues = str(dmap.get("eigenvalues", "auto"))
-    if eigenvalues not in ("auto", "dense", "iterative"):
-        raise ScenarioError(f"design.eigenvalues must be auto, dense or iterative, got {eigenvalues!r}")
+    undetectable = _choice(dmap, "undetectable")
+    coordinates = _choice(dmap, "coordinates")
+    eigenvalues = _choice(dmap, "eigenvalues")
     pw = mw = None
     if dmap.get("riccati") is not None:
         rmap = require_map(dmap["riccati"], "design.riccati")
@@ -143,6 +126,17 @@ def parse_design(raw: Any, time: str, system: System, ids: tuple) -> DesignSpec:
         graph_set=graph_set, dwell=dwell, riccati_process_weight=pw, riccati_measurement_weight=mw,
         eigenvalues=eigenvalues, undetectable=undetectable, coordinates=coordinates, consensus=consensus,
     )
+
+
+def _choice(dmap: dict, key: str, default: str | None = None) -> str:
+    """``design.<key>``, one of its words (:data:`~splitspec_core.scenarios.checks.DESIGN_CHOICES`), else its
+    default (or ``default``); one line naming the key and the words when it is another."""
+    words, fallback = DESIGN_CHOICES[key]
+    value = dmap.get(key, fallback if default is None else default)
+    if not isinstance(value, str) or value not in words:
+        listed = " or ".join(words) if len(words) == 2 else "one of " + ", ".join(words)
+        raise ScenarioError(f"design.{key} must be {listed}, got {value!r}")
+    return value
 
 
 def _noisy(system: System) -> bool:

@@ -207,7 +207,7 @@ CASES = [
     ("undetectable-bad", scenario({"design.undetectable": "maybe"}),
      ["design.undetectable must be refuse or exclude, got 'maybe'"]),
     ("coordinates-bad", scenario({"design.coordinates": "polar"}),
-     ["design.coordinates must be auto, given or balanced, got 'polar'"]),
+     ["design.coordinates must be one of auto, given, balanced, got 'polar'"]),
     # --- files -----------------------------------------------------------------------------------
     ("yaml-syntax-error", "name: broken\nsystem:\n  A: [[0, 1], [1, 0]\n  C: {1: [[1, 0]]}\n",
      ["YAML syntax error", "line 4"]),
@@ -493,3 +493,25 @@ def test_given_q_above_q_max_is_rejected(tmp_path, capsys):
     assert main(["design", str(p)]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "design.q = 1000000000 exceeds design.q_max = 100000" in err
+
+
+def test_the_design_words_are_declared_once_and_documented():
+    """DESIGN_CHOICES is the one list of each design key's words: DesignSpec's defaults are its defaults, the
+    scenario page lists every word on the key's line, and a word outside it is one line naming the key."""
+    import dataclasses
+
+    from splitspec_core.errors import ScenarioError
+    from splitspec_core.scenarios.checks import DESIGN_CHOICES, DESIGN_KEYS
+    from splitspec_core.scenarios.load import parse_scenario
+    from splitspec_core.scenarios.specs import DesignSpec
+
+    defaults = {f.name: f.default for f in dataclasses.fields(DesignSpec)}
+    page = (ROOT / "docs/how-to/scenario.md").read_text(encoding="utf-8").splitlines()
+    for key, (words, default) in DESIGN_CHOICES.items():
+        assert key in DESIGN_KEYS and default in words and defaults[key] == default, key
+        line = next(x for x in page if x.startswith(f"  {key}: "))
+        assert all(w in line for w in words), (key, line)
+        raw = {"time": "discrete", "system": {"A": [[0.5]], "C": {1: [[1]]}}, "graphs": {"g": {"arcs": []}},
+               "design": {"rate": 0.9, key: "nonsense"}}
+        with pytest.raises(ScenarioError, match=rf"^design\.{key} must be .*got 'nonsense'$"):
+            parse_scenario(raw)
