@@ -34,17 +34,34 @@ pytestmark = pytest.mark.filterwarnings("ignore:Convergence was not reached:User
 
 
 @st.composite
-def noisy(draw):
-    """A detectable drawn system with noise per agent and output, and per state, and gains left to the noise."""
+def noisy(draw, stable: bool = False):
+    """A detectable drawn system with noise per agent and output, and per state, and gains left to the noise.
+
+    ``stable``: the plant made stable without changing what the agents see (discrete: ``A`` divided by its spectral
+    radius and a little more; continuous: shifted left of the imaginary axis; the eigenvectors, hence the
+    observable and unobservable directions and detectability, unchanged), so that a test of the steady state needs
+    no filter that discards most drawn systems (Hypothesis's filter_too_much health check failed under one
+    OpenBLAS kernel)."""
     data, _, _ = draw(detectable())
     sys_ = data["system"]
     n = len(sys_["A"])
+    if stable:
+        A = np.asarray(sys_["A"], dtype=float)
+        ev = np.linalg.eigvals(A)
+        if data.get("time", "discrete") == "discrete":
+            radius = float(np.max(np.abs(ev)))
+            A = A / (radius * 1.05) if radius >= 0.99 else A
+        else:
+            top = float(np.max(ev.real))
+            A = A - (top + 0.05) * np.eye(n) if top >= -0.01 else A
+        sys_["A"] = A.tolist()
     meas = {}
     for aid, C in sys_["C"].items():
         meas[aid] = [draw(st.sampled_from([0.01, 0.05, 0.2, 1.0])) for _ in C]
     sys_["measurement_noise"] = meas
-    sys_["process_noise"] = [draw(st.sampled_from([0.0, 0.01, 0.1])) for _ in range(n)]
-    assume(any(p > 0 for p in sys_["process_noise"]))
+    process = [draw(st.sampled_from([0.0, 0.01, 0.1])) for _ in range(n)]
+    process[draw(st.integers(0, n - 1))] = draw(st.sampled_from([0.01, 0.1]))  # some process noise, not filtered
+    sys_["process_noise"] = process
     data["design"] = {"rate": data["design"]["rate"], "consensus": draw(st.sampled_from(["auto", "whole"]))}
     return data
 
@@ -71,7 +88,7 @@ def test_the_noise_optimal_designs_error_stays_under_its_certified_envelope(data
 
 
 @settings(max_examples=examples(15), **COMMON)
-@given(noisy())
+@given(noisy(stable=True))
 def test_the_predicted_steady_rms_is_what_a_monte_carlo_measures(data):
     des = _design(data)
     assume(rate_certificate(des).certified)
