@@ -110,6 +110,7 @@ class Unobserved:
 
     @property
     def dim(self) -> int:
+        """int: ``w``, the dimension of ``W`` (0: every direction is observed by some agent)."""
         return int(self.W.shape[1])
 
     @property
@@ -129,19 +130,47 @@ class Unobserved:
         return self.decay < 1.0 - STILL * max(self.scale, 1.0)
 
     def limits(self, rate: float) -> bool:
-        """Whether ``W`` decays slower than the rate ``lam`` (so the errors cannot decay at ``lam``)."""
+        """Whether ``W`` decays slower than the rate ``lam`` (so the errors cannot decay at ``lam``).
+
+        Parameters
+        ----------
+        rate : float
+            ``lam``: a decay rate (continuous) or a spectral radius (discrete).
+
+        Returns
+        -------
+        bool
+            False when ``W`` is empty.
+        """
         if not self.dim:
             return False
         return self.decay <= rate if self.time == "continuous" else self.decay >= rate
 
     def envelope(self, rate: float) -> float:
-        """The rate of the certified envelope: ``lam`` or, when ``W`` limits it, :data:`BACKOFF` of ``W``'s."""
+        """The rate of the certified envelope: ``lam`` or, when ``W`` limits it, :data:`BACKOFF` of ``W``'s.
+
+        Parameters
+        ----------
+        rate : float
+            ``lam``.
+
+        Returns
+        -------
+        float
+            ``rate``, or ``BACKOFF mu_W`` (continuous) / ``rho_W^BACKOFF`` (discrete).
+        """
         if not self.limits(rate):
             return rate
         return BACKOFF * self.decay if self.time == "continuous" else self.decay ** BACKOFF
 
     def still_modes(self) -> list:
-        """``[(eigenvalue, direction (n,) complex)]`` of the modes on ``W`` that do not decay, the slowest first."""
+        """``[(eigenvalue, direction (n,) complex)]`` of the modes on ``W`` that do not decay, the slowest first.
+
+        Returns
+        -------
+        list of (complex, (n,) complex array)
+            Empty when every mode decays (or ``W`` is empty).
+        """
         if not self.dim:
             return []
         w, X = np.linalg.eig(self.W.T @ self.AW)
@@ -156,15 +185,35 @@ class Unobserved:
         return sorted(bad, key=lambda k: -abs(w[k]))
 
     def rate_text(self) -> str:
-        """``-2.1 /s`` (continuous) or ``radius 0.8`` (discrete): how fast W decays."""
+        """``2.1`` (continuous: ``mu_W``) or ``radius 0.8`` (discrete): how fast W decays.
+
+        Returns
+        -------
+        str
+        """
         return f"{self.decay:.3g}" if self.time == "continuous" else f"radius {self.decay:.3g}"
 
     def where(self) -> str:
-        """The states that carry ``W`` (:func:`splitspec_core.scenarios.labels.spread`)."""
+        """The states that carry ``W`` (:func:`splitspec_core.scenarios.labels.spread`).
+
+        Returns
+        -------
+        str
+        """
         return spread(self.W, self.names)
 
     def summary(self, rate: float) -> str:
-        """One line: what goes unobserved, how fast it decays, whether that limits the rate."""
+        """One line: what goes unobserved, how fast it decays, whether that limits the rate.
+
+        Parameters
+        ----------
+        rate : float
+            ``lam``, the rate asked for.
+
+        Returns
+        -------
+        str
+        """
         if not self.dim:
             return "every direction is observed by some agent"
         one = self.dim == 1
@@ -186,14 +235,51 @@ class Unobserved:
 
 def unobserved(sp: Spectrum, A: np.ndarray, C: np.ndarray, Vs, *, time: str, names,
                rank_tol: float | None = None, coords: np.ndarray | None = None) -> Unobserved:
-    """The unobserved space of the agents whose unobservable spaces are ``Vs`` (in the coordinates ``x = diag(coords)
-    x_w``; None: the user's), with ``C`` their rows stacked (for the residual) and ``sp`` the skeleton of ``A``
-    (:mod:`splitspec_core.model.modal`).
+    """The unobserved space of the agents whose unobservable spaces are ``Vs``, with ``C`` their rows stacked (for
+    the residual) and ``sp`` the skeleton of ``A`` (:mod:`splitspec_core.model.modal`).
 
     A direction counts as unobserved when it is within the decisions' own threshold (``design.rank_tol``) of every
     agent's ``V_i``, in balanced coordinates: an agent that left a weakly seen direction out has a ``V_i`` tilted
     by up to about that much, and consensus could recover a direction that every ``V_i`` holds only that closely
-    only with a gain of order one over its square (the split is then approximate: ``residual``)."""
+    only with a gain of order one over its square (the split is then approximate: ``residual``).
+
+    Parameters
+    ----------
+    sp : Spectrum
+        The skeleton of ``A``.
+    A : (n, n) array_like
+        State matrix.
+    C : (p, n) array_like
+        The agents' rows ``C_i`` stacked.
+    Vs : iterable of (n, n_i) arrays
+        The agents' ``V_i``, in the coordinates ``x = diag(coords) x_w``.
+    time : {"continuous", "discrete"}
+        The scenario's time.
+    names : sequence of str
+        State names, for the texts.
+    rank_tol : float, optional
+        ``design.rank_tol`` (None: auto).
+    coords : (n,) array, optional
+        The design's working coordinates (None: the user's).
+
+    Returns
+    -------
+    Unobserved
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from splitspec_core.model.modal import spectrum
+    >>> from splitspec_core.model.observability import decompose
+    >>> A, Cs = np.diag([-1.0, -2.0, -3.0]), [np.array([[1.0, 0, 0]]), np.array([[0, 1.0, 0]])]
+    >>> sp = spectrum(A, np.vstack(Cs))
+    >>> un = unobserved(sp, A, np.vstack(Cs), [decompose(A, C, spectrum=sp).V for C in Cs],
+    ...                 time="continuous", names=("x1", "x2", "x3"))
+    >>> un.dim, un.where(), round(un.decay, 6)
+    (1, 'x3', 3.0)
+    >>> un.summary(5.0)
+    '1 direction no agent sees (x3) decays at 3 <= rate 5: it limits the certified rate to 2.7'
+    """
     A = np.asarray(A, dtype=float)
     Wb = intersection([rescale(V, coords, sp.d) for V in Vs], A.shape[0], tol=threshold_of(rank_tol))
     return _unobserved_in(sp, A, np.asarray(C, dtype=float) * sp.d[None, :], Wb, time=time, names=names,
@@ -202,12 +288,29 @@ def unobserved(sp: Spectrum, A: np.ndarray, C: np.ndarray, Vs, *, time: str, nam
 
 def unobserved_without_each(sp: Spectrum, A: np.ndarray, Cs, Vs, *, time: str, names,
                             rank_tol: float | None = None, coords: np.ndarray | None = None) -> list:
-    """``[unobserved(...) of every agent but k for k]`` (``Cs``, ``Vs``: each agent's ``C_i`` and ``V_i``): the
-    survivors' ``W_S`` of every single loss, equal to :func:`unobserved` of the survivors to round-off (the same
-    test on the same singular values; a basis of ``W_S`` may be another rotation of it), in O(m) factorizations
-    of at most ``2n`` rows (:func:`~splitspec_core.model.subspaces.triangular_without_each`) instead of m of
-    ``(m - 1) n`` rows.  The residual's ``|C_b W_b|`` and ``|C_b|`` (2-norms) are those of the survivors' rows'
-    triangular factor, computed only when some ``W_S`` is not empty."""
+    """``[unobserved(...) of every agent but k for k]``: the survivors' ``W_S`` of every single loss, equal to
+    :func:`unobserved` of the survivors to round-off (the same test on the same singular values; a basis of
+    ``W_S`` may be another rotation of it), in O(m) factorizations of at most ``2n`` rows
+    (:func:`~splitspec_core.model.subspaces.triangular_without_each`) instead of m of ``(m - 1) n`` rows.  The
+    residual's ``|C_b W_b|`` and ``|C_b|`` (2-norms) are those of the survivors' rows' triangular factor,
+    computed only when some ``W_S`` is not empty.
+
+    Parameters
+    ----------
+    sp : Spectrum
+        The skeleton of ``A``.
+    A : (n, n) array_like
+        State matrix.
+    Cs, Vs : sequences
+        Each agent's ``C_i`` and ``V_i`` (in the coordinates ``coords``), in one order.
+    time, names, rank_tol, coords
+        As for :func:`unobserved`.
+
+    Returns
+    -------
+    list of Unobserved
+        Entry k: what the agents other than the k-th leave unobserved.
+    """
     A = np.asarray(A, dtype=float)
     n = A.shape[0]
     Wbs = intersections_without_each([rescale(V, coords, sp.d) for V in Vs], n, tol=threshold_of(rank_tol))
@@ -231,7 +334,17 @@ def _unobserved_in(sp: Spectrum, A: np.ndarray, Cb: np.ndarray, Wb: np.ndarray, 
 
 
 def still_text(un: Unobserved) -> str:
-    """The modes of ``W`` that do not decay, named: ``x3 + x4 (eigenvalue +-1j)``, the slowest first (at most 3)."""
+    """The modes of ``W`` that do not decay, named: ``x3 + x4 (eigenvalue +-1j)``, the slowest first (at most 3).
+
+    Parameters
+    ----------
+    un : Unobserved
+
+    Returns
+    -------
+    str
+        ``"; "``-joined, a complex pair once; empty when every mode decays.
+    """
     parts = []
     for lam, v in un.still_modes()[:3]:
         if abs(lam.imag) > 1e-12 * max(1.0, abs(lam)):
@@ -245,7 +358,19 @@ def still_text(un: Unobserved) -> str:
 
 
 def envelope_rate(rate: float, un: Unobserved | None) -> float:
-    """``lam``, or the rate :attr:`Unobserved.envelope` certifies when ``W`` limits it."""
+    """``lam``, or the rate :attr:`Unobserved.envelope` certifies when ``W`` limits it.
+
+    Parameters
+    ----------
+    rate : float
+        ``lam``.
+    un : Unobserved or None
+        None: nothing goes unobserved.
+
+    Returns
+    -------
+    float
+    """
     return rate if un is None else un.envelope(rate)
 
 
@@ -271,7 +396,18 @@ class UnobservedOf:
 
     def without_each(self, ids) -> dict:
         """``{k: self(ids without k) for k in ids}`` to round-off (:func:`unobserved_without_each`: O(m), not
-        O(m^2), factorizations)."""
+        O(m^2), factorizations).
+
+        Parameters
+        ----------
+        ids : iterable of int
+            The agent ids alive.
+
+        Returns
+        -------
+        dict of int to Unobserved
+            Keyed by the agent lost, in the scenario's agent order.
+        """
         chosen = set(ids)
         ids = [a for a in self._sc.agent_ids if a in chosen]
         each = unobserved_without_each(self._sp, self._sc.system.A, [self._Cs[a] for a in ids],
@@ -281,15 +417,44 @@ class UnobservedOf:
 
 def unobserved_of(sc, sp: Spectrum, full_V: dict, coords: np.ndarray | None = None) -> UnobservedOf:
     """``alive -> Unobserved`` (an :class:`UnobservedOf`): what a set of agents of the scenario ``sc`` leaves
-    unobserved, from their own unobservable spaces ``full_V`` (agent id -> ``V_i`` in the coordinates
-    ``x = diag(coords) x_w``)."""
+    unobserved, from their own unobservable spaces ``full_V``.
+
+    Parameters
+    ----------
+    sc : Scenario
+        The scenario (agent ids, ``C_i``, time, state names, ``design.rank_tol``).
+    sp : Spectrum
+        The skeleton of ``A``.
+    full_V : dict
+        Agent id -> ``V_i`` in the coordinates ``x = diag(coords) x_w``.
+    coords : (n,) array, optional
+        The design's working coordinates (None: the user's).
+
+    Returns
+    -------
+    UnobservedOf
+    """
     return UnobservedOf(sc, sp, full_V, coords)
 
 
 def not_detectable_text(un: Unobserved, decs, rank_tol: float | None) -> str:
     """The one line refusing a design whose unobserved directions do not all decay: the modes, named, whether some
     agent sees them weakly (the largest margin an agent left out along them: ``design.rank_tol`` below it would count
-    it), what would fix it.  ``decs``: the agents' own decompositions."""
+    it), what would fix it.
+
+    Parameters
+    ----------
+    un : Unobserved
+        What no agent sees.
+    decs : iterable of Decomposition
+        The agents' own decompositions.
+    rank_tol : float or None
+        ``design.rank_tol`` (None: auto).
+
+    Returns
+    -------
+    str
+    """
     modes = un.still_modes()
     weak = 0.0
     for dec in decs:  # a direction an agent left out that lies in W: the margin the threshold would have to go below
@@ -310,8 +475,25 @@ def not_detectable_text(un: Unobserved, decs, rank_tol: float | None) -> str:
 
 
 def directions_of(rows, n: int) -> np.ndarray | None:
-    """W as a configuration carries it to an agent process (``unobserved``: n rows of w numbers), checked; None when
-    the design sent none."""
+    """W as a configuration carries it to an agent process (``unobserved``: n rows of w numbers), checked.
+
+    Parameters
+    ----------
+    rows : list of lists of float, or None
+        The configuration's ``unobserved``.
+    n : int
+        State dimension.
+
+    Returns
+    -------
+    (n, w) float array or None
+        None when the design sent none.
+
+    Raises
+    ------
+    ValueError
+        If ``rows`` are not ``n`` rows of at most ``n`` finite numbers.
+    """
     if rows is None:
         return None
     W = np.array(rows, dtype=float)

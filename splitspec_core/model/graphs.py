@@ -72,6 +72,7 @@ class Graph:
 
     @property
     def m(self) -> int:
+        """int: the number of agents (vertices), ``len(ids)``."""
         return len(self.ids)
 
     @property
@@ -87,6 +88,7 @@ class Graph:
 
     @cached_property
     def S(self) -> np.ndarray:
+        """The ``(m, m)`` row-stochastic array ``S = D^-1 Adj'`` (or Metropolis weights), read-only, formed on first use."""
         adj = adjacency(self.m, zip(*self._idx))
         S = metropolis_matrix(adj) if self.weights == "metropolis" else stochastic_matrix(adj)
         S.setflags(write=False)
@@ -94,6 +96,7 @@ class Graph:
 
     @property
     def entries(self) -> tuple:
+        """``(rows, cols, values)``: the nonzero entries of ``S`` as three arrays (0-based positions), without forming ``S``."""
         if self.weights == "metropolis" or "S" in self.__dict__:
             rows, cols = np.nonzero(self.S)
             return rows, cols, self.S[rows, cols]
@@ -105,8 +108,20 @@ class Graph:
 
 
 def positions_in(ids, values) -> tuple:
-    """``(pos, found)``: for each of ``values`` (agent ids) its position in ``ids`` (0 where it is not there) and
-    whether it is there; vectorised, a sorted lookup (no Python loop over a thousand-agent network)."""
+    """Find agent ids in ``ids``; vectorised, a sorted lookup (no Python loop over a thousand-agent network).
+
+    Parameters
+    ----------
+    ids, values : sequence of int
+        The agent ids to look in, and the ids to look up.
+
+    Returns
+    -------
+    pos : (len(values),) int array
+        Position of each of ``values`` in ``ids`` (0 where it is not there).
+    found : (len(values),) bool array
+        Whether it is there.
+    """
     ids = np.asarray(ids, dtype=np.int64)
     values = np.asarray(values, dtype=np.int64)
     if not len(ids):
@@ -124,14 +139,39 @@ def _positions(ids, arcs) -> tuple:
 
 
 def arc_positions(ids, arcs) -> tuple:
-    """``(senders, receivers)``: the positions in ``ids`` of the arcs ``(j, i)`` between agents of ``ids`` (arcs
-    touching another agent dropped), as two int arrays."""
+    """The positions in ``ids`` of the arcs ``(j, i)`` between agents of ``ids`` (arcs touching another agent dropped).
+
+    Parameters
+    ----------
+    ids : sequence of int
+        Agent ids of the vertices, in order.
+    arcs : sequence of (int, int)
+        Arcs ``(j, i)`` between agent ids.
+
+    Returns
+    -------
+    senders, receivers : int array
+        Positions of each kept arc's ``j`` and ``i``.
+    """
     j, i, kept = _positions(ids, arcs)
     return j[kept], i[kept]
 
 
 def adjacency(m: int, arcs) -> np.ndarray:
-    """Adjacency matrix with self-arcs: ``Adj[j, i] = 1`` for each arc ``(j, i)`` (0-based)."""
+    """Adjacency matrix with self-arcs: ``Adj[j, i] = 1`` for each arc ``(j, i)`` (0-based).
+
+    Parameters
+    ----------
+    m : int
+        Number of agents.
+    arcs : iterable of (int, int)
+        Arcs ``(j, i)`` between 0-based positions.
+
+    Returns
+    -------
+    (m, m) float array
+        ``Adj``, ones on the diagonal.
+    """
     adj = np.eye(m)
     for j, i in arcs:
         adj[j, i] = 1.0
@@ -139,13 +179,34 @@ def adjacency(m: int, arcs) -> np.ndarray:
 
 
 def stochastic_matrix(adj: np.ndarray) -> np.ndarray:
-    """``S = D^-1 Adj'`` (paper, after eq. split_continuous_em): rows average in-neighbours."""
+    """``S = D^-1 Adj'`` (paper, after eq. split_continuous_em): rows average in-neighbours.
+
+    Parameters
+    ----------
+    adj : (m, m) array
+        Adjacency matrix with self-arcs, as :func:`adjacency` builds it.
+
+    Returns
+    -------
+    (m, m) float array
+        Row-stochastic ``S``.
+    """
     at = adj.T
     return at / at.sum(axis=1, keepdims=True)
 
 
 def metropolis_matrix(adj: np.ndarray) -> np.ndarray:
     """Metropolis weights for an undirected graph: symmetric and doubly stochastic.
+
+    Parameters
+    ----------
+    adj : (m, m) array
+        Symmetric adjacency matrix with self-arcs.
+
+    Returns
+    -------
+    (m, m) float array
+        ``S_ij = 1 / (1 + max(d_i, d_j))`` for neighbours, ``S_ii = 1 - sum_j S_ij``.
 
     Raises
     ------
@@ -169,6 +230,18 @@ def find_unreachable(m: int, arcs) -> tuple | None:
     """Return ``(j, i)`` (0-based) such that j cannot reach i, or ``None`` if strongly connected.
 
     Reaching follows arcs ``j -> i`` (the direction information flows).
+
+    Parameters
+    ----------
+    m : int
+        Number of agents.
+    arcs : iterable of (int, int)
+        Arcs ``(j, i)`` between 0-based positions.
+
+    Returns
+    -------
+    (int, int) or None
+        A pair through agent 0 that is not connected, or ``None``.
     """
     if m <= 1:
         return None
@@ -202,6 +275,25 @@ def find_unreachable(m: int, arcs) -> tuple | None:
 
 
 def is_strongly_connected(m: int, arcs) -> bool:
+    """Whether every agent reaches every other along the arcs ``j -> i``.
+
+    Parameters
+    ----------
+    m : int
+        Number of agents.
+    arcs : iterable of (int, int)
+        Arcs ``(j, i)`` between 0-based positions.
+
+    Returns
+    -------
+    bool
+        ``find_unreachable(m, arcs) is None``.
+
+    Examples
+    --------
+    >>> is_strongly_connected(3, [(0, 1), (1, 2), (2, 0)]), is_strongly_connected(3, [(0, 1), (1, 2)])
+    (True, False)
+    """
     return find_unreachable(m, arcs) is None
 
 
@@ -209,6 +301,16 @@ def perron_vector(S: np.ndarray) -> np.ndarray:
     """Perron vector ``pi > 0``, ``S' pi = pi``, ``sum(pi) = 1`` (proof of prop. split_continuous_stable).
 
     Unique when the graph of ``S'`` is strongly connected.
+
+    Parameters
+    ----------
+    S : (m, m) array
+        Row-stochastic matrix.
+
+    Returns
+    -------
+    (m,) float array
+        ``pi``, the least-squares solution of ``S' pi = pi``, ``sum(pi) = 1``.
     """
     m = S.shape[0]
     M = np.vstack([S.T - np.eye(m), np.ones((1, m))])
@@ -219,7 +321,19 @@ def perron_vector(S: np.ndarray) -> np.ndarray:
 
 
 def is_doubly_stochastic(S: np.ndarray, *, tol: float = 1e-12) -> bool:
-    """True when the column sums of the (row-)stochastic ``S`` are all one."""
+    """True when the column sums of the (row-)stochastic ``S`` are all one.
+
+    Parameters
+    ----------
+    S : (m, m) array
+        Row-stochastic matrix.
+    tol : float, default 1e-12
+        Tolerance per agent: column sums within ``tol * m`` of one count.
+
+    Returns
+    -------
+    bool
+    """
     return bool(np.all(np.abs(S.sum(axis=0) - 1.0) <= tol * S.shape[0]))
 
 
@@ -227,13 +341,40 @@ def build_graph(name: str, ids: tuple, arcs, *, weights: str = "uniform", check:
     """Build a :class:`Graph` over agents ``ids`` from arcs between agent ids.
 
     Arcs touching agents outside ``ids`` are dropped (the graph restricted to
-    ``ids``, e.g. the survivors of a fault).
+    ``ids``, e.g. the survivors of a fault), and so are self-arcs.
+
+    Parameters
+    ----------
+    name : str
+        The graph's name.
+    ids : tuple of int
+        Agent ids of the vertices, in order.
+    arcs : iterable of (int, int)
+        Arcs ``(j, i)`` between agent ids (j is heard by i).
+    weights : {"uniform", "metropolis"}, default "uniform"
+        ``S = D^-1 Adj'``, or Metropolis weights (formed at once: a directed graph is refused).
+    check : bool, default True
+        Refuse a graph that is not strongly connected.
+
+    Returns
+    -------
+    Graph
 
     Raises
     ------
     AssumptionError
-        If ``check`` and the graph is not strongly connected; the message
-        names an agent that cannot reach another.
+        If ``check`` and the graph is not strongly connected (the message
+        names an agent that cannot reach another), or Metropolis weights on a directed graph.
+
+    Examples
+    --------
+    >>> g = build_graph("ring", (1, 2, 3), [(1, 2), (2, 3), (3, 1), (3, 9)])
+    >>> g.arcs, g.m
+    (((1, 2), (2, 3), (3, 1)), 3)
+    >>> g.S
+    array([[0.5, 0. , 0.5],
+           [0.5, 0.5, 0. ],
+           [0. , 0.5, 0.5]])
     """
     arcs = arcs if isinstance(arcs, (tuple, list)) else list(arcs)
     flat = np.fromiter(itertools.chain.from_iterable(arcs), dtype=np.int64, count=2 * len(arcs))
@@ -255,7 +396,16 @@ def build_graph(name: str, ids: tuple, arcs, *, weights: str = "uniform", check:
 
 
 def neighbour_lists(graph: Graph) -> dict:
-    """``{i: (j, ...)}``: agent ids each agent hears, itself first, then ascending."""
+    """``{i: (j, ...)}``: agent ids each agent hears, itself first, then ascending.
+
+    Parameters
+    ----------
+    graph : Graph
+
+    Returns
+    -------
+    dict of int to tuple of int
+    """
     nb = {i: [i] for i in graph.ids}
     for j, i in graph.arcs:
         nb[i].append(j)
@@ -274,7 +424,28 @@ def switch_times(switching, names: tuple, horizon: float, rng: np.random.Generat
     switching draws exponential dwell times with mean ``switching.dwell`` and
     jumps to a different graph of ``switching.graphs`` chosen uniformly, so
     the average dwell time is ``dwell`` (the paper's tau_D, chatter bound in
-    probability).  ``rng`` must be given for random switching.
+    probability).
+
+    Parameters
+    ----------
+    switching : SwitchingSpec
+        The scenario's switching (``kind`` constant, schedule or random).
+    names : tuple of str
+        The scenario's graph names.
+    horizon : float
+        End of the signal (time units); a periodic schedule is repeated up to it.
+    rng : numpy.random.Generator, optional
+        Needed for random switching.
+
+    Returns
+    -------
+    list of (float, int)
+        Switch times, ascending, with the graph index in force from then on.
+
+    Raises
+    ------
+    ScenarioError
+        Random switching without ``rng``.
     """
     kind = switching.kind
     if kind == "constant":
@@ -351,7 +522,18 @@ class SwitchingSignal:
             yield (t, current)
 
     def at(self, k: int) -> int:
-        """Graph index in force during step ``k`` (time ``k * dt``)."""
+        """Graph index in force during step ``k`` (time ``k * dt``).
+
+        Parameters
+        ----------
+        k : int
+            Step, not less than the previous one asked.
+
+        Returns
+        -------
+        int
+            Index into the scenario's graph names.
+        """
         if k < self._k:
             raise ValueError(f"the switching signal moves forward only (asked step {k} after {self._k})")
         self._k = k
@@ -367,6 +549,19 @@ def graph_sequence(pieces: list, steps: int, *, dt: float = 1.0) -> np.ndarray:
     A graph is held constant over a step (the discrete protocol fixes
     neighbours between event times; continuous time is sampled with ``dt``);
     the graph in force at the start of a step is used for the whole step.
+
+    Parameters
+    ----------
+    pieces : list of (float, int)
+        What :func:`switch_times` returns.
+    steps : int
+        Number of steps.
+    dt : float, default 1.0
+        Step length (time units).
+
+    Returns
+    -------
+    (steps,) int array
     """
     starts = np.array([p[0] for p in pieces])
     idx = np.array([p[1] for p in pieces])
@@ -381,6 +576,21 @@ def enumerate_strongly_connected(m: int) -> list:
 
     The paper's switching theorems quantify over this set; it has
     ``2^(m(m-1))`` candidates, so only ``m <= 4`` is allowed.
+
+    Parameters
+    ----------
+    m : int
+        Number of vertices, at most 4.
+
+    Returns
+    -------
+    list of tuple of (int, int)
+        The arc sets, without self-arcs.
+
+    Raises
+    ------
+    ScenarioError
+        If ``m > 4``.
     """
     if m > 4:
         raise ScenarioError(f"design.graph_set: all enumerates 2^(m(m-1)) graphs; m = {m} is too many (at most 4)")

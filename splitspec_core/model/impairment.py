@@ -72,7 +72,27 @@ def _mix(z: int) -> int:
 
 
 def u_scalar(key: int, tau: int, k: int, j: int, i: int) -> float:
-    """The uniform draw of message ``(tau, k, j, i)`` under ``key``, in ``[0, 1)`` (one message)."""
+    """The uniform draw of message ``(tau, k, j, i)`` under ``key``, in ``[0, 1)`` (one message).
+
+    Parameters
+    ----------
+    key : int
+        64-bit key (:class:`Impairment`'s ``loss_key`` or ``delay_key``).
+    tau, k, j, i : int
+        Event time, sub-round, sender id and receiver id.
+
+    Returns
+    -------
+    float
+        The splitmix64 hash of the key and indices, mapped to ``[0, 1)`` (53 bits).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> u = u_scalar(12345, 3, 1, 2, 5)
+    >>> 0.0 <= u < 1.0, bool(u_array(12345, 3, 1, np.array([2]), np.array([5]))[0] == u)
+    (True, True)
+    """
     z = key & _M64
     for v, g in zip((tau, k, j, i), _GAMMA):
         z = _mix(z ^ ((int(v) * g) & _M64))
@@ -87,7 +107,24 @@ def _mix_array(z: np.ndarray) -> np.ndarray:
 
 def u_array(key: int, tau: int, k, j: np.ndarray, i: np.ndarray) -> np.ndarray:
     """:func:`u_scalar` for many messages (``k``, ``j``, ``i`` arrays, broadcast; ``k`` may be one sub-round):
-    the same numbers."""
+    the same numbers.
+
+    Parameters
+    ----------
+    key : int
+        64-bit key.
+    tau : int
+        Event time.
+    k : int or int array
+        Sub-round(s).
+    j, i : int arrays
+        Sender and receiver ids.
+
+    Returns
+    -------
+    float array
+        The broadcast shape of ``k``, ``j``, ``i``; values in ``[0, 1)``.
+    """
     k = np.asarray(k, dtype=np.uint64)
     j = np.asarray(j, dtype=np.uint64)
     i = np.asarray(i, dtype=np.uint64)
@@ -110,12 +147,34 @@ class Impairment:
         self._params: dict = {}  # the per-arc parameters of a sub-round's messages, by (senders, receivers)
 
     def lost(self, tau: int, k: int, j: int, i: int) -> bool:
-        """Message ``(tau, k, j, i)`` is lost (an injected loss)."""
+        """Message ``(tau, k, j, i)`` is lost (an injected loss).
+
+        Parameters
+        ----------
+        tau, k, j, i : int
+            Event time, sub-round, sender id and receiver id.
+
+        Returns
+        -------
+        bool
+            ``u < p`` with ``p`` the arc's loss probability (False when it is 0).
+        """
         p = self.network.loss_of((j, i))
         return p > 0 and u_scalar(self.loss_key, tau, k, j, i) < p
 
     def delay(self, tau: int, k: int, j: int, i: int) -> float:
-        """Seconds message ``(tau, k, j, i)`` is held before it counts (``mean + jitter (2u - 1)``, at least 0)."""
+        """Seconds message ``(tau, k, j, i)`` is held before it counts (``mean + jitter (2u - 1)``, at least 0).
+
+        Parameters
+        ----------
+        tau, k, j, i : int
+            Event time, sub-round, sender id and receiver id.
+
+        Returns
+        -------
+        float
+            The delay in seconds (0.0 when the arc has neither mean nor jitter).
+        """
         mean, jitter = self.network.delay_of((j, i))
         if mean == 0 and jitter == 0:
             return 0.0
@@ -137,7 +196,22 @@ class Impairment:
     def dropped(self, tau: int, k, js: np.ndarray, is_: np.ndarray) -> np.ndarray:
         """Per message of sub-round ``k`` (arrays of sender and receiver ids): -1 if it counts, else its cause
         (``simulate``'s emulation: a delay beyond the deadline is ``late``).  ``k`` an array of sub-rounds: one
-        row per sub-round, the same numbers."""
+        row per sub-round, the same numbers.
+
+        Parameters
+        ----------
+        tau : int
+            Event time.
+        k : int or int array
+            Sub-round(s).
+        js, is_ : int arrays
+            Sender and receiver ids, one per message.
+
+        Returns
+        -------
+        int64 array
+            Broadcast shape of ``k`` and ``js``: -1, :data:`LOSS` or :data:`LATE` (partitions are not drawn here).
+        """
         shape = np.broadcast_shapes(np.shape(k), np.shape(js))
         out = np.full(shape, -1, dtype=np.int64)
         if not len(js):
@@ -153,7 +227,20 @@ class Impairment:
 
 
 def group_of(groups, ids) -> dict:
-    """Agent id -> group index under a partition (``None``: no partition); the unnamed agents form one more group."""
+    """Agent id -> group index under a partition; the unnamed agents form one more group.
+
+    Parameters
+    ----------
+    groups : sequence of sequences of int, or None
+        The partition's groups of agent ids (None or empty: no partition).
+    ids : iterable of int
+        Every agent id.
+
+    Returns
+    -------
+    dict of int to int
+        Empty when there is no partition.
+    """
     if not groups:
         return {}
     out = {a: g for g, members in enumerate(groups) for a in members}
@@ -162,17 +249,48 @@ def group_of(groups, ids) -> dict:
 
 
 def crosses(groups_map: dict, j: int, i: int) -> bool:
-    """Arc ``j -> i`` crosses between the groups of a partition in force."""
+    """Arc ``j -> i`` crosses between the groups of a partition in force.
+
+    Parameters
+    ----------
+    groups_map : dict
+        :func:`group_of`'s map (empty: no partition).
+    j, i : int
+        Sender and receiver ids.
+
+    Returns
+    -------
+    bool
+    """
     return bool(groups_map) and groups_map[j] != groups_map[i]
 
 
 def realized_row(nbs, ws, counted, weights: str) -> tuple:
     """Agent i's neighbours and weights in a sub-round where only ``counted`` neighbours' messages count.
 
-    ``nbs``, ``ws``: the row of the active graph, agent i first (:func:`splitspec_core.model.network.consensus_rows`);
-    ``counted``: a container of the neighbour ids whose message counts (i itself always does).  Uniform
-    weights: ``1 / (1 + #counted)`` each (row i of the realized graph's ``S``); Metropolis: the missing weights
-    go to i itself.  Row-stochastic either way (see the module docstring).
+    Uniform weights: ``1 / (1 + #counted)`` each (row i of the realized graph's ``S``); Metropolis: the missing
+    weights go to i itself.  Row-stochastic either way (see the module docstring).
+
+    Parameters
+    ----------
+    nbs, ws : sequence
+        The row of the active graph, agent i first (:func:`splitspec_core.model.network.consensus_rows`).
+    counted : container of int
+        The neighbour ids whose message counts (i itself always does).
+    weights : {"uniform", "metropolis"}
+        The design's consensus weights.
+
+    Returns
+    -------
+    nbs, ws : tuple
+        The realized row (the given row itself when every message counts).
+
+    Examples
+    --------
+    >>> realized_row((1, 2, 3), (1 / 3, 1 / 3, 1 / 3), [3], "uniform")
+    ((1, 3), (0.5, 0.5))
+    >>> realized_row((1, 2, 3), (0.5, 0.25, 0.25), [3], "metropolis")
+    ((1, 3), (0.75, 0.25))
     """
     me = nbs[0]
     keep = [me] + [j for j in nbs[1:] if j in counted]
@@ -189,11 +307,33 @@ def sub_round(imp: Impairment | None, weights: str, *, tau: int, k: int, me: int
               now: float = 0.0, opened: float = 0.0, arrived: dict | None = None):
     """Agent ``me``'s decision for sub-round ``k`` of event time ``tau`` (the agent process's rule, one message at a time).
 
-    ``have``: neighbour id -> its message for this sub-round, as far as arrived; ``groups``: a partition in force
-    (:func:`group_of`); ``arrived``: neighbour id -> when its message arrived (with delays), ``now`` and
-    ``opened`` (when the sub-round opened) on the same clock.  Returns ``("wait", wake)`` (wake: when to look
-    again, or None to wait for a message) or ``("go", nbs, ws, lost)``: the realized row (:func:`realized_row`)
-    and the ``(k, j, cause)`` of every neighbour whose message does not count.
+    Parameters
+    ----------
+    imp : Impairment or None
+        The run's drawn losses and delays (None: a network without them).
+    weights : {"uniform", "metropolis"}
+        The design's consensus weights.
+    tau, k : int
+        Event time and sub-round.
+    me : int
+        The agent's id.
+    nbs, ws : sequence
+        Its row of the active graph, itself first.
+    have : dict
+        Neighbour id -> its message for this sub-round, as far as arrived.
+    groups : dict
+        A partition in force (:func:`group_of`; empty: none).
+    now, opened : float, default 0.0
+        The current time and when the sub-round opened, on one clock (seconds).
+    arrived : dict, optional
+        Neighbour id -> when its message arrived (with delays: each is held its drawn delay).
+
+    Returns
+    -------
+    tuple
+        ``("wait", wake)`` (wake: when to look again, or None to wait for a message) or ``("go", nbs, ws, lost)``:
+        the realized row (:func:`realized_row`) and the ``(k, j, cause)`` of every neighbour whose message does not
+        count.
     """
     net = imp.network if imp is not None else None
     lost, missing, wake = [], [], []

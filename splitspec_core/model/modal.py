@@ -87,17 +87,50 @@ class Spectrum:
     clusters: tuple
 
     def to_user(self, Xb: np.ndarray) -> np.ndarray:
-        """An orthonormal basis, in the user's coordinates, of the subspace spanned by ``Xb`` (balanced)."""
+        """An orthonormal basis, in the user's coordinates, of the subspace spanned by ``Xb`` (balanced).
+
+        Parameters
+        ----------
+        Xb : (n, p) array
+            Basis in balanced coordinates ``x_b = x / d``.
+
+        Returns
+        -------
+        (n, p) array
+        """
         return rescale(Xb, self.d, None)
 
     def to_balanced(self, X: np.ndarray) -> np.ndarray:
-        """An orthonormal basis, in balanced coordinates, of the subspace spanned by ``X`` (user's)."""
+        """An orthonormal basis, in balanced coordinates, of the subspace spanned by ``X`` (user's).
+
+        Parameters
+        ----------
+        X : (n, p) array
+            Basis in the user's coordinates.
+
+        Returns
+        -------
+        (n, p) array
+        """
         return rescale(X, None, self.d)
 
 
 def rescale(X: np.ndarray, frm: np.ndarray | None, to: np.ndarray | None) -> np.ndarray:
     """An orthonormal basis, in the coordinates ``x = diag(to) x_to``, of the subspace spanned by ``X`` given in the
-    coordinates ``x = diag(frm) x_frm`` (None: the user's own, ``diag(1)``)."""
+    coordinates ``x = diag(frm) x_frm`` (None: the user's own, ``diag(1)``).
+
+    Parameters
+    ----------
+    X : (n, p) array
+        Basis in the ``frm`` coordinates (need not be orthonormal).
+    frm, to : (n,) array or None
+        Scalings of the coordinates mapped from and to.
+
+    Returns
+    -------
+    (n, p) array
+        Orthonormal (QR of ``diag(frm / to) X``); ``(n, 0)`` when ``p = 0``.
+    """
     if X.shape[1] == 0:
         return np.zeros((X.shape[0], 0))
     f = np.ones(X.shape[0]) if frm is None else frm
@@ -119,6 +152,27 @@ def balance(A: np.ndarray, C: np.ndarray | None = None, *, tol: float = BALANCE_
     that its column of ``C`` (all agents' rows) has the median norm of the measured states' columns.  ``C`` is
     not balanced against ``A``: a measured state of an oscillator has no balanced point with its measurement
     counted in its column (it shrinks without end), and the measurement's weight is the decisions' business.
+
+    Parameters
+    ----------
+    A : (n, n) array_like
+        State matrix.
+    C : (p, n) array_like, optional
+        All agents' output rows stacked; used only to scale decoupled states.
+    tol : float, default BALANCE_TOL
+        Relative move below which the iteration stops.
+
+    Returns
+    -------
+    (n,) float array
+        ``d``, positive: ``A_b = D^-1 A D`` with ``D = diag(d)``.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> d = balance(np.array([[0.0, 100.0], [1.0, 0.0]]))
+    >>> float(np.round(d[1] / d[0], 6))
+    0.1
     """
     A = np.asarray(A, dtype=float)
     n = A.shape[0]
@@ -213,7 +267,20 @@ def _schur_basis(T: np.ndarray, Z: np.ndarray, w_schur: np.ndarray, chosen: np.n
 def clusters(M: np.ndarray, *, rel: float = CLUSTER_REL) -> list:
     """``[Cluster]`` of ``M`` in its own coordinates: the clusters of its eigenvalues with an orthonormal basis of each
     one's invariant subspace (module docstring: eigenvectors, or the ordered Schur form when they are nearly
-    dependent)."""
+    dependent).
+
+    Parameters
+    ----------
+    M : (n, n) array_like
+        The matrix (``A_b`` for :func:`spectrum`).
+    rel : float, default CLUSTER_REL
+        Eigenvalues closer than this fraction of their modulus share a cluster.
+
+    Returns
+    -------
+    list of Cluster
+        Empty when ``n = 0``.
+    """
     M = np.asarray(M, dtype=float)
     n = M.shape[0]
     if n == 0:
@@ -242,7 +309,27 @@ def clusters(M: np.ndarray, *, rel: float = CLUSTER_REL) -> list:
 
 def invariant_subspace(M: np.ndarray, keep) -> np.ndarray:
     """Orthonormal basis of the invariant subspace of ``M`` for the clusters whose eigenvalues all satisfy ``keep``
-    (a predicate on an array of eigenvalues, true where kept); a cluster straddling it is left out whole."""
+    (a predicate on an array of eigenvalues, true where kept); a cluster straddling it is left out whole.
+
+    Parameters
+    ----------
+    M : (n, n) array_like
+        The matrix.
+    keep : callable
+        ``keep(eigs) -> bool array``.
+
+    Returns
+    -------
+    (n, p) array
+        ``(n, 0)`` when no cluster is kept.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> U = invariant_subspace(np.diag([-1.0, 2.0]), lambda w: w.real < 0)
+    >>> np.abs(U).round(12).tolist()
+    [[1.0], [0.0]]
+    """
     M = np.asarray(M, dtype=float)
     parts = [c.X for c in clusters(M) if np.all(keep(c.eigs))]
     if not parts:
@@ -252,7 +339,29 @@ def invariant_subspace(M: np.ndarray, keep) -> np.ndarray:
 
 
 def spectrum(A: np.ndarray, C: np.ndarray | None = None, *, rel: float = CLUSTER_REL) -> Spectrum:
-    """The spectral skeleton of ``A`` (module docstring); ``C`` (all agents' rows stacked) enters the balancing."""
+    """The spectral skeleton of ``A`` (module docstring); ``C`` (all agents' rows stacked) enters the balancing.
+
+    Parameters
+    ----------
+    A : (n, n) array_like
+        State matrix.
+    C : (p, n) array_like, optional
+        All agents' output rows stacked (for :func:`balance`).
+    rel : float, default CLUSTER_REL
+        Cluster width (:func:`clusters`).
+
+    Returns
+    -------
+    Spectrum
+        ``d``, ``A_b = D^-1 A D`` and the clusters of ``A_b``.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> sp = spectrum(np.array([[-1.0, 1.0], [0.0, -1.05]]))
+    >>> len(sp.clusters), sp.clusters[0].X.shape
+    (1, (2, 2))
+    """
     A = np.asarray(A, dtype=float)
     d = balance(A, C)
     Ab = A / d[:, None] * d[None, :]

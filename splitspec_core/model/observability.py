@@ -132,7 +132,18 @@ class Staircase:
 
 
 def threshold_of(rank_tol: float | None) -> float:
-    """The margin threshold for ``design.rank_tol`` (None: auto)."""
+    """The margin threshold for ``design.rank_tol`` (None: auto).
+
+    Parameters
+    ----------
+    rank_tol : float or None
+        ``design.rank_tol``.
+
+    Returns
+    -------
+    float
+        :data:`DEFAULT_RANK_TOL` for None, else ``rank_tol`` but at least :data:`ROUND_OFF`.
+    """
     return DEFAULT_RANK_TOL if rank_tol is None else max(float(rank_tol), ROUND_OFF)
 
 
@@ -141,20 +152,44 @@ def observability_staircase(A: np.ndarray, C: np.ndarray, *, rank_tol: float | N
                             a_scale: float | None = None, move: float = 0.0) -> Staircase:
     """Observable space of ``(C, A)`` by the graded staircase (see the module docstring).
 
-    ``keep_full_steps``: count a weak direction reached in a full step (:data:`SPLIT_STEP`), which an
-    agent's split needs; the joint decision has no split to keep and counts margins alone.
-    ``c_scale``: measure ``C`` against this norm instead of its own (a cluster's restriction ``C X_k`` against
-    the whole ``|C|``: a mode the sensors see weakly must not look strong because it is alone in its cluster).
-    ``a_scale``: the norm of the whole matrix a cluster's ``A`` was cut from.  The cluster's own spread
-    ``|A - aI|`` sets the scale of its images; a spread below :data:`ROUND_OFF` of ``a_scale`` is round-off (a
-    repeated eigenvalue: five integrators of a power-system model came out ``1e-17`` apart) and has no images, and
-    images are known only to ``eps a_scale / spread`` of their weight (a round-off spread scaled up is not a margin).
-    ``move``: how far the local gain must move the cluster's modes
-    (:class:`splitspec_core.model.gain_target.GainTarget`): the images are measured against the larger of the spread
-    and that distance.  A direction the staircase reaches
-    in ``j`` steps then has a margin of about the distance over the gain that moves it (the gain grows like
-    ``move^j / |C (A - aI)^j v|``): three governor modes ``5e-4`` apart that the gain must move by ``0.16`` are
-    not seen by a sensor of one of them, however clean their spread looks against itself.
+    Parameters
+    ----------
+    A : (n, n) array
+        State matrix (a cluster's ``A_k`` when called per cluster).
+    C : (p, n) array
+        Output rows.
+    rank_tol : float, optional
+        ``design.rank_tol`` (None: :data:`DEFAULT_RANK_TOL`).
+    keep_full_steps : bool, default True
+        Count a weak direction reached in a full step (:data:`SPLIT_STEP`), which an
+        agent's split needs; the joint decision has no split to keep and counts margins alone.
+    c_scale : float, optional
+        Measure ``C`` against this norm instead of its own (a cluster's restriction ``C X_k`` against
+        the whole ``|C|``: a mode the sensors see weakly must not look strong because it is alone in its cluster).
+    a_scale : float, optional
+        The norm of the whole matrix a cluster's ``A`` was cut from.  The cluster's own spread
+        ``|A - aI|`` sets the scale of its images; a spread below :data:`ROUND_OFF` of ``a_scale`` is round-off (a
+        repeated eigenvalue: five integrators of a power-system model came out ``1e-17`` apart) and has no images, and
+        images are known only to ``eps a_scale / spread`` of their weight (a round-off spread scaled up is not a margin).
+    move : float, default 0.0
+        How far the local gain must move the cluster's modes
+        (:class:`splitspec_core.model.gain_target.GainTarget`): the images are measured against the larger of the spread
+        and that distance.  A direction the staircase reaches
+        in ``j`` steps then has a margin of about the distance over the gain that moves it (the gain grows like
+        ``move^j / |C (A - aI)^j v|``): three governor modes ``5e-4`` apart that the gain must move by ``0.16`` are
+        not seen by a sensor of one of them, however clean their spread looks against itself.
+
+    Returns
+    -------
+    Staircase
+        The observable space ``W`` (n, r) with its graded margins and the largest margin left out.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> st = observability_staircase(np.array([[0.0, 1.0], [-1.0, 0.0]]), np.array([[1.0, 0.0]]))
+    >>> st.W.shape, round(st.margin, 3)
+    ((2, 2), 1.0)
     """
     step = SPLIT_STEP if keep_full_steps else math.inf
     n = A.shape[0]
@@ -274,12 +309,26 @@ class Decomposition:
 
     @property
     def n_unobservable(self) -> int:
+        """int: ``n_i``, the dimension of the unobservable space (columns of ``V``)."""
         return self.V.shape[1]
 
     def without(self, W: np.ndarray, A: np.ndarray) -> "Decomposition":
         """The estimator's decomposition when the directions ``W`` (orthonormal, in ``span V``) go unobserved by
         every agent: ``V`` becomes ``V ⊖ W`` (:mod:`splitspec_core.model.detectability`); ``Q``, ``Abar``, ``Cbar`` and
-        the margins are the agent's own, unchanged."""
+        the margins are the agent's own, unchanged.
+
+        Parameters
+        ----------
+        W : (n, w) array
+            Orthonormal basis of the jointly unobserved directions.
+        A : (n, n) array_like
+            State matrix, in the decomposition's coordinates (for ``A_un``).
+
+        Returns
+        -------
+        Decomposition
+            ``self`` when ``W`` is empty; else with ``V``, ``P``, ``A_un`` of ``V ⊖ W`` and ``unobserved = w``.
+        """
         if W.shape[1] == 0:
             return self
         V = difference(self.V, W)
@@ -287,6 +336,7 @@ class Decomposition:
 
     @property
     def n_observable(self) -> int:
+        """int: ``n - n_i``, the dimension of the observable space (rows of ``Q``)."""
         return self.Q.shape[0]
 
 
@@ -314,6 +364,25 @@ def _missed(Cs: np.ndarray, S: np.ndarray | None, W: np.ndarray, threshold: floa
 
 
 def split_residual_of(A: np.ndarray, C: np.ndarray, Q: np.ndarray, V: np.ndarray) -> float:
+    """How far ``V`` is from an exact unobservable space of ``(C, A)`` (``Decomposition.split_residual``).
+
+    Parameters
+    ----------
+    A : (n, n) array
+        State matrix (balanced coordinates, as the decisions use).
+    C : (p, n) array
+        Output rows, or any matrix with their 2-norm on every subspace (a triangular factor).
+    Q : (n - k, n) array
+        Orthonormal rows with kernel ``span V``.
+    V : (n, k) array
+        Orthonormal basis of the candidate unobservable space.
+
+    Returns
+    -------
+    float
+        ``max(||Q A V||_2 / ||A - aI||_2, ||C V||_2 / ||C||_2)``, ``a = trace(A) / n``; 0.0 when ``V`` or ``Q``
+        is empty (a zero norm leaves its term 0).
+    """
     if not V.shape[1] or not Q.shape[0]:
         return 0.0
     n = A.shape[0]
@@ -374,14 +443,40 @@ def decompose(A: np.ndarray, C: np.ndarray, *, rank_tol: float | None = None,
               scale: np.ndarray | None = None) -> Decomposition:
     """Observability decomposition of ``(C, A)``, decided cluster by cluster in balanced coordinates.
 
-    ``spectrum``: the skeleton of ``A`` (:func:`splitspec_core.model.modal.spectrum`, all agents' rows stacked for the
-    decoupled states); computed from ``(A, C)`` when not given.  ``free``: the local gain's target
-    (:func:`splitspec_core.model.gain_target.beyond_target`): clusters already past it are decided at round-off, the others'
-    dynamics are measured against the distance the gain moves them (:func:`_decide`).  ``scale``: the
-    coordinates the decomposition is written in, ``x = diag(scale) x_w`` (None: the user's own; the design's
-    ``design.coordinates``): ``V`` and ``Q`` are orthonormal there, ``Abar``, ``Cbar``, ``P``, ``A_un`` are of
-    ``D^-1 A D`` and ``C D``.  Margins, ``weak`` and ``split_residual`` are measured
-    in the balanced coordinates (unit-free); ``weak_direction`` is in the user's.
+    The margins, ``weak`` and ``split_residual`` are measured in the balanced coordinates (unit-free);
+    ``weak_direction`` is in the user's.
+
+    Parameters
+    ----------
+    A : (n, n) array_like
+        State matrix.
+    C : (s_i, n) array_like
+        Agent i's output rows ``C_i``.
+    rank_tol : float, optional
+        ``design.rank_tol`` (None: auto, :data:`DEFAULT_RANK_TOL`).
+    spectrum : Spectrum, optional
+        The skeleton of ``A`` (:func:`splitspec_core.model.modal.spectrum`, all agents' rows stacked for the
+        decoupled states); computed from ``(A, C)`` when not given.
+    free : GainTarget, optional
+        The local gain's target (:func:`splitspec_core.model.gain_target.beyond_target`): clusters already past it
+        are decided at round-off, the others' dynamics are measured against the distance the gain moves them
+        (:func:`_decide`).
+    scale : (n,) array, optional
+        The coordinates the decomposition is written in, ``x = diag(scale) x_w`` (None: the user's own; the
+        design's ``design.coordinates``): ``V`` and ``Q`` are orthonormal there, ``Abar``, ``Cbar``, ``P``,
+        ``A_un`` are of ``D^-1 A D`` and ``C D``.
+
+    Returns
+    -------
+    Decomposition
+        ``V_i``, ``Q_i``, ``Abar_i``, ``Cbar_i``, ``P_i = V_i V_i'``, ``A_i = V_i' A V_i`` (eq. QA2) and the margins.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> dec = decompose(np.diag([-1.0, -2.0]), np.array([[1.0, 0.0]]))
+    >>> dec.n_unobservable, np.abs(dec.V).round(12).ravel().tolist()
+    (1, [0.0, 1.0])
     """
     A = np.asarray(A, dtype=float)
     C = np.asarray(C, dtype=float)
@@ -405,7 +500,22 @@ def decompose(A: np.ndarray, C: np.ndarray, *, rank_tol: float | None = None,
 
 def unobservable_directions(A: np.ndarray, Cs, *, rank_tol: float | None = None) -> np.ndarray:
     """Orthonormal basis of what no agent sees: ``V_1 ∩ ... ∩ V_m``, each ``V_i`` decided as :func:`decompose` does
-    (in one skeleton of ``A`` balanced with every agent's rows; :mod:`splitspec_core.model.detectability`)."""
+    (in one skeleton of ``A`` balanced with every agent's rows; :mod:`splitspec_core.model.detectability`).
+
+    Parameters
+    ----------
+    A : (n, n) array_like
+        State matrix.
+    Cs : iterable of (s_i, n) array_like
+        Every agent's ``C_i``.
+    rank_tol : float, optional
+        ``design.rank_tol`` (None: auto).
+
+    Returns
+    -------
+    (n, w) array
+        ``W`` in the user's coordinates; the identity when ``Cs`` is empty.
+    """
     A = np.asarray(A, dtype=float)
     Cs = [np.asarray(C, dtype=float) for C in Cs]
     n = A.shape[0]

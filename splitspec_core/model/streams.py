@@ -31,5 +31,27 @@ STREAMS = {"initial_state": 0, "process": 1, "measurement": 2, "estimate": 3, "s
 
 
 def stream(seed: int, name: str, *key: int) -> np.random.Generator:
-    """The generator of stream ``name`` with integer ``key`` (see the module table)."""
+    """The generator of stream ``name`` with integer ``key`` (see the module table).
+
+    Parameters
+    ----------
+    seed : int
+        The run's seed (``run.seed``).
+    name : str
+        A stream of :data:`STREAMS` (``"process"``, ``"estimate"``, ...).
+    *key : int
+        The stream's key, e.g. ``(agent index, incarnation)`` for ``estimate``.
+
+    Returns
+    -------
+    numpy.random.Generator
+        ``default_rng(SeedSequence(seed, spawn_key=(STREAMS[name], *key)))``: the same numbers in every process.
+
+    Examples
+    --------
+    >>> a = stream(7, "estimate", 0, 1).standard_normal(2)
+    >>> b = stream(7, "estimate", 0, 1).standard_normal(2)
+    >>> bool((a == b).all()), bool((a == stream(7, "estimate", 1, 1).standard_normal(2)).all())
+    (True, False)
+    """
     return np.random.default_rng(np.random.SeedSequence(int(seed), spawn_key=(STREAMS[name], *map(int, key))))
