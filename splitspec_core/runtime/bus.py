@@ -86,6 +86,16 @@ def lease_ms_for(role: str) -> int:
     second; with 10 s an orchestrator frozen or starved for up to ~9 s is waited for, and a loaded
     machine never closes a link.  A killed process closes its sockets and is seen at once; a frozen
     agent is found by the orchestrator's status probe (:mod:`splitspec_orchestrator.rounds.machine`) in about 1.1 s.
+
+    Parameters
+    ----------
+    role : str
+        The process's role (``"agent"``, ``"plant"``, ``"orchestrator"``); every role gets the same lease today.
+
+    Returns
+    -------
+    int
+        Milliseconds, at least 100 (an unparsable ``SPLITSPEC_LEASE_MS`` gives 10000).
     """
     return _env_ms("SPLITSPEC_LEASE_MS", 10_000)
 
@@ -95,8 +105,29 @@ def zenoh_config(mode: str, *, listen: list | None = None, connect: list | None 
                  connect_timeout_ms: int | None = None, extra: dict | None = None) -> zenoh.Config:
     """Zenoh config: ``mode`` is ``router``, ``peer`` or ``client``; multicast scouting is off.
 
-    ``lease_ms`` is the link lease (default :func:`lease_ms_for`): a frozen
-    peer is declared gone after it (Zenoh's default is 10 s).
+    Parameters
+    ----------
+    mode : {"router", "peer", "client"}
+        The session's mode.
+    listen, connect : list of str, optional
+        Endpoints to listen on and to connect to (``tcp/host:port``, ...).
+    lease_ms : int, optional
+        The link lease (default :func:`lease_ms_for`): a frozen peer is declared gone after it.
+    user, password : str, optional
+        Credentials for a ``--secure`` router.
+    connect_timeout_ms : int, optional
+        How long to keep retrying ``connect`` at start-up (default: for ever, ``-1``, except a client: 30000).
+    extra : dict, optional
+        More ``{config path: value}`` entries (JSON-encoded into the config).
+
+    Returns
+    -------
+    zenoh.Config
+
+    Raises
+    ------
+    BusError
+        If Zenoh rejects a value.
     """
     lease_ms = lease_ms_for("agent") if lease_ms is None else lease_ms
     c = zenoh.Config()
@@ -132,7 +163,24 @@ def zenoh_config(mode: str, *, listen: list | None = None, connect: list | None 
 
 
 def open_session(mode: str, **kw) -> zenoh.Session:
-    """Open a Zenoh session, turning failures into one-line :class:`BusError`s."""
+    """Open a Zenoh session, turning failures into one-line :class:`BusError`s.
+
+    Parameters
+    ----------
+    mode : {"router", "peer", "client"}
+        The session's mode.
+    **kw
+        The options of :func:`zenoh_config`.
+
+    Returns
+    -------
+    zenoh.Session
+
+    Raises
+    ------
+    BusError
+        If the config is invalid or the session cannot be opened (names the endpoints, with a hint for a client).
+    """
     cfg = zenoh_config(mode, **kw)
     try:
         return zenoh.open(cfg)
@@ -156,6 +204,20 @@ def socket_address(endpoint: str) -> tuple | None:
     TCP-based locators (``tcp/HOST:PORT``, ``tls/``, ``ws/``; ``[v6]`` addresses, host names) and
     ``unixsock-stream/PATH``; None for the others (``udp/``, ``quic/``, ``serial/``...), which a
     socket cannot check.  Zenoh's locator metadata and config (``?...``, ``#...``) are ignored.
+
+    Parameters
+    ----------
+    endpoint : str
+        A Zenoh locator.
+
+    Returns
+    -------
+    tuple or None
+
+    Examples
+    --------
+    >>> socket_address("tcp/[::1]:7447"), socket_address("unixsock-stream/tmp/r.sock"), socket_address("udp/h:1")
+    (('tcp', ('::1', 7447)), ('unix', 'tmp/r.sock'), None)
     """
     proto, sep, address = str(endpoint).partition("/")
     address = address.split("?", 1)[0].split("#", 1)[0]
@@ -179,6 +241,18 @@ def unreachable_reason(endpoint: str, *, timeout: float = 1.0) -> str | None:
     to any of [...]".  A plain socket tells the two apart: None means something accepted the
     connection (closed again at once, before any Zenoh handshake).  Only for the endpoints
     :func:`socket_address` knows; None for the others.
+
+    Parameters
+    ----------
+    endpoint : str
+        A Zenoh locator.
+    timeout : float, default 1.0
+        Seconds to wait for the connection.
+
+    Returns
+    -------
+    str or None
+        The reason, lower case (resolution failure, no answer within the timeout, the OS error).
     """
     target = socket_address(endpoint)
     if target is None:
@@ -207,6 +281,17 @@ def hosted_runs(session: zenoh.Session, *, timeout: float = 1.0) -> list:
     Empty when the router hosts no run yet, or when it does not let this session ask (a secure
     router answers an authenticated client with its own run, see
     :func:`splitspec_core.runtime.security.acl_config`).
+
+    Parameters
+    ----------
+    session : zenoh.Session
+        An open session.
+    timeout : float, default 1.0
+        Seconds to wait for the liveliness replies.
+
+    Returns
+    -------
+    list of str
     """
     runs = set()
     try:
@@ -259,6 +344,17 @@ class Inbox:
         callback runs on the subscriber's own Python thread (zenoh-python's default) and queues
         the item for the event loop (bounded: ``inbox_full``).  A key without wildcards is bound
         once: no string is built per message.
+
+        Parameters
+        ----------
+        key : str
+            Key expression to subscribe to (wildcards allowed).
+        channel : str
+            The name the items carry.
+        signed : bool, default True
+            Drop (count ``bad_mac``) a queued message without a valid MAC once :attr:`mac_key` is set.
+        direct : callable, optional
+            ``direct(channel, key, payload)`` on Zenoh's thread instead of the queue.
         """
         inbox = self
         fixed = None if any(c in key for c in "*$") else key
@@ -285,7 +381,15 @@ class Inbox:
         self._subs.append(self.session.declare_subscriber(key, handler))
 
     def serve_deferred(self, key: str, channel: str) -> None:
-        """Declare a queryable whose queries are queued as ``(channel, key, query)``; the event loop replies."""
+        """Declare a queryable whose queries are queued as ``(channel, key, query)``; the event loop replies.
+
+        Parameters
+        ----------
+        key : str
+            Key expression of the queryable.
+        channel : str
+            The name the items carry.
+        """
         inbox = self
 
         def cb(query, _c=channel):
@@ -294,6 +398,17 @@ class Inbox:
         self._subs.append(self.session.declare_queryable(key, cb))
 
     def watch_liveliness(self, key: str, channel: str, *, history: bool = True) -> None:
+        """Queue every liveliness change on ``key`` as ``(channel, key, LIVELINESS_PUT or LIVELINESS_DELETE)``, never dropped.
+
+        Parameters
+        ----------
+        key : str
+            Liveliness key expression.
+        channel : str
+            The name the items carry.
+        history : bool, default True
+            Also deliver the tokens already present.
+        """
         q = self.q
 
         def cb(sample, _c=channel, _q=q):
@@ -303,7 +418,15 @@ class Inbox:
         self._subs.append(self.session.liveliness().declare_subscriber(key, cb, history=history))
 
     def serve(self, key: str, reply) -> None:
-        """Declare a queryable answering with ``reply(query) -> bytes`` (runs on a Zenoh thread)."""
+        """Declare a queryable answering with ``reply(query) -> bytes`` (runs on a Zenoh thread).
+
+        Parameters
+        ----------
+        key : str
+            Key expression of the queryable; replies are sent on it.
+        reply : callable
+            ``query -> bytes``; an exception in it sends no reply (silently).
+        """
         def cb(query, _key=key):
             try:
                 query.reply(_key, reply(query))
@@ -313,22 +436,45 @@ class Inbox:
         self._subs.append(self.session.declare_queryable(key, cb))
 
     def get(self, timeout: float | None) -> tuple | None:
-        """Next ``(channel, key, payload)`` or ``None`` after ``timeout`` seconds."""
+        """Next ``(channel, key, payload)`` or ``None`` after ``timeout`` seconds.
+
+        Parameters
+        ----------
+        timeout : float or None
+            Seconds to wait; None: until an item comes; 0 or less: do not wait.
+
+        Returns
+        -------
+        tuple or None
+        """
         try:
             return self.q.get(timeout=timeout) if timeout is None or timeout > 0 else self.q.get_nowait()
         except queue.Empty:
             return None
 
     def put(self, item: tuple) -> None:
-        """Inject an item (e.g. a signal turned into an event); never dropped."""
+        """Inject an item (e.g. a signal turned into an event); never dropped.
+
+        Parameters
+        ----------
+        item : tuple
+            ``(channel, key, payload)``.
+        """
         self.q.put(item)
 
     def take_dropped(self) -> dict:
-        """Running totals of dropped messages per reason."""
+        """Running totals of dropped messages per reason.
+
+        Returns
+        -------
+        dict of str to int
+            A copy: ``{"bad_mac": n, "inbox_full": n}``, the reasons that occurred.
+        """
         with self._lock:
             return dict(self.dropped)
 
     def close(self) -> None:
+        """Undeclare every subscriber and queryable (errors ignored: the session may be closing)."""
         for s in self._subs:
             try:
                 s.undeclare()
@@ -338,7 +484,22 @@ class Inbox:
 
 
 def query_all(session: zenoh.Session, key: str, *, timeout: float) -> list:
-    """``[(key, payload bytes), ...]`` of every reply to ``get(key)`` from every matching queryable."""
+    """``[(key, payload bytes), ...]`` of every reply to ``get(key)`` from every matching queryable.
+
+    Parameters
+    ----------
+    session : zenoh.Session
+        An open session.
+    key : str
+        Key expression to query.
+    timeout : float
+        Seconds to wait for replies.
+
+    Returns
+    -------
+    list of (str, bytes)
+        Empty when nothing answers or the query fails.
+    """
     out = []
     try:
         for reply in session.get(key, target=zenoh.QueryTarget.ALL, consolidation=zenoh.ConsolidationMode.NONE,
@@ -352,7 +513,26 @@ def query_all(session: zenoh.Session, key: str, *, timeout: float) -> list:
 
 def query_bytes(session: zenoh.Session, key: str, *, timeout: float, payload: bytes | None = None,
                 retry_until: float | None = None) -> bytes | None:
-    """First reply's payload of ``get(key)``; retried until ``retry_until`` (monotonic) if given."""
+    """First reply's payload of ``get(key)``; retried until ``retry_until`` (monotonic) if given.
+
+    Parameters
+    ----------
+    session : zenoh.Session
+        An open session.
+    key : str
+        Key expression to query.
+    timeout : float
+        Seconds each query waits.
+    payload : bytes, optional
+        Sent with the query.
+    retry_until : float, optional
+        ``time.monotonic()`` deadline for retries (every 0.1 s); None: one try.
+
+    Returns
+    -------
+    bytes or None
+        None when no reply came in time.
+    """
     while True:
         try:
             kw: dict[str, Any] = {"timeout": timeout}

@@ -46,6 +46,12 @@ def die_with_parent(parent: int | None = None) -> None:
     ``subprocess`` fork (copy the page tables of) the whole orchestrator for every process it starts, where it
     can otherwise use vfork (33 spawns at m = 32: ~0.35 s of its CPU before the run starts).  A parent that
     died before the request (this interpreter was starting) is no longer this process's parent: SIGTERM now.
+
+    Parameters
+    ----------
+    parent : int, optional
+        The parent's pid; None: read (and remove) :data:`PARENT_ENV`, and do nothing when it is not set or the
+        platform has no parent-death signal.
     """
     if parent is None:
         parent = os.environ.pop(PARENT_ENV, None)
@@ -59,7 +65,18 @@ def die_with_parent(parent: int | None = None) -> None:
 
 def default_wait(m: int) -> float:
     """The orchestrator's default ``--wait`` for m agents: 60 s plus 1 s per agent (m processes start at once,
-    on as few cores as the machine has; one m = 32 run did not start within a flat 60 s under load)."""
+    on as few cores as the machine has; one m = 32 run did not start within a flat 60 s under load).
+
+    Parameters
+    ----------
+    m : int
+        Number of agents.
+
+    Returns
+    -------
+    float
+        Seconds.
+    """
     return DEFAULT_WAIT + float(m)
 
 
@@ -67,6 +84,14 @@ class ArgumentParser(argparse.ArgumentParser):
     """argparse with every error as one line ``splitspec: error: ...`` and exit status 2 (no usage block)."""
 
     def error(self, message: str):
+        """Exit with status 2 after one line ``splitspec: error: ...`` on stderr (``argument --steps: must be ...``
+        shortened to ``--steps must be ...``).
+
+        Parameters
+        ----------
+        message : str
+            argparse's message.
+        """
         message = " ".join(str(message).split())
         # "argument --steps: must be >= 1, got 0" (from the type= functions below) -> "--steps must be >= 1, got 0"
         option, sep, rest = message.removeprefix("argument ").partition(": ")
@@ -76,7 +101,35 @@ class ArgumentParser(argparse.ArgumentParser):
 
 
 def integer(text: str, *, minimum: int, maximum: int | None = None) -> int:
-    """An integer option in [minimum, maximum] (base 10), else ``argparse.ArgumentTypeError``."""
+    """An integer option in [minimum, maximum] (base 10), else ``argparse.ArgumentTypeError``.
+
+    Parameters
+    ----------
+    text : str
+        The option's text.
+    minimum : int
+        Smallest value accepted.
+    maximum : int, optional
+        Largest value accepted (None: no bound).
+
+    Returns
+    -------
+    int
+
+    Raises
+    ------
+    argparse.ArgumentTypeError
+        ``must be an integer``, ``must be >= ...`` or ``must be <= ...``, with the value given.
+
+    Examples
+    --------
+    >>> integer("12", minimum=1)
+    12
+    >>> integer("0", minimum=1)
+    Traceback (most recent call last):
+        ...
+    argparse.ArgumentTypeError: must be >= 1, got 0
+    """
     try:
         value = int(text, 10)
     except (TypeError, ValueError):
@@ -89,12 +142,38 @@ def integer(text: str, *, minimum: int, maximum: int | None = None) -> int:
 
 
 def seed(text: str) -> int:
-    """``--seed``: an integer in [0, 2**63 - 1]."""
+    """``--seed``: an integer in [0, 2**63 - 1].
+
+    Parameters
+    ----------
+    text : str
+        The option's text.
+
+    Returns
+    -------
+    int
+
+    Raises
+    ------
+    argparse.ArgumentTypeError
+        As :func:`integer`.
+    """
     return integer(text, minimum=0, maximum=MAX_SEED)
 
 
 def at_least(minimum: int) -> Callable[[str], int]:
-    """``type=`` for counts: an integer >= ``minimum``."""
+    """``type=`` for counts: an integer >= ``minimum``.
+
+    Parameters
+    ----------
+    minimum : int
+        Smallest value accepted.
+
+    Returns
+    -------
+    callable
+        ``str -> int``, raising ``argparse.ArgumentTypeError`` as :func:`integer`.
+    """
     def parse(text: str) -> int:
         return integer(text, minimum=minimum)
 
@@ -103,7 +182,28 @@ def at_least(minimum: int) -> Callable[[str], int]:
 
 
 def positive(maximum: float) -> Callable[[str], float]:
-    """``type=`` for seconds and gains: a finite number in (0, ``maximum``]."""
+    """``type=`` for seconds and gains: a finite number in (0, ``maximum``].
+
+    Parameters
+    ----------
+    maximum : float
+        Largest value accepted.
+
+    Returns
+    -------
+    callable
+        ``str -> float``, raising ``argparse.ArgumentTypeError`` for anything else.
+
+    Examples
+    --------
+    >>> wait = positive(MAX_SECONDS)
+    >>> wait("2.5")
+    2.5
+    >>> wait("inf")
+    Traceback (most recent call last):
+        ...
+    argparse.ArgumentTypeError: must be a number in (0, 1e+06], got 'inf'
+    """
     def parse(text: str) -> float:
         try:
             value = float(text)
@@ -118,19 +218,43 @@ def positive(maximum: float) -> Callable[[str], float]:
 
 
 def add_logging_options(p: argparse.ArgumentParser) -> None:
+    """Add ``-v/--verbose`` and ``--log-level`` (read by :func:`setup_logging`).
+
+    Parameters
+    ----------
+    p : argparse.ArgumentParser
+        The parser to add them to.
+    """
     p.add_argument("-v", "--verbose", action="store_true", help="log more")
     p.add_argument("--log-level", default=None, choices=["debug", "info", "warning", "error"],
                    help="logging level (default info; debug with -v)")
 
 
 def setup_logging(args: argparse.Namespace) -> None:
-    """Configure the root logger from ``--log-level`` / ``-v`` (a no-op when it is already configured)."""
+    """Configure the root logger from ``--log-level`` / ``-v`` (a no-op when it is already configured).
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        Parsed options; ``log_level`` and ``verbose`` are read if present (default level INFO, DEBUG with ``-v``).
+    """
     level = args.log_level.upper() if getattr(args, "log_level", None) else \
         ("DEBUG" if getattr(args, "verbose", False) else "INFO")
     logging.basicConfig(level=level, format="%(asctime)s %(name)s %(levelname)s %(message)s")
 
 
 def add_run_id_option(p: argparse.ArgumentParser, *, required: bool = False) -> None:
+    """Add ``--run-id`` and ``--wait`` (seconds, in (0, :data:`MAX_SECONDS`]).
+
+    Parameters
+    ----------
+    p : argparse.ArgumentParser
+        The parser to add them to.
+    required : bool, default False
+        A process joining a run (plant, agent): ``--run-id`` required, ``--wait`` default :data:`DEFAULT_WAIT`.
+        Else (the orchestrator) ``--run-id`` is optional (a new id) and ``--wait`` defaults to None
+        (:func:`default_wait` decides).
+    """
     if required:
         p.add_argument("--run-id", required=True, help="the run's id, as printed by splitspec run / orchestrator "
                        "(key prefix splitspec/<run-id>/)")
@@ -143,7 +267,13 @@ def add_run_id_option(p: argparse.ArgumentParser, *, required: bool = False) -> 
 
 
 def add_node_options(p: argparse.ArgumentParser) -> None:
-    """The options of a plant or agent process: where the router is, who it is, how long to wait."""
+    """The options of a plant or agent process: where the router is, who it is, how long to wait.
+
+    Parameters
+    ----------
+    p : argparse.ArgumentParser
+        The parser to add ``--connect``, ``--credentials``, ``--run-id`` and ``--wait`` to.
+    """
     p.add_argument("--connect", required=True, metavar="ENDPOINT", help="Zenoh router endpoint, e.g. tcp/host:7447")
     p.add_argument("--credentials", metavar="FILE", help="user:password file for a --secure router")
     add_run_id_option(p, required=True)
@@ -151,7 +281,24 @@ def add_node_options(p: argparse.ArgumentParser) -> None:
 
 def node_cli(build_parser: Callable[[str], argparse.ArgumentParser], main: Callable[[argparse.Namespace], int],
              argv: list | None, prog: str) -> int:
-    """A plant or agent process's command line: parse ``argv``, set up logging, run ``main`` in the boundary."""
+    """A plant or agent process's command line: parse ``argv``, set up logging, run ``main`` in the boundary.
+
+    Parameters
+    ----------
+    build_parser : callable
+        ``prog -> ArgumentParser``.
+    main : callable
+        ``args -> exit status`` (None: 0).
+    argv : list of str or None
+        The arguments (None: ``sys.argv[1:]``).
+    prog : str
+        The program name in messages.
+
+    Returns
+    -------
+    int
+        The exit status (:func:`error_boundary`).
+    """
     die_with_parent()
     args = build_parser(prog).parse_args(argv)
     setup_logging(args)
@@ -164,7 +311,21 @@ def error_boundary(func: Callable[[argparse.Namespace], int | None], args: argpa
     SplitspecError (bad input): 2.  NetworkError (no router at the endpoint, the router refused the
     process's credentials, no such run on the router, the router went away), TimeoutError / ValueError
     (no orchestrator answered, an agent id not in the scenario): 1.  Ctrl-C: 130.  A closed stdout
-    pipe (``| head``): 0.
+    pipe (``| head``): 0.  With ``SPLITSPEC_DEBUG`` set, the errors are re-raised instead (not Ctrl-C).
+    Also shortens the interpreter's thread switch interval (``sys.setswitchinterval``) for Zenoh's threads.
+
+    Parameters
+    ----------
+    func : callable
+        ``args -> exit status`` (None: 0).
+    args : argparse.Namespace
+        Parsed options.
+
+    Returns
+    -------
+    int
+        The exit status.
+
     """
     # Zenoh delivers messages on its own threads; a short GIL switch interval lets the process's
     # event loop take them over quickly (the default 5 ms would dominate a round)

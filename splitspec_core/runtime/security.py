@@ -55,6 +55,20 @@ DICTIONARY = "users.txt"
 
 
 def user_of(role: str, ident: int | None = None) -> str:
+    """The Zenoh user name of a process.
+
+    Parameters
+    ----------
+    role : str
+        ``"agent"``, ``"plant"`` or ``"orchestrator"``.
+    ident : int, optional
+        The agent id (agents only).
+
+    Returns
+    -------
+    str
+        ``agent-<ident>`` for an agent, else ``role``.
+    """
     return f"agent-{ident}" if role == "agent" else role
 
 
@@ -65,7 +79,22 @@ def _write_private(path: Path, text: str) -> None:
 
 
 def read_credentials(path) -> tuple:
-    """``(user, password)`` from a ``.cred`` file (one line ``user:password``)."""
+    """``(user, password)`` from a ``.cred`` file (one line ``user:password``).
+
+    Parameters
+    ----------
+    path : str or path-like
+        The ``.cred`` file.
+
+    Returns
+    -------
+    (str, str)
+
+    Raises
+    ------
+    ScenarioError
+        If the file cannot be read or is not one line ``user:password``.
+    """
     path = Path(path)
     try:
         line = path.read_text(encoding="utf-8").strip()
@@ -80,7 +109,25 @@ def read_credentials(path) -> tuple:
 def acl_config(run_id: str, agent_ids, sensors: dict | None = None) -> dict:
     """The router's ``access_control`` section for a run (see the module docstring).
 
-    ``sensors``: ``{agent id: source key}`` of a scenario's ``sources:`` (relative keys).
+    Parameters
+    ----------
+    run_id : str
+        The run id (key prefix ``splitspec/<run_id>``).
+    agent_ids : iterable of int
+        The scenario's agent ids.
+    sensors : dict, optional
+        ``{agent id: source key}`` of a scenario's ``sources:`` (relative keys).
+
+    Returns
+    -------
+    dict
+        Zenoh's ``access_control`` config: enabled, default deny, ``rules``, ``subjects``, ``policies``.
+
+    Examples
+    --------
+    >>> acl = acl_config("r1", [1, 2])
+    >>> acl["default_permission"], [s["id"] for s in acl["subjects"]]
+    ('deny', ['everyone', 'plant', 'agent-1', 'agent-2'])
     """
     keys = Keys(run_id)
     p = keys.prefix
@@ -138,6 +185,22 @@ class Credentials:
 
     @classmethod
     def load(cls, directory) -> "Credentials":
+        """Read a credentials directory's ``users.txt``.
+
+        Parameters
+        ----------
+        directory : str or path-like
+            What :func:`generate` wrote into.
+
+        Returns
+        -------
+        Credentials
+
+        Raises
+        ------
+        ScenarioError
+            If ``users.txt`` cannot be read or a line is not ``user:password``.
+        """
         d = Path(directory)
         path = d / DICTIONARY
         try:
@@ -154,9 +217,34 @@ class Credentials:
         return cls(dir=d, users=tuple(users))
 
     def credentials_file(self, user: str) -> str:
+        """Path of a process's ``.cred`` file (whether it exists is not checked).
+
+        Parameters
+        ----------
+        user : str
+            The user (:func:`user_of`).
+
+        Returns
+        -------
+        str
+        """
         return str(self.dir / f"{user}.cred")
 
     def check_agents(self, agent_ids, sensors: dict | None = None) -> None:
+        """Check that the directory holds credentials for the plant, every agent and every live sensor.
+
+        Parameters
+        ----------
+        agent_ids : iterable of int
+            The scenario's agent ids.
+        sensors : dict, optional
+            ``{agent id: source key}``, as for :func:`acl_config`.
+
+        Raises
+        ------
+        ScenarioError
+            Naming the users without credentials.
+        """
         missing = [u for u in ["plant"] + [user_of("agent", i) for i in agent_ids] + [f"sensor-{i}" for i in
                                                                                       (sensors or {})]
                    if u not in self.users]
@@ -165,7 +253,27 @@ class Credentials:
                                 "for this scenario with `splitspec credentials SCENARIO --out DIR`)")
 
     def router_extra(self, run_id: str, agent_ids, sensors: dict | None = None) -> dict:
-        """Extra Zenoh config of the orchestrator's embedded router (``sensors``: as :func:`acl_config`)."""
+        """Extra Zenoh config of the orchestrator's embedded router (``sensors``: as :func:`acl_config`).
+
+        Parameters
+        ----------
+        run_id : str
+            The run id.
+        agent_ids : iterable of int
+            The scenario's agent ids.
+        sensors : dict, optional
+            ``{agent id: source key}``.
+
+        Returns
+        -------
+        dict
+            The dictionary file (``transport/auth/usrpwd/dictionary_file``) and ``access_control``.
+
+        Raises
+        ------
+        ScenarioError
+            As :meth:`check_agents`.
+        """
         self.check_agents(agent_ids, sensors)
         return {"transport/auth/usrpwd/dictionary_file": str((self.dir / DICTIONARY).resolve()),
                 "access_control": acl_config(run_id, agent_ids, sensors)}
@@ -174,7 +282,24 @@ class Credentials:
 def generate(directory, agent_ids, sensor_ids=()) -> Credentials:
     """Write ``users.txt`` and one ``<user>.cred`` per process into ``directory`` (created, mode 0700).
 
-    ``sensor_ids``: the agents with a live sensor (``sensor-<i>.cred``, for the user's sensor process).
+    Parameters
+    ----------
+    directory : str or path-like
+        Where to write (files mode 0600, overwritten).
+    agent_ids : iterable of int
+        The scenario's agent ids.
+    sensor_ids : iterable of int, default ()
+        The agents with a live sensor (``sensor-<i>.cred``, for the user's sensor process).
+
+    Returns
+    -------
+    Credentials
+        Users ``orchestrator``, ``plant``, ``agent-<i>``, ``sensor-<i>``, each with a random password.
+
+    Raises
+    ------
+    SplitspecError
+        If the directory or a file cannot be written.
     """
     d = Path(directory)
     try:

@@ -28,7 +28,47 @@ class TickEncoder:
 
     def encode(self, *, tau: int, attempt: int, graph: int, final: bool, fresh: bool, prev_attempt: int,
                alive, rows: dict, incarnation: dict, partition) -> bytes:
-        """``rows``: ``{agent id: (neighbours, weights)}``; ``incarnation``: ``{agent id: int}``."""
+        """The tick of one round, with the network only when it differs from the last tick's (``topology`` counts the changes).
+
+        Parameters
+        ----------
+        tau, attempt : int
+            Event time and attempt of the round.
+        graph : int
+            Index of the active graph in the scenario's graph names.
+        final : bool
+            The last tick of the run (no round follows).
+        fresh : bool
+            Some agent starts this round with a fresh estimate: every agent sends its ``z_i(0)``.
+        prev_attempt : int
+            The attempt of round ``tau - 1`` whose estimates ``x_i(tau)`` are this round's ``z_i(0)``.
+        alive : iterable of int
+            Agent ids alive.
+        rows : dict
+            ``{agent id: (neighbours, weights)}``.
+        incarnation : dict
+            ``{agent id: int}``.
+        partition : iterable of iterables of int
+            Groups of a partition in force (empty: none).
+
+        Returns
+        -------
+        bytes
+            The encoded (and, with ``mac_key``, signed) ``tick`` message.
+
+        Examples
+        --------
+        >>> from splitspec_core.runtime.wire import decode
+        >>> enc = TickEncoder("r1", mac_key=None)
+        >>> kw = dict(attempt=0, graph=0, final=False, fresh=True, prev_attempt=0, alive=[1, 2], partition=(),
+        ...           rows={1: ((1, 2), (0.5, 0.5)), 2: ((2, 1), (0.5, 0.5))}, incarnation={1: 0, 2: 0})
+        >>> first, second = (decode(enc.encode(tau=t, **kw), "r1", "tick") for t in (0, 1))
+        >>> first["topology"], "rows" in first, second["topology"], "rows" in second
+        (1, True, 1, False)
+        >>> net = TickNetwork(2, [1, 2])
+        >>> net.update(first), net.row, net.update(second)
+        (True, ([2, 1], [0.5, 0.5]), True)
+        """
         net = (tuple(alive), rows, dict(incarnation), tuple(tuple(g) for g in partition))
         last = self._last
         # rows is the round machine's cached dict while the network stands: identity first, O(1)
@@ -59,7 +99,18 @@ class TickNetwork:
 
     def update(self, t: dict) -> bool:
         """Take the network of the decoded tick ``t`` if it has one; False if ``t`` names a network this agent
-        never received."""
+        never received.
+
+        Parameters
+        ----------
+        t : dict
+            A decoded ``tick`` message.
+
+        Returns
+        -------
+        bool
+            Whether the agent's view is the network ``t`` names (its ``topology``).
+        """
         if "rows" in t:
             self.topology = t["topology"]
             row = t["rows"].get(self.key)
