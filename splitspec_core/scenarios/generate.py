@@ -47,6 +47,32 @@ def random_system(rng: np.random.Generator, m: int, n: int, *, time: str = "disc
 
     Discrete blocks are rotations (eigenvalues on the unit circle, the paper's
     example is of this kind); continuous blocks are undamped oscillators.
+
+    Parameters
+    ----------
+    rng : numpy.random.Generator
+        The random numbers.
+    m : int
+        Number of agents.
+    n : int
+        Number of states.
+    time : {"discrete", "continuous"}, default "discrete"
+        Kind of blocks.
+    rotate : bool, default True
+        Write the system in a random orthogonal basis (else block diagonal).
+
+    Returns
+    -------
+    A : (n, n) array
+    Cs : list of (1, n) arrays
+        One output row per agent.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> A, Cs = random_system(np.random.default_rng(0), 3, 4)
+    >>> A.shape, [C.shape for C in Cs]
+    ((4, 4), [(1, 4), (1, 4), (1, 4)])
     """
     A, edges = _oscillator_blocks(rng, n, time)
     nb = len(edges) - 1
@@ -84,7 +110,24 @@ def _rotated(rng: np.random.Generator, A: np.ndarray, Cs: list, rotate: bool) ->
 
 def random_strongly_connected_arcs(rng: np.random.Generator, m: int, *, extra: int = 0,
                                    undirected: bool = False) -> list:
-    """Arcs ``(j, i)`` (0-based) of a random ring (a random vertex order) plus ``extra`` random arcs."""
+    """Arcs ``(j, i)`` (0-based) of a random ring (a random vertex order) plus ``extra`` random arcs.
+
+    Parameters
+    ----------
+    rng : numpy.random.Generator
+        The random numbers.
+    m : int
+        Number of agents.
+    extra : int, default 0
+        Random arcs drawn on top of the ring (a duplicate is merged).
+    undirected : bool, default False
+        Add every arc's reverse.
+
+    Returns
+    -------
+    list of (int, int)
+        Sorted, without self-arcs.
+    """
     order = rng.permutation(m)
     arcs = {(int(order[k]), int(order[(k + 1) % m])) for k in range(m)} if m > 1 else set()
     for _ in range(extra):
@@ -104,6 +147,27 @@ def ring_system(rng: np.random.Generator, m: int, n: int, *, time: str = "discre
     blocks, ``ceil(n / 2)``).  With ``m >= 2 nb`` every block is observed by at
     least two agents, so any ``m - 1`` agents still jointly observe ``(C, A)``
     (PBH test on distinct eigenvalues).
+
+    Parameters
+    ----------
+    rng : numpy.random.Generator
+        The random numbers.
+    m, n : int
+        Number of agents and of states.
+    time : {"discrete", "continuous"}, default "discrete"
+        Kind of blocks.
+    rotate : bool, default True
+        Write the system in a random orthogonal basis.
+
+    Returns
+    -------
+    A : (n, n) array
+    Cs : list of (1, n) arrays
+
+    Raises
+    ------
+    ValueError
+        If ``m < 2 ceil(n / 2)``.
     """
     A, edges = _oscillator_blocks(rng, n, time)
     nb = len(edges) - 1
@@ -118,6 +182,21 @@ def ring_arcs(m: int) -> list:
     """Arcs ``(j, i)`` (0-based) of the undirected ring ``0 - 1 - ... - m-1 - 0`` (both directions).
 
     It is redundantly strongly connected: without any one agent it is a path.
+
+    Parameters
+    ----------
+    m : int
+        Number of agents.
+
+    Returns
+    -------
+    list of (int, int)
+        Sorted.
+
+    Examples
+    --------
+    >>> ring_arcs(3)
+    [(0, 1), (0, 2), (1, 0), (1, 2), (2, 0), (2, 1)]
     """
     arcs = {(k, (k + 1) % m) for k in range(m)} if m > 1 else set()
     return sorted(arcs | {(i, j) for j, i in arcs})
@@ -127,7 +206,20 @@ def chord_arcs(rng: np.random.Generator, m: int) -> list:
     """Arcs ``(j, i)`` (0-based) of the undirected ring plus one random undirected chord per agent (to an agent
     that is not a ring neighbour; duplicates merged).  A ring of m mixes in about m^2 steps; with the chords the
     graph is an expander with high probability, whose consensus converges in O(log m) exchanges: the sensor
-    networks of hundreds or thousands of agents the method is for."""
+    networks of hundreds or thousands of agents the method is for.
+
+    Parameters
+    ----------
+    rng : numpy.random.Generator
+        The random numbers.
+    m : int
+        Number of agents (no chords below 4).
+
+    Returns
+    -------
+    list of (int, int)
+        Sorted.
+    """
     arcs = set(ring_arcs(m))
     if m > 3:
         for i in range(m):
@@ -140,7 +232,44 @@ def ring_scenario(m: int, n: int = 10, *, time: str = "discrete", resilience: in
                   rate: float = 0.5, q_method: str = "spectral", chords: bool = False) -> dict:
     """A scenario mapping (as a YAML file holds it): :func:`ring_system` on the undirected :func:`ring_arcs`
     (with ``chords``, :func:`chord_arcs`: one random chord per agent as well), place gains, ``q`` (discrete) or
-    ``g`` (continuous) auto."""
+    ``g`` (continuous) auto.
+
+    Parameters
+    ----------
+    m : int
+        Number of agents (ids 1..m), at least ``2 ceil(n / 2)``.
+    n : int, default 10
+        Number of states.
+    time : {"discrete", "continuous"}, default "discrete"
+        The scenario's time.
+    resilience : int, default 0
+        ``design.resilience``.
+    seed : int, default 0
+        Seed of the random system (and chords).
+    rate : float, default 0.5
+        ``design.rate``.
+    q_method : str, default "spectral"
+        ``design.q_method`` (discrete only).
+    chords : bool, default False
+        Add one random chord per agent.
+
+    Returns
+    -------
+    dict
+        Keys ``name``, ``time``, ``system``, ``graphs`` (one graph, ``ring``), ``design``.
+
+    Raises
+    ------
+    ValueError
+        As :func:`ring_system`.
+
+    Examples
+    --------
+    >>> from splitspec_core.scenarios.sections import parse_scenario
+    >>> sc = parse_scenario(ring_scenario(4, 4))
+    >>> sc.n, sc.agent_ids, sc.graph_names
+    (4, (1, 2, 3, 4), ('ring',))
+    """
     rng = np.random.default_rng(seed)
     A, Cs = ring_system(rng, m, n, time=time)
     arcs = chord_arcs(rng, m) if chords else ring_arcs(m)

@@ -37,7 +37,27 @@ def shown_states(names, show, Cs) -> tuple:
     """Indices of the states the default views show: those ``show`` names or matches (``fnmatch`` patterns, in the
     states' order), else every state of a model of at most :data:`SHOW_ALL`, else the state each output row
     weighs most (agent order, each once), at most :data:`SHOW_MEASURED` (the first :data:`SHOW_ALL` when no row
-    picks any)."""
+    picks any).
+
+    Parameters
+    ----------
+    names : sequence of str
+        The state names.
+    show : sequence of str or None
+        ``run.show``: names or ``fnmatch`` patterns (empty or None: the default choice).
+    Cs : iterable of array_like
+        Each agent's ``C_i``.
+
+    Returns
+    -------
+    tuple of int
+        0-based state indices, ascending.
+
+    Examples
+    --------
+    >>> shown_states([f"x{k}" for k in range(1, 11)], ["x1*"], [])
+    (0, 9)
+    """
     import fnmatch
 
     n = len(names)
@@ -55,12 +75,34 @@ def shown_states(names, show, Cs) -> tuple:
 
 
 def default_state_names(n: int) -> tuple:
-    """``("x1", ..., "xn")``."""
+    """``("x1", ..., "xn")``.
+
+    Parameters
+    ----------
+    n : int
+        Number of states.
+
+    Returns
+    -------
+    tuple of str
+    """
     return tuple(f"x{k + 1}" for k in range(n))
 
 
 def default_output_names(agent_id: int, s: int) -> tuple:
-    """``("y<i>",)`` for one output, ``("y<i>_1", ..., "y<i>_<s>")`` for several."""
+    """``("y<i>",)`` for one output, ``("y<i>_1", ..., "y<i>_<s>")`` for several.
+
+    Parameters
+    ----------
+    agent_id : int
+        The agent's id ``i``.
+    s : int
+        Its number of outputs.
+
+    Returns
+    -------
+    tuple of str
+    """
     return (f"y{agent_id}",) if s == 1 else tuple(f"y{agent_id}_{k + 1}" for k in range(s))
 
 
@@ -89,7 +131,30 @@ def _coefficient(c: float, first: bool) -> str:
 def combination(v: np.ndarray, names, *, limit: int = SHOWN) -> str:
     """A direction as a combination of named states, scaled so its largest component is 1: ``x3 - 0.42 x4 (+ 2
     smaller)``; an oscillating mode (complex) as the states it moves, with their relative amplitudes:
-    ``x4, x3 (0.71)``."""
+    ``x4, x3 (0.71)``.
+
+    Parameters
+    ----------
+    v : (n,) array_like, real or complex
+        The direction (a complex one with zero imaginary part is taken as real).
+    names : sequence of str
+        The state names.
+    limit : int, default SHOWN
+        Components named, the largest first (components below :data:`NEGLIGIBLE` of the largest never are).
+
+    Returns
+    -------
+    str
+        ``"0"`` for the zero vector.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> combination(np.array([0.0, 2.0, -0.84]), ("x1", "x2", "x3"))
+    'x2 - 0.42 x3'
+    >>> combination(np.array([0.5j, 0.0, 0.7]), ("x1", "x2", "x3"))
+    'x3, x1 (0.71)'
+    """
     v = np.asarray(v)
     if np.iscomplexobj(v) and np.allclose(v.imag, 0.0, atol=1e-12 * max(float(np.abs(v).max(initial=0.0)), 1e-300)):
         v = v.real
@@ -110,7 +175,22 @@ def combination(v: np.ndarray, names, *, limit: int = SHOWN) -> str:
 
 def heaviest(W: np.ndarray, names, *, limit: int = SHOWN) -> list:
     """The states that carry most of the subspace spanned by the orthonormal columns of ``W`` (the diagonal of the
-    projection ``W W'``: how much of each state lies in it), the largest first, at most ``limit``."""
+    projection ``W W'``: how much of each state lies in it), the largest first, at most ``limit``.
+
+    Parameters
+    ----------
+    W : (n, w) array
+        Orthonormal basis of the subspace.
+    names : sequence of str
+        The state names.
+    limit : int, default SHOWN
+        States named.
+
+    Returns
+    -------
+    list of str
+        The names, then ``"<k> more"`` when more states carry some of it; empty for an empty subspace.
+    """
     weight = np.sum(np.abs(W) ** 2, axis=1)
     if not weight.size or weight.max() == 0.0:
         return []
@@ -119,7 +199,27 @@ def heaviest(W: np.ndarray, names, *, limit: int = SHOWN) -> list:
 
 
 def spread(W: np.ndarray, names, *, limit: int = SHOWN) -> str:
-    """:func:`heaviest` as text: ``xf_1, xf_2, xf_3 and 4 more``."""
+    """:func:`heaviest` as text: ``xf_1, xf_2, xf_3 and 4 more``.
+
+    Parameters
+    ----------
+    W : (n, w) array
+        Orthonormal basis of the subspace.
+    names : sequence of str
+        The state names.
+    limit : int, default SHOWN
+        States named.
+
+    Returns
+    -------
+    str
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> spread(np.eye(8), tuple("abcdefgh"))
+    'a, b, c, d, e and 3 more'
+    """
     parts = heaviest(W, names, limit=limit)
     if len(parts) > 1 and parts[-1].endswith(" more"):
         return ", ".join(parts[:-1]) + " and " + parts[-1]

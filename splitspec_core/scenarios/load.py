@@ -46,27 +46,64 @@ def yaml_loader() -> type:
     numbers as YAML 1.2 does (``1e-3`` is a float; :mod:`splitspec_core.scenarios.yaml12`).
 
     The C loader parses a 10 MB scenario several times faster than the pure-Python one.
+
+    Returns
+    -------
+    type
+        A loader class for ``yaml.load(text, Loader=...)``.
     """
     return loader_for(yaml.CSafeLoader if getattr(yaml, "__with_libyaml__", False) else yaml.SafeLoader)
 
 
 def dump_yaml(data: Any) -> str:
-    """Scenario data (plain Python: :func:`~splitspec_core.scenarios.checks.plain`) as YAML text that
-    :func:`load_yaml` reads back to the same values (block style, keys in order)."""
+    r"""Scenario data (plain Python: :func:`~splitspec_core.scenarios.checks.plain`) as YAML text that
+    :func:`load_yaml` reads back to the same values (block style, keys in order).
+
+    Parameters
+    ----------
+    data : object
+        Plain data: dicts, lists, strings, numbers, booleans, None.
+
+    Returns
+    -------
+    str
+
+    Examples
+    --------
+    >>> dump_yaml({"name": "1e3", "rank_tol": 1e-3})
+    "name: '1e3'\nrank_tol: 0.001\n"
+    """
     return yaml.dump(data, Dumper=dumper, sort_keys=False)
 
 
 def load_yaml(text: str, *, source: str = "<scenario>") -> Any:
-    """Parse scenario YAML text (safe loader); a syntax error is one line with its line and column.
+    r"""Parse scenario YAML text (safe loader); a syntax error is one line with its line and column.
 
     Every YAML parse of a scenario goes through here: :func:`load_scenario`,
     the ``--tune --write`` of the CLI, and the agent and plant processes
     (which receive the scenario text from the orchestrator).
 
+    Parameters
+    ----------
+    text : str
+        YAML text.
+    source : str, default "<scenario>"
+        What the text is, for messages (a file name).
+
+    Returns
+    -------
+    object
+        The YAML data model (None for an empty document).
+
     Raises
     ------
     ScenarioError
         ``<source>: YAML syntax error at line L, column C: <problem>``.
+
+    Examples
+    --------
+    >>> load_yaml("rank_tol: 1e-3\nsteps: 017")
+    {'rank_tol': 0.001, 'steps': 17}
     """
     try:
         return yaml.load(text, Loader=yaml_loader())  # noqa: S506 - a safe loader
@@ -78,7 +115,24 @@ def load_yaml(text: str, *, source: str = "<scenario>") -> Any:
 
 
 def parse_scenario_text(text: str, *, source: str = "<scenario>") -> Scenario:
-    """:func:`load_yaml` then :func:`parse_scenario`: a scenario from its YAML text."""
+    """:func:`load_yaml` then :func:`parse_scenario`: a scenario from its YAML text.
+
+    Parameters
+    ----------
+    text : str
+        The scenario's YAML text.
+    source : str, default "<scenario>"
+        What the text is, for messages.
+
+    Returns
+    -------
+    Scenario
+
+    Raises
+    ------
+    ScenarioError
+        If the text is empty, is not valid YAML or fails validation (one line naming the key).
+    """
     if not text.strip():
         raise ScenarioError(f"{source} is empty")
     data = load_yaml(text, source=source)
@@ -96,6 +150,15 @@ def read_scenario_text(path: str | Path) -> str:
 
     The file is checked with ``os.stat`` before it is opened (a FIFO would
     block, ``/dev/zero`` never ends) and read with a bounded read.
+
+    Parameters
+    ----------
+    path : str or Path
+        The scenario file.
+
+    Returns
+    -------
+    str
 
     Raises
     ------
@@ -137,7 +200,24 @@ def read_scenario_text(path: str | Path) -> str:
 def resolved_scenario_text(path: Path, text: str) -> str:
     """The text the processes of a run receive: ``text`` itself, or, when it names a ``system.file``, the
     scenario with that file's arrays written in (floats as ``repr``: the same numbers, bit for bit;
-    :mod:`splitspec_core.scenarios.files`)."""
+    :mod:`splitspec_core.scenarios.files`).
+
+    Parameters
+    ----------
+    path : Path
+        The scenario file (``system.file`` is relative to its folder).
+    text : str
+        Its text.
+
+    Returns
+    -------
+    str
+
+    Raises
+    ------
+    ScenarioError
+        If the text is not valid YAML or the model file cannot be read or resolved.
+    """
     data = load_yaml(text, source=str(path))
     if not isinstance(data, dict) or not isinstance(data.get("system"), dict) or "file" not in data["system"]:
         return text
@@ -147,12 +227,27 @@ def resolved_scenario_text(path: Path, text: str) -> str:
 def load_scenario(path: str | Path) -> Scenario:
     """Read and validate a YAML scenario file.
 
+    Parameters
+    ----------
+    path : str or Path
+        The scenario file; a ``system.file`` in it is relative to its folder.
+
+    Returns
+    -------
+    Scenario
+
     Raises
     ------
     ScenarioError
         If the file is not a regular file, is too large, cannot be read, is
         empty, is not valid YAML, or fails validation; the message is one line
         naming the file or key.
+
+    Examples
+    --------
+    >>> sc = load_scenario("examples/paper_discrete.yaml")
+    >>> sc.time, sc.n, sc.agent_ids
+    ('discrete', 4, (1, 2, 3))
     """
     p = Path(path)
     text = read_scenario_text(p)

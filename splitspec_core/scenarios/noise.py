@@ -64,14 +64,39 @@ def _frozen(a: np.ndarray) -> np.ndarray:
 
 def parse_process_noise(value: Any, n: int, key: str = "system.process_noise") -> float | np.ndarray:
     """``system.process_noise`` as given: a float >= 0, a read-only (n,) array of entries >= 0 or a read-only
-    (n, n) symmetric positive semidefinite array.  ``value``: the YAML data model (numbers, lists); an array is
-    taken as its list.
+    (n, n) symmetric positive semidefinite array.
+
+    Parameters
+    ----------
+    value : number, list or array
+        The YAML data model (numbers, lists); an array is taken as its list.
+    n : int
+        Number of states.
+    key : str, default "system.process_noise"
+        The key named in messages.
+
+    Returns
+    -------
+    float or read-only array
+        The value as given, checked (a matrix as written, not symmetrised).
 
     Raises
     ------
     ScenarioError
-        One line naming ``key``: not a number, a list or a matrix; a wrong size; a negative or non-finite entry;
-        a matrix that is not symmetric or not positive semidefinite (with its smallest eigenvalue).
+        One line naming ``key``: not a number, a list or a matrix; a wrong size (:class:`DimensionError`); a
+        negative or non-finite entry; a matrix that is not symmetric or not positive semidefinite (with its smallest
+        eigenvalue).
+
+    Examples
+    --------
+    >>> parse_process_noise(0.1, 2)
+    0.1
+    >>> parse_process_noise([0.1, 0.2], 2)
+    array([0.1, 0.2])
+    >>> parse_process_noise([[1, 2], [2, 1]], 2)
+    Traceback (most recent call last):
+        ...
+    splitspec_core.errors.ScenarioError: system.process_noise is not symmetric positive semidefinite (smallest eigenvalue -1)
     """
     if isinstance(value, np.ndarray):
         value = value.tolist()
@@ -109,7 +134,20 @@ def parse_process_noise(value: Any, n: int, key: str = "system.process_noise") -
 def parse_measurement_noise(value: Any, outputs: Mapping[int, int],
                             key: str = "system.measurement_noise") -> float | dict:
     """``system.measurement_noise`` as given: a float >= 0, or ``{agent id: float or tuple of s_i floats}`` in
-    the order of ``outputs`` (``{agent id: s_i}``, agent order), every agent listed.
+    the order of ``outputs``, every agent listed.
+
+    Parameters
+    ----------
+    value : number or mapping
+        The YAML data model.
+    outputs : mapping of int to int
+        ``{agent id: s_i}``, in agent order.
+    key : str, default "system.measurement_noise"
+        The key named in messages.
+
+    Returns
+    -------
+    float or dict
 
     Raises
     ------
@@ -117,6 +155,11 @@ def parse_measurement_noise(value: Any, outputs: Mapping[int, int],
         One line naming the key: not a number or a mapping; an agent not in ``outputs``, listed twice or
         missing; a list of the wrong length (``system.measurement_noise.2 has 3 entries, agent 2 has 2 outputs``);
         a negative or non-finite std (``system.measurement_noise.2[1] must be >= 0, got -1``).
+
+    Examples
+    --------
+    >>> parse_measurement_noise({2: [0.1, 0.2], 1: 0.5}, {1: 1, 2: 2})
+    {1: 0.5, 2: (0.1, 0.2)}
     """
     if isinstance(value, np.ndarray) and value.ndim == 0:
         value = value.item()
@@ -156,8 +199,29 @@ def parse_measurement_noise(value: Any, outputs: Mapping[int, int],
 
 
 def process_covariance(value: float | np.ndarray, n: int, time: str) -> np.ndarray:
-    """``(n, n)``: the covariance per step of ``v`` (discrete) or its intensity matrix (continuous) of
-    ``process_noise`` ``value`` (the module docstring)."""
+    """The covariance per step of ``v`` (discrete) or its intensity matrix (continuous) of ``process_noise``
+    ``value`` (the module docstring).
+
+    Parameters
+    ----------
+    value : float or array
+        What :func:`parse_process_noise` returned.
+    n : int
+        Number of states.
+    time : {"continuous", "discrete"}
+        The scenario's time.
+
+    Returns
+    -------
+    (n, n) float array
+        Discrete: ``sigma^2 I``, ``diag(v^2)`` or the matrix; continuous: ``q I``, ``diag(v)`` or the matrix
+        (a matrix symmetrised).
+
+    Examples
+    --------
+    >>> process_covariance([0.1, 0.2], 2, "discrete").round(6).tolist()
+    [[0.01, 0.0], [0.0, 0.04]]
+    """
     if np.ndim(value) == 0:
         v = float(value)
         return (v ** 2 if time == "discrete" else v) * np.eye(n)
@@ -168,7 +232,20 @@ def process_covariance(value: float | np.ndarray, n: int, time: str) -> np.ndarr
 
 
 def measurement_std(value: float | Mapping, sizes: Sequence[int]) -> np.ndarray:
-    """``(p,)``, ``p = sum s_i``: every output's noise std, stacked in agent order (``sizes``: the ``s_i``)."""
+    """Every output's noise std, stacked in agent order.
+
+    Parameters
+    ----------
+    value : float or mapping
+        What :func:`parse_measurement_noise` returned.
+    sizes : sequence of int
+        The ``s_i``, in agent order.
+
+    Returns
+    -------
+    (p,) float array
+        ``p = sum s_i``.
+    """
     if not isinstance(value, Mapping):
         return np.full(int(sum(sizes)), float(value))
     parts = [np.full(s, float(v)) if np.ndim(v) == 0 else np.asarray(v, dtype=float)
@@ -186,7 +263,21 @@ def process_level(value: float | np.ndarray, n: int, time: str) -> float:
     for a vector or a matrix, discrete the root mean variance (``sqrt`` of the covariance's mean diagonal; a vector
     of equal stds, that std), continuous the mean intensity (the intensity matrix's mean diagonal); equal diagonal
     entries give their common value exactly.  What the Riccati weights and the noise tuning, which take one
-    number, use (as ``level ** 2``, the scalar's ``process_noise ** 2``)."""
+    number, use (as ``level ** 2``, the scalar's ``process_noise ** 2``).
+
+    Parameters
+    ----------
+    value : float or array
+        What :func:`parse_process_noise` returned.
+    n : int
+        Number of states (not read).
+    time : {"continuous", "discrete"}
+        The scenario's time.
+
+    Returns
+    -------
+    float
+    """
     if np.ndim(value) == 0:
         return float(value)
     a = np.asarray(value, dtype=float)
@@ -201,7 +292,19 @@ def process_level(value: float | np.ndarray, n: int, time: str) -> float:
 
 def measurement_level(value: float | Mapping, sizes: Sequence[int]) -> float:
     """One number standing for the measurement noise: the std itself, or the root mean square of every output's
-    std (their common value exactly when they are all equal)."""
+    std (their common value exactly when they are all equal).
+
+    Parameters
+    ----------
+    value : float or mapping
+        What :func:`parse_measurement_noise` returned.
+    sizes : sequence of int
+        The ``s_i``, in agent order.
+
+    Returns
+    -------
+    float
+    """
     if not isinstance(value, Mapping):
         return float(value)
     s = measurement_std(value, sizes)
@@ -210,7 +313,17 @@ def measurement_level(value: float | Mapping, sizes: Sequence[int]) -> float:
 
 
 def noise_json(value: float | np.ndarray | Mapping) -> Any:
-    """The JSON form of a noise value as given: a number, a list (of lists), ``{"agent id": number or list}``."""
+    """The JSON form of a noise value as given: a number, a list (of lists), ``{"agent id": number or list}``.
+
+    Parameters
+    ----------
+    value : float, array or mapping
+        A parsed noise value.
+
+    Returns
+    -------
+    float, list or dict
+    """
     if isinstance(value, Mapping):
         return {str(a): (float(v) if np.ndim(v) == 0 else [float(x) for x in v]) for a, v in value.items()}
     if np.ndim(value) == 0:
@@ -225,7 +338,22 @@ TEXT_ENTRIES = 12
 def noise_text(value: float | np.ndarray | Mapping) -> str:
     """A noise value as given, for one line of text: ``0.05``, ``[0.1, 0.2]``, ``{1: 0.1, 2: [0.1, 0.2]}``; a
     long one summarised (``per state: 160 values, 0.001 to 0.01``, ``a 160x160 matrix, diagonal 0.001 to 0.01``,
-    ``per agent: 100 agents, 0.01 to 0.1``)."""
+    ``per agent: 100 agents, 0.01 to 0.1``).
+
+    Parameters
+    ----------
+    value : float, array or mapping
+        A parsed noise value.
+
+    Returns
+    -------
+    str
+
+    Examples
+    --------
+    >>> noise_text({1: 0.1, 2: (0.1, 0.2)})
+    '{1: 0.1, 2: [0.1, 0.2]}'
+    """
     if isinstance(value, Mapping):
         if sum(1 if np.ndim(v) == 0 else len(v) for v in value.values()) <= TEXT_ENTRIES:
             return "{" + ", ".join(f"{a}: {noise_text(v if np.ndim(v) == 0 else np.asarray(v))}"

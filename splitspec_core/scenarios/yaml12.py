@@ -59,7 +59,24 @@ _LOADERS: dict = {}
 
 def loader_for(base: type) -> type:
     """A subclass of the safe loader ``base`` (``yaml.CSafeLoader`` or ``yaml.SafeLoader``) reading numbers as YAML
-    1.2 does; one class per base."""
+    1.2 does; one class per base.
+
+    Parameters
+    ----------
+    base : type
+        ``yaml.CSafeLoader`` or ``yaml.SafeLoader``.
+
+    Returns
+    -------
+    type
+        The loader class (made once per base, then reused).
+
+    Examples
+    --------
+    >>> import yaml
+    >>> yaml.load("[1e-3, 017, 0x1F, 1_000, .inf]", Loader=loader_for(yaml.SafeLoader))
+    [0.001, 17, 31, '1_000', inf]
+    """
     if base not in _LOADERS:
         cls = _numbers_12(type(f"Scenario{base.__name__}", (base,), {}))
         cls.add_constructor(INT_TAG, _construct_int)
