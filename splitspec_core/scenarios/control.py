@@ -25,7 +25,26 @@ GENERIC_NAME = re.compile(r"sys\[\d+\](\$\w+)*")
 
 
 def label_name(label: str, fallback: str) -> str:
-    """A python-control label as a scenario name: ``x[3]`` -> ``x_3``, other characters a name cannot hold -> ``_``."""
+    """A python-control label as a scenario name: ``x[3]`` -> ``x_3``, other characters a name cannot hold -> ``_``.
+
+    Parameters
+    ----------
+    label : str
+        The label.
+    fallback : str
+        The name when nothing usable is left.
+
+    Returns
+    -------
+    str
+        A name matching :data:`~splitspec_core.scenarios.labels.NAME_PATTERN` (at most 64 characters; one that
+        does not start with a letter or ``_`` gets a ``_`` in front).
+
+    Examples
+    --------
+    >>> label_name("x[3]", "x1"), label_name("3 phase", "y1")
+    ('x_3', '_3_phase')
+    """
     from .labels import NAME_PATTERN
 
     name = re.sub(r"\[(\d+)\]", r"_\1", str(label))
@@ -77,11 +96,33 @@ def _rows(plant: Any, aid: Any, wanted: Any) -> list:
 def from_statespace(plant: Any, agents: Any) -> dict:
     """``{"time": ..., "system": {"A", "C", "states", "outputs", ["B"]}}`` of ``plant`` for ``agents``.
 
+    Parameters
+    ----------
+    plant : control.StateSpace
+        The plant; ``dt`` 0 or None: continuous, else discrete.  ``B`` is kept when it has a nonzero entry.
+    agents : mapping
+        ``{agent id: output label or index, or a list of them}``: the rows of ``plant.C`` each agent measures.
+
+    Returns
+    -------
+    dict
+        ``system`` holds ``A``, ``C`` (``{agent id: rows}``), ``states`` and ``outputs`` (names from the labels,
+        made distinct) and, with inputs, ``B``.
+
     Raises
     ------
     ScenarioError
         One line: python-control missing, ``plant`` not a ``StateSpace``, ``agents`` missing or naming an output
         the plant does not have, a feedthrough ``D`` on a measured output.
+
+    Examples
+    --------
+    >>> import control
+    >>> plant = control.ss([[0, 1], [-1, 0]], [[0], [1]], [[1, 0], [0, 1]], 0, states=["pos", "vel"],
+    ...                    outputs=["p", "v"])
+    >>> got = from_statespace(plant, {1: "p", 2: [1]})
+    >>> got["time"], got["system"]["C"][2].tolist(), got["system"]["outputs"]
+    ('continuous', [[0.0, 1.0]], {1: ['p'], 2: ['v']})
     """
     try:
         import control
@@ -122,7 +163,27 @@ def from_statespace(plant: Any, agents: Any) -> dict:
 
 
 def plant_keywords(given: dict, plant: Any, agents: Any) -> None:
-    """``plant=`` and ``agents=`` as the keywords they stand for, in ``given`` (those keywords not given too)."""
+    """``plant=`` and ``agents=`` as the keywords they stand for, in ``given`` (those keywords not given too).
+
+    Sets ``A``, ``C``, ``states``, ``outputs`` (and ``B``), ``time`` and, unless given or made up by
+    python-control, ``name``.
+
+    Parameters
+    ----------
+    given : dict
+        :func:`splitspec_core.scenario`'s keywords (``A``, ``B``, ``C``, ``states``, ``outputs``, ``file``,
+        ``time`` present, None where not given); updated in place.
+    plant : control.StateSpace or None
+        The plant.
+    agents : mapping
+        As for :func:`from_statespace`.
+
+    Raises
+    ------
+    ScenarioError
+        ``agents=`` without ``plant=``, a keyword that ``plant=`` also gives, ``sample=`` on a discrete plant, a
+        ``time=`` other than the plant's (or ``"discrete"`` with ``sample=``), and as :func:`from_statespace`.
+    """
     if plant is None:
         raise ScenarioError("agents= goes with plant= (a python-control StateSpace); without it give C=")
     clash = [k for k in ("A", "B", "C", "states", "outputs", "file") if given[k] is not None]

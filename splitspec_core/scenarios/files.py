@@ -41,10 +41,22 @@ _V73 = b"MATLAB 7.3 MAT-file"
 def read_model_file(path: Path, key: str = "system.file") -> dict:
     """The arrays of a ``.npz`` or ``.mat`` file by name (``.mat``: MATLAB's own ``__header__`` etc. left out).
 
+    Parameters
+    ----------
+    path : Path
+        The file.
+    key : str, default "system.file"
+        The key named in messages.
+
+    Returns
+    -------
+    dict of str to numpy.ndarray
+
     Raises
     ------
     ScenarioError
-        One line naming ``key`` and the file: missing, not a file, another suffix, unreadable, a v7.3 ``.mat``.
+        One line naming ``key`` and the file: missing, not a file, another suffix, unreadable, a v7.3 ``.mat``,
+        an ``.npz`` holding object arrays.
     """
     if not path.exists():
         raise ScenarioError(f"{key}: {path} does not exist")
@@ -121,8 +133,38 @@ def _value(arrays: dict, name: str, key: str, source: str, *, names: bool = Fals
 def resolve_model_file(data: Any, base: Path | None) -> Any:
     """``data`` (a scenario's mapping) with ``system.file``'s named arrays written in and ``system.file`` gone.
 
-    ``base``: the folder a relative ``system.file`` is taken from (None: the working directory).  A mapping
-    without ``system.file`` is returned as it is.  Anything not a string is left for the scenario's checks.
+    A mapping without ``system.file`` is returned as it is.  Anything not a string is left for the scenario's
+    checks.  ``A``, ``B``, ``C`` and ``outputs`` (per agent), ``x0``, ``states``, ``process_noise`` and
+    ``measurement_noise`` (whole or per agent) may name arrays.
+
+    Parameters
+    ----------
+    data : object
+        A scenario's mapping (the YAML data model).
+    base : Path or None
+        The folder a relative ``system.file`` is taken from (None: the working directory).
+
+    Returns
+    -------
+    object
+        ``data`` itself, or a new mapping with a new ``system`` (``data`` is not changed); arrays as nested lists.
+
+    Raises
+    ------
+    ScenarioError
+        ``system.file`` not a path, as :func:`read_model_file`, a name the file does not hold, an array that is
+        not numeric or not a matrix, ``C`` or ``outputs`` given as one name.
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> from pathlib import Path
+    >>> import numpy as np
+    >>> folder = Path(tempfile.mkdtemp())
+    >>> np.savez(folder / "model.npz", A=np.eye(2), C1=np.array([1.0, 0.0]))
+    >>> resolve_model_file({"system": {"file": "model.npz", "A": "A", "C": {1: "C1"}}}, folder)
+    {'system': {'A': [[1.0, 0.0], [0.0, 1.0]], 'C': {1: [[1.0, 0.0]]}}}
+    >>> import shutil; shutil.rmtree(folder)
     """
     if not isinstance(data, Mapping) or not isinstance(data.get("system"), Mapping) or "file" not in data["system"]:
         return data

@@ -62,7 +62,33 @@ def _positive(value: Any, key: str) -> float:
 
 
 def parse_input(raw: Any, width: int, key: str = "system.u") -> InputSignal:
-    """``system.u`` checked against ``width`` (the columns of ``system.B``); one-line errors naming the key."""
+    """``system.u`` checked against ``width`` (the columns of ``system.B``); one-line errors naming the key.
+
+    Parameters
+    ----------
+    raw : list or mapping
+        ``system.u`` as the YAML holds it: ``p`` numbers, or a mapping of ``constant``, ``steps``, ``sine``.
+    width : int
+        ``p``, the columns of ``system.B``.
+    key : str, default "system.u"
+        The key named in messages.
+
+    Returns
+    -------
+    InputSignal
+
+    Raises
+    ------
+    ScenarioError
+        An unknown key, a vector of the wrong width (:class:`DimensionError`), step times that do not increase, a
+        sine without amplitude or period, a period not > 0.
+
+    Examples
+    --------
+    >>> sig = parse_input({"constant": [1.0], "steps": [[0, [1]], [5, [2]]]}, 1)
+    >>> input_at(sig, 4.0), input_at(sig, 5.0)
+    (array([2.]), array([3.]))
+    """
     if isinstance(raw, list):
         return InputSignal(width=width, constant=_vector(raw, key, width))
     if not isinstance(raw, Mapping) or not raw:
@@ -103,12 +129,37 @@ def parse_input(raw: Any, width: int, key: str = "system.u") -> InputSignal:
 
 
 def input_time(k: int, period: float | None) -> float:
-    """The time of step ``k``: ``k`` event times, or ``k * period`` seconds."""
+    """The time of step ``k``: ``k`` event times, or ``k * period`` seconds.
+
+    Parameters
+    ----------
+    k : int
+        Step.
+    period : float or None
+        Seconds per step (``system.sample`` or ``run.dt``); None: discrete event times.
+
+    Returns
+    -------
+    float
+    """
     return float(k) if period is None else k * period
 
 
 def input_at(sig: InputSignal, t: float) -> np.ndarray:
-    """``u(t)`` (``width``,): the one evaluation of the signal (simulator and plant process alike)."""
+    """``u(t)``: the one evaluation of the signal (simulator and plant process alike).
+
+    Parameters
+    ----------
+    sig : InputSignal
+        The signal.
+    t : float
+        Time (:func:`input_time`).
+
+    Returns
+    -------
+    (width,) float array
+        ``constant + (the last step at or before t) + sum amplitude sin(2 pi t / period + phase)``.
+    """
     u = np.zeros(sig.width)
     if sig.constant:
         u = u + np.array(sig.constant)
@@ -147,7 +198,33 @@ def _sampled(A: Any, B: Any, sample: Any, time: str) -> tuple:
 
 def parse_inputs(sysmap: Mapping, A: np.ndarray, time: str) -> tuple:
     """``(A, B, u, sample)`` of ``system:``: ``B`` (n x p) checked against ``A``, ``u`` against ``B``'s width,
-    and with ``system.sample`` the sampled ``A`` and ``B``; one-line errors naming the key."""
+    and with ``system.sample`` the sampled ``A`` and ``B``; one-line errors naming the key.
+
+    Parameters
+    ----------
+    sysmap : mapping
+        The scenario's ``system:`` section (``B``, ``u``, ``sample`` read).
+    A : (n, n) array
+        ``system.A``, checked.
+    time : {"continuous", "discrete"}
+        The scenario's time.
+
+    Returns
+    -------
+    A : (n, n) array
+        ``A``, or ``exp(A dt)`` with ``system.sample``.
+    B : (n, p) array or None
+        ``B``, or its zero-order-hold ``int_0^dt exp(A s) ds B``.
+    u : InputSignal or None
+    sample : float or None
+        ``system.sample`` (seconds).
+
+    Raises
+    ------
+    ScenarioError
+        ``B`` with the wrong rows, ``u`` without ``B``, ``system.sample`` with continuous time, below the minimum
+        step, or one whose ``exp(A dt)`` overflows.
+    """
     B = None
     if sysmap.get("B") is not None:
         B = check_matrix(sysmap["B"], "system.B")

@@ -65,10 +65,12 @@ class Measurements:
 
     @property
     def steps(self) -> int:
+        """int: ``T - 1``, the steps the file drives."""
         return len(self.t) - 1
 
     @property
     def has_truth(self) -> bool:
+        """bool: whether the file carries the truth ``x``."""
         return self.x is not None
 
 
@@ -262,7 +264,45 @@ def _from_csv(path: Path, data: bytes, ids, sizes, n, p: int = 0) -> tuple:
 def load_measurements(path, sc, *, steps: int | None = None) -> Measurements:
     """Read and check a measurements file against scenario ``sc`` (module docstring); one-line errors.
 
-    ``steps``: use only the first ``steps + 1`` rows (at most the file's).
+    Parameters
+    ----------
+    path : str or path-like
+        An ``.npz`` or ``.csv`` file.
+    sc : Scenario
+        The scenario (agent ids, ``s_i``, ``n``, ``system.B``'s columns, time and ``run.dt``).
+    steps : int, optional
+        Use only the first ``steps + 1`` rows (at most the file's).
+
+    Returns
+    -------
+    Measurements
+
+    Raises
+    ------
+    ScenarioError
+        One line naming the file: another suffix, too large, unreadable, a missing or unknown array or column, a
+        wrong shape, a value that is not a finite number, fewer than 2 rows, ``t`` not strictly increasing, rows
+        not ``run.dt`` apart (continuous time), ``steps`` beyond the file.
+
+    Examples
+    --------
+    >>> import os, tempfile
+    >>> import numpy as np
+    >>> from splitspec_core.scenarios.load import load_scenario
+    >>> sc = load_scenario("examples/paper_discrete.yaml")  # agents 1, 2, 3 with one output each
+    >>> path = os.path.join(tempfile.mkdtemp(), "y.csv")
+    >>> gap = np.array([[0, 0, 0], [0, 1, 0], [0, 0, 0]], dtype=bool)
+    >>> write_measurements(path, t=np.arange(3.0), y=np.arange(9.0).reshape(3, 3), agent_ids=sc.agent_ids,
+    ...                    sizes=[1, 1, 1], missing=gap)
+    >>> print(open(path).read().strip())
+    t,y1.1,y2.1,y3.1
+    0.0,0.0,1.0,2.0
+    1.0,3.0,,5.0
+    2.0,6.0,7.0,8.0
+    >>> m = load_measurements(path, sc)
+    >>> m.steps, m.has_truth, m.missing[1].tolist(), m.y[1].tolist()
+    (2, False, [False, True, False], [3.0, 0.0, 5.0])
+    >>> import shutil; shutil.rmtree(os.path.dirname(path))
     """
     path = Path(path)
     suffix = path.suffix.lower()
@@ -299,8 +339,32 @@ def write_measurements(path, *, t: np.ndarray, y: np.ndarray, agent_ids, sizes, 
                        missing: np.ndarray | None = None, u: np.ndarray | None = None) -> None:
     """Write a measurements file (``.npz`` or ``.csv`` by suffix) that :func:`load_measurements` reads back exactly.
 
-    ``y`` (T, sum s_i) stacked in agent order; CSV numbers are written with 17 significant digits (``repr``),
-    which read back to the same float64.
+    CSV numbers are written with 17 significant digits (``repr``), which read back to the same float64.  The file
+    is written to a temporary name beside it, then renamed.
+
+    Parameters
+    ----------
+    path : str or path-like
+        The ``.npz`` or ``.csv`` file (replaced).
+    t : (T,) array
+        Event times (or seconds).
+    y : (T, sum s_i) array
+        The measurements stacked in agent order.
+    agent_ids : sequence of int
+        The agents, in order.
+    sizes : sequence of int
+        Their ``s_i``.
+    x : (T, n) array, optional
+        The truth.
+    missing : (T, m) bool array, optional
+        No measurement of that agent at that row (CSV: empty cells; NPZ: ``missing_<id>`` when any).
+    u : (T, p) array, optional
+        The known inputs.
+
+    Raises
+    ------
+    ScenarioError
+        If the suffix is neither ``.npz`` nor ``.csv``.
     """
     path = Path(path)
     offsets = np.cumsum([0] + list(sizes))

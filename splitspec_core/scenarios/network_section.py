@@ -47,7 +47,37 @@ def _delay(raw: Any, key: str) -> tuple:
 
 
 def parse_network(raw: Any, ids: tuple, graphs: tuple) -> NetworkSpec:
-    """The ``network:`` section (absent: a perfect network)."""
+    """The ``network:`` section (absent: a perfect network).
+
+    Parameters
+    ----------
+    raw : mapping or None
+        ``network:`` as the YAML holds it.
+    ids : tuple of int
+        The scenario's agent ids.
+    graphs : tuple of Graph
+        The scenario's graphs (an arc override must name an arc of one of them).
+
+    Returns
+    -------
+    NetworkSpec
+        ``loss``, ``delay_mean``, ``delay_jitter`` (seconds), ``deadline`` (seconds or None) and the per-arc
+        overrides ``{(j, i): {"loss", "delay_mean", "delay_jitter"}}``.
+
+    Raises
+    ------
+    ScenarioError
+        One line naming the key: an unknown key, a loss outside [0, 1), a negative or too long delay, a deadline
+        not > 0, an override of an arc no graph has or of one arc twice.
+
+    Examples
+    --------
+    >>> from splitspec_core.model.graphs import build_graph
+    >>> ring = build_graph("ring", (1, 2), [(1, 2), (2, 1)])
+    >>> net = parse_network({"loss": 0.1, "arcs": [{"arc": [1, 2], "loss": 0.5}]}, (1, 2), (ring,))
+    >>> net.loss_of((1, 2)), net.loss_of((2, 1))
+    (0.5, 0.1)
+    """
     if raw is None:
         return NetworkSpec()
     nmap = require_map(raw, "network")
@@ -84,7 +114,32 @@ def parse_network(raw: Any, ids: tuple, graphs: tuple) -> NetworkSpec:
 
 
 def parse_groups(raw: Any, key: str, ids: tuple) -> tuple:
-    """``partition: [[ids], [ids], ...]``: disjoint groups of known agents (the unnamed ones are one more group)."""
+    """``partition: [[ids], [ids], ...]``: disjoint groups of known agents (the unnamed ones are one more group).
+
+    Parameters
+    ----------
+    raw : list
+        The fault's ``partition`` value.
+    key : str
+        The key named in messages (``faults[k].partition``).
+    ids : tuple of int
+        The scenario's agent ids.
+
+    Returns
+    -------
+    tuple of tuple of int
+        The groups as given (the unnamed agents not added).
+
+    Raises
+    ------
+    ScenarioError
+        Not a list of non-empty lists, an unknown agent, an agent in two groups, or every agent in one group.
+
+    Examples
+    --------
+    >>> parse_groups([[1]], "faults[1].partition", (1, 2, 3))
+    ((1,),)
+    """
     if not isinstance(raw, list) or not raw:
         raise ScenarioError(f"{key} must be a list of groups of agent ids, e.g. [[1, 2], [3, 4]], got "
                             f"{describe(raw)}")
@@ -108,7 +163,18 @@ def parse_groups(raw: Any, key: str, ids: tuple) -> tuple:
 
 
 def check_heals(faults: tuple) -> None:
-    """A ``heal`` needs a partition in force (faults in time order, as parsed)."""
+    """A ``heal`` needs a partition in force (faults in time order, as parsed).
+
+    Parameters
+    ----------
+    faults : tuple of FaultSpec
+        The parsed faults, in time order.
+
+    Raises
+    ------
+    ScenarioError
+        Naming the time of a ``heal`` with no ``partition`` before it (since the last heal).
+    """
     cut = False
     for k, f in enumerate(faults, 1):
         if f.action == "partition":

@@ -53,7 +53,35 @@ class Source:
 
 
 def parse_sources(raw: Any, ids: tuple, pace: float | None) -> dict | None:
-    """``{agent id: Source}`` in ``ids`` order, or None without a ``sources:`` section."""
+    """``{agent id: Source}`` in ``ids`` order, or None without a ``sources:`` section.
+
+    The ``inputs`` entry is checked here (key form, distinct keys) but left out of the result
+    (:func:`parse_input_source`).
+
+    Parameters
+    ----------
+    raw : mapping or None
+        ``sources:`` as the YAML holds it.
+    ids : tuple of int
+        The scenario's agent ids.
+    pace : float or None
+        ``run.pace`` (event times per second); the default ``max_age`` is ``DEFAULT_AGE_PERIODS / pace``.
+
+    Returns
+    -------
+    dict of int to Source, or None
+
+    Raises
+    ------
+    ScenarioError
+        One line naming the key (module docstring's rules): no ``run.pace``, an unknown agent, a bad key or
+        ``max_age``, a key used twice, an agent without a source.
+
+    Examples
+    --------
+    >>> parse_sources({1: "lab/y1", 2: {"key": "lab/y2", "max_age": 0.5}}, (1, 2), 10.0)
+    {1: Source(key='lab/y1', max_age=0.2), 2: Source(key='lab/y2', max_age=0.5)}
+    """
     if raw is None:
         return None
     smap = require_map(raw, "sources")
@@ -102,7 +130,27 @@ def _source(v: Any, where: str, example: str, pace: float) -> Source:
 
 def parse_input_source(raw: Any, pace: float | None, inputs: int) -> Source | None:
     """``sources.inputs`` (checked by :func:`parse_sources` first), against the scenario's ``inputs`` (the columns of
-    ``system.B``): required with live sensors and known inputs, refused without known inputs."""
+    ``system.B``): required with live sensors and known inputs, refused without known inputs.
+
+    Parameters
+    ----------
+    raw : mapping or None
+        ``sources:`` as the YAML holds it.
+    pace : float or None
+        ``run.pace``.
+    inputs : int
+        ``p``, the columns of ``system.B`` (0: no known inputs).
+
+    Returns
+    -------
+    Source or None
+        None without ``sources:`` or without known inputs.
+
+    Raises
+    ------
+    ScenarioError
+        ``sources.inputs`` without ``system.B``, or ``system.B`` with live sensors and no ``sources.inputs``.
+    """
     if raw is None:
         return None
     given = isinstance(raw, dict) and INPUTS in raw

@@ -26,7 +26,32 @@ def _number(value) -> str:
 
 
 def summary(sc) -> str:
-    """The lines of ``repr(sc)``: the rate, the gains and every other design key that differs from its default."""
+    """The lines of ``repr(sc)``: name, time and source; states; agents and their outputs; graphs and switching;
+    the design (the rate, the gains and every other design key that differs from its default); noise; faults; run.
+
+    Parameters
+    ----------
+    sc : Scenario
+        The scenario.
+
+    Returns
+    -------
+    str
+        Eight lines, no trailing newline.
+
+    Examples
+    --------
+    >>> from splitspec_core.scenarios.load import load_scenario
+    >>> print(summary(load_scenario("examples/paper_discrete.yaml")))
+    Scenario 'paper-discrete' (discrete time, from examples/paper_discrete.yaml)
+      system: n = 4 states (x1, x2, x3, x4)
+      agents: m = 3 (1, 2, 3), outputs per agent {1: 1, 2: 1, 3: 1}
+      graphs: a (5 arcs); b (4 arcs); switching: constant
+      design: rate 0.5, gains explicit, K given
+      noise: none
+      faults: none
+      run: 40 steps, seed 7
+    """
     s = sc.system
     outputs = ", ".join(f"{i}: {len(sc.output_names(i))}" for i in sc.agent_ids)
     graphs = "; ".join(f"{g.name} ({len(g.arcs)} arcs)" for g in sc.graphs)
