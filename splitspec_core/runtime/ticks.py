@@ -28,7 +28,7 @@ class TickEncoder:
 
     def encode(self, *, tau: int, attempt: int, graph: int, final: bool, fresh: bool, prev_attempt: int,
                alive, rows: dict, incarnation: dict, partition) -> bytes:
-        """The tick of one round, with the network only when it differs from the last tick's (``topology`` counts the changes).
+        """The tick of one round, with the network only when it differs from the last tick's (``topology``: changes).
 
         Parameters
         ----------

@@ -93,10 +93,10 @@ def parse_process_noise(value: Any, n: int, key: str = "system.process_noise") -
     0.1
     >>> parse_process_noise([0.1, 0.2], 2)
     array([0.1, 0.2])
-    >>> parse_process_noise([[1, 2], [2, 1]], 2)
+    >>> parse_process_noise([[1, 2], [2, 1]], 2)  # doctest: +ELLIPSIS
     Traceback (most recent call last):
         ...
-    splitspec_core.errors.ScenarioError: system.process_noise is not symmetric positive semidefinite (smallest eigenvalue -1)
+    splitspec_core.errors.ScenarioError: system.process_noise is not symmetric positive semidefinite (smallest ...
     """
     if isinstance(value, np.ndarray):
         value = value.tolist()
