@@ -31,7 +31,13 @@ _blas = None  # in a worker only: its BLAS thread limit, kept alive
 
 
 def available_workers() -> int:
-    """The CPUs this process may run on (its affinity mask, as ``taskset`` or a container sets it)."""
+    """The CPUs this process may run on (its affinity mask, as ``taskset`` or a container sets it).
+
+    Returns
+    -------
+    int
+        At least 1; ``os.cpu_count()`` where the affinity mask cannot be read (not Linux).
+    """
     try:
         return max(1, len(os.sched_getaffinity(0)))
     except AttributeError:  # not Linux
@@ -39,7 +45,13 @@ def available_workers() -> int:
 
 
 def sigterm_at_parent_death() -> bool:
-    """Ask the kernel for SIGTERM when this process's parent dies (``PR_SET_PDEATHSIG``); False if it cannot."""
+    """Ask the kernel for SIGTERM when this process's parent dies (``PR_SET_PDEATHSIG``); False if it cannot.
+
+    Returns
+    -------
+    bool
+        True when the request was made; False where ``libc.so.6`` or ``prctl`` is missing (not Linux).
+    """
     import ctypes
     import signal
 
@@ -85,6 +97,11 @@ def fork_map(fn: Callable, state, items: Sequence, *, workers: int | None = None
     -------
     list
         The results in the order of ``items``: the serial loop's values.
+
+    Examples
+    --------
+    >>> fork_map(pow, 2, range(5))  # few items: the serial loop
+    [1, 2, 4, 8, 16]
     """
     items = list(items)
     workers = available_workers() if workers is None else int(workers)

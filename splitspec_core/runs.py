@@ -71,13 +71,30 @@ class RunRecord:
     events: tuple
 
     def design(self):
-        """The scenario's design (:func:`splitspec_core.design`): what the agents computed for themselves."""
+        """The scenario's design (:func:`splitspec_core.design`): what the agents computed for themselves.
+
+        Returns
+        -------
+        DesignResult
+            ``splitspec_core.design(self.scenario)``, computed anew.
+        """
         from .api import design
 
         return design(self.scenario)
 
     def named(self, event: str) -> list:
-        """The events called ``event``, in order."""
+        """The events called ``event``, in order.
+
+        Parameters
+        ----------
+        event : str
+            An event's name (``agent_lost``, ``run_finished``, ...).
+
+        Returns
+        -------
+        list of dict
+            Those events in the order of ``events.jsonl`` (empty if none).
+        """
         return [e for e in self.events if e.get("event") == event]
 
     @property
@@ -96,7 +113,18 @@ class RunRecord:
 
 
 def read_events(path: str | Path) -> tuple:
-    """``events.jsonl`` as a tuple of dicts (a line torn by a crash is skipped)."""
+    """``events.jsonl`` as a tuple of dicts (a line torn by a crash is skipped).
+
+    Parameters
+    ----------
+    path : str or Path
+        The ``events.jsonl`` file.
+
+    Returns
+    -------
+    tuple of dict
+        One dict per line that parses as JSON, in file order.
+    """
     out = []
     for line in Path(path).read_text(encoding="utf-8").splitlines():
         try:
@@ -110,7 +138,23 @@ _END_EVENTS = ("run_finished", "run_interrupted", "run_failed")
 
 
 def end_event(events: Iterable[dict]) -> dict | None:
-    """The event that ended the run (``run_finished``, ``run_interrupted`` or ``run_failed``), None if none."""
+    """The event that ended the run (``run_finished``, ``run_interrupted`` or ``run_failed``), None if none.
+
+    Parameters
+    ----------
+    events : iterable of dict
+        A run's events (:func:`read_events`).
+
+    Returns
+    -------
+    dict or None
+        The last of the ending events; None if the run never ended (killed).
+
+    Examples
+    --------
+    >>> end_event([{"event": "agent_lost"}, {"event": "run_finished", "event_times": 5}])
+    {'event': 'run_finished', 'event_times': 5}
+    """
     ends = [e for e in events if e.get("event") in _END_EVENTS]
     return ends[-1] if ends else None
 
@@ -118,7 +162,23 @@ def end_event(events: Iterable[dict]) -> dict | None:
 def closing_line(end: dict) -> str:
     """One line of what a run did, from its end event (:func:`end_event`): how it ended, event times, wall time
     and rate (against the pace, and whether it was kept), the largest error at the end (or, without truth, the
-    consensus disagreement), agents lost and rejoined, consensus messages that did not count."""
+    consensus disagreement), agents lost and rejoined, consensus messages that did not count.
+
+    Parameters
+    ----------
+    end : dict
+        The end event; one without ``event_times`` (an older splitspec's records) gives only how the run ended.
+
+    Returns
+    -------
+    str
+        ``"run finished: ..."`` and its parts separated by ``"; "``.
+
+    Examples
+    --------
+    >>> closing_line({"event": "run_finished", "event_times": 50, "seconds": 2, "rounds_per_second": 25})
+    'run finished: 50 event times in 2 s (25 per second); agents lost 0, rejoined 0; consensus messages lost 0'
+    """
     how = {"run_finished": "run finished", "run_interrupted": "run interrupted", "run_failed": "run failed"}
     head = how.get(end.get("event"), str(end.get("event")))
     if end.get("reason") and end.get("event") == "run_finished" and end["reason"] != "steps":
@@ -154,8 +214,10 @@ def load_run(out: str | Path, *, start: float | None = None, end: float | None =
     ----------
     out : str or Path
         The run's output directory.
-    start, end : float, optional
-        A time window (scenario units) read from the chunks.
+    start : float, optional
+        The window's first time (scenario units), read from the chunks; None: from the first row.
+    end : float, optional
+        The window's last time; None: to the last row.
 
     Returns
     -------
@@ -237,8 +299,18 @@ def run(sc: Scenario | str | Path, *, out: str | Path, faults: Iterable | None =
         The run's output directory (created).
     faults : iterable of mapping, optional
         Replaces the scenario's ``faults:``.
-    secure, measurements, round_timeout, wait, progress, timeout
-        As described above.
+    secure : bool
+        Zenoh authentication and access control (``--secure``, the default); False: ``--insecure``.
+    measurements : str or Path, optional
+        A recorded measurements file (.npz or .csv) the plant plays instead of simulating (``--measurements``).
+    round_timeout : float, optional
+        Seconds before a silent agent is declared lost (``--round-timeout``; default: the command's, 10).
+    wait : float, optional
+        Seconds to wait for the other processes to start (``--wait``; default: the command's).
+    progress : bool
+        Show the command's progress and summary on this terminal (default: kept, quiet).
+    timeout : float, optional
+        Seconds before the run is interrupted as by Ctrl-C (its records are still written); None: no limit.
 
     Returns
     -------

@@ -74,14 +74,28 @@ def run_predictor(F: np.ndarray, C: np.ndarray, L: np.ndarray, ys: np.ndarray, x
 
     Parameters
     ----------
+    F : (n, n) array
+        The per-step transition matrix.
+    C : (p, n) array
+        The stacked output matrix.
+    L : (n, p) array
+        The predictor gain (:func:`kalman_predictor`).
     ys : (T - 1, p) array
         Stacked measurements ``y(0), ..., y(T - 2)``.
     x0 : (n,) array
+        The initial prediction ``xhat(0)``.
+    gus : (T - 1, n) array, optional
+        ``G u(k)`` per step; None: no known inputs.
 
     Returns
     -------
     (T, n) array
         The predictions ``xhat(0), ..., xhat(T - 1)``.
+
+    Examples
+    --------
+    >>> run_predictor(np.array([[0.9]]), np.eye(1), np.array([[0.5]]), np.ones((2, 1)), np.zeros(1)).ravel().tolist()
+    [0.0, 0.5, 0.7]
     """
     F, C, L = (np.asarray(a, dtype=float) for a in (F, C, L))
     ys = np.asarray(ys, dtype=float).reshape(len(ys), -1)
@@ -123,6 +137,21 @@ def default_eps(neighbours) -> float:
     neighbours' estimates with weight at least ``1 / (1 + d_max)`` on itself,
     the usual step size bound of a Laplacian iteration.  It never amplifies
     disagreement, so repeated exchanges stay stable.
+
+    Parameters
+    ----------
+    neighbours : dict or list
+        Agent index -> in-neighbour indices (or a list of them, by agent index).
+
+    Returns
+    -------
+    float
+        ``eps`` in ``(0, 1]``; 1 without any neighbour.
+
+    Examples
+    --------
+    >>> default_eps({0: [1], 1: [0, 2], 2: [1]})
+    0.3333333333333333
     """
     lists = neighbours.values() if isinstance(neighbours, Mapping) else neighbours
     return 1.0 / (1.0 + max((len(nb) for nb in lists), default=0))
@@ -206,6 +235,18 @@ class KalmanConsensusFilter:
         """One event time: priors ``xbar`` (m, n) and measurements ``[y_1, ..., y_m]`` -> next priors (m, n).
 
         Updates :attr:`P`.
+
+        Parameters
+        ----------
+        xbar : (m, n) array
+            Every agent's prior ``xbar_i(k)``.
+        ys : sequence of (s_i,) arrays
+            Every agent's measurement ``y_i(k)``, by agent index.
+
+        Returns
+        -------
+        (m, n) array
+            The priors ``xbar_i(k + 1) = F xhat_i(k)``.
         """
         xbar = np.asarray(xbar, dtype=float)
         n = self.F.shape[0]
@@ -246,12 +287,22 @@ class KalmanConsensusFilter:
             Initial priors ``xbar_i(0)``.
         rows : sequence of slice
             Each agent's rows in a stacked ``y`` (:func:`splitspec_core.model.plant.output_rows`).
+        gus : (T - 1, n) array, optional
+            ``G u(k)`` per step, added to every agent's prediction; None: no known inputs.
 
         Returns
         -------
         (T, m, n) array
             ``xbar_i(k)``, the predictions of ``x(k)`` comparable with the
             project's ``x_i(k)``.
+
+        Examples
+        --------
+        >>> kcf = KalmanConsensusFilter(np.array([[0.9]]), [np.eye(1), np.eye(1)], np.eye(1),
+        ...                             [np.eye(1), np.eye(1)], {0: [1], 1: [0]})
+        >>> X = kcf.run(np.ones((3, 2)), np.zeros((2, 1)), [slice(0, 1), slice(1, 2)])
+        >>> X.shape, np.round(X[:, 0, 0], 3).tolist()
+        ((4, 2, 1), [0.0, 0.6, 0.798, 0.849])
         """
         ys = np.asarray(ys, dtype=float).reshape(len(ys), -1)
         X = np.array(X0, dtype=float)
@@ -322,6 +373,18 @@ class SeedBatchKCF:
         """One event time of every seed: priors (m, n, N) and stacked measurements (sum s_i, N) -> next priors.
 
         Updates :attr:`P` (the same for every seed).  The equations of :meth:`KalmanConsensusFilter.step`.
+
+        Parameters
+        ----------
+        X : (m, n, N) array
+            Every agent's prior of every seed.
+        y : (sum s_i, N) array
+            The stacked measurements of every seed.
+
+        Returns
+        -------
+        (m, n, N) array
+            The next priors.
         """
         P, CJ, RJ = self.P, self.CJ, self.RJ
         if self.fixed is None:
@@ -368,6 +431,10 @@ def baseline_trajectories(sc: Scenario, seed: int, *, exchanges: int, steps: int
 
     Parameters
     ----------
+    sc : Scenario
+        The scenario (its first graph).
+    seed : int
+        The simulator's seed: the same realisations as ``simulate(sc, seed=seed)``.
     exchanges : int
         KCF exchanges per event time.
     steps : int, optional
@@ -382,6 +449,17 @@ def baseline_trajectories(sc: Scenario, seed: int, *, exchanges: int, steps: int
     dict
         ``t`` (T,), ``x`` (T, n) true states, ``centralized`` (T, n) and
         ``kcf`` (T, m, n) predictions.
+
+    Examples
+    --------
+    >>> import splitspec_core as ss
+    >>> sc = ss.scenario(A=[[0.9, 0.2], [0, 0.8]], C={1: [[1, 0]], 2: [[0, 1]]}, graphs={"a": [(1, 2), (2, 1)]},
+    ...                  rate=0.5, process_noise=0.1, measurement_noise=0.1)
+    >>> b = baseline_trajectories(sc, 1, exchanges=2, steps=20)
+    >>> {k: v.shape for k, v in b.items()}
+    {'t': (21,), 'x': (21, 2), 'centralized': (21, 2), 'kcf': (21, 2, 2)}
+    >>> bool(np.allclose(b["x"], ss.simulate(sc, seed=1, steps=20).x))
+    True
     """
     check_trajectory_memory(sc, steps)
     steps = sc.run.steps if steps is None else int(steps)
@@ -414,6 +492,25 @@ def baseline_seeds(sc: Scenario, seeds, *, exchanges: int, steps: int | None = N
     seeds run in chunks of ``chunk``, each holding its noise draws for the whole run.  ``gains``: more centralized
     predictors to run on the same realisations, ``{name: L}`` (``xhat+ = (F - L C) xhat + L y``; the rate-certified
     reference of :func:`splitspec_core.synthesis.kalman.references`).
+
+    Parameters
+    ----------
+    sc : Scenario
+        The scenario (its first graph).
+    seeds : iterable of int
+        The simulator's seeds.
+    exchanges : int
+        KCF exchanges per event time.
+    steps : int, optional
+        Defaults to ``run.steps``.
+    noise : bool
+        False zeroes the plant's process and measurement noise.
+    eps : float, optional
+        KCF consensus gain (default :func:`default_eps`).
+    chunk : int
+        Seeds per batch.
+    gains : dict, optional
+        ``{name: L}``, more centralized predictor gains (n, p).
 
     Returns
     -------

@@ -26,6 +26,9 @@ Every estimator runs its seeds as one batch, the same numbers per seed to
 round-off: the split-spectrum variants by
 :func:`splitspec_core.simulation.montecarlo.simulate_seeds`, the two baselines by
 :func:`splitspec_core.studies.baselines.baseline_seeds`.
+
+Why one module: one command's study (``splitspec compare`` and its q or g sweep); its code is about 400 lines, the
+rest is the numpydoc sections of its seven public functions.
 """
 
 from __future__ import annotations
@@ -108,7 +111,13 @@ class CompareResult:
     failed: Mapping[str, str] = dataclasses.field(default_factory=lambda: MappingProxyType({}))  # rows not designed, why
 
     def to_json(self) -> dict:
-        """The ``compare.json`` object."""
+        """The ``compare.json`` object.
+
+        Returns
+        -------
+        dict
+            JSON-ready; a baseline's row has no certificate fields, ``tuned`` and ``failed`` only when present.
+        """
         out = {"scenario": self.scenario, "time": self.time, "seeds": list(self.seeds), "steps": self.steps,
                "rate": self.rate, "process_noise": noise_json(self.process_noise),  # numbers stay numbers
                "measurement_noise": noise_json(self.measurement_noise), "exchanges": self.exchanges,
@@ -131,7 +140,25 @@ def _readonly(a) -> np.ndarray:
 
 
 def settle_time(t: np.ndarray, err: np.ndarray, *, rel: float = 1e-3) -> float | None:
-    """First time after which the (worst agent's) error stays below ``rel`` times its initial value."""
+    """First time after which the (worst agent's) error stays below ``rel`` times its initial value.
+
+    Parameters
+    ----------
+    t, err : (T,) array, (T,) or (T, m) array
+        The times and the errors (per agent: the worst, NaN ignored).
+    rel : float
+        The fraction of the initial error.
+
+    Returns
+    -------
+    float or None
+        A time of ``t``; None when the error is still above at the end.
+
+    Examples
+    --------
+    >>> settle_time(np.arange(5.0), np.array([1.0, 0.5, 1e-4, 1e-5, 0.0]))
+    2.0
+    """
     e = np.asarray(err, dtype=float).reshape(len(t), -1)
     worst = np.nanmax(e, axis=1)
     above = np.nonzero(worst > rel * worst[0])[0]
@@ -163,7 +190,20 @@ def steady_start(c: float | None, r: float, e0: float, floor: float, T: int) -> 
     """The first step after the transient: where the certified envelope ``c r^k e0`` of the stacked error (``c`` the
     transient constant, ``r`` the rate per step, ``e0`` the largest initial stacked error over the seeds) falls below
     :data:`SETTLED` of ``floor`` (the predicted steady stacked RMS); None when that is past the run's ``T`` steps or
-    nothing bounds it (``c`` unknown or infinite, ``r >= 1``)."""
+    nothing bounds it (``c`` unknown or infinite, ``r >= 1``).
+
+    Parameters
+    ----------
+    c, r, e0, floor : float
+        As above (``c`` may be None); ``floor`` must be positive.
+    T : int
+        The run's steps.
+
+    Returns
+    -------
+    int or None
+        The step ``k`` (0 when already below).
+    """
     if c is None or not math.isfinite(c) or not 0 < r < 1 or not floor > 0:
         return None
     k = max(0, math.ceil(math.log(SETTLED * floor / (c * max(e0, floor))) / math.log(r)))
@@ -191,6 +231,35 @@ def compare(sc: Scenario, *, seeds, steps: int | None = None, eps: float | None 
     measured after its own transient: from :func:`steady_start` of its certified envelope (the Kalman filter's from
     its radius and transient constant; the KCF, which certifies nothing, from the latest of the others'); a row
     whose transient outlasts the run has none (``steady_from`` None) and says so in ``note``.
+
+    Parameters
+    ----------
+    sc : Scenario
+        A scenario with noise.
+    seeds : iterable of int
+        The seeds every estimator runs.
+    steps, eps : int, float, optional
+        Steps per run (default ``run.steps``); the KCF's consensus gain (default ``1 / (1 + max in-degree)``).
+
+    Returns
+    -------
+    CompareResult
+        Frozen; ``failed`` names the rows that could not be designed and why.
+
+    Raises
+    ------
+    DesignError
+        The scenario has no noise.
+    ScenarioError
+        The trajectories would not fit in memory.
+
+    Examples
+    --------
+    >>> import splitspec_core as ss
+    >>> sc = ss.scenario(A=[[0.9, 0.2], [0, 0.8]], C={1: [[1, 0]], 2: [[0, 1]]}, graphs={"a": [(1, 2), (2, 1)]},
+    ...                  rate=0.5, process_noise=0.1, measurement_noise=0.1)
+    >>> list(compare(sc, seeds=[0, 1], steps=100).estimators)
+    ['optimal (whole state)', 'split place', 'split riccati', 'centralized KF', 'KCF']
     """
     seeds = list(seeds)
     check_trajectory_memory(sc, steps)
@@ -359,6 +428,21 @@ def sweep(sc: Scenario, *, seed: int, steps: int | None = None, values=None) -> 
     judges the design at that value, for the estimator the row simulates
     (continuous: the sampled-data form with ``run.dt``, so a g certified for
     the ODE alone is not certified); ``certificate`` says why in one line.
+
+    Parameters
+    ----------
+    sc : Scenario
+        The scenario.
+    seed, steps : int, int or None
+        The simulations' seed and steps (default ``run.steps``).
+    values : iterable of number, optional
+        The q or g values; default ``1 .. max(2 q, q + 6)``, or eight g around the designed one.
+
+    Returns
+    -------
+    dict
+        ``scenario``, ``parameter`` (``q`` or ``g``), ``designed``, ``designed_note``, ``rate``, ``seed`` and
+        ``rows`` (per value its certificate, predicted and simulated RMS and measured rate, or ``error``).
     """
     base = design(sc)
     discrete = base.two_rate  # q exchanges per event time: discrete time, or the whole-state design
@@ -391,7 +475,18 @@ def sweep(sc: Scenario, *, seed: int, steps: int | None = None, values=None) -> 
 
 
 def certificate_lines(res: CompareResult) -> list:
-    """One line per split-spectrum estimator of a :func:`compare` result: its rate certificate."""
+    """One line per split-spectrum estimator of a :func:`compare` result: its rate certificate.
+
+    Parameters
+    ----------
+    res : CompareResult
+        A :func:`compare` result.
+
+    Returns
+    -------
+    list of str
+        ``  name: rate certified: ...`` (indented).
+    """
     lines = []
     for name, r in res.estimators.items():
         if r.certificate is None:
@@ -402,7 +497,18 @@ def certificate_lines(res: CompareResult) -> list:
 
 
 def sweep_line(sw: dict) -> str:
-    """The one-line summary of a :func:`sweep`: predicted RMS per value, certified values starred."""
+    """The one-line summary of a :func:`sweep`: predicted RMS per value, certified values starred.
+
+    Parameters
+    ----------
+    sw : dict
+        A :func:`sweep` result.
+
+    Returns
+    -------
+    str
+        Indented; values whose design failed are left out.
+    """
     text = f"  sweep of {sw['parameter']}: " + ", ".join(
         f"{r['value']:g}: RMS {r['predicted_rms']:.3g}{'*' if r['certified'] else ''}" for r in sw["rows"]
         if "error" not in r) + "  (* rate certified)"

@@ -31,7 +31,31 @@ __all__ = ["no_truth_arrays", "residuals", "disagreement", "kalman_reference"]
 
 
 def residuals(xhat: np.ndarray, y: np.ndarray, missing: np.ndarray, Cs) -> np.ndarray:
-    """``|y_i - C_i x_i|`` per step and agent, (T, m); NaN where dead (NaN estimate) or missing."""
+    """``|y_i - C_i x_i|`` per step and agent, (T, m); NaN where dead (NaN estimate) or missing.
+
+    Parameters
+    ----------
+    xhat : (T, m, n) array
+        Every agent's estimate (NaN rows: dead).
+    y : (T, sum s_i) array
+        The stacked measurements, agents in the order of ``Cs``.
+    missing : (T, m) bool array
+        True where agent i had no measurement.
+    Cs : sequence of (s_i, n) arrays
+        The agents' output matrices.
+
+    Returns
+    -------
+    (T, m) array
+        The residual norms.
+
+    Examples
+    --------
+    >>> xhat = np.array([[[0.0, 0.0], [1.0, 0.0]], [[1.0, 1.0], [np.nan, np.nan]]])
+    >>> residuals(xhat, np.array([[0.5, 0.0], [1.0, 1.0]]), np.array([[False, False], [False, True]]),
+    ...           [np.array([[1.0, 0.0]]), np.array([[0.0, 1.0]])]).tolist()
+    [[0.5, 0.0], [0.0, nan]]
+    """
     T, m, _ = xhat.shape
     out = np.full((T, m), np.nan)
     for k, (C, r) in enumerate(zip(Cs, output_rows(Cs))):
@@ -42,7 +66,23 @@ def residuals(xhat: np.ndarray, y: np.ndarray, missing: np.ndarray, Cs) -> np.nd
 
 
 def disagreement(xhat: np.ndarray) -> np.ndarray:
-    """``max_ij |x_i - x_j|`` over the agents alive (finite estimates) at each step, (T,); NaN with none alive."""
+    """``max_ij |x_i - x_j|`` over the agents alive (finite estimates) at each step, (T,); NaN with none alive.
+
+    Parameters
+    ----------
+    xhat : (T, m, n) array
+        Every agent's estimate (NaN rows: dead).
+
+    Returns
+    -------
+    (T,) array
+        The largest pairwise distance per step (0 with one agent alive).
+
+    Examples
+    --------
+    >>> disagreement(np.array([[[0.0, 0.0], [1.0, 0.0]], [[1.0, 1.0], [np.nan, np.nan]]])).tolist()
+    [1.0, 0.0]
+    """
     T = xhat.shape[0]
     out = np.full(T, np.nan)
     for k in range(T):
@@ -60,7 +100,24 @@ def disagreement(xhat: np.ndarray) -> np.ndarray:
 
 def kalman_reference(sc, y: np.ndarray, missing: np.ndarray, u: np.ndarray | None = None) -> np.ndarray:
     """The centralized time-varying Kalman predictor on ``y`` (module docstring), (T, n); with known inputs it adds
-    ``G u(k)`` (``u``: the recorded inputs per row, else the scenario's signal)."""
+    ``G u(k)`` (``u``: the recorded inputs per row, else the scenario's signal).
+
+    Parameters
+    ----------
+    sc : Scenario
+        The scenario (model, noise levels, ``system.x0``).
+    y : (T, sum s_i) array
+        The stacked measurements.
+    missing : (T, m) bool array
+        True where agent i had no measurement (its rows are left out of that step's update).
+    u : (T, inputs) array, optional
+        The recorded known inputs.
+
+    Returns
+    -------
+    (T, n) array
+        The one-step predictions ``kf(tau)`` of ``x(tau)``, before ``y(tau)`` is used.
+    """
     F, Q, R = sampled_model(sc)
     gus = input_sequence(sc, len(y), u)
     Q = regularise(Q)
@@ -95,7 +152,28 @@ def kalman_reference(sc, y: np.ndarray, missing: np.ndarray, u: np.ndarray | Non
 
 def no_truth_arrays(traj, sc, u: np.ndarray | None = None) -> dict:
     """``residual``, ``disagreement``, ``kf`` and ``kf_distance`` of a trajectory that holds its measurements
-    (``u``: a measurements file's inputs, else the scenario's signal applies)."""
+    (``u``: a measurements file's inputs, else the scenario's signal applies).
+
+    Parameters
+    ----------
+    traj : Trajectory
+        A run's or simulation's trajectory with ``y`` (and ``y_missing``, ``alive``, ``xhat``).
+    sc : Scenario
+        Its scenario.
+    u : (T, inputs) array, optional
+        The recorded known inputs.
+
+    Returns
+    -------
+    dict
+        ``residual`` (T, m), ``disagreement`` (T,), ``kf`` (T, n; NaN with live known inputs, which the agents do not
+        report) and ``kf_distance`` (T, m).
+
+    Raises
+    ------
+    ValueError
+        The trajectory holds no measurements (``traj.y`` is None).
+    """
     if traj.y is None:
         raise ValueError("no_truth_arrays needs the measurements the estimators were given (trajectory y)")
     missing = traj.y_missing if traj.y_missing is not None else np.zeros(traj.alive.shape, dtype=bool)

@@ -40,7 +40,25 @@ MAX_RATES = 30
 
 def check_rates(sc: Scenario, rates) -> list:
     """The rates of a sweep, checked as ``design.rate`` is (one line each): continuous ``> 0``, discrete in
-    ``(0, 1)``; at most :data:`MAX_RATES`."""
+    ``(0, 1)``; at most :data:`MAX_RATES`.
+
+    Parameters
+    ----------
+    sc : Scenario
+        Its ``time`` decides the range.
+    rates : iterable
+        The rates asked (anything ``float`` takes).
+
+    Returns
+    -------
+    list of float
+        The rates, in order.
+
+    Raises
+    ------
+    ScenarioError
+        No rate, more than :data:`MAX_RATES`, or one out of range (the message names it).
+    """
     rates = [float(r) for r in rates]
     if not rates:
         raise ScenarioError("--sweep-rate needs at least one rate")
@@ -73,7 +91,41 @@ def _row(sc: Scenario, **keys) -> dict:
 def rate_sweep(sc: Scenario, rates, *, seeds=(0, 1), steps: int | None = None) -> dict:
     """Steady RMS against the rate asked (module docstring): ``{"scenario", "time", "rates", "rows": [...]}``, a row
     per rate with ``whole``, ``split`` (each :func:`_row`), ``kalman``, ``reference`` (predicted, None where none
-    exists) and ``kcf`` (measured: mean over ``seeds`` of the steady RMS, None when not settled)."""
+    exists) and ``kcf`` (measured: mean over ``seeds`` of the steady RMS over each run's last half).
+
+    Parameters
+    ----------
+    sc : Scenario
+        A scenario with noise; every design key but the rate (and the gains and consensus of the two rows) is kept.
+    rates : iterable of float
+        The rates (:func:`check_rates`).
+    seeds : iterable of int
+        The KCF's Monte Carlo seeds.
+    steps : int, optional
+        The KCF runs' steps (default ``run.steps``).
+
+    Returns
+    -------
+    dict
+        ``scenario``, ``time``, ``rates``, ``seeds`` and ``rows``: per rate ``rate``, ``whole``, ``split``
+        (``{certified, rms, q, g, error}``), ``kalman``, ``reference``, ``kcf`` and ``kcf_exchanges``.
+
+    Raises
+    ------
+    DesignError
+        The scenario has no noise.
+    ScenarioError
+        A rate out of range (:func:`check_rates`).
+
+    Examples
+    --------
+    >>> import splitspec_core as ss
+    >>> sc = ss.scenario(A=[[0.9, 0.2], [0, 0.8]], C={1: [[1, 0]], 2: [[0, 1]]}, graphs={"a": [(1, 2), (2, 1)]},
+    ...                  rate=0.5, process_noise=0.1, measurement_noise=0.1)
+    >>> res = rate_sweep(sc, [0.5, 0.3], seeds=(0,), steps=100)
+    >>> [(r["rate"], r["whole"]["certified"], r["split"]["certified"], round(r["kalman"], 3)) for r in res["rows"]]
+    [(0.5, True, True, 0.17), (0.3, True, True, 0.17)]
+    """
     if not sc.system.has_noise:
         raise DesignError("--sweep-rate needs noise: set system.process_noise and/or system.measurement_noise")
     rates = check_rates(sc, rates)
@@ -92,7 +144,18 @@ def rate_sweep(sc: Scenario, rates, *, seeds=(0, 1), steps: int | None = None) -
 
 
 def rate_sweep_table(res: dict) -> list:
-    """The sweep as text lines: per rate, each estimator's steady RMS (``*``: the rate certified)."""
+    """The sweep as text lines: per rate, each estimator's steady RMS (``*``: the rate certified).
+
+    Parameters
+    ----------
+    res : dict
+        A :func:`rate_sweep` result.
+
+    Returns
+    -------
+    list of str
+        A heading, the column names, one line per rate.
+    """
 
     def cell(row: dict) -> str:
         if row["rms"] is None:

@@ -102,7 +102,22 @@ def _level(des, sc: Scenario, seeds, steps, noisy: bool, bar, done: list) -> dic
 
 
 def check_sweep(sc: Scenario, parameter: str, values) -> None:
-    """Refuse a sweep that cannot say anything, in one line (:class:`DesignError`), before any work."""
+    """Refuse a sweep that cannot say anything, in one line (:class:`DesignError`), before any work.
+
+    Parameters
+    ----------
+    sc : Scenario
+        Its ``network:`` (a deadline sweep needs delays).
+    parameter : str
+        ``loss`` or ``deadline``.
+    values : sequence of float
+        The levels.
+
+    Raises
+    ------
+    DesignError
+        No level or more than ``MAX_LEVELS``; a deadline sweep without ``network.delay``.
+    """
     if not values or len(values) > MAX_LEVELS:
         raise DesignError(f"--sweep-{parameter}: give 1 to {MAX_LEVELS} levels, got {len(values)}")
     if parameter == "deadline" and not sc.network.delayed:
@@ -134,6 +149,13 @@ def network_sweep(sc: Scenario, parameter: str, values, *, seeds, steps: int | N
     dict
         JSON-ready: ``lossless`` (the perfect network's figures) and one entry of ``rows`` per level (measured rates,
         steady RMS under noise, messages lost, the loss certificate's verdict and line).
+
+    Raises
+    ------
+    ValueError
+        ``parameter`` is neither ``loss`` nor ``deadline``.
+    DesignError
+        :func:`check_sweep` refuses the levels.
 
     Examples
     --------
@@ -178,7 +200,19 @@ def _fmt(x, spec: str = ".4g") -> str:
 
 
 def sweep_table(sw: dict) -> list:
-    """The printed table of a :func:`network_sweep`: one line per level, the lossless and designed rates above."""
+    """The printed table of a :func:`network_sweep`: one line per level, the lossless and designed rates above.
+
+    Parameters
+    ----------
+    sw : dict
+        A :func:`network_sweep` result.
+
+    Returns
+    -------
+    list of str
+        Three heading lines (what was swept, the designed and lossless figures, the column names), then one line
+        per level.
+    """
     p = sw["parameter"]
     conv = "lam^tau" if sw["time"] == "discrete" else "exp(-lam t)"
     what = ("every arc's loss probability" if p == "loss" else

@@ -77,7 +77,26 @@ def _problems(des: Design) -> bool:
 @cached_analysis
 def advice(des: Design) -> tuple:
     """The knobs tried on ``des``'s scenario (module docstring), as :class:`Tried`; empty when there is nothing to
-    advise or the design is larger than :data:`ADVICE_DIM`."""
+    advise or the design is larger than :data:`ADVICE_DIM`.
+
+    Parameters
+    ----------
+    des : Design
+        A design (computed once per design: each knob is a design of its own).
+
+    Returns
+    -------
+    tuple of Tried
+        One per knob that applies, in the module docstring's order; a refused design has ``error`` set.
+
+    Examples
+    --------
+    >>> import splitspec_core as ss
+    >>> des = design(ss.load_scenario("examples/platoon.yaml"))
+    >>> [(t.knob, t.certified) for t in advice(des)]  # doctest: +NORMALIZE_WHITESPACE
+    [('design.gains: optimal, design.consensus: whole', True), ('design.margin: 0.1', True),
+     ('design.rate: 0.752', True)]
+    """
     sc = des.scenario
     d = sc.design
     if sc.m * sc.n > ADVICE_DIM or not _problems(des):
@@ -109,7 +128,19 @@ def advice(des: Design) -> tuple:
 
 
 def advice_lines(des: Design) -> list:
-    """The report's lines: what each knob gave against the design's own figures."""
+    """The report's lines: what each knob gave against the design's own figures.
+
+    Parameters
+    ----------
+    des : Design
+        A design.
+
+    Returns
+    -------
+    list of str
+        A heading with the design's own figures, then one indented line per knob (:func:`advice`); empty when
+        there is nothing to advise.
+    """
     tried = advice(des)
     if not tried:
         return []

@@ -28,6 +28,20 @@ def check_full(des: Design, warnings: list) -> Design:
     (:func:`splitspec_core.synthesis.error_matrix.full_radius`), and an automatic q or g raised until it meets it
     (:func:`_raise_to_full`): design policy, so here and not with the matrices.
     No switching certificate of the paper covers an approximate split.
+
+    Parameters
+    ----------
+    des : Design
+        A design whose ``split_residual`` is above round-off.
+    warnings : list of str
+        The design's warnings so far: appended to, and changed in place (a continuous design that misses on the
+        ODE loses the sampled-data ``run.dt`` advice).
+
+    Returns
+    -------
+    Design
+        ``des`` with ``full_radius``, ``warnings`` and, where an automatic q or g was raised, the new q (and its
+        ``q_result``) or g and ``error_radius``; unchanged but for the warning above ``MAX_RATE_DIM``.
     """
     sc = des.scenario
     worst = max([a.dec.weak for a in des.agents] + [des.split_residual])

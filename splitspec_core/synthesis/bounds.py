@@ -99,18 +99,22 @@ class Case:
 
     @cached_property
     def nbar(self) -> int:
+        """``nbar = sum n_i`` (int), the size of the unobservable-space coordinates."""
         return int(sum(self.sizes))
 
     @cached_property
     def Vcat(self) -> np.ndarray:
+        """``[V_1 .. V_m]``, an (n, nbar) array (n x 0 when every agent observes everything)."""
         return np.hstack(self.V_blocks) if self.nbar else np.zeros((self.V_blocks[0].shape[0], 0))
 
     @cached_property
     def Atil(self) -> np.ndarray:
+        """``Atil = blockdiag(A_i)``, an (nbar, nbar) array (eq. QA2), formed on first use."""
         return _block_diag(self.A_blocks, self.sizes)
 
     @cached_property
     def B(self) -> np.ndarray:
+        """``B = V' Sbar V``, an (nbar, nbar) array (eq. split_discrete_ench), formed on first use."""
         G = self.Vcat.T @ self.Vcat  # blocks V_i' V_j
         return _expand(self.graph.S, self.sizes) * G  # V' (S (x) I) V
 
@@ -122,10 +126,12 @@ class Case:
 
     @cached_property
     def h(self) -> np.ndarray:
+        """The diagonal of ``H``, an (nbar,) array: the Perron vector's ``pi_i`` repeated ``n_i`` times (eq. H)."""
         return np.repeat(self._pi, self.sizes)
 
     @cached_property
     def VLV(self) -> np.ndarray:
+        """``V'(L (x) I)V`` with ``L = 2 Pi - Pi S - S' Pi``, an (nbar, nbar) symmetric array (eq. split_continuous_lyap)."""
         S, Pi = self.graph.S, np.diag(self._pi)
         L = 2 * Pi - Pi @ S - S.T @ Pi  # eq. (split_continuous_lyap)
         return _expand(L, self.sizes) * (self.Vcat.T @ self.Vcat)
@@ -148,7 +154,37 @@ def _block_diag(blocks, sizes) -> np.ndarray:
 
 
 def make_case(label: str, graph: Graph, Vs, A_uns) -> Case:
-    """Build a :class:`Case` from per-agent ``V_i`` and ``A_i`` (in ``graph.ids`` order); the matrices on first use."""
+    """Build a :class:`Case` from per-agent ``V_i`` and ``A_i`` (in ``graph.ids`` order); the matrices on first use.
+
+    Parameters
+    ----------
+    label : str
+        The case's name in messages and the report (``a``, ``a without agent 3``).
+    graph : Graph
+        The agents (``graph.ids``) and their stochastic matrix ``S``.
+    Vs : sequence of (n, n_i) arrays
+        Orthonormal bases ``V_i`` of the agents' unobservable spaces, one per agent of ``graph.ids``.
+    A_uns : sequence of (n_i, n_i) arrays
+        The blocks ``A_i = V_i'(A + K_i C_i)V_i`` (eq. QA2), in the same order.
+
+    Returns
+    -------
+    Case
+        With ``sizes = (n_i)``; ``Atil``, ``B``, ``h``, ``VLV`` are formed when first asked for.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from splitspec_core.model.graphs import build_graph
+    >>> g = build_graph("a", (1, 2), [(1, 2), (2, 1)])
+    >>> case = make_case("a", g, [np.array([[0.], [1.]]), np.array([[0.6], [0.8]])],
+    ...                  [np.array([[1.1]]), np.array([[1.2]])])
+    >>> case.nbar, np.round(case.B, 3).tolist()
+    (2, [[0.5, 0.4], [0.4, 0.5]])
+    >>> r = q_spectral([case], 0.5)
+    >>> r.q, round(r.bound, 3), r.certified
+    (8, 0.495, True)
+    """
     return Case(label=label, graph=graph, sizes=tuple(V.shape[1] for V in Vs), A_blocks=tuple(A_uns),
                 V_blocks=tuple(Vs))
 
@@ -163,6 +199,23 @@ def g_bound(case: Case, rate: float) -> float:
 
     ``g >= lam_max(H(lam I + Atil) + (lam I + Atil)'H) / lam_min(V'(L (x) I)V)``;
     returns 0 when the numerator is negative (any g works).
+
+    Parameters
+    ----------
+    case : Case
+        One agent set and graph (constant).
+    rate : float
+        The decay rate ``lam`` > 0 (errors within ``c exp(-lam t)``).
+
+    Returns
+    -------
+    float
+        The sufficient g (>= 0); 0 when every agent observes everything (``nbar = 0``).
+
+    Raises
+    ------
+    DesignError
+        ``V'(L (x) I)V`` is not positive definite (graph not strongly connected or system not jointly observable).
     """
     if case.nbar == 0:
         return 0.0
@@ -177,7 +230,20 @@ def g_bound(case: Case, rate: float) -> float:
 
 
 def abscissa(case: Case, g: float) -> float:
-    """Spectral abscissa of ``A_V(g) = Atil - g (I - B)`` (eq. split_continuous_split)."""
+    """Spectral abscissa of ``A_V(g) = Atil - g (I - B)`` (eq. split_continuous_split).
+
+    Parameters
+    ----------
+    case : Case
+        One agent set and graph.
+    g : float
+        The consensus gain.
+
+    Returns
+    -------
+    float
+        ``max Re eig(A_V(g))``; ``-inf`` when ``nbar = 0``.  The error decays at rate ``lam`` when it is ``<= -lam``.
+    """
     if case.nbar == 0:
         return -math.inf
     AV = case.Atil - g * (np.eye(case.nbar) - case.B)
@@ -190,6 +256,27 @@ def g_min(case: Case, rate: float, *, g_hi: float | None = None, rtol: float = 1
     The abscissa is decreasing in g for large g (Prop. split_continuous_stable);
     the bisection starts from the sufficient ``g_hi`` (eq. g by default) and
     assumes a single crossing below it.  Returns 0 if g = 0 already works.
+
+    Parameters
+    ----------
+    case : Case
+        One agent set and graph (constant).
+    rate : float
+        The decay rate ``lam``.
+    g_hi : float, optional
+        A g known to work, the bisection's upper end (default :func:`g_bound`; doubled until it works).
+    rtol : float
+        Relative width of the final bracket.
+
+    Returns
+    -------
+    float
+        The upper end of the final bracket: a g that meets the rate, within ``rtol`` of the smallest.
+
+    Raises
+    ------
+    DesignError
+        No g up to 1e12 meets the rate.
     """
     if abscissa(case, 0.0) <= -rate:
         return 0.0
@@ -216,6 +303,22 @@ def sampled_decay(case: Case, g: float, Et: np.ndarray, Dt: np.ndarray, dt: floa
     invariant), the error on ``V`` obeys ``w+ = (Et - g Dt (I - B)) w`` with
     ``Et = blockdiag(V_i' E V_i)``, ``Dt = blockdiag(V_i' D V_i)``.  Returns
     ``-ln(rho) / dt``; a negative value means the sampled-data estimator is unstable.
+
+    Parameters
+    ----------
+    case : Case
+        One agent set and graph.
+    g : float
+        The consensus gain.
+    Et, Dt : (nbar, nbar) array
+        ``blockdiag(V_i' E V_i)`` and ``blockdiag(V_i' D V_i)``.
+    dt : float
+        The sampling period.
+
+    Returns
+    -------
+    float
+        The decay rate per unit time, ``-ln(rho) / dt``; ``inf`` when ``nbar = 0`` or ``rho = 0``.
     """
     if case.nbar == 0:
         return math.inf
@@ -228,6 +331,16 @@ def dwell_constants(cases) -> tuple:
 
     From the Lyapunov equation (split_continuous_lyap) with ``H``:
     ``c = max sqrt(max h / min h)``, ``lam_star = min lam_min(V'(L (x) I)V) / (2 max h)``.
+
+    Parameters
+    ----------
+    cases : iterable of Case
+        The graphs switched among.
+
+    Returns
+    -------
+    tuple of (float, float)
+        ``(c, lam_star)``; ``(1.0, inf)`` when no case has an unobservable part.
     """
     c, lam_star = 1.0, math.inf
     for case in cases:
@@ -242,6 +355,20 @@ def g_dwell_bound(cases, rate: float, dwell: float) -> float:
     """Sufficient g for switching with average dwell time ``dwell``, eq. (split_continuous_g).
 
     ``g >= (ln c + (lam + ||Atil||_2 c) tau_D) / (lam_star tau_D)``.
+
+    Parameters
+    ----------
+    cases : sequence of Case
+        The graphs switched among (iterated twice: not a generator).
+    rate : float
+        The decay rate ``lam``.
+    dwell : float
+        The average dwell time ``tau_D`` (time units).
+
+    Returns
+    -------
+    float
+        The sufficient g; 0 when no case has an unobservable part.
     """
     c, lam_star = dwell_constants(cases)
     if not math.isfinite(lam_star):
@@ -255,6 +382,23 @@ def g_arbitrary_bound(cases, rate: float) -> float | None:
 
     ``g >= lam_max((lam I + Atil) + (lam I + Atil)') / min lam_min(V'((2I - S - S') (x) I)V)``.
     Returns ``None`` if some ``S`` is not doubly stochastic.
+
+    Parameters
+    ----------
+    cases : iterable of Case
+        The graphs switched among.
+    rate : float
+        The decay rate ``lam``.
+
+    Returns
+    -------
+    float or None
+        The sufficient g (>= 0), the worst over the cases; None when the theorem does not apply.
+
+    Raises
+    ------
+    DesignError
+        ``2I - B - B'`` is not positive definite for some case.
     """
     worst = 0.0
     for case in cases:
@@ -316,6 +460,27 @@ _SCAN = 64  # smallest scans k = 1.._SCAN one by one, then doubles and bisects
 def smallest(pred, q_max: int, *, what: str, scan: int = _SCAN) -> int:
     """Smallest k in [1, q_max] with pred(k): linear scan to ``scan`` (every k: a predicate need not be monotone
     there), then doubling and bisection.
+
+    Parameters
+    ----------
+    pred : callable
+        ``pred(k) -> bool``; assumed monotone (false, then true) beyond ``scan``.
+    q_max : int
+        The largest k tried.
+    what : str
+        What k is, for the error message (``q (spectral, a)``).
+    scan : int
+        How many k are tried one by one first.
+
+    Returns
+    -------
+    int
+        The smallest k found.
+
+    Examples
+    --------
+    >>> smallest(lambda k: k * k >= 5000, 1000, what="k")
+    71
 
     Raises
     ------
@@ -416,6 +581,28 @@ def error_radius(case: Case, q: int, powers: _Powers | None = None, *, rate: flo
     :data:`splitspec_core.synthesis.spectral.DENSE_MAX` unknowns); how each value was computed is in ``case._how``.
     ``warm``: the iterative path starts from these eigenvectors of another case (``spectral._warm_start``);
     ``vectors`` receives this case's.
+
+    Parameters
+    ----------
+    case : Case
+        One agent set and graph.
+    q : int
+        Consensus exchanges per event time.
+    powers : callable, optional
+        ``powers(k) = B^k`` of ``case.B`` (the dense path), shared between q.
+    rate : float, optional
+        The decay rate ``lam``: the iterative path decides against it.
+    method : {"auto", "dense", "iterative"}
+        How the radius is computed.
+    warm : optional
+        Eigenvectors of another case at this q, the iterative path's start.
+    vectors : dict, optional
+        Filled with this case's eigenvectors (iterative path).
+
+    Returns
+    -------
+    float
+        ``rho(Atil B^q)``; 0 when ``nbar = 0``.  The error shrinks by ``rho`` per event time when it is below ``lam``.
     """
     if not case.nbar:
         return 0.0
@@ -453,6 +640,32 @@ def q_spectral(cases, rate: float, *, q: int | None = None, q_max: int = 100_000
     computed (:func:`error_radius`); the result says which methods were used (``QResult.eig``).  Once the first
     case's q is known, the iterative radii of the others at that q (the loss cases of a resilient design mostly
     need no more) are computed on ``workers`` processes at once (``None``: every core; :func:`_prefetch`).
+
+    Parameters
+    ----------
+    cases : iterable of Case
+        Every case the design covers (at least one).
+    rate : float
+        The decay rate ``lam`` per event time (0 < lam < 1).
+    q : int, optional
+        Check this q instead of searching for it.
+    q_max : int
+        The largest q searched (``design.q_max``).
+    method : {"auto", "dense", "iterative"}
+        How the spectral radii are computed.
+    workers : int, optional
+        Processes for the other cases' radii (None: every core).
+
+    Returns
+    -------
+    QResult
+        ``bound = max rho(Atil B^q)`` over the cases, ``certified`` when below ``rate``, ``switching=False``,
+        ``eig`` how the radii were computed.
+
+    Raises
+    ------
+    DesignError
+        No q up to ``q_max`` meets the rate for some case.
     """
     cases = tuple(cases)
     warm: dict = {}  # q -> (ids, sizes, right and left eigenvectors) of the first case evaluated at q
@@ -490,7 +703,29 @@ def _weighted_norm(M: np.ndarray, h: np.ndarray) -> float:
 
 
 def q_weighted(cases, rate: float, *, q: int | None = None, q_max: int = 100_000) -> QResult:
-    """q by the weighted two-norm, eq. (rnorm): ``||B||_R^q <= lam / ||Atil||_R`` (constant graphs)."""
+    """q by the weighted two-norm, eq. (rnorm): ``||B||_R^q <= lam / ||Atil||_R`` (constant graphs).
+
+    Parameters
+    ----------
+    cases : iterable of Case
+        Every case the design covers.
+    rate : float
+        The decay rate ``lam`` per event time.
+    q : int, optional
+        Check this q instead of computing it.
+    q_max : int
+        The largest q allowed.
+
+    Returns
+    -------
+    QResult
+        ``bound = max ||Atil||_R ||B||_R^q`` over the cases, ``certified`` when ``<= rate``, ``switching=False``.
+
+    Raises
+    ------
+    DesignError
+        ``||B||_R >= 1`` for some case (eq. ino fails), or the q needed exceeds ``q_max``.
+    """
     per = []
     for case in cases:
         na = _weighted_norm(case.Atil, case.h)
@@ -519,6 +754,27 @@ def q_two_norm(cases, rate: float, *, q: int | None = None, q_max: int = 100_000
     ``p``: smallest with ``|B^p|_2 < 1`` for every case; ``pbar``: smallest with
     ``|Atil (B^p)^pbar|_2 <= lam`` for every case.  Certificate:
     ``max |Atil B^q|_2 <= lam``, which bounds every product of switching steps.
+
+    Parameters
+    ----------
+    cases : iterable of Case
+        The graphs switched among.
+    rate : float
+        The decay rate ``lam`` per event time.
+    q : int, optional
+        Check this q instead of computing it (then ``p`` and ``pbar`` are None).
+    q_max : int
+        The largest q allowed.
+
+    Returns
+    -------
+    QResult
+        ``bound = max |Atil B^q|_2``, ``certified`` when ``<= rate``, ``switching=True``, ``p`` and ``pbar``.
+
+    Raises
+    ------
+    DesignError
+        No p or pbar within ``q_max``.
     """
     live = [c for c in cases if c.nbar]
 
@@ -551,6 +807,26 @@ def mixed_norm(M: np.ndarray, rows, cols=None) -> float:
     exactly zero (norm 0).  The others are stacked by shape into one batched SVD each (the
     same LAPACK call per block as ``np.linalg.norm(block, 2)``), and each row of blocks is
     summed left to right as before: the same number as the block-by-block loop.
+
+    Parameters
+    ----------
+    M : 2-D array
+        The matrix, partitioned into blocks ``M_ij``.
+    rows : sequence of int
+        The row sizes of the blocks (``n_i``; zeros allowed).
+    cols : sequence of int, optional
+        The column sizes (default ``rows``).
+
+    Returns
+    -------
+    float
+        ``max_i sum_j ||M_ij||_2`` (>= 0); 0 when every block is empty.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> round(mixed_norm(np.diag([3., 4.]), [1, 1]), 3), round(mixed_norm(np.ones((2, 2)), [1, 1]), 3)
+    (4.0, 2.0)
     """
     cols = rows if cols is None else cols
     rows, cols = np.asarray(rows, dtype=int), np.asarray(cols, dtype=int)
@@ -580,6 +856,28 @@ def q_mixed(cases, rate: float, *, q: int | None = None, q_max: int = 100_000) -
 
     ``p >= (m - 1)^2`` makes ``||B^p|| < 1`` (checked numerically; doubled if not);
     ``pbar`` is the smallest with ``||Atil|| ||B^p||^pbar <= lam`` for every case.
+
+    Parameters
+    ----------
+    cases : iterable of Case
+        The graphs switched among.
+    rate : float
+        The decay rate ``lam`` per event time.
+    q : int, optional
+        Check this q: the factorisation ``q = p * pbar`` with the smallest bound is reported.
+    q_max : int
+        The largest q allowed.
+
+    Returns
+    -------
+    QResult
+        ``bound = max ||Atil|| ||B^p||^pbar`` (mixed norms), ``certified`` when ``<= rate``, ``switching=True``,
+        ``p`` and ``pbar``.
+
+    Raises
+    ------
+    DesignError
+        ``||B^p|| >= 1`` for every p up to ``q_max``, or the q needed exceeds ``q_max``.
     """
     live = [c for c in cases if c.nbar]
     if q is not None:
@@ -625,14 +923,58 @@ _Q_METHODS = {"spectral": q_spectral, "weighted": q_weighted, "two-norm": q_two_
 def choose_q(method: str, cases, rate: float, *, q: int | None = None, q_max: int = 100_000,
              eig: str = "auto", workers: int | None = None) -> QResult:
     """Dispatch to the q method named by ``design.q_method``; ``q`` given means 'check this q'; ``eig``: how the
-    spectral q computes its radii (:func:`error_radius`); ``workers``: its processes (:func:`q_spectral`)."""
+    spectral q computes its radii (:func:`error_radius`); ``workers``: its processes (:func:`q_spectral`).
+
+    Parameters
+    ----------
+    method : {"spectral", "weighted", "two-norm", "mixed"}
+        The q method.
+    cases : iterable of Case
+        Every case the design covers.
+    rate : float
+        The decay rate ``lam`` per event time.
+    q : int, optional
+        Check this q instead of searching.
+    q_max : int
+        The largest q allowed.
+    eig : {"auto", "dense", "iterative"}
+        The spectral method's eigenvalue path (ignored by the others).
+    workers : int, optional
+        The spectral method's processes.
+
+    Returns
+    -------
+    QResult
+        The method's result.
+
+    Raises
+    ------
+    DesignError
+        As the method raises it.
+    """
     if method == "spectral":
         return q_spectral(cases, rate, q=q, q_max=q_max, method=eig, workers=workers)
     return _Q_METHODS[method](cases, rate, q=q, q_max=q_max)
 
 
 def nice_ceil(x: float) -> float:
-    """Round up to two significant digits (9.47 -> 9.5, 103.8 -> 110); the auto g."""
+    """Round up to two significant digits (9.47 -> 9.5, 103.8 -> 110); the auto g.
+
+    Parameters
+    ----------
+    x : float
+        The value to round up.
+
+    Returns
+    -------
+    float
+        The smallest two-significant-digit number ``>= x`` (up to 1e-9 relative); 0 for ``x <= 0``.
+
+    Examples
+    --------
+    >>> nice_ceil(9.47), nice_ceil(103.8)
+    (9.5, 110.0)
+    """
     if x <= 0:
         return 0.0
     e = 10.0 ** (math.floor(math.log10(x)) - 1)

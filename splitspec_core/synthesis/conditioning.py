@@ -64,6 +64,31 @@ def transient_constant(M: np.ndarray, r: float, *, block: int = 1, max_work: flo
     formed once each, with only their Frobenius norms kept (an upper bound of the 2-norm); once one falls below 1 the
     2-norms of the candidates, largest Frobenius norm first, are computed until no remaining one can exceed the
     largest 2-norm found (:func:`_sup_two_norm`).
+
+    Parameters
+    ----------
+    M : (d, d) array
+        The error map of one step.
+    r : float
+        The rate per step (``lam``, or ``exp(-lam dt)``).
+    block : int
+        Rows per agent in ``M`` (``d`` a multiple of it).
+    max_work : float
+        Flops spent on the exact constant before the Lyapunov bound is taken instead.
+
+    Returns
+    -------
+    Transient
+        ``constant`` (1.0 for an empty ``M``; ``inf`` when ``rho(M) >= r``), the step ``k`` attaining it, the index
+        of the agent whose rows peak there, and ``method`` (``exact``, the Lyapunov bound and why, or why infinite).
+
+    Examples
+    --------
+    >>> t = transient_constant(np.array([[0.5, 10.0], [0.0, 0.5]]), 0.9)
+    >>> round(t.constant, 3), t.step, t.method
+    (12.353, 2, 'exact')
+    >>> transient_constant(np.array([[1.5]]), 0.9).method
+    'infinite: the spectral radius 1.5 is not below 0.9'
     """
     d = M.shape[0]
     if d == 0:
@@ -205,7 +230,35 @@ def _scale(A: np.ndarray) -> float:
 @cached_analysis  # once per design, on first use: the full error matrices cost more than the design at scale
 def conditioning(des: Design) -> Conditioning:
     """Margins, gain sizes, the transient constant over the graphs the scenario uses (each held constant),
-    and, when the scenario has noise, the predicted steady-state RMS error of the first graph."""
+    and, when the scenario has noise, the predicted steady-state RMS error of the first graph.
+
+    Computed once per design (:func:`~splitspec_core.synthesis.design_data.cached_analysis`).
+
+    Parameters
+    ----------
+    des : Design
+        The design.
+
+    Returns
+    -------
+    Conditioning
+        Per agent its :class:`AgentConditioning`; the largest transient constant over the graphs used (at the
+        envelope's rate; None for the adaptive gain or above ``MAX_DIM``), its graph and method; with noise the
+        predicted RMS per agent (None above ``MAX_NOISE_DIM`` or adaptive) and the Kalman and reference RMS;
+        the warnings.
+
+    Examples
+    --------
+    >>> import splitspec_core as ss
+    >>> from splitspec_core.synthesis.designer import design
+    >>> des = design(ss.scenario(A=[[0, 1, 0, 0], [-1, 0, 0, 0], [0, 0, 0, 1], [0, 0, -2, 0]],
+    ...                          C={1: [[1, 0, 0, 0]], 2: [[0, 1, 0, 0]], 3: [[0, 0, 1, 0]]},
+    ...                          graphs={"a": [(1, 2), (2, 1), (2, 3), (3, 2), (1, 3)]}, rate=0.5, gains="place",
+    ...                          process_noise=0.01, measurement_noise=0.1))
+    >>> c = conditioning(des)
+    >>> round(c.transient_constant, 2), round(c.kalman_rms, 3), c.warnings
+    (11.03, 0.25, ())
+    """
     sc = des.scenario
     d = sc.design
     # the gain's size against the system's own scale, in the design's working coordinates (the user's, or balanced)
@@ -255,7 +308,18 @@ def _duration(seconds: float) -> str:
 def time_scale_warning(sc) -> str | None:
     """A continuous plant whose time constants are far from ``run.dt`` (hours against the default 0.01 s): its
     fastest mode (the largest ``|eig(A)|``) moves less than :data:`TIME_SCALE_WARN` of itself per step, so a run of
-    ``run.steps`` steps shows nothing happen; None when they fit (or in discrete time)."""
+    ``run.steps`` steps shows nothing happen; None when they fit (or in discrete time).
+
+    Parameters
+    ----------
+    sc : Scenario
+        Its ``time``, ``system.A``, ``run.dt`` and ``run.steps``.
+
+    Returns
+    -------
+    str or None
+        One line: the time constants against ``run.dt`` and what to set ``run.dt`` near.
+    """
     if sc.time != "continuous":
         return None
     ev = np.abs(np.linalg.eigvals(np.asarray(sc.system.A, dtype=float)))

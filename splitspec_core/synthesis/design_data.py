@@ -77,6 +77,7 @@ class Design:
 
     @property
     def time(self) -> str:
+        """The scenario's time, ``"discrete"`` or ``"continuous"`` (str)."""
         return self.scenario.time
 
     @property
@@ -92,6 +93,7 @@ class Design:
 
     @property
     def rate(self) -> float:
+        """The decay rate asked for, ``design.rate`` (float): ``lam`` per event time or per unit time."""
         return self.scenario.design.rate
 
     @property
@@ -122,14 +124,20 @@ class Design:
 
     @property
     def redundantly_strongly_connected(self) -> bool:
+        """Every graph stays strongly connected after the loss of any one agent (bool; True when no losses were
+        analysed)."""
         return all(all(r.strongly_connected.values()) for r in self.agent_losses.values())
 
     @property
     def redundantly_jointly_observable(self) -> bool:
+        """The survivors of any one agent loss still observe the whole state (bool; True when no losses were
+        analysed)."""
         return all(r.jointly_observable for r in self.agent_losses.values())
 
     @property
     def redundantly_jointly_detectable(self) -> bool:
+        """What the survivors of any one agent loss leave unobserved decays (bool; True when no losses were
+        analysed)."""
         return all(r.detectable for r in self.agent_losses.values())
 
     @property
@@ -152,12 +160,49 @@ class Design:
         return A if self.scale is None else A * self.scale[None, :] / self.scale[:, None]
 
     def unobserved_of(self, alive) -> Unobserved:
-        """What the agents ``alive`` leave unobserved (``W_S ⊇ W``, :mod:`splitspec_core.model.detectability`)."""
+        """What the agents ``alive`` leave unobserved (``W_S ⊇ W``, :mod:`splitspec_core.model.detectability`).
+
+        Parameters
+        ----------
+        alive : iterable of int
+            The ids of the agents left.
+
+        Returns
+        -------
+        Unobserved
+            ``W_S`` (``W``: an orthonormal basis, user's coordinates), its eigenvalues and whether it decays.
+
+        Examples
+        --------
+        >>> import splitspec_core as ss
+        >>> from splitspec_core.synthesis.designer import design
+        >>> des = design(ss.scenario(A=[[0, 1, 0, 0], [-1, 0, 0, 0], [0, 0, 0, 1], [0, 0, -2, 0]],
+        ...                          C={1: [[1, 0, 0, 0]], 2: [[0, 1, 0, 0]], 3: [[0, 0, 1, 0]]},
+        ...                          graphs={"a": [(1, 2), (2, 1), (2, 3), (3, 2), (1, 3)]}, rate=0.5, gains="place"))
+        >>> des.unobserved_of((1, 2, 3)).dim, des.unobserved_of((1, 2)).dim  # x3, x4 are agent 3's alone
+        (0, 2)
+        """
         return unobserved_of(self.scenario, self.spectrum, {a.id: self.unobservable_space(a.id)
                                                             for a in self.agents}, self.scale)(alive)
 
     def survivor_case(self, label: str, graph, un: Unobserved) -> bounds.Case:
-        """The certificate's case of the agents of ``graph`` when they leave ``un.W`` unobserved: ``V_i ⊖ W_S``."""
+        """The certificate's case of the agents of ``graph`` when they leave ``un.W`` unobserved: ``V_i ⊖ W_S``.
+
+        Parameters
+        ----------
+        label : str
+            The case's label (``a without agent 3``).
+        graph : Graph
+            The surviving agents (``graph.ids``) and their graph.
+        un : Unobserved
+            What they leave unobserved (:meth:`unobserved_of`).
+
+        Returns
+        -------
+        bounds.Case
+            With the agents' own ``V_i`` and ``A_i`` when ``un`` is the design's own ``W``; otherwise with
+            ``V_i ⊖ W_S`` (quotient bases) and ``A_i = V_i' A V_i`` in the working coordinates.
+        """
         ad = {a.id: a for a in self.agents}
         if self.unobserved is None or un.dim == self.unobserved.dim:
             return bounds.make_case(label, graph, [ad[i].V for i in graph.ids], [ad[i].dec.A_un for i in graph.ids])
@@ -167,7 +212,18 @@ class Design:
 
     def unobservable_space(self, agent_id: int) -> np.ndarray:
         """Agent ``agent_id``'s own unobservable space in the working coordinates: ``[V_i ⊖ W, W]`` (orthonormal: the
-        two are orthogonal there)."""
+        two are orthogonal there).
+
+        Parameters
+        ----------
+        agent_id : int
+            An agent of the design.
+
+        Returns
+        -------
+        (n, n - r_i) array
+            ``[V_i ⊖ W, W]``, orthonormal columns.
+        """
         a = next(a for a in self.agents if a.id == agent_id)
         W = self.unobserved.W_working if self.unobserved is not None else np.zeros((a.V.shape[0], 0))
         return np.hstack([a.V, W])
@@ -181,7 +237,19 @@ class Design:
 def cached_analysis(fn):
     """``fn(des, **options)`` computed once per design and options, on first use (kept in the design's own cache:
     the design is frozen, and a design made from it by ``dataclasses.replace`` starts with an empty one).
-    ``cached.remember(des, value, **options)`` keeps a value the design computed on its way instead."""
+    ``cached.remember(des, value, **options)`` keeps a value the design computed on its way instead.
+
+    Parameters
+    ----------
+    fn : callable
+        ``fn(des, **options)``, a pure analysis of a :class:`Design` (options hashable).
+
+    Returns
+    -------
+    callable
+        ``cached(des, **options)`` with the same result, computed once per design and options, and its
+        ``remember`` attribute.
+    """
     name = f"{fn.__module__}.{fn.__qualname__}"
 
     @functools.wraps(fn)

@@ -52,7 +52,18 @@ MAX_NOISE_DIM = 2000
 
 def block_diagonal(blocks) -> np.ndarray:
     """Block diagonal that keeps zero-width blocks (``V_i`` with ``n_i = 0``) as rows (numpy only: agent
-    processes import this module and never scipy)."""
+    processes import this module and never scipy).
+
+    Parameters
+    ----------
+    blocks : sequence of 2-D arrays
+        The blocks, any shapes (zero rows or columns allowed).
+
+    Returns
+    -------
+    (sum of rows, sum of columns) array
+        The blocks on the diagonal, zeros elsewhere.
+    """
     out = np.zeros((sum(b.shape[0] for b in blocks), sum(b.shape[1] for b in blocks)))
     r = c = 0
     for b in blocks:
@@ -65,7 +76,22 @@ def block_diagonal(blocks) -> np.ndarray:
 def step_blocks(A: np.ndarray, Ks, Cs, *, dt: float | None = None) -> tuple:
     """``(F_i, K_s,i)`` per agent of the whole-state estimator: one event time's error map and noise gain
     (:func:`splitspec_core.model.steps.step_matrices`: ``A + K_i C_i`` and ``K_i``, or ``E + D K_i C_i`` and ``D K_i``
-    in continuous time, ``dt`` = ``run.dt``)."""
+    in continuous time, ``dt`` = ``run.dt``).
+
+    Parameters
+    ----------
+    A : (n, n) array
+        The system matrix.
+    Ks, Cs : sequences of arrays
+        Per agent, in one order: the gains ``K_i`` (n, s_i) and the output matrices ``C_i`` (s_i, n).
+    dt : float, optional
+        Continuous time: the sampling period (``run.dt``); None: discrete time.
+
+    Returns
+    -------
+    tuple of (list, list)
+        ``([F_i], [K_s,i])``: the (n, n) error maps and the (n, s_i) noise gains, one per agent.
+    """
     from ..model.steps import sampled_data_matrices, step_matrices
 
     ED = None if dt is None else sampled_data_matrices(np.asarray(A, dtype=float), dt)[:2]
@@ -76,7 +102,20 @@ def step_blocks(A: np.ndarray, Ks, Cs, *, dt: float | None = None) -> tuple:
 
 def whole_matrix(Fs, S: np.ndarray, q: int) -> np.ndarray:
     """``(S^q (x) I) blkdiag(F_i)``: the whole-state estimator's full error matrix of one event time
-    (:mod:`splitspec_core.synthesis.whole_state`: update, then average q times)."""
+    (:mod:`splitspec_core.synthesis.whole_state`: update, then average q times).
+
+    Parameters
+    ----------
+    Fs : sequence of (n, n) arrays
+        Every agent's error map ``F_i`` (:func:`step_blocks`).
+    S, q : (m, m) array, int
+        The stochastic consensus matrix and the averaging rounds per event time.
+
+    Returns
+    -------
+    (mn, mn) array
+        ``(S^q (x) I_n) blkdiag(F_i)``.
+    """
     n = Fs[0].shape[0]
     Sq = np.linalg.matrix_power(np.asarray(S, dtype=float), int(q))
     return np.kron(Sq, np.eye(n)) @ block_diagonal(Fs)
@@ -84,7 +123,24 @@ def whole_matrix(Fs, S: np.ndarray, q: int) -> np.ndarray:
 
 def whole_noise(Kss, S: np.ndarray, q: int, R: np.ndarray, Qn: np.ndarray) -> np.ndarray:
     """The covariance of the noise entering one event time of the whole-state estimator:
-    ``W blkdiag(K_s,i) R blkdiag(K_s,i)' W' + 11' (x) Q``, ``W = S^q (x) I``."""
+    ``W blkdiag(K_s,i) R blkdiag(K_s,i)' W' + 11' (x) Q``, ``W = S^q (x) I``.
+
+    Parameters
+    ----------
+    Kss : sequence of (n, s_i) arrays
+        Every agent's noise gain ``K_s,i`` (:func:`step_blocks`).
+    S, q : (m, m) array, int
+        The stochastic consensus matrix and the averaging rounds per event time.
+    R : (sum s_i, sum s_i) array
+        The stacked measurement noise covariance.
+    Qn : (n, n) array
+        The process noise covariance per event time.
+
+    Returns
+    -------
+    (mn, mn) array
+        The noise covariance, symmetrised.
+    """
     m, n = len(Kss), Kss[0].shape[0]
     W = np.kron(np.linalg.matrix_power(np.asarray(S, dtype=float), int(q)), np.eye(n))
     G = W @ block_diagonal(Kss)
@@ -97,7 +153,38 @@ def full_error_matrix(A: np.ndarray, Cs, Ks, Ps, S: np.ndarray, *, time: str, q:
                       g: float | None = None, dt: float | None = None, consensus: str = "split") -> np.ndarray:
     """The full error matrix of one event time (discrete) or one sampled-data step (continuous); module docstring.
     ``consensus="whole"``: the whole-state estimator's (:func:`whole_matrix`; ``Ps`` unused, ``q`` exchanges per
-    event time in both times)."""
+    event time in both times).
+
+    Parameters
+    ----------
+    A : (n, n) array
+        The system matrix.
+    Cs, Ks, Ps : sequences of arrays
+        Per agent, in one order: ``C_i`` (s_i, n), ``K_i`` (n, s_i) and the projection ``P_i`` (n, n).
+    S : (m, m) array
+        The stochastic consensus matrix (``Sbar = S (x) I_n``).
+    time : {"discrete", "continuous"}
+        The scenario's time.
+    q, g, dt : int, float, float, optional
+        Consensus sub-rounds per event time (discrete, and the whole-state estimator), the consensus gain and the
+        sampling period (continuous): each required where it applies.
+    consensus : {"split", "whole"}
+        The split estimator (the paper's) or the whole-state one.
+
+    Returns
+    -------
+    (mn, mn) array
+        ``M``: the stacked errors ``e(k+1) = M e(k)`` without noise.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> A, S = np.array([[1.2]]), np.full((2, 2), 0.5)  # agent 1 sees x, agent 2 sees nothing
+    >>> M = full_error_matrix(A, [np.eye(1), np.zeros((1, 1))], [-np.eye(1), np.zeros((1, 1))],
+    ...                       [np.zeros((1, 1)), np.eye(1)], S, time="discrete", q=1)
+    >>> np.round(M, 3).tolist(), np.round(np.sort(abs(np.linalg.eigvals(M))), 3).tolist()
+    ([[0.2, 0.0], [0.6, 0.6]], [0.2, 0.6])
+    """
     A = np.asarray(A, dtype=float)
     n, m = A.shape[0], len(Cs)
     if consensus == "whole":
@@ -117,7 +204,22 @@ def modulo(M: np.ndarray, W: np.ndarray, m: int) -> np.ndarray:
     """The error map ``M`` (every agent's error stacked) modulo the directions ``W`` (orthonormal, A-invariant, no agent
     sees them): ``(I_m (x) U_o') M (I_m (x) U_o)`` with ``U_o`` spanning ``W^⊥``.  ``M`` is block triangular in the
     coordinates ``(U_o' e_i, W' e_i)`` (:mod:`splitspec_core.model.detectability`), so this is the map of the quotient's
-    errors, whatever ``W``'s part does."""
+    errors, whatever ``W``'s part does.
+
+    Parameters
+    ----------
+    M : (mn, mn) array
+        The stacked error map (or a covariance, transformed the same way).
+    W : (n, w) array
+        Orthonormal basis of the unobserved directions.
+    m : int
+        The number of agents stacked in ``M``.
+
+    Returns
+    -------
+    (m(n - w), m(n - w)) array
+        The map on the quotient errors; ``M`` itself when ``w = 0``.
+    """
     from ..model.subspaces import complement
 
     if W.shape[1] == 0:
@@ -127,14 +229,40 @@ def modulo(M: np.ndarray, W: np.ndarray, m: int) -> np.ndarray:
 
 
 def ode_error_matrix(A: np.ndarray, Cs, Ks, Ps, S: np.ndarray, g: float) -> np.ndarray:
-    """``Abar - g P (I - Sbar)`` (eq. split_continuous_em)."""
+    """``Abar - g P (I - Sbar)`` (eq. split_continuous_em).
+
+    Parameters
+    ----------
+    A : (n, n) array
+        The system matrix.
+    Cs, Ks, Ps : sequences of arrays
+        Per agent: ``C_i``, ``K_i``, ``P_i``.
+    S, g : (m, m) array, float
+        The stochastic consensus matrix and the consensus gain.
+
+    Returns
+    -------
+    (mn, mn) array
+        The continuous-time error ODE's matrix, ``Abar = blkdiag(A + K_i C_i)``.
+    """
     n, m = np.shape(A)[0], len(Cs)
     return (block_diagonal([np.asarray(A) + K @ C for K, C in zip(Ks, Cs)])
             - g * block_diagonal(Ps) @ (np.eye(m * n) - np.kron(S, np.eye(n))))
 
 
 def case_parts(des: "Design", case) -> tuple:
-    """``(Cs, Ks, Ps)`` of the agents of ``case``'s graph, in its order: what the full error matrices are made of."""
+    """``(Cs, Ks, Ps)`` of the agents of ``case``'s graph, in its order: what the full error matrices are made of.
+
+    Parameters
+    ----------
+    des, case : Design, bounds.Case
+        The design and one of its cases (its ``graph.ids`` choose the agents).
+
+    Returns
+    -------
+    tuple of (list, list, list)
+        The ``C_i`` (scenario's), ``K_i`` and ``P_i`` (design's) arrays.
+    """
     sc = des.scenario
     ad = {a.id: a for a in des.agents}
     Cs = dict(zip(sc.agent_ids, sc.system.Cs))
@@ -148,6 +276,22 @@ def full_radius(des: "Design", cases, *, q: int | None = None, g: float | None =
     Discrete: the spectral radius of ``M`` (must be below ``lam``).  Continuous: ``{"ode": spectral
     abscissa of Abar - g P (I - Sbar)`` (must be at most ``-lam``), ``"sampled": -log rho(M) / dt`` (the decay
     rate of the sampled-data form, at least ``lam``)}.
+
+    Parameters
+    ----------
+    des : Design
+        The design (with ``design.undetectable: exclude`` the matrices are taken modulo ``W``).
+    cases : iterable of bounds.Case
+        The cases to check.
+    q, g : int, float, optional
+        The q to check (discrete time, the whole-state estimator) or the g (continuous split estimator): required
+        where it applies (not ``des.q`` or ``des.g`` by default).
+
+    Returns
+    -------
+    dict
+        ``{case label: radius}`` (discrete, whole-state) or ``{case label: {"ode": ..., "sampled": ...}}``.
+
     """
     sc = des.scenario
     A = np.asarray(sc.system.A)
@@ -176,7 +320,23 @@ def full_radius(des: "Design", cases, *, q: int | None = None, g: float | None =
 
 def error_dynamics(des: "Design", graph_index: int = 0) -> tuple:
     """``(M, N)``: the full error matrix of the scenario's graph ``graph_index`` held constant, every agent,
-    and the covariance of the noise entering per step (module docstring)."""
+    and the covariance of the noise entering per step (module docstring).
+
+    Parameters
+    ----------
+    des, graph_index : Design, int
+        The design (the scenario's noise, ``des.q`` or ``des.g``) and which of the scenario's graphs.
+
+    Returns
+    -------
+    tuple of ((mn, mn) array, (mn, mn) array)
+        ``(M, N)``; ``e(k+1) = M e(k) + noise`` with covariance ``N``.
+
+    Raises
+    ------
+    DesignError
+        The adaptive gain (continuous, no fixed g).
+    """
     from ..model.plant import sampled_model
     from ..errors import DesignError
     from ..model.network import consensus_rows
@@ -214,13 +374,34 @@ def error_dynamics(des: "Design", graph_index: int = 0) -> tuple:
 
 def predicted_rms(des: "Design", graph_index: int = 0) -> np.ndarray:
     """Steady-state RMS error ``sqrt(trace Sigma_ii)`` of every agent (inf if the error map is unstable); computed
-    once per design and graph (a Lyapunov equation of size ``m n``: seconds at 1700)."""
+    once per design and graph (a Lyapunov equation of size ``m n``: seconds at 1700); DesignError for the adaptive
+    gain (:func:`error_dynamics`).
+
+    Parameters
+    ----------
+    des, graph_index : Design, int
+        The design and which of the scenario's graphs, held constant.
+
+    Returns
+    -------
+    (m,) array
+        Per agent, in the scenario's order (a copy); with ``design.undetectable: exclude``, of the error modulo
+        ``W``.
+    """
     return _predicted_rms(des, graph_index=int(graph_index)).copy()
 
 
 def remember_predicted(des: "Design", graph_index: int, values: np.ndarray) -> None:
     """Keep ``values`` as ``des``'s :func:`predicted_rms` on graph ``graph_index``: the design computed them already
-    (:mod:`.whole_state`, while choosing q)."""
+    (:mod:`.whole_state`, while choosing q).
+
+    Parameters
+    ----------
+    des, graph_index : Design, int
+        The design and which of the scenario's graphs.
+    values : (m,) array_like
+        The RMS errors per agent.
+    """
     _predicted_rms.remember(des, np.asarray(values, dtype=float), graph_index=int(graph_index))
 
 

@@ -45,6 +45,21 @@ def regularise(M: np.ndarray) -> np.ndarray:
     otherwise ``M`` unchanged.  Used for noise-free measurements (``R = 0``) and
     zero (or rank-deficient) process noise, where the Riccati equation has no
     stabilising solution or its solver needs ``R`` invertible.
+
+    Parameters
+    ----------
+    M : (k, k) array_like
+        A symmetric PSD matrix (symmetrised first).
+
+    Returns
+    -------
+    (k, k) array
+        ``(M + M') / 2``, with the identity term added when it is singular.
+
+    Examples
+    --------
+    >>> regularise(np.zeros((2, 2))).tolist()
+    [[1e-09, 0.0], [0.0, 1e-09]]
     """
     M = 0.5 * (np.asarray(M, dtype=float) + np.asarray(M, dtype=float).T)
     if M.size == 0:
@@ -81,7 +96,18 @@ class KalmanPredictor:
 
 
 def spectral_radius(M: np.ndarray) -> float:
-    """``max |eig(M)|`` (0 for an empty matrix)."""
+    """``max |eig(M)|`` (0 for an empty matrix).
+
+    Parameters
+    ----------
+    M : (k, k) array_like
+        A square matrix.
+
+    Returns
+    -------
+    float
+        The spectral radius.
+    """
     return float(np.max(np.abs(np.linalg.eigvals(M)), initial=0.0)) if np.size(M) else 0.0
 
 
@@ -109,6 +135,20 @@ def kalman_predictor(F: np.ndarray, C: np.ndarray, Q: np.ndarray, R: np.ndarray)
     A singular ``R`` (noise-free measurements) or a singular ``Q`` (e.g. no
     process noise) is regularised first with :func:`regularise`: ``1e-9
     max(1, |.|_2) I`` is added, so the predictor is the limit of small noise.
+
+    Parameters
+    ----------
+    F : (n, n) array
+        The per-step transition matrix.
+    C : (p, n) array
+        The stacked output matrix (a 1-D array is one row).
+    Q, R : (n, n) array, (p, p) array
+        Covariances of the process noise ``v`` and the measurement noise ``w`` (singular allowed: regularised).
+
+    Returns
+    -------
+    KalmanPredictor
+        ``L``, ``P`` (of the regularised noise) and ``radius = rho(F - L C) < 1``.
 
     Raises
     ------
@@ -149,6 +189,29 @@ def shifted_predictor(F: np.ndarray, C: np.ndarray, Q: np.ndarray, R: np.ndarray
     ``P`` is the steady error covariance of this gain on the true model (:func:`steady_covariance`), not ``X``.
     ``alpha = 1`` is :func:`kalman_predictor` exactly.
 
+    Parameters
+    ----------
+    F : (n, n) array
+        The per-step transition matrix.
+    C : (p, n) array
+        The stacked output matrix (a 1-D array is one row).
+    Q, R : (n, n) array, (p, p) array
+        Covariances of the process noise ``v`` and the measurement noise ``w`` (singular allowed: regularised).
+    alpha : float
+        The shift in ``(0, 1]``: the rate per step the predictor's error must beat.
+
+    Returns
+    -------
+    KalmanPredictor
+        ``L``, ``P`` (:func:`steady_covariance` of ``L`` under ``Q``, ``R``) and ``radius = rho(F - L C) < alpha``.
+
+    Examples
+    --------
+    >>> F, one = np.array([[0.9]]), np.eye(1)
+    >>> kp = shifted_predictor(F, one, one, one, 0.3)
+    >>> kp.radius < 0.3, round(kp.rms, 3) >= round(kalman_predictor(F, one, one, one).rms, 3)
+    (True, True)
+
     Raises
     ------
     DesignError
@@ -173,14 +236,42 @@ def shifted_predictor(F: np.ndarray, C: np.ndarray, Q: np.ndarray, R: np.ndarray
 
 
 def steady_covariance(F: np.ndarray, C: np.ndarray, L: np.ndarray, Q: np.ndarray, R: np.ndarray) -> np.ndarray:
-    """Steady error covariance ``P = (F - L C) P (F - L C)' + Q + L R L'`` of the predictor with gain ``L``."""
+    """Steady error covariance ``P = (F - L C) P (F - L C)' + Q + L R L'`` of the predictor with gain ``L``.
+
+    Parameters
+    ----------
+    F, C : (n, n) array, (p, n) array
+        The per-step model.
+    L : (n, p) array
+        The predictor gain (``F - L C`` Schur, else the solution means nothing).
+    Q, R : (n, n) array, (p, p) array
+        The noise covariances (as given: not regularised).
+
+    Returns
+    -------
+    (n, n) array
+        ``P``, symmetrised.
+    """
     Ac = np.asarray(F) - L @ np.asarray(C)
     P = sla.solve_discrete_lyapunov(Ac, Q + L @ R @ L.T)
     return 0.5 * (P + P.T)
 
 
 def per_step_rate(sc: Scenario, rate: float) -> float:
-    """The rate per event time: ``lam`` (discrete) or ``exp(-lam dt)`` (continuous, one event time per ``run.dt``)."""
+    """The rate per event time: ``lam`` (discrete) or ``exp(-lam dt)`` (continuous, one event time per ``run.dt``).
+
+    Parameters
+    ----------
+    sc : Scenario
+        Its ``time`` and ``run.dt``.
+    rate : float
+        ``lam``, per event time (discrete) or per unit time (continuous).
+
+    Returns
+    -------
+    float
+        The factor the error must shrink by per event time.
+    """
     return rate if sc.time == "discrete" else math.exp(-rate * sc.run.dt)
 
 
@@ -188,7 +279,29 @@ def references(sc: Scenario, rate: float) -> tuple:
     """``(kf, ref)``: the two references of an estimator of ``sc`` under noise, on the per-step model the plant follows
     (:func:`~splitspec_core.model.plant.sampled_model`): the Kalman predictor (the bound no estimator beats at steady
     state) and the best centralized estimator certified at ``rate`` of this family, the Riccati design shifted by
-    the rate per step (or the Kalman predictor itself when it is faster); either None when it does not exist."""
+    the rate per step (or the Kalman predictor itself when it is faster); either None when it does not exist.
+
+    Parameters
+    ----------
+    sc : Scenario
+        The scenario (its system, noise, agents' outputs stacked).
+    rate : float
+        ``lam`` (:func:`per_step_rate` turns it into the rate per step).
+
+    Returns
+    -------
+    tuple of (KalmanPredictor or None, KalmanPredictor or None)
+        ``(kf, ref)``; ``ref is kf`` when ``kf.radius`` is already below the rate per step.
+
+    Examples
+    --------
+    >>> import splitspec_core as ss
+    >>> sc = ss.scenario(A=[[0.9, 0.2], [0, 0.8]], C={1: [[1, 0]], 2: [[0, 1]]}, graphs={"a": [(1, 2), (2, 1)]},
+    ...                  rate=0.5, process_noise=0.1, measurement_noise=0.1)
+    >>> kf, ref = references(sc, 0.5)
+    >>> round(kf.rms, 3) <= round(ref.rms, 3), ref.radius < 0.5
+    (True, True)
+    """
     F, Q, R = sampled_model(sc)
     C = np.vstack([np.asarray(Ci, dtype=float) for Ci in sc.system.Cs])
     lam = per_step_rate(sc, rate)

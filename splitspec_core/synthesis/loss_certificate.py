@@ -93,7 +93,31 @@ def _realized_S(base, lost: set, ids, weights: str) -> np.ndarray:
 
 @cached_analysis  # once per design, on first use (the realized graphs' two-norms)
 def loss_certificate(des: Design) -> LossCertificate | None:
-    """The certificate under loss of a design whose scenario has ``network:`` impairments or partitions (else None)."""
+    """The certificate under loss of a design whose scenario has ``network:`` impairments or partitions (else None).
+
+    Computed once per design (:func:`~splitspec_core.synthesis.design_data.cached_analysis`).
+
+    Parameters
+    ----------
+    des : Design
+        The design; its scenario's ``network:`` and ``faults:`` (partitions) decide what is checked.
+
+    Returns
+    -------
+    LossCertificate or None
+        ``certified`` and the one-line ``text`` saying why (module docstring), with ``max_lost`` (``L``), ``beta``,
+        ``bound``, ``q_needed``, ``p_more``, ``graphs`` where computed; None without impairments or partitions.
+
+    Examples
+    --------
+    >>> import splitspec_core as ss
+    >>> from splitspec_core.synthesis.designer import design
+    >>> lc = loss_certificate(design(ss.load_scenario("examples/ring10_lossy.yaml")))
+    >>> lc.certified, lc.max_lost, lc.q_needed, lc.graphs
+    (False, 1, 6, 25)
+    >>> loss_certificate(design(ss.load_scenario("examples/ring10.yaml"))) is None
+    True
+    """
     sc = des.scenario
     net = sc.network
     partitions = [f for f in sc.faults if f.action == "partition"]

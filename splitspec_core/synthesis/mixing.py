@@ -34,7 +34,30 @@ __all__ = ["mixing_bound", "dwell_bound", "same_agents", "certify"]
 def mixing_bound(Fs, Ss, q: int, lam: float) -> float:
     """The decay rate the mixing bound certifies for the whole-state error under arbitrary switching among the doubly
     stochastic ``Ss`` (module docstring); ``inf`` when the average's own map ``Fbar`` does not decay faster than
-    ``lam`` or a weight matrix is not doubly stochastic."""
+    ``lam`` or a weight matrix is not doubly stochastic.
+
+    Parameters
+    ----------
+    Fs : sequence of (n, n) arrays
+        Every agent's error map ``F_i`` of one event time (update only).
+    Ss : iterable of (m, m) arrays
+        The consensus weight matrices switched among (a sequence: read twice).
+    q : int
+        Averaging rounds per event time.
+    lam : float
+        The rate per event time asked.
+
+    Returns
+    -------
+    float
+        ``rho(G)``, the best over a few Lyapunov functions of ``Fbar``; certified when below ``lam``.
+
+    Examples
+    --------
+    >>> Fs, S = [np.array([[0.5]]), np.array([[0.3]])], np.full((2, 2), 0.5)
+    >>> round(mixing_bound(Fs, [S], 1, 0.6), 3), mixing_bound(Fs, [np.array([[1.0, 0.0], [1.0, 0.0]])], 1, 0.6)
+    (0.4, inf)
+    """
     if not all(is_doubly_stochastic(np.asarray(S)) for S in Ss):
         return math.inf
     m, n = len(Fs), Fs[0].shape[0]
@@ -66,7 +89,23 @@ def mixing_bound(Fs, Ss, q: int, lam: float) -> float:
 
 def dwell_bound(Ms, lam: float, dwell_steps: float) -> float:
     """The rate certified under switching with average dwell ``dwell_steps`` event times among the constant-graph
-    maps ``Ms``: ``min_r r c(r)^(1 / tau_D)``, ``c(r) = max sup_k |M^k|_2 / r^k`` (:func:`transient_constant`)."""
+    maps ``Ms``: ``min_r r c(r)^(1 / tau_D)``, ``c(r) = max sup_k |M^k|_2 / r^k`` (:func:`transient_constant`).
+
+    Parameters
+    ----------
+    Ms : sequence of square arrays
+        The full error maps of one event time, one per graph held constant.
+    lam : float
+        The rate per event time asked (``r`` is tried between the largest spectral radius and it).
+    dwell_steps : float
+        The average dwell ``tau_D`` in event times.
+
+    Returns
+    -------
+    float
+        The certified rate; ``inf`` when some map does not decay faster than ``lam``, ``dwell_steps`` is not
+        positive, or no transient constant is finite.
+    """
     rho = max(spectral_radius(M) for M in Ms)
     if rho >= lam or not dwell_steps or dwell_steps <= 0:
         return math.inf
@@ -81,7 +120,18 @@ def dwell_bound(Ms, lam: float, dwell_steps: float) -> float:
 
 
 def same_agents(cases) -> dict:
-    """``{agent ids: [S of each case over exactly them]}``: the graphs the mixing bound takes together."""
+    """``{agent ids: [S of each case over exactly them]}``: the graphs the mixing bound takes together.
+
+    Parameters
+    ----------
+    cases : iterable of bounds.Case
+        The design's cases.
+
+    Returns
+    -------
+    dict
+        ``{tuple of agent ids: list of (m, m) arrays}``, in the cases' order.
+    """
     out: dict = {}
     for c in cases:
         out.setdefault(tuple(c.graph.ids), []).append(c.graph.S)
@@ -90,7 +140,33 @@ def same_agents(cases) -> dict:
 
 def certify(sc: Scenario, by_id: dict, cases, q: int, lam: float, dwell: float | None, warnings: list) -> tuple:
     """``(radii, (method, bound, certified, switching))`` at ``q``: the full error matrices held constant, and for
-    switching (or beyond :data:`MAX_RATE_DIM`) the mixing bound or the dwell-time bound."""
+    switching (or beyond :data:`MAX_RATE_DIM`) the mixing bound or the dwell-time bound.
+
+    Parameters
+    ----------
+    sc : Scenario
+        The scenario (its ``time``, ``run.dt``, size).
+    by_id : dict
+        ``{agent id: F_i}`` with a method ``of(sc, case, q)`` giving a case's full-matrix radius, computed once
+        (the whole-state designer's ``_Radii``).
+    cases : sequence of bounds.Case
+        The cases the design covers.
+    q : int
+        Averaging rounds per event time.
+    lam : float
+        The rate per event time asked.
+    dwell : float or None
+        The average dwell time (scenario time units), or None.
+    warnings : list of str
+        Appended to when only the graphs held constant are certified under switching.
+
+    Returns
+    -------
+    tuple
+        ``(radii, (method, bound, certified, switching))``: ``{case label: radius}`` (empty above
+        ``MAX_RATE_DIM``), the method that decided (``full error matrix``, ``mixing bound`` or ``dwell-time bound``),
+        its bound, whether it meets ``lam``, and whether it holds under switching.
+    """
     # each case held constant (by_id.of: the design's radii, each computed once), up to MAX_RATE_DIM
     radii = {c.label: by_id.of(sc, c, q) for c in cases} if sc.m * sc.n <= MAX_RATE_DIM else {}
     groups = same_agents(cases)

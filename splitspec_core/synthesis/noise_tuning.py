@@ -55,9 +55,40 @@ def tune(sc: Scenario, *, extra: int = 6, ratios=(1e-2, 1e-1, 1.0, 1e1, 1e2)) ->
     ``(r * sigma_p^2, sigma_m^2)`` for each ratio ``r`` (the Kalman choice is
     ``r = 1``; ``sigma_p``, ``sigma_m`` the noise levels of
     :func:`splitspec_core.model.local_design.riccati_weights`); discrete: ``q`` from the certified one to ``q + extra``;
-    continuous: ``g`` from the certified one to ``3 g`` (7 values).  The
+    continuous: ``g`` from the certified one to ``3 g`` (6 values).  The
     baseline is the scenario's own design.  The covariance is that of the
     first graph held constant (a switching scenario is tuned for it).
+
+    Parameters
+    ----------
+    sc : Scenario
+        A scenario with process or measurement noise (the split consensus is tuned).
+    extra : int
+        Discrete time: how many q above each gain design's certified q are tried.
+    ratios : iterable of float
+        The process/measurement weight ratios ``r`` of the ``riccati`` candidates.
+
+    Returns
+    -------
+    TuneResult
+        The certified candidate of smallest RMS (its scenario and design, and that RMS), the baseline's RMS, and
+        every candidate tried (a candidate whose design fails is left out).
+
+    Raises
+    ------
+    DesignError
+        The scenario has no noise, its g is adaptive, or no candidate meets the rate.
+
+    Examples
+    --------
+    >>> import splitspec_core as ss
+    >>> sc = ss.scenario(A=[[0, 1, 0, 0], [-1, 0, 0, 0], [0, 0, 0, 1], [0, 0, -2, 0]],
+    ...                  C={1: [[1, 0, 0, 0]], 2: [[0, 1, 0, 0]], 3: [[0, 0, 1, 0]]},
+    ...                  graphs={"a": [(1, 2), (2, 1), (2, 3), (3, 2), (1, 3)]}, rate=0.5, gains="place",
+    ...                  process_noise=0.01, measurement_noise=0.1)
+    >>> r = tune(sc, extra=2, ratios=(1.0,))
+    >>> len(r.candidates), r.scenario.design.gains, r.rms < r.baseline_rms
+    (6, 'riccati', True)
     """
     s = sc.system
     if not s.has_noise:

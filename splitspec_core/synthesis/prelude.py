@@ -44,6 +44,36 @@ class Prelude:
 
     @classmethod
     def of(cls, sc: Scenario) -> "Prelude":
+        """Compute the shared part of ``sc``'s design.
+
+        Parameters
+        ----------
+        sc : Scenario
+            The scenario to design.
+
+        Returns
+        -------
+        Prelude
+            Every agent's decomposition, what no agent sees (``un``), the graphs, the cases (each graph used; with
+            ``design.graph_set: all`` every strongly connected graph; with ``design.resilience: 1`` each graph
+            without each agent) and the agent and arc losses analysed.
+
+        Raises
+        ------
+        AssumptionError
+            What no agent sees does not decay (unless ``design.undetectable: exclude``); with
+            ``design.resilience: 1``, a single agent loss leaves the network undetectable or a graph not strongly
+            connected.
+
+        Examples
+        --------
+        >>> import splitspec_core as ss
+        >>> sc = ss.scenario(A=[[0.9, 0.2], [0, 0.8]], C={1: [[1, 0]], 2: [[0, 1]]}, graphs={"a": [(1, 2), (2, 1)]},
+        ...                  rate=0.5, resilience=1)
+        >>> p = Prelude.of(sc)  # agent 2 misses x1; without agent 1 nobody sees x1 (W_S), which decays
+        >>> [(c.label, c.sizes) for c in p.cases], p.un.dim
+        ([('a', (0, 1)), ('a without agent 1', (0,)), ('a without agent 2', (0,))], 0)
+        """
         d = sc.design
         A = sc.system.A
         sp = scenario_spectrum(sc)

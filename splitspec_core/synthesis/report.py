@@ -135,7 +135,31 @@ def _loss_json(des: Design) -> dict | None:
 
 
 def design_json(des: Design) -> dict:
-    """The ``splitspec design --json`` object (contract in ``../shared/DESIGN.md``)."""
+    """The ``splitspec design --json`` object (contract in ``../shared/DESIGN.md``).
+
+    Parameters
+    ----------
+    des : Design
+        The design.
+
+    Returns
+    -------
+    dict
+        JSON-ready (lists, floats, None for non-finite numbers): the scenario's shape, every agent's matrices and
+        figures, the graphs, checks, conditioning, warnings, advice, the verdict, and the g (continuous split) or
+        q fields.
+
+    Examples
+    --------
+    >>> import splitspec_core as ss
+    >>> from splitspec_core.synthesis.designer import design
+    >>> des = design(ss.scenario(A=[[0, 1, 0, 0], [-1, 0, 0, 0], [0, 0, 0, 1], [0, 0, -2, 0]],
+    ...                          C={1: [[1, 0, 0, 0]], 2: [[0, 1, 0, 0]], 3: [[0, 0, 1, 0]]},
+    ...                          graphs={"a": [(1, 2), (2, 1), (2, 3), (3, 2), (1, 3)]}, rate=0.5, gains="place"))
+    >>> j = design_json(des)
+    >>> j["q"], j["q_method"], j["certified_rate"], len(j["agents"])
+    (6, 'spectral', True, 3)
+    """
     sc = des.scenario
     cond = {a.id: a for a in conditioning(des).agents}
     out = {
@@ -236,7 +260,19 @@ def design_json(des: Design) -> dict:
 @cached_analysis
 def fastest_rate(des: Design):
     """A design whose rate is not certified (the adaptive gain aside): the fastest rate its keys certify
-    (:func:`~splitspec_core.synthesis.designer.highest_rate`, a bisection of a few designs), else None."""
+    (:func:`~splitspec_core.synthesis.designer.highest_rate`, a bisection of a few designs), else None.
+
+    Parameters
+    ----------
+    des : Design
+        The design (computed once per design).
+
+    Returns
+    -------
+    RateReach or None
+        The bisection's certified and refused rates and its line; None when the rate is certified, for the adaptive
+        gain, or when even a rate far slower is refused.
+    """
     if des.adaptive or rate_certificate(des).certified:
         return None
     return highest_rate(des.scenario)
@@ -244,14 +280,36 @@ def fastest_rate(des: Design):
 
 def continuous_rate(sc) -> float | None:
     """A sampled continuous model's (``system.sample``) rate per second: ``lam^tau`` per step is
-    ``exp(-a t)`` with ``a = -ln(lam) / dt``; None for other scenarios."""
+    ``exp(-a t)`` with ``a = -ln(lam) / dt``; None for other scenarios.
+
+    Parameters
+    ----------
+    sc : Scenario
+        Its ``system.sample`` (seconds) and ``design.rate``.
+
+    Returns
+    -------
+    float or None
+        ``a`` in 1/s.
+    """
     if sc.system.sample is None:
         return None
     return -math.log(sc.design.rate) / sc.system.sample
 
 
 def model_lines(sc) -> list:
-    """The report's lines on a sampled model and on known inputs (none for a plain model)."""
+    """The report's lines on a sampled model and on known inputs (none for a plain model).
+
+    Parameters
+    ----------
+    sc : Scenario
+        Its ``system.sample``, ``system.B`` and ``system.u``.
+
+    Returns
+    -------
+    list of str
+        Indented lines, empty for a plain model.
+    """
     out = []
     if sc.system.sample is not None:
         a = continuous_rate(sc)
@@ -266,7 +324,32 @@ def model_lines(sc) -> list:
 
 
 def design_text(des: Design) -> str:
-    """A readable multi-line report of a design."""
+    """A readable multi-line report of a design.
+
+    Parameters
+    ----------
+    des : Design
+        The design.
+
+    Returns
+    -------
+    str
+        What ``splitspec design`` prints: the agents, graphs, checks, cases, g or q, the verdict, the errors' size,
+        warnings and advice.
+
+    Examples
+    --------
+    >>> import splitspec_core as ss
+    >>> from splitspec_core.synthesis.designer import design
+    >>> des = design(ss.scenario(A=[[0, 1, 0, 0], [-1, 0, 0, 0], [0, 0, 0, 1], [0, 0, -2, 0]],
+    ...                          C={1: [[1, 0, 0, 0]], 2: [[0, 1, 0, 0]], 3: [[0, 0, 1, 0]]},
+    ...                          graphs={"a": [(1, 2), (2, 1), (2, 3), (3, 2), (1, 3)]}, rate=0.5, gains="place"))
+    >>> text = design_text(des)
+    >>> print(text.splitlines()[0])
+    splitspec design: scenario  (discrete time, m = 3 agents, n = 4 states)
+    >>> [line for line in text.splitlines() if line.startswith("rate ")]
+    ['rate certified: q = 6: spectral bound 0.4736 <= rate 0.5']
+    """
     sc = des.scenario
     d = sc.design
     unit = "exp(-lam t)" if sc.time == "continuous" else "lam^tau"
@@ -379,7 +462,18 @@ def design_text(des: Design) -> str:
 
 def design_warnings(des: Design) -> list:
     """Every warning of a design, each once: the design's own and its conditioning's (what ``splitspec design``
-    prints, ``--json`` lists and ``ss.design(...).checks.warnings`` holds)."""
+    prints, ``--json`` lists and ``ss.design(...).checks.warnings`` holds).
+
+    Parameters
+    ----------
+    des : Design
+        The design.
+
+    Returns
+    -------
+    list of str
+        One line each, the design's first, in order, without repeats.
+    """
     out = []
     for w in list(des.warnings) + list(conditioning(des).warnings):
         if w not in out:
@@ -417,7 +511,27 @@ def _size_lines(des: Design) -> list:
 
 
 def reference_text(rms: float, cond) -> str:
-    """`` = 1.09x the centralized Kalman filter's 0.236 (...)``: a predicted RMS against the two references."""
+    """`` = 1.09x the centralized Kalman filter's 0.236 (...)``: a predicted RMS against the two references.
+
+    Parameters
+    ----------
+    rms : float
+        A predicted steady-state RMS error.
+    cond : Conditioning
+        Its ``kalman_rms`` and ``reference_rms``.
+
+    Returns
+    -------
+    str
+        Starting with `` = ``; the reference is named only when it is above the Kalman filter's; empty without a
+        positive Kalman RMS.
+
+    Examples
+    --------
+    >>> from types import SimpleNamespace
+    >>> reference_text(0.3, SimpleNamespace(kalman_rms=0.25, reference_rms=0.28))
+    " = 1.2x the centralized Kalman filter's 0.25, 1.07x the best centralized estimator certified at the rate (0.28)"
+    """
     kf, ref = cond.kalman_rms, cond.reference_rms
     if kf is None or not kf > 0:
         return ""
@@ -428,7 +542,20 @@ def reference_text(rms: float, cond) -> str:
 
 
 def agent_lines(des: Design, cond) -> list:
-    """Per agent: what it corrects locally and what it takes from its neighbours, named by their largest states."""
+    """Per agent: what it corrects locally and what it takes from its neighbours, named by their largest states.
+
+    Parameters
+    ----------
+    des : Design
+        The design (split or whole-state).
+    cond : Conditioning
+        Its conditioning (the agents' gain norms and margins).
+
+    Returns
+    -------
+    list of str
+        A heading of two or three lines, then one line per agent.
+    """
     sc = des.scenario
     names = sc.state_names
     if des.consensus == "whole":
@@ -455,7 +582,27 @@ def agent_lines(des: Design, cond) -> list:
 
 
 def radius_lines(radii: dict, what: str, fmt: str) -> list:
-    """One line per case, the largest first, at most :data:`MAX_LISTED` (the rest counted): ``  label: what = r``."""
+    """One line per case, the largest first, at most :data:`MAX_LISTED` (the rest counted): ``  label: what = r``.
+
+    Parameters
+    ----------
+    radii : dict
+        ``{case label: radius}``.
+    what : str
+        The quantity's name in each line.
+    fmt : str
+        The format spec of the radii (``.4g``).
+
+    Returns
+    -------
+    list of str
+        Indented lines; the last counts the cases not listed.
+
+    Examples
+    --------
+    >>> radius_lines({"a": 0.5, "b": 0.7}, "rho", ".2f")
+    ['  b: rho = 0.70', '  a: rho = 0.50']
+    """
     ordered = sorted(radii.items(), key=lambda kv: -kv[1])
     shown = ordered if len(ordered) <= MAX_LISTED else ordered[:MAX_LISTED - 1]
     out = [f"  {label}: {what} = {rad:{fmt}}" for label, rad in shown]
@@ -465,7 +612,19 @@ def radius_lines(radii: dict, what: str, fmt: str) -> list:
 
 
 def whole_lines(des: Design) -> list:
-    """The whole-state design's q, its certificate per case, and the centralized filter it spreads."""
+    """The whole-state design's q, its certificate per case, and the centralized filter it spreads.
+
+    Parameters
+    ----------
+    des : Design
+        A whole-state design (``des.consensus == "whole"``).
+
+    Returns
+    -------
+    list of str
+        The q line, one line per case (:func:`radius_lines`) and, unless the gains were given, the centralized
+        filter's line.
+    """
     sc = des.scenario
     r, w = des.q_result, des.whole
     per = "event time" if sc.time == "discrete" else f"run.dt = {sc.run.dt:g}"

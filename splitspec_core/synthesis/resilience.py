@@ -43,6 +43,7 @@ class LossReport:
 
     @property
     def jointly_observable(self) -> bool:
+        """The survivors observe the whole state: nothing is left unobserved (bool)."""
         return self.unobserved.dim == 0
 
     @property
@@ -57,6 +58,8 @@ class LossReport:
 
     @property
     def ok(self) -> bool:
+        """The loss is survivable (bool): what the survivors leave unobserved decays and every graph restricted to
+        them is strongly connected."""
         return self.detectable and all(self.strongly_connected.values())
 
 
@@ -68,7 +71,27 @@ def network_verdict(unobserved_of: Callable, alive, graphs: dict, *, connected: 
     :meth:`~splitspec_core.synthesis.design_data.Design.unobserved_of`), unless ``unobserved`` gives it already.
     ``graphs`` maps a name to its arcs ``(j, i)`` between agent ids.  ``connected``: ``{name: bool}`` already
     known (:func:`analyse_agent_losses` decides it for every loss at once); a pair that cannot reach is then
-    searched only for a graph that splits."""
+    searched only for a graph that splits.
+
+    Parameters
+    ----------
+    unobserved_of : callable
+        ``alive -> Unobserved``; not called when ``unobserved`` is given.
+    alive : iterable of int
+        The surviving agents' ids.
+    graphs : dict
+        ``{graph name: arcs (j, i)}`` (arcs to or from lost agents are ignored).
+    connected : dict, optional
+        ``{graph name: bool}``, strong connectivity already decided.
+    unobserved : Unobserved, optional
+        What ``alive`` leaves unobserved, already computed.
+
+    Returns
+    -------
+    LossReport
+        Per graph whether it stays strongly connected (False when nobody is alive) and, when not, a pair that
+        cannot reach; what the survivors leave unobserved.
+    """
     alive = tuple(sorted(alive))
     sc, unreach = {}, {}
     for name, arcs in graphs.items():
@@ -99,7 +122,33 @@ def analyse_agent_losses(unobserved_of: UnobservedOf, ids, graphs: dict) -> dict
     connected components (the survivors are strongly connected iff the graph with the lost agent's arcs removed
     has 2 components, the lost agent alone and the rest), and what each survivor set leaves unobserved by
     :meth:`UnobservedOf.without_each` (O(m) factorizations for all m losses, not m intersections of m - 1
-    subspaces each)."""
+    subspaces each).
+
+    Parameters
+    ----------
+    unobserved_of : UnobservedOf
+        What a set of the scenario's agents leaves unobserved (its ``without_each`` gives every single loss).
+    ids : iterable of int
+        Every agent's id.
+    graphs : dict
+        ``{graph name: arcs (j, i)}``.
+
+    Returns
+    -------
+    dict
+        ``{lost agent id: LossReport}``, in the order of the sorted ids.
+
+    Examples
+    --------
+    >>> import splitspec_core as ss
+    >>> from splitspec_core.synthesis.designer import design
+    >>> des = design(ss.scenario(A=[[0, 1, 0, 0], [-1, 0, 0, 0], [0, 0, 0, 1], [0, 0, -2, 0]],
+    ...                          C={1: [[1, 0, 0, 0]], 2: [[0, 1, 0, 0]], 3: [[0, 0, 1, 0]]},
+    ...                          graphs={"a": [(1, 2), (2, 1), (2, 3), (3, 2), (1, 3)]}, rate=0.5, gains="place"))
+    >>> losses = des.agent_losses  # this function's result, computed by the design
+    >>> losses[2].strongly_connected, losses[2].unreachable, losses[3].detectable
+    ({'a': False}, {'a': (3, 1)}, False)
+    """
     ids = tuple(sorted(ids))
     m = len(ids)
     arrays = {name: arc_positions(ids, arcs) for name, arcs in graphs.items()}
@@ -115,7 +164,25 @@ def analyse_agent_losses(unobserved_of: UnobservedOf, ids, graphs: dict) -> dict
 
 def analyse_arc_losses(ids, graphs: dict) -> dict:
     """``{graph name: {(j, i): still strongly connected}}`` for every single arc loss (strongly connected
-    components of the graph without that arc, scipy's compiled search: O(arcs (m + arcs)) compiled steps)."""
+    components of the graph without that arc, scipy's compiled search: O(arcs (m + arcs)) compiled steps).
+
+    Parameters
+    ----------
+    ids : sequence of int
+        Every agent's id.
+    graphs : dict
+        ``{graph name: arcs (j, i)}``.
+
+    Returns
+    -------
+    dict
+        ``{graph name: {(j, i): bool}}``, False for an arc whose loss breaks strong connectivity.
+
+    Examples
+    --------
+    >>> analyse_arc_losses((1, 2, 3), {"a": [(1, 2), (2, 3), (3, 1), (2, 1)]})
+    {'a': {(1, 2): False, (2, 3): False, (3, 1): False, (2, 1): True}}
+    """
     m = len(ids)
     out = {}
     for name, arcs in graphs.items():

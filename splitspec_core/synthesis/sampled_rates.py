@@ -28,6 +28,35 @@ def sampled_rates(sc: Scenario, agents, cases, g: float, *, dt: float | None = N
     Observable parts: ``Q_i (E + D K_i C_i) Q_i'``; unobservable part:
     :func:`bounds.sampled_decay`.  Both are exact for the discretisation used
     by ``simulate`` and ``run`` (see :mod:`splitspec_core.model.steps`).
+
+    Parameters
+    ----------
+    sc : Scenario
+        The continuous-time scenario.
+    agents : sequence of AgentDesign
+        The agents' designs (their ``dec``, ``gain`` and working ``scale``).
+    cases : iterable of bounds.Case
+        The cases to check.
+    g : float
+        The consensus gain.
+    dt : float, optional
+        The sampling period (default ``run.dt``).
+
+    Returns
+    -------
+    dict
+        ``{case label: decay rate}`` (1/time): the slowest of the observable parts and the case's unobservable
+        part; negative when the sampled-data form is unstable.
+
+    Examples
+    --------
+    >>> import splitspec_core as ss
+    >>> from splitspec_core.synthesis.designer import design
+    >>> des = design(ss.load_scenario("examples/paper_continuous.yaml"))
+    >>> des.g, des.rate, round(sampled_rates(des.scenario, des.agents, des.cases, des.g)["a"], 3)
+    (10.0, 1.0, 1.681)
+    >>> round(sampled_rates(des.scenario, des.agents, des.cases, des.g, dt=1.0)["a"], 3)  # run.dt far too large
+    -2.134
     """
     dt = sc.run.dt if dt is None else dt
     # in the design's working coordinates (the agents' scale: design.coordinates), where Q_i, K_i and V_i live
@@ -56,7 +85,24 @@ def exact_g(cases, rate: float, margin: float, g_mins: dict) -> float | None:
     """The smallest two-digit g whose exact spectrum beats the rate by ``design.margin`` on every case (abscissa of
     A_V(g) at most ``-(1 + margin) lam``, eq. split_continuous_split, each graph held constant; the margin, as the
     local gains', keeps the decay clear of the rate: a g at the rate's edge leaves a transient that takes the sampled
-    form millions of steps to outlive), or at least the rate when no g gives that margin; None when none does."""
+    form millions of steps to outlive), or at least the rate when no g gives that margin; None when none does.
+
+    Parameters
+    ----------
+    cases : iterable of bounds.Case
+        The cases (graphs held constant).
+    rate : float
+        ``lam``.
+    margin : float
+        ``design.margin``.
+    g_mins : dict
+        ``{case label: g_min}``, the bisection's start per case.
+
+    Returns
+    -------
+    float or None
+        A :func:`~splitspec_core.synthesis.bounds.nice_ceil` value of g.
+    """
     for target in ((1.0 + margin) * rate, rate):
         try:
             need = max(bounds.g_min(c, target, g_hi=max(g_mins[c.label], 1e-9)) for c in cases)
@@ -74,7 +120,29 @@ def sampled_g(sc: Scenario, agents, cases, kw: dict, switching: bool, warnings: 
     """The sampled-data form at ``run.dt`` (what ``simulate`` and ``run`` integrate): its decay per case; an automatic g
     for a constant graph whose eq. (g) value leaves it short of the rate is replaced by the exact spectrum's (eq.
     (g) is sufficient, and on stiff models far above what the rate needs: 11000 against an exact 137 on a power
-    system, and g dt >> 1 is unstable); still short, the warning says which run.dt would meet it."""
+    system, and g dt >> 1 is unstable); still short, the warning says which run.dt would meet it.
+
+    Parameters
+    ----------
+    sc : Scenario
+        The continuous-time scenario.
+    agents : sequence of AgentDesign
+        The agents' designs.
+    cases : iterable of bounds.Case
+        The cases the design covers.
+    kw : dict
+        The g design's fields so far (``g``, ``g_mins``, ``g_certified_by``, ``error_radius``, ...).
+    switching : bool
+        The scenario switches graphs (then g is never replaced).
+    warnings : list of str
+        Appended to (the replaced g; a sampled-data form that misses the rate).
+
+    Returns
+    -------
+    dict
+        ``kw`` with ``sampled_rate`` (``{case label: decay rate}``) and, when g was replaced, the new ``g``,
+        ``g_certified_by`` and ``error_radius``.
+    """
     d = sc.design
     g = kw["g"]
     out = sampled_rates(sc, agents, cases, g)

@@ -58,6 +58,30 @@ class Radius:
 
 
 def use_iterative(nbar: int, method: str = "auto") -> bool:
+    """Whether ``method`` takes the iterative (ARPACK) path for a case of ``nbar`` unknowns.
+
+    Parameters
+    ----------
+    nbar : int
+        The case's size, ``sum n_i``.
+    method : {"auto", "dense", "iterative"}
+        ``auto``: iterative above :data:`DENSE_MAX`.
+
+    Returns
+    -------
+    bool
+        True: ARPACK first (with the dense fallbacks); False: dense.
+
+    Raises
+    ------
+    ValueError
+        An unknown ``method``.
+
+    Examples
+    --------
+    >>> use_iterative(10), use_iterative(400), use_iterative(10, "iterative"), use_iterative(400, "dense")
+    (False, True, True, False)
+    """
     if method not in METHODS:
         raise ValueError(f"eigenvalue method must be one of {METHODS}, got {method!r}")
     return method == "iterative" or (method == "auto" and nbar > DENSE_MAX)
@@ -106,7 +130,18 @@ def _sparse_factors(case):
 
 
 def spectral_radius(M: np.ndarray) -> float:
-    """The largest eigenvalue modulus of a formed matrix: every eigenvalue (``eigvals``)."""
+    """The largest eigenvalue modulus of a formed matrix: every eigenvalue (``eigvals``).
+
+    Parameters
+    ----------
+    M : (k, k) array
+        The matrix.
+
+    Returns
+    -------
+    float
+        ``max |eig(M)|``; 0 for an empty matrix.
+    """
     return float(np.max(np.abs(np.linalg.eigvals(M)))) if M.size else 0.0
 
 
@@ -145,9 +180,42 @@ def _warm_start(case, warm, N: int):
 
 def radius(case, q: int, *, rate: float | None = None, warm=None, vectors: dict | None = None) -> Radius:
     """``rho(Atil B^q)`` of ``case`` by ARPACK on the operator ``x -> Atil B^q x``, densely when ARPACK does not
-    converge or (with ``rate``) lands within ``DECIDE`` of it (see the module docstring).  ``warm``: start from
-    another case's eigenvectors (:func:`_warm_start`); ``vectors``: a dict that receives this case's, ``{q:
-    (ids, sizes, right, left)}``, for the next."""
+    converge or (with ``rate``) lands within ``max(DECIDE, its accuracy)`` of it (see the module docstring).
+    ``warm``: start from another case's eigenvectors (:func:`_warm_start`); ``vectors``: a dict that receives this
+    case's, ``{q: (ids, sizes, right, left)}``, for the next.
+
+    Parameters
+    ----------
+    case : bounds.Case
+        One agent set and graph (``nbar <= 3``: dense at once).
+    q : int
+        Consensus exchanges per event time (at least 1).
+    rate : float, optional
+        The rate the radius will be compared with; None: no comparison, no fallback for closeness.
+    warm : tuple, optional
+        ``(ids, sizes, right, left)`` of another case at this q.
+    vectors : dict, optional
+        Receives ``vectors[q] = (ids, sizes, right, left)`` of this case.
+
+    Returns
+    -------
+    Radius
+        The value, ``iterative`` with its claimed relative accuracy, or ``dense``/``dense (fallback: why)`` with 0.
+
+    Examples
+    --------
+    >>> from splitspec_core.model.graphs import build_graph
+    >>> from splitspec_core.synthesis.bounds import make_case
+    >>> ids = tuple(range(1, 7))
+    >>> ring = build_graph("ring", ids, [(i, i % 6 + 1) for i in ids] + [(i % 6 + 1, i) for i in ids])
+    >>> Vs = [np.array([[np.cos(t)], [np.sin(t)]]) for t in np.linspace(0, 2.5, 6)]
+    >>> case = make_case("ring", ring, Vs, [np.array([[1.1]])] * 6)
+    >>> r = radius(case, 3)
+    >>> r.method, round(r.value, 6), round(spectral_radius(case.Atil @ np.linalg.matrix_power(case.B, 3)), 6)
+    ('iterative', 0.65473, 0.65473)
+    >>> radius(case, 3, rate=0.65).method  # doctest: +ELLIPSIS
+    "dense (fallback: ARPACK's 0.65473... within 0.01 of the rate)"
+    """
     from scipy.sparse.linalg import ArpackError, ArpackNoConvergence, LinearOperator, eigs
 
     N = case.nbar
@@ -215,7 +283,26 @@ def _radius_of(state, k: int) -> Radius:
 def radii(cases, q: int, *, rate: float | None = None, warm=None, workers: int | None = None) -> list:
     """:func:`radius` of every case at ``q`` (all started from ``warm``), on ``workers`` processes
     (:func:`splitspec_core.parallel.fork_map`; ``None``: every core this process may use): the loss cases of a
-    resilient design are independent.  The values of the serial loop, in the order of ``cases``."""
+    resilient design are independent.  The values of the serial loop, in the order of ``cases``.
+
+    Parameters
+    ----------
+    cases : iterable of bounds.Case
+        The cases.
+    q : int
+        Consensus exchanges per event time.
+    rate : float, optional
+        As in :func:`radius`.
+    warm : tuple, optional
+        Every case's start (:func:`radius`).
+    workers : int, optional
+        Processes (None: every core this process may use).
+
+    Returns
+    -------
+    list of Radius
+        One per case, in order.
+    """
     from ..parallel import fork_map
 
     return fork_map(_radius_of, (tuple(cases), q, rate, warm), range(len(cases)), workers=workers)
@@ -223,7 +310,23 @@ def radii(cases, q: int, *, rate: float | None = None, warm=None, workers: int |
 
 def summary(hows) -> dict:
     """What a set of :class:`Radius` used: ``{"methods": {method: count}, "tolerance": the largest tol, "decide":
-    DECIDE}`` (tolerance 0: every radius dense)."""
+    DECIDE}`` (tolerance and decide 0: every radius dense).
+
+    Parameters
+    ----------
+    hows : iterable of Radius or None
+        How each radius was computed (None skipped).
+
+    Returns
+    -------
+    dict
+        Every ``dense (fallback: ...)`` counted as ``dense (fallback)``.
+
+    Examples
+    --------
+    >>> summary([Radius(0.5, "dense", 0.0), Radius(0.4, "iterative", 1e-6), None])
+    {'methods': {'dense': 1, 'iterative': 1}, 'tolerance': 1e-06, 'decide': 0.01}
+    """
     methods: dict = {}
     tol = 0.0
     for h in hows:

@@ -57,7 +57,26 @@ class RateCertificate:
 
 def q_text(q: int, r: bounds.QResult, rate: float, cases: int, *, held: str = "each") -> str:
     """``q = ...: <method> bound ... <= rate ...``: the line of q's certificate (``r``) over ``cases`` cases; a
-    per-graph method on more than one says so (``held``: ``each`` in the design's report, ``per`` at runtime)."""
+    per-graph method on more than one says so (``held``: ``each`` in the design's report, ``per`` at runtime).
+
+    Parameters
+    ----------
+    q : int
+        The q the line names.
+    r : bounds.QResult
+        Its certificate (method, bound, certified, switching).
+    rate : float
+        ``lam``.
+    cases : int
+        How many cases the certificate covers.
+    held : str
+        The word before "graph held constant".
+
+    Returns
+    -------
+    str
+        One line.
+    """
     ok = bool(r.certified)
     return (f"q = {q}: {r.method} bound {r.bound:.4g} {'<=' if ok else '>'} rate {rate:g}"
             + ("" if r.switching or cases == 1 else f" ({held} graph held constant)"))
@@ -65,7 +84,27 @@ def q_text(q: int, r: bounds.QResult, rate: float, cases: int, *, held: str = "e
 
 def sampled_shortfall(dt: float, worst: float, rate: float) -> str:
     """Why a g certified for the ODE is not for what runs: its sampled-data form (:mod:`splitspec_core.model.steps`)
-    with step ``dt`` decays at only ``worst``."""
+    with step ``dt`` decays at only ``worst``.
+
+    Parameters
+    ----------
+    dt : float
+        ``run.dt``.
+    worst : float
+        The sampled-data form's slowest decay rate (<= 0: unstable).
+    rate : float
+        ``lam``.
+
+    Returns
+    -------
+    str
+        A clause (no capital, no full stop).
+
+    Examples
+    --------
+    >>> sampled_shortfall(0.01, 0.8, 1.0)
+    'its sampled-data form with run.dt = 0.01 decays at only 0.8 < rate 1'
+    """
     if worst <= 0:
         return f"its sampled-data form with run.dt = {dt:g} is UNSTABLE (decay rate {worst:.4g})"
     return f"its sampled-data form with run.dt = {dt:g} decays at only {worst:.4g} < rate {rate:g}"
@@ -75,7 +114,32 @@ def rate_certificate(des: Design, *, sampled: bool = True) -> RateCertificate:
     """Does the design certify its rate for the estimator as it is run?  :func:`_split_certificate`, then what the
     directions no agent sees do to it (``Design.unobserved``): nothing when they decay faster than ``lam``; they limit
     the envelope's rate when they decay slower (``Design.envelope_rate``); with ``design.undetectable: exclude`` the
-    certificate covers the error modulo them only.  Computed once per design (and ``sampled``)."""
+    certificate covers the error modulo them only.  Computed once per design (and ``sampled``).
+
+    Parameters
+    ----------
+    des : Design
+        The design.
+    sampled : bool
+        Continuous time: judge the sampled-data form with ``run.dt`` too (what runs); False: the ODE alone.
+
+    Returns
+    -------
+    RateCertificate
+        ``certified`` (False for the adaptive gain), its one line, and when certified the envelope's rate and
+        what certifies it.
+
+    Examples
+    --------
+    >>> import splitspec_core as ss
+    >>> from splitspec_core.synthesis.designer import design
+    >>> des = design(ss.scenario(A=[[0, 1, 0, 0], [-1, 0, 0, 0], [0, 0, 0, 1], [0, 0, -2, 0]],
+    ...                          C={1: [[1, 0, 0, 0]], 2: [[0, 1, 0, 0]], 3: [[0, 0, 1, 0]]},
+    ...                          graphs={"a": [(1, 2), (2, 1), (2, 3), (3, 2), (1, 3), (3, 1)]}, rate=0.5,
+    ...                          gains="place"))
+    >>> rate_certificate(des)
+    RateCertificate(certified=True, text='q = 3: spectral bound 0.419 <= rate 0.5', rate=0.5, by='spectral')
+    """
     return _rate_certificate(des, sampled=bool(sampled))
 
 
@@ -160,7 +224,26 @@ def _blocks_certificate(des: Design, *, sampled: bool) -> RateCertificate:
 def whole_text(q: int, r: bounds.QResult, des: Design, cases: int, *, held: str = "each") -> str:
     """The line of the whole-state design's certificate ``r`` at ``q`` over ``cases`` cases (:mod:`.whole_state`):
     what certifies it, its bound against the rate per event time (continuous time: per ``run.dt``, and the decay
-    rate per second it means), and its scope."""
+    rate per second it means), and its scope.
+
+    Parameters
+    ----------
+    q : int
+        The q the line names.
+    r : bounds.QResult
+        The certificate (``method``: ``full error matrix``, ``mixing bound`` or ``dwell-time bound``).
+    des : Design
+        The whole-state design (its rate per step, ``des.whole.lam_step``).
+    cases : int
+        How many cases it covers.
+    held : str
+        The word before "graph held constant".
+
+    Returns
+    -------
+    str
+        One line ending ``; whole-state consensus``.
+    """
     sc = des.scenario
     lam = des.whole.lam_step if des.whole is not None else des.rate
     what = {"full error matrix": "spectral radius of the full error matrix", "mixing bound": "mixing bound",
@@ -246,7 +329,27 @@ def survivors_certificate(des: Design, alive: tuple, arcs: dict, network, *, exc
     against eq. (g) or, failing that, the exact spectrum of A_V(g) (eq. split_continuous_split) per graph held
     constant, on the survivors' graphs on the quotient by ``W_S``; a continuous g must also make the sampled-data
     form with ``run.dt`` decay at the rate (as :func:`rate_certificate`).  ``certified`` is None for the
-    adaptive gain; ``rate`` the survivors' envelope rate when certified."""
+    adaptive gain; ``rate`` the survivors' envelope rate when certified.
+
+    Parameters
+    ----------
+    des : Design
+        The design the run uses.
+    alive : tuple of int
+        The surviving agents.
+    arcs : dict
+        ``{graph name: arcs (j, i) still up}`` for each graph the switching uses.
+    network : LossReport
+        :func:`~splitspec_core.synthesis.resilience.network_verdict` of ``alive`` on ``arcs``.
+    excluded : bool
+        What the survivors leave unobserved is no more than the design excluded.
+
+    Returns
+    -------
+    RateCertificate
+        ``certified`` (None for the adaptive gain), the one line, the envelope's rate and what certifies it (when
+        certified).
+    """
     sc = des.scenario
     un_S = network.unobserved
     rate = sc.design.rate
