@@ -44,10 +44,6 @@ argument, with ``W_S`` in place of ``W``, gives their certificate: the quotient 
 running on ``W_S ⊖ W`` only speeds that part up: its error map there is ``exp(A_22 t) (x) exp(-g (I - S) t)``).
 The design asks it of every single loss at once (:func:`unobserved_without_each`): the m intersections of m - 1
 subspaces share their triangular factors, O(m) factorizations in all.
-
-Why one module: the unobserved space, its certificate and its texts are the one generalisation above. Without the
-docstrings of its functions and classes (their numpydoc sections, issue 36) it is about 260 lines, under the 420
-lines a module is held to.
 """
 
 from __future__ import annotations

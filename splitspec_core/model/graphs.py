@@ -12,10 +12,6 @@ Conventions (paper, Section 2):
   ``S_ij = 1 / (1 + max(d_i, d_j))`` for neighbours, ``S_ii = 1 - sum``.
 
 Indices here are 0-based positions in the scenario's ``agent_ids``.
-
-Why one module: the graph, its stochastic matrices and the switching signal share the conventions above. Without
-the docstrings of its functions and classes (their numpydoc sections, issue 36) it is about 320 lines, under the
-420 lines a module is held to.
 """
 
 from __future__ import annotations

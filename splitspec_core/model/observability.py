@@ -72,10 +72,6 @@ When a direction with a margin above round-off is left out (``Decomposition.weak
 ``V_i`` is only nearly A-invariant and ``C_i V_i`` only nearly zero: the
 split of the error dynamics (prop. error) then holds up to ``split_residual``,
 and the designer checks the rate on the full error matrix as well.
-
-Why one module: the staircase and the decomposition built on it share the rank decisions above. Without the
-docstrings of its functions and classes (their numpydoc sections, issue 36) it is about 320 lines, under the 420
-lines a module is held to.
 """
 
 from __future__ import annotations

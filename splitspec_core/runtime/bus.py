@@ -18,10 +18,6 @@
   orchestrator; control and presence everywhere).  The queue holds at most
   :data:`INBOX_LIMIT` messages; beyond that a message is dropped and counted
   (``inbox_full``), so a flood can cost CPU but never unbounded memory.
-
-Why one module: every process's Zenoh session and intake are set up in this one place. Without the docstrings of
-its functions and classes (their numpydoc sections, issue 36) it is about 300 lines, under the 420 lines a module
-is held to.
 """
 
 from __future__ import annotations

@@ -26,9 +26,6 @@ Every estimator runs its seeds as one batch, the same numbers per seed to
 round-off: the split-spectrum variants by
 :func:`splitspec_core.simulation.montecarlo.simulate_seeds`, the two baselines by
 :func:`splitspec_core.studies.baselines.baseline_seeds`.
-
-Why one module: one command's study (``splitspec compare`` and its q or g sweep); its code is about 400 lines, the
-rest is the numpydoc sections of its seven public functions.
 """
 
 from __future__ import annotations
