@@ -336,7 +336,7 @@ def _batch(des: Design, seeds: tuple, *, steps, noise, trajectories) -> tuple:
                 gains[:, k, alive] = est.g[alive].T
         if k == plan.steps:
             break
-        y = measured(C, sigma_m, x, w[k])  # the plant's formulas (plant_model), on every seed's state
+        y = net.measured(measured(C, sigma_m, x, w[k]), plant.rows)  # the plant's formulas, on every seed's state
         key = net.key(plan.graph_seq[k])
         W = w_cache.get(key)
         if W is None:

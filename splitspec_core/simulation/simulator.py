@@ -40,6 +40,7 @@ from ..errors import ScenarioError
 from ..model.network import NetworkState, Plan, make_plan
 from ..model.plant import Plant, RecordedPlant, initial_estimate, initial_state, output_rows
 from ..model.impairment import PARTITION, Impairment, crosses, group_of, realized_row
+from ..scenarios.faults import PLANT
 from ..scenarios.specs import Scenario
 from .trajectory_file import lost_arrays, write_trajectory
 
@@ -626,6 +627,7 @@ def simulate(des: Design, *, seed: int | None = None, steps: int | None = None, 
     exchanges = 1 if est.continuous else int(des.q)  # the whole-state design: q in both times
     lost_rows: list = []
     ys = np.zeros((T, sum(np.shape(C)[0] for C in sc.system.Cs))) if keep_y else None
+    rows_y = output_rows(sc.system.Cs)
     for k in range(T):
         killed, rejoined = net.apply(plan.faults.get(k, ()))
         for i in killed:
@@ -643,7 +645,7 @@ def simulate(des: Design, *, seed: int | None = None, steps: int | None = None, 
             if ys is not None and measurements is None:
                 ys[k] = plant.measure()  # the last row's measurement (drawn after every other draw)
             break
-        y, missing = plant.measure(), plant.missing()
+        y, missing = net.measured(plant.measure(), rows_y), plant.missing()  # as the sensor faults change it
         if ys is not None and measurements is None:
             ys[k] = y
         key = net.key(plan.graph_seq[k])
@@ -742,6 +744,10 @@ def simulate_exact(des: Design, *, seed: int | None = None, steps: int | None = 
     if sc.network.impaired or any(f.action == "partition" for f in sc.faults):
         raise ScenarioError("the exact ODE has no messages to lose: it cannot model network: or partition faults "
                             "(simulate without --exact)")
+    sensors = sorted({f.action for f in sc.faults if f.runtime == PLANT})
+    if sensors:
+        raise ScenarioError(f"the exact ODE measures every output exactly: it cannot model {', '.join(sensors)} "
+                            "faults (simulate without --exact)")
     seed = sc.run.seed if seed is None else seed
     check_trajectory_memory(sc, steps)
     plan = make_plan(sc, seed, steps)
