@@ -17,6 +17,9 @@ A kind with an end (:attr:`Fault.ends_with`) takes a generic duration: ``{at: 10
 kill at 10 and a restart at 15, expanded when parsed.  An action nobody registered cannot be built: the
 parser refuses it with one line naming the registered kinds, and so does :func:`make_fault`.  Adding a kind
 is one class here (with :func:`register`), its test and its line in ``docs/how-to/faults.md``.
+
+Why one module: it is the declaration of every kind, the one place a newcomer adds one; split per kind, each
+addition would touch a new module and the list that imports it.
 """
 
 from __future__ import annotations
@@ -344,6 +347,97 @@ class Heal(Fault):
 
     def log_line(self, tau):
         return "info", f"event time {tau}: the partition is healed"
+
+
+def _bias(value: Any, key: str, n: int | None) -> float | tuple:
+    """``bias``: one number for every output, or a list of one per output (``n`` of them, when known)."""
+    if isinstance(value, list):
+        if n is not None and len(value) != n:
+            raise ScenarioError(f"{key} has {len(value)} values; the agent has {n} output{'s' if n != 1 else ''} "
+                                "(give one number for all, or one per output)")
+        return tuple(check_number(v, f"{key}[{k + 1}]") for k, v in enumerate(value))
+    return check_number(value, key)
+
+
+@register
+@dataclass(frozen=True)
+class Corrupt(_AgentFault):
+    """``corrupt: I`` with ``bias: b`` (a number, or a list of one per output of agent I) and/or ``scale: k``:
+    from the step on, agent I is given ``k y_i + b`` instead of its measurement ``y_i``, until a ``repair``
+    (``for: S`` writes it).  The plant process applies it in ``run``, as the simulator does."""
+
+    bias: float | tuple | None = None
+    scale: float | None = None
+    action, options, ends_with, runtime, event = "corrupt", ("bias", "scale"), "repair", PLANT, "sensor_corrupted"
+    mark, mark_style = "sensor", ("sensor fault", "Square", (227, 119, 194))
+
+    @classmethod
+    def parse(cls, value, fmap, key, ctx):
+        agent = check_known_agent(value, f"{key}.corrupt", ctx.ids)
+        if "bias" not in fmap and "scale" not in fmap:
+            raise ScenarioError(f"{key}.corrupt needs bias: b (added to agent {agent}'s outputs) or scale: k "
+                                "(multiplying them), or both")
+        n = None if ctx.outputs is None else ctx.outputs.get(agent)
+        return {"agent": agent, "bias": None if "bias" not in fmap else _bias(fmap["bias"], f"{key}.bias", n),
+                "scale": None if "scale" not in fmap else check_number(fmap["scale"], f"{key}.scale")}
+
+    @classmethod
+    def from_event(cls, e, where, ids):
+        bias, scale = e.get("bias"), e.get("scale")
+        try:
+            return {"agent": _event_agent(e, where, ids), "bias": None if bias is None else _bias(bias, "bias", None),
+                    "scale": None if scale is None else check_number(scale, "scale")}
+        except ScenarioError as exc:
+            raise ScenarioError(f"{where}: {exc}") from None
+
+    def apply(self, net):
+        net.sensors[net.ids.index(self.agent)] = (self, {})
+        return [], []
+
+    def measure(self, y, memo):
+        # y_i -> k y_i + b (b one number, or one per output: outputs on axis 0, any seeds after)
+        out = y if self.scale is None else y * self.scale
+        if self.bias is None:
+            return out
+        b = np.asarray(self.bias, dtype=float)
+        return out + (b if b.ndim == 0 else b.reshape((-1,) + (1,) * (np.ndim(y) - 1)))
+
+    def payload(self, tau):
+        how = {"bias": list(self.bias) if isinstance(self.bias, tuple) else self.bias, "scale": self.scale}
+        return {"id": self.agent, "tau": tau, **{k: v for k, v in how.items() if v is not None}}
+
+    @staticmethod
+    def text(fields):
+        how = [f"{k} {fields[k]}" for k in ("scale", "bias") if fields.get(k) is not None]
+        return f"agent {fields.get('id', '?')}'s measurements corrupted ({', '.join(how)})"
+
+    def log_line(self, tau):
+        return "warning", f"event time {tau}: {self.text(self.payload(tau))} by the scenario"
+
+    def plot_mark(self):
+        return "fault", f"sensor {self.agent} corrupted"
+
+
+@register
+@dataclass(frozen=True)
+class Repair(_AgentFault):
+    """``repair: I``: agent I's sensor fault ends; it is given its true measurement again."""
+
+    action, runtime, event, mark = "repair", PLANT, "sensor_repaired", "sensor"
+
+    def apply(self, net):
+        net.sensors.pop(net.ids.index(self.agent), None)
+        return [], []
+
+    @staticmethod
+    def text(fields):
+        return f"agent {fields.get('id', '?')}'s sensor repaired"
+
+    def log_line(self, tau):
+        return "info", f"event time {tau}: {self.text(self.payload(tau))}"
+
+    def plot_mark(self):
+        return "fault", f"sensor {self.agent} repaired"
 
 
 # ---------------------------------------------------------------------------------------------------- parsing

@@ -29,11 +29,12 @@ def parse(raw, ids=IDS, outputs=None):
 # one entry of every registered kind (the test of a new kind adds its own line here)
 EXAMPLE = {"kill": {"kill": 3}, "restart": {"restart": 3}, "freeze": {"freeze": 3},
            "drop_arc": {"drop_arc": [1, 2]}, "restore_arc": {"restore_arc": [1, 2]},
-           "partition": {"partition": [[1, 2, 3]]}, "heal": {"heal": True}}
+           "partition": {"partition": [[1, 2, 3]]}, "heal": {"heal": True},
+           "corrupt": {"corrupt": 3, "bias": [0.5], "scale": 2.0}, "repair": {"repair": 3}}
 
 
 def test_every_registered_kind_has_an_example_here():
-    assert set(EXAMPLE) <= set(fk.KINDS)
+    assert set(EXAMPLE) == set(fk.KINDS)
     assert fk.FAULT_ACTIONS == tuple(fk.KINDS) and fk.FAULT_ALIASES == {"hang": "freeze"}
 
 
@@ -138,3 +139,81 @@ def test_timeline_marks_and_texts_come_from_the_kinds():
             assert bp.MARK_OF_EVENT[cls.event] == cls.mark and cls.mark in bp.MARK_KINDS
     assert event_text("arc_dropped", {"arc": [1, 6], "tau": 15}) == "arc 1 -> 6 dropped"
     assert event_text("healed", {"tau": 3}) == "partition healed"
+
+
+# ------------------------------------------------------------------------------------------------ corrupt
+
+
+def test_corrupt_parses_bias_per_output_and_scale():
+    (c, r) = parse([{"at": 2, "corrupt": 3, "for": 1.5, "bias": [0.5, -1]}], outputs={3: 2})
+    assert (c.agent, c.bias, c.scale, type(r), r.agent, r.at) == (3, (0.5, -1.0), None, fk.KINDS["repair"], 3, 3.5)
+    (c,) = parse([{"at": 2, "corrupt": 3, "scale": 0}])
+    assert (c.bias, c.scale) == (None, 0.0) and c.runtime == fk.PLANT
+
+
+@pytest.mark.parametrize("raw, outputs, words", [
+    ([{"at": 1, "corrupt": 3}], None, ["faults[1].corrupt needs bias: b", "scale: k"]),
+    ([{"at": 1, "corrupt": 3, "bias": [1, 2]}], {3: 1}, ["faults[1].bias has 2 values; the agent has 1 output"]),
+    ([{"at": 1, "corrupt": 3, "bias": "big"}], None, ["faults[1].bias must be a number"]),
+    ([{"at": 1, "corrupt": 3, "scale": [2]}], None, ["faults[1].scale must be a number"]),
+    ([{"at": 1, "kill": 3, "bias": 1}], None, ["faults[1].bias does not go with kill"]),
+    ([{"at": 1, "corrupt": 12, "bias": 1}], None, ["faults[1].corrupt names agent 12"]),
+    ([{"at": 1, "repair": 3, "for": 1}], None, ["faults[1].for: a repair has no end"]),
+])
+def test_bad_corrupt_faults_are_one_line(raw, outputs, words):
+    with pytest.raises(ScenarioError) as e:
+        parse(raw, outputs=outputs)
+    msg = str(e.value)
+    assert "\n" not in msg and all(w in msg for w in words), msg
+
+
+def test_corrupt_changes_exactly_the_agents_measurements_in_its_window(ring):
+    """Agent 2 is given y_2 + 0.5 during [10, 16) and nothing else changes in y; its error grows there, then
+    decays again once the sensor is repaired."""
+    clean = ss.simulate(ring, keep_y=True)
+    hit = ss.simulate(ring, keep_y=True, faults=[{"at": 10, "corrupt": 2, "for": 6, "bias": 0.5}])
+    # the plant does not depend on the estimates: the same x and noise, and the corrupted row is y + 0.5, the
+    # same operation the simulator runs (exact)
+    np.testing.assert_array_equal(hit.x, clean.x)
+    rows = np.zeros(clean.y.shape[1], dtype=bool)
+    rows[IDS.index(2)] = True  # ring10: one output per agent, in agent order
+    np.testing.assert_array_equal(hit.y[10:16, rows], clean.y[10:16, rows] + 0.5)
+    np.testing.assert_array_equal(hit.y[:10], clean.y[:10])
+    np.testing.assert_array_equal(hit.y[16:], clean.y[16:])
+    np.testing.assert_array_equal(hit.y[:, ~rows], clean.y[:, ~rows])
+    e_hit, e_clean = hit.errors()[:, IDS.index(2)], clean.errors()[:, IDS.index(2)]
+    np.testing.assert_array_equal(e_hit[:11], e_clean[:11])  # the estimates use y(10) from step 11 on
+    assert e_hit[16] > 10 * e_clean[16] and e_hit[16] > e_hit[10]
+    assert e_hit[-1] < 1e-3 * e_hit[16]  # repaired: it converges again
+
+
+def test_corrupt_scale_in_the_batched_monte_carlo_equals_the_loop(ring):
+    faults = [{"at": 5, "corrupt": 4, "for": 8, "scale": 1.5, "bias": -0.2}, {"at": 9, "kill": 7}]
+    batch = ss.simulate(ring, seeds=[1, 2, 3], faults=faults)
+    loop = [ss.simulate(ring, seed=s, faults=faults) for s in (1, 2, 3)]
+    assert batch.batched
+    # round-off: the batch sums its products in another order (montecarlo.py)
+    np.testing.assert_allclose(batch.sq_error, [np.nansum(tr.errors() ** 2, axis=1) for tr in loop], rtol=1e-9,
+                               atol=1e-12)
+
+
+def test_the_exact_ode_refuses_a_sensor_fault():
+    sc = load_scenario(EXAMPLES / "paper_continuous.yaml")
+    with pytest.raises(ScenarioError, match="the exact ODE measures every output exactly: it cannot model corrupt"):
+        ss.simulate(sc, exact=True, faults=[{"at": 0.1, "corrupt": 1, "bias": 1.0}])
+
+
+def test_corrupt_marks_the_timeline_and_the_plots(ring):
+    from splitspec_orchestrator.recording import blueprint as bp
+    from splitspec_orchestrator.records.events import event_text
+    from splitspec_core.simulation.metrics import event_marks
+
+    assert bp.MARK_OF_EVENT["sensor_corrupted"] == bp.MARK_OF_EVENT["sensor_repaired"] == "sensor"
+    assert bp.MARK_KINDS["sensor"][0] == "sensor fault"
+    assert event_text("sensor_corrupted", {"id": 2, "tau": 10, "bias": 0.5}) == \
+        "agent 2's measurements corrupted (bias 0.5)"
+    faults = parse([{"at": 10, "corrupt": 2, "for": 6, "bias": 0.5}])
+    tr = ss.simulate(ring, faults=[{"at": 10, "corrupt": 2, "for": 6, "bias": 0.5}])
+    marks = event_marks(tr.t, tr.alive, tr.graph, agent_ids=tr.agent_ids, faults=faults)
+    assert [(m.step, m.kind, m.label) for m in marks] == [(10, "fault", "sensor 2 corrupted"),
+                                                          (16, "fault", "sensor 2 repaired")]
