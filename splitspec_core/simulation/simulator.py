@@ -11,13 +11,13 @@ Three estimators share one driver (plant, noise streams, switching, faults):
   eq. (split_continuous_observer), integrated with a matrix exponential per
   step (graphs piecewise constant), noise-free, for comparison.
 
-Step order at step k (time ``t_k``): apply faults at k; record
-``x(k), x_i(k)``; measure ``y_i(k) = C_i x(k) + w_i(k)``; every alive agent
-updates to ``x_i(k+1)``; the plant moves to ``x(k+1)``.
+Step order at step k (time ``t_k``), the one loop of :mod:`splitspec_core.simulation.loop`: apply faults at
+k; record ``x(k), x_i(k)``; measure ``y_i(k) = C_i x(k) + w_i(k)`` (as the sensor faults in force change it);
+every alive agent updates to ``x_i(k+1)``; the plant moves to ``x(k+1)``.
 
 Why one module: the three estimators share one driver (plant, seed streams, switching,
-faults, restarts); split, the driver's step order -- the contract ``splitspec run`` reproduces --
-would be spread over files.
+faults, restarts, the network's weights); split, what each hands the loop -- the contract ``splitspec run``
+reproduces -- would be spread over files.
 """
 
 from __future__ import annotations
