@@ -181,7 +181,19 @@ class NetworkState:
         return int(self.incarnation[i])
 
     def apply(self, faults) -> tuple:
-        """Apply ``faults`` (each kind's :meth:`~splitspec_core.scenarios.faults.Fault.apply`): ``(killed, rejoined)``."""
+        """Apply ``faults``, each as its kind says (:meth:`~splitspec_core.scenarios.faults.Fault.apply`).
+
+        Parameters
+        ----------
+        faults : iterable of Fault
+            The faults due at one step, in order.
+
+        Returns
+        -------
+        tuple
+            ``(killed, rejoined)``: the positions that stopped taking part, and ``(position, incarnation)`` of
+            those that rejoin with a fresh estimate.
+        """
         killed, rejoined = [], []
         for f in faults:
             lost, back = f.apply(self)
@@ -190,9 +202,21 @@ class NetworkState:
         return killed, rejoined
 
     def measured(self, y: np.ndarray, rows: list) -> np.ndarray:
-        """The stacked measurements ``y`` (outputs on axis 0) as the estimators are given them: each sensor a fault
-        holds (``sensors``) changes its agent's rows (:meth:`~splitspec_core.scenarios.faults.Fault.measure`);
-        ``y`` itself when none does.  ``rows``: :func:`~splitspec_core.model.plant.output_rows`."""
+        """The measurements as the estimators are given them, with the sensor faults in force.
+
+        Parameters
+        ----------
+        y : (sum s_i,) or (sum s_i, N) array
+            The plant's stacked measurements (outputs on axis 0, seeds after).
+        rows : list of slice
+            Each agent's rows of ``y`` (:func:`~splitspec_core.model.plant.output_rows`).
+
+        Returns
+        -------
+        array
+            ``y`` itself when no sensor fault is in force; else a copy in which each faulty sensor's rows are
+            changed by its fault (:meth:`~splitspec_core.scenarios.faults.Fault.measure`).
+        """
         if not self.sensors:
             return y
         y = np.array(y, dtype=float)

@@ -120,7 +120,18 @@ class Fault:
 
 
 def register(cls: type) -> type:
-    """Register a kind under its ``action`` and aliases (a class decorator)."""
+    """Register a kind under its ``action`` and aliases (a class decorator).
+
+    Parameters
+    ----------
+    cls : type
+        A frozen dataclass, subclass of :class:`Fault`, with its own ``action``.
+
+    Returns
+    -------
+    type
+        ``cls``, now buildable (:meth:`Fault.__post_init__` refuses a kind nobody registered).
+    """
     for word in (cls.action, *cls.aliases):
         if word in _WORDS:
             raise ValueError(f"fault action {word!r} is registered twice")
@@ -132,7 +143,27 @@ def register(cls: type) -> type:
 
 
 def make_fault(action: str, at: float, **fields) -> Fault:
-    """A fault of the registered kind ``action`` (or an alias) at ``at``: one line when nobody registered it."""
+    """A fault of a registered kind, built directly (the parser builds them from the scenario's mapping).
+
+    Parameters
+    ----------
+    action : str
+        The kind's action or one of its aliases (``kill``, ``hang``, ``drop_arc``, ...).
+    at : float
+        The fault's time.
+    **fields
+        The kind's fields (``agent=3``, ``arc=(1, 2)``, ``groups=((1, 2),)``, ...).
+
+    Returns
+    -------
+    Fault
+        An instance of the registered kind.
+
+    Raises
+    ------
+    ScenarioError
+        ``unknown fault action 'x' (the kinds: kill, restart, ...)``.
+    """
     cls = _WORDS.get(action)
     if cls is None:
         raise ScenarioError(f"unknown fault action {action!r} (the kinds: {', '.join(KINDS)})")
@@ -140,12 +171,36 @@ def make_fault(action: str, at: float, **fields) -> Fault:
 
 
 def kind_of_event(event: str) -> type | None:
-    """The kind a replay makes of a recorded event (None: the event is not a fault's)."""
+    """The kind a replay makes of a recorded event.
+
+    Parameters
+    ----------
+    event : str
+        The event word of ``events.jsonl`` (``agent_lost``, ``arc_dropped``, ...).
+
+    Returns
+    -------
+    type or None
+        The first registered kind that logs it (``agent_lost``: ``kill``), None when no kind does.
+    """
     return _EVENTS.get(event)
 
 
 def fault_event_text(event: str, fields: dict) -> str | None:
-    """The text of a fault kind's own event (None: no kind logs it with a text of its own)."""
+    """The text of a fault kind's own event in the ``events`` TextLog.
+
+    Parameters
+    ----------
+    event : str
+        The event word.
+    fields : dict
+        The event's fields (the kind's :meth:`Fault.payload`).
+
+    Returns
+    -------
+    str or None
+        The kind's :meth:`Fault.text`; None when no kind the runtime records logs this event.
+    """
     for cls in KINDS.values():
         if cls.event == event and cls.runtime in (NETWORK, PLANT):
             return cls.text(fields)
@@ -153,7 +208,14 @@ def fault_event_text(event: str, fields: dict) -> str | None:
 
 
 def fault_marks() -> tuple:
-    """``({event: mark kind}, {mark kind: (legend, marker, colour)})`` the kinds declare for the timeline."""
+    """The timeline marks the kinds declare (``orchestrator/recording/blueprint.py`` builds its tables from them).
+
+    Returns
+    -------
+    tuple of dict
+        ``({event: mark kind}, {mark kind: (legend, marker, colour)})``: the second holds the mark kinds of the
+        kinds' own (``sensor``); the others are the blueprint's (``lost``, ``fault``, ``partition``, ...).
+    """
     of_event = {cls.event: cls.mark for cls in KINDS.values() if cls.event is not None and cls.mark is not None}
     styles = {cls.mark: cls.mark_style for cls in KINDS.values() if cls.mark_style is not None}
     return of_event, styles

@@ -280,7 +280,20 @@ class NetworkWeights:
         self.est, self.sc, self.cache = est, sc, {}
 
     def __call__(self, net: NetworkState, graph: int) -> tuple:
-        """``(est.weights(rows), rows, weight_entries(rows))`` of ``net`` on graph index ``graph``."""
+        """The weights of the network ``net`` is now, on the graph of index ``graph``.
+
+        Parameters
+        ----------
+        net : NetworkState
+            Alive agents, dropped arcs, partition.
+        graph : int
+            The active graph's index (scenario order).
+
+        Returns
+        -------
+        tuple
+            ``(est.weights(rows), rows, weight_entries(sc, rows))``, computed once per network.
+        """
         key = net.key(graph)
         W = self.cache.get(key)
         if W is None:
