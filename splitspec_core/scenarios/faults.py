@@ -132,6 +132,12 @@ def register(cls: type) -> type:
     type
         ``cls``, now buildable (:meth:`Fault.__post_init__` refuses a kind nobody registered).
     """
+    if cls.runtime not in (SIGNAL, RESTART, NETWORK, PLANT):
+        raise ValueError(f"fault kind {cls.__name__}: runtime {cls.runtime!r} is none of {SIGNAL}, {RESTART}, "
+                         f"{NETWORK}, {PLANT}")
+    if cls.event is None or (cls.runtime in (SIGNAL, RESTART) and "agent" not in cls.__dataclass_fields__):
+        raise ValueError(f"fault kind {cls.__name__} needs an event, and an agent when the runtime signals or "
+                         "restarts it")
     for word in (cls.action, *cls.aliases):
         if word in _WORDS:
             raise ValueError(f"fault action {word!r} is registered twice")

@@ -35,6 +35,33 @@ EXAMPLE = {"kill": {"kill": 3}, "restart": {"restart": 3}, "freeze": {"freeze": 
 
 def test_every_registered_kind_has_an_example_here():
     assert set(EXAMPLE) == set(fk.KINDS)
+    assert all(cls.ends_with in fk.KINDS for cls in fk.KINDS.values() if cls.ends_with is not None)
+
+
+def test_a_kind_the_runtime_could_not_dispatch_is_refused_at_registration():
+    """No event (nothing to log or replay), or an agent-less kind the runtime would signal: refused when declared,
+    never a TypeError in the middle of a run."""
+    @dataclasses.dataclass(frozen=True)
+    class Silent(fk.Fault):
+        action = "silent"
+
+    with pytest.raises(ValueError, match="fault kind Silent needs an event"):
+        fk.register(Silent)
+
+    @dataclasses.dataclass(frozen=True)
+    class Zap(fk.Fault):
+        action, runtime, event = "zap", fk.SIGNAL, "zapped"
+
+    with pytest.raises(ValueError, match="fault kind Zap needs an event, and an agent when the runtime signals"):
+        fk.register(Zap)
+
+    @dataclasses.dataclass(frozen=True)
+    class Odd(fk.Fault):
+        action, runtime, event = "odd", "teleport", "odd"
+
+    with pytest.raises(ValueError, match="runtime 'teleport' is none of signal, restart, network, plant"):
+        fk.register(Odd)
+    assert not {"silent", "zap", "odd"} & set(fk.KINDS)
     assert fk.FAULT_ACTIONS == tuple(fk.KINDS) and fk.FAULT_ALIASES == {"hang": "freeze"}
 
 
