@@ -6,7 +6,9 @@ publishes ``y(tau)`` on ``y/all`` and ``x(tau)`` on ``truth``; with known inputs
 message's vector carries ``u(tau)`` after the stacked outputs, so every agent adds the plant's own ``B u``.  With
 ``--measurements FILE`` (the file the orchestrator was given, checked by its
 sha256) it plays row ``tau`` of the file instead: its ``y``, the agents without
-a measurement there, and its truth (an empty ``x`` when the file has none).  A re-run of
+a measurement there, and its truth (an empty ``x`` when the file has none).  The scenario's sensor faults
+(the fault kinds whose runtime effect is the plant's: :mod:`splitspec_core.scenarios.faults`) change the
+measurements from the step the simulator changes them, as it does.  A re-run of
 the same tick (a higher attempt) re-publishes the same values.  The draws are
 those of :class:`splitspec_core.simulation.simulator.Plant`, in the same order, so the
 truth equals the simulator's.  Agents never see the truth.
@@ -21,7 +23,9 @@ import numpy as np
 
 from splitspec_core.errors import SplitspecError
 from splitspec_core.scenarios.measurements import load_measurements
-from splitspec_core.model.plant import Plant, RecordedPlant
+from splitspec_core.model.network import NetworkState, fault_schedule
+from splitspec_core.model.plant import Plant, RecordedPlant, output_rows
+from splitspec_core.scenarios.faults import PLANT
 from splitspec_core.runtime.wire import Keys, WireError, decode, encode
 from splitspec_core.scenarios.load import parse_scenario_text
 
@@ -51,6 +55,11 @@ class PlantNode:
             self.no_x = np.zeros(0)  # a truth message without x: the file has no truth
         else:
             self.plant = Plant(self.sc, int(config["seed"]))
+        # the scenario's sensor faults, applied at the steps the simulator applies them (network.fault_step)
+        self.net = NetworkState(self.sc)
+        self.sensor_faults = fault_schedule([f for f in self.sc.faults if f.runtime == PLANT],
+                                            self.sc.run.dt if self.sc.time == "continuous" else 1.0)
+        self.rows = output_rows(self.sc.system.Cs)
         self.mac_key = config.get("key")
         self.extra_counts = None  # callable -> {reason: count} of drops outside the node (the inbox)
         self.tau = None
@@ -86,7 +95,8 @@ class PlantNode:
             if self.meas is not None and tau > self.meas.steps:
                 raise RuntimeError(f"event time {tau} is past the measurements file's last row ({self.meas.steps})")
             self.tau = tau
-            self.y = self.plant.measure()  # (y_1, ..., y_m) stacked in agent order
+            self.net.apply(self.sensor_faults.get(tau, ()))
+            self.y = self.net.measured(self.plant.measure(), self.rows)  # (y_1, ..., y_m) stacked in agent order
             u = self.plant.input()  # u(tau) (None: no inputs), sent after the outputs
             if u is not None:
                 self.y = np.concatenate([np.asarray(self.y, dtype=float), np.asarray(u, dtype=float)])

@@ -369,7 +369,8 @@ def _with_faults(sc: Scenario | DesignResult | Design, faults: Iterable) -> Scen
     base = sc.scenario if isinstance(sc, Design) else sc
     if not isinstance(base, Scenario):
         raise TypeError(f"expected a Scenario or a DesignResult, got {type(sc).__name__}")
-    new = dataclasses.replace(base, faults=parse_faults(list(faults), base.agent_ids))
+    outputs = {i: len(C) for i, C in zip(base.agent_ids, base.system.Cs)}
+    new = dataclasses.replace(base, faults=parse_faults(list(faults), base.agent_ids, outputs=outputs))
     return dataclasses.replace(sc, scenario=new) if isinstance(sc, Design) else new
 
 

@@ -29,6 +29,8 @@ from __future__ import annotations
 import math
 from typing import Mapping
 
+from splitspec_core.scenarios.faults import fault_marks
+
 __all__ = ["ERRORS", "ERRORS_MAX", "ERRORS_LOG10", "ERRORS_LOG10_MAX", "ENVELOPE", "STATE", "GAINS", "ROUNDS",
            "RESIDUAL", "RESIDUAL_LOG10", "DISAGREEMENT", "DISAGREEMENT_LOG10", "KF_DISTANCE", "KF_DISTANCE_LOG10",
            "MARKS", "MARK_KINDS", "TOPOLOGY", "TOPOLOGY_GRAPH", "TOPOLOGY_LOST",
@@ -63,10 +65,10 @@ TOPOLOGY_STATUS = "topology/status"
 EVENTS = "events"
 TL_EVENT, TL_TIME, TL_WALL = "event", "time", "wall"
 
-# Event name -> mark kind (entity ``marks/<kind>``), with its marker and colour.
-MARK_OF_EVENT = {"agent_lost": "lost", "agent_rejoined": "rejoined", "graph_switched": "graph_switch",
-                 "arc_dropped": "fault", "arc_restored": "fault", "fault_skipped": "fault",
-                 "partition": "partition", "healed": "healed"}
+# Event name -> mark kind (entity ``marks/<kind>``), with its marker and colour: the fault kinds declare theirs
+# (splitspec_core.scenarios.faults: agent_lost, agent_rejoined, arc_dropped, partition, ...), a few are the runtime's
+_FAULT_MARKS, _FAULT_MARK_STYLES = fault_marks()
+MARK_OF_EVENT = {**_FAULT_MARKS, "graph_switched": "graph_switch", "fault_skipped": "fault"}
 MARK_KINDS = {  # kind: (legend name, marker, colour)
     "lost": ("agent lost", "Cross", (214, 39, 40)),
     "rejoined": ("agent rejoined", "Up", (44, 160, 44)),
@@ -74,6 +76,7 @@ MARK_KINDS = {  # kind: (legend name, marker, colour)
     "fault": ("scenario fault (link)", "Asterisk", (255, 127, 14)),
     "partition": ("partition", "Down", (148, 103, 189)),
     "healed": ("partition healed", "Plus", (23, 190, 207)),
+    **_FAULT_MARK_STYLES,
 }
 
 PALETTE = [  # matplotlib tab10

@@ -4,8 +4,8 @@ What ``events.jsonl`` holds (its line, the events and their fields): docs/refere
 "Event log".  :class:`EventLog` opens the file for each write only (no file of the run stays open between
 calls) and cuts back a line torn by a failed write.  :func:`event_text` turns an event into the short,
 complete sentence of the ``events`` TextLog (``agent 3 lost: killed by the scenario (SIGKILL)``,
-``graph a -> b``, ``arc 1 -> 6 dropped``, ``12 consensus messages did not count (12 loss)``); unknown
-events read ``<event> k=v ...``.
+``graph a -> b``, ``12 consensus messages did not count (12 loss)``; a fault kind's own event, ``arc 1 -> 6
+dropped``, by its kind: :mod:`splitspec_core.scenarios.faults`); unknown events read ``<event> k=v ...``.
 """
 
 from __future__ import annotations
@@ -16,6 +16,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from splitspec_core.scenarios.faults import fault_event_text
 
 __all__ = ["EVENTS_FILE", "EventLog", "event_text", "event_level", "json_default"]
 
@@ -40,11 +42,6 @@ def event_level(event: str) -> str:
     return "WARN" if any(w in event.lower() for w in _WARN_WORDS) else "INFO"
 
 
-def _arc(fields: dict) -> str:
-    j, i = fields.get("arc", ("?", "?"))
-    return f"arc {j} -> {i}"
-
-
 def _who(fields: dict) -> str:
     role = fields.get("role", "agent")
     return "the plant" if role == "plant" else f"{role} {fields.get('id', '?')}"
@@ -56,8 +53,6 @@ _TEXTS = {
     "agent_restarting": lambda f: f"agent {f.get('id', '?')} restarting",
     "restart_failed": lambda f: f"restart of agent {f.get('id', '?')} failed: {f.get('reason', '')}",
     "graph_switched": lambda f: f"graph {f.get('previous', '?')} -> {f.get('graph', '?')}",
-    "arc_dropped": lambda f: f"{_arc(f)} dropped",
-    "arc_restored": lambda f: f"{_arc(f)} restored",
     "fault_skipped": lambda f: f"{f.get('action', 'fault')} of agent {f.get('id', '?')} skipped: {f.get('reason', '')}",
     "process_started": lambda f: f"{_who(f)} started (pid {f.get('pid')} on {f.get('host')})",
     "process_ready": lambda f: f"{_who(f)} ready {f.get('startup_s')} s after its start (pid {f.get('pid')})",
@@ -67,9 +62,6 @@ _TEXTS = {
                                   + f" rejected ({f.get('reason', '?')})",
     "messages_lost": lambda f: f"{f['count']} consensus message{'s' if f['count'] != 1 else ''} did not count ("
                                + ", ".join(f"{f[c]} {c}" for c in ("loss", "late", "partition") if f.get(c)) + ")",
-    "partition": lambda f: "partition " + " | ".join(" ".join(str(a) for a in g) for g in f["groups"])
-                           + ": no consensus message crosses between the groups",
-    "healed": lambda f: "partition healed",
     "sensor_lost": lambda f: f"agent {f.get('agent')}'s sensor gave no measurement at event time {f.get('tau')} "
                              "(prediction only until it is back)",
     "sensor_back": lambda f: f"agent {f.get('agent')}'s sensor back at event time {f.get('tau')} (silent for "
@@ -94,11 +86,12 @@ def event_text(event: str, fields: dict, note: str | None = None) -> str:
     if note:
         return note if event == "resilience_verdict" else f"{event}: {note}"
     fmt = _TEXTS.get(event)
-    if fmt is not None:
-        try:
-            return fmt(fields)
-        except (TypeError, ValueError):
-            pass
+    try:
+        text = fmt(fields) if fmt is not None else fault_event_text(event, fields)  # a fault kind's own event
+        if text is not None:
+            return text
+    except (TypeError, ValueError):
+        pass
     return event + "".join(f" {k}={v}" for k, v in fields.items())
 
 

@@ -79,6 +79,7 @@ import numpy as np
 
 from splitspec_core.model.impairment import CAUSES
 from splitspec_core.model.network import make_plan
+from splitspec_core.scenarios.faults import RESTART, SIGNAL
 
 from .actions import (Control, Event, Finished, Log, QueryStatus, Record, RegistryUpdate, ReplyConfig, ReplyRefused,
                       Signal, Spawn, Stop, Tick)
@@ -474,22 +475,22 @@ class RoundMachine:
         t = self.t()
         while self.faults_left:
             f = self.faults_left.pop(0)
-            if f.action in ("kill", "freeze"):
+            if f.runtime == SIGNAL:  # kill, freeze: the agent's process is signalled, and lost
                 if f.agent not in self.alive:
                     out.append(Event("fault_skipped", t, {"action": f.action, "id": f.agent,
                                                           "reason": "agent not alive"}))
                     continue
                 how, acts = self.live.signal_agent(f.agent, f.action, self.procs.get(f.agent))
                 out += acts
-                out += self._lose(f.agent, f"{'killed' if f.action == 'kill' else 'frozen'} by the scenario ({how})")
-            elif f.action == "restart":
+                out += self._lose(f.agent, f"{f.loss_word} by the scenario ({how})")
+            elif f.runtime == RESTART:
                 if f.agent in self.alive:
-                    out.append(Event("fault_skipped", t, {"action": "restart", "id": f.agent,
+                    out.append(Event("fault_skipped", t, {"action": f.action, "id": f.agent,
                                                           "reason": "agent is alive"}))
                     continue
                 return out + self._begin_restart(f.agent, now)
-            else:  # partition, heal, drop_arc, restore_arc: the simulator's own bookkeeping of the links
-                out += self.topology.change(f, self.tau, t)
+            else:  # NETWORK (partition, heal, arcs: the simulator's own bookkeeping of the links) or PLANT (the
+                out += self.topology.change(f, self.tau, t)  # plant applies it itself): recorded, as simulated
         for a in sorted(self.joinable - self.alive):
             out += self._admit(a, "started by hand")
         if self.sc.run.pace:

@@ -11,6 +11,7 @@ rejoined, a :class:`Topology` action) and says the survivors' verdict after ever
 from __future__ import annotations
 
 from splitspec_core.model.network import NetworkState
+from splitspec_core.scenarios.faults import NETWORK
 from splitspec_core.synthesis.survivors import certify_network
 
 from .actions import Event, Log, MarkLost, Topology
@@ -66,21 +67,20 @@ class TopologyState:
                             f"{why}")] + self.verdict(f"agent {aid} rejoined", tau, t)
 
     def change(self, f, tau: int, t: float) -> list:
-        """A scenario's fault on the links at event time ``tau`` (a partition, a heal, a dropped or restored
-        arc), applied as the simulator applies it; its events, and after an arc the survivors' verdict."""
+        """A scenario's fault that the runtime records and the simulator's bookkeeping applies (a kind whose
+        ``runtime`` is ``network``: a partition, a heal, a dropped or restored arc; or ``plant``: the plant
+        process applies it to the measurements) at event time ``tau``: its event, its log line, and, for the
+        kinds that ask for it (an arc), the survivors' verdict."""
         self.net.apply([f])
-        self.dirty = True
-        if f.action == "partition":  # no consensus message crosses between the groups
-            groups = [list(g) for g in f.groups]
-            return [Event("partition", t, {"groups": groups, "tau": tau}),
-                    Log("warning", f"event time {tau}: partition {groups}: no consensus message crosses between "
-                                   "the groups until a heal")]
-        if f.action == "heal":
-            return [Event("healed", t, {"tau": tau}), Log("info", f"event time {tau}: the partition is healed")]
-        arc = tuple(f.arc)  # drop_arc / restore_arc: the simulator's own bookkeeping
-        dropped = f.action == "drop_arc"
-        return [Event("arc_dropped" if dropped else "arc_restored", t, {"arc": list(arc), "tau": tau})
-                ] + self.verdict(f"arc {arc[0]} -> {arc[1]} {'dropped' if dropped else 'restored'}", tau, t)
+        self.dirty = self.dirty or f.runtime == NETWORK
+        fields = f.payload(tau)
+        out = [Event(f.event, t, fields)]
+        line = f.log_line(tau)
+        if line is not None:
+            out.append(Log(*line))
+        if f.verdict:
+            out += self.verdict(f.text(fields), tau, t)  # after "arc 1 -> 6 dropped"
+        return out
 
     @property
     def groups(self) -> tuple:

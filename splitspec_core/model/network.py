@@ -11,6 +11,7 @@ faults at the same steps and hand every agent the same neighbour weights.
   Metropolis weights, the link in both directions, keeping graphs undirected);
   ``partition``/``heal`` start/end a partition: the arcs stay, but no consensus
   message between groups counts (:mod:`splitspec_core.model.impairment`);
+  what each kind of fault does is its class in :mod:`splitspec_core.scenarios.faults`;
 * neighbour sets are the active graph restricted to the alive agents, with
   the scenario's weights recomputed on that restricted graph.
 """
@@ -26,7 +27,7 @@ from .graphs import SwitchingSignal, build_graph, graph_sequence, switch_times
 from ..scenarios.specs import Scenario
 from .streams import stream
 
-__all__ = ["Plan", "make_plan", "active_arcs", "consensus_rows", "fault_step", "NetworkState"]
+__all__ = ["Plan", "make_plan", "active_arcs", "consensus_rows", "fault_schedule", "fault_step", "NetworkState"]
 
 
 def fault_step(at: float, dt: float) -> int:
@@ -88,12 +89,32 @@ def make_plan(sc: Scenario, seed: int, steps: int | None = None, *, sequence: bo
         seq = graph_sequence(pieces, steps + 1, dt=dt)
     else:
         signal = SwitchingSignal(sw, sc.graph_names, dt=dt, rng=_switching_rng(sc, seed))
-    faults: dict = {}
-    for f in sc.faults:
+    return Plan(steps=steps, dt=dt, graph_seq=seq, faults=fault_schedule(sc.faults, dt, steps), signal=signal)
+
+
+def fault_schedule(faults, dt: float, steps: int | None = None) -> dict:
+    """``{step: [Fault, ...]}``: each fault at the step it takes effect (:func:`fault_step`), in order.
+
+    Parameters
+    ----------
+    faults : iterable of Fault
+        The scenario's faults (sorted by time).
+    dt : float
+        The step (1 in discrete time).
+    steps : int, optional
+        Faults after this step are left out (None: none is).
+
+    Returns
+    -------
+    dict
+        ``{step: [Fault, ...]}``.
+    """
+    out: dict = {}
+    for f in faults:
         k = fault_step(f.at, dt)
-        if k <= steps:
-            faults.setdefault(k, []).append(f)
-    return Plan(steps=steps, dt=dt, graph_seq=seq, faults=faults, signal=signal)
+        if steps is None or k <= steps:
+            out.setdefault(k, []).append(f)
+    return out
 
 
 def active_arcs(sc: Scenario, graph_index: int, dropped=frozenset()) -> tuple:
@@ -130,8 +151,10 @@ class NetworkState:
     """Alive agents, incarnations and dropped arcs as faults apply (agent positions are 0-based).
 
     ``apply`` returns ``(killed, rejoined)``: positions that stopped taking part
-    and ``(position, incarnation)`` of agents that rejoin with a fresh estimate.
+    and ``(position, incarnation)`` of agents that rejoin with a fresh estimate;
+    each fault's kind says what it does (:mod:`splitspec_core.scenarios.faults`).
     A freeze is handled as a loss (the runtime declares a frozen agent lost).
+    ``measured`` gives the measurements as the sensor faults in force change them.
     """
 
     def __init__(self, sc: Scenario):
@@ -140,6 +163,7 @@ class NetworkState:
         self.incarnation = np.zeros(sc.m, dtype=int)
         self.dropped: set = set()
         self.groups: tuple | None = None  # a partition in force (impairment: no message crosses between groups)
+        self.sensors: dict = {}  # position -> (fault, its memory): a sensor fault in force (faults.Fault.measure)
 
     def lose(self, i: int) -> bool:
         """Agent at position ``i`` stops taking part; False if it was not alive."""
@@ -157,26 +181,48 @@ class NetworkState:
         return int(self.incarnation[i])
 
     def apply(self, faults) -> tuple:
+        """Apply ``faults``, each as its kind says (:meth:`~splitspec_core.scenarios.faults.Fault.apply`).
+
+        Parameters
+        ----------
+        faults : iterable of Fault
+            The faults due at one step, in order.
+
+        Returns
+        -------
+        tuple
+            ``(killed, rejoined)``: the positions that stopped taking part, and ``(position, incarnation)`` of
+            those that rejoin with a fresh estimate.
+        """
         killed, rejoined = [], []
         for f in faults:
-            if f.action in ("kill", "freeze"):
-                i = self.ids.index(f.agent)
-                if self.lose(i):
-                    killed.append(i)
-            elif f.action == "restart":
-                i = self.ids.index(f.agent)
-                inc = self.rejoin(i)
-                if inc is not None:
-                    rejoined.append((i, inc))
-            elif f.action == "drop_arc":
-                self.dropped.add(f.arc)
-            elif f.action == "restore_arc":
-                self.dropped.discard(f.arc)
-            elif f.action == "partition":
-                self.groups = f.groups
-            elif f.action == "heal":
-                self.groups = None
+            lost, back = f.apply(self)
+            killed += lost
+            rejoined += back
         return killed, rejoined
+
+    def measured(self, y: np.ndarray, rows: list) -> np.ndarray:
+        """The measurements as the estimators are given them, with the sensor faults in force.
+
+        Parameters
+        ----------
+        y : (sum s_i,) or (sum s_i, N) array
+            The plant's stacked measurements (outputs on axis 0, seeds after).
+        rows : list of slice
+            Each agent's rows of ``y`` (:func:`~splitspec_core.model.plant.output_rows`).
+
+        Returns
+        -------
+        array
+            ``y`` itself when no sensor fault is in force; else a copy in which each faulty sensor's rows are
+            changed by its fault (:meth:`~splitspec_core.scenarios.faults.Fault.measure`).
+        """
+        if not self.sensors:
+            return y
+        y = np.array(y, dtype=float)
+        for i, (fault, memo) in self.sensors.items():
+            y[rows[i]] = fault.measure(y[rows[i]], memo)
+        return y
 
     def alive_ids(self) -> list:
         return [a for a, ok in zip(self.ids, self.alive) if ok]

@@ -3,7 +3,8 @@
 ``specs.py`` the frozen :class:`Scenario` and its sections' dataclasses; ``checks.py`` value checks (one-line
 errors naming the key); ``sections.py`` the parsers of each section, ``design_section.py`` the ``design:``
 section (gains, consensus, g or q), ``network_section.py`` the ``network:``
-section (losses, delays, partitions), ``sources.py`` live sources; ``load.py`` the one validation path
+section (losses, delays, partitions), ``faults.py`` the kinds of fault (one registered class each: parsing,
+effect in the simulator and the runtime, event, mark), ``sources.py`` live sources; ``load.py`` the one validation path
 (``load_scenario``, ``parse_scenario_text``) and ``yaml12.py`` its numbers as YAML 1.2 reads them; ``files.py`` models in ``.npz``/``.mat`` files (``system.file``),
 ``control.py`` python-control plants; ``noise.py`` the process and measurement noise (per state, per
 agent, per output) and the covariances they mean; ``inputs.py`` known inputs (``system.B``, ``system.u``) and

@@ -22,11 +22,6 @@ GAIN_METHODS = ("place", "riccati", "explicit", "optimal")
 CONSENSUS = ("auto", "split", "whole")
 Q_METHODS = ("spectral", "weighted", "two-norm", "mixed")
 WEIGHTINGS = ("uniform", "metropolis")
-FAULT_ACTIONS = ("kill", "restart", "freeze", "drop_arc", "restore_arc", "partition", "heal")
-#: older spellings of a fault action, read as the action (``hang`` was ``freeze`` until issue 36: one word for a
-#: frozen process everywhere; scenario files and recorded runs that say ``hang`` still load)
-FAULT_ALIASES = {"hang": "freeze"}
-
 TOP_KEYS = ("name", "time", "system", "graphs", "switching", "design", "faults", "run", "positions", "network",
              "sources")
 NETWORK_KEYS = ("loss", "delay", "deadline", "arcs")

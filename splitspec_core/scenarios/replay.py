@@ -4,8 +4,9 @@
 which it holds (``tau``): ``agent_lost`` (whatever the cause: a scenario
 fault, ``kill -9`` from outside, a frozen process, a round timeout),
 ``agent_rejoined`` (restart by the scenario or by hand), ``arc_dropped``,
-``arc_restored``, ``partition`` and ``healed``.  Turned into ``{at: tau * dt,
-kill | restart | drop_arc | restore_arc | partition | heal}`` faults they make
+``arc_restored``, ``partition`` and ``healed``, and the events of every other fault kind
+(:mod:`splitspec_core.scenarios.faults`: each kind reads its own event back).  Turned into ``{at: tau * dt,
+kill | restart | drop_arc | restore_arc | partition | heal | ...}`` faults they make
 ``splitspec simulate`` apply the same changes at the same steps
 (:func:`splitspec_core.model.network.fault_step`); with the consensus messages the
 run recorded as not counted (``trajectory.npz`` ``lost``: injected losses,
@@ -20,12 +21,10 @@ import json
 from pathlib import Path
 
 from ..errors import ScenarioError
-from .specs import Fault, Scenario
+from .faults import kind_of_event
+from .specs import Scenario
 
 __all__ = ["load_events", "faults_from_events", "with_recorded_faults", "recorded_run"]
-
-_ACTIONS = {"agent_lost": "kill", "agent_rejoined": "restart", "arc_dropped": "drop_arc", "arc_restored": "restore_arc",
-            "partition": "partition", "healed": "heal"}
 
 
 def load_events(path) -> list:
@@ -52,35 +51,18 @@ def load_events(path) -> list:
 
 
 def faults_from_events(events: list, sc: Scenario, *, source: str = "events") -> tuple:
-    """Faults reproducing the network changes recorded in ``events``."""
+    """Faults reproducing the network changes recorded in ``events`` (each event word read by the fault kind that
+    logs it: :func:`splitspec_core.scenarios.faults.kind_of_event`)."""
     dt = sc.run.dt if sc.time == "continuous" else 1.0
     faults = []
     for k, e in enumerate(events, 1):
-        action = _ACTIONS.get(e.get("event"))
-        if action is None:
+        cls = kind_of_event(e.get("event"))
+        if cls is None:
             continue
         tau = e.get("tau")
         if not isinstance(tau, int) or isinstance(tau, bool) or tau < 0:
             raise ScenarioError(f"{source}: event {k} ({e['event']}) has no valid 'tau'")
-        if action == "partition":
-            groups = e.get("groups")
-            if not (isinstance(groups, list) and groups and all(isinstance(g, list) and all(a in sc.agent_ids for a in g)
-                                                                for g in groups)):
-                raise ScenarioError(f"{source}: event {k} (partition) has bad 'groups' {groups!r}")
-            faults.append(Fault(at=tau * dt, action="partition", groups=tuple(tuple(g) for g in groups)))
-        elif action == "heal":
-            faults.append(Fault(at=tau * dt, action="heal"))
-        elif action in ("kill", "restart"):
-            aid = e.get("id")
-            if aid not in sc.agent_ids:
-                raise ScenarioError(f"{source}: event {k} ({e['event']}) names agent {aid!r}, which is not in the "
-                                    f"scenario (agents {', '.join(map(str, sc.agent_ids))}): wrong scenario?")
-            faults.append(Fault(at=tau * dt, action=action, agent=aid))
-        else:
-            arc = e.get("arc")
-            if not (isinstance(arc, list) and len(arc) == 2 and all(a in sc.agent_ids for a in arc)):
-                raise ScenarioError(f"{source}: event {k} ({e['event']}) has a bad 'arc' {arc!r}")
-            faults.append(Fault(at=tau * dt, action=action, arc=(arc[0], arc[1])))
+        faults.append(cls(at=tau * dt, **cls.from_event(e, f"{source}: event {k} ({e['event']})", sc.agent_ids)))
     return tuple(faults)
 
 

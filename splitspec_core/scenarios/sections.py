@@ -12,17 +12,18 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import ScenarioError
-from .checks import (GRAPH_KEYS, RANDOM_KEYS, RUN_KEYS, SWITCHING_KEYS, SYSTEM_KEYS, TOP_KEYS, FAULT_ACTIONS,
-                     FAULT_ALIASES, MIN_DT, MIN_PACE, MIN_SWITCH_STEPS, check_agent_id, check_arc, check_keys,
+from .checks import (GRAPH_KEYS, RANDOM_KEYS, RUN_KEYS, SWITCHING_KEYS, SYSTEM_KEYS, TOP_KEYS, MIN_DT, MIN_PACE,
+                     MIN_SWITCH_STEPS, check_agent_id, check_arc, check_keys,
                      describe, ids_text, check_integer, check_known_agent, check_matrix, check_names, check_number,
                      require_map, check_seed, check_shapes, plain)
 from .inputs import parse_inputs
 from .labels import default_state_names
 from .noise import parse_measurement_noise, parse_process_noise
 from .files import resolve_model_file
-from .specs import Fault, GraphSpec, RunSpec, Scenario, Switching, System
+from .specs import GraphSpec, RunSpec, Scenario, Switching, System
 from .design_section import parse_design
-from .network_section import check_heals, parse_groups, parse_network
+from .faults import parse_faults
+from .network_section import parse_network
 from .sources import parse_input_source, parse_sources
 
 def _parse_system(raw: Any, time: str = "discrete") -> tuple[System, tuple]:
@@ -157,47 +158,6 @@ def _parse_switching(raw: Any, names: tuple, time: str) -> Switching:
     return Switching(kind="random", graphs=gs, dwell=dwell, seed=seed)
 
 
-def parse_faults(raw: Any, ids: tuple) -> tuple:
-    """A scenario's ``faults:`` list (or ``ss.run``'s and ``ss.simulate``'s ``faults=``) for agents ``ids``: the
-    :class:`~splitspec_core.scenarios.specs.Fault` tuple sorted by time; one line naming the entry when it is wrong."""
-    if raw is None:
-        return ()
-    if not isinstance(raw, list):
-        raise ScenarioError(f"faults must be a list of {{at: T, <action>: ...}}, got {describe(raw)}")
-    out = []
-    for k, item in enumerate(raw):
-        key = f"faults[{k + 1}]"
-        fmap = require_map(item, key)
-        check_keys(fmap, ("at",) + FAULT_ACTIONS + tuple(FAULT_ALIASES), key)
-        if "at" not in fmap:
-            raise ScenarioError(f"{key}.at is missing (the time of the fault)")
-        at = check_number(fmap["at"], f"{key}.at")
-        if at < 0:
-            raise ScenarioError(f"{key}.at must be >= 0, got {at:g}")
-        actions = [a for a in FAULT_ACTIONS + tuple(FAULT_ALIASES) if a in fmap]
-        if len(actions) != 1:
-            raise ScenarioError(f"{key} needs exactly one of {', '.join(FAULT_ACTIONS)}")
-        action = FAULT_ALIASES.get(actions[0], actions[0])  # hang, the older spelling, is freeze
-        fmap = {**fmap, action: fmap[actions[0]]}
-        if action == "partition":
-            out.append(Fault(at=at, action=action, groups=parse_groups(fmap[action], f"{key}.partition", ids)))
-        elif action == "heal":
-            if fmap[action] is not True:
-                raise ScenarioError(f"{key}.heal must be true (it ends every partition), got {describe(fmap[action])}")
-            out.append(Fault(at=at, action=action))
-        elif action.endswith("_arc"):
-            arc = check_arc(fmap[action], f"{key}.{action}", ids)
-            if arc[0] == arc[1]:
-                raise ScenarioError(f"{key}.{action} [{arc[0]}, {arc[1]}] is a self-arc: self-arcs are implicit "
-                                    "and cannot be dropped or restored")
-            out.append(Fault(at=at, action=action, arc=arc))
-        else:
-            out.append(Fault(at=at, action=action, agent=check_known_agent(fmap[action], f"{key}.{action}", ids)))
-    out = tuple(sorted(out, key=lambda f: f.at))
-    check_heals(out)
-    return out
-
-
 def _parse_show(raw: Any, names: tuple) -> tuple | None:
     """``run.show``: names or ``fnmatch`` patterns of states, each matching at least one."""
     import fnmatch
@@ -265,7 +225,7 @@ def parse_scenario(data: Any, *, source: str = "<scenario>", base: Path | None =
     if "design" not in top:
         raise ScenarioError("design is missing (at least design.rate)")
     design = parse_design(top["design"], time, system, ids)
-    faults = parse_faults(top.get("faults"), ids)
+    faults = parse_faults(top.get("faults"), ids, outputs={i: C.shape[0] for i, C in zip(ids, system.Cs)})
     run = _parse_run(top.get("run"), time, system.states or default_state_names(system.n), bool(top.get("sources")))
     _check_switching_against_step(switching, run)
     positions = _parse_positions(top.get("positions"), ids)

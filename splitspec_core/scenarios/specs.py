@@ -34,7 +34,6 @@ __all__ = [
     "GraphSpec",
     "Switching",
     "DesignSpec",
-    "Fault",
     "NetworkSpec",
     "RunSpec",
     "Scenario",
@@ -252,21 +251,6 @@ class DesignSpec:
     undetectable: str = "refuse"  # refuse | exclude: a mode no agent sees that does not decay (detectability.py)
     coordinates: str = "auto"  # auto | given | balanced: where the estimator's projections are orthogonal (local_design)
     consensus: str = "auto"  # auto | split | whole: what each agent takes from its neighbours (synthesis/whole_state.py)
-
-
-@dataclass(frozen=True)
-class Fault:
-    """One scheduled fault: ``action`` at time ``at`` on ``agent``, ``arc`` or ``groups``.
-
-    ``partition``: ``groups`` (a tuple of tuples of agent ids; agents named in no group form one more
-    group): no consensus message crosses between groups until a ``heal`` (no operand) ends it.
-    """
-
-    at: float
-    action: str
-    agent: int | None = None
-    arc: tuple | None = None
-    groups: tuple | None = None
 
 
 @dataclass(frozen=True)

@@ -121,7 +121,8 @@ def envelope(t: np.ndarray, err_max: np.ndarray, restarts, *, time: str, rate: f
 
 @dataclass(frozen=True)
 class Mark:
-    """One event of a run, to mark on a plot: ``kind`` is ``loss``, ``rejoin``, ``switch`` or ``arc``."""
+    """One event of a run, to mark on a plot: ``kind`` is ``loss``, ``rejoin``, ``switch``, ``arc`` or ``fault`` (a
+    fault kind's own mark: :meth:`splitspec_core.scenarios.faults.Fault.plot_mark`)."""
 
     step: int
     t: float
@@ -129,7 +130,13 @@ class Mark:
     label: str
 
 
-MARK_KINDS = ("loss", "rejoin", "switch", "arc")
+MARK_KINDS = ("loss", "rejoin", "switch", "arc", "fault")
+_MARK_PREFIX = {"arc": "arc "}  # "arc 1-6 down, 2-3 up": one mark per step and kind, its words joined
+
+
+def _fault_marks(k: int, t: float, said: dict) -> list:
+    """The marks of step ``k``'s faults, one per kind (``said``: step -> {kind: [words]})."""
+    return [Mark(k, t, kind, _MARK_PREFIX.get(kind, "") + ", ".join(words)) for kind, words in said.get(k, {}).items()]
 
 
 def event_marks(t: np.ndarray, alive: np.ndarray, graph: np.ndarray, *, agent_ids, faults=(),
@@ -138,10 +145,10 @@ def event_marks(t: np.ndarray, alive: np.ndarray, graph: np.ndarray, *, agent_id
 
     Losses, rejoins and switches come from the recorded ``alive`` (T, m) and
     ``graph`` (T,) (``trajectory.npz``), so a recording marks what happened.
-    ``faults`` (the scenario's :class:`~splitspec_core.scenarios.specs.Fault` list)
-    names the loss (``killed``, ``frozen``) and adds what ``alive`` and
-    ``graph`` cannot show: ``drop_arc`` / ``restore_arc`` at step
-    ``ceil(at / dt)`` (as :func:`splitspec_core.model.network.fault_step`).
+    ``faults`` (the scenario's :class:`~splitspec_core.scenarios.faults.Fault` list)
+    names the loss (each kind's ``loss_word``: ``killed``, ``frozen``) and adds what ``alive`` and
+    ``graph`` cannot show, each kind's :meth:`~splitspec_core.scenarios.faults.Fault.plot_mark` (``drop_arc`` /
+    ``restore_arc``, ...) at step ``ceil(at / dt)`` (as :func:`splitspec_core.model.network.fault_step`).
     """
     t = np.asarray(t, dtype=float)
     alive = np.asarray(alive, dtype=bool)
@@ -149,15 +156,16 @@ def event_marks(t: np.ndarray, alive: np.ndarray, graph: np.ndarray, *, agent_id
     ids = [int(a) for a in agent_ids]
     T = t.shape[0]
     why = {}  # (step, agent id) -> word from the fault list
-    arcs: dict = {}  # step -> ["1-6 down", ...]
+    said: dict = {}  # step -> {plot mark kind: [words, ...]} of the faults' own marks (arcs, sensors, ...)
     for f in faults:
         k = fault_step(f.at, dt)
         if k >= T:
             continue
-        if f.arc is not None:
-            arcs.setdefault(k, []).append(f"{f.arc[0]}-{f.arc[1]} {'down' if f.action == 'drop_arc' else 'up'}")
-        elif f.action in ("kill", "freeze"):
-            why[(k, int(f.agent))] = "killed" if f.action == "kill" else "frozen"
+        if f.loss_word is not None:
+            why[(k, int(f.agent))] = f.loss_word
+        mark = f.plot_mark()
+        if mark is not None:
+            said.setdefault(k, {}).setdefault(mark[0], []).append(mark[1])
     marks = []
     for k in range(1, T):
         lost = np.nonzero(alive[k - 1] & ~alive[k])[0]
@@ -171,10 +179,9 @@ def event_marks(t: np.ndarray, alive: np.ndarray, graph: np.ndarray, *, agent_id
             g = int(graph[k])
             name = graph_names[g] if graph_names is not None and g < len(graph_names) else str(g)
             marks.append(Mark(k, float(t[k]), "switch", f"graph {name}"))
-        if k in arcs:
-            marks.append(Mark(k, float(t[k]), "arc", "arc " + ", ".join(arcs[k])))
-    if 0 in arcs:
-        marks.insert(0, Mark(0, float(t[0]), "arc", "arc " + ", ".join(arcs[0])))
+        marks += _fault_marks(k, float(t[k]), said)
+    if 0 in said:
+        marks[:0] = _fault_marks(0, float(t[0]), said)
     return tuple(marks)
 
 

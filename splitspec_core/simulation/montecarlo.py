@@ -50,7 +50,9 @@ from ..synthesis.design_data import Design
 from ..errors import ScenarioError
 from ..model.network import NetworkState, make_plan
 from ..model.plant import advanced, initial_estimate, measured, seed_draws
-from .simulator import BatchEstimator, Trajectory, weight_entries, realized_step, check_trajectory_memory, simulate
+from .loop import run_steps
+from .simulator import (BatchEstimator, NetworkWeights, Trajectory, realized_step, check_trajectory_memory,
+                        simulate)
 
 __all__ = ["CHUNK", "MonteCarloRuns", "SeedBatchEstimator", "fallback_reason", "simulate_seeds"]
 
@@ -292,8 +294,8 @@ def _loop(des: Design, seeds: tuple, *, steps, noise, trajectories, lost, measur
 def _batch(des: Design, seeds: tuple, *, steps, noise, trajectories) -> tuple:
     """``(t, sq_error (N, T), alive_count (N, T), trajectories)`` of one chunk of seeds, stepped together.
 
-    The driver of :func:`~splitspec_core.simulation.simulator.simulate`, step for step (faults, record, measure, update,
-    advance), with every seed's plant and estimates on a trailing axis.
+    The loop of :func:`~splitspec_core.simulation.simulator.simulate` (:func:`~splitspec_core.simulation.loop.run_steps`:
+    faults, record, measure, update, advance), with every seed's plant and estimates on a trailing axis.
     """
     sc = des.scenario
     N = len(seeds)
@@ -316,15 +318,17 @@ def _batch(des: Design, seeds: tuple, *, steps, noise, trajectories) -> tuple:
         lost_rows: list = []
     impaired = any(f.action == "partition" for f in sc.faults)  # the only loss that is the same for every seed
     exchanges = 1 if est.continuous else int(des.q)
-    w_cache: dict = {}
-    for k in range(T):
-        killed, rejoined = net.apply(plan.faults.get(k, ()))
+    weights = NetworkWeights(est, sc)
+
+    def restart(killed, rejoined):
         for i in killed:
             X[i] = 0.0
         for i, inc in rejoined:
             X[i] = np.stack([initial_estimate(n, s, i, inc) for s in seeds], axis=1)
             if est.adaptive:
                 est.g[i] = sc.design.g0
+
+    def record(k):
         e2 = np.einsum("ijs,ijs->is", X - x[None], X - x[None])  # (m, N)
         sq[:, k] = e2[alive].sum(axis=0)
         count[:, k] = int(alive.sum())
@@ -334,18 +338,21 @@ def _batch(des: Design, seeds: tuple, *, steps, noise, trajectories) -> tuple:
             al[k] = alive
             if est.continuous:
                 gains[:, k, alive] = est.g[alive].T
-        if k == plan.steps:
-            break
-        y = measured(C, sigma_m, x, w[k])  # the plant's formulas (plant_model), on every seed's state
-        key = net.key(plan.graph_seq[k])
-        W = w_cache.get(key)
-        if W is None:
-            rows = net.rows(sc, key[0])
-            W = w_cache[key] = (est.weights(rows), rows, weight_entries(sc, rows))
+
+    def update(k, y):
+        nonlocal X
+        W = weights(net, plan.graph_seq[k])
         Ws = realized_step(est, sc, W, k, exchanges, None, None, net.groups,
-                            lost_rows if trajectories else []) if impaired else None
+                           lost_rows if trajectories else []) if impaired else None
         X = est.step(X, y, W[0], alive) if Ws is None else est.step_realized(X, y, Ws, alive)
+
+    def advance(k):
+        nonlocal x
         x = advanced(F, L, x, v[k])
+
+    # the plant's formulas, on every seed's state
+    run_steps(plan, net, plant.rows, restart=restart, record=record, measure=lambda k: measured(C, sigma_m, x, w[k]),
+              update=update, advance=advance)
     t = plan.times()
     trajs = ()
     if trajectories:

@@ -11,13 +11,13 @@ Three estimators share one driver (plant, noise streams, switching, faults):
   eq. (split_continuous_observer), integrated with a matrix exponential per
   step (graphs piecewise constant), noise-free, for comparison.
 
-Step order at step k (time ``t_k``): apply faults at k; record
-``x(k), x_i(k)``; measure ``y_i(k) = C_i x(k) + w_i(k)``; every alive agent
-updates to ``x_i(k+1)``; the plant moves to ``x(k+1)``.
+Step order at step k (time ``t_k``), the one loop of :mod:`splitspec_core.simulation.loop`: apply faults at
+k; record ``x(k), x_i(k)``; measure ``y_i(k) = C_i x(k) + w_i(k)`` (as the sensor faults in force change it);
+every alive agent updates to ``x_i(k+1)``; the plant moves to ``x(k+1)``.
 
 Why one module: the three estimators share one driver (plant, seed streams, switching,
-faults, restarts); split, the driver's step order -- the contract ``splitspec run`` reproduces --
-would be spread over files.
+faults, restarts, the network's weights); split, what each hands the loop -- the contract ``splitspec run``
+reproduces -- would be spread over files.
 """
 
 from __future__ import annotations
@@ -40,7 +40,9 @@ from ..errors import ScenarioError
 from ..model.network import NetworkState, Plan, make_plan
 from ..model.plant import Plant, RecordedPlant, initial_estimate, initial_state, output_rows
 from ..model.impairment import PARTITION, Impairment, crosses, group_of, realized_row
+from ..scenarios.faults import PLANT
 from ..scenarios.specs import Scenario
+from .loop import run_steps
 from .trajectory_file import lost_arrays, write_trajectory
 
 __all__ = [
@@ -268,6 +270,36 @@ def weight_entries(sc: Scenario, rows: dict) -> tuple:
     order = np.argsort(ri, kind="stable")  # by receiver, each row's own order kept (a realized S sums rows)
     ri, ci, w = ri[order], ci[order], w[order]
     return ri, ci, w, ri != ci
+
+
+class NetworkWeights:
+    """The estimator's weights of each network a run meets, computed once each: ``(W, rows, entries)`` of the
+    active graph restricted to the alive agents, the arcs left and the partition (``NetworkState.key``)."""
+
+    def __init__(self, est, sc: Scenario):
+        self.est, self.sc, self.cache = est, sc, {}
+
+    def __call__(self, net: NetworkState, graph: int) -> tuple:
+        """The weights of the network ``net`` is now, on the graph of index ``graph``.
+
+        Parameters
+        ----------
+        net : NetworkState
+            Alive agents, dropped arcs, partition.
+        graph : int
+            The active graph's index (scenario order).
+
+        Returns
+        -------
+        tuple
+            ``(est.weights(rows), rows, weight_entries(sc, rows))``, computed once per network.
+        """
+        key = net.key(graph)
+        W = self.cache.get(key)
+        if W is None:
+            rows = net.rows(self.sc, key[0])
+            W = self.cache[key] = (self.est.weights(rows), rows, weight_entries(self.sc, rows))
+        return W
 
 
 class _RealizedS:
@@ -618,45 +650,52 @@ def simulate(des: Design, *, seed: int | None = None, steps: int | None = None, 
     al = np.zeros((T, m), dtype=bool)
     gains = np.full((T, m), np.nan)  # g_i(t): adaptive or fixed in continuous time; none in discrete time
     bar = Progress(plan.steps, progress)
-    w_cache: dict = {}  # active network -> the estimator's weights
+    weights = NetworkWeights(est, sc)
     # a misbehaving network (impairment.py): messages that do not count, drawn (or replayed from a run's record)
     imp = Impairment(sc.network, seed) if sc.network.impaired and lost is None else None
     replay = _replay_index(lost) if lost is not None else None
     impaired = imp is not None or replay is not None or any(f.action == "partition" for f in sc.faults)
     exchanges = 1 if est.continuous else int(des.q)  # the whole-state design: q in both times
     lost_rows: list = []
-    ys = np.zeros((T, sum(np.shape(C)[0] for C in sc.system.Cs))) if keep_y else None
-    for k in range(T):
-        killed, rejoined = net.apply(plan.faults.get(k, ()))
+    ys = np.zeros((T, sum(np.shape(C)[0] for C in sc.system.Cs))) if keep_y and measurements is None else None
+    rows_y = output_rows(sc.system.Cs)
+
+    def restart(killed, rejoined):
         for i in killed:
             X[i] = 0.0
         for i, inc in rejoined:
             X[i] = initial_estimate(n, seed, i, inc)
             if est.continuous and est.adaptive:
                 est.g[i] = sc.design.g0
+
+    def record(k):
         xs[k] = plant.x
         xh[k][alive] = X[alive]
         al[k] = alive
         if est.continuous:
             gains[k][alive] = est.g[alive]
-        if k == plan.steps:
-            if ys is not None and measurements is None:
-                ys[k] = plant.measure()  # the last row's measurement (drawn after every other draw)
-            break
-        y, missing = plant.measure(), plant.missing()
-        if ys is not None and measurements is None:
+
+    def update(k, y):
+        nonlocal X
+        if ys is not None:
             ys[k] = y
-        key = net.key(plan.graph_seq[k])
-        W = w_cache.get(key)
-        if W is None:
-            rows = net.rows(sc, key[0])
-            W = w_cache[key] = (est.weights(rows), rows, weight_entries(sc, rows))
+        W = weights(net, plan.graph_seq[k])
         Ws = realized_step(est, sc, W, k, exchanges, imp, replay, net.groups, lost_rows) if impaired else None
         bu = st.known_input(B, plant.input())  # the known input every agent adds (the agent process: the same)
+        missing = plant.missing()
         X = (est.step(X, y, W[0], alive, missing, bu) if Ws is None
              else est.step_realized(X, y, Ws, alive, missing, bu))
+
+    def advance(k):
         plant.advance()
         bar.update(k + 1)
+
+    def last(k):
+        if ys is not None:  # the last row's measurement (drawn after every other draw)
+            ys[k] = net.measured(plant.measure(), rows_y)
+
+    run_steps(plan, net, rows_y, restart=restart, record=record, measure=lambda k: plant.measure(), update=update,
+              advance=advance, last=last)
     lost_a, cause_a = lost_arrays(lost_rows)
     recorded = {}
     if measurements is not None:  # what the estimators were given, for the views without truth
@@ -742,6 +781,10 @@ def simulate_exact(des: Design, *, seed: int | None = None, steps: int | None = 
     if sc.network.impaired or any(f.action == "partition" for f in sc.faults):
         raise ScenarioError("the exact ODE has no messages to lose: it cannot model network: or partition faults "
                             "(simulate without --exact)")
+    sensors = sorted({f.action for f in sc.faults if f.runtime == PLANT})
+    if sensors:
+        raise ScenarioError(f"the exact ODE measures every output exactly: it cannot model {', '.join(sensors)} "
+                            "faults (simulate without --exact)")
     seed = sc.run.seed if seed is None else seed
     check_trajectory_memory(sc, steps)
     plan = make_plan(sc, seed, steps)
@@ -756,23 +799,27 @@ def simulate_exact(des: Design, *, seed: int | None = None, steps: int | None = 
     xh = np.full((T, m, n), np.nan)
     al = np.zeros((T, m), dtype=bool)
     cache: dict = {}
-    for k in range(T):
-        for i, inc in net.apply(plan.faults.get(k, ()))[1]:
+    pos = {a: r for r, a in enumerate(ids)}
+
+    def restart(killed, rejoined):
+        for i, inc in rejoined:
             z[n * (i + 1):n * (i + 2)] = initial_estimate(n, seed, i, inc)
+
+    def record(k):
         xs[k] = z[:n]
         for i in range(m):
             if alive[i]:
                 xh[k, i] = z[n * (i + 1):n * (i + 2)]
         al[k] = alive
-        if k == plan.steps:
-            break
+
+    def update(k, y):  # plant and estimates together: z(k+1) = Phi z(k), Phi = exp(M dt) of the network at k
+        nonlocal z
         key = net.key(plan.graph_seq[k])
         Phi = cache.get(key)
         if Phi is None:
             rows = net.rows(sc, key[0])
             M = np.zeros(((m + 1) * n, (m + 1) * n))
             M[:n, :n] = A
-            pos = {a: r for r, a in enumerate(ids)}
             for i_id, (nbs, ws) in rows.items():
                 i = pos[i_id]
                 bi = slice(n * (i + 1), n * (i + 2))
@@ -786,5 +833,7 @@ def simulate_exact(des: Design, *, seed: int | None = None, steps: int | None = 
             Phi = sla.expm(M * plan.dt)
             cache[key] = Phi
         z = Phi @ z
+
+    run_steps(plan, net, output_rows(sc.system.Cs), restart=restart, record=record, update=update)
     return Trajectory(t=plan.times(), x=xs, xhat=xh, alive=al, graph=plan.graph_seq.copy(), agent_ids=np.array(ids),
                       gains=np.where(al, g, np.nan), states=sc.state_names)

@@ -89,6 +89,37 @@ def test_scenario_faults_execute_for_real_and_equal_simulate(tmp_path):
     assert "agent 3 (lost)" not in topo[30][0] and "agent 5 (lost)" not in topo[35][0]
 
 
+def test_corrupt_sensor_and_kill_for_real_equal_simulate_and_replay(tmp_path):
+    """corrupt (applied by the plant process) and a kill with for:, on real processes: run == simulate, the
+    replay of the recorded events too, events and timeline marks for the sensor fault."""
+    raw = yaml.safe_load((EXAMPLES / "ring10.yaml").read_text())
+    raw["system"]["measurement_noise"] = 0.01  # the plant's draws go into the corrupted measurement too
+    raw["run"] = {**raw.get("run", {}), "steps": 40}
+    raw["faults"] = [{"at": 8, "corrupt": 2, "for": 6, "bias": 0.5, "scale": 1.2}, {"at": 11, "kill": 7, "for": 9}]
+    scen = tmp_path / "corrupt.yaml"
+    scen.write_text(yaml.safe_dump(raw))
+    out = tmp_path / "out"
+    r = run("run", scen, "--out", out, "--run-id", run_id())
+    assert r.returncode == 0, r.stdout + r.stderr
+    compare_with_simulate(out, scen, tmp_path)
+    replay(out, tmp_path / "replay")
+    ev = events(out)
+    (bad,) = [e for e in ev if e["event"] == "sensor_corrupted"]
+    (fixed,) = [e for e in ev if e["event"] == "sensor_repaired"]
+    assert (bad["id"], bad["tau"], bad["bias"], bad["scale"], fixed["id"], fixed["tau"]) == (2, 8, 0.5, 1.2, 2, 14)
+    traj, err = agent_errors(out)
+    k = list(traj["agent_ids"]).index(2)
+    import splitspec_core as ss
+
+    clean = ss.simulate(ss.load_scenario(scen), faults=raw["faults"][1:]).errors()  # the kill alone
+    assert err[14, k] > 10 * clean[14, k]  # given 1.2 y + 0.5 from event time 8 to 13, its estimate goes astray
+    np.testing.assert_allclose(err[:9], clean[:9], rtol=1e-9, atol=1e-12)  # y(8) is used from event time 9 on
+    logs = read_rrd_logs(out / "run.rrd")
+    assert any(tau == 8 and text == "agent 2's measurements corrupted (scale 1.2, bias 0.5)"
+               for tau, _, text in logs["events"])
+    assert [tau for tau, _ in read_rrd(out / "run.rrd")["marks/sensor"]] == [8, 14]
+
+
 def test_outside_sigkill_of_a_redundant_agent(tmp_path):
     """kill -9 from outside the run: survivors converge, the row is NaN from the recorded time, replay agrees."""
     scen = scenario_file(tmp_path, "ring10", run={"steps": 120, "pace": 20})

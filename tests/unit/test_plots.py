@@ -11,7 +11,7 @@ from splitspec_orchestrator import cli, plots
 from splitspec_core.simulation.metrics import NO_CERTIFIED_RATE, Mark, event_marks, max_error, summarize
 from splitspec_core.synthesis.designer import design
 from splitspec_core.scenarios.load import load_scenario
-from splitspec_core.scenarios.specs import Fault
+from splitspec_core.scenarios.faults import make_fault
 from splitspec_core.simulation.simulator import simulate
 from tests.conftest import EXAMPLES
 
@@ -21,8 +21,8 @@ def test_event_marks_hand_worked():
     alive[2:5, 1] = False  # agent 20 killed at 2, back at 5
     alive[4:, 2] = False  # agent 30 lost at 4 (no fault names it)
     graph = np.array([0, 0, 0, 1, 1, 1, 1, 0])
-    faults = (Fault(at=2, action="kill", agent=20), Fault(at=3, action="drop_arc", arc=(10, 20)),
-              Fault(at=6, action="restore_arc", arc=(10, 20)), Fault(at=99, action="kill", agent=10))
+    faults = (make_fault("kill", 2, agent=20), make_fault("drop_arc", 3, arc=(10, 20)),
+              make_fault("restore_arc", 6, arc=(10, 20)), make_fault("kill", 99, agent=10))
     marks = event_marks(np.arange(8.0), alive, graph, agent_ids=[10, 20, 30], faults=faults,
                         graph_names=("a", "b"))
     assert marks == (Mark(2, 2.0, "loss", "20 killed"), Mark(3, 3.0, "switch", "graph b"),
@@ -34,7 +34,7 @@ def test_event_marks_hand_worked():
 def test_event_marks_continuous_time_uses_the_fault_step():
     t = np.arange(5) * 0.1
     marks = event_marks(t, np.ones((5, 2), dtype=bool), np.zeros(5, dtype=int), agent_ids=[1, 2],
-                        faults=(Fault(at=0.25, action="drop_arc", arc=(1, 2)),), dt=0.1)
+                        faults=(make_fault("drop_arc", 0.25, arc=(1, 2)),), dt=0.1)
     assert [(m.step, m.kind) for m in marks] == [(3, "arc")]  # ceil(0.25 / 0.1) = 3, as the simulator applies it
 
 

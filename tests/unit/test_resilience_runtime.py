@@ -108,7 +108,7 @@ def test_replay_events_reproduce_scenario_faults():
         name = {"kill": "agent_lost", "freeze": "agent_lost", "restart": "agent_rejoined",
                 "drop_arc": "arc_dropped", "restore_arc": "arc_restored"}[f.action]
         e = {"event": name, "tau": int(f.at)}
-        e.update({"id": f.agent} if f.agent is not None else {"arc": list(f.arc)})
+        e.update({"id": f.agent} if hasattr(f, "agent") else {"arc": list(f.arc)})
         evs.append(e)
     evs.insert(0, {"event": "process_started", "role": "agent", "id": 1})  # ignored
     replayed = faults_from_events(evs, sc)

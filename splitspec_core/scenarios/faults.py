@@ -1,0 +1,577 @@
+"""The kinds of scenario fault, declared once: one small registered class per kind.
+
+A fault is a frozen dataclass, a subclass of :class:`Fault`, registered under its ``action`` (the scenario's
+key: ``{at: T, kill: 3}``).  Each kind holds everything about itself:
+
+* its parsing (:meth:`Fault.parse`: the value of its key and its options, one-line errors naming the key);
+* its effect in the simulator (:meth:`Fault.apply` on :class:`splitspec_core.model.network.NetworkState`, and
+  :meth:`Fault.measure` on the measurements of a sensor it holds, the identity for most kinds);
+* its effect in the runtime, a declarative answer the orchestrator dispatches on (:attr:`Fault.runtime`:
+  :data:`SIGNAL` the agent's process, :data:`RESTART` it, change the agents' :data:`NETWORK`, or a
+  :data:`PLANT` effect the plant process applies itself from the scenario, at the same step);
+* its event in ``events.jsonl`` (:attr:`Fault.event`, :meth:`Fault.payload`, :meth:`Fault.text`) and how a
+  replay reads it back (:meth:`Fault.from_event`); its mark on the Rerun timeline (:attr:`Fault.mark`) and on
+  the plots (:meth:`Fault.plot_mark`, :attr:`Fault.loss_word`).
+
+A kind with an end (:attr:`Fault.ends_with`) takes a generic duration: ``{at: 10, kill: 3, for: 5}`` is a
+kill at 10 and a restart at 15, expanded when parsed.  An action nobody registered cannot be built: the
+parser refuses it with one line naming the registered kinds, and so does :func:`make_fault`.  Adding a kind
+is one class here (with :func:`register`), its test and its line in ``docs/how-to/faults.md``.
+
+Why one module: it is the declaration of every kind, the one place a newcomer adds one; split per kind, each
+addition would touch a new module and the list that imports it.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from typing import Any, ClassVar
+
+import numpy as np
+
+from ..errors import ScenarioError
+from .checks import check_arc, check_keys, check_known_agent, check_number, describe, ids_text, require_map
+from .network_section import check_heals, parse_groups
+
+__all__ = ["Fault", "FaultContext", "KINDS", "FAULT_ACTIONS", "FAULT_ALIASES", "SIGNAL", "RESTART", "NETWORK",
+           "PLANT", "register", "make_fault", "parse_faults", "kind_of_event", "fault_event_text", "fault_marks"]
+
+SIGNAL = "signal"  #: the runtime signals the agent's process (SIGKILL, SIGSTOP); it is lost from that step
+RESTART = "restart"  #: the runtime spawns the agent's process again; it rejoins with a fresh estimate
+NETWORK = "network"  #: the runtime changes the agents' network as the simulator does (the ticks carry it)
+PLANT = "plant"  #: the plant process applies it to the measurements, from the scenario, at the same step
+
+KINDS: dict = {}  #: ``{action: kind}`` in registration order
+_WORDS: dict = {}  #: every word a scenario may use for an action (aliases too) -> the kind
+_EVENTS: dict = {}  #: event word -> the kind a replay makes of it (the first registered with that event)
+
+
+@dataclass(frozen=True)
+class FaultContext:
+    """What a kind's parser may check its values against: the agents' ids and each agent's number of outputs."""
+
+    ids: tuple
+    outputs: dict | None = None  # {agent id: s_i}; None: not known (no per-output check)
+
+
+@dataclass(frozen=True)
+class Fault:
+    """One scheduled fault at time ``at``: the base of the registered kinds (it cannot be built itself)."""
+
+    at: float
+
+    action: ClassVar[str] = ""
+    aliases: ClassVar[tuple] = ()  # older spellings of the action, read as it
+    options: ClassVar[tuple] = ()  # keys besides ``at``, the action and ``for``
+    ends_with: ClassVar[str | None] = None  # the action that ends it: ``for: S`` adds one at ``at + S``
+    runtime: ClassVar[str] = NETWORK
+    event: ClassVar[str | None] = None  # the event the runtime logs for it (a replay reads it back)
+    mark: ClassVar[str | None] = None  # its event's mark on the Rerun timeline (``marks/<mark>``)
+    mark_style: ClassVar[tuple | None] = None  # (legend, marker, colour) of a mark kind of its own
+    loss_word: ClassVar[str | None] = None  # why the agent is lost, on the plots (``3 killed``)
+    verdict: ClassVar[bool] = False  # the runtime says the survivors' verdict after it
+
+    def __post_init__(self):
+        if KINDS.get(self.action) is not type(self):
+            raise ScenarioError(f"fault kind {type(self).__name__} is not registered (the kinds: "
+                                f"{', '.join(KINDS)})")
+
+    @classmethod
+    def parse(cls, value: Any, fmap: dict, key: str, ctx: FaultContext) -> dict:
+        """The fields of the kind from the value of its key (``faults[k].<action>``) and its options."""
+        raise NotImplementedError
+
+    @classmethod
+    def from_event(cls, e: dict, where: str, ids: tuple) -> dict:
+        """The fields of the kind from its recorded event ``e`` (``where`` names it in an error)."""
+        return {}
+
+    def apply(self, net) -> tuple:
+        """Its effect on the simulator's network state: ``(lost positions, [(position, incarnation)])``."""
+        return [], []
+
+    def measure(self, y: np.ndarray, memo: dict) -> np.ndarray:
+        """A sensor it holds (:meth:`apply` puts it in ``net.sensors``): agent i's measurement ``y_i`` (outputs on
+        axis 0, seeds after) as the estimator is given it; ``memo`` is the sensor's own memory."""
+        return y
+
+    def payload(self, tau: int) -> dict:
+        """The fields of its event in ``events.jsonl``, at event time ``tau``."""
+        return {"tau": tau}
+
+    @staticmethod
+    def text(fields: dict) -> str:
+        """The one-sentence text of its event (the ``events`` TextLog)."""
+        raise NotImplementedError
+
+    def log_line(self, tau: int) -> tuple | None:
+        """``(level, message)`` the runtime logs when it applies the fault (None: the event says it)."""
+        return None
+
+    def plot_mark(self) -> tuple | None:
+        """``(plot mark kind, words)`` on the error plots (:func:`splitspec_core.simulation.metrics.event_marks`)."""
+        return None
+
+    def end(self, at: float) -> "Fault":
+        """The fault that ends this one at ``at`` (the kind :attr:`ends_with`, on the same agent or arc)."""
+        cls = KINDS[self.ends_with]
+        return cls(at=at, **{f.name: getattr(self, f.name) for f in dataclasses.fields(cls) if f.name != "at"})
+
+
+def register(cls: type) -> type:
+    """Register a kind under its ``action`` and aliases (a class decorator).
+
+    Parameters
+    ----------
+    cls : type
+        A frozen dataclass, subclass of :class:`Fault`, with its own ``action``.
+
+    Returns
+    -------
+    type
+        ``cls``, now buildable (:meth:`Fault.__post_init__` refuses a kind nobody registered).
+    """
+    if cls.runtime not in (SIGNAL, RESTART, NETWORK, PLANT):
+        raise ValueError(f"fault kind {cls.__name__}: runtime {cls.runtime!r} is none of {SIGNAL}, {RESTART}, "
+                         f"{NETWORK}, {PLANT}")
+    if cls.event is None or (cls.runtime in (SIGNAL, RESTART) and "agent" not in cls.__dataclass_fields__):
+        raise ValueError(f"fault kind {cls.__name__} needs an event, and an agent when the runtime signals or "
+                         "restarts it")
+    for word in (cls.action, *cls.aliases):
+        if word in _WORDS:
+            raise ValueError(f"fault action {word!r} is registered twice")
+        _WORDS[word] = cls
+    KINDS[cls.action] = cls
+    if cls.event is not None:
+        _EVENTS.setdefault(cls.event, cls)
+    return cls
+
+
+def make_fault(action: str, at: float, **fields) -> Fault:
+    """A fault of a registered kind, built directly (the parser builds them from the scenario's mapping).
+
+    Parameters
+    ----------
+    action : str
+        The kind's action or one of its aliases (``kill``, ``hang``, ``drop_arc``, ...).
+    at : float
+        The fault's time.
+    **fields
+        The kind's fields (``agent=3``, ``arc=(1, 2)``, ``groups=((1, 2),)``, ...).
+
+    Returns
+    -------
+    Fault
+        An instance of the registered kind.
+
+    Raises
+    ------
+    ScenarioError
+        ``unknown fault action 'x' (the kinds: kill, restart, ...)``.
+    """
+    cls = _WORDS.get(action)
+    if cls is None:
+        raise ScenarioError(f"unknown fault action {action!r} (the kinds: {', '.join(KINDS)})")
+    return cls(at=float(at), **fields)
+
+
+def kind_of_event(event: str) -> type | None:
+    """The kind a replay makes of a recorded event.
+
+    Parameters
+    ----------
+    event : str
+        The event word of ``events.jsonl`` (``agent_lost``, ``arc_dropped``, ...).
+
+    Returns
+    -------
+    type or None
+        The first registered kind that logs it (``agent_lost``: ``kill``), None when no kind does.
+    """
+    return _EVENTS.get(event)
+
+
+def fault_event_text(event: str, fields: dict) -> str | None:
+    """The text of a fault kind's own event in the ``events`` TextLog.
+
+    Parameters
+    ----------
+    event : str
+        The event word.
+    fields : dict
+        The event's fields (the kind's :meth:`Fault.payload`).
+
+    Returns
+    -------
+    str or None
+        The kind's :meth:`Fault.text`; None when no kind the runtime records logs this event.
+    """
+    for cls in KINDS.values():
+        if cls.event == event and cls.runtime in (NETWORK, PLANT):
+            return cls.text(fields)
+    return None
+
+
+def fault_marks() -> tuple:
+    """The timeline marks the kinds declare (``orchestrator/recording/blueprint.py`` builds its tables from them).
+
+    Returns
+    -------
+    tuple of dict
+        ``({event: mark kind}, {mark kind: (legend, marker, colour)})``: the second holds the mark kinds of the
+        kinds' own (``sensor``); the others are the blueprint's (``lost``, ``fault``, ``partition``, ...).
+    """
+    of_event = {cls.event: cls.mark for cls in KINDS.values() if cls.event is not None and cls.mark is not None}
+    styles = {cls.mark: cls.mark_style for cls in KINDS.values() if cls.mark_style is not None}
+    return of_event, styles
+
+
+# ---------------------------------------------------------------------------------------------------- the kinds
+
+
+def _event_agent(e: dict, where: str, ids: tuple) -> int:
+    aid = e.get("id")
+    if aid not in ids:
+        raise ScenarioError(f"{where} names agent {aid!r}, which is not in the scenario (agents {ids_text(ids)}): "
+                            "wrong scenario?")
+    return aid
+
+
+@dataclass(frozen=True)
+class _AgentFault(Fault):
+    """A fault on one agent (``{at: T, <action>: I}``)."""
+
+    agent: int = 0
+
+    @classmethod
+    def parse(cls, value, fmap, key, ctx):
+        return {"agent": check_known_agent(value, f"{key}.{cls.action}", ctx.ids)}
+
+    @classmethod
+    def from_event(cls, e, where, ids):
+        return {"agent": _event_agent(e, where, ids)}
+
+    def payload(self, tau):
+        return {"id": self.agent, "tau": tau}
+
+
+@register
+@dataclass(frozen=True)
+class Kill(_AgentFault):
+    """``kill: I``: agent I takes no part from the step on; the runtime sends SIGKILL to its process."""
+
+    action = "kill"
+    ends_with, runtime, event, mark, loss_word = "restart", SIGNAL, "agent_lost", "lost", "killed"
+
+    def apply(self, net):
+        i = net.ids.index(self.agent)
+        return ([i] if net.lose(i) else []), []
+
+
+@register
+@dataclass(frozen=True)
+class Restart(_AgentFault):
+    """``restart: I``: a lost agent rejoins with a fresh estimate (its next incarnation); ignored if alive."""
+
+    action, runtime, event, mark = "restart", RESTART, "agent_rejoined", "rejoined"
+
+    def apply(self, net):
+        i = net.ids.index(self.agent)
+        inc = net.rejoin(i)
+        return [], ([] if inc is None else [(i, inc)])
+
+
+@register
+@dataclass(frozen=True)
+class Freeze(Kill):
+    """``freeze: I`` (``hang``, its older spelling): as a kill in the simulator; the runtime sends SIGSTOP."""
+
+    action, aliases, loss_word = "freeze", ("hang",), "frozen"
+
+
+@dataclass(frozen=True)
+class _ArcFault(Fault):
+    """A fault on one arc ``[j, i]`` of every graph (with Metropolis weights, the link in both directions)."""
+
+    arc: tuple = ()
+    verdict: ClassVar[bool] = True
+    mark: ClassVar[str] = "fault"
+
+    @classmethod
+    def parse(cls, value, fmap, key, ctx):
+        arc = check_arc(value, f"{key}.{cls.action}", ctx.ids)
+        if arc[0] == arc[1]:
+            raise ScenarioError(f"{key}.{cls.action} [{arc[0]}, {arc[1]}] is a self-arc: self-arcs are implicit "
+                                "and cannot be dropped or restored")
+        return {"arc": arc}
+
+    @classmethod
+    def from_event(cls, e, where, ids):
+        arc = e.get("arc")
+        if not (isinstance(arc, list) and len(arc) == 2 and all(a in ids for a in arc)):
+            raise ScenarioError(f"{where} has a bad 'arc' {arc!r}")
+        return {"arc": (arc[0], arc[1])}
+
+    def payload(self, tau):
+        return {"arc": list(self.arc), "tau": tau}
+
+    def plot_mark(self):
+        return "arc", f"{self.arc[0]}-{self.arc[1]} {'down' if self.action == 'drop_arc' else 'up'}"
+
+
+@register
+@dataclass(frozen=True)
+class DropArc(_ArcFault):
+    """``drop_arc: [j, i]``: the arc is removed from every graph."""
+
+    action, ends_with, event = "drop_arc", "restore_arc", "arc_dropped"
+
+    def apply(self, net):
+        net.dropped.add(self.arc)
+        return [], []
+
+    @staticmethod
+    def text(fields):
+        j, i = fields.get("arc", ("?", "?"))
+        return f"arc {j} -> {i} dropped"
+
+
+@register
+@dataclass(frozen=True)
+class RestoreArc(_ArcFault):
+    """``restore_arc: [j, i]``: the arc comes back."""
+
+    action, event = "restore_arc", "arc_restored"
+
+    def apply(self, net):
+        net.dropped.discard(self.arc)
+        return [], []
+
+    @staticmethod
+    def text(fields):
+        j, i = fields.get("arc", ("?", "?"))
+        return f"arc {j} -> {i} restored"
+
+
+@register
+@dataclass(frozen=True)
+class Partition(Fault):
+    """``partition: [[ids], [ids]]``: no consensus message crosses between the groups (agents named in no group
+    form one more group) until a ``heal``."""
+
+    groups: tuple = ()
+    action, ends_with, event, mark = "partition", "heal", "partition", "partition"
+
+    @classmethod
+    def parse(cls, value, fmap, key, ctx):
+        return {"groups": parse_groups(value, f"{key}.partition", ctx.ids)}
+
+    @classmethod
+    def from_event(cls, e, where, ids):
+        groups = e.get("groups")
+        if not (isinstance(groups, list) and groups and all(isinstance(g, list) and all(a in ids for a in g)
+                                                            for g in groups)):
+            raise ScenarioError(f"{where} has bad 'groups' {groups!r}")
+        return {"groups": tuple(tuple(g) for g in groups)}
+
+    def apply(self, net):
+        net.groups = self.groups
+        return [], []
+
+    def payload(self, tau):
+        return {"groups": [list(g) for g in self.groups], "tau": tau}
+
+    @staticmethod
+    def text(fields):
+        return ("partition " + " | ".join(" ".join(str(a) for a in g) for g in fields["groups"])
+                + ": no consensus message crosses between the groups")
+
+    def log_line(self, tau):
+        return "warning", (f"event time {tau}: partition {[list(g) for g in self.groups]}: no consensus message "
+                           "crosses between the groups until a heal")
+
+
+@register
+@dataclass(frozen=True)
+class Heal(Fault):
+    """``heal: true``: the partition in force ends."""
+
+    action, event, mark = "heal", "healed", "healed"
+
+    @classmethod
+    def parse(cls, value, fmap, key, ctx):
+        if value is not True:
+            raise ScenarioError(f"{key}.heal must be true (it ends every partition), got {describe(value)}")
+        return {}
+
+    def apply(self, net):
+        net.groups = None
+        return [], []
+
+    @staticmethod
+    def text(fields):
+        return "partition healed"
+
+    def log_line(self, tau):
+        return "info", f"event time {tau}: the partition is healed"
+
+
+def _bias(value: Any, key: str, n: int | None) -> float | tuple:
+    """``bias``: one number for every output, or a list of one per output (``n`` of them, when known)."""
+    if isinstance(value, list):
+        if n is not None and len(value) != n:
+            raise ScenarioError(f"{key} has {len(value)} values; the agent has {n} output{'s' if n != 1 else ''} "
+                                "(give one number for all, or one per output)")
+        return tuple(check_number(v, f"{key}[{k + 1}]") for k, v in enumerate(value))
+    return check_number(value, key)
+
+
+@register
+@dataclass(frozen=True)
+class Corrupt(_AgentFault):
+    """``corrupt: I`` with ``bias: b`` (a number, or a list of one per output of agent I) and/or ``scale: k``:
+    from the step on, agent I is given ``k y_i + b`` instead of its measurement ``y_i``, until a ``repair``
+    (``for: S`` writes it).  The plant process applies it in ``run``, as the simulator does."""
+
+    bias: float | tuple | None = None
+    scale: float | None = None
+    action, options, ends_with, runtime, event = "corrupt", ("bias", "scale"), "repair", PLANT, "sensor_corrupted"
+    mark, mark_style = "sensor", ("sensor fault", "Square", (227, 119, 194))
+
+    @classmethod
+    def parse(cls, value, fmap, key, ctx):
+        agent = check_known_agent(value, f"{key}.corrupt", ctx.ids)
+        if "bias" not in fmap and "scale" not in fmap:
+            raise ScenarioError(f"{key}.corrupt needs bias: b (added to agent {agent}'s outputs) or scale: k "
+                                "(multiplying them), or both")
+        n = None if ctx.outputs is None else ctx.outputs.get(agent)
+        return {"agent": agent, "bias": None if "bias" not in fmap else _bias(fmap["bias"], f"{key}.bias", n),
+                "scale": None if "scale" not in fmap else check_number(fmap["scale"], f"{key}.scale")}
+
+    @classmethod
+    def from_event(cls, e, where, ids):
+        bias, scale = e.get("bias"), e.get("scale")
+        try:
+            return {"agent": _event_agent(e, where, ids), "bias": None if bias is None else _bias(bias, "bias", None),
+                    "scale": None if scale is None else check_number(scale, "scale")}
+        except ScenarioError as exc:
+            raise ScenarioError(f"{where}: {exc}") from None
+
+    def apply(self, net):
+        net.sensors[net.ids.index(self.agent)] = (self, {})
+        return [], []
+
+    def measure(self, y, memo):
+        # y_i -> k y_i + b (b one number, or one per output: outputs on axis 0, any seeds after)
+        out = y if self.scale is None else y * self.scale
+        if self.bias is None:
+            return out
+        b = np.asarray(self.bias, dtype=float)
+        return out + (b if b.ndim == 0 else b.reshape((-1,) + (1,) * (np.ndim(y) - 1)))
+
+    def payload(self, tau):
+        how = {"bias": list(self.bias) if isinstance(self.bias, tuple) else self.bias, "scale": self.scale}
+        return {"id": self.agent, "tau": tau, **{k: v for k, v in how.items() if v is not None}}
+
+    @staticmethod
+    def text(fields):
+        how = [f"{k} {fields[k]}" for k in ("scale", "bias") if fields.get(k) is not None]
+        return f"agent {fields.get('id', '?')}'s measurements corrupted ({', '.join(how)})"
+
+    def log_line(self, tau):
+        return "warning", f"event time {tau}: {self.text(self.payload(tau))} by the scenario"
+
+    def plot_mark(self):
+        return "fault", f"sensor {self.agent} corrupted"
+
+
+@register
+@dataclass(frozen=True)
+class Repair(_AgentFault):
+    """``repair: I``: agent I's sensor fault ends; it is given its true measurement again."""
+
+    action, runtime, event, mark = "repair", PLANT, "sensor_repaired", "sensor"
+
+    def apply(self, net):
+        net.sensors.pop(net.ids.index(self.agent), None)
+        return [], []
+
+    @staticmethod
+    def text(fields):
+        return f"agent {fields.get('id', '?')}'s sensor repaired"
+
+    def log_line(self, tau):
+        return "info", f"event time {tau}: {self.text(self.payload(tau))}"
+
+    def plot_mark(self):
+        return "fault", f"sensor {self.agent} repaired"
+
+
+# ---------------------------------------------------------------------------------------------------- parsing
+
+
+FAULT_ACTIONS = tuple(KINDS)  #: the registered actions (the kinds above), in order
+FAULT_ALIASES = {a: cls.action for cls in KINDS.values() for a in cls.aliases}  #: older spellings -> the action
+
+
+def parse_faults(raw: Any, ids: tuple, *, outputs: dict | None = None) -> tuple:
+    """A scenario's ``faults:`` list (or ``ss.run``'s and ``ss.simulate``'s ``faults=``) for agents ``ids``.
+
+    Parameters
+    ----------
+    raw : list of mapping or None
+        ``[{at: T, <action>: value, [for: S], [options]}, ...]``.
+    ids : tuple of int
+        The scenario's agent ids.
+    outputs : dict, optional
+        ``{agent id: s_i}``, for the kinds that check a value per output.
+
+    Returns
+    -------
+    tuple of Fault
+        The faults sorted by time (stable), each ``for: S`` expanded into its end at ``at + S``.
+
+    Raises
+    ------
+    ScenarioError
+        One line naming the entry and key that is wrong (an unknown action names the registered kinds).
+    """
+    if raw is None:
+        return ()
+    if not isinstance(raw, list):
+        raise ScenarioError(f"faults must be a list of {{at: T, <action>: ...}}, got {describe(raw)}")
+    ctx = FaultContext(tuple(ids), outputs)
+    known = ("at", "for", *_WORDS, *dict.fromkeys(o for cls in KINDS.values() for o in cls.options))
+    out = []
+    for k, item in enumerate(raw):
+        key = f"faults[{k + 1}]"
+        fmap = require_map(item, key)
+        check_keys(fmap, known, key)
+        if "at" not in fmap:
+            raise ScenarioError(f"{key}.at is missing (the time of the fault)")
+        at = check_number(fmap["at"], f"{key}.at")
+        if at < 0:
+            raise ScenarioError(f"{key}.at must be >= 0, got {at:g}")
+        words = [w for w in _WORDS if w in fmap]
+        if len(words) != 1:
+            raise ScenarioError(f"{key} needs exactly one of {', '.join(FAULT_ACTIONS)}")
+        cls = _WORDS[words[0]]
+        for o in fmap:
+            if o not in ("at", "for", words[0]) and o not in cls.options:
+                raise ScenarioError(f"{key}.{o} does not go with {cls.action} (its keys: at, {cls.action}, "
+                                    + ", ".join((*cls.options, *(("for",) if cls.ends_with else ()))) + ")")
+        fault = cls(at=at, **cls.parse(fmap[words[0]], {**fmap, cls.action: fmap[words[0]]}, key, ctx))
+        out.append(fault)
+        if "for" in fmap:
+            if cls.ends_with is None:
+                raise ScenarioError(f"{key}.for: a {cls.action} has no end (for: goes with "
+                                    + ", ".join(a for a, c in KINDS.items() if c.ends_with) + ")")
+            span = check_number(fmap["for"], f"{key}.for")
+            if not span > 0:
+                raise ScenarioError(f"{key}.for must be > 0 (the seconds or event times until the "
+                                    f"{cls.ends_with}), got {span:g}")
+            out.append(fault.end(at + span))
+    out = tuple(sorted(out, key=lambda f: f.at))
+    check_heals(out)
+    return out
