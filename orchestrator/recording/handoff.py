@@ -37,7 +37,8 @@ class RowBatch:
     ``show``: where an agent's values are logged (alive, finite); ``clear``:
     where a value shown by an earlier batch is no longer true (Clear).
     ``env``: the designed envelope, NaN where none; ``rounds``: (L, 5) wall ms,
-    attempts, rejected, consensus messages lost, lateness against ``run.pace`` in ms (NaN unknown).
+    attempts, rejected, consensus messages lost, lateness against ``run.pace`` in ms (NaN unknown);
+    ``columns``: the agents' reported row columns by name (:data:`splitspec_core.model.rows.REPORTED`), (L, m) each.
     """
 
     seq: np.ndarray
@@ -52,19 +53,19 @@ class RowBatch:
     show_max: np.ndarray
     clear_max: np.ndarray
     env: np.ndarray
-    gains: np.ndarray
     rounds: np.ndarray
+    columns: dict
 
     @classmethod
     def of(cls, *, seq, t, wall, x, xhat, err: np.ndarray, show: np.ndarray, shown: np.ndarray,
-           shown_max: np.ndarray, env, gains, rounds) -> "RowBatch":
+           shown_max: np.ndarray, env, rounds, columns: dict) -> "RowBatch":
         """Rows as the sink logs them: ``err``/``show`` what they show now, ``shown``/``shown_max`` what earlier
         batches showed of them (a value shown that is no longer shown is cleared)."""
         show_max = show.any(axis=1)
         err_max = np.max(np.where(show, err, -np.inf), axis=1)
         return cls(seq=seq, t=t, wall=wall, x=x, xhat=xhat, err=err, show=show, clear=shown & ~show,
-                   err_max=err_max, show_max=show_max, clear_max=shown_max & ~show_max, env=env, gains=gains,
-                   rounds=rounds)
+                   err_max=err_max, show_max=show_max, clear_max=shown_max & ~show_max, env=env, rounds=rounds,
+                   columns=columns)
 
 
 @dataclass(frozen=True, slots=True)

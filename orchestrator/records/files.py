@@ -38,6 +38,7 @@ from typing import Callable
 import numpy as np
 
 from splitspec_core.errors import SplitspecError
+from splitspec_core.model.rows import COLUMNS, REPORTED
 from splitspec_core.simulation.trajectory_chunks import ChunkWriter
 from splitspec_core.simulation.trajectory_file import TRAJECTORY_FILE, lost_arrays, write_trajectory
 
@@ -198,9 +199,8 @@ class RecordFiles:
                 self.chunks = ChunkWriter(self.out_dir, agent_ids=self.agent_ids, states=self.states, n=D.n,
                                           dt=self._dt, p=0 if ys is None else ys[0].shape[1],
                                           segment_bytes=self._chunk_bytes)
-            cols = {"tau": taus, "t": D.t[K], "x": D.x[K], "xhat": D.xhat[K], "alive": D.alive[K],
-                    "graph": D.graph[K], "g": D.g[K], "wall": D.wall[K], "round": D.round[K],
-                    "lost": [[r[1:] for r in self._lost.get(int(tau), ())] for tau in taus.tolist()]}
+            cols = {c.name: getattr(D, c.name)[K] for c in COLUMNS}  # the row schema's (tau, t, x, xhat, ...)
+            cols["lost"] = [[r[1:] for r in self._lost.get(int(tau), ())] for tau in taus.tolist()]
             if ys is not None and self.chunks.p:
                 cols["y"], cols["y_missing"] = ys
             try:
@@ -223,7 +223,8 @@ class RecordFiles:
             last = int(D.tau[T - 1]) if T else -1
             lost, cause = lost_arrays([r for tau, rows in list(self._lost.items()) if tau <= last for r in rows])
             write_trajectory(path, t=D.t[:T], x=D.x[:T], xhat=D.xhat[:T], alive=D.alive[:T], graph=D.graph[:T],
-                             agent_ids=self.agent_ids, g=D.g[:T], lost=lost, lost_cause=cause,
+                             agent_ids=self.agent_ids, columns={c.name: getattr(D, c.name)[:T] for c in REPORTED},
+                             lost=lost, lost_cause=cause,
                              extra=self._extra(T), states=self.states or None)
         except OSError as exc:
             raise self._failure.fail(path, exc, int(D.tau[T - 1]) if T else None) from None

@@ -51,6 +51,8 @@ import weakref
 
 import numpy as np
 
+from splitspec_core.model.rows import REPORTED
+
 from ..recording.handoff import DeferredLogs, lost_rows
 from .files import RecordsWriteError, WriteFailure
 from .outdir import Reserve
@@ -179,23 +181,24 @@ class Flusher:
     # ------------------------------------------------------------------ what the callers record (lock held)
 
     def store(self, tau: int, t: float, x: np.ndarray, xhat: np.ndarray, alive: np.ndarray, graph: int,
-              g: np.ndarray, diag: list) -> None:
+              columns: dict, diag: list) -> None:
         """Row of event time ``tau`` (a new one, after the last; or a re-sent one, which replaces it): dead agents'
-        values NaN; ``diag`` the round's diagnostics."""
-        S = self.rows
-        k = S.row_of_tau.get(tau)
+        values NaN (the reported ``columns``' fill); ``diag`` the round's diagnostics."""
+        recorded = self.rows
+        k = recorded.row_of_tau.get(tau)
         if k is None:
-            k = S.append_slot(tau)
+            k = recorded.append_slot(tau)
         elif k < self.taken:
             self.changed.add(k)  # already taken by a flush: take and send the whole row again (newest wins)
-        S.t[k] = t
-        S.x[k] = x
-        S.xhat[k] = np.where(alive[:, None], xhat, np.nan)
-        S.alive[k] = alive
-        S.graph[k] = int(graph)
-        S.g[k] = np.where(alive, g, np.nan)
-        S.round[k] = diag
-        S.wall[k] = time.time_ns()
+        recorded.t[k] = t
+        recorded.x[k] = x
+        recorded.xhat[k] = np.where(alive[:, None], xhat, np.nan)
+        recorded.alive[k] = alive
+        recorded.graph[k] = int(graph)
+        for c in REPORTED:
+            getattr(recorded, c.name)[k] = np.where(alive, columns[c.name], c.fill)
+        recorded.round[k] = diag
+        recorded.wall[k] = time.time_ns()
 
     def lose(self, tau: int, i: int, agent_id: int, t: float) -> None:
         """Agent ``agent_id`` (column ``i``) lost from event time ``tau`` (time ``t``) on: NaN/False in every
@@ -208,7 +211,8 @@ class Flusher:
                 continue
             S.alive[k, i] = False
             S.xhat[k, i] = np.nan
-            S.g[k, i] = np.nan
+            for c in REPORTED:
+                getattr(S, c.name)[k, i] = c.fill
             if k < self.taken:
                 self.changed.add(int(k))
         if self.writer.sink is not None:

@@ -1,10 +1,11 @@
 """Row storage of the recorder: one row per event time, grown by doubling, and what each row shows.
 
-Row ``k`` holds event time ``tau[k]``: ``t`` (T,), ``x`` (T, n), ``xhat``
-(T, m, n) NaN where dead, ``alive`` (T, m), ``graph`` (T,), ``g`` (T, m) NaN
-where dead or none, ``round`` (T, 5) wall ms / attempts / rejected / lost / late ms
-(:data:`splitspec_core.simulation.trajectory_chunks.ROUND_FIELDS`), ``wall``
-(T,) ``time.time_ns()`` of the row's last arrival; ``shown``/``shown_max``:
+Row ``k`` holds event time ``tau[k]``: one array per column of the row schema
+(:data:`splitspec_core.model.rows.COLUMNS`, an attribute of its name, filled with its fill): ``t`` (T,),
+``x`` (T, n), ``xhat`` (T, m, n) NaN where dead, ``alive`` (T, m), ``graph`` (T,), the agents' reported
+columns (T, m) such as ``g``, the fill where dead or none, ``round`` (T, 5) wall ms / attempts / rejected /
+lost / late ms (:data:`splitspec_core.model.rows.ROUND_FIELDS`), ``wall`` (T,) ``time.time_ns()`` of the
+row's last arrival; and what the recorder keeps of them: ``shown``/``shown_max``:
 what Rerun currently shows (retracted with a Clear when it stops being
 true); ``env_c``/``env_t0``: the max error and the time where the designed envelope's piece of
 row k starts.  ``rows`` = T.  No I/O and no lock: the recorder holds its locks.
@@ -24,7 +25,7 @@ import math
 
 import numpy as np
 
-from splitspec_core.simulation.trajectory_chunks import ROUND_FIELDS
+from splitspec_core.model.rows import COLUMNS, empty
 
 __all__ = ["RowStore"]
 
@@ -35,15 +36,8 @@ class RowStore:
     def __init__(self, m: int, n: int, *, capacity: int):
         self.m, self.n = int(m), int(n)
         cap = int(capacity)
-        self.t = np.zeros(cap)
-        self.x = np.zeros((cap, n))
-        self.xhat = np.full((cap, m, n), np.nan)
-        self.alive = np.zeros((cap, m), dtype=bool)
-        self.graph = np.zeros(cap, dtype=np.int64)
-        self.tau = np.zeros(cap, dtype=np.int64)
-        self.wall = np.zeros(cap, dtype=np.int64)  # time.time_ns() of the row's (last) arrival
-        self.g = np.full((cap, m), np.nan)  # g_i(tau), NaN where dead or none
-        self.round = np.full((cap, len(ROUND_FIELDS)), np.nan)  # wall ms, attempts, rejected, lost, late ms
+        for c in COLUMNS:  # t, x, xhat, alive, graph, tau, wall, the reported columns (g...), round
+            setattr(self, c.name, empty(c, cap, self.m, self.n))
         self.env_c = np.full(cap, np.nan)  # the envelope's piece of the row: its max error at the piece's start
         self.env_t0 = np.zeros(cap)  # and the time of that start
         # What is currently shown in Rerun per row (to retract with Clear when it stops being true).
@@ -63,7 +57,7 @@ class RowStore:
         self.rows += 1
         return k
 
-    _RECORDED = ("t", "x", "xhat", "alive", "graph", "tau", "wall", "g", "round")  # what take() copies
+    _RECORDED = tuple(c.name for c in COLUMNS)  # what take() copies
 
     def take(self, src: "RowStore", start: int, upto: int, changed: np.ndarray) -> None:
         """Copy the recorded columns of rows ``start..upto-1`` and of ``changed`` (all below ``start``)
@@ -82,8 +76,7 @@ class RowStore:
         if capacity > cap:
             self.grow(max(2 * cap, int(capacity)))
 
-    _FILL = {"t": 0.0, "x": 0.0, "xhat": np.nan, "alive": False, "graph": 0, "tau": 0, "wall": 0, "g": np.nan,
-             "round": np.nan, "env_c": np.nan, "env_t0": 0.0, "shown": False, "shown_max": False}
+    _FILL = {**{c.name: c.fill for c in COLUMNS}, "env_c": np.nan, "env_t0": 0.0, "shown": False, "shown_max": False}
 
     def spare(self, capacity: int) -> dict[str, np.ndarray]:
         """Empty columns for ``capacity`` rows, filled (the memory touched): for :meth:`adopt`, later.

@@ -55,6 +55,8 @@ from typing import Any
 
 import numpy as np
 
+from splitspec_core.model.rows import REPORTED
+
 from ..recording.handoff import Deferred, LostRow, RowBatch, TextLine, send_logs
 from ..recording.sink import RerunSink
 from .events import EventLog, event_text
@@ -161,7 +163,8 @@ class RecordWriter:
         D = self.rows
         return RowBatch.of(seq=D.tau[K], t=D.t[K], wall=D.wall[K], x=D.x[K], xhat=D.xhat[K], err=err, show=show,
                            shown=D.shown[K], shown_max=D.shown_max[K],
-                           env=D.envelope(K, self.envelope_rate, self.time_mode), gains=D.g[K], rounds=D.round[K])
+                           env=D.envelope(K, self.envelope_rate, self.time_mode), rounds=D.round[K],
+                           columns={c.name: getattr(D, c.name)[K] for c in REPORTED})
 
     def salvage(self) -> None:
         """After a write failure and the last flush: make the rows on disk agree (:meth:`RecordFiles.salvage`)."""

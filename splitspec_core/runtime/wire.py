@@ -47,8 +47,8 @@ key                         from -> to              payload
 ``truth``                   plant -> orchestrator   tau, attempt, x(tau)
 ``z/<i>``                   agent i -> neighbours   tau, attempt, k, z_i(k) (k = 0 only in fresh or re-run
                                                     rounds)
-``xhat/<i>``                agent i -> orchestrator tau, attempt, x_i(tau) (+ g_i, rejected counts, the
-                            and neighbours          consensus messages it did not count, the y_i it
+``xhat/<i>``                agent i -> orchestrator tau, attempt, x_i(tau) (+ its reported row columns, g_i
+                            and neighbours          ..., rejected counts, the consensus messages it did not count, the y_i it
                                                     used: None without one, [] if not recorded);
                                                     also the next round's z_i(0)
 ``sensors/<key>``            sensor -> agent i       y_i as JSON ``{"y": [...], "t": ...}`` or raw float64 (scenario
@@ -78,6 +78,7 @@ import msgpack
 import numpy as np
 
 from ..errors import SplitspecError
+from ..model.rows import REPORTED
 
 __all__ = ["SCHEMA_VERSION", "DEFAULT_RUN_ID", "Keys", "WireError", "encode", "decode",
            "MESSAGE_FIELDS", "MAC_BYTES", "new_run_key", "new_nonce", "mac", "verify",
@@ -253,13 +254,17 @@ _CHECK = {
 BINARY_MAGIC = 0xB5  # never the first byte of a msgpack map (0x80-0x8f, 0xde, 0xdf)
 MAX_VECTOR = 1 << 20
 
-#: type -> (code, struct format of the scalar fields, their names, the vector field, the map fields)
+_STRUCT_CODE = {"float64": "d", "int64": "q"}
+#: type -> (code, struct format of the scalar fields, their names, the vector field, the map fields); an ``xhat``
+#: carries one scalar field per column the agents report (:data:`splitspec_core.model.rows.REPORTED`, in its order)
 BINARY_LAYOUT = {
     "y": (1, "qi", ("tau", "attempt"), "y", ("missing",)),
     "truth": (2, "qi", ("tau", "attempt"), "x", ("rejected",)),
     "z": (3, "qiii", ("tau", "attempt", "k", "agent"), "z", ()),
-    "xhat": (4, "qiiid", ("tau", "attempt", "agent", "incarnation", "g"), "x", ("rejected", "lost", "y")),
+    "xhat": (4, "qiii" + "".join(_STRUCT_CODE[c.dtype] for c in REPORTED),
+             ("tau", "attempt", "agent", "incarnation", *(c.name for c in REPORTED)), "x", ("rejected", "lost", "y")),
 }
+_FLOAT_FIELDS = frozenset(c.name for c in REPORTED if c.dtype == "float64")  # finite: no NaN on the wire
 #: map fields a sender may leave out (the usual case): ``missing`` none, ``y`` not recorded
 MAP_DEFAULTS = {"y": {"missing": []}, "xhat": {"y": []}}
 #: the most agent ids ``missing`` lists
@@ -317,8 +322,9 @@ def _decode_binary(payload: bytes, run_id: str, expected_type: str) -> dict:
     if count > MAX_VECTOR or len(payload) < end or (not maps and len(payload) != end):
         raise WireError("bad_shape", f"{vec}: {len(payload) - st.size} bytes for {count} numbers")
     out = dict(zip(names, values))
-    if "g" in out and not math.isfinite(out["g"]):
-        raise WireError("bad_field", "g")
+    for name in _FLOAT_FIELDS.intersection(out):
+        if not math.isfinite(out[name]):
+            raise WireError("bad_field", name)
     if count <= 64:  # the usual state sizes: checked in Python, a third of numpy's per-call cost
         vals = struct.unpack_from(f"<{count}d", payload, st.size)
         if not all(map(math.isfinite, vals)):

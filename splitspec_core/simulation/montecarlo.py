@@ -312,7 +312,7 @@ def _batch(des: Design, seeds: tuple, *, steps, noise, trajectories) -> tuple:
         xs = np.zeros((N, T, n))
         xh = np.full((N, T, m, n), np.nan)
         al = np.zeros((T, m), dtype=bool)
-        gains = np.full((N, T, m), np.nan)
+        g = np.full((N, T, m), np.nan)  # g_i(t) per seed (the row schema's g)
         lost_rows: list = []
     impaired = any(f.action == "partition" for f in sc.faults)  # the only loss that is the same for every seed
     exchanges = 1 if est.continuous else int(des.q)
@@ -333,7 +333,7 @@ def _batch(des: Design, seeds: tuple, *, steps, noise, trajectories) -> tuple:
             xh[:, k, alive] = X[alive].transpose(2, 0, 1)
             al[k] = alive
             if est.continuous:
-                gains[:, k, alive] = est.g[alive].T
+                g[:, k, alive] = est.g[alive].T
         if k == plan.steps:
             break
         y = measured(C, sigma_m, x, w[k])  # the plant's formulas (plant_model), on every seed's state
@@ -353,6 +353,6 @@ def _batch(des: Design, seeds: tuple, *, steps, noise, trajectories) -> tuple:
 
         lost_a, cause_a = lost_arrays(lost_rows)
         trajs = tuple(Trajectory(t=t, x=xs[s], xhat=xh[s], alive=al.copy(), graph=plan.graph_seq.copy(),
-                                 agent_ids=np.array(sc.agent_ids), gains=gains[s], lost=lost_a.copy(),
+                                 agent_ids=np.array(sc.agent_ids), columns={"g": g[s]}, lost=lost_a.copy(),
                                  lost_cause=cause_a.copy(), states=sc.state_names) for s in range(N))
     return t, sq, count, trajs
