@@ -265,8 +265,9 @@ BINARY_LAYOUT = {
              ("tau", "attempt", "agent", "incarnation", *(c.name for c in REPORTED)), "x", ("rejected", "lost", "y")),
 }
 _FLOAT_FIELDS = frozenset(c.name for c in REPORTED if c.dtype == "float64")  # finite: no NaN on the wire
-#: map fields a sender may leave out (the usual case): ``missing`` none, ``y`` not recorded
-MAP_DEFAULTS = {"y": {"missing": []}, "xhat": {"y": []}}
+#: fields a sender may leave out (the usual case): ``missing`` none, ``y`` not recorded, a reported row column whose
+#: fill can cross the wire (not NaN): its fill
+MAP_DEFAULTS = {"y": {"missing": []}, "xhat": {"y": [], **{c.name: c.fill for c in REPORTED if c.dtype != "float64"}}}
 #: the most agent ids ``missing`` lists
 MAX_MISSING = 1 << 16
 #: ``lost`` of an ``xhat``: flat ``[k, j, cause, k, j, cause, ...]`` (sub-round, sender, cause) of the consensus

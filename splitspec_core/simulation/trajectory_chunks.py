@@ -98,15 +98,17 @@ class ChunkWriter:
     def batch(self, cols: dict):
         """The record batch of ``cols``: every column of the row schema (:data:`~splitspec_core.model.rows.COLUMNS`:
         ``tau`` (L,), ``t``, ``x`` (L, n), ``xhat`` (L, m, n), ``alive`` (L, m), ``graph``, the reported columns
-        (L, m) such as ``g``, ``wall``, ``round`` (L, 5)), ``lost`` (a list of L int arrays of 4 k values), and
+        (L, m) such as ``g`` (one not given: its fill), ``wall``, ``round`` (L, 5)), ``lost`` (a list of L int
+        arrays of 4 k values), and
         ``y`` (L, p) / ``y_missing`` (L, m) when ``p``."""
         import pyarrow as pa
 
         L = len(cols["tau"])
         lost = [np.asarray(r, dtype=np.int64).reshape(-1) for r in cols["lost"]]
         arrays = []
-        for c in COLUMNS:
-            values = np.asarray(cols[c.name], dtype=c.dtype)
+        for c in COLUMNS:  # a reported column not given: its fill
+            values = np.asarray(cols[c.name], dtype=c.dtype) if c.name in cols or not c.reported else \
+                empty(c, L, self.m, self.n)
             typ = _arrow_type(c.dtype)
             arrays.append(pa.array(values) if c.shape == "row" else
                           _fixed(values, int(np.prod(shape_of(c, self.m, self.n), dtype=np.int64)), typ))
