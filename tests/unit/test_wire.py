@@ -10,6 +10,7 @@ import msgpack
 import numpy as np
 import pytest
 
+from splitspec_core.model.rows import report
 from splitspec_core.runtime.wire import (BINARY_LAYOUT, MAC_BYTES, SCHEMA_VERSION, WireError, decode, encode,
                                          new_run_key)
 
@@ -20,8 +21,8 @@ ROUND = {
     "y": dict(tau=7, attempt=1, y=V[:3], missing=[2]),
     "truth": dict(tau=7, attempt=0, x=V, rejected={"stale": 3, "bad_mac": 1}),
     "z": dict(tau=2 ** 62, attempt=2, k=5, agent=31, z=V),
-    "xhat": dict(tau=0, attempt=0, agent=3, incarnation=2, x=V, g=0.125, rejected={}, lost=[1, 2, 0, 3, 4, 1],
-                 y=[0.5, -1.0]),
+    "xhat": dict(tau=0, attempt=0, agent=3, incarnation=2, x=V, **report(g=0.125), rejected={},
+                 lost=[1, 2, 0, 3, 4, 1], y=[0.5, -1.0]),  # report: every row column the agents report (rows.py)
 }
 OTHER = {
     "tick": dict(tau=3, attempt=0, graph=1, alive=[1, 2], rows={"1": [[2], [0.5]]}, final=False,
