@@ -224,7 +224,7 @@ class AgentNode:
         explicit = bool(t["fresh"]) or attempt > 0
         self.round = {"tau": tau, "attempt": attempt, "nbs": nbs, "ws": ws, "k": 0, "z": self.x.copy(),
                       "z0": None if explicit else (tau, int(t["prev_attempt"])), "groups": self.net.groups,
-                      "lost": [], "open": self.clock() if self.deadline is not None else None}
+                      "lost": [], "used": 0, "open": self.clock() if self.deadline is not None else None}
         if self.whole:  # z_i(0) is the updated estimate, sent once y_i(tau) is in (_advance)
             self.round["z0"] = None
         elif explicit:
@@ -328,6 +328,7 @@ class AgentNode:
         if self.undrawn and not r["groups"]:  # sub_round's decisions without it: only a deadline can drop a message
             if all(j in slot for j in r["nbs"] if j != self.id):  # every message on time: the whole row
                 r["wake"] = None
+                r["used"] += sum(1 for j in r["nbs"] if j != self.id)  # the neighbours' messages it counts
                 return r["nbs"], r["ws"], [r["z"] if j == self.id else slot[j] for j in r["nbs"]]
             if self.deadline is None or self.clock() < r["open"] + self.deadline:  # wait (for all, or till then)
                 r["wake"] = None if self.deadline is None else r["open"] + self.deadline
@@ -343,6 +344,7 @@ class AgentNode:
         _, nbs, ws, lost = got
         r["wake"] = None
         r["lost"] += lost
+        r["used"] += sum(1 for j in nbs if j != self.id)  # the neighbours' messages it counts
         return nbs, ws, [r["z"] if j == self.id else slot[j] for j in nbs]
 
     def _opened(self) -> None:
@@ -424,7 +426,7 @@ class AgentNode:
         self.candidate = (r["tau"] + 1, x_next, g_next)
         self.round = None
         # the row columns of x_i(tau + 1): g_i(tau + 1) and what round tau measured (splitspec_core.model.rows)
-        columns = report(g=g_next)
+        columns = report(g=g_next, messages_used=r["used"])
         return [self._xhat(r["tau"] + 1, r["attempt"], x_next, columns, r["lost"], y)]
 
 

@@ -115,6 +115,9 @@ COLUMNS = (
     Column("g", "agent", "float64", NAN, "1/s", "consensus gain g_i(tau) (eq. adaptive, or the fixed g); "
            "continuous time only", reported="state", entity="gains",
            label="adaptive gains g_i", only_with_g=True),
+    Column("messages_used", "agent", "int64", -1, "messages", "the neighbours' consensus messages agent i counted in "
+           "the round of tau, over its exchanges; -1 where dead and in the last row (no round)", reported="round",
+           label="consensus messages used per agent"),
     Column("wall", "row", "int64", 0, "ns", "time.time_ns() of the row's arrival (run only)", npz=False),
     Column("round", "round", "float64", NAN, "", "the round's " + ", ".join(ROUND_FIELDS) + " (run only)",
            npz=False),

@@ -625,6 +625,8 @@ def simulate(des: Design, *, seed: int | None = None, steps: int | None = None, 
     xh = np.full((T, m, n), np.nan)
     al = np.zeros((T, m), dtype=bool)
     g = np.full((T, m), np.nan)  # g_i(t): adaptive or fixed in continuous time; none in discrete time
+    used = np.full((T, m), -1, dtype=np.int64)  # the neighbours' consensus messages each agent counted (rows.py)
+    pos = {a: i for i, a in enumerate(ids)}
     bar = Progress(plan.steps, progress)
     w_cache: dict = {}  # active network -> the estimator's weights
     # a misbehaving network (impairment.py): messages that do not count, drawn (or replayed from a run's record)
@@ -659,7 +661,12 @@ def simulate(des: Design, *, seed: int | None = None, steps: int | None = None, 
         if W is None:
             rows = net.rows(sc, key[0])
             W = w_cache[key] = (est.weights(rows), rows, weight_entries(sc, rows))
+        before = len(lost_rows)
         Ws = realized_step(est, sc, W, k, exchanges, imp, replay, net.groups, lost_rows) if impaired else None
+        for i, (nbs, _) in W[1].items():  # every neighbour's message of every exchange, but those that did not count
+            used[k, pos[i]] = exchanges * sum(1 for j in nbs if j != i)
+        for r in lost_rows[before:]:  # (tau, k, j, i, cause)
+            used[k, pos[r[3]]] -= 1
         bu = st.known_input(B, plant.input())  # the known input every agent adds (the agent process: the same)
         X = (est.step(X, y, W[0], alive, missing, bu) if Ws is None
              else est.step_realized(X, y, Ws, alive, missing, bu))
@@ -672,7 +679,7 @@ def simulate(des: Design, *, seed: int | None = None, steps: int | None = None, 
     elif ys is not None:
         recorded = {"y": ys, "y_missing": np.zeros((T, m), dtype=bool)}
     return Trajectory(t=plan.times(), x=xs, xhat=xh, alive=al, graph=plan.graph_seq.copy(),
-                      agent_ids=np.array(ids), columns={"g": g}, lost=lost_a, lost_cause=cause_a,
+                      agent_ids=np.array(ids), columns={"g": g, "messages_used": used}, lost=lost_a, lost_cause=cause_a,
                       states=sc.state_names,
                       **recorded)
 
