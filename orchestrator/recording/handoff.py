@@ -173,12 +173,12 @@ def cut_edges(groups: tuple, edges: Iterable[tuple[str, str]], agent_ids: list[i
     return frozenset((str(j), str(i)) for j, i in cut_arcs(groups, [(int(j), int(i)) for j, i in edges], agent_ids))
 
 
-def lost_rows(tau: np.ndarray, t: np.ndarray, wall: np.ndarray, K: np.ndarray,
+def lost_rows(tau: np.ndarray, t: np.ndarray, wall: np.ndarray, ks: np.ndarray,
               lost: Mapping[int, tuple]) -> list[LostRow]:
-    """The :class:`LostRow` of rows ``K`` (``tau``, ``t``, ``wall``: the rows' columns; ``lost``: event time ->
+    """The :class:`LostRow` of rows ``ks`` (``tau``, ``t``, ``wall``: the rows' columns; ``lost``: event time ->
     its consensus messages that did not count)."""
     out = []
-    for k in K:
+    for k in ks:
         prev = bool(lost.get(int(tau[k - 1]))) if k else False
         out.append(LostRow(int(tau[k]), float(t[k]), int(wall[k]), lost.get(int(tau[k])) or (), prev))
     return out

@@ -102,14 +102,14 @@ class RowStore:
         """Room for ``capacity`` rows (default: twice as many); the rows held are kept."""
         self.adopt(self.spare(2 * self.capacity if capacity is None else capacity))
 
-    def row_errors(self, K: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``|x_i - x|_2`` of rows ``K`` (L, m), NaN if dead, and where it is shown (alive and finite)."""
-        err = np.linalg.norm(self.xhat[K] - self.x[K][:, None, :], axis=2)
-        return err, self.alive[K] & np.isfinite(err)
+    def row_errors(self, ks: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``|x_i - x|_2`` of rows ``ks`` (L, m), NaN if dead, and where it is shown (alive and finite)."""
+        err = np.linalg.norm(self.xhat[ks] - self.x[ks][:, None, :], axis=2)
+        return err, self.alive[ks] & np.isfinite(err)
 
-    def max_errors(self, K: np.ndarray) -> np.ndarray:
-        """``max_i |x_i - x|`` over the shown agents of rows ``K`` (alive, finite error); -inf where none."""
-        err, show = self.row_errors(K)
+    def max_errors(self, ks: np.ndarray) -> np.ndarray:
+        """``max_i |x_i - x|`` over the shown agents of rows ``ks`` (alive, finite error); -inf where none."""
+        err, show = self.row_errors(ks)
         return np.where(show, err, -np.inf).max(axis=1)
 
     def max_error(self, k: int) -> float:
@@ -117,16 +117,16 @@ class RowStore:
         e = float(self.max_errors(np.array([k]))[0])
         return e if math.isfinite(e) else math.nan
 
-    def envelope(self, K: np.ndarray, lam: float | None, time_mode: str) -> np.ndarray:
-        """The designed envelope at rows ``K`` (sorted; every earlier row already has its piece).
+    def envelope(self, ks: np.ndarray, lam: float | None, time_mode: str) -> np.ndarray:
+        """The designed envelope at rows ``ks`` (sorted; every earlier row already has its piece).
 
         Row k starts a piece when it is the run's first, its alive set gains an agent, or its graph changed
         (:func:`splitspec_core.simulation.metrics.envelope_restarts`); on a piece started at k0:
         ``c lam^(t - t_k0)`` or ``c exp(-lam (t - t_k0))``, ``c`` the max error at k0.  The first row of a
         window (``base > 0``) keeps the piece it had.
         """
-        env = np.full(len(K), np.nan)
-        for r, k in enumerate(K.tolist()):
+        env = np.full(len(ks), np.nan)
+        for r, k in enumerate(ks.tolist()):
             if k == 0 and self.base:
                 pass  # its row before is forgotten: its piece stays as computed
             elif k == 0 or bool((self.alive[k] & ~self.alive[k - 1]).any()) or self.graph[k] != self.graph[k - 1]:
