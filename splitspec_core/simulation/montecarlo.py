@@ -50,7 +50,9 @@ from ..synthesis.design_data import Design
 from ..errors import ScenarioError
 from ..model.network import NetworkState, make_plan
 from ..model.plant import advanced, initial_estimate, measured, seed_draws
-from .simulator import BatchEstimator, Trajectory, weight_entries, realized_step, check_trajectory_memory, simulate
+from ..model.rows import REPORTED, empty
+from .simulator import (BatchEstimator, Trajectory, weight_entries, realized_step, check_trajectory_memory, simulate,
+                        round_columns)
 
 __all__ = ["CHUNK", "MonteCarloRuns", "SeedBatchEstimator", "fallback_reason", "simulate_seeds"]
 
@@ -313,6 +315,7 @@ def _batch(des: Design, seeds: tuple, *, steps, noise, trajectories) -> tuple:
         xh = np.full((N, T, m, n), np.nan)
         al = np.zeros((T, m), dtype=bool)
         g = np.full((N, T, m), np.nan)  # g_i(t) per seed (the row schema's g)
+        rounds = {c.name: empty(c, T, m, n) for c in REPORTED if c.reported == "round"}  # the same for every seed
         lost_rows: list = []
     impaired = any(f.action == "partition" for f in sc.faults)  # the only loss that is the same for every seed
     exchanges = 1 if est.continuous else int(des.q)
@@ -342,8 +345,12 @@ def _batch(des: Design, seeds: tuple, *, steps, noise, trajectories) -> tuple:
         if W is None:
             rows = net.rows(sc, key[0])
             W = w_cache[key] = (est.weights(rows), rows, weight_entries(sc, rows))
+        before = len(lost_rows) if trajectories else 0
         Ws = realized_step(est, sc, W, k, exchanges, None, None, net.groups,
                             lost_rows if trajectories else []) if impaired else None
+        if trajectories:
+            for name, values in round_columns(sc, W[1], exchanges, lost_rows[before:]).items():
+                rounds[name][k] = values
         X = est.step(X, y, W[0], alive) if Ws is None else est.step_realized(X, y, Ws, alive)
         x = advanced(F, L, x, v[k])
     t = plan.times()
@@ -353,6 +360,7 @@ def _batch(des: Design, seeds: tuple, *, steps, noise, trajectories) -> tuple:
 
         lost_a, cause_a = lost_arrays(lost_rows)
         trajs = tuple(Trajectory(t=t, x=xs[s], xhat=xh[s], alive=al.copy(), graph=plan.graph_seq.copy(),
-                                 agent_ids=np.array(sc.agent_ids), columns={"g": g[s]}, lost=lost_a.copy(),
+                                 agent_ids=np.array(sc.agent_ids),
+                                 columns={"g": g[s], **{k: v.copy() for k, v in rounds.items()}}, lost=lost_a.copy(),
                                  lost_cause=cause_a.copy(), states=sc.state_names) for s in range(N))
     return t, sq, count, trajs

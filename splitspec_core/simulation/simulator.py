@@ -39,7 +39,7 @@ from ..synthesis.design_data import Design
 from ..errors import ScenarioError
 from ..model.network import NetworkState, Plan, make_plan
 from ..model.plant import Plant, RecordedPlant, initial_estimate, initial_state, output_rows
-from ..model.rows import REPORTED
+from ..model.rows import REPORTED, column, empty
 from ..model.impairment import PARTITION, Impairment, crosses, group_of, realized_row
 from ..scenarios.specs import Scenario
 from .trajectory_file import lost_arrays, write_trajectory
@@ -52,6 +52,7 @@ __all__ = [
     "EXACT_NEEDS_FIXED_G",
     "BatchEstimator",
     "AgentLoopEstimator",
+    "round_columns",
 ]
 
 
@@ -625,8 +626,7 @@ def simulate(des: Design, *, seed: int | None = None, steps: int | None = None, 
     xh = np.full((T, m, n), np.nan)
     al = np.zeros((T, m), dtype=bool)
     g = np.full((T, m), np.nan)  # g_i(t): adaptive or fixed in continuous time; none in discrete time
-    used = np.full((T, m), -1, dtype=np.int64)  # the neighbours' consensus messages each agent counted (rows.py)
-    pos = {a: i for i, a in enumerate(ids)}
+    rounds = {c.name: empty(c, T, m, n) for c in REPORTED if c.reported == "round"}  # round_columns, per row
     bar = Progress(plan.steps, progress)
     w_cache: dict = {}  # active network -> the estimator's weights
     # a misbehaving network (impairment.py): messages that do not count, drawn (or replayed from a run's record)
@@ -663,10 +663,8 @@ def simulate(des: Design, *, seed: int | None = None, steps: int | None = None, 
             W = w_cache[key] = (est.weights(rows), rows, weight_entries(sc, rows))
         before = len(lost_rows)
         Ws = realized_step(est, sc, W, k, exchanges, imp, replay, net.groups, lost_rows) if impaired else None
-        for i, (nbs, _) in W[1].items():  # every neighbour's message of every exchange, but those that did not count
-            used[k, pos[i]] = exchanges * sum(1 for j in nbs if j != i)
-        for r in lost_rows[before:]:  # (tau, k, j, i, cause)
-            used[k, pos[r[3]]] -= 1
+        for name, values in round_columns(sc, W[1], exchanges, lost_rows[before:]).items():
+            rounds[name][k] = values
         bu = st.known_input(B, plant.input())  # the known input every agent adds (the agent process: the same)
         X = (est.step(X, y, W[0], alive, missing, bu) if Ws is None
              else est.step_realized(X, y, Ws, alive, missing, bu))
@@ -679,9 +677,38 @@ def simulate(des: Design, *, seed: int | None = None, steps: int | None = None, 
     elif ys is not None:
         recorded = {"y": ys, "y_missing": np.zeros((T, m), dtype=bool)}
     return Trajectory(t=plan.times(), x=xs, xhat=xh, alive=al, graph=plan.graph_seq.copy(),
-                      agent_ids=np.array(ids), columns={"g": g, "messages_used": used}, lost=lost_a, lost_cause=cause_a,
+                      agent_ids=np.array(ids), columns={"g": g, **rounds}, lost=lost_a, lost_cause=cause_a,
                       states=sc.state_names,
                       **recorded)
+
+
+def round_columns(sc: Scenario, rows: dict, exchanges: int, lost) -> dict:
+    """The reported row columns of the round (:mod:`splitspec_core.model.rows`, ``reported="round"``) that the
+    network decides, whatever the seed's noise: what each agent process counts in its round.
+
+    Parameters
+    ----------
+    sc : Scenario
+    rows : dict
+        The round's consensus rows ``{agent id: (neighbours, weights)}`` of the alive agents (itself included).
+    exchanges : int
+        The round's consensus exchanges (q; 1 in continuous time's sampled-data form).
+    lost : sequence of tuple
+        ``(tau, k, j, i, cause)`` of the round's consensus messages that did not count.
+
+    Returns
+    -------
+    dict
+        Column name -> (m,) its values, the fill for the agents not in ``rows``: ``messages_used``, the
+        neighbours' messages each agent counted over the round's exchanges.
+    """
+    pos = {a: k for k, a in enumerate(sc.agent_ids)}
+    used = empty(column("messages_used"), 1, sc.m, sc.n)[0]
+    for i, (nbs, _) in rows.items():  # every neighbour's message of every exchange, but those that did not count
+        used[pos[i]] = exchanges * sum(1 for j in nbs if j != i)
+    for r in lost:
+        used[pos[r[3]]] -= 1
+    return {"messages_used": used}
 
 
 def _replay_index(lost) -> dict:
