@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from splitspec_core.model.rows import report
-from splitspec_core.runtime.wire import (BINARY_LAYOUT, MAC_BYTES, SCHEMA_VERSION, WireError, decode, encode,
+from splitspec_core.runtime.wire import (BINARY_LAYOUT, MAC_BYTES, ROW_TAG, SCHEMA_VERSION, WireError, decode, encode,
                                          new_run_key)
 
 RUN = "wire-test"
@@ -85,6 +85,9 @@ def test_header_checks():
     old = bytearray(p)
     old[1] = SCHEMA_VERSION - 1
     assert reason(bytes(old), "z") == "bad_version"
+    other_rows = bytearray(p)  # a process built with other reported row columns (rows.py): its xhat would not fit
+    other_rows[3] = (ROW_TAG + 1) % 256
+    assert reason(bytes(other_rows), "z") == "bad_version"
     unknown = bytearray(p)
     unknown[2] = 99
     assert reason(bytes(unknown), "z") == "wrong_type"
