@@ -72,9 +72,28 @@ def check_topology(agent_ids: np.ndarray, graph_names: tuple, graph_name: str, a
 
 def check_row(m: int, n: int, graphs: int, x, xhat, alive, graph: int,
               columns: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict]:
-    """A row's arguments (``graphs``: how many graphs the run has; ``columns``: reported row columns by name,
-    :data:`splitspec_core.model.rows.REPORTED`, each (m,) or None): ``x``, ``xhat``, ``alive`` and every reported
-    column as arrays (its fill where not given)."""
+    """A row's arguments, checked.
+
+    Parameters
+    ----------
+    m, n, graphs : int
+        Agents, states, and how many graphs the run has.
+    x, xhat, alive, graph
+        The row (:meth:`~splitspec_orchestrator.records.recorder.Recorder.row`).
+    columns : dict
+        Reported row columns by name (:data:`splitspec_core.model.rows.REPORTED`), each (m,) or None.
+
+    Returns
+    -------
+    tuple
+        ``x``, ``xhat``, ``alive`` as arrays and a dict of every reported column as an array of its dtype (its
+        fill where not given).
+
+    Raises
+    ------
+    RecordingError
+        A shape, the graph index or a column name that does not fit the run.
+    """
     x = np.asarray(x, dtype=float)
     xhat = np.asarray(xhat, dtype=float)
     alive = np.asarray(alive)

@@ -129,7 +129,21 @@ _BY_NAME = {c.name: c for c in COLUMNS}
 
 
 def column(name: str) -> Column:
-    """The column called ``name``; KeyError naming the columns if there is none."""
+    """The column called ``name``.
+
+    Parameters
+    ----------
+    name : str
+
+    Returns
+    -------
+    Column
+
+    Raises
+    ------
+    KeyError
+        Naming the columns, if none is called ``name``.
+    """
     try:
         return _BY_NAME[name]
     except KeyError:
@@ -177,7 +191,19 @@ def run_columns(*, has_g: bool) -> tuple:
 
 
 def shape_of(c: Column, m: int, n: int) -> tuple:
-    """The shape of one row of ``c`` (m agents, n states)."""
+    """The shape of one row of ``c``.
+
+    Parameters
+    ----------
+    c : Column
+    m, n : int
+        Agents, states.
+
+    Returns
+    -------
+    tuple of int
+        ``()``, ``(n,)``, ``(m,)``, ``(m, n)`` or ``(len(ROUND_FIELDS),)`` by its shape kind.
+    """
     return {"row": (), "state": (n,), "agent": (m,), "agent_state": (m, n), "round": (len(ROUND_FIELDS),)}[c.shape]
 
 
@@ -199,7 +225,19 @@ def empty(c: Column, rows: int, m: int, n: int) -> np.ndarray:
 
 
 def present(c: Column, values: np.ndarray) -> np.ndarray:
-    """Where ``values`` of column ``c`` hold a value (not the fill; NaN is no value either)."""
+    """Where ``values`` of column ``c`` hold a value.
+
+    Parameters
+    ----------
+    c : Column
+    values : array_like
+        Values of ``c``, any shape.
+
+    Returns
+    -------
+    numpy.ndarray of bool
+        True where a value is not the fill (NaN is no value either), same shape as ``values``.
+    """
     values = np.asarray(values)
     if values.dtype.kind == "f":
         return np.isfinite(values) if isinstance(c.fill, float) and math.isnan(c.fill) else \
