@@ -47,6 +47,7 @@ from splitspec_core.model.impairment import Impairment, sub_round
 from splitspec_core.model.local_design import central_part, directions_of, scenario_agent
 from splitspec_core.scenarios.load import parse_scenario_text
 from splitspec_core.model.plant import initial_estimate, output_rows
+from splitspec_core.model.rows import report
 from splitspec_core.runtime.ticks import TickNetwork
 from splitspec_core.runtime.wire import Keys, WireError, decode, encode
 
@@ -146,10 +147,12 @@ class AgentNode:
             out[reason] = out.get(reason, 0) + c
         return out
 
-    def _xhat(self, tau: int, attempt: int, x: np.ndarray, g: float, lost=(), y=()) -> tuple:
+    def _xhat(self, tau: int, attempt: int, x: np.ndarray, columns: dict, lost=(), y=()) -> tuple:
+        """The ``xhat`` message of ``x_i(tau)`` with the row columns this agent reports (``columns``:
+        :func:`splitspec_core.model.rows.report`)."""
         used = ([] if not self.record_y else None if y is None else [float(v) for v in y])
         return (self.keys.xhat(self.id), encode("xhat", self.run_id, mac_key=self.mac_key, tau=tau, attempt=attempt,
-                                                  agent=self.id, incarnation=int(self.incarnation), x=x, g=float(g),
+                                                  agent=self.id, incarnation=int(self.incarnation), x=x, **columns,
                                                   rejected=self.counts(), lost=[v for t in lost for v in t], y=used))
 
     def next_wakeup(self) -> float | None:
@@ -203,7 +206,7 @@ class AgentNode:
             self.x = initial_estimate(self.n, self.seed, self.index, self.incarnation)
             self.g = self.g0
             self.tau = tau
-            out.append(self._xhat(tau, attempt, self.x, self.g))
+            out.append(self._xhat(tau, attempt, self.x, report(g=self.g)))
         # drop buffers of older rounds
         self.zbuf = {k: v for k, v in self.zbuf.items() if (k[0], k[1]) >= (tau, attempt)}
         self.xbuf = {k: v for k, v in self.xbuf.items() if k[0] >= tau}
@@ -221,7 +224,7 @@ class AgentNode:
         explicit = bool(t["fresh"]) or attempt > 0
         self.round = {"tau": tau, "attempt": attempt, "nbs": nbs, "ws": ws, "k": 0, "z": self.x.copy(),
                       "z0": None if explicit else (tau, int(t["prev_attempt"])), "groups": self.net.groups,
-                      "lost": [], "open": self.clock() if self.deadline is not None else None}
+                      "lost": [], "used": 0, "open": self.clock() if self.deadline is not None else None}
         if self.whole:  # z_i(0) is the updated estimate, sent once y_i(tau) is in (_advance)
             self.round["z0"] = None
         elif explicit:
@@ -325,6 +328,7 @@ class AgentNode:
         if self.undrawn and not r["groups"]:  # sub_round's decisions without it: only a deadline can drop a message
             if all(j in slot for j in r["nbs"] if j != self.id):  # every message on time: the whole row
                 r["wake"] = None
+                r["used"] += sum(1 for j in r["nbs"] if j != self.id)  # the neighbours' messages it counts
                 return r["nbs"], r["ws"], [r["z"] if j == self.id else slot[j] for j in r["nbs"]]
             if self.deadline is None or self.clock() < r["open"] + self.deadline:  # wait (for all, or till then)
                 r["wake"] = None if self.deadline is None else r["open"] + self.deadline
@@ -340,6 +344,7 @@ class AgentNode:
         _, nbs, ws, lost = got
         r["wake"] = None
         r["lost"] += lost
+        r["used"] += sum(1 for j in nbs if j != self.id)  # the neighbours' messages it counts
         return nbs, ws, [r["z"] if j == self.id else slot[j] for j in nbs]
 
     def _opened(self) -> None:
@@ -420,7 +425,9 @@ class AgentNode:
         r = self.round
         self.candidate = (r["tau"] + 1, x_next, g_next)
         self.round = None
-        return [self._xhat(r["tau"] + 1, r["attempt"], x_next, g_next, r["lost"], y)]
+        # the row columns of x_i(tau + 1): g_i(tau + 1) and what round tau measured (splitspec_core.model.rows)
+        columns = report(g=g_next, messages_used=r["used"])
+        return [self._xhat(r["tau"] + 1, r["attempt"], x_next, columns, r["lost"], y)]
 
 
 # ---------------------------------------------------------------------- process shell

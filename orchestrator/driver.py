@@ -55,6 +55,7 @@ import numpy as np
 from splitspec_core.synthesis.designer import design
 from splitspec_core.synthesis.whole_state import agent_gain as central_gain
 from splitspec_core.errors import SplitspecError
+from splitspec_core.model.rows import REPORTED, run_columns
 from splitspec_core.scenarios.load import load_scenario, read_scenario_text, resolved_scenario_text
 from splitspec_core.runtime.ticks import TickEncoder
 from splitspec_core.runtime.wire import Keys, WireError, decode, encode, new_run_key
@@ -132,6 +133,7 @@ class Orchestrator:
         self.scenario_text = resolved_scenario_text(Path(scenario_path), read_scenario_text(scenario_path))
         self.sc = load_scenario(scenario_path)
         self.des = design(self.sc)
+        self.columns = run_columns(has_g=not self.des.two_rate)  # the reported row columns this run records
         self.meas, self.measurements_path = None, measurements
         if measurements is not None and self.sc.sources:
             raise SplitspecError("--measurements replaces the plant, and this scenario has live sensors (sources:) "
@@ -229,8 +231,8 @@ class Orchestrator:
             except WireError as e:
                 m.reject("orchestrator", e.reason)
                 return []
-            return m.on_xhat(msg["agent"], msg["tau"], msg["attempt"], msg["incarnation"], msg["x"], msg["g"],
-                             msg["rejected"], now, lost=msg["lost"], y=msg["y"])
+            return m.on_xhat(msg["agent"], msg["tau"], msg["attempt"], msg["incarnation"], msg["x"],
+                             {c.name: msg[c.name] for c in REPORTED}, msg["rejected"], now, lost=msg["lost"], y=msg["y"])
         if channel == "signal":
             self.stop_requested = True
         return []
@@ -270,10 +272,11 @@ class Orchestrator:
                     prev_attempt=a.prev_attempt, alive=a.alive, rows=a.rows, incarnation=a.incarnation,
                     partition=a.partition))
             elif kind is A.Record:
-                gains = None if self.des.two_rate else a.gains  # no g in discrete time, nor for the whole-state design
                 if self.sc.sources:  # before the row: a flush in between writes both
                     self.rec.live_y(a.tau, a.y)
-                self.rec.row(a.tau, a.x, a.xhat, a.alive, a.graph, gains=gains, attempts=a.attempts,
+                # the columns this run has (no g in discrete time, nor for the whole-state design: its fill)
+                columns = {k: v for k, v in a.columns.items() if k in self.columns}
+                self.rec.row(a.tau, a.x, a.xhat, a.alive, a.graph, **columns, attempts=a.attempts,
                              rejected=a.rejected, wall_ms=(time.monotonic() - a.started) * 1e3, lost=a.lost,
                              late_ms=a.late * 1e3 if math.isfinite(a.late) else None)
                 self.tally.record(a)
@@ -424,7 +427,7 @@ class Orchestrator:
                             scenario_name=sc.name, viewer=self.viewer,
                             envelope_rate=None if self.des.g_mode == "adaptive" or self.des.excluded
                             else float(self.des.envelope_rate),
-                            gains=not self.des.two_rate, positions=sc.positions,
+                            columns=self.columns, positions=sc.positions,
                             states=sc.state_names if sc.states_named else None, shown=sc.shown_states,
                             continuous=Continuous.from_env() if sc.run.until_stopped else None)
         if self.meas is not None:

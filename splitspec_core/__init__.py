@@ -38,7 +38,7 @@ Atil             ``Atil``              (sum, sum)   ``V' Abar V`` block diagonal
 B                ``B``                 (sum, sum)   ``V' Sbar V`` (eq. split_discrete_ench)
 A_V              ``A_V``               (sum, sum)   ``Atil B^q`` (discrete), ``Atil - g(I - B)`` (cont.)
 g                ``g``                 scalar       consensus gain (eq. g, split_continuous_g)
-g_i(t)           ``gains``             (T, m)       adaptive gains (eq. adaptive)
+g_i(t)           ``g``                 (T, m)       adaptive gains (eq. adaptive); ``Trajectory.g``
 q                ``q``                 integer      consensus exchanges per event time (eq. split-discrete-p1..p3)
 lam              ``rate``              scalar       decay rate
 x_i, xhat        ``xhat``              (T, m, n)    agent i's estimate of x

@@ -407,7 +407,8 @@ def simulate(sc: Scenario | DesignResult, *, steps: int | None = None, seed: int
     -------
     Trajectory
         Without ``seeds``: ``t`` (T,), ``x`` (T, n), ``xhat`` (T, m, n) (NaN while an agent is dead),
-        ``alive`` (T, m), ``graph`` (T,) index into ``scenario.graph_names``, ``gains`` (T, m) g_i(t),
+        ``alive`` (T, m), ``graph`` (T,) index into ``scenario.graph_names``, ``columns`` the per-agent row columns
+        (:mod:`splitspec_core.model.rows`) such as ``g`` (T, m) g_i(t),
         ``lost`` (N, 4) the consensus messages that did not count; ``errors()``.
     MonteCarloRuns
         With ``seeds``: ``seeds``, ``t`` (T,), ``sq_error`` (N, T) the squared error summed over the

@@ -29,9 +29,10 @@ from __future__ import annotations
 import math
 from typing import Mapping
 
+from splitspec_core.model.rows import ROUND_FIELDS, column
 from splitspec_core.scenarios.faults import fault_marks
 
-__all__ = ["ERRORS", "ERRORS_MAX", "ERRORS_LOG10", "ERRORS_LOG10_MAX", "ENVELOPE", "STATE", "GAINS", "ROUNDS",
+__all__ = ["ERRORS", "ERRORS_MAX", "ERRORS_LOG10", "ERRORS_LOG10_MAX", "ENVELOPE", "STATE", "ROUNDS", "PER_AGENT_TAB",
            "RESIDUAL", "RESIDUAL_LOG10", "DISAGREEMENT", "DISAGREEMENT_LOG10", "KF_DISTANCE", "KF_DISTANCE_LOG10",
            "MARKS", "MARK_KINDS", "TOPOLOGY", "TOPOLOGY_GRAPH", "TOPOLOGY_LOST",
            "TOPOLOGY_PARTITION", "TOPOLOGY_STATUS", "EVENTS", "TL_EVENT", "TL_TIME", "TL_WALL",
@@ -50,9 +51,9 @@ DISAGREEMENT = "disagreement"
 DISAGREEMENT_LOG10 = "disagreement_log10"
 KF_DISTANCE = "kf_distance"
 KF_DISTANCE_LOG10 = "kf_distance_log10"
-GAINS = "gains"
 ROUNDS = "rounds"
-ROUND_SERIES = ("wall_ms", "attempts", "rejected", "lost", "late_ms")  # late_ms: behind run.pace (paced runs)
+ROUND_SERIES = ROUND_FIELDS  # late_ms: behind run.pace (paced runs)
+PER_AGENT_TAB = "per agent"  # the tab of the reported row columns (default_blueprint)
 # mid-tone colours, drawn on the light theme as on the dark one; lost: the red of the dashed arcs
 ROUND_COLORS = {"wall_ms": (31, 119, 180), "attempts": (44, 160, 44), "rejected": (255, 127, 14),
                 "lost": (214, 39, 40), "late_ms": (148, 103, 189)}
@@ -155,7 +156,7 @@ def status_label_position(positions: Mapping[int, tuple[float, float]]) -> tuple
 
 
 def default_blueprint(time_mode: str, *, n: int | None = None, envelope: bool = True,
-                      gains: bool = False, truth: bool = True, reference: bool = False, active_tab: int | str = 0,
+                      columns=(), truth: bool = True, reference: bool = False, active_tab: int | str = 0,
                       states=None, shown=None):
     """The default layout: log errors (envelope, marks) large; topology and event log beside; the rest in tabs.
 
@@ -163,7 +164,8 @@ def default_blueprint(time_mode: str, *, n: int | None = None, envelope: bool = 
     losses, rejoins, switches, faults, partitions and heals on the same axes), ``errors``
     (linear), ``states`` (a grid of one view per component: its truth, bold,
     and the batch of every agent's estimate, m + 1 lines),
-    ``gains`` (continuous time), ``rounds`` (wall time, attempts, rejected
+    ``per agent`` (one view per reported row column of ``columns``, :data:`splitspec_core.model.rows.REPORTED`:
+    every agent's series, such as the gains g_i in continuous time), ``rounds`` (wall time, attempts, rejected
     messages, consensus messages that did not count).  Right: topology (with
     ``topology/lost``, ``topology/partition`` and ``topology/status``, all under its
     origin) above the event log.  ``n`` None (a recording
@@ -201,8 +203,9 @@ def default_blueprint(time_mode: str, *, n: int | None = None, envelope: bool = 
                                     else "log10 |x_i - x|, marks"),
                  rrb.TimeSeriesView(origin=ERRORS, name="|x_i - x| (linear)")]
     tabs.append(state_views)
-    if gains:
-        tabs.append(rrb.TimeSeriesView(origin=GAINS, name="adaptive gains g_i"))
+    if columns:
+        tabs.append(rrb.Vertical(*[rrb.TimeSeriesView(origin=c.path, name=c.label or c.name)
+                                   for c in map(column, columns)], name=PER_AGENT_TAB))
     tabs.append(rounds)
     if isinstance(active_tab, str):  # rerun resolves names of views only, not of containers (rounds, states)
         names = [tab.name for tab in tabs]

@@ -37,7 +37,8 @@ class RowBatch:
     ``show``: where an agent's values are logged (alive, finite); ``clear``:
     where a value shown by an earlier batch is no longer true (Clear).
     ``env``: the designed envelope, NaN where none; ``rounds``: (L, 5) wall ms,
-    attempts, rejected, consensus messages lost, lateness against ``run.pace`` in ms (NaN unknown).
+    attempts, rejected, consensus messages lost, lateness against ``run.pace`` in ms (NaN unknown);
+    ``columns``: the agents' reported row columns by name (:data:`splitspec_core.model.rows.REPORTED`), (L, m) each.
     """
 
     seq: np.ndarray
@@ -52,19 +53,19 @@ class RowBatch:
     show_max: np.ndarray
     clear_max: np.ndarray
     env: np.ndarray
-    gains: np.ndarray
     rounds: np.ndarray
+    columns: dict
 
     @classmethod
     def of(cls, *, seq, t, wall, x, xhat, err: np.ndarray, show: np.ndarray, shown: np.ndarray,
-           shown_max: np.ndarray, env, gains, rounds) -> "RowBatch":
+           shown_max: np.ndarray, env, rounds, columns: dict) -> "RowBatch":
         """Rows as the sink logs them: ``err``/``show`` what they show now, ``shown``/``shown_max`` what earlier
         batches showed of them (a value shown that is no longer shown is cleared)."""
         show_max = show.any(axis=1)
         err_max = np.max(np.where(show, err, -np.inf), axis=1)
         return cls(seq=seq, t=t, wall=wall, x=x, xhat=xhat, err=err, show=show, clear=shown & ~show,
-                   err_max=err_max, show_max=show_max, clear_max=shown_max & ~show_max, env=env, gains=gains,
-                   rounds=rounds)
+                   err_max=err_max, show_max=show_max, clear_max=shown_max & ~show_max, env=env, rounds=rounds,
+                   columns=columns)
 
 
 @dataclass(frozen=True, slots=True)
@@ -172,12 +173,12 @@ def cut_edges(groups: tuple, edges: Iterable[tuple[str, str]], agent_ids: list[i
     return frozenset((str(j), str(i)) for j, i in cut_arcs(groups, [(int(j), int(i)) for j, i in edges], agent_ids))
 
 
-def lost_rows(tau: np.ndarray, t: np.ndarray, wall: np.ndarray, K: np.ndarray,
+def lost_rows(tau: np.ndarray, t: np.ndarray, wall: np.ndarray, ks: np.ndarray,
               lost: Mapping[int, tuple]) -> list[LostRow]:
-    """The :class:`LostRow` of rows ``K`` (``tau``, ``t``, ``wall``: the rows' columns; ``lost``: event time ->
+    """The :class:`LostRow` of rows ``ks`` (``tau``, ``t``, ``wall``: the rows' columns; ``lost``: event time ->
     its consensus messages that did not count)."""
     out = []
-    for k in K:
+    for k in ks:
         prev = bool(lost.get(int(tau[k - 1]))) if k else False
         out.append(LostRow(int(tau[k]), float(t[k]), int(wall[k]), lost.get(int(tau[k])) or (), prev))
     return out

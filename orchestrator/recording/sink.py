@@ -14,7 +14,8 @@ after the run the centralized Kalman filter); without the truth it logs no
 error and no truth at all: their styles are logged with the first rows, once
 that is known, and the default blueprint is sent again.
 
-A lost agent's own series (``errors``, ``errors_log10``, ``gains``, ``residual``) get a
+A lost agent's own series (``errors``, ``errors_log10``, its reported row columns' such as ``gains``,
+``residual``) get a
 non-recursive ``rr.Clear`` at the loss's event time: the time-series view
 draws a Clear on the entity itself as a break of the line
 (``collect_recursive_clears`` in rerun's series visualizer keeps non-recursive
@@ -47,6 +48,8 @@ from typing import Any
 from urllib.parse import urlsplit
 
 import numpy as np
+
+from splitspec_core.model.rows import column, present
 
 from . import blueprint as bp
 from .handoff import LossClear, LostRow, Mark, RowBatch, TextLine, TopologyLog
@@ -97,13 +100,14 @@ class RerunSink:
     """One run's Rerun recording (see the module docstring).  Constructing it may raise anything Rerun raises."""
 
     def __init__(self, out_dir: Path, *, run_id: str, scenario_name: str, agent_ids: np.ndarray, n: int,
-                 time_mode: str, dt: float, graph_names: tuple, envelope: bool, gains: bool,
+                 time_mode: str, dt: float, graph_names: tuple, envelope: bool, columns: tuple,
                  positions: dict, viewer: str | None, viewer_port: int, connect_timeout: float,
                  states: tuple | None = None, shown: tuple | None = None, roll_bytes: int | None = None):
         import rerun as rr
 
         self.agent_ids = [int(a) for a in agent_ids]
-        self.n, self.time_mode, self.envelope, self.gains = int(n), time_mode, bool(envelope), bool(gains)
+        self.n, self.time_mode, self.envelope = int(n), time_mode, bool(envelope)
+        self.columns = tuple(column(c) for c in columns)  # the reported row columns shown, a series per agent
         self.states = tuple(states) if states else None  # system.states: the state/<name> entities
         self.shown = None if shown is None else tuple(int(k) for k in shown)  # run.show: the states tab's views
         self.labels = bp.state_labels(self.n, self.states)
@@ -128,7 +132,8 @@ class RerunSink:
         self._name = f"{scenario_name} ({run_id})"
         self._properties = dict(
             scenario=scenario_name, run_id=run_id, time_mode=time_mode, dt=dt, n=self.n, m=len(self.agent_ids),
-            agent_ids=self.agent_ids, graphs=list(graph_names), envelope=self.envelope, gains=self.gains,
+            agent_ids=self.agent_ids, graphs=list(graph_names), envelope=self.envelope,
+            columns=",".join(c.name for c in self.columns),
             **({"states": list(self.states)} if self.states else {}),
             **({"shown": list(self.shown)} if self.shown is not None else {}))
         self._log_statics(rr)
@@ -146,7 +151,8 @@ class RerunSink:
 
     def blueprint_args(self) -> dict:
         """The arguments of :func:`~splitspec_orchestrator.recording.blueprint.default_blueprint` (JSON)."""
-        return dict(time_mode=self.time_mode, n=self.n, envelope=self.envelope, gains=self.gains, truth=self.truth,
+        return dict(time_mode=self.time_mode, n=self.n, envelope=self.envelope,
+                    columns=[c.name for c in self.columns], truth=self.truth,
                     reference=self.reference is not None, states=list(self.states) if self.states else None,
                     shown=list(self.shown) if self.shown is not None else None)
 
@@ -206,8 +212,8 @@ class RerunSink:
             rec.log(f"{bp.MARKS}/{kind}", rr.SeriesPoints(names=name, colors=[col], markers=marker,
                                                           marker_sizes=6.0), static=True)
         for i, a in enumerate(self.agent_ids):
-            if self.gains:
-                line(bp.agent_path(bp.GAINS, a), f"g agent {a}", bp.color(i))
+            for c in self.columns:
+                line(bp.agent_path(c.path, a), f"{c.name} agent {a}", bp.color(i))
         m = len(self.agent_ids)
         for label, name in self.labels:
             # one batch of m scalars: one name, colour and width per instance (agent)
@@ -258,8 +264,7 @@ class RerunSink:
         paths = [bp.agent_path(bp.ERRORS, agent_id), bp.agent_path(bp.ERRORS_LOG10, agent_id)] if self.truth else []
         if self.reference is not None:
             paths += self.reference.agent_series(agent_id)
-        if self.gains:
-            paths.append(bp.agent_path(bp.GAINS, agent_id))
+        paths += [bp.agent_path(c.path, agent_id) for c in self.columns]
         return paths
 
     # ------------------------------------------------------------------ logging
@@ -314,9 +319,10 @@ class RerunSink:
                 scalars(bp.agent_path(bp.ERRORS_LOG10, a), mask & np.isfinite(lerr[:, i]), lerr[:, i])
                 for path in (bp.agent_path(bp.ERRORS, a), bp.agent_path(bp.ERRORS_LOG10, a)):
                     clear(path, b.clear[:, i])
-            if self.gains:
-                scalars(bp.agent_path(bp.GAINS, a), mask & np.isfinite(b.gains[:, i]), b.gains[:, i])
-                clear(bp.agent_path(bp.GAINS, a), b.clear[:, i])
+            for c in self.columns:
+                values = b.columns[c.name][:, i]
+                scalars(bp.agent_path(c.path, a), mask & present(c, values), values.astype(float))
+                clear(bp.agent_path(c.path, a), b.clear[:, i])
         if self.truth:
             scalars(bp.ERRORS_MAX, b.show_max, b.err_max)
             scalars(bp.ERRORS_LOG10_MAX, b.show_max & np.isfinite(lmax), lmax)

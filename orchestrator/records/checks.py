@@ -13,6 +13,7 @@ from typing import Iterable, Mapping
 import numpy as np
 
 from splitspec_core.errors import SplitspecError
+from splitspec_core.model.rows import REPORTED, empty
 
 __all__ = ["RecordingError", "check_run", "check_topology", "check_row"]
 
@@ -69,10 +70,30 @@ def check_topology(agent_ids: np.ndarray, graph_names: tuple, graph_name: str, a
     return alive, edges, groups
 
 
-def check_row(m: int, n: int, graphs: int, x, xhat, alive, graph: int, gains,
-              no_gains: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """A row's arguments (``graphs``: how many graphs the run has; ``no_gains``: the gains of ``gains=None``):
-    ``x``, ``xhat``, ``alive`` and the gains as arrays."""
+def check_row(m: int, n: int, graphs: int, x, xhat, alive, graph: int,
+              columns: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict]:
+    """A row's arguments, checked.
+
+    Parameters
+    ----------
+    m, n, graphs : int
+        Agents, states, and how many graphs the run has.
+    x, xhat, alive, graph
+        The row (:meth:`~splitspec_orchestrator.records.recorder.Recorder.row`).
+    columns : dict
+        Reported row columns by name (:data:`splitspec_core.model.rows.REPORTED`), each (m,) or None.
+
+    Returns
+    -------
+    tuple
+        ``x``, ``xhat``, ``alive`` as arrays and a dict of every reported column as an array of its dtype (its
+        fill where not given).
+
+    Raises
+    ------
+    RecordingError
+        A shape, the graph index or a column name that does not fit the run.
+    """
     x = np.asarray(x, dtype=float)
     xhat = np.asarray(xhat, dtype=float)
     alive = np.asarray(alive)
@@ -85,7 +106,14 @@ def check_row(m: int, n: int, graphs: int, x, xhat, alive, graph: int, gains,
                              f"got {alive.dtype} {alive.shape}")
     if not 0 <= int(graph) < graphs:
         raise RecordingError(f"graph index {graph} out of range 0..{graphs - 1}")
-    g = no_gains if gains is None else np.asarray(gains, dtype=float)
-    if g.shape != (m,):
-        raise RecordingError(f"gains has shape {g.shape}; expected ({m},)")
-    return x, xhat, alive, g
+    unknown = sorted(set(columns) - {c.name for c in REPORTED})
+    if unknown:
+        raise RecordingError(f"{', '.join(unknown)}: not a reported row column "
+                             f"({', '.join(c.name for c in REPORTED)})")
+    out = {}
+    for c in REPORTED:
+        v = columns.get(c.name)
+        out[c.name] = empty(c, 1, m, n)[0] if v is None else np.asarray(v, dtype=c.dtype)
+        if out[c.name].shape != (m,):
+            raise RecordingError(f"{c.name} has shape {out[c.name].shape}; expected ({m},)")
+    return x, xhat, alive, out

@@ -38,6 +38,7 @@ from typing import Callable
 import numpy as np
 
 from splitspec_core.errors import SplitspecError
+from splitspec_core.model.rows import COLUMNS, REPORTED
 from splitspec_core.simulation.trajectory_chunks import ChunkWriter
 from splitspec_core.simulation.trajectory_file import TRAJECTORY_FILE, lost_arrays, write_trajectory
 
@@ -98,10 +99,10 @@ class WriteFailure:
             raise self.error
 
 
-def _fewer(K: int) -> int:
+def _fewer(kept: int) -> int:
     """The rows of the next try of :meth:`RecordFiles.finish_rrd_fitting`: a tenth less (at least one less, at
     least one row)."""
-    return max(1, K - max(1, K // 10))
+    return max(1, kept - max(1, kept // 10))
 
 
 @dataclass(frozen=True)
@@ -187,20 +188,19 @@ class RecordFiles:
             raise self._failure.fail(self.rrd_path, exc, self.last_tau()) from None
         self.rrd_rows = self._d.base + taken
 
-    def append_chunk(self, K: np.ndarray) -> None:
-        """Append the taken rows ``K`` (and the consensus messages of their event times that did not count) to the
+    def append_chunk(self, ks: np.ndarray) -> None:
+        """Append the taken rows ``ks`` (and the consensus messages of their event times that did not count) to the
         chunks, one record batch (:class:`~splitspec_core.simulation.trajectory_chunks.ChunkWriter`)."""
-        D = self._d
-        if len(K):
-            taus = D.tau[K]
+        taken = self._d
+        if len(ks):
+            taus = taken.tau[ks]
             ys = self._y_rows(taus) if self._y_rows is not None else None
             if self.chunks is None:
-                self.chunks = ChunkWriter(self.out_dir, agent_ids=self.agent_ids, states=self.states, n=D.n,
+                self.chunks = ChunkWriter(self.out_dir, agent_ids=self.agent_ids, states=self.states, n=taken.n,
                                           dt=self._dt, p=0 if ys is None else ys[0].shape[1],
                                           segment_bytes=self._chunk_bytes)
-            cols = {"tau": taus, "t": D.t[K], "x": D.x[K], "xhat": D.xhat[K], "alive": D.alive[K],
-                    "graph": D.graph[K], "g": D.g[K], "wall": D.wall[K], "round": D.round[K],
-                    "lost": [[r[1:] for r in self._lost.get(int(tau), ())] for tau in taus.tolist()]}
+            cols = {c.name: getattr(taken, c.name)[ks] for c in COLUMNS}  # the row schema's (tau, t, x, xhat, ...)
+            cols["lost"] = [[r[1:] for r in self._lost.get(int(tau), ())] for tau in taus.tolist()]
             if ys is not None and self.chunks.p:
                 cols["y"], cols["y_missing"] = ys
             try:
@@ -208,27 +208,29 @@ class RecordFiles:
             except OSError as exc:
                 path = self.chunks.path or self.out_dir / "chunks"
                 raise self._failure.fail(path, exc, int(taus.max())) from None
-        self.chunk_rows = D.base + D.rows
+        self.chunk_rows = taken.base + taken.rows
 
     def write_trajectory(self, rows: int | None = None) -> None:
         """Atomically (re)write ``trajectory.npz`` with the first ``rows`` rows taken (default: all); nothing
         for a run until stopped (no ``trajectory.npz``: its rows are in the chunks)."""
-        D = self._d
+        taken = self._d
         if not self.npz:
             self.npz_dirty = False
             return
-        T = D.rows if rows is None else rows
+        T = taken.rows if rows is None else rows
         path = self.out_dir / TRAJECTORY_FILE
         try:
-            last = int(D.tau[T - 1]) if T else -1
+            last = int(taken.tau[T - 1]) if T else -1
             lost, cause = lost_arrays([r for tau, rows in list(self._lost.items()) if tau <= last for r in rows])
-            write_trajectory(path, t=D.t[:T], x=D.x[:T], xhat=D.xhat[:T], alive=D.alive[:T], graph=D.graph[:T],
-                             agent_ids=self.agent_ids, g=D.g[:T], lost=lost, lost_cause=cause,
+            write_trajectory(path, t=taken.t[:T], x=taken.x[:T], xhat=taken.xhat[:T], alive=taken.alive[:T],
+                             graph=taken.graph[:T],
+                             agent_ids=self.agent_ids, columns={c.name: getattr(taken, c.name)[:T] for c in REPORTED},
+                             lost=lost, lost_cause=cause,
                              extra=self._extra(T), states=self.states or None)
         except OSError as exc:
-            raise self._failure.fail(path, exc, int(D.tau[T - 1]) if T else None) from None
+            raise self._failure.fail(path, exc, int(taken.tau[T - 1]) if T else None) from None
         self.npz_rows = T
-        if T == D.rows:
+        if T == taken.rows:
             self.npz_dirty = False
 
     @property
@@ -236,79 +238,79 @@ class RecordFiles:
         """Rows of the record of rows on disk: ``trajectory.npz``'s, or the chunks' for a run until stopped."""
         return self.npz_rows if self.npz else self.chunk_rows
 
-    def _tau(self, K: int) -> int | None:
-        """The event time of the run's row ``K - 1`` if it is held (a run until stopped holds a window)."""
-        k = K - 1 - self._d.base
+    def _tau(self, kept: int) -> int | None:
+        """The event time of the run's row ``kept - 1`` if it is held (a run until stopped holds a window)."""
+        k = kept - 1 - self._d.base
         return int(self._d.tau[k]) if 0 <= k < self._d.rows else None
 
     def salvage(self) -> int:
         """After a write failure and the last flush: make the rows on disk agree.  Never raises.
 
-        Returns K = all rows if ``run.rrd`` and ``trajectory.npz`` could be written, else the rows both hold
+        Returns the rows kept: all rows if ``run.rrd`` and ``trajectory.npz`` could be written, else the rows both hold
         on disk (``trajectory.npz`` is cut to them if it holds more and can be rewritten).
         """
         if not self.npz:  # a run until stopped: the chunks are never cut (append only), run.rrd is
             return min(self.rrd_rows, self.chunk_rows) if self.sink is not None else self.chunk_rows
         if self.sink is None:
             return self.npz_rows
-        K = min(self.rrd_rows, self.npz_rows)
-        if self.npz_rows > K:
+        kept = min(self.rrd_rows, self.npz_rows)
+        if self.npz_rows > kept:
             try:
-                self.write_trajectory(K)
+                self.write_trajectory(kept)
             except RecordsWriteError:
-                K = self.npz_rows  # cannot cut it: run.rrd is cut to the trajectory's rows instead
-        return K
+                kept = self.npz_rows  # cannot cut it: run.rrd is cut to the trajectory's rows instead
+        return kept
 
-    def finish_rrd_fitting(self, K: int) -> int:
-        """After a write failure: finish ``run.rrd`` and cut ``trajectory.npz`` to K rows, or to fewer (a tenth
+    def finish_rrd_fitting(self, kept: int) -> int:
+        """After a write failure: finish ``run.rrd`` and cut ``trajectory.npz`` to ``kept`` rows, or to fewer (a tenth
         less each try) when the rewrites do not fit on the full disk.  The trajectory is cut first: a shorter
         trajectory frees room for the rrd's rewrite.  Returns the rows kept (what the close event states)."""
-        if self.sink is None or K == 0 or not self.npz:
-            self.finish_rrd(K)
-            return K
+        if self.sink is None or kept == 0 or not self.npz:
+            self.finish_rrd(kept)
+            return kept
         for _ in range(40):
-            if K != self.npz_rows and not self.cut_trajectory(K):
-                if K <= 1:
+            if kept != self.npz_rows and not self.cut_trajectory(kept):
+                if kept <= 1:
                     break
-                K = _fewer(K)
+                kept = _fewer(kept)
                 continue
             try:
-                self.sink.finish(int(self._d.tau[K - 1]) + 1)
+                self.sink.finish(int(self._d.tau[kept - 1]) + 1)
             except OSError as exc:
-                if exc.errno != errno.ENOSPC or K <= 1:
-                    self._failure.fail(self.rrd_path, exc, int(self._d.tau[K - 1]))
+                if exc.errno != errno.ENOSPC or kept <= 1:
+                    self._failure.fail(self.rrd_path, exc, int(self._d.tau[kept - 1]))
                     break
-                K = _fewer(K)
+                kept = _fewer(kept)
                 continue
             break
-        return min(K, self.npz_rows)
+        return min(kept, self.npz_rows)
 
-    def cut_trajectory(self, K: int) -> bool:
-        """After a write failure: cut ``trajectory.npz`` to its first K rows.  The atomic rewrite needs room
+    def cut_trajectory(self, kept: int) -> bool:
+        """After a write failure: cut ``trajectory.npz`` to its first ``kept`` rows.  The atomic rewrite needs room
         for both files; when that room is gone, the longer file (whose rows are all in memory) is removed
-        first and the shorter one written in its place.  True when ``trajectory.npz`` holds K rows."""
+        first and the shorter one written in its place.  True when ``trajectory.npz`` holds ``kept`` rows."""
         try:
-            self.write_trajectory(K)
+            self.write_trajectory(kept)
             return True
         except RecordsWriteError:
             pass
         try:
             (self.out_dir / TRAJECTORY_FILE).unlink(missing_ok=True)
             self.npz_rows = 0
-            self.write_trajectory(K)
+            self.write_trajectory(kept)
             return True
         except (OSError, RecordsWriteError):
             return False
 
-    def finish_rrd(self, K: int) -> None:
-        """Rewrite ``run.rrd`` as one verifiable RRD; cut after row K-1 if a write failed."""
+    def finish_rrd(self, kept: int) -> None:
+        """Rewrite ``run.rrd`` as one verifiable RRD; cut after row ``kept - 1`` if a write failed."""
         if self.sink is None:
             return
         cutoff = None
-        if self._failure.error is not None or K < self._d.base + self._d.rows:
-            tau = self._tau(K)
-            cutoff = 0 if not K else (tau + 1 if tau is not None else None)
+        if self._failure.error is not None or kept < self._d.base + self._d.rows:
+            tau = self._tau(kept)
+            cutoff = 0 if not kept else (tau + 1 if tau is not None else None)
         try:
             self.sink.finish(cutoff)
         except OSError as exc:
-            self._failure.fail(self.rrd_path, exc, self._tau(K))
+            self._failure.fail(self.rrd_path, exc, self._tau(kept))

@@ -51,6 +51,8 @@ import weakref
 
 import numpy as np
 
+from splitspec_core.model.rows import REPORTED
+
 from ..recording.handoff import DeferredLogs, lost_rows
 from .files import RecordsWriteError, WriteFailure
 from .outdir import Reserve
@@ -179,36 +181,38 @@ class Flusher:
     # ------------------------------------------------------------------ what the callers record (lock held)
 
     def store(self, tau: int, t: float, x: np.ndarray, xhat: np.ndarray, alive: np.ndarray, graph: int,
-              g: np.ndarray, diag: list) -> None:
+              columns: dict, diag: list) -> None:
         """Row of event time ``tau`` (a new one, after the last; or a re-sent one, which replaces it): dead agents'
-        values NaN; ``diag`` the round's diagnostics."""
-        S = self.rows
-        k = S.row_of_tau.get(tau)
+        values NaN (the reported ``columns``' fill); ``diag`` the round's diagnostics."""
+        recorded = self.rows
+        k = recorded.row_of_tau.get(tau)
         if k is None:
-            k = S.append_slot(tau)
+            k = recorded.append_slot(tau)
         elif k < self.taken:
             self.changed.add(k)  # already taken by a flush: take and send the whole row again (newest wins)
-        S.t[k] = t
-        S.x[k] = x
-        S.xhat[k] = np.where(alive[:, None], xhat, np.nan)
-        S.alive[k] = alive
-        S.graph[k] = int(graph)
-        S.g[k] = np.where(alive, g, np.nan)
-        S.round[k] = diag
-        S.wall[k] = time.time_ns()
+        recorded.t[k] = t
+        recorded.x[k] = x
+        recorded.xhat[k] = np.where(alive[:, None], xhat, np.nan)
+        recorded.alive[k] = alive
+        recorded.graph[k] = int(graph)
+        for c in REPORTED:
+            getattr(recorded, c.name)[k] = np.where(alive, columns[c.name], c.fill)
+        recorded.round[k] = diag
+        recorded.wall[k] = time.time_ns()
 
     def lose(self, tau: int, i: int, agent_id: int, t: float) -> None:
         """Agent ``agent_id`` (column ``i``) lost from event time ``tau`` (time ``t``) on: NaN/False in every
         recorded row from ``tau`` on, its consensus messages forgotten there, its series cleared at ``tau``; a
         flush of every row recorded so far is asked for (:meth:`flush_soon`)."""
-        S = self.rows
-        T = S.rows
-        for k in np.nonzero(S.tau[:T] >= tau)[0]:
-            if not S.alive[k, i]:
+        recorded = self.rows
+        T = recorded.rows
+        for k in np.nonzero(recorded.tau[:T] >= tau)[0]:
+            if not recorded.alive[k, i]:
                 continue
-            S.alive[k, i] = False
-            S.xhat[k, i] = np.nan
-            S.g[k, i] = np.nan
+            recorded.alive[k, i] = False
+            recorded.xhat[k, i] = np.nan
+            for c in REPORTED:
+                getattr(recorded, c.name)[k, i] = c.fill
             if k < self.taken:
                 self.changed.add(int(k))
         if self.writer.sink is not None:
@@ -218,9 +222,9 @@ class Flusher:
                 kept = tuple(r for r in lost if agent_id not in (r[2], r[3]))
                 if len(kept) != len(lost):
                     self.lost[t_] = kept
-                    k = S.row_of_tau.get(t_)
+                    k = recorded.row_of_tau.get(t_)
                     if k is not None:  # rounds/lost counts what trajectory.npz keeps
-                        S.round[k, 3] = len(kept)
+                        recorded.round[k, 3] = len(kept)
                         if k < self.taken:
                             self.changed.add(int(k))
         self.request = T
@@ -300,19 +304,19 @@ class Flusher:
         if W is None:
             return
         with self.lock:
-            S, D = self.rows, self.writer.rows
-            if S.rows <= 2 * W:
+            recorded, taken_rows = self.rows, self.writer.rows
+            if recorded.rows <= 2 * W:
                 return
-            d = min(S.rows - W, self.taken, min(self.changed, default=self.taken))
+            d = min(recorded.rows - W, self.taken, min(self.changed, default=self.taken))
             if d <= 0:
                 return
-            S.drop(d)
-            D.drop(d)
+            recorded.drop(d)
+            taken_rows.drop(d)
             self.taken -= d
             self.changed = {k - d for k in self.changed}
             if self.request is not None:
                 self.request = max(0, self.request - d)
-            first = int(S.tau[0]) if S.rows else None
+            first = int(recorded.tau[0]) if recorded.rows else None
             for tau in [t for t in self.lost if first is None or t < first]:
                 del self.lost[tau]
             if first is not None:
@@ -341,21 +345,22 @@ class Flusher:
         """Copy the rows recorded since the last flush (and changed ones) into the taken rows; take the
         queued logs.  ``io`` and ``lock`` held; no I/O, O(rows taken) work."""
         self.last_flush = time.monotonic()
-        S = self.rows
-        T = S.rows if upto is None else max(min(int(upto), S.rows), self.taken)
+        recorded = self.rows
+        T = recorded.rows if upto is None else max(min(int(upto), recorded.rows), self.taken)
         changed = np.array(sorted(self.changed), dtype=np.int64)  # all below taken
-        K = np.concatenate([changed, np.arange(self.taken, T, dtype=np.int64)])
-        if len(K):
-            self.writer.take(S, self.taken, T, changed)
+        ks = np.concatenate([changed, np.arange(self.taken, T, dtype=np.int64)])
+        if len(ks):
+            self.writer.take(recorded, self.taken, T, changed)
         self.taken = T
         self.changed.clear()
         if self.request is not None and self.request <= T:
             self.request = None
         # a mark stands at the height of its own row's max error: one whose row is not taken yet (the
         # topology of tau arrives before its row) waits for the next flush (close() takes them all)
-        logs = self.logs.take(int(S.tau[T - 1]) if T else None, final=final)
-        lost = lost_rows(S.tau, S.t, S.wall, K, self.lost) if self.writer.sink is not None and self.lost else []
-        return K, logs, lost
+        logs = self.logs.take(int(recorded.tau[T - 1]) if T else None, final=final)
+        lost = lost_rows(recorded.tau, recorded.t, recorded.wall, ks, self.lost) \
+            if self.writer.sink is not None and self.lost else []
+        return ks, logs, lost
 
 
 def _watch(ref: "weakref.ref[Flusher]", stop: threading.Event, wake: threading.Event) -> None:

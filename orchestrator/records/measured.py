@@ -98,12 +98,12 @@ class MeasuredRecords:
         if self.source is not None:
             self.source[1].forget_before(tau)
 
-    def row_errors(self, K: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``|x_i - x|`` of rows ``K`` and where a row shows agent i: alive with a finite error, or without the
+    def row_errors(self, ks: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``|x_i - x|`` of rows ``ks`` and where a row shows agent i: alive with a finite error, or without the
         truth (whose errors are never logged) alive with a finite estimate."""
-        err, show = self._d.row_errors(K)
+        err, show = self._d.row_errors(ks)
         if not self.truth:
-            show = self._d.alive[K] & np.isfinite(self._d.xhat[K]).all(axis=2)
+            show = self._d.alive[ks] & np.isfinite(self._d.xhat[ks]).all(axis=2)
         return err, show
 
     def mark_y(self, tau: int) -> float:
@@ -125,8 +125,9 @@ class MeasuredRecords:
             from splitspec_core.studies.no_truth import no_truth_arrays
             from splitspec_core.simulation.simulator import Trajectory
 
-            D = self._d
-            traj = Trajectory(t=D.t[:T], x=D.x[:T], xhat=D.xhat[:T], alive=D.alive[:T], graph=D.graph[:T],
+            taken = self._d
+            traj = Trajectory(t=taken.t[:T], x=taken.x[:T], xhat=taken.xhat[:T], alive=taken.alive[:T],
+                              graph=taken.graph[:T],
                               agent_ids=np.array(self.agent_ids), y=extra["y"], y_missing=extra["y_missing"])
             known = no_truth_arrays(traj, sc, None if self.inputs is None else self.inputs[:T])
             self.after_run = (T, known)
@@ -140,6 +141,6 @@ class MeasuredRecords:
         done = self.after_run
         if sink is None or sink.reference is None or done is None or done[0] != self._d.rows:
             return
-        D, T, arrays = self._d, done[0], done[1]
-        sink.guarded("Kalman filter log", sink.reference.send_after_run, D.tau[:T], D.t[:T], D.wall[:T],
+        taken, T, arrays = self._d, done[0], done[1]
+        sink.guarded("Kalman filter log", sink.reference.send_after_run, taken.tau[:T], taken.t[:T], taken.wall[:T],
                      arrays["kf"], arrays["kf_distance"])

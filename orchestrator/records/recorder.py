@@ -86,7 +86,9 @@ class Recorder:
     envelope_rate : designed rate ``lam`` of ``errors_log10/envelope`` (None: no envelope, e.g. adaptive gain)
     states : the states' names (``system.states``): the ``state/<name>/...`` entities and ``trajectory.npz``'s
         ``states``; None: ``state/<k>/...`` and ``x1 .. xn``
-    gains : log ``gains/agent_<id>`` (continuous time)
+    columns : the reported row columns (:data:`splitspec_core.model.rows.REPORTED`) this run shows in Rerun, one
+        series per agent each (``gains/agent_<id>`` for ``g``, continuous time); every reported column is in
+        ``trajectory.npz`` and the chunks whatever this says
     continuous : a run until stopped (:class:`~.files.Continuous`): no ``trajectory.npz``, a window of rows held
     positions : ``{agent id: (x, y)}`` of the topology's nodes (None: a circle)
 
@@ -100,7 +102,7 @@ class Recorder:
                  dt: float, graph_names: tuple[str, ...], run_id: str, scenario_name: str,
                  viewer: str | None = None, flush_seconds: float = 1.0,
                  viewer_port: int = DEFAULT_VIEWER_PORT, connect_timeout: float = 1.0,
-                 reserve_bytes: int = RESERVE_BYTES, envelope_rate: float | None = None, gains: bool = False,
+                 reserve_bytes: int = RESERVE_BYTES, envelope_rate: float | None = None, columns: tuple = (),
                  positions: Mapping[int, tuple[float, float]] | None = None, states: tuple | None = None,
                  shown: tuple | None = None, continuous: Continuous | None = None):
         ids = check_run(agent_ids=agent_ids, n=n, time_mode=time_mode, dt=dt, graph_names=graph_names,
@@ -119,7 +121,6 @@ class Recorder:
         self.flush_seconds = float(flush_seconds)
         self.envelope_rate = None if envelope_rate is None else float(envelope_rate)
         self._pos = {a: k for k, a in enumerate(ids)}
-        self._no_gains = np.full(self.m, np.nan)  # read only
         # Two locks, always taken in this order: _io (one flush at a time; the rows taken, the Rerun
         # sink and the files), then _lock (what the callers record; held for memory work only).
         self._io = threading.RLock()
@@ -146,7 +147,7 @@ class Recorder:
         sink = open_sink(self.out_dir, run_id=self.run_id, scenario_name=self.scenario_name,
                          agent_ids=self.agent_ids, n=self.n, time_mode=time_mode, dt=self.dt,
                          graph_names=self.graph_names, envelope=self.envelope_rate is not None,
-                         gains=bool(gains), positions=dict(positions) if positions else None,
+                         columns=tuple(columns), positions=dict(positions) if positions else None,
                          viewer=viewer, viewer_port=viewer_port, connect_timeout=connect_timeout,
                          states=names, shown=shown, roll_bytes=continuous.rrd_bytes if continuous else None)
         # trajectory.npz and run.rrd (self._rec is its sink), written by the flushes
@@ -197,7 +198,6 @@ class Recorder:
     def rows_recorded(self) -> int:
         """Number of rows (distinct event times) recorded so far: T of ``trajectory.npz``."""
         return self._s.base + self._s.rows
-
 
     @property
     def rows_kept(self) -> int:
@@ -256,11 +256,12 @@ class Recorder:
         self._f.write_through()
 
     def row(self, tau: int, x: np.ndarray, xhat: np.ndarray, alive: np.ndarray, graph: int, *,
-            gains: np.ndarray | None = None, wall_ms: float | None = None, attempts: int | None = None,
-            rejected: int | None = None, lost=None, late_ms: float | None = None) -> None:
+            wall_ms: float | None = None, attempts: int | None = None, rejected: int | None = None, lost=None,
+            late_ms: float | None = None, **columns) -> None:
         """Record event time ``tau``: ``x`` (n,), ``xhat`` (m, n), ``alive`` (m,) bool, graph index.
 
-        ``gains`` (m,): each agent's ``g_i(tau)`` (None: no gain, discrete
+        ``columns``: the agents' reported row columns by name (:data:`splitspec_core.model.rows.REPORTED`),
+        (m,) each, e.g. ``g``, each agent's ``g_i(tau)``; one not given is its fill (no gain: discrete
         time); ``wall_ms``, ``attempts``, ``rejected``: the round's
         diagnostics (``rounds/...``), None if unknown, and ``late_ms`` behind ``run.pace``; ``lost``: the round's
         consensus messages that did not count, rows ``(tau, k, j, i, cause)``
@@ -274,8 +275,7 @@ class Recorder:
         recorder's background thread (:mod:`splitspec_orchestrator.records.flusher`).
         """
         tau = int(tau)
-        x, xhat, alive, g = check_row(self.m, self.n, len(self.graph_names), x, xhat, alive, graph, gains,
-                                      self._no_gains)
+        x, xhat, alive, reported = check_row(self.m, self.n, len(self.graph_names), x, xhat, alive, graph, columns)
         diag = [np.nan if v is None else float(v) for v in (wall_ms, attempts, rejected,
                                                              None if lost is None else len(lost), late_ms)]
         with self._lock:
@@ -283,11 +283,11 @@ class Recorder:
                 self._lost[tau] = tuple(tuple(int(v) for v in r) for r in lost)
             self._check_open("row")
             self._check_failed()
-            S = self._s
-            if tau not in S.row_of_tau and S.rows and tau < S.tau[S.rows - 1]:
-                raise RecordingError(f"row for tau={tau} arrives after tau={S.tau[S.rows - 1]}; "
-                                     "rows must come in increasing tau")
-            self._f.store(tau, self._t_of_tau(tau), x, xhat, alive, graph, g, diag)
+            recorded = self._s
+            last = recorded.tau[recorded.rows - 1] if recorded.rows else None
+            if tau not in recorded.row_of_tau and last is not None and tau < last:
+                raise RecordingError(f"row for tau={tau} arrives after tau={last}; rows must come in increasing tau")
+            self._f.store(tau, self._t_of_tau(tau), x, xhat, alive, graph, reported, diag)
         self._f.write_through()
 
     def mark_lost(self, tau: int, agent_id: int) -> None:

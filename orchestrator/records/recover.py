@@ -173,7 +173,7 @@ def _max_data_event(rrd: Path) -> int:
 
 
 def _run_properties(rrd: Path, name: str = "splitspec") -> dict:
-    """The recording's ``splitspec`` property (``time_mode``, ``n``, ``envelope``, ``gains``...), or another one
+    """The recording's ``splitspec`` property (``time_mode``, ``n``, ``envelope``, ``columns``...), or another one
     (``measurements``: ``truth``, of a run on measurements); {} if absent."""
     with warnings.catch_warnings():
         warnings.filterwarnings("ignore", message="RRD file has no footer")
@@ -189,6 +189,16 @@ def _run_properties(rrd: Path, name: str = "splitspec") -> dict:
     return {}
 
 
+def _columns(props: dict) -> tuple:
+    """The reported row columns a recording shows (``columns``: their names, comma-separated; a recording made
+    before it: ``g`` if it has ``gains``), those the row schema still has."""
+    from splitspec_core.model.rows import REPORTED
+
+    names = props.get("columns")
+    names = str(names).split(",") if names is not None else (["g"] if props.get("gains") else [])
+    return tuple(c.name for c in REPORTED if c.name in names)
+
+
 def _blueprint(rrd: Path):
     """The run's default blueprint, rebuilt from the recording's properties (discrete time if absent)."""
     props = _run_properties(rrd)
@@ -199,7 +209,7 @@ def _blueprint(rrd: Path):
     shown = props.get("shown")
     shown = [shown] if isinstance(shown, int) else shown
     return default_blueprint(str(props.get("time_mode", "discrete")), n=int(n) if isinstance(n, int) else None,
-                             envelope=bool(props.get("envelope", True)), gains=bool(props.get("gains", False)),
+                             envelope=bool(props.get("envelope", True)), columns=_columns(props),
                              reference=bool(measured), truth=bool(measured.get("truth", True)),
                              states=[str(s) for s in states] if isinstance(states, list) and states else None,
                              shown=[int(k) for k in shown] if isinstance(shown, list) else None)

@@ -1,10 +1,11 @@
 """Row storage of the recorder: one row per event time, grown by doubling, and what each row shows.
 
-Row ``k`` holds event time ``tau[k]``: ``t`` (T,), ``x`` (T, n), ``xhat``
-(T, m, n) NaN where dead, ``alive`` (T, m), ``graph`` (T,), ``g`` (T, m) NaN
-where dead or none, ``round`` (T, 5) wall ms / attempts / rejected / lost / late ms
-(:data:`splitspec_core.simulation.trajectory_chunks.ROUND_FIELDS`), ``wall``
-(T,) ``time.time_ns()`` of the row's last arrival; ``shown``/``shown_max``:
+Row ``k`` holds event time ``tau[k]``: one array per column of the row schema
+(:data:`splitspec_core.model.rows.COLUMNS`, an attribute of its name, filled with its fill): ``t`` (T,),
+``x`` (T, n), ``xhat`` (T, m, n) NaN where dead, ``alive`` (T, m), ``graph`` (T,), the agents' reported
+columns (T, m) such as ``g``, the fill where dead or none, ``round`` (T, 5) wall ms / attempts / rejected /
+lost / late ms (:data:`splitspec_core.model.rows.ROUND_FIELDS`), ``wall`` (T,) ``time.time_ns()`` of the
+row's last arrival; and what the recorder keeps of them: ``shown``/``shown_max``:
 what Rerun currently shows (retracted with a Clear when it stops being
 true); ``env_c``/``env_t0``: the max error and the time where the designed envelope's piece of
 row k starts.  ``rows`` = T.  No I/O and no lock: the recorder holds its locks.
@@ -24,7 +25,7 @@ import math
 
 import numpy as np
 
-from splitspec_core.simulation.trajectory_chunks import ROUND_FIELDS
+from splitspec_core.model.rows import COLUMNS, empty
 
 __all__ = ["RowStore"]
 
@@ -35,15 +36,8 @@ class RowStore:
     def __init__(self, m: int, n: int, *, capacity: int):
         self.m, self.n = int(m), int(n)
         cap = int(capacity)
-        self.t = np.zeros(cap)
-        self.x = np.zeros((cap, n))
-        self.xhat = np.full((cap, m, n), np.nan)
-        self.alive = np.zeros((cap, m), dtype=bool)
-        self.graph = np.zeros(cap, dtype=np.int64)
-        self.tau = np.zeros(cap, dtype=np.int64)
-        self.wall = np.zeros(cap, dtype=np.int64)  # time.time_ns() of the row's (last) arrival
-        self.g = np.full((cap, m), np.nan)  # g_i(tau), NaN where dead or none
-        self.round = np.full((cap, len(ROUND_FIELDS)), np.nan)  # wall ms, attempts, rejected, lost, late ms
+        for c in COLUMNS:  # t, x, xhat, alive, graph, tau, wall, the reported columns (g...), round
+            setattr(self, c.name, empty(c, cap, self.m, self.n))
         self.env_c = np.full(cap, np.nan)  # the envelope's piece of the row: its max error at the piece's start
         self.env_t0 = np.zeros(cap)  # and the time of that start
         # What is currently shown in Rerun per row (to retract with Clear when it stops being true).
@@ -63,7 +57,7 @@ class RowStore:
         self.rows += 1
         return k
 
-    _RECORDED = ("t", "x", "xhat", "alive", "graph", "tau", "wall", "g", "round")  # what take() copies
+    _RECORDED = tuple(c.name for c in COLUMNS)  # what take() copies
 
     def take(self, src: "RowStore", start: int, upto: int, changed: np.ndarray) -> None:
         """Copy the recorded columns of rows ``start..upto-1`` and of ``changed`` (all below ``start``)
@@ -82,8 +76,7 @@ class RowStore:
         if capacity > cap:
             self.grow(max(2 * cap, int(capacity)))
 
-    _FILL = {"t": 0.0, "x": 0.0, "xhat": np.nan, "alive": False, "graph": 0, "tau": 0, "wall": 0, "g": np.nan,
-             "round": np.nan, "env_c": np.nan, "env_t0": 0.0, "shown": False, "shown_max": False}
+    _FILL = {**{c.name: c.fill for c in COLUMNS}, "env_c": np.nan, "env_t0": 0.0, "shown": False, "shown_max": False}
 
     def spare(self, capacity: int) -> dict[str, np.ndarray]:
         """Empty columns for ``capacity`` rows, filled (the memory touched): for :meth:`adopt`, later.
@@ -109,14 +102,14 @@ class RowStore:
         """Room for ``capacity`` rows (default: twice as many); the rows held are kept."""
         self.adopt(self.spare(2 * self.capacity if capacity is None else capacity))
 
-    def row_errors(self, K: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``|x_i - x|_2`` of rows ``K`` (L, m), NaN if dead, and where it is shown (alive and finite)."""
-        err = np.linalg.norm(self.xhat[K] - self.x[K][:, None, :], axis=2)
-        return err, self.alive[K] & np.isfinite(err)
+    def row_errors(self, ks: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``|x_i - x|_2`` of rows ``ks`` (L, m), NaN if dead, and where it is shown (alive and finite)."""
+        err = np.linalg.norm(self.xhat[ks] - self.x[ks][:, None, :], axis=2)
+        return err, self.alive[ks] & np.isfinite(err)
 
-    def max_errors(self, K: np.ndarray) -> np.ndarray:
-        """``max_i |x_i - x|`` over the shown agents of rows ``K`` (alive, finite error); -inf where none."""
-        err, show = self.row_errors(K)
+    def max_errors(self, ks: np.ndarray) -> np.ndarray:
+        """``max_i |x_i - x|`` over the shown agents of rows ``ks`` (alive, finite error); -inf where none."""
+        err, show = self.row_errors(ks)
         return np.where(show, err, -np.inf).max(axis=1)
 
     def max_error(self, k: int) -> float:
@@ -124,16 +117,16 @@ class RowStore:
         e = float(self.max_errors(np.array([k]))[0])
         return e if math.isfinite(e) else math.nan
 
-    def envelope(self, K: np.ndarray, lam: float | None, time_mode: str) -> np.ndarray:
-        """The designed envelope at rows ``K`` (sorted; every earlier row already has its piece).
+    def envelope(self, ks: np.ndarray, lam: float | None, time_mode: str) -> np.ndarray:
+        """The designed envelope at rows ``ks`` (sorted; every earlier row already has its piece).
 
         Row k starts a piece when it is the run's first, its alive set gains an agent, or its graph changed
         (:func:`splitspec_core.simulation.metrics.envelope_restarts`); on a piece started at k0:
         ``c lam^(t - t_k0)`` or ``c exp(-lam (t - t_k0))``, ``c`` the max error at k0.  The first row of a
         window (``base > 0``) keeps the piece it had.
         """
-        env = np.full(len(K), np.nan)
-        for r, k in enumerate(K.tolist()):
+        env = np.full(len(ks), np.nan)
+        for r, k in enumerate(ks.tolist()):
             if k == 0 and self.base:
                 pass  # its row before is forgotten: its piece stays as computed
             elif k == 0 or bool((self.alive[k] & ~self.alive[k - 1]).any()) or self.graph[k] != self.graph[k - 1]:

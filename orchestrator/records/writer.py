@@ -55,6 +55,8 @@ from typing import Any
 
 import numpy as np
 
+from splitspec_core.model.rows import REPORTED
+
 from ..recording.handoff import Deferred, LostRow, RowBatch, TextLine, send_logs
 from ..recording.sink import RerunSink
 from .events import EventLog, event_text
@@ -120,8 +122,8 @@ class RecordWriter:
         self.rows.take(src, start, upto, changed)
         self.files.npz_dirty = True
 
-    def write(self, K: np.ndarray, logs: list[Deferred], lost: list[LostRow], *, trajectory: bool = True) -> None:
-        """Write out the rows ``K`` taken and the logs taken with them; ``_lock`` only for :attr:`rows_kept`.
+    def write(self, ks: np.ndarray, logs: list[Deferred], lost: list[LostRow], *, trajectory: bool = True) -> None:
+        """Write out the rows ``ks`` taken and the logs taken with them; ``_lock`` only for :attr:`rows_kept`.
 
         Rows then logs to Rerun and ``run.rrd``, then ``trajectory.npz``; ``trajectory=False``: leave
         ``trajectory.npz`` for a later flush (see ``_NPZ_DUTY``).
@@ -131,37 +133,39 @@ class RecordWriter:
         RecordsWriteError
             If ``run.rrd`` or ``trajectory.npz`` cannot be written.
         """
-        D = self.rows
+        taken = self.rows
         sink = self.sink
-        for lo in range(0, len(K), _SEND_ROWS):
-            part = K[lo:lo + _SEND_ROWS]
+        for lo in range(0, len(ks), _SEND_ROWS):
+            part = ks[lo:lo + _SEND_ROWS]
             err, show = self.meas.row_errors(part)
             if sink is not None:
                 sink.guarded("row log", lambda: sink.send_rows(self._batch(part, err, show)))
             # What Rerun now shows (also when a send failed: it is not retried).
-            D.shown[part] = show
-            D.shown_max[part] = show.any(axis=1)
-            if sink is not None and lo + _SEND_ROWS < len(K):
+            taken.shown[part] = show
+            taken.shown_max[part] = show.any(axis=1)
+            if sink is not None and lo + _SEND_ROWS < len(ks):
                 sink.read_pending()  # a piece at a time (see _SEND_ROWS); run.rrd gets it below
         if sink is not None:
             send_logs(sink, logs, lost, self.meas.mark_y)
         files = self.files
-        if len(K) or logs or (sink is not None and sink.pending):
+        if len(ks) or logs or (sink is not None and sink.pending):
             files.append_rrd()
-        files.append_chunk(K)  # after run.rrd: the chunks never hold an event time run.rrd lacks
-        if files.npz and trajectory and (files.npz_dirty or files.npz_rows != D.rows):
+        files.append_chunk(ks)  # after run.rrd: the chunks never hold an event time run.rrd lacks
+        if files.npz and trajectory and (files.npz_dirty or files.npz_rows != taken.rows):
             t0 = time.monotonic()
             files.write_trajectory()
             self.npz_next = time.monotonic() + (time.monotonic() - t0) * (1 - _NPZ_DUTY) / _NPZ_DUTY
         with self._lock:
             self.rows_kept = min(files.kept_rows, files.rrd_rows) if sink is not None else files.kept_rows
 
-    def _batch(self, K: np.ndarray, err: np.ndarray, show: np.ndarray) -> RowBatch:
-        """Rows ``K`` (taken) as the sink logs them."""
-        D = self.rows
-        return RowBatch.of(seq=D.tau[K], t=D.t[K], wall=D.wall[K], x=D.x[K], xhat=D.xhat[K], err=err, show=show,
-                           shown=D.shown[K], shown_max=D.shown_max[K],
-                           env=D.envelope(K, self.envelope_rate, self.time_mode), gains=D.g[K], rounds=D.round[K])
+    def _batch(self, ks: np.ndarray, err: np.ndarray, show: np.ndarray) -> RowBatch:
+        """Rows ``ks`` (taken) as the sink logs them."""
+        taken = self.rows
+        return RowBatch.of(seq=taken.tau[ks], t=taken.t[ks], wall=taken.wall[ks], x=taken.x[ks], xhat=taken.xhat[ks],
+                           err=err, show=show,
+                           shown=taken.shown[ks], shown_max=taken.shown_max[ks],
+                           env=taken.envelope(ks, self.envelope_rate, self.time_mode), rounds=taken.round[ks],
+                           columns={c.name: getattr(taken, c.name)[ks] for c in REPORTED})
 
     def salvage(self) -> None:
         """After a write failure and the last flush: make the rows on disk agree (:meth:`RecordFiles.salvage`)."""
@@ -170,15 +174,15 @@ class RecordWriter:
     def finish(self, finished: bool) -> None:
         """The records' end, after the last flush: ``run.rrd`` finished (after a write failure first, with fewer
         rows if its rewrite does not fit, so that the close event states what all three records hold) and the
-        last event, ``recording_closed`` with ``finished`` and ``rows`` (K = :attr:`rows_kept`)."""
+        last event, ``recording_closed`` with ``finished`` and ``rows`` (:attr:`rows_kept`)."""
         failure = self.failure.error
-        K = self.rows_kept
+        kept = self.rows_kept
         ok = bool(finished) and failure is None
         if failure is not None:
-            K = self.rows_kept = self.files.finish_rrd_fitting(K)
-        fields: dict[str, Any] = {"finished": ok, "rows": K}
-        last = K - 1 - self.rows.base  # the row K - 1 in the rows held (a run until stopped holds a window)
-        t = float(self.rows.t[last]) if K and 0 <= last < self.rows.rows else (
+            kept = self.rows_kept = self.files.finish_rrd_fitting(kept)
+        fields: dict[str, Any] = {"finished": ok, "rows": kept}
+        last = kept - 1 - self.rows.base  # the row kept - 1 in the rows held (a run until stopped holds a window)
+        t = float(self.rows.t[last]) if kept and 0 <= last < self.rows.rows else (
             float(self.rows.t[self.rows.rows - 1]) if self.rows.rows else 0.0)
         if failure is not None:
             fields["error"] = str(failure)
@@ -188,7 +192,7 @@ class RecordWriter:
                 self.failure.fail(self.events.path, exc, None)
         else:
             self._close_event(t, "INFO" if ok else "WARN", fields)
-            self.files.finish_rrd(K)
+            self.files.finish_rrd(kept)
 
     def _close_event(self, t: float, level: str, fields: dict[str, Any]) -> None:
         """The last event, ``recording_closed``: to ``events.jsonl`` and ``run.rrd`` if they can take it."""

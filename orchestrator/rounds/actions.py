@@ -39,7 +39,7 @@ class Record:
     xhat: np.ndarray
     alive: np.ndarray
     graph: int
-    gains: np.ndarray
+    columns: dict  # the agents' reported row columns (splitspec_core.model.rows.REPORTED): name -> (m,)
     attempts: int = 1  # attempts of the round (1 = not re-run)
     rejected: int = 0  # messages rejected since the previous record
     started: float = math.nan  # `now` of the round's first tick (driver clock)

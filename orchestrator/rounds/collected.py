@@ -1,16 +1,44 @@
 """What the round in flight has collected: the plant's truth and the agents' estimates, at most two event times.
 
 Round ``tau`` collects ``truth(tau)`` from the plant and, from every alive agent, ``x_i(tau)`` (its admission
-estimate, or the previous round's result) and ``x_i(tau + 1)`` with ``g_i(tau)``, the consensus messages it did
-not count and, with live sensors, the ``y_i(tau)`` it used.  :class:`Collected` keeps them until the round is
-recorded (:meth:`Collected.take`), so its buffers hold at most two event times.  I/O-free.
+estimate, or the previous round's result) and ``x_i(tau + 1)``, each with the row columns the agent reports
+(:data:`splitspec_core.model.rows.REPORTED`: of its state, such as ``g_i``, or of the round), the consensus
+messages it did not count and, with live sensors, the ``y_i(tau)`` it used.  :class:`Collected` keeps them until
+the round is recorded (:meth:`Collected.take`, a :class:`CollectedRow`), so its buffers hold at most two event
+times.  I/O-free.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
-__all__ = ["Collected"]
+from splitspec_core.model.rows import REPORTED, empty
+
+__all__ = ["Collected", "CollectedRow"]
+
+
+@dataclass(frozen=True)
+class CollectedRow:
+    """Round ``tau``'s row as collected.
+
+    Attributes
+    ----------
+    x : (n,) the plant's truth (NaN with live sensors)
+    xhat : (m, n) the estimates ``x_i(tau)``, NaN for the agents not alive
+    alive : (m,) bool
+    columns : reported column name -> (m,) its values, the fill for the agents not alive
+    lost : ``(tau, k, j, i, cause)`` of every consensus message of the round that did not count
+    used : agent id -> the ``y_i(tau)`` it used (live sensors)
+    """
+
+    x: np.ndarray
+    xhat: np.ndarray
+    alive: np.ndarray
+    columns: dict
+    lost: tuple
+    used: dict
 
 
 class Collected:
@@ -20,7 +48,7 @@ class Collected:
         self.index, self.m, self.n, self.plantless = index, int(m), int(n), bool(plantless)
         self.truth: dict = {}
         self.est: dict = {}
-        self.est_g: dict = {}  # tau -> {agent id: g_i(tau)} from the xhat messages (for Record)
+        self.reports: dict = {}  # tau -> {agent id: its reported columns with x_i(tau)} (rows.report)
         self.est_y: dict = {}  # tau + 1 -> {agent id: y_i(tau) it used, or None} (live sensors)
         self.est_lost: dict = {}  # tau + 1 -> {agent id: [k, j, cause, ...]}: what the round of tau did not count
 
@@ -32,11 +60,11 @@ class Collected:
         self.truth[tau] = x
         return None
 
-    def put_xhat(self, aid: int, tau: int, attempt: int, x, g: float, *, at: tuple, in_flight: bool,
+    def put_xhat(self, aid: int, tau: int, attempt: int, x, columns: dict, *, at: tuple, in_flight: bool,
                  same_incarnation: bool, lost=(), y=()) -> str | None:
-        """Agent ``aid``'s estimate ``x_i(tau)`` of attempt ``attempt``, kept if the round in flight (``at``,
-        ``in_flight`` as in :meth:`put_truth`) takes it and it comes from the agent's current incarnation
-        (``same_incarnation``); else why not, ``stale`` or ``future``."""
+        """Agent ``aid``'s estimate ``x_i(tau)`` of attempt ``attempt`` with its reported row ``columns``, kept if
+        the round in flight (``at``, ``in_flight`` as in :meth:`put_truth`) takes it and it comes from the agent's
+        current incarnation (``same_incarnation``); else why not, ``stale`` or ``future``."""
         at_tau, at_attempt = at
         # x_i(tau) does not depend on the attempt (a fresh estimate at admission, else the last round's result):
         # an admission estimate that crosses a re-run still counts; x_i(tau + 1) only from the round in flight
@@ -44,7 +72,7 @@ class Collected:
         if not in_flight or not current or not same_incarnation or tau not in (at_tau, at_tau + 1):
             return "future" if (tau, attempt) > (at_tau + 1, at_attempt) else "stale"
         self.est.setdefault(tau, {})[aid] = x
-        self.est_g.setdefault(tau, {})[aid] = g  # g_i(tau), recorded with row tau
+        self.reports.setdefault(tau, {})[aid] = columns  # its state's with row tau, its round's with row tau - 1
         if tau == at_tau + 1:
             self.est_lost.setdefault(tau, {})[aid] = list(lost)
             if self.plantless:
@@ -54,6 +82,7 @@ class Collected:
     def drop_next(self, tau: int) -> None:
         """Round ``tau`` is re-run: what it collected for ``tau + 1`` no longer counts."""
         self.est.pop(tau + 1, None)
+        self.reports.pop(tau + 1, None)
         self.est_y.pop(tau + 1, None)
         self.est_lost.pop(tau + 1, None)
 
@@ -74,25 +103,30 @@ class Collected:
         late = [] if final else sorted(a for a in alive if a not in have_next)
         return late or sorted(a for a in alive if a not in self.est.get(tau, {}))
 
-    def take(self, tau: int, alive) -> tuple:
-        """Round ``tau``'s row, out of the buffers: ``(x, xhat, mask, gains, lost, used)``.
+    def take(self, tau: int, alive) -> CollectedRow:
+        """Round ``tau``'s row, out of the buffers (its agents' reports of ``x_i(tau + 1)`` stay for row
+        ``tau + 1``).
 
-        ``xhat``/``gains``: one row per agent, NaN for the agents not alive; ``lost``: ``(tau, k, j, i, cause)``
-        of every consensus message of the round that did not count; ``used``: agent id -> ``y_i(tau)``.
+        A reported column of the agent's state (``g_i(tau)``) comes with ``x_i(tau)``, one of the round with
+        ``x_i(tau + 1)`` (none in the final round: the fill).
         """
         xh = np.full((self.m, self.n), np.nan)
         mask = np.zeros(self.m, dtype=bool)
         for a in alive:
             xh[self.index[a]] = self.est[tau][a]
             mask[self.index[a]] = True
-        gains = np.full(self.m, np.nan)
-        for a, g in self.est_g.pop(tau, {}).items():
-            if a in alive:
-                gains[self.index[a]] = float(g)
+        now, after = self.reports.pop(tau, {}), self.reports.get(tau + 1, {})
+        columns = {}
+        for c in REPORTED:
+            values = empty(c, 1, self.m, self.n)[0]
+            for a, rep in (now if c.reported == "state" else after).items():
+                if a in alive:
+                    values[self.index[a]] = rep[c.name]
+            columns[c.name] = values
         lost = tuple((tau, t[0], t[1], a, t[2]) for a, flat in sorted(self.est_lost.pop(tau + 1, {}).items())
                      if a in alive for t in zip(flat[0::3], flat[1::3], flat[2::3]))
         x = self.truth[tau] if not self.plantless else np.full(self.n, np.nan)  # live sensors: x unknown
         used = self.est_y.pop(tau + 1, {})
         self.truth.pop(tau, None)
         self.est.pop(tau, None)
-        return x, xh, mask, gains, lost, used
+        return CollectedRow(x=x, xhat=xh, alive=mask, columns=columns, lost=lost, used=used)

@@ -156,8 +156,6 @@ class RoundMachine:
         self.quiet_since = now  # the round in flight's last news (a message of it, or its tick)
         self.probing = False  # the status query in flight is a probe (not the round timeout's)
         self.faults_left: list = []
-        g_start = float(sc.design.g0) if des.g_mode == "adaptive" else (float(des.g) if des.g is not None else 0.0)
-        self.gains = np.full(sc.m, g_start)
         self.t_run = None
         self.round_started = math.nan  # `now` of the round in flight's first tick (for Record)
         self.round_late = math.nan  # how late it started against run.pace (seconds; NaN unpaced)
@@ -318,22 +316,24 @@ class RoundMachine:
         self.quiet_since = now
         return out + self._progress(now)
 
-    def on_xhat(self, aid: int, tau: int, attempt: int, incarnation: int, x: np.ndarray, g: float, rejected: dict,
-                now: float, lost=(), y=()) -> list:
-        """An agent's estimate (``lost``: flat ``[k, j, cause, ...]`` of the consensus messages it did not count)."""
+    def on_xhat(self, aid: int, tau: int, attempt: int, incarnation: int, x: np.ndarray, columns: dict,
+                rejected: dict, now: float, lost=(), y=()) -> list:
+        """An agent's estimate with the row columns it reports (``columns``: :func:`splitspec_core.model.rows.report`;
+        ``lost``: flat ``[k, j, cause, ...]`` of the consensus messages it did not count)."""
         out = self.on_clock(now)
         self.remote_counts(f"agent {aid}", rejected, int(incarnation))
         if aid not in self.index:
             self.reject("orchestrator", "wrong_sender")
             return out
-        why = self.collected.put_xhat(aid, tau, attempt, x, g, at=(self.tau, self.attempt), in_flight=self._in_flight,
-                                      same_incarnation=incarnation == self.incarnation(aid), lost=lost, y=y)
+        why = self.collected.put_xhat(aid, tau, attempt, x, columns, at=(self.tau, self.attempt),
+                                      in_flight=self._in_flight, same_incarnation=incarnation == self.incarnation(aid),
+                                      lost=lost, y=y)
         if why:  # x_i(tau) of any attempt (an admission estimate that crosses a re-run), x_i(tau + 1) of this one
             self.reject("orchestrator", why)
             return out
         self.quiet_since = now
         if tau == self.tau + 1:
-            self.gains[self.index[aid]], self.last_in = g, aid
+            self.last_in = aid
         return out + self._progress(now)
 
     # ------------------------------------------------------------------ timers and status
@@ -380,8 +380,6 @@ class RoundMachine:
         out = self.topology.rejoin(aid, why, self.tau, self.t(), pid=self.identity.pid(aid))
         if out:
             self.fresh_tau = self.tau  # its neighbours need its z(0): every agent sends z(0) in this round
-            if self.des.g_mode == "adaptive":
-                self.gains[self.index[aid]] = float(self.sc.design.g0)  # a fresh estimate starts from g0 again
         return out
 
     def _apply_pending_losses(self) -> tuple:
@@ -538,10 +536,11 @@ class RoundMachine:
         return out
 
     def _complete(self, now: float) -> list:
-        x, xh, mask, gains, lost, used = self.collected.take(self.tau, self.alive)
-        out = [Record(self.tau, x, xh, mask, self.plan.graph_at(self.tau), gains, attempts=self.attempt + 1,
-                      rejected=self.rejections.since_record(), started=self.round_started, lost=lost,
-                      y=tuple((a, used.get(a)) for a in sorted(self.alive)), late=self.round_late)]
+        row = self.collected.take(self.tau, self.alive)
+        lost, used = row.lost, row.used
+        out = [Record(self.tau, row.x, row.xhat, row.alive, self.plan.graph_at(self.tau), row.columns,
+                      attempts=self.attempt + 1, rejected=self.rejections.since_record(), started=self.round_started,
+                      lost=lost, y=tuple((a, used.get(a)) for a in sorted(self.alive)), late=self.round_late)]
         out += self.pace.observe(self.tau, self.round_late, self.round_started, now, self.last_in, self.t()) \
             if self.pace is not None else []
         if self.plantless and self.tau < self.plan.steps:  # the last tick takes no measurement

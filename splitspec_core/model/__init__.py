@@ -7,5 +7,6 @@ designer and by each agent from the scenario) with ``observability.py`` (the dec
 ``detectability.py`` (what no agent sees); ``graphs.py`` communication graphs and weights;
 ``plant.py`` the true system and initial values; ``network.py`` the switching signal and faults as
 a plan, ``impairment.py`` losses, delays and partitions per message, ``streams.py`` the named seed
-streams. Imports ``scenarios`` only: agents and the plant import this, never the design stack.
+streams; ``rows.py`` the row schema of a run's records (every column once: the wire, the recorder, the files
+and ``Trajectory`` derive theirs from it). Imports ``scenarios`` only: agents and the plant import this, never the design stack.
 """

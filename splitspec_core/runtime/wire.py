@@ -4,7 +4,8 @@ Two encodings, one API (:func:`encode`, :func:`decode`):
 
 * the messages of every round (``y``, ``truth``, ``z``, ``xhat``: all but a
   handful per event time) are compact binary: a fixed little-endian header
-  (magic ``0xB5``, schema version, type code, CRC-32 of the run id, the
+  (magic ``0xB5``, schema version, type code, the row schema's tag (:data:`ROW_TAG`: a process
+  built with other reported row columns is ``bad_version``), CRC-32 of the run id, the
   message's integer and float fields), one float64 vector (its length, then
   the data) and, for ``truth``/``xhat``, the rejection counters as a msgpack
   map (and for ``xhat`` the consensus messages not counted, a msgpack list); a signed ``z`` of n = 6 is 96 bytes (129 as the schema-2 msgpack map),
@@ -47,8 +48,8 @@ key                         from -> to              payload
 ``truth``                   plant -> orchestrator   tau, attempt, x(tau)
 ``z/<i>``                   agent i -> neighbours   tau, attempt, k, z_i(k) (k = 0 only in fresh or re-run
                                                     rounds)
-``xhat/<i>``                agent i -> orchestrator tau, attempt, x_i(tau) (+ g_i, rejected counts, the
-                            and neighbours          consensus messages it did not count, the y_i it
+``xhat/<i>``                agent i -> orchestrator tau, attempt, x_i(tau) (+ its reported row columns, g_i
+                            and neighbours          ..., rejected counts, the consensus messages it did not count, the y_i it
                                                     used: None without one, [] if not recorded);
                                                     also the next round's z_i(0)
 ``sensors/<key>``            sensor -> agent i       y_i as JSON ``{"y": [...], "t": ...}`` or raw float64 (scenario
@@ -78,17 +79,19 @@ import msgpack
 import numpy as np
 
 from ..errors import SplitspecError
+from ..model.rows import REPORTED
 
 __all__ = ["SCHEMA_VERSION", "DEFAULT_RUN_ID", "Keys", "WireError", "encode", "decode",
            "MESSAGE_FIELDS", "MAC_BYTES", "new_run_key", "new_nonce", "mac", "verify",
-           "BINARY_LAYOUT", "run_tag", "KEY_ROOT", "ORCHESTRATORS"]
+           "BINARY_LAYOUT", "ROW_TAG", "run_tag", "KEY_ROOT", "ORCHESTRATORS"]
 
 # 2: one y message for every agent; x_i(tau + 1) doubles as the next z_i(0); 3: binary round messages;
 # 4: xhat reports the consensus messages that did not count, tick names the partition in force; 5: y names the
 # agents without a measurement (missing), xhat carries the measurement the agent used (y); 6: a tick carries the
 # network (rows, alive, incarnation, partition: O(m) to decode in every agent) only when it changed (topology); 7: a
-# config carries W, the directions no agent sees (unobserved: the estimator's P_i projects on V_i minus W)
-SCHEMA_VERSION = 7
+# config carries W, the directions no agent sees (unobserved: the estimator's P_i projects on V_i minus W); 8: xhat
+# carries the reported row columns of splitspec_core.model.rows, the binary header's fourth byte tags them (ROW_TAG)
+SCHEMA_VERSION = 8
 DEFAULT_RUN_ID = "default"
 KEY_ROOT = "splitspec"  #: every run's keys live under ``splitspec/<run_id>/``
 #: every run's orchestrator token (``splitspec/<run_id>/alive/orchestrator/0``): which runs a router hosts
@@ -253,22 +256,29 @@ _CHECK = {
 BINARY_MAGIC = 0xB5  # never the first byte of a msgpack map (0x80-0x8f, 0xde, 0xdf)
 MAX_VECTOR = 1 << 20
 
-#: type -> (code, struct format of the scalar fields, their names, the vector field, the map fields)
+_STRUCT_CODE = {"float64": "d", "int64": "q"}
+#: type -> (code, struct format of the scalar fields, their names, the vector field, the map fields); an ``xhat``
+#: carries one scalar field per column the agents report (:data:`splitspec_core.model.rows.REPORTED`, in its order)
 BINARY_LAYOUT = {
     "y": (1, "qi", ("tau", "attempt"), "y", ("missing",)),
     "truth": (2, "qi", ("tau", "attempt"), "x", ("rejected",)),
     "z": (3, "qiii", ("tau", "attempt", "k", "agent"), "z", ()),
-    "xhat": (4, "qiiid", ("tau", "attempt", "agent", "incarnation", "g"), "x", ("rejected", "lost", "y")),
+    "xhat": (4, "qiii" + "".join(_STRUCT_CODE[c.dtype] for c in REPORTED),
+             ("tau", "attempt", "agent", "incarnation", *(c.name for c in REPORTED)), "x", ("rejected", "lost", "y")),
 }
-#: map fields a sender may leave out (the usual case): ``missing`` none, ``y`` not recorded
-MAP_DEFAULTS = {"y": {"missing": []}, "xhat": {"y": []}}
+_FLOAT_FIELDS = frozenset(c.name for c in REPORTED if c.dtype == "float64")  # finite: no NaN on the wire
+#: the binary header's tag of the row schema's reported columns (their names and dtypes, in order)
+ROW_TAG = zlib.crc32(";".join(f"{c.name}:{c.dtype}" for c in REPORTED).encode()) & 0xFF
+#: fields a sender may leave out (the usual case): ``missing`` none, ``y`` not recorded, a reported row column whose
+#: fill can cross the wire (not NaN): its fill
+MAP_DEFAULTS = {"y": {"missing": []}, "xhat": {"y": [], **{c.name: c.fill for c in REPORTED if c.dtype != "float64"}}}
 #: the most agent ids ``missing`` lists
 MAX_MISSING = 1 << 16
 #: ``lost`` of an ``xhat``: flat ``[k, j, cause, k, j, cause, ...]`` (sub-round, sender, cause) of the consensus
 #: messages the agent did not count in the round (:mod:`splitspec_core.model.impairment`); at most this many triples
 MAX_LOST = 1 << 16
-_BIN_HEAD = struct.Struct("<BBBxI")  # magic, version, type code, pad, CRC-32 of the run id
-_BIN = {t: struct.Struct("<BBBxI" + fmt + "I") for t, (_, fmt, *_rest) in BINARY_LAYOUT.items()}
+_BIN_HEAD = struct.Struct("<BBBBI")  # magic, version, type code, ROW_TAG, CRC-32 of the run id
+_BIN = {t: struct.Struct("<BBBBI" + fmt + "I") for t, (_, fmt, *_rest) in BINARY_LAYOUT.items()}
 _BIN_BY_CODE = {code: t for t, (code, *_rest) in BINARY_LAYOUT.items()}
 _BIN_FIELDS = {t: frozenset({*names, vec, *maps}) for t, (_, _f, names, vec, maps) in BINARY_LAYOUT.items()}
 
@@ -289,7 +299,7 @@ def _encode_binary(msg_type: str, run_id: str, fields: dict) -> bytes:
     if a.ndim != 1:
         raise ValueError(f"{msg_type}.{vec} must be a vector, got shape {a.shape}")
     try:
-        body = _BIN[msg_type].pack(BINARY_MAGIC, SCHEMA_VERSION, code, run_tag(run_id),
+        body = _BIN[msg_type].pack(BINARY_MAGIC, SCHEMA_VERSION, code, ROW_TAG, run_tag(run_id),
                                    *(fields[n] for n in names), a.size) + a.tobytes()
     except struct.error as exc:  # a field of the wrong type or out of its range: the caller's bug
         raise TypeError(f"{msg_type}: {exc} ({', '.join(f'{n}={fields[n]!r}' for n in names)})") from None
@@ -301,9 +311,11 @@ def _encode_binary(msg_type: str, run_id: str, fields: dict) -> bytes:
 def _decode_binary(payload: bytes, run_id: str, expected_type: str) -> dict:
     if len(payload) < _BIN_HEAD.size:
         raise WireError("garbage", "truncated header")
-    _, version, code, tag = _BIN_HEAD.unpack_from(payload)
+    _, version, code, rows, tag = _BIN_HEAD.unpack_from(payload)
     if version != SCHEMA_VERSION:
         raise WireError("bad_version", f"schema {version}")
+    if rows != ROW_TAG:
+        raise WireError("bad_version", f"row schema tag {rows}, expected {ROW_TAG}")
     if tag != run_tag(run_id):
         raise WireError("wrong_run", "another run's message")
     if _BIN_BY_CODE.get(code) != expected_type:
@@ -312,13 +324,14 @@ def _decode_binary(payload: bytes, run_id: str, expected_type: str) -> dict:
     st = _BIN[expected_type]
     if len(payload) < st.size:
         raise WireError("garbage", "truncated fields")
-    values = st.unpack_from(payload)[4:]
+    values = st.unpack_from(payload)[5:]
     count, end = values[-1], st.size + 8 * values[-1]
     if count > MAX_VECTOR or len(payload) < end or (not maps and len(payload) != end):
         raise WireError("bad_shape", f"{vec}: {len(payload) - st.size} bytes for {count} numbers")
     out = dict(zip(names, values))
-    if "g" in out and not math.isfinite(out["g"]):
-        raise WireError("bad_field", "g")
+    for name in _FLOAT_FIELDS.intersection(out):
+        if not math.isfinite(out[name]):
+            raise WireError("bad_field", name)
     if count <= 64:  # the usual state sizes: checked in Python, a third of numpy's per-call cost
         vals = struct.unpack_from(f"<{count}d", payload, st.size)
         if not all(map(math.isfinite, vals)):

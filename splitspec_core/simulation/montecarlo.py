@@ -50,9 +50,10 @@ from ..synthesis.design_data import Design
 from ..errors import ScenarioError
 from ..model.network import NetworkState, make_plan
 from ..model.plant import advanced, initial_estimate, measured, seed_draws
+from ..model.rows import REPORTED, empty
 from .loop import run_steps
 from .simulator import (BatchEstimator, NetworkWeights, Trajectory, realized_step, check_trajectory_memory,
-                        simulate)
+                        simulate, round_columns)
 
 __all__ = ["CHUNK", "MonteCarloRuns", "SeedBatchEstimator", "fallback_reason", "simulate_seeds"]
 
@@ -314,7 +315,8 @@ def _batch(des: Design, seeds: tuple, *, steps, noise, trajectories) -> tuple:
         xs = np.zeros((N, T, n))
         xh = np.full((N, T, m, n), np.nan)
         al = np.zeros((T, m), dtype=bool)
-        gains = np.full((N, T, m), np.nan)
+        g = np.full((N, T, m), np.nan)  # g_i(t) per seed (the row schema's g)
+        rounds = {c.name: empty(c, T, m, n) for c in REPORTED if c.reported == "round"}  # the same for every seed
         lost_rows: list = []
     impaired = any(f.action == "partition" for f in sc.faults)  # the only loss that is the same for every seed
     exchanges = 1 if est.continuous else int(des.q)
@@ -337,13 +339,17 @@ def _batch(des: Design, seeds: tuple, *, steps, noise, trajectories) -> tuple:
             xh[:, k, alive] = X[alive].transpose(2, 0, 1)
             al[k] = alive
             if est.continuous:
-                gains[:, k, alive] = est.g[alive].T
+                g[:, k, alive] = est.g[alive].T
 
     def update(k, y):
         nonlocal X
         W = weights(net, plan.graph_seq[k])
+        before = len(lost_rows) if trajectories else 0
         Ws = realized_step(est, sc, W, k, exchanges, None, None, net.groups,
                            lost_rows if trajectories else []) if impaired else None
+        if trajectories:
+            for name, values in round_columns(sc, W[1], exchanges, lost_rows[before:]).items():
+                rounds[name][k] = values
         X = est.step(X, y, W[0], alive) if Ws is None else est.step_realized(X, y, Ws, alive)
 
     def advance(k):
@@ -360,6 +366,7 @@ def _batch(des: Design, seeds: tuple, *, steps, noise, trajectories) -> tuple:
 
         lost_a, cause_a = lost_arrays(lost_rows)
         trajs = tuple(Trajectory(t=t, x=xs[s], xhat=xh[s], alive=al.copy(), graph=plan.graph_seq.copy(),
-                                 agent_ids=np.array(sc.agent_ids), gains=gains[s], lost=lost_a.copy(),
+                                 agent_ids=np.array(sc.agent_ids),
+                                 columns={"g": g[s], **{k: v.copy() for k, v in rounds.items()}}, lost=lost_a.copy(),
                                  lost_cause=cause_a.copy(), states=sc.state_names) for s in range(N))
     return t, sq, count, trajs

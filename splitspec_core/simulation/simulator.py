@@ -39,6 +39,7 @@ from ..synthesis.design_data import Design
 from ..errors import ScenarioError
 from ..model.network import NetworkState, Plan, make_plan
 from ..model.plant import Plant, RecordedPlant, initial_estimate, initial_state, output_rows
+from ..model.rows import REPORTED, column, empty
 from ..model.impairment import PARTITION, Impairment, crosses, group_of, realized_row
 from ..scenarios.faults import PLANT
 from ..scenarios.specs import Scenario
@@ -53,6 +54,7 @@ __all__ = [
     "EXACT_NEEDS_FIXED_G",
     "BatchEstimator",
     "AgentLoopEstimator",
+    "round_columns",
 ]
 
 
@@ -79,9 +81,10 @@ class Trajectory:
         The active graph's index (scenario order)
     agent_ids : (m,) int
         The agents' ids, in the order of every agent axis
-    gains : (T, m) float
-        The gains g_i (``g`` in the file): adaptive g_i(t) or the fixed continuous g, NaN where
-        dead and in discrete time; None only for a file written before ``g`` existed
+    columns : dict of str to (T, m) arrays
+        The columns each agent reports (:data:`splitspec_core.model.rows.REPORTED`), by their name (the same in
+        the file), e.g. ``g``: the gains g_i, adaptive g_i(t) or the fixed continuous g, NaN where dead and in
+        discrete time; a column a file written before it existed lacks is absent
     lost : (N, 4) int64
         Every consensus message that did not count, one row ``(event time, sub-round k, sender j,
         receiver i)`` (agent ids), sorted (:mod:`splitspec_core.model.impairment`); empty on a perfect network
@@ -102,12 +105,17 @@ class Trajectory:
     alive: np.ndarray
     graph: np.ndarray
     agent_ids: np.ndarray
-    gains: np.ndarray | None = None
+    columns: dict = field(default_factory=dict)
     lost: np.ndarray = field(default_factory=lambda: np.zeros((0, 4), dtype=np.int64))
     lost_cause: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int8))
     y: np.ndarray | None = None
     y_missing: np.ndarray | None = None
     states: tuple | None = None
+
+    @property
+    def g(self) -> np.ndarray | None:
+        """The gains g_i(t), (T, m) (``columns["g"]``); None for a file written before ``g`` existed."""
+        return self.columns.get("g")
 
     @property
     def has_truth(self) -> bool:
@@ -121,7 +129,7 @@ class Trajectory:
     def save(self, path: str | Path, extra: dict | None = None) -> None:
         """Atomically write ``path`` (the one writer of the contract, :func:`~splitspec_core.simulation.trajectory_file.write_trajectory`)."""
         write_trajectory(path, t=self.t, x=self.x, xhat=self.xhat, alive=self.alive, graph=self.graph,
-                         agent_ids=self.agent_ids, g=self.gains, lost=self.lost, lost_cause=self.lost_cause,
+                         agent_ids=self.agent_ids, columns=self.columns, lost=self.lost, lost_cause=self.lost_cause,
                          extra={**({"y": self.y, "y_missing": self.y_missing} if self.y is not None else {}),
                                 **(extra or {})}, states=self.states)
 
@@ -137,7 +145,7 @@ class Trajectory:
         extra = {k: a[k] for k in ("lost", "lost_cause", "y", "y_missing") if k in a}
         states = tuple(str(s) for s in a["states"]) if "states" in a else None
         return cls(t=a["t"], x=a["x"], xhat=a["xhat"], alive=a["alive"], graph=a["graph"], agent_ids=a["agent_ids"],
-                   gains=a.get("g"), states=states, **extra)
+                   columns={c.name: a[c.name] for c in REPORTED if c.name in a}, states=states, **extra)
 
     def window(self, start: float | None = None, end: float | None = None) -> "Trajectory":
         """The rows with ``start <= t <= end`` (None: no bound), and the lost messages of their event times."""
@@ -157,7 +165,8 @@ class Trajectory:
             lost, cause = lost[:0], cause[:0]
         pick = lambda v: None if v is None else v[rows]  # noqa: E731
         return dataclasses.replace(self, t=self.t[rows], x=self.x[rows], xhat=self.xhat[rows], alive=self.alive[rows],
-                                   graph=self.graph[rows], gains=pick(self.gains), lost=lost, lost_cause=cause,
+                                   graph=self.graph[rows], columns={k: v[rows] for k, v in self.columns.items()},
+                                   lost=lost, lost_cause=cause,
                                    y=pick(self.y), y_missing=pick(self.y_missing))
 
 
@@ -648,7 +657,8 @@ def simulate(des: Design, *, seed: int | None = None, steps: int | None = None, 
     xs = np.zeros((T, n))
     xh = np.full((T, m, n), np.nan)
     al = np.zeros((T, m), dtype=bool)
-    gains = np.full((T, m), np.nan)  # g_i(t): adaptive or fixed in continuous time; none in discrete time
+    g = np.full((T, m), np.nan)  # g_i(t): adaptive or fixed in continuous time; none in discrete time
+    rounds = {c.name: empty(c, T, m, n) for c in REPORTED if c.reported == "round"}  # round_columns, per row
     bar = Progress(plan.steps, progress)
     weights = NetworkWeights(est, sc)
     # a misbehaving network (impairment.py): messages that do not count, drawn (or replayed from a run's record)
@@ -673,14 +683,17 @@ def simulate(des: Design, *, seed: int | None = None, steps: int | None = None, 
         xh[k][alive] = X[alive]
         al[k] = alive
         if est.continuous:
-            gains[k][alive] = est.g[alive]
+            g[k][alive] = est.g[alive]
 
     def update(k, y):
         nonlocal X
         if ys is not None:
             ys[k] = y
         W = weights(net, plan.graph_seq[k])
+        before = len(lost_rows)
         Ws = realized_step(est, sc, W, k, exchanges, imp, replay, net.groups, lost_rows) if impaired else None
+        for name, values in round_columns(sc, W[1], exchanges, lost_rows[before:]).items():
+            rounds[name][k] = values
         bu = st.known_input(B, plant.input())  # the known input every agent adds (the agent process: the same)
         missing = plant.missing()
         X = (est.step(X, y, W[0], alive, missing, bu) if Ws is None
@@ -703,8 +716,38 @@ def simulate(des: Design, *, seed: int | None = None, steps: int | None = None, 
     elif ys is not None:
         recorded = {"y": ys, "y_missing": np.zeros((T, m), dtype=bool)}
     return Trajectory(t=plan.times(), x=xs, xhat=xh, alive=al, graph=plan.graph_seq.copy(),
-                      agent_ids=np.array(ids), gains=gains, lost=lost_a, lost_cause=cause_a, states=sc.state_names,
+                      agent_ids=np.array(ids), columns={"g": g, **rounds}, lost=lost_a, lost_cause=cause_a,
+                      states=sc.state_names,
                       **recorded)
+
+
+def round_columns(sc: Scenario, rows: dict, exchanges: int, lost) -> dict:
+    """The reported row columns of the round (:mod:`splitspec_core.model.rows`, ``reported="round"``) that the
+    network decides, whatever the seed's noise: what each agent process counts in its round.
+
+    Parameters
+    ----------
+    sc : Scenario
+    rows : dict
+        The round's consensus rows ``{agent id: (neighbours, weights)}`` of the alive agents (itself included).
+    exchanges : int
+        The round's consensus exchanges (q; 1 in continuous time's sampled-data form).
+    lost : sequence of tuple
+        ``(tau, k, j, i, cause)`` of the round's consensus messages that did not count.
+
+    Returns
+    -------
+    dict
+        Column name -> (m,) its values, the fill for the agents not in ``rows``: ``messages_used``, the
+        neighbours' messages each agent counted over the round's exchanges.
+    """
+    pos = {a: k for k, a in enumerate(sc.agent_ids)}
+    used = empty(column("messages_used"), 1, sc.m, sc.n)[0]
+    for i, (nbs, _) in rows.items():  # every neighbour's message of every exchange, but those that did not count
+        used[pos[i]] = exchanges * sum(1 for j in nbs if j != i)
+    for r in lost:
+        used[pos[r[3]]] -= 1
+    return {"messages_used": used}
 
 
 def _replay_index(lost) -> dict:
@@ -836,4 +879,4 @@ def simulate_exact(des: Design, *, seed: int | None = None, steps: int | None = 
 
     run_steps(plan, net, output_rows(sc.system.Cs), restart=restart, record=record, update=update)
     return Trajectory(t=plan.times(), x=xs, xhat=xh, alive=al, graph=plan.graph_seq.copy(), agent_ids=np.array(ids),
-                      gains=np.where(al, g, np.nan), states=sc.state_names)
+                      columns={"g": np.where(al, g, np.nan)}, states=sc.state_names)

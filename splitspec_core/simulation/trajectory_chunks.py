@@ -9,13 +9,13 @@ A new segment starts when the current one holds ``segment_bytes`` (64 MiB by def
 event time of its first row (``rows-000000012345.arrows``), so a time window reads only the segments it
 overlaps.
 
-Columns, one row per event time (the contract of ``trajectory.npz``, docs/reference/files.md, section
-"Trajectory file", plus what the recorder measured of the round): ``tau`` int64, ``t`` float64, ``x`` (n),
-``xhat`` (m * n, agent-major: ``xhat[i * n + k]``), ``alive`` (m) bool, ``graph`` int64, ``g`` (m),
-``wall`` int64 (``time.time_ns()`` of the row's arrival), ``round`` (5): the round's wall ms, attempts, messages
-rejected, consensus messages lost, and its lateness against ``run.pace`` in ms (NaN unpaced); ``lost``: the
-consensus messages of this event time that did not count, flattened ``(k, j, i, cause)`` quadruples; and on
-measurements or live sensors ``y`` (sum s_i) and ``y_missing`` (m).  The schema's metadata holds
+Columns, one row per event time: the row schema's (:data:`splitspec_core.model.rows.COLUMNS`, in its order:
+``tau`` int64, ``t`` float64, ``x`` (n), ``xhat`` (m * n, agent-major: ``xhat[i * n + k]``), ``alive`` (m) bool,
+``graph`` int64, the agents' reported columns (m) such as ``g``, ``wall`` int64 (``time.time_ns()`` of the row's
+arrival), ``round`` (5): the round's wall ms, attempts, messages rejected, consensus messages lost, and its
+lateness against ``run.pace`` in ms (NaN unpaced)); then ``lost``: the consensus messages of this event time that
+did not count, flattened ``(k, j, i, cause)`` quadruples; and on measurements or live sensors ``y`` (sum s_i) and
+``y_missing`` (m).  A column the schema gained after a chunk was written reads back as its fill.  The schema's metadata holds
 ``agent_ids``, ``states`` (JSON) and ``dt``.  A row written again (an agent declared lost after its row was
 flushed) is appended again, to the segment being written: the last batch that holds an event time wins, and a
 time window reads the first segment past its end as well.
@@ -30,25 +30,33 @@ from typing import Iterator
 
 import numpy as np
 
+from ..model.rows import COLUMNS, ROUND_FIELDS, column, empty, shape_of
+
 __all__ = ["CHUNKS_DIR", "ROUND_FIELDS", "ChunkWriter", "chunk_segments", "read_chunks", "has_chunks"]
 
 CHUNKS_DIR = "chunks"
-#: the ``round`` column's fields, in order
-ROUND_FIELDS = ("wall_ms", "attempts", "rejected", "lost", "late_ms")
 _SEGMENT_BYTES = 64 << 20
 _PREFIX, _SUFFIX = "rows-", ".arrows"
 _FORMAT = b"splitspec-rows/1"
 
 
+def _arrow_type(dtype: str):
+    import pyarrow as pa
+
+    return {"float64": pa.float64(), "int64": pa.int64(), "bool": pa.bool_()}[dtype]
+
+
 def _schema(m: int, n: int, p: int, agent_ids, states, dt: float):
     import pyarrow as pa
 
-    f64, b = pa.float64(), pa.bool_()
-    fields = [("tau", pa.int64()), ("t", f64), ("x", pa.list_(f64, n)), ("xhat", pa.list_(f64, m * n)),
-              ("alive", pa.list_(b, m)), ("graph", pa.int64()), ("g", pa.list_(f64, m)), ("wall", pa.int64()),
-              ("round", pa.list_(f64, len(ROUND_FIELDS))), ("lost", pa.list_(pa.int64()))]
+    fields = []
+    for c in COLUMNS:  # a scalar per row, else a fixed-size list of the row's values (flattened)
+        width = int(np.prod(shape_of(c, m, n), dtype=np.int64))
+        typ = _arrow_type(c.dtype)
+        fields.append((c.name, typ if c.shape == "row" else pa.list_(typ, width)))
+    fields.append(("lost", pa.list_(pa.int64())))
     if p:
-        fields += [("y", pa.list_(f64, p)), ("y_missing", pa.list_(b, m))]
+        fields += [("y", pa.list_(pa.float64(), p)), ("y_missing", pa.list_(pa.bool_(), m))]
     meta = {b"format": _FORMAT, b"agent_ids": json.dumps([int(a) for a in agent_ids]).encode(),
             b"states": json.dumps([str(s) for s in states]).encode(), b"dt": repr(float(dt)).encode()}
     return pa.schema(fields, metadata=meta)
@@ -88,23 +96,25 @@ class ChunkWriter:
         self._last_tau = -1
 
     def batch(self, cols: dict):
-        """The record batch of ``cols``: ``tau`` (L,), ``t``, ``x`` (L, n), ``xhat`` (L, m, n), ``alive`` (L, m),
-        ``graph``, ``g`` (L, m), ``wall``, ``round`` (L, 5), ``lost`` (a list of L int arrays of 4 k values), and
+        """The record batch of ``cols``: every column of the row schema (:data:`~splitspec_core.model.rows.COLUMNS`:
+        ``tau`` (L,), ``t``, ``x`` (L, n), ``xhat`` (L, m, n), ``alive`` (L, m), ``graph``, the reported columns
+        (L, m) such as ``g`` (one not given: its fill), ``wall``, ``round`` (L, 5)), ``lost`` (a list of L int
+        arrays of 4 k values), and
         ``y`` (L, p) / ``y_missing`` (L, m) when ``p``."""
         import pyarrow as pa
 
-        L, f64 = len(cols["tau"]), pa.float64()
+        L = len(cols["tau"])
         lost = [np.asarray(r, dtype=np.int64).reshape(-1) for r in cols["lost"]]
-        arrays = [pa.array(np.asarray(cols["tau"], np.int64)), pa.array(np.asarray(cols["t"], float)),
-                  _fixed(np.asarray(cols["x"], float), self.n, f64),
-                  _fixed(np.asarray(cols["xhat"], float), self.m * self.n, f64),
-                  _fixed(np.asarray(cols["alive"], bool), self.m, pa.bool_()),
-                  pa.array(np.asarray(cols["graph"], np.int64)), _fixed(np.asarray(cols["g"], float), self.m, f64),
-                  pa.array(np.asarray(cols["wall"], np.int64)),
-                  _fixed(np.asarray(cols["round"], float), len(ROUND_FIELDS), f64),
-                  pa.array(lost, type=pa.list_(pa.int64()))]
+        arrays = []
+        for c in COLUMNS:  # a reported column not given: its fill
+            values = np.asarray(cols[c.name], dtype=c.dtype) if c.name in cols or not c.reported else \
+                empty(c, L, self.m, self.n)
+            typ = _arrow_type(c.dtype)
+            arrays.append(pa.array(values) if c.shape == "row" else
+                          _fixed(values, int(np.prod(shape_of(c, self.m, self.n), dtype=np.int64)), typ))
+        arrays.append(pa.array(lost, type=pa.list_(pa.int64())))
         if self.p:
-            arrays += [_fixed(np.asarray(cols["y"], float), self.p, f64),
+            arrays += [_fixed(np.asarray(cols["y"], float), self.p, pa.float64()),
                        _fixed(np.asarray(cols["y_missing"], bool), self.m, pa.bool_())]
         assert all(len(a) == L for a in arrays)
         return pa.record_batch(arrays, schema=self.schema)
@@ -222,10 +232,11 @@ def whole_length(path: str | Path) -> int:
 def read_chunks(out: str | Path, *, start: float | None = None, end: float | None = None) -> dict | None:
     """The rows of a run's chunks with ``start <= t <= end`` (None: no bound), as arrays; None if it has none.
 
-    Returns the arrays of the ``trajectory.npz`` contract (``t``, ``x``, ``xhat`` (T, m, n), ``alive``,
-    ``graph``, ``agent_ids``, ``g``, ``lost`` (N, 4), ``lost_cause``, ``states``, and ``y``/``y_missing`` when
-    recorded) plus ``tau``, ``wall`` and ``round`` (T, 5, :data:`ROUND_FIELDS`): one row per event time, in
-    order, the last one written where an event time was written twice.
+    Returns every column of the row schema (:data:`splitspec_core.model.rows.COLUMNS`: ``tau``, ``t``, ``x``,
+    ``xhat`` (T, m, n), ``alive``, ``graph``, the reported columns such as ``g`` (T, m), ``wall``, ``round``
+    (T, 5, :data:`ROUND_FIELDS`)), ``agent_ids``, ``lost`` (N, 4), ``lost_cause``, ``states``, and
+    ``y``/``y_missing`` when recorded: one row per event time, in order, the last one written where an event
+    time was written twice.
     """
     import pyarrow as pa
 
@@ -266,12 +277,20 @@ def read_chunks(out: str | Path, *, start: float | None = None, end: float | Non
             return c.to_numpy(zero_copy_only=False).astype(dtype)
         return c.flatten().to_numpy(zero_copy_only=False).astype(dtype).reshape(-1, width)
 
-    tau = col("tau", dtype=np.int64)
+    def schema_col(c):
+        """Column ``c`` of the row schema, one row per row of the table; its fill where the chunks lack it."""
+        shape = shape_of(c, m, n)
+        if c.name not in table.column_names:
+            return empty(c, table.num_rows, m, n)
+        flat = col(c.name, None if not shape else int(np.prod(shape, dtype=np.int64)), c.dtype)
+        return flat.reshape((-1,) + shape)
+
+    tau = schema_col(column("tau"))
     # the last row written of each event time, in event-time order
     rev = tau[::-1]
     _, first_rev = np.unique(rev, return_index=True)
     keep = (len(tau) - 1 - first_rev)  # sorted by tau (np.unique sorts)
-    t = col("t")[keep]
+    t = schema_col(column("t"))[keep]
     if start is not None or end is not None:
         sel = np.ones(len(keep), dtype=bool)
         if start is not None:
@@ -279,10 +298,8 @@ def read_chunks(out: str | Path, *, start: float | None = None, end: float | Non
         if end is not None:
             sel &= t <= end
         keep, t = keep[sel], t[sel]
-    out_arrays = {"tau": tau[keep], "t": t, "x": col("x", n)[keep], "xhat": col("xhat", m * n)[keep].reshape(-1, m, n),
-                  "alive": col("alive", m, bool)[keep], "graph": col("graph", dtype=np.int64)[keep],
-                  "g": col("g", m)[keep], "wall": col("wall", dtype=np.int64)[keep],
-                  "round": col("round", len(ROUND_FIELDS))[keep], "agent_ids": agent_ids, "states": states}
+    out_arrays = {c.name: schema_col(c)[keep] for c in COLUMNS if c.name not in ("tau", "t")}
+    out_arrays.update(tau=tau[keep], t=t, agent_ids=agent_ids, states=states)
     lost_col = table.column("lost").to_pylist() if table.num_rows else []
     quads = [np.asarray(lost_col[int(k)], dtype=np.int64).reshape(-1, 4) for k in keep]
     rows = [np.column_stack([np.full(len(qd), tv, dtype=np.int64), qd]) for tv, qd in zip(out_arrays["tau"], quads)

@@ -14,6 +14,8 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from splitspec_core.model.rows import REPORTED, present
+
 ROOT = Path(__file__).resolve().parents[2]
 EXAMPLES = ROOT / "examples"
 ENV = {**os.environ, "RERUN_ANALYTICS": "0", "PYTHONUNBUFFERED": "1"}
@@ -169,12 +171,18 @@ def compare_trajectories(a_path: Path, b_path: Path, tol: float = 1e-9) -> float
     assert np.array_equal(np.isnan(a["xhat"]), np.isnan(b["xhat"]))
     diff = float(np.nanmax(np.abs(a["xhat"] - b["xhat"]))) if np.isfinite(b["xhat"]).any() else 0.0
     assert diff <= tol * max(1.0, float(np.nanmax(np.abs(b["xhat"])))), diff
-    # g (T, m): NaN where dead and in discrete time, else the adaptive g_i or the fixed g
-    assert a["g"].shape == b["g"].shape == a["alive"].shape, (a["g"].shape, b["g"].shape)
-    assert np.array_equal(np.isnan(a["g"]), np.isnan(b["g"])), "g is NaN at different places"
-    if np.isfinite(b["g"]).any():
-        gdiff = float(np.nanmax(np.abs(a["g"] - b["g"])))
-        assert gdiff <= tol * max(1.0, float(np.nanmax(np.abs(b["g"])))), f"g differs by {gdiff}"
+    # every column the agents report (the row schema: g (T, m), NaN where dead and in discrete time, else the
+    # adaptive g_i or the fixed g; ...): the fill at the same places in both, the values to ``tol`` (integers: exact)
+    for c in REPORTED:
+        ga, gb = a[c.name], b[c.name]
+        assert ga.shape == gb.shape == a["alive"].shape, (c.name, ga.shape, gb.shape)
+        has = present(c, gb)
+        assert np.array_equal(present(c, ga), has), f"{c.name} has no value at different places"
+        if ga.dtype.kind != "f":
+            assert np.array_equal(ga, gb), f"{c.name} differs"
+        elif has.any():
+            gdiff = float(np.max(np.abs(ga[has] - gb[has])))
+            assert gdiff <= tol * max(1.0, float(np.max(np.abs(gb[has])))), f"{c.name} differs by {gdiff}"
     return diff
 
 
@@ -186,7 +194,8 @@ def assert_chunks_hold_the_trajectory(out: Path) -> None:
     rows = read_chunks(out)
     assert rows is not None, f"{out} has no chunks/"
     with np.load(out / "trajectory.npz") as z:
-        for k in ("t", "x", "xhat", "alive", "graph", "g", "lost", "lost_cause", "agent_ids", "y", "y_missing"):
+        for k in ("t", "x", "xhat", "alive", "graph", *(c.name for c in REPORTED), "lost", "lost_cause", "agent_ids",
+                  "y", "y_missing"):
             if k in z.files:
                 assert np.array_equal(z[k], rows[k], equal_nan=z[k].dtype.kind == "f"), k
 

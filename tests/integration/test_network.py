@@ -38,6 +38,41 @@ def test_a_lossy_ring_loses_what_simulate_loses(tmp_path):
     assert_all_gone(all_pids(out))
 
 
+def test_each_agent_counts_the_messages_it_used_as_simulate_does(tmp_path):
+    """A per-agent row column (messages_used: the neighbours' consensus messages agent i counted in round tau)
+    through the row schema alone: computed by every agent process and by the simulator, equal; in trajectory.npz,
+    in the chunks and in run.rrd; on a lossy ring it is q times the in-degree less what did not count."""
+    from splitspec_core.api import design, load_scenario
+    from splitspec_core.simulation.trajectory_chunks import read_chunks
+    from tests.rrd_readback import read_rrd, verify_rrd
+
+    scen = scenario_file(tmp_path, "ring10", network={"loss": 0.1}, run={"steps": 30})
+    out = tmp_path / "out"
+    r = run("run", scen, "--out", out)
+    assert r.returncode == 0, r.stdout + r.stderr
+    compare_with_simulate(out, scen, tmp_path)  # every reported column too: run == simulate
+    with np.load(out / "trajectory.npz") as f, np.load(tmp_path / "sim" / "trajectory.npz") as s:
+        used, ids, lost, alive = f["messages_used"], f["agent_ids"].tolist(), f["lost"], f["alive"]
+        assert np.array_equal(used, s["messages_used"])  # exact: integer counts of the same draws
+    sc = load_scenario(scen)
+    q = int(design(sc).q)
+    indegree = np.array([sum(1 for j, i in sc.graphs[0].arcs if i == a and j != a) for a in ids])
+    missed = np.zeros_like(used)
+    for tau, _k, _j, i in lost.tolist():
+        missed[tau, ids.index(i)] += 1
+    assert alive.all() and missed.sum() > 50  # nobody dies here; the losses do show in the counts
+    np.testing.assert_array_equal(used[:-1], q * indegree[None, :] - missed[:-1])  # exact: integer counts
+    assert (used[-1] == -1).all()  # the last row has no round: the column's fill
+    np.testing.assert_array_equal(read_chunks(out)["messages_used"], used)  # the chunks hold the same rows
+    ok, msg = verify_rrd(out / "run.rrd")
+    assert ok, msg
+    series = read_rrd(out / "run.rrd")
+    for k, a in enumerate(ids):  # one series per agent, every row with a round, the values of the npz
+        got = series[f"messages_used/agent_{a}"]
+        assert [tau for tau, _ in got] == list(range(len(used) - 1))
+        np.testing.assert_array_equal([v for _, v in got], used[:-1, k])
+
+
 def test_a_partition_splits_and_heals_in_a_run(tmp_path):
     """ring10_partition: the cut side stops converging while cut; both reconverge after the heal; = simulate."""
     out = tmp_path / "out"

@@ -82,10 +82,12 @@ def test_ss_simulate_equals_splitspec_simulate(name, tmp_path, capsys):
     tr = ss.simulate(ss.load_scenario(path), seed=3)
     for f in ("t", "alive", "graph", "agent_ids"):  # times, flags and indices: the same numbers by construction
         np.testing.assert_array_equal(getattr(tr, f), getattr(cli_traj, f), err_msg=f)
-    for f in ("x", "xhat", "gains"):
+    assert set(tr.columns) == set(cli_traj.columns)  # every per-agent row column of the schema, in both
+    for f, a, b in [("x", tr.x, cli_traj.x), ("xhat", tr.xhat, cli_traj.xhat),
+                    *((k, v, cli_traj.columns[k]) for k, v in tr.columns.items())]:
         # the same simulator on the same design; compared to round-off all the same (relative 1e-12): the CLI
         # path builds the scenario and the design anew, and equality of the bits is not what is tested here
-        assert_close(getattr(tr, f), getattr(cli_traj, f), rtol=1e-12, equal_nan=True, what=f)
+        assert_close(np.asarray(a, float), np.asarray(b, float), rtol=1e-12, equal_nan=True, what=f)
 
 
 def test_numpy_arrays_and_lists_give_the_same_scenario_and_design():

@@ -85,7 +85,11 @@ def test_batched_seeds_equal_single_seed_simulations(name):
             np.testing.assert_array_equal(getattr(tr, f), getattr(ref, f), err_msg=f"{f}, seed {s}")
         assert_close(tr.x, ref.x, rtol=1e-9, what=f"x, seed {s}")
         assert_close(tr.xhat, ref.xhat, rtol=1e-9, equal_nan=True, what=f"xhat, seed {s}")  # NaN where dead
-        assert_close(tr.gains, ref.gains, rtol=1e-9, equal_nan=True, what=f"g_i, seed {s}")
+        assert_close(tr.g, ref.g, rtol=1e-9, equal_nan=True, what=f"g_i, seed {s}")
+        # every other per-agent row column (rows.py): what the network decides, the same integers in both
+        assert set(tr.columns) == set(ref.columns), (sorted(tr.columns), sorted(ref.columns))
+        for k in set(ref.columns) - {"g"}:
+            np.testing.assert_array_equal(tr.columns[k], ref.columns[k], err_msg=f"{k}, seed {s}")
     if "switching" in name:
         assert len(set(runs.trajectories[0].graph.tolist())) == 2  # it really switched
     if "faults" in name:

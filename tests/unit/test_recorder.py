@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from splitspec_core.model.rows import REPORTED
 from splitspec_orchestrator.records.recorder import Recorder, RecordingError
 from tests.rrd_readback import read_rrd, read_rrd_state, read_rrd_vectors, rrd_entities, verify_rrd
 
@@ -108,7 +109,8 @@ def test_trajectory_contract(recorded):
     out, mode, _ = recorded
     x, _, _, alive, graph, expected_xhat = synthetic()
     with np.load(out / "trajectory.npz") as f:
-        assert set(f.files) == {"t", "x", "xhat", "alive", "graph", "agent_ids", "g", "lost", "lost_cause", "states"}
+        assert set(f.files) == {"t", "x", "xhat", "alive", "graph", "agent_ids", *(c.name for c in REPORTED), "lost",
+                                "lost_cause", "states"}  # every column the agents report (the row schema)
         assert f["states"].tolist() == [f"x{k + 1}" for k in range(N)]  # no names given: x1 .. xn
         assert f["lost"].shape == (0, 4) and f["lost"].dtype == np.int64  # rows given without losses: none
         assert f["g"].shape == f["alive"].shape and np.isnan(f["g"]).all()  # no gains given

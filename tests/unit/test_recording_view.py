@@ -41,7 +41,7 @@ def record(out, time_mode: str, *, flush_seconds: float, envelope_rate, position
     x, xhat, alive, graph, g = rows()
     rec = Recorder(out, agent_ids=IDS, n=N, steps=T - 1, time_mode=time_mode, dt=DT, graph_names=("a", "b"),
                    run_id="view", scenario_name="view", flush_seconds=flush_seconds, envelope_rate=envelope_rate,
-                   gains=time_mode == "continuous", positions=positions)
+                   columns=("g",) if time_mode == "continuous" else (), positions=positions)
     t_of = (lambda tau: float(tau)) if time_mode == "discrete" else (lambda tau: tau * DT)
     rec.topology(0, "a", IDS, [(1, 2), (2, 5), (5, 1)])
     for tau in range(T):
@@ -55,7 +55,7 @@ def record(out, time_mode: str, *, flush_seconds: float, envelope_rate, position
             rec.event("graph_switched", t_of(20), graph="b", previous="a")
             if flush_before_row_20:  # a flush between the switch and its row (background or flush())
                 rec._flush() if flush_before_row_20 == "background" else rec.flush()
-        rec.row(tau, x[tau], xhat[tau], alive[tau], int(graph[tau]), gains=g[tau], wall_ms=1.5, attempts=1,
+        rec.row(tau, x[tau], xhat[tau], alive[tau], int(graph[tau]), g=g[tau], wall_ms=1.5, attempts=1,
                 rejected=tau % 2)
     rec.close()
 

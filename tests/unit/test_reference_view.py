@@ -86,17 +86,17 @@ def tab_names(blueprint) -> list[str]:
 
 @pytest.mark.parametrize("time_mode", ["discrete", "continuous"])
 def test_the_blueprint_of_a_run_on_measurements_opens_on_the_reference_tab(time_mode):
-    gains = time_mode == "continuous"
+    columns = ("g",) if time_mode == "continuous" else ()  # the reported row columns shown (continuous: g)
     today = ["log10 |x_i - x|, designed envelope, marks", "|x_i - x| (linear)", "states"] + \
-        (["adaptive gains g_i"] if gains else []) + ["rounds"]
+        ([bp.PER_AGENT_TAB] if columns else []) + ["rounds"]
     # no measurements: the layout of every run so far, unchanged
-    assert tab_names(bp.default_blueprint(time_mode, n=3, gains=gains)) == today
+    assert tab_names(bp.default_blueprint(time_mode, n=3, columns=columns)) == today
     ref = [bp.REFERENCE_TAB, f"{bp.REFERENCE_TAB} (linear)"]
     # with the truth: the reference tabs first, then the errors as before
-    blue = bp.default_blueprint(time_mode, n=3, gains=gains, reference=True)
+    blue = bp.default_blueprint(time_mode, n=3, columns=columns, reference=True)
     assert tab_names(blue) == ref + today and blue.root_container.contents[0].active_tab == 0
     # without the truth: no error tab at all
-    assert tab_names(bp.default_blueprint(time_mode, n=3, gains=gains, reference=True, truth=False)) == \
+    assert tab_names(bp.default_blueprint(time_mode, n=3, columns=columns, reference=True, truth=False)) == \
         ref + today[2:]
     views = [v.name for v in blue.root_container.contents[0].contents[0].contents]
     assert views == ["log10 residuals |y_i - C_i x_i|", "log10 disagreement max_ij |x_i - x_j|",
@@ -120,12 +120,12 @@ def test_a_recorder_on_a_y_source_without_truth(tmp_path):
         return Y[tau], np.array([tau == 6] + [False] * (len(ids) - 1))
 
     rec = Recorder(tmp_path, agent_ids=ids, n=n, steps=T - 1, time_mode="continuous", dt=sc.run.dt,
-                   graph_names=("a",), run_id="ref", scenario_name="ref", flush_seconds=0, gains=True)
+                   graph_names=("a",), run_id="ref", scenario_name="ref", flush_seconds=0, columns=("g",))
     rec.set_y_source(sc, y_row, truth=False)
     xhat = rng.normal(size=(T, len(ids), n))
     alive = np.ones(len(ids), bool)
     for tau in range(T):
-        rec.row(tau, np.full(n, np.nan), xhat[tau], alive, 0, gains=np.full(len(ids), 2.0 + tau))
+        rec.row(tau, np.full(n, np.nan), xhat[tau], alive, 0, g=np.full(len(ids), 2.0 + tau))
         if tau == 10:
             rec.mark_lost(8, ids[-1])
             alive = alive.copy()

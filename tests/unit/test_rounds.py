@@ -11,6 +11,7 @@ import signal
 import numpy as np
 import pytest
 
+from splitspec_core.model.rows import REPORTED, report
 from splitspec_orchestrator.rounds import machine as R
 from splitspec_core.synthesis.designer import design
 from splitspec_core.scenarios.load import parse_scenario
@@ -78,8 +79,8 @@ def finish_round(m, now, *, skip=()):
         if a in skip:
             continue
         if a not in m.est.get(m.tau, {}):  # admission: the fresh estimate x_i(tau) first
-            out += m.on_xhat(a, m.tau, m.attempt, m.incarnation(a), x, 0.0, {}, now)
-        out += m.on_xhat(a, m.tau + 1, m.attempt, m.incarnation(a), x, 0.0, {}, now)
+            out += m.on_xhat(a, m.tau, m.attempt, m.incarnation(a), x, report(), {}, now)
+        out += m.on_xhat(a, m.tau + 1, m.attempt, m.incarnation(a), x, report(), {}, now)
     return out
 
 
@@ -249,7 +250,7 @@ def test_round_timeout_queries_status_then_retries_once_then_loses_the_late():
     x = np.zeros(m.sc.n)
     m.on_truth(0, 0, x, {}, 1.1)
     for a in (1, 2):
-        m.on_xhat(a, 1, 0, 0, x, 0.0, {}, 1.2)
+        m.on_xhat(a, 1, 0, 0, x, report(), {}, 1.2)
     out = advance(m, 1.2, 2.9)  # no news of agent 3: probes every 0.3 s, all answer, nobody is blamed
     assert len(of(out, R.QueryStatus)) >= 4 and not events(out, "agent_lost") and not events(out, "round_retried")
     assert of(m.on_timer(3.1), R.QueryStatus) and not m.probing  # the round timeout's own query
@@ -258,7 +259,7 @@ def test_round_timeout_queries_status_then_retries_once_then_loses_the_late():
     assert [(t.tau, t.attempt) for t in of(out, R.Tick)] == [(0, 1)]
     m.on_truth(0, 1, x, {}, 3.3)
     for a in (1, 2):  # they answer the re-run; agent 3 stays silent
-        m.on_xhat(a, 1, 1, 0, x, 0.0, {}, 3.4)
+        m.on_xhat(a, 1, 1, 0, x, report(), {}, 3.4)
     advance(m, 3.4, 5.15)
     assert of(m.on_timer(5.3), R.QueryStatus) and not m.probing
     out = m.on_status({1, 2, 3}, 5.5)
@@ -292,7 +293,7 @@ def test_rejections_are_summarised_per_second_not_per_message():
     x = np.zeros(m.sc.n)
     out = []
     for k in range(5000):  # a flood of well-formed future and stale estimates
-        out += m.on_xhat(1, 50 + k, 0, 0, x, 0.0, {}, 1.0 + k * 1e-4)
+        out += m.on_xhat(1, 50 + k, 0, 0, x, report(), {}, 1.0 + k * 1e-4)
         out += m.on_truth(-1, 0, x, {}, 1.0 + k * 1e-4)
     out += m.on_timer(2.6)
     summary = events(out, "message_rejected")
@@ -415,7 +416,8 @@ def play(example, changes=None, events=None):
                     from splitspec_core.runtime.wire import decode
 
                     d = decode(p, "inproc", "xhat", mac_key=key)
-                    queue += m.on_xhat(d["agent"], d["tau"], d["attempt"], d["incarnation"], d["x"], d["g"],
+                    queue += m.on_xhat(d["agent"], d["tau"], d["attempt"], d["incarnation"], d["x"],
+                                       {c.name: d[c.name] for c in REPORTED},
                                        d["rejected"], t, lost=d["lost"])
                     for n in nodes.values():  # x_j(tau + 1) is also the neighbours' next z_j(0)
                         if d["agent"] in n.in_neighbours:
@@ -492,10 +494,10 @@ def test_an_admission_estimate_crossing_a_rerun_still_counts():
     m.on_token("agent", 3, "n3", False, 1.6)  # agent 3 dies: round 2 re-run (attempt 1)
     assert m.attempt == 1
     x = np.zeros(m.sc.n)
-    m.on_xhat(2, 2, 0, 1, x, 0.0, {}, 1.7)  # agent 2's admission estimate, sent at attempt 0, arrives now
+    m.on_xhat(2, 2, 0, 1, x, report(), {}, 1.7)  # agent 2's admission estimate, sent at attempt 0, arrives now
     m.on_truth(2, 1, x, {}, 1.8)
     for a in (1, 2):
-        out = m.on_xhat(a, 3, 1, m.incarnation(a), x, 0.0, {}, 1.9)
+        out = m.on_xhat(a, 3, 1, m.incarnation(a), x, report(), {}, 1.9)
     assert of(out, R.Record) and m.tau == 3
 
 
@@ -529,10 +531,10 @@ def test_with_live_sensors_rounds_complete_without_truth_and_record_the_y_used()
         out = m.on_timer(t)  # the pace's tick
         for a in sorted(m.alive):
             if a not in m.est.get(m.tau, {}):
-                out += m.on_xhat(a, m.tau, m.attempt, m.incarnation(a), x, 0.0, {}, t)
+                out += m.on_xhat(a, m.tau, m.attempt, m.incarnation(a), x, report(), {}, t)
             if m.tau < m.plan.steps:
                 used = None if (a, m.tau) == (2, 1) else [float(a), float(m.tau)]  # agent 2 had none at 1
-                out += m.on_xhat(a, m.tau + 1, m.attempt, m.incarnation(a), x, 0.0, {}, t, y=used)
+                out += m.on_xhat(a, m.tau + 1, m.attempt, m.incarnation(a), x, report(), {}, t, y=used)
         records += of(out, R.Record)
         evs += [(e.name, e.fields) for e in of(out, R.Event) if e.name.startswith("sensor_")]
     assert [r.tau for r in records] == [0, 1, 2, 3] and m.finished

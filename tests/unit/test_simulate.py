@@ -50,8 +50,8 @@ def test_batch_equals_per_agent_step_functions(time, g, seed):
     assert np.array_equal(a.x, b.x)  # exact: one Plant class draws and steps the truth, whatever the estimator
     assert len(set(a.graph.tolist())) == 2  # it really switched
     if g == "adaptive":
-        assert_close(a.gains, b.gains, rtol=1e-12, equal_nan=True, what="adaptive g_i")
-        assert np.all(np.diff(a.gains[:100], axis=0) >= 0)  # eq. (adaptive): g_i is non-decreasing
+        assert_close(a.g, b.g, rtol=1e-12, equal_nan=True, what="adaptive g_i")
+        assert np.all(np.diff(a.g[:100], axis=0) >= 0)  # eq. (adaptive): g_i is non-decreasing
 
 
 def test_same_seed_same_trajectory_and_different_seed_differs():

@@ -10,7 +10,8 @@ import msgpack
 import numpy as np
 import pytest
 
-from splitspec_core.runtime.wire import (BINARY_LAYOUT, MAC_BYTES, SCHEMA_VERSION, WireError, decode, encode,
+from splitspec_core.model.rows import report
+from splitspec_core.runtime.wire import (BINARY_LAYOUT, MAC_BYTES, ROW_TAG, SCHEMA_VERSION, WireError, decode, encode,
                                          new_run_key)
 
 RUN = "wire-test"
@@ -20,8 +21,8 @@ ROUND = {
     "y": dict(tau=7, attempt=1, y=V[:3], missing=[2]),
     "truth": dict(tau=7, attempt=0, x=V, rejected={"stale": 3, "bad_mac": 1}),
     "z": dict(tau=2 ** 62, attempt=2, k=5, agent=31, z=V),
-    "xhat": dict(tau=0, attempt=0, agent=3, incarnation=2, x=V, g=0.125, rejected={}, lost=[1, 2, 0, 3, 4, 1],
-                 y=[0.5, -1.0]),
+    "xhat": dict(tau=0, attempt=0, agent=3, incarnation=2, x=V, **report(g=0.125), rejected={},
+                 lost=[1, 2, 0, 3, 4, 1], y=[0.5, -1.0]),  # report: every row column the agents report (rows.py)
 }
 OTHER = {
     "tick": dict(tau=3, attempt=0, graph=1, alive=[1, 2], rows={"1": [[2], [0.5]]}, final=False,
@@ -84,6 +85,9 @@ def test_header_checks():
     old = bytearray(p)
     old[1] = SCHEMA_VERSION - 1
     assert reason(bytes(old), "z") == "bad_version"
+    other_rows = bytearray(p)  # a process built with other reported row columns (rows.py): its xhat would not fit
+    other_rows[3] = (ROW_TAG + 1) % 256
+    assert reason(bytes(other_rows), "z") == "bad_version"
     unknown = bytearray(p)
     unknown[2] = 99
     assert reason(bytes(unknown), "z") == "wrong_type"
