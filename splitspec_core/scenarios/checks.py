@@ -15,8 +15,10 @@ from typing import Any, Mapping
 import numpy as np
 
 from ..errors import DimensionError, ScenarioError
+from . import gain_methods
 
-GAIN_METHODS = ("place", "riccati", "explicit", "optimal")
+#: the words of design.gains: declared once, with what each needs, in gain_methods.py
+GAIN_METHODS = gain_methods.NAMES
 # design.consensus: what each agent takes from its neighbours (synthesis/whole_state.py): the paper's split (its
 # unobservable subspace), the whole state, or auto (the noise decides: design.gains optimal)
 CONSENSUS = ("auto", "split", "whole")
@@ -47,7 +49,7 @@ DESIGN_KEYS = (
 #: (a test), and docs/how-to/scenario.md lists every word on the key's line (a test).  ``gains`` defaults to
 #: ``optimal`` when the scenario states noise (design_section.py).
 DESIGN_CHOICES = {
-    "gains": (GAIN_METHODS, "place"),
+    "gains": (GAIN_METHODS, gain_methods.DEFAULT),
     "consensus": (CONSENSUS, "auto"),
     "q_method": (Q_METHODS, "spectral"),
     "weights": (WEIGHTINGS, "uniform"),

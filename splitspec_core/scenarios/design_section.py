@@ -10,6 +10,7 @@ from typing import Any
 from ..errors import ScenarioError
 from .checks import (DESIGN_CHOICES, DESIGN_KEYS, MAX_Q, MIN_RICCATI_WEIGHT, RICCATI_KEYS, check_integer, check_keys,
                      check_known_agent, check_matrix, check_number, check_shapes, ids_text, require_map)
+from . import gain_methods
 from .specs import DesignSpec, System
 
 __all__ = ["parse_design"]
@@ -28,21 +29,24 @@ def parse_design(raw: Any, time: str, system: System, ids: tuple) -> DesignSpec:
     if time == "discrete" and not 0 < rate < 1:
         raise ScenarioError(f"design.rate must be in (0, 1) for discrete time, got {rate:g}")
     # no design.gains: the noise-optimal design when the scenario states noise (synthesis/whole_state.py), else place
-    gains = _choice(dmap, "gains", default="optimal" if _noisy(system) else None)
+    gains = _choice(dmap, "gains", default=gain_methods.NOISY_DEFAULT if _noisy(system) else None)
+    method = gain_methods.method(gains)  # what it needs and allows (scenarios/gain_methods.py)
     consensus = _choice(dmap, "consensus")
-    if consensus == "whole" and gains == "place":
-        raise ScenarioError("design.consensus: whole takes design.gains optimal, riccati or explicit (place sets the "
-                            "split's local poles)")
-    if gains == "optimal" and not _noisy(system):
-        raise ScenarioError("design.gains: optimal minimizes the error under noise: set system.process_noise and/or "
-                            "system.measurement_noise")
+    if consensus == "whole" and method.whole is None:
+        takes = [g.name for g in gain_methods.METHODS.values() if g.whole is not None]
+        whole = ", ".join(takes[:-1]) + " or " + takes[-1]
+        raise ScenarioError(f"design.consensus: whole takes design.gains {whole} ({gains} sets the split's local "
+                            "poles)")
+    if method.needs_noise and not _noisy(system):
+        raise ScenarioError(f"design.gains: {gains} minimizes the error under noise: set system.process_noise "
+                            "and/or system.measurement_noise")
     # the whole-state design exchanges q times per event time (continuous: per run.dt) and has no g
-    whole_possible = consensus == "whole" or (consensus == "auto" and gains == "optimal")
+    whole_possible = consensus == "whole" or (consensus == "auto" and not method.local)
     K = None
-    if gains == "explicit":
+    if method.needs_K:
         kraw = dmap.get("K")
         if kraw is None:
-            raise ScenarioError("design.K is missing (design.gains is explicit: one n x s_i matrix per agent)")
+            raise ScenarioError(f"design.K is missing (design.gains is {gains}: one n x s_i matrix per agent)")
         kmap = require_map(kraw, "design.K")
         given = {}
         for k, v in kmap.items():
@@ -58,7 +62,8 @@ def parse_design(raw: Any, time: str, system: System, ids: tuple) -> DesignSpec:
             Ks.append(K_i)
         K = tuple(Ks)
     elif "K" in dmap:
-        raise ScenarioError(f"design.K is only used with design.gains: explicit (gains is {gains})")
+        raise ScenarioError(f"design.K is only used with design.gains: {' or '.join(gain_methods.names_where(needs_K=True))} "
+                            f"(gains is {gains})")
 
     g = dmap.get("g", "auto")
     if time == "discrete" and "g" in dmap:
@@ -66,9 +71,9 @@ def parse_design(raw: Any, time: str, system: System, ids: tuple) -> DesignSpec:
     if consensus == "whole" and "g" in dmap:
         raise ScenarioError("design.g is the split design's consensus gain; design.consensus: whole exchanges "
                             "design.q times per run.dt")
-    if gains == "optimal" and g == "adaptive":
+    if not method.local and g == "adaptive":
         raise ScenarioError("design.g: adaptive has no steady state to optimize for noise: with it use design.gains "
-                            "place or riccati")
+                            f"{' or '.join(gain_methods.names_where(local=True, needs_K=False))}")
     if g not in ("auto", "adaptive"):
         g = check_number(g, "design.g")
         if g < 0:
@@ -123,7 +128,7 @@ def parse_design(raw: Any, time: str, system: System, ids: tuple) -> DesignSpec:
     return DesignSpec(
         rate=rate, gains=gains, K=K, g=g, g0=g0, q=q, q_method=q_method, q_max=q_max,
         resilience=resilience, weights=weights, margin=margin, rank_tol=rank_tol,
-        graph_set=graph_set, dwell=dwell, riccati_process_weight=pw, riccati_measurement_weight=mw,
+        graph_set=graph_set, dwell=dwell, process_weight=pw, measurement_weight=mw,
         eigenvalues=eigenvalues, undetectable=undetectable, coordinates=coordinates, consensus=consensus,
     )
 

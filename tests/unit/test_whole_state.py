@@ -271,7 +271,7 @@ def test_a_centralized_refusal_says_what_it_computed():
 
 
 @pytest.mark.parametrize("keys, message", [
-    ({"gains": "place", "consensus": "whole"}, "design.consensus: whole takes design.gains optimal, riccati or explicit"),
+    ({"gains": "place", "consensus": "whole"}, "design.consensus: whole takes design.gains riccati, explicit or optimal"),
     ({"consensus": "both"}, "design.consensus must be one of auto, split, whole"),
 ])
 def test_bad_consensus_keys_are_one_line(keys, message):
