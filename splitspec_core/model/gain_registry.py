@@ -3,7 +3,9 @@
 Every local method (:mod:`splitspec_core.model.gains`) is one function ``fn(dec, request) -> LocalGain``
 registered with ``@local_method("word")`` under a word of ``design.gains`` declared in
 :mod:`splitspec_core.scenarios.gain_methods`; :func:`splitspec_core.model.gains.design_gain` dispatches through
-:data:`LOCAL_METHODS` and checks the result against the rate (:func:`meets_rate`).
+:data:`LOCAL_METHODS` and checks the result against the rate (:func:`meets_rate`).  A method that weighs the
+scenario's noise makes a singular covariance definite with :func:`regularise`, the same rule as the centralized
+filters (:mod:`splitspec_core.synthesis.kalman`).
 """
 
 from __future__ import annotations
@@ -15,7 +17,44 @@ import numpy as np
 from ..errors import DesignError
 from ..scenarios import gain_methods
 
-__all__ = ["LocalGain", "GainRequest", "LOCAL_METHODS", "local_method", "meets_rate", "poles_text", "POLES_SHOWN"]
+__all__ = ["LocalGain", "GainRequest", "LOCAL_METHODS", "local_method", "meets_rate", "poles_text", "POLES_SHOWN",
+           "REGULARISATION", "regularise"]
+
+#: relative size of the identity added to a singular covariance (see :func:`regularise`)
+REGULARISATION = 1e-9
+
+
+def regularise(M: np.ndarray) -> np.ndarray:
+    """A symmetric PSD matrix made positive definite if it is (numerically) singular.
+
+    If the smallest eigenvalue of ``M`` is at most ``1e-12 max(1, |M|_2)``,
+    returns ``M + REGULARISATION max(1, |M|_2) I`` (``REGULARISATION = 1e-9``);
+    otherwise ``M`` unchanged.  Used for noise-free measurements (``R = 0``) and
+    zero (or rank-deficient) process noise, where the Riccati equation has no
+    stabilising solution or its solver needs ``R`` invertible.
+
+    Parameters
+    ----------
+    M : (k, k) array_like
+        A symmetric PSD matrix (symmetrised first).
+
+    Returns
+    -------
+    (k, k) array
+        ``(M + M') / 2``, with the identity term added when it is singular.
+
+    Examples
+    --------
+    >>> regularise(np.zeros((2, 2))).tolist()
+    [[1e-09, 0.0], [0.0, 1e-09]]
+    """
+    M = 0.5 * (np.asarray(M, dtype=float) + np.asarray(M, dtype=float).T)
+    if M.size == 0:
+        return M
+    scale = max(1.0, float(np.linalg.norm(M, 2)))
+    if np.linalg.eigvalsh(M)[0] <= 1e-12 * scale:
+        return M + REGULARISATION * scale * np.eye(M.shape[0])
+    return M
 
 
 @dataclass(frozen=True)
