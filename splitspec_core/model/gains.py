@@ -36,6 +36,10 @@ Methods and their documented margin (``design.margin``, default 0.5)
     (all poles inside radius ``alpha``).  Weights: process ``W`` and
     measurement ``R`` (identity multiples; from the scenario's noise levels
     when they are set, else 1).
+``kalman``
+    The ``riccati`` method's shifted Riccati equation with the agent's own noise as weights: the process noise
+    covariance on its slow observable part and its measurement noise covariance ``R_i`` in the outputs' row-space
+    coordinates (:func:`kalman_gain`).
 ``explicit``
     The user's ``K_i`` (``Kbar_i = Q_i K_i``), checked against the rate.
 """
@@ -46,14 +50,14 @@ import numpy as np
 
 from ..errors import AssumptionError, DesignError
 from ..scenarios import gain_methods
-from .gain_registry import LOCAL_METHODS, GainRequest, LocalGain, local_method, meets_rate, poles_text
+from .gain_registry import LOCAL_METHODS, GainRequest, LocalGain, local_method, meets_rate, poles_text, regularise
 from .gain_target import beyond_target
 from .modal import invariant_subspace
 from .observability import Decomposition
 from .subspaces import complement
 
 __all__ = ["LocalGain", "GainRequest", "LOCAL_METHODS", "local_method", "target_poles", "place_gain", "riccati_gain",
-           "shifted_riccati", "explicit_gain", "meets_rate", "design_gain", "poles_text"]
+           "shifted_riccati", "kalman_gain", "explicit_gain", "meets_rate", "design_gain", "poles_text"]
 
 
 def target_poles(r: int, time: str, rate: float, margin: float) -> np.ndarray:
@@ -255,6 +259,48 @@ def riccati_gain(dec: Decomposition, request: GainRequest) -> LocalGain:
     def solve(T22: np.ndarray, B2: np.ndarray) -> np.ndarray:
         W = request.process_weight * np.eye(T22.shape[0])
         R = request.measurement_weight * np.eye(B2.shape[1])
+        return shifted_riccati(T22, B2, W, R, time=request.time, rate=request.rate, margin=request.margin)
+
+    return _slow_gain(dec, request.time, request.rate, request.margin, request.method, solve)
+
+
+@local_method("kalman")
+def kalman_gain(dec: Decomposition, request: GainRequest) -> LocalGain:
+    """Shifted steady-state Kalman gain of the agent's own noise on the slow modes of its observable part.
+
+    The weights are the noise the agent's error meets, in the coordinates of :func:`_slow_gain`: the process noise on
+    the slow observable part, ``W = U_2' Q_i Q_v Q_i' U_2``, and the measurement noise of the outputs' row-space
+    coordinates, ``R = T^+ R_i T^+'`` (``Cbar_i = T Ct``, so ``Ct xbar = T^+ (y_i - w_i)``); each made definite when
+    singular (:func:`~splitspec_core.model.gain_registry.regularise`).  The shift is the ``riccati`` method's
+    (:func:`shifted_riccati`), so the rate is met with the same margin; on isotropic noise and orthonormal output
+    rows it is the ``riccati`` gain with the noise levels as weights.  Continuous time weighs the process noise's
+    intensity against ``R_i``.
+
+    Parameters
+    ----------
+    dec : Decomposition
+        The agent's observability decomposition (working coordinates).
+    request : GainRequest
+        ``time``, ``rate``, ``margin``, ``process_covariance`` (working coordinates) and
+        ``measurement_covariance`` (``R_i``).
+
+    Returns
+    -------
+    LocalGain
+        Every assigned pole beyond the rate by the margin.
+    """
+    if request.process_covariance is None or request.measurement_covariance is None:
+        raise DesignError("kalman gains need the scenario's noise covariances")
+    T, _ = _output_basis(dec.Cbar)
+    Tp = np.linalg.pinv(T)
+    # y_i = T (Ct xbar) + w_i: the noise of Ct xbar read from y_i is T^+ w_i
+    R = regularise(Tp @ request.measurement_covariance @ Tp.T)
+    # v on the observable part xbar = Q_i x: Q_i Q_v Q_i'
+    Qbar = dec.Q @ request.process_covariance @ dec.Q.T
+
+    def solve(T22: np.ndarray, B2: np.ndarray) -> np.ndarray:
+        U2 = _slow_part(dec, request.time, request.rate, request.margin)  # the slow part _slow_gain solves on
+        W = regularise(U2.T @ Qbar @ U2)
         return shifted_riccati(T22, B2, W, R, time=request.time, rate=request.rate, margin=request.margin)
 
     return _slow_gain(dec, request.time, request.rate, request.margin, request.method, solve)

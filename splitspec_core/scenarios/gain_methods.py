@@ -58,6 +58,9 @@ METHODS = {g.name: g for g in (
     GainMethod("riccati", "steady-state Kalman gain of identity-multiple weights (design.riccati, else the noise "
                           "levels), shifted so its poles beat the rate by design.margin", margin=True, weighted=True,
                whole="shifted"),
+    GainMethod("kalman", "steady-state Kalman gain of the agent's own noise (the process noise on its slow observable "
+                         "modes, its R_i), shifted so its poles beat the rate by design.margin", needs_noise=True,
+               margin=True, whole="shifted"),
     GainMethod("explicit", "the user's K_i (design.K), checked against the rate", needs_K=True, whole="given"),
     GainMethod("optimal", "gains, consensus subspace and q chosen for the scenario's noise under the rate's "
                           "certificate", local=False, needs_noise=True, whole="search", split=("riccati", "place")),

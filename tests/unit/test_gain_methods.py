@@ -72,3 +72,73 @@ def test_the_request_is_built_once_from_the_scenario():
                                rtol=1e-12)
     np.testing.assert_allclose(req.measurement_covariance, [[0.25 ** 2]], rtol=1e-15)
     assert gain_request(sc, 3, None, method="place").label == "agent 3"
+
+
+def _kalman_scenario(time: str, process_noise, measurement_noise) -> dict:
+    """The paper's example of ``time`` with ``design.gains: kalman`` and the noise given (no K, the default g)."""
+    import yaml
+
+    raw = yaml.safe_load((EXAMPLES / f"paper_{time}.yaml").read_text())
+    for key in ("K", "g"):
+        raw["design"].pop(key, None)
+    raw["design"]["gains"] = "kalman"
+    raw["system"].update(process_noise=process_noise, measurement_noise=measurement_noise)
+    return raw
+
+
+@pytest.mark.parametrize("time", ["discrete", "continuous"])
+def test_kalman_gains_are_certified_and_a_noise_free_run_stays_under_the_envelope(time):
+    """design.gains: kalman (the agent's own noise as the Riccati weights): every agent's poles meet the rate, the
+    report certifies it, and from a random initial state the stacked noise-free error stays under the certified
+    envelope ``c r^tau |e(0)|`` (continuous: ``c exp(-r t) |e(0)|``)."""
+    from splitspec_core.scenarios.load import parse_scenario
+    from splitspec_core.simulation.simulator import simulate
+    from splitspec_core.synthesis.conditioning import conditioning
+    from splitspec_core.synthesis.designer import design
+    from splitspec_core.synthesis.report import design_json
+    from splitspec_core.synthesis.verdict import rate_certificate
+
+    from splitspec_core.model.local_design import scenario_agent
+
+    des = design(parse_scenario(_kalman_scenario(time, [0.05, 0.2, 0.1, 0.4], {1: 0.3, 2: 0.05, 3: 0.1})))
+    assert [a.gain.method for a in des.agents] == ["kalman"] * 3 and des.consensus == "split"
+    for a in des.agents:
+        assert gains.meets_rate(a.gain.poles, time, des.rate)
+        # what the agent's own process computes from the scenario: the same floats (one construction of the request)
+        assert np.array_equal(scenario_agent(des.scenario, a.id, unobserved=des.unobserved.W_working).K, a.K)
+    cert = rate_certificate(des)
+    assert cert.certified and cert.rate == des.envelope_rate == des.rate
+    assert design_json(des)["agents"][0]["K"] == np.asarray(des.agents[0].K).tolist()
+    c, r = conditioning(des).transient_constant, des.envelope_rate
+    # 30 event times: the paper's discrete plant grows as sqrt(2)^tau, and past ~45 the error meets round-off of x
+    tr = simulate(des, seed=3, steps=30 if time == "discrete" else 1000, noise=False)
+    e = tr.xhat - tr.x[:, None, :]
+    e = np.linalg.norm(e.reshape(e.shape[0], -1), axis=1)
+    envelope = c * (r ** tr.t if time == "discrete" else np.exp(-r * tr.t)) * e[0]
+    assert np.all(e <= envelope * (1 + 1e-9)), float(np.max(e / envelope))
+    assert e[-1] < 1e-3 * e[0]  # it did converge, not only stay bounded
+
+
+def test_kalman_is_riccati_with_the_noise_levels_on_isotropic_noise():
+    """Scalar noise and unit output rows (the paper's C_i): the agent's own weights are the noise levels squared,
+    riccati's defaults, so the two gains agree (different operations: a tolerance); per-state noise moves them."""
+    from splitspec_core.scenarios.load import parse_scenario
+    from splitspec_core.synthesis.designer import design
+
+    def gains_of(method, process_noise, measurement_noise):
+        raw = _kalman_scenario("discrete", process_noise, measurement_noise)
+        raw["design"]["gains"] = method
+        return [np.asarray(a.K) for a in design(parse_scenario(raw)).agents]
+
+    for K, R in zip(gains_of("kalman", 0.2, 0.1), gains_of("riccati", 0.2, 0.1)):
+        np.testing.assert_allclose(K, R, rtol=1e-9, atol=1e-12)
+    moved = [np.linalg.norm(K - R) for K, R in zip(gains_of("kalman", [0.05, 0.2, 0.1, 0.4], 0.1),
+                                                   gains_of("riccati", [0.05, 0.2, 0.1, 0.4], 0.1))]
+    assert max(moved) > 1e-3, moved
+
+
+def test_kalman_needs_the_scenario_to_state_noise():
+    from splitspec_core.scenarios.load import parse_scenario
+
+    with pytest.raises(ScenarioError, match=r"^design.gains: kalman minimizes the error under noise: set "):
+        parse_scenario(_kalman_scenario("discrete", 0.0, 0.0))
