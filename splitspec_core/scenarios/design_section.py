@@ -59,7 +59,7 @@ def parse_design(raw: Any, time: str, system: System, ids: tuple) -> DesignSpec:
             check_shapes(system.A, {aid: C}, Ks={aid: K_i})
             Ks.append(K_i)
         K = tuple(Ks)
-    elif "K" in dmap:
+    elif dmap.get("K") is not None:  # null: absent, as every key
         raise ScenarioError(f"design.K is only used with design.gains: {' or '.join(gain_methods.names_where(needs_K=True))} "
                             f"(gains is {gains})")
 
