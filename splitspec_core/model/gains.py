@@ -374,7 +374,8 @@ def design_gain(dec: Decomposition, request: GainRequest) -> LocalGain:
             slow = int(np.sum(~beyond_target(time, rate, margin)(np.linalg.eigvals(dec.Abar))))
             edge = (f"slower than the target -{(1 + margin) * rate:.3g}" if time == "continuous" else
                     f"outside the target radius {rate / (1 + margin):.3g}")
-            other = " or ".join(f"design.gains: {m}" for m in gain_methods.names_where(margin=True) if m != method)
+            other = "design.gains: " + gain_methods.listed(tuple(m for m in gain_methods.names_where(margin=True)
+                                                                 if m != method))
             hint = (f"; it moves {slow} slow modes ({edge}) with {dec.Cbar.shape[0]} outputs: "
                     f"a smaller design.margin (fewer modes to move), {other} or a slower design.rate "
                     "may reach it")

@@ -31,9 +31,8 @@ def parse_design(raw: Any, time: str, system: System, ids: tuple) -> DesignSpec:
     method = gain_methods.method(gains)  # what it needs and allows (scenarios/gain_methods.py)
     consensus = read(dmap, "design", "consensus")
     if consensus == "whole" and method.whole is None:
-        takes = [g.name for g in gain_methods.METHODS.values() if g.whole is not None]
-        whole = ", ".join(takes[:-1]) + " or " + takes[-1]
-        raise ScenarioError(f"design.consensus: whole takes design.gains {whole} ({gains} sets the split's local "
+        takes = gain_methods.listed(tuple(g.name for g in gain_methods.METHODS.values() if g.whole is not None))
+        raise ScenarioError(f"design.consensus: whole takes design.gains {takes} ({gains} sets the split's local "
                             "poles)")
     if method.needs_noise and not _noisy(system):
         raise ScenarioError(f"design.gains: {gains} minimizes the error under noise: set system.process_noise "
@@ -60,8 +59,8 @@ def parse_design(raw: Any, time: str, system: System, ids: tuple) -> DesignSpec:
             Ks.append(K_i)
         K = tuple(Ks)
     elif dmap.get("K") is not None:  # null: absent, as every key
-        raise ScenarioError(f"design.K is only used with design.gains: {' or '.join(gain_methods.names_where(needs_K=True))} "
-                            f"(gains is {gains})")
+        takes = gain_methods.listed(gain_methods.names_where(needs_K=True))
+        raise ScenarioError(f"design.K is only used with design.gains: {takes} (gains is {gains})")
 
     g = read(dmap, "design", "g")  # a number, auto or adaptive
     if time == "discrete" and "g" in dmap:
@@ -71,7 +70,7 @@ def parse_design(raw: Any, time: str, system: System, ids: tuple) -> DesignSpec:
                             "design.q times per run.dt")
     if not method.local and g == "adaptive":
         raise ScenarioError("design.g: adaptive has no steady state to optimize for noise: with it use design.gains "
-                            f"{' or '.join(gain_methods.names_where(local=True, needs_K=False))}")
+                            f"{gain_methods.listed(gain_methods.names_where(local=True, needs_K=False))}")
     if g not in ("auto", "adaptive"):
         if g < 0:
             raise ScenarioError(f"design.g must be >= 0, 'auto' or 'adaptive', got {g:g}")
@@ -98,14 +97,12 @@ def parse_design(raw: Any, time: str, system: System, ids: tuple) -> DesignSpec:
     rank_tol = read(dmap, "design", "rank_tol")  # auto: observability.DEFAULT_RANK_TOL (graded margins)
     if rank_tol == "auto":
         rank_tol = None
-    else:
-        if not 0 < rank_tol < 1:
-            raise ScenarioError(f"design.rank_tol must be auto or a number in (0, 1), got {rank_tol:g}")
+    elif not 0 < rank_tol < 1:
+        raise ScenarioError(f"design.rank_tol must be auto or a number in (0, 1), got {rank_tol:g}")
     graph_set = read(dmap, "design", "graph_set")
     dwell = read(dmap, "design", "dwell")
-    if dwell is not None:
-        if dwell <= 0:
-            raise ScenarioError(f"design.dwell must be > 0, got {dwell:g}")
+    if dwell is not None and dwell <= 0:
+        raise ScenarioError(f"design.dwell must be > 0, got {dwell:g}")
     undetectable = read(dmap, "design", "undetectable")
     coordinates = read(dmap, "design", "coordinates")
     eigenvalues = read(dmap, "design", "eigenvalues")

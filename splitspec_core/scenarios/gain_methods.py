@@ -34,7 +34,7 @@ from dataclasses import dataclass
 
 from ..errors import ScenarioError
 
-__all__ = ["GainMethod", "METHODS", "NAMES", "DEFAULT", "NOISY_DEFAULT", "method", "names_where"]
+__all__ = ["GainMethod", "METHODS", "NAMES", "DEFAULT", "NOISY_DEFAULT", "method", "names_where", "listed"]
 
 
 @dataclass(frozen=True)
@@ -109,3 +109,20 @@ def names_where(**flags) -> tuple:
         The matching words.
     """
     return tuple(g.name for g in METHODS.values() if all(getattr(g, k) == v for k, v in flags.items()))
+
+
+
+def listed(names: tuple) -> str:
+    """Words as a message says them: ``place, riccati or kalman``.
+
+    Parameters
+    ----------
+    names : tuple of str
+        Words of ``design.gains`` (:func:`names_where`).
+
+    Returns
+    -------
+    str
+        The words, the last two joined by ``or``.
+    """
+    return " or ".join(names) if len(names) < 3 else ", ".join(names[:-1]) + " or " + names[-1]
