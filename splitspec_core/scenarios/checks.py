@@ -34,15 +34,15 @@ FAULT_ACTIONS = ("kill", "restart", "freeze", "drop_arc", "restore_arc", "partit
 #: frozen process everywhere; scenario files and recorded runs that say ``hang`` still load)
 FAULT_ALIASES = {"hang": "freeze"}
 
-TOP_KEYS = ("name", "time", "system", "graphs", "switching", "design", "faults", "run", "positions", "network",
-             "sources")
-NETWORK_KEYS = ("loss", "delay", "deadline", "arcs")
-DELAY_KEYS = ("mean", "jitter")
-NETWORK_ARC_KEYS = ("arc", "loss", "delay")
+# the keys each section accepts, from their declaration (keys.py)
+TOP_KEYS = keys.names(keys.TOP)
+NETWORK_KEYS = keys.names(keys.NETWORK)
+DELAY_KEYS = keys.names(keys.DELAY)
+NETWORK_ARC_KEYS = keys.names(keys.NETWORK_ARC)
 SYSTEM_KEYS = keys.names(keys.SYSTEM)
-GRAPH_KEYS = ("arcs", "undirected")
-SWITCHING_KEYS = ("schedule", "period", "random")
-RANDOM_KEYS = ("graphs", "dwell", "seed")
+GRAPH_KEYS = keys.names(keys.GRAPH)
+SWITCHING_KEYS = keys.names(keys.SWITCHING)
+RANDOM_KEYS = keys.names(keys.RANDOM)
 DESIGN_KEYS = keys.names(keys.DESIGN)
 RICCATI_KEYS = keys.names(keys.RICCATI)
 RUN_KEYS = keys.names(keys.RUN)
@@ -205,7 +205,7 @@ def read(mapping: Mapping, section: str, name: str, *, default: Any = None) -> A
     mapping : Mapping
         The section as the file holds it.
     section, name : str
-        ``design`` and ``margin``, for ``design.margin``.
+        ``design`` and ``margin``, for ``design.margin`` (``""``: the file's top level).
     default : optional
         Overrides the declared default (``design.gains`` under noise).
 
@@ -220,7 +220,7 @@ def read(mapping: Mapping, section: str, name: str, *, default: Any = None) -> A
         A word outside the key's words, a value of the wrong kind, or below the key's minimum; a required key absent.
     """
     decl = next(k for k in keys.SECTIONS[section] if k.name == name)
-    where = f"{section}.{name}"
+    where = keys.dotted(section, name)
     value = mapping.get(name)
     if value is None:
         value = decl.default if default is None else default

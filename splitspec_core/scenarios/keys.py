@@ -1,8 +1,9 @@
-"""The scenario's keys, declared once: for each key of ``system:``, ``design:`` (and ``design.riccati:``) and
-``run:``, its kind, default, allowed words and doc line.
+"""The scenario's keys, declared once: for each key of the file's top level, ``system:``, ``graphs:``,
+``switching:``, ``design:`` (and ``design.riccati:``), ``run:`` and ``network:``, its kind, default, allowed words
+and doc line (a fault's keys are its kind's: :mod:`splitspec_core.scenarios.faults` where it exists).
 
-Everything else is derived from these tables: the keys each section accepts (``checks.SYSTEM_KEYS``,
-``DESIGN_KEYS``, ``RUN_KEYS``: an unknown key is one line naming it), the words of the word-valued keys and their
+Everything else is derived from these tables: the keys each section accepts (``checks.TOP_KEYS``,
+``SYSTEM_KEYS``, ``DESIGN_KEYS``, ``RUN_KEYS``, ...: an unknown key is one line naming it), the words of the word-valued keys and their
 defaults (``checks.DESIGN_CHOICES``), the reading of a plain number, integer or word with its default and its
 one-line message (:func:`splitspec_core.scenarios.checks.read`), the keywords ``ss.scenario`` routes to each section
 (a test checks its signature against them) and the reference table of ``docs/how-to/scenario.md``
@@ -12,7 +13,7 @@ the section parsers, each with its reason.
 
 Kinds: ``number`` (a finite float), ``integer``, ``word`` (one of ``words``), ``number|word`` and ``integer|word``
 (a number, or one of ``words``), ``matrix``, ``per agent`` (``{agent id: ...}``), ``names``, ``noise``,
-``signal``, ``path``, ``map``.
+``signal``, ``path``, ``map``, ``list``, ``text``.
 """
 
 from __future__ import annotations
@@ -22,7 +23,8 @@ from typing import Any
 
 from . import gain_methods
 
-__all__ = ["Key", "REQUIRED", "SYSTEM", "DESIGN", "RICCATI", "RUN", "SECTIONS", "names", "choices", "reference_table"]
+__all__ = ["Key", "REQUIRED", "TOP", "SYSTEM", "GRAPH", "SWITCHING", "RANDOM", "DESIGN", "RICCATI", "RUN", "NETWORK",
+           "DELAY", "NETWORK_ARC", "SECTIONS", "dotted", "names", "choices", "reference_table"]
 
 
 class _Required:
@@ -49,6 +51,21 @@ class Key:
     minimum: int | None = None
 
 
+TOP = (
+    Key("name", "text", None, "the scenario's name (default: the file name)"),
+    Key("time", "word", "discrete", "discrete (x+ = A x + v) or continuous (x' = A x + v)",
+        words=("discrete", "continuous")),
+    Key("system", "map", REQUIRED, "the plant and each agent's outputs (system.*)"),
+    Key("graphs", "map", REQUIRED, "named neighbour graphs, each {arcs, undirected}; self-arcs are implicit"),
+    Key("switching", "map", None, "which graph when (switching.*); default: the first graph forever"),
+    Key("design", "map", REQUIRED, "the rate, the gains and the consensus's certificate (design.*)"),
+    Key("faults", "list", None, "scheduled faults [{at: T, kind: operand}], for simulate and run alike"),
+    Key("run", "map", None, "the run's length, step, seed and pace (run.*)"),
+    Key("positions", "per agent", None, "where run.rrd draws each agent in the topology view: [x, y] per agent"),
+    Key("network", "map", None, "what happens to consensus messages (network.*); default: a perfect network"),
+    Key("sources", "per agent", None, "run only: live sensors instead of a simulated plant (needs run.pace)"),
+)
+
 SYSTEM = (
     Key("file", "path", None, "a .npz or .mat beside the scenario file; a string where a matrix goes names an array "
                               "of it"),
@@ -65,6 +82,23 @@ SYSTEM = (
                                            "output]}"),
     Key("states", "names", None, "n state names, in every message, report, plot and record"),
     Key("outputs", "per agent", None, "names of agent i's outputs (s_i names per agent listed)"),
+)
+
+GRAPH = (
+    Key("arcs", "list", None, "[j, i]: agent i hears agent j"),
+    Key("undirected", "list", None, "[i, j]: shorthand for both arcs"),
+)
+
+SWITCHING = (
+    Key("schedule", "list", None, "pieces [start, graph], the first at 0 (exactly one of schedule or random)"),
+    Key("period", "number", None, "repeat the schedule every period"),
+    Key("random", "map", None, "Poisson switching among graphs with a mean dwell (switching.random.*)"),
+)
+
+RANDOM = (
+    Key("graphs", "list", None, "the graphs it switches among (default: every graph)"),
+    Key("dwell", "number", REQUIRED, "the mean dwell time"),
+    Key("seed", "integer", None, "its own seed (default: a stream of run.seed)"),
 )
 
 DESIGN = (
@@ -114,8 +148,44 @@ RUN = (
     Key("show", "names", None, "the states the default views show: names or patterns"),
 )
 
-#: ``{section: its keys}``: the sections whose keys are declared here
-SECTIONS = {"system": SYSTEM, "design": DESIGN, "design.riccati": RICCATI, "run": RUN}
+NETWORK = (
+    Key("loss", "number", 0.0, "probability that one consensus message does not count, in [0, 1)"),
+    Key("delay", "map", None, "{mean, jitter}: seconds each message is held in run (network.delay.*)"),
+    Key("deadline", "number", None, "seconds a sub-round waits for its neighbours, then goes on without the missing "
+                                    "ones"),
+    Key("arcs", "list", None, "per-arc overrides [{arc: [j, i], loss, delay}] (network.arcs[k].*)"),
+)
+
+DELAY = (
+    Key("mean", "number", 0.0, "seconds added to every message"),
+    Key("jitter", "number", 0.0, "uniform spread around the mean (never negative in total)"),
+)
+
+NETWORK_ARC = (
+    Key("arc", "list", REQUIRED, "[j, i], an arc of some graph"),
+    Key("loss", "number", None, "this arc's loss probability"),
+    Key("delay", "map", None, "this arc's {mean, jitter}"),
+)
+
+#: ``{section: its keys}``: the sections whose keys are declared here ("" the file's top level)
+SECTIONS = {"": TOP, "system": SYSTEM, "graphs.<name>": GRAPH, "switching": SWITCHING, "switching.random": RANDOM,
+            "design": DESIGN, "design.riccati": RICCATI, "run": RUN, "network": NETWORK, "network.delay": DELAY,
+            "network.arcs[k]": NETWORK_ARC}
+
+
+def dotted(section: str, name: str) -> str:
+    """``design.rate``; a top-level key by its name alone.
+
+    Parameters
+    ----------
+    section, name : str
+        A key of :data:`SECTIONS`, and the key's name in it.
+
+    Returns
+    -------
+    str
+    """
+    return f"{section}.{name}" if section else name
 
 
 def names(keys: tuple) -> tuple:
@@ -162,7 +232,8 @@ def reference_table() -> str:
         for k in keys:
             default = "" if k.default is None else f"`{k.default!r}`".replace("'", "")
             words = " \\| ".join(f"`{w}`" for w in k.words)
-            rows.append(f"| `{section}.{k.name}` | {k.kind.replace('|', ' or ')} | {default} | {words} | {k.doc} |")
+            rows.append(f"| `{dotted(section, k.name)}` | {k.kind.replace('|', ' or ')} | {default} | {words} | "
+                        f"{k.doc} |")
             if section == "design" and k.name == "gains":  # each method's own line (scenarios/gain_methods.py)
                 rows += [f"| `design.gains: {g.name}` | | | | {g.doc} |" for g in gain_methods.METHODS.values()]
     return "\n".join(rows) + "\n"

@@ -252,9 +252,7 @@ def parse_scenario(data: Any, *, source: str = "<scenario>", base: Path | None =
     top = require_map(data, "the scenario")
     check_keys(top, TOP_KEYS, "")
     name = str(top.get("name", Path(source).stem))
-    time = top.get("time", "discrete")
-    if time not in ("discrete", "continuous"):
-        raise ScenarioError(f"time must be discrete or continuous, got {describe(time)}")
+    time = read(top, "", "time")
     if "system" not in top:
         raise ScenarioError("system is missing (A and one C_i per agent)")
     system, ids = _parse_system(top["system"], time)

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 import inspect
+import re
 
 import pytest
 
@@ -19,7 +20,7 @@ PAGE = ROOT / "docs/how-to/scenario.md"
 BEGIN = "<!-- keys: generated from splitspec_core/scenarios/keys.py (reference_table) -->\n"
 END = "<!-- keys: end -->"
 KINDS = {"number", "integer", "word", "number|word", "integer|word", "matrix", "per agent", "names", "noise", "signal",
-         "path", "map"}
+         "path", "map", "list", "text"}
 
 
 def _minimal(**design):
@@ -32,13 +33,19 @@ def test_every_key_has_a_kind_and_a_doc_line():
         assert len(set(keys.names(declared))) == len(declared), section
         for k in declared:
             assert k.kind in KINDS, (section, k.name, k.kind)
-            assert k.doc.strip() and "\n" not in k.doc, (section, k.name)
+            # one markdown line, nothing a page would read as an HTML tag
+            assert k.doc.strip() and "\n" not in k.doc and not re.search(r"<[A-Za-z/]", k.doc), (section, k.name)
             assert (k.kind == "word") <= bool(k.words), (section, k.name)
             if k.kind == "word":
                 assert k.default in k.words, (section, k.name)
 
 
 def test_the_sections_accept_exactly_the_declared_keys():
+    assert checks.TOP_KEYS == keys.names(keys.TOP)
+    assert (checks.GRAPH_KEYS, checks.SWITCHING_KEYS, checks.RANDOM_KEYS) == tuple(
+        keys.names(d) for d in (keys.GRAPH, keys.SWITCHING, keys.RANDOM))
+    assert (checks.NETWORK_KEYS, checks.DELAY_KEYS, checks.NETWORK_ARC_KEYS) == tuple(
+        keys.names(d) for d in (keys.NETWORK, keys.DELAY, keys.NETWORK_ARC))
     assert checks.SYSTEM_KEYS == keys.names(keys.SYSTEM)
     assert checks.DESIGN_KEYS == keys.names(keys.DESIGN)
     assert checks.RICCATI_KEYS == keys.names(keys.RICCATI)
@@ -57,12 +64,15 @@ def test_the_scenario_page_lists_every_key_as_declared():
         "splitspec_core.scenarios.keys.reference_table() between its markers")
     for section, declared in keys.SECTIONS.items():
         for k in declared:
-            assert f"| `{section}.{k.name}` |" in table and k.doc in table, (section, k.name)
+            assert f"| `{keys.dotted(section, k.name)}` |" in table and k.doc in table, (section, k.name)
 
 
 def test_ss_scenario_takes_every_key_by_its_name():
     params = inspect.signature(ss.scenario).parameters
     doc = inspect.getdoc(ss.scenario)
+    for name in keys.names(keys.TOP):  # a section by its name, or each of its keys (below)
+        assert name in params and params[name].kind is inspect.Parameter.KEYWORD_ONLY, name
+        assert name in doc, name
     for section in ("system", "design", "run"):
         for name in keys.names(keys.SECTIONS[section]):
             assert name in params and params[name].kind is inspect.Parameter.KEYWORD_ONLY, (section, name)
