@@ -25,7 +25,7 @@ from .synthesis.design_data import Design
 from .errors import ScenarioError
 from .synthesis.verdict import rate_certificate
 from .synthesis.report import design_warnings
-from .scenarios.checks import DESIGN_KEYS, RUN_KEYS, SYSTEM_KEYS
+from .scenarios.checks import DESIGN_KEYS, RUN_KEYS, SYSTEM_KEYS, TOP_KEYS
 from .scenarios.control import plant_keywords
 from .scenarios.load import ORIGIN, parse_scenario
 from .scenarios.load import load_scenario as _load_scenario
@@ -61,7 +61,8 @@ def scenario(*, name: str | None = None, time: str | None = None, plant: Any = N
              measurement_noise: float | Mapping | None = None,
              states: Iterable | None = None, outputs: Mapping | None = None, graphs: Mapping | None = None,
              switching: Mapping | None = None, faults: Iterable | None = None, positions: Mapping | None = None,
-             network: Mapping | None = None, rate: float | None = None, gains: str | None = None,
+             network: Mapping | None = None, sources: Mapping | None = None, rate: float | None = None,
+             gains: str | None = None,
              K: Mapping | None = None, g: Any = None, g0: float | None = None, q: Any = None,
              q_method: str | None = None, q_max: int | None = None, resilience: int | None = None,
              weights: str | None = None, margin: float | None = None, rank_tol: float | None = None,
@@ -94,7 +95,7 @@ def scenario(*, name: str | None = None, time: str | None = None, plant: Any = N
         A python-control plant and ``{agent id: [its output labels or indices]}``, in place of ``A``, ``B``, ``C``.
     file, A, B, u, sample, C, x0, process_noise, measurement_noise, states, outputs : optional
         The file's ``system.*`` keys.
-    graphs, switching, faults, positions, network : optional
+    graphs, switching, faults, positions, network, sources : optional
         The file's sections of those names.
     rate, gains, K, g, g0, q, q_method, q_max, resilience, weights, margin, rank_tol, graph_set, dwell, riccati, \
 eigenvalues, undetectable, coordinates, consensus : optional
@@ -127,8 +128,8 @@ eigenvalues, undetectable, coordinates, consensus : optional
     top: dict = {k: v for k, v in unknown.items()}  # the checker names them (and suggests the right key)
     if plant is not None or agents is not None:
         plant_keywords(given, plant, agents)
-    for key in ("name", "time", "graphs", "switching", "faults", "positions", "network"):
-        if given[key] is not None:
+    for key in TOP_KEYS:  # the file's top-level keys (scenarios/keys.py); system, design, run below
+        if key not in _SECTIONS and given[key] is not None:
             top[key] = given[key]
     top.setdefault("name", "scenario")
     for section, keys in _SECTIONS.items():

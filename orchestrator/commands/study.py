@@ -52,6 +52,7 @@ def cmd_design(args: argparse.Namespace) -> int:
 def _tune(args: argparse.Namespace, sc) -> int:
     from pathlib import Path
 
+    from splitspec_core.scenarios import gain_methods
     from splitspec_core.synthesis.noise_tuning import tune
     from splitspec_core.scenarios.load import dump_yaml, load_yaml, read_scenario_text
 
@@ -59,8 +60,9 @@ def _tune(args: argparse.Namespace, sc) -> int:
     d = res.design
     cd = res.scenario.design
     what = ("q", d.q) if sc.time == "discrete" else ("g", d.g)
-    weights = None if cd.gains != "riccati" else {"process_weight": float(cd.riccati_process_weight),
-                                                  "measurement_weight": float(cd.riccati_measurement_weight)}
+    weighted = gain_methods.method(cd.gains).weighted  # its Riccati weights travel with it (design.riccati)
+    weights = None if not weighted else {"process_weight": float(cd.process_weight),
+                                         "measurement_weight": float(cd.measurement_weight)}
     summary = {"gains": cd.gains, what[0]: what[1], "riccati": weights, "predicted_rms": res.rms,
                "baseline_predicted_rms": res.baseline_rms, "candidates": res.candidates}
     if args.json:

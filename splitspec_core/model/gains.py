@@ -36,56 +36,28 @@ Methods and their documented margin (``design.margin``, default 0.5)
     (all poles inside radius ``alpha``).  Weights: process ``W`` and
     measurement ``R`` (identity multiples; from the scenario's noise levels
     when they are set, else 1).
+``kalman``
+    The ``riccati`` method's shifted Riccati equation with the agent's own noise as weights: the process noise
+    covariance on its slow observable part and its measurement noise covariance ``R_i`` in the outputs' row-space
+    coordinates (:func:`kalman_gain`).
 ``explicit``
     The user's ``K_i`` (``Kbar_i = Q_i K_i``), checked against the rate.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
 from ..errors import AssumptionError, DesignError
+from ..scenarios import gain_methods
+from .gain_registry import LOCAL_METHODS, GainRequest, LocalGain, local_method, meets_rate, poles_text, regularise
 from .gain_target import beyond_target
 from .modal import invariant_subspace
 from .observability import Decomposition
 from .subspaces import complement
 
-__all__ = ["LocalGain", "target_poles", "place_gain", "riccati_gain", "explicit_gain", "meets_rate", "design_gain",
-           "poles_text"]
-
-
-@dataclass(frozen=True)
-class LocalGain:
-    """A local gain with its diagnostics.
-
-    Attributes
-    ----------
-    K : (n, s_i) array
-        ``K_i``; ``A + K_i C_i`` leaves the unobservable space invariant.
-    Kbar : (r_i, s_i) array
-        ``Kbar_i = Q_i K_i``.
-    poles : (r_i,) complex array
-        Spectrum of ``Abar_i + Kbar_i Cbar_i`` (the part the gain assigns).
-    method : str
-        ``place``, ``riccati`` or ``explicit``.
-    """
-
-    K: np.ndarray
-    Kbar: np.ndarray
-    poles: np.ndarray
-    method: str
-
-
-def meets_rate(poles: np.ndarray, time: str, rate: float) -> bool:
-    """Whether every pole decays strictly faster than the rate."""
-    poles = np.asarray(poles)
-    if poles.size == 0:
-        return True
-    if time == "continuous":
-        return bool(np.max(poles.real) < -rate)
-    return bool(np.max(np.abs(poles)) < rate)
+__all__ = ["LocalGain", "GainRequest", "LOCAL_METHODS", "local_method", "target_poles", "place_gain", "riccati_gain",
+           "shifted_riccati", "kalman_gain", "explicit_gain", "meets_rate", "design_gain", "poles_text"]
 
 
 def target_poles(r: int, time: str, rate: float, margin: float) -> np.ndarray:
@@ -169,13 +141,27 @@ def _slow_gain(dec: Decomposition, time: str, rate: float, margin: float, method
     return _lift(dec, Kbar, method)
 
 
-def place_gain(dec: Decomposition, *, time: str, rate: float, margin: float = 0.5) -> LocalGain:
+@local_method("place")
+def place_gain(dec: Decomposition, request: GainRequest) -> LocalGain:
     """Pole placement on the slow modes of the observable part (poles from :func:`target_poles`).
 
     One effective output: Ackermann's formula (the gain is unique); several: ``scipy.signal.place_poles``
     (method YT), imported only then because importing ``scipy.signal`` costs over a second of
     start-up in every agent process.
+
+    Parameters
+    ----------
+    dec : Decomposition
+        The agent's observability decomposition.
+    request : GainRequest
+        ``time``, ``rate``, ``margin``.
+
+    Returns
+    -------
+    LocalGain
+        ``Abar_i + Kbar_i Cbar_i`` with the slow modes at :func:`target_poles`, the fast ones where they were.
     """
+    time, rate, margin = request.time, request.rate, request.margin
 
     def solve(T22: np.ndarray, B2: np.ndarray) -> np.ndarray:
         poles = target_poles(T22.shape[0], time, rate, margin)
@@ -201,109 +187,199 @@ def place_gain(dec: Decomposition, *, time: str, rate: float, margin: float = 0.
                 raise DesignError(f"pole placement failed: {exc}") from None
         return Vr @ Fr
 
-    return _slow_gain(dec, time, rate, margin, "place", solve)
+    return _slow_gain(dec, time, rate, margin, request.method, solve)
 
 
-def riccati_gain(
-    dec: Decomposition, *, time: str, rate: float, margin: float = 0.5,
-    process_weight: float = 1.0, measurement_weight: float = 1.0,
-) -> LocalGain:
-    """Shifted steady-state Kalman gain on the slow modes of the observable part (module docstring)."""
+def shifted_riccati(T22: np.ndarray, B2: np.ndarray, W: np.ndarray, R: np.ndarray, *, time: str, rate: float,
+                    margin: float) -> np.ndarray:
+    """``F2`` of the dual slow part ``(T22, B2)``: the steady-state Kalman gain of process weight ``W`` and
+    measurement weight ``R``, shifted so every pole of ``T22 - B2 F2`` beats the rate by ``margin``.
 
-    def solve(T22: np.ndarray, B2: np.ndarray) -> np.ndarray:
-        import scipy.linalg as sla  # here only: an agent with pole placement imports no scipy
+    Parameters
+    ----------
+    T22, B2 : arrays
+        The dual slow part (:func:`_slow_gain`).
+    W, R : arrays
+        Symmetric positive semi-definite (``W``) and definite (``R``) weights.
+    time, rate, margin : str, float, float
+        The rate and its margin (module docstring).
 
-        k = T22.shape[0]
-        W = process_weight * np.eye(k)
-        R = measurement_weight * np.eye(B2.shape[1])
-        try:
-            if time == "continuous":
-                alpha = (1.0 + margin) * rate
-                # CARE of the dual slow part: X makes (T22 + alpha I) - B2 R^-1 B2' X stable
-                X = sla.solve_continuous_are(T22 + alpha * np.eye(k), B2, W, R)
-                return np.linalg.solve(R, B2.T @ X)
-            alpha = rate / (1.0 + margin)
-            a, b = T22 / alpha, B2 / alpha
-            # DARE of the dual slow part: a - b G2 is Schur stable, G2 = (R + b'X b)^-1 b'X a
-            X = sla.solve_discrete_are(a, b, W, R)
-            return np.linalg.solve(R + b.T @ X @ b, b.T @ X @ a)
-        except (np.linalg.LinAlgError, ValueError) as exc:
-            shift = (f"left of -{(1.0 + margin) * rate:.4g}" if time == "continuous" else
-                     f"inside radius {rate / (1.0 + margin):.4g}")
-            why = str(exc).strip().rstrip(".") or type(exc).__name__
-            raise DesignError(f"the Riccati design of its slow modes has no stabilising solution with every pole "
-                              f"{shift} (rate {rate:g} with design.margin {margin:g}): a mode it counts as seen is "
-                              f"too weakly observable to move that far (solver: {why})") from None
-
-    return _slow_gain(dec, time, rate, margin, "riccati", solve)
-
-
-def explicit_gain(dec: Decomposition, K: np.ndarray) -> LocalGain:
-    """The user's ``K_i``; ``Kbar_i = Q_i K_i`` (the part along ``V_i`` does not affect the split)."""
-    Kbar = dec.Q @ K
-    g = _lift(dec, Kbar, "explicit")
-    return LocalGain(K=np.array(K, dtype=float), Kbar=Kbar, poles=g.poles, method="explicit")
-
-
-def design_gain(
-    dec: Decomposition, *, method: str, time: str, rate: float, margin: float = 0.5,
-    K: np.ndarray | None = None, process_weight: float = 1.0, measurement_weight: float = 1.0,
-    label: str = "agent",
-) -> LocalGain:
-    """Design one agent's gain and check that it meets the rate.
+    Returns
+    -------
+    (rank, k) array
+        ``F2``; continuous: every pole's real part ``< -(1 + margin) lam``; discrete: every modulus
+        ``< lam / (1 + margin)``.
 
     Raises
     ------
+    DesignError
+        The shifted Riccati equation has no stabilising solution (one line with the shift and the solver's reason).
+    """
+    import scipy.linalg as sla  # here only: an agent with pole placement imports no scipy
+
+    k = T22.shape[0]
+    try:
+        if time == "continuous":
+            alpha = (1.0 + margin) * rate
+            # CARE of the dual slow part: X makes (T22 + alpha I) - B2 R^-1 B2' X stable
+            X = sla.solve_continuous_are(T22 + alpha * np.eye(k), B2, W, R)
+            return np.linalg.solve(R, B2.T @ X)
+        alpha = rate / (1.0 + margin)
+        a, b = T22 / alpha, B2 / alpha
+        # DARE of the dual slow part: a - b G2 is Schur stable, G2 = (R + b'X b)^-1 b'X a
+        X = sla.solve_discrete_are(a, b, W, R)
+        return np.linalg.solve(R + b.T @ X @ b, b.T @ X @ a)
+    except (np.linalg.LinAlgError, ValueError) as exc:
+        shift = (f"left of -{(1.0 + margin) * rate:.4g}" if time == "continuous" else
+                 f"inside radius {rate / (1.0 + margin):.4g}")
+        why = str(exc).strip().rstrip(".") or type(exc).__name__
+        raise DesignError(f"the Riccati design of its slow modes has no stabilising solution with every pole "
+                          f"{shift} (rate {rate:g} with design.margin {margin:g}): a mode it counts as seen is "
+                          f"too weakly observable to move that far (solver: {why})") from None
+
+
+@local_method("riccati")
+def riccati_gain(dec: Decomposition, request: GainRequest) -> LocalGain:
+    """Shifted steady-state Kalman gain on the slow modes of the observable part, with identity-multiple weights
+    (module docstring).
+
+    Parameters
+    ----------
+    dec : Decomposition
+        The agent's observability decomposition.
+    request : GainRequest
+        ``time``, ``rate``, ``margin``, ``process_weight``, ``measurement_weight``.
+
+    Returns
+    -------
+    LocalGain
+        Every assigned pole beyond the rate by the margin (:func:`shifted_riccati`).
+    """
+
+    def solve(T22: np.ndarray, B2: np.ndarray) -> np.ndarray:
+        W = request.process_weight * np.eye(T22.shape[0])
+        R = request.measurement_weight * np.eye(B2.shape[1])
+        return shifted_riccati(T22, B2, W, R, time=request.time, rate=request.rate, margin=request.margin)
+
+    return _slow_gain(dec, request.time, request.rate, request.margin, request.method, solve)
+
+
+@local_method("kalman")
+def kalman_gain(dec: Decomposition, request: GainRequest) -> LocalGain:
+    """Shifted steady-state Kalman gain of the agent's own noise on the slow modes of its observable part.
+
+    The weights are the noise the agent's error meets, in the coordinates of :func:`_slow_gain`: the process noise on
+    the slow observable part, ``W = U_2' Q_i Q_v Q_i' U_2``, and the measurement noise of the outputs' row-space
+    coordinates, ``R = T^+ R_i T^+'`` (``Cbar_i = T Ct``, so ``Ct xbar = T^+ (y_i - w_i)``); each made definite when
+    singular (:func:`~splitspec_core.model.gain_registry.regularise`).  The shift is the ``riccati`` method's
+    (:func:`shifted_riccati`), so the rate is met with the same margin; on isotropic noise and orthonormal output
+    rows it is the ``riccati`` gain with the noise levels as weights.  Continuous time weighs the process noise's
+    intensity against ``R_i``.
+
+    Parameters
+    ----------
+    dec : Decomposition
+        The agent's observability decomposition (working coordinates).
+    request : GainRequest
+        ``time``, ``rate``, ``margin``, ``process_covariance`` (working coordinates) and
+        ``measurement_covariance`` (``R_i``).
+
+    Returns
+    -------
+    LocalGain
+        Every assigned pole beyond the rate by the margin.
+    """
+    if request.process_covariance is None or request.measurement_covariance is None:
+        raise DesignError("kalman gains need the scenario's noise covariances")
+    T, _ = _output_basis(dec.Cbar)
+    Tp = np.linalg.pinv(T)
+    # y_i = T (Ct xbar) + w_i: the noise of Ct xbar read from y_i is T^+ w_i
+    R = regularise(Tp @ request.measurement_covariance @ Tp.T)
+    # v on the observable part xbar = Q_i x: Q_i Q_v Q_i'
+    Qbar = dec.Q @ request.process_covariance @ dec.Q.T
+
+    def solve(T22: np.ndarray, B2: np.ndarray) -> np.ndarray:
+        U2 = _slow_part(dec, request.time, request.rate, request.margin)  # the slow part _slow_gain solves on
+        W = regularise(U2.T @ Qbar @ U2)
+        return shifted_riccati(T22, B2, W, R, time=request.time, rate=request.rate, margin=request.margin)
+
+    return _slow_gain(dec, request.time, request.rate, request.margin, request.method, solve)
+
+
+@local_method("explicit")
+def explicit_gain(dec: Decomposition, request: GainRequest) -> LocalGain:
+    """The user's ``K_i``; ``Kbar_i = Q_i K_i`` (the part along ``V_i`` does not affect the split).
+
+    Parameters
+    ----------
+    dec : Decomposition
+        The agent's observability decomposition.
+    request : GainRequest
+        ``K`` (n x s_i, the working coordinates).
+
+    Returns
+    -------
+    LocalGain
+        ``K_i`` as given, with the poles it assigns to the observable part.
+
+    Raises
+    ------
+    DesignError
+        The request carries no ``K``.
+    """
+    if request.K is None:
+        raise DesignError("explicit gains need K")
+    K = np.asarray(request.K, dtype=float)
+    g = _lift(dec, dec.Q @ K, request.method)
+    return LocalGain(K=K, Kbar=g.Kbar, poles=g.poles, method=request.method)
+
+
+def design_gain(dec: Decomposition, request: GainRequest) -> LocalGain:
+    """Design one agent's gain with the method ``request.method`` names (:data:`LOCAL_METHODS`) and check that it
+    meets the rate.
+
+    Parameters
+    ----------
+    dec : Decomposition
+        The agent's observability decomposition.
+    request : GainRequest
+        The method, the rate and what the method takes.
+
+    Returns
+    -------
+    LocalGain
+        The gain; every pole of ``Abar_i + Kbar_i Cbar_i`` meets the rate (:func:`meets_rate`).
+
+    Raises
+    ------
+    DesignError
+        The method is not a registered local method, or its numerical step failed (said of ``request.label``).
     AssumptionError
         If the resulting observable-part poles do not meet the rate.
     """
-    if method in ("place", "riccati"):
-        try:
-            gain = place_gain(dec, time=time, rate=rate, margin=margin) if method == "place" else \
-                riccati_gain(dec, time=time, rate=rate, margin=margin, process_weight=process_weight,
-                             measurement_weight=measurement_weight)
-        except DesignError as exc:  # the numerical failure, said of this agent
-            raise DesignError(f"{label}: {exc}") from None
-    elif method == "explicit":
-        if K is None:
-            raise DesignError(f"{label}: explicit gains need K")
-        gain = explicit_gain(dec, K)
-    else:
-        raise DesignError(f"unknown gain method {method!r}")
+    method, time, rate, margin, label = request.method, request.time, request.rate, request.margin, request.label
+    fn = LOCAL_METHODS.get(method)
+    if fn is None:
+        raise DesignError(f"{label}: unknown local gain method {method!r} (the local methods: "
+                          f"{', '.join(LOCAL_METHODS)})")
+    try:
+        gain = fn(dec, request)
+    except DesignError as exc:  # the numerical failure, said of this agent
+        raise DesignError(f"{label}: {exc}") from None
     if not meets_rate(gain.poles, time, rate):
         need = f"real parts < {-rate:g}" if time == "continuous" else f"moduli < {rate:g}"
         hint = ""
-        if method in ("place", "riccati") and dec.n_observable:
+        if gain_methods.METHODS[method].margin and dec.n_observable:
             # many slow modes moved by few outputs: the placement's conditioning grows fast with that ratio
             slow = int(np.sum(~beyond_target(time, rate, margin)(np.linalg.eigvals(dec.Abar))))
             edge = (f"slower than the target -{(1 + margin) * rate:.3g}" if time == "continuous" else
                     f"outside the target radius {rate / (1 + margin):.3g}")
-            other = "riccati" if method == "place" else "place"
+            other = "design.gains: " + gain_methods.listed(tuple(m for m in gain_methods.names_where(margin=True)
+                                                                 if m != method))
             hint = (f"; it moves {slow} slow modes ({edge}) with {dec.Cbar.shape[0]} outputs: "
-                    f"a smaller design.margin (fewer modes to move), design.gains: {other} or a slower design.rate "
+                    f"a smaller design.margin (fewer modes to move), {other} or a slower design.rate "
                     "may reach it")
         raise AssumptionError(
             f"{label}: gain ({method}) puts the observable-part poles at {poles_text(gain.poles, time)}, "
             f"which do not meet rate {rate:g} (need {need}){hint}")
     return gain
-
-
-#: poles a message or report line lists at most, the slowest first
-POLES_SHOWN = 6
-
-
-def poles_text(poles, time: str, *, limit: int = POLES_SHOWN) -> str:
-    """``[-0.3, -0.45, -0.6]``; more than ``limit``: the slowest ``limit`` and how many more, down to the fastest."""
-    poles = np.asarray(poles)
-    if poles.size <= limit:
-        return "[" + ", ".join(_pole_text(p) for p in poles) + "]"
-    speed = -poles.real if time == "continuous" else -np.abs(poles)  # the slowest first
-    order = np.argsort(speed, kind="stable")
-    shown = ", ".join(_pole_text(p) for p in poles[order[:limit]])
-    return f"[{shown}, ... {poles.size - limit} more, the fastest {_pole_text(poles[order[-1]])}]"
-
-
-def _pole_text(p: complex) -> str:
-    if abs(p.imag) < 1e-12:
-        return f"{p.real:.4g}"
-    return f"{p.real:.4g}{p.imag:+.4g}j"

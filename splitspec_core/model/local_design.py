@@ -17,13 +17,14 @@ import numpy as np
 
 from .detectability import directions_of
 from .gain_target import beyond_target
-from .gains import LocalGain, design_gain
+from .gains import GainRequest, LocalGain, design_gain
 from .modal import Spectrum, rescale, spectrum
 from .observability import Decomposition, decompose
+from ..scenarios import gain_methods
 from ..scenarios.specs import Scenario
 
-__all__ = ["AgentDesign", "AUTO_COORDINATES", "central_part", "design_agent", "directions_of", "riccati_weights",
-           "scenario_agent",
+__all__ = ["AgentDesign", "AUTO_COORDINATES", "central_part", "design_agent", "directions_of", "gain_request",
+           "noise_weights", "scenario_agent",
            "scenario_spectrum", "whole_placeholder", "with_gain", "working_scale"]
 
 
@@ -83,30 +84,83 @@ class AgentDesign:
 
 
 
-def design_agent(A: np.ndarray, C: np.ndarray, *, time: str, rate: float, method: str = "place",
-                 margin: float = 0.5, K: np.ndarray | None = None, rank_tol: float | None = None,
-                 process_weight: float = 1.0, measurement_weight: float = 1.0, agent_id: int = 0,
-                 spectrum: Spectrum | None = None, unobserved: np.ndarray | None = None,
-                 dec: Decomposition | None = None, scale: np.ndarray | None = None) -> AgentDesign:
+def design_agent(A: np.ndarray, C: np.ndarray, request: GainRequest, *, agent_id: int = 0,
+                 rank_tol: float | None = None, spectrum: Spectrum | None = None,
+                 unobserved: np.ndarray | None = None, dec: Decomposition | None = None,
+                 scale: np.ndarray | None = None) -> AgentDesign:
     """The local, fully distributed part of the design for one agent (``V_i, P_i, K_i``).
 
-    ``spectrum``: the skeleton of ``A`` (:func:`scenario_spectrum`; the designer and every agent process compute
-    the same one); ``scale``: the working coordinates ``x = diag(scale) x_w`` (:func:`working_scale`; None: the
-    user's); ``unobserved``: ``W`` in them, the directions no agent sees (the design's, sent to the agents with
-    their configuration): ``P_i`` then projects on ``V_i ⊖ W``; ``dec``: the decomposition already computed (the
-    designer's).  An explicit ``K`` is the user's, in the user's coordinates.
+    Parameters
+    ----------
+    A, C : arrays
+        ``A`` (n x n) and the agent's ``C_i`` (s_i x n), the user's coordinates.
+    request : GainRequest
+        What the gain is asked (:func:`gain_request` builds it from the scenario; its ``K`` and process covariance
+        already in the working coordinates).
+    agent_id : int
+        The agent's id (its messages name it).
+    rank_tol : float, optional
+        ``design.rank_tol`` (None: auto), when ``dec`` is not given.
+    spectrum : Spectrum, optional
+        The skeleton of ``A`` (:func:`scenario_spectrum`; the designer and every agent process compute the same one).
+    unobserved : (n, w) array, optional
+        ``W`` in the working coordinates, the directions no agent sees (the design's, sent to the agents with their
+        configuration): ``P_i`` then projects on ``V_i ⊖ W``.
+    dec : Decomposition, optional
+        The decomposition already computed (the designer's).
+    scale : (n,) array, optional
+        The working coordinates ``x = diag(scale) x_w`` (:func:`working_scale`; None: the user's).
+
+    Returns
+    -------
+    AgentDesign
+        The agent's decomposition and its gain, which meets ``request.rate`` on its observable part.
     """
     dec = dec if dec is not None else decompose(A, C, rank_tol=rank_tol, spectrum=spectrum,
-                                                free=beyond_target(time, rate, margin), scale=scale)
-    label = f"design.K.{agent_id}" if method == "explicit" else f"agent {agent_id}"
-    if K is not None and scale is not None:
-        K = np.asarray(K, dtype=float) / scale[:, None]  # K_w = D^-1 K
-    gain = design_gain(dec, method=method, time=time, rate=rate, margin=margin, K=K,
-                       process_weight=process_weight, measurement_weight=measurement_weight, label=label)
+                                                free=beyond_target(request.time, request.rate, request.margin),
+                                                scale=scale)
+    gain = design_gain(dec, request)
     if unobserved is not None and unobserved.shape[1]:
         A_w = np.asarray(A, dtype=float) if scale is None else np.asarray(A) * scale[None, :] / scale[:, None]
         dec = dec.without(unobserved, A_w)
     return AgentDesign(id=agent_id, dec=dec, gain=gain, scale=scale)
+
+
+def gain_request(sc: Scenario, agent_id: int, scale: np.ndarray | None, *, method: str | None = None) -> GainRequest:
+    """What agent ``agent_id``'s gain is asked, from the scenario: the one construction the designer and every agent
+    process share.
+
+    Parameters
+    ----------
+    sc : Scenario
+        The scenario.
+    agent_id : int
+        The agent.
+    scale : (n,) array or None
+        The working coordinates ``x = diag(scale) x_w`` (:func:`working_scale`).
+    method : str, optional
+        The local method (default ``design.gains``; a central method's split names one of its ``split`` methods).
+
+    Returns
+    -------
+    GainRequest
+        The method, the rate, the margin, the user's ``K_i`` and the process covariance in the working coordinates
+        (``K_w = D^-1 K``, ``Q_w = D^-1 Q D^-1``), the noise weights (:func:`noise_weights`), ``R_i``.
+    """
+    d, s = sc.design, sc.system
+    k = sc.index_of(agent_id)
+    method = method or d.gains
+    K = None if d.K is None else np.asarray(d.K[k], dtype=float)
+    Qp = s.process_covariance
+    if scale is not None:
+        K = None if K is None else K / scale[:, None]
+        Qp = Qp / np.outer(scale, scale)
+    offsets = np.cumsum((0,) + s.output_sizes)
+    R = np.diag(s.measurement_std[offsets[k]:offsets[k + 1]] ** 2)
+    pw, mw = noise_weights(sc)
+    label = f"design.K.{agent_id}" if gain_methods.method(method).needs_K else f"agent {agent_id}"
+    return GainRequest(method=method, time=sc.time, rate=d.rate, margin=d.margin, K=K, process_weight=pw,
+                       measurement_weight=mw, process_covariance=Qp, measurement_covariance=R, label=label)
 
 
 def whole_placeholder(A: np.ndarray, dec: Decomposition, agent_id: int, unobserved: np.ndarray | None,
@@ -146,13 +200,10 @@ def scenario_agent(sc: Scenario, agent_id: int, *, unobserved: np.ndarray | None
     """Agent ``agent_id``'s local design from the scenario alone (what its process computes; the designer computes
     the same): :func:`design_agent` with the scenario's options, its skeleton and working coordinates, and
     ``unobserved`` (W in the working coordinates, as the design sends it)."""
-    d = sc.design
-    k = sc.index_of(agent_id)
     sp = spectrum if spectrum is not None else scenario_spectrum(sc)
-    pw, mw = riccati_weights(sc)
-    return design_agent(sc.system.A, sc.system.Cs[k], time=sc.time, rate=d.rate, method=d.gains, margin=d.margin,
-                        K=None if d.K is None else d.K[k], rank_tol=d.rank_tol, process_weight=pw,
-                        measurement_weight=mw, agent_id=agent_id, spectrum=sp, scale=working_scale(sc, sp),
+    scale = working_scale(sc, sp)
+    return design_agent(sc.system.A, sc.system.Cs[sc.index_of(agent_id)], gain_request(sc, agent_id, scale),
+                        agent_id=agent_id, rank_tol=sc.design.rank_tol, spectrum=sp, scale=scale,
                         unobserved=unobserved)
 
 
@@ -177,8 +228,9 @@ def working_scale(sc: Scenario, sp: Spectrum) -> np.ndarray | None:
     return sp.d / np.exp(np.mean(np.log(sp.d)))  # a common factor changes nothing: the geometric mean at 1
 
 
-def riccati_weights(sc: Scenario) -> tuple:
-    """``(process weight, measurement weight)``, the identity multiples of the Riccati gains: explicit
+def noise_weights(sc: Scenario) -> tuple:
+    """``(process weight, measurement weight)``, the identity multiples of a weighted method's Riccati equation
+    (``riccati``; :mod:`splitspec_core.scenarios.gain_methods`): explicit
     ``design.riccati``, else the square of the scenario's noise level, else 1.
 
     The level is one number (``System.process_noise_level``, ``System.measurement_noise_level``): a scalar noise
@@ -188,6 +240,6 @@ def riccati_weights(sc: Scenario) -> tuple:
     ratio of the two shapes the gain; the weights stay scalar, as every agent computes its gain alike."""
     d, s = sc.design, sc.system
     p_level, m_level = s.process_noise_level, s.measurement_noise_level
-    pw = d.riccati_process_weight or (p_level**2 if p_level > 0 else 1.0)
-    mw = d.riccati_measurement_weight or (m_level**2 if m_level > 0 else 1.0)
+    pw = d.process_weight or (p_level**2 if p_level > 0 else 1.0)
+    mw = d.measurement_weight or (m_level**2 if m_level > 0 else 1.0)
     return pw, mw

@@ -1,6 +1,8 @@
 """The problem statement: what a scenario file (or ``ss.scenario``) says, checked, and nothing computed from it.
 
-``specs.py`` the frozen :class:`Scenario` and its sections' dataclasses; ``checks.py`` value checks (one-line
+``specs.py`` the frozen :class:`Scenario` and its sections' dataclasses; ``keys.py`` every key of the file
+declared once (kind, default, words, doc line) and ``gain_methods.py`` the words of ``design.gains`` and what each
+needs; ``checks.py`` value checks (one-line
 errors naming the key); ``sections.py`` the parsers of each section, ``design_section.py`` the ``design:``
 section (gains, consensus, g or q), ``network_section.py`` the ``network:``
 section (losses, delays, partitions), ``faults.py`` the kinds of fault (one registered class each: parsing,

@@ -15,44 +15,33 @@ from typing import Any, Mapping
 import numpy as np
 
 from ..errors import DimensionError, ScenarioError
+from . import gain_methods, keys
 
-GAIN_METHODS = ("place", "riccati", "explicit", "optimal")
+#: the words of design.gains: declared once, with what each needs, in gain_methods.py
+GAIN_METHODS = gain_methods.NAMES
+#: the word-valued design keys: ``{key: (the words, the default)}``, from their declaration (keys.py).  The design
+#: section parses them from here (one line naming the key and the words), ``DesignSpec``'s defaults are these (a
+#: test), and docs/how-to/scenario.md lists every word on the key's line (a test).  ``gains`` defaults to
+#: ``optimal`` when the scenario states noise (design_section.py).
+DESIGN_CHOICES = keys.choices(keys.DESIGN)
 # design.consensus: what each agent takes from its neighbours (synthesis/whole_state.py): the paper's split (its
 # unobservable subspace), the whole state, or auto (the noise decides: design.gains optimal)
-CONSENSUS = ("auto", "split", "whole")
-Q_METHODS = ("spectral", "weighted", "two-norm", "mixed")
-WEIGHTINGS = ("uniform", "metropolis")
-TOP_KEYS = ("name", "time", "system", "graphs", "switching", "design", "faults", "run", "positions", "network",
-             "sources")
-NETWORK_KEYS = ("loss", "delay", "deadline", "arcs")
-DELAY_KEYS = ("mean", "jitter")
-NETWORK_ARC_KEYS = ("arc", "loss", "delay")
-SYSTEM_KEYS = ("file", "A", "B", "u", "sample", "C", "x0", "process_noise", "measurement_noise", "states",
-                "outputs")
-GRAPH_KEYS = ("arcs", "undirected")
-SWITCHING_KEYS = ("schedule", "period", "random")
-RANDOM_KEYS = ("graphs", "dwell", "seed")
-DESIGN_KEYS = (
-    "rate", "gains", "K", "g", "g0", "q", "q_method", "q_max", "resilience",
-    "weights", "margin", "rank_tol", "graph_set", "dwell", "riccati", "eigenvalues", "undetectable", "coordinates",
-    "consensus",
-)
-#: the design keys that take one of a few words: ``{key: (the words, the default)}``, declared once.  The design
-#: section parses them from here (one line naming the key and the words), ``DesignSpec``'s defaults are these
-#: (a test), and docs/how-to/scenario.md lists every word on the key's line (a test).  ``gains`` defaults to
-#: ``optimal`` when the scenario states noise (design_section.py).
-DESIGN_CHOICES = {
-    "gains": (GAIN_METHODS, "place"),
-    "consensus": (CONSENSUS, "auto"),
-    "q_method": (Q_METHODS, "spectral"),
-    "weights": (WEIGHTINGS, "uniform"),
-    "graph_set": (("scenario", "all"), "scenario"),
-    "undetectable": (("refuse", "exclude"), "refuse"),
-    "coordinates": (("auto", "given", "balanced"), "auto"),
-    "eigenvalues": (("auto", "dense", "iterative"), "auto"),
-}
-RICCATI_KEYS = ("process_weight", "measurement_weight")
-RUN_KEYS = ("steps", "dt", "seed", "pace", "show")
+CONSENSUS = DESIGN_CHOICES["consensus"][0]
+Q_METHODS = DESIGN_CHOICES["q_method"][0]
+WEIGHTINGS = DESIGN_CHOICES["weights"][0]
+
+# the keys each section accepts, from their declaration (keys.py)
+TOP_KEYS = keys.names(keys.TOP)
+NETWORK_KEYS = keys.names(keys.NETWORK)
+DELAY_KEYS = keys.names(keys.DELAY)
+NETWORK_ARC_KEYS = keys.names(keys.NETWORK_ARC)
+SYSTEM_KEYS = keys.names(keys.SYSTEM)
+GRAPH_KEYS = keys.names(keys.GRAPH)
+SWITCHING_KEYS = keys.names(keys.SWITCHING)
+RANDOM_KEYS = keys.names(keys.RANDOM)
+DESIGN_KEYS = keys.names(keys.DESIGN)
+RICCATI_KEYS = keys.names(keys.RICCATI)
+RUN_KEYS = keys.names(keys.RUN)
 
 # Limits, each with the key(s) it bounds and why (docs/how-to/scenario.md, "Files and limits").
 # Every number (matrix entries, x0, noise levels, rate, g, g0, margin, times, dt, dwell, pace,
@@ -200,6 +189,50 @@ def check_integer(value: Any, key: str, *, minimum: int | None = None) -> int:
     if minimum is not None and v < minimum:
         raise ScenarioError(f"{key} must be >= {minimum}, got {v}")
     return v
+
+
+def read(mapping: Mapping, section: str, name: str, *, default: Any = None) -> Any:
+    """``section.name`` from ``mapping`` as its declaration says (:mod:`~splitspec_core.scenarios.keys`): absent or
+    null, its declared default (or ``default``); a word of its words as is; else a number or an integer as its kind
+    says, checked here with the one-line message naming the key.
+
+    Parameters
+    ----------
+    mapping : Mapping
+        The section as the file holds it.
+    section, name : str
+        ``design`` and ``margin``, for ``design.margin`` (``""``: the file's top level).
+    default : optional
+        Overrides the declared default (``design.gains`` under noise).
+
+    Returns
+    -------
+    Any
+        The value: a float, an int, one of the key's words, or None (absent, no default).
+
+    Raises
+    ------
+    ScenarioError
+        A word outside the key's words, a value of the wrong kind, or below the key's minimum; a required key absent.
+    """
+    decl = next(k for k in keys.SECTIONS[section] if k.name == name)
+    where = keys.dotted(section, name)
+    value = mapping.get(name)
+    if value is None:
+        value = decl.default if default is None else default
+    if value is keys.REQUIRED:
+        raise ScenarioError(f"{where} is missing ({decl.doc})")
+    if value is None or (decl.words and isinstance(value, str) and value in decl.words):
+        return value
+    if decl.kind == "word":
+        words = decl.words
+        listed = " or ".join(words) if len(words) == 2 else "one of " + ", ".join(words)
+        raise ScenarioError(f"{where} must be {listed}, got {value!r}")
+    if decl.kind.startswith("number"):
+        return check_number(value, where)
+    if decl.kind.startswith("integer"):
+        return check_integer(value, where, minimum=decl.minimum)
+    return value
 
 
 def check_matrix(value: Any, key: str, *, vector: bool = False) -> np.ndarray:

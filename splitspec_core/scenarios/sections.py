@@ -15,7 +15,7 @@ from ..errors import ScenarioError
 from .checks import (GRAPH_KEYS, RANDOM_KEYS, RUN_KEYS, SWITCHING_KEYS, SYSTEM_KEYS, TOP_KEYS, MIN_DT, MIN_PACE,
                      MIN_SWITCH_STEPS, check_agent_id, check_arc, check_keys,
                      describe, ids_text, check_integer, check_known_agent, check_matrix, check_names, check_number,
-                     require_map, check_seed, check_shapes, plain)
+                     read, require_map, check_seed, check_shapes, plain)
 from .inputs import parse_inputs
 from .labels import default_state_names
 from .noise import parse_measurement_noise, parse_process_noise
@@ -179,18 +179,17 @@ def _parse_run(raw: Any, time: str, names: tuple = (), live: bool = False) -> Ru
         raw = {}
     rmap = require_map(raw, "run")
     check_keys(rmap, RUN_KEYS, "run")
-    steps = check_integer(rmap.get("steps", 60), "run.steps", minimum=1)
+    steps = read(rmap, "run", "steps")
     dt = None
     if time == "continuous":
-        dt = check_number(rmap.get("dt", 0.01), "run.dt")
+        dt = read(rmap, "run", "dt")
         if dt < MIN_DT:
             raise ScenarioError(f"run.dt must be >= {MIN_DT:g}, got {dt:g}")
     elif "dt" in rmap:
         raise ScenarioError("run.dt is only for continuous time (discrete steps are event times)")
-    seed = check_seed(rmap.get("seed", 0), "run.seed")
-    pace = None
-    if rmap.get("pace") is not None:
-        pace = check_number(rmap["pace"], "run.pace")
+    seed = check_seed(read(rmap, "run", "seed"), "run.seed")
+    pace = read(rmap, "run", "pace")
+    if pace is not None:
         if pace < MIN_PACE:
             raise ScenarioError(f"run.pace must be >= {MIN_PACE:g} event times per second, got {pace:g}")
     return RunSpec(steps, dt, seed, pace, _parse_show(rmap.get("show"), names), "steps" not in rmap and bool(pace or live))
@@ -213,9 +212,7 @@ def parse_scenario(data: Any, *, source: str = "<scenario>", base: Path | None =
     top = require_map(data, "the scenario")
     check_keys(top, TOP_KEYS, "")
     name = str(top.get("name", Path(source).stem))
-    time = top.get("time", "discrete")
-    if time not in ("discrete", "continuous"):
-        raise ScenarioError(f"time must be discrete or continuous, got {describe(time)}")
+    time = read(top, "", "time")
     if "system" not in top:
         raise ScenarioError("system is missing (A and one C_i per agent)")
     system, ids = _parse_system(top["system"], time)

@@ -245,8 +245,8 @@ class DesignSpec:
     rank_tol: float | None = None  # None: auto (observability.DEFAULT_RANK_TOL)
     graph_set: str = "scenario"
     dwell: float | None = None
-    riccati_process_weight: float | None = None
-    riccati_measurement_weight: float | None = None
+    process_weight: float | None = None  # design.riccati.process_weight (None: the noise level, squared, else 1)
+    measurement_weight: float | None = None  # design.riccati.measurement_weight (the same)
     eigenvalues: str = "auto"  # spectral q's radii: auto, dense or iterative (splitspec_core.synthesis.spectral)
     undetectable: str = "refuse"  # refuse | exclude: a mode no agent sees that does not decay (detectability.py)
     coordinates: str = "auto"  # auto | given | balanced: where the estimator's projections are orthogonal (local_design)

@@ -47,6 +47,7 @@ from ..synthesis.designer import SPLIT_BESIDE, design
 from ..synthesis.kalman import per_step_rate, references
 from ..synthesis.verdict import ADAPTIVE, NO_CERTIFIED_RATE
 from ..errors import AssumptionError, DesignError
+from ..scenarios import gain_methods
 from ..synthesis.error_matrix import MAX_NOISE_DIM, predicted_rms
 from ..synthesis.noise_tuning import tune
 from ..synthesis.verdict import rate_certificate
@@ -209,11 +210,12 @@ def steady_start(c: float | None, r: float, e0: float, floor: float, T: int) -> 
 
 def _scenario_row(sc: Scenario, des) -> str:
     """The name of the scenario's own design in :func:`compare`."""
-    if sc.design.gains == "optimal":
-        return f"optimal ({'whole state' if des.consensus == 'whole' else 'split'})"
+    method = gain_methods.method(sc.design.gains)
+    if not method.local:
+        return f"{method.name} ({'whole state' if des.consensus == 'whole' else 'split'})"
     if des.consensus == "whole":
         return f"whole ({sc.design.gains})"
-    return "split (scenario)" if sc.design.gains == "explicit" else f"split {sc.design.gains}"
+    return "split (scenario)" if method.needs_K else f"split {sc.design.gains}"
 
 
 def compare(sc: Scenario, *, seeds, steps: int | None = None, eps: float | None = None) -> CompareResult:
@@ -279,7 +281,8 @@ def compare(sc: Scenario, *, seeds, steps: int | None = None, eps: float | None 
     tuned, notes = None, {}
     if sc.m * sc.n <= TUNE_MAX and own.consensus == "split":  # the split's own search for the noise (~40 designs)
         try:
-            tuned = tune(_variant(sc, "riccati") if sc.design.gains == "optimal" else sc)
+            method = gain_methods.method(sc.design.gains)  # a central method: tune its split's default
+            tuned = tune(sc if method.local else _variant(sc, method.split[0]))
             variants["split tuned"] = tuned.design
         except (DesignError, AssumptionError):
             pass
@@ -351,8 +354,8 @@ def compare(sc: Scenario, *, seeds, steps: int | None = None, eps: float | None 
     if tuned is not None:
         cd = tuned.design.scenario.design
         tuned_json = MappingProxyType({
-            "gains": cd.gains, "process_weight": cd.riccati_process_weight,
-            "measurement_weight": cd.riccati_measurement_weight, "q": tuned.design.q, "g": tuned.design.g,
+            "gains": cd.gains, "process_weight": cd.process_weight,
+            "measurement_weight": cd.measurement_weight, "q": tuned.design.q, "g": tuned.design.g,
             "predicted_rms": tuned.rms, "baseline_predicted_rms": tuned.baseline_rms})
     return CompareResult(
         scenario=sc.name, time=sc.time, seeds=tuple(seeds), steps=int(len(T) - 1), rate=sc.design.rate,

@@ -25,6 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import SplitspecError
+from ..scenarios import gain_methods
 from .conditioning import MARGIN_WARN, TRANSIENT_WARN, conditioning
 from .design_data import Design, cached_analysis
 from .designer import design
@@ -105,11 +106,12 @@ def advice(des: Design) -> tuple:
     if sc.system.has_noise:
         knobs.append(("design.gains: optimal, design.consensus: whole", dict(gains="optimal", consensus="whole",
                                                                              K=None)))
-    if d.margin > 0.1 and d.gains in ("place", "riccati"):
+    method = gain_methods.method(d.gains)
+    if d.margin > 0.1 and method.margin:
         knobs.append(("design.margin: 0.1", dict(margin=0.1)))
     margins = [a.observability_margin for a in conditioning(des).agents
                if a.observability_margin is not None and a.observability_margin < MARGIN_WARN]
-    if margins and d.gains in ("place", "riccati", "optimal"):
+    if margins and not method.needs_K:
         tol = float(f"{10 * max(margins):.1g}")
         if tol < 1:
             knobs.append((f"design.rank_tol: {tol:g}", dict(rank_tol=tol)))

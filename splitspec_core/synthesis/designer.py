@@ -36,11 +36,12 @@ from .approximate import check_full
 from ..errors import AssumptionError, DesignError
 from .design_data import Design
 from .error_matrix import MAX_NOISE_DIM, predicted_rms, remember_predicted
-from ..model.local_design import design_agent, riccati_weights, whole_placeholder, with_gain
+from ..model.local_design import design_agent, gain_request, whole_placeholder, with_gain
 from .prelude import Prelude
 from .sampled_rates import exact_g, sampled_g
 from .verdict import rate_certificate
 from .whole_state import design_whole
+from ..scenarios import gain_methods
 from ..scenarios.specs import Scenario
 
 __all__ = ["design", "scenario_dwell", "highest_rate", "RateReach", "RATE_PROBES"]
@@ -106,7 +107,7 @@ def _dispatch(sc: Scenario, compare_q_methods: bool, workers: int | None) -> Des
     d = sc.design
     if d.consensus == "whole":
         return _design(sc, "whole", compare_q_methods, workers)
-    if d.consensus == "auto" and d.gains == "optimal":
+    if d.consensus == "auto" and not gain_methods.method(d.gains).local:  # a central method: both structures
         return _choose(sc, compare_q_methods, workers)
     return _design(sc, "split", compare_q_methods, workers)
 
@@ -192,7 +193,7 @@ def _best_split(pre: Prelude, compare_q_methods: bool, workers: int | None) -> D
     gains both, the certified one with the smaller predicted steady RMS kept (the first refusal said when neither
     designs)."""
     found, first = [], None
-    for method in ("riccati", "place"):
+    for method in gain_methods.method(pre.sc.design.gains).split:
         try:
             des = _design(pre, "split", compare_q_methods, workers, split_gains=method)
         except (AssumptionError, DesignError) as exc:
@@ -250,7 +251,8 @@ def _predicted_all(des: Design) -> float | None:
 
 def _chosen_text(pick: str, other: str, figures: dict, errors: dict, found: dict) -> str:
     """One line: which consensus subspace ``design.consensus: auto`` chose, and why."""
-    gains = found["split"].agents[0].gain.method if "split" in found and found["split"].agents else "riccati"
+    default = gain_methods.method(found[pick].scenario.design.gains).split[:1] or ("split",)
+    gains = found["split"].agents[0].gain.method if "split" in found and found["split"].agents else default[0]
     name = {"whole": "the whole state", "split": f"the split ({gains} gains)"}
 
     def fig(k):
@@ -280,12 +282,11 @@ def _design(pre: "Prelude | Scenario", structure: str, compare_q_methods: bool, 
                                   "filter it spreads has none for the others): design.consensus: split")
         agents = tuple(whole_placeholder(A, dec, aid, un.W_working, scale) for aid, dec in zip(sc.agent_ids, pre.decs))
     else:
-        pw, mw = riccati_weights(sc)
-        method = (split_gains or "riccati") if d.gains == "optimal" else d.gains  # the split's gains for the noise
+        declared = gain_methods.method(d.gains)
+        # a central method's split: its first split method, or the one _best_split asks for
+        method = d.gains if declared.local else (split_gains or declared.split[0])
         agents = tuple(
-            design_agent(A, C, time=sc.time, rate=d.rate, method=method, margin=d.margin,
-                         K=None if d.K is None else d.K[k], rank_tol=d.rank_tol,
-                         process_weight=pw, measurement_weight=mw, agent_id=aid, unobserved=un.W_working,
+            design_agent(A, C, gain_request(sc, aid, scale, method=method), agent_id=aid, unobserved=un.W_working,
                          dec=pre.decs[k], scale=scale)
             for k, (aid, C) in enumerate(zip(sc.agent_ids, sc.system.Cs))
         )

@@ -27,47 +27,12 @@ import numpy as np
 import scipy.linalg as sla
 
 from ..errors import DesignError
+from ..model.gain_registry import REGULARISATION, regularise  # noqa: F401 - the same rule as the local gains
 from ..model.plant import sampled_model
 from ..scenarios.specs import Scenario
 
 __all__ = ["REGULARISATION", "regularise", "KalmanPredictor", "kalman_predictor", "shifted_predictor",
            "steady_covariance", "spectral_radius", "per_step_rate", "references"]
-
-REGULARISATION = 1e-9
-"""Relative size of the identity added to a singular covariance (see :func:`regularise`)."""
-
-
-def regularise(M: np.ndarray) -> np.ndarray:
-    """A symmetric PSD matrix made positive definite if it is (numerically) singular.
-
-    If the smallest eigenvalue of ``M`` is at most ``1e-12 max(1, |M|_2)``,
-    returns ``M + REGULARISATION max(1, |M|_2) I`` (``REGULARISATION = 1e-9``);
-    otherwise ``M`` unchanged.  Used for noise-free measurements (``R = 0``) and
-    zero (or rank-deficient) process noise, where the Riccati equation has no
-    stabilising solution or its solver needs ``R`` invertible.
-
-    Parameters
-    ----------
-    M : (k, k) array_like
-        A symmetric PSD matrix (symmetrised first).
-
-    Returns
-    -------
-    (k, k) array
-        ``(M + M') / 2``, with the identity term added when it is singular.
-
-    Examples
-    --------
-    >>> regularise(np.zeros((2, 2))).tolist()
-    [[1e-09, 0.0], [0.0, 1e-09]]
-    """
-    M = 0.5 * (np.asarray(M, dtype=float) + np.asarray(M, dtype=float).T)
-    if M.size == 0:
-        return M
-    scale = max(1.0, float(np.linalg.norm(M, 2)))
-    if np.linalg.eigvalsh(M)[0] <= 1e-12 * scale:
-        return M + REGULARISATION * scale * np.eye(M.shape[0])
-    return M
 
 
 @dataclass(frozen=True)

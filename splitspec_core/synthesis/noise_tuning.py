@@ -54,7 +54,7 @@ def tune(sc: Scenario, *, extra: int = 6, ratios=(1e-2, 1e-1, 1.0, 1e1, 1e2)) ->
     Candidates: gains ``place`` and ``riccati`` with process/measurement weights
     ``(r * sigma_p^2, sigma_m^2)`` for each ratio ``r`` (the Kalman choice is
     ``r = 1``; ``sigma_p``, ``sigma_m`` the noise levels of
-    :func:`splitspec_core.model.local_design.riccati_weights`); discrete: ``q`` from the certified one to ``q + extra``;
+    :func:`splitspec_core.model.local_design.noise_weights`); discrete: ``q`` from the certified one to ``q + extra``;
     continuous: ``g`` from the certified one to ``3 g`` (6 values).  The
     baseline is the scenario's own design.  The covariance is that of the
     first graph held constant (a switching scenario is tuned for it).
@@ -97,7 +97,7 @@ def tune(sc: Scenario, *, extra: int = 6, ratios=(1e-2, 1e-1, 1.0, 1e1, 1e2)) ->
         raise DesignError("the adaptive gain cannot be tuned for noise (it has no steady state); give g")
     base = design(sc)
     baseline = _rms_all(base)
-    p_level, m_level = s.process_noise_level, s.measurement_noise_level  # one number each (riccati_weights)
+    p_level, m_level = s.process_noise_level, s.measurement_noise_level  # one number each (noise_weights)
     pw0 = p_level ** 2 if p_level > 0 else 1e-6
     mw0 = m_level ** 2 if m_level > 0 else 1e-6
     gain_options = [("place", None, None)] + [("riccati", r * pw0, mw0) for r in ratios]
@@ -105,7 +105,7 @@ def tune(sc: Scenario, *, extra: int = 6, ratios=(1e-2, 1e-1, 1.0, 1e1, 1e2)) ->
     best = None
     for gains, pw, mw in gain_options:
         d = dataclasses.replace(sc.design, gains=gains, K=None, consensus="split", q="auto" if sc.time == "discrete" else sc.design.q,
-                                riccati_process_weight=pw, riccati_measurement_weight=mw)
+                                process_weight=pw, measurement_weight=mw)
         try:
             des0 = design(dataclasses.replace(sc, design=d))
         except DesignError:

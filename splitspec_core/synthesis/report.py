@@ -25,6 +25,7 @@ from .designer import highest_rate
 from .loss_certificate import loss_certificate
 from ..model.gains import poles_text
 from ..model.graphs import is_doubly_stochastic, perron_vector
+from ..scenarios import gain_methods
 from ..scenarios.labels import heaviest, spread
 from .verdict import NO_CERTIFIED_RATE, rate_certificate  # the verdict, rendered here
 
@@ -634,7 +635,7 @@ def whole_lines(des: Design) -> list:
     out = [f"q = {des.q} exchanges per {per}  (whole-state consensus; the smallest the {r.method} certifies"
            f"{raised}); bound {r.bound:.6g} {'<' if r.certified else '>='} {w.lam_step:.6g} per step for {scope}"]
     out += radius_lines(des.full_radius, "spectral radius of the full error matrix", ".6g")
-    if w.method != "explicit":
+    if not gain_methods.method(w.method).needs_K:  # a centralized filter it spreads, not the user's K_i
         which = "the Kalman predictor" if w.alpha == 1.0 else f"the Riccati design shifted by alpha = {w.alpha:.6g}"
         out.append(f"  the centralized filter it spreads: {which} of the per-step model with the scenario's noise, "
                    f"radius {w.central_radius:.6g}, predicted steady RMS {w.central_rms:.4g}")

@@ -62,6 +62,7 @@ from ..errors import DesignError
 from ..model import steps as st
 from ..model.graphs import perron_vector
 from ..model.plant import output_rows, sampled_model
+from ..scenarios import gain_methods
 from ..scenarios.specs import Scenario
 from .error_matrix import MAX_NOISE_DIM, MAX_RATE_DIM, step_blocks, whole_matrix, whole_noise
 from .mixing import certify, mixing_bound, same_agents
@@ -236,9 +237,10 @@ def design_whole(sc: Scenario, cases, *, rate: float, dwell: float | None, warni
     q_given = None if d.q == "auto" else int(d.q)
     q_cap = min(d.q_max, Q_CAP)
     candidates = []
-    if d.gains == "explicit":
+    whole = gain_methods.method(d.gains).whole  # given, shifted or search (scenarios/gain_methods.py)
+    if whole == "given":
         candidates.append((None, None, None, [np.asarray(K, dtype=float) for K in d.K]))
-    elif d.gains == "riccati":
+    elif whole == "shifted":
         if ref is None:
             raise DesignError(_no_centralized(lam, F, Cs))
         candidates.append((None, lam, ref, whole_gains(sc, ref.L, pi)))
@@ -384,7 +386,7 @@ def agent_gain(des, agent_id: int) -> dict | None:
     ``design.gains: optimal`` whatever consensus it chose), else None (the agent computes its own part of the
     design, :func:`splitspec_core.model.local_design.scenario_agent`): ``{"K": K_i, "consensus": ..., "P": P_i}``
     in the user's coordinates, exactly the floats the simulator holds (``Design.agents``)."""
-    if des.consensus != "whole" and des.scenario.design.gains != "optimal":
+    if des.consensus != "whole" and gain_methods.method(des.scenario.design.gains).local:
         return None
     a = next(a for a in des.agents if a.id == agent_id)
     out = {"K": np.asarray(a.K, dtype=float).tolist(), "consensus": des.consensus}

@@ -30,6 +30,9 @@ pytestmark = pytest.mark.slow
     # noise per state, per agent and per output: the plant process draws what the simulator draws
     ("paper_discrete_switching", {"system": {"process_noise": [0.1, 0.05, 0.0, 0.2],
                                              "measurement_noise": {1: 0.05, 2: [0.1], 3: 0.0}}}),
+    # design.gains: kalman: each agent process designs its gain from the scenario's noise as the designer does
+    ("paper_discrete_switching", {"design": {"gains": "kalman", "K": None},
+                                  "system": {"process_noise": [0.1, 0.05, 0.0, 0.2], "measurement_noise": 0.05}}),
     ("paper_continuous", {"run": {"steps": 150},
                           "system": {"process_noise": [[0.3, 0.1, 0, 0], [0.1, 0.2, 0, 0], [0, 0, 0.25, 0],
                                                        [0, 0, 0, 0]],  # an intensity matrix, singular

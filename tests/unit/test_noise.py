@@ -385,12 +385,12 @@ def test_compare_reports_the_noise_as_given(tmp_path):
     assert scalar["process_noise"] == 0.1 and scalar["measurement_noise"] == 0.0  # numbers stay numbers
 
 
-def test_riccati_weights_from_the_noise_levels():
-    assert local_design.riccati_weights(_scenario(process_noise=0.1, measurement_noise=0.05)) == (0.1 ** 2, 0.05 ** 2)
-    assert local_design.riccati_weights(_scenario()) == (1.0, 1.0)
-    pw, mw = local_design.riccati_weights(_scenario(**UNEQUAL))
+def test_noise_weights_from_the_noise_levels():
+    assert local_design.noise_weights(_scenario(process_noise=0.1, measurement_noise=0.05)) == (0.1 ** 2, 0.05 ** 2)
+    assert local_design.noise_weights(_scenario()) == (1.0, 1.0)
+    pw, mw = local_design.noise_weights(_scenario(**UNEQUAL))
     assert pw == pytest.approx(np.mean(np.square(UNEQUAL["process_noise"])), rel=1e-15)  # the mean variance
     assert mw == pytest.approx(np.mean(np.square([0.5, 0.01, 0.2, 0.05])), rel=1e-15)
     Qc = np.diag([0.1, 0.2, 0.3, 0.4])
-    pw, _ = local_design.riccati_weights(_scenario(time="continuous", process_noise=Qc))
+    pw, _ = local_design.noise_weights(_scenario(time="continuous", process_noise=Qc))
     assert pw == pytest.approx(0.25 ** 2, rel=1e-15)  # the mean intensity, squared as a scalar intensity is

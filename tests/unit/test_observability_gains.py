@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 
 from splitspec_core.errors import AssumptionError
-from splitspec_core.model.gains import design_gain, meets_rate
+from splitspec_core.model.gains import GainRequest, design_gain, meets_rate
 from splitspec_core.model.observability import decompose, unobservable_directions
 
 
@@ -47,7 +47,7 @@ def test_gains_meet_rate_and_keep_V_invariant(time, rate, method):
         [[np.cos(.7), np.sin(.7), 0, 0], [-np.sin(.7), np.cos(.7), 0, 0], [0, 0, 1.1, 0], [0, 0, .3, .9]])
     C = np.array([[1.0, 0, 0, 0], [0, 0, 1.0, 0]])
     dec = decompose(A, C)
-    g = design_gain(dec, method=method, time=time, rate=rate)
+    g = design_gain(dec, GainRequest(method=method, time=time, rate=rate))
     assert meets_rate(g.poles, time, rate)
     full = np.linalg.eigvals(A + g.K @ C)
     # spectrum of A + K C = observable part (assigned) U unobservable part of A
@@ -60,8 +60,8 @@ def test_gains_meet_rate_and_keep_V_invariant(time, rate, method):
 def test_explicit_gain_that_misses_rate_is_rejected():
     dec = decompose(_osc(), np.array([[1.0, 0, 0, 0]]))
     with pytest.raises(AssumptionError, match="do not meet rate"):
-        design_gain(dec, method="explicit", time="continuous", rate=1.0, K=np.array([[-1.0], [0], [0], [0]]),
-                    label="design.K.1")
+        design_gain(dec, GainRequest(method="explicit", time="continuous", rate=1.0,
+                                     K=np.array([[-1.0], [0], [0], [0]]), label="design.K.1"))
 
 
 def test_ackermann_matches_place_poles_or_declines():
@@ -107,8 +107,8 @@ def test_joint_detectability_is_judged_before_explicit_gains(tmp_path, capsys, t
     # the precondition of the test: agent 3's own K_3 misses the rate (Q_3 K_3 = 0 leaves the poles of Abar_3)
     dec3 = decompose(np.asarray(sc.system.A), np.asarray(sc.system.Cs[2]))
     with pytest.raises(AssumptionError, match="design.K.3"):
-        design_gain(dec3, method="explicit", time=time, rate=sc.design.rate, K=np.asarray(sc.design.K[2]),
-                    label="design.K.3")
+        design_gain(dec3, GainRequest(method="explicit", time=time, rate=sc.design.rate,
+                                      K=np.asarray(sc.design.K[2]), label="design.K.3"))
     with pytest.raises(AssumptionError, match=r"\(C, A\) is not jointly detectable: no agent sees x\d.*which does "
                                               r"not decay") as err:
         design(sc)
@@ -219,7 +219,7 @@ def test_close_modes_the_gain_must_move_are_left_to_consensus():
     alone = decompose(A, C)  # no target: the cluster against its own spread
     moved = decompose(A, C, free=target)
     assert alone.n_unobservable == 0 and moved.n_unobservable == 2
-    big = design_gain(alone, method="place", time="continuous", rate=0.2, margin=0.5)
-    small = design_gain(moved, method="place", time="continuous", rate=0.2, margin=0.5)
+    big = design_gain(alone, GainRequest(method="place", time="continuous", rate=0.2, margin=0.5))
+    small = design_gain(moved, GainRequest(method="place", time="continuous", rate=0.2, margin=0.5))
     assert np.linalg.norm(big.K) > 1e5 and np.linalg.norm(small.K) < 1.0
     assert 0.0 < moved.weak < 1e-3  # what it left out, it saw only weakly

@@ -23,6 +23,7 @@ import pytest
 import yaml
 
 from splitspec_orchestrator import cli
+from splitspec_core.scenarios.checks import GAIN_METHODS
 
 ROOT = Path(__file__).resolve().parents[2]
 EXAMPLE = ROOT / "examples" / "paper_discrete.yaml"
@@ -269,7 +270,7 @@ CASES = [
     ("bad-q_method", scenario({"design.q_method": "fastest"}),
      ["design.q_method must be one of spectral, weighted, two-norm, mixed", "'fastest'"]),
     ("bad-gains", scenario({"design.gains": "magic"}),
-     ["design.gains must be one of place, riccati, explicit", "'magic'"]),
+     ["design.gains must be one of " + ", ".join(GAIN_METHODS), "'magic'"]),  # the words: scenarios/gain_methods.py
     ("bad-q", scenario({"design.q": "many"}), ["design.q must be an integer", "'many'"]),
     ("q-for-continuous", scenario({"design.q": 5}, time="continuous"), ["design.q is for discrete time"]),
     ("g-for-discrete", scenario({"design.g": 10}), ["design.g is for continuous time"]),

@@ -1,0 +1,239 @@
+"""The scenario's keys, declared once: for each key of the file's top level, ``system:``, ``graphs:``,
+``switching:``, ``design:`` (and ``design.riccati:``), ``run:`` and ``network:``, its kind, default, allowed words
+and doc line (a fault's keys are its kind's: :mod:`splitspec_core.scenarios.faults` where it exists).
+
+Everything else is derived from these tables: the keys each section accepts (``checks.TOP_KEYS``,
+``SYSTEM_KEYS``, ``DESIGN_KEYS``, ``RUN_KEYS``, ...: an unknown key is one line naming it), the words of the word-valued keys and their
+defaults (``checks.DESIGN_CHOICES``), the reading of a plain number, integer or word with its default and its
+one-line message (:func:`splitspec_core.scenarios.checks.read`), the keywords ``ss.scenario`` routes to each section
+(a test checks its signature against them) and the reference table of ``docs/how-to/scenario.md``
+(:func:`reference_table`; a test fails when the page differs, so a key added here without its doc line on the page
+fails).  Rules that join several keys or depend on ``time`` (``design.rate`` in (0, 1) for discrete time) stay in
+the section parsers, each with its reason.
+
+Kinds: ``number`` (a finite float), ``integer``, ``word`` (one of ``words``), ``number|word`` and ``integer|word``
+(a number, or one of ``words``), ``matrix``, ``per agent`` (``{agent id: ...}``), ``names``, ``noise``,
+``signal``, ``path``, ``map``, ``list``, ``text``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+from . import gain_methods
+
+__all__ = ["Key", "REQUIRED", "TOP", "SYSTEM", "GRAPH", "SWITCHING", "RANDOM", "DESIGN", "RICCATI", "RUN", "NETWORK",
+           "DELAY", "NETWORK_ARC", "SECTIONS", "dotted", "names", "choices", "reference_table"]
+
+
+class _Required:
+    """The default of a key that has none: the section refuses to go without it."""
+
+    def __repr__(self) -> str:
+        return "required"
+
+
+REQUIRED = _Required()
+
+
+@dataclass(frozen=True)
+class Key:
+    """One scenario key: its ``name`` in its section, ``kind`` (module docstring), ``default`` (None: absent, the
+    parser decides; :data:`REQUIRED`: it must be given), the ``words`` it may take, its ``minimum`` (integers) and its
+    one-line ``doc``."""
+
+    name: str
+    kind: str
+    default: Any
+    doc: str
+    words: tuple = ()
+    minimum: int | None = None
+
+
+TOP = (
+    Key("name", "text", None, "the scenario's name (default: the file name)"),
+    Key("time", "word", "discrete", "discrete (x+ = A x + v) or continuous (x' = A x + v)",
+        words=("discrete", "continuous")),
+    Key("system", "map", REQUIRED, "the plant and each agent's outputs (system.*)"),
+    Key("graphs", "map", REQUIRED, "named neighbour graphs, each {arcs, undirected}; self-arcs are implicit"),
+    Key("switching", "map", None, "which graph when (switching.*); default: the first graph forever"),
+    Key("design", "map", REQUIRED, "the rate, the gains and the consensus's certificate (design.*)"),
+    Key("faults", "list", None, "scheduled faults [{at: T, kind: operand}], for simulate and run alike"),
+    Key("run", "map", None, "the run's length, step, seed and pace (run.*)"),
+    Key("positions", "per agent", None, "where run.rrd draws each agent in the topology view: [x, y] per agent"),
+    Key("network", "map", None, "what happens to consensus messages (network.*); default: a perfect network"),
+    Key("sources", "per agent", None, "run only: live sensors instead of a simulated plant (needs run.pace)"),
+)
+
+SYSTEM = (
+    Key("file", "path", None, "a .npz or .mat beside the scenario file; a string where a matrix goes names an array "
+                              "of it"),
+    Key("A", "matrix", REQUIRED, "n x n, finite numbers"),
+    Key("B", "matrix", None, "n x p: known inputs (x+ = A x + B u, x' = A x + B u)"),
+    Key("u", "signal", None, "the input signal: a constant, or {constant, steps, sine}"),
+    Key("sample", "number", None, "time: discrete only: A (and B) are a continuous model sampled with this period "
+                                  "(zero-order hold)"),
+    Key("C", "per agent", REQUIRED, "one s_i x n matrix per agent, keyed by agent id (positive integers)"),
+    Key("x0", "matrix", None, "the initial state (n numbers); default: drawn from the seed"),
+    Key("process_noise", "noise", 0.0, "std of v (discrete) or its intensity (continuous); or n of them, or the "
+                                       "n x n matrix"),
+    Key("measurement_noise", "noise", 0.0, "std of each measurement noise sample; or {agent id: std or [one per "
+                                           "output]}"),
+    Key("states", "names", None, "n state names, in every message, report, plot and record"),
+    Key("outputs", "per agent", None, "names of agent i's outputs (s_i names per agent listed)"),
+)
+
+GRAPH = (
+    Key("arcs", "list", None, "[j, i]: agent i hears agent j"),
+    Key("undirected", "list", None, "[i, j]: shorthand for both arcs"),
+)
+
+SWITCHING = (
+    Key("schedule", "list", None, "pieces [start, graph], the first at 0 (exactly one of schedule or random)"),
+    Key("period", "number", None, "repeat the schedule every period"),
+    Key("random", "map", None, "Poisson switching among graphs with a mean dwell (switching.random.*)"),
+)
+
+RANDOM = (
+    Key("graphs", "list", None, "the graphs it switches among (default: every graph)"),
+    Key("dwell", "number", REQUIRED, "the mean dwell time"),
+    Key("seed", "integer", None, "its own seed (default: a stream of run.seed)"),
+)
+
+DESIGN = (
+    Key("rate", "number", REQUIRED, "lambda: continuous > 0 (exp(-lambda t)); discrete in (0, 1) (lambda^tau)"),
+    Key("gains", "word", gain_methods.DEFAULT, "the gain method (default: optimal when the system states noise, "
+                                               "else place)", words=gain_methods.NAMES),
+    Key("K", "per agent", None, "gains that take the user's K_i (explicit): one n x s_i matrix per agent"),
+    Key("g", "number|word", "auto", "continuous: the consensus gain", words=("auto", "adaptive")),
+    Key("g0", "number", 0.0, "adaptive: the initial g_i"),
+    Key("q", "integer|word", "auto", "discrete, and the whole-state design in continuous time: exchanges per event "
+                                     "time (per run.dt)", words=("auto",), minimum=1),
+    Key("q_method", "word", "spectral", "the certificate q is chosen by",
+        words=("spectral", "weighted", "two-norm", "mixed")),
+    Key("q_max", "integer", 100_000, "search limit for q", minimum=1),
+    Key("resilience", "integer", 0, "1: g or q also certified after any single agent loss", minimum=0),
+    Key("weights", "word", "uniform", "consensus weights: uniform (S = D^-1 Adj') or metropolis (undirected graphs, "
+                                      "doubly stochastic)", words=("uniform", "metropolis")),
+    Key("margin", "number", 0.5, "how far beyond the rate the margin-using gains aim"),
+    Key("rank_tol", "number|word", "auto", "smallest observability margin an agent counts as seen (auto: 1e-3)",
+        words=("auto",)),
+    Key("graph_set", "word", "scenario", "the graphs certified: the scenario's, or every strongly connected graph on "
+                                         "m <= 4 vertices", words=("scenario", "all")),
+    Key("dwell", "number", None, "average dwell time for the continuous switching bound (default: from switching)"),
+    Key("riccati", "map", None, "{process_weight, measurement_weight}: the Riccati weights (default: the noise levels "
+                                "squared, else 1)"),
+    Key("eigenvalues", "word", "auto", "spectral q's radii (iterative: matrix-free ARPACK; auto above 300 unknowns)",
+        words=("auto", "dense", "iterative")),
+    Key("undetectable", "word", "refuse", "a mode no agent sees that does not decay: refused, or left out of the "
+                                          "certificate", words=("refuse", "exclude")),
+    Key("coordinates", "word", "auto", "the coordinates the gains are computed in (auto: balanced when the balancing "
+                                       "scales span more than 100x)", words=("auto", "given", "balanced")),
+    Key("consensus", "word", "auto", "what each agent takes from its neighbours (auto: the split, but for gains: "
+                                     "optimal, which keeps the certified one with the smaller noise)",
+        words=("auto", "split", "whole")),
+)
+
+RICCATI = (
+    Key("process_weight", "number", None, "the process weight, an identity multiple (>= 1e-12)"),
+    Key("measurement_weight", "number", None, "the measurement weight, an identity multiple (>= 1e-12)"),
+)
+
+RUN = (
+    Key("steps", "integer", 60, "event times (discrete) or number of dt steps (continuous)", minimum=1),
+    Key("dt", "number", 0.01, "continuous only: the step"),
+    Key("seed", "integer", 0, "every random draw's seed (0 .. 2**63 - 1)"),
+    Key("pace", "number", None, "run only: event times per second (default unpaced)"),
+    Key("show", "names", None, "the states the default views show: names or patterns"),
+)
+
+NETWORK = (
+    Key("loss", "number", 0.0, "probability that one consensus message does not count, in [0, 1)"),
+    Key("delay", "map", None, "{mean, jitter}: seconds each message is held in run (network.delay.*)"),
+    Key("deadline", "number", None, "seconds a sub-round waits for its neighbours, then goes on without the missing "
+                                    "ones"),
+    Key("arcs", "list", None, "per-arc overrides [{arc: [j, i], loss, delay}] (network.arcs[k].*)"),
+)
+
+DELAY = (
+    Key("mean", "number", 0.0, "seconds added to every message"),
+    Key("jitter", "number", 0.0, "uniform spread around the mean (never negative in total)"),
+)
+
+NETWORK_ARC = (
+    Key("arc", "list", REQUIRED, "[j, i], an arc of some graph"),
+    Key("loss", "number", None, "this arc's loss probability"),
+    Key("delay", "map", None, "this arc's {mean, jitter}"),
+)
+
+#: ``{section: its keys}``: the sections whose keys are declared here ("" the file's top level)
+SECTIONS = {"": TOP, "system": SYSTEM, "graphs.<name>": GRAPH, "switching": SWITCHING, "switching.random": RANDOM,
+            "design": DESIGN, "design.riccati": RICCATI, "run": RUN, "network": NETWORK, "network.delay": DELAY,
+            "network.arcs[k]": NETWORK_ARC}
+
+
+def dotted(section: str, name: str) -> str:
+    """``design.rate``; a top-level key by its name alone.
+
+    Parameters
+    ----------
+    section, name : str
+        A key of :data:`SECTIONS`, and the key's name in it.
+
+    Returns
+    -------
+    str
+    """
+    return f"{section}.{name}" if section else name
+
+
+def names(keys: tuple) -> tuple:
+    """The names of ``keys``, in declaration order.
+
+    Parameters
+    ----------
+    keys : tuple of Key
+        A section's declaration.
+
+    Returns
+    -------
+    tuple of str
+    """
+    return tuple(k.name for k in keys)
+
+
+def choices(keys: tuple) -> dict:
+    """``{name: (words, default)}`` of the word-valued keys of ``keys``.
+
+    Parameters
+    ----------
+    keys : tuple of Key
+        A section's declaration.
+
+    Returns
+    -------
+    dict
+    """
+    return {k.name: (k.words, k.default) for k in keys if k.kind == "word"}
+
+
+def reference_table() -> str:
+    """The reference table of every declared key (``docs/how-to/scenario.md``, "Every key"): one row per key with its
+    kind, default, words and doc line, and one per gain method with its doc line.
+
+    Returns
+    -------
+    str
+        Markdown, one line per row, ending with a newline.
+    """
+    rows = ["| key | kind | default | values | what |", "|---|---|---|---|---|"]
+    for section, keys in SECTIONS.items():
+        for k in keys:
+            default = "" if k.default is None else f"`{k.default!r}`".replace("'", "")
+            words = " \\| ".join(f"`{w}`" for w in k.words)
+            rows.append(f"| `{dotted(section, k.name)}` | {k.kind.replace('|', ' or ')} | {default} | {words} | "
+                        f"{k.doc} |")
+            if section == "design" and k.name == "gains":  # each method's own line (scenarios/gain_methods.py)
+                rows += [f"| `design.gains: {g.name}` | | | | {g.doc} |" for g in gain_methods.METHODS.values()]
+    return "\n".join(rows) + "\n"
