@@ -14,7 +14,7 @@ from typing import Any
 from ..errors import ScenarioError
 from .checks import (GRAPH_KEYS, RANDOM_KEYS, RUN_KEYS, SWITCHING_KEYS, SYSTEM_KEYS, TOP_KEYS, MIN_DT, MIN_PACE,
                      MIN_SWITCH_STEPS, check_agent_id, check_arc, check_keys,
-                     describe, ids_text, check_integer, check_known_agent, check_matrix, check_names, check_number,
+                     describe, ids_text, check_known_agent, check_matrix, check_names, check_number,
                      read, require_map, check_seed, check_shapes, plain)
 from .inputs import parse_inputs
 from .labels import default_state_names
