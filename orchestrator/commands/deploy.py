@@ -116,7 +116,7 @@ def _network_line(sc, out) -> None:
 
     from splitspec_core.model.impairment import CAUSES
 
-    if not sc.network.impaired and not any(f.action == "partition" for f in sc.faults):
+    if not sc.network.impaired and not any(f.drops_messages for f in sc.faults):
         return
     try:
         with np.load(out / "trajectory.npz") as z:

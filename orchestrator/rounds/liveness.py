@@ -13,6 +13,8 @@ from __future__ import annotations
 
 import signal
 
+from splitspec_core.scenarios.faults import Kill
+
 from .actions import Control, Event, Log, Signal, Spawn
 
 __all__ = ["Liveness", "STALL_SECONDS", "PROBE_SECONDS", "PROBE_ANSWER_SECONDS"]
@@ -72,17 +74,19 @@ class Liveness:
         """``(role, ident)`` of the child ``pid`` that exited, or ``(None, None)``: not one of ours."""
         return self.children.pop(int(pid), (None, None))
 
-    def signal_agent(self, aid: int, action: str, info: dict | None) -> tuple:
-        """Kill or freeze (``action``) agent ``aid`` whose granted process is ``info`` ({"pid", "host"} or None):
-        ``(how, actions)``; a process frozen on this host is killed at the end."""
-        sig = signal.SIGKILL if action == "kill" else signal.SIGSTOP
+    def signal_agent(self, aid: int, kind: type, info: dict | None) -> tuple:
+        """Signal agent ``aid`` as the fault kind ``kind`` says (:attr:`~splitspec_core.scenarios.faults.Fault.signal`:
+        a kill, a freeze), its granted process being ``info`` ({"pid", "host"} or None): ``(how, actions)``; a
+        process frozen on this host is killed at the end."""
+        sig = getattr(signal, kind.signal)
         if info and info["host"] == self.host:
-            if action == "freeze":
+            if kind.keeps_process:
                 self.stopped.add(int(info["pid"]))
             return f"{signal.Signals(sig).name} to pid {info['pid']}", [Signal(int(info["pid"]), int(sig))]
         # another host (or unknown pid): the agent signals itself
         where = info["host"] if info else "an unknown host"
-        return f"asked agent {aid} on {where} to {action} itself", [Control(f"{action} agent/{aid}")]
+        return (f"asked agent {aid} on {where} to {kind.action} itself",
+                [Control(f"{kind.action} agent/{aid}")])
 
     def restart_agent(self, aid: int, old_pid: int | None, info: dict | None, tau: int, t: float) -> list:
         """The scenario restarts agent ``aid`` at event time ``tau``: spawn a new process (``old_pid``: the old
@@ -91,7 +95,7 @@ class Liveness:
         if old_pid is not None:
             # the old process still holds its token (frozen, or its death not yet seen): kill it; its claim is
             # superseded now, so its token can neither block nor be confused with the new one
-            how, acts = self.signal_agent(aid, "kill", info)
+            how, acts = self.signal_agent(aid, Kill, info)
             self.stopped.discard(old_pid)
             out += acts + [Log("info", f"restart of agent {aid}: killed the old process ({how})")]
         self.restart = (aid, None)

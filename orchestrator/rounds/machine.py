@@ -478,7 +478,7 @@ class RoundMachine:
                     out.append(Event("fault_skipped", t, {"action": f.action, "id": f.agent,
                                                           "reason": "agent not alive"}))
                     continue
-                how, acts = self.live.signal_agent(f.agent, f.action, self.procs.get(f.agent))
+                how, acts = self.live.signal_agent(f.agent, type(f), self.procs.get(f.agent))
                 out += acts
                 out += self._lose(f.agent, f"{f.loss_word} by the scenario ({how})")
             elif f.runtime == RESTART:

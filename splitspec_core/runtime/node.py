@@ -31,6 +31,7 @@ import time
 import zenoh
 
 from ..errors import NetworkError
+from ..scenarios.faults import KINDS, SIGNAL
 from .bus import (CHILD_ENV, LIVELINESS_DELETE, IdentityRefused, Inbox, hosted_runs, lease_ms_for, open_session,
                   query_bytes, socket_address, unreachable_reason, zenoh_config)
 
@@ -345,11 +346,13 @@ class NodeShell:
                 if cmd == "stop":
                     self.log.info("%s: stop from the orchestrator", name)
                     break
-                action, _, target = cmd.partition(" ")
-                if action in ("kill", "freeze") and target == me:
-                    # a scenario fault for a process the orchestrator cannot signal (another host)
-                    self.log.warning("%s: %s requested by the orchestrator", name, action)
-                    os.kill(os.getpid(), signal.SIGKILL if action == "kill" else signal.SIGSTOP)
+                word, _, target = cmd.partition(" ")
+                kind = KINDS.get(word)
+                if kind is not None and kind.runtime == SIGNAL and target == me:
+                    # a scenario fault for a process the orchestrator cannot signal (another host): its kind says
+                    # which signal
+                    self.log.warning("%s: %s requested by the orchestrator", name, word)
+                    os.kill(os.getpid(), getattr(signal, kind.signal))
             elif channel == "orchestrator":
                 if payload == LIVELINESS_DELETE:
                     import sys

@@ -71,6 +71,11 @@ class Fault:
     mark_style: ClassVar[tuple | None] = None  # (legend, marker, colour) of a mark kind of its own
     loss_word: ClassVar[str | None] = None  # why the agent is lost, on the plots (``3 killed``)
     verdict: ClassVar[bool] = False  # the runtime says the survivors' verdict after it
+    #: it stops consensus messages the same way for every seed (the simulator then steps message by message)
+    drops_messages: ClassVar[bool] = False
+    #: a ``SIGNAL`` kind's OS signal (``SIGKILL``), and whether the process stays (stopped) after it
+    signal: ClassVar[str | None] = None
+    keeps_process: ClassVar[bool] = False
 
     def __post_init__(self):
         if KINDS.get(self.action) is not type(self):
@@ -138,6 +143,8 @@ def register(cls: type) -> type:
     if cls.event is None or (cls.runtime in (SIGNAL, RESTART) and "agent" not in cls.__dataclass_fields__):
         raise ValueError(f"fault kind {cls.__name__} needs an event, and an agent when the runtime signals or "
                          "restarts it")
+    if cls.runtime == SIGNAL and cls.signal not in ("SIGKILL", "SIGSTOP"):
+        raise ValueError(f"fault kind {cls.__name__} signals its agent: its signal must be SIGKILL or SIGSTOP")
     for word in (cls.action, *cls.aliases):
         if word in _WORDS:
             raise ValueError(f"fault action {word!r} is registered twice")
@@ -263,6 +270,7 @@ class Kill(_AgentFault):
 
     action = "kill"
     ends_with, runtime, event, mark, loss_word = "restart", SIGNAL, "agent_lost", "lost", "killed"
+    signal = "SIGKILL"
 
     def apply(self, net):
         i = net.ids.index(self.agent)
@@ -288,6 +296,7 @@ class Freeze(Kill):
     """``freeze: I`` (``hang``, its older spelling): as a kill in the simulator; the runtime sends SIGSTOP."""
 
     action, aliases, loss_word = "freeze", ("hang",), "frozen"
+    signal, keeps_process = "SIGSTOP", True
 
 
 @dataclass(frozen=True)
@@ -362,6 +371,7 @@ class Partition(Fault):
 
     groups: tuple = ()
     action, ends_with, event, mark = "partition", "heal", "partition", "partition"
+    drops_messages = True
 
     @classmethod
     def parse(cls, value, fmap, key, ctx):

@@ -318,7 +318,7 @@ def _batch(des: Design, seeds: tuple, *, steps, noise, trajectories) -> tuple:
         g = np.full((N, T, m), np.nan)  # g_i(t) per seed (the row schema's g)
         rounds = {c.name: empty(c, T, m, n) for c in REPORTED if c.reported == "round"}  # the same for every seed
         lost_rows: list = []
-    impaired = any(f.action == "partition" for f in sc.faults)  # the only loss that is the same for every seed
+    impaired = any(f.drops_messages for f in sc.faults)  # the only losses that are the same for every seed
     exchanges = 1 if est.continuous else int(des.q)
     weights = NetworkWeights(est, sc)
 

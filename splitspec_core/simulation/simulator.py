@@ -664,7 +664,7 @@ def simulate(des: Design, *, seed: int | None = None, steps: int | None = None, 
     # a misbehaving network (impairment.py): messages that do not count, drawn (or replayed from a run's record)
     imp = Impairment(sc.network, seed) if sc.network.impaired and lost is None else None
     replay = _replay_index(lost) if lost is not None else None
-    impaired = imp is not None or replay is not None or any(f.action == "partition" for f in sc.faults)
+    impaired = imp is not None or replay is not None or any(f.drops_messages for f in sc.faults)
     exchanges = 1 if est.continuous else int(des.q)  # the whole-state design: q in both times
     lost_rows: list = []
     ys = np.zeros((T, sum(np.shape(C)[0] for C in sc.system.Cs))) if keep_y and measurements is None else None
@@ -821,7 +821,7 @@ def simulate_exact(des: Design, *, seed: int | None = None, steps: int | None = 
         raise ScenarioError("the exact ODE is the split's continuous estimator (eq. split_continuous_observer); the "
                             "whole-state design runs on the sampled model, q exchanges per run.dt: simulate without "
                             "--exact")
-    if sc.network.impaired or any(f.action == "partition" for f in sc.faults):
+    if sc.network.impaired or any(f.drops_messages for f in sc.faults):
         raise ScenarioError("the exact ODE has no messages to lose: it cannot model network: or partition faults "
                             "(simulate without --exact)")
     sensors = sorted({f.action for f in sc.faults if f.runtime == PLANT})
