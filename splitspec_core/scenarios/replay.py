@@ -90,6 +90,14 @@ def faults_from_events(events: list, sc: Scenario, *, source: str = "events") ->
     ------
     ScenarioError
         An event has no valid non-negative integer ``tau``, or its kind rejects its fields.
+
+    Examples
+    --------
+    >>> import splitspec_core as ss
+    >>> sc = ss.load_scenario("examples/paper_discrete.yaml")
+    >>> events = [{"event": "agent_lost", "id": 2, "tau": 5}, {"event": "agent_rejoined", "id": 2, "tau": 9}]
+    >>> faults_from_events(events, sc)
+    (Kill(at=5.0, agent=2), Restart(at=9.0, agent=2))
     """
     dt = sc.run.dt if sc.time == "continuous" else 1.0
     faults = []
