@@ -153,7 +153,7 @@ class Keys:
         Parameters
         ----------
         i : int or str
-            The agent's id (or ``*`` for every agent).
+            The agent's id.
 
         Returns
         -------
@@ -188,7 +188,7 @@ class Keys:
         Parameters
         ----------
         i : int or str
-            The agent's id (or ``*`` for every agent).
+            The agent's id.
 
         Returns
         -------

@@ -897,8 +897,8 @@ def simulate(des: Design, *, seed: int | None = None, steps: int | None = None, 
     Returns
     -------
     Trajectory
-        ``T = steps + 1`` rows: ``x(k)`` and ``x_i(k)`` for ``k = 0 .. steps``, the network's columns, the
-        consensus messages that did not count.
+        ``T = steps + 1`` rows: ``x(k)`` and ``x_i(k)`` for ``k = 0 .. steps``, who was alive, the active
+        graph, the reported columns (``g``, ``messages_used``) and the consensus messages that did not count.
 
     Raises
     ------
