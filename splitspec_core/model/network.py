@@ -31,7 +31,26 @@ __all__ = ["Plan", "make_plan", "active_arcs", "consensus_rows", "fault_schedule
 
 
 def fault_step(at: float, dt: float) -> int:
-    """Step index at which a fault at time ``at`` takes effect."""
+    """Step index at which a fault at time ``at`` takes effect.
+
+    Parameters
+    ----------
+    at : float
+        The fault's time (seconds; event times in discrete time).
+    dt : float
+        The step (1 in discrete time).
+
+    Returns
+    -------
+    int
+        ``ceil(at / dt)``, with a tolerance of 1e-9 steps so that ``at`` a multiple of ``dt`` up to
+        round-off maps to that step.
+
+    Examples
+    --------
+    >>> fault_step(0.3, 0.1), fault_step(0.31, 0.1), fault_step(5.0, 1.0)
+    (3, 4, 5)
+    """
     return int(math.ceil(at / dt - 1e-9))
 
 
@@ -59,10 +78,28 @@ class Plan:
     signal: SwitchingSignal | None = None
 
     def times(self) -> np.ndarray:
+        """The times of the plan's steps, ``k dt`` for ``k = 0 .. steps``.
+
+        Returns
+        -------
+        (steps + 1,) ndarray
+            The times, in seconds (event times in discrete time).
+        """
         return np.arange(self.steps + 1) * self.dt
 
     def graph_at(self, k: int) -> int:
-        """Active graph index at step ``k`` (non-decreasing ``k`` when sampled lazily)."""
+        """Active graph index at step ``k`` (non-decreasing ``k`` when sampled lazily).
+
+        Parameters
+        ----------
+        k : int
+            The step.
+
+        Returns
+        -------
+        int
+            The index of the active graph in the scenario's graph order.
+        """
         return int(self.graph_seq[k]) if self.graph_seq is not None else self.signal.at(k)
 
 
@@ -79,6 +116,32 @@ def make_plan(sc: Scenario, seed: int, steps: int | None = None, *, sequence: bo
     ``sequence=False``: no per-step array (O(1) memory whatever ``steps``); the
     graph of each step comes from :meth:`Plan.graph_at`, drawn exactly as the
     array would be.
+
+    Parameters
+    ----------
+    sc : Scenario
+        The scenario (its switching, graphs, faults and time).
+    seed : int
+        The run's seed: a random switching signal draws from its ``switching`` stream, unless
+        ``switching.seed`` is set.
+    steps : int or None, optional
+        The number of steps; None (default): ``run.steps``.
+    sequence : bool, optional
+        True (default): sample the graph of every step into ``graph_seq``; False: sample lazily.
+
+    Returns
+    -------
+    Plan
+        The run's steps, ``dt``, graph sequence or signal, and fault schedule (faults after
+        ``steps`` left out).
+
+    Examples
+    --------
+    >>> import splitspec_core as ss
+    >>> sc = ss.load_scenario("examples/paper_discrete.yaml")
+    >>> plan = make_plan(sc, 0, 5)
+    >>> plan.graph_seq.tolist(), plan.dt, plan.faults
+    ([0, 0, 0, 0, 0, 0], 1.0, {})
     """
     steps = sc.run.steps if steps is None else steps
     dt = sc.run.dt if sc.time == "continuous" else 1.0
@@ -122,6 +185,20 @@ def active_arcs(sc: Scenario, graph_index: int, dropped=frozenset()) -> tuple:
 
     With Metropolis weights (undirected graphs) a dropped arc is a failed link:
     both directions go.
+
+    Parameters
+    ----------
+    sc : Scenario
+        The scenario (its graphs and ``design.weights``).
+    graph_index : int
+        The graph, by index in the scenario's graph order.
+    dropped : collection of (int, int), optional
+        Dropped arcs ``(j, i)`` by agent id (default: none).
+
+    Returns
+    -------
+    tuple of (int, int)
+        The remaining arcs ``(j, i)`` by agent id, in the graph's order.
     """
     if sc.design.weights == "metropolis":
         dropped = set(dropped) | {(i, j) for j, i in dropped}
@@ -134,6 +211,30 @@ def consensus_rows(sc: Scenario, graph_index: int, alive_ids, dropped=frozenset(
     The active graph minus the dropped arcs, restricted to ``alive_ids``;
     weights are row i of ``S`` of that restricted graph (uniform ``1/m_i`` or
     Metropolis).  Neighbours are listed self first, then by position.
+
+    Parameters
+    ----------
+    sc : Scenario
+        The scenario (its agents, graphs and ``design.weights``).
+    graph_index : int
+        The active graph, by index in the scenario's graph order.
+    alive_ids : iterable of int
+        The ids of the agents taking part.
+    dropped : collection of (int, int), optional
+        Dropped arcs ``(j, i)`` by agent id (default: none).
+
+    Returns
+    -------
+    dict
+        ``{i: (neighbour ids, weights)}``, both tuples, for every alive agent id ``i`` in agent
+        order; empty when no agent is alive.
+
+    Examples
+    --------
+    >>> import splitspec_core as ss
+    >>> sc = ss.load_scenario("examples/paper_discrete.yaml")
+    >>> consensus_rows(sc, 0, [2, 3])
+    {2: ((2, 3), (0.5, 0.5)), 3: ((3, 2), (0.5, 0.5))}
     """
     alive_ids = tuple(a for a in sc.agent_ids if a in set(alive_ids))
     if not alive_ids:
@@ -166,14 +267,36 @@ class NetworkState:
         self.sensors: dict = {}  # position -> (fault, its memory): a sensor fault in force (faults.Fault.measure)
 
     def lose(self, i: int) -> bool:
-        """Agent at position ``i`` stops taking part; False if it was not alive."""
+        """Agent at position ``i`` stops taking part; False if it was not alive.
+
+        Parameters
+        ----------
+        i : int
+            The agent's position (0-based).
+
+        Returns
+        -------
+        bool
+            True if the agent was alive (and is now lost), False if it was already lost.
+        """
         if not self.alive[i]:
             return False
         self.alive[i] = False
         return True
 
     def rejoin(self, i: int) -> int | None:
-        """Agent at position ``i`` rejoins with a fresh estimate; its new incarnation (None if alive)."""
+        """Agent at position ``i`` rejoins with a fresh estimate; its new incarnation (None if alive).
+
+        Parameters
+        ----------
+        i : int
+            The agent's position (0-based).
+
+        Returns
+        -------
+        int or None
+            The agent's new incarnation (previous + 1); None if it was alive (nothing changes).
+        """
         if self.alive[i]:
             return None
         self.incarnation[i] += 1
@@ -225,15 +348,60 @@ class NetworkState:
         return y
 
     def alive_ids(self) -> list:
+        """The ids of the agents taking part, in agent order.
+
+        Returns
+        -------
+        list of int
+            The alive agents' ids.
+        """
         return [a for a, ok in zip(self.ids, self.alive) if ok]
 
     def key(self, graph_index: int) -> tuple:
-        """Hashable description of the active network (for caching weights)."""
+        """Hashable description of the active network (for caching weights).
+
+        Parameters
+        ----------
+        graph_index : int
+            The active graph's index.
+
+        Returns
+        -------
+        tuple
+            ``(graph_index, alive mask bytes, dropped arcs, partition groups)``.
+        """
         return (int(graph_index), self.alive.tobytes(), frozenset(self.dropped), self.groups)
 
     def rows(self, sc: Scenario, graph_index: int) -> dict:
+        """:func:`consensus_rows` of the active network: alive agents, dropped arcs removed.
+
+        Parameters
+        ----------
+        sc : Scenario
+            The scenario this state was made for.
+        graph_index : int
+            The active graph's index.
+
+        Returns
+        -------
+        dict
+            ``{i: (neighbour ids, weights)}`` for every alive agent id ``i``.
+        """
         return consensus_rows(sc, graph_index, self.alive_ids(), frozenset(self.dropped))
 
     def arcs(self, sc: Scenario, graph_index: int) -> tuple:
-        """Arcs of the active graph that still exist (see :func:`active_arcs`)."""
+        """Arcs of the active graph that still exist (see :func:`active_arcs`).
+
+        Parameters
+        ----------
+        sc : Scenario
+            The scenario this state was made for.
+        graph_index : int
+            The active graph's index.
+
+        Returns
+        -------
+        tuple of (int, int)
+            The arcs ``(j, i)`` by agent id, dead agents' arcs included.
+        """
         return active_arcs(sc, graph_index, self.dropped)

@@ -167,6 +167,11 @@ def report(**values) -> dict:
     ------
     KeyError
         A name that is not a reported column.
+
+    Examples
+    --------
+    >>> report(g=0.5)
+    {'g': 0.5, 'messages_used': -1}
     """
     unknown = set(values) - {c.name for c in REPORTED}
     if unknown:
@@ -237,6 +242,12 @@ def present(c: Column, values: np.ndarray) -> np.ndarray:
     -------
     numpy.ndarray of bool
         True where a value is not the fill (NaN is no value either), same shape as ``values``.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> present(column("messages_used"), np.array([2, -1, 0]))
+    array([ True, False,  True])
     """
     values = np.asarray(values)
     if values.dtype.kind == "f":

@@ -66,7 +66,26 @@ __all__ = [
 
 
 def weighted_average(states: Sequence[np.ndarray], weights: Sequence[float]) -> np.ndarray:
-    """``sum_j w_ij z_j`` over agent i's neighbours (itself included)."""
+    """``sum_j w_ij z_j`` over agent i's neighbours (itself included).
+
+    Parameters
+    ----------
+    states : sequence of (n,) arrays
+        The states ``z_j`` of the neighbours ``j in N_i``, agent i included.
+    weights : sequence of float
+        The weights ``w_ij``, one per state, in the same order.
+
+    Returns
+    -------
+    (n,) ndarray
+        ``sum_j w_ij z_j`` (float).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> weighted_average([np.array([1.0, 0.0]), np.array([3.0, 2.0])], [0.5, 0.5])
+    array([2., 1.])
+    """
     acc = np.zeros_like(states[0], dtype=float)
     for w, z in zip(weights, states):
         acc = acc + w * z
@@ -80,27 +99,106 @@ def consensus_subround(z_i: np.ndarray, P_i: np.ndarray, neighbour_states: Seque
     ``z_i(k) = (I - P_i) z_i(k-1) + P_i sum_j w_ij z_j(k-1)``, written as
     ``z_i + P_i (avg - z_i)``.  ``neighbour_states`` and ``weights`` cover
     every ``j in N_i``, agent i included.
+
+    Parameters
+    ----------
+    z_i : (n,) ndarray
+        Agent i's state ``z_i(k-1)`` before the sub-round.
+    P_i : (n, n) ndarray
+        The projection ``P_i = V_i V_i'`` onto agent i's unobservable space.
+    neighbour_states : sequence of (n,) arrays
+        The states ``z_j(k-1)`` of every ``j in N_i``, agent i included.
+    weights : sequence of float
+        The weights ``w_ij``, in the order of ``neighbour_states``.
+
+    Returns
+    -------
+    (n,) ndarray
+        ``z_i(k)``.
+
+    Examples
+    --------
+    Only the directions of ``P_i`` move towards the average:
+
+    >>> import numpy as np
+    >>> P = np.diag([1.0, 0.0])
+    >>> consensus_subround(np.array([1.0, 1.0]), P, [np.array([1.0, 1.0]), np.array([3.0, 5.0])], [0.5, 0.5])
+    array([2., 1.])
     """
     avg = weighted_average(neighbour_states, weights)
     return z_i + P_i @ (avg - z_i)
 
 
 def known_input(B: np.ndarray | None, u: np.ndarray | None) -> np.ndarray | None:
-    """``B u(tau)``: what every update adds for the known inputs, as the plant does (None: no inputs)."""
+    """``B u(tau)``: what every update adds for the known inputs, as the plant does (None: no inputs).
+
+    Parameters
+    ----------
+    B : (n, r) ndarray or None
+        The input matrix ``B``; None when the system has no inputs.
+    u : (r,) ndarray or None
+        The input ``u(tau)``; None when the system has no inputs.
+
+    Returns
+    -------
+    (n,) ndarray or None
+        ``B u(tau)``; None when ``B`` or ``u`` is None.
+    """
     return None if B is None or u is None else B @ u
 
 
 def measurement_update(z_q: np.ndarray, F_i: np.ndarray, K_i: np.ndarray, y_i: np.ndarray,
                        bu: np.ndarray | None = None) -> np.ndarray:
     """Eq. (split-discrete-est1): ``x_i(tau+1) = (A + K_i C_i) z_i(q) - K_i y_i(tau) [+ B u(tau)]``,
-    ``F_i = A + K_i C_i``; ``bu`` the known input's ``B u(tau)`` (None: no inputs)."""
+    ``F_i = A + K_i C_i``; ``bu`` the known input's ``B u(tau)`` (None: no inputs).
+
+    Parameters
+    ----------
+    z_q : (n,) ndarray
+        ``z_i(q)``, agent i's state after the ``q`` consensus sub-rounds.
+    F_i : (n, n) ndarray
+        ``A + K_i C_i``.
+    K_i : (n, s_i) ndarray
+        Agent i's gain ``K_i``.
+    y_i : (s_i,) ndarray
+        Agent i's measurement ``y_i(tau)``.
+    bu : (n,) ndarray or None, optional
+        The known input's ``B u(tau)``; None (default): no inputs, nothing added.
+
+    Returns
+    -------
+    (n,) ndarray
+        ``x_i(tau+1)``.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> A, K, C = np.array([[1.0, 1.0], [0.0, 1.0]]), np.array([[-0.5], [-0.25]]), np.array([[1.0, 0.0]])
+    >>> measurement_update(np.array([1.0, 2.0]), A + K @ C, K, np.array([2.0]))
+    array([3.5 , 2.25])
+    """
     x = F_i @ z_q - K_i @ y_i
     return x if bu is None else x + bu
 
 
 def prediction_update(z_q: np.ndarray, A: np.ndarray, bu: np.ndarray | None = None) -> np.ndarray:
     """No measurement at ``tau``: ``x_i(tau+1) = A z_i(q) [+ B u(tau)]`` (eq. split-discrete-est1 without its
-    innovation)."""
+    innovation).
+
+    Parameters
+    ----------
+    z_q : (n,) ndarray
+        ``z_i(q)``, agent i's state after the ``q`` consensus sub-rounds.
+    A : (n, n) ndarray
+        The system matrix ``A`` (``E = exp(A dt)`` on a sampled model).
+    bu : (n,) ndarray or None, optional
+        The known input's ``B u(tau)``; None (default): no inputs, nothing added.
+
+    Returns
+    -------
+    (n,) ndarray
+        ``x_i(tau+1)``.
+    """
     x = A @ z_q
     return x if bu is None else x + bu
 
@@ -110,7 +208,38 @@ def sampled_step(x_i: np.ndarray, E: np.ndarray, D: np.ndarray, K_i: np.ndarray,
                  weights: Sequence[float], bu: np.ndarray | None = None) -> np.ndarray:
     """One sampled-data step of eq. (split_continuous_observer) (see the module docstring); ``y_i`` None: no
     measurement this step, the innovation term ``K_i (C_i x_i - y_i)`` is left out (prediction and consensus);
-    ``bu``: the known input's ``B u(k)``, held over the step (None: no inputs)."""
+    ``bu``: the known input's ``B u(k)``, held over the step (None: no inputs).
+
+    Parameters
+    ----------
+    x_i : (n,) ndarray
+        Agent i's estimate ``x_i(k)``.
+    E : (n, n) ndarray
+        ``exp(A dt)``.
+    D : (n, n) ndarray
+        ``int_0^dt exp(A s) ds``.
+    K_i : (n, s_i) ndarray
+        Agent i's gain ``K_i``.
+    C_i : (s_i, n) ndarray
+        Agent i's output matrix ``C_i``.
+    y_i : (s_i,) ndarray or None
+        Agent i's measurement ``y_i(k)``; None: no measurement this step.
+    P_i : (n, n) ndarray
+        The projection ``P_i = V_i V_i'`` onto agent i's unobservable space.
+    g_i : float
+        Agent i's coupling gain ``g_i``.
+    neighbour_states : sequence of (n,) arrays
+        The estimates ``x_j(k)`` of every ``j in N_i``, agent i included.
+    weights : sequence of float
+        The weights ``w_ij``, in the order of ``neighbour_states``.
+    bu : (n,) ndarray or None, optional
+        The known input's ``B u(k)``; None (default): no inputs.
+
+    Returns
+    -------
+    (n,) ndarray
+        ``x_i(k+1)``.
+    """
     avg = weighted_average(neighbour_states, weights)
     corr = -g_i * (P_i @ (x_i - avg))
     if y_i is not None:
@@ -122,14 +251,47 @@ def sampled_step(x_i: np.ndarray, E: np.ndarray, D: np.ndarray, K_i: np.ndarray,
 
 def adaptive_gain_rate(V_i: np.ndarray, x_i: np.ndarray, neighbour_states: Sequence[np.ndarray],
                        weights: Sequence[float]) -> float:
-    """Eq. (adaptive): ``dg_i/dt = |V_i' sum_j w_ij (x_j - x_i)|_2^2``."""
+    """Eq. (adaptive): ``dg_i/dt = |V_i' sum_j w_ij (x_j - x_i)|_2^2``.
+
+    Parameters
+    ----------
+    V_i : (n, n - r_i) ndarray
+        Orthonormal basis ``V_i`` of agent i's unobservable space.
+    x_i : (n,) ndarray
+        Agent i's estimate ``x_i``.
+    neighbour_states : sequence of (n,) arrays
+        The estimates ``x_j`` of every ``j in N_i``, agent i included.
+    weights : sequence of float
+        The weights ``w_ij``, in the order of ``neighbour_states``; they sum to 1, so
+        ``sum_j w_ij x_j - x_i = sum_j w_ij (x_j - x_i)``.
+
+    Returns
+    -------
+    float
+        ``dg_i/dt`` (non-negative).
+    """
     diff = weighted_average(neighbour_states, weights) - x_i
     v = V_i.T @ diff
     return float(v @ v)
 
 
 def adaptive_gain_step(g_i: float, rate: float, dt: float) -> float:
-    """Forward-Euler step of eq. (adaptive)."""
+    """Forward-Euler step of eq. (adaptive).
+
+    Parameters
+    ----------
+    g_i : float
+        Agent i's gain ``g_i(k)``.
+    rate : float
+        ``dg_i/dt`` at step k (:func:`adaptive_gain_rate`).
+    dt : float
+        The step, in seconds.
+
+    Returns
+    -------
+    float
+        ``g_i(k+1) = g_i(k) + dt * rate``.
+    """
     return g_i + dt * rate
 
 
@@ -142,6 +304,34 @@ def step_matrices(A: np.ndarray, K_i: np.ndarray, C_i: np.ndarray, *, dt: float 
     (``sampled``: ``(E, D)`` already computed by :func:`sampled_data_matrices`, the same floats); ``G`` maps the
     known input's ``B u`` to the step's (:func:`step_input`).  The agent processes and the simulator both call this,
     so they hold the same floats.
+
+    Parameters
+    ----------
+    A : (n, n) array_like
+        The system matrix ``A``.
+    K_i : (n, s_i) ndarray
+        Agent i's gain ``K_i``.
+    C_i : (s_i, n) ndarray
+        Agent i's output matrix ``C_i``.
+    dt : float or None, optional
+        The sampling step in seconds; None (default): discrete time.
+    sampled : tuple of two (n, n) ndarrays or None, optional
+        ``(E, D)`` for ``dt`` already computed; None (default): computed here.
+
+    Returns
+    -------
+    tuple
+        ``(A_s, F_i, K_s, G)``, three (n, n), (n, n), (n, s_i) arrays and ``G`` (n, n) or None (discrete).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> A_s, F, K_s, G = step_matrices(np.eye(2), np.array([[-0.5], [0.0]]), np.array([[1.0, 0.0]]))
+    >>> F
+    array([[0.5, 0. ],
+           [0. , 1. ]])
+    >>> G is None
+    True
     """
     A = np.asarray(A, dtype=float)
     if dt is None:
@@ -153,5 +343,18 @@ def step_matrices(A: np.ndarray, K_i: np.ndarray, C_i: np.ndarray, *, dt: float 
 
 def step_input(G: np.ndarray | None, bu: np.ndarray | None) -> np.ndarray | None:
     """The known input of one event time of :func:`step_matrices`: ``B u`` itself (discrete), ``D B u`` (continuous:
-    ``u`` held over the step); None without inputs."""
+    ``u`` held over the step); None without inputs.
+
+    Parameters
+    ----------
+    G : (n, n) ndarray or None
+        The ``G`` of :func:`step_matrices` (``D``, continuous; None, discrete).
+    bu : (n,) ndarray or None
+        The known input's ``B u``; None without inputs.
+
+    Returns
+    -------
+    (n,) ndarray or None
+        ``bu`` (``G`` None), ``G bu`` (continuous), or None when ``bu`` is None.
+    """
     return bu if G is None or bu is None else G @ bu

@@ -58,7 +58,13 @@ POLL = 0.1
 
 
 def process_age() -> float:
-    """Seconds since this process started (Linux ``/proc/self/stat``); 0 where that cannot be read."""
+    """Seconds since this process started (Linux ``/proc/self/stat``); 0 where that cannot be read.
+
+    Returns
+    -------
+    float
+        Seconds, non-negative (the boot-time clock minus the process's start time).
+    """
     try:
         with open("/proc/self/stat", encoding="ascii") as f:
             start_ticks = int(f.read().rsplit(")", 1)[1].split()[19])  # field 22, starttime, in clock ticks
@@ -133,6 +139,7 @@ class NodeShell:
 
     @property
     def who(self) -> str:
+        """The process as log lines name it (str): ``the plant``, or ``<role> <id>`` (``agent 3``)."""
         return "the plant" if self.role == "plant" else f"{self.role} {self.ident}"
 
     def _open_promptly(self, opts: dict) -> zenoh.Session:
@@ -192,6 +199,30 @@ class NodeShell:
         Then declares this process's ``status`` queryable: it answers with the same hello from a
         Zenoh thread, so the orchestrator can tell a frozen process (no answer) from one that is
         only waiting for a frozen neighbour.
+
+        Parameters
+        ----------
+        wait : float
+            Seconds to wait for the orchestrator's answer.
+
+        Returns
+        -------
+        dict
+            The decoded ``config`` message (:data:`~splitspec_core.runtime.wire.MESSAGE_FIELDS`: ``scenario``,
+            ``seed``, ``g``, ``q``, ``g_mode``, ``key`` and the optional fields present); its ``key`` is also
+            kept as the shell's ``mac_key``.
+
+        Raises
+        ------
+        TimeoutError
+            No orchestrator answered within ``wait`` seconds.
+        IdentityRefused
+            The orchestrator refused the identity (another live process holds it).
+        NetworkError
+            A hand-started process: the router hosts other runs but not this one, or the router link was
+            lost (see the module docstring).
+        WireError
+            The answer is neither a refusal nor a valid ``config`` of this run.
         """
         import socket
 
@@ -261,6 +292,13 @@ class NodeShell:
             time.sleep(POLL)
 
     def publish(self, items) -> None:
+        """Publish every ``(key, payload)`` (a publisher declared once per key, congestion control BLOCK).
+
+        Parameters
+        ----------
+        items : iterable of (str, bytes)
+            The key expressions and payloads, published in order.
+        """
         for key, payload in items:
             pub = self.pubs.get(key)
             if pub is None:
@@ -286,6 +324,26 @@ class NodeShell:
         inbox); one that moves it later (the next sub-round's deadline, almost every message of a run whose
         messages arrive in time) leaves the loop asleep, and an alarm that rings early only re-arms it.
         So a deadline run wakes the event loop about once per deadline, not once per round.
+
+        Parameters
+        ----------
+        dispatch : callable
+            ``dispatch(channel, key, payload) -> [(key, payload), ...]``: the node's handler; what it
+            returns is published.
+        on_error : callable
+            ``on_error(reason)``: counts a rejected or failed message (a :class:`WireError` reason, or
+            ``handler_error``).
+        name : str
+            The process's name in log lines.
+        subscriptions : iterable of (str, str), optional
+            ``(key, channel)`` pairs handled directly on the Zenoh thread (default: none).
+        timer : tuple of (callable, callable) or None, optional
+            ``(next_wakeup, on_timer)`` of a node with deadlines; None (default): no timer.
+
+        Returns
+        -------
+        int
+            The process's exit status: 0 after a ``stop`` or a signal, 1 when the orchestrator was lost.
         """
         import signal
 
@@ -376,6 +434,7 @@ class NodeShell:
         return code
 
     def close(self) -> None:
+        """Close both inboxes and both Zenoh sessions (an error closing a session is logged, not raised)."""
         self.inbox.close()
         self.health_inbox.close()
         for session in (self.session, self.health):

@@ -119,22 +119,27 @@ class Keys:
 
     @property
     def prefix(self) -> str:
+        """The run's key prefix ``splitspec/<run_id>`` (str)."""
         return f"{KEY_ROOT}/{self.run_id}"
 
     @property
     def config(self) -> str:
+        """The key of the configuration queryable, ``<prefix>/config`` (str)."""
         return f"{self.prefix}/config"
 
     @property
     def tick(self) -> str:
+        """The key of the orchestrator's ticks, ``<prefix>/tick`` (str)."""
         return f"{self.prefix}/tick"
 
     @property
     def truth(self) -> str:
+        """The key of the plant's true states, ``<prefix>/truth`` (str)."""
         return f"{self.prefix}/truth"
 
     @property
     def control(self) -> str:
+        """The key of the orchestrator's commands (stop, kill, freeze), ``<prefix>/control`` (str)."""
         return f"{self.prefix}/control"
 
     @property
@@ -143,29 +148,124 @@ class Keys:
         return f"{self.prefix}/y/all"
 
     def z(self, i: int | str) -> str:
+        """The key of agent ``i``'s consensus messages.
+
+        Parameters
+        ----------
+        i : int or str
+            The agent's id.
+
+        Returns
+        -------
+        str
+            ``<prefix>/z/<i>``.
+
+        Examples
+        --------
+        >>> Keys("demo").z(3)
+        'splitspec/demo/z/3'
+        """
         return f"{self.prefix}/z/{i}"
 
     def sensor(self, key: str) -> str:
-        """A live sensor's key (scenario ``sources:``, relative to ``sensors/``): the user's process publishes there."""
+        """A live sensor's key (scenario ``sources:``, relative to ``sensors/``): the user's process publishes there.
+
+        Parameters
+        ----------
+        key : str
+            The sensor's key relative to ``sensors/``, as the scenario's ``sources:`` gives it.
+
+        Returns
+        -------
+        str
+            ``<prefix>/sensors/<key>``.
+        """
         return f"{self.prefix}/sensors/{key}"
 
     def xhat(self, i: int | str) -> str:
+        """The key of agent ``i``'s estimates (read by the orchestrator and its neighbours).
+
+        Parameters
+        ----------
+        i : int or str
+            The agent's id.
+
+        Returns
+        -------
+        str
+            ``<prefix>/xhat/<i>``.
+        """
         return f"{self.prefix}/xhat/{i}"
 
     def status(self, role: str, ident: int | str = 0, nonce: str | None = None) -> str:
+        """The key of a process's status queryable.
+
+        Parameters
+        ----------
+        role : str
+            The process's role (``plant``, ``agent``, ``orchestrator``, ...).
+        ident : int or str, optional
+            The process's id (default 0; an agent's id).
+        nonce : str or None, optional
+            The process's nonce (:func:`new_nonce`); None (default): the key without it.
+
+        Returns
+        -------
+        str
+            ``<prefix>/status/<role>/<ident>[/<nonce>]``.
+        """
         base = f"{self.prefix}/status/{role}/{ident}"
         return base if nonce is None else f"{base}/{nonce}"
 
     @property
     def status_all(self) -> str:
+        """Every process's status queryable, ``<prefix>/status/**`` (str)."""
         return f"{self.prefix}/status/**"
 
     def alive(self, role: str, ident: int | str = 0, nonce: str | None = None) -> str:
+        """The key of a process's liveliness token.
+
+        Parameters
+        ----------
+        role : str
+            The process's role (``plant``, ``agent``, ``orchestrator``, ...).
+        ident : int or str, optional
+            The process's id (default 0; an agent's id).
+        nonce : str or None, optional
+            The process's nonce (:func:`new_nonce`); None (default): the key without it.
+
+        Returns
+        -------
+        str
+            ``<prefix>/alive/<role>/<ident>[/<nonce>]``.
+
+        Examples
+        --------
+        >>> k = Keys("demo")
+        >>> k.alive("agent", 2, "00ff")
+        'splitspec/demo/alive/agent/2/00ff'
+        >>> k.parse_member(k.alive("agent", 2, "00ff"))
+        ('agent', 2, '00ff')
+        """
         base = f"{self.prefix}/alive/{role}/{ident}"
         return base if nonce is None else f"{base}/{nonce}"
 
     def parse_member(self, key: str, kind: str = "alive") -> tuple | None:
-        """``(role, id, nonce)`` of a ``<kind>/<role>/<id>[/<nonce>]`` key of this run, else None."""
+        """``(role, id, nonce)`` of a ``<kind>/<role>/<id>[/<nonce>]`` key of this run, else None.
+
+        Parameters
+        ----------
+        key : str
+            A key (anything ``str()`` turns into one).
+        kind : str, optional
+            The member kind, ``"alive"`` (default) or ``"status"``.
+
+        Returns
+        -------
+        tuple of (str, int, str or None) or None
+            ``(role, id, nonce)`` (nonce None when the key has none); None when the key is not under
+            ``<prefix>/<kind>/``, has not two or three chunks there, or its id is not a decimal number.
+        """
         head = f"{self.prefix}/{kind}/"
         key = str(key)
         if not key.startswith(head):
@@ -177,18 +277,42 @@ class Keys:
 
     @property
     def alive_all(self) -> str:
+        """Every process's liveliness token, ``<prefix>/alive/**`` (str)."""
         return f"{self.prefix}/alive/**"
 
     @staticmethod
     def run_of(key: str) -> str | None:
-        """The run id of a key under ``splitspec/<run_id>/`` (e.g. a reply to :data:`ORCHESTRATORS`), else None."""
+        """The run id of a key under ``splitspec/<run_id>/`` (e.g. a reply to :data:`ORCHESTRATORS`), else None.
+
+        Parameters
+        ----------
+        key : str
+            A key (anything ``str()`` turns into one).
+
+        Returns
+        -------
+        str or None
+            The chunk after ``splitspec/``; None when the key is not under ``splitspec/`` or that chunk
+            is empty.
+        """
         root, sep, rest = str(key).partition("/")
         run_id = rest.partition("/")[0]
         return run_id if root == KEY_ROOT and sep and run_id else None
 
     @staticmethod
     def last(key: str) -> str:
-        """Last chunk of a key (the agent id of ``.../z/3``)."""
+        """Last chunk of a key (the agent id of ``.../z/3``).
+
+        Parameters
+        ----------
+        key : str
+            A key (anything ``str()`` turns into one).
+
+        Returns
+        -------
+        str
+            The text after the last ``/`` (the whole key when it has none).
+        """
         return str(key).rsplit("/", 1)[-1]
 
 
@@ -200,17 +324,42 @@ MAC_BYTES = 16
 
 
 def new_run_key() -> bytes:
-    """A fresh random key for one run (32 bytes)."""
+    """A fresh random key for one run (32 bytes).
+
+    Returns
+    -------
+    bytes
+        32 bytes from :mod:`secrets`.
+    """
     return secrets.token_bytes(32)
 
 
 def new_nonce() -> str:
-    """A process's identity nonce (16 hex characters)."""
+    """A process's identity nonce (16 hex characters).
+
+    Returns
+    -------
+    str
+        16 lowercase hex characters from :mod:`secrets`.
+    """
     return secrets.token_hex(8)
 
 
 def mac(key: bytes, body: bytes) -> bytes:
-    """The trailer: BLAKE2b in its keyed (MAC) mode, ``MAC_BYTES`` long (RFC 7693; a third of HMAC-SHA256's cost)."""
+    """The trailer: BLAKE2b in its keyed (MAC) mode, ``MAC_BYTES`` long (RFC 7693; a third of HMAC-SHA256's cost).
+
+    Parameters
+    ----------
+    key : bytes
+        The run's key (:func:`new_run_key`; at most 64 bytes).
+    body : bytes
+        The message's body.
+
+    Returns
+    -------
+    bytes
+        The ``MAC_BYTES``-long tag.
+    """
     return hashlib.blake2b(body, key=key, digest_size=MAC_BYTES).digest()
 
 
@@ -285,7 +434,18 @@ _BIN_FIELDS = {t: frozenset({*names, vec, *maps}) for t, (_, _f, names, vec, map
 
 @functools.lru_cache(maxsize=64)
 def run_tag(run_id: str) -> int:
-    """The run id as the binary header carries it (CRC-32; the MAC trailer is what authenticates)."""
+    """The run id as the binary header carries it (CRC-32; the MAC trailer is what authenticates).
+
+    Parameters
+    ----------
+    run_id : str
+        The run id.
+
+    Returns
+    -------
+    int
+        CRC-32 of the run id's UTF-8 bytes (an unsigned 32-bit integer).
+    """
     return zlib.crc32(run_id.encode("utf-8"))
 
 
@@ -375,6 +535,46 @@ def encode(msg_type: str, run_id: str, *, mac_key: bytes | None = None, **fields
 
     Round messages (:data:`BINARY_LAYOUT`) take exactly their fields, the vector as any 1-D float
     array; the others are msgpack maps of plain values.
+
+    Parameters
+    ----------
+    msg_type : str
+        The message type: a key of :data:`BINARY_LAYOUT` (``y``, ``truth``, ``z``, ``xhat``) or of
+        :data:`MESSAGE_FIELDS` (``tick``, ``control``, ``config``, ``refused``, ``hello``).
+    run_id : str
+        The run id the message belongs to.
+    mac_key : bytes or None, optional
+        The run's key; None (default): no MAC trailer.
+    **fields
+        The message's fields.  A round message takes exactly its fields (those of
+        :data:`MAP_DEFAULTS` may be left out); a msgpack message is not checked here.
+
+    Returns
+    -------
+    bytes
+        The payload (body, then the ``MAC_BYTES`` trailer when signed).
+
+    Raises
+    ------
+    TypeError
+        A round message with missing or extra fields, or a field of the wrong type or range.
+    ValueError
+        A round message's vector that is not 1-D.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> key = bytes(32)
+    >>> payload = encode("z", "demo", mac_key=key, tau=4, attempt=0, k=1, agent=2, z=np.array([0.5, -1.0]))
+    >>> len(payload)
+    64
+    >>> msg = decode(payload, "demo", "z", mac_key=key)
+    >>> msg["tau"], msg["agent"], msg["z"]
+    (4, 2, array([ 0.5, -1. ]))
+    >>> decode(payload, "other", "z", mac_key=key)
+    Traceback (most recent call last):
+        ...
+    splitspec_core.runtime.wire.WireError: wrong_run: another run's message
     """
     if msg_type in BINARY_LAYOUT:
         raw = _encode_binary(msg_type, run_id, fields)
@@ -384,7 +584,25 @@ def encode(msg_type: str, run_id: str, *, mac_key: bytes | None = None, **fields
 
 
 def verify(payload: bytes, mac_key: bytes) -> bytes:
-    """The body of a signed message, or :class:`WireError` ``bad_mac`` (cheap: run it before decoding)."""
+    """The body of a signed message, or :class:`WireError` ``bad_mac`` (cheap: run it before decoding).
+
+    Parameters
+    ----------
+    payload : bytes
+        A signed message (body then trailer).
+    mac_key : bytes
+        The run's key.
+
+    Returns
+    -------
+    bytes
+        The body, the trailer removed.
+
+    Raises
+    ------
+    WireError
+        ``bad_mac``: the payload is too short, or its trailer is not the body's MAC under ``mac_key``.
+    """
     if len(payload) <= MAC_BYTES:
         raise WireError("bad_mac", "too short for a signed message")
     body, tag = payload[:-MAC_BYTES], payload[-MAC_BYTES:]
@@ -399,6 +617,23 @@ def decode(payload: bytes, run_id: str, expected_type: str, *, mac_key: bytes | 
     With ``mac_key`` the message must carry a valid trailer (:func:`verify`).
     A round message's vector is returned as a finite float64 1-D array; its
     length is checked by the caller, which knows it.
+
+    Parameters
+    ----------
+    payload : bytes
+        The message as received.
+    run_id : str
+        The run id the message must belong to.
+    expected_type : str
+        The message type expected on this key (:data:`BINARY_LAYOUT` or :data:`MESSAGE_FIELDS`).
+    mac_key : bytes or None, optional
+        The run's key; None (default): the payload is not signed.
+
+    Returns
+    -------
+    dict
+        The message's fields: every required field, the optional ones present, and for a round
+        message its vector (a float64 1-D array) and map fields.
 
     Raises
     ------

@@ -84,42 +84,172 @@ class Fault:
 
     @classmethod
     def parse(cls, value: Any, fmap: dict, key: str, ctx: FaultContext) -> dict:
-        """The fields of the kind from the value of its key (``faults[k].<action>``) and its options."""
+        """The fields of the kind from the value of its key (``faults[k].<action>``) and its options.
+
+        Parameters
+        ----------
+        value : Any
+            The value of the action's key as the scenario gives it (``3`` for ``kill: 3``).
+        fmap : dict
+            The whole fault entry, the action's value also under the kind's own ``action`` (an alias
+            read as it), for the kind's options (``bias``, ``scale``).
+        key : str
+            The entry's name in errors (``faults[2]``).
+        ctx : FaultContext
+            The agents' ids and outputs the values are checked against.
+
+        Returns
+        -------
+        dict
+            The kind's fields besides ``at`` (``{"agent": 3}``).
+
+        Raises
+        ------
+        ScenarioError
+            One line naming ``key`` and what is wrong with the value or an option.
+        """
         raise NotImplementedError
 
     @classmethod
     def from_event(cls, e: dict, where: str, ids: tuple) -> dict:
-        """The fields of the kind from its recorded event ``e`` (``where`` names it in an error)."""
+        """The fields of the kind from its recorded event ``e`` (``where`` names it in an error).
+
+        Parameters
+        ----------
+        e : dict
+            The event, as :func:`splitspec_core.scenarios.replay.load_events` reads it.
+        where : str
+            The event's description in errors (file and event number).
+        ids : tuple of int
+            The scenario's agent ids, which the event's agents must be among.
+
+        Returns
+        -------
+        dict
+            The kind's fields besides ``at``; the base returns ``{}`` (a kind without fields).
+
+        Raises
+        ------
+        ScenarioError
+            The event lacks a field the kind needs, or names an agent that is not in ``ids``.
+        """
         return {}
 
     def apply(self, net) -> tuple:
-        """Its effect on the simulator's network state: ``(lost positions, [(position, incarnation)])``."""
+        """Its effect on the simulator's network state: ``(lost positions, [(position, incarnation)])``.
+
+        The base changes nothing and returns ``([], [])``.
+
+        Parameters
+        ----------
+        net : NetworkState
+            The simulator's network state (:class:`splitspec_core.model.network.NetworkState`), changed in
+            place.
+
+        Returns
+        -------
+        lost : list of int
+            The positions that stopped taking part at this step.
+        rejoined : list of (int, int)
+            ``(position, incarnation)`` of the agents that rejoin with a fresh estimate.
+        """
         return [], []
 
     def measure(self, y: np.ndarray, memo: dict) -> np.ndarray:
         """A sensor it holds (:meth:`apply` puts it in ``net.sensors``): agent i's measurement ``y_i`` (outputs on
-        axis 0, seeds after) as the estimator is given it; ``memo`` is the sensor's own memory."""
+        axis 0, seeds after) as the estimator is given it; ``memo`` is the sensor's own memory.
+
+        Parameters
+        ----------
+        y : (s_i,) or (s_i, N) ndarray
+            Agent i's true measurement (outputs on axis 0, seeds after).
+        memo : dict
+            The sensor fault's own memory, kept from step to step while it is in force.
+
+        Returns
+        -------
+        ndarray
+            The measurement the estimator is given, shaped as ``y``; the base returns ``y`` itself.
+        """
         return y
 
     def payload(self, tau: int) -> dict:
-        """The fields of its event in ``events.jsonl``, at event time ``tau``."""
+        """The fields of its event in ``events.jsonl``, at event time ``tau``.
+
+        Parameters
+        ----------
+        tau : int
+            The event time from which the fault holds.
+
+        Returns
+        -------
+        dict
+            The event's fields (JSON values): ``{"tau": tau}`` and the kind's own (``id``, ``arc``,
+            ``groups``, ...).
+        """
         return {"tau": tau}
 
     @staticmethod
     def text(fields: dict) -> str:
-        """The one-sentence text of its event (the ``events`` TextLog)."""
+        """The one-sentence text of its event (the ``events`` TextLog).
+
+        Parameters
+        ----------
+        fields : dict
+            The event's fields (:meth:`payload`, or as read back from ``events.jsonl``).
+
+        Returns
+        -------
+        str
+            The sentence.
+        """
         raise NotImplementedError
 
     def log_line(self, tau: int) -> tuple | None:
-        """``(level, message)`` the runtime logs when it applies the fault (None: the event says it)."""
+        """``(level, message)`` the runtime logs when it applies the fault (None: the event says it).
+
+        Parameters
+        ----------
+        tau : int
+            The event time the fault applies at.
+
+        Returns
+        -------
+        tuple of (str, str) or None
+            ``(level, message)`` with ``level`` a logging level name (``"warning"``, ``"info"``); the base
+            returns None.
+        """
         return None
 
     def plot_mark(self) -> tuple | None:
-        """``(plot mark kind, words)`` on the error plots (:func:`splitspec_core.simulation.metrics.event_marks`)."""
+        """``(plot mark kind, words)`` on the error plots (:func:`splitspec_core.simulation.metrics.event_marks`).
+
+        Returns
+        -------
+        tuple of (str, str) or None
+            ``(mark kind, words)``, e.g. ``("arc", "1-3 down")``; the base returns None (no mark of its own).
+        """
         return None
 
     def end(self, at: float) -> "Fault":
-        """The fault that ends this one at ``at`` (the kind :attr:`ends_with`, on the same agent or arc)."""
+        """The fault that ends this one at ``at`` (the kind :attr:`ends_with`, on the same agent or arc).
+
+        Parameters
+        ----------
+        at : float
+            The end's time.
+
+        Returns
+        -------
+        Fault
+            A fault of the kind ``ends_with`` names, with this fault's fields that kind has (the agent or
+            the arc).
+
+        Examples
+        --------
+        >>> make_fault("drop_arc", 2.0, arc=(1, 3)).end(5.0)
+        RestoreArc(at=5.0, arc=(1, 3))
+        """
         cls = KINDS[self.ends_with]
         return cls(at=at, **{f.name: getattr(self, f.name) for f in dataclasses.fields(cls) if f.name != "at"})
 
@@ -176,6 +306,11 @@ def make_fault(action: str, at: float, **fields) -> Fault:
     ------
     ScenarioError
         ``unknown fault action 'x' (the kinds: kill, restart, ...)``.
+
+    Examples
+    --------
+    >>> make_fault("hang", 3, agent=2)
+    Freeze(at=3.0, agent=2)
     """
     cls = _WORDS.get(action)
     if cls is None:
@@ -273,6 +408,7 @@ class Kill(_AgentFault):
     signal = "SIGKILL"
 
     def apply(self, net):
+        """Agent ``agent`` is lost (no change if it already is)."""
         i = net.ids.index(self.agent)
         return ([i] if net.lose(i) else []), []
 
@@ -285,6 +421,7 @@ class Restart(_AgentFault):
     action, runtime, event, mark = "restart", RESTART, "agent_rejoined", "rejoined"
 
     def apply(self, net):
+        """Agent ``agent`` rejoins with its next incarnation (no change if it is alive)."""
         i = net.ids.index(self.agent)
         inc = net.rejoin(i)
         return [], ([] if inc is None else [(i, inc)])
@@ -337,11 +474,13 @@ class DropArc(_ArcFault):
     action, ends_with, event = "drop_arc", "restore_arc", "arc_dropped"
 
     def apply(self, net):
+        """Add ``arc`` to the dropped arcs."""
         net.dropped.add(self.arc)
         return [], []
 
     @staticmethod
     def text(fields):
+        """``arc j -> i dropped``."""
         j, i = fields.get("arc", ("?", "?"))
         return f"arc {j} -> {i} dropped"
 
@@ -354,11 +493,13 @@ class RestoreArc(_ArcFault):
     action, event = "restore_arc", "arc_restored"
 
     def apply(self, net):
+        """Remove ``arc`` from the dropped arcs."""
         net.dropped.discard(self.arc)
         return [], []
 
     @staticmethod
     def text(fields):
+        """``arc j -> i restored``."""
         j, i = fields.get("arc", ("?", "?"))
         return f"arc {j} -> {i} restored"
 
@@ -375,10 +516,12 @@ class Partition(Fault):
 
     @classmethod
     def parse(cls, value, fmap, key, ctx):
+        """``groups`` from the list of lists of agent ids."""
         return {"groups": parse_groups(value, f"{key}.partition", ctx.ids)}
 
     @classmethod
     def from_event(cls, e, where, ids):
+        """``groups`` from the event's ``groups`` (a non-empty list of lists of known ids)."""
         groups = e.get("groups")
         if not (isinstance(groups, list) and groups and all(isinstance(g, list) and all(a in ids for a in g)
                                                             for g in groups)):
@@ -386,18 +529,22 @@ class Partition(Fault):
         return {"groups": tuple(tuple(g) for g in groups)}
 
     def apply(self, net):
+        """Set the network's partition groups to ``groups``."""
         net.groups = self.groups
         return [], []
 
     def payload(self, tau):
+        """``{"groups": [[ids], ...], "tau": tau}``."""
         return {"groups": [list(g) for g in self.groups], "tau": tau}
 
     @staticmethod
     def text(fields):
+        """``partition 1 2 | 3: ...``, the groups separated by bars."""
         return ("partition " + " | ".join(" ".join(str(a) for a in g) for g in fields["groups"])
                 + ": no consensus message crosses between the groups")
 
     def log_line(self, tau):
+        """A warning naming the groups."""
         return "warning", (f"event time {tau}: partition {[list(g) for g in self.groups]}: no consensus message "
                            "crosses between the groups until a heal")
 
@@ -411,19 +558,23 @@ class Heal(Fault):
 
     @classmethod
     def parse(cls, value, fmap, key, ctx):
+        """No fields; the value must be ``true``."""
         if value is not True:
             raise ScenarioError(f"{key}.heal must be true (it ends every partition), got {describe(value)}")
         return {}
 
     def apply(self, net):
+        """End the partition in force (the network's groups become None)."""
         net.groups = None
         return [], []
 
     @staticmethod
     def text(fields):
+        """``partition healed``."""
         return "partition healed"
 
     def log_line(self, tau):
+        """An info line: the partition is healed."""
         return "info", f"event time {tau}: the partition is healed"
 
 
@@ -451,6 +602,7 @@ class Corrupt(_AgentFault):
 
     @classmethod
     def parse(cls, value, fmap, key, ctx):
+        """``agent``, ``bias`` (checked against the agent's number of outputs) and ``scale``; one of them needed."""
         agent = check_known_agent(value, f"{key}.corrupt", ctx.ids)
         if "bias" not in fmap and "scale" not in fmap:
             raise ScenarioError(f"{key}.corrupt needs bias: b (added to agent {agent}'s outputs) or scale: k "
@@ -461,6 +613,7 @@ class Corrupt(_AgentFault):
 
     @classmethod
     def from_event(cls, e, where, ids):
+        """``agent``, ``bias`` and ``scale`` from the event (absent ones None)."""
         bias, scale = e.get("bias"), e.get("scale")
         try:
             return {"agent": _event_agent(e, where, ids), "bias": None if bias is None else _bias(bias, "bias", None),
@@ -469,11 +622,13 @@ class Corrupt(_AgentFault):
             raise ScenarioError(f"{where}: {exc}") from None
 
     def apply(self, net):
+        """Put the agent's sensor under this fault (a fresh memory), replacing a fault in force on it."""
         net.sensors[net.ids.index(self.agent)] = (self, {})
         return [], []
 
     def measure(self, y, memo):
         # y_i -> k y_i + b (b one number, or one per output: outputs on axis 0, any seeds after)
+        """``k y_i + b`` (no scaling when ``scale`` is None, no bias when ``bias`` is None); ``memo`` unused."""
         out = y if self.scale is None else y * self.scale
         if self.bias is None:
             return out
@@ -481,18 +636,22 @@ class Corrupt(_AgentFault):
         return out + (b if b.ndim == 0 else b.reshape((-1,) + (1,) * (np.ndim(y) - 1)))
 
     def payload(self, tau):
+        """``{"id", "tau"}`` and the ``bias`` (a list per output) and ``scale`` that are set."""
         how = {"bias": list(self.bias) if isinstance(self.bias, tuple) else self.bias, "scale": self.scale}
         return {"id": self.agent, "tau": tau, **{k: v for k, v in how.items() if v is not None}}
 
     @staticmethod
     def text(fields):
+        """``agent I's measurements corrupted (scale k, bias b)``."""
         how = [f"{k} {fields[k]}" for k in ("scale", "bias") if fields.get(k) is not None]
         return f"agent {fields.get('id', '?')}'s measurements corrupted ({', '.join(how)})"
 
     def log_line(self, tau):
+        """A warning with the event's text."""
         return "warning", f"event time {tau}: {self.text(self.payload(tau))} by the scenario"
 
     def plot_mark(self):
+        """``("fault", "sensor I corrupted")``."""
         return "fault", f"sensor {self.agent} corrupted"
 
 
@@ -504,17 +663,21 @@ class Repair(_AgentFault):
     action, runtime, event, mark = "repair", PLANT, "sensor_repaired", "sensor"
 
     def apply(self, net):
+        """Take the agent's sensor fault out of force (no change if none is)."""
         net.sensors.pop(net.ids.index(self.agent), None)
         return [], []
 
     @staticmethod
     def text(fields):
+        """``agent I's sensor repaired``."""
         return f"agent {fields.get('id', '?')}'s sensor repaired"
 
     def log_line(self, tau):
+        """An info line with the event's text."""
         return "info", f"event time {tau}: {self.text(self.payload(tau))}"
 
     def plot_mark(self):
+        """``("fault", "sensor I repaired")``."""
         return "fault", f"sensor {self.agent} repaired"
 
 
@@ -546,6 +709,14 @@ def parse_faults(raw: Any, ids: tuple, *, outputs: dict | None = None) -> tuple:
     ------
     ScenarioError
         One line naming the entry and key that is wrong (an unknown action names the registered kinds).
+
+    Examples
+    --------
+    >>> for f in parse_faults([{"at": 10, "kill": 3, "for": 5}, {"at": 2, "drop_arc": [1, 2]}], (1, 2, 3)):
+    ...     print(f)
+    DropArc(at=2.0, arc=(1, 2))
+    Kill(at=10.0, agent=3)
+    Restart(at=15.0, agent=3)
     """
     if raw is None:
         return ()

@@ -28,7 +28,24 @@ __all__ = ["load_events", "faults_from_events", "with_recorded_faults", "recorde
 
 
 def load_events(path) -> list:
-    """The events of an ``events.jsonl`` file (a torn last line, as after a crash, is ignored)."""
+    """The events of an ``events.jsonl`` file (a torn last line, as after a crash, is ignored).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The ``events.jsonl`` file.
+
+    Returns
+    -------
+    list of dict
+        One dict per event line, in file order (each has an ``event`` field).
+
+    Raises
+    ------
+    ScenarioError
+        The file cannot be read, a line other than the last is not JSON, or a line is not an object
+        with an ``event`` field.
+    """
     path = Path(path)
     try:
         lines = path.read_text(encoding="utf-8").splitlines()
@@ -52,7 +69,36 @@ def load_events(path) -> list:
 
 def faults_from_events(events: list, sc: Scenario, *, source: str = "events") -> tuple:
     """Faults reproducing the network changes recorded in ``events`` (each event word read by the fault kind that
-    logs it: :func:`splitspec_core.scenarios.faults.kind_of_event`)."""
+    logs it: :func:`splitspec_core.scenarios.faults.kind_of_event`).
+
+    Parameters
+    ----------
+    events : list of dict
+        The recorded events (:func:`load_events`); events no fault kind logs are skipped.
+    sc : Scenario
+        The scenario replayed: its ``agent_ids`` resolve agent names, its ``run.dt`` turns event
+        times into seconds (continuous time; discrete: ``at = tau``).
+    source : str, optional
+        What the events came from, named in error messages (default ``"events"``).
+
+    Returns
+    -------
+    tuple of Fault
+        The faults, in event order, each at ``tau * dt``.
+
+    Raises
+    ------
+    ScenarioError
+        An event has no valid non-negative integer ``tau``, or its kind rejects its fields.
+
+    Examples
+    --------
+    >>> import splitspec_core as ss
+    >>> sc = ss.load_scenario("examples/paper_discrete.yaml")
+    >>> events = [{"event": "agent_lost", "id": 2, "tau": 5}, {"event": "agent_rejoined", "id": 2, "tau": 9}]
+    >>> faults_from_events(events, sc)
+    (Kill(at=5.0, agent=2), Restart(at=9.0, agent=2))
+    """
     dt = sc.run.dt if sc.time == "continuous" else 1.0
     faults = []
     for k, e in enumerate(events, 1):
@@ -69,7 +115,26 @@ def faults_from_events(events: list, sc: Scenario, *, source: str = "events") ->
 def recorded_run(path) -> tuple:
     """``(events.jsonl path, (lost, lost_cause) or None)`` of a run: ``path`` is its output directory or its
     ``events.jsonl``; the consensus messages that did not count come from the ``trajectory.npz`` beside it
-    (None when there is none, or it has no ``lost`` rows)."""
+    (None when there is none, or it has no ``lost`` rows).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        A run's output directory, or its ``events.jsonl``.
+
+    Returns
+    -------
+    events : pathlib.Path
+        The ``events.jsonl`` path (not checked to exist).
+    lost : tuple or None
+        ``(lost, lost_cause)`` arrays of ``trajectory.npz`` (``lost_cause`` None when the file has
+        none), or None.
+
+    Raises
+    ------
+    ScenarioError
+        ``trajectory.npz`` exists but cannot be read.
+    """
     import numpy as np
 
     path = Path(path)
@@ -87,7 +152,25 @@ def recorded_run(path) -> tuple:
 
 
 def with_recorded_faults(sc: Scenario, events_path) -> Scenario:
-    """``sc`` with its faults replaced by those recorded in ``events_path``."""
+    """``sc`` with its faults replaced by those recorded in ``events_path``.
+
+    Parameters
+    ----------
+    sc : Scenario
+        The scenario to replay.
+    events_path : str or os.PathLike
+        The run's ``events.jsonl``.
+
+    Returns
+    -------
+    Scenario
+        A copy of ``sc`` whose ``faults`` are :func:`faults_from_events` of the file.
+
+    Raises
+    ------
+    ScenarioError
+        The file cannot be read, or its ``orchestrator_started`` event names another scenario.
+    """
     events = load_events(events_path)
     started = [e for e in events if e["event"] == "orchestrator_started"]
     if started and started[0].get("scenario") not in (None, sc.name):

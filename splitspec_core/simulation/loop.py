@@ -43,6 +43,17 @@ def run_steps(plan: Plan, net: NetworkState, rows: list, *, restart: Callable, r
         ``advance(k)``: the plant to ``x(k+1)`` (None: ``update`` moves it too).
     last : callable, optional
         ``last(k)``: after the last step's record.
+
+    Examples
+    --------
+    >>> import splitspec_core as ss
+    >>> from splitspec_core.model.network import NetworkState, make_plan
+    >>> sc = ss.load_scenario("examples/paper_discrete.yaml")
+    >>> seen = []
+    >>> run_steps(make_plan(sc, 0, 3), NetworkState(sc), [], restart=lambda killed, rejoined: None,
+    ...           record=lambda k: seen.append(("record", k)), update=lambda k, y: seen.append(("update", k)))
+    >>> seen
+    [('record', 0), ('update', 0), ('record', 1), ('update', 1), ('record', 2), ('update', 2), ('record', 3)]
     """
     for k in range(plan.steps + 1):
         restart(*net.apply(plan.faults.get(k, ())))

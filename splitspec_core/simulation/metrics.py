@@ -16,7 +16,18 @@ __all__ = ["max_error", "fit_decay", "envelope_constant", "envelope_restarts", "
 
 
 def max_error(traj: Trajectory) -> np.ndarray:
-    """``max_i |x_i(t) - x(t)|`` over alive agents, shape (T,) (NaN when nobody is alive)."""
+    """``max_i |x_i(t) - x(t)|`` over alive agents, shape (T,) (NaN when nobody is alive).
+
+    Parameters
+    ----------
+    traj : Trajectory
+        The run.
+
+    Returns
+    -------
+    (T,) ndarray
+        The largest error norm over the alive agents at each step.
+    """
     e = traj.errors()
     out = np.full(e.shape[0], np.nan)
     ok = np.any(np.isfinite(e), axis=1)
@@ -34,6 +45,34 @@ def fit_decay(t: np.ndarray, err: np.ndarray, *, time: str, scale: np.ndarray | 
     round-off grows with the state (an unstable plant makes it grow).  Returns
     the rate ``lam`` in the scenario's convention: continuous ``err ~ exp(-lam t)``,
     discrete ``err ~ lam^tau``; ``None`` with fewer than 6 usable samples.
+
+    Parameters
+    ----------
+    t : (T,) ndarray
+        The times (event indices in discrete time).
+    err : (T,) array_like
+        The error curve (e.g. :func:`max_error` of a noise-free run); NaN ends the usable samples.
+    time : str
+        ``"continuous"`` or ``"discrete"``.
+    scale : (T,) array_like or None, optional
+        The state's size ``|x(t)|``, for the round-off floor; None (default): the floor is
+        ``floor_rel * max err`` only.
+    floor_rel : float, optional
+        The relative round-off floor (default 1e-9).
+
+    Returns
+    -------
+    float or None
+        The measured rate ``lam``, or None.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> t = np.arange(20.0)
+    >>> round(float(fit_decay(t, 3 * 0.5 ** t, time="discrete")), 6)
+    0.5
+    >>> round(float(fit_decay(t, np.exp(-2 * t), time="continuous")), 6)
+    2.0
     """
     err = np.asarray(err, dtype=float)
     ok = np.isfinite(err)
@@ -57,6 +96,32 @@ def envelope_constant(t: np.ndarray, err: np.ndarray, *, time: str, rate: float,
 
     Samples at the round-off floor (``floor_rel * scale(t)``, as in
     :func:`fit_decay`) are ignored: there the error is float noise, not decay.
+
+    Parameters
+    ----------
+    t : (T,) ndarray
+        The times, from the start of the envelope.
+    err : (T,) array_like
+        The errors.
+    time : str
+        ``"continuous"`` or ``"discrete"``.
+    rate : float
+        The designed rate ``lam``.
+    scale : (T,) array_like or None, optional
+        The state's size ``|x(t)|``, for the round-off floor; None (default): no sample is ignored.
+    floor_rel : float, optional
+        The relative round-off floor (default 1e-9).
+
+    Returns
+    -------
+    float
+        ``max_t err(t) / envelope(t)`` over the finite samples; NaN when there is none.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> envelope_constant(np.arange(5.0), 3 * 0.5 ** np.arange(5.0), time="discrete", rate=0.6)
+    3.0
     """
     env = np.exp(-rate * t) if time == "continuous" else rate ** t
     err = np.asarray(err, dtype=float)
@@ -73,6 +138,25 @@ def envelope_restarts(alive: np.ndarray, graph: np.ndarray) -> np.ndarray:
     ``c exp(-lam t)``) holds again from that step with a new constant; a switch moves the error
     dynamics to another matrix (``A_V(tau)``, eq. split_discrete_ench), whose certificate is its own.
     A loss alone does not restart it: the survivors' errors keep decaying.
+
+    Parameters
+    ----------
+    alive : (T, m) array_like of bool
+        The agents alive at each step.
+    graph : (T,) array_like of int
+        The active graph at each step.
+
+    Returns
+    -------
+    (R,) int ndarray
+        The restart steps, in order, starting with 0 (empty when ``T == 0``).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> alive = np.array([[1, 1], [1, 0], [1, 1], [1, 1]], dtype=bool)
+    >>> envelope_restarts(alive, np.array([0, 0, 0, 1]))
+    array([0, 2, 3])
     """
     alive = np.asarray(alive, dtype=bool)
     graph = np.asarray(graph)
@@ -96,6 +180,37 @@ def envelope(t: np.ndarray, err_max: np.ndarray, restarts, *, time: str, rate: f
     starts at the error it restarts from.  ``fit=True`` (a finished trajectory): ``c`` is the
     smallest constant above the piece's errors (samples at the round-off floor
     ``floor_rel * scale`` ignored, as in :func:`envelope_constant`).  NaN where there is no error.
+
+    Parameters
+    ----------
+    t : (T,) array_like
+        The times.
+    err_max : (T,) array_like
+        The largest error over the agents (:func:`max_error`).
+    restarts : iterable of int
+        The restart steps (:func:`envelope_restarts`); 0 is added when missing, out-of-range steps are
+        ignored.
+    time : str
+        ``"continuous"`` or ``"discrete"``.
+    rate : float
+        The designed rate ``lam``.
+    fit : bool, optional
+        False (default): ``c`` is the piece's first error; True: the smallest ``c`` above the piece.
+    scale : (T,) array_like or None, optional
+        The state's size ``|x(t)|`` for the round-off floor (``fit=True`` only); None (default): none.
+    floor_rel : float, optional
+        The relative round-off floor (default 1e-9).
+
+    Returns
+    -------
+    (T,) ndarray
+        The envelope; NaN on a piece whose ``c`` is not a positive number.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> envelope(np.arange(4.0), np.array([4.0, 2.0, 8.0, 4.0]), [0, 2], time="discrete", rate=0.5)
+    array([4., 2., 8., 4.])
     """
     t = np.asarray(t, dtype=float)
     err = np.asarray(err_max, dtype=float)
@@ -149,6 +264,38 @@ def event_marks(t: np.ndarray, alive: np.ndarray, graph: np.ndarray, *, agent_id
     names the loss (each kind's ``loss_word``: ``killed``, ``frozen``) and adds what ``alive`` and
     ``graph`` cannot show, each kind's :meth:`~splitspec_core.scenarios.faults.Fault.plot_mark` (``drop_arc`` /
     ``restore_arc``, ...) at step ``ceil(at / dt)`` (as :func:`splitspec_core.model.network.fault_step`).
+
+    Parameters
+    ----------
+    t : (T,) array_like
+        The times.
+    alive : (T, m) array_like of bool
+        The agents alive at each step.
+    graph : (T,) array_like of int
+        The active graph at each step.
+    agent_ids : sequence of int
+        The agents' ids, in the order of ``alive``'s columns.
+    faults : iterable of Fault, optional
+        The scenario's faults (default: none).
+    graph_names : sequence of str or None, optional
+        The graphs' names, by index; None (default): the marks name the index.
+    dt : float, optional
+        The step (default 1: discrete time), for the faults' steps.
+
+    Returns
+    -------
+    tuple of Mark
+        The marks in step order (the faults' own marks of step 0 first).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> alive = np.array([[1, 1], [1, 0], [1, 1], [1, 1]], dtype=bool)
+    >>> for mk in event_marks(np.arange(4.0), alive, np.array([0, 0, 0, 1]), agent_ids=[1, 2], graph_names=("a", "b")):
+    ...     print(mk.step, mk.kind, mk.label)
+    1 loss 2 lost
+    2 rejoin 2 rejoins
+    3 switch graph b
     """
     t = np.asarray(t, dtype=float)
     alive = np.asarray(alive, dtype=bool)
@@ -197,6 +344,38 @@ def summarize(traj: Trajectory, *, time: str, rate: float | None, noise_free: Tr
     for the adaptive gain; default True otherwise).  ``rate`` None: no envelope and no verdict either (the
     certificate covers the error modulo directions no agent sees, which do not decay: ``design.undetectable:
     exclude``).
+
+    Parameters
+    ----------
+    traj : Trajectory
+        The run.
+    time : str
+        ``"continuous"`` or ``"discrete"``.
+    rate : float or None
+        The designed rate ``lam``; None: no envelope and no verdict.
+    noise_free : Trajectory or None, optional
+        The same run without noise, for the measured rate and the envelope; None (default): ``traj``.
+    adaptive : bool, optional
+        The adaptive gain (default False).
+    certified_rate : bool or None, optional
+        Whether the design certifies ``rate``; None (default): True (False with the adaptive gain).
+
+    Returns
+    -------
+    dict
+        ``steps``, ``designed_rate``, ``certified_rate``, ``rate_note``, ``measured_rate`` (float or None),
+        ``measured_meets_design`` (bool or None), ``envelope_c`` (the constant when the envelope never
+        restarts, else None), ``envelope_pieces`` (``[t, c]`` per restart), ``alive_at_end`` (agent ids)
+        and ``agents`` (agent id as str -> ``final_error``, ``max_error``, ``alive_at_end``).
+
+    Examples
+    --------
+    >>> import splitspec_core as ss
+    >>> from splitspec_core.simulation.simulator import simulate
+    >>> des = ss.design(ss.load_scenario("examples/paper_discrete.yaml")).detail
+    >>> s = summarize(simulate(des), time="discrete", rate=0.5)
+    >>> round(s["measured_rate"], 2), s["measured_meets_design"], s["alive_at_end"]
+    (0.47, True, [1, 2, 3])
     """
     bare = adaptive or rate is None  # nothing to hold the errors against
     e = traj.errors()
@@ -256,6 +435,39 @@ def steady_rms(err=None, *, sq_error=None, count=None, tail: float = 0.5, start:
 
     The two differ only when agents die or rejoin in the tail.  NaN where nobody is counted.  Returns a float for
     ``err``, else an array of ``sq_error.shape[:-1]``.
+
+    Parameters
+    ----------
+    err : (T,) or (T, m) array_like, optional
+        One run's error norms; give this or ``sq_error``.
+    sq_error : (..., T) array_like, optional
+        Per step, the squared errors summed over the agents counted.
+    count : (..., T) array_like, optional
+        How many agents ``sq_error`` sums; None (default): one.
+    tail : float, optional
+        The fraction of the run, at its end, that is counted (default 0.5).
+    start : int or None, optional
+        The first step counted, instead of ``tail``; None (default): from ``tail``.
+    per_step : bool, optional
+        False (default): every alive agent-step weighs the same; True: every step weighs the same.
+
+    Returns
+    -------
+    float or ndarray
+        A float for ``err``, an array of ``sq_error.shape[:-1]`` for ``sq_error``.
+
+    Raises
+    ------
+    TypeError
+        Neither or both of ``err`` and ``sq_error`` given.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> round(steady_rms(np.array([[1.0, np.nan], [3.0, 4.0]]), tail=1.0), 6)
+    2.94392
+    >>> steady_rms(sq_error=np.array([[2.0, 8.0]]), count=np.array([[2, 2]]), tail=1.0).round(6)
+    array([1.581139])
     """
     if (err is None) == (sq_error is None):
         raise TypeError("steady_rms: give err, or sq_error (and count)")
@@ -283,13 +495,47 @@ def monte_carlo_stats(trajs: list, *, tail: float = 0.2) -> dict:
     statistics over the last ``tail`` fraction of the run (:func:`rms_stats` of the
     trajectories' RMS errors; a batched Monte Carlo run gives the same from
     :meth:`splitspec_core.simulation.montecarlo.MonteCarloRuns.stats` without keeping trajectories).
+
+    Parameters
+    ----------
+    trajs : list of Trajectory
+        One run per seed, of the same length.
+    tail : float, optional
+        The fraction of the run, at its end, that the steady-state statistics cover (default 0.2).
+
+    Returns
+    -------
+    dict
+        As :func:`rms_stats`.
     """
     rms = np.stack([np.sqrt(np.nanmean(tr.errors() ** 2, axis=1)) for tr in trajs])  # (N, T)
     return rms_stats(rms, tail=tail)
 
 
 def rms_stats(rms: np.ndarray, *, tail: float = 0.2) -> dict:
-    """:func:`monte_carlo_stats` of ``rms`` (N, T), the RMS error over agents per seed and step."""
+    """:func:`monte_carlo_stats` of ``rms`` (N, T), the RMS error over agents per seed and step.
+
+    Parameters
+    ----------
+    rms : (N, T) array_like
+        The RMS error over agents, per seed and step.
+    tail : float, optional
+        The fraction of the run, at its end, that the steady-state statistics cover (default 0.2).
+
+    Returns
+    -------
+    dict
+        ``seeds`` (N); ``mean``, ``std``, ``p10``, ``p90``: (T,) arrays over seeds; ``steady_rms_mean``,
+        ``steady_rms_std`` (over seeds of :func:`steady_rms` with ``per_step=True``), ``final_rms_mean``,
+        ``final_rms_std``: floats.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> st = rms_stats(np.array([[1.0, 0.5], [3.0, 1.5]]), tail=0.5)
+    >>> st["mean"], st["final_rms_mean"], st["steady_rms_std"]
+    (array([2., 1.]), 1.0, 0.5)
+    """
     rms = np.asarray(rms, dtype=float)
     steady = steady_rms(sq_error=rms ** 2, tail=tail, per_step=True)  # per seed: every step weighs the same
     return {

@@ -91,24 +91,70 @@ class MonteCarloRuns:
     trajectories: tuple | None = None
 
     def rms(self) -> np.ndarray:
-        """RMS error over the alive agents, (N, T): ``sqrt(sq_error / alive_count)``, NaN where none is alive."""
+        """RMS error over the alive agents, (N, T): ``sqrt(sq_error / alive_count)``, NaN where none is alive.
+
+        Returns
+        -------
+        (N, T) ndarray
+            The RMS error over the alive agents, per seed and step.
+        """
         with np.errstate(invalid="ignore", divide="ignore"):
             return np.where(self.alive_count > 0, np.sqrt(self.sq_error / np.maximum(self.alive_count, 1)), np.nan)
 
     def steady_rms(self, *, start: int | None = None) -> np.ndarray:
         """Per seed, RMS over agents and steps from ``start`` (default: the last half, as ``compare``), (N,):
-        :func:`splitspec_core.simulation.metrics.steady_rms` of ``sq_error`` and ``alive_count``."""
+        :func:`splitspec_core.simulation.metrics.steady_rms` of ``sq_error`` and ``alive_count``.
+
+        Parameters
+        ----------
+        start : int or None, optional
+            The first step counted; None (default): the last half of the run.
+
+        Returns
+        -------
+        (N,) ndarray
+            The steady-state RMS error of each seed (NaN where no agent is counted).
+        """
         return steady_rms(sq_error=self.sq_error, count=self.alive_count, start=start)
 
     def stats(self, *, tail: float = 0.2) -> dict:
         """The Monte Carlo statistics of :func:`splitspec_core.simulation.metrics.monte_carlo_stats` (same keys, same numbers
         to round-off): per-step mean, std, 10 % and 90 % of the RMS error over seeds, and the steady-state (last
-        ``tail`` of the run) and final RMS error, mean and std over seeds."""
+        ``tail`` of the run) and final RMS error, mean and std over seeds.
+
+        Parameters
+        ----------
+        tail : float, optional
+            The fraction of the run, at its end, that the steady-state statistics cover (default 0.2).
+
+        Returns
+        -------
+        dict
+            ``seeds``; ``mean``, ``std``, ``p10``, ``p90`` (T,) arrays; ``steady_rms_mean``,
+            ``steady_rms_std``, ``final_rms_mean``, ``final_rms_std`` floats.
+        """
         return rms_stats(self.rms(), tail=tail)
 
 
 def fallback_reason(des: Design, *, lost=None, measurements=None, exact: bool = False) -> str | None:
-    """Why N seeds of ``des`` cannot run as one batch (see the module docstring), or None."""
+    """Why N seeds of ``des`` cannot run as one batch (see the module docstring), or None.
+
+    Parameters
+    ----------
+    des : Design
+        The design.
+    lost : optional
+        Recorded losses to replay (any value but None falls back).
+    measurements : optional
+        Recorded measurements (any value but None falls back).
+    exact : bool, optional
+        The exact ODE asked for (default False).
+
+    Returns
+    -------
+    str or None
+        The reason the per-seed loop runs, in words; None when the seeds can run as one batch.
+    """
     sc = des.scenario
     if exact:
         return "the exact ODE integrates one seed at a time"
@@ -155,7 +201,18 @@ class SeedBatchEstimator(BatchEstimator):
             self.g = np.repeat(self.g[:, None], self.N, axis=1)
 
     def weights(self, rows: dict) -> sp.csr_matrix:
-        """``S`` (m x m, sparse): row i holds agent i's weights on its alive neighbours."""
+        """``S`` (m x m, sparse): row i holds agent i's weights on its alive neighbours.
+
+        Parameters
+        ----------
+        rows : dict
+            ``{i: (neighbour ids, weights)}`` of the alive agents.
+
+        Returns
+        -------
+        scipy.sparse.csr_matrix
+            ``S`` restricted to the alive agents, in both times and both designs.
+        """
         pos = {a: k for k, a in enumerate(self.sc.agent_ids)}
         ri = [pos[i] for i, (nbs, _) in rows.items() for _ in nbs]
         ci = [pos[j] for _, (nbs, _) in rows.items() for j in nbs]
@@ -169,7 +226,26 @@ class SeedBatchEstimator(BatchEstimator):
         return Y
 
     def step(self, X: np.ndarray, y: np.ndarray, W, alive: np.ndarray, missing=None) -> np.ndarray:
-        """One step of every seed; ``W`` one ``S`` for every exchange (lossless)."""
+        """One step of every seed; ``W`` one ``S`` for every exchange (lossless).
+
+        Parameters
+        ----------
+        X : (m, n, N) ndarray
+            The estimates, seeds on the trailing axis.
+        y : (sum s_i, N) ndarray
+            The stacked measurements of every seed.
+        W : scipy.sparse.csr_matrix
+            :meth:`weights` of the step's network.
+        alive : (m,) bool ndarray
+            The agents taking part (the same in every seed).
+        missing : optional
+            Ignored: every agent measures every step here (measurements files fall back to the per-seed loop).
+
+        Returns
+        -------
+        (m, n, N) ndarray
+            The estimates ``x_i(k+1)`` of every seed, zero for the dead agents.
+        """
         return self.step_realized(X, y, [W] * (1 if self.continuous else self.q), alive)
 
     def _whole(self, X: np.ndarray, Y: np.ndarray, Ws: list, alive: np.ndarray) -> np.ndarray:
@@ -184,7 +260,27 @@ class SeedBatchEstimator(BatchEstimator):
 
     def step_realized(self, X: np.ndarray, y: np.ndarray, Ws: list, alive: np.ndarray, missing=None) -> np.ndarray:
         """One step of every seed with one ``S_k`` per exchange (sparse or :class:`_RealizedS`, the same for every
-        seed: a partition, never a drawn loss)."""
+        seed: a partition, never a drawn loss).
+
+        Parameters
+        ----------
+        X : (m, n, N) ndarray
+            The estimates, seeds on the trailing axis.
+        y : (sum s_i, N) ndarray
+            The stacked measurements of every seed.
+        Ws : list
+            ``S_k`` per exchange (``q``; one in continuous time), sparse or realized.
+        alive : (m,) bool ndarray
+            The agents taking part.
+        missing : optional
+            Ignored (as in :meth:`step`).
+
+        Returns
+        -------
+        (m, n, N) ndarray
+            The estimates ``x_i(k+1)`` of every seed, zero for the dead agents.  With the adaptive gain this
+            also advances ``g`` (m, N).
+        """
         m, n, N = X.shape
         Y = self._Y(y)
         if self.whole:
@@ -230,7 +326,10 @@ def simulate_seeds(des: Design, seeds, *, steps: int | None = None, noise: bool 
 
     Parameters
     ----------
+    des : Design
+        The design (:attr:`splitspec_core.api.DesignResult.detail`).
     seeds : iterable of int
+        The seeds, at least one.
     steps : int, optional
         Defaults to ``run.steps`` (or the measurements' length).
     noise : bool
@@ -240,8 +339,15 @@ def simulate_seeds(des: Design, seeds, *, steps: int | None = None, noise: bool 
         checked against this machine's memory first).
     chunk : int
         Seeds per batch.
-    lost, measurements, exact
-        As :func:`splitspec_core.api.simulate`; each makes the seeds run one after another.
+    lost : (N, 4) int array, or ``(lost, lost_cause)``, optional
+        Replay these consensus losses (as :func:`~splitspec_core.simulation.simulator.simulate`); the seeds run
+        one after another.
+    measurements : Measurements, optional
+        Recorded measurements instead of the plant (as :func:`~splitspec_core.simulation.simulator.simulate`);
+        the seeds run one after another.
+    exact : bool
+        Integrate the exact ODE (:func:`~splitspec_core.simulation.simulator.simulate_exact`, noise-free); the
+        seeds run one after another.
     force_loop : bool
         Run the per-seed loop even where the batch applies (the reference the batch is tested against).
 
@@ -250,6 +356,21 @@ def simulate_seeds(des: Design, seeds, *, steps: int | None = None, noise: bool 
     MonteCarloRuns
         Per seed and step the squared error over the alive agents; ``sq_error[k]`` equals
         ``nansum(simulate(des, seed=seeds[k]).errors() ** 2, axis=1)`` to round-off.
+
+    Raises
+    ------
+    ScenarioError
+        No seed, ``chunk < 1``, or trajectories that cannot fit in memory.
+
+    Examples
+    --------
+    >>> import splitspec_core as ss
+    >>> des = ss.design(ss.load_scenario("examples/paper_discrete.yaml")).detail
+    >>> runs = simulate_seeds(des, range(4), steps=20)
+    >>> runs.batched, runs.sq_error.shape
+    (True, (4, 21))
+    >>> bool(runs.stats()["final_rms_mean"] < 1e-4)
+    True
     """
     seeds = tuple(int(s) for s in seeds)
     if not seeds:

@@ -123,11 +123,42 @@ class Trajectory:
         return bool(np.isfinite(self.x).any())
 
     def errors(self) -> np.ndarray:
-        """``|x_i(t) - x(t)|_2`` per agent, shape (T, m), NaN where dead."""
+        """``|x_i(t) - x(t)|_2`` per agent, shape (T, m), NaN where dead.
+
+        Returns
+        -------
+        (T, m) ndarray
+            The error norms ``e_i(t)``; all NaN where ``x`` is unknown.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> tr = Trajectory(t=np.arange(2.0), x=np.zeros((2, 2)), xhat=np.array([[[3.0, 4.0]], [[np.nan, np.nan]]]),
+        ...                 alive=np.array([[True], [False]]), graph=np.zeros(2, dtype=int), agent_ids=np.array([1]))
+        >>> tr.errors()
+        array([[ 5.],
+               [nan]])
+        """
         return np.linalg.norm(self.xhat - self.x[:, None, :], axis=2)
 
     def save(self, path: str | Path, extra: dict | None = None) -> None:
-        """Atomically write ``path`` (the one writer of the contract, :func:`~splitspec_core.simulation.trajectory_file.write_trajectory`)."""
+        """Atomically write ``path`` (the one writer of the contract, :func:`~splitspec_core.simulation.trajectory_file.write_trajectory`).
+
+        Parameters
+        ----------
+        path : str or Path
+            The ``.npz`` file to write (replaced atomically if it exists).
+        extra : dict or None, optional
+            More optional arrays of the contract (:data:`~splitspec_core.simulation.trajectory_file.OPTIONAL`),
+            written besides ``y`` and ``y_missing``; None (default): none.
+
+        Raises
+        ------
+        OSError
+            The file cannot be written (``path`` is left as it was).
+        ValueError
+            A key of ``extra`` that is not an optional array of the contract.
+        """
         write_trajectory(path, t=self.t, x=self.x, xhat=self.xhat, alive=self.alive, graph=self.graph,
                          agent_ids=self.agent_ids, columns=self.columns, lost=self.lost, lost_cause=self.lost_cause,
                          extra={**({"y": self.y, "y_missing": self.y_missing} if self.y is not None else {}),
@@ -135,20 +166,58 @@ class Trajectory:
 
     @classmethod
     def load(cls, path: str | Path) -> "Trajectory":
+        """Read a ``trajectory.npz`` written by :meth:`save` (or by ``splitspec run``).
+
+        Parameters
+        ----------
+        path : str or Path
+            The ``.npz`` file.
+
+        Returns
+        -------
+        Trajectory
+            The trajectory (:meth:`from_arrays` of the file's arrays).
+        """
         with np.load(path) as f:
             return cls.from_arrays({k: f[k] for k in f.files})
 
     @classmethod
     def from_arrays(cls, a: dict) -> "Trajectory":
         """From the arrays of the contract (``trajectory.npz``'s, or
-        :func:`~splitspec_core.simulation.trajectory_chunks.read_chunks`'s; other keys are ignored)."""
+        :func:`~splitspec_core.simulation.trajectory_chunks.read_chunks`'s; other keys are ignored).
+
+        Parameters
+        ----------
+        a : dict
+            Array name -> array: at least ``t``, ``x``, ``xhat``, ``alive``, ``graph`` and ``agent_ids``; the
+            reported columns, ``lost``, ``lost_cause``, ``y``, ``y_missing`` and ``states`` when present.
+
+        Returns
+        -------
+        Trajectory
+            The trajectory over those arrays (not copied).
+        """
         extra = {k: a[k] for k in ("lost", "lost_cause", "y", "y_missing") if k in a}
         states = tuple(str(s) for s in a["states"]) if "states" in a else None
         return cls(t=a["t"], x=a["x"], xhat=a["xhat"], alive=a["alive"], graph=a["graph"], agent_ids=a["agent_ids"],
                    columns={c.name: a[c.name] for c in REPORTED if c.name in a}, states=states, **extra)
 
     def window(self, start: float | None = None, end: float | None = None) -> "Trajectory":
-        """The rows with ``start <= t <= end`` (None: no bound), and the lost messages of their event times."""
+        """The rows with ``start <= t <= end`` (None: no bound), and the lost messages of their event times.
+
+        Parameters
+        ----------
+        start : float or None, optional
+            The first time kept (inclusive); None (default): from the beginning.
+        end : float or None, optional
+            The last time kept (inclusive); None (default): to the end.
+
+        Returns
+        -------
+        Trajectory
+            A new trajectory with those rows (possibly none); ``lost`` and ``lost_cause`` keep the messages of
+            the kept event times (``t`` divided by the first step of ``t``).
+        """
         keep = np.ones(len(self.t), dtype=bool)
         if start is not None:
             keep &= self.t >= start
@@ -176,7 +245,13 @@ class Trajectory:
 
 
 def physical_memory() -> int | None:
-    """Bytes of physical memory (``SC_PHYS_PAGES * SC_PAGE_SIZE``), or None where unknown."""
+    """Bytes of physical memory (``SC_PHYS_PAGES * SC_PAGE_SIZE``), or None where unknown.
+
+    Returns
+    -------
+    int or None
+        The bytes; None where the platform cannot say.
+    """
     try:
         return os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
     except (ValueError, OSError, AttributeError):
@@ -197,6 +272,17 @@ def check_trajectory_memory(sc: Scenario, steps: int | None = None, *, key: str 
     ScenarioError
         ``run.steps = S needs X GiB for the trajectory (T x m x n float64); this machine has Y GiB``
         (``key`` names the option, default ``run.steps`` or ``steps``).
+
+    Parameters
+    ----------
+    sc : Scenario
+        The scenario (its ``m``, ``n`` and ``run.steps``).
+    steps : int or None, optional
+        The steps of the run; None (default): ``run.steps``.
+    key : str or None, optional
+        The option the error names; None (default): ``steps`` if ``steps`` is given, else ``run.steps``.
+    copies : int, optional
+        The trajectories held at once (default 1).
     """
     given = steps is not None
     steps = sc.run.steps if steps is None else int(steps)
@@ -271,7 +357,26 @@ def _bmv(M: np.ndarray, X: np.ndarray) -> np.ndarray:
 
 
 def weight_entries(sc: Scenario, rows: dict) -> tuple:
-    """``(row, col, weight, off-diagonal)`` arrays (agent positions) of ``rows``, sorted by row, in its order within."""
+    """``(row, col, weight, off-diagonal)`` arrays (agent positions) of ``rows``, sorted by row, in its order within.
+
+    Parameters
+    ----------
+    sc : Scenario
+        The scenario (its agent order).
+    rows : dict
+        ``{i: (neighbour ids, weights)}`` (:func:`splitspec_core.model.network.consensus_rows`).
+
+    Returns
+    -------
+    row : (E,) int64 ndarray
+        The receiver's position of each entry.
+    col : (E,) int64 ndarray
+        The sender's position.
+    weight : (E,) float ndarray
+        ``w_ij``.
+    off : (E,) bool ndarray
+        True for the off-diagonal entries (the messages between agents).
+    """
     pos = {a: k for k, a in enumerate(sc.agent_ids)}
     ri = np.array([pos[i] for i, (nbs, _) in rows.items() for _ in nbs], dtype=np.int64)
     ci = np.array([pos[j] for _, (nbs, _) in rows.items() for j in nbs], dtype=np.int64)
@@ -371,6 +476,16 @@ class BatchEstimator(_EstimatorBase):
 
         Continuous: sparse ``W`` (m x m).  Discrete: ``(B, G)`` with
         ``B = V'(W (x) I)V`` and ``G = V'(W (x) I)``, both sparse.
+
+        Parameters
+        ----------
+        rows : dict
+            ``{i: (neighbour ids, weights)}`` of the alive agents (:func:`splitspec_core.model.network.consensus_rows`).
+
+        Returns
+        -------
+        scipy.sparse.csr_matrix or tuple of two csr_matrix
+            ``W`` (continuous time, and the whole-state design in both times), else ``(B, G)``.
         """
         pos = {a: k for k, a in enumerate(self.sc.agent_ids)}
         ri, ci, vals = [], [], []
@@ -387,7 +502,29 @@ class BatchEstimator(_EstimatorBase):
 
     def step(self, X: np.ndarray, y: np.ndarray, W, alive: np.ndarray, missing=None, bu=None) -> np.ndarray:
         """One step; ``missing`` (m,) bool: agents without a measurement this step (prediction only); ``bu`` (n,):
-        the known input's ``B u`` every agent adds (steps.measurement_update), None without inputs."""
+        the known input's ``B u`` every agent adds (steps.measurement_update), None without inputs.
+
+        Parameters
+        ----------
+        X : (m, n) ndarray
+            The estimates ``x_i(k)``, a row per agent (rows of dead agents are ignored).
+        y : (sum s_i,) ndarray
+            The stacked measurement ``y(k)``.
+        W : scipy.sparse.csr_matrix or tuple
+            :meth:`weights` of the step's network.
+        alive : (m,) bool ndarray
+            The agents taking part.
+        missing : (m,) bool ndarray or None, optional
+            Agents without a measurement this step; None (default): every agent has one.
+        bu : (n,) ndarray or None, optional
+            The known input's ``B u(k)``; None (default): no inputs.
+
+        Returns
+        -------
+        (m, n) ndarray
+            The estimates ``x_i(k+1)``, zero rows for the dead agents.  In continuous time with the adaptive
+            gain this also advances the alive agents' ``g`` (eq. adaptive).
+        """
         Y = np.zeros((self.m, self.Kp.shape[2]))
         Y[self._yidx] = y
         if self.whole:
@@ -435,6 +572,21 @@ class BatchEstimator(_EstimatorBase):
         ``entries``: :func:`weight_entries` of ``rows`` (sorted by receiver); ``counts[k]``: a boolean per off-diagonal
         entry, True where the message counts.  Each ``S_k`` is a :class:`_RealizedS` (a segmented sum: building a
         scipy matrix per sub-round cost more than the whole step).
+
+        Parameters
+        ----------
+        rows : dict
+            ``{i: (neighbour ids, weights)}`` of the step's network.
+        entries : tuple
+            :func:`weight_entries` of ``rows``.
+        counts : list of (E_off,) bool ndarray
+            One per exchange, True where an off-diagonal entry's message counts.
+
+        Returns
+        -------
+        list of _RealizedS
+            ``S_k`` per exchange: a receiver's missing messages' weight goes to itself (Metropolis), or its row
+            is re-weighted ``1 / (1 + counted)`` (uniform).
         """
         ri, ci, w, off = entries
         offi = np.flatnonzero(off)
@@ -456,7 +608,28 @@ class BatchEstimator(_EstimatorBase):
     def step_realized(self, X: np.ndarray, y: np.ndarray, Ws: list, alive: np.ndarray, missing=None,
                       bu=None) -> np.ndarray:
         """One step with a realized consensus matrix per exchange (``Ws``: q sparse ``S_k``, or one in continuous
-        time): eq. (split-discrete-p2) as ``z <- z + P_i (S_k z - z)_i``, then eq. (split-discrete-est1)."""
+        time): eq. (split-discrete-p2) as ``z <- z + P_i (S_k z - z)_i``, then eq. (split-discrete-est1).
+
+        Parameters
+        ----------
+        X : (m, n) ndarray
+            The estimates ``x_i(k)``.
+        y : (sum s_i,) ndarray
+            The stacked measurement ``y(k)``.
+        Ws : list
+            :meth:`realized` of the step: ``q`` matrices ``S_k`` (one in continuous time, handed to :meth:`step`).
+        alive : (m,) bool ndarray
+            The agents taking part.
+        missing : (m,) bool ndarray or None, optional
+            Agents without a measurement this step; None (default): every agent has one.
+        bu : (n,) ndarray or None, optional
+            The known input's ``B u(k)``; None (default): no inputs.
+
+        Returns
+        -------
+        (m, n) ndarray
+            The estimates ``x_i(k+1)``, zero rows for the dead agents.
+        """
         Y = np.zeros((self.m, self.Kp.shape[2]))
         Y[self._yidx] = y
         if self.continuous:
@@ -483,6 +656,18 @@ class AgentLoopEstimator(_EstimatorBase):
         self.rows = output_rows(self.Cs)
 
     def weights(self, rows: dict) -> dict:
+        """The consensus rows themselves: each agent reads its own row, as an agent process does.
+
+        Parameters
+        ----------
+        rows : dict
+            ``{i: (neighbour ids, weights)}`` of the alive agents.
+
+        Returns
+        -------
+        dict
+            ``rows``, unchanged.
+        """
         return rows
 
     def _ys(self, y: np.ndarray, missing) -> list:
@@ -513,6 +698,30 @@ class AgentLoopEstimator(_EstimatorBase):
         return Z
 
     def step(self, X: np.ndarray, y: np.ndarray, rows: dict, alive: np.ndarray, missing=None, bu=None) -> np.ndarray:
+        """One step, agent by agent, with the step functions of :mod:`splitspec_core.model.steps`: ``q`` consensus
+sub-rounds then the update (discrete), the sampled-data step (continuous; with the adaptive gain its Euler step),
+or the whole-state design's update then ``q`` averages.
+
+        Parameters
+        ----------
+        X : (m, n) ndarray
+            The estimates ``x_i(k)``, a row per agent.
+        y : (sum s_i,) ndarray
+            The stacked measurement ``y(k)``.
+        rows : dict
+            ``{i: (neighbour ids, weights)}`` of the alive agents (:meth:`weights`).
+        alive : (m,) bool ndarray
+            The agents taking part (unused: the agents of ``rows`` are the alive ones).
+        missing : (m,) bool ndarray or None, optional
+            Agents without a measurement this step; None (default): every agent has one.
+        bu : (n,) ndarray or None, optional
+            The known input's ``B u(k)``; None (default): no inputs.
+
+        Returns
+        -------
+        (m, n) ndarray
+            The estimates ``x_i(k+1)``, zero rows for the agents not in ``rows``.
+        """
         pos = {a: k for k, a in enumerate(self.sc.agent_ids)}
         ys = self._ys(y, missing)
         if self.whole:
@@ -543,7 +752,22 @@ class AgentLoopEstimator(_EstimatorBase):
         return Xn
 
     def realized(self, rows: dict, entries: tuple, counts: list) -> list:
-        """Each exchange's realized rows ``{i: (nbs, ws)}``, by the agents' own :func:`impairment.realized_row`."""
+        """Each exchange's realized rows ``{i: (nbs, ws)}``, by the agents' own :func:`impairment.realized_row`.
+
+        Parameters
+        ----------
+        rows : dict
+            ``{i: (neighbour ids, weights)}`` of the step's network.
+        entries : tuple
+            :func:`weight_entries` of ``rows``.
+        counts : list of (E_off,) bool ndarray
+            One per exchange, True where an off-diagonal entry's message counts.
+
+        Returns
+        -------
+        list of dict
+            Per exchange, ``{i: (neighbour ids, weights)}`` of the messages that count.
+        """
         ri, ci, _, off = entries
         ids = self.sc.agent_ids
         offi = np.flatnonzero(off)
@@ -559,7 +783,28 @@ class AgentLoopEstimator(_EstimatorBase):
     def step_realized(self, X: np.ndarray, y: np.ndarray, Ws: list, alive: np.ndarray, missing=None,
                       bu=None) -> np.ndarray:
         """One step with each exchange's realized rows (``Ws``: per exchange, ``{i: (nbs, ws)}``), exactly as the
-        agent processes compute it (:func:`splitspec_core.model.impairment.realized_row`)."""
+        agent processes compute it (:func:`splitspec_core.model.impairment.realized_row`).
+
+        Parameters
+        ----------
+        X : (m, n) ndarray
+            The estimates ``x_i(k)``.
+        y : (sum s_i,) ndarray
+            The stacked measurement ``y(k)``.
+        Ws : list of dict
+            :meth:`realized` of the step, one per exchange (continuous time: the first is used).
+        alive : (m,) bool ndarray
+            The agents taking part.
+        missing : (m,) bool ndarray or None, optional
+            Agents without a measurement this step; None (default): every agent has one.
+        bu : (n,) ndarray or None, optional
+            The known input's ``B u(k)``; None (default): no inputs.
+
+        Returns
+        -------
+        (m, n) ndarray
+            The estimates ``x_i(k+1)``, zero rows for the agents not in ``Ws[0]``.
+        """
         if self.continuous:
             return self.step(X, y, Ws[0], alive, missing, bu)
         if self.whole:
@@ -596,6 +841,13 @@ class Progress:
         self.last = 0.0
 
     def update(self, k: int) -> None:
+        """Redraw the bar at step ``k`` (at most every 0.2 s, and always at the end; nothing when disabled).
+
+        Parameters
+        ----------
+        k : int
+            The steps done (``total``: the bar ends its line).
+        """
         if not self.enabled:
             return
         now = _time.monotonic()
@@ -617,6 +869,8 @@ def simulate(des: Design, *, seed: int | None = None, steps: int | None = None, 
 
     Parameters
     ----------
+    des : Design
+        The design (:attr:`splitspec_core.api.DesignResult.detail`); its scenario is simulated.
     seed : int, optional
         Defaults to ``run.seed``; fixes initial state, estimates, noise and random switching.
     steps : int, optional
@@ -627,6 +881,9 @@ def simulate(des: Design, *, seed: int | None = None, steps: int | None = None, 
         ``batch`` (vectorised) or ``loop`` (per-agent step functions).
     progress : bool or None
         None shows a progress bar when stderr is a terminal and the run is long.
+    plan : Plan, optional
+        The run's switching and faults, made with ``sequence=True`` (:func:`~splitspec_core.model.network.make_plan`);
+        its ``steps`` win over ``steps``.  Default: made from the scenario, ``seed`` and ``steps``.
     lost : (N, 4) int array, or ``(lost, lost_cause)``, optional
         Replay: exactly these consensus messages do not count (a run's recorded ``lost``), instead of the
         scenario's drawn losses (:mod:`splitspec_core.model.impairment`).
@@ -636,6 +893,29 @@ def simulate(des: Design, *, seed: int | None = None, steps: int | None = None, 
         the trajectory then also holds ``y`` and ``y_missing``.
     keep_y : bool
         Also record the simulated plant's measurements in ``y`` (what ``simulate --write-measurements`` writes).
+
+    Returns
+    -------
+    Trajectory
+        ``T = steps + 1`` rows: ``x(k)`` and ``x_i(k)`` for ``k = 0 .. steps``, who was alive, the active
+        graph, the reported columns (``g``, ``messages_used``) and the consensus messages that did not count.
+
+    Raises
+    ------
+    ScenarioError
+        More ``steps`` than the measurements hold, or a trajectory that cannot fit in memory.
+
+    Examples
+    --------
+    >>> import splitspec_core as ss
+    >>> des = ss.design(ss.load_scenario("examples/paper_discrete.yaml")).detail
+    >>> tr = simulate(des, steps=20)
+    >>> tr.xhat.shape
+    (21, 3, 4)
+    >>> tr.errors()[0].round(3)
+    array([2.5  , 4.575, 2.538])
+    >>> bool(tr.errors()[-1].max() < 1e-4)
+    True
     """
     sc = des.scenario
     seed = sc.run.seed if seed is None else seed
@@ -767,6 +1047,33 @@ def realized_step(est, sc: Scenario, W: tuple, tau: int, exchanges: int, imp, re
     A message ``(tau, k, j, i)`` does not count when a partition in force separates j and i, when it is drawn
     lost (or late past the deadline, emulated), or, in a replay, when the run recorded it so; its row
     ``(tau, k, j, i, cause)`` goes to ``lost_rows``.
+
+    Parameters
+    ----------
+    est : BatchEstimator or AgentLoopEstimator
+        The estimator, whose :meth:`~BatchEstimator.realized` builds the weights.
+    sc : Scenario
+        The scenario (its agent order).
+    W : tuple
+        ``(weights, rows, entries)`` of the step's network (:class:`NetworkWeights`).
+    tau : int
+        The event time.
+    exchanges : int
+        The consensus exchanges of the step (``q``; 1 in continuous time).
+    imp : Impairment or None
+        The network's drawn losses and delays; None: none drawn.
+    replay : dict or None
+        ``{(tau, k): {(j, i): cause}}`` of a replayed run; None: no replay (it takes precedence over
+        ``imp`` and the partition).
+    groups : tuple or None
+        The partition in force (``NetworkState.groups``); None: none.
+    lost_rows : list
+        Appended to: ``(tau, k, j, i, cause)`` of every message that does not count.
+
+    Returns
+    -------
+    list or None
+        ``est.realized(...)``: one realized weights per exchange; None when every message counts.
     """
     _, rows, entries = W
     ri, ci, _, off = entries
@@ -811,6 +1118,26 @@ def simulate_exact(des: Design, *, seed: int | None = None, steps: int | None = 
     constant between steps (graph and alive set held), integrated with one
     matrix exponential per distinct step matrix.  Same initial conditions,
     switching and faults as :func:`simulate`.
+
+    Parameters
+    ----------
+    des : Design
+        The design (continuous time, fixed ``g``, split consensus).
+    seed : int or None, optional
+        The seed of the initial state, estimates and random switching; None (default): ``run.seed``.
+    steps : int or None, optional
+        The steps; None (default): ``run.steps``.
+
+    Returns
+    -------
+    Trajectory
+        The exact trajectory; ``g`` is the fixed gain where alive.
+
+    Raises
+    ------
+    ScenarioError
+        A discrete scenario, the adaptive gain, the whole-state design, an impaired network or a partition,
+        a sensor fault, or a trajectory that cannot fit in memory.
     """
     sc = des.scenario
     if sc.time != "continuous":

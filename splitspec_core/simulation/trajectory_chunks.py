@@ -74,12 +74,20 @@ class ChunkWriter:
 
     Parameters
     ----------
-    out_dir : the run's directory
-    agent_ids, states : the schema's metadata
-    n : state dimension
-    dt : the sampling step (1 in discrete time): ``t = tau * dt``, in the metadata (time windows)
-    p : width of ``y`` (0: no ``y`` / ``y_missing`` columns)
-    segment_bytes : a new segment starts when the current one holds this many bytes
+    out_dir : str or Path
+        The run's directory.
+    agent_ids : sequence of int
+        The agents' ids (the schema's metadata; ``m`` is their number).
+    states : sequence of str
+        The states' names (the schema's metadata).
+    n : int
+        The state dimension.
+    dt : float, optional
+        The sampling step (default 1: discrete time): ``t = tau * dt``, in the metadata (time windows).
+    p : int, optional
+        The width of ``y`` (default 0: no ``y`` / ``y_missing`` columns).
+    segment_bytes : int, optional
+        A new segment starts when the current one holds this many bytes (default 64 MiB).
     """
 
     def __init__(self, out_dir: str | Path, *, agent_ids, states, n: int, dt: float = 1.0, p: int = 0,
@@ -100,7 +108,18 @@ class ChunkWriter:
         ``tau`` (L,), ``t``, ``x`` (L, n), ``xhat`` (L, m, n), ``alive`` (L, m), ``graph``, the reported columns
         (L, m) such as ``g`` (one not given: its fill), ``wall``, ``round`` (L, 5)), ``lost`` (a list of L int
         arrays of 4 k values), and
-        ``y`` (L, p) / ``y_missing`` (L, m) when ``p``."""
+        ``y`` (L, p) / ``y_missing`` (L, m) when ``p``.
+
+        Parameters
+        ----------
+        cols : dict
+            Column name -> the L rows' values (shapes above).
+
+        Returns
+        -------
+        pyarrow.RecordBatch
+            The rows, in the writer's schema.
+        """
         import pyarrow as pa
 
         L = len(cols["tau"])
@@ -127,6 +146,16 @@ class ChunkWriter:
         ------
         OSError
             If the segment cannot be written; it is cut back to its last whole batch (removed if new).
+
+        Parameters
+        ----------
+        cols : dict
+            Column name -> the rows' values (:meth:`batch`); no row: nothing is written.
+
+        Returns
+        -------
+        int
+            The bytes written (the schema's too when a segment starts).
         """
         if len(cols["tau"]) == 0:
             return 0
@@ -165,7 +194,18 @@ class ChunkWriter:
         return len(data)
 
     def forget_before(self, tau: int) -> list[Path]:
-        """Remove the finished segments whose rows all precede event time ``tau`` (``run.keep``); their paths."""
+        """Remove the finished segments whose rows all precede event time ``tau`` (``run.keep``); their paths.
+
+        Parameters
+        ----------
+        tau : int
+            The first event time kept.
+
+        Returns
+        -------
+        list of Path
+            The segments removed (the current segment never is).
+        """
         gone = [p for p, last in self.segments if last < tau]
         for p in gone:
             p.unlink(missing_ok=True)
@@ -174,7 +214,18 @@ class ChunkWriter:
 
 
 def chunk_segments(out: str | Path) -> list[tuple[int, Path]]:
-    """``(first event time, path)`` of the run's segments, in order (empty when it has none)."""
+    """``(first event time, path)`` of the run's segments, in order (empty when it has none).
+
+    Parameters
+    ----------
+    out : str or Path
+        The run's directory.
+
+    Returns
+    -------
+    list of (int, Path)
+        The segments sorted by their first event time (files of other names are ignored).
+    """
     d = Path(out) / CHUNKS_DIR
     if not d.is_dir():
         return []
@@ -189,6 +240,18 @@ def chunk_segments(out: str | Path) -> list[tuple[int, Path]]:
 
 
 def has_chunks(out: str | Path) -> bool:
+    """Whether the run's directory holds row segments (:func:`chunk_segments`).
+
+    Parameters
+    ----------
+    out : str or Path
+        The run's directory.
+
+    Returns
+    -------
+    bool
+        True when it has at least one segment.
+    """
     return bool(chunk_segments(out))
 
 
@@ -210,7 +273,18 @@ def _batches(path: Path) -> Iterator:
 
 
 def whole_length(path: str | Path) -> int:
-    """Bytes of a segment's whole messages (what ``splitspec recover`` cuts a torn segment back to)."""
+    """Bytes of a segment's whole messages (what ``splitspec recover`` cuts a torn segment back to).
+
+    Parameters
+    ----------
+    path : str or Path
+        A segment file.
+
+    Returns
+    -------
+    int
+        The bytes of its schema and whole record batches (0 when not even the schema is whole).
+    """
     import pyarrow as pa
 
     size = os.path.getsize(path)
@@ -237,6 +311,34 @@ def read_chunks(out: str | Path, *, start: float | None = None, end: float | Non
     (T, 5, :data:`ROUND_FIELDS`)), ``agent_ids``, ``lost`` (N, 4), ``lost_cause``, ``states``, and
     ``y``/``y_missing`` when recorded: one row per event time, in order, the last one written where an event
     time was written twice.
+
+    Parameters
+    ----------
+    out : str or Path
+        The run's directory.
+    start : float or None, optional
+        The first time kept (inclusive); None (default): from the beginning.
+    end : float or None, optional
+        The last time kept (inclusive); None (default): to the end.
+
+    Returns
+    -------
+    dict or None
+        Array name -> array, as above (:meth:`~splitspec_core.simulation.simulator.Trajectory.from_arrays`
+        reads it); None when the run has no segment or no readable schema.
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> import numpy as np
+    >>> with tempfile.TemporaryDirectory() as out:
+    ...     w = ChunkWriter(out, agent_ids=[1, 2], states=("a", "b"), n=2)
+    ...     _ = w.append(dict(tau=np.arange(3), t=np.arange(3.0), x=np.zeros((3, 2)), xhat=np.ones((3, 2, 2)),
+    ...                       alive=np.ones((3, 2), dtype=bool), graph=np.zeros(3, dtype=int),
+    ...                       wall=np.zeros(3, dtype=int), round=np.zeros((3, 5)), lost=[[], [1, 2, 1, 0], []]))
+    ...     rows = read_chunks(out, start=1.0)
+    >>> rows["tau"], rows["xhat"].shape, rows["lost"], rows["lost_cause"]
+    (array([1, 2]), (2, 2, 2), array([[1, 1, 2, 1]]), array([0], dtype=int8))
     """
     import pyarrow as pa
 

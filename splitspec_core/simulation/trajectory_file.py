@@ -37,7 +37,29 @@ OPTIONAL = ("y", "y_missing", "residual", "disagreement", "kf", "kf_distance")
 
 
 def lost_arrays(rows) -> tuple:
-    """``(lost, lost_cause)`` from ``(tau, k, j, i, cause)`` rows, sorted by ``(tau, k, j, i)``."""
+    """``(lost, lost_cause)`` from ``(tau, k, j, i, cause)`` rows, sorted by ``(tau, k, j, i)``.
+
+    Parameters
+    ----------
+    rows : iterable of tuple of 5 int
+        ``(tau, k, j, i, cause)`` of the consensus messages that did not count.
+
+    Returns
+    -------
+    lost : (N, 4) int64 ndarray
+        ``(tau, k, j, i)``, sorted.
+    lost_cause : (N,) int8 ndarray
+        The causes, in the same order.
+
+    Examples
+    --------
+    >>> lost, cause = lost_arrays([(3, 1, 2, 1, 0), (1, 2, 1, 3, 2)])
+    >>> lost
+    array([[1, 2, 1, 3],
+           [3, 1, 2, 1]])
+    >>> cause
+    array([2, 0], dtype=int8)
+    """
     a = np.array(sorted(rows), dtype=np.int64).reshape(-1, 5)
     return a[:, :4].copy(), a[:, 4].astype(np.int8)
 
