@@ -699,8 +699,8 @@ class AgentLoopEstimator(_EstimatorBase):
 
     def step(self, X: np.ndarray, y: np.ndarray, rows: dict, alive: np.ndarray, missing=None, bu=None) -> np.ndarray:
         """One step, agent by agent, with the step functions of :mod:`splitspec_core.model.steps`: ``q`` consensus
-sub-rounds then the update (discrete), the sampled-data step (continuous; with the adaptive gain its Euler step),
-or the whole-state design's update then ``q`` averages.
+        sub-rounds then the update (discrete), the sampled-data step (continuous; with the adaptive gain its Euler
+        step), or the whole-state design's update then ``q`` averages.
 
         Parameters
         ----------
