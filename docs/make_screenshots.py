@@ -281,8 +281,8 @@ def with_tab(run_dir: Path, tab: str, dest: Path) -> Path:
     """A copy of ``run_dir``'s ``run.rrd`` in ``dest`` whose default blueprint opens on ``tab``; events.jsonl beside it."""
     import shutil
 
-    from splitspec_orchestrator.recording.blueprint import default_blueprint
-    from splitspec_orchestrator.recording.rrd_file import rewrite_rrd
+    from splitspec_orchestrator.viewer.blueprint import default_blueprint
+    from splitspec_orchestrator.viewer.rrd_file import rewrite_rrd
 
     info = recording_info(run_dir / "run.rrd")
     measured = info["measurements"]

@@ -11,7 +11,7 @@ imports them (``tests/unit/test_architecture.py``).
   (its process shell: Zenoh, child processes, the recorder);
 - the records: :mod:`.records` (the recorder, its rows and flushes, ``trajectory.npz``, ``events.jsonl``, the
   output folder and ``splitspec recover``);
-- the Rerun recording: :mod:`.recording` (the sink, ``run.rrd`` itself, the default layout, the topology and
+- the Rerun recording: :mod:`.viewer` (the sink, ``run.rrd`` itself, the default layout, the topology and
   no-truth panels, the notebook widget).
 
 Each package's own docstring names its modules (``tests/unit/test_architecture.py`` checks that they exist).

@@ -81,7 +81,7 @@ class RunFailed(SplitspecError, RuntimeError):
 
 class Progress:
     """One status line on a terminal: event time, max error (without truth: the consensus disagreement,
-    :func:`~splitspec_orchestrator.recording.reference_view.progress_text`), alive agents, rounds per second."""
+    :func:`~splitspec_orchestrator.viewer.reference_view.progress_text`), alive agents, rounds per second."""
 
     def __init__(self, steps: int | None, m: int):
         self.enabled = sys.stderr.isatty()
@@ -95,7 +95,7 @@ class Progress:
         now = time.monotonic()
         if now - self.last < 0.25 and not force:
             return
-        from .recording.reference_view import progress_text
+        from .viewer.reference_view import progress_text
 
         figure = f"max error {max_err:9.3e}" if xhat is None else progress_text(max_err, xhat, alive_mask)
         self.last = now
@@ -576,7 +576,7 @@ class Orchestrator:
 
 def _summary(tally: RunTally, machine: RoundMachine, seconds: float) -> dict:
     """What the run did (:class:`~splitspec_orchestrator.rounds.tally.RunTally`): the end event's fields."""
-    from .recording.reference_view import row_disagreement
+    from .viewer.reference_view import row_disagreement
 
     return tally.fields(seconds=seconds, pace=machine.pace, disagreement=row_disagreement)
 

@@ -76,7 +76,7 @@ def recording_path(out) -> Path:
 def _segments(rrd: Path) -> list[str]:
     """``run.rrd`` and the segments it rolled into (``run-0001.rrd`` ..., a long run until stopped): opened together,
     one recording."""
-    from .recording.rrd_file import rrd_segments
+    from .viewer.rrd_file import rrd_segments
 
     return [str(p) for p in rrd_segments(rrd)] or [str(rrd)]
 

@@ -412,7 +412,7 @@ def view(out: str | Path, *, web: bool = False, port: int | None = None, inline:
     if inline:
         # The widget lives with the rest of Rerun in the orchestrator package (this layer never imports Rerun): its
         # one module this layer may import ("widget", docs/explanation/architecture.md), only when asked for.
-        from splitspec_orchestrator.recording.notebook_view import notebook_viewer
+        from splitspec_orchestrator.viewer.notebook_view import notebook_viewer
 
         return notebook_viewer(out)
     cmd = [sys.executable, "-m", "splitspec_orchestrator", "view", str(out)] + (["--web"] if web else [])

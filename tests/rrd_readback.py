@@ -10,7 +10,7 @@ import math
 import re
 from pathlib import Path
 
-from splitspec_orchestrator.recording.blueprint import EVENTS, STATE, TL_EVENT, TOPOLOGY
+from splitspec_orchestrator.viewer.blueprint import EVENTS, STATE, TL_EVENT, TOPOLOGY
 from splitspec_orchestrator.records.recorder import RecordingError, verify_rrd
 
 __all__ = ["read_rrd", "read_rrd_vectors", "read_rrd_state", "read_rrd_logs", "read_rrd_clears", "read_rrd_nodes",

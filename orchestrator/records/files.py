@@ -11,7 +11,7 @@ knows how many rows each file holds on disk:
     (:meth:`RecordFiles.write_trajectory`);
 ``run.rrd``
     appended with what Rerun encoded since the last flush (:meth:`RecordFiles.append_rrd`, through the
-    :class:`~splitspec_orchestrator.recording.sink.RerunSink`; the format in :mod:`splitspec_orchestrator.recording.rrd_file`)
+    :class:`~splitspec_orchestrator.viewer.sink.RerunSink`; the format in :mod:`splitspec_orchestrator.viewer.rrd_file`)
     and, at the close, rewritten as one verifiable RRD, cut after the K-th row after a write failure
     (:meth:`RecordFiles.finish_rrd`).
 
@@ -42,7 +42,7 @@ from splitspec_core.model.rows import COLUMNS, REPORTED
 from splitspec_core.simulation.trajectory_chunks import ChunkWriter
 from splitspec_core.simulation.trajectory_file import TRAJECTORY_FILE, lost_arrays, write_trajectory
 
-from ..recording.sink import RRD_FILE, RerunSink
+from ..viewer.sink import RRD_FILE, RerunSink
 from .rowstore import RowStore
 
 __all__ = ["RecordFiles", "RecordsWriteError", "WriteFailure", "Continuous"]

@@ -3,7 +3,7 @@
 A :class:`~splitspec_orchestrator.records.recorder.Recorder` checks each call and stores what it is given in
 its :class:`Flusher`: the rows recorded (a :class:`~splitspec_orchestrator.records.rowstore.RowStore`), which of
 them a flush took, the consensus messages that did not count, and the Rerun logs deferred to the next flush
-(:class:`~splitspec_orchestrator.recording.handoff.DeferredLogs`, in call order).  A flush takes what was
+(:class:`~splitspec_orchestrator.viewer.handoff.DeferredLogs`, in call order).  A flush takes what was
 recorded since the last one (:meth:`Flusher.take`) and has the recorder's
 :class:`~splitspec_orchestrator.records.writer.RecordWriter` write it out.
 
@@ -53,7 +53,7 @@ import numpy as np
 
 from splitspec_core.model.rows import REPORTED
 
-from ..recording.handoff import DeferredLogs, lost_rows
+from ..viewer.handoff import DeferredLogs, lost_rows
 from .files import RecordsWriteError, WriteFailure
 from .outdir import Reserve
 from .rowstore import RowStore

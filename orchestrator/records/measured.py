@@ -27,7 +27,7 @@ import threading
 
 import numpy as np
 
-from ..recording.reference_view import ReferenceRows
+from ..viewer.reference_view import ReferenceRows
 from .rowstore import RowStore
 
 __all__ = ["MeasuredRecords"]
@@ -64,7 +64,7 @@ class MeasuredRecords:
         self.source, self.truth = (sc, rows), bool(truth)
 
     def live_source(self, sc):
-        """Live sensors: the :data:`~splitspec_orchestrator.recording.reference_view.YRow` of what :meth:`live_y` is given."""
+        """Live sensors: the :data:`~splitspec_orchestrator.viewer.reference_view.YRow` of what :meth:`live_y` is given."""
         from splitspec_core.model.plant import output_rows
 
         self._live_rows = output_rows(sc.system.Cs)
@@ -137,7 +137,7 @@ class MeasuredRecords:
     def send_after_run(self, sink) -> None:
         """At the close, after the last flush: the centralized Kalman filter and each agent's distance to it,
         the very arrays the last ``trajectory.npz`` got (:meth:`arrays`), to Rerun (``sink``: a
-        :class:`~splitspec_orchestrator.recording.sink.RerunSink` or None)."""
+        :class:`~splitspec_orchestrator.viewer.sink.RerunSink` or None)."""
         done = self.after_run
         if sink is None or sink.reference is None or done is None or done[0] != self._d.rows:
             return

@@ -16,9 +16,9 @@ consistency), :mod:`splitspec_orchestrator.records.rowstore` (the rows and what 
 :func:`splitspec_core.simulation.trajectory_file.write_trajectory`, the one writer shared with ``simulate``;
 ``run.rrd`` appended and finished; the cuts after a failure), :mod:`splitspec_orchestrator.records.measured`
 (what a run on measurements or live sensors records beyond the rows), :mod:`splitspec_orchestrator.records.events`
-(``events.jsonl`` and each event's sentence) and, for Rerun, :mod:`splitspec_orchestrator.recording.handoff`
-(the logs deferred to the next flush, in call order) and :mod:`splitspec_orchestrator.recording.sink` (the
-Rerun stream; entity paths and the default blueprint in :mod:`splitspec_orchestrator.recording.blueprint`).
+(``events.jsonl`` and each event's sentence) and, for Rerun, :mod:`splitspec_orchestrator.viewer.handoff`
+(the logs deferred to the next flush, in call order) and :mod:`splitspec_orchestrator.viewer.sink` (the
+Rerun stream; entity paths and the default blueprint in :mod:`splitspec_orchestrator.viewer.blueprint`).
 
 The calls of the orchestrator's round loop (:meth:`Recorder.row`, :meth:`Recorder.event`,
 :meth:`Recorder.topology`, :meth:`Recorder.mark_lost`) only store what they are given in memory; a
@@ -40,9 +40,9 @@ import numpy as np
 from splitspec_core.scenarios.labels import default_state_names
 from splitspec_core.simulation.trajectory_file import TRAJECTORY_FILE
 
-from ..recording.handoff import cut_edges
-from ..recording.rrd_file import verify_rrd
-from ..recording.sink import DEFAULT_VIEWER_PORT, RRD_FILE, RerunSink, open_sink
+from ..viewer.handoff import cut_edges
+from ..viewer.rrd_file import verify_rrd
+from ..viewer.sink import DEFAULT_VIEWER_PORT, RRD_FILE, RerunSink, open_sink
 from .checks import RecordingError, check_row, check_run, check_topology
 from .events import EVENTS_FILE, EventLog, event_level, event_text
 from .files import Continuous, RecordFiles, RecordsWriteError, WriteFailure, strerror
@@ -386,20 +386,20 @@ class Recorder:
     def set_measurements(self, sc, meas) -> None:
         """The run plays a measurements file (:class:`splitspec_core.scenarios.measurements.Measurements`): see
         :meth:`set_y_source`; the truth is the file's ``x`` if it has one."""
-        from ..recording.reference_view import file_rows
+        from ..viewer.reference_view import file_rows
 
         self.set_y_source(sc, file_rows(meas), truth=meas.has_truth)
         self._meas.inputs = meas.u
 
     def set_y_source(self, sc, y_row, *, truth: bool) -> None:
         """The estimators run on measurements ``y_row(tau) -> (y, missing) | None``
-        (:data:`splitspec_orchestrator.recording.reference_view.YRow`); call before the first row.
+        (:data:`splitspec_orchestrator.viewer.reference_view.YRow`); call before the first row.
 
         ``trajectory.npz`` gets their ``y`` and ``y_missing`` rows, and at the close what is known without
         truth (:func:`splitspec_core.studies.no_truth.no_truth_arrays`); ``run.rrd`` the same as it goes
-        (:mod:`splitspec_orchestrator.recording.reference_view`) and, ``truth=False``, no error and no truth at all.
+        (:mod:`splitspec_orchestrator.viewer.reference_view`) and, ``truth=False``, no error and no truth at all.
         """
-        from ..recording.reference_view import ReferenceRows
+        from ..viewer.reference_view import ReferenceRows
 
         rows = ReferenceRows(sc.system.Cs, y_row)
         with self._io, self._lock:

@@ -35,9 +35,9 @@ from splitspec_core.simulation.trajectory_chunks import chunk_segments, whole_le
 from splitspec_core.simulation.trajectory_chunks import read_chunks as read_rows
 
 from .outdir import RESERVE_FILE
-from ..recording.blueprint import default_blueprint
+from ..viewer.blueprint import default_blueprint
 from .recorder import EVENTS_FILE, RRD_FILE, TRAJECTORY_FILE, verify_rrd
-from ..recording.rrd_file import has_footer, read_chunks, rewrite_rrd, rrd_segments, whole_messages_length
+from ..viewer.rrd_file import has_footer, read_chunks, rewrite_rrd, rrd_segments, whole_messages_length
 
 __all__ = ["RecoverError", "recover"]
 

@@ -3,7 +3,7 @@
 :class:`RecordWriter` holds the rows a :class:`~splitspec_orchestrator.records.recorder.Recorder`'s flushes
 took (a :class:`~splitspec_orchestrator.records.rowstore.RowStore` of their own, written out while the callers
 go on recording) and writes each flush out: the rows, then the logs queued since the last flush
-(:mod:`splitspec_orchestrator.recording.handoff`), to Rerun and ``run.rrd``; then ``trajectory.npz``
+(:mod:`splitspec_orchestrator.viewer.handoff`), to Rerun and ``run.rrd``; then ``trajectory.npz``
 (:class:`~splitspec_orchestrator.records.files.RecordFiles`).  At the close it writes the records' end
 (:meth:`RecordWriter.finish`).  Everything here runs under the recorder's ``_io`` lock (one flush at a time).
 What the three files hold: docs/reference/files.md, sections "Trajectory file", "Event log" and "Rerun
@@ -24,7 +24,7 @@ every later call raises it again, and the background thread stops.
 thread never reports a failed write): the recording logs into an
 ``rr.binary_stream()`` and each flush appends the bytes read from it to
 ``run.rrd`` with ordinary file calls that raise ``OSError`` (see
-:mod:`splitspec_orchestrator.recording.rrd_file` for the format).  ``events.jsonl`` and ``run.rrd`` are
+:mod:`splitspec_orchestrator.viewer.rrd_file` for the format).  ``events.jsonl`` and ``run.rrd`` are
 opened per write (no file of the run stays open between calls), a torn line or message is cut
 back after a failed write.
 
@@ -57,8 +57,8 @@ import numpy as np
 
 from splitspec_core.model.rows import REPORTED
 
-from ..recording.handoff import Deferred, LostRow, RowBatch, TextLine, send_logs
-from ..recording.sink import RerunSink
+from ..viewer.handoff import Deferred, LostRow, RowBatch, TextLine, send_logs
+from ..viewer.sink import RerunSink
 from .events import EventLog, event_text
 from .files import RecordFiles, RecordsWriteError, WriteFailure
 from .measured import MeasuredRecords

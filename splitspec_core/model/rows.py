@@ -13,7 +13,7 @@ quantity this run does not have), unit and meaning -- and every layer derives it
   ``trajectory.npz`` (:mod:`splitspec_core.simulation.trajectory_file`) and
   :class:`~splitspec_core.simulation.simulator.Trajectory` (``columns``, keyed by name);
 * Rerun: one series per agent for each reported column the run shows (``<entity>/agent_<id>``), in the
-  ``per agent`` tab (:mod:`splitspec_orchestrator.recording.sink`).
+  ``per agent`` tab (:mod:`splitspec_orchestrator.viewer.sink`).
 
 So a new per-agent quantity is one line here (``reported="state"`` or ``"round"``) plus its computation where
 it is computed: by the agent process (:mod:`splitspec_agents.agent`, which reports it with :func:`report`) and by

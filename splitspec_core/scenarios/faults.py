@@ -356,7 +356,7 @@ def fault_event_text(event: str, fields: dict) -> str | None:
 
 
 def fault_marks() -> tuple:
-    """The timeline marks the kinds declare (``orchestrator/recording/blueprint.py`` builds its tables from them).
+    """The timeline marks the kinds declare (``orchestrator/viewer/blueprint.py`` builds its tables from them).
 
     Returns
     -------

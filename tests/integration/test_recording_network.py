@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from splitspec_core.model.impairment import PARTITION
-from splitspec_orchestrator.recording import blueprint as bp
+from splitspec_orchestrator.viewer import blueprint as bp
 from tests.conftest import EXAMPLES
 from tests.integration.runtime_helpers import events, run, scenario_file
 from tests.rrd_readback import read_blueprint, read_rrd, read_rrd_graph, read_rrd_logs, rrd_entities, verify_rrd

@@ -17,7 +17,7 @@ import splitspec_core as ss
 from splitspec_core.runs import closing_line, end_event
 from splitspec_core.simulation.simulator import Trajectory
 from splitspec_core.simulation.trajectory_chunks import chunk_segments, read_chunks
-from splitspec_orchestrator.recording.rrd_file import rrd_segments
+from splitspec_orchestrator.viewer.rrd_file import rrd_segments
 from tests.integration.runtime_helpers import (ENV, EXAMPLES, ROOT, all_pids, assert_all_gone, cli, dump, events,
                                                run, start, wait_for_event)
 from tests.rrd_readback import read_rrd, verify_rrd

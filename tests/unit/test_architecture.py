@@ -123,7 +123,7 @@ NODE_MAY = {"base", "scenarios", "model", "runtime"}  # what an agent or the pla
 def test_the_layers_table_is_whole():
     """Every layer a row may import is a row; every module of every package is in a layer."""
     table = layers()
-    assert {*CORE_LAYERS, "api", "runtime", "agents", "plant", "rounds", "records", "recording", "orchestrator",
+    assert {*CORE_LAYERS, "api", "runtime", "agents", "plant", "rounds", "records", "viewer", "orchestrator",
             "entry"} <= set(table), sorted(table)
     unknown = {m for row in table.values() for m in row["may"]} - set(table)
     assert not unknown, unknown
@@ -146,8 +146,8 @@ def test_the_layers_table_keeps_the_rules():
         assert table[node]["may"] <= NODE_MAY | {node}, table[node]
         assert "scipy" in table[node]["never"], table[node]
     assert {"zenoh", "rerun"} <= set(table["rounds"]["never"]), table["rounds"]
-    assert "records" not in table["recording"]["may"], table["recording"]
-    for layer in ("orchestrator", "rounds", "records", "recording"):
+    assert "records" not in table["viewer"]["may"], table["viewer"]
+    for layer in ("orchestrator", "rounds", "records", "viewer"):
         assert not {"agents", "plant"} & table[layer]["may"], table[layer]
     assert layer_of("splitspec_core.runtime.bus", table) == "runtime"
     assert layer_of("splitspec_core.model.steps", table) == "model"
@@ -279,7 +279,7 @@ def test_every_package_says_what_it_holds():
 
 SUBPACKAGES = ["splitspec_core.scenarios", "splitspec_core.model", "splitspec_core.synthesis",
                "splitspec_core.simulation", "splitspec_core.studies", "splitspec_orchestrator.rounds",
-               "splitspec_orchestrator.records", "splitspec_orchestrator.recording"]
+               "splitspec_orchestrator.records", "splitspec_orchestrator.viewer"]
 
 
 @pytest.mark.parametrize("subpackage", SUBPACKAGES)

@@ -14,7 +14,7 @@ import splitspec_core as ss
 from splitspec_core.runs import closing_line
 from splitspec_core.simulation.simulator import Trajectory
 from splitspec_core.simulation.trajectory_chunks import ChunkWriter, chunk_segments, read_chunks, whole_length
-from splitspec_orchestrator.recording.rrd_file import rrd_segments
+from splitspec_orchestrator.viewer.rrd_file import rrd_segments
 from splitspec_orchestrator.records.files import Continuous
 from splitspec_orchestrator.records.recorder import Recorder
 from splitspec_orchestrator.records.recover import recover
@@ -225,7 +225,7 @@ def test_bad_steps_still_one_line(bad):
 
 
 def test_the_measurements_behind_a_window_are_forgotten_with_it():
-    from splitspec_orchestrator.recording.reference_view import ReferenceRows
+    from splitspec_orchestrator.viewer.reference_view import ReferenceRows
 
     asked = []
 

@@ -158,7 +158,7 @@ def test_the_network_state_applies_each_kind(ring):
 
 
 def test_timeline_marks_and_texts_come_from_the_kinds():
-    from splitspec_orchestrator.recording import blueprint as bp
+    from splitspec_orchestrator.viewer import blueprint as bp
     from splitspec_orchestrator.records.events import event_text
 
     for cls in fk.KINDS.values():
@@ -231,7 +231,7 @@ def test_the_exact_ode_refuses_a_sensor_fault():
 
 
 def test_corrupt_marks_the_timeline_and_the_plots(ring):
-    from splitspec_orchestrator.recording import blueprint as bp
+    from splitspec_orchestrator.viewer import blueprint as bp
     from splitspec_orchestrator.records.events import event_text
     from splitspec_core.simulation.metrics import event_marks
 

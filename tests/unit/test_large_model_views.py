@@ -9,7 +9,7 @@ import pytest
 
 import splitspec_core as ss
 from splitspec_core.scenarios.labels import SHOW_ALL, shown_states
-from splitspec_orchestrator.recording import blueprint as bp
+from splitspec_orchestrator.viewer import blueprint as bp
 from splitspec_orchestrator.plots import states_figure
 from splitspec_orchestrator.records.recorder import Recorder
 from splitspec_orchestrator.records.recover import _blueprint

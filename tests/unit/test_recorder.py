@@ -427,7 +427,7 @@ def test_round_loop_calls_never_write_or_wait_for_a_flush(tmp_path, monkeypatch)
     import threading
 
     import splitspec_core.simulation.trajectory_file as trajfile
-    import splitspec_orchestrator.recording.rrd_file as rrdfile
+    import splitspec_orchestrator.viewer.rrd_file as rrdfile
 
     main = threading.current_thread()
     calls: list[tuple[str, bool]] = []  # (what, in the caller's thread)

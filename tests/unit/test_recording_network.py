@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 
 from splitspec_core.model.impairment import LATE, LOSS, PARTITION
-from splitspec_orchestrator.recording import blueprint as bp
+from splitspec_orchestrator.viewer import blueprint as bp
 from splitspec_orchestrator.records.recorder import Recorder, RecordingError
-from splitspec_orchestrator.recording.topology_view import dash_dots, lost_arcs, status_text
+from splitspec_orchestrator.viewer.topology_view import dash_dots, lost_arcs, status_text
 from tests.rrd_readback import read_rrd, read_rrd_graph, read_rrd_logs, rrd_entities, verify_rrd
 
 IDS = (1, 2, 3, 4)

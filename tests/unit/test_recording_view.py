@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import yaml
 
-from splitspec_orchestrator.recording.blueprint import circle_positions, node_positions
+from splitspec_orchestrator.viewer.blueprint import circle_positions, node_positions
 from splitspec_orchestrator.records.events import event_text
 from splitspec_orchestrator.records.recorder import Recorder, RecordingError
 from splitspec_core.simulation.metrics import envelope, envelope_restarts

@@ -8,9 +8,9 @@ import pytest
 
 from splitspec_core.scenarios.measurements import Measurements
 from splitspec_core.studies.no_truth import disagreement, residuals
-from splitspec_orchestrator.recording import blueprint as bp
+from splitspec_orchestrator.viewer import blueprint as bp
 from splitspec_orchestrator.records.recorder import Recorder, RecordingError
-from splitspec_orchestrator.recording.reference_view import ReferenceRows, file_rows, known_parts, progress_text
+from splitspec_orchestrator.viewer.reference_view import ReferenceRows, file_rows, known_parts, progress_text
 from tests.rrd_readback import read_rrd, read_rrd_clears, rrd_entities, verify_rrd
 from tests.unit.test_measurements import hidden_scenario
 

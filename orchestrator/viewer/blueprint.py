@@ -2,9 +2,9 @@
 
 What each entity holds, its timelines, and which entities exist in which run are the contract of
 docs/reference/files.md, section "Rerun recording"; the constants below are their paths in the code.  The
-topology and what a misbehaving network draws over it: :mod:`splitspec_orchestrator.recording.topology_view`
+topology and what a misbehaving network draws over it: :mod:`splitspec_orchestrator.viewer.topology_view`
 (dots, because an edge of a Rerun 0.41 graph has no colour or dash of its own); a run on measurements:
-:mod:`splitspec_orchestrator.recording.reference_view`.
+:mod:`splitspec_orchestrator.viewer.reference_view`.
 
 Entities per run (counted in docs/reference/files.md): at m = 32, n = 6, 92 instead of the 278 of one entity
 per agent and state component (``state/<k>/agent_<id>``, ``n (m + 1)`` of them with the truth), which the

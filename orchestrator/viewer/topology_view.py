@@ -1,6 +1,6 @@
 """The communication graph of a run's recording: ``topology`` and what a misbehaving network adds to it.
 
-:class:`TopologyView` logs, for :class:`splitspec_orchestrator.recording.sink.RerunSink`, the topology
+:class:`TopologyView` logs, for :class:`splitspec_orchestrator.viewer.sink.RerunSink`, the topology
 (``topology``: the agents at fixed positions, the arcs among the alive ones; ``topology/graph``: the
 active graph's name) and what the view shows of a network that misbehaves: arcs that lost
 messages, a partition's cut.
@@ -165,7 +165,7 @@ class TopologyView:
         self._dash_cache: dict[tuple, tuple] = {}  # (j, i, label of j, label of i) -> dash_dots of arc j -> i
 
     def send_topology(self, logs: list) -> None:
-        """One row per topology logged (:class:`~splitspec_orchestrator.recording.handoff.TopologyLog`): GraphNodes
+        """One row per topology logged (:class:`~splitspec_orchestrator.viewer.handoff.TopologyLog`): GraphNodes
         (fixed positions, lost grey) + the edges not ``cut`` (a subset of ``edges``, the arcs a partition in force
         cuts).
 
@@ -254,7 +254,7 @@ class TopologyView:
             *rr.GraphNodes.columns(show_labels=[False] * len(dots))])
 
     def send_lost(self, rows: list) -> None:
-        """One :class:`~splitspec_orchestrator.recording.handoff.LostRow` per row taken, in the order taken.
+        """One :class:`~splitspec_orchestrator.viewer.handoff.LostRow` per row taken, in the order taken.
 
         An event time whose consensus messages did not all count (``lost``: ``(tau, k, j, i, cause)``) gets
         ``topology`` edges without its arcs that lost one, those arcs dashed on ``topology/lost`` and its

@@ -1,15 +1,15 @@
 """The Rerun side of the recorder: one recording stream, its live viewer, and ``run.rrd`` appended by Python.
 
 :class:`RerunSink` logs what :class:`splitspec_orchestrator.records.recorder.Recorder` hands it
-(:mod:`splitspec_orchestrator.recording.handoff`: batches of rows, text events, topology, marks, loss clears)
+(:mod:`splitspec_orchestrator.viewer.handoff`: batches of rows, text events, topology, marks, loss clears)
 with ``send_columns``, one chunk per entity per batch, on the timelines ``event``
 (sequence ``tau``), ``time`` (duration) and ``wall`` (timestamp).  Entity paths,
-colours and the default blueprint are in :mod:`splitspec_orchestrator.recording.blueprint`;
+colours and the default blueprint are in :mod:`splitspec_orchestrator.viewer.blueprint`;
 the topology and what a misbehaving network draws over it (arcs that lost
-messages, a partition's cut) in :mod:`splitspec_orchestrator.recording.topology_view`.
+messages, a partition's cut) in :mod:`splitspec_orchestrator.viewer.topology_view`.
 
 A run on measurements (:meth:`RerunSink.set_reference`) also logs what
-:mod:`splitspec_orchestrator.recording.reference_view` computes (residuals, disagreement,
+:mod:`splitspec_orchestrator.viewer.reference_view` computes (residuals, disagreement,
 after the run the centralized Kalman filter); without the truth it logs no
 error and no truth at all: their styles are logged with the first rows, once
 that is known, and the default blueprint is sent again.
@@ -28,7 +28,7 @@ is noticed after they were logged), and a NaN breaks the line as well.
 The recording logs into an ``rr.binary_stream()`` (plus a ``GrpcSink`` for a
 live viewer); :meth:`RerunSink.write_pending` appends what it encoded to
 ``run.rrd`` with ordinary file calls whose ``OSError`` the recorder reports
-(see :mod:`splitspec_orchestrator.recording.rrd_file`), rolled into segments on a run until stopped
+(see :mod:`splitspec_orchestrator.viewer.rrd_file`), rolled into segments on a run until stopped
 (:meth:`RerunSink.roll`).  Rerun itself never stops a run: a viewer that cannot be spawned or reached is a
 warning and the recording goes on.
 
@@ -150,7 +150,7 @@ class RerunSink:
         return bp.default_blueprint(**self.blueprint_args())
 
     def blueprint_args(self) -> dict:
-        """The arguments of :func:`~splitspec_orchestrator.recording.blueprint.default_blueprint` (JSON)."""
+        """The arguments of :func:`~splitspec_orchestrator.viewer.blueprint.default_blueprint` (JSON)."""
         return dict(time_mode=self.time_mode, n=self.n, envelope=self.envelope,
                     columns=[c.name for c in self.columns], truth=self.truth,
                     reference=self.reference is not None, states=list(self.states) if self.states else None,
@@ -363,11 +363,11 @@ class RerunSink:
                 self.rec.send_columns(path, indexes=idx, columns=rr.Clear.columns(is_recursive=[False]))
 
     def send_topology(self, logs: list[TopologyLog]) -> None:
-        """See :meth:`splitspec_orchestrator.recording.topology_view.TopologyView.send_topology`."""
+        """See :meth:`splitspec_orchestrator.viewer.topology_view.TopologyView.send_topology`."""
         self.topology.send_topology(logs)
 
     def send_lost(self, rows: list[LostRow]) -> None:
-        """See :meth:`splitspec_orchestrator.recording.topology_view.TopologyView.send_lost`."""
+        """See :meth:`splitspec_orchestrator.viewer.topology_view.TopologyView.send_lost`."""
         self.topology.send_lost(rows)
 
     # ------------------------------------------------------------------ run.rrd

@@ -323,11 +323,11 @@ def verify_rrd(path: str | Path, *, timeout: float = 120.0) -> tuple[bool, str]:
 
 def finish_in_child(path: str | Path, blueprint_args: dict):
     """Start a child process that rewrites the footer-less segment ``path`` as one RRD with footer (:func:`rewrite_rrd`,
-    with :func:`~splitspec_orchestrator.recording.blueprint.default_blueprint` of ``blueprint_args``); its ``Popen``.
+    with :func:`~splitspec_orchestrator.viewer.blueprint.default_blueprint` of ``blueprint_args``); its ``Popen``.
     A rolled segment is finished beside the run: its rewrite's memory is the child's, not the recorder's."""
     import json
 
-    cmd = [sys.executable, "-m", "splitspec_orchestrator.recording.rrd_file", str(path), json.dumps(blueprint_args)]
+    cmd = [sys.executable, "-m", "splitspec_orchestrator.viewer.rrd_file", str(path), json.dumps(blueprint_args)]
     return subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
                             env={**os.environ, "RERUN_ANALYTICS": os.environ.get("RERUN_ANALYTICS", "0")})
 
@@ -348,7 +348,7 @@ def wait_finished(procs, timeout: float = 300.0) -> None:
 
 
 def _finish_main(argv: list) -> int:
-    """``python -m splitspec_orchestrator.recording.rrd_file PATH BLUEPRINT_JSON``: :func:`finish_in_child`'s child."""
+    """``python -m splitspec_orchestrator.viewer.rrd_file PATH BLUEPRINT_JSON``: :func:`finish_in_child`'s child."""
     import json
 
     from .blueprint import default_blueprint

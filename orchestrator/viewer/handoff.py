@@ -9,9 +9,9 @@ row, whose max error it stands on) and, after the rows it took (:class:`RowBatch
 :func:`send_logs`: one chunk per kind -- the loss clears, the text lines, the marks, the topologies, then the
 consensus messages that did not count, drawn over the topology (:class:`LostRow`, :func:`lost_rows`).
 
-This module holds the data and its order; :class:`~splitspec_orchestrator.recording.sink.RerunSink` (and
-:class:`~splitspec_orchestrator.recording.topology_view.TopologyView`) make the Rerun calls.  Entity paths:
-:mod:`splitspec_orchestrator.recording.blueprint`; what they hold: docs/reference/files.md, section "Rerun
+This module holds the data and its order; :class:`~splitspec_orchestrator.viewer.sink.RerunSink` (and
+:class:`~splitspec_orchestrator.viewer.topology_view.TopologyView`) make the Rerun calls.  Entity paths:
+:mod:`splitspec_orchestrator.viewer.blueprint`; what they hold: docs/reference/files.md, section "Rerun
 recording".
 """
 
@@ -185,7 +185,7 @@ def lost_rows(tau: np.ndarray, t: np.ndarray, wall: np.ndarray, ks: np.ndarray,
 
 
 def send_logs(sink, logs: list[Deferred], lost: list[LostRow], mark_y: Callable[[int], float]) -> None:
-    """Send what a flush took to ``sink`` (a :class:`~splitspec_orchestrator.recording.sink.RerunSink`): one chunk
+    """Send what a flush took to ``sink`` (a :class:`~splitspec_orchestrator.viewer.sink.RerunSink`): one chunk
     per kind, loss clears, text lines, marks (at height ``mark_y(tau)``), topologies, then the overlays of ``lost``
     drawn over them.  Each is guarded (a failure is a warning); ``mark_y`` is not."""
     clears = [item for item in logs if type(item) is LossClear]

@@ -1,4 +1,5 @@
-"""The Rerun recording: what ``run.rrd`` holds and how it is viewed.
+"""The Rerun viewer's side of a run: the recording ``run.rrd``, what it holds and how it is viewed (the files of
+a run, trajectory.npz, the chunks and events.jsonl, are in ``records/``).
 
 ``sink.py`` the Rerun sink (rows to entities), ``handoff.py`` what the records hand it at a flush (row batches,
 the logs deferred until then, in call order), ``rrd_file.py`` the ``.rrd`` file itself (appending, footers,
