@@ -209,6 +209,8 @@ class AgentResult:
 
     @property
     def n_unobservable(self) -> int:
+        """``n_i``, an int: the dimension of the unobservable space the agent takes from its neighbours (the columns
+        of ``V``)."""
         return int(self.V.shape[1])
 
 
@@ -247,7 +249,27 @@ class Checks:
     @classmethod
     def of(cls, des: Design) -> Checks:
         """The checks of ``des``, each computed from it: what its agents leave unobserved (``Design.unobserved``, or
-        for a design built without it what its agents' ``V_i`` leave), its graphs' arcs, its certificate."""
+        for a design built without it what its agents' ``V_i`` leave), its graphs' arcs, its certificate.
+
+        Parameters
+        ----------
+        des : Design
+            A design (:func:`splitspec_core.synthesis.designer.design`, or :attr:`DesignResult.detail`).
+
+        Returns
+        -------
+        Checks
+            Frozen; ``strongly_connected`` a read-only mapping; ``sampled_rate`` the slowest over the cases (None
+            when the design has none: discrete time); ``warnings`` the report's.
+
+        Examples
+        --------
+        >>> import splitspec_core as ss
+        >>> d = ss.design(ss.load_scenario("examples/paper_discrete.yaml"))
+        >>> c = Checks.of(d.detail)
+        >>> c.jointly_observable, dict(c.strongly_connected), c.rate_certified, c.envelope_rate
+        (True, {'a': True, 'b': True}, True, 0.5)
+        """
         un = des.unobserved if des.unobserved is not None else des.unobserved_of(des.scenario.agent_ids)
         cert = rate_certificate(des)
         connected = {g.name: g.strongly_connected for g in des.graphs}
@@ -285,13 +307,39 @@ class DesignResult:
     detail: Design
 
     def report(self) -> str:
-        """The text ``splitspec design`` prints."""
+        """The text ``splitspec design`` prints.
+
+        Returns
+        -------
+        str
+            The report: the agents' local designs, q or g with the bound that certifies it, the cases, the loss
+            analyses and the warnings (:func:`splitspec_core.synthesis.report.design_text`).
+
+        Examples
+        --------
+        >>> import splitspec_core as ss
+        >>> print(ss.design(ss.load_scenario("examples/paper_discrete.yaml")).report().splitlines()[0])
+        splitspec design: paper-discrete  (discrete time, m = 3 agents, n = 4 states)
+        """
         from .synthesis.report import design_text
 
         return design_text(self.detail)
 
     def to_json(self) -> dict:
-        """The object ``splitspec design --json`` prints."""
+        """The object ``splitspec design --json`` prints.
+
+        Returns
+        -------
+        dict
+            JSON-ready (lists, numbers, strings): the same figures as :meth:`report`
+            (:func:`splitspec_core.synthesis.report.design_json`), e.g. ``q``, ``agents``, ``certificate``.
+
+        Examples
+        --------
+        >>> import splitspec_core as ss
+        >>> ss.design(ss.load_scenario("examples/paper_discrete.yaml")).to_json()["q"]
+        6
+        """
         from .synthesis.report import design_json
 
         return design_json(self.detail)
