@@ -104,11 +104,19 @@ eigenvalues, undetectable, coordinates, consensus : optional
         The file's ``run.*`` keys.
     system, design, run : mapping, optional
         A section given whole, as in the file.
+    **unknown : Any
+        Refused: an unknown keyword is an unknown key of the file (one line naming it, and the key it may be).
 
     Returns
     -------
     Scenario
         Frozen and validated; ``print`` shows a summary.
+
+    Raises
+    ------
+    ScenarioError
+        The message of the same mistake in a scenario file (it names the key, e.g.
+        ``system.C.3 has 5 columns, system.A is 4x4``); an unknown keyword is an unknown key.
 
     Examples
     --------
@@ -117,12 +125,6 @@ eigenvalues, undetectable, coordinates, consensus : optional
     ...                  graphs={"a": [(1, 2), (2, 1)]}, rate=0.5)
     >>> sc.n, sc.m, sc.time
     (2, 2, 'discrete')
-
-    Raises
-    ------
-    ScenarioError
-        The message of the same mistake in a scenario file (it names the key, e.g.
-        ``system.C.3 has 5 columns, system.A is 4x4``); an unknown keyword is an unknown key.
     """
     given = dict(locals())
     top: dict = {k: v for k, v in unknown.items()}  # the checker names them (and suggests the right key)
@@ -369,6 +371,13 @@ def design(sc: Scenario, *, all_q_methods: bool = False, workers: int | None = N
         ``q`` (discrete) or ``g`` (continuous), every agent's ``K``, ``V``, ``P``, the ``checks`` (the certificate in
         one line), ``report()`` (what ``splitspec design`` prints) and ``to_json()``.
 
+    Raises
+    ------
+    AssumptionError
+        A graph is not strongly connected, ``(C, A)`` is not jointly detectable, explicit gains miss the rate (named).
+    DesignError
+        No q below ``design.q_max``, or no g found.
+
     Examples
     --------
     >>> import splitspec_core as ss
@@ -377,13 +386,6 @@ def design(sc: Scenario, *, all_q_methods: bool = False, workers: int | None = N
     (6, True)
     >>> d.checks.certificate
     'q = 6: spectral bound 0.4736 <= rate 0.5'
-
-    Raises
-    ------
-    AssumptionError
-        A graph is not strongly connected, ``(C, A)`` is not jointly detectable, explicit gains miss the rate (named).
-    DesignError
-        No q below ``design.q_max``, or no g found.
     """
     from .synthesis.designer import design as _design
 
@@ -452,6 +454,31 @@ def simulate(sc: Scenario | DesignResult, *, steps: int | None = None, seed: int
     every seed's :class:`Trajectory` (N trajectories: checked against this machine's memory); ``progress``
     is ignored with ``seeds``.
 
+    Parameters
+    ----------
+    sc : Scenario or DesignResult
+        What to simulate (a scenario is designed first).
+    steps, seed : int, optional
+        Default ``run.steps`` and ``run.seed``.
+    seeds : iterable of int, optional
+        A Monte Carlo study (returns :class:`MonteCarloRuns`).
+    noise : bool
+        False drops process and measurement noise (default True).
+    exact : bool
+        Continuous time: integrate the noise-free ODE instead of the sampled-data estimator (default False).
+    progress : bool or None
+        A progress bar on stderr (None: when stderr is a terminal and the run is long); ignored with ``seeds``.
+    lost : array or tuple, optional
+        A run's recorded consensus losses to replay (``lost``, or ``(lost, lost_cause)``).
+    measurements : str, Path or Measurements, optional
+        The user's recorded ``y`` instead of the simulated plant.
+    keep_y : bool
+        Record the simulated plant's measurements in ``Trajectory.y`` (one seed only).
+    trajectories : bool
+        With ``seeds``: also keep every seed's :class:`Trajectory`.
+    faults : iterable of mapping, optional
+        Replaces the scenario's ``faults:`` (the file's format).
+
     Returns
     -------
     Trajectory
@@ -466,16 +493,11 @@ def simulate(sc: Scenario | DesignResult, *, steps: int | None = None, seed: int
         ``trajectories``.  Per seed it equals the single-seed run to round-off, not bit for bit (the
         batched products sum in another order): relative differences of order 1e-12 are measured.
 
-    Parameters
-    ----------
-    sc : Scenario or DesignResult
-        What to simulate (a scenario is designed first).
-    steps, seed : int, optional
-        Default ``run.steps`` and ``run.seed``.
-    seeds : iterable of int, optional
-        A Monte Carlo study (returns :class:`MonteCarloRuns`).
-    noise, exact, progress, lost, measurements, keep_y, trajectories, faults
-        As described above.
+    Raises
+    ------
+    ScenarioError
+        ``seed`` and ``seeds`` both given, ``seeds`` empty, ``keep_y`` with ``seeds``, ``trajectories`` without
+        ``seeds``, ``exact`` with ``measurements``, or a run that cannot fit in memory.
 
     Examples
     --------
@@ -488,12 +510,6 @@ def simulate(sc: Scenario | DesignResult, *, steps: int | None = None, seed: int
     >>> killed = ss.simulate(ss.load_scenario("examples/ring10.yaml"), faults=[{"at": 5, "kill": 3}])
     >>> int(killed.alive[-1].sum())
     9
-
-    Raises
-    ------
-    ScenarioError
-        ``seed`` and ``seeds`` both given, ``seeds`` empty, ``keep_y`` with ``seeds``,
-        or a run that cannot fit in memory.
     """
     from .simulation.simulator import check_trajectory_memory, simulate as _simulate, simulate_exact
 
