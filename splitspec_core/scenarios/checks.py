@@ -150,8 +150,8 @@ def plain(value: Any, depth: int = 0) -> Any:
     value : Any
         A value built in Python: numpy arrays and scalars, tuples, lists, mappings, anything else.
     depth : int
-        The nesting depth reached (callers leave it at 0); below depth 8 a value is returned as is, for the checks
-        to refuse.
+        The nesting depth reached (callers leave it at 0); a value nested deeper than 8 levels (deeper than any
+        scenario key) is returned as is, for the checks to refuse.
 
     Returns
     -------
