@@ -104,11 +104,19 @@ eigenvalues, undetectable, coordinates, consensus : optional
         The file's ``run.*`` keys.
     system, design, run : mapping, optional
         A section given whole, as in the file.
+    **unknown : Any
+        Refused: an unknown keyword is an unknown key of the file (one line naming it, and the key it may be).
 
     Returns
     -------
     Scenario
         Frozen and validated; ``print`` shows a summary.
+
+    Raises
+    ------
+    ScenarioError
+        The message of the same mistake in a scenario file (it names the key, e.g.
+        ``system.C.3 has 5 columns, system.A is 4x4``); an unknown keyword is an unknown key.
 
     Examples
     --------
@@ -117,12 +125,6 @@ eigenvalues, undetectable, coordinates, consensus : optional
     ...                  graphs={"a": [(1, 2), (2, 1)]}, rate=0.5)
     >>> sc.n, sc.m, sc.time
     (2, 2, 'discrete')
-
-    Raises
-    ------
-    ScenarioError
-        The message of the same mistake in a scenario file (it names the key, e.g.
-        ``system.C.3 has 5 columns, system.A is 4x4``); an unknown keyword is an unknown key.
     """
     given = dict(locals())
     top: dict = {k: v for k, v in unknown.items()}  # the checker names them (and suggests the right key)
@@ -209,6 +211,8 @@ class AgentResult:
 
     @property
     def n_unobservable(self) -> int:
+        """``n_i``, an int: the dimension of the unobservable space the agent takes from its neighbours (the columns
+        of ``V``)."""
         return int(self.V.shape[1])
 
 
@@ -247,7 +251,27 @@ class Checks:
     @classmethod
     def of(cls, des: Design) -> Checks:
         """The checks of ``des``, each computed from it: what its agents leave unobserved (``Design.unobserved``, or
-        for a design built without it what its agents' ``V_i`` leave), its graphs' arcs, its certificate."""
+        for a design built without it what its agents' ``V_i`` leave), its graphs' arcs, its certificate.
+
+        Parameters
+        ----------
+        des : Design
+            A design (:func:`splitspec_core.synthesis.designer.design`, or :attr:`DesignResult.detail`).
+
+        Returns
+        -------
+        Checks
+            Frozen; ``strongly_connected`` a read-only mapping; ``sampled_rate`` the slowest over the cases (None
+            when the design has none: discrete time); ``warnings`` the report's.
+
+        Examples
+        --------
+        >>> import splitspec_core as ss
+        >>> d = ss.design(ss.load_scenario("examples/paper_discrete.yaml"))
+        >>> c = Checks.of(d.detail)
+        >>> c.jointly_observable, dict(c.strongly_connected), c.rate_certified, c.envelope_rate
+        (True, {'a': True, 'b': True}, True, 0.5)
+        """
         un = des.unobserved if des.unobserved is not None else des.unobserved_of(des.scenario.agent_ids)
         cert = rate_certificate(des)
         connected = {g.name: g.strongly_connected for g in des.graphs}
@@ -285,13 +309,39 @@ class DesignResult:
     detail: Design
 
     def report(self) -> str:
-        """The text ``splitspec design`` prints."""
+        """The text ``splitspec design`` prints.
+
+        Returns
+        -------
+        str
+            The report: the agents' local designs, q or g with the bound that certifies it, the cases, the loss
+            analyses and the warnings (:func:`splitspec_core.synthesis.report.design_text`).
+
+        Examples
+        --------
+        >>> import splitspec_core as ss
+        >>> print(ss.design(ss.load_scenario("examples/paper_discrete.yaml")).report().splitlines()[0])
+        splitspec design: paper-discrete  (discrete time, m = 3 agents, n = 4 states)
+        """
         from .synthesis.report import design_text
 
         return design_text(self.detail)
 
     def to_json(self) -> dict:
-        """The object ``splitspec design --json`` prints."""
+        """The object ``splitspec design --json`` prints.
+
+        Returns
+        -------
+        dict
+            JSON-ready (lists, numbers, strings): the same figures as :meth:`report`
+            (:func:`splitspec_core.synthesis.report.design_json`), e.g. ``q``, ``agents``, ``certificate``.
+
+        Examples
+        --------
+        >>> import splitspec_core as ss
+        >>> ss.design(ss.load_scenario("examples/paper_discrete.yaml")).to_json()["q"]
+        6
+        """
         from .synthesis.report import design_json
 
         return design_json(self.detail)
@@ -321,6 +371,13 @@ def design(sc: Scenario, *, all_q_methods: bool = False, workers: int | None = N
         ``q`` (discrete) or ``g`` (continuous), every agent's ``K``, ``V``, ``P``, the ``checks`` (the certificate in
         one line), ``report()`` (what ``splitspec design`` prints) and ``to_json()``.
 
+    Raises
+    ------
+    AssumptionError
+        A graph is not strongly connected, ``(C, A)`` is not jointly detectable, explicit gains miss the rate (named).
+    DesignError
+        No q below ``design.q_max``, or no g found.
+
     Examples
     --------
     >>> import splitspec_core as ss
@@ -329,13 +386,6 @@ def design(sc: Scenario, *, all_q_methods: bool = False, workers: int | None = N
     (6, True)
     >>> d.checks.certificate
     'q = 6: spectral bound 0.4736 <= rate 0.5'
-
-    Raises
-    ------
-    AssumptionError
-        A graph is not strongly connected, ``(C, A)`` is not jointly detectable, explicit gains miss the rate (named).
-    DesignError
-        No q below ``design.q_max``, or no g found.
     """
     from .synthesis.designer import design as _design
 
@@ -404,6 +454,31 @@ def simulate(sc: Scenario | DesignResult, *, steps: int | None = None, seed: int
     every seed's :class:`Trajectory` (N trajectories: checked against this machine's memory); ``progress``
     is ignored with ``seeds``.
 
+    Parameters
+    ----------
+    sc : Scenario or DesignResult
+        What to simulate (a scenario is designed first).
+    steps, seed : int, optional
+        Default ``run.steps`` and ``run.seed``.
+    seeds : iterable of int, optional
+        A Monte Carlo study (returns :class:`MonteCarloRuns`).
+    noise : bool
+        False drops process and measurement noise (default True).
+    exact : bool
+        Continuous time: integrate the noise-free ODE instead of the sampled-data estimator (default False).
+    progress : bool or None
+        A progress bar on stderr (None: when stderr is a terminal and the run is long); ignored with ``seeds``.
+    lost : array or tuple, optional
+        A run's recorded consensus losses to replay (``lost``, or ``(lost, lost_cause)``).
+    measurements : str, Path or Measurements, optional
+        The user's recorded ``y`` instead of the simulated plant.
+    keep_y : bool
+        Record the simulated plant's measurements in ``Trajectory.y`` (one seed only).
+    trajectories : bool
+        With ``seeds``: also keep every seed's :class:`Trajectory`.
+    faults : iterable of mapping, optional
+        Replaces the scenario's ``faults:`` (the file's format).
+
     Returns
     -------
     Trajectory
@@ -418,16 +493,11 @@ def simulate(sc: Scenario | DesignResult, *, steps: int | None = None, seed: int
         ``trajectories``.  Per seed it equals the single-seed run to round-off, not bit for bit (the
         batched products sum in another order): relative differences of order 1e-12 are measured.
 
-    Parameters
-    ----------
-    sc : Scenario or DesignResult
-        What to simulate (a scenario is designed first).
-    steps, seed : int, optional
-        Default ``run.steps`` and ``run.seed``.
-    seeds : iterable of int, optional
-        A Monte Carlo study (returns :class:`MonteCarloRuns`).
-    noise, exact, progress, lost, measurements, keep_y, trajectories, faults
-        As described above.
+    Raises
+    ------
+    ScenarioError
+        ``seed`` and ``seeds`` both given, ``seeds`` empty, ``keep_y`` with ``seeds``, ``trajectories`` without
+        ``seeds``, ``exact`` with ``measurements``, or a run that cannot fit in memory.
 
     Examples
     --------
@@ -440,12 +510,6 @@ def simulate(sc: Scenario | DesignResult, *, steps: int | None = None, seed: int
     >>> killed = ss.simulate(ss.load_scenario("examples/ring10.yaml"), faults=[{"at": 5, "kill": 3}])
     >>> int(killed.alive[-1].sum())
     9
-
-    Raises
-    ------
-    ScenarioError
-        ``seed`` and ``seeds`` both given, ``seeds`` empty, ``keep_y`` with ``seeds``,
-        or a run that cannot fit in memory.
     """
     from .simulation.simulator import check_trajectory_memory, simulate as _simulate, simulate_exact
 

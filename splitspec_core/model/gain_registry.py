@@ -150,7 +150,27 @@ def local_method(name: str):
 
 
 def meets_rate(poles: np.ndarray, time: str, rate: float) -> bool:
-    """Whether every pole decays strictly faster than the rate."""
+    """Whether every pole decays strictly faster than the rate.
+
+    Parameters
+    ----------
+    poles : array_like
+        The poles (complex), e.g. of ``Abar_i + Kbar_i Cbar_i``.
+    time : str
+        ``continuous`` or ``discrete``.
+    rate : float
+        ``lam``.
+
+    Returns
+    -------
+    bool
+        Continuous: every real part ``< -lam``; discrete: every modulus ``< lam``; True for no poles.
+
+    Examples
+    --------
+    >>> meets_rate([0.2, 0.3j], "discrete", 0.5), meets_rate([-1.0, -0.4], "continuous", 0.5)
+    (True, False)
+    """
     poles = np.asarray(poles)
     if poles.size == 0:
         return True
@@ -165,7 +185,30 @@ POLES_SHOWN = 6
 
 
 def poles_text(poles, time: str, *, limit: int = POLES_SHOWN) -> str:
-    """``[-0.3, -0.45, -0.6]``; more than ``limit``: the slowest ``limit`` and how many more, down to the fastest."""
+    """``[-0.3, -0.45, -0.6]``; more than ``limit``: the slowest ``limit`` and how many more, down to the fastest.
+
+    Parameters
+    ----------
+    poles : array_like
+        The poles (complex; a real one printed without its zero imaginary part).
+    time : str
+        ``continuous`` (the slowest: the largest real part) or ``discrete`` (the largest modulus).
+    limit : int
+        How many poles are listed at most (default :data:`POLES_SHOWN`).
+
+    Returns
+    -------
+    str
+        The poles to 4 significant digits: all of them in the given order, or the slowest ``limit``, how many more,
+        and the fastest.
+
+    Examples
+    --------
+    >>> poles_text([-0.3, -0.45 + 0.1j], "continuous")
+    '[-0.3, -0.45+0.1j]'
+    >>> poles_text(-np.arange(1.0, 9.0), "continuous", limit=3)
+    '[-1, -2, -3, ... 5 more, the fastest -8]'
+    """
     poles = np.asarray(poles)
     if poles.size <= limit:
         return "[" + ", ".join(_pole_text(p) for p in poles) + "]"

@@ -61,7 +61,32 @@ __all__ = ["LocalGain", "GainRequest", "LOCAL_METHODS", "local_method", "target_
 
 
 def target_poles(r: int, time: str, rate: float, margin: float) -> np.ndarray:
-    """The ``place`` method's poles (see the module docstring)."""
+    """The ``place`` method's poles (see the module docstring): distinct, real, beyond the rate by the margin.
+
+    Parameters
+    ----------
+    r : int
+        How many poles (the slow modes that move).
+    time : str
+        ``continuous`` or ``discrete``.
+    rate : float
+        ``lam``.
+    margin : float
+        ``design.margin``.
+
+    Returns
+    -------
+    (r,) array
+        Continuous: ``-(1 + margin) lam (1 + k/4)``; discrete: ``alpha (r - k) / r`` with
+        ``alpha = lam / (1 + margin)``; ``k = 0 .. r-1``.
+
+    Examples
+    --------
+    >>> target_poles(3, "discrete", 0.5, 0.5).round(4).tolist()
+    [0.3333, 0.2222, 0.1111]
+    >>> target_poles(2, "continuous", 1.0, 0.5).tolist()
+    [-1.5, -1.875]
+    """
     k = np.arange(r)
     if time == "continuous":
         return -(1.0 + margin) * rate * (1.0 + k / 4.0)
@@ -356,6 +381,20 @@ def design_gain(dec: Decomposition, request: GainRequest) -> LocalGain:
         The method is not a registered local method, or its numerical step failed (said of ``request.label``).
     AssumptionError
         If the resulting observable-part poles do not meet the rate.
+
+    Examples
+    --------
+    Agent 1 of the paper's discrete example sees the first oscillator; ``place`` puts its poles at
+    :func:`target_poles` (rate 0.5, margin 0.5):
+
+    >>> from splitspec_core.model.observability import decompose
+    >>> A = np.array([[0, 1, 0, 0], [-1, 0, 0, 0], [0, 0, 0, 1], [0, 0, -2, 0]], dtype=float)
+    >>> dec = decompose(A, np.array([[1.0, 0, 0, 0]]))
+    >>> gain = design_gain(dec, GainRequest(method="place", time="discrete", rate=0.5))
+    >>> (gain.K.round(4) + 0.0).ravel().tolist()
+    [0.5, 0.9444, 0.0, 0.0]
+    >>> sorted(gain.poles.real.round(4).tolist())
+    [0.1667, 0.3333]
     """
     method, time, rate, margin, label = request.method, request.time, request.rate, request.margin, request.label
     fn = LOCAL_METHODS.get(method)

@@ -48,38 +48,39 @@ class AgentDesign:
 
     @property
     def V(self) -> np.ndarray:
-        """``V_i`` of the certificates (orthonormal in the working coordinates)."""
+        """``V_i`` of the certificates, an (n, k) array (orthonormal in the working coordinates; ``k = n - r_i``, less
+        the directions no agent sees when the design found some)."""
         return self.dec.V
 
     @cached_property
     def K(self) -> np.ndarray:
-        """``K_i`` in the user's coordinates (what runs)."""
+        """``K_i`` in the user's coordinates (what runs), an (n, s_i) array."""
         return self.gain.K if self.scale is None else self.scale[:, None] * self.gain.K
 
     @cached_property
     def P(self) -> np.ndarray:
-        """``P_i`` in the user's coordinates (what runs): the projection on the unobservable space (minus what no
-        agent sees) along the working coordinates' orthogonal complement; the identity when the agent takes the whole
-        state from its neighbours (``consensus == "whole"``)."""
+        """``P_i`` in the user's coordinates (what runs), an (n, n) array: the projection on the unobservable space
+        (minus what no agent sees) along the working coordinates' orthogonal complement; the identity when the agent
+        takes the whole state from its neighbours (``consensus == "whole"``)."""
         if self.consensus == "whole":
             return np.eye(self.dec.P.shape[0])
         return self.dec.P if self.scale is None else self.scale[:, None] * self.dec.P / self.scale[None, :]
 
     @cached_property
     def V_user(self) -> np.ndarray:
-        """The same subspace as ``V``, orthonormal in the user's coordinates (reports, the API)."""
+        """The same subspace as ``V``, an (n, k) array orthonormal in the user's coordinates (reports, the API)."""
         return self.dec.V if self.scale is None else rescale(self.dec.V, self.scale, None)
 
     @cached_property
     def V_adaptive(self) -> np.ndarray:
-        """``R_i = D^-1 V_i``: the working coordinates of the unobservable space seen from the user's, ``V_i' x_w =
-        R_i' x`` (eq. adaptive's projection of the disagreement; ``P = L_i R_i'``)."""
+        """``R_i = D^-1 V_i``, an (n, k) array: the working coordinates of the unobservable space seen from the user's,
+        ``V_i' x_w = R_i' x`` (eq. adaptive's projection of the disagreement; ``P = L_i R_i'``)."""
         return self.dec.V if self.scale is None else self.dec.V / self.scale[:, None]
 
     @cached_property
     def V_lift(self) -> np.ndarray:
-        """``L_i = D V_i``: the unobservable space's basis in the user's coordinates, ``x = L_i w`` for ``w`` in the
-        working ones (``P = L_i R_i'``, ``R_i' L_i = I``)."""
+        """``L_i = D V_i``, an (n, k) array: the unobservable space's basis in the user's coordinates, ``x = L_i w`` for
+        ``w`` in the working ones (``P = L_i R_i'``, ``R_i' L_i = I``)."""
         return self.dec.V if self.scale is None else self.scale[:, None] * self.dec.V
 
 
@@ -115,6 +116,23 @@ def design_agent(A: np.ndarray, C: np.ndarray, request: GainRequest, *, agent_id
     -------
     AgentDesign
         The agent's decomposition and its gain, which meets ``request.rate`` on its observable part.
+
+    Raises
+    ------
+    DesignError
+        The gain method's numerical step failed (:func:`~splitspec_core.model.gains.design_gain`).
+    AssumptionError
+        The gain does not meet the rate.
+
+    Examples
+    --------
+    Agent 1 of the paper's discrete example sees the first oscillator; the second is its unobservable space:
+
+    >>> A = np.array([[0, 1, 0, 0], [-1, 0, 0, 0], [0, 0, 0, 1], [0, 0, -2, 0]], dtype=float)
+    >>> agent = design_agent(A, np.array([[1.0, 0, 0, 0]]), GainRequest(method="place", time="discrete", rate=0.5),
+    ...                      agent_id=1)
+    >>> agent.V.shape, (agent.P.round(6) + 0.0).diagonal().tolist(), agent.consensus
+    ((4, 2), [0.0, 0.0, 1.0, 1.0], 'split')
     """
     dec = dec if dec is not None else decompose(A, C, rank_tol=rank_tol, spectrum=spectrum,
                                                 free=beyond_target(request.time, request.rate, request.margin),
@@ -167,7 +185,26 @@ def whole_placeholder(A: np.ndarray, dec: Decomposition, agent_id: int, unobserv
                       scale: np.ndarray | None) -> AgentDesign:
     """Agent ``agent_id`` of a whole-state design before its gain is chosen (:func:`with_gain`): its decomposition
     (what it sees, for the reports and the loss analysis; minus ``unobserved``, W, as :func:`design_agent` does), no
-    gain, ``P_i = I``."""
+    gain, ``P_i = I``.
+
+    Parameters
+    ----------
+    A : (n, n) array
+        ``A`` in the user's coordinates.
+    dec : Decomposition
+        The agent's decomposition (working coordinates).
+    agent_id : int
+        The agent.
+    unobserved : (n, w) array or None
+        ``W`` in the working coordinates, the directions no agent sees (None or no columns: none).
+    scale : (n,) array or None
+        The working coordinates ``x = diag(scale) x_w`` (None: the user's).
+
+    Returns
+    -------
+    AgentDesign
+        ``consensus`` ``whole``; a zero ``K_i`` (n x s_i), no poles, method ``whole``.
+    """
     if unobserved is not None and unobserved.shape[1]:
         A_w = np.asarray(A, dtype=float) if scale is None else np.asarray(A) * scale[None, :] / scale[:, None]
         dec = dec.without(unobserved, A_w)
@@ -179,7 +216,22 @@ def whole_placeholder(A: np.ndarray, dec: Decomposition, agent_id: int, unobserv
 
 def with_gain(agent: AgentDesign, K: np.ndarray, method: str) -> AgentDesign:
     """``agent`` with the gain ``K`` (the user's coordinates) a design chose centrally (the whole-state design's
-    ``K_i``, :mod:`splitspec_core.synthesis.whole_state`); ``poles`` empty: no pole of its own is assigned."""
+    ``K_i``, :mod:`splitspec_core.synthesis.whole_state`); ``poles`` empty: no pole of its own is assigned.
+
+    Parameters
+    ----------
+    agent : AgentDesign
+        The agent (:func:`whole_placeholder`); its decomposition, scale and consensus are kept.
+    K : (n, s_i) array_like
+        ``K_i`` in the user's coordinates (stored as ``K_w = D^-1 K``).
+    method : str
+        The word of ``design.gains`` that chose it.
+
+    Returns
+    -------
+    AgentDesign
+        A new agent design; ``agent.K`` then equals ``K``.
+    """
     K = np.asarray(K, dtype=float)
     K_w = K if agent.scale is None else K / agent.scale[:, None]  # K = D K_w
     gain = LocalGain(K=K_w, Kbar=agent.dec.Q @ K_w, poles=np.zeros(0, complex), method=method)
@@ -189,7 +241,28 @@ def with_gain(agent: AgentDesign, K: np.ndarray, method: str) -> AgentDesign:
 def central_part(gain: dict, n: int, s: int) -> tuple:
     """``(K_i, P_i, R_i)`` of an agent from the configuration's ``gain``, sent when the design chose its gain centrally
     (:func:`splitspec_core.synthesis.whole_state.agent_gain`): ``K`` (n x s_i), the consensus ``whole``
-    (``P_i = I``) or ``split`` with its ``P`` (n x n); no ``R_i`` (no adaptive gain)."""
+    (``P_i = I``) or ``split`` with its ``P`` (n x n); no ``R_i`` (no adaptive gain).
+
+    Parameters
+    ----------
+    gain : dict
+        ``{"K": nested list, "consensus": "whole" or "split", "P": nested list}`` (``P`` only for ``split``).
+    n : int
+        The number of states.
+    s : int
+        The agent's number of outputs ``s_i``.
+
+    Returns
+    -------
+    tuple of arrays
+        ``(K_i, P_i, R_i)``: ``(n, s)``, ``(n, n)``, and an empty ``(n, 0)`` ``R_i``.
+
+    Examples
+    --------
+    >>> K, P, R = central_part({"K": [[0.5], [0.0]], "consensus": "whole"}, 2, 1)
+    >>> K.shape, P.tolist(), R.shape
+    ((2, 1), [[1.0, 0.0], [0.0, 1.0]], (2, 0))
+    """
     K = np.asarray(gain["K"], dtype=float).reshape(n, s)
     P = np.eye(n) if gain["consensus"] == "whole" else np.asarray(gain["P"], dtype=float).reshape(n, n)
     return K, P, np.zeros((n, 0))
@@ -199,7 +272,36 @@ def scenario_agent(sc: Scenario, agent_id: int, *, unobserved: np.ndarray | None
                    spectrum: Spectrum | None = None) -> AgentDesign:
     """Agent ``agent_id``'s local design from the scenario alone (what its process computes; the designer computes
     the same): :func:`design_agent` with the scenario's options, its skeleton and working coordinates, and
-    ``unobserved`` (W in the working coordinates, as the design sends it)."""
+    ``unobserved`` (W in the working coordinates, as the design sends it).
+
+    Parameters
+    ----------
+    sc : Scenario
+        The scenario.
+    agent_id : int
+        The agent.
+    unobserved : (n, w) array, optional
+        ``W`` in the working coordinates (None: none).
+    spectrum : Spectrum, optional
+        The skeleton of ``A`` already computed (None: :func:`scenario_spectrum`).
+
+    Returns
+    -------
+    AgentDesign
+        The agent's local design (``split`` consensus, the scenario's ``design.gains``).
+
+    Raises
+    ------
+    DesignError, AssumptionError
+        As :func:`design_agent`.
+
+    Examples
+    --------
+    >>> import splitspec_core as ss
+    >>> agent = scenario_agent(ss.load_scenario("examples/paper_discrete.yaml"), 1)
+    >>> (agent.K.round(4) + 0.0).ravel().tolist(), sorted(agent.gain.poles.real.round(4).tolist())
+    ([0.5, 0.94, 0.0, 0.0], [0.2, 0.3])
+    """
     sp = spectrum if spectrum is not None else scenario_spectrum(sc)
     scale = working_scale(sc, sp)
     return design_agent(sc.system.A, sc.system.Cs[sc.index_of(agent_id)], gain_request(sc, agent_id, scale),
@@ -209,7 +311,18 @@ def scenario_agent(sc: Scenario, agent_id: int, *, unobserved: np.ndarray | None
 
 def scenario_spectrum(sc: Scenario) -> Spectrum:
     """The skeleton of the scenario's ``A`` (every agent's rows for its decoupled states): what the designer and every
-    agent process decide in (:mod:`splitspec_core.model.modal`)."""
+    agent process decide in (:mod:`splitspec_core.model.modal`).
+
+    Parameters
+    ----------
+    sc : Scenario
+        The scenario (its ``A`` and every ``C_i``).
+
+    Returns
+    -------
+    Spectrum
+        The skeleton of ``A`` with the stacked outputs ``C``.
+    """
     return spectrum(sc.system.A, np.vstack(sc.system.Cs))
 
 
@@ -221,7 +334,20 @@ def working_scale(sc: Scenario, sp: Spectrum) -> np.ndarray | None:
     """The working coordinates of the design (``design.coordinates``): None for the user's own (``given``), the
     balancing ``d`` of :mod:`splitspec_core.model.modal` for ``balanced``; ``auto``: balanced when the balancing scales
     two states more than :data:`AUTO_COORDINATES` apart (the user's units are not comparable: orthogonal projections
-    in them mix meters with millimeters), else the user's (the paper's examples: their numbers are the paper's)."""
+    in them mix meters with millimeters), else the user's (the paper's examples: their numbers are the paper's).
+
+    Parameters
+    ----------
+    sc : Scenario
+        The scenario (its ``design.coordinates``).
+    sp : Spectrum
+        The skeleton of its ``A`` (:func:`scenario_spectrum`), holding the balancing scales ``d``.
+
+    Returns
+    -------
+    (n,) array or None
+        The scales ``diag(D)`` of ``x = D x_w``, normalised to geometric mean 1; None: the user's coordinates.
+    """
     mode = sc.design.coordinates
     if mode == "given" or (mode == "auto" and float(sp.d.max() / sp.d.min()) <= AUTO_COORDINATES):
         return None
@@ -237,7 +363,18 @@ def noise_weights(sc: Scenario) -> tuple:
     is itself (``process_noise ** 2``, ``measurement_noise ** 2``); a vector or matrix process noise stands as
     its root mean variance (discrete) or mean intensity (continuous), per-agent or per-output measurement noise
     as the root mean square of every output's std, so equal entries weigh as the scalar they repeat.  Only the
-    ratio of the two shapes the gain; the weights stay scalar, as every agent computes its gain alike."""
+    ratio of the two shapes the gain; the weights stay scalar, as every agent computes its gain alike.
+
+    Parameters
+    ----------
+    sc : Scenario
+        The scenario (its ``design.riccati`` and its noise).
+
+    Returns
+    -------
+    tuple of float
+        ``(process weight, measurement weight)``, each positive.
+    """
     d, s = sc.design, sc.system
     p_level, m_level = s.process_noise_level, s.measurement_noise_level
     pw = d.process_weight or (p_level**2 if p_level > 0 else 1.0)

@@ -76,12 +76,49 @@ def _frozen(a: np.ndarray) -> np.ndarray:
 
 
 def require_map(value: Any, key: str) -> Mapping:
+    """``value`` if it is a mapping (a YAML section), else a one-line error naming ``key``.
+
+    Parameters
+    ----------
+    value : Any
+        The value the file (or :func:`plain`) holds at ``key``.
+    key : str
+        Its dotted name for the message (``design.riccati``).
+
+    Returns
+    -------
+    Mapping
+        ``value`` itself.
+
+    Raises
+    ------
+    ScenarioError
+        ``value`` is not a mapping (``design must be a mapping, got a list of 3 items``).
+    """
     if not isinstance(value, Mapping):
         raise ScenarioError(f"{key} must be a mapping, got {describe(value)}")
     return value
 
 
 def describe(value: Any) -> str:
+    """How an error message names a value it refuses: its kind and, for a scalar, a short ``repr`` (one line).
+
+    Parameters
+    ----------
+    value : Any
+        Any value of the YAML data model (or a numpy array).
+
+    Returns
+    -------
+    str
+        ``nothing (null)``, ``the string 'x'``, ``the boolean True``, ``a list of 3 items``, ``a mapping``, ``an array
+        of shape (2, 2)``, else the type's name and the ``repr`` cut to 60 characters.
+
+    Examples
+    --------
+    >>> describe(None), describe([1, 2]), describe(True), describe(2.5)
+    ('nothing (null)', 'a list of 2 items', 'the boolean True', 'float 2.5')
+    """
     if value is None:
         return "nothing (null)"
     if isinstance(value, str):
@@ -106,7 +143,27 @@ def _short(text: str, limit: int = 60) -> str:
 def plain(value: Any, depth: int = 0) -> Any:
     """The YAML data model of a value built in Python: arrays and tuples as lists, numpy scalars as
     Python numbers, mappings as dicts.  Applied to every scenario before validation, so a file and
-    :func:`splitspec_core.scenario` (numpy arrays welcome) meet the same checks with the same messages."""
+    :func:`splitspec_core.scenario` (numpy arrays welcome) meet the same checks with the same messages.
+
+    Parameters
+    ----------
+    value : Any
+        A value built in Python: numpy arrays and scalars, tuples, lists, mappings, anything else.
+    depth : int
+        The nesting depth reached (callers leave it at 0); a value nested deeper than 8 levels (deeper than any
+        scenario key) is returned as is, for the checks to refuse.
+
+    Returns
+    -------
+    Any
+        ``value`` in the YAML data model: arrays and tuples as (nested) lists, numpy scalars as Python numbers,
+        mappings as dicts (keys converted too); anything else unchanged.
+
+    Examples
+    --------
+    >>> plain({"A": np.eye(2), "rate": np.float64(0.5), "arc": (1, 2)})
+    {'A': [[1.0, 0.0], [0.0, 1.0]], 'rate': 0.5, 'arc': [1, 2]}
+    """
     if depth > 8:  # deeper than any scenario key: left for the checks to refuse
         return value
     if isinstance(value, np.ndarray):
@@ -121,6 +178,30 @@ def plain(value: Any, depth: int = 0) -> Any:
 
 
 def check_keys(mapping: Mapping, allowed: tuple, key: str) -> None:
+    """Refuse the first key of ``mapping`` not in ``allowed``: one line naming it, the allowed keys, and where it
+    belongs when it is (close to) a key of another section (``did you mean design.q_method?``).
+
+    Parameters
+    ----------
+    mapping : Mapping
+        A section as the file holds it.
+    allowed : tuple of str
+        The section's keys (``DESIGN_KEYS``, ...: from :mod:`~splitspec_core.scenarios.keys`).
+    key : str
+        The section's dotted name (``""``: the file's top level).
+
+    Raises
+    ------
+    ScenarioError
+        ``mapping`` holds a key outside ``allowed``.
+
+    Examples
+    --------
+    >>> check_keys({"rate": 0.5, "qmethod": "spectral"}, DESIGN_KEYS, "design")  # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+    ...
+    splitspec_core.errors.ScenarioError: unknown key design.qmethod (expected one of: ...); did you mean design.q_method?
+    """
     for k in mapping:
         if k not in allowed:
             where = f"{key}.{k}" if key else str(k)
@@ -166,12 +247,50 @@ def _bounded(x: float, key: str) -> float:
 
 
 def check_number(value: Any, key: str) -> float:
+    """A finite number within ``+-MAX_MAGNITUDE`` (booleans refused), naming ``key`` on failure.
+
+    Parameters
+    ----------
+    value : Any
+        The value the file holds (an int, a float; an integer too large for a float counts as infinite).
+    key : str
+        Its dotted name for the message.
+
+    Returns
+    -------
+    float
+        ``value`` as a float.
+
+    Raises
+    ------
+    ScenarioError
+        Not a number, not finite, or ``|value| > MAX_MAGNITUDE`` (1e12).
+    """
     if isinstance(value, bool) or not isinstance(value, numbers.Real):
         raise ScenarioError(f"{key} must be a number, got {describe(value)}")
     return _bounded(_float(value), key)
 
 
 def check_seed(value: Any, key: str) -> int:
+    """A seed: an integer in ``0 .. MAX_SEED`` (``2**63 - 1``, what msgpack carries), naming ``key`` on failure.
+
+    Parameters
+    ----------
+    value : Any
+        The value the file holds (an integral float such as ``7.0`` counts as the integer).
+    key : str
+        Its dotted name for the message (``run.seed``).
+
+    Returns
+    -------
+    int
+        The seed.
+
+    Raises
+    ------
+    ScenarioError
+        Not an integer, negative, or above ``MAX_SEED``.
+    """
     v = check_integer(value, key, minimum=0)
     if v > MAX_SEED:
         raise ScenarioError(f"{key} must be <= 2**63 - 1 = {MAX_SEED} (seeds travel to the processes as "
@@ -180,6 +299,28 @@ def check_seed(value: Any, key: str) -> int:
 
 
 def check_integer(value: Any, key: str, *, minimum: int | None = None) -> int:
+    """An integer (an integral float such as ``3.0`` counts; booleans refused), at least ``minimum``, naming ``key``
+    on failure.
+
+    Parameters
+    ----------
+    value : Any
+        The value the file holds.
+    key : str
+        Its dotted name for the message.
+    minimum : int, optional
+        The smallest value allowed (None: no lower limit).
+
+    Returns
+    -------
+    int
+        ``value`` as an int.
+
+    Raises
+    ------
+    ScenarioError
+        Not an integer, or below ``minimum``.
+    """
     if isinstance(value, bool) or not isinstance(value, numbers.Integral):
         if isinstance(value, float) and value.is_integer():
             value = int(value)
@@ -236,7 +377,44 @@ def read(mapping: Mapping, section: str, name: str, *, default: Any = None) -> A
 
 
 def check_matrix(value: Any, key: str, *, vector: bool = False) -> np.ndarray:
-    """Convert a YAML nested list into a finite float array, naming ``key`` on failure."""
+    """Convert a YAML nested list into a finite float array, naming ``key`` on failure.
+
+    A matrix is a list of rows of equal length; a flat list of numbers is one row (``[1, 0, 0]`` is 1 x 3).  Every
+    entry is a number within ``+-MAX_MAGNITUDE``; a message names the entry (``system.A[2][3]``, 1-based).
+
+    Parameters
+    ----------
+    value : Any
+        The nested list the file holds (None: missing).
+    key : str
+        Its dotted name (``system.C.3``); under ``system.`` a string is taken for an array name with no
+        ``system.file`` to hold it.
+    vector : bool
+        Read a vector (a non-empty flat list, ``system.x0``) instead of a matrix.
+
+    Returns
+    -------
+    ndarray
+        A read-only float array: ``(rows, columns)``, or ``(entries,)`` with ``vector``.
+
+    Raises
+    ------
+    ScenarioError
+        Missing, not a non-empty list (of rows), a non-number entry, an entry out of range, or empty rows.
+    DimensionError
+        Rows of different lengths.
+
+    Examples
+    --------
+    >>> check_matrix([[1, 0], [0, 2]], "system.A").tolist()
+    [[1.0, 0.0], [0.0, 2.0]]
+    >>> check_matrix([1, 0, 0], "system.C.1").shape
+    (1, 3)
+    >>> check_matrix([[1, 0], [0]], "system.A")
+    Traceback (most recent call last):
+    ...
+    splitspec_core.errors.DimensionError: system.A row 2 has 1 entries, row 1 has 2
+    """
     if value is None:
         raise ScenarioError(f"{key} is missing")
     if isinstance(value, str) and key.startswith("system."):
@@ -273,7 +451,32 @@ def check_matrix(value: Any, key: str, *, vector: bool = False) -> np.ndarray:
 
 
 def check_names(value: Any, key: str, count: int, what: str) -> tuple:
-    """A list of ``count`` distinct names (:data:`splitspec_core.scenarios.labels.NAME_PATTERN`), naming ``key`` on failure."""
+    """A list of ``count`` distinct names (:data:`splitspec_core.scenarios.labels.NAME_PATTERN`), naming ``key`` on failure.
+
+    Parameters
+    ----------
+    value : Any
+        The list the file holds.
+    key : str
+        Its dotted name (``system.states``).
+    count : int
+        How many names it must hold.
+    what : str
+        What the names stand for, for the message (``one per state, system.A is 4x4``).
+
+    Returns
+    -------
+    tuple of str
+        The names, in the file's order.
+
+    Raises
+    ------
+    ScenarioError
+        Not a list, an entry that is not a name (letters, digits, ``_ . -``, starting with a letter or ``_``, at
+        most 64 characters), or a name given twice.
+    DimensionError
+        Not ``count`` names.
+    """
     from .labels import NAME_PATTERN
 
     if not isinstance(value, list):
@@ -292,6 +495,26 @@ def check_names(value: Any, key: str, count: int, what: str) -> tuple:
 
 
 def check_agent_id(value: Any, key: str) -> int:
+    """An agent id: a positive integer (a string of digits, as a YAML or JSON key may be, counts), naming ``key`` on
+    failure.
+
+    Parameters
+    ----------
+    value : Any
+        The id as the file holds it.
+    key : str
+        The dotted name of where it stands (``system.C``).
+
+    Returns
+    -------
+    int
+        The id.
+
+    Raises
+    ------
+    ScenarioError
+        Not a positive integer.
+    """
     if isinstance(value, str) and value.strip().isdigit():
         value = int(value)
     if isinstance(value, bool) or not isinstance(value, numbers.Integral) or int(value) < 1:
@@ -300,6 +523,27 @@ def check_agent_id(value: Any, key: str) -> int:
 
 
 def check_known_agent(value: Any, key: str, ids: tuple) -> int:
+    """An agent id (:func:`check_agent_id`) that is one of the scenario's agents ``ids``.
+
+    Parameters
+    ----------
+    value : Any
+        The id as the file holds it.
+    key : str
+        The dotted name of where it stands (``design.K``).
+    ids : tuple of int
+        The scenario's agent ids (the keys of ``system.C``).
+
+    Returns
+    -------
+    int
+        The id.
+
+    Raises
+    ------
+    ScenarioError
+        Not a positive integer, or not in ``ids``.
+    """
     aid = check_agent_id(value, key)
     if aid not in ids:
         raise ScenarioError(f"{key} names agent {aid}, which is not in system.C (agents: {ids_text(ids)})")
@@ -307,10 +551,43 @@ def check_known_agent(value: Any, key: str, ids: tuple) -> int:
 
 
 def ids_text(ids: tuple) -> str:
+    """Agent ids as a message lists them.
+
+    Parameters
+    ----------
+    ids : tuple of int
+        Agent ids.
+
+    Returns
+    -------
+    str
+        The ids, comma-separated (``1, 2, 3``).
+    """
     return ", ".join(str(i) for i in ids)
 
 
 def check_arc(value: Any, key: str, ids: tuple) -> tuple:
+    """An arc ``[j, i]`` (agent i hears agent j) between two of the scenario's agents, naming ``key`` on failure.
+
+    Parameters
+    ----------
+    value : Any
+        The pair as the file holds it.
+    key : str
+        The dotted name of where it stands (``graphs.a.arcs[2]``).
+    ids : tuple of int
+        The scenario's agent ids.
+
+    Returns
+    -------
+    tuple of int
+        ``(j, i)``; a self-arc ``(i, i)`` is returned too (the graph parser leaves it out).
+
+    Raises
+    ------
+    ScenarioError
+        Not a pair, or an id that is not a positive integer or not an agent of ``ids``.
+    """
     if not isinstance(value, list) or len(value) != 2:
         raise ScenarioError(f"{key} must be a pair [j, i] of agent ids, got {describe(value)}")
     j = check_known_agent(value[0], key, ids)
@@ -322,7 +599,31 @@ def check_shapes(A: Any, Cs: Mapping, x0: Any = None, Ks: Mapping | None = None)
     """The system's shapes, each mismatch one line naming the matrix: ``A`` square, ``C_i`` with n columns,
     ``x0`` of n entries, ``K_i`` n x s_i.  ``Cs`` and ``Ks`` map agent ids to matrices.  The scenario
     parser and :class:`~splitspec_core.scenarios.specs.Scenario` itself both call it, so a scenario
-    built from its dataclasses cannot skip it."""
+    built from its dataclasses cannot skip it.
+
+    Parameters
+    ----------
+    A : array_like
+        ``A``, which must be n x n.
+    Cs : Mapping
+        ``{agent id: C_i}``, each s_i x n (may be empty).
+    x0 : array_like, optional
+        The initial state, ``(n,)`` (None: not checked).
+    Ks : Mapping, optional
+        ``{agent id: K_i}``, each n x s_i with s_i the rows of ``Cs[id]`` (None: not checked).
+
+    Raises
+    ------
+    DimensionError
+        The first shape that does not agree, named (``system.C.3 has 5 columns, system.A is 4x4``).
+
+    Examples
+    --------
+    >>> check_shapes(np.eye(2), {1: [[1, 0]]}, Ks={1: [[1, 0]]})  # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+    ...
+    splitspec_core.errors.DimensionError: design.K.1 is 1x2, expected 2x1 (n x s_i with system.C.1 1x2; ...)
+    """
     shape = np.shape(A)
     if len(shape) != 2 or shape[0] != shape[1]:
         raise DimensionError(f"system.A must be square, got {'x'.join(map(str, shape))}")

@@ -18,7 +18,53 @@ __all__ = ["parse_design"]
 
 def parse_design(raw: Any, time: str, system: System, ids: tuple) -> DesignSpec:
     """The ``design:`` section of a scenario of ``time`` over ``system`` and the agents ``ids``, checked key by key
-    (one line naming the key when one is wrong)."""
+    (one line naming the key when one is wrong).
+
+    Besides each key's own kind and limits (:func:`~splitspec_core.scenarios.checks.read`), the rules that join keys:
+    ``design.rate`` > 0 (continuous) or in (0, 1) (discrete); ``design.gains`` defaults to ``optimal`` when
+    ``system`` states noise, else ``place``; a method that needs noise or ``design.K`` gets it; ``design.g`` is
+    continuous time's and the split's, ``design.q`` discrete time's and the whole state's; ``q <= q_max <=``
+    :data:`~splitspec_core.scenarios.checks.MAX_Q`; ``resilience`` 0 or 1; ``margin`` in (0, 10]; ``rank_tol`` in
+    (0, 1); ``dwell`` > 0; the Riccati weights at least
+    :data:`~splitspec_core.scenarios.checks.MIN_RICCATI_WEIGHT`.
+
+    Parameters
+    ----------
+    raw : Any
+        The ``design:`` mapping as the file holds it (after :func:`~splitspec_core.scenarios.checks.plain`).
+    time : str
+        The scenario's ``discrete`` or ``continuous``.
+    system : System
+        The parsed ``system:`` section (its noise decides the default gains; ``A`` and ``C_i`` check ``design.K``).
+    ids : tuple of int
+        The agent ids, in agent order (the order of ``system.Cs``).
+
+    Returns
+    -------
+    DesignSpec
+        The design options; ``K`` a tuple of n x s_i arrays in agent order (None unless the method needs it),
+        ``rank_tol`` None for ``auto``.
+
+    Raises
+    ------
+    ScenarioError
+        A key that is wrong alone or with the others (one line naming it).
+    DimensionError
+        A ``design.K.<id>`` that is not n x s_i.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from splitspec_core.scenarios.specs import System
+    >>> system = System(A=np.eye(2), Cs=(np.eye(2)[:1], np.eye(2)[1:]), x0=None)
+    >>> d = parse_design({"rate": 0.5, "q": 3}, "discrete", system, (1, 2))
+    >>> d.gains, d.q, d.q_method, d.consensus
+    ('place', 3, 'spectral', 'auto')
+    >>> parse_design({"rate": 1.5}, "discrete", system, (1, 2))
+    Traceback (most recent call last):
+    ...
+    splitspec_core.errors.ScenarioError: design.rate must be in (0, 1) for discrete time, got 1.5
+    """
     dmap = require_map(raw, "design")
     check_keys(dmap, DESIGN_KEYS, "design")
     rate = read(dmap, "design", "rate")

@@ -88,6 +88,15 @@ def method(name: str) -> GainMethod:
     ------
     ScenarioError
         ``name`` is not declared (one line listing the declared words).
+
+    Examples
+    --------
+    >>> method("kalman").needs_noise, method("kalman").whole
+    (True, 'shifted')
+    >>> method("lqr")  # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+    ...
+    splitspec_core.errors.ScenarioError: design.gains must be one of place, riccati, ..., got 'lqr'
     """
     try:
         return METHODS[name]
@@ -100,13 +109,18 @@ def names_where(**flags) -> tuple:
 
     Parameters
     ----------
-    **flags
-        :class:`GainMethod` fields and the value each must have.
+    **flags : Any
+        :class:`GainMethod` fields and the value each must have (none: every method).
 
     Returns
     -------
     tuple of str
         The matching words.
+
+    Examples
+    --------
+    >>> names_where(local=True, needs_K=False)
+    ('place', 'riccati', 'kalman')
     """
     return tuple(g.name for g in METHODS.values() if all(getattr(g, k) == v for k, v in flags.items()))
 
@@ -123,6 +137,11 @@ def listed(names: tuple) -> str:
     Returns
     -------
     str
-        The words, the last two joined by ``or``.
+        The words, the last two joined by ``or``, the others by commas.
+
+    Examples
+    --------
+    >>> listed(("place", "riccati", "kalman")), listed(("place",))
+    ('place, riccati or kalman', 'place')
     """
     return " or ".join(names) if len(names) < 3 else ", ".join(names[:-1]) + " or " + names[-1]

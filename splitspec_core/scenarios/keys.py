@@ -184,6 +184,12 @@ def dotted(section: str, name: str) -> str:
     Returns
     -------
     str
+        The key's dotted name, as every message names it.
+
+    Examples
+    --------
+    >>> dotted("design", "rate"), dotted("", "time")
+    ('design.rate', 'time')
     """
     return f"{section}.{name}" if section else name
 
@@ -199,6 +205,12 @@ def names(keys: tuple) -> tuple:
     Returns
     -------
     tuple of str
+        The keys the section accepts.
+
+    Examples
+    --------
+    >>> names(RUN)
+    ('steps', 'dt', 'seed', 'pace', 'show')
     """
     return tuple(k.name for k in keys)
 
@@ -214,6 +226,13 @@ def choices(keys: tuple) -> dict:
     Returns
     -------
     dict
+        ``{name: (words, default)}`` of the keys of kind ``word`` only (a ``number|word`` key such as ``design.g`` is
+        not among them).
+
+    Examples
+    --------
+    >>> choices(DESIGN)["weights"]
+    (('uniform', 'metropolis'), 'uniform')
     """
     return {k.name: (k.words, k.default) for k in keys if k.kind == "word"}
 

@@ -198,13 +198,41 @@ def _parse_run(raw: Any, time: str, names: tuple = (), live: bool = False) -> Ru
 def parse_scenario(data: Any, *, source: str = "<scenario>", base: Path | None = None) -> Scenario:
     """Validate a scenario given as a parsed mapping (e.g. from YAML or JSON).
 
-    ``base``: the folder a relative ``system.file`` is read from (None: the working directory;
-    :mod:`splitspec_core.scenarios.files`).
+    The sections are parsed in file order (system, graphs, switching, design, faults, run, positions, network,
+    sources), each by its parser; the first mistake stops it.
+
+    Parameters
+    ----------
+    data : Any
+        The mapping a scenario file holds (or :func:`splitspec_core.scenario` builds); numpy arrays and tuples are
+        welcome (:func:`~splitspec_core.scenarios.checks.plain`).  None: an empty file.
+    source : str
+        Where it came from, for messages and the default name (the file name's stem).
+    base : Path, optional
+        The folder a relative ``system.file`` is read from (None: the working directory;
+        :mod:`splitspec_core.scenarios.files`).
+
+    Returns
+    -------
+    Scenario
+        Frozen and validated; agent ids sorted (agent order).
 
     Raises
     ------
     ScenarioError
-        With a one-line message naming the offending key.
+        With a one-line message naming the offending key (a :class:`~splitspec_core.errors.DimensionError` for
+        shapes that do not agree).
+
+    Examples
+    --------
+    >>> sc = parse_scenario({"system": {"A": [[0.9, 0.2], [0, 0.8]], "C": {2: [[0, 1]], 1: [[1, 0]]}},
+    ...                      "graphs": {"a": [[1, 2], [2, 1]]}, "design": {"rate": 0.5}}, source="two.yaml")
+    >>> sc.name, sc.agent_ids, sc.design.gains, sc.run.steps
+    ('two', (1, 2), 'place', 60)
+    >>> parse_scenario({"system": {"A": [[1, 0]], "C": {1: [[1, 0]]}}})
+    Traceback (most recent call last):
+    ...
+    splitspec_core.errors.DimensionError: system.A must be square, got 1x2
     """
     if data is None:
         raise ScenarioError(f"{source} is empty")

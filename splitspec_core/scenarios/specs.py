@@ -122,7 +122,7 @@ class System:
 
     @property
     def output_sizes(self) -> tuple:
-        """``(s_1, ..., s_m)``: the number of outputs of each agent, in agent order."""
+        """``(s_1, ..., s_m)``, a tuple of int: the number of outputs of each agent, in agent order."""
         return tuple(int(np.shape(C)[0]) for C in self.Cs)
 
     @property
@@ -153,37 +153,39 @@ class System:
 
     @property
     def process_noise_present(self) -> bool:
-        """Some process noise (a covariance or intensity that is not zero)."""
+        """Whether there is some process noise (a covariance or intensity that is not zero), a bool."""
         return bool(np.any(self.process_covariance))
 
     @property
     def measurement_noise_present(self) -> bool:
-        """Some output has measurement noise (a std above 0)."""
+        """Whether some output has measurement noise (a std above 0), a bool."""
         return bool(np.any(self.measurement_std > 0))
 
     @property
     def has_noise(self) -> bool:
-        """Process or measurement noise present."""
+        """Whether process or measurement noise is present, a bool (what ``design.gains: optimal`` and ``kalman``
+        need, and what makes ``optimal`` the default)."""
         return self.process_noise_present or self.measurement_noise_present
 
     @property
     def process_noise_level(self) -> float:
-        """One number for the process noise in a scalar's units (the number itself; for a vector or a matrix
+        """One float for the process noise in a scalar's units (the number itself; for a vector or a matrix
         :func:`splitspec_core.scenarios.noise.process_level`: the root mean variance, or the mean intensity)."""
         return process_level(self.process_noise, self.n, self.time)
 
     @property
     def measurement_noise_level(self) -> float:
-        """One number for the measurement noise: the number itself, or the root mean square of the outputs' stds."""
+        """One float for the measurement noise: the number itself, or the root mean square of the outputs' stds."""
         return measurement_level(self.measurement_noise, self.output_sizes)
 
     @property
     def inputs(self) -> int:
-        """The number of known inputs (columns of ``B``; 0 without ``B``)."""
+        """The number of known inputs, an int (columns of ``B``; 0 without ``B``)."""
         return 0 if self.B is None else int(self.B.shape[1])
 
     @property
     def n(self) -> int:
+        """The number of states ``n``, an int (the rows of ``A``)."""
         return self.A.shape[0]
 
 
@@ -216,7 +218,18 @@ class Switching:
     seed: int | None = None
 
     def graph_names(self, all_names: tuple) -> tuple:
-        """Names of the graphs this signal can select, in scenario order."""
+        """Names of the graphs this signal can select, in scenario order.
+
+        Parameters
+        ----------
+        all_names : tuple of str
+            Every graph's name, in scenario order (``Scenario.graph_names``).
+
+        Returns
+        -------
+        tuple of str
+            ``constant``: the first graph alone; ``schedule``: the graphs its pieces name; ``random``: its ``graphs``.
+        """
         if self.kind == "constant":
             return (all_names[0],)
         used = {g for _, g in self.schedule} if self.kind == "schedule" else set(self.graphs)
@@ -272,23 +285,49 @@ class NetworkSpec:
 
     @property
     def lossy(self) -> bool:
-        """Some message may be lost by draw (a loss probability above 0 somewhere)."""
+        """Whether some message may be lost by draw (a loss probability above 0 somewhere), a bool."""
         return self.loss > 0 or any(o.get("loss", 0.0) > 0 for o in self.arcs.values())
 
     @property
     def delayed(self) -> bool:
+        """Whether some message is held in ``run`` (a delay mean or jitter above 0, on every arc or one), a bool."""
         return self.delay_mean > 0 or self.delay_jitter > 0 or any(
             o.get("delay_mean", 0.0) > 0 or o.get("delay_jitter", 0.0) > 0 for o in self.arcs.values())
 
     @property
     def impaired(self) -> bool:
-        """Anything beyond the perfect network (today's behaviour: every message, on time)."""
+        """Whether anything goes beyond the perfect network (every message, on time): loss, delay or a deadline; a
+        bool."""
         return self.lossy or self.delayed or self.deadline is not None
 
     def loss_of(self, arc: tuple) -> float:
+        """The loss probability of the consensus messages along ``arc``: its override, else ``loss``.
+
+        Parameters
+        ----------
+        arc : tuple of int
+            ``(j, i)``: agent i hears agent j.
+
+        Returns
+        -------
+        float
+            The probability, in [0, 1), that one message along ``arc`` does not count.
+        """
         return self.arcs.get(arc, {}).get("loss", self.loss)
 
     def delay_of(self, arc: tuple) -> tuple:
+        """The delay of the messages along ``arc`` in ``run``: its override, else ``delay_mean`` and ``delay_jitter``.
+
+        Parameters
+        ----------
+        arc : tuple of int
+            ``(j, i)``: agent i hears agent j.
+
+        Returns
+        -------
+        tuple of float
+            ``(mean, jitter)`` in seconds.
+        """
         o = self.arcs.get(arc, {})
         return o.get("delay_mean", self.delay_mean), o.get("delay_jitter", self.delay_jitter)
 
@@ -313,7 +352,22 @@ class RunSpec:
 
 @dataclass(frozen=True)
 class Scenario:
-    """A validated scenario.  Agent order everywhere is ``agent_ids`` order."""
+    """A validated scenario.  Agent order everywhere is ``agent_ids`` order.
+
+    Built by :func:`splitspec_core.scenario`, :func:`splitspec_core.load_scenario` or directly from the dataclasses
+    above (the shapes, the agents and the time are checked either way); ``print`` shows a summary.
+
+    Examples
+    --------
+    >>> import splitspec_core as ss
+    >>> sc = ss.load_scenario("examples/paper_discrete.yaml")
+    >>> sc.agent_ids, sc.graph_names, sc.index_of(3)
+    ((1, 2, 3), ('a', 'b'), 2)
+    >>> sc.graph("b").arcs
+    ((1, 2), (2, 1), (2, 3), (3, 2))
+    >>> sc.output_names(2), sc.state_names
+    (('y2',), ('x1', 'x2', 'x3', 'x4'))
+    """
 
     name: str
     time: str
@@ -334,29 +388,65 @@ class Scenario:
 
     @property
     def m(self) -> int:
+        """The number of agents ``m``, an int."""
         return len(self.agent_ids)
 
     @property
     def n(self) -> int:
+        """The number of states ``n``, an int."""
         return self.system.n
 
     @property
     def graph_names(self) -> tuple:
+        """Every graph's name, a tuple of str in scenario order (a trajectory's ``graph`` indexes it)."""
         return tuple(g.name for g in self.graphs)
 
     def graph(self, name: str) -> GraphSpec:
+        """The graph named ``name``.
+
+        Parameters
+        ----------
+        name : str
+            A graph's name (a key of ``graphs:``).
+
+        Returns
+        -------
+        GraphSpec
+            Its name and arcs.
+
+        Raises
+        ------
+        KeyError
+            No graph has that name.
+        """
         for g in self.graphs:
             if g.name == name:
                 return g
         raise KeyError(name)
 
     def index_of(self, agent_id: int) -> int:
-        """Position of ``agent_id`` in ``agent_ids``."""
+        """Position of ``agent_id`` in ``agent_ids``.
+
+        Parameters
+        ----------
+        agent_id : int
+            An agent of the scenario.
+
+        Returns
+        -------
+        int
+            Its 0-based index in agent order (``system.Cs``, the rows of ``xhat``).
+
+        Raises
+        ------
+        ValueError
+            ``agent_id`` is not an agent of the scenario.
+        """
         return self.agent_ids.index(agent_id)
 
     @property
     def state_names(self) -> tuple:
-        """The states' names: ``system.states``, else ``x1 .. xn``."""
+        """The states' names, a tuple of n str: ``system.states``, else ``x1 .. xn``."""
         return self.system.states if self.system.states is not None else default_state_names(self.n)
 
     @property
@@ -382,7 +472,23 @@ class Scenario:
         return self.system.states is not None
 
     def output_names(self, agent_id: int) -> tuple:
-        """Agent ``agent_id``'s output names: ``system.outputs.<id>``, else ``y<id>`` / ``y<id>_1 ..``."""
+        """Agent ``agent_id``'s output names: ``system.outputs.<id>``, else ``y<id>`` / ``y<id>_1 ..``.
+
+        Parameters
+        ----------
+        agent_id : int
+            An agent of the scenario.
+
+        Returns
+        -------
+        tuple of str
+            One name per row of its ``C_i`` (s_i names).
+
+        Raises
+        ------
+        ValueError
+            ``agent_id`` is not an agent of the scenario (and ``system.outputs`` does not name it).
+        """
         given = (self.system.outputs or {}).get(agent_id)
         if given is not None:
             return given

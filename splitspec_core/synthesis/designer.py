@@ -48,7 +48,28 @@ __all__ = ["design", "scenario_dwell", "highest_rate", "RateReach", "RATE_PROBES
 
 
 def scenario_dwell(sc: Scenario) -> float | None:
-    """Average dwell time of the switching signal: design.dwell, random dwell, or shortest schedule piece."""
+    """Average dwell time of the switching signal: design.dwell, random dwell, or shortest schedule piece.
+
+    Parameters
+    ----------
+    sc : Scenario
+        The scenario (its ``design.dwell`` and ``switching``).
+
+    Returns
+    -------
+    float or None
+        ``design.dwell`` when given; random switching: its mean dwell; a schedule over several graphs: its shortest
+        piece (with a ``period``, the last piece ends at the period); else None (one graph: no switching).
+        Event times (discrete) or seconds (continuous).
+
+    Examples
+    --------
+    >>> import splitspec_core as ss
+    >>> scenario_dwell(ss.load_scenario("examples/paper_discrete_switching.yaml"))
+    2.0
+    >>> scenario_dwell(ss.load_scenario("examples/paper_discrete.yaml")) is None
+    True
+    """
     if sc.design.dwell is not None:
         return sc.design.dwell
     sw = sc.switching
@@ -77,6 +98,21 @@ def design(sc: Scenario, *, compare_q_methods: bool = False, workers: int | None
     q method over the same cases (``Design.q_methods``; ``splitspec design --all-methods``).
     ``workers``: processes for the spectral radii of many large cases (a resilient design of hundreds of
     agents; :func:`splitspec_core.synthesis.bounds.q_spectral`); ``None``: every core this process may use.
+
+    Parameters
+    ----------
+    sc : Scenario
+        The scenario to design.
+    compare_q_methods : bool
+        Discrete time: also compute every other q method's q, for information (default False).
+    workers : int, optional
+        Processes for the spectral radii of many large cases (None: every core this process may use).
+
+    Returns
+    -------
+    Design
+        The estimator (every agent's ``V_i``, ``K_i``, ``P_i``), ``q`` or ``g`` with the bounds that certify it,
+        the cases covered, the loss analyses and the warnings (:mod:`.design_data`).
 
     Raises
     ------
@@ -130,7 +166,34 @@ def highest_rate(sc: Scenario, *, probes: int = RATE_PROBES) -> RateReach | None
     """When a design at ``design.rate`` is refused or not certified: the fastest rate the same design keys certify,
     found by bisection between the rate asked and one far slower (a hundredth of it; discrete time:
     ``1 - (1 - lam) / 100``), with the line that says it (``the fastest rate these design keys certify is about
-    0.31 ...``); None when even the slow end is refused (the refusal is not about the rate)."""
+    0.31 ...``); None when even the slow end is refused (the refusal is not about the rate).
+
+    Parameters
+    ----------
+    sc : Scenario
+        The scenario whose ``design.rate`` was refused or not certified (the other design keys are kept).
+    probes : int
+        How many designs the search runs at most (default :data:`RATE_PROBES`): the slow end, then ``probes - 1``
+        bisection steps (geometric in ``lam``, continuous; in ``1 - lam``, discrete).
+
+    Returns
+    -------
+    RateReach or None
+        The fastest rate certified and the slowest refused that the search found, with the line; None when the slow
+        end is refused too.
+
+    Examples
+    --------
+    The paper's explicit gains (poles 0.2 and 0.3) cannot meet a rate 0.25 whatever q:
+
+    >>> import dataclasses
+    >>> import splitspec_core as ss
+    >>> sc = ss.load_scenario("examples/paper_discrete.yaml")
+    >>> fast = dataclasses.replace(sc, design=dataclasses.replace(sc.design, rate=0.25))
+    >>> reach = highest_rate(fast, probes=3)
+    >>> reach.rate > 0.3 > reach.refused
+    True
+    """
     d = sc.design
 
     def ok(rate: float) -> bool:

@@ -136,7 +136,25 @@ class WholeState:
 
 
 def case_radius(sc: Scenario, Fs_by_id: dict, case, q: int) -> float:
-    """The spectral radius of the full error matrix of ``case`` (its graph and agents held constant) at ``q``."""
+    """The spectral radius of the full error matrix of ``case`` (its graph and agents held constant) at ``q``.
+
+    Parameters
+    ----------
+    sc : Scenario
+        The scenario (not read; kept for the callers' uniform signature).
+    Fs_by_id : dict
+        ``{agent id: F_i}``, every agent's error map per event time (``A + K_i C_i``, or ``E + D K_i C_i``).
+    case : bounds.Case
+        A graph held constant with its agents (``case.graph.ids``, ``case.graph.S``).
+    q : int
+        Consensus exchanges per event time.
+
+    Returns
+    -------
+    float
+        ``rho((S^q (x) I_n) blkdiag(F_i))``, per event time; the rate is certified for the case when it is below
+        ``lam`` (per step).
+    """
     return spectral_radius(whole_matrix([Fs_by_id[i] for i in case.graph.ids], case.graph.S, q))
 
 
@@ -175,7 +193,22 @@ def _predicted(sc: Scenario, Fs, Kss, S, q: int, Qn, R, per_agent: dict | None =
 
 def whole_gains(sc: Scenario, L: np.ndarray, pi: np.ndarray) -> list:
     """Every agent's ``K_i`` (the user's coordinates, the scenario's time) from the centralized per-step gain ``L``:
-    ``K_s,i = -L_i / pi_i``; continuous time ``K_i = D^-1 K_s,i`` (the step applies ``D K_i``)."""
+    ``K_s,i = -L_i / pi_i``; continuous time ``K_i = D^-1 K_s,i`` (the step applies ``D K_i``).
+
+    Parameters
+    ----------
+    sc : Scenario
+        The scenario (its ``C_i`` split ``L``'s columns per agent; its ``time``, ``A`` and ``run.dt``).
+    L : (n, p) array
+        The centralized predictor gain per step, ``p = sum s_i`` (``xbar+ = (F - L C) xbar + L y``).
+    pi : (m,) array
+        The stationary weights of consensus, in agent order.
+
+    Returns
+    -------
+    list of arrays
+        ``[K_1, ..., K_m]``, each (n, s_i), in agent order.
+    """
     rows = output_rows(sc.system.Cs)
     Kss = [-L[:, r] / pi[k] for k, r in enumerate(rows)]
     if sc.time == "discrete":
@@ -214,10 +247,49 @@ def design_whole(sc: Scenario, cases, *, rate: float, dwell: float | None, warni
     ``Ks``: every agent's ``K_i`` in the user's coordinates; ``radii``: the full error matrix's spectral radius per
     case at ``q`` (empty above :data:`MAX_RATE_DIM`); ``certificate``: ``(method, bound, certified, switching)``.
 
+    Parameters
+    ----------
+    sc : Scenario
+        The scenario (its ``design.gains`` picks the family: ``explicit`` the user's ``K_i``, ``riccati`` and
+        ``kalman`` the Riccati design shifted by the rate, ``optimal`` the search of the module docstring; its
+        ``design.q``, ``design.q_max``).
+    cases : sequence of bounds.Case
+        The graphs (and agent sets) held constant the certificate covers; the first one's stationary weights ``pi``
+        split the centralized gain, and the predicted noise is computed on it.
+    rate : float
+        ``lam`` in the scenario's units (discrete: per event time; continuous: per second, taken per ``run.dt``
+        step as ``exp(-lam dt)``).
+    dwell : float or None
+        The switching's average dwell time in scenario units, for the dwell-time bound (None: none).
+    warnings : list
+        The design's warnings; the certificate's are appended to it.
+
+    Returns
+    -------
+    tuple
+        ``(Ks, q, info, radii, certificate)``: ``Ks`` a list of (n, s_i) arrays in agent order, ``q`` an int,
+        ``info`` a :class:`WholeState`, ``radii`` a dict ``{case label: float}``, ``certificate`` a tuple
+        ``(method str, bound float, certified bool, switching bool)``.
+
     Raises
     ------
     DesignError
         Nothing in the family meets the rate within ``q <=`` :data:`Q_CAP` (the message says what limits it).
+
+    Examples
+    --------
+    Two agents, each seeing one state, with noise (``design.gains: optimal``): the Kalman predictor meets the rate
+    (``alpha = 1``), and one exchange per event time certifies it:
+
+    >>> import splitspec_core as ss
+    >>> from splitspec_core.synthesis.prelude import Prelude
+    >>> sc = ss.scenario(A=[[0.9, 0.2], [0, 0.8]], C={1: [[1, 0]], 2: [[0, 1]]}, graphs={"a": [(1, 2), (2, 1)]},
+    ...                  rate=0.5, process_noise=0.1, measurement_noise=0.1, consensus="whole")
+    >>> Ks, q, info, radii, certificate = design_whole(sc, Prelude.of(sc).cases, rate=0.5, dwell=None, warnings=[])
+    >>> [K.round(4).ravel().tolist() for K in Ks], q, info.alpha, info.pi.round(6).tolist()
+    ([[-1.0906, -0.0282], [-0.2626, -0.9235]], 1, 1.0, [0.5, 0.5])
+    >>> round(radii["a"], 4), certificate[0], certificate[2]
+    (0.3478, 'full error matrix', True)
     """
     d = sc.design
     F, Qn, R = sampled_model(sc)
@@ -322,6 +394,25 @@ def _better(key: tuple, other: tuple) -> bool:
 
 
 def radius_at(sc: Scenario, by_id: dict, cases, q: int) -> dict:
+    """Every case's full error matrix's spectral radius at ``q`` (:func:`case_radius`, each computed once).
+
+    Parameters
+    ----------
+    sc : Scenario
+        The scenario (its size ``m n``).
+    by_id : dict
+        ``{agent id: F_i}`` with the cache of computed radii (``of(sc, case, q)``; the designer's ``_Radii``).
+    cases : sequence of bounds.Case
+        The cases the design covers.
+    q : int
+        Consensus exchanges per event time.
+
+    Returns
+    -------
+    dict
+        ``{case label: radius (float)}``; empty when ``m n`` exceeds :data:`MAX_RATE_DIM` (too large for the dense
+        eigenvalue problem).
+    """
     if sc.m * sc.n > MAX_RATE_DIM:
         return {}
     return {c.label: by_id.of(sc, c, q) for c in cases}
@@ -385,7 +476,33 @@ def agent_gain(des, agent_id: int) -> dict | None:
     """What agent ``agent_id``'s process is sent when the design chose its gain centrally (the whole-state design, or
     ``design.gains: optimal`` whatever consensus it chose), else None (the agent computes its own part of the
     design, :func:`splitspec_core.model.local_design.scenario_agent`): ``{"K": K_i, "consensus": ..., "P": P_i}``
-    in the user's coordinates, exactly the floats the simulator holds (``Design.agents``)."""
+    in the user's coordinates, exactly the floats the simulator holds (``Design.agents``).
+
+    Parameters
+    ----------
+    des : Design
+        The design (:func:`splitspec_core.synthesis.designer.design`).
+    agent_id : int
+        One of its agents.
+
+    Returns
+    -------
+    dict or None
+        ``{"K": nested list (n x s_i), "consensus": "whole" or "split"}``, with ``"P"`` (n x n nested list) for the
+        split; None when the agent designs its own gain (a local method with the split).
+
+    Examples
+    --------
+    >>> import splitspec_core as ss
+    >>> from splitspec_core.synthesis.designer import design
+    >>> sc = ss.scenario(A=[[0.9, 0.2], [0, 0.8]], C={1: [[1, 0]], 2: [[0, 1]]}, graphs={"a": [(1, 2), (2, 1)]},
+    ...                  rate=0.5, process_noise=0.1, measurement_noise=0.1, consensus="whole")
+    >>> sent = agent_gain(design(sc), 1)
+    >>> sent["consensus"], np.round(sent["K"], 4).tolist()
+    ('whole', [[-1.0906], [-0.0282]])
+    >>> agent_gain(design(ss.load_scenario("examples/paper_discrete.yaml")), 1) is None
+    True
+    """
     if des.consensus != "whole" and gain_methods.method(des.scenario.design.gains).local:
         return None
     a = next(a for a in des.agents if a.id == agent_id)
