@@ -76,7 +76,8 @@ def _frozen(a: np.ndarray) -> np.ndarray:
 
 
 def require_map(value: Any, key: str) -> Mapping:
-    """``value`` if it is a mapping (a YAML section), else a one-line error naming ``key``.
+    """``value``'s keys but those set to null, if it is a mapping (a YAML section), else a one-line error naming
+    ``key``: a key written ``null`` (``design: {g: null}``) is absent, in every section alike.
 
     Parameters
     ----------
@@ -87,8 +88,8 @@ def require_map(value: Any, key: str) -> Mapping:
 
     Returns
     -------
-    Mapping
-        ``value`` itself.
+    dict
+        ``value`` without its null-valued keys (a new dict; the file's own mapping is left alone).
 
     Raises
     ------
@@ -97,7 +98,7 @@ def require_map(value: Any, key: str) -> Mapping:
     """
     if not isinstance(value, Mapping):
         raise ScenarioError(f"{key} must be a mapping, got {describe(value)}")
-    return value
+    return {k: v for k, v in value.items() if v is not None}
 
 
 def describe(value: Any) -> str:

@@ -102,3 +102,20 @@ def test_a_value_of_the_wrong_kind_is_one_line_naming_the_key(section, key):
     want = "a number" if decl.kind.startswith("number") else "an integer"
     with pytest.raises(ScenarioError, match=rf"^{section}\.{key} must be {want}, got .*$"):
         parse_scenario(raw)
+
+
+def test_a_key_written_null_is_absent_in_every_section(tmp_path):
+    """``key: null`` is the key left out, wherever it is: the name, a time-dependent design key, a run key, a
+    sub-section's key (the cases that were refused or read as the text 'None')."""
+    plain = parse_scenario(_minimal(), source="nulls.yaml")
+    raw = _minimal(g=None, q=None)
+    raw.update(name=None, run={"dt": None, "steps": None})
+    raw["switching"] = None
+    sc = parse_scenario(raw, source="nulls.yaml")
+    assert sc.name == plain.name == "nulls"
+    assert sc.design == plain.design and sc.run == plain.run
+    two = {"time": "discrete", "system": {"A": [[0.5]], "C": {1: [[1]], 2: [[1]]}},
+           "graphs": {"a": {"arcs": [[1, 2]]}, "b": {"arcs": [[2, 1]]}}, "design": {"rate": 0.9},
+           "switching": {"random": {"dwell": 2, "graphs": None, "seed": 3}}}
+    assert parse_scenario(two).switching == parse_scenario(
+        {**two, "switching": {"random": {"dwell": 2, "seed": 3}}}).switching
