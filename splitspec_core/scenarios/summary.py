@@ -56,7 +56,7 @@ def summary(sc) -> str:
     outputs = ", ".join(f"{i}: {len(sc.output_names(i))}" for i in sc.agent_ids)
     graphs = "; ".join(f"{g.name} ({len(g.arcs)} arcs)" for g in sc.graphs)
     sw = sc.switching
-    switching = {"fixed": "none"}.get(sw.kind, sw.kind)
+    switching = sw.kind  # constant, schedule or random
     if sw.kind == "schedule":
         switching += f" ({len(sw.schedule)} changes)"
     elif sw.kind == "random":

@@ -1151,6 +1151,9 @@ def simulate_exact(des: Design, *, seed: int | None = None, steps: int | None = 
     if sc.network.impaired or any(f.drops_messages for f in sc.faults):
         raise ScenarioError("the exact ODE has no messages to lose: it cannot model network: or partition faults "
                             "(simulate without --exact)")
+    if sc.system.B is not None:
+        raise ScenarioError("the exact ODE has no known input: it cannot model system.B and system.u (simulate "
+                            "without --exact)")
     sensors = sorted({f.action for f in sc.faults if f.runtime == PLANT})
     if sensors:
         raise ScenarioError(f"the exact ODE measures every output exactly: it cannot model {', '.join(sensors)} "

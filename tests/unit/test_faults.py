@@ -244,3 +244,16 @@ def test_corrupt_marks_the_timeline_and_the_plots(ring):
     marks = event_marks(tr.t, tr.alive, tr.graph, agent_ids=tr.agent_ids, faults=faults)
     assert [(m.step, m.kind, m.label) for m in marks] == [(10, "fault", "sensor 2 corrupted"),
                                                           (16, "fault", "sensor 2 repaired")]
+
+
+def test_the_exact_ode_refuses_known_inputs():
+    """It integrates x' = A x without B u: a scenario with inputs is refused in one line, not simulated wrong."""
+    from splitspec_core.scenarios.load import load_yaml, parse_scenario
+
+    raw = load_yaml((EXAMPLES / "paper_continuous.yaml").read_text())
+    n = len(raw["system"]["A"])
+    raw["system"].update(B=[[1.0]] + [[0.0]] * (n - 1), u=[0.5])
+    sc = parse_scenario(raw)
+    assert np.isfinite(ss.simulate(sc, steps=5).xhat).all()  # the scenario itself is fine without exact
+    with pytest.raises(ScenarioError, match="^the exact ODE has no known input: it cannot model system.B"):
+        ss.simulate(sc, exact=True)
