@@ -28,7 +28,7 @@ import numpy as np
 from ..simulation.metrics import fit_decay, steady_rms
 from ..synthesis.designer import design
 from ..synthesis.loss_certificate import loss_certificate
-from ..errors import DesignError
+from ..errors import DesignError, ScenarioError
 from ..scenarios.specs import NetworkSpec, Scenario
 from ..simulation.simulator import Progress, check_trajectory_memory, simulate
 
@@ -152,7 +152,7 @@ def network_sweep(sc: Scenario, parameter: str, values, *, seeds, steps: int | N
 
     Raises
     ------
-    ValueError
+    ScenarioError
         ``parameter`` is neither ``loss`` nor ``deadline``.
     DesignError
         :func:`check_sweep` refuses the levels.
@@ -166,7 +166,7 @@ def network_sweep(sc: Scenario, parameter: str, values, *, seeds, steps: int | N
     ([0.0, 0.2], 6)
     """
     if parameter not in PARAMETERS:
-        raise ValueError(f"parameter must be one of {PARAMETERS}, got {parameter!r}")
+        raise ScenarioError(f"parameter must be one of {PARAMETERS}, got {parameter!r}")
     values = [float(v) for v in values]
     seeds = list(seeds)
     check_sweep(sc, parameter, values)

@@ -106,3 +106,11 @@ def test_sweep_cli(tmp_path):
     r = run("compare", EXAMPLES / "ring10.yaml", "--out", tmp_path / "nodelay", "--sweep-deadline", 0.01)
     assert r.returncode == 2 and "needs a delay distribution" in r.stderr and r.stderr.count("\n") == 1
     assert not (tmp_path / "nodelay").exists()
+
+
+def test_an_unknown_sweep_parameter_is_a_scenario_error():
+    """The public API's one error family (SplitspecError), not a bare ValueError: the CLI and callers catch it."""
+    from splitspec_core.errors import ScenarioError
+
+    with pytest.raises(ScenarioError, match="^parameter must be one of"):
+        network_sweep(load_scenario(EXAMPLES / "ring10_lossy.yaml"), "delay", [0.1], seeds=range(1))
