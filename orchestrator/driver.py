@@ -133,7 +133,8 @@ class Orchestrator:
         self.scenario_text = resolved_scenario_text(Path(scenario_path), read_scenario_text(scenario_path))
         self.sc = load_scenario(scenario_path)
         self.des = design(self.sc)
-        self.columns = run_columns(has_g=not self.des.two_rate)  # the reported row columns this run records
+        # the reported row columns this run records
+        self.columns = run_columns(has_g=not self.des.two_rate, bad_data=self.sc.design.bad_data is not None)
         self.meas, self.measurements_path = None, measurements
         if measurements is not None and self.sc.sources:
             raise SplitspecError("--measurements replaces the plant, and this scenario has live sensors (sources:) "

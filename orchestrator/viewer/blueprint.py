@@ -69,7 +69,9 @@ TL_EVENT, TL_TIME, TL_WALL = "event", "time", "wall"
 # Event name -> mark kind (entity ``marks/<kind>``), with its marker and colour: the fault kinds declare theirs
 # (splitspec_core.scenarios.faults: agent_lost, agent_rejoined, arc_dropped, partition, ...), a few are the runtime's
 _FAULT_MARKS, _FAULT_MARK_STYLES = fault_marks()
-MARK_OF_EVENT = {**_FAULT_MARKS, "graph_switched": "graph_switch", "fault_skipped": "fault"}
+# the bad-data test's (splitspec_core.synthesis.bad_data): a sensor set aside and taken back
+MARK_OF_EVENT = {**_FAULT_MARKS, "graph_switched": "graph_switch", "fault_skipped": "fault",
+                 "sensor_suspect": "suspect", "sensor_restored": "restored"}
 MARK_KINDS = {  # kind: (legend name, marker, colour)
     "lost": ("agent lost", "Cross", (214, 39, 40)),
     "rejoined": ("agent rejoined", "Up", (44, 160, 44)),
@@ -77,6 +79,8 @@ MARK_KINDS = {  # kind: (legend name, marker, colour)
     "fault": ("scenario fault (link)", "Asterisk", (255, 127, 14)),
     "partition": ("partition", "Down", (148, 103, 189)),
     "healed": ("partition healed", "Plus", (23, 190, 207)),
+    "suspect": ("sensor suspect (bad data)", "Circle", (227, 119, 194)),
+    "restored": ("sensor restored", "Square", (140, 86, 75)),
     **_FAULT_MARK_STYLES,
 }
 

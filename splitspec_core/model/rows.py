@@ -76,6 +76,9 @@ class Column:
     only_with_g : bool
         A run has it only when its design has a gain g (continuous time, the split design); else it is all fill
         and the recording shows no series of it.
+    only_with_bad_data : bool
+        A run has it only when its design tests the measurements (``design.bad_data``,
+        :mod:`splitspec_core.synthesis.bad_data`); else it is all fill and the recording shows no series of it.
     """
 
     name: str
@@ -89,6 +92,7 @@ class Column:
     entity: str | None = None
     label: str | None = None
     only_with_g: bool = False
+    only_with_bad_data: bool = False
 
     def __post_init__(self):
         if self.shape not in _SHAPES:
@@ -118,6 +122,12 @@ COLUMNS = (
     Column("messages_used", "agent", "int64", -1, "messages", "the neighbours' consensus messages agent i counted in "
            "the round of tau, over its exchanges; -1 where dead and in the last row (no round)", reported="round",
            label="consensus messages used per agent"),
+    Column("y_rejected", "agent", "bool", False, "", "agent i's measurement y_i(tau) was set aside by its bad-data "
+           "test (failed, or its sensor suspect) and not used; False where used, dead, in the last row, or without "
+           "design.bad_data", reported="round", label="measurements set aside (bad data)"),
+    Column("y_statistic", "agent", "float64", NAN, "", "agent i's bad-data statistic d_i = r_i' S_i^-1 r_i of the "
+           "round of tau (0.0 without a measurement); NaN where dead, in the last row, or without design.bad_data",
+           reported="round", label="bad-data statistic d_i", only_with_bad_data=True),
     Column("wall", "row", "int64", 0, "ns", "time.time_ns() of the row's arrival (run only)", npz=False),
     Column("round", "round", "float64", NAN, "", "the round's " + ", ".join(ROUND_FIELDS) + " (run only)",
            npz=False),
@@ -171,7 +181,7 @@ def report(**values) -> dict:
     Examples
     --------
     >>> report(g=0.5)
-    {'g': 0.5, 'messages_used': -1}
+    {'g': 0.5, 'messages_used': -1, 'y_rejected': False, 'y_statistic': nan}
     """
     unknown = set(values) - {c.name for c in REPORTED}
     if unknown:
@@ -179,20 +189,22 @@ def report(**values) -> dict:
     return {c.name: np.dtype(c.dtype).type(values.get(c.name, c.fill)).item() for c in REPORTED}
 
 
-def run_columns(*, has_g: bool) -> tuple:
-    """The names of the reported columns a run has (:attr:`Column.only_with_g`).
+def run_columns(*, has_g: bool, bad_data: bool = False) -> tuple:
+    """The names of the reported columns a run has (:attr:`Column.only_with_g`, :attr:`Column.only_with_bad_data`).
 
     Parameters
     ----------
     has_g : bool
         The design has a gain g (continuous time, the split design; not ``Design.two_rate``).
+    bad_data : bool, optional
+        The design tests the measurements (``design.bad_data``); default False.
 
     Returns
     -------
     tuple of str
         In :data:`REPORTED`'s order.
     """
-    return tuple(c.name for c in REPORTED if has_g or not c.only_with_g)
+    return tuple(c.name for c in REPORTED if (has_g or not c.only_with_g) and (bad_data or not c.only_with_bad_data))
 
 
 def shape_of(c: Column, m: int, n: int) -> tuple:

@@ -38,6 +38,14 @@ measurement :func:`prediction_update`), ``z_i(k) = sum_j w_ij z_j(k-1)`` (:func:
 ``z_i(0) = E x_i + D [K_i (C_i x_i - y_i) + B u]``, the same functions with the matrices of
 :func:`step_matrices`.
 
+Bad data (:mod:`splitspec_core.synthesis.bad_data`)
+---------------------------------------------------
+Before its update each agent tests its measurement against its prediction (:func:`innovation_test`):
+``r_i = y_i - C_i z`` with ``z`` what the update applies ``K_i`` to (``z_i(q)``, or ``x_i(tau)`` for the whole-state
+design and the sampled-data form), ``d_i = r_i' S_i^-1 r_i`` against the design's threshold; a failing measurement
+is not used (:func:`prediction_update`).  :func:`sensor_watch` counts the failures in a row: ``k`` make the sensor
+suspect (its agent then takes ``P_i = I``, no measurement), ``k`` clean tests restore it.
+
 Adaptive gain (eq. adaptive), forward Euler with the same ``dt``:
 ``g_i(k+1) = g_i(k) + dt |V_i' sum_j w_ij (x_j(k) - x_i(k))|^2``.
 """
@@ -62,6 +70,8 @@ __all__ = [
     "adaptive_gain_step",
     "step_matrices",
     "step_input",
+    "innovation_test",
+    "sensor_watch",
 ]
 
 
@@ -358,3 +368,74 @@ def step_input(G: np.ndarray | None, bu: np.ndarray | None) -> np.ndarray | None
         ``bu`` (``G`` None), ``G bu`` (continuous), or None when ``bu`` is None.
     """
     return bu if G is None or bu is None else G @ bu
+
+
+def innovation_test(y_i: np.ndarray, C_i: np.ndarray, z: np.ndarray, S_inv: np.ndarray,
+                    threshold: float) -> tuple:
+    """The bad-data test of one measurement: ``r_i = y_i - C_i z``, ``d_i = r_i' S_i^-1 r_i``, failed when
+    ``d_i > threshold`` (:mod:`splitspec_core.synthesis.bad_data`: ``S_i = C_i Sigma_ii C_i' + R_i``, the threshold
+    the chi-square quantile of the false-alarm probability).
+
+    Parameters
+    ----------
+    y_i : (s_i,) ndarray
+        Agent i's measurement ``y_i(tau)``.
+    C_i : (s_i, n) ndarray
+        Agent i's output matrix.
+    z : (n,) ndarray
+        The estimate the update applies ``K_i`` to: ``z_i(q)`` (eq. split-discrete-est1; ``C_i z_i(q) = C_i x_i(tau)``),
+        or ``x_i(tau)`` (whole-state design, sampled-data form).
+    S_inv : (s_i, s_i) ndarray
+        ``S_i^-1``, the inverse of the design's innovation covariance.
+    threshold : float
+        The test's threshold.
+
+    Returns
+    -------
+    tuple of (float, bool)
+        ``(d_i, failed)``.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> innovation_test(np.array([3.0]), np.array([[1.0, 0.0]]), np.array([1.0, 5.0]), np.array([[0.25]]), 2.0)
+    (1.0, False)
+    """
+    r = y_i - C_i @ z
+    d = float(r @ (S_inv @ r))
+    return d, d > threshold
+
+
+def sensor_watch(suspect: bool, run: int, failed: bool | None, k: int) -> tuple:
+    """One event time of a sensor's watch: ``k`` failed tests in a row make it suspect, ``k`` clean tests in a row
+    (while suspect) restore it; an event time without a measurement (``failed`` None) changes nothing.
+
+    Parameters
+    ----------
+    suspect : bool
+        The sensor is suspect at the start of the event time (its measurement is not used in it).
+    run : int
+        The failures in a row so far (not suspect), or the clean tests in a row (suspect).
+    failed : bool or None
+        This event time's test; None: no measurement, no test.
+    k : int
+        ``design.bad_data.suspect_after``.
+
+    Returns
+    -------
+    tuple of (bool, int, str or None)
+        ``(suspect, run, event)`` after this event time; ``event`` is ``"sensor_suspect"``, ``"sensor_restored"`` or
+        None.
+
+    Examples
+    --------
+    >>> sensor_watch(False, 2, True, 3), sensor_watch(True, 2, False, 3), sensor_watch(False, 2, False, 3)
+    ((True, 0, 'sensor_suspect'), (False, 0, 'sensor_restored'), (False, 0, None))
+    """
+    if failed is None:
+        return suspect, run, None
+    if not suspect:
+        run = run + 1 if failed else 0
+        return (True, 0, "sensor_suspect") if run >= k else (False, run, None)
+    run = 0 if failed else run + 1
+    return (False, 0, "sensor_restored") if run >= k else (True, run, None)

@@ -380,8 +380,10 @@ MESSAGE_FIELDS = {
 #: optional fields (name -> kind), returned only when present: a run on recorded measurements (their sha256, steps,
 #: whether they hold the truth), whether agents report the y_i they used, the directions no agent sees (W, n rows of
 #: w numbers: splitspec_core.model.detectability), the agent's gain when the design chose it centrally ({K, consensus,
-#: P}: splitspec_core.synthesis.whole_state.agent_gain); a tick's network
-OPTIONAL_FIELDS = {"config": {"measurements": "map", "record_y": "bool", "unobserved": "list", "gain": "map"},
+#: P}: splitspec_core.synthesis.whole_state.agent_gain), the agent's bad-data test ({S_inv, threshold, suspect_after}:
+#: splitspec_core.synthesis.bad_data.agent_config); a tick's network
+OPTIONAL_FIELDS = {"config": {"measurements": "map", "record_y": "bool", "unobserved": "list", "gain": "map",
+                              "bad_data": "map"},
                    "tick": {"alive": "list", "rows": "map", "incarnation": "map", "partition": "list"}}
 #: optional fields that come all together or not at all: a tick's network is all four (runtime.ticks)
 TOGETHER = {"tick": ("alive", "rows", "incarnation", "partition")}
@@ -405,7 +407,7 @@ _CHECK = {
 BINARY_MAGIC = 0xB5  # never the first byte of a msgpack map (0x80-0x8f, 0xde, 0xdf)
 MAX_VECTOR = 1 << 20
 
-_STRUCT_CODE = {"float64": "d", "int64": "q"}
+_STRUCT_CODE = {"float64": "d", "int64": "q", "bool": "?"}
 #: type -> (code, struct format of the scalar fields, their names, the vector field, the map fields); an ``xhat``
 #: carries one scalar field per column the agents report (:data:`splitspec_core.model.rows.REPORTED`, in its order)
 BINARY_LAYOUT = {

@@ -8,7 +8,7 @@ from __future__ import annotations
 from typing import Any
 
 from ..errors import ScenarioError
-from .checks import (DESIGN_KEYS, MAX_Q, MIN_RICCATI_WEIGHT, RICCATI_KEYS, check_keys, check_known_agent,
+from .checks import (BAD_DATA_KEYS, DESIGN_KEYS, MAX_Q, MIN_RICCATI_WEIGHT, RICCATI_KEYS, check_keys, check_known_agent,
                      check_matrix, check_shapes, ids_text, read, require_map)
 from . import gain_methods
 from .specs import DesignSpec, System
@@ -160,12 +160,34 @@ def parse_design(raw: Any, time: str, system: System, ids: tuple) -> DesignSpec:
         for k, w in zip(RICCATI_KEYS, (pw, mw)):
             if w is not None and not w >= MIN_RICCATI_WEIGHT:
                 raise ScenarioError(f"design.riccati.{k} must be >= {MIN_RICCATI_WEIGHT:g}, got {rmap[k]}")
+    bad_data = _bad_data(dmap, system)
     return DesignSpec(
         rate=rate, gains=gains, K=K, g=g, g0=g0, q=q, q_method=q_method, q_max=q_max,
         resilience=resilience, weights=weights, margin=margin, rank_tol=rank_tol,
         graph_set=graph_set, dwell=dwell, process_weight=pw, measurement_weight=mw,
         eigenvalues=eigenvalues, undetectable=undetectable, coordinates=coordinates, consensus=consensus,
+        bad_data=bad_data,
     )
+
+
+def _bad_data(dmap: dict, system: System) -> tuple | None:
+    """``design.bad_data``: None (``off``, the default) or ``(false_alarm, suspect_after)``.  It needs measurement
+    noise: the test's threshold is calibrated against it (noise-free data has nothing to calibrate against, and a
+    singular innovation covariance)."""
+    raw = dmap.get("bad_data")
+    if raw is None or raw == "off":
+        return None
+    if isinstance(raw, str):
+        raise ScenarioError(f"design.bad_data must be off or a map {{false_alarm, suspect_after}}, got {raw!r}")
+    bmap = require_map(raw, "design.bad_data")
+    check_keys(bmap, BAD_DATA_KEYS, "design.bad_data")
+    p, k = (read(bmap, "design.bad_data", key) for key in BAD_DATA_KEYS)
+    if not 0 < p < 0.5:
+        raise ScenarioError(f"design.bad_data.false_alarm must be in (0, 0.5), got {p:g}")
+    if not system.measurement_noise_present or bool((system.measurement_std <= 0).any()):
+        raise ScenarioError("design.bad_data needs system.measurement_noise above 0 on every output: the test is "
+                            "calibrated against it (use design.bad_data: off)")
+    return (float(p), int(k))
 
 
 def _noisy(system: System) -> bool:

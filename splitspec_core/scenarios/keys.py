@@ -23,7 +23,7 @@ from typing import Any
 
 from . import gain_methods
 
-__all__ = ["Key", "REQUIRED", "TOP", "SYSTEM", "GRAPH", "SWITCHING", "RANDOM", "DESIGN", "RICCATI", "RUN", "NETWORK",
+__all__ = ["Key", "REQUIRED", "TOP", "SYSTEM", "GRAPH", "SWITCHING", "RANDOM", "DESIGN", "RICCATI", "BAD_DATA", "RUN", "NETWORK",
            "DELAY", "NETWORK_ARC", "SECTIONS", "dotted", "names", "choices", "reference_table"]
 
 
@@ -133,6 +133,15 @@ DESIGN = (
     Key("consensus", "word", "auto", "what each agent takes from its neighbours (auto: the split, but for gains: "
                                      "optimal, which keeps the certified one with the smaller noise)",
         words=("auto", "split", "whole")),
+    Key("bad_data", "map|word", "off", "each agent tests its measurement against its prediction and sets a failing one "
+                                       "aside: off, or {false_alarm, suspect_after} (design.bad_data.*; needs noise)",
+        words=("off",)),
+)
+
+BAD_DATA = (
+    Key("false_alarm", "number", 1e-5, "the test's false-alarm probability per agent and event time, in (0, 0.5)"),
+    Key("suspect_after", "integer", 3, "tests failed in a row that make a sensor suspect (its agent then estimates "
+                                       "from its neighbours alone), and clean ones that restore it", minimum=1),
 )
 
 RICCATI = (
@@ -169,7 +178,7 @@ NETWORK_ARC = (
 
 #: ``{section: its keys}``: the sections whose keys are declared here ("" the file's top level)
 SECTIONS = {"": TOP, "system": SYSTEM, "graphs.<name>": GRAPH, "switching": SWITCHING, "switching.random": RANDOM,
-            "design": DESIGN, "design.riccati": RICCATI, "run": RUN, "network": NETWORK, "network.delay": DELAY,
+            "design": DESIGN, "design.riccati": RICCATI, "design.bad_data": BAD_DATA, "run": RUN, "network": NETWORK, "network.delay": DELAY,
             "network.arcs[k]": NETWORK_ARC}
 
 

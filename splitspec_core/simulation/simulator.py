@@ -40,6 +40,7 @@ from ..errors import ScenarioError
 from ..model.network import NetworkState, Plan, make_plan
 from ..model.plant import Plant, RecordedPlant, initial_estimate, initial_state, output_rows
 from ..model.rows import REPORTED, column, empty
+from ..model.screening import Screen
 from ..model.impairment import PARTITION, Impairment, crosses, group_of, realized_row
 from ..scenarios.faults import PLANT
 from ..scenarios.specs import Scenario
@@ -334,6 +335,22 @@ class _EstimatorBase:
         else:
             self.q = int(des.q)
             self.F = [self.A + K @ C for K, C in zip(self.Ks, self.Cs)]
+        # design.bad_data: every agent tests its measurement before its update (model/screening.py, the agents' own
+        # steps.innovation_test); a suspect sensor's agent takes P_i = I and no measurement; ``tau`` set per step
+        from ..synthesis.bad_data import bad_data
+
+        bd = bad_data(des)
+        self.screen = None if bd is None else Screen(bd, self.Cs, sc.agent_ids)
+        self.tau = 0
+
+    def _screen(self, Z: np.ndarray, y: np.ndarray, missing, alive: np.ndarray):
+        """The bad-data test of every alive agent against ``Z`` (what its update applies K_i to): ``missing`` or the
+        measurements set aside."""
+        return missing if self.screen is None else self.screen.screen(self.tau, Z, y, missing, alive)
+
+    def _projections(self) -> list:
+        """This event time's ``P_i``: ``I`` for the agents whose sensor is suspect (their fallback)."""
+        return self.Ps if self.screen is None or not self.screen.suspect.any() else self.screen.fallback(self.Ps)
 
 
 try:  # the CSR kernel without scipy's per-call dispatch (about 10 us a call at this size)
@@ -530,11 +547,13 @@ class BatchEstimator(_EstimatorBase):
         if self.whole:
             return self.step_realized(X, y, [W] * self.q, alive, missing, bu)
         if self.continuous:
+            Pst = np.stack(self._projections())  # before the test: the watch at the start of the step
+            missing = self._screen(X, y, missing, alive)
             diff = X - W @ X
             innov = _bmv(self.KC, X) - _bmv(self.Kp, Y)
             if missing is not None and missing.any():
                 innov[missing] = 0.0  # steps.sampled_step with y_i None
-            corr = innov - self.g[:, None] * _bmv(self.Pst, diff)
+            corr = innov - self.g[:, None] * _bmv(Pst, diff)
             if bu is not None:
                 corr = corr + bu  # steps.sampled_step: B u(k) held over the step
             Xn = X @ self.E.T + corr @ self.D.T
@@ -551,7 +570,7 @@ class BatchEstimator(_EstimatorBase):
                 # eq. split-discrete-p2 in V coordinates: w_i <- V_i' sum_j w_ij z_j
                 w = c + _spmv(B, w)
             Z = U + _spmv(self.Vbig, w).reshape(self.m, self.n)
-            Xn = self._update(Z, Y, missing, bu)
+            Xn = self._update(Z, Y, self._screen(Z, y, missing, alive), bu)
         Xn[~alive] = 0.0
         return Xn
 
@@ -635,15 +654,16 @@ class BatchEstimator(_EstimatorBase):
         if self.continuous:
             return self.step(X, y, Ws[0], alive, missing, bu)
         if self.whole:  # update, then average q times (whole_state.py): z_i <- sum_j w_ij z_j
-            Z = self._update(X, Y, missing, bu)
+            Z = self._update(X, Y, self._screen(X, y, missing, alive), bu)
             for Wk in Ws:
                 Z = Wk @ Z
             Z[~alive] = 0.0
             return Z
         Z = X.copy()
+        Pst = self.Pst if self.screen is None else np.stack(self._projections())
         for Wk in Ws:
-            Z = Z + _bmv(self.Pst, Wk @ Z - Z)
-        Xn = self._update(Z, Y, missing, bu)
+            Z = Z + _bmv(Pst, Wk @ Z - Z)
+        Xn = self._update(Z, Y, self._screen(Z, y, missing, alive), bu)
         Xn[~alive] = 0.0
         return Xn
 
@@ -723,16 +743,17 @@ class AgentLoopEstimator(_EstimatorBase):
             The estimates ``x_i(k+1)``, zero rows for the agents not in ``rows``.
         """
         pos = {a: k for k, a in enumerate(self.sc.agent_ids)}
-        ys = self._ys(y, missing)
+        Ps = self._projections()  # before the test: the watch at the start of the step
         if self.whole:
-            return self._whole(X, ys, [rows] * self.q, bu)
+            return self._whole(X, self._ys(y, self._screen(X, y, missing, alive)), [rows] * self.q, bu)
         Xn = np.zeros_like(X)
         if self.continuous:
+            ys = self._ys(y, self._screen(X, y, missing, alive))
             g_next = self.g.copy()
             for i_id, (nbs, ws) in rows.items():
                 i = pos[i_id]
                 states = [X[pos[j]] for j in nbs]
-                Xn[i] = st.sampled_step(X[i], self.E, self.D, self.Ks[i], self.Cs[i], ys[i], self.Ps[i],
+                Xn[i] = st.sampled_step(X[i], self.E, self.D, self.Ks[i], self.Cs[i], ys[i], Ps[i],
                                         self.g[i], states, ws, bu)
                 if self.adaptive:
                     g_next[i] = st.adaptive_gain_step(self.g[i], st.adaptive_gain_rate(self.Vs[i], X[i], states, ws),
@@ -744,8 +765,9 @@ class AgentLoopEstimator(_EstimatorBase):
             Zn = np.zeros_like(Z)
             for i_id, (nbs, ws) in rows.items():
                 i = pos[i_id]
-                Zn[i] = st.consensus_subround(Z[i], self.Ps[i], [Z[pos[j]] for j in nbs], ws)
+                Zn[i] = st.consensus_subround(Z[i], Ps[i], [Z[pos[j]] for j in nbs], ws)
             Z = Zn
+        ys = self._ys(y, self._screen(Z, y, missing, alive))
         for i_id in rows:
             i = pos[i_id]
             Xn[i] = self._update(i, Z[i], ys[i], bu)
@@ -808,17 +830,18 @@ class AgentLoopEstimator(_EstimatorBase):
         if self.continuous:
             return self.step(X, y, Ws[0], alive, missing, bu)
         if self.whole:
-            return self._whole(X, self._ys(y, missing), Ws, bu)
+            return self._whole(X, self._ys(y, self._screen(X, y, missing, alive)), Ws, bu)
         pos = {a: k for k, a in enumerate(self.sc.agent_ids)}
-        ys = self._ys(y, missing)
+        Ps = self._projections()
         Xn = np.zeros_like(X)
         Z = X.copy()
         for rows in Ws:
             Zn = np.zeros_like(Z)
             for i_id, (nbs, ws) in rows.items():
                 i = pos[i_id]
-                Zn[i] = st.consensus_subround(Z[i], self.Ps[i], [Z[pos[j]] for j in nbs], ws)
+                Zn[i] = st.consensus_subround(Z[i], Ps[i], [Z[pos[j]] for j in nbs], ws)
             Z = Zn
+        ys = self._ys(y, self._screen(Z, y, missing, alive))
         for i_id in Ws[0]:
             i = pos[i_id]
             Xn[i] = self._update(i, Z[i], ys[i], bu)
@@ -953,8 +976,12 @@ def simulate(des: Design, *, seed: int | None = None, steps: int | None = None, 
     def restart(killed, rejoined):
         for i in killed:
             X[i] = 0.0
+            if est.screen is not None:
+                est.screen.reset(i)
         for i, inc in rejoined:
             X[i] = initial_estimate(n, seed, i, inc)
+            if est.screen is not None:
+                est.screen.reset(i)
             if est.continuous and est.adaptive:
                 est.g[i] = sc.design.g0
 
@@ -972,12 +999,19 @@ def simulate(des: Design, *, seed: int | None = None, steps: int | None = None, 
         W = weights(net, plan.graph_seq[k])
         before = len(lost_rows)
         Ws = realized_step(est, sc, W, k, exchanges, imp, replay, net.groups, lost_rows) if impaired else None
+        est.tau = k
+        if Ws is None and est.screen is not None and est.screen.suspect.any() and isinstance(est, BatchEstimator) \
+                and not (est.continuous or est.whole):  # a suspect sensor's P_i = I: the sub-rounds on S itself
+            Ws = est.realized(W[1], W[2], [np.ones(int(W[2][3].sum()), dtype=bool)] * exchanges)
         for name, values in round_columns(sc, W[1], exchanges, lost_rows[before:]).items():
             rounds[name][k] = values
         bu = st.known_input(B, plant.input())  # the known input every agent adds (the agent process: the same)
         missing = plant.missing()
         X = (est.step(X, y, W[0], alive, missing, bu) if Ws is None
              else est.step_realized(X, y, Ws, alive, missing, bu))
+        if est.screen is not None:  # the round's test (model/screening.py), reported as each agent does
+            rounds["y_rejected"][k] = est.screen.rejected
+            rounds["y_statistic"][k] = est.screen.statistic
 
     def advance(k):
         plant.advance()

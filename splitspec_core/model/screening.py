@@ -1,0 +1,183 @@
+"""Every agent's bad-data test at once, for the simulator, and the events a run's records imply.
+
+:class:`Screen` runs :func:`~splitspec_core.model.steps.innovation_test` and
+:func:`~splitspec_core.model.steps.sensor_watch` for every alive agent of one event time, exactly as each agent
+process does for itself (:mod:`splitspec_core.synthesis.bad_data` for the math), and keeps what the round reports:
+``y_statistic`` (``d_i``; ``-1.0`` for an alive agent with nothing tested: no measurement, or in its first
+``warmup`` event times after its admission, while its initial error settles) and ``y_rejected``
+(the measurement was set aside: failed, or its sensor suspect).  :class:`Watch` replays the watch on recorded rows
+(``alive``, ``y_statistic``) and says when a sensor became suspect and when it was restored: the orchestrator's
+``sensor_suspect`` / ``sensor_restored`` events, and :func:`sensor_events` for a simulated trajectory.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from . import steps as st
+from .plant import output_rows
+
+__all__ = ["UNTESTED", "Screen", "Watch", "sensor_events"]
+
+#: ``y_statistic`` of an alive agent that had no measurement to test (the watch holds)
+UNTESTED = -1.0
+
+
+class Screen:
+    """The bad-data tests of the agents of a design (:func:`splitspec_core.synthesis.bad_data.bad_data`).
+
+    ``suspect`` (m,) bool: the sensors suspect at the start of the event time (their agents use
+    :meth:`fallback`'s ``P_i = I`` and no measurement); after :meth:`screen`, ``statistic`` and ``rejected`` are the
+    round's reported columns and ``events`` has every ``(tau, agent id, event, d_i, threshold)`` so far.
+    """
+
+    def __init__(self, bd, Cs, agent_ids):
+        self.Cs = [np.asarray(C, dtype=float) for C in Cs]
+        self.rows = output_rows(self.Cs)
+        self.ids = tuple(agent_ids)
+        m = len(self.Cs)
+        self.S_inv = [t.S_inv for t in bd.tests]
+        self.threshold = [t.threshold for t in bd.tests]
+        self.k = bd.suspect_after
+        self.warmup = bd.warmup
+        self.suspect = np.zeros(m, dtype=bool)
+        self.run = np.zeros(m, dtype=np.int64)
+        self.since = np.zeros(m, dtype=np.int64)  # the first event time of the agent's incarnation (-1: the next)
+        self.statistic = np.full(m, np.nan)
+        self.rejected = np.zeros(m, dtype=bool)
+        self.events: list = []
+
+    def reset(self, i: int) -> None:
+        """Agent at position ``i`` starts afresh (a loss, a rejoin): its sensor is not suspect.
+
+        Parameters
+        ----------
+        i : int
+            The agent's position.
+        """
+        self.suspect[i] = False
+        self.run[i] = 0
+        self.since[i] = -1
+
+    def fallback(self, Ps) -> list:
+        """The projections of this event time's consensus: ``I`` for the suspect sensors' agents, ``P_i`` else.
+
+        Parameters
+        ----------
+        Ps : sequence of (n, n) arrays
+            The design's ``P_i``.
+
+        Returns
+        -------
+        list of (n, n) arrays
+            Per agent.
+        """
+        return [np.eye(P.shape[0]) if s else P for P, s in zip(Ps, self.suspect)]
+
+    def screen(self, tau: int, Z: np.ndarray, y: np.ndarray, missing, alive: np.ndarray) -> np.ndarray:
+        """Test every alive agent's measurement of ``tau`` against ``Z`` (what its update applies ``K_i`` to).
+
+        Parameters
+        ----------
+        tau : int
+            The event time.
+        Z : (m, n) array
+            Per agent, ``z_i(q)`` (split design) or ``x_i(tau)`` (whole-state design, sampled-data form).
+        y : (sum s_i,) array
+            The stacked measurement.
+        missing : (m,) bool array or None
+            The agents without a measurement.
+        alive : (m,) bool array
+            The agents taking part.
+
+        Returns
+        -------
+        (m,) bool array
+            ``missing`` or the measurements set aside: what the update must not use.
+        """
+        m = len(self.Cs)
+        out = np.zeros(m, dtype=bool) if missing is None else np.array(missing, dtype=bool)
+        self.statistic = np.full(m, np.nan)
+        self.rejected = np.zeros(m, dtype=bool)
+        for i in np.flatnonzero(alive):
+            if self.since[i] < 0:
+                self.since[i] = tau
+            if out[i] or tau - self.since[i] < self.warmup:
+                self.statistic[i] = UNTESTED
+                continue
+            d, failed = st.innovation_test(y[self.rows[i]], self.Cs[i], Z[i], self.S_inv[i], self.threshold[i])
+            self.statistic[i] = d
+            used = not (self.suspect[i] or failed)
+            self.suspect[i], self.run[i], event = st.sensor_watch(bool(self.suspect[i]), int(self.run[i]), failed,
+                                                                  self.k)
+            if event is not None:
+                self.events.append((tau, self.ids[i], event, d, self.threshold[i]))
+            if not used:
+                self.rejected[i] = out[i] = True
+        return out
+
+
+class Watch:
+    """The watch of every sensor replayed on recorded rows (:func:`~splitspec_core.model.steps.sensor_watch`): what
+    the agents decided, from their reported ``y_statistic``."""
+
+    def __init__(self, bd, agent_ids):
+        self.ids = tuple(agent_ids)
+        self.threshold = np.array([t.threshold for t in bd.tests])
+        self.k = bd.suspect_after
+        self.suspect = np.zeros(len(self.ids), dtype=bool)
+        self.run = np.zeros(len(self.ids), dtype=np.int64)
+
+    def row(self, tau: int, alive, statistic) -> list:
+        """The events of the round of ``tau``.
+
+        Parameters
+        ----------
+        tau : int
+            The event time of the row.
+        alive : (m,) bool array
+            The agents alive at ``tau`` (a lost agent's watch starts afresh).
+        statistic : (m,) array
+            Their ``y_statistic`` (NaN: no round; :data:`UNTESTED`: no measurement).
+
+        Returns
+        -------
+        list of tuple
+            ``(tau, agent id, event, d_i, threshold)``, ``event`` ``sensor_suspect`` or ``sensor_restored``.
+        """
+        out = []
+        for i, aid in enumerate(self.ids):
+            d = float(statistic[i])
+            if not alive[i]:
+                self.suspect[i], self.run[i] = False, 0
+                continue
+            if not np.isfinite(d) or d == UNTESTED:
+                continue
+            self.suspect[i], self.run[i], event = st.sensor_watch(bool(self.suspect[i]), int(self.run[i]),
+                                                                  d > self.threshold[i], self.k)
+            if event is not None:
+                out.append((tau, aid, event, d, float(self.threshold[i])))
+        return out
+
+
+def sensor_events(tr, bd) -> list:
+    """The ``sensor_suspect`` / ``sensor_restored`` events of a trajectory (simulated or recorded).
+
+    Parameters
+    ----------
+    tr : Trajectory
+        With its ``y_statistic`` column (``design.bad_data`` on).
+    bd : BadData
+        The design's :func:`splitspec_core.synthesis.bad_data.bad_data`.
+
+    Returns
+    -------
+    list of tuple
+        ``(t, agent id, event, d_i, threshold)`` in time order (``t``: the row's time).
+    """
+    w = Watch(bd, tr.agent_ids.tolist())
+    stat = tr.columns["y_statistic"]
+    out = []
+    for k in range(len(tr.t)):
+        out += [(float(tr.t[k]),) + e[1:] for e in w.row(k, tr.alive[k], stat[k])]
+    return out
