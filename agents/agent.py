@@ -48,6 +48,7 @@ from splitspec_core.model.local_design import central_part, directions_of, scena
 from splitspec_core.scenarios.load import parse_scenario_text
 from splitspec_core.model.plant import initial_estimate, output_rows
 from splitspec_core.model.rows import report
+from splitspec_core.model.screening import UNTESTED
 from splitspec_core.runtime.ticks import TickNetwork
 from splitspec_core.runtime.wire import Keys, WireError, decode, encode
 
@@ -125,6 +126,13 @@ class AgentNode:
         self.sampler = self.input_sampler = None  # live sensor and live inputs (sources:, agents/sensor.py)
         self.record_y = bool(config.get("record_y", False))  # report the y_i used (measurements, live sensors)
         self.rejected: dict = {}
+        # design.bad_data (splitspec_core.synthesis.bad_data): the design's S_i^-1, threshold, k and warm-up; the watch
+        # (suspect, run) of x_i(tau) and the event time this incarnation started
+        bd = config.get("bad_data")
+        self.bad = None if bd is None else (np.asarray(bd["S_inv"], dtype=float).reshape(self.s, self.s),
+                                            float(bd["threshold"]), int(bd["suspect_after"]), int(bd["warmup"]))
+        self.watch = (False, 0)
+        self.since = 0
         # a misbehaving network (splitspec_core.model.impairment): the same draws as the simulator's, a deadline per
         # sub-round, messages held for their delay; the clock is only read when a deadline or a delay is set
         net = sc.network
@@ -191,7 +199,7 @@ class AgentNode:
         me = self.net.row if known else None
         if self.candidate is not None:
             if self.candidate[0] == tau and me is not None:
-                _, self.x, self.g = self.candidate  # commit x_i(tau)
+                _, self.x, self.g, self.watch = self.candidate  # commit x_i(tau) (and the watch after round tau - 1)
                 self.tau = tau
             self.candidate = None
         if me is None:  # not taking part (lost, or not admitted yet)
@@ -206,6 +214,7 @@ class AgentNode:
             self.x = initial_estimate(self.n, self.seed, self.index, self.incarnation)
             self.g = self.g0
             self.tau = tau
+            self.watch, self.since = (False, 0), tau  # a fresh sensor watch (model/screening.py: Screen.reset)
             out.append(self._xhat(tau, attempt, self.x, report(g=self.g)))
         # drop buffers of older rounds
         self.zbuf = {k: v for k, v in self.zbuf.items() if (k[0], k[1]) >= (tau, attempt)}
@@ -222,7 +231,9 @@ class AgentNode:
         nbs, ws = me
         # z_j(0): sent as such in a fresh or re-run round, else the x_j(tau) of round (tau - 1, prev_attempt)
         explicit = bool(t["fresh"]) or attempt > 0
+        # a suspect sensor: this round takes the neighbours' whole estimate (P_i = I) and no measurement
         self.round = {"tau": tau, "attempt": attempt, "nbs": nbs, "ws": ws, "k": 0, "z": self.x.copy(),
+                      "P": np.eye(self.n) if self.watch[0] else self.P, "stat": UNTESTED, "set_aside": False,
                       "z0": None if explicit else (tau, int(t["prev_attempt"])), "groups": self.net.groups,
                       "lost": [], "used": 0, "open": self.clock() if self.deadline is not None else None}
         if self.whole:  # z_i(0) is the updated estimate, sent once y_i(tau) is in (_advance)
@@ -370,7 +381,8 @@ class AgentNode:
                 return out
             y = self.ys.get(r["tau"])  # None: no measurement, the step without its innovation
             bu = self.ys.bu(r["tau"])  # the known input's B u(tau) (None: no inputs)
-            x_next = st.sampled_step(self.x, self.E, self.D, self.K, self.C, y, self.P, self.g, states, ws, bu)
+            x_next = st.sampled_step(self.x, self.E, self.D, self.K, self.C, self._screen(self.x, y), r["P"], self.g,
+                                     states, ws, bu)
             g_next = self.g
             if self.adaptive:
                 g_next = st.adaptive_gain_step(self.g, st.adaptive_gain_rate(self.V, self.x, states, ws), self.dt)
@@ -381,7 +393,7 @@ class AgentNode:
                 return out
             _, ws, states = got
             # eq. split-discrete-p2 (over the neighbours whose message counts: impairment.realized_row)
-            r["z"] = st.consensus_subround(r["z"], self.P, states, ws)
+            r["z"] = st.consensus_subround(r["z"], r["P"], states, ws)
             r["k"] += 1
             self._opened()
             if r["k"] < self.exchanges:
@@ -389,10 +401,11 @@ class AgentNode:
         if not self.ys.ready(r["tau"]):
             return out
         y = self.ys.get(r["tau"])
-        # eq. split-discrete-est1, or the prediction without a measurement
+        # eq. split-discrete-est1, or the prediction without a measurement (none, or set aside by the test)
         bu = self.ys.bu(r["tau"])
-        x_next = st.prediction_update(r["z"], self.A, bu) if y is None else st.measurement_update(r["z"], self.F,
-                                                                                                   self.K, y, bu)
+        used = self._screen(r["z"], y)
+        x_next = st.prediction_update(r["z"], self.A, bu) if used is None else \
+            st.measurement_update(r["z"], self.F, self.K, used, bu)
         return out + self._finish(x_next, 0.0, y)
 
     def _advance_whole(self, r: dict) -> list:
@@ -405,8 +418,9 @@ class AgentNode:
                 return out
             y = r["y"] = self.ys.get(r["tau"])
             bu = st.step_input(self.G, self.ys.bu(r["tau"]))
-            r["z"] = st.prediction_update(self.x, self.A, bu) if y is None else \
-                st.measurement_update(self.x, self.F, self.K, y, bu)
+            used = self._screen(self.x, y)
+            r["z"] = st.prediction_update(self.x, self.A, bu) if used is None else \
+                st.measurement_update(self.x, self.F, self.K, used, bu)
             self._opened()
             out.append(self._z(0, r["z"]))
         while r["k"] < self.exchanges:
@@ -421,12 +435,33 @@ class AgentNode:
                 out.append(self._z(r["k"], r["z"]))
         return out + self._finish(r["z"], 0.0, r["y"])
 
+    def _screen(self, z: np.ndarray, y):
+        """The bad-data test of ``y_i(tau)`` against ``z`` (what the update applies K_i to): ``y`` if it is used,
+        None if there is none or it is set aside (failed, or the sensor suspect); the round keeps ``d_i`` and the
+        watch after it (committed with the estimate).  Exactly :class:`splitspec_core.model.screening.Screen`."""
+        r = self.round
+        r["watch"] = self.watch
+        if self.bad is None:
+            return y
+        S_inv, threshold, k, warmup = self.bad
+        if y is None or r["tau"] - self.since < warmup:
+            r["stat"] = UNTESTED
+            return y
+        d, failed = st.innovation_test(np.asarray(y, dtype=float), self.C, z, S_inv, threshold)
+        r["stat"] = d
+        suspect, run, _ = st.sensor_watch(self.watch[0], self.watch[1], failed, k)
+        r["watch"] = (suspect, run)
+        if self.watch[0] or failed:
+            r["set_aside"] = True
+            return None
+        return y
+
     def _finish(self, x_next: np.ndarray, g_next: float, y) -> list:
         r = self.round
-        self.candidate = (r["tau"] + 1, x_next, g_next)
+        self.candidate = (r["tau"] + 1, x_next, g_next, r.get("watch", self.watch))
         self.round = None
         # the row columns of x_i(tau + 1): g_i(tau + 1) and what round tau measured (splitspec_core.model.rows)
-        columns = report(g=g_next, messages_used=r["used"])
+        columns = report(g=g_next, messages_used=r["used"], y_rejected=r["set_aside"], y_statistic=r["stat"])
         return [self._xhat(r["tau"] + 1, r["attempt"], x_next, columns, r["lost"], y)]
 
 

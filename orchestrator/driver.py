@@ -54,6 +54,8 @@ import numpy as np
 
 from splitspec_core.synthesis.designer import design
 from splitspec_core.synthesis.whole_state import agent_gain as central_gain
+from splitspec_core.synthesis.bad_data import agent_config, bad_data
+from splitspec_core.model.screening import Watch
 from splitspec_core.errors import SplitspecError
 from splitspec_core.model.rows import REPORTED, run_columns
 from splitspec_core.scenarios.load import load_scenario, read_scenario_text, resolved_scenario_text
@@ -135,6 +137,9 @@ class Orchestrator:
         self.des = design(self.sc)
         # the reported row columns this run records
         self.columns = run_columns(has_g=not self.des.two_rate, bad_data=self.sc.design.bad_data is not None)
+        # design.bad_data: the agents' sensor watch replayed on their reports, for the sensor_suspect / _restored events
+        bd = bad_data(self.des)
+        self.watch = None if bd is None else Watch(bd, self.sc.agent_ids)
         self.meas, self.measurements_path = None, measurements
         if measurements is not None and self.sc.sources:
             raise SplitspecError("--measurements replaces the plant, and this scenario has live sensors (sources:) "
@@ -281,6 +286,10 @@ class Orchestrator:
                              rejected=a.rejected, wall_ms=(time.monotonic() - a.started) * 1e3, lost=a.lost,
                              late_ms=a.late * 1e3 if math.isfinite(a.late) else None)
                 self.tally.record(a)
+                if self.watch is not None:  # what the agents decided in the round of a.tau (model/screening.py)
+                    t_of = a.tau * self.sc.run.dt if self.sc.time == "continuous" else a.tau
+                    for tau, agent, event, d, threshold in self.watch.row(a.tau, a.alive, a.columns["y_statistic"]):
+                        self.rec.event(event, t_of, agent=int(agent), statistic=float(d), threshold=float(threshold))
                 self.progress.update(a.tau, a.max_error, int(a.alive.sum()), force=a.tau == self.machine.plan.steps,
                                      xhat=a.xhat, alive_mask=a.alive)
             elif kind is A.Event:
@@ -300,6 +309,9 @@ class Orchestrator:
                     extra["record_y"] = True
                 un = self.des.unobserved
                 gain = central_gain(self.des, a.ident) if a.role == "agent" else None
+                tested = agent_config(self.des, a.ident) if a.role == "agent" else None
+                if tested is not None:  # design.bad_data: the agent's S_i^-1 and threshold, as the simulator holds them
+                    extra["bad_data"] = tested
                 if gain is not None:  # a gain the design chose centrally: K_i (and P_i) as the simulator holds them
                     extra["gain"] = gain
                 elif un is not None and un.dim:  # W, the directions no agent sees: P_i projects on V_i minus W

@@ -125,8 +125,9 @@ COLUMNS = (
     Column("y_rejected", "agent", "bool", False, "", "agent i's measurement y_i(tau) was set aside by its bad-data "
            "test (failed, or its sensor suspect) and not used; False where used, dead, in the last row, or without "
            "design.bad_data", reported="round", label="measurements set aside (bad data)"),
-    Column("y_statistic", "agent", "float64", NAN, "", "agent i's bad-data statistic d_i = r_i' S_i^-1 r_i of the "
-           "round of tau (0.0 without a measurement); NaN where dead, in the last row, or without design.bad_data",
+    Column("y_statistic", "agent", "float64", -1.0, "", "agent i's bad-data statistic d_i = r_i' S_i^-1 r_i of the "
+           "round of tau; -1 where nothing was tested (no measurement, its warm-up, dead, the last row, or without "
+           "design.bad_data)",
            reported="round", label="bad-data statistic d_i", only_with_bad_data=True),
     Column("wall", "row", "int64", 0, "ns", "time.time_ns() of the row's arrival (run only)", npz=False),
     Column("round", "round", "float64", NAN, "", "the round's " + ", ".join(ROUND_FIELDS) + " (run only)",
@@ -181,7 +182,7 @@ def report(**values) -> dict:
     Examples
     --------
     >>> report(g=0.5)
-    {'g': 0.5, 'messages_used': -1, 'y_rejected': False, 'y_statistic': nan}
+    {'g': 0.5, 'messages_used': -1, 'y_rejected': False, 'y_statistic': -1.0}
     """
     unknown = set(values) - {c.name for c in REPORTED}
     if unknown:

@@ -19,7 +19,7 @@ from .plant import output_rows
 
 __all__ = ["UNTESTED", "Screen", "Watch", "sensor_events"]
 
-#: ``y_statistic`` of an alive agent that had no measurement to test (the watch holds)
+#: ``y_statistic`` where nothing was tested (the watch holds): the fill of the row column
 UNTESTED = -1.0
 
 
@@ -43,7 +43,7 @@ class Screen:
         self.suspect = np.zeros(m, dtype=bool)
         self.run = np.zeros(m, dtype=np.int64)
         self.since = np.zeros(m, dtype=np.int64)  # the first event time of the agent's incarnation (-1: the next)
-        self.statistic = np.full(m, np.nan)
+        self.statistic = np.full(m, UNTESTED)
         self.rejected = np.zeros(m, dtype=bool)
         self.events: list = []
 
@@ -97,7 +97,7 @@ class Screen:
         """
         m = len(self.Cs)
         out = np.zeros(m, dtype=bool) if missing is None else np.array(missing, dtype=bool)
-        self.statistic = np.full(m, np.nan)
+        self.statistic = np.full(m, UNTESTED)
         self.rejected = np.zeros(m, dtype=bool)
         for i in np.flatnonzero(alive):
             if self.since[i] < 0:
@@ -138,7 +138,7 @@ class Watch:
         alive : (m,) bool array
             The agents alive at ``tau`` (a lost agent's watch starts afresh).
         statistic : (m,) array
-            Their ``y_statistic`` (NaN: no round; :data:`UNTESTED`: no measurement).
+            Their ``y_statistic`` (:data:`UNTESTED`: nothing tested).
 
         Returns
         -------

@@ -23,6 +23,7 @@ from .conditioning import conditioning
 from .design_data import Design, cached_analysis
 from .designer import highest_rate
 from .loss_certificate import loss_certificate
+from .bad_data import bad_data, report_lines as bad_data_lines
 from ..model.gains import poles_text
 from ..model.graphs import is_doubly_stochastic, perron_vector
 from ..scenarios import gain_methods
@@ -135,6 +136,18 @@ def _loss_json(des: Design) -> dict | None:
             "bound": _num(c.bound), "q_needed": c.q_needed, "p_more": _num(c.p_more), "graphs": c.graphs}
 
 
+def _bad_data_json(des: Design) -> dict | None:
+    """``design.bad_data``'s test and each sensor's fallback (:mod:`.bad_data`), None when off."""
+    bd = bad_data(des)
+    if bd is None:
+        return None
+    return {"false_alarm": bd.false_alarm, "suspect_after": bd.suspect_after, "warmup": bd.warmup,
+            "agents": [{"id": t.agent, "S": t.S.tolist(), "threshold": t.threshold, "graph": t.graph,
+                        "fallback": {"radius": {k: _num(v) for k, v in f.radius.items()}, "certified": f.certified,
+                                     "stable": f.stable, "text": f.text}}
+                       for t, f in zip(bd.tests, bd.fallbacks)]}
+
+
 def design_json(des: Design) -> dict:
     """The ``splitspec design --json`` object (contract in ``../shared/DESIGN.md``).
 
@@ -213,6 +226,7 @@ def design_json(des: Design) -> dict:
         "error_spectrum": {k: _num(v) for k, v in des.error_radius.items()},
         "rank_tol": "auto" if sc.design.rank_tol is None else sc.design.rank_tol,
         "loss_certificate": _loss_json(des),
+        "bad_data": _bad_data_json(des),
         **_conditioning_json(des),
         "warnings": design_warnings(des),
         "advice": [{"knob": t.knob, "certified": t.certified, "transient_constant": _num(t.transient),
@@ -451,6 +465,9 @@ def design_text(des: Design) -> str:
     loss = loss_certificate(des)
     if loss is not None:
         lines.append(loss.text)  # "rate certified under loss: ..." or "not certified under loss: ..."
+    tested = bad_data_lines(des)  # design.bad_data: the test, then each sensor's loss (bad_data.py)
+    if tested:
+        lines += ["", tested[0]] + [f"  {t}" for t in tested[1:]]
     lines += _size_lines(des)
     warnings = design_warnings(des)
     if warnings:
