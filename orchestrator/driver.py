@@ -125,6 +125,25 @@ def _is_splitspec_process(pid: int) -> bool:
     return is_own_splitspec_process(int(pid))
 
 
+def _columns_and_watch(des) -> tuple:
+    """The reported row columns a run of ``des`` records, and the agents' sensor watch
+    (:class:`splitspec_core.model.screening.Watch`) when the design tests their measurements (``design.bad_data``:
+    the agents' test, :func:`~splitspec_core.synthesis.bad_data.agent_config`, rides on their config), else None."""
+    bd = bad_data(des)
+    columns = run_columns(has_g=not des.two_rate, bad_data=bd is not None)
+    return columns, None if bd is None else Watch(bd, des.scenario.agent_ids)
+
+
+def _sensor_events(rec, watch: Watch | None, sc, a) -> None:
+    """The ``sensor_suspect`` / ``sensor_restored`` events of the round of ``a.tau`` (a ``Record``), from the agents'
+    reported ``y_statistic`` replayed through their watch (:class:`splitspec_core.model.screening.Watch`)."""
+    if watch is None:
+        return
+    t = a.tau * sc.run.dt if sc.time == "continuous" else float(a.tau)
+    for _, agent, event, d, threshold in watch.row(a.tau, a.alive, a.columns["y_statistic"]):
+        rec.event(event, t, agent=int(agent), statistic=float(d), threshold=float(threshold))
+
+
 class Orchestrator:
     """The shell around :class:`~splitspec_orchestrator.rounds.machine.RoundMachine`.  ``run()`` returns the process exit code."""
 
@@ -135,11 +154,7 @@ class Orchestrator:
         self.scenario_text = resolved_scenario_text(Path(scenario_path), read_scenario_text(scenario_path))
         self.sc = load_scenario(scenario_path)
         self.des = design(self.sc)
-        # the reported row columns this run records
-        self.columns = run_columns(has_g=not self.des.two_rate, bad_data=self.sc.design.bad_data is not None)
-        # design.bad_data: the agents' sensor watch replayed on their reports, for the sensor_suspect / _restored events
-        bd = bad_data(self.des)
-        self.watch = None if bd is None else Watch(bd, self.sc.agent_ids)
+        self.columns, self.watch = _columns_and_watch(self.des)  # the row columns it records; bad data's watch
         self.meas, self.measurements_path = None, measurements
         if measurements is not None and self.sc.sources:
             raise SplitspecError("--measurements replaces the plant, and this scenario has live sensors (sources:) "
@@ -286,10 +301,7 @@ class Orchestrator:
                              rejected=a.rejected, wall_ms=(time.monotonic() - a.started) * 1e3, lost=a.lost,
                              late_ms=a.late * 1e3 if math.isfinite(a.late) else None)
                 self.tally.record(a)
-                if self.watch is not None:  # what the agents decided in the round of a.tau (model/screening.py)
-                    t_of = a.tau * self.sc.run.dt if self.sc.time == "continuous" else a.tau
-                    for tau, agent, event, d, threshold in self.watch.row(a.tau, a.alive, a.columns["y_statistic"]):
-                        self.rec.event(event, t_of, agent=int(agent), statistic=float(d), threshold=float(threshold))
+                _sensor_events(self.rec, self.watch, self.sc, a)  # what the agents decided in the round of a.tau
                 self.progress.update(a.tau, a.max_error, int(a.alive.sum()), force=a.tau == self.machine.plan.steps,
                                      xhat=a.xhat, alive_mask=a.alive)
             elif kind is A.Event:
@@ -309,16 +321,13 @@ class Orchestrator:
                     extra["record_y"] = True
                 un = self.des.unobserved
                 gain = central_gain(self.des, a.ident) if a.role == "agent" else None
-                tested = agent_config(self.des, a.ident) if a.role == "agent" else None
-                if tested is not None:  # design.bad_data: the agent's S_i^-1 and threshold, as the simulator holds them
-                    extra["bad_data"] = tested
                 if gain is not None:  # a gain the design chose centrally: K_i (and P_i) as the simulator holds them
                     extra["gain"] = gain
                 elif un is not None and un.dim:  # W, the directions no agent sees: P_i projects on V_i minus W
                     extra["unobserved"] = un.W_working.tolist()  # in the design's working coordinates
                 self._reply(a.ref, encode("config", self.keys.run_id, scenario=self.scenario_text,
                                           seed=int(self.sc.run.seed), g=self.des.g, q=self.des.q,
-                                          g_mode=self.des.g_mode, key=self.key, **extra))
+                                          g_mode=self.des.g_mode, key=self.key, **extra, **agent_config(self.des, a)))
             elif kind is A.ReplyRefused:
                 self._reply(a.ref, encode("refused", self.keys.run_id, reason=a.reason, holder_pid=a.holder_pid,
                                           holder_host=a.holder_host))

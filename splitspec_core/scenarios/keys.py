@@ -12,7 +12,7 @@ fails).  Rules that join several keys or depend on ``time`` (``design.rate`` in 
 the section parsers, each with its reason.
 
 Kinds: ``number`` (a finite float), ``integer``, ``word`` (one of ``words``), ``number|word`` and ``integer|word``
-(a number, or one of ``words``), ``matrix``, ``per agent`` (``{agent id: ...}``), ``names``, ``noise``,
+(a number, or one of ``words``), ``map|word`` (a map, or one of ``words``), ``matrix``, ``per agent`` (``{agent id: ...}``), ``names``, ``noise``,
 ``signal``, ``path``, ``map``, ``list``, ``text``.
 """
 

@@ -6,7 +6,8 @@ and the whole state), ``prelude.py`` what both share (decompositions, what nobod
 per design); ``bounds.py`` the certificates' bounds for g and q, ``spectral.py`` spectral radii (exact or
 matrix-free, never claiming more than was computed), ``sampled_rates.py`` g for the sampled-data form;
 ``error_matrix.py`` the full mn x mn error map, ``conditioning.py`` margins and the transient constant;
-``resilience.py`` single agent and arc losses, ``loss_certificate.py`` lossy networks,
+``resilience.py`` single agent and arc losses, ``loss_certificate.py`` lossy networks, ``bad_data.py`` each
+agent's test of its measurement and the certified fallback of a suspect sensor (``design.bad_data``),
 ``survivors.py`` the runtime's survivor verdict; ``noise_tuning.py`` the gains' tuning under noise;
 ``kalman.py`` the centralized Kalman predictor and its rate-shifted variant (the references under noise);
 ``whole_state.py`` the whole-state design (every agent averages its neighbours' whole estimates, gains from the

@@ -254,28 +254,29 @@ def bad_data(des: Design) -> BadData | None:
     return BadData(p, k, int(math.ceil(settle)), tuple(tests), fallbacks)
 
 
-def agent_config(des: Design, agent_id: int) -> dict | None:
-    """What agent ``agent_id``'s process needs of the test (its configuration's ``bad_data``), or None when off.
+def agent_config(des: Design, process) -> dict:
+    """What an agent's process needs of the test: its configuration's ``bad_data`` field, none when off.
 
     Parameters
     ----------
     des : Design
         The design.
-    agent_id : int
-        The agent.
+    process : object
+        Who asks for its configuration: ``.role`` (``agent``, or another process: nothing) and ``.ident`` (the
+        agent's id).
 
     Returns
     -------
-    dict or None
-        ``{"S_inv": nested list, "threshold": float, "suspect_after": int, "warmup": int}``: the numbers the
-        simulator uses.
+    dict
+        ``{"bad_data": {"S_inv": nested list, "threshold": float, "suspect_after": int, "warmup": int}}``: the
+        numbers the simulator uses; ``{}`` when ``design.bad_data`` is off.
     """
     bd = bad_data(des)
-    if bd is None:
-        return None
-    t = bd.test_of(agent_id)
-    return {"S_inv": t.S_inv.tolist(), "threshold": t.threshold, "suspect_after": bd.suspect_after,
-            "warmup": bd.warmup}
+    if bd is None or process.role != "agent":
+        return {}
+    t = bd.test_of(process.ident)
+    return {"bad_data": {"S_inv": t.S_inv.tolist(), "threshold": t.threshold, "suspect_after": bd.suspect_after,
+                         "warmup": bd.warmup}}
 
 
 def report_lines(des: Design) -> list:

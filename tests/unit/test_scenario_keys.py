@@ -20,7 +20,7 @@ PAGE = ROOT / "docs/how-to/scenario.md"
 BEGIN = "<!-- keys: generated from splitspec_core/scenarios/keys.py (reference_table) -->\n"
 END = "<!-- keys: end -->"
 KINDS = {"number", "integer", "word", "number|word", "integer|word", "matrix", "per agent", "names", "noise", "signal",
-         "path", "map", "list", "text"}
+         "path", "map", "map|word", "list", "text"}
 
 
 def _minimal(**design):
