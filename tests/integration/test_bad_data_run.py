@@ -1,0 +1,44 @@
+"""design.bad_data on real processes (issue 37): a corrupted sensor and a killed agent, run == simulate to round-off,
+``y_rejected`` the same, the ``sensor_suspect`` / ``sensor_restored`` events in events.jsonl and their marks in
+run.rrd."""
+
+from __future__ import annotations
+
+import uuid
+
+import numpy as np
+import pytest
+import yaml
+
+from tests.conftest import EXAMPLES
+from tests.integration.runtime_helpers import compare_with_simulate, events, run
+from tests.rrd_readback import read_rrd
+
+pytestmark = pytest.mark.slow
+
+
+def test_corrupted_sensor_and_killed_agent_for_real_equal_simulate(tmp_path):
+    raw = yaml.safe_load((EXAMPLES / "ring10_noise.yaml").read_text())
+    raw["design"]["bad_data"] = {"false_alarm": 1e-5, "suspect_after": 3}
+    raw["faults"] = [{"at": 40, "corrupt": 3, "for": 15, "bias": 2.0}, {"at": 45, "kill": 5, "for": 8}]
+    raw["run"] = {"steps": 80, "seed": 1}
+    scen = tmp_path / "bad_data.yaml"
+    scen.write_text(yaml.safe_dump(raw))
+    out = tmp_path / "out"
+    r = run("run", scen, "--out", out, "--run-id", "t" + uuid.uuid4().hex[:10])
+    assert r.returncode == 0, r.stdout + r.stderr
+    compare_with_simulate(out, scen, tmp_path)  # xhat, alive, graph and every reported column, y_rejected included
+    ran = np.load(out / "trajectory.npz")
+    sim = np.load(tmp_path / "sim" / "trajectory.npz")
+    assert ran["y_rejected"].dtype == bool and (ran["y_rejected"] == sim["y_rejected"]).all()
+    k = list(ran["agent_ids"]).index(3)
+    assert ran["y_rejected"][40:55, k].all() and ran["y_rejected"].sum() == ran["y_rejected"][:, k].sum()
+    np.testing.assert_allclose(ran["y_statistic"], sim["y_statistic"], rtol=1e-9, atol=1e-9)
+    ev = [e for e in events(out) if e["event"] in ("sensor_suspect", "sensor_restored")]
+    assert [(e["event"], e["agent"]) for e in ev] == [("sensor_suspect", 3), ("sensor_restored", 3)]
+    suspect, restored = ev
+    assert 40 <= suspect["t"] <= 45 and 55 <= restored["t"] <= 60
+    assert suspect["statistic"] > suspect["threshold"] > restored["statistic"]
+    rrd = read_rrd(out / "run.rrd")
+    assert [tau for tau, _ in rrd["marks/suspect"]] == [int(suspect["t"])]
+    assert [tau for tau, _ in rrd["marks/restored"]] == [int(restored["t"])]
