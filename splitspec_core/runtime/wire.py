@@ -422,7 +422,8 @@ _FLOAT_FIELDS = frozenset(c.name for c in REPORTED if c.dtype == "float64")  # f
 ROW_TAG = zlib.crc32(";".join(f"{c.name}:{c.dtype}" for c in REPORTED).encode()) & 0xFF
 #: fields a sender may leave out (the usual case): ``missing`` none, ``y`` not recorded, a reported row column whose
 #: fill can cross the wire (not NaN): its fill
-MAP_DEFAULTS = {"y": {"missing": []}, "xhat": {"y": [], **{c.name: c.fill for c in REPORTED if c.dtype != "float64"}}}
+MAP_DEFAULTS = {"y": {"missing": []}, "xhat": {"y": [], **{c.name: c.fill for c in REPORTED
+                                                            if c.dtype != "float64" or math.isfinite(c.fill)}}}
 #: the most agent ids ``missing`` lists
 MAX_MISSING = 1 << 16
 #: ``lost`` of an ``xhat``: flat ``[k, j, cause, k, j, cause, ...]`` (sub-round, sender, cause) of the consensus
