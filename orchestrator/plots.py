@@ -25,9 +25,11 @@ MARK_STYLES = {
     "switch": dict(color="#7f8c8d", ls="-", lw=0.6, alpha=0.5),
     "arc": dict(color="#7d3c98", ls="--", lw=1.0),
     "fault": dict(color="#d35400", ls="--", lw=1.0),
+    "sensor": dict(color="#c2185b", ls=(0, (1, 2)), lw=1.2),
 }
 MARK_NAMES = {"loss": "agent lost", "rejoin": "agent rejoins (fresh estimate)", "switch": "graph switch",
-              "arc": "arc dropped / restored", "fault": "scenario fault"}
+              "arc": "arc dropped / restored", "fault": "scenario fault",
+              "sensor": "sensor suspect / restored (bad data)"}
 MAX_LABELLED_SWITCHES = 12  # beyond this, switches are ticks without text (the legend names them)
 SWITCH_TICK = 0.07  # height of a switch tick at the top of the axes (axes fraction)
 SWITCH_TICK_STYLE = dict(color="#34495e", ls="-", lw=1.6)

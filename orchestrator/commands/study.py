@@ -253,7 +253,7 @@ def _chunked_run(out, sc, lost):
 
 
 def cmd_simulate(args: argparse.Namespace) -> int:
-    from splitspec_core.simulation.metrics import event_marks, summarize
+    from splitspec_core.simulation.metrics import event_marks, sensor_events, summarize
     from splitspec_core.synthesis.verdict import rate_certificate
     from splitspec_core.simulation.simulator import check_trajectory_memory
 
@@ -334,7 +334,8 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 
         title = f"{sc.name}: {'g = %g' % d.g if d.g is not None else 'q = %d' % d.q if d.q else 'adaptive g'}"
         marks = event_marks(traj.t, traj.alive, traj.graph, agent_ids=traj.agent_ids, faults=sc.faults,
-                            graph_names=sc.graph_names, dt=sc.run.dt if sc.time == "continuous" else 1.0)
+                            graph_names=sc.graph_names, dt=sc.run.dt if sc.time == "continuous" else 1.0,
+                            sensors=sensor_events(traj, d.detail))  # design.bad_data: sensors set aside, taken back
         plots.plot_errors(traj, out / "errors.png", time=sc.time, rate=envelope_rate, title=title,
                           marks=marks, noise_free=clean, adaptive=adaptive)
         plots.plot_states(traj, out / "states.png", time=sc.time, title=title, marks=marks, shown=sc.shown_states)

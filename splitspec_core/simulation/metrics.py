@@ -236,8 +236,9 @@ def envelope(t: np.ndarray, err_max: np.ndarray, restarts, *, time: str, rate: f
 
 @dataclass(frozen=True)
 class Mark:
-    """One event of a run, to mark on a plot: ``kind`` is ``loss``, ``rejoin``, ``switch``, ``arc`` or ``fault`` (a
-    fault kind's own mark: :meth:`splitspec_core.scenarios.faults.Fault.plot_mark`)."""
+    """One event of a run, to mark on a plot: ``kind`` is ``loss``, ``rejoin``, ``switch``, ``arc``, ``fault`` (a
+    fault kind's own mark: :meth:`splitspec_core.scenarios.faults.Fault.plot_mark`) or ``sensor`` (a sensor set aside
+    or taken back by its bad-data test: :func:`sensor_events`)."""
 
     step: int
     t: float
@@ -245,7 +246,7 @@ class Mark:
     label: str
 
 
-MARK_KINDS = ("loss", "rejoin", "switch", "arc", "fault")
+MARK_KINDS = ("loss", "rejoin", "switch", "arc", "fault", "sensor")
 _MARK_PREFIX = {"arc": "arc "}  # "arc 1-6 down, 2-3 up": one mark per step and kind, its words joined
 
 
@@ -254,8 +255,32 @@ def _fault_marks(k: int, t: float, said: dict) -> list:
     return [Mark(k, t, kind, _MARK_PREFIX.get(kind, "") + ", ".join(words)) for kind, words in said.get(k, {}).items()]
 
 
+def sensor_events(traj: Trajectory, des) -> list:
+    """The ``sensor_suspect`` / ``sensor_restored`` events of a trajectory of ``des`` (``design.bad_data``), replayed
+    from its ``y_statistic`` as a run's orchestrator does (:func:`splitspec_core.model.screening.sensor_events`).
+
+    Parameters
+    ----------
+    traj : Trajectory
+        A simulated or recorded run.
+    des : Design
+        Its design.
+
+    Returns
+    -------
+    list of tuple
+        ``(t, agent id, event, d_i, threshold)`` in time order; empty when ``design.bad_data`` is off or the
+        trajectory has no ``y_statistic``.
+    """
+    from ..model.screening import sensor_events as replayed
+    from ..synthesis.bad_data import bad_data
+
+    bd = bad_data(des)
+    return [] if bd is None or "y_statistic" not in traj.columns else replayed(traj, bd)
+
+
 def event_marks(t: np.ndarray, alive: np.ndarray, graph: np.ndarray, *, agent_ids, faults=(),
-                graph_names=None, dt: float = 1.0) -> tuple:
+                graph_names=None, dt: float = 1.0, sensors=()) -> tuple:
     """Losses, rejoins, graph switches and arc faults of a run, one :class:`Mark` per (step, kind).
 
     Losses, rejoins and switches come from the recorded ``alive`` (T, m) and
@@ -281,6 +306,8 @@ def event_marks(t: np.ndarray, alive: np.ndarray, graph: np.ndarray, *, agent_id
         The graphs' names, by index; None (default): the marks name the index.
     dt : float, optional
         The step (default 1: discrete time), for the faults' steps.
+    sensors : sequence of tuple, optional
+        :func:`sensor_events` of the run: a ``sensor`` mark at each (``3 suspect``, ``3 restored``); default none.
 
     Returns
     -------
@@ -313,6 +340,9 @@ def event_marks(t: np.ndarray, alive: np.ndarray, graph: np.ndarray, *, agent_id
         mark = f.plot_mark()
         if mark is not None:
             said.setdefault(k, {}).setdefault(mark[0], []).append(mark[1])
+    for when, agent, event, *_ in sensors:  # the bad-data test's (design.bad_data)
+        k = int(np.searchsorted(t, when))
+        said.setdefault(k, {}).setdefault("sensor", []).append(f"{agent} {event.split('_')[1]}")
     marks = []
     for k in range(1, T):
         lost = np.nonzero(alive[k - 1] & ~alive[k])[0]
