@@ -55,6 +55,7 @@ import numpy as np
 from splitspec_core.synthesis.designer import design
 from splitspec_core.synthesis.whole_state import agent_gain as central_gain
 from splitspec_core.errors import SplitspecError
+from splitspec_core.model.network import given_measurements
 from splitspec_core.model.rows import REPORTED, run_columns
 from splitspec_core.scenarios.load import load_scenario, read_scenario_text, resolved_scenario_text
 from splitspec_core.runtime.ticks import TickEncoder
@@ -431,7 +432,8 @@ class Orchestrator:
                             states=sc.state_names if sc.states_named else None, shown=sc.shown_states,
                             continuous=Continuous.from_env() if sc.run.until_stopped else None)
         if self.meas is not None:
-            self.rec.set_measurements(sc, self.meas)
+            # y as the agents are given it: the plant process applies the sensor faults to the file's rows
+            self.rec.set_measurements(sc, given_measurements(sc, self.meas, int(sc.run.seed)))
         if sc.sources:
             self.rec.set_live_sources(sc)
         self.registry = RunRegistry(self.keys.run_id, {"endpoint": self.connect or self.listen,

@@ -428,7 +428,7 @@ def _batch(des: Design, seeds: tuple, *, steps, noise, trajectories) -> tuple:
     plant, x, v, w = seed_draws(sc, seeds, T - 1, noise=noise)
     F, L, C, sigma_m = plant.F, plant.L, plant.C, plant.sigma_m
     X = np.stack([np.stack([initial_estimate(n, s, i) for s in seeds], axis=1) for i in range(m)])  # (m, n, N)
-    net = NetworkState(sc)
+    net = NetworkState(sc, seeds)  # a sensor fault's noise: each seed's own stream, as simulate draws it
     alive = net.alive
     sq = np.zeros((N, T))
     count = np.zeros((N, T), dtype=np.int64)
