@@ -31,7 +31,7 @@ from .plant import RecordedPlant, output_rows
 from .streams import stream
 
 __all__ = ["Plan", "make_plan", "active_arcs", "consensus_rows", "fault_schedule", "fault_step", "NetworkState",
-           "SensorDraws", "given_measurements"]
+           "SensorDraws", "given_measurements", "sensor_schedule"]
 
 
 def fault_step(at: float, dt: float) -> int:
@@ -498,6 +498,26 @@ class NetworkState:
         return active_arcs(sc, graph_index, self.dropped)
 
 
+def sensor_schedule(sc: Scenario, steps: int | None = None) -> dict:
+    """The scenario's sensor faults (the kinds the plant process applies) at their steps: what the baselines of
+    ``compare`` and a run's record of a measurements file apply, as the simulator does.
+
+    Parameters
+    ----------
+    sc : Scenario
+        The scenario (its faults, time and ``run.dt``).
+    steps : int, optional
+        Faults after this step are left out (None: none is).
+
+    Returns
+    -------
+    dict
+        ``{step: [Fault, ...]}`` (:func:`fault_schedule` of those faults); empty without a sensor fault.
+    """
+    return fault_schedule([f for f in sc.faults if f.runtime == PLANT], sc.run.dt if sc.time == "continuous" else 1.0,
+                          steps)
+
+
 def given_measurements(sc: Scenario, meas, seed: int):
     """A measurements file as its estimators are given it: the scenario's sensor faults (the kinds the plant
     process applies) applied row by row, as the plant process and :func:`~splitspec_core.simulation.simulator.simulate`
@@ -518,10 +538,9 @@ def given_measurements(sc: Scenario, meas, seed: int):
         ``meas`` itself without a sensor fault; else a copy whose ``y`` is what the estimators were given (a
         missing row as the file has it).
     """
-    faults = [f for f in sc.faults if f.runtime == PLANT]
-    if not faults:
+    schedule = sensor_schedule(sc)
+    if not schedule:
         return meas
-    schedule = fault_schedule(faults, sc.run.dt if sc.time == "continuous" else 1.0)
     net, plant, rows = NetworkState(sc, seed), RecordedPlant(meas, sc.n, sc), output_rows(sc.system.Cs)
     y = np.array(meas.y, dtype=float)
     for k in range(len(y)):
