@@ -57,6 +57,7 @@ from splitspec_core.synthesis.whole_state import agent_gain as central_gain
 from splitspec_core.errors import SplitspecError
 from splitspec_core.model.network import given_measurements
 from splitspec_core.model.rows import REPORTED, run_columns
+from splitspec_core.scenarios.faults import PLANT
 from splitspec_core.scenarios.load import load_scenario, read_scenario_text, resolved_scenario_text
 from splitspec_core.runtime.ticks import TickEncoder
 from splitspec_core.runtime.wire import Keys, WireError, decode, encode, new_run_key
@@ -139,6 +140,11 @@ class Orchestrator:
         if measurements is not None and self.sc.sources:
             raise SplitspecError("--measurements replaces the plant, and this scenario has live sensors (sources:) "
                                  "and no plant: drop one (simulate --measurements plays a file for such a scenario)")
+        sensor_faults = sorted({f.action for f in self.sc.faults if f.runtime == PLANT})
+        if self.sc.sources and sensor_faults:
+            raise SplitspecError(f"this scenario's {', '.join(sensor_faults)} faults are applied by the plant process, "
+                                 "and its live sensors (sources:) publish without one: drop them, or corrupt a "
+                                 "recorded log with simulate --measurements")
         if measurements is not None:  # the plant plays the user's file; the file decides the steps
             import dataclasses
 

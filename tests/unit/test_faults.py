@@ -426,3 +426,23 @@ def test_a_corrupt_fault_on_a_measurements_file_is_what_the_estimators_were_give
     sc = dataclasses.replace(ring, faults=parse(faults))
     np.testing.assert_array_equal(given_measurements(sc, meas, ring.run.seed).y, run.y)
     assert given_measurements(ring, meas, ring.run.seed) is meas  # no sensor fault: the file as it is
+
+
+def test_a_run_on_live_sensors_refuses_a_sensor_fault_in_one_line(tmp_path):
+    """Live sensors publish to the agents without a plant process: nothing would apply the fault, so `run` refuses
+    it in one line before any round."""
+    import yaml
+
+    from tests.conftest import ROOT
+    from tests.integration.runtime_helpers import run
+
+    raw = yaml.safe_load((ROOT / "examples" / "sensors" / "chain.yaml").read_text())
+    raw["faults"] = [{"at": 2, "corrupt": 1, "for": 3, "noise": 0.1}]
+    scen = tmp_path / "lying_chain.yaml"
+    scen.write_text(yaml.safe_dump(raw))
+    r = run("run", scen, "--out", tmp_path / "out", timeout=60)
+    err = [line for line in r.stderr.splitlines() if line.startswith("splitspec: error:")]
+    assert r.returncode != 0 and len(err) == 1, r.stderr
+    assert "corrupt, repair faults are applied by the plant process" in err[0] and "live sensors" in err[0]
+    assert "Traceback" not in r.stderr
+    assert not (tmp_path / "out" / "trajectory.npz").exists()
