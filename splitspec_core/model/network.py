@@ -544,7 +544,8 @@ def given_measurements(sc: Scenario, meas, seed: int):
     net, plant, rows = NetworkState(sc, seed), RecordedPlant(meas, sc.n, sc), output_rows(sc.system.Cs)
     y = np.array(meas.y, dtype=float)
     for k in range(len(y)):
+        if k:
+            plant.advance()
         net.apply(schedule.get(k, ()))
         y[k] = net.measured(plant.measure(), rows, plant.missing())
-        plant.advance()
     return dataclasses.replace(meas, y=y)

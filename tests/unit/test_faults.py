@@ -412,7 +412,7 @@ def test_a_corrupt_fault_on_a_measurements_file_is_what_the_estimators_were_give
     missing = np.zeros((steps + 1, ring.m), dtype=bool)
     missing[8:11, IDS.index(2)] = missing[9, IDS.index(4)] = True
     path = tmp_path / "m.npz"
-    write_measurements(path, t=tr.t, y=tr.y, agent_ids=ring.agent_ids, sizes=[1] * ring.m, missing=missing)
+    write_measurements(path, t=tr.t, y=tr.y, agent_ids=ring.agent_ids, sizes=[1] * ring.m, missing=missing, x=tr.x)
     meas = load_measurements(path, ring)
     run = ss.simulate(ring, measurements=meas, faults=faults)
     plant_run = ss.simulate(ring, keep_y=True, steps=steps, faults=faults)
