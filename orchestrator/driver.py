@@ -125,6 +125,15 @@ def _is_splitspec_process(pid: int) -> bool:
     return is_own_splitspec_process(int(pid))
 
 
+def _check_sensor_faults(sc) -> None:
+    """A scenario's sensor faults are applied by the plant process: live sensors (``sources:``) have none."""
+    sensor_faults = sorted({f.action for f in sc.faults if f.runtime == PLANT})
+    if sc.sources and sensor_faults:
+        raise SplitspecError(f"this scenario's {', '.join(sensor_faults)} faults are applied by the plant process, "
+                             "and its live sensors (sources:) publish without one: drop them, or corrupt a "
+                             "recorded log with simulate --measurements")
+
+
 class Orchestrator:
     """The shell around :class:`~splitspec_orchestrator.rounds.machine.RoundMachine`.  ``run()`` returns the process exit code."""
 
@@ -140,11 +149,7 @@ class Orchestrator:
         if measurements is not None and self.sc.sources:
             raise SplitspecError("--measurements replaces the plant, and this scenario has live sensors (sources:) "
                                  "and no plant: drop one (simulate --measurements plays a file for such a scenario)")
-        sensor_faults = sorted({f.action for f in self.sc.faults if f.runtime == PLANT})
-        if self.sc.sources and sensor_faults:
-            raise SplitspecError(f"this scenario's {', '.join(sensor_faults)} faults are applied by the plant process, "
-                                 "and its live sensors (sources:) publish without one: drop them, or corrupt a "
-                                 "recorded log with simulate --measurements")
+        _check_sensor_faults(self.sc)
         if measurements is not None:  # the plant plays the user's file; the file decides the steps
             import dataclasses
 
@@ -438,8 +443,7 @@ class Orchestrator:
                             states=sc.state_names if sc.states_named else None, shown=sc.shown_states,
                             continuous=Continuous.from_env() if sc.run.until_stopped else None)
         if self.meas is not None:
-            # y as the agents are given it: the plant process applies the sensor faults to the file's rows
-            self.rec.set_measurements(sc, given_measurements(sc, self.meas, int(sc.run.seed)))
+            self.rec.set_measurements(sc, given_measurements(sc, self.meas, int(sc.run.seed)))  # the sensor faults
         if sc.sources:
             self.rec.set_live_sources(sc)
         self.registry = RunRegistry(self.keys.run_id, {"endpoint": self.connect or self.listen,
