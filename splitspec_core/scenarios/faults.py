@@ -166,7 +166,10 @@ class Fault:
         y : (s_i,) or (s_i, N) ndarray
             Agent i's true measurement (outputs on axis 0, seeds after).
         memo : dict
-            The sensor fault's own memory, kept from step to step while it is in force.
+            The sensor fault's own memory, kept from step to step while it is in force; at its first
+            measurement the network state puts in it ``before`` (the last measurement the agent was given
+            before the fault) and ``draws`` (its own noise stream,
+            :class:`splitspec_core.model.network.SensorDraws`).
 
         Returns
         -------
