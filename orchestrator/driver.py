@@ -57,7 +57,9 @@ from splitspec_core.synthesis.whole_state import agent_gain as central_gain
 from splitspec_core.synthesis.bad_data import agent_config, bad_data
 from splitspec_core.model.screening import Watch
 from splitspec_core.errors import SplitspecError
+from splitspec_core.model.network import given_measurements
 from splitspec_core.model.rows import REPORTED, run_columns
+from splitspec_core.scenarios.faults import PLANT
 from splitspec_core.scenarios.load import load_scenario, read_scenario_text, resolved_scenario_text
 from splitspec_core.runtime.ticks import TickEncoder
 from splitspec_core.runtime.wire import Keys, WireError, decode, encode, new_run_key
@@ -144,6 +146,15 @@ def _sensor_events(rec, watch: Watch | None, sc, a) -> None:
         rec.event(event, t, agent=int(agent), statistic=float(d), threshold=float(threshold))
 
 
+def _check_sensor_faults(sc) -> None:
+    """A scenario's sensor faults are applied by the plant process: live sensors (``sources:``) have none."""
+    sensor_faults = sorted({f.action for f in sc.faults if f.runtime == PLANT})
+    if sc.sources and sensor_faults:
+        raise SplitspecError(f"this scenario's {', '.join(sensor_faults)} faults are applied by the plant process, "
+                             "and its live sensors (sources:) publish without one: drop them, or corrupt a "
+                             "recorded log with simulate --measurements")
+
+
 class Orchestrator:
     """The shell around :class:`~splitspec_orchestrator.rounds.machine.RoundMachine`.  ``run()`` returns the process exit code."""
 
@@ -159,6 +170,7 @@ class Orchestrator:
         if measurements is not None and self.sc.sources:
             raise SplitspecError("--measurements replaces the plant, and this scenario has live sensors (sources:) "
                                  "and no plant: drop one (simulate --measurements plays a file for such a scenario)")
+        _check_sensor_faults(self.sc)
         if measurements is not None:  # the plant plays the user's file; the file decides the steps
             import dataclasses
 
@@ -295,8 +307,7 @@ class Orchestrator:
             elif kind is A.Record:
                 if self.sc.sources:  # before the row: a flush in between writes both
                     self.rec.live_y(a.tau, a.y)
-                # the columns this run has (no g in discrete time, nor for the whole-state design: its fill)
-                columns = {k: v for k, v in a.columns.items() if k in self.columns}
+                columns = {k: v for k, v in a.columns.items() if k in self.columns}  # this run's (rows.run_columns)
                 self.rec.row(a.tau, a.x, a.xhat, a.alive, a.graph, **columns, attempts=a.attempts,
                              rejected=a.rejected, wall_ms=(time.monotonic() - a.started) * 1e3, lost=a.lost,
                              late_ms=a.late * 1e3 if math.isfinite(a.late) else None)
@@ -453,7 +464,7 @@ class Orchestrator:
                             states=sc.state_names if sc.states_named else None, shown=sc.shown_states,
                             continuous=Continuous.from_env() if sc.run.until_stopped else None)
         if self.meas is not None:
-            self.rec.set_measurements(sc, self.meas)
+            self.rec.set_measurements(sc, given_measurements(sc, self.meas, int(sc.run.seed)))  # the sensor faults
         if sc.sources:
             self.rec.set_live_sources(sc)
         self.registry = RunRegistry(self.keys.run_id, {"endpoint": self.connect or self.listen,

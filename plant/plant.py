@@ -56,7 +56,7 @@ class PlantNode:
         else:
             self.plant = Plant(self.sc, int(config["seed"]))
         # the scenario's sensor faults, applied at the steps the simulator applies them (network.fault_step)
-        self.net = NetworkState(self.sc)
+        self.net = NetworkState(self.sc, int(config["seed"]))  # a sensor fault's noise: the seed's own stream
         self.sensor_faults = fault_schedule([f for f in self.sc.faults if f.runtime == PLANT],
                                             self.sc.run.dt if self.sc.time == "continuous" else 1.0)
         self.rows = output_rows(self.sc.system.Cs)
@@ -96,7 +96,8 @@ class PlantNode:
                 raise RuntimeError(f"event time {tau} is past the measurements file's last row ({self.meas.steps})")
             self.tau = tau
             self.net.apply(self.sensor_faults.get(tau, ()))
-            self.y = self.net.measured(self.plant.measure(), self.rows)  # (y_1, ..., y_m) stacked in agent order
+            # (y_1, ..., y_m) stacked in agent order; a missing row of the file stays as it is
+            self.y = self.net.measured(self.plant.measure(), self.rows, self.plant.missing())
             u = self.plant.input()  # u(tau) (None: no inputs), sent after the outputs
             if u is not None:
                 self.y = np.concatenate([np.asarray(self.y, dtype=float), np.asarray(u, dtype=float)])

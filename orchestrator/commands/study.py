@@ -133,6 +133,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
         lines.append(f"  {name:<22} {r.rms_mean:11.4g} {r.rms_std:9.2g} {ratio:>9} "
                      f"{pred:>10} {r.steady_from:11g} {st:>11} {r.messages_per_event:>10}")
     lines += [f"  {name}: {r.note}" for name, r in result.estimators.items() if r.note]
+    lines += [f"  faults: {result.note}"] if result.note else []
     lines += [f"  {name}: not designed: {why}" for name, why in result.failed.items()]
     lines += certificate_lines(result)
     if result.tuned is not None:

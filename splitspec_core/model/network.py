@@ -18,16 +18,20 @@ faults at the same steps and hand every agent the same neighbour weights.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
 import numpy as np
 
 from .graphs import SwitchingSignal, build_graph, graph_sequence, switch_times
+from ..scenarios.faults import PLANT
 from ..scenarios.specs import Scenario
+from .plant import RecordedPlant, output_rows
 from .streams import stream
 
-__all__ = ["Plan", "make_plan", "active_arcs", "consensus_rows", "fault_schedule", "fault_step", "NetworkState"]
+__all__ = ["Plan", "make_plan", "active_arcs", "consensus_rows", "fault_schedule", "fault_step", "NetworkState",
+           "SensorDraws", "given_measurements", "sensor_schedule"]
 
 
 def fault_step(at: float, dt: float) -> int:
@@ -248,6 +252,54 @@ def consensus_rows(sc: Scenario, graph_index: int, alive_ids, dropped=frozenset(
     return rows
 
 
+class SensorDraws:
+    """The extra noise of one sensor fault: the ``sensor_noise`` stream ``(agent position, its sensor fault)`` of
+    each seed (:mod:`~splitspec_core.model.streams`), ``s_i`` normals per step.
+
+    Drawn :data:`CHUNK` steps at a time: a stream's ``normal(size=(CHUNK, s))`` is its ``CHUNK`` successive
+    ``normal(size=s)`` draws, so the simulator, the batched Monte Carlo and the plant process draw the same numbers.
+
+    Parameters
+    ----------
+    seeds : tuple of int or None
+        The run's seed, or the batch's seeds (None: unknown; drawing is then refused).
+    i, nth : int
+        The agent's position and which sensor fault on it (0 the first).
+    batch : bool
+        Seeds on a trailing axis (the batched Monte Carlo).
+    """
+
+    CHUNK = 256
+
+    def __init__(self, seeds, i: int, nth: int, *, batch: bool):
+        self.seeds, self.key, self.batch = seeds, (int(i), int(nth)), batch
+        self._gens, self._buf, self._k = None, None, 0
+
+    def normal(self, s: int) -> np.ndarray:
+        """This step's ``s`` standard normals.
+
+        Parameters
+        ----------
+        s : int
+            The agent's number of outputs.
+
+        Returns
+        -------
+        (s,) or (s, N) ndarray
+            One step's draws (a column per seed in a batch).
+        """
+        if self._gens is None:
+            if self.seeds is None:
+                raise ValueError("a sensor fault with noise needs the run's seed: NetworkState(sc, seeds=...)")
+            self._gens = [stream(seed, "sensor_noise", *self.key) for seed in self.seeds]
+        if self._buf is None or self._k == len(self._buf):
+            self._buf = np.stack([g.normal(size=(self.CHUNK, s)) for g in self._gens], axis=-1)  # (CHUNK, s, N)
+            self._k = 0
+        w = self._buf[self._k]
+        self._k += 1
+        return w if self.batch else w[:, 0]
+
+
 class NetworkState:
     """Alive agents, incarnations and dropped arcs as faults apply (agent positions are 0-based).
 
@@ -255,16 +307,35 @@ class NetworkState:
     and ``(position, incarnation)`` of agents that rejoin with a fresh estimate;
     each fault's kind says what it does (:mod:`splitspec_core.scenarios.faults`).
     A freeze is handled as a loss (the runtime declares a frozen agent lost).
-    ``measured`` gives the measurements as the sensor faults in force change them.
+    ``measured`` gives the measurements as the sensor faults in force change them; ``seeds`` (the run's seed, or
+    the batch's seeds) opens their ``sensor_noise`` streams (:class:`SensorDraws`).
     """
 
-    def __init__(self, sc: Scenario):
+    def __init__(self, sc: Scenario, seeds=None):
         self.ids = sc.agent_ids
         self.alive = np.ones(sc.m, dtype=bool)
         self.incarnation = np.zeros(sc.m, dtype=int)
         self.dropped: set = set()
         self.groups: tuple | None = None  # a partition in force (impairment: no message crosses between groups)
         self.sensors: dict = {}  # position -> (fault, its memory): a sensor fault in force (faults.Fault.measure)
+        self.seeds = None if seeds is None else tuple(int(s) for s in np.atleast_1d(seeds))
+        self.sensor_faults = np.zeros(sc.m, dtype=int)  # sensor faults put on each agent so far (their streams' key)
+        # the last measurement each agent was given (stacked; NaN before its first), kept for a sensor that sticks
+        self._holds = any(f.holds_last for f in sc.faults)
+        self._last = None
+
+    def put_sensor(self, i: int, fault) -> None:
+        """Put agent ``i``'s sensor under ``fault`` (a fresh memory), replacing a sensor fault in force on it.
+
+        Parameters
+        ----------
+        i : int
+            The agent's position (0-based).
+        fault : Fault
+            A sensor fault (:meth:`~splitspec_core.scenarios.faults.Fault.measure` changes the agent's ``y_i``).
+        """
+        self.sensors[i] = (fault, {"key": (i, int(self.sensor_faults[i]))})
+        self.sensor_faults[i] += 1
 
     def lose(self, i: int) -> bool:
         """Agent at position ``i`` stops taking part; False if it was not alive.
@@ -324,8 +395,13 @@ class NetworkState:
             rejoined += back
         return killed, rejoined
 
-    def measured(self, y: np.ndarray, rows: list) -> np.ndarray:
+    def measured(self, y: np.ndarray, rows: list, missing=None) -> np.ndarray:
         """The measurements as the estimators are given them, with the sensor faults in force.
+
+        A fault's memory gets, at its first measurement, ``before`` (the last measurement the agent was given
+        before the fault, its current one if it was given none) and ``draws`` (:class:`SensorDraws`).  Every
+        sensor fault in force measures every step (its draws do not depend on who is missing); an agent without
+        a measurement at this step (``missing``) keeps its row as it is.
 
         Parameters
         ----------
@@ -333,6 +409,8 @@ class NetworkState:
             The plant's stacked measurements (outputs on axis 0, seeds after).
         rows : list of slice
             Each agent's rows of ``y`` (:func:`~splitspec_core.model.plant.output_rows`).
+        missing : (m,) bool array, optional
+            The agents without a measurement at this step (a measurements file); None: every agent has one.
 
         Returns
         -------
@@ -340,12 +418,25 @@ class NetworkState:
             ``y`` itself when no sensor fault is in force; else a copy in which each faulty sensor's rows are
             changed by its fault (:meth:`~splitspec_core.scenarios.faults.Fault.measure`).
         """
-        if not self.sensors:
-            return y
-        y = np.array(y, dtype=float)
-        for i, (fault, memo) in self.sensors.items():
-            y[rows[i]] = fault.measure(y[rows[i]], memo)
-        return y
+        out = y
+        if self.sensors:
+            out = np.array(y, dtype=float)
+            for i, (fault, memo) in self.sensors.items():
+                if "before" not in memo:
+                    last = None if self._last is None else self._last[rows[i]]
+                    memo["before"] = (np.array(y[rows[i]], dtype=float) if last is None or np.isnan(last).any()
+                                      else last.copy())
+                    memo["draws"] = SensorDraws(self.seeds, *memo["key"], batch=np.ndim(y) > 1)
+                value = fault.measure(y[rows[i]], memo)
+                if missing is None or not missing[i]:
+                    out[rows[i]] = value
+        if self._holds:
+            if self._last is None:
+                self._last = np.full(np.shape(y), np.nan)
+            for i, r in enumerate(rows):
+                if missing is None or not missing[i]:
+                    self._last[r] = out[r]
+        return out
 
     def alive_ids(self) -> list:
         """The ids of the agents taking part, in agent order.
@@ -405,3 +496,56 @@ class NetworkState:
             The arcs ``(j, i)`` by agent id, dead agents' arcs included.
         """
         return active_arcs(sc, graph_index, self.dropped)
+
+
+def sensor_schedule(sc: Scenario, steps: int | None = None) -> dict:
+    """The scenario's sensor faults (the kinds the plant process applies) at their steps: what the baselines of
+    ``compare`` and a run's record of a measurements file apply, as the simulator does.
+
+    Parameters
+    ----------
+    sc : Scenario
+        The scenario (its faults, time and ``run.dt``).
+    steps : int, optional
+        Faults after this step are left out (None: none is).
+
+    Returns
+    -------
+    dict
+        ``{step: [Fault, ...]}`` (:func:`fault_schedule` of those faults); empty without a sensor fault.
+    """
+    return fault_schedule([f for f in sc.faults if f.runtime == PLANT], sc.run.dt if sc.time == "continuous" else 1.0,
+                          steps)
+
+
+def given_measurements(sc: Scenario, meas, seed: int):
+    """A measurements file as its estimators are given it: the scenario's sensor faults (the kinds the plant
+    process applies) applied row by row, as the plant process and :func:`~splitspec_core.simulation.simulator.simulate`
+    apply them; what the recorder of a run on the file records as its ``y``.
+
+    Parameters
+    ----------
+    sc : Scenario
+        The scenario (its faults, ``C_i``, time and ``run.dt``).
+    meas : :class:`~splitspec_core.scenarios.measurements.Measurements`
+        The file.
+    seed : int
+        The run's seed (a sensor fault's noise is drawn from its ``sensor_noise`` streams).
+
+    Returns
+    -------
+    Measurements
+        ``meas`` itself without a sensor fault; else a copy whose ``y`` is what the estimators were given (a
+        missing row as the file has it).
+    """
+    schedule = sensor_schedule(sc)
+    if not schedule:
+        return meas
+    net, plant, rows = NetworkState(sc, seed), RecordedPlant(meas, sc.n, sc), output_rows(sc.system.Cs)
+    y = np.array(meas.y, dtype=float)
+    for k in range(len(y)):
+        if k:
+            plant.advance()
+        net.apply(schedule.get(k, ()))
+        y[k] = net.measured(plant.measure(), rows, plant.missing())
+    return dataclasses.replace(meas, y=y)

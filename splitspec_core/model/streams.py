@@ -18,6 +18,10 @@ stream              key                                draws (per step)
 ``network``         ()                                 two 64-bit keys once: the counter-based
                                                        loss and delay draws of every consensus
                                                        message (:mod:`splitspec_core.model.impairment`)
+``sensor_noise``    (agent index, sensor fault)        ``s_i`` normals per step while a sensor fault
+                                                       with ``noise:`` is in force on agent i (the
+                                                       fault: 0 for the first put on that agent, +1
+                                                       for each later; :mod:`splitspec_core.scenarios.faults`)
 ==================  =================================  ==========================
 """
 
@@ -27,7 +31,7 @@ import numpy as np
 
 __all__ = ["stream", "STREAMS"]
 
-STREAMS = {"initial_state": 0, "process": 1, "measurement": 2, "estimate": 3, "switching": 4, "network": 5}
+STREAMS = {"initial_state": 0, "process": 1, "measurement": 2, "estimate": 3, "switching": 4, "network": 5, "sensor_noise": 6}
 
 
 def stream(seed: int, name: str, *key: int) -> np.random.Generator:

@@ -73,6 +73,8 @@ class Fault:
     verdict: ClassVar[bool] = False  # the runtime says the survivors' verdict after it
     #: it stops consensus messages the same way for every seed (the simulator then steps message by message)
     drops_messages: ClassVar[bool] = False
+    #: a sensor fault that holds the agent's last measurement (the network state then keeps every agent's)
+    holds_last: ClassVar[bool] = False
     #: a ``SIGNAL`` kind's OS signal (``SIGKILL``), and whether the process stays (stopped) after it
     signal: ClassVar[str | None] = None
     keeps_process: ClassVar[bool] = False
@@ -164,7 +166,10 @@ class Fault:
         y : (s_i,) or (s_i, N) ndarray
             Agent i's true measurement (outputs on axis 0, seeds after).
         memo : dict
-            The sensor fault's own memory, kept from step to step while it is in force.
+            The sensor fault's own memory, kept from step to step while it is in force; at its first
+            measurement the network state puts in it ``before`` (the last measurement the agent was given
+            before the fault) and ``draws`` (its own noise stream,
+            :class:`splitspec_core.model.network.SensorDraws`).
 
         Returns
         -------
@@ -578,72 +583,121 @@ class Heal(Fault):
         return "info", f"event time {tau}: the partition is healed"
 
 
-def _bias(value: Any, key: str, n: int | None) -> float | tuple:
-    """``bias``: one number for every output, or a list of one per output (``n`` of them, when known)."""
+def _per_output(value: Any, key: str, n: int | None, *, std: bool = False) -> float | tuple:
+    """``bias`` or ``noise`` (``std``: each >= 0, not all 0): one number for every output, or a list of one per
+    output (``n`` of them, when known)."""
     if isinstance(value, list):
         if n is not None and len(value) != n:
             raise ScenarioError(f"{key} has {len(value)} values; the agent has {n} output{'s' if n != 1 else ''} "
                                 "(give one number for all, or one per output)")
-        return tuple(check_number(v, f"{key}[{k + 1}]") for k, v in enumerate(value))
-    return check_number(value, key)
+        out = tuple(check_number(v, f"{key}[{k + 1}]") for k, v in enumerate(value))
+    else:
+        out = check_number(value, key)
+    if std:
+        values = out if isinstance(out, tuple) else (out,)
+        if any(v < 0 for v in values) or not any(v > 0 for v in values):
+            raise ScenarioError(f"{key} must be a std > 0 (or one per output, each >= 0, not all 0), got "
+                                f"{describe(value)}")
+    return out
+
+
+def _per_row(v, y: np.ndarray) -> np.ndarray:
+    """``v`` (a number, or one per output) shaped to multiply or add to ``y`` (outputs on axis 0, seeds after)."""
+    v = np.asarray(v, dtype=float)
+    return v if v.ndim == 0 else v.reshape((-1,) + (1,) * (np.ndim(y) - 1))
 
 
 @register
 @dataclass(frozen=True)
 class Corrupt(_AgentFault):
-    """``corrupt: I`` with ``bias: b`` (a number, or a list of one per output of agent I) and/or ``scale: k``:
-    from the step on, agent I is given ``k y_i + b`` instead of its measurement ``y_i``, until a ``repair``
-    (``for: S`` writes it).  The plant process applies it in ``run``, as the simulator does."""
+    """``corrupt: I`` with ``bias: b`` (a number, or a list of one per output of agent I) and/or ``scale: k``, or
+    ``stuck: true``, and/or ``noise: s`` (a std, or one per output): from the step on, agent I is given
+    ``k y_i + b + s w`` (stuck: ``y_i^held + s w``) instead of its measurement ``y_i``, until a ``repair``
+    (``for: S`` writes it).  ``y_i^held`` is the last measurement agent I was given before the fault (its
+    first, for a fault at the first step); ``w`` standard normals of the ``sensor_noise`` stream
+    (:class:`splitspec_core.model.network.SensorDraws`).  A stuck sensor refuses ``bias`` and ``scale`` (a held value
+    shifted or scaled is just another held value).  The plant process applies it in ``run``, as the simulator
+    does."""
 
     bias: float | tuple | None = None
     scale: float | None = None
-    action, options, ends_with, runtime, event = "corrupt", ("bias", "scale"), "repair", PLANT, "sensor_corrupted"
-    mark, mark_style = "sensor", ("sensor fault", "Square", (227, 119, 194))
+    stuck: bool = False
+    noise: float | tuple | None = None
+    action, options, ends_with, runtime = "corrupt", ("bias", "scale", "stuck", "noise"), "repair", PLANT
+    event, mark, mark_style = "sensor_corrupted", "sensor", ("sensor fault", "Square", (227, 119, 194))
+
+    @property
+    def holds_last(self) -> bool:
+        """bool: a stuck sensor holds the agent's last measurement."""
+        return self.stuck
+
+    @classmethod
+    def _fields(cls, fmap: dict, key: str, n: int | None, dot: str) -> dict:
+        """``bias``, ``scale``, ``stuck`` and ``noise`` of a scenario entry or an event (``dot``: ``key.`` or "")."""
+        if "stuck" in fmap and fmap["stuck"] is not True:
+            raise ScenarioError(f"{dot}stuck must be true (the sensor holds its last value), got "
+                                f"{describe(fmap['stuck'])}")
+        if "stuck" in fmap and ("bias" in fmap or "scale" in fmap):
+            raise ScenarioError(f"{dot}stuck does not go with bias or scale (a stuck sensor gives its held value; "
+                                "noise: s may be added to it)")
+        return {"bias": None if fmap.get("bias") is None else _per_output(fmap["bias"], f"{dot}bias", n),
+                "scale": None if fmap.get("scale") is None else check_number(fmap["scale"], f"{dot}scale"),
+                "stuck": "stuck" in fmap,
+                "noise": None if fmap.get("noise") is None else _per_output(fmap["noise"], f"{dot}noise", n,
+                                                                            std=True)}
 
     @classmethod
     def parse(cls, value, fmap, key, ctx):
-        """``agent``, ``bias`` (checked against the agent's number of outputs) and ``scale``; one of them needed."""
+        """``agent``, ``bias`` and ``noise`` (checked against the agent's number of outputs), ``scale`` and
+        ``stuck``; one of them needed, ``stuck`` without ``bias`` or ``scale``."""
         agent = check_known_agent(value, f"{key}.corrupt", ctx.ids)
-        if "bias" not in fmap and "scale" not in fmap:
-            raise ScenarioError(f"{key}.corrupt needs bias: b (added to agent {agent}'s outputs) or scale: k "
-                                "(multiplying them), or both")
+        if not any(o in fmap for o in cls.options):
+            raise ScenarioError(f"{key}.corrupt needs bias: b (added to agent {agent}'s outputs), scale: k "
+                                "(multiplying them), stuck: true (holding the last value) or noise: s (an extra "
+                                "noise std)")
         n = None if ctx.outputs is None else ctx.outputs.get(agent)
-        return {"agent": agent, "bias": None if "bias" not in fmap else _bias(fmap["bias"], f"{key}.bias", n),
-                "scale": None if "scale" not in fmap else check_number(fmap["scale"], f"{key}.scale")}
+        return {"agent": agent, **cls._fields(fmap, key, n, f"{key}.")}
 
     @classmethod
     def from_event(cls, e, where, ids):
-        """``agent``, ``bias`` and ``scale`` from the event (absent ones None)."""
-        bias, scale = e.get("bias"), e.get("scale")
+        """``agent``, ``bias``, ``scale``, ``stuck`` and ``noise`` from the event (absent ones None, not stuck)."""
         try:
-            return {"agent": _event_agent(e, where, ids), "bias": None if bias is None else _bias(bias, "bias", None),
-                    "scale": None if scale is None else check_number(scale, "scale")}
+            return {"agent": _event_agent(e, where, ids),
+                    **cls._fields({k: e[k] for k in cls.options if e.get(k) is not None}, "", None, "")}
         except ScenarioError as exc:
             raise ScenarioError(f"{where}: {exc}") from None
 
     def apply(self, net):
         """Put the agent's sensor under this fault (a fresh memory), replacing a fault in force on it."""
-        net.sensors[net.ids.index(self.agent)] = (self, {})
+        net.put_sensor(net.ids.index(self.agent), self)
         return [], []
 
     def measure(self, y, memo):
-        # y_i -> k y_i + b (b one number, or one per output: outputs on axis 0, any seeds after)
-        """``k y_i + b`` (no scaling when ``scale`` is None, no bias when ``bias`` is None); ``memo`` unused."""
-        out = y if self.scale is None else y * self.scale
-        if self.bias is None:
+        # y_i -> k y_i + b + s w, or y_i^held + s w (b and s one number, or one per output: outputs on axis 0,
+        # any seeds after)
+        """``k y_i + b + s w`` (no scaling when ``scale`` is None, no bias when ``bias`` is None, no noise when
+        ``noise`` is None), stuck: ``memo["before"] + s w``; ``w`` from ``memo["draws"]``, every step."""
+        if self.stuck:
+            out = np.array(memo["before"], dtype=float)
+        else:
+            out = y if self.scale is None else y * self.scale
+            out = out if self.bias is None else out + _per_row(self.bias, y)
+        if self.noise is None:
             return out
-        b = np.asarray(self.bias, dtype=float)
-        return out + (b if b.ndim == 0 else b.reshape((-1,) + (1,) * (np.ndim(y) - 1)))
+        return out + _per_row(self.noise, y) * memo["draws"].normal(np.shape(y)[0])
 
     def payload(self, tau):
-        """``{"id", "tau"}`` and the ``bias`` (a list per output) and ``scale`` that are set."""
-        how = {"bias": list(self.bias) if isinstance(self.bias, tuple) else self.bias, "scale": self.scale}
+        """``{"id", "tau"}`` and the ``bias`` and ``noise`` (a list per output), ``scale`` and ``stuck`` that are
+        set."""
+        how = {"stuck": True if self.stuck else None, "scale": self.scale,
+               **{k: list(v) if isinstance(v, tuple) else v for k, v in (("bias", self.bias), ("noise", self.noise))}}
         return {"id": self.agent, "tau": tau, **{k: v for k, v in how.items() if v is not None}}
 
     @staticmethod
     def text(fields):
-        """``agent I's measurements corrupted (scale k, bias b)``."""
-        how = [f"{k} {fields[k]}" for k in ("scale", "bias") if fields.get(k) is not None]
+        """``agent I's measurements corrupted (stuck, scale k, bias b, noise s)``, the options set."""
+        how = (["stuck"] if fields.get("stuck") else []) + [f"{k} {fields[k]}" for k in ("scale", "bias", "noise")
+                                                           if fields.get(k) is not None]
         return f"agent {fields.get('id', '?')}'s measurements corrupted ({', '.join(how)})"
 
     def log_line(self, tau):

@@ -19,7 +19,8 @@ __all__ = ["run_steps"]
 
 
 def run_steps(plan: Plan, net: NetworkState, rows: list, *, restart: Callable, record: Callable, update: Callable,
-              measure: Callable | None = None, advance: Callable | None = None, last: Callable | None = None) -> None:
+              measure: Callable | None = None, advance: Callable | None = None, last: Callable | None = None,
+              missing: Callable | None = None) -> None:
     """Run steps ``0 .. plan.steps``: faults, record, measure, update, advance.
 
     Parameters
@@ -43,6 +44,9 @@ def run_steps(plan: Plan, net: NetworkState, rows: list, *, restart: Callable, r
         ``advance(k)``: the plant to ``x(k+1)`` (None: ``update`` moves it too).
     last : callable, optional
         ``last(k)``: after the last step's record.
+    missing : callable, optional
+        ``missing(k)``: the agents without a measurement at step k ((m,) bool, or None: none), whose rows the
+        sensor faults leave as they are; None: every agent has one.
 
     Examples
     --------
@@ -62,7 +66,8 @@ def run_steps(plan: Plan, net: NetworkState, rows: list, *, restart: Callable, r
             if last is not None:
                 last(k)
             return
-        y = None if measure is None else net.measured(measure(k), rows)  # as the sensor faults in force give it
+        y = (None if measure is None else  # as the sensor faults in force give it
+             net.measured(measure(k), rows, None if missing is None else missing(k)))
         update(k, y)
         if advance is not None:
             advance(k)

@@ -20,7 +20,8 @@ errors, all that is kept here, do not depend on them (to round-off).
 What is batched and what falls back
 -----------------------------------
 Batched: discrete and continuous time (fixed or adaptive g), noise or not, faults (kill, freeze,
-restart, drop_arc, restore_arc, partition, heal: they strike every seed at the same step), and
+restart, drop_arc, restore_arc, partition, heal, corrupt, repair: they strike every seed at the same step; a
+sensor fault's ``noise`` draws each seed's own ``sensor_noise`` stream, as ``simulate`` does), and
 switching that does not depend on the seed (constant, periodic, dwell, or random with its own
 ``switching.seed``).  Per-seed loop over :func:`~splitspec_core.simulation.simulator.simulate` (the same
 results, one seed after another), with the reason in :attr:`MonteCarloRuns.fallback`: random
@@ -430,7 +431,7 @@ def _batch(des: Design, seeds: tuple, *, steps, noise, trajectories) -> tuple:
     plant, x, v, w = seed_draws(sc, seeds, T - 1, noise=noise)
     F, L, C, sigma_m = plant.F, plant.L, plant.C, plant.sigma_m
     X = np.stack([np.stack([initial_estimate(n, s, i) for s in seeds], axis=1) for i in range(m)])  # (m, n, N)
-    net = NetworkState(sc)
+    net = NetworkState(sc, seeds)  # a sensor fault's noise: each seed's own stream, as simulate draws it
     alive = net.alive
     sq = np.zeros((N, T))
     count = np.zeros((N, T), dtype=np.int64)

@@ -955,7 +955,7 @@ def simulate(des: Design, *, seed: int | None = None, steps: int | None = None, 
     m, n, T = sc.m, sc.n, plan.steps + 1
     ids = sc.agent_ids
     X = np.stack([initial_estimate(n, seed, i) for i in range(m)])
-    net = NetworkState(sc)
+    net = NetworkState(sc, seed)
     alive = net.alive
     xs = np.zeros((T, n))
     xh = np.full((T, m, n), np.nan)
@@ -970,7 +970,8 @@ def simulate(des: Design, *, seed: int | None = None, steps: int | None = None, 
     impaired = imp is not None or replay is not None or any(f.drops_messages for f in sc.faults)
     exchanges = 1 if est.continuous else int(des.q)  # the whole-state design: q in both times
     lost_rows: list = []
-    ys = np.zeros((T, sum(np.shape(C)[0] for C in sc.system.Cs))) if keep_y and measurements is None else None
+    # the measurements the estimators were given (a file's rows, the sensor faults in force applied)
+    ys = np.zeros((T, sum(np.shape(C)[0] for C in sc.system.Cs))) if keep_y or measurements is not None else None
     rows_y = output_rows(sc.system.Cs)
 
     def restart(killed, rejoined):
@@ -1019,14 +1020,14 @@ def simulate(des: Design, *, seed: int | None = None, steps: int | None = None, 
 
     def last(k):
         if ys is not None:  # the last row's measurement (drawn after every other draw)
-            ys[k] = net.measured(plant.measure(), rows_y)
+            ys[k] = net.measured(plant.measure(), rows_y, plant.missing())
 
     run_steps(plan, net, rows_y, restart=restart, record=record, measure=lambda k: plant.measure(), update=update,
-              advance=advance, last=last)
+              advance=advance, last=last, missing=lambda k: plant.missing())
     lost_a, cause_a = lost_arrays(lost_rows)
     recorded = {}
     if measurements is not None:  # what the estimators were given, for the views without truth
-        recorded = {"y": measurements.y[:T].copy(), "y_missing": measurements.missing[:T].copy()}
+        recorded = {"y": ys, "y_missing": measurements.missing[:T].copy()}
     elif ys is not None:
         recorded = {"y": ys, "y_missing": np.zeros((T, m), dtype=bool)}
     return Trajectory(t=plan.times(), x=xs, xhat=xh, alive=al, graph=plan.graph_seq.copy(),
@@ -1200,7 +1201,7 @@ def simulate_exact(des: Design, *, seed: int | None = None, steps: int | None = 
     A = np.array(sc.system.A)
     g = float(des.g)
     z = np.concatenate([initial_state(sc, seed)] + [initial_estimate(n, seed, i) for i in range(m)])
-    net = NetworkState(sc)
+    net = NetworkState(sc, seed)
     alive = net.alive
     xs = np.zeros((T, n))
     xh = np.full((T, m, n), np.nan)

@@ -42,7 +42,7 @@ import scipy.linalg as sla
 
 from ..synthesis.kalman import REGULARISATION, KalmanPredictor, kalman_predictor, regularise  # noqa: F401
 from ..simulation.montecarlo import CHUNK, MonteCarloRuns
-from ..model.network import consensus_rows, make_plan
+from ..model.network import NetworkState, consensus_rows, make_plan, sensor_schedule
 from ..scenarios.specs import Scenario
 from ..model.plant import (Plant, advanced, initial_estimate, input_sequence, measured,  # noqa: F401
                           output_rows, sampled_model, seed_draws)  # sampled_model: also from here
@@ -424,8 +424,9 @@ def baseline_trajectories(sc: Scenario, seed: int, *, exchanges: int, steps: int
     the same order of ``measure`` / ``advance`` as the simulator, so ``x``
     equals ``simulate(...).x``.  The KCF agents start from
     ``initial_estimate(n, seed, i)``, the centralized predictor from their mean.
-    The network is the scenario's first graph (no switching, no faults), the
-    in-neighbours of agent i those of :func:`consensus_rows`.  Both filters use
+    The network is the scenario's first graph (no switching, no network faults), the
+    in-neighbours of agent i those of :func:`consensus_rows`; the scenario's sensor faults (``corrupt``) change
+    the measurements both filters are given, as they change the simulator's (:func:`sensor_schedule`).  Both filters use
     the noisy model (:func:`sampled_model`) even with ``noise=False``, so their
     gains do not change.
 
@@ -467,11 +468,13 @@ def baseline_trajectories(sc: Scenario, seed: int, *, exchanges: int, steps: int
     plant = Plant(sc, seed, noise=noise)
     xs = np.zeros((T, n))
     ys = np.zeros((steps, plant.C.shape[0]))
+    sensors, net = sensor_schedule(sc, steps), NetworkState(sc, seed)
     for k in range(T):
         xs[k] = plant.x
         if k == steps:
             break
-        ys[k] = plant.measure()
+        net.apply(sensors.get(k, ()))
+        ys[k] = net.measured(plant.measure(), plant.rows)  # as the sensor faults in force give it
         plant.advance()
     F, C, Lc, kcf = _filters(sc, exchanges, eps)
     X0 = np.stack([initial_estimate(n, seed, i) for i in range(m)])
@@ -487,7 +490,8 @@ def baseline_seeds(sc: Scenario, seeds, *, exchanges: int, steps: int | None = N
 
     Per seed the realisations are :func:`baseline_trajectories`'s bit for bit (:func:`seed_draws`) and the
     estimates its estimates to round-off (:class:`SeedBatchKCF`; the centralized predictor as one ``(n, N)``
-    product per step).  Known inputs (``system.B``) are left out of plant and filters alike: every filter adds the
+    product per step); the scenario's sensor faults change the measurements as in :func:`baseline_trajectories`.
+    Known inputs (``system.B``) are left out of plant and filters alike: every filter adds the
     plant's own ``G u(k)``, so the errors do not depend on them.  Only squared errors are kept, ``2 N T`` floats;
     seeds run in chunks of ``chunk``, each holding its noise draws for the whole run.  ``gains``: more centralized
     predictors to run on the same realisations, ``{name: L}`` (``xhat+ = (F - L C) xhat + L y``; the rate-certified
@@ -529,9 +533,11 @@ def baseline_seeds(sc: Scenario, seeds, *, exchanges: int, steps: int | None = N
     others = {name: (F - L @ C, np.asarray(L)) for name, L in (gains or {}).items()}  # more centralized predictors
     sq_c, sq_k = np.zeros((len(seeds), T)), np.zeros((len(seeds), T))
     sq_o = {name: np.zeros((len(seeds), T)) for name in others}
+    sensors = sensor_schedule(sc, steps)
     for a in range(0, len(seeds), chunk):
         part = seeds[a:a + chunk]
         plant, x, v, w = seed_draws(sc, part, steps, noise=noise)
+        net = NetworkState(sc, part)  # the sensor faults: each seed's own noise stream, as simulate draws it
         batch.reset()
         X = np.stack([np.stack([initial_estimate(n, s, i) for s in part], axis=1) for i in range(m)])  # (m, n, N)
         xc = X.mean(axis=0)  # the centralized predictor starts from the agents' mean
@@ -543,7 +549,8 @@ def baseline_seeds(sc: Scenario, seeds, *, exchanges: int, steps: int | None = N
                 sq_o[name][a:a + len(part), k] = np.sum((xe - x) ** 2, axis=0)
             if k == steps:
                 break
-            y = measured(plant.C, plant.sigma_m, x, w[k])
+            net.apply(sensors.get(k, ()))
+            y = net.measured(measured(plant.C, plant.sigma_m, x, w[k]), plant.rows)
             xc = Ac @ xc + Lc @ y  # run_predictor's step: xhat+ = (F - L C) xhat + L y
             for name, (A_o, L_o) in others.items():
                 xo[name] = A_o @ xo[name] + L_o @ y

@@ -1,7 +1,8 @@
 """`splitspec compare`: the split-spectrum estimator against the best possible and a consensus Kalman filter.
 
 Every estimator sees the same noise realisations and initial conditions (the
-simulator's named streams, :mod:`splitspec_core.model.streams`):
+simulator's named streams, :mod:`splitspec_core.model.streams`) and the same measurements, as the scenario's
+sensor faults change them (:func:`faults_note`):
 
 ``split (scenario)``   the scenario's own design (when its gains are explicit)
 ``split place``        split-spectrum, ``place`` gains
@@ -48,6 +49,7 @@ from ..synthesis.kalman import per_step_rate, references
 from ..synthesis.verdict import ADAPTIVE, NO_CERTIFIED_RATE
 from ..errors import AssumptionError, DesignError
 from ..scenarios import gain_methods
+from ..scenarios.faults import PLANT
 from ..synthesis.error_matrix import MAX_NOISE_DIM, predicted_rms
 from ..synthesis.noise_tuning import tune
 from ..synthesis.verdict import rate_certificate
@@ -55,7 +57,8 @@ from ..scenarios.noise import noise_json
 from ..scenarios.specs import Scenario
 from ..simulation.simulator import check_trajectory_memory, simulate
 
-__all__ = ["CompareResult", "EstimatorResult", "compare", "sweep", "sweep_line", "certificate_lines", "settle_time"]
+__all__ = ["CompareResult", "EstimatorResult", "compare", "sweep", "sweep_line", "certificate_lines", "settle_time",
+           "faults_note"]
 
 
 @dataclass(frozen=True)
@@ -90,7 +93,8 @@ class CompareResult:
     ``estimators`` maps names (the scenario's own design, e.g. ``optimal (whole state)`` or ``split (explicit)``;
     ``split place``, ``split riccati``, ``split tuned``, ``centralized KF``, ``centralized at rate`` when the Kalman
     filter is slower than the rate, ``KCF``) to :class:`EstimatorResult`; ``t`` and ``curves`` (name -> (T,) RMS
-    error over agents, mean over seeds) are the error curves; ``failed`` the rows that could not be designed.
+    error over agents, mean over seeds) are the error curves; ``failed`` the rows that could not be designed;
+    ``note`` what the scenario's faults do to the rows (:func:`faults_note`).
     """
 
     scenario: str
@@ -107,6 +111,7 @@ class CompareResult:
     t: np.ndarray
     curves: Mapping[str, np.ndarray]
     failed: Mapping[str, str] = dataclasses.field(default_factory=lambda: MappingProxyType({}))  # rows not designed, why
+    note: str | None = None  # what the scenario's faults do to the rows (faults_note); None without faults
 
     def to_json(self) -> dict:
         """The ``compare.json`` object.
@@ -128,6 +133,8 @@ class CompareResult:
             out["tuned"] = dict(self.tuned)
         if self.failed:
             out["failed"] = dict(self.failed)
+        if self.note:
+            out["note"] = self.note
         return out
 
 
@@ -362,7 +369,35 @@ def compare(sc: Scenario, *, seeds, steps: int | None = None, eps: float | None 
         process_noise=sc.system.process_noise, measurement_noise=sc.system.measurement_noise, exchanges=exchanges,
         kcf_eps=eps, estimators=MappingProxyType(table), tuned=tuned_json, t=_readonly(T),
         curves=MappingProxyType({k: _readonly(np.mean(v, axis=0)) for k, v in curves.items()}),
-        failed=MappingProxyType(failed))
+        failed=MappingProxyType(failed), note=faults_note(sc))
+
+
+def faults_note(sc: Scenario) -> str | None:
+    """What the scenario's faults do to the rows of :func:`compare`: its sensor faults change the measurements of
+    every row alike (the baselines' too: :func:`~splitspec_core.studies.baselines.baseline_seeds`); its other faults
+    strike the split-spectrum rows only (the baselines run on the first graph, every agent alive).
+
+    Parameters
+    ----------
+    sc : Scenario
+        The scenario.
+
+    Returns
+    -------
+    str or None
+        One sentence; None when the scenario has no fault.
+    """
+    sensors = sorted({f.agent for f in sc.faults if f.runtime == PLANT})
+    others = list(dict.fromkeys(f.action for f in sc.faults if f.runtime != PLANT))
+    parts = []
+    if sensors:
+        parts.append("the scenario's sensor faults (agent" + ("s " if len(sensors) > 1 else " ")
+                     + ", ".join(map(str, sensors)) + ") were applied to the measurements of every row, the centralized "
+                     "KF and the KCF included: every estimator was given the same corrupted measurements")
+    if others:
+        parts.append(f"its {', '.join(others)} faults strike the split-spectrum rows only (the baselines run on the "
+                     "first graph, every agent alive)")
+    return "; ".join(parts) or None
 
 
 def _predicted_all(des) -> float | None:

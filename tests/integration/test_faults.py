@@ -120,6 +120,42 @@ def test_corrupt_sensor_and_kill_for_real_equal_simulate_and_replay(tmp_path):
     assert [tau for tau, _ in read_rrd(out / "run.rrd")["marks/sensor"]] == [8, 14]
 
 
+def test_stuck_and_noisy_sensors_for_real_equal_simulate_and_replay_exactly(tmp_path):
+    """stuck and noise (the plant process draws the noise from the sensor_noise stream, as simulate does) on real
+    processes: run == simulate to round-off, the replay of the recorded events is simulate exactly; the events
+    carry the options and the timeline marks them."""
+    raw = yaml.safe_load((EXAMPLES / "ring10.yaml").read_text())
+    raw["system"]["measurement_noise"] = 0.01
+    raw["run"] = {**raw.get("run", {}), "steps": 40}
+    raw["faults"] = [{"at": 8, "corrupt": 2, "for": 6, "stuck": True}, {"at": 10, "corrupt": 5, "for": 15, "noise": 0.3},
+                     {"at": 12, "corrupt": 9, "stuck": True, "noise": [0.2]}]
+    scen = tmp_path / "lying.yaml"
+    scen.write_text(yaml.safe_dump(raw))
+    out = tmp_path / "out"
+    r = run("run", scen, "--out", out, "--run-id", run_id())
+    assert r.returncode == 0, r.stdout + r.stderr
+    compare_with_simulate(out, scen, tmp_path)
+    replay(out, tmp_path / "replay")
+    sim, again = (np.load(d / "sim" / "trajectory.npz") for d in (tmp_path, tmp_path / "replay"))
+    for name in ("x", "xhat", "alive"):  # the replay rebuilt the very faults: the same numbers, bit for bit
+        np.testing.assert_array_equal(again[name], sim[name])
+    bad = [(e["id"], e["tau"], e.get("stuck"), e.get("noise")) for e in events(out) if e["event"] == "sensor_corrupted"]
+    assert bad == [(2, 8, True, None), (5, 10, None, 0.3), (9, 12, True, [0.2])]
+    import splitspec_core as ss
+
+    clean = ss.simulate(ss.load_scenario(scen), faults=[]).errors()
+    traj, err = agent_errors(out)
+    np.testing.assert_allclose(err[:9], clean[:9], rtol=1e-9, atol=1e-12)  # y(8) is used from event time 9 on
+    for a, tau in ((2, 8), (5, 10), (9, 12)):  # each lying sensor's estimate goes astray
+        k = list(traj["agent_ids"]).index(a)
+        assert err[tau + 4, k] > 3 * clean[tau + 4, k], a
+    logs = read_rrd_logs(out / "run.rrd")
+    texts = {text for _, _, text in logs["events"]}
+    assert {"agent 2's measurements corrupted (stuck)", "agent 5's measurements corrupted (noise 0.3)",
+            "agent 9's measurements corrupted (stuck, noise [0.2])"} <= texts
+    assert [tau for tau, _ in read_rrd(out / "run.rrd")["marks/sensor"]] == [8, 10, 12, 14, 25]
+
+
 def test_outside_sigkill_of_a_redundant_agent(tmp_path):
     """kill -9 from outside the run: survivors converge, the row is NaN from the recorded time, replay agrees."""
     scen = scenario_file(tmp_path, "ring10", run={"steps": 120, "pace": 20})

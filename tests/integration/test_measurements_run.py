@@ -73,6 +73,38 @@ def test_a_run_without_truth_and_with_gaps(tmp_path):
     assert not any(e["event"] == "agent_lost" for e in events(out))  # a missing measurement is not a fault
 
 
+def test_sensor_faults_on_a_file_run_equal_simulate_and_record_what_was_given(tmp_path):
+    """A file with a gap, and sensors lying on it (stuck across the gap, noisy and biased): the plant process
+    corrupts the file's rows as simulate does, and both record the same y, what the estimators were given (not
+    the file's), the gap left as it is."""
+    scen, sc = hidden(tmp_path, seed=6)
+    r = run("simulate", scen, "--out", tmp_path / "sim0", "--no-plots", "--write-measurements", tmp_path / "full.npz")
+    assert r.returncode == 0, r.stderr
+    full = load_measurements(tmp_path / "full.npz", sc)
+    missing = full.missing.copy()
+    missing[5:10, 1] = True
+    meas = tmp_path / "gap.npz"
+    write_measurements(meas, t=full.t, y=full.y, agent_ids=sc.agent_ids, sizes=[np.shape(C)[0] for C in sc.system.Cs],
+                       missing=missing, x=full.x)
+    raw = yaml.safe_load(scen.read_text())
+    raw["faults"] = [{"at": 8, "corrupt": sc.agent_ids[1], "for": 10, "stuck": True},
+                     {"at": 4, "corrupt": sc.agent_ids[3], "noise": 0.2, "bias": 0.1}]
+    lying = tmp_path / "lying.yaml"
+    lying.write_text(yaml.safe_dump(raw))
+    out = tmp_path / "out"
+    r = run("run", lying, "--out", out, "--measurements", meas)
+    assert r.returncode == 0, r.stdout + r.stderr
+    compare_with_simulate(out, lying, tmp_path, 1e-9, "--measurements", meas)  # y and y_missing: exact
+    with np.load(out / "trajectory.npz") as f:
+        y, given = load_measurements(meas, sc).y, f["y"]
+        rows = np.cumsum([0] + [np.shape(C)[0] for C in sc.system.Cs])
+        a2, a4 = slice(rows[1], rows[2]), slice(rows[3], rows[4])
+        np.testing.assert_array_equal(given[5:10, a2], y[5:10, a2])  # the gap, as the file has it
+        np.testing.assert_array_equal(given[10:18, a2], np.repeat(y[4:5, a2], 8, axis=0))  # held: y(4), before the gap
+        assert not np.allclose(given[4:, a4], y[4:, a4] + 0.1) and np.array_equal(given[:4], y[:4])
+        np.testing.assert_array_equal(given[18:, a2], y[18:, a2])  # repaired
+
+
 def test_a_bad_measurements_file_starts_nothing(tmp_path):
     scen, _ = hidden(tmp_path)
     bad = tmp_path / "bad.csv"

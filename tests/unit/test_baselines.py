@@ -281,8 +281,17 @@ def two_output_scenario():
     return parse_scenario(data)
 
 
+def ring_with_sensor_faults():
+    """ring10 with noise and its sensors lying: agent 2 stuck then noisy, agent 5 biased and scaled."""
+    data = yaml.safe_load((EXAMPLES / "ring10_noise.yaml").read_text())
+    data["faults"] = [{"at": 5, "corrupt": 2, "for": 10, "stuck": True, "noise": 0.3},
+                      {"at": 20, "corrupt": 2, "noise": 0.5}, {"at": 8, "corrupt": 5, "bias": 1.0, "scale": 1.5}]
+    return parse_scenario(data)
+
+
 BATCH_CASES = {
     "two outputs": (two_output_scenario, 3, 60, True),
+    "sensor faults": (ring_with_sensor_faults, 2, 40, True),
     "ring, 3 exchanges": (lambda: load_scenario(EXAMPLES / "ring10_noise.yaml"), 3, 60, True),
     "continuous": (lambda: load_scenario(EXAMPLES / "paper_continuous.yaml"), 1, 50, True),
     "noise-free": (two_output_scenario, 2, 40, False),
@@ -337,3 +346,36 @@ def test_the_batched_kcf_shares_the_per_seed_gains():
     assert_close(X[:, :, 2], Xr, rtol=1e-9, what="seed 2's priors")
     batch.reset()
     assert np.array_equal(batch.P, np.tile(np.eye(4), (3, 1, 1)))  # exact: copies of P0
+
+
+def test_the_baselines_are_given_the_measurements_the_sensor_faults_give_simulate():
+    """The centralized predictor is run_predictor on simulate's given y (with its stuck, noisy and biased sensors)
+    and its estimate differs from the one on the clean measurements; compare says the faults were applied to every
+    row, and its KF and KCF rows' errors change under them."""
+    from splitspec_core.studies.baselines import _filters, run_predictor
+    from splitspec_core.model.plant import initial_estimate
+    import splitspec_core as ss
+
+    sc = ring_with_sensor_faults()
+    clean_sc = parse_scenario({**yaml.safe_load((EXAMPLES / "ring10_noise.yaml").read_text())})
+    r = baseline_trajectories(sc, 3, exchanges=2, steps=40)
+    tr = simulate(design(sc), seed=3, steps=40, keep_y=True)
+    F, C, Lc, _ = _filters(sc, 2, None)
+    X0 = np.stack([initial_estimate(sc.n, 3, i) for i in range(sc.m)])
+    np.testing.assert_array_equal(r["centralized"], run_predictor(F, C, Lc, tr.y[:40], X0.mean(axis=0)))
+    clean = baseline_trajectories(clean_sc, 3, exchanges=2, steps=40)
+    np.testing.assert_array_equal(r["x"], clean["x"])
+    assert np.array_equal(r["centralized"][:6], clean["centralized"][:6])  # y(5) is the first changed
+    assert not np.allclose(r["centralized"][6:], clean["centralized"][6:])
+    assert not np.allclose(r["kcf"][6:], clean["kcf"][6:])
+    biased = ss.scenario(A=[[0.9, 0.2], [0, 0.8]], C={1: [[1, 0]], 2: [[0, 1]]}, graphs={"a": [(1, 2), (2, 1)]},
+                         rate=0.5, process_noise=0.1, measurement_noise=0.1,
+                         faults=[{"at": 0, "corrupt": 1, "bias": 2.0}])
+    honest = ss.scenario(A=[[0.9, 0.2], [0, 0.8]], C={1: [[1, 0]], 2: [[0, 1]]}, graphs={"a": [(1, 2), (2, 1)]},
+                         rate=0.5, process_noise=0.1, measurement_noise=0.1)
+    hit, ok = ss.compare(biased, seeds=[0, 1], steps=200), ss.compare(honest, seeds=[0, 1], steps=200)
+    for row in ("centralized KF", "KCF"):  # a bias of 2 on x1: the steady error grows well beyond the noise's
+        assert hit.estimators[row].rms_mean > 3 * ok.estimators[row].rms_mean, row
+    assert ok.note is None and "note" not in ok.to_json()
+    assert "sensor faults (agent 1) were applied to the measurements of every row" in hit.note
+    assert "KCF included" in hit.note and hit.to_json()["note"] == hit.note

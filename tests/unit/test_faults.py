@@ -257,3 +257,192 @@ def test_the_exact_ode_refuses_known_inputs():
     assert np.isfinite(ss.simulate(sc, steps=5).xhat).all()  # the scenario itself is fine without exact
     with pytest.raises(ScenarioError, match="^the exact ODE has no known input: it cannot model system.B"):
         ss.simulate(sc, exact=True)
+
+
+# ------------------------------------------------------------------------------------- stuck and noisy sensors
+
+
+def test_corrupt_parses_stuck_and_noise_and_what_combines():
+    (c,) = parse([{"at": 2, "corrupt": 3, "stuck": True}])
+    assert (c.stuck, c.bias, c.scale, c.noise, c.holds_last) == (True, None, None, None, True)
+    (c,) = parse([{"at": 2, "corrupt": 3, "stuck": True, "noise": [0.1, 0]}], outputs={3: 2})
+    assert (c.stuck, c.noise) == (True, (0.1, 0.0))
+    (c,) = parse([{"at": 2, "corrupt": 3, "noise": 0.3, "bias": 1, "scale": 2}])
+    assert (c.stuck, c.noise, c.bias, c.scale, c.holds_last) == (False, 0.3, 1.0, 2.0, False)
+
+
+@pytest.mark.parametrize("raw, outputs, words", [
+    ([{"at": 1, "corrupt": 3, "stuck": False}], None, ["faults[1].stuck must be true", "got the boolean False"]),
+    ([{"at": 1, "corrupt": 3, "stuck": 1}], None, ["faults[1].stuck must be true"]),
+    ([{"at": 1, "corrupt": 3, "stuck": True, "bias": 1}], None, ["faults[1].stuck does not go with bias or scale"]),
+    ([{"at": 1, "corrupt": 3, "stuck": True, "scale": 2}], None, ["faults[1].stuck does not go with bias or scale"]),
+    ([{"at": 1, "corrupt": 3, "noise": -1}], None, ["faults[1].noise must be a std > 0"]),
+    ([{"at": 1, "corrupt": 3, "noise": 0}], None, ["faults[1].noise must be a std > 0"]),
+    ([{"at": 1, "corrupt": 3, "noise": [0, 0]}], {3: 2}, ["faults[1].noise must be a std > 0"]),
+    ([{"at": 1, "corrupt": 3, "noise": [0.1, -0.1]}], {3: 2}, ["faults[1].noise must be a std > 0"]),
+    ([{"at": 1, "corrupt": 3, "noise": [1, 2]}], {3: 1}, ["faults[1].noise has 2 values; the agent has 1 output"]),
+    ([{"at": 1, "corrupt": 3, "noise": "loud"}], None, ["faults[1].noise must be a number"]),
+    ([{"at": 1, "kill": 3, "stuck": True}], None, ["faults[1].stuck does not go with kill"]),
+    ([{"at": 1, "corrupt": 3}], None, ["stuck: true", "noise: s"]),
+])
+def test_bad_stuck_and_noise_are_one_line(raw, outputs, words):
+    with pytest.raises(ScenarioError) as e:
+        parse(raw, outputs=outputs)
+    msg = str(e.value)
+    assert "\n" not in msg and all(w in msg for w in words), msg
+
+
+@pytest.mark.parametrize("entry, text", [
+    ({"stuck": True}, "agent 3's measurements corrupted (stuck)"),
+    ({"stuck": True, "noise": 0.25}, "agent 3's measurements corrupted (stuck, noise 0.25)"),
+    ({"noise": [0.5, 0.0], "bias": [1, 2], "scale": 3}, "agent 3's measurements corrupted (scale 3.0, bias [1.0, "
+                                                        "2.0], noise [0.5, 0.0])"),
+])
+def test_stuck_and_noise_events_read_back_as_the_same_fault(ring, entry, text):
+    import json
+
+    (c,) = parse([{"at": 4, "corrupt": 3, **entry}], outputs={3: 2})
+    event = json.loads(json.dumps({"event": c.event, **c.payload(4)}))  # as events.jsonl holds it
+    assert c.text(event) == text
+    (back,) = faults_from_events([event], ring)
+    assert back == c
+
+
+def test_a_stuck_sensor_holds_the_last_measurement_before_the_fault(ring):
+    """From step 10 to 15 agent 2 is given y_2(9), the last measurement it was given before; nothing else changes;
+    at step 0 there is none before: it holds y_2(0)."""
+    clean = ss.simulate(ring, keep_y=True)
+    k = IDS.index(2)
+    hit = ss.simulate(ring, keep_y=True, faults=[{"at": 10, "corrupt": 2, "for": 6, "stuck": True}])
+    np.testing.assert_array_equal(hit.x, clean.x)
+    assert clean.y[9, k] != clean.y[10, k]
+    np.testing.assert_array_equal(hit.y[10:16, k], np.full(6, clean.y[9, k]))  # held exactly
+    rest = np.ones(clean.y.shape, dtype=bool)
+    rest[10:16, k] = False
+    np.testing.assert_array_equal(hit.y[rest], clean.y[rest])
+    assert hit.errors()[16, k] > 2 * clean.errors()[16, k]
+    first = ss.simulate(ring, keep_y=True, steps=8, faults=[{"at": 0, "corrupt": 2, "stuck": True}])
+    np.testing.assert_array_equal(first.y[:, k], np.full(9, clean.y[0, k]))
+
+
+def _sample_std_ok(d, s):
+    """The sample std of ``d`` (zero mean) is ``s`` within 5 standard errors (``s / sqrt(2 len)``)."""
+    d = np.ravel(d)
+    return abs(d.std(ddof=1) - s) < 5 * s / np.sqrt(2 * d.size) and abs(d.mean()) < 5 * s / np.sqrt(d.size)
+
+
+def test_a_noisy_sensor_gets_extra_noise_of_its_std_from_its_own_stream(ring):
+    """noise: 0.3 from step 20 to 619: the difference to the clean measurement is zero outside the window and
+    inside has std 0.3 within sampling error; the seed reproduces it exactly, another seed draws other numbers;
+    combined with bias and scale it is k y + b + s w."""
+    steps, s, k = 640, 0.3, IDS.index(5)
+    faults = [{"at": 20, "corrupt": 5, "for": 600, "noise": s}]
+    clean = ss.simulate(ring, keep_y=True, steps=steps)
+    hit = ss.simulate(ring, keep_y=True, steps=steps, faults=faults)
+    d = hit.y - clean.y
+    assert not d[:20].any() and not d[620:].any() and not np.delete(d, k, axis=1).any()
+    assert _sample_std_ok(d[20:620, k], s), d[20:620, k].std()
+    again = ss.simulate(ring, keep_y=True, steps=steps, faults=faults)
+    np.testing.assert_array_equal(again.y, hit.y)
+    other = ss.simulate(ring, keep_y=True, steps=steps, seed=ring.run.seed + 1, faults=faults)
+    d_other = other.y - ss.simulate(ring, keep_y=True, steps=steps, seed=ring.run.seed + 1).y
+    assert not np.allclose(d_other[20:620, k], d[20:620, k])
+    both = ss.simulate(ring, keep_y=True, steps=steps, faults=[{**faults[0], "bias": 0.5, "scale": 2.0}])
+    # the same draws (the same stream: the first sensor fault on agent 5) on top of 2 y + 0.5
+    np.testing.assert_allclose(both.y[20:620, k] - (2.0 * clean.y[20:620, k] + 0.5), d[20:620, k], rtol=0,
+                               atol=1e-12)
+
+
+def test_stuck_with_noise_and_each_sensor_fault_its_own_stream(ring):
+    """stuck + noise: the held value plus noise of its std; a second noisy fault on the same agent draws from
+    its own stream (not the first one's numbers again)."""
+    k = IDS.index(3)
+    clean = ss.simulate(ring, keep_y=True, steps=500)
+    hit = ss.simulate(ring, keep_y=True, steps=500, faults=[
+        {"at": 10, "corrupt": 3, "for": 200, "stuck": True, "noise": 0.2},
+        {"at": 250, "corrupt": 3, "for": 200, "noise": 0.2}])
+    assert _sample_std_ok(hit.y[10:210, k] - clean.y[9, k], 0.2)
+    first, second = hit.y[10:210, k] - clean.y[9, k], hit.y[250:450, k] - clean.y[250:450, k]
+    assert _sample_std_ok(second, 0.2) and not np.allclose(first, second)
+
+
+def test_stuck_and_noise_in_the_batched_monte_carlo_equal_the_loop(ring):
+    faults = [{"at": 5, "corrupt": 4, "for": 8, "stuck": True, "noise": 0.1},
+              {"at": 7, "corrupt": 6, "for": 20, "noise": 0.4, "bias": 0.1}, {"at": 9, "kill": 7}]
+    batch = ss.simulate(ring, seeds=[1, 2, 3], steps=60, faults=faults)
+    loop = [ss.simulate(ring, seed=s, steps=60, faults=faults) for s in (1, 2, 3)]
+    assert batch.batched
+    np.testing.assert_allclose(batch.sq_error, [np.nansum(tr.errors() ** 2, axis=1) for tr in loop], rtol=1e-9,
+                               atol=1e-12)
+
+
+def test_the_plant_process_gives_the_measurements_simulate_gives(ring):
+    """The plant process's own state machine (plant/plant.py), tick by tick: its y is simulate's given y, bit for
+    bit, with a stuck and a noisy sensor."""
+    import yaml
+
+    from splitspec_plant.plant import PlantNode
+    from splitspec_core.runtime.wire import decode, encode, new_run_key
+
+    raw = yaml.safe_load((EXAMPLES / "ring10.yaml").read_text())
+    raw["faults"] = [{"at": 3, "corrupt": 2, "for": 5, "stuck": True}, {"at": 4, "corrupt": 9, "noise": 0.5}]
+    key = new_run_key()
+    node = PlantNode({"scenario": yaml.safe_dump(raw), "seed": 5, "g": None, "q": 1, "g_mode": None, "key": key},
+                     "r")
+    ys = []
+    for tau in range(12):
+        out = node.on_tick(encode("tick", "r", mac_key=key, tau=tau, attempt=0, graph=0, final=False, alive=[],
+                                  rows={}, incarnation={}, fresh=True, prev_attempt=0, topology=tau, partition=[]))
+        ys.append(decode(dict(out)[node.keys.y], "r", "y", mac_key=key)["y"])
+    sim = ss.simulate(ring, seed=5, steps=11, keep_y=True, faults=raw["faults"])
+    np.testing.assert_array_equal(np.array(ys), sim.y[:12])
+    assert len(set(sim.y[3:8, IDS.index(2)])) == 1
+
+
+def test_a_corrupt_fault_on_a_measurements_file_is_what_the_estimators_were_given(ring, tmp_path):
+    """simulate --measurements: the fault changes the file's rows as it changes the simulated plant's (the same
+    estimates), the trajectory's y is what the estimators were given, a missing row stays missing and as the file
+    has it; the recorder of a run on the file records the same y (network.given_measurements)."""
+    from splitspec_core.model.network import given_measurements
+    from splitspec_core.scenarios.measurements import load_measurements, write_measurements
+
+    faults = [{"at": 6, "corrupt": 2, "for": 8, "bias": 0.3, "noise": 0.2}, {"at": 10, "corrupt": 4, "stuck": True}]
+    steps = 30
+    tr = ss.simulate(ring, keep_y=True, steps=steps)
+    missing = np.zeros((steps + 1, ring.m), dtype=bool)
+    missing[8:11, IDS.index(2)] = missing[9, IDS.index(4)] = True
+    path = tmp_path / "m.npz"
+    write_measurements(path, t=tr.t, y=tr.y, agent_ids=ring.agent_ids, sizes=[1] * ring.m, missing=missing, x=tr.x)
+    meas = load_measurements(path, ring)
+    run = ss.simulate(ring, measurements=meas, faults=faults)
+    plant_run = ss.simulate(ring, keep_y=True, steps=steps, faults=faults)
+    given = np.where(missing, meas.y, plant_run.y)  # one output per agent: a column per agent
+    given[10:, IDS.index(4)] = tr.y[8, IDS.index(4)]  # stuck at 10 holds y_4(8): its measurement at 9 is missing
+    np.testing.assert_array_equal(run.y, given)
+    assert not np.array_equal(run.y, meas.y) and np.array_equal(run.y_missing, missing)
+    np.testing.assert_array_equal(run.y[missing], meas.y[missing])
+    assert plant_run.y[10, IDS.index(4)] == tr.y[9, IDS.index(4)]  # the simulated plant's: y_4(9)
+    np.testing.assert_array_equal(run.xhat[:7], plant_run.xhat[:7])  # y(6) is used from step 7 on
+    sc = dataclasses.replace(ring, faults=parse(faults))
+    np.testing.assert_array_equal(given_measurements(sc, meas, ring.run.seed).y, run.y)
+    assert given_measurements(ring, meas, ring.run.seed) is meas  # no sensor fault: the file as it is
+
+
+def test_a_run_on_live_sensors_refuses_a_sensor_fault_in_one_line(tmp_path):
+    """Live sensors publish to the agents without a plant process: nothing would apply the fault, so `run` refuses
+    it in one line before any round."""
+    import yaml
+
+    from tests.conftest import ROOT
+    from tests.integration.runtime_helpers import run
+
+    raw = yaml.safe_load((ROOT / "examples" / "sensors" / "chain.yaml").read_text())
+    raw["faults"] = [{"at": 2, "corrupt": 1, "for": 3, "noise": 0.1}]
+    scen = tmp_path / "lying_chain.yaml"
+    scen.write_text(yaml.safe_dump(raw))
+    r = run("run", scen, "--out", tmp_path / "out", timeout=60)
+    err = [line for line in r.stderr.splitlines() if line.startswith("splitspec: error:")]
+    assert r.returncode != 0 and len(err) == 1, r.stderr
+    assert "corrupt, repair faults are applied by the plant process" in err[0] and "live sensors" in err[0]
+    assert "Traceback" not in r.stderr
+    assert not (tmp_path / "out" / "trajectory.npz").exists()
