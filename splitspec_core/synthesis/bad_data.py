@@ -164,21 +164,25 @@ def _fallback(des: Design, agent_id: int, graphs: list) -> Fallback:
     per_rate = sc.time == "continuous" and des.consensus != "whole"
     radius = {name: fallback_radius(des, agent_id, gi) for gi, name in graphs}
     lam = des.rate
+    target, against = lam, f"rate {lam:g}"
+    if sc.time == "continuous" and not per_rate:  # the whole-state design's per-step radius: exp(-rate run.dt)
+        target = math.exp(-lam * sc.run.dt)
+        against = f"exp(-rate dt) = {target:.5g} (rate {lam:g} /s)"
     if per_rate:
         certified = all(r >= lam for r in radius.values())
         stable = all(r > 0 for r in radius.values())
         worst = min(radius.values())
         what = f"decay rate {worst:.4g}"
     else:
-        certified = all(r <= lam for r in radius.values())
+        certified = all(r <= target for r in radius.values())
         stable = all(r < 1 for r in radius.values())
         worst = max(radius.values())
         what = f"radius {worst:.4g}"
     scope = "every graph held constant" if len(graphs) > 1 else f"graph {graphs[0][1]}"
     if certified:
-        text = f"agent {agent_id}'s sensor can be lost: {what} meets rate {lam:g} ({scope})"
+        text = f"agent {agent_id}'s sensor can be lost: {what} meets {against} ({scope})"
     elif stable:
-        text = (f"agent {agent_id}'s sensor can be lost at a slower rate: {what} against rate {lam:g} ({scope}); "
+        text = (f"agent {agent_id}'s sensor can be lost at a slower rate: {what} against {against} ({scope}); "
                 "not certified at the rate")
     else:
         others = [a for a in sc.agent_ids if a != agent_id]

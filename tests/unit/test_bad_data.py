@@ -237,3 +237,24 @@ def test_continuous_time_batch_and_agent_loop_agree_and_agent_3_cannot_be_lost()
     lines = report_lines(des)
     assert "steps of run.dt = 0.01 after its start" in lines[0]
     assert lines[3].startswith("agent 3's sensor cannot be lost: the others leave 2 directions unobserved")
+
+
+def test_the_whole_state_fallback_in_continuous_time_is_held_to_the_per_step_rate():
+    """The whole-state design runs on the sampled model: its fallback's radius per step is held to exp(-rate dt),
+    not to the rate itself (each sensor's verdict follows from its radii against that number)."""
+    import math
+
+    raw = yaml.safe_load((EXAMPLES / "paper_continuous.yaml").read_text())
+    raw["system"].update(measurement_noise=0.05, process_noise=0.05)
+    raw["design"].update(bad_data=ON, consensus="whole", gains="optimal")
+    for key in ("g", "K", "g0"):
+        raw["design"].pop(key, None)
+    des = design(parse_scenario_text(yaml.safe_dump(raw), source="paper_continuous"))
+    assert des.consensus == "whole"
+    target = math.exp(-des.rate * des.scenario.run.dt)
+    bd = bad_data(des)
+    for fb in bd.fallbacks:
+        assert fb.certified == all(r <= target for r in fb.radius.values()), fb
+        if fb.stable:
+            assert f"exp(-rate dt) = {target:.5g}" in fb.text, fb.text
+    assert any(fb.stable for fb in bd.fallbacks)
