@@ -68,6 +68,7 @@ from .rounds import actions as A
 from .rounds.machine import RoundMachine
 from .rounds.tally import RunTally
 from .records.outdir import OutputDirError, check_output_dir
+from .records.events import event_text
 
 log = logging.getLogger("splitspec.orchestrator")
 
@@ -143,7 +144,9 @@ def _sensor_events(rec, watch: Watch | None, sc, a) -> None:
         return
     t = a.tau * sc.run.dt if sc.time == "continuous" else float(a.tau)
     for _, agent, event, d, threshold in watch.row(a.tau, a.alive, a.columns["y_statistic"]):
-        rec.event(event, t, agent=int(agent), statistic=float(d), threshold=float(threshold))
+        fields = {"agent": int(agent), "statistic": float(d), "threshold": float(threshold)}
+        rec.event(event, t, **fields)
+        log.warning("event time %d: %s", a.tau, event_text(event, fields))
 
 
 def _check_sensor_faults(sc) -> None:

@@ -66,6 +66,10 @@ _TEXTS = {
                              "(prediction only until it is back)",
     "sensor_back": lambda f: f"agent {f.get('agent')}'s sensor back at event time {f.get('tau')} (silent for "
                              f"{f.get('silent')} event times)",
+    "sensor_suspect": lambda f: f"agent {f.get('agent')}'s sensor suspect (statistic {f.get('statistic'):.4g} over "
+                                f"{f.get('threshold'):.4g}): it estimates from its neighbours alone",
+    "sensor_restored": lambda f: f"agent {f.get('agent')}'s sensor restored (statistic {f.get('statistic'):.4g} under "
+                                 f"{f.get('threshold'):.4g})",
     "round_retried": lambda f: f"round {f.get('tau')} re-run (attempt {f.get('attempt')}; late: {f.get('late')})",
     "run_started": lambda f: f"run started ({len(f.get('agents', []))} agents, "
                              + (f"{f['steps']} steps)" if f.get("steps") is not None else "until stopped)"),

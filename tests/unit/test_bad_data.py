@@ -258,3 +258,13 @@ def test_the_whole_state_fallback_in_continuous_time_is_held_to_the_per_step_rat
         if fb.stable:
             assert f"exp(-rate dt) = {target:.5g}" in fb.text, fb.text
     assert any(fb.stable for fb in bd.fallbacks)
+
+
+def test_the_sensor_events_read_as_sentences():
+    """The Rerun log and the terminal say what happened, not the event's raw fields."""
+    from splitspec_orchestrator.records.events import event_text
+
+    assert event_text("sensor_suspect", {"agent": 3, "statistic": 192.93, "threshold": 19.51}) == \
+        "agent 3's sensor suspect (statistic 192.9 over 19.51): it estimates from its neighbours alone"
+    assert event_text("sensor_restored", {"agent": 3, "statistic": 0.4, "threshold": 19.51}) == \
+        "agent 3's sensor restored (statistic 0.4 under 19.51)"
