@@ -48,7 +48,7 @@ from splitspec_core.model.local_design import central_part, directions_of, scena
 from splitspec_core.scenarios.load import parse_scenario_text
 from splitspec_core.model.plant import initial_estimate, output_rows
 from splitspec_core.model.rows import report
-from splitspec_core.model.screening import UNTESTED
+from splitspec_core.model.screening import FLATLINE, UNTESTED
 from splitspec_core.runtime.ticks import TickNetwork
 from splitspec_core.runtime.wire import Keys, WireError, decode, encode
 
@@ -130,8 +130,9 @@ class AgentNode:
         # (suspect, run) of x_i(tau) and the event time this incarnation started
         bd = config.get("bad_data")
         self.bad = None if bd is None else (np.asarray(bd["S_inv"], dtype=float).reshape(self.s, self.s),
-                                            float(bd["threshold"]), int(bd["suspect_after"]), int(bd["warmup"]))
-        self.watch = (False, 0)
+                                            float(bd["threshold"]), int(bd["suspect_after"]), int(bd["warmup"]),
+                                            bool(bd.get("flatline", False)))
+        self.watch = (False, 0, None)  # suspect, failures (or clean tests) in a row, the last measurement given
         self.since = 0
         # a misbehaving network (splitspec_core.model.impairment): the same draws as the simulator's, a deadline per
         # sub-round, messages held for their delay; the clock is only read when a deadline or a delay is set
@@ -214,7 +215,7 @@ class AgentNode:
             self.x = initial_estimate(self.n, self.seed, self.index, self.incarnation)
             self.g = self.g0
             self.tau = tau
-            self.watch, self.since = (False, 0), tau  # a fresh sensor watch (model/screening.py: Screen.reset)
+            self.watch, self.since = (False, 0, None), tau  # a fresh sensor watch (model/screening.py: Screen.reset)
             out.append(self._xhat(tau, attempt, self.x, report(g=self.g)))
         # drop buffers of older rounds
         self.zbuf = {k: v for k, v in self.zbuf.items() if (k[0], k[1]) >= (tau, attempt)}
@@ -443,14 +444,21 @@ class AgentNode:
         r["watch"] = self.watch
         if self.bad is None:
             return y
-        S_inv, threshold, k, warmup = self.bad
-        if y is None or r["tau"] - self.since < warmup:
+        S_inv, threshold, k, warmup, flat = self.bad
+        if y is None:
             r["stat"] = UNTESTED
             return y
-        d, failed = st.innovation_test(np.asarray(y, dtype=float), self.C, z, S_inv, threshold)
+        y_i = np.array(y, dtype=float)
+        if r["tau"] - self.since < warmup:
+            r["stat"] = UNTESTED
+            r["watch"] = (self.watch[0], self.watch[1], y_i)
+            return y
+        d, failed = st.innovation_test(y_i, self.C, z, S_inv, threshold)
+        if flat and st.flatline(y_i, self.watch[2]):
+            d, failed = FLATLINE, True
         r["stat"] = d
         suspect, run, _ = st.sensor_watch(self.watch[0], self.watch[1], failed, k)
-        r["watch"] = (suspect, run)
+        r["watch"] = (suspect, run, y_i)
         if self.watch[0] or failed:
             r["set_aside"] = True
             return None

@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 
 from splitspec_core.scenarios.faults import fault_event_text
+from splitspec_core.model.screening import FLATLINE
 
 __all__ = ["EVENTS_FILE", "EventLog", "event_text", "event_level", "json_default"]
 
@@ -66,8 +67,9 @@ _TEXTS = {
                              "(prediction only until it is back)",
     "sensor_back": lambda f: f"agent {f.get('agent')}'s sensor back at event time {f.get('tau')} (silent for "
                              f"{f.get('silent')} event times)",
-    "sensor_suspect": lambda f: f"agent {f.get('agent')}'s sensor suspect (statistic {f.get('statistic'):.4g} over "
-                                f"{f.get('threshold'):.4g}): it estimates from its neighbours alone",
+    "sensor_suspect": lambda f: f"agent {f.get('agent')}'s sensor suspect (" + (
+        "its measurement repeats exactly: stuck" if f.get("statistic") == FLATLINE else
+        f"statistic {f.get('statistic'):.4g} over {f.get('threshold'):.4g}") + "): it estimates from its neighbours alone",
     "sensor_restored": lambda f: f"agent {f.get('agent')}'s sensor restored (statistic {f.get('statistic'):.4g} under "
                                  f"{f.get('threshold'):.4g})",
     "round_retried": lambda f: f"round {f.get('tau')} re-run (attempt {f.get('attempt')}; late: {f.get('late')})",

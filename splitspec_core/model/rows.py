@@ -126,8 +126,8 @@ COLUMNS = (
            "test (failed, or its sensor suspect) and not used; False where used, dead, in the last row, or without "
            "design.bad_data", reported="round", label="measurements set aside (bad data)"),
     Column("y_statistic", "agent", "float64", -1.0, "", "agent i's bad-data statistic d_i = r_i' S_i^-1 r_i of the "
-           "round of tau; -1 where nothing was tested (no measurement, its warm-up, dead, the last row, or without "
-           "design.bad_data)",
+           "round of tau; -2 for a measurement repeating the last one exactly (a stuck sensor); -1 where nothing was "
+           "tested (no measurement, its warm-up, dead, the last row, or without design.bad_data)",
            reported="round", label="bad-data statistic d_i", only_with_bad_data=True),
     Column("wall", "row", "int64", 0, "ns", "time.time_ns() of the row's arrival (run only)", npz=False),
     Column("round", "round", "float64", NAN, "", "the round's " + ", ".join(ROUND_FIELDS) + " (run only)",

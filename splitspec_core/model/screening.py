@@ -17,10 +17,13 @@ import numpy as np
 from . import steps as st
 from .plant import output_rows
 
-__all__ = ["UNTESTED", "Screen", "Watch", "sensor_events"]
+__all__ = ["UNTESTED", "FLATLINE", "Screen", "Watch", "sensor_events"]
 
 #: ``y_statistic`` where nothing was tested (the watch holds): the fill of the row column
 UNTESTED = -1.0
+#: ``y_statistic`` of a measurement that repeats the last one exactly (:func:`~splitspec_core.model.steps.flatline`,
+#: a failed test whatever ``d_i``): ``d_i >= 0`` otherwise, so the code is unambiguous and finite on the wire
+FLATLINE = -2.0
 
 
 class Screen:
@@ -40,6 +43,8 @@ class Screen:
         self.threshold = [t.threshold for t in bd.tests]
         self.k = bd.suspect_after
         self.warmup = bd.warmup
+        self.flat = bd.flatline  # the repeat test (off with live sensors, which may repeat a sample)
+        self.last: list = [None] * m  # per agent, the last measurement it was given in this incarnation
         self.suspect = np.zeros(m, dtype=bool)
         self.run = np.zeros(m, dtype=np.int64)
         self.since = np.zeros(m, dtype=np.int64)  # the first event time of the agent's incarnation (-1: the next)
@@ -58,6 +63,7 @@ class Screen:
         self.suspect[i] = False
         self.run[i] = 0
         self.since[i] = -1
+        self.last[i] = None
 
     def fallback(self, Ps) -> list:
         """The projections of this event time's consensus: ``I`` for the suspect sensors' agents, ``P_i`` else.
@@ -102,10 +108,15 @@ class Screen:
         for i in np.flatnonzero(alive):
             if self.since[i] < 0:
                 self.since[i] = tau
-            if out[i] or tau - self.since[i] < self.warmup:
-                self.statistic[i] = UNTESTED
+            if out[i]:
                 continue
-            d, failed = st.innovation_test(y[self.rows[i]], self.Cs[i], Z[i], self.S_inv[i], self.threshold[i])
+            y_i, last = y[self.rows[i]], self.last[i]
+            self.last[i] = np.array(y_i, dtype=float)
+            if tau - self.since[i] < self.warmup:
+                continue
+            d, failed = st.innovation_test(y_i, self.Cs[i], Z[i], self.S_inv[i], self.threshold[i])
+            if self.flat and st.flatline(y_i, last):
+                d, failed = FLATLINE, True
             self.statistic[i] = d
             used = not (self.suspect[i] or failed)
             self.suspect[i], self.run[i], event = st.sensor_watch(bool(self.suspect[i]), int(self.run[i]), failed,
@@ -153,8 +164,9 @@ class Watch:
                 continue
             if not np.isfinite(d) or d == UNTESTED:
                 continue
-            self.suspect[i], self.run[i], event = st.sensor_watch(bool(self.suspect[i]), int(self.run[i]),
-                                                                  d > self.threshold[i], self.k)
+            failed = d == FLATLINE or d > self.threshold[i]
+            self.suspect[i], self.run[i], event = st.sensor_watch(bool(self.suspect[i]), int(self.run[i]), failed,
+                                                                  self.k)
             if event is not None:
                 out.append((tau, aid, event, d, float(self.threshold[i])))
         return out

@@ -64,6 +64,7 @@ __all__ = [
     "known_input",
     "measurement_update",
     "prediction_update",
+    "flatline",
     "sampled_data_matrices",
     "sampled_step",
     "adaptive_gain_rate",
@@ -404,6 +405,35 @@ def innovation_test(y_i: np.ndarray, C_i: np.ndarray, z: np.ndarray, S_inv: np.n
     r = y_i - C_i @ z
     d = float(r @ (S_inv @ r))
     return d, d > threshold
+
+
+def flatline(y_i: np.ndarray, last: np.ndarray | None) -> bool:
+    """A stuck sensor's sign: ``y_i(tau)`` repeats the last measurement the agent was given, bit for bit.
+
+    Under measurement noise with a density (``design.bad_data`` needs ``R_i`` positive definite) two samples are
+    equal with probability zero, so the repeat fails the test whatever the chi-square statistic says: a sensor
+    holding its last value on a slowly moving signal stays inside the chi-square threshold for many event times
+    (issue 37: the IEEE 14-bus PMU angles).
+
+    Parameters
+    ----------
+    y_i : (s_i,) ndarray
+        The measurement of ``tau``.
+    last : (s_i,) ndarray or None
+        The last measurement given before it (None: none yet in this incarnation).
+
+    Returns
+    -------
+    bool
+        True if ``y_i`` equals ``last`` exactly.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> flatline(np.array([1.0, 2.0]), np.array([1.0, 2.0])), flatline(np.array([1.0, 2.0]), None)
+    (True, False)
+    """
+    return last is not None and np.array_equal(y_i, last)
 
 
 def sensor_watch(suspect: bool, run: int, failed: bool | None, k: int) -> tuple:

@@ -90,6 +90,7 @@ class BadData:
     warmup: int
     tests: tuple
     fallbacks: tuple
+    flatline: bool = True
 
     def test_of(self, agent_id: int) -> SensorTest:
         """Agent ``agent_id``'s :class:`SensorTest`.
@@ -255,7 +256,9 @@ def bad_data(des: Design) -> BadData | None:
     fallbacks = tuple(_fallback(des, aid, graphs) for aid in sc.agent_ids)
     lam = des.rate
     settle = math.log(1e3) / (-math.log(lam) if sc.time == "discrete" else lam * sc.run.dt)
-    return BadData(p, k, int(math.ceil(settle)), tuple(tests), fallbacks)
+    # the repeat test (model/steps.py flatline) on the plant's and a file's measurements; a live sensor slower than
+    # the rounds gives the same sample twice (agents/sensor.py LiveSampler.take), so not there
+    return BadData(p, k, int(math.ceil(settle)), tuple(tests), fallbacks, flatline=not sc.sources)
 
 
 def agent_config(des: Design, process) -> dict:
@@ -272,7 +275,8 @@ def agent_config(des: Design, process) -> dict:
     Returns
     -------
     dict
-        ``{"bad_data": {"S_inv": nested list, "threshold": float, "suspect_after": int, "warmup": int}}``: the
+        ``{"bad_data": {"S_inv": nested list, "threshold": float, "suspect_after": int, "warmup": int, "flatline":
+        bool}}``: the
         numbers the simulator uses; ``{}`` when ``design.bad_data`` is off.
     """
     bd = bad_data(des)
@@ -280,7 +284,7 @@ def agent_config(des: Design, process) -> dict:
         return {}
     t = bd.test_of(process.ident)
     return {"bad_data": {"S_inv": t.S_inv.tolist(), "threshold": t.threshold, "suspect_after": bd.suspect_after,
-                         "warmup": bd.warmup}}
+                         "warmup": bd.warmup, "flatline": bd.flatline}}
 
 
 def report_lines(des: Design) -> list:
@@ -304,6 +308,8 @@ def report_lines(des: Design) -> list:
     which = ", ".join(f"{v:.4g} for s_i = {s}" for s, v in sorted(thresholds.items()))
     lines = [f"bad data: each agent tests r_i' S_i^-1 r_i against chi2(s_i) at false alarm {bd.false_alarm:g} "
              f"(threshold {which}) from {bd.warmup} {steps} after its start; suspect after {bd.suspect_after} "
-             f"failures in a row, restored after {bd.suspect_after} clean tests"]
+             f"failures in a row, restored after {bd.suspect_after} clean tests"
+             + ("; a measurement repeating the last one exactly fails (a stuck sensor)" if bd.flatline else
+                "; no repeat test (live sensors may give a sample twice)")]
     lines += [f.text for f in bd.fallbacks]
     return lines

@@ -54,3 +54,28 @@ def test_corrupted_sensor_and_killed_agent_for_real_equal_simulate(tmp_path, con
     rrd = read_rrd(out / "run.rrd")
     assert [tau for tau, _ in rrd["marks/suspect"]] == [int(e["t"]) for e in ev if e["event"] == "sensor_suspect"]
     assert [tau for tau, _ in rrd["marks/restored"]] == [int(e["t"]) for e in ev if e["event"] == "sensor_restored"]
+
+
+def test_a_stuck_sensor_for_real_is_caught_by_its_repeats_as_simulate_does(tmp_path):
+    """The plant process holds agent 3's measurement (corrupt ... stuck): each agent process's repeat test fails it
+    from the first repeat, as the simulator's does; the records and the events agree with simulate."""
+    from splitspec_core.model.screening import FLATLINE
+
+    raw = yaml.safe_load((EXAMPLES / "ring10_noise.yaml").read_text())
+    raw["design"]["bad_data"] = {"false_alarm": 1e-5, "suspect_after": 3}
+    raw["faults"] = [{"at": 40, "corrupt": 3, "for": 15, "stuck": True}, {"at": 45, "kill": 5, "for": 8}]
+    raw["run"] = {"steps": 70, "seed": 2}
+    scen = tmp_path / "stuck.yaml"
+    scen.write_text(yaml.safe_dump(raw))
+    out = tmp_path / "out"
+    r = run("run", scen, "--out", out, "--run-id", "t" + uuid.uuid4().hex[:10])
+    assert r.returncode == 0, r.stdout + r.stderr
+    compare_with_simulate(out, scen, tmp_path)
+    ran = np.load(out / "trajectory.npz")
+    k = list(ran["agent_ids"]).index(3)
+    assert (ran["y_statistic"][40:55, k] == FLATLINE).all() and (ran["y_statistic"][:40] != FLATLINE).all()
+    ev = [(e["t"], e["agent"], e["event"]) for e in events(out) if e["event"].startswith("sensor_")
+          and e["event"] != "sensor_corrupted" and e["event"] != "sensor_repaired"]
+    assert ev == [(42.0, 3, "sensor_suspect"), (57.0, 3, "sensor_restored")]
+    rrd = read_rrd(out / "run.rrd")
+    assert [tau for tau, _ in rrd["marks/suspect"]] == [42]

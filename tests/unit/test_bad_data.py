@@ -268,3 +268,36 @@ def test_the_sensor_events_read_as_sentences():
         "agent 3's sensor suspect (statistic 192.9 over 19.51): it estimates from its neighbours alone"
     assert event_text("sensor_restored", {"agent": 3, "statistic": 0.4, "threshold": 19.51}) == \
         "agent 3's sensor restored (statistic 0.4 under 19.51)"
+
+
+def test_a_stuck_sensor_is_caught_by_its_repeats_at_once():
+    """A sensor holding its last value (corrupt ... stuck): the chi-square test alone lets it through while the
+    signal has not moved far (the IEEE 14-bus PMU angles); the repeat test fails it at its first repeat, reported as
+    y_statistic FLATLINE, and the replayed watch (the orchestrator's events) agrees with the simulator's."""
+    from splitspec_core.model.screening import FLATLINE
+    from splitspec_orchestrator.records.events import event_text
+
+    des = design(ring10_noise(faults=[{"at": 200, "corrupt": 3, "stuck": True, "for": 60}], steps=300))
+    tr = simulate(des)
+    k = des.scenario.agent_ids.index(3)
+    assert (tr.columns["y_statistic"][200:260, k] == FLATLINE).all()
+    # set aside while stuck, and while suspect after it: 3 clean tests restore it (the third at 262)
+    assert tr.columns["y_rejected"][200:262, k].all() and not tr.columns["y_rejected"][263:299, k].any()
+    assert (tr.columns["y_statistic"][:200] != FLATLINE).all() and (tr.columns["y_statistic"][:, k != np.arange(10)]
+                                                                   != FLATLINE).all()
+    ev = sensor_events(tr, bad_data(des))
+    assert [(e[0], e[1], e[2]) for e in ev] == [(202, 3, "sensor_suspect"), (262, 3, "sensor_restored")]
+    assert "repeats exactly: stuck" in event_text("sensor_suspect", {"agent": 3, "statistic": ev[0][3],
+                                                                     "threshold": ev[0][4]})
+    assert "a measurement repeating the last one exactly fails" in report_lines(des)[0]
+
+
+def test_live_sensors_have_no_repeat_test():
+    """A live sensor slower than the rounds gives its sample twice: the repeat test is off there, and says so."""
+    raw = yaml.safe_load((EXAMPLES / "ring10_noise.yaml").read_text())
+    raw["design"]["bad_data"] = ON
+    raw["sources"] = {i: f"sensors/{i}" for i in range(1, 11)}
+    raw["run"] = {**raw.get("run", {}), "pace": 10}
+    des = design(parse_scenario_text(yaml.safe_dump(raw), source="live"))
+    assert bad_data(des).flatline is False
+    assert "no repeat test" in report_lines(des)[0]
