@@ -3,8 +3,9 @@
 :class:`Screen` runs :func:`~splitspec_core.model.steps.innovation_test` and
 :func:`~splitspec_core.model.steps.sensor_watch` for every alive agent of one event time, exactly as each agent
 process does for itself (:mod:`splitspec_core.synthesis.bad_data` for the math), and keeps what the round reports:
-``y_statistic`` (``d_i``; ``-1.0`` for an alive agent with nothing tested: no measurement, or in its first
-``warmup`` event times after its admission, while its initial error settles) and ``y_rejected``
+``y_statistic`` (``d_i``; ``-1.0`` for an alive agent with nothing tested: no measurement, or one of its first
+``warmup`` measurements after its admission, while its initial error settles: :func:`~splitspec_core.model.steps.
+warmup_step`) and ``y_rejected``
 (the measurement was set aside: failed, or its sensor suspect).  :class:`Watch` replays the watch on recorded rows
 (``alive``, ``y_statistic``) and says when a sensor became suspect and when it was restored: the orchestrator's
 ``sensor_suspect`` / ``sensor_restored`` events, and :func:`sensor_events` for a simulated trajectory.
@@ -42,7 +43,7 @@ class Screen:
         self.warmup = bd.warmup
         self.suspect = np.zeros(m, dtype=bool)
         self.run = np.zeros(m, dtype=np.int64)
-        self.since = np.zeros(m, dtype=np.int64)  # the first event time of the agent's incarnation (-1: the next)
+        self.seen = np.zeros(m, dtype=np.int64)  # the measurements of the agent's incarnation (its warm-up)
         self.statistic = np.full(m, UNTESTED)
         self.rejected = np.zeros(m, dtype=bool)
         self.events: list = []
@@ -57,7 +58,7 @@ class Screen:
         """
         self.suspect[i] = False
         self.run[i] = 0
-        self.since[i] = -1
+        self.seen[i] = 0
 
     def fallback(self, Ps) -> list:
         """The projections of this event time's consensus: ``I`` for the suspect sensors' agents, ``P_i`` else.
@@ -100,11 +101,9 @@ class Screen:
         self.statistic = np.full(m, UNTESTED)
         self.rejected = np.zeros(m, dtype=bool)
         for i in np.flatnonzero(alive):
-            if self.since[i] < 0:
-                self.since[i] = tau
-            if out[i] or tau - self.since[i] < self.warmup:
-                self.statistic[i] = UNTESTED
-                continue
+            self.seen[i], tested = st.warmup_step(int(self.seen[i]), not out[i], self.warmup)
+            if not tested:
+                continue  # statistic UNTESTED
             d, failed = st.innovation_test(y[self.rows[i]], self.Cs[i], Z[i], self.S_inv[i], self.threshold[i])
             self.statistic[i] = d
             used = not (self.suspect[i] or failed)
