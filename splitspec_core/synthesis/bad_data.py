@@ -303,7 +303,7 @@ def report_lines(des: Design) -> list:
     steps = "event times" if des.time == "discrete" else f"steps of run.dt = {des.scenario.run.dt:g}"
     which = ", ".join(f"{v:.4g} for s_i = {s}" for s, v in sorted(thresholds.items()))
     lines = [f"bad data: each agent tests r_i' S_i^-1 r_i against chi2(s_i) at false alarm {bd.false_alarm:g} "
-             f"(threshold {which}), its first {bd.warmup} measurements ({steps}) untested; suspect after {bd.suspect_after} "
-             f"failures in a row, restored after {bd.suspect_after} clean tests"]
+             f"(threshold {which}), its first {bd.warmup} measurements ({steps}) untested; suspect after "
+             f"{bd.suspect_after} failures in a row, restored after {bd.suspect_after} clean tests"]
     lines += [f.text for f in bd.fallbacks]
     return lines
