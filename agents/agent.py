@@ -127,13 +127,13 @@ class AgentNode:
         self.record_y = bool(config.get("record_y", False))  # report the y_i used (measurements, live sensors)
         self.rejected: dict = {}
         # design.bad_data (splitspec_core.synthesis.bad_data): the design's S_i^-1, threshold, k and warm-up; the watch
-        # (suspect, run) of x_i(tau) and the event time this incarnation started
+        # (suspect, run, measurements seen by this incarnation: its warm-up) of x_i(tau)
         bd = config.get("bad_data")
         self.bad = None if bd is None else (np.asarray(bd["S_inv"], dtype=float).reshape(self.s, self.s),
                                             float(bd["threshold"]), int(bd["suspect_after"]), int(bd["warmup"]),
                                             bool(bd.get("flatline", False)))
-        self.watch = (False, 0, None)  # suspect, failures (or clean tests) in a row, the last measurement given
-        self.since = 0
+        # suspect, failures (or clean tests) in a row, measurements seen (the warm-up), the last measurement given
+        self.watch = (False, 0, 0, None)
         # a misbehaving network (splitspec_core.model.impairment): the same draws as the simulator's, a deadline per
         # sub-round, messages held for their delay; the clock is only read when a deadline or a delay is set
         net = sc.network
@@ -215,7 +215,7 @@ class AgentNode:
             self.x = initial_estimate(self.n, self.seed, self.index, self.incarnation)
             self.g = self.g0
             self.tau = tau
-            self.watch, self.since = (False, 0, None), tau  # a fresh sensor watch (model/screening.py: Screen.reset)
+            self.watch = (False, 0, 0, None)  # a fresh sensor watch and warm-up (model/screening.py: Screen.reset)
             out.append(self._xhat(tau, attempt, self.x, report(g=self.g)))
         # drop buffers of older rounds
         self.zbuf = {k: v for k, v in self.zbuf.items() if (k[0], k[1]) >= (tau, attempt)}
@@ -445,20 +445,19 @@ class AgentNode:
         if self.bad is None:
             return y
         S_inv, threshold, k, warmup, flat = self.bad
-        if y is None:
+        seen, tested = st.warmup_step(self.watch[2], y is not None, warmup)
+        last = self.watch[3]
+        y_i = None if y is None else np.array(y, dtype=float)
+        r["watch"] = self.watch[:2] + (seen, last if y_i is None else y_i)
+        if not tested:
             r["stat"] = UNTESTED
-            return y
-        y_i = np.array(y, dtype=float)
-        if r["tau"] - self.since < warmup:
-            r["stat"] = UNTESTED
-            r["watch"] = (self.watch[0], self.watch[1], y_i)
             return y
         d, failed = st.innovation_test(y_i, self.C, z, S_inv, threshold)
-        if flat and st.flatline(y_i, self.watch[2]):
+        if flat and st.flatline(y_i, last):
             d, failed = FLATLINE, True
         r["stat"] = d
         suspect, run, _ = st.sensor_watch(self.watch[0], self.watch[1], failed, k)
-        r["watch"] = (suspect, run, y_i)
+        r["watch"] = (suspect, run, seen, y_i)
         if self.watch[0] or failed:
             r["set_aside"] = True
             return None

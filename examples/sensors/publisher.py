@@ -8,6 +8,9 @@ random ``--jitter``) the chain moves by the exact solution of its ODE over the t
 as the JSON object ``{"y": [...], "t": <wall-clock seconds, time.time()>}``; with probability ``--dropout``
 a sensor skips a sample.
 
+``--bias B --bias-agent I --bias-from K --bias-samples N`` makes agent I's sensor lie: ``y_i + B`` (every output)
+for N samples from sample K (0-based; default: to the end), for trying ``design.bad_data``; the truth is untouched.
+
 ``--record FILE.csv`` writes what was published in the measurements format ``splitspec simulate
 --measurements`` reads: ``t, y<id>.<row>..., x.<k>...`` (1-based; ``t`` the wall clock; an empty cell: that
 sensor dropped the sample), one row per sample: at ``--rate`` = ``run.pace`` a row is an event time.
@@ -77,6 +80,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--duration", type=float, default=float("inf"), help="stop after this many seconds")
     p.add_argument("--samples", type=int, help="stop after this many samples")
     p.add_argument("--record", metavar="FILE.csv", help="also write the samples and the truth as a measurements CSV")
+    p.add_argument("--bias", type=float, default=0.0, help="a sensor that lies: add B to every output of "
+                   "--bias-agent's sensor (what is published and recorded; the truth is untouched)")
+    p.add_argument("--bias-agent", type=int, help="the agent whose sensor lies (with --bias)")
+    p.add_argument("--bias-from", type=int, default=0, metavar="K", help="the first biased sample (0-based)")
+    p.add_argument("--bias-samples", type=int, metavar="N", help="biased samples (default: to the end)")
     return p
 
 
@@ -149,6 +157,8 @@ def main(args: argparse.Namespace) -> int:
     if unknown:
         raise SystemExit(f"publisher: error: --agents {unknown[0]}: the scenario's sources are for agents "
                          f"{', '.join(map(str, sorted(sources)))}")
+    if args.bias and args.bias_agent not in ids:
+        raise SystemExit(f"publisher: error: --bias needs --bias-agent, one of {', '.join(map(str, ids))}")
     rate = args.rate or float(raw["run"]["pace"])
     pnoise = float(raw["system"].get("process_noise", 0.0))
     mnoise = float(raw["system"].get("measurement_noise", 0.0))
@@ -196,8 +206,11 @@ def main(args: argparse.Namespace) -> int:
             last = now
             stamp = time.time()  # the sensor's own clock: wall-clock seconds (the agents only order by it)
             cells = []
+            lying = args.bias_from <= k and (args.bias_samples is None or k < args.bias_from + args.bias_samples)
             for i in ids:
                 y = Cs[i] @ x + mnoise * rng.standard_normal(Cs[i].shape[0])
+                if lying and i == args.bias_agent:
+                    y = y + args.bias
                 sent = i in pubs and rng.uniform() >= args.dropout
                 if sent:
                     pubs[i].put(json.dumps({"y": y.tolist(), "t": stamp}))

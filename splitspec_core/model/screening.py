@@ -3,8 +3,9 @@
 :class:`Screen` runs :func:`~splitspec_core.model.steps.innovation_test` and
 :func:`~splitspec_core.model.steps.sensor_watch` for every alive agent of one event time, exactly as each agent
 process does for itself (:mod:`splitspec_core.synthesis.bad_data` for the math), and keeps what the round reports:
-``y_statistic`` (``d_i``; ``-1.0`` for an alive agent with nothing tested: no measurement, or in its first
-``warmup`` event times after its admission, while its initial error settles) and ``y_rejected``
+``y_statistic`` (``d_i``; ``-1.0`` for an alive agent with nothing tested: no measurement, or one of its first
+``warmup`` measurements after its admission, while its initial error settles: :func:`~splitspec_core.model.steps.
+warmup_step`) and ``y_rejected``
 (the measurement was set aside: failed, or its sensor suspect).  :class:`Watch` replays the watch on recorded rows
 (``alive``, ``y_statistic``) and says when a sensor became suspect and when it was restored: the orchestrator's
 ``sensor_suspect`` / ``sensor_restored`` events, and :func:`sensor_events` for a simulated trajectory.
@@ -47,7 +48,7 @@ class Screen:
         self.last: list = [None] * m  # per agent, the last measurement it was given in this incarnation
         self.suspect = np.zeros(m, dtype=bool)
         self.run = np.zeros(m, dtype=np.int64)
-        self.since = np.zeros(m, dtype=np.int64)  # the first event time of the agent's incarnation (-1: the next)
+        self.seen = np.zeros(m, dtype=np.int64)  # the measurements of the agent's incarnation (its warm-up)
         self.statistic = np.full(m, UNTESTED)
         self.rejected = np.zeros(m, dtype=bool)
         self.events: list = []
@@ -62,7 +63,7 @@ class Screen:
         """
         self.suspect[i] = False
         self.run[i] = 0
-        self.since[i] = -1
+        self.seen[i] = 0
         self.last[i] = None
 
     def fallback(self, Ps) -> list:
@@ -106,14 +107,13 @@ class Screen:
         self.statistic = np.full(m, UNTESTED)
         self.rejected = np.zeros(m, dtype=bool)
         for i in np.flatnonzero(alive):
-            if self.since[i] < 0:
-                self.since[i] = tau
+            self.seen[i], tested = st.warmup_step(int(self.seen[i]), not out[i], self.warmup)
             if out[i]:
                 continue
             y_i, last = y[self.rows[i]], self.last[i]
             self.last[i] = np.array(y_i, dtype=float)
-            if tau - self.since[i] < self.warmup:
-                continue
+            if not tested:
+                continue  # statistic UNTESTED
             d, failed = st.innovation_test(y_i, self.Cs[i], Z[i], self.S_inv[i], self.threshold[i])
             if self.flat and st.flatline(y_i, last):
                 d, failed = FLATLINE, True

@@ -72,6 +72,7 @@ __all__ = [
     "step_matrices",
     "step_input",
     "innovation_test",
+    "warmup_step",
     "sensor_watch",
 ]
 
@@ -434,6 +435,38 @@ def flatline(y_i: np.ndarray, last: np.ndarray | None) -> bool:
     (True, False)
     """
     return last is not None and np.array_equal(y_i, last)
+
+
+def warmup_step(seen: int, measured: bool, warmup: int) -> tuple:
+    """One event time of an agent's warm-up: its first ``warmup`` measurements since its admission are used untested
+    (:mod:`splitspec_core.synthesis.bad_data`), counted in measurements, not event times: a sensor that starts late
+    (a live sensor started after the run, a recorded file whose first rows are empty) finds its agent's estimate
+    unsettled, whatever the clock says.
+
+    Parameters
+    ----------
+    seen : int
+        The agent's measurements since its admission so far (at most ``warmup``).
+    measured : bool
+        It has a measurement at this event time.
+    warmup : int
+        ``BadData.warmup``.
+
+    Returns
+    -------
+    tuple of (int, bool)
+        ``(seen, tested)`` after this event time: ``tested``, the measurement is tested.
+
+    Examples
+    --------
+    >>> warmup_step(0, False, 2), warmup_step(0, True, 2), warmup_step(1, True, 2), warmup_step(2, True, 2)
+    ((0, False), (1, False), (2, False), (2, True))
+    """
+    if not measured:
+        return seen, False
+    if seen < warmup:
+        return seen + 1, False
+    return seen, True
 
 
 def sensor_watch(suspect: bool, run: int, failed: bool | None, k: int) -> tuple:

@@ -22,10 +22,14 @@ The test
     the same floats.
 
 Warm-up
-    ``S_i`` is the steady state's: an agent's first event times after its admission (a fresh estimate) are not
-    tested, ``warmup`` of them, the time the certified envelope takes to fall by ``10^3``
+    ``S_i`` is the steady state's: an agent's first measurements after its admission (a fresh estimate) are used
+    untested, ``warmup`` of them, as many as the event times the certified envelope takes to fall by ``10^3``
     (``ceil(ln 1000 / -ln lam)`` event times in discrete time, ``ceil(ln 1000 / (lam dt))`` steps in continuous
-    time); else the initial error fails every test and the agent, using no measurement, never settles.
+    time); else the initial error fails every test and the agent, using no measurement, never settles.  Counted
+    in measurements, not event times (:func:`splitspec_core.model.steps.warmup_step`): an estimate does not settle
+    before its measurements come, and a stream may start late (a live sensor started after the run, a recorded
+    file whose first rows are empty: counted in event times, every agent's first measurements failed, all its
+    sensors became suspect and none was ever restored).
 
 Suspect and restored (:func:`splitspec_core.model.steps.sensor_watch`)
     ``suspect_after = k`` failed tests in a row make the sensor suspect: from the next event time its agent uses no
@@ -307,8 +311,8 @@ def report_lines(des: Design) -> list:
     steps = "event times" if des.time == "discrete" else f"steps of run.dt = {des.scenario.run.dt:g}"
     which = ", ".join(f"{v:.4g} for s_i = {s}" for s, v in sorted(thresholds.items()))
     lines = [f"bad data: each agent tests r_i' S_i^-1 r_i against chi2(s_i) at false alarm {bd.false_alarm:g} "
-             f"(threshold {which}) from {bd.warmup} {steps} after its start; suspect after {bd.suspect_after} "
-             f"failures in a row, restored after {bd.suspect_after} clean tests"
+             f"(threshold {which}), its first {bd.warmup} measurements ({steps}) untested; suspect after "
+             f"{bd.suspect_after} failures in a row, restored after {bd.suspect_after} clean tests"
              + ("; a measurement repeating the last one exactly fails (a stuck sensor)" if bd.flatline else
                 "; no repeat test (live sensors may give a sample twice)")]
     lines += [f.text for f in bd.fallbacks]

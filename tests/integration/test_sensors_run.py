@@ -27,9 +27,11 @@ CHAIN = ROOT / "examples" / "sensors" / "chain.yaml"
 PUBLISHER = ROOT / "examples" / "sensors" / "publisher.py"
 
 
-def chain(tmp_path: Path, steps: int) -> Path:
+def chain(tmp_path: Path, steps: int, bad_data: dict | None = None) -> Path:
     raw = yaml.safe_load(CHAIN.read_text())
     raw["run"]["steps"] = steps
+    if bad_data is not None:
+        raw["design"]["bad_data"] = bad_data
     path = tmp_path / "chain.yaml"
     path.write_text(yaml.safe_dump(raw))
     return path
@@ -38,9 +40,9 @@ def chain(tmp_path: Path, steps: int) -> Path:
 class SensorRun:
     """`splitspec run SCENARIO` in the background, and where its sensors publish (its ``sensors`` event)."""
 
-    def __init__(self, tmp_path: Path, steps: int, *extra):
+    def __init__(self, tmp_path: Path, steps: int, *extra, bad_data: dict | None = None):
         self.tmp, self.out, self.log = tmp_path, tmp_path / "out", tmp_path / "run.log"
-        self.scenario = chain(tmp_path, steps)
+        self.scenario = chain(tmp_path, steps, bad_data)
         self.proc = subprocess.Popen(cli("run", self.scenario, "--out", self.out, *extra), cwd=ROOT, env=ENV,
                                      stdout=open(self.log, "wb"), stderr=subprocess.STDOUT, start_new_session=True)
         self.sensors = wait_for_event(self.out, "sensors", timeout=30)
@@ -81,8 +83,8 @@ class SensorRun:
 def sensor_run(tmp_path):
     runs = []
 
-    def start(steps: int, *extra) -> SensorRun:
-        r = SensorRun(tmp_path, steps, *extra)
+    def start(steps: int, *extra, bad_data: dict | None = None) -> SensorRun:
+        r = SensorRun(tmp_path, steps, *extra, bad_data=bad_data)
         runs.append(r)
         return r
 
