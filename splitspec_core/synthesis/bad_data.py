@@ -57,6 +57,10 @@ from ..errors import DesignError
 from .design_data import Design, cached_analysis
 from .error_matrix import MAX_NOISE_DIM, error_dynamics, full_error_matrix
 
+#: how far inside the unit circle (per step; continuous split: times run.dt, of the decay rate) a fallback's radius
+#: must be to count as decaying: an eigenvalue of modulus 1 comes out within ~1e-15 of it either way
+STABLE_MARGIN = 1e-9
+
 __all__ = ["SensorTest", "Fallback", "BadData", "bad_data", "agent_config", "fallback_radius", "report_lines"]
 
 
@@ -173,14 +177,19 @@ def _fallback(des: Design, agent_id: int, graphs: list) -> Fallback:
     if sc.time == "continuous" and not per_rate:  # the whole-state design's per-step radius: exp(-rate run.dt)
         target = math.exp(-lam * sc.run.dt)
         against = f"exp(-rate dt) = {target:.5g} (rate {lam:g} /s)"
+    # directions only this sensor sees that do not decay: the fallback's radius is 1 there, which round-off may
+    # put a hair either side (1 - 4e-16 under one OpenBLAS kernel): the detectability analysis decides, not it
+    others = [a for a in sc.agent_ids if a != agent_id]
+    un = des.unobserved_of(others)
+    blind = bool(un.dim) and not un.decays
     if per_rate:
-        certified = all(r >= lam for r in radius.values())
-        stable = all(r > 0 for r in radius.values())
+        certified = not blind and all(r >= lam for r in radius.values())
+        stable = not blind and all(r > STABLE_MARGIN / sc.run.dt for r in radius.values())
         worst = min(radius.values())
         what = f"decay rate {worst:.4g}"
     else:
-        certified = all(r <= target for r in radius.values())
-        stable = all(r < 1 for r in radius.values())
+        certified = not blind and all(r <= target for r in radius.values())
+        stable = not blind and all(r < 1 - STABLE_MARGIN for r in radius.values())
         worst = max(radius.values())
         what = f"radius {worst:.4g}"
     scope = "every graph held constant" if len(graphs) > 1 else f"graph {graphs[0][1]}"
@@ -190,10 +199,8 @@ def _fallback(des: Design, agent_id: int, graphs: list) -> Fallback:
         text = (f"agent {agent_id}'s sensor can be lost at a slower rate: {what} against {against} ({scope}); "
                 "not certified at the rate")
     else:
-        others = [a for a in sc.agent_ids if a != agent_id]
-        un = des.unobserved_of(others)
         why = (f"the others leave {un.dim} direction{'s' if un.dim != 1 else ''} unobserved that do not decay "
-               "(only this sensor sees them)" if un.dim and not un.decays else f"{what}: the fallback is unstable")
+               "(only this sensor sees them)" if blind else f"{what}: the fallback is unstable")
         text = f"agent {agent_id}'s sensor cannot be lost: {why}"
     return Fallback(agent_id, radius, certified, stable, text)
 
