@@ -15,6 +15,8 @@ from splitspec_core.synthesis.designer import design
 from splitspec_core.scenarios.generate import random_strongly_connected_arcs, random_system
 from splitspec_core.scenarios.load import parse_scenario
 from splitspec_core.simulation.simulator import simulate
+from splitspec_core.synthesis.verdict import rate_certificate
+from tests.property.test_detectable import assert_under_the_envelope
 
 
 def _scenario(seed, m, n, time, rate, gains, extra, dt=0.005):
@@ -53,6 +55,7 @@ def test_discrete_error_decays_at_designed_rate(seed, m, n, rate, gains, extra):
        rate=st.floats(0.2, 1.5), gains=st.sampled_from(["place", "riccati"]), extra=st.integers(0, 4))
 @example(seed=1, m=2, n=4, rate=0.21875, gains="place", extra=0)  # found by hypothesis: a thin margin at dt = 0.005
 @example(seed=1477, m=2, n=6, rate=0.21875, gains="place", extra=0)  # CI's test-kernels: thinner than the budget
+@example(seed=256, m=2, n=5, rate=0.203125, gains="place", extra=0)  # CI: the fitted slope 4 % under, the envelope held
 def test_continuous_error_decays_at_designed_rate(seed, m, n, rate, gains, extra):
     des = design(_scenario(seed, m, n, "continuous", rate, gains, extra))
     # as the design's warning advises: keep dt small against g and the local gains |K_i C_i|
@@ -75,9 +78,17 @@ def test_continuous_error_decays_at_designed_rate(seed, m, n, rate, gains, extra
         assert any("reduce run.dt" in w for w in des.warnings), (dt, des.sampled_rate, des.warnings)
         target = min(des.sampled_rate.values())
         assert target > 0, (dt, des.sampled_rate)
+    # the guarantee: the noise-free error stays under the certified envelope c e^{-rate t} |e(0)| the whole run
+    # (when this dt is certified; else the design said "reduce run.dt" above and the fitted slope is the check)
+    cert = rate_certificate(des)
+    if cert.rate is not None:
+        assert_under_the_envelope(des, cert)
     tr = simulate(des)
     measured = fit_decay(tr.t, max_error(tr), time="continuous", floor_rel=1e-250)
     if measured is None:
         assert np.nanmax(tr.errors()[-1]) <= 1e-200
         return
-    assert measured >= target * 0.97, (measured, target, rate, des.g)
+    # the tail's fitted slope, a sanity bound beside it: undamped oscillators with a near-defective pair decay as
+    # t e^{-lam t} over a finite run (seed 256, m 2, n 5, rate 0.203125, place: fitted 0.195 over the second half,
+    # 0.157 to 0.232 by window, against 0.205 per the design; the envelope held)
+    assert measured >= target * (0.9 if cert.rate is not None else 0.97), (measured, target, rate, des.g)
