@@ -465,7 +465,8 @@ class Orchestrator:
                             else float(self.des.envelope_rate),
                             columns=self.columns, positions=sc.positions,
                             states=sc.state_names if sc.states_named else None, shown=sc.shown_states,
-                            continuous=Continuous.from_env() if sc.run.until_stopped else None)
+                            continuous=Continuous.from_env(sc.run) if sc.run.until_stopped else None,
+                            record_every=sc.run.recorded_every)
         if self.meas is not None:
             self.rec.set_measurements(sc, given_measurements(sc, self.meas, int(sc.run.seed)))  # the sensor faults
         if sc.sources:

@@ -68,9 +68,24 @@ def recording_path(out) -> Path:
     if not out.is_dir():
         raise ScenarioError(f"{out} is not a directory (give the --out directory of a run, not a file)")
     rrd = out / RECORDING_NAME
-    if not rrd.is_file():
+    from .viewer.rrd_file import rrd_segments
+
+    if not rrd.is_file() and not rrd_segments(rrd):  # run.keep may have removed run.rrd, not its later segments
         raise ScenarioError(f"no {RECORDING_NAME} in {out} (write one with: splitspec run SCENARIO --out {out})")
     return rrd
+
+
+def retention_line(out) -> str | None:
+    """What ``run.keep`` removed and which span of the recording is still on disk (one line), None if nothing."""
+    from splitspec_core.runs import kept_span, read_events
+
+    events = Path(out) / "events.jsonl"
+    span = kept_span(read_events(events)) if events.is_file() else None
+    if span is None:
+        return None
+    segs = [Path(p).name for p in _segments(Path(out) / RECORDING_NAME)]
+    return (f"{span['text']}; the recording on disk: {', '.join(segs[:1] + (['...'] if len(segs) > 2 else []) + segs[-1:] if len(segs) > 1 else segs)}"
+            + (f" (from event time {span['recording_from']})" if span.get("recording_from") is not None else ""))
 
 
 def _segments(rrd: Path) -> list[str]:
@@ -222,6 +237,9 @@ def open_native(rrd: Path) -> int:
 def view(out, *, web: bool = False, port: int | None = None, grpc_port: int | None = None) -> int:
     """Open ``OUT/run.rrd``: the native viewer with a display (unless ``web``), else serve the web viewer."""
     rrd = recording_path(out)
+    line = retention_line(out)
+    if line:
+        print(f"splitspec: {line}", file=sys.stderr)
     if has_display() and not web and port is None and grpc_port is None:
         code = open_native(rrd)
         if code not in (0, -signal.SIGINT, -signal.SIGTERM, 130):

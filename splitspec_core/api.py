@@ -70,7 +70,8 @@ def scenario(*, name: str | None = None, time: str | None = None, plant: Any = N
              eigenvalues: str | None = None, undetectable: str | None = None, coordinates: str | None = None,
              consensus: str | None = None, bad_data: Any = None,
              steps: int | None = None, dt: float | None = None, seed: int | None = None, pace: float | None = None,
-             show: Any = None,             system: Mapping | None = None, design: Mapping | None = None, run: Mapping | None = None,
+             show: Any = None, keep: Mapping | None = None, record_every: int | None = None,
+             system: Mapping | None = None, design: Mapping | None = None, run: Mapping | None = None,
              **unknown: Any) -> Scenario:
     """A validated scenario from keywords: every scenario-file key, by its own name.
 
@@ -79,7 +80,7 @@ def scenario(*, name: str | None = None, time: str | None = None, plant: Any = N
     (``process_noise``: a number, n numbers or an n x n matrix; ``measurement_noise``: a number or ``{agent id: std
     or [one per output]}``; numpy arrays welcome);
     ``rate``, ``gains``, ``K``, ``g``, ``q``, ``q_method``, ... its ``design.*``; ``steps``, ``dt``, ``seed``,
-    ``pace``, ``show`` its ``run.*`` (``docs/how-to/scenario.md`` lists them all).  Matrices may be numpy arrays or nested
+    ``pace``, ``show``, ``keep``, ``record_every`` its ``run.*`` (``docs/how-to/scenario.md`` lists them all).  Matrices may be numpy arrays or nested
     lists; ``C`` and ``K`` map agent ids to matrices; a graph is ``{"arcs": [(j, i), ...], "undirected": [...]}``
     or its list of arcs ``[(j, i), ...]`` (``j -> i``: agent i hears agent j).  ``plant``: a python-control
     ``StateSpace`` in place of the system and ``time``, ``agents={id: [its output labels or indices]}``
@@ -100,7 +101,7 @@ def scenario(*, name: str | None = None, time: str | None = None, plant: Any = N
     rate, gains, K, g, g0, q, q_method, q_max, resilience, weights, margin, rank_tol, graph_set, dwell, riccati, \
 eigenvalues, undetectable, coordinates, consensus, bad_data : optional
         The file's ``design.*`` keys (``rate`` is required).
-    steps, dt, seed, pace, show : optional
+    steps, dt, seed, pace, show, keep, record_every : optional
         The file's ``run.*`` keys.
     system, design, run : mapping, optional
         A section given whole, as in the file.

@@ -111,6 +111,60 @@ class RunRecord:
         end = self.summary
         return None if end is None else closing_line(end)
 
+    @property
+    def on_disk(self) -> str | None:
+        """What ``run.keep`` removed and which span is still on disk (:func:`kept_span`), one line; None when
+        nothing was removed."""
+        span = kept_span(self.events)
+        if span is None:
+            return None
+        t = self.trajectory.t
+        held = (f"the rows of t = {t[0]:g} .. {t[-1]:g} ({len(t)} event times) are on disk" if len(t) else
+                "no row is on disk")
+        return f"{span['text']}; {held}"
+
+
+def kept_span(events: Iterable[dict]) -> dict | None:
+    """What ``run.keep`` removed, from the ``records_removed`` events: the segments and bytes removed and, per kind
+    (``chunks``, ``recording``), the first event time still on disk (the last one removed + 1).
+
+    Parameters
+    ----------
+    events : iterable of dict
+        A run's events (:func:`read_events`).
+
+    Returns
+    -------
+    dict or None
+        ``removed`` (segments), ``bytes``, ``chunks_from`` and ``recording_from`` (event times; None: none of that
+        kind removed) and ``text``, one line; None when nothing was removed.
+
+    Examples
+    --------
+    >>> ev = [{"event": "records_removed", "kind": "chunks", "last_tau": 99, "bytes": 2_000_000}]
+    >>> kept_span(ev)["text"]
+    'run.keep removed 1 segment (2.0 MB): the rows before event time 100'
+    """
+    gone = [e for e in events if e.get("event") == "records_removed"]
+    if not gone:
+        return None
+
+    def after(kind: str) -> int | None:
+        lasts = [e["last_tau"] for e in gone if e.get("kind") == kind and e.get("last_tau") is not None]
+        return max(lasts) + 1 if lasts else None
+
+    chunks_from, recording_from = after("chunks"), after("recording")
+    size = sum(int(e.get("bytes") or 0) for e in gone)
+    parts = []
+    if chunks_from is not None:
+        parts.append(f"the rows before event time {chunks_from}")
+    if recording_from is not None:
+        parts.append(f"the recording before event time {recording_from}")
+    text = (f"run.keep removed {len(gone)} segment{'s' if len(gone) != 1 else ''} ({size / 1e6:.1f} MB): "
+            + " and ".join(parts))
+    return {"removed": len(gone), "bytes": size, "chunks_from": chunks_from, "recording_from": recording_from,
+            "text": text}
+
 
 def read_events(path: str | Path) -> tuple:
     """``events.jsonl`` as a tuple of dicts (a line torn by a crash is skipped).
@@ -405,7 +459,7 @@ def view(out: str | Path, *, web: bool = False, port: int | None = None, inline:
     >>> viewer = ss.view("out/demo", web=True)  # doctest: +SKIP
     """
     out = Path(out)
-    if not (out / "run.rrd").is_file():
+    if not (out / "run.rrd").is_file() and not any(out.glob("run-[0-9][0-9][0-9][0-9]*.rrd")):
         raise ScenarioError(f"{out} has no run.rrd: not a run's output directory")
     if inline is None:
         inline = not web and port is None and _in_jupyter() and importlib.util.find_spec("rerun_notebook") is not None

@@ -72,6 +72,10 @@ _TEXTS = {
         f"statistic {f.get('statistic'):.4g} over {f.get('threshold'):.4g}") + "): it estimates from its neighbours alone",
     "sensor_restored": lambda f: f"agent {f.get('agent')}'s sensor restored (statistic {f.get('statistic'):.4g} under "
                                  f"{f.get('threshold'):.4g})",
+    "records_removed": lambda f: f"removed {f.get('file')} (event times {f.get('first_tau')}..{f.get('last_tau')}, "
+                                 f"{f.get('bytes', 0) / 1e6:.1f} MB): " + (
+        "closed longer ago than run.keep.hours" if f.get("reason") == "hours" else
+        "the records were over run.keep.gigabytes"),
     "round_retried": lambda f: f"round {f.get('tau')} re-run (attempt {f.get('attempt')}; late: {f.get('late')})",
     "run_started": lambda f: f"run started ({len(f.get('agents', []))} agents, "
                              + (f"{f['steps']} steps)" if f.get("steps") is not None else "until stopped)"),

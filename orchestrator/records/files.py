@@ -110,14 +110,17 @@ class Continuous:
     """How a run that goes on until stopped keeps its records bounded (docs/reference/files.md, "Runs until
     stopped"): ``window_rows`` rows held in memory (at most about twice as many), a new chunk segment past
     ``chunk_bytes``, ``run.rrd`` rolled to ``run-0001.rrd`` ... past ``rrd_bytes``.  :meth:`from_env` reads
-    ``SPLITSPEC_WINDOW_ROWS``, ``SPLITSPEC_CHUNK_MB`` and ``SPLITSPEC_RRD_ROLL_MB`` (defaults 1024, 64, 256)."""
+    ``SPLITSPEC_WINDOW_ROWS``, ``SPLITSPEC_CHUNK_MB`` and ``SPLITSPEC_RRD_ROLL_MB`` (defaults 1024, 64, 256); ``keep_hours`` and ``keep_bytes``
+    are ``run.keep``'s (:mod:`.retention`)."""
 
     window_rows: int = 1024
     chunk_bytes: int = 64 << 20
     rrd_bytes: int = 256 << 20
+    keep_hours: float | None = None  # run.keep.hours (records.retention)
+    keep_bytes: int | None = None  # run.keep.gigabytes, in bytes
 
     @classmethod
-    def from_env(cls) -> "Continuous":
+    def from_env(cls, run=None) -> "Continuous":
         def mb(name: str, default: int) -> int:
             try:
                 return max(1 << 16, int(float(os.environ.get(name, default)) * (1 << 20)))
@@ -128,7 +131,10 @@ class Continuous:
             window = max(16, int(os.environ.get("SPLITSPEC_WINDOW_ROWS", 1024)))
         except ValueError:
             window = 1024
-        return cls(window, mb("SPLITSPEC_CHUNK_MB", 64), mb("SPLITSPEC_RRD_ROLL_MB", 256))
+        keep_hours = getattr(run, "keep_hours", None)
+        gigabytes = getattr(run, "keep_gigabytes", None)
+        return cls(window, mb("SPLITSPEC_CHUNK_MB", 64), mb("SPLITSPEC_RRD_ROLL_MB", 256), keep_hours,
+                   None if gigabytes is None else int(gigabytes * 1e9))
 
 
 class RecordFiles:

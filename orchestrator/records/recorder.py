@@ -46,6 +46,7 @@ from ..viewer.sink import DEFAULT_VIEWER_PORT, RRD_FILE, RerunSink, open_sink
 from .checks import RecordingError, check_row, check_run, check_topology
 from .events import EVENTS_FILE, EventLog, event_level, event_text
 from .files import Continuous, RecordFiles, RecordsWriteError, WriteFailure, strerror
+from .retention import Retention
 from .flusher import Flusher
 from .measured import MeasuredRecords
 from .outdir import Reserve
@@ -104,7 +105,7 @@ class Recorder:
                  viewer_port: int = DEFAULT_VIEWER_PORT, connect_timeout: float = 1.0,
                  reserve_bytes: int = RESERVE_BYTES, envelope_rate: float | None = None, columns: tuple = (),
                  positions: Mapping[int, tuple[float, float]] | None = None, states: tuple | None = None,
-                 shown: tuple | None = None, continuous: Continuous | None = None):
+                 shown: tuple | None = None, continuous: Continuous | None = None, record_every: int = 1):
         ids = check_run(agent_ids=agent_ids, n=n, time_mode=time_mode, dt=dt, graph_names=graph_names,
                         flush_seconds=flush_seconds, envelope_rate=envelope_rate, positions=positions)
 
@@ -149,7 +150,8 @@ class Recorder:
                          graph_names=self.graph_names, envelope=self.envelope_rate is not None,
                          columns=tuple(columns), positions=dict(positions) if positions else None,
                          viewer=viewer, viewer_port=viewer_port, connect_timeout=connect_timeout,
-                         states=names, shown=shown, roll_bytes=continuous.rrd_bytes if continuous else None)
+                         states=names, shown=shown, roll_bytes=continuous.rrd_bytes if continuous else None,
+                         record_every=record_every)
         # trajectory.npz and run.rrd (self._rec is its sink), written by the flushes
         files = RecordFiles(self.out_dir, agent_ids=self.agent_ids, taken=taken, lost=self._lost,
                             extra=self._meas.arrays, failure=self._failed, sink=sink,
@@ -157,6 +159,9 @@ class Recorder:
                             continuous=continuous, dt=self.dt if time_mode == "continuous" else 1.0)
         self._w = RecordWriter(taken, files, self._meas, self._events, self._failed, self._lock,
                                envelope_rate=self.envelope_rate, time_mode=time_mode, dt=self.dt)
+        if continuous is not None and (continuous.keep_hours is not None or continuous.keep_bytes is not None):
+            self._w.retention = Retention(self.out_dir, files, hours=continuous.keep_hours,
+                                          max_bytes=continuous.keep_bytes, emit=self._retention_event)
         if sink is not None:
             files.append_rrd()  # header, properties, styles and blueprint: run.rrd exists from the start
         self._reserve = Reserve(self.out_dir, reserve_bytes)
@@ -236,6 +241,19 @@ class Recorder:
             if self._rec is not None:
                 self._f.logs.event(event, self._tau_of_t(t), float(t), event_text(event, fields, note), level)
         self._f.write_through()
+
+    def _retention_event(self, event: str, t: float, fields: dict) -> None:
+        """An event of :mod:`.retention`, from a flush (``_io`` held): appended to ``events.jsonl`` and queued for
+        Rerun as :meth:`event` does, without flushing (it runs in one)."""
+        with self._lock:
+            line = self._events.line(event, t, time.time(), fields)
+            try:
+                self._events.append(line)
+            except OSError as exc:
+                raise self._failed.fail(self._events.path, exc, self._tau_of_t(t)) from None
+            if self._rec is not None:
+                self._f.logs.event(event, self._tau_of_t(t), float(t), event_text(event, fields),
+                                   event_level(event))
 
     def topology(self, tau: int, graph_name: str, alive_ids: Iterable[int],
                  arcs: Iterable[tuple[int, int]], *, partition=None) -> None:

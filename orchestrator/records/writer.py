@@ -102,6 +102,7 @@ class RecordWriter:
         self.envelope_rate, self.time_mode, self.dt = envelope_rate, time_mode, dt
         self.rows_kept = 0  # rows (event times) that trajectory.npz and run.rrd both hold on disk
         self.npz_next = 0.0  # monotonic time before which the background thread does not rewrite trajectory.npz
+        self.retention = None  # run.keep: a records.retention.Retention (set by the recorder)
 
     def tau_of_t(self, t: float) -> int:
         """The event time of time ``t`` (``t = tau`` or ``t = tau * dt``)."""
@@ -151,6 +152,8 @@ class RecordWriter:
         if len(ks) or logs or (sink is not None and sink.pending):
             files.append_rrd()
         files.append_chunk(ks)  # after run.rrd: the chunks never hold an event time run.rrd lacks
+        if self.retention is not None and taken.rows:
+            self.retention.sweep(float(taken.t[taken.rows - 1]))  # run.keep: the oldest closed segments removed
         if files.npz and trajectory and (files.npz_dirty or files.npz_rows != taken.rows):
             t0 = time.monotonic()
             files.write_trajectory()

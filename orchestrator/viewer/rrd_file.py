@@ -106,14 +106,17 @@ def segment_path(path: str | Path, k: int) -> Path:
 
 def rrd_segments(path: str | Path) -> list[Path]:
     """The segments of the recording ``path`` (``run.rrd``) that exist, in order: all of them open together
-    in the viewer as one recording (``rerun run.rrd run-0001.rrd ...``)."""
+    in the viewer as one recording (``rerun run.rrd run-0001.rrd ...``).  ``run.keep`` may have removed the
+    oldest ones (``run.rrd`` included): the others are still listed."""
     path = Path(path)
     segs = [path] if path.exists() else []
-    k = 1
-    while segment_path(path, k).exists():
-        segs.append(segment_path(path, k))
-        k += 1
-    return segs
+    numbered = []
+    if path.parent.is_dir():
+        for p in path.parent.glob(f"{path.stem}-*{path.suffix}"):
+            k = p.name[len(path.stem) + 1:-len(path.suffix)]
+            if k.isdigit() and len(k) >= 4:
+                numbered.append((int(k), p))
+    return segs + [p for _, p in sorted(numbered)]
 
 
 def whole_messages_length(path: str | Path) -> int:
@@ -354,6 +357,14 @@ def _finish_main(argv: list) -> int:
     from .blueprint import default_blueprint
 
     path, args = Path(argv[0]), json.loads(argv[1])
+    import signal
+
+    # a Ctrl-C of the run reaches its process group, this child too: the run waits for it at its end instead
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        os.nice(10)  # beside a paced run: its rounds come first (rounds stalled up to 0.4 s while a segment was rewritten)
+    except OSError:
+        pass
     if has_footer(path):
         return 0
     rewrite_rrd(path, path, blueprint=default_blueprint(**args))

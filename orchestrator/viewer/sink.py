@@ -43,6 +43,8 @@ import logging
 import os
 import socket
 import sys
+import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 from urllib.parse import urlsplit
@@ -57,7 +59,7 @@ from .reference_view import ReferenceRows, ReferenceView, log10
 from .rrd_file import RrdAppender, finish_in_child, rerun_command, rewrite_rrd, segment_path, wait_finished
 from .topology_view import TopologyView
 
-__all__ = ["RerunSink", "open_sink", "APPLICATION_ID", "RRD_FILE"]
+__all__ = ["RerunSink", "ClosedSegment", "open_sink", "APPLICATION_ID", "RRD_FILE"]
 
 log = logging.getLogger(__name__)
 
@@ -96,14 +98,34 @@ def open_sink(out_dir: Path, **options) -> "RerunSink | None":
         return None
 
 
+@dataclass
+class ClosedSegment:
+    """A rolled segment of ``run.rrd``: its ``path``, the first and last event time of the rows sent to it (None:
+    none), the child process finishing it (:func:`~.rrd_file.finish_in_child`) and ``time.time()`` at the roll."""
+
+    path: Path
+    first: int | None
+    last: int | None
+    proc: Any
+    closed_at: float
+
+    @property
+    def finished(self) -> bool:
+        """Its rewrite is over (it may be removed)."""
+        return self.proc is None or self.proc.poll() is not None
+
+
 class RerunSink:
     """One run's Rerun recording (see the module docstring).  Constructing it may raise anything Rerun raises."""
 
     def __init__(self, out_dir: Path, *, run_id: str, scenario_name: str, agent_ids: np.ndarray, n: int,
                  time_mode: str, dt: float, graph_names: tuple, envelope: bool, columns: tuple,
                  positions: dict, viewer: str | None, viewer_port: int, connect_timeout: float,
-                 states: tuple | None = None, shown: tuple | None = None, roll_bytes: int | None = None):
+                 states: tuple | None = None, shown: tuple | None = None, roll_bytes: int | None = None,
+                 record_every: int = 1):
         import rerun as rr
+
+        self.record_every = max(1, int(record_every))  # run.record_every: the state panels' decimation
 
         self.agent_ids = [int(a) for a in agent_ids]
         self.n, self.time_mode, self.envelope = int(n), time_mode, bool(envelope)
@@ -116,6 +138,8 @@ class RerunSink:
         self.roll_bytes = roll_bytes  # run.rrd rolls to run-0001.rrd ... past this size (None: never)
         self.segment = 0  # the segment being written (0: run.rrd)
         self.finishing: list = []  # child processes finishing rolled segments (finish_in_child)
+        self.span: list = [None, None]  # first and last event time of the rows sent to the segment being written
+        self.closed: list[ClosedSegment] = []  # the rolled segments not removed (run.keep: records.retention)
         self.pending: list[bytes] = []  # read from Rerun, not yet on disk
         self._viewer_warned = False
         # a run on measurements (set_reference): whether it has the truth, its rows and its view
@@ -305,13 +329,20 @@ class RerunSink:
                     clears[cnt] = rr.Clear.columns(is_recursive=np.zeros(cnt, dtype=bool))
                 send(path, indexes=index(mask), columns=clears[cnt])
 
+        if L:
+            lo, hi = int(b.seq.min()), int(b.seq.max())
+            self.span = [lo if self.span[0] is None else min(lo, self.span[0]),
+                         hi if self.span[1] is None else max(hi, self.span[1])]
         every = np.ones(L, dtype=bool)
+        # run.record_every: the state panels (states, truth, the agents' reported columns) at the event times it
+        # divides; the errors, the envelope, the rounds, events and marks at every one
+        panel = (b.seq % self.record_every == 0) if self.record_every > 1 else every
         lerr, lmax = log10(b.err), log10(b.err_max)
         shown = np.where(b.show[:, :, None], b.xhat, np.nan)  # (L, m, n)
         for c in range(self.n):
             if self.truth:
-                scalars(bp.state_path(self.labels[c][0], "truth"), every, b.x[:, c])
-            scalars(bp.state_path(self.labels[c][0], "agents"), every, shown[:, :, c])  # (L, m): a batch of m per row
+                scalars(bp.state_path(self.labels[c][0], "truth"), panel, b.x[:, c])
+            scalars(bp.state_path(self.labels[c][0], "agents"), panel, shown[:, :, c])  # (L, m): a batch of m per row
         for i, a in enumerate(self.agent_ids):
             mask = b.show[:, i]
             if self.truth:
@@ -321,7 +352,7 @@ class RerunSink:
                     clear(path, b.clear[:, i])
             for c in self.columns:
                 values = b.columns[c.name][:, i]
-                scalars(bp.agent_path(c.path, a), mask & present(c, values), values.astype(float))
+                scalars(bp.agent_path(c.path, a), mask & panel & present(c, values), values.astype(float))
                 clear(bp.agent_path(c.path, a), b.clear[:, i])
         if self.truth:
             scalars(bp.ERRORS_MAX, b.show_max, b.err_max)
@@ -415,7 +446,10 @@ class RerunSink:
             self.rec.flush(timeout_sec=10.0)
         except Exception:
             pass
-        self.finishing.append(finish_in_child(self.rrd_file.path, self.blueprint_args()))
+        proc = finish_in_child(self.rrd_file.path, self.blueprint_args())
+        self.finishing.append(proc)
+        self.closed.append(ClosedSegment(self.rrd_file.path, self.span[0], self.span[1], proc, time.time()))
+        self.span = [None, None]
         infos = self.rrd_file.infos
         self.segment += 1
         self.rrd_file = RrdAppender(segment_path(self._first_path(), self.segment), prefix=infos)

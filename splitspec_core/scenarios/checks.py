@@ -43,6 +43,7 @@ DESIGN_KEYS = keys.names(keys.DESIGN)
 RICCATI_KEYS = keys.names(keys.RICCATI)
 BAD_DATA_KEYS = keys.names(keys.BAD_DATA)
 RUN_KEYS = keys.names(keys.RUN)
+KEEP_KEYS = keys.names(keys.KEEP)
 
 # Limits, each with the key(s) it bounds and why (docs/how-to/scenario.md, "Files and limits").
 # Every number (matrix entries, x0, noise levels, rate, g, g0, margin, times, dt, dwell, pace,
@@ -213,7 +214,7 @@ def check_keys(mapping: Mapping, allowed: tuple, key: str) -> None:
 # every key of the file by its dotted place, for "did you mean" hints
 _ALL_KEYS = (
     *TOP_KEYS, *(f"system.{k}" for k in SYSTEM_KEYS), *(f"design.{k}" for k in DESIGN_KEYS),
-    *(f"run.{k}" for k in RUN_KEYS), *(f"switching.{k}" for k in SWITCHING_KEYS),
+    *(f"run.{k}" for k in RUN_KEYS), *(f"run.keep.{k}" for k in KEEP_KEYS), *(f"switching.{k}" for k in SWITCHING_KEYS),
     *(f"design.riccati.{k}" for k in RICCATI_KEYS), *(f"design.bad_data.{k}" for k in BAD_DATA_KEYS),
     *(f"network.{k}" for k in NETWORK_KEYS),
     *(f"network.delay.{k}" for k in DELAY_KEYS),

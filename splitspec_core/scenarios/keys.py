@@ -23,7 +23,7 @@ from typing import Any
 
 from . import gain_methods
 
-__all__ = ["Key", "REQUIRED", "TOP", "SYSTEM", "GRAPH", "SWITCHING", "RANDOM", "DESIGN", "RICCATI", "BAD_DATA", "RUN", "NETWORK",
+__all__ = ["Key", "REQUIRED", "TOP", "SYSTEM", "GRAPH", "SWITCHING", "RANDOM", "DESIGN", "RICCATI", "BAD_DATA", "RUN", "KEEP", "NETWORK",
            "DELAY", "NETWORK_ARC", "SECTIONS", "dotted", "names", "choices", "reference_table"]
 
 
@@ -155,6 +155,16 @@ RUN = (
     Key("seed", "integer", 0, "every random draw's seed (0 .. 2**63 - 1)"),
     Key("pace", "number", None, "run only: event times per second (default unpaced)"),
     Key("show", "names", None, "the states the default views show: names or patterns"),
+    Key("keep", "map", None, "run until stopped only: {hours, gigabytes}, the records kept on disk; the oldest closed "
+                             "segments are removed as the run goes (run.keep.*); default: everything"),
+    Key("record_every", "integer", None, "run only: the Rerun recording's state panels every this many event times "
+                                         "(errors, events and marks every one); default 1, a run until stopped at "
+                                         "a pace over 10: the event times of 0.1 s", minimum=1),
+)
+
+KEEP = (
+    Key("hours", "number", None, "remove a closed segment this many hours (wall time) after it closed"),
+    Key("gigabytes", "number", None, "remove the oldest closed segments while the records take more (10^9 bytes)"),
 )
 
 NETWORK = (
@@ -178,7 +188,7 @@ NETWORK_ARC = (
 
 #: ``{section: its keys}``: the sections whose keys are declared here ("" the file's top level)
 SECTIONS = {"": TOP, "system": SYSTEM, "graphs.<name>": GRAPH, "switching": SWITCHING, "switching.random": RANDOM,
-            "design": DESIGN, "design.riccati": RICCATI, "design.bad_data": BAD_DATA, "run": RUN, "network": NETWORK, "network.delay": DELAY,
+            "design": DESIGN, "design.riccati": RICCATI, "design.bad_data": BAD_DATA, "run": RUN, "run.keep": KEEP, "network": NETWORK, "network.delay": DELAY,
             "network.arcs[k]": NETWORK_ARC}
 
 
@@ -219,7 +229,7 @@ def names(keys: tuple) -> tuple:
     Examples
     --------
     >>> names(RUN)
-    ('steps', 'dt', 'seed', 'pace', 'show')
+    ('steps', 'dt', 'seed', 'pace', 'show', 'keep', 'record_every')
     """
     return tuple(k.name for k in keys)
 

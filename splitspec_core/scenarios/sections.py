@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import ScenarioError
-from .checks import (GRAPH_KEYS, RANDOM_KEYS, RUN_KEYS, SWITCHING_KEYS, SYSTEM_KEYS, TOP_KEYS, MIN_DT, MIN_PACE,
+from .checks import (GRAPH_KEYS, KEEP_KEYS, RANDOM_KEYS, RUN_KEYS, SWITCHING_KEYS, SYSTEM_KEYS, TOP_KEYS, MIN_DT, MIN_PACE,
                      MIN_SWITCH_STEPS, check_agent_id, check_arc, check_keys,
                      describe, ids_text, check_known_agent, check_matrix, check_names, check_number,
                      read, require_map, check_seed, check_shapes, plain)
@@ -192,7 +192,29 @@ def _parse_run(raw: Any, time: str, names: tuple = (), live: bool = False) -> Ru
     if pace is not None:
         if pace < MIN_PACE:
             raise ScenarioError(f"run.pace must be >= {MIN_PACE:g} event times per second, got {pace:g}")
-    return RunSpec(steps, dt, seed, pace, _parse_show(rmap.get("show"), names), "steps" not in rmap and bool(pace or live))
+    until_stopped = "steps" not in rmap and bool(pace or live)
+    hours, gigabytes = _parse_keep(rmap.get("keep"), until_stopped)
+    return RunSpec(steps, dt, seed, pace, _parse_show(rmap.get("show"), names), until_stopped, hours, gigabytes,
+                   read(rmap, "run", "record_every"))
+
+
+def _parse_keep(raw: Any, until_stopped: bool) -> tuple:
+    """``run.keep``: ``(hours, gigabytes)``, each None when not given.  Only a run until stopped has segments to
+    remove: a run of ``run.steps`` keeps its whole ``trajectory.npz``."""
+    if raw is None:
+        return None, None
+    kmap = require_map(raw, "run.keep")
+    check_keys(kmap, KEEP_KEYS, "run.keep")
+    if not kmap:
+        raise ScenarioError("run.keep needs hours or gigabytes (or both)")
+    if not until_stopped:
+        raise ScenarioError("run.keep is for a run that goes on until stopped (a paced run without run.steps): a run "
+                            "of run.steps keeps its whole trajectory.npz")
+    hours, gigabytes = (read(kmap, "run.keep", k) for k in KEEP_KEYS)
+    for k, v in (("hours", hours), ("gigabytes", gigabytes)):
+        if v is not None and v <= 0:
+            raise ScenarioError(f"run.keep.{k} must be > 0, got {v:g}")
+    return hours, gigabytes
 
 
 def parse_scenario(data: Any, *, source: str = "<scenario>", base: Path | None = None) -> Scenario:

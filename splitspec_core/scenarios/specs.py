@@ -342,6 +342,11 @@ class RunSpec:
     ``until_stopped``: ``run.steps`` was omitted from a paced run or one fed by live sensors (``sources:``):
     ``splitspec run`` goes on until it is stopped (Ctrl-C, SIGTERM, ``splitspec stop``); ``steps`` is then 60,
     the horizon of ``simulate`` (which needs one) when given no ``--steps``.
+
+    ``keep_hours``, ``keep_gigabytes``: ``run.keep`` (a run until stopped only): a closed segment of the records
+    (``chunks/rows-*.arrows``, ``run-*.rrd``) is removed that many hours after it closed, and the oldest closed
+    ones while the records take more than that many 10^9 bytes (None: no limit).  ``record_every``: the Rerun
+    recording's state panels every this many event times (:attr:`recorded_every` resolves the default).
     """
 
     steps: int = 60
@@ -350,6 +355,30 @@ class RunSpec:
     pace: float | None = None
     show: tuple | None = None
     until_stopped: bool = False
+    keep_hours: float | None = None
+    keep_gigabytes: float | None = None
+    record_every: int | None = None
+
+    @property
+    def recorded_every(self) -> int:
+        """``run.record_every``, or its default: 1, and for a run until stopped at a pace over 10 event times per
+        second the event times of 0.1 s (5 at pace 50): a long run's recording sized for review.
+
+        Returns
+        -------
+        int
+            Every how many event times the recording's state panels get a row (at least 1).
+
+        Examples
+        --------
+        >>> RunSpec(pace=50.0, until_stopped=True).recorded_every, RunSpec(pace=50.0).recorded_every
+        (5, 1)
+        """
+        if self.record_every is not None:
+            return int(self.record_every)
+        if self.until_stopped and self.pace is not None and self.pace > 10:
+            return max(1, int(round(self.pace / 10)))
+        return 1
 
 
 @dataclass(frozen=True)

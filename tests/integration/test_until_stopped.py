@@ -20,7 +20,7 @@ from splitspec_core.simulation.trajectory_chunks import chunk_segments, read_chu
 from splitspec_orchestrator.viewer.rrd_file import rrd_segments
 from tests.integration.runtime_helpers import (ENV, EXAMPLES, ROOT, all_pids, assert_all_gone, cli, dump, events,
                                                run, start, wait_for_event)
-from tests.rrd_readback import read_rrd, verify_rrd
+from tests.rrd_readback import read_rrd, read_rrd_vectors, verify_rrd
 
 pytestmark = pytest.mark.slow
 
@@ -183,3 +183,60 @@ def test_ss_run_of_a_run_until_stopped_ends_at_its_timeout_with_the_closing_line
     assert len(rec.trajectory.t) == end["event_times"] > 0 and end["agents_lost"] == 0
     assert end["final_max_error"] == pytest.approx(
         float(np.nanmax(np.linalg.norm(rec.trajectory.xhat[-1] - rec.trajectory.x[-1], axis=1))), rel=1e-5)
+
+
+def test_run_keep_removes_closed_segments_while_running_and_what_is_left_loads_and_replays(tmp_path):
+    """run.keep.hours of 1.8 s on a run rolling small segments: segments disappear while it runs, each removal is an
+    event, the records left load (from the first row still on disk) and replay to round-off; run.record_every
+    thins the state panels of run.rrd, not the errors."""
+    env = {"SPLITSPEC_RUNTIME_DIR": str(tmp_path / "rt"), "SPLITSPEC_CHUNK_MB": "0.06",
+           "SPLITSPEC_RRD_ROLL_MB": "0.4"}
+    scen, out, log = endless(tmp_path, "ring10", 40), tmp_path / "out", tmp_path / "run.log"
+    raw = yaml.safe_load(scen.read_text())
+    raw["run"].update(keep={"hours": 0.0005}, record_every=4)
+    scen.write_text(yaml.safe_dump(raw))
+    p = start("run", scen, "--out", out, "--run-id", "rkeep001", log=log, env_extra=env)
+    try:
+        deadline = time.monotonic() + 120
+        while {e["kind"] for e in events(out) if e["event"] == "records_removed"} != {"chunks", "recording"}:
+            assert p.poll() is None and time.monotonic() < deadline, dump(log)
+            time.sleep(0.3)
+        assert p.poll() is None  # removed while the run goes on
+        removed = [e for e in events(out) if e["event"] == "records_removed"]
+        assert {e["kind"] for e in removed} == {"chunks", "recording"}
+        for e in removed:
+            assert not (out / e["file"]).exists() and e["reason"] == "hours" and e["bytes"] > 0
+        assert not (out / "run.rrd").exists()  # the first segment went first
+        wait_rows(out, 1, p, log)
+        os.killpg(p.pid, signal.SIGINT)
+        assert p.wait(timeout=120) == 0, dump(log)
+    finally:
+        if p.poll() is None:
+            os.killpg(p.pid, signal.SIGKILL)
+    end = end_event(events(out))
+    rec = ss.load_run(out)
+    t = rec.trajectory.t
+    first_kept = max(e["last_tau"] for e in events(out) if e["event"] == "records_removed" and e["kind"] == "chunks") + 1
+    # the rows on disk: from the first one no removal took, every one to the end, in order
+    assert t[0] <= first_kept and t.tolist() == list(range(int(t[0]), end["event_times"]))
+    assert t[0] > 0 and "run.keep removed" in rec.on_disk and f"t = {t[0]:g}" in rec.on_disk
+    # replayed from the start by simulate; the rows left on disk agree to round-off
+    r = run("simulate", out / "scenario.yaml", "--out", tmp_path / "sim", "--no-plots", "--faults-from", out)
+    assert r.returncode == 0, r.stderr
+    sim = Trajectory.load(tmp_path / "sim" / "trajectory.npz")
+    k = np.asarray(t, dtype=int)
+    assert len(sim.t) == end["event_times"] and np.array_equal(sim.alive[k], rec.trajectory.alive)
+    diff = float(np.nanmax(np.abs(rec.trajectory.xhat - sim.xhat[k])))
+    assert diff <= 1e-9 * max(1.0, float(np.nanmax(np.abs(sim.xhat)))), diff  # other processes: round-off only
+    segs = rrd_segments(out / "run.rrd")
+    assert segs and segs[0].name != "run.rrd"
+    state, errors = set(), set()
+    for path in segs:
+        ok, msg = verify_rrd(path)
+        assert ok, (path.name, msg)
+        vectors = read_rrd_vectors(path)
+        state |= {tau for entity, rows in vectors.items() if entity.endswith("/agents") for tau, _ in rows}
+        errors |= {tau for tau, _ in vectors.get("errors/max", [])}
+    assert state and all(tau % 4 == 0 for tau in state)  # run.record_every: 4
+    assert max(errors) == end["event_times"] - 1 and len(errors) > 2 * len(state)  # the errors at every one
+    assert_all_gone(all_pids(out))
