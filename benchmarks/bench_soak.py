@@ -72,6 +72,8 @@ SLOPE_LIMIT_MB_H = 10.0  #: a role's RSS may grow at most this fast after the wa
 STARTUP_TIMEOUT = 600.0  #: seconds from the spawn to the first round (the design of a large model takes a while)
 EXIT_TIMEOUT = 120.0  #: seconds to wait for `splitspec run` to exit after the SIGINT
 LATE_FRACTION = 0.1  #: an event time later than this fraction of a period counts as late
+RESTART_AFTER = 60.0  #: --kill-every: seconds from a kill to the restart
+DISK_WINDOW_S = 600.0  #: the disk on hand is reported as the largest per window of this many seconds
 #: the events of every run's start and end (the report counts the others: warnings, losses, restarts)
 WHOLE_READ_BYTES = 1 << 30  #: chunks up to this size are read whole with read_chunks (a 30 min default soak: ~0.4 GB)
 QUIET_EVENTS = {"orchestrator_started", "fork_server_started", "process_started", "process_ready", "run_started",
@@ -109,6 +111,23 @@ def ring_soak_scenario(m: int, n: int, pace: float, rate: float, damping: float 
             "graphs": {"ring": {"undirected": [[i, i % m + 1] for i in range(1, m + 1)]}},
             "design": {"rate": rate, "gains": "place", "q": "auto", "q_method": "spectral"},
             "run": {"pace": pace, "seed": 1}}
+
+
+def kill_faults(sc: dict, every: float, seconds: float) -> list:
+    """An agent killed every ``every`` seconds of running (each agent in turn) and restarted :data:`RESTART_AFTER`
+    seconds later, over ``seconds``; ``at`` in the scenario's time (event times in discrete time: the pace's)."""
+    from splitspec_core.scenarios.sections import parse_scenario
+
+    ids = [int(a) for a in parse_scenario({k: v for k, v in sc.items() if k != "faults"}).agent_ids]
+    pace = float(sc["run"]["pace"])
+    unit = 1.0 if sc.get("time") == "continuous" else pace  # scenario time per second of running
+    faults, k = [], 1
+    while k * every < seconds:
+        aid = ids[(k - 1) % len(ids)]
+        faults += [{"at": round(k * every * unit, 6), "kill": aid},
+                   {"at": round((k * every + RESTART_AFTER) * unit, 6), "restart": aid}]
+        k += 1
+    return faults
 
 
 def file_scenario(path: Path, pace: float) -> dict:
@@ -392,6 +411,42 @@ def progress(t: float, sample: dict) -> None:
 
 # ------------------------------------------------------------------ main
 
+def replay(out: Path, scen: Path) -> dict:
+    """``splitspec simulate --faults-from OUT`` (every event time from the first, the kills and restarts at the
+    event times they happened) against the rows still on disk: the largest difference of the estimates, where the
+    same agents are alive."""
+    import splitspec_core as ss
+    from splitspec_core.simulation.simulator import Trajectory
+
+    sim_out = out.parent / f"{out.name}.replay"
+    t0 = time.monotonic()
+    r = subprocess.run([sys.executable, "-m", "splitspec_orchestrator", "simulate", str(out / "scenario.yaml"),
+                        "--out", str(sim_out), "--no-plots", "--faults-from", str(out)], cwd=ROOT, env=ENV,
+                       capture_output=True, text=True)
+    secs = time.monotonic() - t0
+    if r.returncode != 0:
+        last = (r.stderr.strip().splitlines() or ["?"])[-1]
+        print(f"replay: simulate failed after {secs:.0f} s: {last}")
+        return {"ok": False, "error": last}
+    rec = ss.load_run(out).trajectory
+    sim = Trajectory.load(sim_out / "trajectory.npz")
+    k = np.searchsorted(sim.t, rec.t - 1e-9)
+    same_t = bool(np.allclose(sim.t[k], rec.t, rtol=0, atol=1e-9))
+    alive = bool(np.array_equal(sim.alive[k], rec.alive))
+    both = np.isfinite(rec.xhat) & np.isfinite(sim.xhat[k])
+    diff = float(np.max(np.abs(rec.xhat[both] - sim.xhat[k][both]))) if both.any() else math.nan
+    scale = float(np.nanmax(np.abs(sim.xhat[k])))
+    ok = same_t and alive and diff <= 1e-9 * max(1.0, scale)
+    print(f"replay: simulate --faults-from ran {len(sim.t)} event times in {secs:.0f} s; the {len(rec.t)} rows on disk "
+          f"(t = {rec.t[0]:g} .. {rec.t[-1]:g}): same times {same_t}, same agents alive {alive}, largest difference "
+          f"{diff:.3g} (estimates up to {scale:.3g}): {'PASS' if ok else 'FAIL'} (round-off: 1e-9 of the scale)")
+    import shutil
+
+    shutil.rmtree(sim_out, ignore_errors=True)  # a large trajectory.npz
+    return {"ok": ok, "rows": int(len(rec.t)), "sim_rows": int(len(sim.t)), "max_diff": diff, "scale": scale,
+            "same_t": same_t, "same_alive": alive, "seconds": secs}
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--minutes", type=float, default=30.0, help="minutes of running (from the first round)")
@@ -407,6 +462,11 @@ def main() -> int:
                     help=f"ring: the generated ring (--m, --n); power: {POWER_SCENARIO.relative_to(ROOT)}")
     ap.add_argument("--scenario", type=Path, help="this scenario file instead (run.steps removed, run.pace set)")
     ap.add_argument("--json", type=Path, help="write every sample and the results here")
+    ap.add_argument("--keep-minutes", type=float, help="run.keep.hours of the run, in minutes (default: keep all)")
+    ap.add_argument("--kill-every", type=float, default=0.0,
+                    help="seconds: kill an agent (each in turn) every this many seconds of running and restart it "
+                         f"{RESTART_AFTER:g} s later (0: no fault)")
+    ap.add_argument("--no-replay", action="store_true", help="skip replaying the rows left on disk with simulate")
     args = ap.parse_args()
     if not args.minutes > 0 or not args.sample_seconds > 0 or not args.pace > 0:
         ap.error("--minutes, --sample-seconds and --pace must be positive")
@@ -431,6 +491,13 @@ def main() -> int:
         sc = file_scenario(POWER_SCENARIO, args.pace)
     else:
         sc = ring_soak_scenario(args.m, args.n, args.pace, args.rate)
+    if args.keep_minutes is not None:
+        sc.setdefault("run", {})["keep"] = {"hours": args.keep_minutes / 60.0}
+    if args.kill_every > 0:
+        sc["faults"] = kill_faults(sc, args.kill_every, args.minutes * 60)
+        # the agents are killed: design for it (every single loss certified; the IEEE 14-bus default design's
+        # survivors diverge: spectral radius 1.68 per step after any one loss)
+        sc.setdefault("design", {}).setdefault("resilience", 1)
     scen = out.parent / f"{out.name}.soak.yaml"
     scen.write_text(yaml.safe_dump(sc, sort_keys=False))
     run_id = f"soak-{os.getpid()}"
@@ -675,6 +742,42 @@ def main() -> int:
     print(f"end event: {end.get('event', 'none')}: " + ", ".join(f"{k} {end[k] if k in end else 'n/a'}" for k in keys)
           + f"; event_times {end.get('event_times', 'n/a')}, rounds_per_second {end.get('rounds_per_second', 'n/a')}, "
             f"messages_lost {end.get('messages_lost', 'n/a')}, agents_lost {end.get('agents_lost', 'n/a')}")
+
+    # retention (run.keep): what went, what is on hand over time, and no row lost at the cut
+    removed = [e for e in evs if e.get("event") == "records_removed"]
+    disk = [(s["t"], sum(size for size, _ in s["files"].values())) for s in samples if s["t"] is not None]
+    results["retention"] = {"removed": len(removed), "removed_bytes": sum(int(e.get("bytes") or 0) for e in removed)}
+    if disk:
+        print(f"\ndisk on hand (every file under --out), the largest per {DISK_WINDOW_S / 60:g} min of running:")
+        per = {}
+        for t, b in disk:
+            k = int(t // DISK_WINDOW_S)
+            per[k] = max(per.get(k, 0), b)
+        print("  " + "  ".join(f"{k * DISK_WINDOW_S / 60:g}-{(k + 1) * DISK_WINDOW_S / 60:g} min {v / 1e6:.0f} MB"
+                                 for k, v in sorted(per.items())))
+        results["retention"]["disk_max_per_window_mb"] = {str(k): v / 1e6 for k, v in sorted(per.items())}
+        if args.keep_minutes is not None:
+            filled = [b for t, b in disk if t >= args.keep_minutes * 60 + DISK_WINDOW_S]
+            if filled:
+                print(f"  after the retention window filled ({args.keep_minutes:g} min + {DISK_WINDOW_S / 60:g}): "
+                      f"largest {max(filled) / 1e6:.0f} MB, smallest {min(filled) / 1e6:.0f} MB, at the end "
+                      f"{disk[-1][1] / 1e6:.0f} MB")
+                results["retention"].update(filled_max_mb=max(filled) / 1e6, filled_min_mb=min(filled) / 1e6)
+    if removed:
+        kinds = {}
+        for e in removed:
+            kinds.setdefault(e.get("kind"), []).append(e)
+        print(f"run.keep removed {len(removed)} segments ({results['retention']['removed_bytes'] / 1e9:.2f} GB): "
+              + ", ".join(f"{k} {len(v)}" for k, v in sorted(kinds.items())))
+        if rows is not None and kinds.get("chunks"):
+            cut = max(e["last_tau"] for e in kinds["chunks"]) + 1
+            first = int(rows["tau"][0])
+            ok = first <= cut
+            print(f"  rows: the last removed chunk ended at event time {cut - 1}; the first row on disk is {first}: "
+                  + ("none lost at the cut (PASS)" if ok else f"{first - cut} lost at the cut (FAIL)"))
+            results["retention"].update(cut=cut, first_on_disk=first, lost_at_cut=max(0, first - cut))
+    if rows is not None and not args.no_replay:
+        results["replay"] = replay(out, scen)
 
     counts: dict = {}
     for e in evs:  # what happened besides the start-up: warnings, losses, restarts

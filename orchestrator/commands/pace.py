@@ -225,9 +225,54 @@ def _describe(design) -> str:
     return f"m = {sc.m}, n = {sc.n}, {gain}"
 
 
-def run_probe(scenario: Path, out: Path, *, seconds: float, log_path: Path) -> None:
+@dataclass(frozen=True)
+class DiskRate:
+    """What the records grow by per event time, measured between the middle and the end of the measuring run (the
+    start's static data left out): ``chunk_bytes`` (``chunks/``, every row) and ``rrd_bytes`` (``run.rrd``, with the
+    state panels every ``every`` event times), over ``rows`` event times."""
+
+    chunk_bytes: float
+    rrd_bytes: float
+    rows: int
+    every: int
+
+    def line(self, pace: float, keep_hours: float | None = None) -> str:
+        """One line: the disk per hour and per day at ``pace``, and what ``run.keep.hours`` holds on hand."""
+        hour = (self.chunk_bytes + self.rrd_bytes) * pace * 3600
+        text = (f"disk: about {hour / 1e9:.3g} GB per hour at pace {pace:g} ({self.chunk_bytes * pace * 3.6e-3:.3g} MB/h "
+                f"of row chunks, {self.rrd_bytes * pace * 3.6e-3:.3g} MB/h of Rerun recording with the state panels "
+                f"every {self.every} event time{'s' if self.every != 1 else ''}; measured over {self.rows} event times); "
+                f"{24 * hour / 1e9:.3g} GB a day")
+        if keep_hours is not None:
+            text += f"; run.keep.hours {keep_hours:g}: about {keep_hours * hour / 1e9:.3g} GB on hand plus one segment of each"
+        return text
+
+
+def _record_sizes(out: Path) -> tuple[int, int, int]:
+    """``(rows, chunk bytes, rrd bytes)`` of a run's records as they stand."""
+    from splitspec_core.simulation.trajectory_chunks import chunk_segments, read_chunks
+
+    from ..viewer.rrd_file import rrd_segments
+
+    def size(p: Path) -> int:
+        try:
+            return p.stat().st_size
+        except OSError:
+            return 0
+
+    try:
+        rows = read_chunks(out)
+    except Exception:  # noqa: BLE001 - a segment caught mid-write: no sample this time
+        rows = None
+    return (0 if rows is None else len(rows["tau"]), sum(size(p) for _, p in chunk_segments(out)),
+            sum(size(p) for p in rrd_segments(out / "run.rrd")))
+
+
+def run_probe(scenario: Path, out: Path, *, seconds: float, log_path: Path, every: int = 1) -> DiskRate | None:
     """Run ``splitspec run SCENARIO --out OUT`` (its output to ``log_path``) and stop it as Ctrl-C does once it
     has run its rounds for ``seconds`` (counted from its ``run_started`` event, so start-up is not counted).
+    Returns the records' growth per event time between the middle and the end (:class:`DiskRate`; None if too
+    few rows came), the recording's state panels every ``every`` event times.
 
     Raises
     ------
@@ -240,13 +285,17 @@ def run_probe(scenario: Path, out: Path, *, seconds: float, log_path: Path) -> N
     cmd = cli_command("run", scenario, "--out", out, "--run-id", new_run_id())
     with open(log_path, "wb") as log:
         proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT)
+    mid = end = None
     try:
         started = None
         while proc.poll() is None:
             now = time.monotonic()
             if started is None and "run_started" in _run_events(out):
                 started = now
+            if started is not None and mid is None and now - started >= seconds / 2:
+                mid = _record_sizes(out)
             if started is not None and now - started >= seconds:
+                end = _record_sizes(out)
                 proc.send_signal(signal.SIGINT)  # the run writes its records and stops its processes
                 break
             time.sleep(0.05)
@@ -264,6 +313,10 @@ def run_probe(scenario: Path, out: Path, *, seconds: float, log_path: Path) -> N
                 proc.wait()
     if code not in (0, 130):
         raise RuntimeError(_failure(log_path, code))
+    if mid is None or end is None or end[0] - mid[0] < 10:
+        return None
+    rows = end[0] - mid[0]
+    return DiskRate((end[1] - mid[1]) / rows, (end[2] - mid[2]) / rows, rows, every)
 
 
 def _failure(log_path: Path, code: int) -> str:
@@ -301,6 +354,12 @@ def cmd_pace(args: argparse.Namespace) -> int:
     sc = load_scenario(path)  # the file as given: its own errors first, one line
     pace = args.pace if args.pace is not None else sc.run.pace
     data, sensors = probe_mapping(path)
+    # the recording as the deployment would thin it: a run until stopped at this pace (run.record_every's default)
+    from splitspec_core.scenarios.specs import RunSpec
+
+    every = sc.run.record_every or RunSpec(pace=pace, until_stopped=sc.run.until_stopped or pace is not None
+                                            and sc.run.steps == RunSpec.steps).recorded_every
+    data.setdefault("run", {})["record_every"] = every
     keep = _fresh_out(args.out) if args.out else None
     with tempfile.TemporaryDirectory(prefix="splitspec-pace-") as tmp:
         probe = Path(tmp) / "scenario.yaml"
@@ -310,7 +369,7 @@ def cmd_pace(args: argparse.Namespace) -> int:
         print(f"splitspec: pace: running {sc.name} unpaced for {args.seconds:g} s of rounds ({sc.m} agents, no "
               f"faults){' in ' + str(out) if keep is not None else ''}", file=sys.stderr, flush=True)
         try:
-            run_probe(probe, out, seconds=args.seconds, log_path=Path(tmp) / "run.log")
+            disk = run_probe(probe, out, seconds=args.seconds, log_path=Path(tmp) / "run.log", every=every)
             meas = measure(out)
         except RuntimeError as exc:  # the run's failure, not the input's: exit status 1
             print(f"splitspec: error: {exc}", file=sys.stderr)
@@ -318,4 +377,6 @@ def cmd_pace(args: argparse.Namespace) -> int:
     about = _describe(des) + ("; the simulated plant stood in for the live sensors" if sensors else "")
     feasible, line = verdict(meas, pace, about=about)
     print(line)
+    if disk is not None:
+        print(disk.line(pace if pace is not None else meas.capacity, sc.run.keep_hours))
     return 0 if feasible else EXIT_NOT_FEASIBLE
