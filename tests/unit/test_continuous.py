@@ -211,6 +211,29 @@ def test_a_topology_logged_late_for_an_event_time_before_a_roll_shows_in_the_nex
         assert graph["labels"] == ["agent 1", "agent 2 (lost)", "agent 5"] and graph["edges"] == [(5, 1)], at
 
 
+def test_the_notebook_widget_gets_every_segment_of_a_rolled_recording(tmp_path):
+    pytest.importorskip("rerun_notebook")  # in the dev extra: installed by make test
+    from splitspec_orchestrator.viewer.notebook_view import notebook_viewer, recording_files
+
+    rec = _recorder(tmp_path / "run", continuous=Continuous(window_rows=16, chunk_bytes=6000, rrd_bytes=700_000))
+    _feed(rec, 120)
+    rec.close()
+    files = recording_files(tmp_path / "run")
+    assert files == rrd_segments(tmp_path / "run" / "run.rrd") and len(files) >= 3 and files[0].name == "run.rrd"
+    viewer = notebook_viewer(tmp_path / "run")
+    # what the widget queued until a front end shows it (see tests/integration/test_api_run.py): every row
+    sent = [bytes(b) for event, buffers in viewer._viewer._event_queue if event == {"type": "rrd"}
+            for b in buffers or []]
+    taus = set()
+    for k, b in enumerate(sent):
+        (tmp_path / f"sent{k}.rrd").write_bytes(b)
+        try:
+            taus |= {tau for tau, _ in read_rrd(tmp_path / f"sent{k}.rrd").get("errors/max", [])}
+        except ValueError as exc:  # a message may carry only the stream's start, no data yet
+            assert "No recording store" in str(exc)
+    assert taus == set(range(120))
+
+
 # ---------------------------------------------------------------------------------------------- the pace watch
 
 
