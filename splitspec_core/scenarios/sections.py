@@ -192,7 +192,8 @@ def _parse_run(raw: Any, time: str, names: tuple = (), live: bool = False) -> Ru
     if pace is not None:
         if pace < MIN_PACE:
             raise ScenarioError(f"run.pace must be >= {MIN_PACE:g} event times per second, got {pace:g}")
-    return RunSpec(steps, dt, seed, pace, _parse_show(rmap.get("show"), names), "steps" not in rmap and bool(pace or live))
+    omitted = "steps" not in rmap
+    return RunSpec(steps, dt, seed, pace, _parse_show(rmap.get("show"), names), omitted and bool(pace or live), omitted)
 
 
 def parse_scenario(data: Any, *, source: str = "<scenario>", base: Path | None = None) -> Scenario:

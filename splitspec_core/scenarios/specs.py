@@ -341,7 +341,8 @@ class RunSpec:
 
     ``until_stopped``: ``run.steps`` was omitted from a paced run or one fed by live sensors (``sources:``):
     ``splitspec run`` goes on until it is stopped (Ctrl-C, SIGTERM, ``splitspec stop``); ``steps`` is then 60,
-    the horizon of ``simulate`` (which needs one) when given no ``--steps``.
+    the horizon of ``simulate`` (which needs one) when given no ``--steps``.  ``steps_default``: ``run.steps`` was
+    omitted and ``steps`` is the default (what ``splitspec run`` of an unpaced scenario says it runs).
     """
 
     steps: int = 60
@@ -350,6 +351,7 @@ class RunSpec:
     pace: float | None = None
     show: tuple | None = None
     until_stopped: bool = False
+    steps_default: bool = False
 
 
 @dataclass(frozen=True)
