@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 
 import splitspec_core as ss
 from splitspec_core.runs import closing_line
@@ -24,6 +25,7 @@ from tests.rrd_readback import read_blueprint, read_rrd, read_rrd_graph, read_rr
 os.environ.setdefault("RERUN_ANALYTICS", "0")
 
 IDS, M, N = (1, 2, 5), 3, 4
+ROOT = Path(__file__).resolve().parents[2]
 
 
 # ---------------------------------------------------------------------------------------------- the scenario
@@ -39,6 +41,24 @@ def test_steps_omitted_from_a_paced_run_means_until_stopped():
     assert not _scenario({"pace": 10, "steps": 30}).run.until_stopped
     unpaced = _scenario({})
     assert not unpaced.run.until_stopped and unpaced.run.steps == 60  # as before: 60 steps
+
+
+def test_an_unpaced_run_without_steps_says_it_runs_the_default_steps(tmp_path):
+    from splitspec_orchestrator.commands.deploy import default_steps_line
+
+    line = default_steps_line(_scenario({}))
+    assert line == ("splitspec: run.steps not given: running the default 60 steps (61 event times); set run.steps, "
+                    "or run.pace to run until stopped")
+    assert default_steps_line(_scenario({}), measurements=True) == ""  # the file decides the steps
+    for run in ({"steps": 60}, {"pace": 10}, {"pace": 10, "steps": 30}):
+        assert default_steps_line(_scenario(run)) == "", run
+    raw = yaml.safe_load((ROOT / "examples" / "paper_continuous.yaml").read_text())
+    raw["run"].pop("steps")
+    (tmp_path / "c.yaml").write_text(yaml.safe_dump(raw))
+    sc = ss.load_scenario(tmp_path / "c.yaml")
+    assert default_steps_line(sc) == (f"splitspec: run.steps not given: running the default 60 steps of run.dt "
+                                      f"{sc.run.dt:g} s (61 event times); set run.steps, or run.pace to run until "
+                                      "stopped")
 
 
 # ---------------------------------------------------------------------------------------------- the chunks
