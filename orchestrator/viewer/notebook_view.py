@@ -10,6 +10,7 @@ data once the notebook displays it (return it from the cell); until then it hold
 
 from __future__ import annotations
 
+import re
 import uuid
 from pathlib import Path
 
@@ -20,13 +21,18 @@ INSTALL = "pip install 'rerun-notebook==0.41.*'"
 
 
 def recording_files(out: str | Path) -> list[Path]:
-    """The files of ``out``'s recording, in order: ``run.rrd`` and the segments it rolled into (one recording)."""
-    from .rrd_file import rrd_segments
+    """The files of ``out``'s recording, in order: ``run.rrd`` and the segments it rolled into (one recording).
 
-    files = rrd_segments(Path(out) / RECORDING_NAME)
-    if not files:
+    The segments are named as :func:`splitspec_orchestrator.viewer.rrd_file.segment_path` names them
+    (``run-0001.rrd`` ...; this module may import no other of the orchestrator's: the tests check that both
+    list the same files); those that exist, also after the oldest were deleted.
+    """
+    first = Path(out) / RECORDING_NAME
+    if not first.is_file():
         raise ScenarioError(f"{out} has no {RECORDING_NAME}: not a run's output directory")
-    return files
+    pattern = re.compile(rf"{re.escape(first.stem)}-(\d{{4,}}){re.escape(first.suffix)}")
+    rolled = sorted((int(m.group(1)), p) for p in first.parent.iterdir() if (m := pattern.fullmatch(p.name)))
+    return [first] + [p for _, p in rolled]
 
 
 def notebook_viewer(out: str | Path, *, width: int | str = "auto", height: int | str = 640):

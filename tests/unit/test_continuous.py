@@ -254,6 +254,17 @@ def test_the_notebook_widget_gets_every_segment_of_a_rolled_recording(tmp_path):
     assert taus == set(range(120))
 
 
+def test_the_notebook_widget_orders_the_segments_by_number_and_skips_deleted_ones(tmp_path):
+    from splitspec_core.errors import ScenarioError
+    from splitspec_orchestrator.viewer.notebook_view import recording_files
+
+    with pytest.raises(ScenarioError, match="has no run.rrd"):
+        recording_files(tmp_path)
+    for name in ("run.rrd", "run-0002.rrd", "run-10000.rrd", "run-0010.rrd", "run-x.rrd", "other-0001.rrd"):
+        (tmp_path / name).write_bytes(b"")
+    assert [p.name for p in recording_files(tmp_path)] == ["run.rrd", "run-0002.rrd", "run-0010.rrd", "run-10000.rrd"]
+
+
 # ---------------------------------------------------------------------------------------------- the pace watch
 
 
