@@ -425,7 +425,8 @@ def _in_jupyter() -> bool:
 
 
 def view(out: str | Path, *, web: bool = False, port: int | None = None, inline: bool | None = None):
-    """Open ``out/run.rrd``, the run's Rerun recording.
+    """Open ``out/run.rrd``, the run's Rerun recording (with ``run-0001.rrd`` ..., the segments a run until stopped
+    rolled it into: one recording).
 
     ``inline=True`` (the default inside a Jupyter kernel where ``rerun-notebook`` is installed): Rerun's notebook
     widget, returned (display it by returning it from the cell). Otherwise ``splitspec view OUT``: the native

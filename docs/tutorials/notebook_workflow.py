@@ -72,8 +72,9 @@ assert np.array_equal(rec.trajectory.alive, sim.alive)
 # %% [markdown]
 # ## 6. Plot
 # Matplotlib here; for the whole timeline, `ss.view(out)` opens the Rerun recording of the run (`run.rrd`):
-# in Jupyter with `rerun-notebook` installed (`pip install 'rerun-notebook==0.41.*'`) inline in the notebook,
-# elsewhere the native viewer or the web viewer's URL.
+# in Jupyter with `rerun-notebook` installed (`pip install 'rerun-notebook==0.41.*'`) inline in the notebook
+# (with the segments a run until stopped rolled it into, `run-0001.rrd` ...), elsewhere the native viewer or the
+# web viewer's URL.
 
 # %%
 import matplotlib

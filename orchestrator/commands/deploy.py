@@ -54,6 +54,9 @@ def cmd_run(args: argparse.Namespace) -> int:
         Keys(args.run_id)  # validates --run-id before any process starts
     out = out_dir(args.out)
     _announce_run_id(args)
+    line = default_steps_line(sc, measurements=bool(args.measurements))
+    if line:
+        print(line, flush=True)
     viewer = "spawn" if args.viewer else args.connect_viewer
     if args.insecure:
         print("splitspec: warning: --insecure: no authentication or access control on the router (any process "
@@ -79,6 +82,18 @@ def cmd_run(args: argparse.Namespace) -> int:
         if end is not None:
             print(closing_line(end))
     return code
+
+
+def default_steps_line(sc, *, measurements: bool = False) -> str:
+    """The line ``splitspec run`` prints before a run of the default ``run.steps`` (an unpaced scenario without
+    them: it does not run until stopped, as a paced one does); empty for any other run (a file of measurements
+    decides its own steps)."""
+    r = sc.run
+    if not r.steps_default or r.until_stopped or measurements:
+        return ""
+    what = f"{r.steps} steps" + ("" if sc.time == "discrete" else f" of run.dt {r.dt:g} s")
+    return (f"splitspec: run.steps not given: running the default {what} ({r.steps + 1} event times); set run.steps, "
+            "or run.pace to run until stopped")
 
 
 def _reference_line(out, *, sensors: bool) -> None:

@@ -141,6 +141,7 @@ class RerunSink:
         self.span: list = [None, None]  # first and last event time of the rows sent to the segment being written
         self.closed: list[ClosedSegment] = []  # the rolled segments not removed (run.keep: records.retention)
         self.pending: list[bytes] = []  # read from Rerun, not yet on disk
+        self.newest: tuple[int, float, int] | None = None  # (tau, t, wall_ns) of the newest row logged (roll)
         self._viewer_warned = False
         # a run on measurements (set_reference): whether it has the truth, its rows and its view
         self.truth, self.reference_rows, self.reference = True, None, None
@@ -302,6 +303,7 @@ class RerunSink:
         """
         import rerun as rr
 
+        self._note_newest(b)
         if not self._truth_styled:
             self._log_truth_styles(rr)
         if self.reference is not None:
@@ -364,6 +366,13 @@ class RerunSink:
             scalars(bp.ENVELOPE, np.isfinite(lenv), lenv)
         for s, col in zip(bp.ROUND_SERIES, b.rounds.T):
             scalars(f"{bp.ROUNDS}/{s}", np.isfinite(col), col)
+
+    def _note_newest(self, b: RowBatch) -> None:
+        """Keep the newest row's index (a rolled segment starts with the topology there: :meth:`roll`)."""
+        if len(b.seq):
+            k = int(np.argmax(b.seq))
+            if self.newest is None or int(b.seq[k]) > self.newest[0]:
+                self.newest = (int(b.seq[k]), float(b.t[k]), int(b.wall[k]))
 
     def send_events(self, lines: list[TextLine]) -> None:
         """One TextLog chunk on ``events``, in call order."""
@@ -436,9 +445,9 @@ class RerunSink:
     def roll(self) -> None:
         """Finish the segment being written (footer and manifest: a rewrite of at most about ``roll_bytes``, by a
         child process, so that this one's memory does not depend on it) and write the next ones to the next segment (``run-0001.rrd`` ...), which starts with the stores' openings and
-        gets the static data again (name, properties, styles, blueprint): each segment opens alone, and all
-        together as one recording.
-
+        gets the static data again (name, properties, styles) and the topology in force at its first event time
+        (:meth:`~splitspec_orchestrator.viewer.topology_view.TopologyView.relog`); the finished segment gets the
+        blueprint from its rewrite: each segment opens alone, and all together as one recording.
         """
         import rerun as rr
 
@@ -458,6 +467,7 @@ class RerunSink:
             self._log_truth_styles(rr)
         if self.reference is not None:
             self.reference.log_static_styles(rr)
+        self.guarded("topology log", self.topology.relog, self.newest)
         # no send_blueprint here: rerun 0.41 keeps some 4 MB per call (measured: the orchestrator's RSS grew by that
         # at every roll); the finished segment gets its default blueprint from the rewrite (finish_in_child)
 

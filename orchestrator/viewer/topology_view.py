@@ -24,6 +24,10 @@ The partition itself is named on ``topology/graph`` (a second line ``partition 1
 the cut's colour).  An overlay is drawn over the topology in force at its event time; a topology
 logged later for an earlier event time (an agent lost, noticed late) redraws the overlays after it.
 
+A rolled recording (``run-0001.rrd`` ...) starts each segment with the topology in force
+(:meth:`TopologyView.relog`, at the segment's first event time): the topology is logged only when it
+changes, and a segment opened alone would otherwise show no graph until the next change.
+
 The dots of arc ``j -> i`` run from the edge of ``j``'s label box to the edge of ``i``'s, a little to
 the right of the direction of travel (so ``i -> j`` lies beside it, not on it), and grow towards
 ``i`` (the arc's direction).  Label boxes are estimated from the label's length (the viewer's font
@@ -163,8 +167,10 @@ class TopologyView:
         self._cut_shown = False  # topology/partition holds dots now
         self._overlaid: dict[int, tuple] = {}  # tau -> (tau, t, wall_ns, lost) of every overlay logged
         self._dash_cache: dict[tuple, tuple] = {}  # (j, i, label of j, label of i) -> dash_dots of arc j -> i
+        self._logs: dict[int, object] = {}  # tau -> the TopologyLog logged for it (not the copies of relog)
+        self._copies: dict[int, tuple[float, int]] = {}  # tau -> (t, wall_ns) of every copy relog logged
 
-    def send_topology(self, logs: list) -> None:
+    def send_topology(self, logs: list, *, copy: bool = False) -> None:
         """One row per topology logged (:class:`~splitspec_orchestrator.viewer.handoff.TopologyLog`): GraphNodes
         (fixed positions, lost grey) + the edges not ``cut`` (a subset of ``edges``, the arcs a partition in force
         cuts).
@@ -172,7 +178,8 @@ class TopologyView:
         The active graph's name (and ``partition``, its text, if any) is a label node on ``topology/graph``
         above the agents; the cut arcs are dashed on ``topology/partition`` (logged while a partition is in
         force, and once more, empty, when it ends).  Per-event-time overlays (:meth:`send_lost`) already logged
-        at or after a row's ``tau`` are logged again on the new topology.
+        at or after a row's ``tau`` are logged again on the new topology.  ``copy``: ``logs`` are :meth:`relog`'s
+        copies, not topologies of their own.
         """
         import rerun as rr
 
@@ -212,6 +219,35 @@ class TopologyView:
         redo = [v for tau, v in self._overlaid.items() if tau >= min(taus)]
         if redo:
             self._send_overlays(rr, sorted(redo))
+        if copy:
+            return
+        for g in logs:
+            self._logs[int(g.tau)] = g
+        # a topology logged late, before a segment's copy: the copy (in force there) is logged again
+        stale = sorted(tau for tau in self._copies if tau >= min(taus) and tau not in set(taus))
+        if stale:
+            self.send_topology([self._copy(tau, *self._copies[tau]) for tau in stale], copy=True)
+
+    def relog(self, newest: tuple[int, float, int] | None) -> None:
+        """Log the topology in force again, at the event time a new segment of a rolled recording starts with.
+
+        That event time is the later of ``newest`` (``(tau, t, wall_ns)`` of the newest row logged, None: none)
+        and the newest topology's; the copy holds what :meth:`send_topology` logs (nodes, labels, edges, the
+        graph's name, a partition's cut) and the overlays already logged at it.  Nothing before the first
+        topology.  A topology logged later for an earlier event time logs the copy again (as in force then).
+        """
+        if not self._logs:
+            return
+        last = self._logs[max(self._logs)]
+        tau, t, wall = (int(last.tau), last.t, last.wall) if newest is None or newest[0] <= last.tau else newest
+        self._copies[int(tau)] = (float(t), int(wall))
+        self.send_topology([self._copy(int(tau), float(t), int(wall))], copy=True)
+
+    def _copy(self, tau: int, t: float, wall: int):
+        """The topology logged for the latest event time at or before ``tau``, moved to ``tau``."""
+        import dataclasses
+
+        return dataclasses.replace(self._logs[max(k for k in self._logs if k <= tau)], tau=tau, t=t, wall=wall)
 
     def _dots(self, arcs: list[tuple[int, int]], labels: Mapping[int, str]) -> tuple:
         """:func:`dash_dots` of ``arcs``, arc by arc from a cache (the same arcs come back event time after

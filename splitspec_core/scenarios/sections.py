@@ -192,10 +192,11 @@ def _parse_run(raw: Any, time: str, names: tuple = (), live: bool = False) -> Ru
     if pace is not None:
         if pace < MIN_PACE:
             raise ScenarioError(f"run.pace must be >= {MIN_PACE:g} event times per second, got {pace:g}")
-    until_stopped = "steps" not in rmap and bool(pace or live)
+    omitted = "steps" not in rmap
+    until_stopped = omitted and bool(pace or live)
     hours, gigabytes = _parse_keep(rmap.get("keep"), until_stopped)
     return RunSpec(steps, dt, seed, pace, _parse_show(rmap.get("show"), names), until_stopped, hours, gigabytes,
-                   read(rmap, "run", "record_every"))
+                   read(rmap, "run", "record_every"), omitted)
 
 
 def _parse_keep(raw: Any, until_stopped: bool) -> tuple:

@@ -347,6 +347,8 @@ class RunSpec:
     (``chunks/rows-*.arrows``, ``run-*.rrd``) is removed that many hours after it closed, and the oldest closed
     ones while the records take more than that many 10^9 bytes (None: no limit).  ``record_every``: the Rerun
     recording's state panels every this many event times (:attr:`recorded_every` resolves the default).
+    ``steps_default``: ``run.steps`` was omitted and ``steps`` is the default (what ``splitspec run`` of an unpaced
+    scenario says it runs).
     """
 
     steps: int = 60
@@ -358,6 +360,7 @@ class RunSpec:
     keep_hours: float | None = None
     keep_gigabytes: float | None = None
     record_every: int | None = None
+    steps_default: bool = False
 
     @property
     def recorded_every(self) -> int:

@@ -20,7 +20,7 @@ from splitspec_core.simulation.trajectory_chunks import chunk_segments, read_chu
 from splitspec_orchestrator.viewer.rrd_file import rrd_segments
 from tests.integration.runtime_helpers import (ENV, EXAMPLES, ROOT, all_pids, assert_all_gone, cli, dump, events,
                                                run, start, wait_for_event)
-from tests.rrd_readback import read_rrd, read_rrd_vectors, verify_rrd
+from tests.rrd_readback import read_blueprint, read_rrd, read_rrd_graph, read_rrd_logs, read_rrd_vectors, verify_rrd
 
 pytestmark = pytest.mark.slow
 
@@ -121,6 +121,62 @@ def test_splitspec_stop_with_a_window_of_rows_and_rolled_records(tmp_path):
         taus |= {tau for tau, _ in read_rrd(path).get("errors/max", [])}
     assert taus == set(range(T))
     assert_all_gone(all_pids(out))
+
+
+def test_a_rolled_segment_opened_alone_has_the_topology_and_the_layout(tmp_path):
+    env = {"SPLITSPEC_RUNTIME_DIR": str(tmp_path / "rt"), "SPLITSPEC_RRD_ROLL_MB": "0.3"}
+    scen, out, log = endless(tmp_path, "ring10", 40), tmp_path / "out", tmp_path / "run.log"
+    p = start("run", scen, "--out", out, log=log, env_extra=env)
+    try:
+        deadline = time.monotonic() + 120
+        while not (out / "run-0003.rrd").exists():  # three rolls: run-0001.rrd and run-0002.rrd are finished
+            assert p.poll() is None and time.monotonic() < deadline, dump(log)
+            time.sleep(0.2)
+        os.killpg(p.pid, signal.SIGINT)
+        assert p.wait(timeout=120) == 0, dump(log)
+    finally:
+        if p.poll() is None:
+            os.killpg(p.pid, signal.SIGKILL)
+    sc = ss.load_scenario(scen)
+    ring = sorted(sc.graph(sc.graph_names[0]).arcs)
+    segs = rrd_segments(out / "run.rrd")
+    assert len(segs) >= 4
+    ends = []  # the newest row of each segment
+    for k, seg in enumerate(segs):  # each opened alone, the middle ones above all
+        ok, msg = verify_rrd(seg)
+        assert ok, (seg.name, msg)
+        views = read_blueprint(seg)["views"]
+        assert ("Graph", "communication graph", "topology") in views, seg.name  # the layout, in the segment
+        rows = sorted(tau for tau, _ in read_rrd(seg).get("errors/max", []))
+        assert rows or k == len(segs) - 1, seg.name  # the last may hold the closing event alone
+        topo = read_rrd_logs(seg)["topology"]
+        assert topo and topo[0][0] == (ends[-1] if ends else 0), seg.name  # from where the segment before ended
+        for tau in (rows[0], rows[-1]) if rows else (topo[0][0],):
+            graph = read_rrd_graph(seg, "topology", tau)
+            assert graph["node_ids"] == [str(a) for a in sc.agent_ids], (seg.name, tau)
+            assert graph["labels"] == [f"agent {a}" for a in sc.agent_ids], (seg.name, tau)
+            assert sorted(graph["edges"]) == ring, (seg.name, tau)
+            assert len(set(graph["positions"])) == sc.m, (seg.name, tau)  # at their places, apart
+            assert read_rrd_graph(seg, "topology/graph", tau)["labels"] == [f"graph: {sc.graph_names[0]}"]
+        ends.append(rows[-1] if rows else None)
+    assert_all_gone(all_pids(out))
+
+
+def test_an_unpaced_run_without_steps_says_it_runs_the_default_60_steps(tmp_path):
+    raw = yaml.safe_load((EXAMPLES / "paper_discrete.yaml").read_text())
+    raw["run"].pop("steps")
+    scen, out = tmp_path / "unpaced.yaml", tmp_path / "out"
+    scen.write_text(yaml.safe_dump(raw))
+    r = run("run", scen, "--out", out)
+    assert r.returncode == 0, r.stdout + r.stderr
+    line = ("splitspec: run.steps not given: running the default 60 steps (61 event times); set run.steps, or "
+            "run.pace to run until stopped")
+    assert r.stdout.splitlines().count(line) == 1, r.stdout
+    end = end_event(events(out))  # as said
+    assert end["reason"] == "steps" and end["event_times"] == 61 and len(ss.load_run(out).trajectory.t) == 61
+    scen.write_text(yaml.safe_dump({**raw, "run": {**raw["run"], "steps": 60}}))
+    r = run("run", scen, "--out", tmp_path / "out2")  # run.steps given: nothing said
+    assert r.returncode == 0 and "run.steps not given" not in r.stdout + r.stderr, r.stdout + r.stderr
 
 
 def test_a_run_killed_at_any_moment_keeps_every_chunk_it_finished(tmp_path):

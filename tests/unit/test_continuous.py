@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 
 import splitspec_core as ss
 from splitspec_core.runs import closing_line
@@ -19,11 +20,12 @@ from splitspec_orchestrator.records.files import Continuous
 from splitspec_orchestrator.records.recorder import Recorder
 from splitspec_orchestrator.records.recover import recover
 from splitspec_orchestrator.rounds.pace import PaceWatch
-from tests.rrd_readback import read_rrd, verify_rrd
+from tests.rrd_readback import read_blueprint, read_rrd, read_rrd_graph, read_rrd_logs, verify_rrd
 
 os.environ.setdefault("RERUN_ANALYTICS", "0")
 
 IDS, M, N = (1, 2, 5), 3, 4
+ROOT = Path(__file__).resolve().parents[2]
 
 
 # ---------------------------------------------------------------------------------------------- the scenario
@@ -39,6 +41,24 @@ def test_steps_omitted_from_a_paced_run_means_until_stopped():
     assert not _scenario({"pace": 10, "steps": 30}).run.until_stopped
     unpaced = _scenario({})
     assert not unpaced.run.until_stopped and unpaced.run.steps == 60  # as before: 60 steps
+
+
+def test_an_unpaced_run_without_steps_says_it_runs_the_default_steps(tmp_path):
+    from splitspec_orchestrator.commands.deploy import default_steps_line
+
+    line = default_steps_line(_scenario({}))
+    assert line == ("splitspec: run.steps not given: running the default 60 steps (61 event times); set run.steps, "
+                    "or run.pace to run until stopped")
+    assert default_steps_line(_scenario({}), measurements=True) == ""  # the file decides the steps
+    for run in ({"steps": 60}, {"pace": 10}, {"pace": 10, "steps": 30}):
+        assert default_steps_line(_scenario(run)) == "", run
+    raw = yaml.safe_load((ROOT / "examples" / "paper_continuous.yaml").read_text())
+    raw["run"].pop("steps")
+    (tmp_path / "c.yaml").write_text(yaml.safe_dump(raw))
+    sc = ss.load_scenario(tmp_path / "c.yaml")
+    assert default_steps_line(sc) == (f"splitspec: run.steps not given: running the default 60 steps of run.dt "
+                                      f"{sc.run.dt:g} s (61 event times); set run.steps, or run.pace to run until "
+                                      "stopped")
 
 
 # ---------------------------------------------------------------------------------------------- the chunks
@@ -155,6 +175,94 @@ def test_a_recorder_until_stopped_holds_a_window_and_loses_no_row(tmp_path):
     assert sorted(set(taus)) == list(range(160))  # every row in one segment or another
     closed = [line for line in (out / "events.jsonl").read_text().splitlines() if "recording_closed" in line]
     assert "\"rows\": 160" in closed[0]
+
+
+def test_every_rolled_segment_opens_alone_with_the_topology_in_force_and_the_layout(tmp_path):
+    ring = [(1, 2), (2, 5), (5, 1), (2, 1)]
+    rec = _recorder(tmp_path, continuous=Continuous(window_rows=16, chunk_bytes=6000, rrd_bytes=700_000))
+    rec.topology(0, "g", IDS, ring)
+    for tau in range(160):
+        if tau == 90:
+            rec.topology(90, "g", (1, 5), ring)  # agent 2 lost: logged once, in whichever segment holds tau 90
+        rng = np.random.default_rng(tau)
+        rec.row(tau, rng.normal(size=N), rng.normal(size=(M, N)), np.array([True, tau < 90, True]), 0, wall_ms=1.0,
+                attempts=1, rejected=0, lost=[], late_ms=0.0)
+    rec.close()
+    segs = rrd_segments(tmp_path / "run.rrd")
+    assert len(segs) >= 3
+    last_row = -1
+    for path in segs:
+        ok, msg = verify_rrd(path)
+        assert ok, (path.name, msg)
+        assert ("Graph", "communication graph", "topology") in read_blueprint(path)["views"]  # the layout
+        rows = [tau for tau, _ in read_rrd(path)["errors/max"]]
+        first, topo = min(rows), [tau for tau, _, _ in read_rrd_logs(path)["topology"]]
+        # the segment opens on its own time span: its topology starts where the segment before it ended
+        assert min(topo) == max(last_row, 0) and min(topo) <= first
+        for tau in (first, max(rows)):
+            graph = read_rrd_graph(path, "topology", tau)
+            lost = tau >= 90
+            assert graph["node_ids"] == ["1", "2", "5"], (path.name, tau)
+            assert graph["labels"] == ["agent 1", "agent 2 (lost)" if lost else "agent 2", "agent 5"]
+            assert sorted(graph["edges"]) == ([(5, 1)] if lost else sorted(ring)), (path.name, tau)
+            assert read_rrd_graph(path, "topology/graph", tau)["labels"] == ["graph: g"]
+        last_row = max(rows)
+
+
+def test_a_topology_logged_late_for_an_event_time_before_a_roll_shows_in_the_next_segment(tmp_path):
+    ring = [(1, 2), (2, 5), (5, 1), (2, 1)]
+    rec = _recorder(tmp_path, continuous=Continuous(window_rows=16, chunk_bytes=6000, rrd_bytes=700_000))
+    rec.topology(0, "g", IDS, ring)
+    tau = 0
+    while not (tmp_path / "run-0001.rrd").exists():  # rows until run.rrd rolls (a flush per row)
+        rng = np.random.default_rng(tau)
+        rec.row(tau, rng.normal(size=N), rng.normal(size=(M, N)), np.ones(M, dtype=bool), 0, wall_ms=1.0,
+                attempts=1, rejected=0, lost=[], late_ms=0.0)
+        tau += 1
+    rolled_at = tau - 1  # the newest row of run.rrd: run-0001.rrd starts with the topology there
+    rec.topology(rolled_at - 3, "g", (1, 5), ring)  # agent 2 lost 3 event times before, noticed now
+    rng = np.random.default_rng(tau)
+    rec.row(tau, rng.normal(size=N), rng.normal(size=(M, N)), np.array([True, False, True]), 0, wall_ms=1.0,
+            attempts=1, rejected=0, lost=[], late_ms=0.0)
+    rec.close()
+    seg = tmp_path / "run-0001.rrd"
+    for at in (rolled_at, tau):  # the copy at the segment's start is the topology in force there, not the one before
+        graph = read_rrd_graph(seg, "topology", at)
+        assert graph["labels"] == ["agent 1", "agent 2 (lost)", "agent 5"] and graph["edges"] == [(5, 1)], at
+
+
+def test_the_notebook_widget_gets_every_segment_of_a_rolled_recording(tmp_path):
+    pytest.importorskip("rerun_notebook")  # in the dev extra: installed by make test
+    from splitspec_orchestrator.viewer.notebook_view import notebook_viewer, recording_files
+
+    rec = _recorder(tmp_path / "run", continuous=Continuous(window_rows=16, chunk_bytes=6000, rrd_bytes=700_000))
+    _feed(rec, 120)
+    rec.close()
+    files = recording_files(tmp_path / "run")
+    assert files == rrd_segments(tmp_path / "run" / "run.rrd") and len(files) >= 3 and files[0].name == "run.rrd"
+    viewer = notebook_viewer(tmp_path / "run")
+    # what the widget queued until a front end shows it (see tests/integration/test_api_run.py): every row
+    sent = [bytes(b) for event, buffers in viewer._viewer._event_queue if event == {"type": "rrd"}
+            for b in buffers or []]
+    taus = set()
+    for k, b in enumerate(sent):
+        (tmp_path / f"sent{k}.rrd").write_bytes(b)
+        try:
+            taus |= {tau for tau, _ in read_rrd(tmp_path / f"sent{k}.rrd").get("errors/max", [])}
+        except ValueError as exc:  # a message may carry only the stream's start, no data yet
+            assert "No recording store" in str(exc)
+    assert taus == set(range(120))
+
+
+def test_the_notebook_widget_orders_the_segments_by_number_and_skips_deleted_ones(tmp_path):
+    from splitspec_core.errors import ScenarioError
+    from splitspec_orchestrator.viewer.notebook_view import recording_files
+
+    with pytest.raises(ScenarioError, match="has no run.rrd"):
+        recording_files(tmp_path)
+    for name in ("run.rrd", "run-0002.rrd", "run-10000.rrd", "run-0010.rrd", "run-x.rrd", "other-0001.rrd"):
+        (tmp_path / name).write_bytes(b"")
+    assert [p.name for p in recording_files(tmp_path)] == ["run.rrd", "run-0002.rrd", "run-0010.rrd", "run-10000.rrd"]
 
 
 # ---------------------------------------------------------------------------------------------- the pace watch
