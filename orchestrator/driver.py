@@ -149,6 +149,18 @@ def _sensor_events(rec, watch: Watch | None, sc, a) -> None:
         log.warning("event time %d: %s", a.tau, event_text(event, fields))
 
 
+def _inputs_differ(rec, sc, a, taken: tuple) -> None:
+    """An ``inputs_differ`` event when agents took different live known inputs in the round of ``a.tau`` (the
+    records' ``u`` is the first agent's: those agents' rows do not replay exactly)."""
+    recorded, others = taken
+    if not others:
+        return
+    t = a.tau * sc.run.dt if sc.time == "continuous" else float(a.tau)
+    fields = {"tau": int(a.tau), "recorded": int(recorded), "agents": [int(i) for i in others]}
+    rec.event("inputs_differ", t, level="WARN", **fields)
+    log.warning("event time %d: %s", a.tau, event_text("inputs_differ", fields))
+
+
 def _check_sensor_faults(sc) -> None:
     """A scenario's sensor faults are applied by the plant process: live sensors (``sources:``) have none."""
     sensor_faults = sorted({f.action for f in sc.faults if f.runtime == PLANT})
@@ -268,7 +280,8 @@ class Orchestrator:
                 m.reject("orchestrator", e.reason)
                 return []
             return m.on_xhat(msg["agent"], msg["tau"], msg["attempt"], msg["incarnation"], msg["x"],
-                             {c.name: msg[c.name] for c in REPORTED}, msg["rejected"], now, lost=msg["lost"], y=msg["y"])
+                             {c.name: msg[c.name] for c in REPORTED}, msg["rejected"], now, lost=msg["lost"], y=msg["y"],
+                             u=msg["u"])
         if channel == "signal":
             self.stop_requested = True
         return []
@@ -310,6 +323,8 @@ class Orchestrator:
             elif kind is A.Record:
                 if self.sc.sources:  # before the row: a flush in between writes both
                     self.rec.live_y(a.tau, a.y)
+                    if self.sc.input_source is not None:  # the live known inputs the agents used
+                        _inputs_differ(self.rec, self.sc, a, self.rec.live_u(a.tau, a.u))
                 columns = {k: v for k, v in a.columns.items() if k in self.columns}  # this run's (rows.run_columns)
                 self.rec.row(a.tau, a.x, a.xhat, a.alive, a.graph, **columns, attempts=a.attempts,
                              rejected=a.rejected, wall_ms=(time.monotonic() - a.started) * 1e3, lost=a.lost,
@@ -470,6 +485,8 @@ class Orchestrator:
             self.rec.set_measurements(sc, given_measurements(sc, self.meas, int(sc.run.seed)))  # the sensor faults
         if sc.sources:
             self.rec.set_live_sources(sc)
+        elif self.meas is None:
+            self.rec.set_inputs(sc)  # the scenario's signal (set_measurements: the file's u, set_live_sources: live)
         self.registry = RunRegistry(self.keys.run_id, {"endpoint": self.connect or self.listen,
                                                        "out": str(self.out.resolve()), "host": HOST})
         now = time.monotonic()

@@ -72,6 +72,8 @@ _TEXTS = {
         f"statistic {f.get('statistic'):.4g} over {f.get('threshold'):.4g}") + "): it estimates from its neighbours alone",
     "sensor_restored": lambda f: f"agent {f.get('agent')}'s sensor restored (statistic {f.get('statistic'):.4g} under "
                                  f"{f.get('threshold'):.4g})",
+    "inputs_differ": lambda f: f"agents {f.get('agents')} took other live inputs than agent {f.get('recorded')} "
+                               f"(recorded) at event time {f.get('tau')}",
     "round_retried": lambda f: f"round {f.get('tau')} re-run (attempt {f.get('attempt')}; late: {f.get('late')})",
     "run_started": lambda f: f"run started ({len(f.get('agents', []))} agents, "
                              + (f"{f['steps']} steps)" if f.get("steps") is not None else "until stopped)"),
