@@ -3,7 +3,7 @@
 Round ``tau`` collects ``truth(tau)`` from the plant and, from every alive agent, ``x_i(tau)`` (its admission
 estimate, or the previous round's result) and ``x_i(tau + 1)``, each with the row columns the agent reports
 (:data:`splitspec_core.model.rows.REPORTED`: of its state, such as ``g_i``, or of the round), the consensus
-messages it did not count and, with live sensors, the ``y_i(tau)`` it used.  :class:`Collected` keeps them until
+messages it did not count and, with live sensors, the ``y_i(tau)`` (and live known inputs ``u(tau)``) it used.  :class:`Collected` keeps them until
 the round is recorded (:meth:`Collected.take`, a :class:`CollectedRow`), so its buffers hold at most two event
 times.  I/O-free.
 """

@@ -188,3 +188,48 @@ def test_set_inputs_after_the_first_row_is_refused(tmp_path, live):
     with pytest.raises(RecordingError, match="set_inputs"):
         rec.set_inputs(sc)
     rec.close()
+
+
+def test_a_run_until_stopped_keeps_every_u_in_its_chunks_while_holding_a_window(tmp_path):
+    """Live inputs on a recorder that holds a window of rows (a run until stopped): the chunks get every row's u
+    and the recorder's rows of u stay the size of the window."""
+    from splitspec_orchestrator.records.files import Continuous
+
+    sc = scenario(tmp_path, live=True)
+    out = tmp_path / "until"
+    rec = Recorder(out, agent_ids=sc.agent_ids, n=sc.n, steps=50, time_mode="discrete", dt=1.0,
+                   graph_names=sc.graph_names, run_id="until", scenario_name=sc.name, flush_seconds=0.0,
+                   continuous=Continuous(window_rows=16, chunk_bytes=6000, rrd_bytes=1_500_000))
+    rec.set_live_sources(sc)
+    T = 300
+    for tau in range(T):
+        rec.live_y(tau, [(a, [1.0]) for a in (1, 2, 3)])
+        rec.live_u(tau, [(a, [float(tau), 0.5]) for a in (2, 1)])
+        rec.row(tau, np.full(sc.n, np.nan), np.zeros((3, sc.n)), np.ones(3, dtype=bool), 0)
+    held = len(rec._meas.inputs._known)
+    rec.close()
+    assert not (out / "trajectory.npz").exists()
+    u = read_chunks(out)["u"]
+    assert np.array_equal(u, np.column_stack([np.arange(float(T)), np.full(T, 0.5)]))
+    assert held <= 256  # the window's rows (2 x 16 and the growth), not the run's 300
+
+
+def test_input_rows_ask_once_per_known_event_time_and_forget_a_window():
+    from splitspec_orchestrator.records.measured import InputRows
+
+    asked = []
+
+    def u_row(tau):
+        asked.append(tau)
+        return None if tau == 3 else [float(tau)]
+
+    rows = InputRows(1, u_row)
+    first = rows.rows(np.arange(5))
+    assert np.isnan(first[3]).all() and first[[0, 1, 2, 4], 0].tolist() == [0.0, 1.0, 2.0, 4.0]
+    rows.rows(np.arange(5))
+    assert asked == [0, 1, 2, 3, 4, 3]  # a None is asked again (a live u may come later), a known row never
+    rows.forget_before(2)
+    again = rows.rows(np.array([1, 2, 4]))
+    assert np.isnan(again[0]).all() and again[1:, 0].tolist() == [2.0, 4.0]
+    with pytest.raises(ValueError, match="expected 1"):
+        InputRows(1, lambda tau: [1.0, 2.0]).rows([0])
