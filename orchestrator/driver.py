@@ -149,10 +149,22 @@ def _sensor_events(rec, watch: Watch | None, sc, a) -> None:
         log.warning("event time %d: %s", a.tau, event_text(event, fields))
 
 
-def _inputs_differ(rec, sc, a, taken: tuple) -> None:
-    """An ``inputs_differ`` event when agents took different live known inputs in the round of ``a.tau`` (the
-    records' ``u`` is the first agent's: those agents' rows do not replay exactly)."""
-    recorded, others = taken
+def _used(msg: dict) -> dict:
+    """What an ``xhat`` says its round used: the consensus messages it did not count (``lost``), the measurement
+    (``y``) and the live known inputs (``u``)."""
+    return {"lost": msg["lost"], "y": msg["y"], "u": msg["u"]}
+
+
+def _live_records(rec, sc, a) -> None:
+    """Live sensors: the ``y_i`` the agents used in the round of ``a.tau`` (a ``Record``) and, with live known
+    inputs, the ``u`` they took, to the recorder before the row; an ``inputs_differ`` event when agents took
+    different ones (the records' ``u`` is the first agent's: the others' rows do not replay exactly)."""
+    if not sc.sources:
+        return
+    rec.live_y(a.tau, a.y)
+    if sc.input_source is None:
+        return
+    recorded, others = rec.live_u(a.tau, a.u)
     if not others:
         return
     t = a.tau * sc.run.dt if sc.time == "continuous" else float(a.tau)
@@ -280,8 +292,7 @@ class Orchestrator:
                 m.reject("orchestrator", e.reason)
                 return []
             return m.on_xhat(msg["agent"], msg["tau"], msg["attempt"], msg["incarnation"], msg["x"],
-                             {c.name: msg[c.name] for c in REPORTED}, msg["rejected"], now, lost=msg["lost"], y=msg["y"],
-                             u=msg["u"])
+                             {c.name: msg[c.name] for c in REPORTED}, msg["rejected"], now, **_used(msg))
         if channel == "signal":
             self.stop_requested = True
         return []
@@ -321,10 +332,7 @@ class Orchestrator:
                     prev_attempt=a.prev_attempt, alive=a.alive, rows=a.rows, incarnation=a.incarnation,
                     partition=a.partition))
             elif kind is A.Record:
-                if self.sc.sources:  # before the row: a flush in between writes both
-                    self.rec.live_y(a.tau, a.y)
-                    if self.sc.input_source is not None:  # the live known inputs the agents used
-                        _inputs_differ(self.rec, self.sc, a, self.rec.live_u(a.tau, a.u))
+                _live_records(self.rec, self.sc, a)  # before the row: a flush in between writes both
                 columns = {k: v for k, v in a.columns.items() if k in self.columns}  # this run's (rows.run_columns)
                 self.rec.row(a.tau, a.x, a.xhat, a.alive, a.graph, **columns, attempts=a.attempts,
                              rejected=a.rejected, wall_ms=(time.monotonic() - a.started) * 1e3, lost=a.lost,
@@ -481,12 +489,11 @@ class Orchestrator:
                             columns=self.columns, positions=sc.positions,
                             states=sc.state_names if sc.states_named else None, shown=sc.shown_states,
                             continuous=Continuous.from_env() if sc.run.until_stopped else None)
+        self.rec.set_inputs(sc)  # the signal's u; a file's u, or the live u, replace it (set_measurements, ...)
         if self.meas is not None:
             self.rec.set_measurements(sc, given_measurements(sc, self.meas, int(sc.run.seed)))  # the sensor faults
         if sc.sources:
             self.rec.set_live_sources(sc)
-        elif self.meas is None:
-            self.rec.set_inputs(sc)  # the scenario's signal (set_measurements: the file's u, set_live_sources: live)
         self.registry = RunRegistry(self.keys.run_id, {"endpoint": self.connect or self.listen,
                                                        "out": str(self.out.resolve()), "host": HOST})
         now = time.monotonic()

@@ -154,6 +154,16 @@ def held_inputs(u: np.ndarray) -> np.ndarray:
     """``u`` (T, p) with every row that is not finite (no agent used one: none alive, a run's last row) holding
     the last finite row before it, zero before the first: what an agent holds when it takes no new ``u``.
 
+    Parameters
+    ----------
+    u : (T, p) array_like
+        Recorded known inputs (a run's ``u``), NaN where none was taken.
+
+    Returns
+    -------
+    (T, p) ndarray
+        A new array, finite everywhere; its finite rows are those of ``u``.
+
     Examples
     --------
     >>> held_inputs(np.array([[np.nan], [2.0], [np.nan], [3.0]])).ravel().tolist()
