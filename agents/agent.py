@@ -156,13 +156,16 @@ class AgentNode:
             out[reason] = out.get(reason, 0) + c
         return out
 
-    def _xhat(self, tau: int, attempt: int, x: np.ndarray, columns: dict, lost=(), y=()) -> tuple:
+    def _xhat(self, tau: int, attempt: int, x: np.ndarray, columns: dict, lost=(), y=(), u=None) -> tuple:
         """The ``xhat`` message of ``x_i(tau)`` with the row columns this agent reports (``columns``:
-        :func:`splitspec_core.model.rows.report`)."""
+        :func:`splitspec_core.model.rows.report`); ``y`` and ``u``: the measurement and the live known inputs
+        its round used (reported when the run records them, ``record_y``; ``u`` only with live inputs)."""
         used = ([] if not self.record_y else None if y is None else [float(v) for v in y])
+        took = [] if u is None or not self.record_y else [float(v) for v in u]
         return (self.keys.xhat(self.id), encode("xhat", self.run_id, mac_key=self.mac_key, tau=tau, attempt=attempt,
                                                   agent=self.id, incarnation=int(self.incarnation), x=x, **columns,
-                                                  rejected=self.counts(), lost=[v for t in lost for v in t], y=used))
+                                                  rejected=self.counts(), lost=[v for t in lost for v in t], y=used,
+                                                  u=took))
 
     def next_wakeup(self) -> float | None:
         """When the round in flight wants :meth:`on_timer` (a sub-round's deadline, a held message's release)."""
@@ -469,7 +472,9 @@ class AgentNode:
         self.round = None
         # the row columns of x_i(tau + 1): g_i(tau + 1) and what round tau measured (splitspec_core.model.rows)
         columns = report(g=g_next, messages_used=r["used"], y_rejected=r["set_aside"], y_statistic=r["stat"])
-        return [self._xhat(r["tau"] + 1, r["attempt"], x_next, columns, r["lost"], y)]
+        # the live known inputs the round added (B u(tau), measure.YBuffer.bu): recorded beside y (trajectory u)
+        u = self.ys.ubuf.get(r["tau"]) if self.input_sampler is not None else None
+        return [self._xhat(r["tau"] + 1, r["attempt"], x_next, columns, r["lost"], y, u)]
 
 
 # ---------------------------------------------------------------------- process shell

@@ -149,6 +149,30 @@ def _sensor_events(rec, watch: Watch | None, sc, a) -> None:
         log.warning("event time %d: %s", a.tau, event_text(event, fields))
 
 
+def _used(msg: dict) -> dict:
+    """What an ``xhat`` says its round used: the consensus messages it did not count (``lost``), the measurement
+    (``y``) and the live known inputs (``u``)."""
+    return {"lost": msg["lost"], "y": msg["y"], "u": msg["u"]}
+
+
+def _live_records(rec, sc, a) -> None:
+    """Live sensors: the ``y_i`` the agents used in the round of ``a.tau`` (a ``Record``) and, with live known
+    inputs, the ``u`` they took, to the recorder before the row; an ``inputs_differ`` event when agents took
+    different ones (the records' ``u`` is the first agent's: the others' rows do not replay exactly)."""
+    if not sc.sources:
+        return
+    rec.live_y(a.tau, a.y)
+    if sc.input_source is None:
+        return
+    recorded, others = rec.live_u(a.tau, a.u)
+    if not others:
+        return
+    t = a.tau * sc.run.dt if sc.time == "continuous" else float(a.tau)
+    fields = {"tau": int(a.tau), "recorded": int(recorded), "agents": [int(i) for i in others]}
+    rec.event("inputs_differ", t, level="WARN", **fields)
+    log.warning("event time %d: %s", a.tau, event_text("inputs_differ", fields))
+
+
 def _check_sensor_faults(sc) -> None:
     """A scenario's sensor faults are applied by the plant process: live sensors (``sources:``) have none."""
     sensor_faults = sorted({f.action for f in sc.faults if f.runtime == PLANT})
@@ -268,7 +292,7 @@ class Orchestrator:
                 m.reject("orchestrator", e.reason)
                 return []
             return m.on_xhat(msg["agent"], msg["tau"], msg["attempt"], msg["incarnation"], msg["x"],
-                             {c.name: msg[c.name] for c in REPORTED}, msg["rejected"], now, lost=msg["lost"], y=msg["y"])
+                             {c.name: msg[c.name] for c in REPORTED}, msg["rejected"], now, **_used(msg))
         if channel == "signal":
             self.stop_requested = True
         return []
@@ -308,8 +332,7 @@ class Orchestrator:
                     prev_attempt=a.prev_attempt, alive=a.alive, rows=a.rows, incarnation=a.incarnation,
                     partition=a.partition))
             elif kind is A.Record:
-                if self.sc.sources:  # before the row: a flush in between writes both
-                    self.rec.live_y(a.tau, a.y)
+                _live_records(self.rec, self.sc, a)  # before the row: a flush in between writes both
                 columns = {k: v for k, v in a.columns.items() if k in self.columns}  # this run's (rows.run_columns)
                 self.rec.row(a.tau, a.x, a.xhat, a.alive, a.graph, **columns, attempts=a.attempts,
                              rejected=a.rejected, wall_ms=(time.monotonic() - a.started) * 1e3, lost=a.lost,
@@ -467,6 +490,7 @@ class Orchestrator:
                             states=sc.state_names if sc.states_named else None, shown=sc.shown_states,
                             continuous=Continuous.from_env(sc.run) if sc.run.until_stopped else None,
                             record_every=sc.run.recorded_every)
+        self.rec.set_inputs(sc)  # the signal's u; a file's u, or the live u, replace it (set_measurements, ...)
         if self.meas is not None:
             self.rec.set_measurements(sc, given_measurements(sc, self.meas, int(sc.run.seed)))  # the sensor faults
         if sc.sources:

@@ -60,7 +60,8 @@ class RunRecord:
         ``out/scenario.yaml``, the scenario the run played
     trajectory : Trajectory
         ``out/trajectory.npz`` (or the chunks, ``out/chunks/``): ``t``, ``x`` (NaN rows where the truth is unknown), ``xhat`` (T, m, n), ``alive``,
-        ``graph``, ``columns`` (``g`` ...), ``lost``, and ``y``/``y_missing`` on measurements or live sensors
+        ``graph``, ``columns`` (``g`` ...), ``lost``, ``y``/``y_missing`` on measurements or live sensors, and ``u``
+        (T, p) with known inputs
     events : tuple of dict
         ``out/events.jsonl``, one dict per line (``event``, ``t``, ``wall`` and the event's fields)
     """

@@ -307,11 +307,9 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     clean = ss.simulate(d, seed=seed, steps=args.steps, noise=False, lost=lost) if noisy and not args.exact else traj
     if args.write_measurements:
         from splitspec_core.scenarios.measurements import write_measurements
-        from splitspec_core.model.plant import input_of
 
-        u = None if sc.system.B is None else np.array([input_of(sc, k) for k in range(len(traj.t))])
         write_measurements(args.write_measurements, t=traj.t, y=traj.y, agent_ids=sc.agent_ids,
-                           sizes=[np.shape(C)[0] for C in sc.system.Cs], x=traj.x, u=u)
+                           sizes=[np.shape(C)[0] for C in sc.system.Cs], x=traj.x, u=traj.u)
         traj = dataclasses.replace(traj, y=None, y_missing=None)  # the file holds them; trajectory.npz as always
     traj.save(out / "trajectory.npz")
     adaptive = d.g_mode == "adaptive"

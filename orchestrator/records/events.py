@@ -76,6 +76,8 @@ _TEXTS = {
                                  f"{f.get('bytes', 0) / 1e6:.1f} MB): " + (
         "closed longer ago than run.keep.hours" if f.get("reason") == "hours" else
         "the records were over run.keep.gigabytes"),
+    "inputs_differ": lambda f: f"agents {f.get('agents')} took other live inputs than agent {f.get('recorded')} "
+                               f"(recorded) at event time {f.get('tau')}",
     "round_retried": lambda f: f"round {f.get('tau')} re-run (attempt {f.get('attempt')}; late: {f.get('late')})",
     "run_started": lambda f: f"run started ({len(f.get('agents', []))} agents, "
                              + (f"{f['steps']} steps)" if f.get("steps") is not None else "until stopped)"),

@@ -151,6 +151,7 @@ class RecordFiles:
     sink : the recorder's :class:`RerunSink`, None without Rerun (and once the recorder has dropped it)
     states : the states' names (``trajectory.npz``'s ``states``)
     y_rows : ``y_rows(taus)``: ``(y, y_missing)`` of those event times on measurements or live sensors, else None
+    u_rows : ``u_rows(taus)``: ``u`` (L, p) of those event times with known inputs, else None
     continuous : None: keep ``trajectory.npz`` (rewritten); else a run until stopped, whose rows are only in the
         chunks (segments of ``continuous.chunk_bytes``)
     dt : the sampling step (1 in discrete time)
@@ -158,11 +159,13 @@ class RecordFiles:
 
     def __init__(self, out_dir: Path, *, agent_ids: np.ndarray, taken: RowStore, lost: dict,
                  extra: Callable[[int], dict], failure, sink: RerunSink | None, states: tuple = (),
-                 y_rows: Callable | None = None, continuous: Continuous | None = None, dt: float = 1.0):
+                 y_rows: Callable | None = None, continuous: Continuous | None = None, dt: float = 1.0,
+                 u_rows: Callable | None = None):
         self.out_dir = out_dir
         self.npz = continuous is None
         self._chunk_bytes = (continuous or Continuous()).chunk_bytes
         self._y_rows = y_rows
+        self._u_rows = u_rows
         self.chunks: ChunkWriter | None = None  # made at the first append (the width of y is known then)
         self._dt = float(dt)
         self.chunk_rows = 0  # rows (counted from the run's first) the chunks hold on disk
@@ -201,14 +204,17 @@ class RecordFiles:
         if len(ks):
             taus = taken.tau[ks]
             ys = self._y_rows(taus) if self._y_rows is not None else None
+            us = self._u_rows(taus) if self._u_rows is not None else None
             if self.chunks is None:
                 self.chunks = ChunkWriter(self.out_dir, agent_ids=self.agent_ids, states=self.states, n=taken.n,
                                           dt=self._dt, p=0 if ys is None else ys[0].shape[1],
-                                          segment_bytes=self._chunk_bytes)
+                                          segment_bytes=self._chunk_bytes, inputs=0 if us is None else us.shape[1])
             cols = {c.name: getattr(taken, c.name)[ks] for c in COLUMNS}  # the row schema's (tau, t, x, xhat, ...)
             cols["lost"] = [[r[1:] for r in self._lost.get(int(tau), ())] for tau in taus.tolist()]
             if ys is not None and self.chunks.p:
                 cols["y"], cols["y_missing"] = ys
+            if us is not None and self.chunks.inputs:
+                cols["u"] = us
             try:
                 self.chunks.append(cols)
             except OSError as exc:

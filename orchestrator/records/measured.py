@@ -16,6 +16,12 @@ and entities: docs/reference/files.md, sections "Trajectory file" and "Rerun rec
 With live sensors the measurement of event time ``tau`` is the ``y_i`` each agent reports having used
 (:meth:`MeasuredRecords.live_y`, from its ``xhat``), held until the rows' measurements take it.
 
+Every run whose system has known inputs (``system.B``) records the ``u(tau)`` its estimators used
+(:meth:`MeasuredRecords.set_inputs`, :class:`InputRows`): ``trajectory.npz``'s ``u`` and the chunks' ``u`` column.
+That is the scenario's signal, or a measurements file's ``u`` rows, at every event time; with live inputs
+(``sources.inputs``) the ``u`` the agents report having taken (:meth:`MeasuredRecords.live_u`; NaN where none did:
+no agent alive, the last event time, which has no round).  The centralized Kalman filter runs on that ``u``.
+
 :class:`MeasuredRecords` holds this state for one :class:`~splitspec_orchestrator.records.recorder.Recorder` (which
 keeps the buffering, the flushes and their order); it reads the recorder's taken rows (a
 :class:`~splitspec_orchestrator.records.rowstore.RowStore`) and shares its lock for the live measurements.
@@ -24,13 +30,62 @@ keeps the buffering, the flushes and their order); it reads the recorder's taken
 from __future__ import annotations
 
 import threading
+from typing import Callable
 
 import numpy as np
 
 from ..viewer.reference_view import ReferenceRows
 from .rowstore import RowStore
 
-__all__ = ["MeasuredRecords"]
+__all__ = ["MeasuredRecords", "InputRows"]
+
+class InputRows:
+    """The known inputs ``u(tau)`` (``p`` of them) of a recorder's event times: ``u_row(tau) -> u | None`` is asked
+    once per event time it knows (a live source may know it later: a None is asked again); NaN where unknown.
+    No I/O."""
+
+    def __init__(self, p: int, u_row: Callable):
+        self.p, self.u_row = int(p), u_row
+        self._u, self._known = np.full((64, self.p), np.nan), np.zeros(64, bool)
+        self._base = 0  # the event time of row 0 (forget_before)
+
+    def rows(self, taus) -> np.ndarray:
+        """``u`` (L, p) of event times ``taus``, NaN where unknown (or forgotten).
+
+        Raises
+        ------
+        ValueError
+            If ``u_row`` gives a row of another width than p.
+        """
+        idx = np.asarray(taus, dtype=np.int64).reshape(-1) - self._base
+        held = idx >= 0
+        if held.any() and int(idx.max()) >= len(self._known):
+            cap = max(2 * len(self._known), int(idx.max()) + 1)
+            u, known = np.full((cap, self.p), np.nan), np.zeros(cap, bool)
+            u[:len(self._u)], known[:len(self._known)] = self._u, self._known
+            self._u, self._known = u, known
+        for k in idx[held][~self._known[idx[held]]].tolist():
+            got = self.u_row(int(k + self._base))
+            if got is None:
+                continue
+            got = np.asarray(got, dtype=float).reshape(-1)
+            if got.shape != (self.p,):
+                raise ValueError(f"the known inputs of event time {k + self._base} have {got.size} values; "
+                                 f"expected {self.p} (the columns of system.B)")
+            self._u[k], self._known[k] = got, True
+        out = np.full((len(idx), self.p), np.nan)
+        out[held] = self._u[idx[held]]
+        return out
+
+    def forget_before(self, tau: int) -> None:
+        """Forget the event times before ``tau`` (a run until stopped holds a window of rows; they are on disk)."""
+        d = int(tau) - self._base
+        if d <= 0:
+            return
+        keep = max(0, len(self._known) - d)
+        self._u[:keep], self._known[:keep] = self._u[len(self._u) - keep:], self._known[len(self._known) - keep:]
+        self._u[keep:], self._known[keep:] = np.nan, False
+        self._base = int(tau)
 
 
 class MeasuredRecords:
@@ -55,9 +110,55 @@ class MeasuredRecords:
         self.truth = True
         self.after_run: tuple | None = None
         self.closed = False  # set by the recorder's close: the next arrays() is the last, with the Kalman filter
-        self.inputs = None  # a measurements file's u rows (known inputs), else the scenario's signal applies
+        self.inputs: InputRows | None = None  # the known inputs u(tau) the estimators used (set_inputs)
         self._live_rows = None
         self._live: dict = {}  # tau -> (y, missing) from live_y, until the y source has taken it (it keeps it)
+        self._live_u: dict = {}  # tau -> u from live_u, until the inputs' rows have taken it (they keep it)
+
+    def set_inputs(self, sc, u: np.ndarray | None = None) -> None:
+        """The run's known inputs (none without ``system.B``): live (``sources.inputs``: what :meth:`live_u` is
+        given), else the rows of ``u`` (a measurements file's, (T, p)) or the scenario's signal."""
+        if sc.system.B is None:
+            self.inputs = None
+            return
+        if sc.input_source is not None:
+            self._live_u = {}
+            self.inputs = InputRows(sc.system.inputs, self._live_u_row)
+            return
+        from splitspec_core.model.plant import input_of
+
+        rows = None if u is None else np.asarray(u, dtype=float)
+
+        def u_row(tau: int):
+            if rows is None:
+                return input_of(sc, tau)  # the signal (zero without system.u), as the plant process sends it
+            return rows[tau] if 0 <= tau < len(rows) else None
+
+        self.inputs = InputRows(sc.system.inputs, u_row)
+
+    def _live_u_row(self, tau: int):
+        with self._lock:
+            return self._live_u.pop(int(tau), None)
+
+    def live_u(self, tau: int, used) -> tuple:
+        """Event time ``tau``'s ``(agent id, u(tau))`` of the live known inputs the alive agents took: the first
+        agent's in the scenario's order is recorded (each agent samples the inputs as its tick arrives, so agents
+        may take different values); ``(the recorded agent's id, the ids of the agents that took another value)``,
+        ``(None, [])`` when none reported one."""
+        if self.inputs is None:
+            return None, []
+        got = sorted(((self._pos[int(a)], int(a), np.asarray(v, dtype=float)) for a, v in used
+                      if int(a) in self._pos and v is not None and len(v) == self.inputs.p), key=lambda r: r[0])
+        if not got:
+            return None, []
+        u = got[0][2]
+        with self._lock:
+            self._live_u[int(tau)] = u
+        return got[0][1], [a for _, a, v in got[1:] if not np.array_equal(v, u)]
+
+    def u_rows(self, taus: np.ndarray):
+        """``u`` (L, p) of event times ``taus`` with known inputs (the chunks' column), else None."""
+        return None if self.inputs is None else self.inputs.rows(taus)
 
     def use(self, sc, rows: ReferenceRows, *, truth: bool) -> None:
         """The run's measurements: ``rows`` (:class:`ReferenceRows` of the scenario's ``C_i``)."""
@@ -97,6 +198,8 @@ class MeasuredRecords:
         """A run until stopped forgot its rows before ``tau`` (on disk): so do the measurements behind them."""
         if self.source is not None:
             self.source[1].forget_before(tau)
+        if self.inputs is not None:
+            self.inputs.forget_before(tau)
 
     def row_errors(self, ks: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``|x_i - x|`` of rows ``ks`` and where a row shows agent i: alive with a finite error, or without the
@@ -113,14 +216,18 @@ class MeasuredRecords:
         return self.source[1].mark_y(tau)
 
     def arrays(self, T: int) -> dict:
-        """The extra arrays of ``trajectory.npz`` with the first ``T`` rows taken: none without measurements;
-        ``y``, ``y_missing``; after :attr:`closed`, also what is known without truth (kept in :attr:`after_run`)."""
-        if self.source is None or not T:
+        """The extra arrays of ``trajectory.npz`` with the first ``T`` rows taken: ``u`` with known inputs; on
+        measurements ``y``, ``y_missing`` and, after :attr:`closed`, what is known without truth (kept in
+        :attr:`after_run`)."""
+        if not T:
             return {}
-        sc, rows = self.source
         taus = self._d.tau[:T].astype(int)
+        extra = {} if self.inputs is None else {"u": self.inputs.rows(taus)}
+        if self.source is None:
+            return extra
+        sc, rows = self.source
         y, missing = rows.measurements(taus)
-        extra = {"y": y, "y_missing": missing}
+        extra.update(y=y, y_missing=missing)
         if self.closed:  # the centralized Kalman filter over the whole run: once, at the end
             from splitspec_core.studies.no_truth import no_truth_arrays
             from splitspec_core.simulation.simulator import Trajectory
@@ -129,7 +236,7 @@ class MeasuredRecords:
             traj = Trajectory(t=taken.t[:T], x=taken.x[:T], xhat=taken.xhat[:T], alive=taken.alive[:T],
                               graph=taken.graph[:T],
                               agent_ids=np.array(self.agent_ids), y=extra["y"], y_missing=extra["y_missing"])
-            known = no_truth_arrays(traj, sc, None if self.inputs is None else self.inputs[:T])
+            known = no_truth_arrays(traj, sc, extra.get("u"))
             self.after_run = (T, known)
             extra.update(known)
         return extra

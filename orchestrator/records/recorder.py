@@ -156,6 +156,7 @@ class Recorder:
         files = RecordFiles(self.out_dir, agent_ids=self.agent_ids, taken=taken, lost=self._lost,
                             extra=self._meas.arrays, failure=self._failed, sink=sink,
                             states=names or default_state_names(self.n), y_rows=self._meas.y_rows,
+                            u_rows=self._meas.u_rows,
                             continuous=continuous, dt=self.dt if time_mode == "continuous" else 1.0)
         self._w = RecordWriter(taken, files, self._meas, self._events, self._failed, self._lock,
                                envelope_rate=self.envelope_rate, time_mode=time_mode, dt=self.dt)
@@ -407,7 +408,16 @@ class Recorder:
         from ..viewer.reference_view import file_rows
 
         self.set_y_source(sc, file_rows(meas), truth=meas.has_truth)
-        self._meas.inputs = meas.u
+        self.set_inputs(sc, meas.u)
+
+    def set_inputs(self, sc, u=None) -> None:
+        """Record the known inputs the estimators use (``system.B``; nothing without): ``u`` (T, p), a measurements
+        file's rows, else the scenario's signal, or with live inputs (``sources.inputs``) what :meth:`live_u` is
+        given; ``trajectory.npz`` and the chunks get ``u``.  Call before the first row."""
+        with self._io, self._lock:
+            if self._s.rows:
+                raise RecordingError("set_inputs() after the first row: its u would be missing from the records")
+            self._meas.set_inputs(sc, u)
 
     def set_y_source(self, sc, y_row, *, truth: bool) -> None:
         """The estimators run on measurements ``y_row(tau) -> (y, missing) | None``
@@ -431,8 +441,15 @@ class Recorder:
         """Live sensors (scenario ``sources:``): the estimators run on the ``y_i`` each agent reports having used
         (:meth:`live_y`, from its ``xhat``), without a truth (:meth:`set_y_source`); call before the first row."""
         self.set_y_source(sc, self._meas.live_source(sc), truth=False)
+        self.set_inputs(sc)
 
     def live_y(self, tau: int, used) -> None:
         """Event time ``tau``'s ``(agent id, y_i(tau) or None)`` of the agents alive (the others: missing, NaN);
         before :meth:`row` of ``tau``, so that a flush never takes the row without its measurements."""
         self._meas.live_y(tau, used)
+
+    def live_u(self, tau: int, used) -> tuple:
+        """Event time ``tau``'s ``(agent id, u(tau))`` of the live known inputs the alive agents took (the first
+        agent's is recorded: :meth:`MeasuredRecords.live_u`); before :meth:`row` of ``tau``, as :meth:`live_y`.
+        Returns the recorded agent's id and the ids of the agents that took another value."""
+        return self._meas.live_u(tau, used)

@@ -46,6 +46,7 @@ class Record:
     lost: tuple = ()  # (tau, k, j, i, cause) of every consensus message of the round that did not count
     y: tuple = ()  # live sensors: (agent id, y_i(tau) used or None) of the agents alive
     late: float = math.nan  # seconds the round started behind run.pace (NaN: unpaced)
+    u: tuple = ()  # live known inputs: (agent id, u(tau) it used) of the agents alive that reported one
 
     @property
     def max_error(self) -> float:

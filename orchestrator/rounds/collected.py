@@ -3,7 +3,7 @@
 Round ``tau`` collects ``truth(tau)`` from the plant and, from every alive agent, ``x_i(tau)`` (its admission
 estimate, or the previous round's result) and ``x_i(tau + 1)``, each with the row columns the agent reports
 (:data:`splitspec_core.model.rows.REPORTED`: of its state, such as ``g_i``, or of the round), the consensus
-messages it did not count and, with live sensors, the ``y_i(tau)`` it used.  :class:`Collected` keeps them until
+messages it did not count and, with live sensors, the ``y_i(tau)`` (and live known inputs ``u(tau)``) it used.  :class:`Collected` keeps them until
 the round is recorded (:meth:`Collected.take`, a :class:`CollectedRow`), so its buffers hold at most two event
 times.  I/O-free.
 """
@@ -31,6 +31,7 @@ class CollectedRow:
     columns : reported column name -> (m,) its values, the fill for the agents not alive
     lost : ``(tau, k, j, i, cause)`` of every consensus message of the round that did not count
     used : agent id -> the ``y_i(tau)`` it used (live sensors)
+    inputs : agent id -> the live known inputs ``u(tau)`` it used (live inputs; [] or absent: none reported)
     """
 
     x: np.ndarray
@@ -39,6 +40,7 @@ class CollectedRow:
     columns: dict
     lost: tuple
     used: dict
+    inputs: dict
 
 
 class Collected:
@@ -50,6 +52,7 @@ class Collected:
         self.est: dict = {}
         self.reports: dict = {}  # tau -> {agent id: its reported columns with x_i(tau)} (rows.report)
         self.est_y: dict = {}  # tau + 1 -> {agent id: y_i(tau) it used, or None} (live sensors)
+        self.est_u: dict = {}  # tau + 1 -> {agent id: u(tau) it used} (live known inputs)
         self.est_lost: dict = {}  # tau + 1 -> {agent id: [k, j, cause, ...]}: what the round of tau did not count
 
     def put_truth(self, tau: int, attempt: int, x, *, at: tuple, in_flight: bool) -> str | None:
@@ -61,7 +64,7 @@ class Collected:
         return None
 
     def put_xhat(self, aid: int, tau: int, attempt: int, x, columns: dict, *, at: tuple, in_flight: bool,
-                 same_incarnation: bool, lost=(), y=()) -> str | None:
+                 same_incarnation: bool, lost=(), y=(), u=()) -> str | None:
         """Agent ``aid``'s estimate ``x_i(tau)`` of attempt ``attempt`` with its reported row ``columns``, kept if
         the round in flight (``at``, ``in_flight`` as in :meth:`put_truth`) takes it and it comes from the agent's
         current incarnation (``same_incarnation``); else why not, ``stale`` or ``future``."""
@@ -77,6 +80,8 @@ class Collected:
             self.est_lost.setdefault(tau, {})[aid] = list(lost)
             if self.plantless:
                 self.est_y.setdefault(tau, {})[aid] = y
+                if u:
+                    self.est_u.setdefault(tau, {})[aid] = u
         return None
 
     def drop_next(self, tau: int) -> None:
@@ -84,6 +89,7 @@ class Collected:
         self.est.pop(tau + 1, None)
         self.reports.pop(tau + 1, None)
         self.est_y.pop(tau + 1, None)
+        self.est_u.pop(tau + 1, None)
         self.est_lost.pop(tau + 1, None)
 
     def done(self, tau: int, alive, final: bool) -> bool:
@@ -127,6 +133,7 @@ class Collected:
                      if a in alive for t in zip(flat[0::3], flat[1::3], flat[2::3]))
         x = self.truth[tau] if not self.plantless else np.full(self.n, np.nan)  # live sensors: x unknown
         used = self.est_y.pop(tau + 1, {})
+        inputs = self.est_u.pop(tau + 1, {})
         self.truth.pop(tau, None)
         self.est.pop(tau, None)
-        return CollectedRow(x=x, xhat=xh, alive=mask, columns=columns, lost=lost, used=used)
+        return CollectedRow(x=x, xhat=xh, alive=mask, columns=columns, lost=lost, used=used, inputs=inputs)

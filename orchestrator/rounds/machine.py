@@ -317,7 +317,7 @@ class RoundMachine:
         return out + self._progress(now)
 
     def on_xhat(self, aid: int, tau: int, attempt: int, incarnation: int, x: np.ndarray, columns: dict,
-                rejected: dict, now: float, lost=(), y=()) -> list:
+                rejected: dict, now: float, lost=(), y=(), u=()) -> list:
         """An agent's estimate with the row columns it reports (``columns``: :func:`splitspec_core.model.rows.report`;
         ``lost``: flat ``[k, j, cause, ...]`` of the consensus messages it did not count)."""
         out = self.on_clock(now)
@@ -327,7 +327,7 @@ class RoundMachine:
             return out
         why = self.collected.put_xhat(aid, tau, attempt, x, columns, at=(self.tau, self.attempt),
                                       in_flight=self._in_flight, same_incarnation=incarnation == self.incarnation(aid),
-                                      lost=lost, y=y)
+                                      lost=lost, y=y, u=u)
         if why:  # x_i(tau) of any attempt (an admission estimate that crosses a re-run), x_i(tau + 1) of this one
             self.reject("orchestrator", why)
             return out
@@ -540,7 +540,8 @@ class RoundMachine:
         lost, used = row.lost, row.used
         out = [Record(self.tau, row.x, row.xhat, row.alive, self.plan.graph_at(self.tau), row.columns,
                       attempts=self.attempt + 1, rejected=self.rejections.since_record(), started=self.round_started,
-                      lost=lost, y=tuple((a, used.get(a)) for a in sorted(self.alive)), late=self.round_late)]
+                      lost=lost, y=tuple((a, used.get(a)) for a in sorted(self.alive)), late=self.round_late,
+                      u=tuple((a, row.inputs[a]) for a in sorted(self.alive) if row.inputs.get(a) is not None))]
         out += self.pace.observe(self.tau, self.round_late, self.round_started, now, self.last_in, self.t()) \
             if self.pace is not None else []
         if self.plantless and self.tau < self.plan.steps:  # the last tick takes no measurement

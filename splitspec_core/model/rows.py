@@ -21,8 +21,8 @@ the simulator (:mod:`splitspec_core.simulation.simulator`, which puts it in ``Tr
 
 Shape kinds (T rows; m agents; n states): ``row`` (T,), ``state`` (T, n), ``agent`` (T, m), ``agent_state``
 (T, m, n), ``round`` (T, len(:data:`ROUND_FIELDS`)).  Beside the columns, not in them: the consensus messages
-that did not count (``lost``, ``lost_cause``: any number per row) and, on measurements or live sensors, ``y`` and
-``y_missing`` (:mod:`splitspec_core.simulation.trajectory_file`).
+that did not count (``lost``, ``lost_cause``: any number per row), on measurements or live sensors ``y`` and
+``y_missing``, and with known inputs ``u`` (:mod:`splitspec_core.simulation.trajectory_file`).
 
 A reported column is of the agent's *state* (``reported="state"``: its value at ``tau`` comes with ``x_i(tau)``,
 as ``g_i(tau)`` does; an admission report carries the initial value) or of the *round* (``reported="round"``: the

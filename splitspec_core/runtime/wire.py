@@ -90,8 +90,9 @@ __all__ = ["SCHEMA_VERSION", "DEFAULT_RUN_ID", "Keys", "WireError", "encode", "d
 # agents without a measurement (missing), xhat carries the measurement the agent used (y); 6: a tick carries the
 # network (rows, alive, incarnation, partition: O(m) to decode in every agent) only when it changed (topology); 7: a
 # config carries W, the directions no agent sees (unobserved: the estimator's P_i projects on V_i minus W); 8: xhat
-# carries the reported row columns of splitspec_core.model.rows, the binary header's fourth byte tags them (ROW_TAG)
-SCHEMA_VERSION = 8
+# carries the reported row columns of splitspec_core.model.rows, the binary header's fourth byte tags them (ROW_TAG);
+# 9: xhat carries the live known inputs the agent used (u)
+SCHEMA_VERSION = 9
 DEFAULT_RUN_ID = "default"
 KEY_ROOT = "splitspec"  #: every run's keys live under ``splitspec/<run_id>/``
 #: every run's orchestrator token (``splitspec/<run_id>/alive/orchestrator/0``): which runs a router hosts
@@ -415,14 +416,15 @@ BINARY_LAYOUT = {
     "truth": (2, "qi", ("tau", "attempt"), "x", ("rejected",)),
     "z": (3, "qiii", ("tau", "attempt", "k", "agent"), "z", ()),
     "xhat": (4, "qiii" + "".join(_STRUCT_CODE[c.dtype] for c in REPORTED),
-             ("tau", "attempt", "agent", "incarnation", *(c.name for c in REPORTED)), "x", ("rejected", "lost", "y")),
+             ("tau", "attempt", "agent", "incarnation", *(c.name for c in REPORTED)), "x",
+             ("rejected", "lost", "y", "u")),
 }
 _FLOAT_FIELDS = frozenset(c.name for c in REPORTED if c.dtype == "float64")  # finite: no NaN on the wire
 #: the binary header's tag of the row schema's reported columns (their names and dtypes, in order)
 ROW_TAG = zlib.crc32(";".join(f"{c.name}:{c.dtype}" for c in REPORTED).encode()) & 0xFF
-#: fields a sender may leave out (the usual case): ``missing`` none, ``y`` not recorded, a reported row column whose
-#: fill can cross the wire (not NaN): its fill
-MAP_DEFAULTS = {"y": {"missing": []}, "xhat": {"y": [], **{c.name: c.fill for c in REPORTED
+#: fields a sender may leave out (the usual case): ``missing`` none, ``y`` / ``u`` not recorded, a reported row
+#: column whose fill can cross the wire (not NaN): its fill
+MAP_DEFAULTS = {"y": {"missing": []}, "xhat": {"y": [], "u": [], **{c.name: c.fill for c in REPORTED
                                                             if c.dtype != "float64" or math.isfinite(c.fill)}}}
 #: the most agent ids ``missing`` lists
 MAX_MISSING = 1 << 16
@@ -521,7 +523,7 @@ def _decode_binary(payload: bytes, run_id: str, expected_type: str) -> dict:
             elif name == "missing":
                 ok = isinstance(m, list) and len(m) <= MAX_MISSING and all(_CHECK["int"](v) and 0 <= v < 2 ** 31
                                                                             for v in m)
-            elif name == "y":
+            elif name in ("y", "u"):
                 ok = m is None or (isinstance(m, list) and len(m) <= MAX_VECTOR and all(map(_CHECK["float"], m)))
                 if ok and m is not None:
                     m = [float(v) for v in m]

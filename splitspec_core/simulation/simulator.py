@@ -96,6 +96,10 @@ class Trajectory:
         order, 0.0 where missing; None when a simulated plant drew them
     y_missing : (T, m) bool, optional
         No measurement of agent i at that step (the agent predicted only)
+    u : (T, p), optional
+        The known inputs the estimators used (a system with ``system.B``: the signal's, a measurements file's, or
+        the live inputs the agents took), NaN where none was used (no agent alive, a run's last row); None
+        without inputs
     states : tuple of str, optional
         The states' names (``system.states``, else ``x1 .. xn``); None for a file written before they existed
     """
@@ -112,6 +116,7 @@ class Trajectory:
     y: np.ndarray | None = None
     y_missing: np.ndarray | None = None
     states: tuple | None = None
+    u: np.ndarray | None = None
 
     @property
     def g(self) -> np.ndarray | None:
@@ -151,7 +156,7 @@ class Trajectory:
             The ``.npz`` file to write (replaced atomically if it exists).
         extra : dict or None, optional
             More optional arrays of the contract (:data:`~splitspec_core.simulation.trajectory_file.OPTIONAL`),
-            written besides ``y`` and ``y_missing``; None (default): none.
+            written besides ``y``, ``y_missing`` and ``u``; None (default): none.
 
         Raises
         ------
@@ -163,7 +168,7 @@ class Trajectory:
         write_trajectory(path, t=self.t, x=self.x, xhat=self.xhat, alive=self.alive, graph=self.graph,
                          agent_ids=self.agent_ids, columns=self.columns, lost=self.lost, lost_cause=self.lost_cause,
                          extra={**({"y": self.y, "y_missing": self.y_missing} if self.y is not None else {}),
-                                **(extra or {})}, states=self.states)
+                                **({"u": self.u} if self.u is not None else {}), **(extra or {})}, states=self.states)
 
     @classmethod
     def load(cls, path: str | Path) -> "Trajectory":
@@ -191,14 +196,14 @@ class Trajectory:
         ----------
         a : dict
             Array name -> array: at least ``t``, ``x``, ``xhat``, ``alive``, ``graph`` and ``agent_ids``; the
-            reported columns, ``lost``, ``lost_cause``, ``y``, ``y_missing`` and ``states`` when present.
+            reported columns, ``lost``, ``lost_cause``, ``y``, ``y_missing``, ``u`` and ``states`` when present.
 
         Returns
         -------
         Trajectory
             The trajectory over those arrays (not copied).
         """
-        extra = {k: a[k] for k in ("lost", "lost_cause", "y", "y_missing") if k in a}
+        extra = {k: a[k] for k in ("lost", "lost_cause", "y", "y_missing", "u") if k in a}
         states = tuple(str(s) for s in a["states"]) if "states" in a else None
         return cls(t=a["t"], x=a["x"], xhat=a["xhat"], alive=a["alive"], graph=a["graph"], agent_ids=a["agent_ids"],
                    columns={c.name: a[c.name] for c in REPORTED if c.name in a}, states=states, **extra)
@@ -237,7 +242,7 @@ class Trajectory:
         return dataclasses.replace(self, t=self.t[rows], x=self.x[rows], xhat=self.xhat[rows], alive=self.alive[rows],
                                    graph=self.graph[rows], columns={k: v[rows] for k, v in self.columns.items()},
                                    lost=lost, lost_cause=cause,
-                                   y=pick(self.y), y_missing=pick(self.y_missing))
+                                   y=pick(self.y), y_missing=pick(self.y_missing), u=pick(self.u))
 
 
 # --------------------------------------------------------------------------
@@ -921,7 +926,8 @@ def simulate(des: Design, *, seed: int | None = None, steps: int | None = None, 
     -------
     Trajectory
         ``T = steps + 1`` rows: ``x(k)`` and ``x_i(k)`` for ``k = 0 .. steps``, who was alive, the active
-        graph, the reported columns (``g``, ``messages_used``) and the consensus messages that did not count.
+        graph, the reported columns (``g``, ``messages_used``), the consensus messages that did not count and,
+        with known inputs (``system.B``), ``u(k)`` of every row (the file's, else the signal's).
 
     Raises
     ------
@@ -973,6 +979,7 @@ def simulate(des: Design, *, seed: int | None = None, steps: int | None = None, 
     # the measurements the estimators were given (a file's rows, the sensor faults in force applied)
     ys = np.zeros((T, sum(np.shape(C)[0] for C in sc.system.Cs))) if keep_y or measurements is not None else None
     rows_y = output_rows(sc.system.Cs)
+    us = None if B is None else np.zeros((T, sc.system.inputs))  # the known inputs u(k) (trajectory u)
 
     def restart(killed, rejoined):
         for i in killed:
@@ -988,6 +995,8 @@ def simulate(des: Design, *, seed: int | None = None, steps: int | None = None, 
 
     def record(k):
         xs[k] = plant.x
+        if us is not None:  # u(k): what every agent adds at step k (the last row's too: the signal's, the file's)
+            us[k] = plant.input()
         xh[k][alive] = X[alive]
         al[k] = alive
         if est.continuous:
@@ -1032,7 +1041,7 @@ def simulate(des: Design, *, seed: int | None = None, steps: int | None = None, 
         recorded = {"y": ys, "y_missing": np.zeros((T, m), dtype=bool)}
     return Trajectory(t=plan.times(), x=xs, xhat=xh, alive=al, graph=plan.graph_seq.copy(),
                       agent_ids=np.array(ids), columns={"g": g, **rounds}, lost=lost_a, lost_cause=cause_a,
-                      states=sc.state_names,
+                      states=sc.state_names, u=us,
                       **recorded)
 
 

@@ -14,8 +14,9 @@ Columns, one row per event time: the row schema's (:data:`splitspec_core.model.r
 ``graph`` int64, the agents' reported columns (m) such as ``g``, ``wall`` int64 (``time.time_ns()`` of the row's
 arrival), ``round`` (5): the round's wall ms, attempts, messages rejected, consensus messages lost, and its
 lateness against ``run.pace`` in ms (NaN unpaced)); then ``lost``: the consensus messages of this event time that
-did not count, flattened ``(k, j, i, cause)`` quadruples; and on measurements or live sensors ``y`` (sum s_i) and
-``y_missing`` (m).  A column the schema gained after a chunk was written reads back as its fill.  The schema's metadata holds
+did not count, flattened ``(k, j, i, cause)`` quadruples; on measurements or live sensors ``y`` (sum s_i) and
+``y_missing`` (m); and with known inputs (``system.B``) ``u`` (p), the inputs the estimators used (NaN: none).
+A column the schema gained after a chunk was written reads back as its fill.  The schema's metadata holds
 ``agent_ids``, ``states`` (JSON) and ``dt``.  A row written again (an agent declared lost after its row was
 flushed) is appended again, to the segment being written: the last batch that holds an event time wins, and a
 time window reads the first segment past its end as well.
@@ -47,7 +48,7 @@ def _arrow_type(dtype: str):
     return {"float64": pa.float64(), "int64": pa.int64(), "bool": pa.bool_()}[dtype]
 
 
-def _schema(m: int, n: int, p: int, agent_ids, states, dt: float):
+def _schema(m: int, n: int, p: int, agent_ids, states, dt: float, inputs: int = 0):
     import pyarrow as pa
 
     fields = []
@@ -58,6 +59,8 @@ def _schema(m: int, n: int, p: int, agent_ids, states, dt: float):
     fields.append(("lost", pa.list_(pa.int64())))
     if p:
         fields += [("y", pa.list_(pa.float64(), p)), ("y_missing", pa.list_(pa.bool_(), m))]
+    if inputs:
+        fields.append(("u", pa.list_(pa.float64(), inputs)))
     meta = {b"format": _FORMAT, b"agent_ids": json.dumps([int(a) for a in agent_ids]).encode(),
             b"states": json.dumps([str(s) for s in states]).encode(), b"dt": repr(float(dt)).encode()}
     return pa.schema(fields, metadata=meta)
@@ -87,15 +90,18 @@ class ChunkWriter:
         The sampling step (default 1: discrete time): ``t = tau * dt``, in the metadata (time windows).
     p : int, optional
         The width of ``y`` (default 0: no ``y`` / ``y_missing`` columns).
+    inputs : int, optional
+        The width of ``u``, the known inputs (default 0: no ``u`` column).
     segment_bytes : int, optional
         A new segment starts when the current one holds this many bytes (default 64 MiB).
     """
 
     def __init__(self, out_dir: str | Path, *, agent_ids, states, n: int, dt: float = 1.0, p: int = 0,
-                 segment_bytes: int = _SEGMENT_BYTES):
+                 segment_bytes: int = _SEGMENT_BYTES, inputs: int = 0):
         self.dir = Path(out_dir) / CHUNKS_DIR
         self.m, self.n, self.p = len(agent_ids), int(n), int(p)
-        self.schema = _schema(self.m, self.n, self.p, agent_ids, states, dt)
+        self.inputs = int(inputs)
+        self.schema = _schema(self.m, self.n, self.p, agent_ids, states, dt, self.inputs)
         self.segment_bytes = int(segment_bytes)
         self.path: Path | None = None  # the current segment
         self.size = 0  # its bytes on disk
@@ -115,7 +121,7 @@ class ChunkWriter:
         ``tau`` (L,), ``t``, ``x`` (L, n), ``xhat`` (L, m, n), ``alive`` (L, m), ``graph``, the reported columns
         (L, m) such as ``g`` (one not given: its fill), ``wall``, ``round`` (L, 5)), ``lost`` (a list of L int
         arrays of 4 k values), and
-        ``y`` (L, p) / ``y_missing`` (L, m) when ``p``.
+        ``y`` (L, p) / ``y_missing`` (L, m) when ``p``, ``u`` (L, inputs) when ``inputs``.
 
         Parameters
         ----------
@@ -142,6 +148,8 @@ class ChunkWriter:
         if self.p:
             arrays += [_fixed(np.asarray(cols["y"], float), self.p, pa.float64()),
                        _fixed(np.asarray(cols["y_missing"], bool), self.m, pa.bool_())]
+        if self.inputs:
+            arrays.append(_fixed(np.asarray(cols["u"], float), self.inputs, pa.float64()))
         assert all(len(a) == L for a in arrays)
         return pa.record_batch(arrays, schema=self.schema)
 
@@ -327,8 +335,8 @@ def read_chunks(out: str | Path, *, start: float | None = None, end: float | Non
     Returns every column of the row schema (:data:`splitspec_core.model.rows.COLUMNS`: ``tau``, ``t``, ``x``,
     ``xhat`` (T, m, n), ``alive``, ``graph``, the reported columns such as ``g`` (T, m), ``wall``, ``round``
     (T, 5, :data:`ROUND_FIELDS`)), ``agent_ids``, ``lost`` (N, 4), ``lost_cause``, ``states``, and
-    ``y``/``y_missing`` when recorded: one row per event time, in order, the last one written where an event
-    time was written twice.
+    ``y``/``y_missing`` and ``u`` (T, p) when recorded: one row per event time, in order, the last one written
+    where an event time was written twice.
 
     Parameters
     ----------
@@ -432,6 +440,8 @@ def read_chunks(out: str | Path, *, start: float | None = None, end: float | Non
         p = table.schema.field("y").type.list_size
         out_arrays["y"] = col("y", p)[keep]
         out_arrays["y_missing"] = col("y_missing", m, bool)[keep]
+    if "u" in table.column_names:
+        out_arrays["u"] = col("u", table.schema.field("u").type.list_size)[keep]
     return out_arrays
 
 

@@ -30,10 +30,11 @@ __all__ = ["TRAJECTORY_FILE", "OPTIONAL", "write_trajectory", "lost_arrays"]
 
 TRAJECTORY_FILE = "trajectory.npz"
 #: arrays written only when there is something to say: the measurements the estimators were given
-#: (``y`` (T, sum s_i), ``y_missing`` (T, m)) and, without truth, what can be known instead of the error
-#: (:func:`splitspec_core.studies.no_truth.no_truth_arrays`): ``residual`` (T, m), ``disagreement`` (T,),
-#: ``kf`` (T, n) and ``kf_distance`` (T, m)
-OPTIONAL = ("y", "y_missing", "residual", "disagreement", "kf", "kf_distance")
+#: (``y`` (T, sum s_i), ``y_missing`` (T, m)), the known inputs they used (``u`` (T, p), a system with ``system.B``:
+#: the signal's, a measurements file's or the live inputs' each agent took; NaN where no agent used one) and,
+#: without truth, what can be known instead of the error (:func:`splitspec_core.studies.no_truth.no_truth_arrays`):
+#: ``residual`` (T, m), ``disagreement`` (T,), ``kf`` (T, n) and ``kf_distance`` (T, m)
+OPTIONAL = ("y", "y_missing", "u", "residual", "disagreement", "kf", "kf_distance")
 
 
 def lost_arrays(rows) -> tuple:

@@ -27,7 +27,7 @@ import numpy as np
 from .baselines import regularise, sampled_model
 from ..model.plant import input_sequence, output_rows
 
-__all__ = ["no_truth_arrays", "residuals", "disagreement", "kalman_reference"]
+__all__ = ["no_truth_arrays", "residuals", "disagreement", "kalman_reference", "held_inputs"]
 
 
 def residuals(xhat: np.ndarray, y: np.ndarray, missing: np.ndarray, Cs) -> np.ndarray:
@@ -150,9 +150,39 @@ def kalman_reference(sc, y: np.ndarray, missing: np.ndarray, u: np.ndarray | Non
     return out
 
 
+def held_inputs(u: np.ndarray) -> np.ndarray:
+    """``u`` (T, p) with every row that is not finite (no agent used one: none alive, a run's last row) holding
+    the last finite row before it, zero before the first: what an agent holds when it takes no new ``u``.
+
+    Parameters
+    ----------
+    u : (T, p) array_like
+        Recorded known inputs (a run's ``u``), NaN where none was taken.
+
+    Returns
+    -------
+    (T, p) ndarray
+        A new array, finite everywhere; its finite rows are those of ``u``.
+
+    Examples
+    --------
+    >>> held_inputs(np.array([[np.nan], [2.0], [np.nan], [3.0]])).ravel().tolist()
+    [0.0, 2.0, 2.0, 3.0]
+    """
+    u = np.array(u, dtype=float)
+    last = np.zeros(u.shape[1:])
+    for k in range(len(u)):
+        if np.isfinite(u[k]).all():
+            last = u[k]
+        else:
+            u[k] = last
+    return u
+
+
 def no_truth_arrays(traj, sc, u: np.ndarray | None = None) -> dict:
     """``residual``, ``disagreement``, ``kf`` and ``kf_distance`` of a trajectory that holds its measurements
-    (``u``: a measurements file's inputs, else the scenario's signal applies).
+    (``u``: the inputs the estimators used, a run's recorded ``u`` or a measurements file's, NaN rows held
+    (:func:`held_inputs`); None: the scenario's signal applies).
 
     Parameters
     ----------
@@ -166,8 +196,8 @@ def no_truth_arrays(traj, sc, u: np.ndarray | None = None) -> dict:
     Returns
     -------
     dict
-        ``residual`` (T, m), ``disagreement`` (T,), ``kf`` (T, n; NaN with live known inputs, which the agents do not
-        report) and ``kf_distance`` (T, m).
+        ``residual`` (T, m), ``disagreement`` (T,), ``kf`` (T, n; NaN with live known inputs and no recorded
+        ``u``, as in a run recorded before runs recorded it) and ``kf_distance`` (T, m).
 
     Raises
     ------
@@ -178,11 +208,11 @@ def no_truth_arrays(traj, sc, u: np.ndarray | None = None) -> dict:
         raise ValueError("no_truth_arrays needs the measurements the estimators were given (trajectory y)")
     missing = traj.y_missing if traj.y_missing is not None else np.zeros(traj.alive.shape, dtype=bool)
     if u is None and sc.input_source is not None:
-        # live known inputs: the agents do not report the u they took, so the filter cannot be run on it; it is not
-        # shown (NaN) rather than run with a u it did not have
+        # live known inputs without the u the agents took: the filter is not shown (NaN) rather than run with a u
+        # it did not have
         kf = np.full((len(traj.y), sc.n), np.nan)
     else:
-        kf = kalman_reference(sc, traj.y, missing, u)
+        kf = kalman_reference(sc, traj.y, missing, None if u is None else held_inputs(u))
     return {"residual": residuals(traj.xhat, traj.y, missing, sc.system.Cs),
             "disagreement": disagreement(traj.xhat),
             "kf": kf,

@@ -161,9 +161,9 @@ def compare_trajectories(a_path: Path, b_path: Path, tol: float = 1e-9) -> float
     # x: NaN where nobody knows the truth (a measurements file without it), in both
     assert np.allclose(a["x"], b["x"], rtol=0, atol=tol * max(1.0, np.nanmax(np.abs(b["x"]), initial=0.0)),
                        equal_nan=True)
-    for k in ("y", "y_missing"):  # the measurements the estimators were given: the same file's rows, exact
+    for k in ("y", "y_missing", "u"):  # the measurements and known inputs the estimators were given: exact
         if k in a.files or k in b.files:
-            assert np.array_equal(a[k], b[k]), k
+            assert np.array_equal(a[k], b[k], equal_nan=k == "u"), k
     for k in ("residual", "disagreement", "kf", "kf_distance"):  # computed from the estimates: to ``tol``
         if k in a.files or k in b.files:
             assert np.allclose(a[k], b[k], rtol=0, atol=tol * max(1.0, float(np.nanmax(np.abs(b[k])))),
@@ -195,7 +195,7 @@ def assert_chunks_hold_the_trajectory(out: Path) -> None:
     assert rows is not None, f"{out} has no chunks/"
     with np.load(out / "trajectory.npz") as z:
         for k in ("t", "x", "xhat", "alive", "graph", *(c.name for c in REPORTED), "lost", "lost_cause", "agent_ids",
-                  "y", "y_missing"):
+                  "y", "y_missing", "u"):
             if k in z.files:
                 assert np.array_equal(z[k], rows[k], equal_nan=z[k].dtype.kind == "f"), k
 

@@ -124,11 +124,16 @@ def _publish(sensors: dict, A, B, C, u, stop, publish_u: bool) -> None:
 @pytest.mark.parametrize("publish_u", [True, False])
 def test_live_known_inputs_reach_every_agent(tmp_path, publish_u):
     """Live sensors and live known inputs (``sources.inputs``), a secure run: with u published every agent's
-    estimate explains its measurements (residual ~ 0); without it the agents hold u = 0 and cannot."""
+    estimate explains its measurements (residual ~ 0); without it the agents hold u = 0 and cannot.  Either way the
+    records hold the u the agents took (``trajectory.npz`` and the chunks), the centralized Kalman filter runs on it
+    (finite), and the records replay: ``simulate --measurements`` on their y and u gives the run's estimates."""
     import subprocess
     import threading
 
-    from tests.integration.runtime_helpers import ENV, ROOT, cli, wait_for_event
+    from splitspec_core.scenarios.measurements import write_measurements
+    from splitspec_core.simulation.trajectory_chunks import read_chunks
+    from splitspec_core.studies.no_truth import held_inputs
+    from tests.integration.runtime_helpers import ENV, ROOT, cli, events, wait_for_event, wait_for_rows
 
     A = np.array([[0.9, 0.3], [-0.3, 0.9]])
     B = np.array([[0.0], [1.0]])
@@ -147,6 +152,9 @@ def test_live_known_inputs_reach_every_agent(tmp_path, publish_u):
     try:
         sensors = wait_for_event(out, "sensors", timeout=60)
         assert set(sensors["keys"]) == {"1", "2", "3", "inputs"}
+        # the user's process starts once the run ticks (every agent subscribed long before): one change of u, 0 to 3,
+        # which the agents see at one tick unless it lands between their ticks' arrivals (inputs_differ, below)
+        wait_for_rows(out, 10, timeout=60)
         pub = threading.Thread(target=_publish_live, args=(sensors, A, B, C, np.array([3.0]), stop, publish_u,
                                                            failed))
         pub.start()
@@ -159,9 +167,42 @@ def test_live_known_inputs_reach_every_agent(tmp_path, publish_u):
     pub.join(timeout=10)
     assert not failed, failed
     with np.load(out / "trajectory.npz") as f:
-        residual = f["residual"]
+        ran = {k: f[k] for k in f.files}
+    residual = ran["residual"]
     last = np.nanmax(residual[-5:])
     if publish_u:
         assert last < 1e-6, residual[-5:]
     else:  # the plant's equilibrium needs u = 3: the estimates cannot explain y with u held at 0
         assert last > 0.1, residual[-5:]
+    # the u the agents took, per event time: 0 held until the first published u, then 3; the last event time has
+    # no round (NaN); the chunks hold the same column
+    u = ran["u"]
+    assert u.shape == (121, 1) and np.isnan(u[-1]).all() and np.isfinite(u[:-1]).all(), u.ravel()
+    if publish_u:
+        assert set(u[:-1].ravel()) <= {0.0, 3.0} and (u[:9] == 0.0).all() and (u[-6:-1] == 3.0).all(), u.ravel()
+        assert np.all(np.diff(u[:-1].ravel()) >= 0), u.ravel()  # taken once, then held: never back to 0
+    else:
+        assert (u[:-1] == 0.0).all(), u.ravel()
+    assert np.array_equal(read_chunks(out)["u"], u, equal_nan=True)
+    # the centralized Kalman filter runs on that u: finite; with the published u it ends where the agents do
+    # (at the equilibrium |x| = 9: measured 3.7e-15 apart in 3 runs; 1e-9 of |x| allowed)
+    assert np.isfinite(ran["kf"]).all()
+    if publish_u:
+        assert np.nanmax(ran["kf_distance"][-1]) < 1e-9 * np.abs(ran["kf"][-1]).max(), ran["kf_distance"][-1]
+    # replay: the y and u the run recorded, as a measurements file, give the run's estimates.  Agents that took
+    # another u than the recorded one (inputs_differ: each agent samples as its tick arrives) are the records'
+    # only gap: the estimates agree up to the first such event time
+    differ = [e["tau"] for e in events(out) if e["event"] == "inputs_differ"]
+    T = len(u)
+    log = tmp_path / "used.npz"
+    write_measurements(log, t=np.arange(float(T)), y=np.nan_to_num(ran["y"]), agent_ids=[1, 2, 3], sizes=[1, 1, 1],
+                       missing=ran["y_missing"], u=held_inputs(u))
+    sim = run("simulate", path, "--out", tmp_path / "replay", "--no-plots", "--measurements", log)
+    assert sim.returncode == 0, sim.stderr
+    upto = (min(differ) if differ else T - 1) + 1
+    with np.load(tmp_path / "replay" / "trajectory.npz") as f:
+        assert np.array_equal(f["u"], held_inputs(u))
+        np.testing.assert_allclose(f["xhat"][:upto], ran["xhat"][:upto], rtol=0,
+                                   atol=1e-9 * np.nanmax(np.abs(ran["xhat"])))
+        if not differ:  # and its filter is the run's (the same y and u)
+            np.testing.assert_allclose(f["kf"], ran["kf"], rtol=0, atol=1e-9 * np.abs(ran["kf"]).max())

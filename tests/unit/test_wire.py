@@ -22,7 +22,7 @@ ROUND = {
     "truth": dict(tau=7, attempt=0, x=V, rejected={"stale": 3, "bad_mac": 1}),
     "z": dict(tau=2 ** 62, attempt=2, k=5, agent=31, z=V),
     "xhat": dict(tau=0, attempt=0, agent=3, incarnation=2, x=V, **report(g=0.125), rejected={},
-                 lost=[1, 2, 0, 3, 4, 1], y=[0.5, -1.0]),  # report: every row column the agents report (rows.py)
+                 lost=[1, 2, 0, 3, 4, 1], y=[0.5, -1.0], u=[2.0]),  # report: every row column the agents report (rows.py)
 }
 OTHER = {
     "tick": dict(tau=3, attempt=0, graph=1, alive=[1, 2], rows={"1": [[2], [0.5]]}, final=False,
@@ -115,16 +115,17 @@ def test_non_finite_numbers_are_refused(bad):
 
 @pytest.mark.parametrize("counters", [[1, 2], {"stale": "3"}, {"stale": 1.5}, {"stale": True}, {1: 2}])
 def test_counters_must_be_a_map_of_counts(counters):
-    # the maps come last, in order: rejected ({}: 0x80), lost ([]: 0x90), y ([]: 0x90)
-    body = encode("xhat", RUN, **{**ROUND["xhat"], "rejected": {}, "lost": [], "y": []})[:-3]
-    assert reason(body + msgpack.packb(counters) + b"\x90\x90", "xhat") in {"bad_field", "garbage"}
+    # the maps come last, in order: rejected ({}: 0x80), lost ([]: 0x90), y ([]: 0x90), u ([]: 0x90)
+    body = encode("xhat", RUN, **{**ROUND["xhat"], "rejected": {}, "lost": [], "y": [], "u": []})[:-4]
+    assert reason(body + msgpack.packb(counters) + b"\x90\x90\x90", "xhat") in {"bad_field", "garbage"}
 
 
 @pytest.mark.parametrize("field,bad", [("y", [1.0, float("nan")]), ("y", [1.0, "2"]), ("y", {"a": 1}),
-                                       ("y", [True]), ("missing", [-1]), ("missing", [1.5]), ("missing", "1"),
+                                       ("y", [True]), ("u", [1.0, float("inf")]), ("u", ["1"]), ("u", {"a": 1}),
+                                       ("missing", [-1]), ("missing", [1.5]), ("missing", "1"),
                                        ("missing", [2 ** 40])])
 def test_measurement_fields_are_checked(field, bad):
-    msg_type = "xhat" if field == "y" else "y"
+    msg_type = "xhat" if field in ("y", "u") else "y"
     assert reason(encode(msg_type, RUN, **{**ROUND[msg_type], field: bad}), msg_type) == "bad_field"
 
 
@@ -132,9 +133,10 @@ def test_measurement_fields_default_and_say_none():
     """Senders that do not record measurements leave them out: ``missing`` [] and ``y`` []; None is "no measurement"."""
     m = decode(encode("y", RUN, tau=1, attempt=0, y=V[:3]), RUN, "y")
     assert m["missing"] == []
-    x = decode(encode("xhat", RUN, **{k: v for k, v in ROUND["xhat"].items() if k != "y"}), RUN, "xhat")
-    assert x["y"] == []
+    x = decode(encode("xhat", RUN, **{k: v for k, v in ROUND["xhat"].items() if k not in ("y", "u")}), RUN, "xhat")
+    assert x["y"] == [] and x["u"] == []
     assert decode(encode("xhat", RUN, **{**ROUND["xhat"], "y": None}), RUN, "xhat")["y"] is None
+    assert decode(encode("xhat", RUN, **{**ROUND["xhat"], "u": [0.5, -2.0]}), RUN, "xhat")["u"] == [0.5, -2.0]
 
 
 def test_signatures():
