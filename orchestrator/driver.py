@@ -486,10 +486,9 @@ class Orchestrator:
                             scenario_name=sc.name, viewer=self.viewer,
                             envelope_rate=None if self.des.g_mode == "adaptive" or self.des.excluded
                             else float(self.des.envelope_rate),
-                            columns=self.columns, positions=sc.positions,
+                            columns=self.columns, positions=sc.positions, record_every=sc.run.recorded_every,
                             states=sc.state_names if sc.states_named else None, shown=sc.shown_states,
-                            continuous=Continuous.from_env(sc.run) if sc.run.until_stopped else None,
-                            record_every=sc.run.recorded_every)
+                            continuous=Continuous.from_env(sc.run) if sc.run.until_stopped else None)
         self.rec.set_inputs(sc)  # the signal's u; a file's u, or the live u, replace it (set_measurements, ...)
         if self.meas is not None:
             self.rec.set_measurements(sc, given_measurements(sc, self.meas, int(sc.run.seed)))  # the sensor faults

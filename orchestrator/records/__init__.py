@@ -4,6 +4,7 @@
 what the callers recorded and the background thread that flushes it, ``writer.py`` what a flush writes and in
 which order (write failures and consistency), ``rowstore.py`` the rows held, ``files.py`` ``trajectory.npz``
 and the recording's file, ``events.py`` ``events.jsonl``, ``measured.py`` runs on measurements (no truth),
-``outdir.py`` the output folder's checks and reserve, ``recover.py`` ``splitspec recover`` of a run cut short.
+``outdir.py`` the output folder's checks and reserve, ``retention.py`` ``run.keep`` (the oldest closed segments
+removed as a run until stopped goes), ``recover.py`` ``splitspec recover`` of a run cut short.
 The file contracts are in docs/reference/files.md.
 """
