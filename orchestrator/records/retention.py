@@ -99,6 +99,7 @@ class Retention:
         self.emit = emit
         self._seen: dict[Path, float] = {}  # chunk segments: when each was first seen closed
         self._next = 0.0
+        self.every = SWEEP_SECONDS  # seconds between two sweeps
         self.removed = 0  # segments removed so far
         self.removed_bytes = 0
 
@@ -126,7 +127,7 @@ class Retention:
         mono = time.monotonic()
         if not force and mono < self._next:
             return []
-        self._next = mono + SWEEP_SECONDS
+        self._next = mono + self.every
         segs = self.closed()
         if not segs:
             return []

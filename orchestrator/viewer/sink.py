@@ -56,7 +56,8 @@ from splitspec_core.model.rows import column, present
 from . import blueprint as bp
 from .handoff import LossClear, LostRow, Mark, RowBatch, TextLine, TopologyLog
 from .reference_view import ReferenceRows, ReferenceView, log10
-from .rrd_file import RrdAppender, finish_in_child, rerun_command, rewrite_rrd, segment_path, wait_finished
+from .rrd_file import (RrdAppender, finish_in_child, optimize_rrd, rerun_command, rewrite_rrd, segment_path,
+                       wait_finished)
 from .topology_view import TopologyView
 
 __all__ = ["RerunSink", "ClosedSegment", "open_sink", "APPLICATION_ID", "RRD_FILE"]
@@ -498,6 +499,8 @@ class RerunSink:
         except Exception as exc:  # Rerun could not read its own bytes back: keep the footer-less file
             log.warning("could not finish %s (%s: %s); it is readable but has no footer",
                         self.rrd_file.path, type(exc).__name__, exc)
+        else:
+            optimize_rrd(self.rrd_file.path)  # its chunks merged: a third of the size (never raises)
 
     def disconnect(self) -> None:
         self.guarded("disconnect", self.rec.disconnect)

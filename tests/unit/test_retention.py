@@ -1,0 +1,118 @@
+"""run.keep and run.record_every without processes: the keys, a recorder until stopped that removes its oldest
+closed segments, what load_run and view say is left, the disk rate splitspec pace prints.  With processes:
+tests/integration/test_until_stopped.py (retention while running, then load and replay)."""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import splitspec_core as ss
+from splitspec_core.errors import ScenarioError
+from splitspec_core.runs import kept_span
+from splitspec_core.scenarios.specs import RunSpec
+from splitspec_core.simulation.trajectory_chunks import chunk_segments, read_chunks
+from splitspec_orchestrator.commands.pace import DiskRate
+from splitspec_orchestrator.records.files import Continuous
+from splitspec_orchestrator.records.recorder import Recorder
+from splitspec_orchestrator.records.retention import records_bytes
+from splitspec_orchestrator.view import retention_line
+from splitspec_orchestrator.viewer.rrd_file import rrd_segments
+
+os.environ.setdefault("RERUN_ANALYTICS", "0")
+
+IDS, M, N = (1, 2, 5), 3, 4
+SEGMENT = 60_000  # chunk segments of some 25 rows here (a flush per row, zstd)
+
+
+def _scenario(**run):
+    return ss.scenario(A=np.diag([0.9, 1.1]), C={1: [[1.0, 0.0]], 2: [[0.0, 1.0]]}, graphs={"g": [(1, 2), (2, 1)]},
+                       rate=0.95, time="discrete", **run)
+
+
+def test_run_keep_and_record_every_are_read_and_checked():
+    sc = _scenario(pace=50, keep={"hours": 6, "gigabytes": 2.5})
+    assert (sc.run.keep_hours, sc.run.keep_gigabytes, sc.run.recorded_every) == (6.0, 2.5, 5)
+    assert _scenario(pace=50, record_every=1).run.recorded_every == 1
+    assert _scenario(pace=50, steps=100).run.recorded_every == 1  # a run of run.steps: every event time
+    assert _scenario(pace=8).run.recorded_every == 1  # slow enough to record whole
+    assert RunSpec(pace=200.0, until_stopped=True).recorded_every == 20
+    bad = [({"pace": 50, "steps": 10, "keep": {"hours": 1}}, "run.keep is for a run that goes on until stopped"),
+           ({"pace": 50, "keep": {"days": 1}}, "unknown key run.keep.days"),
+           ({"pace": 50, "keep": {}}, "run.keep needs hours or gigabytes"),
+           ({"pace": 50, "keep": {"hours": 0}}, r"run.keep.hours must be > 0, got 0"),
+           ({"pace": 50, "keep": {"gigabytes": -1}}, r"run.keep.gigabytes must be > 0"),
+           ({"pace": 50, "keep": 3}, "run.keep must be a map"),
+           ({"pace": 50, "record_every": 0}, r"run.record_every must be >= 1, got 0")]
+    for run, message in bad:
+        with pytest.raises(ScenarioError, match=message):
+            _scenario(**run)
+
+
+def _until_stopped(out: Path, cont: Continuous) -> Recorder:
+    return Recorder(out, agent_ids=IDS, n=N, steps=50, time_mode="discrete", dt=1.0, graph_names=("g",),
+                    run_id="keep", scenario_name="keep", flush_seconds=0.0, continuous=cont)
+
+
+def test_a_recorder_until_stopped_keeps_its_records_under_run_keep_gigabytes(tmp_path):
+    # the same 800 rows without run.keep first: how much run.rrd (one segment, never removed) and the chunks take
+    whole = tmp_path / "whole"
+    rec = _until_stopped(whole, Continuous(window_rows=16, chunk_bytes=SEGMENT, rrd_bytes=1 << 30))
+    _feed_from(rec, 0, 800)
+    # as written while running (the close compacts it)
+    rrd, chunks = (whole / "run.rrd").stat().st_size, sum(p.stat().st_size for _, p in chunk_segments(whole))
+    rec.close()
+    room = 5 * SEGMENT  # about five chunk segments beside run.rrd (the run writes about thirty)
+    out = tmp_path / "run"
+    rec = _until_stopped(out, Continuous(window_rows=16, chunk_bytes=SEGMENT, rrd_bytes=1 << 30,
+                                         keep_bytes=rrd + room))
+    rec._w.retention.every = 0.0  # sweep at every flush (a run's: every 5 s)
+    _feed_from(rec, 0, 800)
+    # the rule after the last sweep: within the limit, but for the chunk segment being written (never removed) and
+    # what the removal events added to run.rrd (about 1.3 kB each: a flush sends each log as a chunk of its own)
+    assert records_bytes(out) <= rrd + room + SEGMENT + 60 * 1300, (records_bytes(out), rrd + room)
+    rec.close()
+    removed = [json.loads(line) for line in (out / "events.jsonl").read_text().splitlines()
+               if '"records_removed"' in line]
+    assert removed and {e["kind"] for e in removed} == {"chunks"} and {e["reason"] for e in removed} == {"gigabytes"}
+    for e in removed:  # each removal names what went
+        assert not (out / e["file"]).exists() and e["bytes"] > 0 and e["first_tau"] <= e["last_tau"]
+    kept = sum(p.stat().st_size for _, p in chunk_segments(out))
+    # bounded: the room left beside run.rrd plus the segment being written (and run.rrd's own spread), a fraction of
+    # what the run wrote
+    assert kept < chunks / 2, (kept, chunks)  # a fraction of what the run wrote
+    rows = read_chunks(out)
+    cut = max(e["last_tau"] for e in removed) + 1
+    # what is left: every row from the first no removal took to the last, values as recorded
+    assert rows["tau"].tolist() == list(range(cut, 800))
+    assert 790 > cut > 0
+    rng = np.random.default_rng(790)
+    assert np.array_equal(rows["x"][790 - cut], rng.normal(size=N))  # exact: the values given, copied
+    span = kept_span(ss.runs.read_events(out / "events.jsonl"))
+    assert span["chunks_from"] == cut and span["recording_from"] is None and span["removed"] == len(removed)
+    assert span["text"].startswith(f"run.keep removed {len(removed)} segments (") and str(cut) in span["text"]
+    assert retention_line(out).startswith(span["text"])
+
+
+def _feed_from(rec: Recorder, start: int, count: int) -> None:
+    for tau in range(start, start + count):
+        rng = np.random.default_rng(tau)
+        rec.row(tau, rng.normal(size=N), rng.normal(size=(M, N)), np.ones(M, dtype=bool), 0, wall_ms=1.0,
+                attempts=1, rejected=0, lost=[], late_ms=0.0)
+
+
+def test_nothing_removed_says_nothing():
+    assert kept_span([{"event": "run_started"}]) is None
+
+
+def test_the_disk_rate_line_states_per_hour_per_day_and_on_hand():
+    d = DiskRate(chunk_bytes=3000.0, rrd_bytes=2000.0, rows=500, every=5)
+    line = d.line(50.0, keep_hours=6.0)
+    # 5000 bytes a row at 50 a second: 0.9 GB an hour, 21.6 a day, 5.4 on hand for 6 hours
+    assert "about 0.9 GB per hour at pace 50" in line and "21.6 GB a day" in line and "about 5.4 GB on hand" in line
+    assert "540 MB/h of row chunks" in line and "360 MB/h of Rerun recording" in line and "every 5 event times" in line
+    assert "on hand" not in d.line(50.0)
