@@ -448,6 +448,9 @@ def replay(out: Path, scen: Path) -> dict:
 
 
 def main() -> int:
+    # Started in the background (nohup ... &), SIGINT arrives ignored and would stay ignored in `splitspec run`
+    # (an ignored signal survives exec): the SIGINT that stops the run at the end would do nothing.
+    signal.signal(signal.SIGINT, signal.default_int_handler)
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--minutes", type=float, default=30.0, help="minutes of running (from the first round)")
     ap.add_argument("--m", type=int, default=10, help="agents of the generated ring")
