@@ -118,6 +118,7 @@ class Continuous:
     rrd_bytes: int = 256 << 20
     keep_hours: float | None = None  # run.keep.hours (records.retention)
     keep_bytes: int | None = None  # run.keep.gigabytes, in bytes
+    keep_recording_hours: float | None = None  # run.keep.recording_hours (None: keep_hours)
 
     @classmethod
     def from_env(cls, run=None) -> "Continuous":
@@ -134,7 +135,7 @@ class Continuous:
         keep_hours = getattr(run, "keep_hours", None)
         gigabytes = getattr(run, "keep_gigabytes", None)
         return cls(window, mb("SPLITSPEC_CHUNK_MB", 64), mb("SPLITSPEC_RRD_ROLL_MB", 256), keep_hours,
-                   None if gigabytes is None else int(gigabytes * 1e9))
+                   None if gigabytes is None else int(gigabytes * 1e9), getattr(run, "keep_recording_hours", None))
 
 
 class RecordFiles:

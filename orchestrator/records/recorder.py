@@ -162,7 +162,8 @@ class Recorder:
                                envelope_rate=self.envelope_rate, time_mode=time_mode, dt=self.dt)
         if continuous is not None and (continuous.keep_hours is not None or continuous.keep_bytes is not None):
             self._w.retention = Retention(self.out_dir, files, hours=continuous.keep_hours,
-                                          max_bytes=continuous.keep_bytes, emit=self._retention_event)
+                                          max_bytes=continuous.keep_bytes, emit=self._retention_event,
+                                          recording_hours=continuous.keep_recording_hours)
         if sink is not None:
             files.append_rrd()  # header, properties, styles and blueprint: run.rrd exists from the start
         self._reserve = Reserve(self.out_dir, reserve_bytes)

@@ -6,7 +6,8 @@ A run until stopped writes its rows to append-only chunk segments (``chunks/rows
 child process finishing it has exited).  After each flush :meth:`Retention.sweep` (at most every
 :data:`SWEEP_SECONDS`) removes
 
-- with ``run.keep.hours: H``, every closed segment closed at least ``H`` hours ago (wall time), and
+- with ``run.keep.hours: H``, every closed segment closed at least ``H`` hours ago (wall time; the recording's
+  ``run.keep.recording_hours`` when given: a longer review of the thinned recording), and
 - with ``run.keep.gigabytes: G``, the oldest closed segments (by their last event time, chunks and recording
   alike) while the records (``chunks/`` and every ``run*.rrd``) take more than ``G`` x 10^9 bytes.
 
@@ -84,6 +85,8 @@ class Retention:
         The recorder's files: its chunk writer (``files.chunks``) and Rerun sink (``files.sink``).
     hours : float or None
         ``run.keep.hours``.
+    recording_hours : float or None
+        ``run.keep.recording_hours``: the recording's segments instead of ``hours`` (None: ``hours``).
     max_bytes : int or None
         ``run.keep.gigabytes`` in bytes.
     emit : callable
@@ -91,10 +94,12 @@ class Retention:
     """
 
     def __init__(self, out_dir: Path, files, *, hours: float | None, max_bytes: int | None,
-                 emit: Callable[[str, float, dict], None]):
+                 emit: Callable[[str, float, dict], None], recording_hours: float | None = None):
         self.out_dir = Path(out_dir)
         self.files = files
-        self.seconds = None if hours is None else float(hours) * 3600.0
+        self.seconds = {kind: None if h is None else float(h) * 3600.0
+                        for kind, h in (("chunks", hours), ("recording", hours if recording_hours is None
+                                                                         else recording_hours))}
         self.max_bytes = None if max_bytes is None else int(max_bytes)
         self.emit = emit
         self._seen: dict[Path, float] = {}  # chunk segments: when each was first seen closed
@@ -132,9 +137,9 @@ class Retention:
         if not segs:
             return []
         gone: list[tuple[_Segment, str]] = []
-        if self.seconds is not None:
-            now = time.time()
-            gone += [(s, "hours") for s in segs if now - s.closed_at >= self.seconds]
+        now = time.time()
+        gone += [(s, "hours") for s in segs
+                 if self.seconds[s.kind] is not None and now - s.closed_at >= self.seconds[s.kind]]
         if self.max_bytes is not None:
             total = records_bytes(self.out_dir) - sum(_size(s.path) for s, _ in gone)
             picked = {id(s) for s, _ in gone}

@@ -165,6 +165,8 @@ RUN = (
 KEEP = (
     Key("hours", "number", None, "remove a closed segment this many hours (wall time) after it closed"),
     Key("gigabytes", "number", None, "remove the oldest closed segments while the records take more (10^9 bytes)"),
+    Key("recording_hours", "number", None, "the Rerun recording's segments (run*.rrd) this many hours instead of "
+                                           "hours: a longer review, thinned by run.record_every"),
 )
 
 NETWORK = (

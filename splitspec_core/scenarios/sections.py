@@ -194,16 +194,16 @@ def _parse_run(raw: Any, time: str, names: tuple = (), live: bool = False) -> Ru
             raise ScenarioError(f"run.pace must be >= {MIN_PACE:g} event times per second, got {pace:g}")
     omitted = "steps" not in rmap
     until_stopped = omitted and bool(pace or live)
-    hours, gigabytes = _parse_keep(rmap.get("keep"), until_stopped)
+    hours, gigabytes, recording = _parse_keep(rmap.get("keep"), until_stopped)
     return RunSpec(steps, dt, seed, pace, _parse_show(rmap.get("show"), names), until_stopped, hours, gigabytes,
-                   read(rmap, "run", "record_every"), omitted)
+                   recording, read(rmap, "run", "record_every"), omitted)
 
 
 def _parse_keep(raw: Any, until_stopped: bool) -> tuple:
-    """``run.keep``: ``(hours, gigabytes)``, each None when not given.  Only a run until stopped has segments to
+    """``run.keep``: ``(hours, gigabytes, recording_hours)``, each None when not given.  Only a run until stopped has segments to
     remove: a run of ``run.steps`` keeps its whole ``trajectory.npz``."""
     if raw is None:
-        return None, None
+        return None, None, None
     kmap = require_map(raw, "run.keep")
     check_keys(kmap, KEEP_KEYS, "run.keep")
     if not kmap:
@@ -211,11 +211,13 @@ def _parse_keep(raw: Any, until_stopped: bool) -> tuple:
     if not until_stopped:
         raise ScenarioError("run.keep is for a run that goes on until stopped (a paced run without run.steps): a run "
                             "of run.steps keeps its whole trajectory.npz")
-    hours, gigabytes = (read(kmap, "run.keep", k) for k in KEEP_KEYS)
-    for k, v in (("hours", hours), ("gigabytes", gigabytes)):
+    values = {k: read(kmap, "run.keep", k) for k in KEEP_KEYS}
+    for k, v in values.items():
         if v is not None and v <= 0:
             raise ScenarioError(f"run.keep.{k} must be > 0, got {v:g}")
-    return hours, gigabytes
+    if set(kmap) == {"recording_hours"}:
+        raise ScenarioError("run.keep.recording_hours needs hours or gigabytes for the row chunks")
+    return values["hours"], values["gigabytes"], values["recording_hours"]
 
 
 def parse_scenario(data: Any, *, source: str = "<scenario>", base: Path | None = None) -> Scenario:

@@ -345,7 +345,8 @@ class RunSpec:
 
     ``keep_hours``, ``keep_gigabytes``: ``run.keep`` (a run until stopped only): a closed segment of the records
     (``chunks/rows-*.arrows``, ``run-*.rrd``) is removed that many hours after it closed, and the oldest closed
-    ones while the records take more than that many 10^9 bytes (None: no limit).  ``record_every``: the Rerun
+    ones while the records take more than that many 10^9 bytes (None: no limit); ``keep_recording_hours``: the
+    recording's segments that many hours instead (None: ``keep_hours``).  ``record_every``: the Rerun
     recording's state panels every this many event times (:attr:`recorded_every` resolves the default).
     ``steps_default``: ``run.steps`` was omitted and ``steps`` is the default (what ``splitspec run`` of an unpaced
     scenario says it runs).
@@ -359,6 +360,7 @@ class RunSpec:
     until_stopped: bool = False
     keep_hours: float | None = None
     keep_gigabytes: float | None = None
+    keep_recording_hours: float | None = None
     record_every: int | None = None
     steps_default: bool = False
 

@@ -116,3 +116,22 @@ def test_the_disk_rate_line_states_per_hour_per_day_and_on_hand():
     assert "about 0.9 GB per hour at pace 50" in line and "21.6 GB a day" in line and "about 5.4 GB on hand" in line
     assert "540 MB/h of row chunks" in line and "360 MB/h of Rerun recording" in line and "every 5 event times" in line
     assert "on hand" not in d.line(50.0)
+
+
+def test_run_keep_recording_hours_keeps_the_recording_longer_than_the_rows(tmp_path):
+    sc = _scenario(pace=50, keep={"hours": 6, "recording_hours": 24})
+    assert (sc.run.keep_hours, sc.run.keep_recording_hours) == (6.0, 24.0)
+    with pytest.raises(ScenarioError, match="run.keep.recording_hours needs hours or gigabytes"):
+        _scenario(pace=50, keep={"recording_hours": 24})
+    out = tmp_path / "run"
+    # the rows' segments go as soon as they close; the recording's (rolled every 300 kB) stay a thousand hours
+    rec = _until_stopped(out, Continuous(window_rows=16, chunk_bytes=SEGMENT, rrd_bytes=300_000, keep_hours=1e-9,
+                                         keep_recording_hours=1000.0))
+    rec._w.retention.every = 0.0
+    _feed_from(rec, 0, 400)
+    rec.close()
+    removed = [json.loads(line) for line in (out / "events.jsonl").read_text().splitlines()
+               if '"records_removed"' in line]
+    assert removed and {e["kind"] for e in removed} == {"chunks"} and {e["reason"] for e in removed} == {"hours"}
+    assert len(chunk_segments(out)) == 1  # the one being written when the run ended
+    assert len(rrd_segments(out / "run.rrd")) >= 3 and (out / "run.rrd").exists()  # every segment of the recording
