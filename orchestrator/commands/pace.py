@@ -377,6 +377,6 @@ def cmd_pace(args: argparse.Namespace) -> int:
     about = _describe(des) + ("; the simulated plant stood in for the live sensors" if sensors else "")
     feasible, line = verdict(meas, pace, about=about)
     print(line)
-    if disk is not None:
+    if disk is not None and feasible:  # (at a pace that cannot be kept the figure would be the machine's, not the run's)
         print(disk.line(pace if pace is not None else meas.capacity, sc.run.keep_hours))
     return 0 if feasible else EXIT_NOT_FEASIBLE

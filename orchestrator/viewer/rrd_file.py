@@ -370,8 +370,12 @@ def finish_in_child(path: str | Path, blueprint_args: dict):
     import json
 
     cmd = [sys.executable, "-m", "splitspec_orchestrator.viewer.rrd_file", str(path), json.dumps(blueprint_args)]
+    # its own session: a Ctrl-C of the run (the terminal's, to its process group) does not cut the rewrite short
+    # (it did when it came while the child was still starting: the segment was left without footer); the run waits
+    # for it at its end, and it exits by itself when done
     return subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
-                            env={**os.environ, "RERUN_ANALYTICS": os.environ.get("RERUN_ANALYTICS", "0")})
+                            env={**os.environ, "RERUN_ANALYTICS": os.environ.get("RERUN_ANALYTICS", "0")},
+                            start_new_session=True)
 
 
 def wait_finished(procs, timeout: float = 300.0) -> None:

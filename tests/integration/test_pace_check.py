@@ -91,7 +91,7 @@ def test_a_pace_no_machine_keeps_is_not_feasible(tmp_path):
     assert "Traceback" not in r.stderr, r.stderr
     assert r.returncode == 1, r.stdout + r.stderr
     lines = r.stdout.splitlines()
-    assert len(lines) == 1, r.stdout
+    assert len(lines) == 1, r.stdout  # no disk figure for a pace that cannot be kept
     assert lines[0].startswith("pace 100000: NOT feasible on this machine: "), lines[0]
     assert lines[0].endswith("m = 10, n = 8, q = 6"), lines[0]
 
@@ -106,10 +106,14 @@ def test_a_modest_pace_is_feasible_faults_removed(tmp_path):
     assert "Traceback" not in r.stderr, r.stderr
     assert r.returncode == 0, r.stdout + r.stderr
     lines = r.stdout.splitlines()
-    assert len(lines) == 1 and lines[0].startswith("pace 5: feasible on this machine: "), r.stdout
+    assert len(lines) == 2 and lines[0].startswith("pace 5: feasible on this machine: "), r.stdout
     ms = float(lines[0].split(": ")[2].split(" ms per event time")[0])
     assert 0 < ms < MARGIN * 200, lines[0]
+    # the records' growth, measured: bytes of chunks and recording per hour at the pace, the state panels every one
+    assert lines[1].startswith("disk: about ") and " GB per hour at pace 5 (" in lines[1], lines[1]
+    assert float(lines[1].split("disk: about ")[1].split(" GB")[0]) > 0 and "every 1 event time;" in lines[1]
     copy = yaml.safe_load((out / "scenario.yaml").read_text())
+    assert copy["run"]["record_every"] == 1
     assert copy["faults"] == [] and "pace" not in copy["run"] and copy["run"]["steps"] == PROBE_STEPS
     names = {e["event"] for e in events(out)}
     assert "run_started" in names and not names & {"agent_lost", "arc_dropped", "agent_restarting"}, names

@@ -8,6 +8,7 @@ import os
 import signal
 import subprocess
 import time
+from contextlib import contextmanager
 
 import numpy as np
 import pytest
@@ -47,6 +48,19 @@ def wait_rows(out, rows: int, p, log, timeout: float = 90.0) -> None:
         time.sleep(0.2)
 
 
+@contextmanager
+def ctrl_c_after(p, log):
+    """Run the block while the run goes on, then stop it as Ctrl-C does (the terminal signals the whole process
+    group) and require exit 0; a failure in the block kills the run's group."""
+    try:
+        yield
+        os.killpg(p.pid, signal.SIGINT)
+        assert p.wait(timeout=120) == 0, dump(log)
+    finally:
+        if p.poll() is None:
+            os.killpg(p.pid, signal.SIGKILL)
+
+
 def replayed(out, tmp_path) -> float:
     """``simulate scenario.yaml --faults-from OUT`` against the run's chunks: the largest difference."""
     r = run("simulate", out / "scenario.yaml", "--out", tmp_path / "sim", "--no-plots", "--faults-from", out)
@@ -63,13 +77,8 @@ def replayed(out, tmp_path) -> float:
 def test_ctrl_c_ends_a_run_until_stopped_as_finished(tmp_path):
     scen, out, log = endless(tmp_path, "ring10", 25), tmp_path / "out", tmp_path / "run.log"
     p = start("run", scen, "--out", out, log=log, env_extra={"SPLITSPEC_RUNTIME_DIR": str(tmp_path / "rt")})
-    try:
+    with ctrl_c_after(p, log):
         wait_rows(out, 60, p, log)
-        os.killpg(p.pid, signal.SIGINT)  # Ctrl-C: the terminal signals the whole process group
-        assert p.wait(timeout=120) == 0, dump(log)
-    finally:
-        if p.poll() is None:
-            os.killpg(p.pid, signal.SIGKILL)
     text = log.read_text()
     end = end_event(events(out))
     assert end["event"] == "run_finished" and end["reason"] == "stopped (SIGINT)", end
@@ -127,16 +136,11 @@ def test_a_rolled_segment_opened_alone_has_the_topology_and_the_layout(tmp_path)
     env = {"SPLITSPEC_RUNTIME_DIR": str(tmp_path / "rt"), "SPLITSPEC_RRD_ROLL_MB": "0.3"}
     scen, out, log = endless(tmp_path, "ring10", 40), tmp_path / "out", tmp_path / "run.log"
     p = start("run", scen, "--out", out, log=log, env_extra=env)
-    try:
+    with ctrl_c_after(p, log):
         deadline = time.monotonic() + 120
         while not (out / "run-0003.rrd").exists():  # three rolls: run-0001.rrd and run-0002.rrd are finished
             assert p.poll() is None and time.monotonic() < deadline, dump(log)
             time.sleep(0.2)
-        os.killpg(p.pid, signal.SIGINT)
-        assert p.wait(timeout=120) == 0, dump(log)
-    finally:
-        if p.poll() is None:
-            os.killpg(p.pid, signal.SIGKILL)
     sc = ss.load_scenario(scen)
     ring = sorted(sc.graph(sc.graph_names[0]).arcs)
     segs = rrd_segments(out / "run.rrd")
@@ -210,16 +214,11 @@ def test_a_run_killed_at_any_moment_keeps_every_chunk_it_finished(tmp_path):
 def test_a_pace_far_above_the_machine_is_reported_while_running_and_at_the_end(tmp_path):
     scen, out, log = endless(tmp_path, "ring10", 5000), tmp_path / "out", tmp_path / "run.log"
     p = start("run", scen, "--out", out, log=log, env_extra={"SPLITSPEC_RUNTIME_DIR": str(tmp_path / "rt")})
-    try:
+    with ctrl_c_after(p, log):
         warned = wait_for_event(out, "pace_not_kept", timeout=90)  # while the run goes on
         assert p.poll() is None and "cannot keep pace 5000" in log.read_text()
         assert warned["achieved_rate"] < 5000 * 0.5 and warned["limit"]
         wait_rows(out, rows_on_disk(out) + 20, p, log)
-        os.killpg(p.pid, signal.SIGINT)
-        assert p.wait(timeout=120) == 0, dump(log)
-    finally:
-        if p.poll() is None:
-            os.killpg(p.pid, signal.SIGKILL)
     end = end_event(events(out))
     assert not end["pace_kept"] and end["late_event_times"] > 0 and end["max_lateness_ms"] > 0
     assert "pace 5000 NOT kept" in closing_line(end) and closing_line(end) in log.read_text()
@@ -252,7 +251,7 @@ def test_run_keep_removes_closed_segments_while_running_and_what_is_left_loads_a
     raw["run"].update(keep={"hours": 0.0005}, record_every=4)
     scen.write_text(yaml.safe_dump(raw))
     p = start("run", scen, "--out", out, "--run-id", "rkeep001", log=log, env_extra=env)
-    try:
+    with ctrl_c_after(p, log):
         deadline = time.monotonic() + 120
         while {e["kind"] for e in events(out) if e["event"] == "records_removed"} != {"chunks", "recording"}:
             assert p.poll() is None and time.monotonic() < deadline, dump(log)
@@ -264,11 +263,6 @@ def test_run_keep_removes_closed_segments_while_running_and_what_is_left_loads_a
             assert not (out / e["file"]).exists() and e["reason"] == "hours" and e["bytes"] > 0
         assert not (out / "run.rrd").exists()  # the first segment went first
         wait_rows(out, 1, p, log)
-        os.killpg(p.pid, signal.SIGINT)
-        assert p.wait(timeout=120) == 0, dump(log)
-    finally:
-        if p.poll() is None:
-            os.killpg(p.pid, signal.SIGKILL)
     end = end_event(events(out))
     rec = ss.load_run(out)
     t = rec.trajectory.t
