@@ -94,14 +94,19 @@ def test_simulate_records_the_signal_and_a_file_s_u(tmp_path):
     assert np.array_equal(ss.simulate(d, measurements=load_measurements(log, sc)).u, fu)
 
 
-def test_a_run_with_a_signal_records_u_in_the_npz_and_the_chunks(tmp_path):
-    sc = scenario(tmp_path, live=False, u={"sine": [{"amplitude": [1.0, 0.5], "period": 4}]})
-    rec = Recorder(tmp_path / "out", agent_ids=sc.agent_ids, n=sc.n, steps=5, time_mode="discrete", dt=1.0,
-                   graph_names=sc.graph_names, run_id="sig", scenario_name=sc.name, flush_seconds=1e9)
+def record_zeros(out, sc, rows: int) -> None:
+    """A recorder of ``sc`` given its inputs and ``rows`` rows of zeros, closed."""
+    rec = Recorder(out, agent_ids=sc.agent_ids, n=sc.n, steps=rows - 1, time_mode="discrete", dt=1.0,
+                   graph_names=sc.graph_names, run_id="zeros", scenario_name=sc.name, flush_seconds=1e9)
     rec.set_inputs(sc)
-    for tau in range(6):
+    for tau in range(rows):
         rec.row(tau, np.zeros(sc.n), np.zeros((3, sc.n)), np.ones(3, dtype=bool), 0)
     rec.close()
+
+
+def test_a_run_with_a_signal_records_u_in_the_npz_and_the_chunks(tmp_path):
+    sc = scenario(tmp_path, live=False, u={"sine": [{"amplitude": [1.0, 0.5], "period": 4}]})
+    record_zeros(tmp_path / "out", sc, 6)
     expected = np.array([input_of(sc, k) for k in range(6)])
     with np.load(tmp_path / "out" / "trajectory.npz") as z:
         assert np.array_equal(z["u"], expected)  # the same function as the plant process's, the same u
@@ -116,12 +121,7 @@ def test_a_recorder_without_inputs_writes_no_u(tmp_path):
     (tmp_path / "plain.yaml").write_text(yaml.safe_dump(data))
     plain = load_scenario(tmp_path / "plain.yaml")
     assert plain.system.B is None
-    rec = Recorder(tmp_path / "out", agent_ids=plain.agent_ids, n=plain.n, steps=2, time_mode="discrete", dt=1.0,
-                   graph_names=plain.graph_names, run_id="plain", scenario_name=plain.name, flush_seconds=1e9)
-    rec.set_inputs(plain)
-    for tau in range(3):
-        rec.row(tau, np.zeros(plain.n), np.zeros((3, plain.n)), np.ones(3, dtype=bool), 0)
-    rec.close()
+    record_zeros(tmp_path / "out", plain, 3)
     with np.load(tmp_path / "out" / "trajectory.npz") as z:
         assert "u" not in z.files
     assert "u" not in read_chunks(tmp_path / "out")
