@@ -72,6 +72,7 @@ def test_a_run_on_a_recorded_stream_that_lies_equals_simulate(tmp_path):
 # ------------------------------------------------------------------------------------------------ live sensors
 
 LIVE_STEPS, RATE, BIAS = 210, 40, 1.0  # 21 s at pace 10; samples 4x faster than the event times
+SAMPLES_PER_EVENT = 4  # RATE / run.pace
 LIVE_LATE = 70  # the sensors start after the run's 70th event time, past the warm-up's 66
 LIE_FROM, LIE_SAMPLES = 4 * 85, 4 * 20  # agent 1's sensor lies ~8.5 s after it starts, for ~2 s (~20 event times)
 
@@ -118,13 +119,28 @@ def test_a_live_sensor_that_lies_is_flagged_restored_and_replays(tmp_path):
     assert rejected[taus[taus >= first + 5], 0].all()  # set aside while it lies
     ev = [(e["t"], e["agent"], e["event"]) for e in events(r.out) if e["event"] in ("sensor_suspect",
                                                                                     "sensor_restored")]
-    mine = [e for e in ev if e[1] == 1]
+    mine = [e for e in ev if e[1] == 1][:2]  # the lie's (more below: samples taken late)
     assert [e[2] for e in mine] == ["sensor_suspect", "sensor_restored"], ev
     assert first <= mine[0][0] <= first + 5 and last < mine[1][0] <= last + k + 5, (first, last, ev)
-    # nothing else set aside (a sample used a period late can fail: measured none in 3 runs; 2 allowed), no other event
+    # nothing else set aside but measurements taken late: a sample used a period later than the agent's usual lag is
+    # a measurement of where the plant was, and the test may well fail it (none in 3 runs on a quiet machine; under
+    # CI's load agent 3 was set aside twice, 3 times in a row each); 2 others allowed
     outside = rejected.copy()
     outside[first:int(mine[1][0]) + 1, 0] = False  # set aside from the lie until its restore (suspect till then)
-    assert outside.sum() <= 2 and ev == mine, (np.argwhere(outside), ev)
+    late = np.zeros_like(outside)
+    for a in (1, 2, 3):
+        used = used_samples(record, traj, a) if a != 1 else sample
+        behind = SAMPLES_PER_EVENT * np.arange(len(used)) - used  # samples between the newest due and the one used
+        usual = np.median(behind[used >= 0])
+        late[:, a - 1] = (used >= 0) & (behind > usual + 1)
+    assert (outside & ~late).sum() <= 2, (np.argwhere(outside & ~late), np.argwhere(outside), ev)
+    others = [e for e in ev if e not in mine]
+    for t, a, what in others:  # each other suspicion came after k failed tests, late samples among them
+        if what == "sensor_suspect":
+            assert late[int(t) - k + 1:int(t) + 1, a - 1].any(), (t, a, np.argwhere(late), ev)
+    for a in (1, 2, 3):  # and each was restored
+        assert [e[2] for e in others if e[1] == a] == ["sensor_suspect", "sensor_restored"] * (
+            len([e for e in others if e[1] == a]) // 2), others
     assert (stat[:LIVE_LATE] == UNTESTED).all() and sample[LIVE_LATE - 1] == -1  # no sensor yet: nothing tested
     # the y the agents used, replayed by the simulator: the same decisions and estimates
     T = len(traj["y"])
