@@ -135,3 +135,25 @@ def test_run_keep_recording_hours_keeps_the_recording_longer_than_the_rows(tmp_p
     assert removed and {e["kind"] for e in removed} == {"chunks"} and {e["reason"] for e in removed} == {"hours"}
     assert len(chunk_segments(out)) == 1  # the one being written when the run ended
     assert len(rrd_segments(out / "run.rrd")) >= 3 and (out / "run.rrd").exists()  # every segment of the recording
+
+
+def test_a_finished_recording_is_compacted_and_keeps_every_row(tmp_path):
+    """A flush sends one small chunk per entity: 200 flushes of one row each would leave thousands; the close
+    compacts them (rerun rrd optimize) and every row is still there, verifiable."""
+    from rerun.chunk import RrdReader
+
+    from splitspec_orchestrator.viewer.rrd_file import optimize_rrd, verify_rrd
+    from tests.rrd_readback import read_rrd
+
+    rec = _until_stopped(tmp_path / "run", Continuous(window_rows=16, chunk_bytes=1 << 30, rrd_bytes=1 << 30))
+    _feed_from(rec, 0, 200)
+    rec.close()
+    path = tmp_path / "run" / "run.rrd"
+    chunks = sum(1 for _ in RrdReader(path).stream())
+    assert chunks < 200, chunks  # merged: without it, at least one per flush on errors/max alone
+    assert verify_rrd(path)[0]
+    assert [tau for tau, _ in read_rrd(path)["errors/max"]] == list(range(200))
+    size = path.stat().st_size
+    assert optimize_rrd(path) and path.stat().st_size <= size * 1.01  # compacting again changes nothing much
+    (tmp_path / "bad.rrd").write_bytes(b"not a recording")
+    assert not optimize_rrd(tmp_path / "bad.rrd") and (tmp_path / "bad.rrd").read_bytes() == b"not a recording"
