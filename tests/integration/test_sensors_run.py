@@ -136,8 +136,9 @@ def test_a_secure_run_on_live_sensors_converges_and_its_log_replays(sensor_run, 
     # (measured: medians 0.039-0.051 to the truth, 0.033-0.051 to the KF, disagreement 0.075-0.113 over 5 runs, one
     # of them beside a busy loop; 0.076, 0.077 and 0.17 in a loaded full suite; medians to the truth 0.105 and 0.115
     # in full suites at load 5 (a benchmark beside them): a late sample is stale by a period,
-    # for one agent and not the others.  A broken consensus disagrees by the state's size, ~5)
-    assert np.nanmedian(traj["kf_distance"][-20:]) < 0.1 and np.nanmedian(traj["disagreement"][-20:]) < 0.3
+    # for one agent and not the others; to the KF 0.117 in a full suite at load 5 to 16, a two-hour soak beside it.
+    # A broken consensus disagrees by the state's size, ~5)
+    assert np.nanmedian(traj["kf_distance"][-20:]) < 0.2 and np.nanmedian(traj["disagreement"][-20:]) < 0.3
     assert np.nanmax(traj["kf_distance"][-20:]) < 0.5
     said = r.log.read_text()
     used = int((~missing[:-1]).sum())
