@@ -7,7 +7,9 @@ What it measures, sampled every ``--sample-seconds`` from /proc and the records 
    labelled by its command line: ``run``, ``orchestrator``, ``fork server``, ``plant``, ``agent <id>`` (the
    agents are forks of the fork server and share its command line; their process name says which);  per role,
    after the warm-up: first, last and largest RSS and the slope by least squares in MB per hour (agents: the
-   median and the largest slope over the agents), PASS below 10 MB/h;
+   median and the largest slope over the agents), PASS below 10 MB/h; and, for a sawtooth (memory taken and
+   given back every so often, which makes the straight line's slope depend on where the run stopped in a tooth),
+   the slopes of each ``--block-minutes`` block's highest and lowest RSS (a drift moves both);
 2. records: the size and inode of every file under ``--out`` (``chunks/rows-<tau>.arrows``, ``run.rrd``,
    ``events.jsonl``, ``trajectory.npz`` if any): bytes at the end, bytes per hour, the R^2 of a straight line
    through the total size against time after the warm-up (1: the records grow by what is added, with no
@@ -17,11 +19,14 @@ What it measures, sampled every ``--sample-seconds`` from /proc and the records 
    appended too, but each of its segments is finished (footer, a rewrite through a new inode) when it rolls past
    256 MiB to ``run-0001.rrd`` ... and at the exit (docs/reference/files.md, "Runs until stopped"): those
    rewrites are expected, reported with the lateness of the event times around each;
-3. rows: the event times in the chunks (``read_chunks``; past 1 GiB of segments only the three columns used, with
-   pyarrow, by the same last-write-wins rule) and their rate against ``run.pace`` (from the chunks' ``wall``
-   column, first to last row);
+3. rows: the event times in the chunks (three columns, ``tau``, ``wall``, ``round``, of each segment read with
+   pyarrow once it is closed, while the run goes: ``run.keep`` removes the oldest; by ``read_chunks``'s
+   last-write-wins rule), every one from the first (missing ones counted), and their rate against ``run.pace``
+   (from the chunks' ``wall`` column, first to last row);
 4. lateness: the chunks' ``round`` column ``late_ms`` (how late each event time started against the pace):
-   p50, p90, p99, max and the event times later than 10% of a period; and the end event's own summary
+   p50, p90, p99, max and the event times later than 10% of a period; at the kills and restarts apart (the
+   round of a restart's event time waits for the new process; the 25 event times from each are its catch-up),
+   and around each recording segment's rewrite without them (PASS within a period); and the end event's own summary
    (``reason``, ``late_event_times``, ``max_lateness_ms``, ``achieved_rate``, ``pace``), n/a where absent.
 
 The clock of ``--minutes`` and ``--warmup-minutes`` starts at the run's ``run_started`` event (its first round;
@@ -41,7 +46,8 @@ is written beside ``--out`` (``<out>.soak.yaml``, with the run's stdout and stde
 and ``<out>.stderr.log``).
 
     .venv/bin/python benchmarks/bench_soak.py [--minutes 30] [--m 10] [--n 50] [--pace 50] [--sample-seconds 5]
-        [--warmup-minutes W] [--out DIR] [--model ring|power | --scenario FILE] [--rate 0.9] [--json FILE]
+        [--warmup-minutes W] [--block-minutes 20] [--out DIR] [--model ring|power | --scenario FILE] [--rate 0.9]
+        [--keep-minutes K] [--kill-every S] [--no-replay] [--json FILE]
 
     # a short check of the script itself
     .venv/bin/python benchmarks/bench_soak.py --minutes 1 --sample-seconds 2 --m 4 --n 8
@@ -75,6 +81,7 @@ LATE_FRACTION = 0.1  #: an event time later than this fraction of a period count
 RESTART_AFTER = 60.0  #: --kill-every: seconds from a kill to the restart
 DISK_WINDOW_S = 600.0  #: the disk on hand is reported as the largest per window of this many seconds
 #: the events of every run's start and end (the report counts the others: warnings, losses, restarts)
+RESTART_CATCH_UP = 25  #: event times from a kill's or restart's whose lateness is its catch-up (reported apart)
 WHOLE_READ_BYTES = 1 << 30  #: chunks up to this size are read whole with read_chunks (a 30 min default soak: ~0.4 GB)
 QUIET_EVENTS = {"orchestrator_started", "fork_server_started", "process_started", "process_ready", "run_started",
                 "run_finished", "run_interrupted", "recording_closed", "insecure_run"}
@@ -291,57 +298,111 @@ def first_event(evs: list, *names: str) -> dict | None:
 
 # ------------------------------------------------------------------ the run's rows
 
-def chunk_rows(out: Path, *, whole_limit: int = WHOLE_READ_BYTES) -> dict | None:
+def block_slopes(t_h: np.ndarray, y: np.ndarray, block_h: float) -> tuple[float, float, int]:
+    """Least-squares slopes of the highest and of the lowest ``y`` in each whole block of ``block_h`` hours from the
+    first ``t_h`` (each at its block's middle), and the number of blocks (nan slopes under 3 blocks)."""
+    if len(t_h) < 2 or block_h <= 0:
+        return math.nan, math.nan, 0
+    k = np.floor((t_h - t_h[0]) / block_h).astype(int)
+    whole = [b for b in np.unique(k) if (b + 1) * block_h <= t_h[-1] - t_h[0] + 1e-9]
+    if len(whole) < 3:
+        return math.nan, math.nan, len(whole)
+    mid = np.array([t_h[0] + (b + 0.5) * block_h for b in whole])
+    hi = np.array([y[k == b].max() for b in whole])
+    lo = np.array([y[k == b].min() for b in whole])
+    return float(np.polyfit(mid, hi, 1)[0]), float(np.polyfit(mid, lo, 1)[0]), len(whole)
+
+
+def _segment_columns(path: Path) -> tuple | None:
+    """``(tau, wall, round)`` of every whole batch of one chunk segment (pyarrow, those three columns alone; a torn
+    last batch is left out), None if it cannot be opened."""
+    import pyarrow as pa
+
+    try:
+        reader = pa.ipc.open_stream(pa.memory_map(str(path)))
+    except (OSError, pa.ArrowInvalid):
+        return None
+    taus, walls, rounds = [], [], []
+    while True:
+        try:
+            b = reader.read_next_batch()
+        except StopIteration:
+            break
+        except (OSError, pa.ArrowInvalid):
+            break  # a torn last batch
+        taus.append(b.column("tau").to_numpy(zero_copy_only=False).astype(np.int64))
+        walls.append(b.column("wall").to_numpy(zero_copy_only=False).astype(np.int64))
+        rounds.append(b.column("round").flatten().to_numpy(zero_copy_only=False).astype(float)
+                      .reshape(-1, b.schema.field("round").type.list_size))
+    if not taus:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 5)), reader.schema.metadata
+    return np.concatenate(taus), np.concatenate(walls), np.concatenate(rounds), reader.schema.metadata
+
+
+class ChunkTail:
+    """The three columns of every chunk segment, read once it is closed (the next one exists), while the run goes:
+    ``run.keep`` removes the oldest segments, and with them the rows a report at the end would see.  ``seen``:
+    segment start event time -> ``(tau, wall, round, metadata)``."""
+
+    def __init__(self, out: Path):
+        self.out = out
+        self.seen: dict = {}
+
+    def take(self) -> None:
+        from splitspec_core.simulation.trajectory_chunks import chunk_segments
+
+        segs = chunk_segments(self.out) if self.out.exists() else []
+        for first, path in segs[:-1]:  # the last is being written
+            if first not in self.seen:
+                cols = _segment_columns(path)
+                if cols is not None:
+                    self.seen[first] = cols
+
+
+def chunk_rows(out: Path, *, whole_limit: int = WHOLE_READ_BYTES, tail: ChunkTail | None = None) -> dict | None:
     """``tau``, ``wall`` and ``round`` of every event time in the chunks (the last row written of each), plus ``m``,
     ``n``, ``segments`` and ``how`` they were read; None without chunks.
 
-    Up to ``whole_limit`` bytes of segments: ``read_chunks(out)``.  Beyond (a long soak: ``read_chunks`` holds
-    every column, ``xhat`` too, several times over while it converts): the three columns alone, segment by
-    segment with pyarrow, by the same rule (segments in order, the last batch holding an event time wins; a torn
-    last batch is left out).  Not ``read_chunks`` by time windows: a window's ``end`` misses a row written again
-    into the segment that starts after it."""
-    import pyarrow as pa
-
+    With ``tail``: the segments it read while the run went (removed since or not) and the others on disk, every one
+    by its three columns.  Else, up to ``whole_limit`` bytes of segments: ``read_chunks(out)``; beyond (a long soak:
+    ``read_chunks`` holds every column, ``xhat`` too, several times over while it converts): the three columns
+    alone.  Segments in order, the last batch holding an event time wins.  Not ``read_chunks`` by time windows: a
+    window's ``end`` misses a row written again into the segment that starts after it."""
     from splitspec_core.simulation.trajectory_chunks import chunk_segments, read_chunks
 
     segs = chunk_segments(out)
-    if not segs:
+    if not segs and not (tail and tail.seen):
         return None
     size = sum(p.stat().st_size for _, p in segs if p.exists())
-    if size <= whole_limit:
+    if tail is None and size <= whole_limit:
         c = read_chunks(out)
         if c is None:
             return None
         return {"tau": c["tau"], "wall": c["wall"], "round": c["round"], "m": len(c["agent_ids"]),
-                "n": len(c["states"]), "segments": len(segs), "how": "read_chunks"}
-    taus, walls, rounds, meta = [], [], [], None
-    for _, path in segs:
-        try:
-            reader = pa.ipc.open_stream(pa.memory_map(str(path)))
-        except (OSError, pa.ArrowInvalid):
-            continue
-        meta = meta or reader.schema.metadata
-        while True:
-            try:
-                b = reader.read_next_batch()
-            except StopIteration:
-                break
-            except (OSError, pa.ArrowInvalid):
-                break  # a torn last batch
-            taus.append(b.column("tau").to_numpy(zero_copy_only=False).astype(np.int64))
-            walls.append(b.column("wall").to_numpy(zero_copy_only=False).astype(np.int64))
-            rounds.append(b.column("round").flatten().to_numpy(zero_copy_only=False).astype(float)
-                          .reshape(-1, b.schema.field("round").type.list_size))
-    if not taus:
+                "n": len(c["states"]), "segments": len(segs), "how": "read_chunks",
+                "first_on_disk": int(c["tau"][0]) if len(c["tau"]) else None}
+    per = dict(tail.seen) if tail is not None else {}
+    for first, path in segs:
+        if first not in per:
+            cols = _segment_columns(path)
+            if cols is not None:
+                per[first] = cols
+    if not per:
         return None
-    tau, wall, rnd = np.concatenate(taus), np.concatenate(walls), np.concatenate(rounds)
+    order = [per[k] for k in sorted(per)]
+    tau = np.concatenate([c[0] for c in order])
+    wall = np.concatenate([c[1] for c in order])
+    rnd = np.concatenate([c[2] for c in order])
+    meta = next((c[3] for c in order if c[3]), None) or {}
     _, first_rev = np.unique(tau[::-1], return_index=True)
     keep = len(tau) - 1 - first_rev  # the last row written of each event time, in event-time order
-    meta = meta or {}
     m = len(json.loads(meta.get(b"agent_ids", b"[]")))
     n = len(json.loads(meta.get(b"states", b"[]")))
-    return {"tau": tau[keep], "wall": wall[keep], "round": rnd[keep], "m": m, "n": n, "segments": len(segs),
-            "how": f"pyarrow, 3 columns ({size / 2 ** 30:.1f} GiB of segments)"}
+    how = (f"pyarrow, 3 columns, each segment read once closed ({len(per)} segments, {len(per) - len(segs)} "
+           f"removed since)" if tail is not None else f"pyarrow, 3 columns ({size / 2 ** 30:.1f} GiB of segments)")
+    on_disk = [per[k][0] for k, _ in segs if k in per and len(per[k][0])]
+    return {"tau": tau[keep], "wall": wall[keep], "round": rnd[keep], "m": m, "n": n, "segments": len(per),
+            "how": how, "first_on_disk": int(min(t.min() for t in on_disk)) if on_disk else None}
 
 
 # ------------------------------------------------------------------ figures
@@ -460,6 +521,8 @@ def main() -> int:
                     "n = 50)")
     ap.add_argument("--sample-seconds", type=float, default=5.0)
     ap.add_argument("--warmup-minutes", type=float, help="default: min(5, 20%% of --minutes)")
+    ap.add_argument("--block-minutes", type=float, default=20.0,
+                    help="the blocks of the sawtooth-proof memory slopes (default 20)")
     ap.add_argument("--out", type=Path, help="the run's records (default: a fresh folder under /tmp)")
     ap.add_argument("--model", choices=("ring", "power"), default="ring",
                     help=f"ring: the generated ring (--m, --n); power: {POWER_SCENARIO.relative_to(ROOT)}")
@@ -521,6 +584,7 @@ def main() -> int:
                             stdin=subprocess.DEVNULL, start_new_session=True)
     samples: list = []  # {"t" (s since the first round, None before), "wall", "procs", "files"}
     watch = FileWatch()
+    tail = ChunkTail(out)  # every row's lateness, read before run.keep removes it
     t_first = None  # monotonic time of run_started
     startup_s = None
     ended_by_itself = None
@@ -548,6 +612,7 @@ def main() -> int:
             files = record_files(out) if out.exists() else {}
             wall = time.time()
             watch.see(files, math.nan if t is None else t, wall=wall)
+            tail.take()
             samples.append({"t": None if t is None else round(t, 3), "wall": wall,
                             "procs": processes(proc.pid), "files": files})
             if t is not None and t >= next_progress:
@@ -583,7 +648,7 @@ def main() -> int:
     evs = events(out)
     orch = first_event(evs, "orchestrator_started") or {}
     end = first_event(evs, "run_finished", "run_interrupted", "run_failed") or {}
-    rows = chunk_rows(out)
+    rows = chunk_rows(out, tail=tail)
     m = rows["m"] if rows else (args.m if args.model == "ring" and args.scenario is None else None)
     n = rows["n"] if rows else (args.n if args.model == "ring" and args.scenario is None else None)
     ran_s = (t_stop - t_first) if t_first is not None else 0.0
@@ -664,6 +729,24 @@ def main() -> int:
                       f"{fmt(p['cpu_pct'], '6.1f'):>6}  {verdict}")
     if not series:
         print("  no samples after the warm-up")
+    else:
+        # a sawtooth (memory taken and given back every so often) makes the straight line's slope depend on where
+        # the run stopped in a tooth: the slopes of the blocks' highest and lowest RSS say whether it drifts
+        print(f"by blocks of {args.block_minutes:g} min after the warm-up: slopes (MB/h) of each block's highest and "
+              f"lowest RSS (a drift moves both; a sawtooth neither)")
+        for key, pts in sorted(series.items(), key=lambda kv: order.index(role_of(kv[0].split("/")[0]))
+                               if role_of(kv[0].split("/")[0]) in order else len(order)):
+            hi, lo, nb = block_slopes(np.array([p[0] for p in pts]) / 3600, np.array([p[1] for p in pts]),
+                                      args.block_minutes / 60)
+            if nb >= 3 and role_of(key.split("/")[0]) != "agent":
+                print(f"{key:>24}: {nb} blocks, highest {hi:8.2f}, lowest {lo:8.2f}")
+                results.setdefault("blocks", {})[key] = {"blocks": nb, "max_slope_mb_h": hi, "min_slope_mb_h": lo}
+            elif nb >= 3:
+                results.setdefault("blocks", {})[key] = {"blocks": nb, "max_slope_mb_h": hi, "min_slope_mb_h": lo}
+        agents = [v for k, v in results.get("blocks", {}).items() if role_of(k.split("/")[0]) == "agent"]
+        if agents:
+            print(f"{'agents':>24}: {len(agents)} processes, largest highest {max(a['max_slope_mb_h'] for a in agents):8.2f}"
+                  f", largest lowest {max(a['min_slope_mb_h'] for a in agents):8.2f}")
 
     # records
     total_end = sum(size for size, _ in final_files.values())
@@ -726,18 +809,47 @@ def main() -> int:
                   f"({LATE_FRACTION * period_ms:g} ms): {nlate} ({100 * nlate / len(fin):.2f}%)")
             results["rows"].update(late_p50=p50, late_p90=p90, late_p99=p99, late_max=float(fin.max()),
                                    late_over_10pct=nlate)
+            # a fault: the round of a restart's event time waits for the new process's token (spawn to ready), a
+            # kill's for the loss to be seen; the next ones catch up.  Reported apart, and left out of the lateness
+            # around the rolls
+            restarts = sorted(int(e["tau"]) for e in evs if e.get("event") in ("agent_restarting", "agent_lost")
+                              and e.get("tau") is not None)
+            catch_up = np.zeros(len(tau), dtype=bool)
+            for r in restarts:
+                catch_up |= (tau >= r) & (tau < r + RESTART_CATCH_UP)
+            if restarts:
+                at = np.isin(tau, restarts) & np.isfinite(late)
+                rest = ~catch_up & np.isfinite(late)
+                print(f"  at the {len(restarts)} kills and restarts (the round waits for the loss or the new "
+                      f"process): max late "
+                      f"{fmt(float(late[at].max()) if at.any() else math.nan, '.1f')} ms, median "
+                      f"{fmt(float(np.median(late[at])) if at.any() else math.nan, '.1f')} ms; every other event time "
+                      f"(the {RESTART_CATCH_UP} after each left out): max late "
+                      f"{fmt(float(late[rest].max()) if rest.any() else math.nan, '.2f')} ms, p99 "
+                      f"{fmt(float(np.percentile(late[rest], 99)) if rest.any() else math.nan, '.2f')} ms")
+                results["rows"].update(restarts=len(restarts),
+                                       late_max_at_restarts=float(late[at].max()) if at.any() else None,
+                                       late_max_apart=float(late[rest].max()) if rest.any() else None)
             # a file rewritten while running (run.rrd's segment finished as it rolls): the lateness around it
             near = []
             for w, path in watch.walls:
                 lo, hi = (w - args.sample_seconds - 5.0) * 1e9, (w + 5.0) * 1e9
-                sel = (wall >= lo) & (wall <= hi) & np.isfinite(late)
+                sel = (wall >= lo) & (wall <= hi) & np.isfinite(late) & ~catch_up
                 near.append({"path": path, "wall": w, "rows": int(sel.sum()),
+                             "restart_rows_left_out": int(((wall >= lo) & (wall <= hi) & catch_up).sum()),
                              "late_max": float(late[sel].max()) if sel.any() else None,
                              "late_over_10pct": int(np.sum(late[sel] > LATE_FRACTION * period_ms))})
-            for e in near[:10]:
+            for e in near[:20]:
                 print(f"  around the rewrite of {e['path']} (the sample's {args.sample_seconds:g} s before it, 5 s "
                       f"either side): {e['rows']} event times, max late {fmt(e['late_max'], '.1f')} ms, "
-                      f"{e['late_over_10pct']} later than {LATE_FRACTION:.0%} of a period")
+                      f"{e['late_over_10pct']} later than {LATE_FRACTION:.0%} of a period"
+                      + (f" ({e['restart_rows_left_out']} after a kill or restart left out)" if e["restart_rows_left_out"]
+                         else ""))
+            if near:
+                worst = max((e["late_max"] for e in near if e["late_max"] is not None), default=math.nan)
+                print(f"  around every rewrite ({len(near)}): max late {fmt(worst, '.1f')} ms: "
+                      + ("n/a" if not math.isfinite(worst) else "PASS" if worst <= period_ms else "FAIL")
+                      + f" against a period ({period_ms:g} ms)")
             results["rows"]["around_rewrites"] = near
         else:
             print("lateness: n/a (the chunks' late_ms is NaN or absent in every row)")
@@ -774,7 +886,7 @@ def main() -> int:
               + ", ".join(f"{k} {len(v)}" for k, v in sorted(kinds.items())))
         if rows is not None and kinds.get("chunks"):
             cut = max(e["last_tau"] for e in kinds["chunks"]) + 1
-            first = int(rows["tau"][0])
+            first = rows["first_on_disk"] if rows["first_on_disk"] is not None else cut + 1
             ok = first <= cut
             print(f"  rows: the last removed chunk ended at event time {cut - 1}; the first row on disk is {first}: "
                   + ("none lost at the cut (PASS)" if ok else f"{first - cut} lost at the cut (FAIL)"))

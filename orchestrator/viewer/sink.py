@@ -56,15 +56,14 @@ from splitspec_core.model.rows import column, present
 from . import blueprint as bp
 from .handoff import LossClear, LostRow, Mark, RowBatch, TextLine, TopologyLog
 from .reference_view import ReferenceRows, ReferenceView, log10
-from .rrd_file import (RrdAppender, finish_in_child, optimize_rrd, rerun_command, rewrite_rrd, segment_path,
-                       wait_finished)
+from .rrd_file import (APPLICATION_ID, RrdAppender, finish_in_child, optimize_rrd, rerun_command, rewrite_rrd,
+                       segment_path, wait_finished)
 from .topology_view import TopologyView
 
 __all__ = ["RerunSink", "ClosedSegment", "open_sink", "APPLICATION_ID", "RRD_FILE"]
 
 log = logging.getLogger(__name__)
 
-APPLICATION_ID = "splitspec"
 RRD_FILE = "run.rrd"
 DEFAULT_VIEWER_PORT = 9876
 
@@ -456,7 +455,7 @@ class RerunSink:
             self.rec.flush(timeout_sec=10.0)
         except Exception:
             pass
-        proc = finish_in_child(self.rrd_file.path, self.blueprint_args())
+        proc = finish_in_child(self.rrd_file.path, self.blueprint_args(), has_layout=self.segment == 0)
         self.finishing.append(proc)
         self.closed.append(ClosedSegment(self.rrd_file.path, self.span[0], self.span[1], proc, time.time()))
         self.span = [None, None]
