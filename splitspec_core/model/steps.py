@@ -38,6 +38,15 @@ measurement :func:`prediction_update`), ``z_i(k) = sum_j w_ij z_j(k-1)`` (:func:
 ``z_i(0) = E x_i + D [K_i (C_i x_i - y_i) + B u]``, the same functions with the matrices of
 :func:`step_matrices`.
 
+Fusion (:mod:`splitspec_core.synthesis.fusion`)
+-----------------------------------------------
+The same protocol with matrix weights, one set per sub-round, chosen for the noise: measure, fuse ``q`` times,
+predict,
+
+``z_i(0) = x_i(tau) + L_i (y_i(tau) - C_i x_i(tau))`` (:func:`local_update`; no measurement: ``x_i(tau)``),
+``z_i(k) = sum_j W_ij(k) z_j(k-1)`` with ``sum_j W_ij(k) = I`` (:func:`matrix_fusion`),
+``x_i(tau+1) = A z_i(q) [+ B u(tau)]`` (:func:`prediction_update`).
+
 Bad data (:mod:`splitspec_core.synthesis.bad_data`)
 ---------------------------------------------------
 Before its update each agent tests its measurement against its prediction (:func:`innovation_test`):
@@ -62,6 +71,8 @@ __all__ = [
     "weighted_average",
     "consensus_subround",
     "known_input",
+    "local_update",
+    "matrix_fusion",
     "measurement_update",
     "prediction_update",
     "flatline",
@@ -191,6 +202,61 @@ def measurement_update(z_q: np.ndarray, F_i: np.ndarray, K_i: np.ndarray, y_i: n
     """
     x = F_i @ z_q - K_i @ y_i
     return x if bu is None else x + bu
+
+
+def local_update(x_i: np.ndarray, L_i: np.ndarray, C_i: np.ndarray, y_i: np.ndarray | None) -> np.ndarray:
+    """The fusion kind's measurement step: ``z_i(0) = x_i(tau) + L_i (y_i(tau) - C_i x_i(tau))``; ``y_i`` None (no
+    measurement at ``tau``): ``x_i(tau)`` itself.
+
+    Parameters
+    ----------
+    x_i : (n,) ndarray
+        Agent i's estimate ``x_i(tau)``.
+    L_i : (n, s_i) ndarray
+        Its update gain.
+    C_i : (s_i, n) ndarray
+        Its output matrix.
+    y_i : (s_i,) ndarray or None
+        Its measurement ``y_i(tau)``; None: none.
+
+    Returns
+    -------
+    (n,) ndarray
+        ``z_i(0)``.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> local_update(np.array([1.0, 2.0]), np.array([[0.5], [0.0]]), np.array([[1.0, 0.0]]), np.array([3.0]))
+    array([2., 2.])
+    """
+    if y_i is None:
+        return np.array(x_i, dtype=float)
+    return x_i + L_i @ (y_i - C_i @ x_i)
+
+
+def matrix_fusion(states: Sequence[np.ndarray], weights: np.ndarray) -> np.ndarray:
+    """One fusion sub-round: ``z_i(k) = sum_j W_ij(k) z_j(k-1)`` over agent i's neighbours (itself included).
+
+    Parameters
+    ----------
+    states : sequence of (n,) arrays
+        ``z_j(k-1)`` of every ``j in N_i``, in the order of the weights.
+    weights : (n, |N_i| n) ndarray
+        ``[W_ij(k) for j in N_i]`` side by side (their sum is ``I``).
+
+    Returns
+    -------
+    (n,) ndarray
+        ``z_i(k)``.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> matrix_fusion([np.array([1.0, 0.0]), np.array([3.0, 2.0])], np.array([[0.5, 0, 0.5, 0], [0, 1, 0, 0]]))
+    array([2., 0.])
+    """
+    return weights @ np.concatenate(states)
 
 
 def prediction_update(z_q: np.ndarray, A: np.ndarray, bu: np.ndarray | None = None) -> np.ndarray:

@@ -1,0 +1,465 @@
+"""The fusion kind: each exchange fuses the neighbours' estimates with matrix weights chosen for the noise.
+
+The estimator
+-------------
+The paper's two-rate protocol (eqs. split-discrete-est1 .. p3: measure, ``q`` exchanges, predict) with the
+consensus step's scalar weights and projection ``P_i`` replaced by matrix weights, one set per sub-round
+(:mod:`splitspec_core.model.steps`: :func:`~splitspec_core.model.steps.local_update`,
+:func:`~splitspec_core.model.steps.matrix_fusion`, :func:`~splitspec_core.model.steps.prediction_update`)::
+
+    z_i(0) = x_i(tau) + L_i (y_i(tau) - C_i x_i(tau))          (no measurement: z_i(0) = x_i(tau))
+    z_i(k) = sum_{j in N_i} W_ij(k) z_j(k - 1),  sum_j W_ij(k) = I,   k = 1 .. q
+    x_i(tau + 1) = F z_i(q) [+ B u(tau)]
+
+Each exchange sends one estimate: ``n`` numbers per agent, ``q n`` per event time, as the paper's protocol does.
+``sum_j W_ij(k) = I`` keeps exact estimates exact, so the error ``e_i = x_i - x`` obeys (``w`` the process noise,
+``v_i`` agent i's measurement noise)::
+
+    e(tau + 1) = M e(tau) + (I (x) F) W(q) .. W(1) blkdiag(L_i) v(tau) - 1 (x) w(tau)
+    M = (I (x) F) W(q) .. W(1) blkdiag(I - L_i C_i)
+
+``W(k)`` the block matrix of the ``W_ij(k)`` (block ``ij`` zero unless i hears j).  Its steady covariance ``X``
+solves ``X = M X M' + (I (x) F) W L R L' W' (I (x) F)' + 1 1' (x) Q``.
+
+The gains (where the accuracy comes from)
+-----------------------------------------
+Every gain is the best for its agent given what the others do, at the steady state: with ``X`` the joint covariance of
+the predicted errors, ``L_i`` is agent i's Kalman update (``X_ii C_i' (C_i X_ii C_i' + R_i)^-1``), and after it each
+``W_i(k)`` is the best linear unbiased fusion of the estimates agent i hears, given their joint covariance
+``Sigma`` (the blocks of ``N_i``): ``W_i = (J' Sigma^-1 J)^-1 J' Sigma^-1``, ``J = [I; ..; I]``.  The correlations
+between neighbours' errors (the common process noise, the information they already share) are in ``Sigma``, so
+nothing is counted twice.  This is the steady-state distributed Kalman filter of Rego et al. (there: fuse the
+neighbours' predictions, then measure) moved inside the two-rate protocol (measure, then fuse ``q`` times), which lets
+a sensor's sample of ``tau`` reach agents up to ``q`` hops away before the prediction of ``tau + 1``: the protocol's
+limit (:mod:`.protocol_limit`) is what this can approach.  ``Sigma`` is regularised by ``REG`` of its mean variance
+(neighbours' estimates grow nearly identical as ``q`` grows: the weights stay bounded).
+
+The iteration: ``FIXED`` plain event times of the covariance recursion from independent errors, then policy
+iteration (the gains of ``X`` frozen, their steady ``X`` by Smith doubling, again) until the trace settles.
+
+What certifies it
+-----------------
+The rate: the spectral radius of the full error matrix ``M`` (every agent's whole error, ``m n`` unknowns) below
+``lam`` per event time.  When the noise's gains are slower than the rate, the gains are designed for ``F / alpha``
+(every error decays ``alpha`` faster in that design's model): the largest ``alpha`` in ``(0, 1]`` whose design
+certifies, by bisection.  The accuracy: ``X``, the Lyapunov solution of the frozen design, with its residual.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.linalg as sla
+
+from ..errors import DesignError
+from ..model.graphs import arc_positions
+from ..model.plant import output_rows, sampled_model
+from ..scenarios.specs import Scenario
+from .kalman import kalman_predictor, regularise
+
+__all__ = ["FusionDesign", "REG", "FIXED", "design_fusion", "fusion_gains", "error_map", "steady_covariance",
+           "scenario_fusion", "neighbour_positions"]
+
+#: Tikhonov regularisation of a neighbourhood's covariance, relative to its mean variance
+REG = 1e-9
+#: plain event times of the covariance recursion before policy iteration
+FIXED = 20
+#: policy iterations at most
+OUTER = 60
+#: the trace of ``X`` settled: no fall by more than this fraction in ``STALL`` policy iterations
+TOL = 1e-7
+STALL = 3
+#: bisection steps of the shift alpha
+ALPHA_STEPS = 8
+
+
+@dataclass(frozen=True)
+class FusionDesign:
+    """A fusion design: the gains, what they certify and what they are predicted to give.
+
+    Attributes
+    ----------
+    q : int
+        Exchanges per event time.
+    neighbours : tuple of tuple of int
+        ``N_i`` per agent (0-based positions, itself first).
+    Ls : tuple of (n, s_i) arrays
+        The local update gains ``L_i``.
+    weights : tuple of tuple of (n, |N_i| n) arrays
+        ``weights[k][i] = [W_ij(k+1) for j in N_i]`` side by side.
+    F : (n, n) array
+        The per-step model.
+    alpha : float
+        The shift the gains were designed with (1: none).
+    radius : float
+        ``rho(M)``, by dense eigenvalues.
+    covariance : (m n, m n) array
+        ``X``, the steady covariance of the predicted errors.
+    residual : float
+        ``|X - M X M' - N|_max / |X|_max`` of the Lyapunov equation.
+    iterations : int
+        Policy iterations of the last design.
+    kf_rms : float
+        The centralized Kalman predictor's RMS per state.
+    """
+
+    q: int
+    neighbours: tuple
+    Ls: tuple
+    weights: tuple
+    F: np.ndarray
+    alpha: float
+    radius: float
+    covariance: np.ndarray
+    residual: float
+    iterations: int
+    kf_rms: float
+
+    @property
+    def m(self) -> int:
+        """Number of agents."""
+        return len(self.neighbours)
+
+    @property
+    def n(self) -> int:
+        """Number of states."""
+        return self.F.shape[0]
+
+    @property
+    def agent_rms(self) -> np.ndarray:
+        """``sqrt(trace X_ii / n)`` per agent: its predicted steady RMS per state."""
+        d = np.diag(self.covariance).reshape(self.m, self.n)
+        return np.sqrt(np.maximum(d.sum(axis=1), 0.0) / self.n)
+
+    @property
+    def rms(self) -> float:
+        """``sqrt(trace X / (m n))``: the network's predicted steady RMS per state."""
+        return float(np.sqrt(max(np.trace(self.covariance), 0.0) / (self.m * self.n)))
+
+    @property
+    def ratio(self) -> float:
+        """``rms / kf_rms``: the predicted ratio to the centralized Kalman predictor."""
+        return self.rms / self.kf_rms
+
+    @property
+    def numbers_per_event(self) -> int:
+        """What each agent sends per event time: ``q`` estimates of ``n`` numbers."""
+        return self.q * self.n
+
+
+def neighbour_positions(m: int, arcs) -> tuple:
+    """``N_i`` per agent: 0-based positions of the agents i hears, itself first, then ascending.
+
+    Parameters
+    ----------
+    m : int
+        Number of agents.
+    arcs : iterable of (int, int)
+        Arcs ``(j, i)`` between 0-based positions.
+
+    Returns
+    -------
+    tuple of tuple of int
+
+    Examples
+    --------
+    >>> neighbour_positions(3, [(0, 1), (2, 1), (1, 0)])
+    ((0, 1), (1, 0, 2), (2,))
+    """
+    nb = [set() for _ in range(m)]
+    for j, i in arcs:
+        if j != i:
+            nb[i].add(int(j))
+    return tuple((i,) + tuple(sorted(s)) for i, s in enumerate(nb))
+
+
+def _rows(nb, n):
+    return np.concatenate([np.arange(j * n, (j + 1) * n) for j in nb])
+
+
+def _block_diag_sandwich(X: np.ndarray, T: np.ndarray) -> np.ndarray:
+    """``blkdiag(T_i) X blkdiag(T_i)'`` for ``T`` of shape (m, n, n), by batched block products."""
+    m, n = T.shape[0], T.shape[1]
+    B = X.reshape(m, n, m, n).transpose(0, 2, 1, 3)
+    B = T[:, None] @ B @ T[None].swapaxes(-1, -2)
+    return B.transpose(0, 2, 1, 3).reshape(m * n, m * n)
+
+
+def _fuse(X: np.ndarray, Wk, nbs, n: int) -> np.ndarray:
+    """``W X W'`` with ``W`` the block-sparse fusion of one sub-round (one product per agent and side)."""
+    Y = np.vstack([Wi @ X[_rows(nb, n)] for Wi, nb in zip(Wk, nbs)])
+    Z = np.vstack([Wi @ Y.T[_rows(nb, n)] for Wi, nb in zip(Wk, nbs)])
+    return 0.5 * (Z + Z.T)
+
+
+def _blue(Sigma: np.ndarray, k: int, n: int) -> np.ndarray:
+    """``(J' S^-1 J)^-1 J' S^-1`` for ``S`` the regularised ``Sigma``: the best linear unbiased fusion of ``k``
+    estimates of one ``n``-vector with joint error covariance ``Sigma``."""
+    S = 0.5 * (Sigma + Sigma.T)
+    S = S + (REG * max(np.trace(S) / S.shape[0], np.finfo(float).tiny)) * np.eye(S.shape[0])
+    J = np.tile(np.eye(n), (k, 1))
+    G = sla.cho_solve(sla.cho_factor(S), J)  # S^-1 J
+    return np.linalg.solve(J.T @ G, G.T)
+
+
+def fusion_gains(X: np.ndarray, Fa: np.ndarray, Cs, Rs, nbs, q: int) -> tuple:
+    """The gains that are best for each agent given the predicted errors' joint covariance ``X`` (module docstring).
+
+    Parameters
+    ----------
+    X : (m n, m n) array
+        The joint covariance of ``e(tau)``.
+    Fa : (n, n) array
+        The design's model (``F / alpha``).
+    Cs, Rs : sequences of arrays
+        Output matrices and measurement noise covariances per agent.
+    nbs : tuple of tuple of int
+        ``N_i`` (:func:`neighbour_positions`).
+    q : int
+        Exchanges per event time.
+
+    Returns
+    -------
+    tuple
+        ``(Ls, weights, X_next)``: the gains, and the covariance after one event time with them (before the process
+        noise is added: ``(I (x) Fa) W .. (L-updated X) .. W' (I (x) Fa)'``).
+    """
+    m, n = len(Cs), Fa.shape[0]
+    Ls, T = [], np.empty((m, n, n))
+    noise = np.zeros_like(X)
+    for i, (C, R) in enumerate(zip(Cs, Rs)):
+        Xi = X[i * n:(i + 1) * n, i * n:(i + 1) * n]
+        L = np.linalg.solve(C @ Xi @ C.T + R, C @ Xi).T  # X_ii C' (C X_ii C' + R)^-1
+        Ls.append(L)
+        T[i] = np.eye(n) - L @ C
+        noise[i * n:(i + 1) * n, i * n:(i + 1) * n] = L @ R @ L.T
+    X = _block_diag_sandwich(X, T) + noise
+    weights = []
+    for _ in range(q):
+        Wk = tuple(_blue(X[np.ix_(_rows(nb, n), _rows(nb, n))], len(nb), n) for nb in nbs)
+        weights.append(Wk)
+        X = _fuse(X, Wk, nbs, n)
+    X = _block_diag_sandwich(X, np.broadcast_to(Fa, (m, n, n)))
+    return tuple(Ls), tuple(weights), X
+
+
+def error_map(F: np.ndarray, Cs, Ls, weights, nbs) -> tuple:
+    """``(M, P)``: the error recursion ``e+ = M e + P blkdiag(L_i) v - 1 (x) w`` of the frozen gains.
+
+    Parameters
+    ----------
+    F : (n, n) array
+        The per-step model.
+    Cs : sequence of (s_i, n) arrays
+    Ls : sequence of (n, s_i) arrays
+    weights : tuple of tuple of (n, |N_i| n) arrays
+    nbs : tuple of tuple of int
+
+    Returns
+    -------
+    tuple of two (m n, m n) arrays
+        ``(M, P)``: ``M = (I (x) F) W(q) .. W(1) blkdiag(I - L_i C_i)`` and ``P = (I (x) F) W(q) .. W(1)``, which
+        carries the measurement noise: the noise covariance per event time is
+        ``P blkdiag(L_i R_i L_i') P' + 1 1' (x) Q``.
+    """
+    m, n = len(Cs), F.shape[0]
+    P = np.kron(np.eye(m), np.eye(n))
+    for Wk in weights:
+        Wfull = np.zeros((m * n, m * n))
+        for i, (Wi, nb) in enumerate(zip(Wk, nbs)):
+            Wfull[i * n:(i + 1) * n, _rows(nb, n)] = Wi
+        P = Wfull @ P
+    P = np.kron(np.eye(m), F) @ P
+    T = sla.block_diag(*[np.eye(n) - L @ C for L, C in zip(Ls, Cs)])
+    return P @ T, P
+
+
+def steady_covariance(M: np.ndarray, N: np.ndarray, *, doublings: int = 60) -> np.ndarray:
+    """``X = sum_k M^k N M'^k`` by Smith doubling (``X <- X + A X A'``, ``A <- A^2``).
+
+    Parameters
+    ----------
+    M : (d, d) array
+        A Schur-stable map.
+    N : (d, d) array
+        Symmetric positive semi-definite.
+    doublings : int, default 60
+        At most this many doublings.
+
+    Returns
+    -------
+    (d, d) array
+
+    Raises
+    ------
+    DesignError
+        If ``M^(2^k)`` does not fall below round-off within ``doublings`` (``M`` not Schur-stable).
+
+    Examples
+    --------
+    >>> steady_covariance(np.array([[0.5]]), np.array([[3.0]]))
+    array([[4.]])
+    """
+    X, A = np.array(N, dtype=float), np.array(M, dtype=float)
+    for _ in range(doublings):
+        step = A @ X @ A.T
+        X = X + step
+        X = 0.5 * (X + X.T)
+        if np.abs(step).max() <= 1e-17 * np.abs(X).max():
+            return X
+        if np.abs(A).max() > 1e100:  # M^(2^k) growing: unstable (caught before it overflows)
+            break
+        A = A @ A
+    raise DesignError("the fusion design's error map is not stable: no steady covariance")
+
+
+def _design_at(F, Cs, Q, Rs, nbs, q, alpha, X0):
+    """Gains at one shift ``alpha``: plain event times, then policy iteration; ``(Ls, weights, X, iterations)``."""
+    m, n = len(Cs), F.shape[0]
+    Fa = F / alpha
+    QQ = np.kron(np.ones((m, m)), Q) / alpha ** 2
+    X = X0
+    for _ in range(FIXED):
+        Ls, weights, Xn = fusion_gains(X, Fa, Cs, Rs, nbs, q)
+        X = Xn + QQ
+    best, stalled = None, 0
+    for it in range(1, OUTER + 1):
+        Ls, weights, _ = fusion_gains(X, Fa, Cs, Rs, nbs, q)
+        M, P = error_map(Fa, Cs, Ls, weights, nbs)
+        noise = P @ sla.block_diag(*[L @ R @ L.T for L, R in zip(Ls, Rs)]) @ P.T + QQ
+        try:
+            X = steady_covariance(M, noise)
+        except DesignError:  # not yet stabilising: more plain event times
+            for _ in range(FIXED):
+                Ls, weights, Xn = fusion_gains(X, Fa, Cs, Rs, nbs, q)
+                X = Xn + QQ
+            continue
+        tr = np.trace(X)
+        # near the fixed point the gains move in directions the covariance hardly feels (neighbours' estimates
+        # nearly equal): the trace wanders at 1e-5 of itself; the best frozen gains seen are kept
+        if best is None or tr < best[0] * (1 - TOL):
+            stalled = 0
+        else:
+            stalled += 1
+        if best is None or tr < best[0]:
+            best = (tr, Ls, weights, it)
+        if stalled >= STALL:
+            break
+    if best is None:
+        raise DesignError(f"the fusion design at q = {q} found no stabilising gains in {OUTER} policy iterations")
+    return best[1], best[2], None, best[3]
+
+
+def _frozen(F, Cs, Q, Rs, nbs, q, alpha, X0, kf_rms) -> FusionDesign:
+    Ls, weights, Xa, its = _design_at(F, Cs, Q, Rs, nbs, q, alpha, X0)
+    M, P = error_map(F, Cs, Ls, weights, nbs)
+    m = len(Cs)
+    noise = P @ sla.block_diag(*[L @ R @ L.T for L, R in zip(Ls, Rs)]) @ P.T + np.kron(np.ones((m, m)), Q)
+    radius = float(np.max(np.abs(np.linalg.eigvals(M))))
+    if radius >= 1.0:
+        raise DesignError(f"the fusion design at q = {q} is not stable (spectral radius {radius:.6g})")
+    X = steady_covariance(M, noise)
+    residual = float(np.abs(X - M @ X @ M.T - noise).max() / np.abs(X).max())
+    return FusionDesign(q=int(q), neighbours=tuple(nbs), Ls=tuple(Ls), weights=weights, F=F, alpha=float(alpha),
+                        radius=radius, covariance=X, residual=residual, iterations=its, kf_rms=kf_rms)
+
+
+def design_fusion(F: np.ndarray, Cs, Q: np.ndarray, Rs, nbs, q: int, *, rate: float | None = None) -> FusionDesign:
+    """The fusion design at ``q`` exchanges per event time (module docstring), certified at ``rate`` if given.
+
+    Parameters
+    ----------
+    F : (n, n) array
+        The per-step model.
+    Cs, Rs : sequences of arrays
+        Output matrices and measurement noise covariances per agent (in agent order).
+    Q : (n, n) array
+        The process noise covariance per step.
+    nbs : tuple of tuple of int
+        ``N_i`` per agent (:func:`neighbour_positions`).
+    q : int
+        Exchanges per event time, at least 1.
+    rate : float or None, optional
+        ``lam`` per event time: the design must have ``rho(M) < lam``.  None: only stability.
+
+    Returns
+    -------
+    FusionDesign
+        The gains; ``radius < rate`` (strict).
+
+    Raises
+    ------
+    DesignError
+        If no shift ``alpha`` gives a radius below the rate, or the stacked sensors are not detectable.
+
+    Examples
+    --------
+    Two agents on a random walk, each seeing one coordinate, one exchange: the fused estimate is the Kalman
+    predictor's (every sensor one hop away arrives in time).
+
+    >>> I = np.eye(2)
+    >>> d = design_fusion(I, [I[[0]], I[[1]]], I, [np.eye(1)] * 2, ((0, 1), (1, 0)), 1)
+    >>> round(d.ratio, 6), d.numbers_per_event
+    (1.0, 2)
+    """
+    if q < 1:
+        raise DesignError(f"the fusion design needs at least one exchange per event time, got q = {q}")
+    F = np.asarray(F, dtype=float)
+    m, n = len(Cs), F.shape[0]
+    Q = regularise(np.asarray(Q, dtype=float))
+    Rs = [regularise(np.asarray(R, dtype=float)) for R in Rs]
+    kf = kalman_predictor(F, np.vstack(Cs), Q, sla.block_diag(*Rs))
+    kf_rms = float(np.sqrt(max(np.trace(kf.P), 0.0) / n))
+    X0 = np.kron(np.eye(m), 10.0 * kf.P + np.eye(n) * np.trace(kf.P) / n)
+    best = _frozen(F, Cs, Q, Rs, nbs, q, 1.0, X0, kf_rms)
+    if rate is None or best.radius < rate:
+        return best
+    def attempt(alpha):
+        try:
+            d = _frozen(F, Cs, Q, Rs, nbs, q, alpha, X0, kf_rms)
+        except DesignError:
+            return None
+        return d if d.radius < rate else None
+
+    fail, ok, a = 1.0, None, rate  # shifted by the rate itself first, then further while that does not certify
+    for _ in range(4):
+        ok = attempt(a)
+        if ok is not None:
+            break
+        fail, a = a, a * rate
+    if ok is None:
+        raise DesignError(f"the fusion design at q = {q} is not certified at rate {rate:.6g} per event time "
+                          f"(spectral radius {best.radius:.6g} unshifted)")
+    for _ in range(ALPHA_STEPS):  # the largest alpha that certifies: the gains closest to the noise's
+        a = 0.5 * (ok.alpha + fail)
+        d = attempt(a)
+        if d is not None:
+            ok = d
+        else:
+            fail = a
+    return ok
+
+
+def scenario_fusion(sc: Scenario, q: int, *, graph: int = 0, rate: float | None = None) -> FusionDesign:
+    """:func:`design_fusion` of a scenario on one of its graphs (its per-step model and noise).
+
+    Parameters
+    ----------
+    sc : Scenario
+    q : int
+        Exchanges per event time.
+    graph : int, default 0
+        The graph's index, in the scenario's order.
+    rate : float or None, optional
+        ``lam`` per event time.
+
+    Returns
+    -------
+    FusionDesign
+    """
+    F, Q, R = sampled_model(sc)
+    Cs = [np.asarray(C, dtype=float) for C in sc.system.Cs]
+    Rs = [R[r, r] for r in output_rows(Cs)]
+    j, i = arc_positions(sc.agent_ids, sc.graphs[graph].arcs)
+    return design_fusion(F, Cs, Q, Rs, neighbour_positions(sc.m, zip(j.tolist(), i.tolist())), q, rate=rate)
