@@ -412,13 +412,17 @@ def design_fusion(F: np.ndarray, Cs, Q: np.ndarray, Rs, nbs, q: int, *, rate: fl
     kf = kalman_predictor(F, np.vstack(Cs), Q, sla.block_diag(*Rs))
     kf_rms = float(np.sqrt(max(np.trace(kf.P), 0.0) / n))
     X0 = np.kron(np.eye(m), 10.0 * kf.P + np.eye(n) * np.trace(kf.P) / n)
-    best = _frozen(F, Cs, Q, Rs, nbs, q, 1.0, X0, kf_rms)
+    try:
+        best = _frozen(F, Cs, Q, Rs, nbs, q, 1.0, X0, kf_rms)
+    except np.linalg.LinAlgError as exc:
+        raise DesignError(f"the fusion design at q = {q} failed: {exc}") from None
     if rate is None or best.radius < rate:
         return best
     def attempt(alpha):
         try:
-            d = _frozen(F, Cs, Q, Rs, nbs, q, alpha, X0, kf_rms)
-        except DesignError:
+            with np.errstate(all="ignore"):  # a shift too far blows the covariances up: that is a failure, below
+                d = _frozen(F, Cs, Q, Rs, nbs, q, alpha, X0, kf_rms)
+        except (DesignError, np.linalg.LinAlgError):
             return None
         return d if d.radius < rate else None
 

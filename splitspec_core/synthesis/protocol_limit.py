@@ -158,7 +158,7 @@ def delayed_predictor_covariance(F: np.ndarray, Cs, Q: np.ndarray, Rs, delays, P
 
     >>> F, C, Q, R = np.eye(1), np.eye(1), np.eye(1), np.eye(1)
     >>> P = kalman_predictor(F, C, Q, R).P
-    >>> float(delayed_predictor_covariance(F, [C], Q, [R], [1], P)[0, 0] - P[0, 0])
+    >>> round(float(delayed_predictor_covariance(F, [C], Q, [R], [1], P)[0, 0] - P[0, 0]), 12)
     1.0
     """
     delays = [int(d) for d in delays]
