@@ -112,7 +112,7 @@ class SteadyStateDKF:
 
     @classmethod
     def design(cls, F: np.ndarray, Cs, Q: np.ndarray, Rs, nbs, *, kf_rms: float = float("nan"),
-               tol: float = 1e-10, max_iter: int = 5000) -> "SteadyStateDKF":
+               tol: float = 1e-8, max_iter: int = 5000) -> "SteadyStateDKF":
         """Iterate the joint covariance to the steady state (``DTKF.m``) and freeze the gains.
 
         Parameters
@@ -124,8 +124,9 @@ class SteadyStateDKF:
             ``N_i`` per agent, itself first.
         kf_rms : float, optional
             The Kalman predictor's RMS per state (ratios).
-        tol : float, default 1e-10
-            Relative change of the covariance (max norm) that ends the iteration.
+        tol : float, default 1e-8
+            Change of the covariance (Frobenius norm, relative to it) that ends the iteration (``DTKF.m``: 1e-8,
+            absolute).
         max_iter : int, default 5000
 
         Returns
@@ -148,7 +149,7 @@ class SteadyStateDKF:
             T, D, parts = cls._step(F, X, S, nbs, n)
             Xn = T @ X @ T.T + D + QQ
             Xn = 0.5 * (Xn + Xn.T)
-            done = np.abs(Xn - X).max() <= tol * np.abs(Xn).max()
+            done = np.linalg.norm(Xn - X) <= tol * np.linalg.norm(Xn)  # DTKF.m's norm(P_s - P_old), made relative
             X = Xn
             if done:
                 break

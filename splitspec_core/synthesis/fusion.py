@@ -31,8 +31,8 @@ between neighbours' errors (the common process noise, the information they alrea
 nothing is counted twice.  This is the steady-state distributed Kalman filter of Rego et al. (there: fuse the
 neighbours' predictions, then measure) moved inside the two-rate protocol (measure, then fuse ``q`` times), which lets
 a sensor's sample of ``tau`` reach agents up to ``q`` hops away before the prediction of ``tau + 1``: the protocol's
-limit (:mod:`.protocol_limit`) is what this can approach.  ``Sigma`` is regularised by ``REG`` of its mean variance
-(neighbours' estimates grow nearly identical as ``q`` grows: the weights stay bounded).
+limit (:mod:`.protocol_limit`) is what this can approach.  ``Sigma`` is regularised by ``REG`` on the diagonal of its correlation matrix
+(neighbours' estimates grow nearly identical as ``q`` grows: the weights stay bounded; states in any units).
 
 The iteration: ``FIXED`` plain event times of the covariance recursion from independent errors, then policy
 iteration (the gains of ``X`` frozen, their steady ``X`` by Smith doubling, again) until the trace settles.
@@ -61,7 +61,7 @@ from .kalman import kalman_predictor, regularise
 __all__ = ["FusionDesign", "REG", "FIXED", "design_fusion", "fusion_gains", "error_map", "steady_covariance",
            "scenario_fusion", "neighbour_positions"]
 
-#: Tikhonov regularisation of a neighbourhood's covariance, relative to its mean variance
+#: Tikhonov regularisation of a neighbourhood's covariance, added to the diagonal of its correlation matrix
 REG = 1e-9
 #: plain event times of the covariance recursion before policy iteration
 FIXED = 20
@@ -194,12 +194,20 @@ def _fuse(X: np.ndarray, Wk, nbs, n: int) -> np.ndarray:
 
 
 def _blue(Sigma: np.ndarray, k: int, n: int) -> np.ndarray:
-    """``(J' S^-1 J)^-1 J' S^-1`` for ``S`` the regularised ``Sigma``: the best linear unbiased fusion of ``k``
+    """``(J' S^-1 J)^-1 J' S^-1`` for ``S`` the regularised ``Sigma`` (``D (Sigma / d d' + REG I) D``, ``D = diag(d)``, ``d``
+    the standard deviations): the best linear unbiased fusion of ``k``
     estimates of one ``n``-vector with joint error covariance ``Sigma``."""
     S = 0.5 * (Sigma + Sigma.T)
-    S = S + (REG * max(np.trace(S) / S.shape[0], np.finfo(float).tiny)) * np.eye(S.shape[0])
+    d = np.sqrt(np.maximum(np.diag(S), np.finfo(float).tiny))
+    C = S / np.outer(d, d)  # the correlations: the regularisation is the same for every state's units
+    C[np.diag_indices_from(C)] += REG
     J = np.tile(np.eye(n), (k, 1))
-    G = sla.cho_solve(sla.cho_factor(S), J)  # S^-1 J
+    try:
+        G = sla.cho_solve(sla.cho_factor(C), J / d[:, None]) / d[:, None]  # S^-1 J, S = D C D
+    except np.linalg.LinAlgError:  # round-off made it indefinite: the pseudo-inverse of its positive part
+        w, U = np.linalg.eigh(C)
+        keep = w > REG * w.max()
+        G = ((U[:, keep] / w[keep]) @ (U[:, keep].T @ (J / d[:, None]))) / d[:, None]
     return np.linalg.solve(J.T @ G, G.T)
 
 
@@ -302,15 +310,18 @@ def steady_covariance(M: np.ndarray, N: np.ndarray, *, doublings: int = 60) -> n
     array([[4.]])
     """
     X, A = np.array(N, dtype=float), np.array(M, dtype=float)
-    for _ in range(doublings):
-        step = A @ X @ A.T
-        X = X + step
-        X = 0.5 * (X + X.T)
-        if np.abs(step).max() <= 1e-17 * np.abs(X).max():
-            return X
-        if np.abs(A).max() > 1e100:  # M^(2^k) growing: unstable (caught before it overflows)
-            break
-        A = A @ A
+    with np.errstate(over="ignore", invalid="ignore"):
+        for _ in range(doublings):
+            if not np.abs(A).max() < 1e60:  # M^(2^k) growing (or overflowed): unstable
+                break
+            step = A @ X @ A.T
+            if not np.isfinite(step).all():
+                break
+            X = X + step
+            X = 0.5 * (X + X.T)
+            if np.abs(step).max() <= 1e-17 * np.abs(X).max():
+                return X
+            A = A @ A
     raise DesignError("the fusion design's error map is not stable: no steady covariance")
 
 
@@ -414,7 +425,7 @@ def design_fusion(F: np.ndarray, Cs, Q: np.ndarray, Rs, nbs, q: int, *, rate: fl
     X0 = np.kron(np.eye(m), 10.0 * kf.P + np.eye(n) * np.trace(kf.P) / n)
     try:
         best = _frozen(F, Cs, Q, Rs, nbs, q, 1.0, X0, kf_rms)
-    except np.linalg.LinAlgError as exc:
+    except (np.linalg.LinAlgError, ValueError) as exc:
         raise DesignError(f"the fusion design at q = {q} failed: {exc}") from None
     if rate is None or best.radius < rate:
         return best
@@ -422,7 +433,7 @@ def design_fusion(F: np.ndarray, Cs, Q: np.ndarray, Rs, nbs, q: int, *, rate: fl
         try:
             with np.errstate(all="ignore"):  # a shift too far blows the covariances up: that is a failure, below
                 d = _frozen(F, Cs, Q, Rs, nbs, q, alpha, X0, kf_rms)
-        except (DesignError, np.linalg.LinAlgError):
+        except (DesignError, np.linalg.LinAlgError, ValueError):  # ValueError: covariances overflowed
             return None
         return d if d.radius < rate else None
 

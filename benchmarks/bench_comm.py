@@ -1,0 +1,211 @@
+"""Accuracy per message: the ratio to the centralized Kalman predictor against the numbers each agent sends.
+
+For each model and each q (exchanges per event time), side by side on the same noise realisations:
+
+* the protocol's limit at q (:mod:`splitspec_core.synthesis.protocol_limit`: the Kalman predictor fed each sensor
+  ceil(d / q) - 1 event times late), which no estimator within q exchanges beats;
+* the fusion kind (:mod:`splitspec_core.synthesis.fusion`), predicted (its Lyapunov covariance) and measured (mean
+  and spread over ``--seeds`` runs), with its spectral radius against the scenario's rate per event time;
+* Rego's steady-state distributed Kalman filter (one estimate per step, :class:`SteadyStateDKF`), a baseline at q = 1.
+
+Numbers sent: per agent per event time, ``q n`` for the fusion kind (one estimate per exchange), ``n`` for Rego's.
+
+    .venv/bin/python benchmarks/bench_comm.py                       # every model, q = 1 2 3
+    .venv/bin/python benchmarks/bench_comm.py --models rego --q 1 2 3 --seeds 5
+
+Writes benchmarks/results/bench_comm.json and docs/figures/bench_comm.png (``--no-write``: print only); the printed
+table of the run quoted in docs/benchmarks/index.md is kept as benchmarks/results/bench_comm.txt.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+import splitspec_core as ss
+from splitspec_core.errors import SplitspecError
+from splitspec_core.model.graphs import arc_positions
+from splitspec_core.model.plant import output_rows, sampled_model
+from splitspec_core.studies.baselines import run_predictor
+from splitspec_core.studies.few_exchanges import SteadyStateDKF, run_fusion, simulate_measurements
+from splitspec_core.synthesis.fusion import design_fusion, neighbour_positions
+from splitspec_core.synthesis.kalman import kalman_predictor, per_step_rate
+from splitspec_core.synthesis.protocol_limit import hop_distances, protocol_limit
+
+from _common import loadavg
+
+ROOT = Path(__file__).resolve().parents[1]
+EXAMPLES = ROOT / "examples"
+RESULTS = ROOT / "benchmarks" / "results"
+FIGURE = ROOT / "docs" / "figures" / "bench_comm.png"
+sys.path.insert(0, str(ROOT / "benchmarks"))
+
+
+def _ieee39():
+    from bench_real import scenario  # the IEEE 39-bus PMU ring as bench_real and the issue build it
+
+    return scenario("ieee39_damped", "pmu", 0.2, {}, 2.0, 0.02, (1e-4, 1e-3))
+
+
+MODELS = {
+    "rego": lambda: ss.load_scenario(EXAMPLES / "rego_ring.yaml"),
+    "ring10_noise": lambda: ss.load_scenario(EXAMPLES / "ring10_noise.yaml"),
+    "ieee14_pmu": lambda: ss.load_scenario(EXAMPLES / "ieee14_pmu.yaml"),
+    "platoon": lambda: ss.load_scenario(EXAMPLES / "platoon.yaml"),
+    "ieee39_pmu": _ieee39,
+}
+
+
+def _parts(sc):
+    F, Q, R = sampled_model(sc)
+    Cs = [np.asarray(C, dtype=float) for C in sc.system.Cs]
+    Rs = [R[r, r] for r in output_rows(Cs)]
+    j, i = arc_positions(sc.agent_ids, sc.graphs[0].arcs)
+    arcs = list(zip(j.tolist(), i.tolist()))
+    return F, Q, R, Cs, Rs, arcs
+
+
+def _measured(F, Cs, Q, Rs, runs: dict, seeds: int, steps: int, burn: int) -> dict:
+    """RMS ratio to the Kalman predictor run on the same realisation, per estimator, over the seeds."""
+    C = np.vstack(Cs)
+    kf = kalman_predictor(F, C, Q, np.vstack([np.hstack([R if a == b else np.zeros((R.shape[0], S.shape[0]))
+                                                          for b, S in enumerate(Rs)]) for a, R in enumerate(Rs)]))
+    m, n = len(Cs), F.shape[0]
+    out = {name: [] for name in runs}
+    for seed in range(seeds):
+        x, y = simulate_measurements(F, Cs, Q, Rs, steps, np.random.default_rng(seed))
+        e_kf = run_predictor(F, C, kf.L, y, np.zeros(n)) - x
+        ref = np.sqrt(np.mean(e_kf[burn:] ** 2))
+        for name, run in runs.items():
+            e = run(y, np.zeros((m, n))) - x[:, None]
+            out[name].append(float(np.sqrt(np.mean(e[burn:] ** 2)) / ref))
+    return out
+
+
+def bench_model(key: str, qs, seeds: int, steps: int | None) -> dict:
+    sc = MODELS[key]()
+    F, Q, R, Cs, Rs, arcs = _parts(sc)
+    m, n = sc.m, sc.n
+    lam = per_step_rate(sc, sc.design.rate)
+    nbs = neighbour_positions(m, arcs)
+    dist = hop_distances(m, arcs)
+    row = {"model": key, "m": m, "n": n, "rate_per_event": lam, "diameter": int(dist.max()), "rows": []}
+    print(f"== {key}: m = {m}, n = {n}, diameter {int(dist.max())}, rate {lam:.6g} per event time "
+          f"(load {loadavg()})", flush=True)
+    runs, designs = {}, {}
+    for q in qs:
+        t0 = time.perf_counter()
+        lim = protocol_limit(F, Cs, Q, Rs, dist, q)
+        t_lim = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        try:
+            des = design_fusion(F, Cs, Q, Rs, nbs, q, rate=lam)
+            certified = True
+        except SplitspecError as exc:
+            print(f"   q = {q}: fusion not certified at the rate ({exc}); the unshifted design instead", flush=True)
+            des = design_fusion(F, Cs, Q, Rs, nbs, q)
+            certified = False
+        t_des = time.perf_counter() - t0
+        designs[q] = (des, lim, certified, t_des, t_lim)
+        runs[f"fusion q={q}"] = (lambda d: lambda y, X0: run_fusion(d, Cs, y, X0))(des)
+    t0 = time.perf_counter()
+    try:
+        rego = SteadyStateDKF.design(F, Cs, Q, Rs, nbs, kf_rms=designs[qs[0]][0].kf_rms)
+        runs["rego"] = lambda y, X0: rego.run(Cs, y, X0)
+    except SplitspecError as exc:
+        print(f"   Rego's steady-state DKF: {exc}", flush=True)
+        rego = None
+    t_rego = time.perf_counter() - t0
+    radius = max([d[0].radius for d in designs.values()] + ([rego.radius] if rego else []))
+    settle = int(np.ceil(np.log(1e-6) / np.log(max(radius, 1e-3))))  # the initial error fallen a millionfold
+    steps = steps or max(2000, 12 * settle)
+    burn = min(settle, steps // 3)
+    meas = _measured(F, Cs, Q, Rs, runs, seeds, steps, burn)
+    for q, (des, lim, certified, t_des, t_lim) in designs.items():
+        mm = meas[f"fusion q={q}"]
+        r = {"estimator": "fusion", "q": q, "numbers": des.numbers_per_event, "limit": lim.ratio,
+             "predicted": des.ratio, "measured": mm, "radius": des.radius, "alpha": des.alpha,
+             "certified": certified and des.radius < lam, "design_s": t_des, "limit_s": t_lim,
+             "of_limit": des.ratio / lim.ratio - 1.0}
+        row["rows"].append(r)
+        print(f"   fusion q={q}: sends {r['numbers']:5d}  limit {lim.ratio:.4f}  predicted {des.ratio:.4f} "
+              f"({100 * r['of_limit']:+.2f} % of the limit)  measured {np.mean(mm):.4f} "
+              f"[{min(mm):.4f}, {max(mm):.4f}]  radius {des.radius:.6g} {'<' if r['certified'] else '>='} {lam:.6g}"
+              f"  alpha {des.alpha:.4g}  design {t_des:.1f} s", flush=True)
+    if rego is not None:
+        mm = meas["rego"]
+        lim1 = designs[min(designs)][1] if 1 in designs else protocol_limit(F, Cs, Q, Rs, dist, 1)
+        row["rows"].append({"estimator": "rego", "q": 1, "numbers": n, "limit": lim1.ratio, "predicted": rego.ratio,
+                            "measured": mm, "radius": rego.radius, "certified": rego.radius < lam,
+                            "design_s": t_rego})
+        print(f"   Rego SSDKF : sends {n:5d}  predicted {rego.ratio:.4f}  measured {np.mean(mm):.4f} "
+              f"[{min(mm):.4f}, {max(mm):.4f}]  radius {rego.radius:.6g}  design {t_rego:.1f} s", flush=True)
+    row["steps"], row["burn"], row["seeds"] = steps, burn, seeds
+    return row
+
+
+def figure(rows: list, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, len(rows), figsize=(4.2 * len(rows), 3.8), squeeze=False)
+    for ax, row in zip(axes[0], rows):
+        fus = [r for r in row["rows"] if r["estimator"] == "fusion"]
+        x = [r["numbers"] for r in fus]
+        ax.plot(x, [r["limit"] for r in fus], "k--", marker="_", ms=14, label="protocol limit")
+        ax.plot(x, [r["predicted"] for r in fus], "C0-o", label="fusion, predicted")
+        ax.errorbar(x, [np.mean(r["measured"]) for r in fus],
+                    yerr=[[np.mean(r["measured"]) - min(r["measured"]) for r in fus],
+                          [max(r["measured"]) - np.mean(r["measured"]) for r in fus]],
+                    fmt="C0x", capsize=3, label="fusion, measured")
+        for r in fus:
+            ax.annotate(f"q={r['q']}", (r["numbers"], r["predicted"]), textcoords="offset points", xytext=(4, 6),
+                        fontsize=8)
+        for r in row["rows"]:
+            if r["estimator"] == "rego":
+                ax.plot([r["numbers"]], [r["predicted"]], "C3s", label="Rego SSDKF (exchange, then measure)")
+        ax.axhline(1.0, color="0.6", lw=0.8)
+        ax.set_xscale("log")
+        ax.set_title(f"{row['model']} (m={row['m']}, n={row['n']})", fontsize=10)
+        ax.set_xlabel("numbers each agent sends per event time")
+        ax.set_ylabel("RMS error / centralized KF's")
+        ax.legend(fontsize=7)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("--models", nargs="+", default=list(MODELS), choices=list(MODELS))
+    p.add_argument("--q", nargs="+", type=int, default=[1, 2, 3])
+    p.add_argument("--seeds", type=int, default=3)
+    p.add_argument("--steps", type=int, default=None, help="event times per run (default: 12 settling times)")
+    p.add_argument("--no-write", action="store_true")
+    args = p.parse_args(argv)
+    print(f"bench_comm: load {loadavg()}", flush=True)
+    rows = []
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        for key in args.models:
+            t0 = time.perf_counter()
+            rows.append(bench_model(key, sorted(args.q), args.seeds, args.steps))
+            print(f"   ({time.perf_counter() - t0:.0f} s, load {loadavg()})", flush=True)
+    if not args.no_write:
+        RESULTS.mkdir(parents=True, exist_ok=True)
+        (RESULTS / "bench_comm.json").write_text(json.dumps({"load": loadavg(), "models": rows}, indent=1))
+        figure(rows, FIGURE)
+        print(f"wrote {RESULTS / 'bench_comm.json'} and {FIGURE}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
