@@ -102,6 +102,8 @@ class FusionDesign:
         Policy iterations of the last design.
     kf_rms : float
         The centralized Kalman predictor's RMS per state.
+    Cs : tuple of (s_i, n) arrays
+        The output matrices the gains were designed for.
     """
 
     q: int
@@ -115,6 +117,7 @@ class FusionDesign:
     residual: float
     iterations: int
     kf_rms: float
+    Cs: tuple = ()
 
     @property
     def m(self) -> int:
@@ -141,6 +144,34 @@ class FusionDesign:
     def ratio(self) -> float:
         """``rms / kf_rms``: the predicted ratio to the centralized Kalman predictor."""
         return self.rms / self.kf_rms
+
+    @property
+    def M(self) -> np.ndarray:
+        """The error map ``M = (I (x) F) W(q) .. W(1) blkdiag(I - L_i C_i)`` (:func:`error_map`)."""
+        return error_map(self.F, self.Cs, self.Ls, self.weights, self.neighbours)[0]
+
+    def transient_constant(self, rate: float) -> float:
+        """``c`` with ``|e(tau)| <= c rate^tau |e(0)|`` for every ``tau`` without noise (the stacked error, 2-norm).
+
+        From the Lyapunov function of ``M / rate``: ``P = (M / rate)' P (M / rate) + I`` exists when
+        ``radius < rate``, ``e' P e`` does not grow along ``M / rate``, so ``c = sqrt(cond P)``.
+
+        Parameters
+        ----------
+        rate : float
+            ``lam`` per event time, above :attr:`radius`.
+
+        Returns
+        -------
+        float
+            ``c >= 1`` (``inf`` when ``radius >= rate``: no such constant).
+        """
+        if not self.radius < rate:
+            return float("inf")
+        Ms = self.M / rate
+        P = sla.solve_discrete_lyapunov(Ms.T, np.eye(Ms.shape[0]))
+        w = np.linalg.eigvalsh(0.5 * (P + P.T))
+        return float(np.sqrt(w[-1] / w[0])) if w[0] > 0 else float("inf")
 
     @property
     def numbers_per_event(self) -> int:
@@ -373,7 +404,7 @@ def _frozen(F, Cs, Q, Rs, nbs, q, alpha, X0, kf_rms) -> FusionDesign:
     X = steady_covariance(M, noise)
     residual = float(np.abs(X - M @ X @ M.T - noise).max() / np.abs(X).max())
     return FusionDesign(q=int(q), neighbours=tuple(nbs), Ls=tuple(Ls), weights=weights, F=F, alpha=float(alpha),
-                        radius=radius, covariance=X, residual=residual, iterations=its, kf_rms=kf_rms)
+                        radius=radius, covariance=X, residual=residual, iterations=its, kf_rms=kf_rms, Cs=tuple(Cs))
 
 
 def design_fusion(F: np.ndarray, Cs, Q: np.ndarray, Rs, nbs, q: int, *, rate: float | None = None) -> FusionDesign:
