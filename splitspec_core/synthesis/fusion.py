@@ -51,6 +51,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import scipy.linalg as sla
+import scipy.sparse.linalg as spla
 
 from ..errors import DesignError
 from ..model.graphs import arc_positions
@@ -69,9 +70,15 @@ FIXED = 20
 OUTER = 60
 #: the trace of ``X`` settled: no fall by more than this fraction in ``STALL`` policy iterations
 TOL = 1e-7
-STALL = 3
+STALL = 2
 #: bisection steps of the shift alpha
-ALPHA_STEPS = 8
+ALPHA_STEPS = 6
+#: plain event times before policy iteration when warm-started from another shift's covariance
+WARM_FIXED = 3
+#: above this many unknowns (m n) the radius is ARPACK's, checked densely near the rate
+DENSE_RADIUS = 600
+#: an iterative radius within this fraction of the rate is computed again densely
+DECIDE = 1e-2
 
 
 @dataclass(frozen=True)
@@ -93,7 +100,8 @@ class FusionDesign:
     alpha : float
         The shift the gains were designed with (1: none).
     radius : float
-        ``rho(M)``, by dense eigenvalues.
+        ``rho(M)``: every eigenvalue up to ``DENSE_RADIUS`` unknowns, else ARPACK's largest (dense again within
+        ``DECIDE`` of the rate).
     covariance : (m n, m n) array
         ``X``, the steady covariance of the predicted errors.
     residual : float
@@ -356,13 +364,14 @@ def steady_covariance(M: np.ndarray, N: np.ndarray, *, doublings: int = 60) -> n
     raise DesignError("the fusion design's error map is not stable: no steady covariance")
 
 
-def _design_at(F, Cs, Q, Rs, nbs, q, alpha, X0):
-    """Gains at one shift ``alpha``: plain event times, then policy iteration; ``(Ls, weights, X, iterations)``."""
+def _design_at(F, Cs, Q, Rs, nbs, q, alpha, X0, fixed=FIXED):
+    """Gains at one shift ``alpha``: ``fixed`` plain event times, then policy iteration; ``(Ls, weights, X,
+    iterations)`` with ``X`` the steady covariance of the returned gains in the design's model (``F / alpha``)."""
     m, n = len(Cs), F.shape[0]
     Fa = F / alpha
     QQ = np.kron(np.ones((m, m)), Q) / alpha ** 2
     X = X0
-    for _ in range(FIXED):
+    for _ in range(fixed):
         Ls, weights, Xn = fusion_gains(X, Fa, Cs, Rs, nbs, q)
         X = Xn + QQ
     best, stalled = None, 0
@@ -385,26 +394,44 @@ def _design_at(F, Cs, Q, Rs, nbs, q, alpha, X0):
         else:
             stalled += 1
         if best is None or tr < best[0]:
-            best = (tr, Ls, weights, it)
+            best = (tr, Ls, weights, it, X)
         if stalled >= STALL:
             break
     if best is None:
         raise DesignError(f"the fusion design at q = {q} found no stabilising gains in {OUTER} policy iterations")
-    return best[1], best[2], None, best[3]
+    return best[1], best[2], best[4], best[3]
 
 
-def _frozen(F, Cs, Q, Rs, nbs, q, alpha, X0, kf_rms) -> FusionDesign:
-    Ls, weights, Xa, its = _design_at(F, Cs, Q, Rs, nbs, q, alpha, X0)
+def _radius(M: np.ndarray, rate: float | None) -> float:
+    """``rho(M)``: every eigenvalue up to ``DENSE_RADIUS`` unknowns; above, ARPACK's largest moduli (cheap products
+    with a formed matrix), computed again densely when it fails or lands within ``DECIDE`` (relative) of the rate."""
+    if M.shape[0] > DENSE_RADIUS:
+        try:
+            vals = spla.eigs(M, k=6, which="LM", ncv=min(M.shape[0] - 1, 40), tol=1e-10, return_eigenvectors=False)
+            rho = float(np.max(np.abs(vals)))
+            if rate is None or abs(rho - rate) > DECIDE * rate:
+                return rho
+        except (spla.ArpackNoConvergence, spla.ArpackError):
+            pass
+    return float(np.max(np.abs(np.linalg.eigvals(M))))
+
+
+def _frozen(F, Cs, Q, Rs, nbs, q, alpha, X0, kf_rms, rate=None, fixed=FIXED) -> tuple:
+    """The design at ``alpha`` evaluated on the model itself: ``(FusionDesign, X)``, ``X`` the design iteration's
+    covariance (a warm start for the next shift)."""
+    Ls, weights, Xa, its = _design_at(F, Cs, Q, Rs, nbs, q, alpha, X0, fixed)
     M, P = error_map(F, Cs, Ls, weights, nbs)
     m = len(Cs)
     noise = P @ sla.block_diag(*[L @ R @ L.T for L, R in zip(Ls, Rs)]) @ P.T + np.kron(np.ones((m, m)), Q)
-    radius = float(np.max(np.abs(np.linalg.eigvals(M))))
+    radius = _radius(M, rate)
     if radius >= 1.0:
         raise DesignError(f"the fusion design at q = {q} is not stable (spectral radius {radius:.6g})")
-    X = steady_covariance(M, noise)
+    # unshifted, the iteration's covariance is already this one (the same M and noise); shifted, solved again
+    X = Xa if alpha == 1.0 else steady_covariance(M, noise)
     residual = float(np.abs(X - M @ X @ M.T - noise).max() / np.abs(X).max())
     return FusionDesign(q=int(q), neighbours=tuple(nbs), Ls=tuple(Ls), weights=weights, F=F, alpha=float(alpha),
-                        radius=radius, covariance=X, residual=residual, iterations=its, kf_rms=kf_rms, Cs=tuple(Cs))
+                        radius=radius, covariance=X, residual=residual, iterations=its, kf_rms=kf_rms,
+                        Cs=tuple(Cs)), Xa
 
 
 def design_fusion(F: np.ndarray, Cs, Q: np.ndarray, Rs, nbs, q: int, *, rate: float | None = None) -> FusionDesign:
@@ -445,6 +472,17 @@ def design_fusion(F: np.ndarray, Cs, Q: np.ndarray, Rs, nbs, q: int, *, rate: fl
     >>> round(d.ratio, 6), d.numbers_per_event
     (1.0, 2)
     """
+    # One BLAS thread: most products are small (a neighbourhood's covariance, one agent's rows), where OpenBLAS's
+    # threads cost more than they give, and on a busy machine they collapse (Rego's ring at q = 1, load 4:
+    # 21.6 s with two threads, 8.1 s with one); one thread also fixes the summation order (the same gains every run).
+    from threadpoolctl import threadpool_limits
+
+    with threadpool_limits(1):
+        return _design_fusion(F, Cs, Q, Rs, nbs, q, rate=rate)
+
+
+def _design_fusion(F, Cs, Q, Rs, nbs, q, *, rate):
+    """:func:`design_fusion` under its BLAS thread limit."""
     if q < 1:
         raise DesignError(f"the fusion design needs at least one exchange per event time, got q = {q}")
     F = np.asarray(F, dtype=float)
@@ -455,18 +493,23 @@ def design_fusion(F: np.ndarray, Cs, Q: np.ndarray, Rs, nbs, q: int, *, rate: fl
     kf_rms = float(np.sqrt(max(np.trace(kf.P), 0.0) / n))
     X0 = np.kron(np.eye(m), 10.0 * kf.P + np.eye(n) * np.trace(kf.P) / n)
     try:
-        best = _frozen(F, Cs, Q, Rs, nbs, q, 1.0, X0, kf_rms)
+        best, warm = _frozen(F, Cs, Q, Rs, nbs, q, 1.0, X0, kf_rms, rate)
     except (np.linalg.LinAlgError, ValueError) as exc:
         raise DesignError(f"the fusion design at q = {q} failed: {exc}") from None
     if rate is None or best.radius < rate:
         return best
+
     def attempt(alpha):
+        nonlocal warm
         try:
             with np.errstate(all="ignore"):  # a shift too far blows the covariances up: that is a failure, below
-                d = _frozen(F, Cs, Q, Rs, nbs, q, alpha, X0, kf_rms)
+                d, X = _frozen(F, Cs, Q, Rs, nbs, q, alpha, warm, kf_rms, rate, fixed=WARM_FIXED)
         except (DesignError, np.linalg.LinAlgError, ValueError):  # ValueError: covariances overflowed
             return None
-        return d if d.radius < rate else None
+        if d.radius >= rate:
+            return None
+        warm = X  # the next shift starts from the last certified one's covariance
+        return d
 
     fail, ok, a = 1.0, None, rate  # shifted by the rate itself first, then further while that does not certify
     for _ in range(4):
