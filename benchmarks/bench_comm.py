@@ -6,9 +6,12 @@ For each model and each q (exchanges per event time), side by side on the same n
   ceil(d / q) - 1 event times late), which no estimator within q exchanges beats;
 * the fusion kind (:mod:`splitspec_core.synthesis.fusion`), predicted (its Lyapunov covariance) and measured (mean
   and spread over ``--seeds`` runs), with its spectral radius against the scenario's rate per event time;
-* Rego's steady-state distributed Kalman filter (one estimate per step, :class:`SteadyStateDKF`), a baseline at q = 1.
+* Rego's steady-state distributed Kalman filter (one estimate per step, :class:`SteadyStateDKF`), a baseline at q = 1;
+* the Kalman-consensus filter (Olfati-Saber, :class:`KalmanConsensusFilter`) with q exchanges, measured.
 
-Numbers sent: per agent per event time, ``q n`` for the fusion kind (one estimate per exchange), ``n`` for Rego's.
+Numbers sent: per agent per event time, ``q n`` for the fusion kind (one estimate per exchange), ``n`` for Rego's,
+``n + s_i`` then ``n`` per further exchange for the KCF (its first message carries the prior and the measurement; the
+most any agent sends is counted).
 
     .venv/bin/python benchmarks/bench_comm.py                       # every model, q = 1 2 3
     .venv/bin/python benchmarks/bench_comm.py --models rego --q 1 2 3 --seeds 5
@@ -32,7 +35,7 @@ import splitspec_core as ss
 from splitspec_core.errors import SplitspecError
 from splitspec_core.model.graphs import arc_positions
 from splitspec_core.model.plant import output_rows, sampled_model
-from splitspec_core.studies.baselines import run_predictor
+from splitspec_core.studies.baselines import KalmanConsensusFilter, run_predictor
 from splitspec_core.studies.few_exchanges import SteadyStateDKF, run_fusion, simulate_measurements
 from splitspec_core.synthesis.fusion import design_fusion, neighbour_positions
 from splitspec_core.synthesis.kalman import kalman_predictor, per_step_rate
@@ -114,6 +117,8 @@ def bench_model(key: str, qs, seeds: int, steps: int | None, rego_iterations: in
         t_des = time.perf_counter() - t0
         designs[q] = (des, lim, certified, t_des, t_lim)
         runs[f"fusion q={q}"] = (lambda d: lambda y, X0: run_fusion(d, Cs, y, X0))(des)
+        kcf = KalmanConsensusFilter(F, Cs, Q, Rs, [list(nb[1:]) for nb in nbs], exchanges=q)
+        runs[f"kcf q={q}"] = (lambda k: lambda y, X0: k.run(y, X0, output_rows(Cs)))(kcf)
     t0 = time.perf_counter()
     rego = None
     if rego_iterations > 0:
@@ -139,6 +144,11 @@ def bench_model(key: str, qs, seeds: int, steps: int | None, rego_iterations: in
               f"({100 * r['of_limit']:+.2f} % of the limit)  measured {np.mean(mm):.4f} "
               f"[{min(mm):.4f}, {max(mm):.4f}]  radius {des.radius:.6g} {'<' if r['certified'] else '>='} {lam:.6g}"
               f"  alpha {des.alpha:.4g}  design {t_des:.1f} s", flush=True)
+    for q in designs:
+        mm = meas[f"kcf q={q}"]
+        sends = n + max(C.shape[0] for C in Cs) + (q - 1) * n
+        row["rows"].append({"estimator": "kcf", "q": q, "numbers": sends, "measured": mm})
+        print(f"   KCF q={q}   : sends {sends:5d}  measured {np.mean(mm):.4f} [{min(mm):.4f}, {max(mm):.4f}]", flush=True)
     if rego is not None:
         mm = meas["rego"]
         lim1 = designs[min(designs)][1] if 1 in designs else protocol_limit(F, Cs, Q, Rs, dist, 1)
@@ -170,6 +180,11 @@ def figure(rows: list, path: Path) -> None:
         for r in fus:
             ax.annotate(f"q={r['q']}", (r["numbers"], r["predicted"]), textcoords="offset points", xytext=(4, 6),
                         fontsize=8)
+        kcf = [r for r in row["rows"] if r["estimator"] == "kcf" and np.isfinite(np.mean(r["measured"]))
+               and np.mean(r["measured"]) < 10]
+        if kcf:
+            ax.plot([r["numbers"] for r in kcf], [np.mean(r["measured"]) for r in kcf], "C2^:",
+                    label="KCF, measured")
         for r in row["rows"]:
             if r["estimator"] == "rego":
                 ax.plot([r["numbers"]], [r["predicted"]], "C3s", label="Rego SSDKF (exchange, then measure)")

@@ -35,14 +35,15 @@ import numpy as np
 import scipy.linalg as sla
 from scipy.sparse.csgraph import shortest_path
 
-from ..errors import AssumptionError, DesignError
+from ..errors import AssumptionError, DesignError, SplitspecError
 from ..model.graphs import arc_positions
 from ..model.plant import output_rows, sampled_model
 from ..scenarios.specs import Scenario
+from .design_data import cached_analysis
 from .kalman import kalman_predictor, regularise
 
-__all__ = ["ProtocolLimit", "hop_distances", "information_delays", "delayed_predictor_covariance", "protocol_limit",
-           "scenario_limit"]
+__all__ = ["ProtocolLimit", "Exchanges", "hop_distances", "information_delays", "delayed_predictor_covariance",
+           "protocol_limit", "scenario_limit", "design_exchanges"]
 
 
 @dataclass(frozen=True)
@@ -248,3 +249,91 @@ def scenario_limit(sc: Scenario, q: int, *, graph: int = 0) -> ProtocolLimit:
     j, i = arc_positions(sc.agent_ids, g.arcs)
     return protocol_limit(F, Cs, Q, Rs, hop_distances(sc.m, zip(j.tolist(), i.tolist())), q)
 
+
+
+@dataclass(frozen=True)
+class Exchanges:
+    """What each agent of a design sends, and the protocol's limit at that many exchanges (``splitspec design``).
+
+    Attributes
+    ----------
+    per : str
+        ``event time`` (discrete) or ``run.dt`` (continuous: one event time per step).
+    messages : int or None
+        Messages each agent sends per event time (``q``; 1 for the continuous sampled-data form with ``g``); None
+        when the design has no ``q``.
+    numbers : int or None
+        Numbers each agent sends per event time: ``messages n`` (each message one estimate).
+    limit : ProtocolLimit or None
+        The limit at ``messages`` exchanges, on ``graph``; None without noise or above the noise analysis's size.
+    graph : str or None
+        The graph the limit is computed on (the first the switching uses).
+    """
+
+    per: str
+    messages: int | None
+    numbers: int | None
+    limit: ProtocolLimit | None
+    graph: str | None
+
+    def text(self) -> str:
+        """The report's line.
+
+        Returns
+        -------
+        str
+            ``exchanges: ...``, with the limit where it was computed.
+        """
+        if self.messages is None:
+            return ""
+        out = (f"exchanges: each agent sends {self.messages} message{'s' if self.messages != 1 else ''} of "
+               f"{self.numbers // self.messages} numbers per {self.per} ({self.numbers} numbers)")
+        if self.limit is not None:
+            out += (f"; the protocol's limit at q = {self.messages}: {self.limit.ratio:.4g}x the centralized Kalman "
+                    f"filter's RMS (graph {self.graph}: each sensor ceil(d / q) - 1 event times late; no estimator "
+                    f"within {self.messages} exchange{'s' if self.messages != 1 else ''} does better)")
+        return out
+
+
+@cached_analysis
+def design_exchanges(des) -> Exchanges:
+    """:class:`Exchanges` of a design: its ``q`` (or one exchange per step), and the limit under noise.
+
+    Parameters
+    ----------
+    des : Design
+        The design.
+
+    Returns
+    -------
+    Exchanges
+
+    Examples
+    --------
+    >>> import splitspec_core as ss
+    >>> from splitspec_core.synthesis.designer import design
+    >>> des = design(ss.scenario(A=[[0, 1, 0, 0], [-1, 0, 0, 0], [0, 0, 0, 1], [0, 0, -2, 0]],
+    ...                          C={1: [[1, 0, 0, 0]], 2: [[0, 1, 0, 0]], 3: [[0, 0, 1, 0]]},
+    ...                          graphs={"a": [(1, 2), (2, 1), (2, 3), (3, 2), (1, 3)]}, rate=0.5, gains="place"))
+    >>> ex = design_exchanges(des)
+    >>> ex.messages, ex.numbers, ex.limit is None
+    (6, 24, True)
+    """
+    from .error_matrix import MAX_NOISE_DIM
+
+    sc = des.scenario
+    per = "event time" if sc.time == "discrete" else "run.dt"
+    if sc.time == "continuous" and des.consensus != "whole":
+        q = 1  # the sampled-data form: one exchange per step
+    else:
+        q = None if des.q is None else int(des.q)
+    if q is None or q < 1:
+        return Exchanges(per=per, messages=None, numbers=None, limit=None, graph=None)
+    limit, graph = None, None
+    if sc.system.has_noise and sc.m * sc.n <= MAX_NOISE_DIM:
+        graph = sc.switching.graph_names(sc.graph_names)[0]
+        try:
+            limit = scenario_limit(sc, q, graph=sc.graph_names.index(graph))
+        except SplitspecError:  # no Kalman predictor (the stacked sensors not detectable with the noise): no limit
+            limit, graph = None, None
+    return Exchanges(per=per, messages=q, numbers=q * sc.n, limit=limit, graph=graph)

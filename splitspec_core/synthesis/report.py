@@ -23,6 +23,7 @@ from .conditioning import conditioning
 from .design_data import Design, cached_analysis
 from .designer import highest_rate
 from .loss_certificate import loss_certificate
+from .protocol_limit import design_exchanges
 from .bad_data import bad_data, report_lines as bad_data_lines
 from ..model.gains import poles_text
 from ..model.graphs import is_doubly_stochastic, perron_vector
@@ -238,6 +239,11 @@ def design_json(des: Design) -> dict:
                rate_note=NO_CERTIFIED_RATE if des.g_mode == "adaptive" else None,
                fastest_certified_rate=None if reach is None else {"rate": reach.rate, "refused": reach.refused})
     out.update(consensus=des.consensus, consensus_choice=des.chosen, whole_state=_whole_json(des))
+    ex = design_exchanges(des)
+    out["exchanges"] = {"per": ex.per, "messages": ex.messages, "numbers": ex.numbers, "limit": None if ex.limit is None
+                        else {"q": ex.limit.q, "graph": ex.graph, "ratio_to_kalman": _num(ex.limit.ratio),
+                              "rms": _num(ex.limit.rms), "kalman_rms": _num(ex.limit.kf_rms),
+                              "agents": {str(i): _num(v) for i, v in zip(sc.agent_ids, ex.limit.agent_rms)}}}
     if sc.time == "continuous" and des.consensus != "whole":
         out.update({
             "g": _num(des.g),
@@ -525,6 +531,9 @@ def _size_lines(des: Design) -> list:
     elif cond.kalman_rms is not None:
         out.append(f"noise: the steady-state error is not predicted (m n = {sc.m * sc.n}); the centralized Kalman "
                    f"filter's is {cond.kalman_rms:.3g}")
+    line = design_exchanges(des).text()
+    if line:
+        out.append(line)
     return out
 
 

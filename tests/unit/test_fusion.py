@@ -161,3 +161,26 @@ def test_rego_ring_fusion_at_one_exchange_beats_regos_filter_near_the_limit():
                                  [np.eye(np.shape(C)[0]) for C in sc.system.Cs], des.neighbours, kf_rms=des.kf_rms)
     assert rego.ratio == pytest.approx(1.92, abs=0.005)
     assert rego.radius == pytest.approx(0.863, abs=0.0005)
+
+
+def design_exchanges_text(des) -> str:
+    from splitspec_core.synthesis.protocol_limit import design_exchanges
+
+    return design_exchanges(des).text()
+
+
+def test_design_report_says_what_each_agent_sends_and_the_limit_at_its_q():
+    from splitspec_core.synthesis.designer import design
+    from splitspec_core.synthesis.report import design_json, design_text
+
+    sc = ss.load_scenario(EXAMPLES / "ring10_noise.yaml")
+    des = design(sc)
+    j = design_json(des)["exchanges"]
+    assert j["messages"] == des.q and j["numbers"] == des.q * sc.n and j["per"] == "event time"
+    assert j["limit"]["ratio_to_kalman"] == pytest.approx(scenario_limit(sc, des.q).ratio, rel=1e-12)
+    assert f"each agent sends {des.q} messages of {sc.n} numbers per event time" in design_text(des)
+    # the continuous sampled-data form exchanges once per step; without noise there is no limit to state
+    cont = design_json(design(ss.load_scenario(EXAMPLES / "paper_continuous.yaml")))["exchanges"]
+    assert cont["messages"] == 1 and cont["per"] == "run.dt" and cont["limit"]["q"] == 1
+    quiet = design(ss.load_scenario(EXAMPLES / "paper_discrete.yaml"))
+    assert design_json(quiet)["exchanges"]["limit"] is None and "limit" not in design_exchanges_text(quiet)
