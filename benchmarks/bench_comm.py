@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import logging
 import sys
 import time
 import warnings
@@ -208,7 +209,11 @@ def main(argv=None) -> int:
     p.add_argument("--rego-iterations", type=int, default=2000,
                    help="the most covariance iterations of Rego's filter's design (0: leave it out)")
     p.add_argument("--no-write", action="store_true")
+    p.add_argument("--quiet", action="store_true", help="no progress lines from the designs")
     args = p.parse_args(argv)
+    if not args.quiet:  # each shift the fusion design tries, as it goes (a large model's design takes minutes)
+        logging.basicConfig(level=logging.WARNING, format="      %(message)s")
+        logging.getLogger("splitspec_core.synthesis.fusion").setLevel(logging.INFO)
     print(f"bench_comm: load {loadavg()}", flush=True)
     rows = []
     with warnings.catch_warnings():

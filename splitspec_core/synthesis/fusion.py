@@ -47,6 +47,7 @@ certifies, by bisection.  The accuracy: ``X``, the Lyapunov solution of the froz
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass
 
 import numpy as np
@@ -62,6 +63,8 @@ from .kalman import kalman_predictor, regularise
 __all__ = ["FusionDesign", "REG", "FIXED", "design_fusion", "fusion_gains", "error_map", "steady_covariance",
            "scenario_fusion", "neighbour_positions"]
 
+log = logging.getLogger(__name__)
+
 #: Tikhonov regularisation of a neighbourhood's covariance, added to the diagonal of its correlation matrix
 REG = 1e-9
 #: plain event times of the covariance recursion before policy iteration
@@ -71,8 +74,10 @@ OUTER = 60
 #: the trace of ``X`` settled: no fall by more than this fraction in ``STALL`` policy iterations
 TOL = 1e-7
 STALL = 2
-#: bisection steps of the shift alpha
+#: search steps of the shift alpha (regula falsi, bisection where a failed design has no radius)
 ALPHA_STEPS = 6
+#: the shift's search stops once the radius is within this fraction below the rate
+SETTLE = 2e-3
 #: plain event times before policy iteration when warm-started from another shift's covariance
 WARM_FIXED = 3
 #: above this many unknowns (m n) the radius is ARPACK's, checked densely near the rate
@@ -496,37 +501,53 @@ def _design_fusion(F, Cs, Q, Rs, nbs, q, *, rate):
         best, warm = _frozen(F, Cs, Q, Rs, nbs, q, 1.0, X0, kf_rms, rate)
     except (np.linalg.LinAlgError, ValueError) as exc:
         raise DesignError(f"the fusion design at q = {q} failed: {exc}") from None
+    log.info("fusion q = %d: unshifted, radius %.6g, predicted %.4gx the KF", q, best.radius, best.ratio)
     if rate is None or best.radius < rate:
         return best
 
     def attempt(alpha):
+        """The design at ``alpha``, or None when it fails; the radius it reached either way (None: no design)."""
         nonlocal warm
         try:
             with np.errstate(all="ignore"):  # a shift too far blows the covariances up: that is a failure, below
                 d, X = _frozen(F, Cs, Q, Rs, nbs, q, alpha, warm, kf_rms, rate, fixed=WARM_FIXED)
         except (DesignError, np.linalg.LinAlgError, ValueError):  # ValueError: covariances overflowed
-            return None
+            return None, None
+        log.info("fusion q = %d: alpha %.6g, radius %.6g %s rate %.6g, predicted %.4gx the KF", q, alpha, d.radius,
+                 "<" if d.radius < rate else ">=", rate, d.ratio)
         if d.radius >= rate:
-            return None
+            return None, d.radius
         warm = X  # the next shift starts from the last certified one's covariance
-        return d
+        return d, d.radius
 
-    fail, ok, a = 1.0, None, rate  # shifted by the rate itself first, then further while that does not certify
-    for _ in range(4):
-        ok = attempt(a)
+    # the radius of a design for F / alpha is about alpha times the unshifted one's: the first shift aims just below
+    # the rate, then the rate itself and further while that does not certify
+    fail, fail_radius, ok = 1.0, best.radius, None
+    for a in (0.999 * rate / best.radius, rate, rate ** 2, rate ** 3):
+        if a >= fail:
+            continue
+        ok, r = attempt(a)
         if ok is not None:
             break
-        fail, a = a, a * rate
+        fail, fail_radius = a, r
     if ok is None:
         raise DesignError(f"the fusion design at q = {q} is not certified at rate {rate:.6g} per event time "
                           f"(spectral radius {best.radius:.6g} unshifted)")
-    for _ in range(ALPHA_STEPS):  # the largest alpha that certifies: the gains closest to the noise's
-        a = 0.5 * (ok.alpha + fail)
-        d = attempt(a)
+    # the largest alpha that certifies (the gains closest to the noise's): regula falsi on radius(alpha) = rate,
+    # aimed a little below it, bisection where the failing end has no radius; done within SETTLE of the rate
+    for _ in range(ALPHA_STEPS):
+        if ok.radius >= rate * (1.0 - SETTLE):
+            break
+        if fail_radius is not None and fail_radius > ok.radius:
+            a = ok.alpha + (rate * (1.0 - 0.5 * SETTLE) - ok.radius) * (fail - ok.alpha) / (fail_radius - ok.radius)
+            a = min(max(a, ok.alpha + 0.05 * (fail - ok.alpha)), fail - 0.05 * (fail - ok.alpha))
+        else:
+            a = 0.5 * (ok.alpha + fail)
+        d, r = attempt(a)
         if d is not None:
             ok = d
         else:
-            fail = a
+            fail, fail_radius = a, r
     return ok
 
 
