@@ -28,6 +28,13 @@ Two tables, no timing assertions anywhere (the machine is shared):
     .venv/bin/python benchmarks/bench_design.py --only scale [--scale-sizes 100 300 1000 3000]
         [--scale-resilient-max 1000] [--scale-serial-max 1000] [--scale-repeat 1]
 
+* the fusion kind's design (``--only fusion``, :mod:`splitspec_core.synthesis.fusion`) on Rego's ring and the power
+  models of ``bench_comm.py`` at each q, certified at the scenario's rate: wall seconds with the machine as it is and
+  with one other busy process (a child spinning on a core), alternating, medians of ``--fusion-repeat``, the load
+  average beside each.
+
+    .venv/bin/python benchmarks/bench_design.py --only fusion [--fusion-models rego ieee14_pmu] [--fusion-q 1 2 3]
+
 On a loaded machine OpenBLAS threads can dominate the figures; ``OPENBLAS_NUM_THREADS=1``
 in the environment takes them out (the header says which setting ran).
 """
@@ -241,9 +248,52 @@ def ring_table(args) -> None:
                   flush=True)
 
 
+def _spin() -> None:  # pragma: no cover - the busy process of the fusion table
+    while True:
+        pass
+
+
+def fusion_table(args) -> None:
+    """The fusion design's wall time, quiet and beside one busy process (module docstring)."""
+    import multiprocessing
+
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from bench_comm import MODELS, _parts
+    from splitspec_core.synthesis.fusion import design_fusion, neighbour_positions
+    from splitspec_core.synthesis.kalman import per_step_rate
+
+    print(f"fusion design (one BLAS thread inside; load {loadavg()})")
+    print(f"{'model':<14}{'q':>3}{'quiet s':>10}{'busy s':>10}{'ratio':>8}{'radius':>11}{'rate':>11}  load after")
+    for key in args.fusion_models:
+        sc = MODELS[key]()
+        F, Q, R, Cs, Rs, arcs = _parts(sc)
+        nbs = neighbour_positions(sc.m, arcs)
+        lam = per_step_rate(sc, sc.design.rate)
+        for q in args.fusion_q:
+            quiet, busy, des = [], [], None
+            for _ in range(args.fusion_repeat):
+                for loaded in (False, True):
+                    spinner = multiprocessing.Process(target=_spin, daemon=True) if loaded else None
+                    if spinner:
+                        spinner.start()
+                    try:
+                        t0 = time.perf_counter()
+                        des = design_fusion(F, Cs, Q, Rs, nbs, q, rate=lam)
+                        (busy if loaded else quiet).append(time.perf_counter() - t0)
+                    finally:
+                        if spinner:
+                            spinner.terminate()
+                            spinner.join()
+            print(f"{key:<14}{q:>3}{statistics.median(quiet):>10.1f}{statistics.median(busy):>10.1f}"
+                  f"{des.ratio:>8.4f}{des.radius:>11.6g}{lam:>11.6g}  {loadavg(1)}", flush=True)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--only", choices=["random", "ring", "scale"], help="run one table only")
+    ap.add_argument("--only", choices=["random", "ring", "scale", "fusion"], help="run one table only")
+    ap.add_argument("--fusion-models", nargs="+", default=["rego", "ieee14_pmu"])
+    ap.add_argument("--fusion-q", type=int, nargs="+", default=[1, 2, 3])
+    ap.add_argument("--fusion-repeat", type=int, default=1)
     ap.add_argument("--sizes", type=int, nargs="+", default=[5, 20, 50, 100])
     ap.add_argument("--n", type=int, default=10)
     ap.add_argument("--repeat", type=int, default=1)
@@ -272,6 +322,9 @@ def main() -> None:
     if args.only in (None, "scale"):
         print() if args.only is None else None
         scale_table(args)
+    if args.only in (None, "fusion"):
+        print() if args.only is None else None
+        fusion_table(args)
 
 
 if __name__ == "__main__":
