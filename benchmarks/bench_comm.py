@@ -2,7 +2,7 @@
 
 For each model and each q (exchanges per event time), side by side on the same noise realisations:
 
-* the protocol's limit at q (:mod:`splitspec_core.synthesis.protocol_limit`: the Kalman predictor fed each sensor
+* the protocol's limit at q (:mod:`splitspec_core.synthesis.exchange_limit`: the Kalman predictor fed each sensor
   ceil(d / q) - 1 event times late), which no estimator within q exchanges beats;
 * the fusion kind (:mod:`splitspec_core.synthesis.fusion`), predicted (its Lyapunov covariance) and measured (mean
   and spread over ``--seeds`` runs), with its spectral radius against the scenario's rate per event time;
@@ -40,7 +40,7 @@ from splitspec_core.studies.baselines import KalmanConsensusFilter, run_predicto
 from splitspec_core.studies.few_exchanges import SteadyStateDKF, run_fusion, simulate_measurements
 from splitspec_core.synthesis.fusion import design_fusion, neighbour_positions
 from splitspec_core.synthesis.kalman import kalman_predictor, per_step_rate
-from splitspec_core.synthesis.protocol_limit import hop_distances, protocol_limit
+from splitspec_core.synthesis.exchange_limit import hop_distances, protocol_limit
 
 from _common import loadavg
 

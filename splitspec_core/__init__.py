@@ -63,7 +63,7 @@ from typing import Any as _Any
 _PUBLIC = {
     "scenario": "api", "load_scenario": "api", "design": "api", "simulate": "api", "compare": "api",
     "DesignResult": "api", "AgentResult": "api", "Checks": "api", "CompareResult": "api",
-    "EstimatorResult": "api", "network_sweep": "studies.sweeps", "Scenario": "scenarios.specs", "Trajectory": "simulation.simulator",
+    "EstimatorResult": "api", "network_sweep": "studies.sweeps", "protocol_limit": "api", "Scenario": "scenarios.specs", "Trajectory": "simulation.simulator",
     "MonteCarloRuns": "simulation.montecarlo",
     "SplitspecError": "errors", "ScenarioError": "errors", "DimensionError": "errors",
     "AssumptionError": "errors", "DesignError": "errors",

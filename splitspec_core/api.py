@@ -38,7 +38,7 @@ from .studies.comparison import compare as _compare
 if TYPE_CHECKING:
     from .simulation.montecarlo import MonteCarloRuns
 
-__all__ = ["AgentResult", "Checks", "CompareResult", "DesignResult", "EstimatorResult", "compare", "design",
+__all__ = ["AgentResult", "Checks", "CompareResult", "DesignResult", "EstimatorResult", "compare", "design", "protocol_limit",
            "load_scenario", "scenario", "simulate"]
 
 _SECTIONS = {"system": SYSTEM_KEYS, "design": DESIGN_KEYS, "run": RUN_KEYS}
@@ -346,6 +346,51 @@ class DesignResult:
         from .synthesis.report import design_json
 
         return design_json(self.detail)
+
+
+def protocol_limit(sc: Scenario, q: int, *, graph: str | None = None):
+    """The best any estimator can do with ``q`` exchanges per event time on the scenario's network.
+
+    In the two-rate protocol (measure, exchange ``q`` times, predict) a sensor ``d`` hops away reaches an agent's
+    estimate ``ceil(d / q) - 1`` event times late, so no estimator beats the centralized Kalman predictor fed each
+    sensor that late (:mod:`splitspec_core.synthesis.exchange_limit`).  ``splitspec design`` prints it for the
+    design's own ``q`` under noise.
+
+    Parameters
+    ----------
+    sc : Scenario
+        With noise (``system.process_noise``, ``system.measurement_noise``); discrete, or continuous on its model
+        sampled with ``run.dt``.
+    q : int
+        Exchanges per event time (at least 1).
+    graph : str, optional
+        The graph's name; default the first one.
+
+    Returns
+    -------
+    ProtocolLimit
+        ``ratio`` (the limit over the Kalman predictor's RMS), ``rms`` and ``kf_rms`` per state, ``agent_rms`` per
+        agent, ``delays`` (event times each agent hears each sensor late).
+
+    Raises
+    ------
+    ScenarioError
+        An unknown graph.
+    DesignError
+        No Kalman predictor (the stacked sensors not detectable with the noise), or ``q < 1``.
+
+    Examples
+    --------
+    >>> import splitspec_core as ss
+    >>> sc = ss.load_scenario("examples/rego_ring.yaml")
+    >>> [round(ss.protocol_limit(sc, q).ratio, 3) for q in (1, 2, 3)]
+    [1.775, 1.401, 1.247]
+    """
+    from .synthesis.exchange_limit import scenario_limit
+
+    if graph is not None and graph not in sc.graph_names:
+        raise ScenarioError(f"protocol_limit: unknown graph {graph!r}; the scenario has {', '.join(sc.graph_names)}")
+    return scenario_limit(sc, int(q), graph=0 if graph is None else sc.graph_names.index(graph))
 
 
 def design(sc: Scenario, *, all_q_methods: bool = False, workers: int | None = None) -> DesignResult:

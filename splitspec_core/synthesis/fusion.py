@@ -31,7 +31,7 @@ between neighbours' errors (the common process noise, the information they alrea
 nothing is counted twice.  This is the steady-state distributed Kalman filter of Rego et al. (there: fuse the
 neighbours' predictions, then measure) moved inside the two-rate protocol (measure, then fuse ``q`` times), which lets
 a sensor's sample of ``tau`` reach agents up to ``q`` hops away before the prediction of ``tau + 1``: the protocol's
-limit (:mod:`.protocol_limit`) is what this can approach.  ``Sigma`` is regularised by ``REG`` on the diagonal of its correlation matrix
+limit (:mod:`.exchange_limit`) is what this can approach.  ``Sigma`` is regularised by ``REG`` on the diagonal of its correlation matrix
 (neighbours' estimates grow nearly identical as ``q`` grows: the weights stay bounded; states in any units).
 
 The iteration: ``FIXED`` plain event times of the covariance recursion from independent errors, then policy

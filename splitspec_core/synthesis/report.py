@@ -23,7 +23,7 @@ from .conditioning import conditioning
 from .design_data import Design, cached_analysis
 from .designer import highest_rate
 from .loss_certificate import loss_certificate
-from .protocol_limit import design_exchanges
+from .exchange_limit import design_exchanges
 from .bad_data import bad_data, report_lines as bad_data_lines
 from ..model.gains import poles_text
 from ..model.graphs import is_doubly_stochastic, perron_vector

@@ -25,7 +25,7 @@ import pytest
 from splitspec_core.errors import DesignError
 from splitspec_core.studies.few_exchanges import run_fusion, simulate_measurements
 from splitspec_core.synthesis.fusion import design_fusion, neighbour_positions
-from splitspec_core.synthesis.protocol_limit import hop_distances, protocol_limit
+from splitspec_core.synthesis.exchange_limit import hop_distances, protocol_limit
 
 SCALE = float(os.environ.get("SPLITSPEC_PROPERTY_SCALE", "1"))
 DRAWS = max(4, int(round(16 * SCALE)))

@@ -17,7 +17,7 @@ import splitspec_core as ss
 from splitspec_core.errors import DesignError
 from splitspec_core.studies.few_exchanges import SteadyStateDKF, run_fusion, simulate_measurements
 from splitspec_core.synthesis.fusion import design_fusion, neighbour_positions, scenario_fusion
-from splitspec_core.synthesis.protocol_limit import (hop_distances, information_delays, protocol_limit,
+from splitspec_core.synthesis.exchange_limit import (hop_distances, information_delays, protocol_limit,
                                                      scenario_limit)
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
@@ -164,7 +164,7 @@ def test_rego_ring_fusion_at_one_exchange_beats_regos_filter_near_the_limit():
 
 
 def design_exchanges_text(des) -> str:
-    from splitspec_core.synthesis.protocol_limit import design_exchanges
+    from splitspec_core.synthesis.exchange_limit import design_exchanges
 
     return design_exchanges(des).text()
 
