@@ -52,7 +52,7 @@ from pathlib import Path
 
 import numpy as np
 
-from splitspec_core.synthesis.designer import design
+from splitspec_core.synthesis.design_cache import cached_design as design
 from splitspec_core.synthesis.whole_state import agent_gain as central_gain
 from splitspec_core.synthesis.bad_data import agent_config, bad_data
 from splitspec_core.model.screening import Watch

@@ -433,7 +433,7 @@ def design(sc: Scenario, *, all_q_methods: bool = False, workers: int | None = N
     >>> d.checks.certificate
     'q = 6: spectral bound 0.4736 <= rate 0.5'
     """
-    from .synthesis.designer import design as _design
+    from .synthesis.design_cache import cached_design as _design
 
     des = _design(sc, compare_q_methods=all_q_methods, workers=workers)
     agents = {a.id: AgentResult(id=a.id, K=_readonly(a.K), V=_readonly(a.V_user), Q=_readonly(complement(a.V_user).T),

@@ -7,6 +7,9 @@ ROOT = Path(__file__).resolve().parents[1]
 EXAMPLES = ROOT / "examples"
 
 os.environ.setdefault("RERUN_ANALYTICS", "0")
+# no design cache in the tests (synthesis/design_cache.py): each test designs what it checks, whatever ran before it
+# (tests/unit/test_design_cache.py turns it on in a folder of its own)
+os.environ["SPLITSPEC_CACHE"] = "off"
 
 
 @pytest.fixture

@@ -35,7 +35,7 @@ def cmd_orchestrator(args: argparse.Namespace) -> int:
 def cmd_run(args: argparse.Namespace) -> int:
     # the modules the orchestrator itself uses, not the public API (splitspec_core.api imports the simulator
     # and with it scipy: a quarter of a second more before the first process starts)
-    from splitspec_core.synthesis.designer import design
+    from splitspec_core.synthesis.design_cache import cached_design as design
     from splitspec_core.runtime.wire import Keys
     from splitspec_core.scenarios.load import load_scenario
 

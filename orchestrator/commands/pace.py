@@ -348,7 +348,7 @@ def cmd_pace(args: argparse.Namespace) -> int:
     """
     from splitspec_core.scenarios.checks import plain
     from splitspec_core.scenarios.load import dump_yaml, load_scenario
-    from splitspec_core.synthesis.designer import design
+    from splitspec_core.synthesis.design_cache import cached_design as design
 
     path = Path(args.scenario)
     sc = load_scenario(path)  # the file as given: its own errors first, one line

@@ -44,6 +44,7 @@ from ..simulation.montecarlo import simulate_seeds
 from .baselines import baseline_seeds, baseline_trajectories, sampled_model
 from ..synthesis.bounds import nice_ceil
 from ..synthesis.conditioning import conditioning, transient_constant
+from ..synthesis.design_cache import cached_design
 from ..synthesis.designer import SPLIT_BESIDE, design
 from ..synthesis.kalman import per_step_rate, references
 from ..synthesis.verdict import ADAPTIVE, NO_CERTIFIED_RATE
@@ -271,7 +272,7 @@ def compare(sc: Scenario, *, seeds, steps: int | None = None, eps: float | None 
     check_trajectory_memory(sc, steps)
     if not sc.system.has_noise:
         raise DesignError("compare needs noise: set system.process_noise and/or system.measurement_noise")
-    own = design(sc)
+    own = cached_design(sc)
     variants = {_scenario_row(sc, own): own}
     for gains in ("place", "riccati"):
         name = f"split {gains}"
@@ -479,7 +480,7 @@ def sweep(sc: Scenario, *, seed: int, steps: int | None = None, values=None) -> 
         ``scenario``, ``parameter`` (``q`` or ``g``), ``designed``, ``designed_note``, ``rate``, ``seed`` and
         ``rows`` (per value its certificate, predicted and simulated RMS and measured rate, or ``error``).
     """
-    base = design(sc)
+    base = cached_design(sc)
     discrete = base.two_rate  # q exchanges per event time: discrete time, or the whole-state design
     if values is None:
         if discrete:

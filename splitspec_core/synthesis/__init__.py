@@ -14,7 +14,8 @@ agent's test of its measurement and the certified fallback of a suspect sensor (
 noise: ``design.consensus``, ``design.gains: optimal``), ``mixing.py`` what certifies it under switching (the mixing
 and dwell-time bounds); ``fusion.py`` the fusion kind (matrix weights per exchange, each agent's gains the best
 for the noise given the others': few exchanges), ``exchange_limit.py`` the two-rate protocol's limit at q exchanges
-(the Kalman predictor fed each sensor as late as the protocol delivers it);
+(the Kalman predictor fed each sensor as late as the protocol delivers it); ``design_cache.py`` designs paid once
+(kept in the process and on disk, keyed by content);
 ``verdict.py`` the certificate's verdict, computed once, ``report.py`` its rendering (``splitspec design``),
 ``advice.py`` the knobs a warning would name, each designed on the scenario and measured.
 Imports ``scenarios`` and ``model``.
