@@ -316,15 +316,26 @@ def error_map(F: np.ndarray, Cs, Ls, weights, nbs) -> tuple:
         ``P blkdiag(L_i R_i L_i') P' + 1 1' (x) Q``.
     """
     m, n = len(Cs), F.shape[0]
-    P = np.kron(np.eye(m), np.eye(n))
+    # block by block: W(k) has a block only where i hears j, so P's blocks are those of the agents within k hops
+    # (forming the dense m n x m n products cost three 1700^3 multiplications per design step on the IEEE 39-bus)
+    P = {(i, i): np.eye(n) for i in range(m)}
     for Wk in weights:
-        Wfull = np.zeros((m * n, m * n))
+        nxt: dict = {}
         for i, (Wi, nb) in enumerate(zip(Wk, nbs)):
-            Wfull[i * n:(i + 1) * n, _rows(nb, n)] = Wi
-        P = Wfull @ P
-    P = np.kron(np.eye(m), F) @ P
-    T = sla.block_diag(*[np.eye(n) - L @ C for L, C in zip(Ls, Cs)])
-    return P @ T, P
+            for a, j in enumerate(nb):
+                Wij = Wi[:, a * n:(a + 1) * n]
+                for (r, c), B in P.items():
+                    if r == j:
+                        nxt[(i, c)] = nxt[(i, c)] + Wij @ B if (i, c) in nxt else Wij @ B
+        P = nxt
+    T = [np.eye(n) - L @ C for L, C in zip(Ls, Cs)]
+    Pd = np.zeros((m * n, m * n))
+    Md = np.zeros((m * n, m * n))
+    for (i, j), B in P.items():
+        FB = F @ B
+        Pd[i * n:(i + 1) * n, j * n:(j + 1) * n] = FB
+        Md[i * n:(i + 1) * n, j * n:(j + 1) * n] = FB @ T[j]
+    return Md, Pd
 
 
 def steady_covariance(M: np.ndarray, N: np.ndarray, *, doublings: int = 60) -> np.ndarray:
