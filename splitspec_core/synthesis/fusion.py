@@ -516,49 +516,50 @@ def _design_fusion(F, Cs, Q, Rs, nbs, q, *, rate):
     if rate is None or best.radius < rate:
         return best
 
-    def attempt(alpha):
-        """The design at ``alpha``, or None when it fails; the radius it reached either way (None: no design)."""
-        nonlocal warm
+    def attempt(alpha, X):
+        """The design at ``alpha`` warm-started from ``X``: ``(design, its covariance)``, or ``(None, None)``."""
         try:
             with np.errstate(all="ignore"):  # a shift too far blows the covariances up: that is a failure, below
-                d, X = _frozen(F, Cs, Q, Rs, nbs, q, alpha, warm, kf_rms, rate, fixed=WARM_FIXED)
+                d, Xa = _frozen(F, Cs, Q, Rs, nbs, q, alpha, X, kf_rms, rate, fixed=WARM_FIXED)
         except (DesignError, np.linalg.LinAlgError, ValueError):  # ValueError: covariances overflowed
             return None, None
         log.info("fusion q = %d: alpha %.6g, radius %.6g %s rate %.6g, predicted %.4gx the KF", q, alpha, d.radius,
                  "<" if d.radius < rate else ">=", rate, d.ratio)
-        if d.radius >= rate:
-            return None, d.radius
-        warm = X  # the next shift starts from the last certified one's covariance
-        return d, d.radius
+        return d, Xa
 
-    # the radius of a design for F / alpha is about alpha times the unshifted one's: the first shift aims just below
-    # the rate, then the rate itself and further while that does not certify
-    fail, fail_radius, ok = 1.0, best.radius, None
-    for a in (0.999 * rate / best.radius, rate, rate ** 2, rate ** 3):
-        if a >= fail:
-            continue
-        ok, r = attempt(a)
-        if ok is not None:
+    # The largest alpha that certifies (the gains closest to the noise's).  The radius of a design for F / alpha is
+    # about alpha times the unshifted one's: aim just below the rate by that line, then regula falsi between the
+    # certified and the failing shift (bisection where a failed design has no radius), done within SETTLE below the
+    # rate.  Continuation: each design starts from the last stable one's covariance, whose gains stabilise F / alpha
+    # only for alpha above their radius, so a step never goes below that (on the IEEE 39-bus model, started at
+    # alpha = rate / radius directly, 25 policy iterations found no stabilising gains).
+    warm_X, warm_radius = warm, best.radius
+    ok, fail, fail_radius = None, 1.0, best.radius
+    for _ in range(ALPHA_STEPS + 4):
+        if ok is None:
+            a = 0.999 * rate * fail / fail_radius if fail_radius else 0.5 * (rate + fail)
+        elif ok.radius >= rate * (1.0 - SETTLE):
             break
-        fail, fail_radius = a, r
-    if ok is None:
-        raise DesignError(f"the fusion design at q = {q} is not certified at rate {rate:.6g} per event time "
-                          f"(spectral radius {best.radius:.6g} unshifted)")
-    # the largest alpha that certifies (the gains closest to the noise's): regula falsi on radius(alpha) = rate,
-    # aimed a little below it, bisection where the failing end has no radius; done within SETTLE of the rate
-    for _ in range(ALPHA_STEPS):
-        if ok.radius >= rate * (1.0 - SETTLE):
-            break
-        if fail_radius is not None and fail_radius > ok.radius:
+        elif fail_radius is not None and fail_radius > ok.radius:
             a = ok.alpha + (rate * (1.0 - 0.5 * SETTLE) - ok.radius) * (fail - ok.alpha) / (fail_radius - ok.radius)
             a = min(max(a, ok.alpha + 0.05 * (fail - ok.alpha)), fail - 0.05 * (fail - ok.alpha))
         else:
             a = 0.5 * (ok.alpha + fail)
-        d, r = attempt(a)
-        if d is not None:
+        a = max(a, warm_radius * (1.0 + 1e-4))
+        if a >= fail:
+            break
+        d, X = attempt(a, warm_X)
+        if d is None:
+            fail, fail_radius = a, None
+            continue
+        warm_X, warm_radius = X, d.radius
+        if d.radius < rate:
             ok = d
         else:
-            fail, fail_radius = a, r
+            fail, fail_radius = a, d.radius
+    if ok is None:
+        raise DesignError(f"the fusion design at q = {q} is not certified at rate {rate:.6g} per event time "
+                          f"(spectral radius {best.radius:.6g} unshifted)")
     return ok
 
 
