@@ -46,6 +46,11 @@ __all__ = ["ProtocolLimit", "Exchanges", "hop_distances", "information_delays", 
            "protocol_limit", "scenario_limit", "design_exchanges"]
 
 
+#: the design report states the limit for networks up to this many agents (each agent's limit is a Riccati step per
+#: event time of delay: a ring of m agents at q = 1 costs about m^2 / 2 of them)
+LIMIT_AGENTS = 200
+
+
 @dataclass(frozen=True)
 class ProtocolLimit:
     """The protocol's limit at ``q`` exchanges per event time, and the Kalman predictor beside it.
@@ -164,9 +169,18 @@ def delayed_predictor_covariance(F: np.ndarray, Cs, Q: np.ndarray, Rs, delays, P
     """
     delays = [int(d) for d in delays]
     P = np.array(P, dtype=float)
+    n = P.shape[0]
+    rows = sum(int(np.shape(C)[0]) for C in Cs)
+    info = None
+    if rows > 4 * n:  # many sensors: the update in information form, n x n per event time whatever their number
+        info = [C.T @ np.linalg.solve(R, C) for C, R in zip(Cs, Rs)]
     for t in range(max(delays, default=0) - 1, -1, -1):
-        held = [j for j, d in enumerate(delays) if d <= t]
-        if held:
+        held = [j for j, d in enumerate(delays) if d <= t]  # fewer as t nears tau: the farther ones not yet in
+        if held and info is not None:
+            held_info = sum((info[j] for j in held), np.zeros((n, n)))
+            # (P^-1 + sum C_j' R_j^-1 C_j)^-1 = P - P (I + H P)^-1 H P, H the information of the sensors arrived
+            P = P - P @ np.linalg.solve(np.eye(n) + held_info @ P, held_info @ P)
+        elif held:
             C = np.vstack([Cs[j] for j in held])
             R = sla.block_diag(*[Rs[j] for j in held])
             PC = P @ C.T
@@ -265,7 +279,8 @@ class Exchanges:
     numbers : int or None
         Numbers each agent sends per event time: ``messages n`` (each message one estimate).
     limit : ProtocolLimit or None
-        The limit at ``messages`` exchanges, on ``graph``; None without noise or above the noise analysis's size.
+        The limit at ``messages`` exchanges, on ``graph``; None without noise, above the noise analysis's size or
+        above :data:`LIMIT_AGENTS` agents.
     graph : str or None
         The graph the limit is computed on (the first the switching uses).
     """
@@ -330,7 +345,7 @@ def design_exchanges(des) -> Exchanges:
     if q is None or q < 1:
         return Exchanges(per=per, messages=None, numbers=None, limit=None, graph=None)
     limit, graph = None, None
-    if sc.system.has_noise and sc.m * sc.n <= MAX_NOISE_DIM:
+    if sc.system.has_noise and sc.m * sc.n <= MAX_NOISE_DIM and sc.m <= LIMIT_AGENTS:
         graph = sc.switching.graph_names(sc.graph_names)[0]
         try:
             limit = scenario_limit(sc, q, graph=sc.graph_names.index(graph))

@@ -184,3 +184,26 @@ def test_design_report_says_what_each_agent_sends_and_the_limit_at_its_q():
     assert cont["messages"] == 1 and cont["per"] == "run.dt" and cont["limit"]["q"] == 1
     quiet = design(ss.load_scenario(EXAMPLES / "paper_discrete.yaml"))
     assert design_json(quiet)["exchanges"]["limit"] is None and "limit" not in design_exchanges_text(quiet)
+
+
+def test_the_limit_in_information_form_equals_the_covariance_form():
+    # many sensors (rows > 4 n) take the information form; the same covariance as the stacked update
+    from splitspec_core.synthesis import exchange_limit as el
+
+    F, Cs, Q, Rs, arcs = _path_system(19, n=2, m=4)
+    Cs = [np.vstack([C, 0.5 * C + 0.1]) for C in Cs] * 3  # 12 sensors of 2 rows: 24 rows > 4 n = 8
+    Rs = [np.diag([0.2, 0.3])] * 12
+    from splitspec_core.synthesis.kalman import kalman_predictor
+
+    P = kalman_predictor(F, np.vstack(Cs), Q, sla.block_diag(*Rs)).P
+    delays = [0, 1, 2, 3] * 3
+    info = el.delayed_predictor_covariance(F, Cs, Q, Rs, delays, P)
+    # the covariance form on all 12 sensors, forced by hand
+    Pc = P.copy()
+    for t in range(2, -1, -1):
+        held = [j for j, d in enumerate(delays) if d <= t]
+        C = np.vstack([Cs[j] for j in held])
+        R = sla.block_diag(*[Rs[j] for j in held])
+        Pc = Pc - Pc @ C.T @ np.linalg.solve(C @ Pc @ C.T + R, C @ Pc)
+        Pc = F @ Pc @ F.T + Q
+    assert np.allclose(info, Pc, rtol=1e-9, atol=1e-12)
