@@ -76,6 +76,9 @@ TOL = 1e-7
 STALL = 2
 #: search steps of the shift alpha (regula falsi, bisection where a failed design has no radius)
 ALPHA_STEPS = 6
+#: a continuation step keeps the last stable gains' radius on F / alpha at most this (closer to 1 its covariance
+#: grows without bound and its next gains do not stabilise: the IEEE 39-bus model at 0.9999)
+CONTINUE = 0.999
 #: the shift's search stops once the radius is within this fraction below the rate
 SETTLE = 2e-3
 #: plain event times before policy iteration when warm-started from another shift's covariance
@@ -535,7 +538,7 @@ def _design_fusion(F, Cs, Q, Rs, nbs, q, *, rate):
     # alpha = rate / radius directly, 25 policy iterations found no stabilising gains).
     warm_X, warm_radius = warm, best.radius
     ok, fail, fail_radius = None, 1.0, best.radius
-    for _ in range(ALPHA_STEPS + 4):
+    for _ in range(ALPHA_STEPS + 8):
         if ok is None:
             a = 0.999 * rate * fail / fail_radius if fail_radius else 0.5 * (rate + fail)
         elif ok.radius >= rate * (1.0 - SETTLE):
@@ -545,7 +548,7 @@ def _design_fusion(F, Cs, Q, Rs, nbs, q, *, rate):
             a = min(max(a, ok.alpha + 0.05 * (fail - ok.alpha)), fail - 0.05 * (fail - ok.alpha))
         else:
             a = 0.5 * (ok.alpha + fail)
-        a = max(a, warm_radius * (1.0 + 1e-4))
+        a = max(a, warm_radius / CONTINUE)
         if a >= fail:
             break
         d, X = attempt(a, warm_X)
