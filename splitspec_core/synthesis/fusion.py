@@ -31,18 +31,23 @@ between neighbours' errors (the common process noise, the information they alrea
 nothing is counted twice.  This is the steady-state distributed Kalman filter of Rego et al. (there: fuse the
 neighbours' predictions, then measure) moved inside the two-rate protocol (measure, then fuse ``q`` times), which lets
 a sensor's sample of ``tau`` reach agents up to ``q`` hops away before the prediction of ``tau + 1``: the protocol's
-limit (:mod:`.exchange_limit`) is what this can approach.  ``Sigma`` is regularised by ``REG`` on the diagonal of its correlation matrix
-(neighbours' estimates grow nearly identical as ``q`` grows: the weights stay bounded; states in any units).
+limit (:mod:`.exchange_limit`) is what this can approach.  ``Sigma`` is regularised by ``REG`` on the diagonal of
+its correlation matrix (neighbours' estimates grow nearly identical as ``q`` grows: the weights stay bounded; states
+in any units).
 
 The iteration: ``FIXED`` plain event times of the covariance recursion from independent errors, then policy
-iteration (the gains of ``X`` frozen, their steady ``X`` by Smith doubling, again) until the trace settles.
+iteration (the gains of ``X`` frozen, their steady ``X`` by Smith doubling, again) until the trace settles; the
+gains of the smallest trace seen are kept (each evaluated exactly, so any of them is a valid estimator).  Greedy
+gains are not a policy improvement: the gains of an exact steady covariance are sometimes not stabilising (every
+other iteration on the IEEE 39-bus model); then more plain event times run before the next try.
 
 What certifies it
 -----------------
 The rate: the spectral radius of the full error matrix ``M`` (every agent's whole error, ``m n`` unknowns) below
 ``lam`` per event time.  When the noise's gains are slower than the rate, the gains are designed for ``F / alpha``
 (every error decays ``alpha`` faster in that design's model): the largest ``alpha`` in ``(0, 1]`` whose design
-certifies, by bisection.  The accuracy: ``X``, the Lyapunov solution of the frozen design, with its residual.
+certifies, by continuation and regula falsi (:func:`design_fusion`).  The accuracy: ``X``, the Lyapunov solution of
+the frozen design, with its residual; the envelope: :meth:`FusionDesign.transient_constant`.
 """
 
 from __future__ import annotations
