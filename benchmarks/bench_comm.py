@@ -202,6 +202,7 @@ def figure(rows: list, path: Path) -> None:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    import matplotlib.ticker
 
     fig, axes = plt.subplots(1, len(rows), figsize=(4.2 * len(rows), 3.8), squeeze=False)
     for ax, row in zip(axes[0], rows):
@@ -216,8 +217,7 @@ def figure(rows: list, path: Path) -> None:
         for r in fus:
             ax.annotate(f"q={r['q']}", (r["numbers"], r["predicted"]), textcoords="offset points", xytext=(4, 6),
                         fontsize=8)
-        kcf = [r for r in row["rows"] if r["estimator"] == "kcf" and np.isfinite(np.mean(r["measured"]))
-               and np.mean(r["measured"]) < 10]
+        kcf = [r for r in row["rows"] if r["estimator"] == "kcf" and np.isfinite(np.mean(r["measured"]))]
         if kcf:
             ax.plot([r["numbers"] for r in kcf], [np.mean(r["measured"]) for r in kcf], "C2^:",
                     label="KCF, measured")
@@ -229,6 +229,10 @@ def figure(rows: list, path: Path) -> None:
             ax.axhline(row["best_shifted_reference"], color="C1", lw=0.8, ls=":",
                        label="centralized Riccati, best shift certified")
         ax.set_xscale("log")
+        ax.set_yscale("log")  # the KCF's several-fold ratios beside the fusion kind's few percent
+        for axis in (ax.xaxis, ax.yaxis):
+            axis.set_major_formatter(matplotlib.ticker.FormatStrFormatter("%.3g"))
+            axis.set_minor_formatter(matplotlib.ticker.FormatStrFormatter("%.3g"))
         ax.set_title(f"{row['model']} (m={row['m']}, n={row['n']})", fontsize=10)
         ax.set_xlabel("numbers each agent sends per event time")
         ax.set_ylabel("RMS error / centralized KF's")
@@ -248,7 +252,12 @@ def main(argv=None) -> int:
                    help="the most covariance iterations of Rego's filter's design (0: leave it out)")
     p.add_argument("--no-write", action="store_true")
     p.add_argument("--quiet", action="store_true", help="no progress lines from the designs")
+    p.add_argument("--figure-only", action="store_true", help="draw the figure again from the records, run nothing")
     args = p.parse_args(argv)
+    if args.figure_only:
+        figure(json.loads((RESULTS / "bench_comm.json").read_text())["models"], FIGURE)
+        print(f"wrote {FIGURE}")
+        return 0
     if not args.quiet:  # each shift the fusion design tries, as it goes (a large model's design takes minutes)
         logging.basicConfig(level=logging.WARNING, format="      %(message)s")
         logging.getLogger("splitspec_core.synthesis.fusion").setLevel(logging.INFO)
