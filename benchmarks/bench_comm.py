@@ -37,13 +37,12 @@ import numpy as np
 
 import splitspec_core as ss
 from splitspec_core.errors import SplitspecError
-from splitspec_core.model.graphs import arc_positions
-from splitspec_core.model.plant import output_rows, sampled_model
+from splitspec_core.model.plant import output_rows
 from splitspec_core.studies.baselines import KalmanConsensusFilter, run_predictor
 from splitspec_core.studies.few_exchanges import SteadyStateDKF, run_fusion, simulate_measurements
 from splitspec_core.synthesis.fusion import design_fusion, neighbour_positions
 from splitspec_core.synthesis.kalman import kalman_predictor, per_step_rate, references
-from splitspec_core.synthesis.exchange_limit import hop_distances, protocol_limit
+from splitspec_core.synthesis.exchange_limit import hop_distances, network_model, protocol_limit
 
 from _common import loadavg
 
@@ -70,12 +69,7 @@ MODELS = {
 
 
 def _parts(sc):
-    F, Q, R = sampled_model(sc)
-    Cs = [np.asarray(C, dtype=float) for C in sc.system.Cs]
-    Rs = [R[r, r] for r in output_rows(Cs)]
-    j, i = arc_positions(sc.agent_ids, sc.graphs[0].arcs)
-    arcs = list(zip(j.tolist(), i.tolist()))
-    return F, Q, R, Cs, Rs, arcs
+    return network_model(sc, 0)
 
 
 def best_shifted(F, C, Q, R, lam: float, kf) -> float | None:

@@ -42,7 +42,7 @@ from ..scenarios.specs import Scenario
 from .design_data import cached_analysis
 from .kalman import kalman_predictor, regularise
 
-__all__ = ["ProtocolLimit", "Exchanges", "hop_distances", "information_delays", "delayed_predictor_covariance",
+__all__ = ["ProtocolLimit", "Exchanges", "network_model", "hop_distances", "information_delays", "delayed_predictor_covariance",
            "protocol_limit", "scenario_limit", "design_exchanges"]
 
 
@@ -240,6 +240,30 @@ def protocol_limit(F: np.ndarray, Cs, Q: np.ndarray, Rs, dist: np.ndarray, q: in
                          rms=float(np.sqrt(max(per.mean(), 0.0) / n)), kf_rms=float(np.sqrt(max(np.trace(P), 0.0) / n)))
 
 
+def network_model(sc: Scenario, graph: int = 0) -> tuple:
+    """``(F, Q, R, Cs, Rs, arcs)``: a scenario's per-step model and noise, its agents' outputs and one graph's arcs.
+
+    Parameters
+    ----------
+    sc : Scenario
+        Discrete, or continuous on its model sampled with ``run.dt``
+        (:func:`~splitspec_core.model.plant.sampled_model`).
+    graph : int, default 0
+        The graph's index, in the scenario's order.
+
+    Returns
+    -------
+    tuple
+        ``F`` (n, n), ``Q`` (n, n), ``R`` (p, p) stacked, ``Cs`` and ``Rs`` per agent (agent order), ``arcs`` a list of
+        ``(j, i)`` 0-based positions (i hears j).
+    """
+    F, Q, R = sampled_model(sc)
+    Cs = [np.asarray(C, dtype=float) for C in sc.system.Cs]
+    Rs = [R[r, r] for r in output_rows(Cs)]
+    j, i = arc_positions(sc.agent_ids, sc.graphs[graph].arcs)
+    return F, Q, R, Cs, Rs, list(zip(j.tolist(), i.tolist()))
+
+
 def scenario_limit(sc: Scenario, q: int, *, graph: int = 0) -> ProtocolLimit:
     """:func:`protocol_limit` of a scenario on one of its graphs (its per-step model and noise).
 
@@ -256,14 +280,8 @@ def scenario_limit(sc: Scenario, q: int, *, graph: int = 0) -> ProtocolLimit:
     -------
     ProtocolLimit
     """
-    F, Q, R = sampled_model(sc)
-    Cs = [np.asarray(C, dtype=float) for C in sc.system.Cs]
-    Rs = [R[r, r] for r in output_rows(Cs)]
-    g = sc.graphs[graph]
-    j, i = arc_positions(sc.agent_ids, g.arcs)
-    return protocol_limit(F, Cs, Q, Rs, hop_distances(sc.m, zip(j.tolist(), i.tolist())), q)
-
-
+    F, Q, _, Cs, Rs, arcs = network_model(sc, graph)
+    return protocol_limit(F, Cs, Q, Rs, hop_distances(sc.m, arcs), q)
 
 @dataclass(frozen=True)
 class Exchanges:

@@ -60,8 +60,6 @@ import scipy.linalg as sla
 import scipy.sparse.linalg as spla
 
 from ..errors import DesignError
-from ..model.graphs import arc_positions
-from ..model.plant import output_rows, sampled_model
 from ..scenarios.specs import Scenario
 from .kalman import kalman_predictor, regularise
 
@@ -588,8 +586,7 @@ def scenario_fusion(sc: Scenario, q: int, *, graph: int = 0, rate: float | None 
     -------
     FusionDesign
     """
-    F, Q, R = sampled_model(sc)
-    Cs = [np.asarray(C, dtype=float) for C in sc.system.Cs]
-    Rs = [R[r, r] for r in output_rows(Cs)]
-    j, i = arc_positions(sc.agent_ids, sc.graphs[graph].arcs)
-    return design_fusion(F, Cs, Q, Rs, neighbour_positions(sc.m, zip(j.tolist(), i.tolist())), q, rate=rate)
+    from .exchange_limit import network_model
+
+    F, Q, _, Cs, Rs, arcs = network_model(sc, graph)
+    return design_fusion(F, Cs, Q, Rs, neighbour_positions(sc.m, arcs), q, rate=rate)
