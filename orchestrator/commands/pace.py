@@ -57,6 +57,9 @@ WARMUP_FRACTION = 0.05
 WARMUP_ROWS = 3
 #: seconds the stopped run gets to write its records and stop its processes
 STOP_SECONDS = 60.0
+#: the fewest rows the disk's growth is measured over, and how long past ``--seconds`` the run may go on for them
+DISK_MIN_ROWS = 10
+DISK_EXTRA_SECONDS = 3.0
 EXIT_NOT_FEASIBLE = 1
 
 
@@ -270,7 +273,8 @@ def _record_sizes(out: Path) -> tuple[int, int, int]:
 
 def run_probe(scenario: Path, out: Path, *, seconds: float, log_path: Path, every: int = 1) -> DiskRate | None:
     """Run ``splitspec run SCENARIO --out OUT`` (its output to ``log_path``) and stop it as Ctrl-C does once it
-    has run its rounds for ``seconds`` (counted from its ``run_started`` event, so start-up is not counted).
+    has run its rounds for ``seconds`` (counted from its ``run_started`` event, so start-up is not counted; up to
+    :data:`DISK_EXTRA_SECONDS` longer while its records hold fewer than :data:`DISK_MIN_ROWS` rows since the middle).
     Returns the records' growth per event time between the middle and the end (:class:`DiskRate`; None if too
     few rows came), the recording's state panels every ``every`` event times.
 
@@ -296,8 +300,12 @@ def run_probe(scenario: Path, out: Path, *, seconds: float, log_path: Path, ever
                 mid = _record_sizes(out)
             if started is not None and now - started >= seconds:
                 end = _record_sizes(out)
-                proc.send_signal(signal.SIGINT)  # the run writes its records and stops its processes
-                break
+                # the records grow a flush at a time (the recorder's 1 s): run on, up to DISK_EXTRA_SECONDS,
+                # until the window from the middle holds DISK_MIN_ROWS rows, so a short run still measures its disk
+                if end[0] - mid[0] >= DISK_MIN_ROWS or now - started >= seconds + DISK_EXTRA_SECONDS:
+                    proc.send_signal(signal.SIGINT)  # the run writes its records and stops its processes
+                    break
+                time.sleep(0.2)
             time.sleep(0.05)
         try:
             code = proc.wait(timeout=STOP_SECONDS)
@@ -313,7 +321,7 @@ def run_probe(scenario: Path, out: Path, *, seconds: float, log_path: Path, ever
                 proc.wait()
     if code not in (0, 130):
         raise RuntimeError(_failure(log_path, code))
-    if mid is None or end is None or end[0] - mid[0] < 10:
+    if mid is None or end is None or end[0] - mid[0] < DISK_MIN_ROWS:
         return None
     rows = end[0] - mid[0]
     return DiskRate((end[1] - mid[1]) / rows, (end[2] - mid[2]) / rows, rows, every)
