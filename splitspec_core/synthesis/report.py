@@ -240,10 +240,11 @@ def design_json(des: Design) -> dict:
                fastest_certified_rate=None if reach is None else {"rate": reach.rate, "refused": reach.refused})
     out.update(consensus=des.consensus, consensus_choice=des.chosen, whole_state=_whole_json(des))
     ex = design_exchanges(des)
+    vec = math.sqrt(sc.n)  # the limit's RMS per state, given here of the error vector as predicted_rms is
     out["exchanges"] = {"per": ex.per, "messages": ex.messages, "numbers": ex.numbers, "limit": None if ex.limit is None
                         else {"q": ex.limit.q, "graph": ex.graph, "ratio_to_kalman": _num(ex.limit.ratio),
-                              "rms": _num(ex.limit.rms), "kalman_rms": _num(ex.limit.kf_rms),
-                              "agents": {str(i): _num(v) for i, v in zip(sc.agent_ids, ex.limit.agent_rms)}}}
+                              "rms": _num(vec * ex.limit.rms), "kalman_rms": _num(vec * ex.limit.kf_rms),
+                              "agents": {str(i): _num(vec * v) for i, v in zip(sc.agent_ids, ex.limit.agent_rms)}}}
     if sc.time == "continuous" and des.consensus != "whole":
         out.update({
             "g": _num(des.g),

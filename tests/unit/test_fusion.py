@@ -175,7 +175,10 @@ def test_design_report_says_what_each_agent_sends_and_the_limit_at_its_q():
 
     sc = ss.load_scenario(EXAMPLES / "ring10_noise.yaml")
     des = design(sc)
-    j = design_json(des)["exchanges"]
+    full = design_json(des)
+    j = full["exchanges"]
+    # the limit's RMS is of the error vector, as the design's predicted RMS: the same Kalman predictor's figure
+    assert j["limit"]["kalman_rms"] == pytest.approx(full["predicted_rms"]["kalman"], rel=1e-6)
     assert j["messages"] == des.q and j["numbers"] == des.q * sc.n and j["per"] == "event time"
     assert j["limit"]["ratio_to_kalman"] == pytest.approx(scenario_limit(sc, des.q).ratio, rel=1e-12)
     assert f"each agent sends {des.q} messages of {sc.n} numbers per event time" in design_text(des)
