@@ -245,6 +245,8 @@ def main(argv=None) -> int:
     p.add_argument("--rego-iterations", type=int, default=2000,
                    help="the most covariance iterations of Rego's filter's design (0: leave it out)")
     p.add_argument("--no-write", action="store_true")
+    p.add_argument("--append", action="store_true",
+                   help="keep the records' other models, replace only these (a large model's rows run alone)")
     p.add_argument("--quiet", action="store_true", help="no progress lines from the designs")
     p.add_argument("--figure-only", action="store_true", help="draw the figure again from the records, run nothing")
     args = p.parse_args(argv)
@@ -265,7 +267,11 @@ def main(argv=None) -> int:
             print(f"   ({time.perf_counter() - t0:.0f} s, load {loadavg()})", flush=True)
     if not args.no_write:
         RESULTS.mkdir(parents=True, exist_ok=True)
-        (RESULTS / "bench_comm.json").write_text(json.dumps({"load": loadavg(), "models": rows}, indent=1))
+        record = RESULTS / "bench_comm.json"
+        if args.append and record.exists():  # the other models' rows as recorded, each with its own load
+            kept = [r for r in json.loads(record.read_text())["models"] if r["model"] not in args.models]
+            rows = kept + rows
+        record.write_text(json.dumps({"load": loadavg(), "models": rows}, indent=1))
         figure(rows, FIGURE)
         print(f"wrote {RESULTS / 'bench_comm.json'} and {FIGURE}")
     return 0
