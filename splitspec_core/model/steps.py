@@ -45,7 +45,10 @@ predict,
 
 ``z_i(0) = x_i(tau) + L_i (y_i(tau) - C_i x_i(tau))`` (:func:`local_update`; no measurement: ``x_i(tau)``),
 ``z_i(k) = sum_j W_ij(k) z_j(k-1)`` with ``sum_j W_ij(k) = I`` (:func:`matrix_fusion`),
-``x_i(tau+1) = A z_i(q) [+ B u(tau)]`` (:func:`prediction_update`).
+``x_i(tau+1) = A z_i(q) [+ B u(tau)]`` (:func:`prediction_update`; in continuous time the sampled model's
+``E z_i(q) + D B u``).  A neighbour whose estimate does not count (lost, its message lost or late) has its weight
+folded into the agent's own (:func:`fold_weights`).  ``design.consensus: fusion``:
+:mod:`splitspec_core.synthesis.fusion_kind`.
 
 Bad data (:mod:`splitspec_core.synthesis.bad_data`)
 ---------------------------------------------------
@@ -73,6 +76,7 @@ __all__ = [
     "known_input",
     "local_update",
     "matrix_fusion",
+    "fold_weights",
     "measurement_update",
     "prediction_update",
     "flatline",
@@ -257,6 +261,39 @@ def matrix_fusion(states: Sequence[np.ndarray], weights: np.ndarray) -> np.ndarr
     array([2., 0.])
     """
     return weights @ np.concatenate(states)
+
+
+def fold_weights(blocks: dict, me, counted: Sequence) -> np.ndarray:
+    """Agent ``me``'s fusion weights over the neighbours whose estimates count this sub-round: the weight of every
+    other one (lost, its message lost or late, cut by a partition) folded into its own, so they still sum to ``I``.
+
+    Parameters
+    ----------
+    blocks : dict
+        ``{j: W_ij(k)}`` over the graph's ``N_i``, ``me`` included, each ``(n, n)``.
+    me : hashable
+        Agent i's key in ``blocks``.
+    counted : sequence
+        The keys whose estimates count, ``me`` included, in the order of the states handed to
+        :func:`matrix_fusion`.
+
+    Returns
+    -------
+    (n, len(counted) n) ndarray
+        ``[W'_ij for j in counted]`` side by side, ``W'_ii = W_ii + sum of the others``.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> blocks = {1: 0.5 * np.eye(1), 2: 0.3 * np.eye(1), 3: 0.2 * np.eye(1)}
+    >>> fold_weights(blocks, 1, [1, 3])
+    array([[0.8, 0.2]])
+    """
+    own = blocks[me]
+    for j in sorted(blocks):  # in the order of the keys: the same sum wherever it is folded, however blocks came
+        if j not in counted:
+            own = own + blocks[j]
+    return np.hstack([own if j == me else blocks[j] for j in counted])
 
 
 def prediction_update(z_q: np.ndarray, A: np.ndarray, bu: np.ndarray | None = None) -> np.ndarray:

@@ -13,7 +13,8 @@ agent's test of its measurement and the certified fallback of a suspect sensor (
 ``whole_state.py`` the whole-state design (every agent averages its neighbours' whole estimates, gains from the
 noise: ``design.consensus``, ``design.gains: optimal``), ``mixing.py`` what certifies it under switching (the mixing
 and dwell-time bounds); ``fusion.py`` the fusion kind (matrix weights per exchange, each agent's gains the best
-for the noise given the others': few exchanges), ``exchange_limit.py`` the two-rate protocol's limit at q exchanges
+for the noise given the others': few exchanges) and ``fusion_kind.py`` it in a design (``design.consensus: fusion``:
+the budget q, its certificate, what each agent is sent), ``exchange_limit.py`` the two-rate protocol's limit at q exchanges
 (the Kalman predictor fed each sensor as late as the protocol delivers it); ``design_cache.py`` designs paid once
 (kept in the process and on disk, keyed by content);
 ``verdict.py`` the certificate's verdict, computed once, ``report.py`` its rendering (``splitspec design``),

@@ -274,7 +274,7 @@ def conditioning(des: Design) -> Conditioning:
         ac = AgentConditioning(id=a.id, observability_margin=a.dec.margin, gain_norm=gain_norm, gain_ratio=ratio,
                                weak=a.dec.weak, split_residual=a.dec.split_residual)
         agents.append(ac)
-    if des.consensus != "whole":  # no local observer in the whole state: margins and local gains are the split's
+    if des.consensus == "split":  # no local observer in the whole state: margins and local gains are the split's
         warnings += _agent_warnings(agents)
     scale_note = time_scale_warning(sc)
     if scale_note:
@@ -379,11 +379,16 @@ def _transient(des: Design, warnings: list) -> tuple:
     block = sc.n - (des.unobserved.dim if des.excluded else 0)
     worst = None
     for case in cases:
-        Cs, Ks, Ps = case_parts(des, case)
-        M = full_error_matrix(A, Cs, Ks, Ps, case.graph.S, time=sc.time, q=des.q, g=des.g,
-                              dt=sc.run.dt if sc.time == "continuous" else None, consensus=des.consensus)
+        if des.consensus == "fusion":  # its own error map (synthesis/fusion_kind.py), per graph
+            from .fusion_kind import fusion_matrix
+
+            M = fusion_matrix(des, sc.graph_names.index(case.graph.name))
+        else:
+            Cs, Ks, Ps = case_parts(des, case)
+            M = full_error_matrix(A, Cs, Ks, Ps, case.graph.S, time=sc.time, q=des.q, g=des.g,
+                                  dt=sc.run.dt if sc.time == "continuous" else None, consensus=des.consensus)
         if des.excluded:  # the certificate covers the error modulo W only (design.undetectable: exclude)
-            M = modulo(M, des.unobserved.W, len(Cs))
+            M = modulo(M, des.unobserved.W, sc.m if des.consensus == "fusion" else len(Cs))
         t = transient_constant(M, r, block=block)
         if worst is None or (t.constant or 0.0) > (worst[0].constant or 0.0):
             worst = (t, case)

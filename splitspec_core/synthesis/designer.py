@@ -141,8 +141,8 @@ def design(sc: Scenario, *, compare_q_methods: bool = False, workers: int | None
 
 def _dispatch(sc: Scenario, compare_q_methods: bool, workers: int | None) -> Design:
     d = sc.design
-    if d.consensus == "whole":
-        return _design(sc, "whole", compare_q_methods, workers)
+    if d.consensus in ("whole", "fusion"):
+        return _design(sc, d.consensus, compare_q_methods, workers)
     if d.consensus == "auto" and not gain_methods.method(d.gains).local:  # a central method: both structures
         return _choose(sc, compare_q_methods, workers)
     return _design(sc, "split", compare_q_methods, workers)
@@ -339,10 +339,10 @@ def _design(pre: "Prelude | Scenario", structure: str, compare_q_methods: bool, 
     A = sc.system.A
     warnings = list(pre.warnings)
     cases, switching = pre.cases, pre.switching
-    if structure == "whole":
+    if structure in ("whole", "fusion"):
         if not un.decays:
-            raise AssumptionError("design.consensus: whole needs every mode no agent sees to decay (the centralized "
-                                  "filter it spreads has none for the others): design.consensus: split")
+            raise AssumptionError(f"design.consensus: {structure} needs every mode no agent sees to decay (the "
+                                  "centralized filter it spreads has none for the others): design.consensus: split")
         agents = tuple(whole_placeholder(A, dec, aid, un.W_working, scale) for aid, dec in zip(sc.agent_ids, pre.decs))
     else:
         declared = gain_methods.method(d.gains)
@@ -356,6 +356,8 @@ def _design(pre: "Prelude | Scenario", structure: str, compare_q_methods: bool, 
     residual = max([a.dec.split_residual for a in agents] + [un.residual])
     common = dict(scenario=sc, graphs=pre.graphs, cases=cases, agent_losses=pre.agent_losses,
                   arc_losses=pre.arc_losses, split_residual=residual, unobserved=un, spectrum=pre.sp)
+    if structure == "fusion":
+        return _fusion(sc, agents, un, warnings, common)
     if structure == "whole":
         Ks, q, info, radii, cert = design_whole(sc, cases, rate=un.envelope(d.rate),
                                                 dwell=scenario_dwell(sc) if switching else None, warnings=warnings)
@@ -380,6 +382,25 @@ def _design(pre: "Prelude | Scenario", structure: str, compare_q_methods: bool, 
     if des.split_exact or (sc.time == "continuous" and des.g is None):
         return des
     return check_full(des, warnings)  # an approximate split: the rate on the full error matrices
+
+
+def _fusion(sc: Scenario, agents: tuple, un, warnings: list, common: dict) -> Design:
+    """The fusion kind (:mod:`.fusion_kind`): its gains per graph, certified by each graph's full error map."""
+    from .fusion_kind import design_fusion_kind
+
+    d = sc.design
+    kind = design_fusion_kind(sc, un.envelope(d.rate), warnings)
+    F = kind.designs[0].F
+    # each agent's K_i in the predictor's form without neighbours (x+ = F x - F L_i (C_i x - y_i)): its size for the
+    # reports; what runs is L_i and the weights (fusion_kind.agent_fusion)
+    agents = tuple(with_gain(a, -F @ kind.designs[0].Ls[k], "fusion") for k, a in enumerate(agents))
+    radii = {c.label: kind.designs[sc.graph_names.index(c.graph.name)].radius for c in common["cases"]
+             if c.graph.name in sc.graph_names}
+    result = bounds.QResult(q=kind.q, method="full error matrix", bound=kind.radius, certified=kind.certified,
+                            switching=len(sc.graph_names) > 1)
+    return Design(agents=agents, warnings=tuple(warnings), q=kind.q, q_result=result,
+                  q_methods={"full error matrix": result}, error_radius=radii, full_radius=radii, consensus="fusion",
+                  whole=kind, **common)
 
 
 def _design_g(sc: Scenario, cases, switching: bool, warnings: list) -> dict:

@@ -343,6 +343,10 @@ def error_dynamics(des: "Design", graph_index: int = 0) -> tuple:
 
     sc = des.scenario
     m, n = sc.m, sc.n
+    if des.consensus == "fusion":  # its own error map and noise (synthesis/fusion_kind.py)
+        from .fusion_kind import fusion_matrix, fusion_noise
+
+        return fusion_matrix(des, graph_index), fusion_noise(des, graph_index)
     _, Qn, R = sampled_model(sc)
     rows = consensus_rows(sc, graph_index, sc.agent_ids)
     pos = {a: k for k, a in enumerate(sc.agent_ids)}

@@ -49,6 +49,9 @@ __all__ = ["ProtocolLimit", "Exchanges", "network_model", "hop_distances", "info
 #: the design report states the limit for networks up to this many agents (each agent's limit is a Riccati step per
 #: event time of delay: a ring of m agents at q = 1 costs about m^2 / 2 of them)
 LIMIT_AGENTS = 200
+#: ... and up to this m n, the noise's prediction's (error_matrix.MAX_NOISE_DIM, not imported: error_matrix reaches this
+#: module through the fusion kind)
+LIMIT_DIM = 2000
 
 
 @dataclass(frozen=True)
@@ -352,18 +355,16 @@ def design_exchanges(des) -> Exchanges:
     >>> ex.messages, ex.numbers, ex.limit is None
     (6, 24, True)
     """
-    from .error_matrix import MAX_NOISE_DIM
-
     sc = des.scenario
     per = "event time" if sc.time == "discrete" else "run.dt"
-    if sc.time == "continuous" and des.consensus != "whole":
+    if sc.time == "continuous" and des.consensus not in ("whole", "fusion"):
         q = 1  # the sampled-data form: one exchange per step
     else:
         q = None if des.q is None else int(des.q)
     if q is None or q < 1:
         return Exchanges(per=per, messages=None, numbers=None, limit=None, graph=None)
     limit, graph = None, None
-    if sc.system.has_noise and sc.m * sc.n <= MAX_NOISE_DIM and sc.m <= LIMIT_AGENTS:
+    if sc.system.has_noise and sc.m * sc.n <= LIMIT_DIM and sc.m <= LIMIT_AGENTS:
         graph = sc.switching.graph_names(sc.graph_names)[0]
         try:
             limit = scenario_limit(sc, q, graph=sc.graph_names.index(graph))

@@ -130,6 +130,11 @@ def loss_certificate(des: Design) -> LossCertificate | None:
                + (f" to {heals[0]:g}" if heals else "") + ": the graph is not strongly connected)")
     if not net.impaired:
         return LossCertificate(True, f"under loss: no message is lost outside the partitions{cut}")
+    if des.consensus == "fusion":
+        return LossCertificate(False, "not certified under loss: the fusion kind's certificate holds the graph "
+                                      "constant within an event time; a lost message folds its weight into the "
+                                      "receiver's own, another error map (what loss costs is measured by splitspec "
+                                      f"compare --sweep-loss){cut}")
     if des.consensus == "whole":
         return LossCertificate(False, "not certified under loss: the whole-state design's certificates (the full error "
                                       "matrix, the mixing bound) hold the graph constant within an event time and its "

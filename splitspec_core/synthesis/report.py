@@ -92,7 +92,7 @@ def _whole_json(des: Design) -> dict | None:
     """The whole-state design's choices (:class:`~splitspec_core.synthesis.whole_state.WholeState`), None for the
     split."""
     w = des.whole
-    if w is None:
+    if w is None or des.consensus == "fusion":
         return None
     return {"method": w.method, "alpha": _num(w.alpha), "pi": [float(v) for v in w.pi], "rate_per_step": _num(w.lam_step),
             "central_radius": _num(w.central_radius), "central_rms": _num(w.central_rms),
@@ -100,6 +100,18 @@ def _whole_json(des: Design) -> dict | None:
             "q_certified": w.q_certified, "exchanges_per": "event time" if des.time == "discrete" else "run.dt",
             "tried": [{"margin": m, "alpha": _num(a), "q": q, "radius": {k: _num(v) for k, v in (r or {}).items()},
                        "predicted_rms": _num(rms)} for m, a, q, r, rms in w.tried]}
+
+
+def _fusion_json(des: Design) -> dict | None:
+    """The fusion design's choices (:class:`~splitspec_core.synthesis.fusion_kind.FusionKind`), None otherwise."""
+    if des.consensus != "fusion":
+        return None
+    k = des.whole
+    return {"q": k.q, "rate_per_step": _num(k.lam_step), "radius": _num(k.radius), "certified": bool(k.certified),
+            "alpha": {name: _num(d.alpha) for name, d in zip(des.scenario.graph_names, k.designs)},
+            "ratio_to_kalman": {name: _num(d.ratio) for name, d in zip(des.scenario.graph_names, k.designs)},
+            "limit": _num(k.limit), "fewest_certified_q": k.fewest,
+            "exchanges_per": "event time" if des.time == "discrete" else "run.dt"}
 
 
 def _conditioning_json(des: Design) -> dict:
@@ -238,14 +250,15 @@ def design_json(des: Design) -> dict:
     out.update(certified_rate=cert.certified, certificate=cert.text, envelope_rate=_num(cert.rate),
                rate_note=NO_CERTIFIED_RATE if des.g_mode == "adaptive" else None,
                fastest_certified_rate=None if reach is None else {"rate": reach.rate, "refused": reach.refused})
-    out.update(consensus=des.consensus, consensus_choice=des.chosen, whole_state=_whole_json(des))
+    out.update(consensus=des.consensus, consensus_choice=des.chosen, whole_state=_whole_json(des),
+               fusion=_fusion_json(des))
     ex = design_exchanges(des)
     vec = math.sqrt(sc.n)  # the limit's RMS per state, given here of the error vector as predicted_rms is
     out["exchanges"] = {"per": ex.per, "messages": ex.messages, "numbers": ex.numbers, "limit": None if ex.limit is None
                         else {"q": ex.limit.q, "graph": ex.graph, "ratio_to_kalman": _num(ex.limit.ratio),
                               "rms": _num(vec * ex.limit.rms), "kalman_rms": _num(vec * ex.limit.kf_rms),
                               "agents": {str(i): _num(vec * v) for i, v in zip(sc.agent_ids, ex.limit.agent_rms)}}}
-    if sc.time == "continuous" and des.consensus != "whole":
+    if sc.time == "continuous" and des.consensus not in ("whole", "fusion"):
         out.update({
             "g": _num(des.g),
             "g_mode": des.g_mode,
@@ -376,7 +389,8 @@ def design_text(des: Design) -> str:
     d = sc.design
     unit = "exp(-lam t)" if sc.time == "continuous" else "lam^tau"
     adaptive = des.g_mode == "adaptive"
-    consensus = "the whole state" if des.consensus == "whole" else "the split (each agent's unobservable space)"
+    consensus = {"whole": "the whole state", "fusion": "the whole state, fused with matrix weights (fusion)"}.get(
+        des.consensus, "the split (each agent's unobservable space)")
     lines = [
         f"splitspec design: {sc.name}  ({sc.time} time, m = {sc.m} agents, n = {sc.n} states)",
         (f"  rate lam = {d.rate:g} for the local gains only; adaptive g: {NO_CERTIFIED_RATE}; gains: {d.gains}"
@@ -418,7 +432,9 @@ def design_text(des: Design) -> str:
         if crit:
             lines.append(f"    graph {name}: losing arc {', '.join(crit)} breaks strong connectivity")
     lines += ["", f"cases covered: {', '.join(c.label for c in des.cases)}"]
-    if sc.time == "continuous" and des.consensus != "whole":
+    if des.consensus == "fusion":
+        lines += [""] + fusion_lines(des)
+    elif sc.time == "continuous" and des.consensus != "whole":
         lines.append("")
         if des.g_mode == "adaptive":
             lines.append(f"g: adaptive (eq. adaptive), each agent integrates its own g_i from g0 = {d.g0:g}")
@@ -586,6 +602,15 @@ def agent_lines(des: Design, cond) -> list:
     """
     sc = des.scenario
     names = sc.state_names
+    if des.consensus == "fusion":
+        out = ["agents  (fusion: each agent updates with its own measurement, z_i = x_i + L_i (y_i - C_i x_i), fuses",
+               "         its neighbours' estimates q times with matrix weights, then predicts; what L_i corrects, by",
+               "         its largest states, and ||F L_i||)"]
+        for k, (a, c) in enumerate(zip(des.agents, cond.agents)):
+            U = np.linalg.svd(np.asarray(a.K, dtype=float), full_matrices=False)[0] if a.K.size else a.K
+            out.append(f"  agent {a.id}: s_i = {a.K.shape[1]}, corrects locally {spread(U, names) or 'nothing'}; "
+                       f"takes every state from its neighbours; |F L_i| {c.gain_norm:.3g}")
+        return out
     if des.consensus == "whole":
         w = des.whole
         out = ["agents  (consensus on the whole state: each agent updates with its own measurement, then averages its",
@@ -636,6 +661,34 @@ def radius_lines(radii: dict, what: str, fmt: str) -> list:
     out = [f"  {label}: {what} = {rad:{fmt}}" for label, rad in shown]
     if len(shown) < len(ordered):
         out.append(f"  ... and {len(ordered) - len(shown)} more cases, each at most {ordered[len(shown)][1]:{fmt}}")
+    return out
+
+
+def fusion_lines(des: Design) -> list:
+    """The fusion design's q, its certificate per graph, and what its gains are.
+
+    Parameters
+    ----------
+    des : Design
+        A fusion design (``des.consensus == "fusion"``).
+
+    Returns
+    -------
+    list of str
+        The q line, one line per graph (:func:`radius_lines`) and the gains' line.
+    """
+    sc = des.scenario
+    k = des.whole
+    per = "event time" if sc.time == "discrete" else f"run.dt = {sc.run.dt:g}"
+    how = "design.q: the budget given" if sc.design.q != "auto" else \
+        "the smallest whose protocol limit is within 1 % of the Kalman filter, raised until certified"
+    out = [f"q = {des.q} exchanges per {per}  (fusion; {how}); spectral radius of the full error map "
+           f"{k.radius:.6g} {'<' if k.certified else '>='} {k.lam_step:.6g} per step for each graph held constant"]
+    out += radius_lines(des.full_radius, "spectral radius of the full error map", ".6g")
+    gains = "the noise's steady-state gains" if k.alpha == 1.0 else \
+        f"the steady-state gains of the model shifted by alpha = {k.alpha:.6g} (the noise's are slower than the rate)"
+    out.append(f"  gains: {gains}; predicted {k.designs[0].ratio:.4g}x the Kalman predictor's RMS, its limit at q = "
+               f"{des.q}: {k.limit:.4g}x")
     return out
 
 

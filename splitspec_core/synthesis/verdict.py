@@ -178,6 +178,8 @@ def _split_certificate(des: Design, *, sampled: bool = True) -> RateCertificate:
         return RateCertificate(False, ADAPTIVE)
     if des.consensus == "whole":
         return _whole_certificate(des)
+    if des.consensus == "fusion":
+        return _fusion_certificate(des)
     if des.full_radius:
         return _full_certificate(des, sampled=sampled)
     cert = _blocks_certificate(des, sampled=sampled)
@@ -268,6 +270,16 @@ def _whole_certificate(des: Design) -> RateCertificate:
     """The whole-state design (:mod:`.whole_state`): its q's certificate, computed by the design."""
     r = des.q_result
     return RateCertificate(bool(r.certified), whole_text(des.q, r, des, len(des.cases)), by=r.method)
+
+
+def _fusion_certificate(des: Design) -> RateCertificate:
+    """The fusion kind (:mod:`.fusion_kind`): every graph's full error map below the rate per step."""
+    k = des.whole
+    per = "per event time" if des.time == "discrete" else f"per run.dt = {des.scenario.run.dt:g}"
+    held = " (each graph held constant)" if len(k.designs) > 1 else ""
+    return RateCertificate(k.certified, f"q = {des.q}: spectral radius of the full error map {k.radius:.6g} "
+                                        f"{'<' if k.certified else '>='} {k.lam_step:.6g} {per}{held}; fusion",
+                           by="full error matrix")
 
 
 def _full_certificate(des: Design, *, sampled: bool) -> RateCertificate:
@@ -363,6 +375,14 @@ def survivors_certificate(des: Design, alive: tuple, arcs: dict, network, *, exc
         cert, text = False, "no rate: " + ("the survivors leave a mode unobserved that does not decay"
                                             if not (network.detectable or excluded) else
                                             "a graph is not strongly connected")
+    elif des.consensus == "fusion":  # the gains kept, the lost weights folded into the receivers' own
+        from .fusion_kind import survivors_radius
+
+        worst = survivors_radius(des, alive, arcs)
+        lam = des.whole.lam_step
+        cert, by = worst < lam, "full error matrix"
+        text = (f"q = {des.q}, the gains kept, the lost neighbours' weights folded into each agent's own: spectral "
+                f"radius of the survivors' full error map {worst:.6g} {'<' if cert else '>='} {lam:.6g} per step; fusion")
     elif des.consensus == "whole":  # the gains kept: the survivors' full error matrices (whole_state.py)
         cert, text, by = _whole_survivors(des, alive, arcs)
         un_S = network.unobserved if cert else un_S

@@ -210,3 +210,10 @@ def test_the_limit_in_information_form_equals_the_covariance_form():
         Pc = Pc - Pc @ C.T @ np.linalg.solve(C @ Pc @ C.T + R, C @ Pc)
         Pc = F @ Pc @ F.T + Q
     assert np.allclose(info, Pc, rtol=1e-9, atol=1e-12)
+
+
+def test_the_limit_is_stated_up_to_the_size_the_noise_is_predicted_at():
+    from splitspec_core.synthesis.error_matrix import MAX_NOISE_DIM
+    from splitspec_core.synthesis.exchange_limit import LIMIT_DIM
+
+    assert LIMIT_DIM == MAX_NOISE_DIM  # two names, one size: the report states both or neither
