@@ -60,6 +60,36 @@ log = logging.getLogger("splitspec.agent")
 ZBUF_ROUNDS = 6
 
 
+class FusionPart:
+    """The fusion kind's part of an agent (:mod:`splitspec_core.synthesis.fusion_kind`), from its configuration's
+    ``gain`` (:func:`~splitspec_core.synthesis.fusion_kind.agent_fusion`): the per-step model ``F``, ``L_i`` and
+    ``{j: W_ij(k)}`` per graph, the known input's map per step (``D`` on the sampled model).  Its three steps are the
+    simulator's ``FusionRound``'s for this agent: ``z_i(0) = x_i + L_i (y_i - C_i x_i)``; per sub-round
+    ``z_i(k) = sum_j W_ij(k) z_j(k - 1)`` over the neighbours whose estimates count, the others' weights folded into
+    its own; ``x_i(tau + 1) = F z_i(q) [+ B u]``."""
+
+    def __init__(self, gain: dict, sc, C: np.ndarray):
+        n, s = C.shape[1], C.shape[0]
+        self.C = C
+        self.F = np.asarray(gain["F"], dtype=float).reshape(n, n)
+        self.L = [np.asarray(gain["L"][name], dtype=float).reshape(n, s) for name in sc.graph_names]
+        self.W = [[{int(j): np.asarray(W, dtype=float).reshape(n, n) for j, W in per_k.items()}
+                   for per_k in gain["weights"][name]] for name in sc.graph_names]
+        self.G = None if sc.time == "discrete" else st.sampled_data_matrices(np.asarray(sc.system.A), sc.run.dt)[1]
+
+    def update(self, x: np.ndarray, y, graph: int) -> np.ndarray:
+        """``z_i(0)`` from ``x_i(tau)`` and ``y_i(tau)`` (None: none) on the graph of index ``graph``."""
+        return st.local_update(x, self.L[graph], self.C, y)
+
+    def fuse(self, states: list, me: int, nbs: list, graph: int, k: int) -> np.ndarray:
+        """``z_i(k + 1)`` from the states of ``nbs`` (``me`` among them), the others' weights folded into its own."""
+        return st.matrix_fusion(states, st.fold_weights(self.W[graph][k], me, nbs))
+
+    def predict(self, z: np.ndarray, bu) -> np.ndarray:
+        """``x_i(tau + 1) = F z_i(q) [+ B u(tau)]`` (``bu``: the known input's ``B u``, None without)."""
+        return st.prediction_update(z, self.F, st.step_input(self.G, bu))
+
+
 class AgentNode:
     """Protocol state of agent ``agent_id``; ``on_*`` methods return ``[(key, payload), ...]`` to publish."""
 
@@ -80,7 +110,11 @@ class AgentNode:
         self.C = np.asarray(sc.system.Cs[self.index])
         self.n, self.s = sc.n, self.C.shape[0]
         gain = config.get("gain")
-        if gain is not None:  # a gain the design chose centrally (design.gains: optimal, or design.consensus: whole)
+        # the fusion kind (synthesis/fusion_kind.py): L_i and W_ij(k) per graph, the per-step model; P_i = I
+        self.fusion = FusionPart(gain, sc, self.C) if gain is not None and gain.get("consensus") == "fusion" else None
+        if self.fusion is not None:
+            self.K, self.P, self.V, self.whole = np.zeros((self.n, self.s)), np.eye(self.n), np.zeros((self.n, 0)), False
+        elif gain is not None:  # a gain the design chose centrally (design.gains: optimal, or design.consensus: whole)
             self.K, self.P, self.V = central_part(gain, self.n, self.s)
             self.whole = gain["consensus"] == "whole"
         else:
@@ -89,9 +123,11 @@ class AgentNode:
             self.K, self.P, self.V = local.K, local.P, local.V_adaptive
             self.whole = False
         # continuous: the paper's sampled-data form with g; the whole-state design runs q exchanges per run.dt
-        self.continuous = sc.time == "continuous" and not self.whole
+        self.continuous = sc.time == "continuous" and not self.whole and self.fusion is None
         self.G = None
-        if self.whole:  # update, then average q times, on the per-step model (steps.step_matrices)
+        if self.fusion is not None:
+            self.exchanges, self.adaptive, self.g0 = int(config["q"]), False, 0.0
+        elif self.whole:  # update, then average q times, on the per-step model (steps.step_matrices)
             dt = sc.run.dt if sc.time == "continuous" else None
             self.A, self.F, self.K, self.G = st.step_matrices(self.A, self.K, self.C, dt=dt)
             self.exchanges = int(config["q"])
@@ -240,7 +276,8 @@ class AgentNode:
                       "P": np.eye(self.n) if self.watch[0] else self.P, "stat": UNTESTED, "set_aside": False,
                       "z0": None if explicit else (tau, int(t["prev_attempt"])), "groups": self.net.groups,
                       "lost": [], "used": 0, "open": self.clock() if self.deadline is not None else None}
-        if self.whole:  # z_i(0) is the updated estimate, sent once y_i(tau) is in (_advance)
+        self.round["graph"] = int(t["graph"])
+        if self.whole or self.fusion is not None:  # z_i(0): the updated estimate, sent once y_i(tau) is in (_advance)
             self.round["z0"] = None
         elif explicit:
             out.append(self._z(0, self.round["z"]))
@@ -374,6 +411,8 @@ class AgentNode:
             return out
         if self.whole:
             return self._advance_whole(r)
+        if self.fusion is not None:
+            return self._advance_fusion(r)
         if self.continuous:
             if "realized" not in r:
                 got = self._neighbour_states(0)
@@ -438,6 +477,27 @@ class AgentNode:
             if r["k"] < self.exchanges:
                 out.append(self._z(r["k"], r["z"]))
         return out + self._finish(r["z"], 0.0, r["y"])
+
+    def _advance_fusion(self, r: dict) -> list:
+        """The fusion kind's round (:class:`FusionPart`), as the simulator's ``FusionRound`` runs it for this agent."""
+        out, part = [], self.fusion
+        if "y" not in r:
+            if not self.ys.ready(r["tau"]):
+                return out
+            y = r["y"] = self.ys.get(r["tau"])
+            r["watch"], r["z"] = self.watch, part.update(self.x, y, r["graph"])
+            self._opened()
+            out.append(self._z(0, r["z"]))
+        while r["k"] < self.exchanges:
+            got = self._neighbour_states(r["k"])
+            if got is None:
+                return out
+            r["z"] = part.fuse(got[2], self.id, got[0], r["graph"], r["k"])
+            r["k"] += 1
+            self._opened()
+            if r["k"] < self.exchanges:
+                out.append(self._z(r["k"], r["z"]))
+        return out + self._finish(part.predict(r["z"], self.ys.bu(r["tau"])), 0.0, r["y"])
 
     def _screen(self, z: np.ndarray, y):
         """The bad-data test of ``y_i(tau)`` against ``z`` (what the update applies K_i to): ``y`` if it is used,

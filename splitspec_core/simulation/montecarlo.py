@@ -169,6 +169,8 @@ def fallback_reason(des: Design, *, lost=None, measurements=None, exact: bool = 
         return "random switching drawn from each run's seed"
     if sc.design.bad_data is not None:
         return "design.bad_data: each agent's test decides, per seed, which measurements it uses"
+    if des.consensus == "fusion":
+        return "the fusion kind runs its agents' steps one seed at a time (simulator.FusionRound)"
     return None
 
 

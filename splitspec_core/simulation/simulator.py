@@ -322,13 +322,20 @@ class _EstimatorBase:
         # the whole-state design (synthesis/whole_state.py): update, then average q times, on the per-step model in
         # both times; ``continuous`` below means the paper's sampled-data form with g
         self.whole = des.consensus == "whole"
-        self.continuous = sc.time == "continuous" and not self.whole
+        # the fusion kind (synthesis/fusion_kind.py): measure, fuse q times with matrix weights, predict; every step of
+        # it, batched or looped, is FusionRound's (the agent process runs the same steps.py functions)
+        self.fusion = des.consensus == "fusion"
+        self.graph = 0  # the active graph's index, set per step by simulate (the fusion kind's gains are per graph)
+        self.continuous = sc.time == "continuous" and not (self.whole or self.fusion)
         self.adaptive = self.continuous and des.g_mode == "adaptive"
         self.G = None  # the whole-state step's map of the known input B u (continuous: D), None: itself
         if self.continuous:
             self.E, self.D, _ = st.sampled_data_matrices(self.A, sc.run.dt)
             self.dt = sc.run.dt
             self.g = np.full(self.m, sc.design.g0 if self.adaptive else float(des.g))
+        elif self.fusion:
+            self.q = int(des.q)
+            self.kind = FusionRound(des)
         elif self.whole:
             self.q = int(des.q)
             dt = sc.run.dt if sc.time == "continuous" else None
@@ -347,6 +354,11 @@ class _EstimatorBase:
         bd = bad_data(des)
         self.screen = None if bd is None else Screen(bd, self.Cs, sc.agent_ids)
         self.tau = 0
+
+    def _fusion_step(self, X: np.ndarray, y: np.ndarray, rounds: list, missing, bu) -> np.ndarray:
+        """The fusion kind's event time on this step's graph, ``rounds`` the rows of each exchange."""
+        ys = [None if missing is not None and missing[k] else y[r] for k, r in enumerate(self.kind.rows_y)]
+        return self.kind.step(X, ys, rounds, bu, self.graph)
 
     def _screen(self, Z: np.ndarray, y: np.ndarray, missing, alive: np.ndarray):
         """The bad-data test of every alive agent against ``Z`` (what its update applies K_i to): ``missing`` or the
@@ -459,6 +471,97 @@ class _RealizedS:
         return out
 
 
+class FusionRound:
+    """The fusion kind's event time (:mod:`splitspec_core.synthesis.fusion_kind`), agent by agent with the step functions
+    of :mod:`splitspec_core.model.steps` in the order an agent process calls them: ``local_update``, then per exchange
+    ``fold_weights`` and ``matrix_fusion`` over the neighbours that count, then ``prediction_update``.  Both estimators
+    run it (one path for the kind)."""
+
+    def __init__(self, des: Design):
+        from ..synthesis.fusion_kind import weight_blocks
+
+        sc = des.scenario
+        kind = des.whole
+        self.ids = sc.agent_ids
+        self.pos = {a: k for k, a in enumerate(sc.agent_ids)}
+        self.Cs = [np.asarray(C, dtype=float) for C in sc.system.Cs]
+        self.rows_y = output_rows(self.Cs)
+        self.F = np.asarray(kind.designs[0].F)  # the per-step model: A, or exp(A run.dt) (the agents are sent it)
+        dt = sc.run.dt if sc.time == "continuous" else None
+        # the known input's map per step: B u itself, or D B u on the sampled model (steps.step_matrices's G)
+        self.G = None if dt is None else st.sampled_data_matrices(np.asarray(sc.system.A), dt)[1]
+        self.L = [d.Ls for d in kind.designs]
+        self.blocks = [[weight_blocks(des, g, i) for i in range(sc.m)] for g in range(len(kind.designs))]
+
+    def step(self, X: np.ndarray, ys: list, rounds: list, bu, graph: int) -> np.ndarray:
+        """``x_i(tau+1)`` of every agent in ``rounds[0]`` (zero rows for the others).
+
+        Parameters
+        ----------
+        X : (m, n) ndarray
+            The estimates ``x_i(tau)``.
+        ys : list
+            Each agent's ``y_i(tau)``, None without one.
+        rounds : list of dict
+            Per exchange, ``{i: (neighbour ids, weights)}`` of the neighbours whose estimates count (weights unused).
+        bu : (n,) ndarray or None
+            The known input's ``B u(tau)``.
+        graph : int
+            The active graph's index.
+
+        Returns
+        -------
+        (m, n) ndarray
+        """
+        pos, L, blocks = self.pos, self.L[graph], self.blocks[graph]
+        Z = np.zeros_like(X)
+        for i_id in rounds[0]:
+            i = pos[i_id]
+            Z[i] = st.local_update(X[i], L[i], self.Cs[i], ys[i])
+        for k, rows in enumerate(rounds):
+            Zn = np.zeros_like(Z)
+            for i_id, (nbs, _) in rows.items():
+                i = pos[i_id]
+                Zn[i] = st.matrix_fusion([Z[pos[j]] for j in nbs], st.fold_weights(blocks[i][k], i_id, nbs))
+            Z = Zn
+        Xn = np.zeros_like(X)
+        bu = st.step_input(self.G, bu)
+        for i_id in rounds[0]:
+            Xn[pos[i_id]] = st.prediction_update(Z[pos[i_id]], self.F, bu)
+        return Xn
+
+
+def realized_rows(sc: Scenario, rows: dict, entries: tuple, counts: list) -> list:
+    """Each exchange's realized rows ``{i: (nbs, ws)}``, by the agents' own :func:`impairment.realized_row`.
+
+    Parameters
+    ----------
+    sc : Scenario
+        Its agent order and ``design.weights``.
+    rows : dict
+        ``{i: (neighbour ids, weights)}`` of the step's network.
+    entries : tuple
+        :func:`weight_entries` of ``rows``.
+    counts : list of (E_off,) bool ndarray
+        One per exchange, True where an off-diagonal entry's message counts.
+
+    Returns
+    -------
+    list of dict
+        Per exchange, ``{i: (neighbour ids, weights)}`` of the messages that count.
+    """
+    ri, ci, _, off = entries
+    ids = sc.agent_ids
+    offi = np.flatnonzero(off)
+    out = []
+    for ok in counts:
+        counted: dict = {}
+        for e in offi[ok]:
+            counted.setdefault(ids[ri[e]], set()).add(ids[ci[e]])
+        out.append({i: realized_row(nbs, ws, counted.get(i, ()), sc.design.weights) for i, (nbs, ws) in rows.items()})
+    return out
+
+
 class BatchEstimator(_EstimatorBase):
     """Vectorised estimator: state ``X`` (m, n); sparse weights; batched per-agent matrices.
 
@@ -486,6 +589,8 @@ class BatchEstimator(_EstimatorBase):
         if self.continuous:
             self.KC = np.stack([K @ C for K, C in zip(self.Ks, self.Cs)])
             self.Rgram = np.stack([R @ R.T for R in self.Vs])  # eq. (adaptive): |R_i' d|^2 = d' R_i R_i' d
+        elif self.fusion:
+            pass  # FusionRound holds what it runs
         elif self.whole:
             self.Fst = np.stack(self.F)
         else:
@@ -509,6 +614,8 @@ class BatchEstimator(_EstimatorBase):
         scipy.sparse.csr_matrix or tuple of two csr_matrix
             ``W`` (continuous time, and the whole-state design in both times), else ``(B, G)``.
         """
+        if self.fusion:  # the rows themselves: FusionRound reads each agent's neighbours
+            return rows
         pos = {a: k for k, a in enumerate(self.sc.agent_ids)}
         ri, ci, vals = [], [], []
         for i, (nbs, ws) in rows.items():
@@ -549,6 +656,8 @@ class BatchEstimator(_EstimatorBase):
         """
         Y = np.zeros((self.m, self.Kp.shape[2]))
         Y[self._yidx] = y
+        if self.fusion:
+            return self._fusion_step(X, y, [W] * self.q, missing, bu)
         if self.whole:
             return self.step_realized(X, y, [W] * self.q, alive, missing, bu)
         if self.continuous:
@@ -612,6 +721,8 @@ class BatchEstimator(_EstimatorBase):
             ``S_k`` per exchange: a receiver's missing messages' weight goes to itself (Metropolis), or its row
             is re-weighted ``1 / (1 + counted)`` (uniform).
         """
+        if self.fusion:  # the rows that count, as the agents fold them (FusionRound)
+            return realized_rows(self.sc, rows, entries, counts)
         ri, ci, w, off = entries
         offi = np.flatnonzero(off)
         out = []
@@ -654,6 +765,8 @@ class BatchEstimator(_EstimatorBase):
         (m, n) ndarray
             The estimates ``x_i(k+1)``, zero rows for the dead agents.
         """
+        if self.fusion:
+            return self._fusion_step(X, y, Ws, missing, bu)
         Y = np.zeros((self.m, self.Kp.shape[2]))
         Y[self._yidx] = y
         if self.continuous:
@@ -747,6 +860,8 @@ class AgentLoopEstimator(_EstimatorBase):
         (m, n) ndarray
             The estimates ``x_i(k+1)``, zero rows for the agents not in ``rows``.
         """
+        if self.fusion:
+            return self._fusion_step(X, y, [rows] * self.q, missing, bu)
         pos = {a: k for k, a in enumerate(self.sc.agent_ids)}
         Ps = self._projections()  # before the test: the watch at the start of the step
         if self.whole:
@@ -795,17 +910,7 @@ class AgentLoopEstimator(_EstimatorBase):
         list of dict
             Per exchange, ``{i: (neighbour ids, weights)}`` of the messages that count.
         """
-        ri, ci, _, off = entries
-        ids = self.sc.agent_ids
-        offi = np.flatnonzero(off)
-        out = []
-        for ok in counts:
-            counted: dict = {}
-            for e in offi[ok]:
-                counted.setdefault(ids[ri[e]], set()).add(ids[ci[e]])
-            out.append({i: realized_row(nbs, ws, counted.get(i, ()), self.sc.design.weights)
-                        for i, (nbs, ws) in rows.items()})
-        return out
+        return realized_rows(self.sc, rows, entries, counts)
 
     def step_realized(self, X: np.ndarray, y: np.ndarray, Ws: list, alive: np.ndarray, missing=None,
                       bu=None) -> np.ndarray:
@@ -832,6 +937,8 @@ class AgentLoopEstimator(_EstimatorBase):
         (m, n) ndarray
             The estimates ``x_i(k+1)``, zero rows for the agents not in ``Ws[0]``.
         """
+        if self.fusion:
+            return self._fusion_step(X, y, Ws, missing, bu)
         if self.continuous:
             return self.step(X, y, Ws[0], alive, missing, bu)
         if self.whole:
@@ -1009,7 +1116,7 @@ def simulate(des: Design, *, seed: int | None = None, steps: int | None = None, 
         W = weights(net, plan.graph_seq[k])
         before = len(lost_rows)
         Ws = realized_step(est, sc, W, k, exchanges, imp, replay, net.groups, lost_rows) if impaired else None
-        est.tau = k
+        est.tau, est.graph = k, int(plan.graph_seq[k])
         if Ws is None and est.screen is not None and est.screen.suspect.any() and isinstance(est, BatchEstimator) \
                 and not (est.continuous or est.whole):  # a suspect sensor's P_i = I: the sub-rounds on S itself
             Ws = est.realized(W[1], W[2], [np.ones(int(W[2][3].sum()), dtype=bool)] * exchanges)

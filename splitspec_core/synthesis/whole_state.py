@@ -489,7 +489,8 @@ def agent_gain(des, agent_id: int) -> dict | None:
     -------
     dict or None
         ``{"K": nested list (n x s_i), "consensus": "whole" or "split"}``, with ``"P"`` (n x n nested list) for the
-        split; None when the agent designs its own gain (a local method with the split).
+        split; the fusion kind's :func:`~splitspec_core.synthesis.fusion_kind.agent_fusion`; None when the agent
+        designs its own gain (a local method with the split).
 
     Examples
     --------
@@ -503,6 +504,10 @@ def agent_gain(des, agent_id: int) -> dict | None:
     >>> agent_gain(design(ss.load_scenario("examples/paper_discrete.yaml")), 1) is None
     True
     """
+    if des.consensus == "fusion":  # its gains per graph and its weights per neighbour (fusion_kind.py)
+        from .fusion_kind import agent_fusion
+
+        return agent_fusion(des, agent_id)
     if des.consensus != "whole" and gain_methods.method(des.scenario.design.gains).local:
         return None
     a = next(a for a in des.agents if a.id == agent_id)

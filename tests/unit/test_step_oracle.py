@@ -2,7 +2,7 @@
 recursion is written out here from the paper's equations with plain numpy (block matrices, ``np.kron``, ``expm``), and
 the simulator's noise-free errors, batched and looped, must follow it step by step.  Only the design's gains
 (``K_i``, ``P_i``, ``g``, ``q``) and the graph's weights are taken from the product; ``run == simulate`` proves the
-plumbing between processes, this proves the step itself.  The fusion kind's own oracle is in ``test_fusion.py``.
+plumbing between processes, this proves the step itself.
 
 The noise-free error ``e_i = x_i - x`` of every kind obeys ``e(k+1) = M e(k)`` with (``S`` the weights ``w_ij``,
 ``P = blkdiag(P_i)``, ``Sn = S kron I_n``):
@@ -10,7 +10,9 @@ The noise-free error ``e_i = x_i - x`` of every kind obeys ``e(k+1) = M e(k)`` w
 * split, discrete (eqs. split-discrete-p1..p3, est1): ``M = blkdiag(A + K_i C_i) (I - P (I - Sn))^q``;
 * split, continuous, sampled-data form: ``M = blkdiag(E + D K_i C_i) - g blkdiag(D P_i) (I - Sn)``;
 * whole state (P_i = I, update then average): ``M = Sn^q blkdiag(A_s + K_s,i C_i)`` with ``A_s = A``, ``K_s,i = K_i``
-  in discrete time and ``A_s = E``, ``K_s,i = D K_i`` on the sampled model.
+  in discrete time and ``A_s = E``, ``K_s,i = D K_i`` on the sampled model;
+* fusion (measure, fuse with matrix weights, predict): ``M = (I kron F) W(q) .. W(1) blkdiag(I - L_i C_i)``, ``F = A``
+  or ``E``.
 """
 
 from __future__ import annotations
@@ -46,6 +48,8 @@ def oracle_map(des, graph: int = 0) -> np.ndarray:
     Sn = np.kron(des.graphs[graph].S, np.eye(n))
     I = np.eye(m * n)
     Ks = [np.asarray(K) for K in des.Ks]
+    if des.consensus == "fusion":
+        return _fusion_map(des, graph)
     if des.consensus == "whole":
         if sc.time == "discrete":
             As, Kss = A, Ks
@@ -61,6 +65,31 @@ def oracle_map(des, graph: int = 0) -> np.ndarray:
     E, D = _sampled(A, sc.run.dt)
     return (sla.block_diag(*[E + D @ K @ C for K, C in zip(Ks, Cs)])
             - float(des.g) * sla.block_diag(*[D @ P_i for P_i in des.Ps]) @ (I - Sn))
+
+
+def _fusion_map(des, graph: int) -> np.ndarray:
+    """The fusion kind: ``M = (I kron F) W(q) .. W(1) blkdiag(I - L_i C_i)``, each ``W(k)`` assembled block by block
+    from the agents' weights (``weights[k][i]``: ``[W_ij for j in N_i]`` side by side), ``F`` the per-step model."""
+    sc = des.scenario
+    n, m = sc.n, sc.m
+    fd = des.whole.designs[graph]
+    A = np.asarray(sc.system.A)
+    F = A if sc.time == "discrete" else _sampled(A, sc.run.dt)[0]
+    assert np.allclose(F, fd.F, rtol=1e-12, atol=1e-14)  # what the design runs is the plant's own step
+    M = sla.block_diag(*[np.eye(n) - L @ np.asarray(C) for L, C in zip(fd.Ls, sc.system.Cs)])
+    for Wk in fd.weights:
+        W = np.zeros((m * n, m * n))
+        for i, row in enumerate(Wk):
+            for a, j in enumerate(fd.neighbours[i]):
+                W[i * n:(i + 1) * n, j * n:(j + 1) * n] = row[:, a * n:(a + 1) * n]
+        assert np.allclose(W @ np.kron(np.ones((m, 1)), np.eye(n)), np.kron(np.ones((m, 1)), np.eye(n)))  # sum to I
+        M = W @ M
+    return np.kron(np.eye(m), F) @ M
+
+
+def _fused(sc, q: int = 2):
+    return dataclasses.replace(sc, design=dataclasses.replace(sc.design, consensus="fusion", gains="optimal", q=q,
+                                                              resilience=0, K=None))
 
 
 def _ring_whole():
@@ -81,6 +110,8 @@ KINDS = {
     "split-continuous": lambda: ss.load_scenario(EXAMPLES / "paper_continuous.yaml"),
     "whole-discrete": _ring_whole,
     "whole-continuous": _continuous_whole,
+    "fusion-discrete": lambda: _fused(ss.load_scenario(EXAMPLES / "ring10_noise.yaml")),
+    "fusion-continuous": lambda: _fused(_continuous_whole(), q=1),
 }
 
 
