@@ -89,9 +89,9 @@ for q in (1, 2, 3, 5):
 
 # %% [markdown]
 # On this five-bus ring every sensor is at most two hops away: two exchanges already let every agent hear every
-# PMU in time, and one costs a percent. The fusion kind ([the method's "Few exchanges"](../../explanation/method.md);
-# not yet a `design.consensus` choice) met these limits on this model in `benchmarks/bench_comm.py`: 1.0097 x at
-# q = 1, 1.0000 x at q = 2, with one estimate per exchange.
+# PMU in time, and one costs a percent. The fusion kind (`design.consensus: fusion` with `design.q` the budget;
+# [the method's "Few exchanges"](../../explanation/method.md)) met these limits on this model in
+# `benchmarks/bench_comm.py`: 1.0097 x at q = 1, 1.0000 x at q = 2, with one estimate per exchange.
 #
 # ## 2. Noise-free: the error against the certificate
 #

@@ -60,7 +60,9 @@ def scenario_text(agents: int = AGENTS, dim: int = DIM) -> str:
         "graphs:",
         "  ring:",
         "    undirected: [" + ", ".join(f"[{i}, {i % agents + 1}]" for i in range(1, agents + 1)) + "]",
-        "design: {rate: 0.9}",
+        "# one exchange per event time, its estimate fused with matrix weights chosen for the noise (design.consensus:",
+        "# fusion); remove consensus and q for the default design (the whole state, q = 33)",
+        "design: {rate: 0.9, consensus: fusion, q: 1}",
         "run: {steps: 400, seed: 1}",
     ]
     text = "\n".join(lines) + "\n"
