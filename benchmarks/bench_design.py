@@ -35,6 +35,11 @@ Two tables, no timing assertions anywhere (the machine is shared):
 
     .venv/bin/python benchmarks/bench_design.py --only fusion [--fusion-models rego ieee14_pmu] [--fusion-q 1 2 3]
 
+* ``splitspec compare`` of Rego's ring from a cold start (``--only compare``, no kept design), quiet and beside one
+  busy process:
+
+    .venv/bin/python benchmarks/bench_design.py --only compare [--compare-repeat 2]
+
 On a loaded machine OpenBLAS threads can dominate the figures; ``OPENBLAS_NUM_THREADS=1``
 in the environment takes them out (the header says which setting ran).
 """
@@ -288,9 +293,42 @@ def fusion_table(args) -> None:
                   f"{des.ratio:>8.4f}{des.radius:>11.6g}{lam:>11.6g}  {loadavg(1)}", flush=True)
 
 
+def compare_table(args) -> None:
+    """``splitspec compare`` of Rego's ring (its fusion design at q = 1, the split beside it, the references, 2 seeds)
+    from a cold start (``SPLITSPEC_CACHE=off``), quiet and beside one busy process (module docstring)."""
+    import multiprocessing
+    import os
+    import subprocess
+    import tempfile
+
+    root = Path(__file__).resolve().parents[1]
+    cmd = [str(root / ".venv" / "bin" / "splitspec"), "compare", str(root / "examples" / "rego_ring.yaml"), "--seeds",
+           "2", "--out"]
+    print(f"splitspec compare examples/rego_ring.yaml --seeds 2, cold (load {loadavg()})")
+    print(f"{'run':>4}{'quiet s':>10}{'busy s':>10}  load after")
+    env = {**os.environ, "SPLITSPEC_CACHE": "off", "RERUN_ANALYTICS": "0"}
+    for k in range(args.compare_repeat):
+        row = []
+        for loaded in (False, True):
+            spinner = multiprocessing.Process(target=_spin, daemon=True) if loaded else None
+            if spinner:
+                spinner.start()
+            try:
+                with tempfile.TemporaryDirectory() as tmp:
+                    t0 = time.perf_counter()
+                    subprocess.run(cmd + [tmp], env=env, check=True, capture_output=True)
+                    row.append(time.perf_counter() - t0)
+            finally:
+                if spinner:
+                    spinner.terminate()
+                    spinner.join()
+        print(f"{k + 1:>4}{row[0]:>10.1f}{row[1]:>10.1f}  {loadavg(1)}", flush=True)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--only", choices=["random", "ring", "scale", "fusion"], help="run one table only")
+    ap.add_argument("--compare-repeat", type=int, default=2)
+    ap.add_argument("--only", choices=["random", "ring", "scale", "fusion", "compare"], help="run one table only")
     ap.add_argument("--fusion-models", nargs="+", default=["rego", "ieee14_pmu"])
     ap.add_argument("--fusion-q", type=int, nargs="+", default=[1, 2, 3])
     ap.add_argument("--fusion-repeat", type=int, default=1)
@@ -325,6 +363,9 @@ def main() -> None:
     if args.only in (None, "fusion"):
         print() if args.only is None else None
         fusion_table(args)
+    if args.only in (None, "compare"):
+        print() if args.only is None else None
+        compare_table(args)
 
 
 if __name__ == "__main__":
