@@ -13,15 +13,17 @@ the other.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
 
+from ..errors import SplitspecError
 from .advice import advice, advice_lines
 from .bounds import QResult
 from .conditioning import conditioning
 from .design_data import Design, cached_analysis
-from .designer import highest_rate
+from .designer import design, highest_rate
 from .loss_certificate import loss_certificate
 from .exchange_limit import design_exchanges
 from .bad_data import bad_data, report_lines as bad_data_lines
@@ -249,7 +251,8 @@ def design_json(des: Design) -> dict:
     reach = fastest_rate(des)
     out.update(certified_rate=cert.certified, certificate=cert.text, envelope_rate=_num(cert.rate),
                rate_note=NO_CERTIFIED_RATE if des.g_mode == "adaptive" else None,
-               fastest_certified_rate=None if reach is None else {"rate": reach.rate, "refused": reach.refused})
+               fastest_certified_rate=None if reach is None else {"rate": reach.rate, "refused": reach.refused},
+               fewest_certified_q=fewest_exchanges(des))
     out.update(consensus=des.consensus, consensus_choice=des.chosen, whole_state=_whole_json(des),
                fusion=_fusion_json(des))
     ex = design_exchanges(des)
@@ -290,6 +293,33 @@ def design_json(des: Design) -> dict:
             "q_methods": {k: _q_json(v) for k, v in des.q_methods.items()},
         })
     return out
+
+
+@cached_analysis
+def fewest_exchanges(des: Design) -> int | None:
+    """A two-rate design whose given ``design.q`` (the budget) does not certify the rate: the fewest exchanges that do
+    with the same design keys (the design again with ``design.q: auto``; the fusion kind's own search), else None
+    (certified, ``q`` not given, or no q up to ``design.q_max`` certifies).
+
+    Parameters
+    ----------
+    des : Design
+        The design (computed once per design).
+
+    Returns
+    -------
+    int or None
+    """
+    sc = des.scenario
+    if not des.two_rate or sc.design.q == "auto" or rate_certificate(des).certified:
+        return None
+    if des.consensus == "fusion":
+        return des.whole.fewest
+    try:
+        auto = design(dataclasses.replace(sc, design=dataclasses.replace(sc.design, q="auto")))
+    except SplitspecError:
+        return None
+    return int(auto.q) if rate_certificate(auto).certified else None
 
 
 @cached_analysis
@@ -485,6 +515,11 @@ def design_text(des: Design) -> str:
     reach = fastest_rate(des)
     if reach is not None:
         lines.append(f"  {reach.text}")
+    fewest = fewest_exchanges(des)
+    if fewest is not None and des.consensus != "fusion":  # the fusion kind's warning says it already
+        per = "event time" if sc.time == "discrete" else "run.dt"
+        lines.append(f"  the fewest exchanges that certify rate {d.rate:g} with these design keys: q = {fewest} per "
+                     f"{per} (design.q: auto), against the budget design.q = {d.q}")
     loss = loss_certificate(des)
     if loss is not None:
         lines.append(loss.text)  # "rate certified under loss: ..." or "not certified under loss: ..."

@@ -134,3 +134,15 @@ def test_what_the_kind_does_not_offer_is_refused_in_one_line(tmp_path, capsys, c
     assert cli.main(["design", str(path)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and says in err[0], err
+
+
+def test_a_budget_too_small_for_the_split_says_the_fewest_exchanges_that_certify(capsys):
+    """Item 1 of issue 44 for every kind: design.q given and not certified, one line names the fewest that are."""
+    sc = ss.load_scenario(EXAMPLES / "paper_discrete.yaml")
+    auto = design(sc)
+    short = design(dataclasses.replace(sc, design=dataclasses.replace(sc.design, q=int(auto.q) - 1)))
+    assert not rate_certificate(short).certified
+    assert design_json(short)["fewest_certified_q"] == auto.q
+    assert (f"the fewest exchanges that certify rate {sc.design.rate:g} with these design keys: q = {auto.q} per event "
+            f"time (design.q: auto), against the budget design.q = {int(auto.q) - 1}") in design_text(short)
+    assert design_json(auto)["fewest_certified_q"] is None  # certified: nothing to say
