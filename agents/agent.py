@@ -455,49 +455,49 @@ class AgentNode:
         """The whole-state design's round (synthesis/whole_state.py): once ``y_i(tau)`` is in, the update
         ``z_i(0) = F_i x_i(tau) - K_i y_i(tau) [+ B u]`` (its prediction without a measurement), sent; then q sub-rounds
         ``z_i(k) = sum_j w_ij z_j(k - 1)``; ``x_i(tau + 1) = z_i(q)``."""
+
+        def update(y):
+            bu = st.step_input(self.G, self.ys.bu(r["tau"]))
+            used = self._screen(self.x, y)
+            return st.prediction_update(self.x, self.A, bu) if used is None else \
+                st.measurement_update(self.x, self.F, self.K, used, bu)
+
+        # eq. split-discrete-p2 with P_i = I
+        return self._update_then_exchange(r, update, lambda got, k: st.weighted_average(got[2], got[1]), lambda z: z)
+
+    def _advance_fusion(self, r: dict) -> list:
+        """The fusion kind's round (:class:`FusionPart`), as the simulator's ``FusionRound`` runs it for this agent."""
+        part, g = self.fusion, r["graph"]
+
+        def update(y):
+            r["watch"] = self.watch
+            return part.update(self.x, y, g)
+
+        return self._update_then_exchange(r, update, lambda got, k: part.fuse(got[2], self.id, got[0], g, k),
+                                          lambda z: part.predict(z, self.ys.bu(r["tau"])))
+
+    def _update_then_exchange(self, r: dict, update, combine, finish) -> list:
+        """The round of the kinds that update first (the whole state, fusion): once ``y_i(tau)`` is in,
+        ``z_i(0) = update(y_i)`` (sent); per sub-round ``z_i(k) = combine((nbs, ws, states), k - 1)`` over the
+        neighbours whose estimates count; ``x_i(tau + 1) = finish(z_i(q))``."""
         out = []
         if "y" not in r:
             if not self.ys.ready(r["tau"]):
                 return out
-            y = r["y"] = self.ys.get(r["tau"])
-            bu = st.step_input(self.G, self.ys.bu(r["tau"]))
-            used = self._screen(self.x, y)
-            r["z"] = st.prediction_update(self.x, self.A, bu) if used is None else \
-                st.measurement_update(self.x, self.F, self.K, used, bu)
+            r["y"] = self.ys.get(r["tau"])
+            r["z"] = update(r["y"])
             self._opened()
             out.append(self._z(0, r["z"]))
         while r["k"] < self.exchanges:
             got = self._neighbour_states(r["k"])
             if got is None:
                 return out
-            _, ws, states = got
-            r["z"] = st.weighted_average(states, ws)  # eq. split-discrete-p2 with P_i = I
+            r["z"] = combine(got, r["k"])
             r["k"] += 1
             self._opened()
             if r["k"] < self.exchanges:
                 out.append(self._z(r["k"], r["z"]))
-        return out + self._finish(r["z"], 0.0, r["y"])
-
-    def _advance_fusion(self, r: dict) -> list:
-        """The fusion kind's round (:class:`FusionPart`), as the simulator's ``FusionRound`` runs it for this agent."""
-        out, part = [], self.fusion
-        if "y" not in r:
-            if not self.ys.ready(r["tau"]):
-                return out
-            y = r["y"] = self.ys.get(r["tau"])
-            r["watch"], r["z"] = self.watch, part.update(self.x, y, r["graph"])
-            self._opened()
-            out.append(self._z(0, r["z"]))
-        while r["k"] < self.exchanges:
-            got = self._neighbour_states(r["k"])
-            if got is None:
-                return out
-            r["z"] = part.fuse(got[2], self.id, got[0], r["graph"], r["k"])
-            r["k"] += 1
-            self._opened()
-            if r["k"] < self.exchanges:
-                out.append(self._z(r["k"], r["z"]))
-        return out + self._finish(part.predict(r["z"], self.ys.bu(r["tau"])), 0.0, r["y"])
+        return out + self._finish(finish(r["z"]), 0.0, r["y"])
 
     def _screen(self, z: np.ndarray, y):
         """The bad-data test of ``y_i(tau)`` against ``z`` (what the update applies K_i to): ``y`` if it is used,
