@@ -235,8 +235,9 @@ def _choose(sc: Scenario, compare_q_methods: bool, workers: int | None) -> Desig
         except (AssumptionError, DesignError) as exc:
             errors[structure] = exc
     if skip:
-        return _annotated(found["whole"], f"design.consensus: auto chose the whole state ({skip}; the split was not "
-                                          "designed: design.consensus: split designs it)")
+        return _with_budget(pre, _annotated(found["whole"], f"design.consensus: auto chose the whole state ({skip}; "
+                                                           "the split was not designed: design.consensus: split "
+                                                           "designs it)"), compare_q_methods, workers)
     if not found:  # the split's refusal is the paper's: say it, and what the whole state met
         raise type(errors["split"])(f"{errors['split']} (and the whole-state design: {errors['whole']})")
     figures = {k: (bool(rate_certificate(des).certified), _predicted_all(des)) for k, des in found.items()}
@@ -248,7 +249,38 @@ def _choose(sc: Scenario, compare_q_methods: bool, workers: int | None) -> Desig
         pick = "split" if w is None and s_ is None else \
             ("whole" if (math.inf if w is None else w) <= (math.inf if s_ is None else s_) else "split")
     other = "split" if pick == "whole" else "whole"
-    return _annotated(found[pick], _chosen_text(pick, other, figures, errors, found))
+    return _with_budget(pre, _annotated(found[pick], _chosen_text(pick, other, figures, errors, found)),
+                        compare_q_methods, workers)
+
+
+def _fusion_offered(sc: Scenario) -> bool:
+    """The fusion kind's preconditions (scenarios.design_section refuses it otherwise): measurement noise on every
+    output, no bad-data test, no resilience, no given gains."""
+    s, d = sc.system, sc.design
+    return (s.measurement_noise_present and not bool((s.measurement_std <= 0).any()) and d.bad_data is None
+            and d.resilience == 0 and d.K is None)
+
+
+def _with_budget(pre: Prelude, des: Design, compare_q_methods: bool, workers: int | None) -> Design:
+    """``design.q`` given is the budget (issue 44): the fusion kind at that q too, kept when it is certified and its
+    predicted steady RMS is smaller than ``des``'s (or ``des`` is not certified); else ``des``."""
+    sc = pre.sc
+    if sc.design.q == "auto" or not _fusion_offered(sc):
+        return des
+    fused_sc = dataclasses.replace(sc, design=dataclasses.replace(sc.design, consensus="fusion"))
+    try:
+        fused = _design(Prelude.of(fused_sc), "fusion", compare_q_methods, workers)
+    except (AssumptionError, DesignError):
+        return des
+    if not rate_certificate(fused).certified:
+        return des
+    mine, other = _predicted_all(fused), _predicted_all(des)
+    if rate_certificate(des).certified and (mine is None or (other is not None and other <= mine)):
+        return des
+    said = "no prediction" if other is None else f"predicted steady RMS {other:.4g}"
+    return _annotated(fused, f"design.consensus: auto chose fusion at the budget design.q = {sc.design.q} (predicted "
+                             f"steady RMS {mine:.4g}, certified) over {des.consensus} ({said}"
+                             f"{'' if rate_certificate(des).certified else ', rate NOT certified'})")
 
 
 def _best_split(pre: Prelude, compare_q_methods: bool, workers: int | None) -> Design:

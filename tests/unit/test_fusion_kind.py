@@ -26,7 +26,8 @@ from tests.conftest import EXAMPLES
 
 def ring(q=2, **keys):
     sc = ss.load_scenario(EXAMPLES / "ring10_noise.yaml")
-    d = dict(consensus="fusion", gains="optimal", q=q, resilience=0, K=None, **keys)
+    d = dict(consensus="fusion", gains="optimal", q=q, resilience=0, K=None)
+    d.update(keys)
     return dataclasses.replace(sc, design=dataclasses.replace(sc.design, **d))
 
 
@@ -146,3 +147,16 @@ def test_a_budget_too_small_for_the_split_says_the_fewest_exchanges_that_certify
     assert (f"the fewest exchanges that certify rate {sc.design.rate:g} with these design keys: q = {auto.q} per event "
             f"time (design.q: auto), against the budget design.q = {int(auto.q) - 1}") in design_text(short)
     assert design_json(auto)["fewest_certified_q"] is None  # certified: nothing to say
+
+
+def test_a_given_q_is_a_budget_auto_keeps_the_most_accurate_certified_kind_within_it():
+    """design.consensus: auto with design.q given: the fusion kind is designed at that q too, and kept when it is
+    certified and predicted more accurate (ring10_noise at q = 1: the split is not certified there)."""
+    sc = ring(q=1, consensus="auto")
+    des = design(sc)
+    assert des.consensus == "fusion" and des.q == 1 and rate_certificate(des).certified
+    assert des.chosen.startswith("design.consensus: auto chose fusion at the budget design.q = 1")
+    assert "rate NOT certified" in des.chosen  # what it was preferred to
+    alone = design(ring(q=1))  # the same gains as asked for by name
+    assert des.whole.radius == pytest.approx(alone.whole.radius, rel=1e-12)
+    assert design(ring(q="auto", consensus="auto")).consensus != "fusion"  # no budget: the choice as before
