@@ -8,7 +8,7 @@ choice between the whole state and the split) on drawn jointly detectable system
 The systems are :mod:`.test_detectable`'s (an observable part, a stable block nobody sees, mixed and scaled), the
 noise drawn per agent and output and per state (``system.measurement_noise: {agent: [stds]}``,
 ``system.process_noise: [one per state]``), each kind asked for by name (``design.consensus``: ``split``, ``whole``,
-or ``auto``'s choice).
+``fusion`` (the envelope only: its steady state is ``test_fusion_properties.py``'s), or ``auto``'s choice).
 
 A draw that is not checked (the designer refuses it in one line, its rate is not certified, its plant is unstable
 for the steady state, its transient too long to wait out) is counted by its reason, never silently dropped: each test
@@ -41,7 +41,7 @@ pytestmark = pytest.mark.filterwarnings("ignore:Convergence was not reached:User
 
 
 @st.composite
-def noisy(draw, stable: bool = False):
+def noisy(draw, stable: bool = False, kinds: tuple = ("auto", "split", "whole")):
     """A detectable drawn system with noise per agent and output, and per state, and gains left to the noise.
 
     ``stable``: the plant made stable without changing what the agents see (discrete: ``A`` divided by its spectral
@@ -69,7 +69,7 @@ def noisy(draw, stable: bool = False):
     process = [draw(st.sampled_from([0.0, 0.01, 0.1])) for _ in range(n)]
     process[draw(st.integers(0, n - 1))] = draw(st.sampled_from([0.01, 0.1]))  # some process noise, not filtered
     sys_["process_noise"] = process
-    data["design"] = {"rate": data["design"]["rate"], "consensus": draw(st.sampled_from(["auto", "split", "whole"]))}
+    data["design"] = {"rate": data["design"]["rate"], "consensus": draw(st.sampled_from(list(kinds)))}
     return data
 
 
@@ -99,7 +99,7 @@ def test_the_noise_optimal_designs_error_stays_under_its_certified_envelope():
     tally: Counter = Counter()
 
     @settings(max_examples=examples(25), **COMMON)
-    @given(noisy())
+    @given(noisy(kinds=("auto", "split", "whole", "fusion")))  # fusion's steady state: test_fusion_properties.py
     def check(data):
         des = _design(data, tally)
         if des is None:
