@@ -5,11 +5,14 @@ are given; a script that simulates two seeds of a power-system model paid its mi
 ``splitspec run`` designed it in the command (to fail fast) and again in the orchestrator process.  They all call
 :func:`cached_design`:
 
-* the key: the SHA-256 of the scenario pickled (every matrix, key and setting it holds), the options that change
-  the result (``compare_q_methods``; not ``workers``: the same numbers either way), the source of
+* the key: the SHA-256 of the scenario pickled (every matrix, key and setting it holds) but for what no design
+  reads (:data:`NOT_DESIGNED`: the file it came from, the drawing's positions, the run's seed, pace, retention and
+  recording: ``pace`` measures a copy of the scenario with ``run.record_every`` set, and designed it again), the
+  options that change the result (``compare_q_methods``; not ``workers``: the same numbers either way), the source of
   ``splitspec_core`` itself and the numpy and scipy versions: a design is reused only where it would be computed
   again bit for bit;
-* in this process: the last :data:`MEMORY` designs (the same object is returned: its cached analyses with it);
+* in this process: the last :data:`MEMORY` designs (the same object is returned: its cached analyses with it; for
+  a scenario that differs in what no design reads, a copy holding that scenario, the analyses with it);
 * on disk: designs that took at least :data:`DISK_MIN_SECONDS` (the cheap ones are not worth a file), written when
   designed and again when this process exits if analyses were computed on them meanwhile (the transient constant,
   the bad-data covariances: on the IEEE 14-bus model these take as long as the design itself), in
@@ -33,7 +36,7 @@ import time
 from collections import OrderedDict
 from pathlib import Path
 
-__all__ = ["MEMORY", "DISK_MIN_SECONDS", "DISK_KEEP", "cache_dir", "design_key", "cached_design", "clear_memory"]
+__all__ = ["MEMORY", "DISK_MIN_SECONDS", "DISK_KEEP", "NOT_DESIGNED", "cache_dir", "design_key", "cached_design", "clear_memory"]
 
 #: designs kept in this process
 MEMORY = 4
@@ -41,6 +44,10 @@ MEMORY = 4
 DISK_MIN_SECONDS = 1.0
 #: design files kept on disk (the newest)
 DISK_KEEP = 32
+
+#: the run's keys no design reads (set to their defaults in the key); the scenario's ``source`` and ``positions`` too
+NOT_DESIGNED = ("seed", "pace", "show", "until_stopped", "keep_hours", "keep_gigabytes", "keep_recording_hours",
+                "record_every")
 
 _memory: "OrderedDict[str, object]" = OrderedDict()
 _on_disk: dict = {}  # key -> (folder, design, analyses it held when written): written again at exit if they grew
@@ -98,13 +105,37 @@ def design_key(sc, *, compare_q_methods: bool = False) -> str | None:
     (True, False)
     """
     try:
-        body = pickle.dumps(sc, protocol=pickle.HIGHEST_PROTOCOL)
+        body = pickle.dumps(_designed_part(sc), protocol=pickle.HIGHEST_PROTOCOL)
     except (pickle.PicklingError, TypeError, AttributeError):
         return None
     h = hashlib.sha256(_code_digest().encode())
     h.update(b"compare_q_methods=1" if compare_q_methods else b"compare_q_methods=0")
     h.update(body)
     return h.hexdigest()
+
+
+def _designed_part(sc):
+    """``sc`` with what no design reads set to its defaults (:data:`NOT_DESIGNED`)."""
+    import dataclasses
+
+    from ..scenarios.specs import RunSpec
+
+    default = RunSpec()
+    run = dataclasses.replace(sc.run, **{k: getattr(default, k) for k in NOT_DESIGNED})
+    return dataclasses.replace(sc, run=run, source="<scenario>", positions=None)
+
+
+def _for(sc, des):
+    """``des`` for ``sc``: itself when it was designed from this scenario, else a copy holding ``sc`` (the same key:
+    they differ only in what no design reads), its analyses shared."""
+    import dataclasses
+
+    if des.scenario is sc or pickle.dumps(des.scenario, protocol=pickle.HIGHEST_PROTOCOL) == pickle.dumps(
+            sc, protocol=pickle.HIGHEST_PROTOCOL):
+        return des
+    out = dataclasses.replace(des, scenario=sc)
+    out._analyses.update(des._analyses)
+    return out
 
 
 def clear_memory() -> None:
@@ -202,12 +233,12 @@ def cached_design(sc, *, compare_q_methods: bool = False, workers: int | None = 
         return design(sc, compare_q_methods=compare_q_methods, workers=workers)
     if key in _memory:
         _memory.move_to_end(key)
-        return _memory[key]
+        return _for(sc, _memory[key])
     des = _load(folder / f"{key}.pickle")
     if des is not None:
         _remember(key, des)
         _kept_on_disk(folder, key, des)
-        return des
+        return _for(sc, des)
     t0 = time.perf_counter()
     des = design(sc, compare_q_methods=compare_q_methods, workers=workers)
     _remember(key, des)

@@ -114,3 +114,23 @@ def test_analyses_computed_after_the_design_are_written_back_at_exit(tmp_path):
     with open(path, "rb") as fh:
         kept = pickle.load(fh)
     assert len(kept._analyses) > int(out.stdout.split()[0])
+
+
+def test_what_no_design_reads_does_not_design_again_and_the_copy_holds_its_own_scenario(counted, tmp_path):
+    # pace measures a copy of the scenario written elsewhere with run.record_every set: the design is the one kept
+    calls, _ = counted
+    text = (EXAMPLES / "ring10_noise.yaml").read_text()
+    sc = ss.load_scenario(EXAMPLES / "ring10_noise.yaml")
+    first = design_cache.cached_design(sc)
+    probe = tmp_path / "probe.yaml"
+    assert "run: {steps: 200, seed: 1}" in text
+    probe.write_text(text.replace("run: {steps: 200, seed: 1}", "run: {steps: 200, seed: 5, record_every: 3}"))
+    other = ss.load_scenario(probe)
+    assert other.run.record_every == 3 and other.source != sc.source
+    again = design_cache.cached_design(other)
+    assert calls == ["ring10-noise"]
+    assert again.scenario is other and first.scenario is sc
+    assert design_text(again) == design_text(first)
+    # a key the design reads (run.dt, design.rate) is designed again
+    design_cache.cached_design(dataclasses.replace(sc, design=dataclasses.replace(sc.design, rate=0.7)))
+    assert len(calls) == 2
