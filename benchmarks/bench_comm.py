@@ -10,7 +10,12 @@ For each model and each q (exchanges per event time), side by side on the same n
 * the fusion kind (:mod:`splitspec_core.synthesis.fusion`), predicted (its Lyapunov covariance) and measured (mean
   and spread over ``--seeds`` runs), with its spectral radius against the scenario's rate per event time;
 * Rego's steady-state distributed Kalman filter (one estimate per step, :class:`SteadyStateDKF`), a baseline at q = 1;
-* the Kalman-consensus filter (Olfati-Saber, :class:`KalmanConsensusFilter`) with q exchanges, measured.
+* the Kalman-consensus filter (Olfati-Saber, :class:`KalmanConsensusFilter`) with q exchanges, measured;
+* the product's other estimator kinds at the same q (``design.consensus: whole`` and, in discrete time, ``split``,
+  ``design.q: q``) and its default design (``consensus: auto``, ``q: auto``), as ``splitspec design`` makes them:
+  predicted (their Lyapunov covariance, :func:`~splitspec_core.synthesis.error_matrix.predicted_rms`, which
+  ``tests/unit/test_step_oracle.py`` and the noise tests hold to the simulator) and certified or not at the rate
+  (``--kinds``; none: leave them out).
 
 Numbers sent: per agent per event time, ``q n`` for the fusion kind (one estimate per exchange), ``n`` for Rego's,
 ``n + s_i`` then ``n`` per further exchange for the KCF (its first message carries the prior and the measurement; the
@@ -18,6 +23,7 @@ most any agent sends is counted).
 
     .venv/bin/python benchmarks/bench_comm.py                       # every model, q = 1 2 3
     .venv/bin/python benchmarks/bench_comm.py --models rego --q 1 2 3 --seeds 5
+    .venv/bin/python benchmarks/bench_comm.py --models ieee39_pmu --q 3 --rego-iterations 0 --append
 
 Writes benchmarks/results/bench_comm.json and docs/figures/bench_comm.png (``--no-write``: print only); the printed
 table of the run quoted in docs/benchmarks/index.md is kept as benchmarks/results/bench_comm.txt.
@@ -26,6 +32,7 @@ table of the run quoted in docs/benchmarks/index.md is kept as benchmarks/result
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import logging
 import sys
@@ -41,8 +48,10 @@ from splitspec_core.model.plant import output_rows
 from splitspec_core.studies.baselines import KalmanConsensusFilter, run_predictor
 from splitspec_core.studies.few_exchanges import SteadyStateDKF, run_fusion, simulate_measurements
 from splitspec_core.synthesis.fusion import design_fusion, neighbour_positions
+from splitspec_core.synthesis.error_matrix import predicted_rms
 from splitspec_core.synthesis.kalman import kalman_predictor, per_step_rate, references
-from splitspec_core.synthesis.exchange_limit import hop_distances, network_model, protocol_limit
+from splitspec_core.synthesis.exchange_limit import design_exchanges, hop_distances, network_model, protocol_limit
+from splitspec_core.synthesis.verdict import rate_certificate
 
 from _common import loadavg
 
@@ -97,6 +106,35 @@ def best_shifted(F, C, Q, R, lam: float, kf) -> float | None:
     return best
 
 
+def product_kinds(sc, qs, kinds, kf_rms: float) -> list:
+    """The product's designs of each kind at each q, and its default design: what ``splitspec design`` says of them
+    (numbers sent, certified, predicted ratio to the Kalman predictor), one row each."""
+    rows = []
+    todo = [(k, q) for k in kinds if not (k == "split" and sc.time == "continuous") for q in qs]
+    for kind, q in todo + ([("auto", "auto")] if kinds else []):
+        s = dataclasses.replace(sc, design=dataclasses.replace(sc.design, consensus=kind, q=q))
+        t0 = time.perf_counter()
+        try:
+            des = ss.design(s).detail
+            pred = float(np.sqrt(np.mean(predicted_rms(des) ** 2)))
+            cert = rate_certificate(des)
+        except SplitspecError as exc:
+            print(f"   {kind} q={q}: refused: {exc}", flush=True)
+            rows.append({"estimator": kind, "q": q, "refused": str(exc)})
+            continue
+        t_des = time.perf_counter() - t0
+        ex = design_exchanges(des)
+        label = f"{des.consensus} q={des.q}" + (" (default)" if kind == "auto" else "")
+        r = {"estimator": des.consensus, "q": int(des.q), "default": kind == "auto", "numbers": ex.numbers,
+             "limit": None if ex.limit is None else ex.limit.ratio, "predicted": pred / kf_rms if np.isfinite(pred)
+             else None, "certified": bool(cert.certified), "design_s": t_des}
+        rows.append(r)
+        shown = "unstable" if r["predicted"] is None else f"{r['predicted']:.4f}"
+        print(f"   {label:<22}: sends {ex.numbers:5d}  predicted {shown}  "
+              f"{'certified' if cert.certified else 'NOT certified'} at the rate  design {t_des:.1f} s", flush=True)
+    return rows
+
+
 def _measured(F, Cs, Q, Rs, runs: dict, seeds: int, steps: int, burn: int) -> dict:
     """RMS ratio to the Kalman predictor run on the same realisation, per estimator, over the seeds."""
     C = np.vstack(Cs)
@@ -114,7 +152,8 @@ def _measured(F, Cs, Q, Rs, runs: dict, seeds: int, steps: int, burn: int) -> di
     return out
 
 
-def bench_model(key: str, qs, seeds: int, steps: int | None, rego_iterations: int = 2000) -> dict:
+def bench_model(key: str, qs, seeds: int, steps: int | None, rego_iterations: int = 2000,
+                kinds=("whole", "split")) -> dict:
     sc = MODELS[key]()
     F, Q, R, Cs, Rs, arcs = _parts(sc)
     m, n = sc.m, sc.n
@@ -187,6 +226,7 @@ def bench_model(key: str, qs, seeds: int, steps: int | None, rego_iterations: in
                             "design_s": t_rego})
         print(f"   Rego SSDKF : sends {n:5d}  predicted {rego.ratio:.4f}  measured {np.mean(mm):.4f} "
               f"[{min(mm):.4f}, {max(mm):.4f}]  radius {rego.radius:.6g}  design {t_rego:.1f} s", flush=True)
+    row["rows"] += product_kinds(sc, qs, kinds, kf_ref.rms)
     row["steps"], row["burn"], row["seeds"] = steps, burn, seeds
     return row
 
@@ -215,6 +255,12 @@ def figure(rows: list, path: Path) -> None:
         if kcf:
             ax.plot([r["numbers"] for r in kcf], [np.mean(r["measured"]) for r in kcf], "C2^:",
                     label="KCF, measured")
+        for kind, style in (("whole", "C4"), ("split", "C5")):  # filled: certified at the rate; hollow: not
+            pts = [r for r in row["rows"] if r["estimator"] == kind and r.get("predicted")]
+            for r in pts:
+                ax.plot([r["numbers"]], [r["predicted"]], style + ("*" if r.get("default") else "D"),
+                        mfc=style if r["certified"] else "none", ms=9 if r.get("default") else 6,
+                        label=f"{kind}, predicted" + (" (the default design)" if r.get("default") else ""))
         for r in row["rows"]:
             if r["estimator"] == "rego":
                 ax.plot([r["numbers"]], [r["predicted"]], "C3s", label="Rego SSDKF (exchange, then measure)")
@@ -230,7 +276,11 @@ def figure(rows: list, path: Path) -> None:
         ax.set_title(f"{row['model']} (m={row['m']}, n={row['n']})", fontsize=10)
         ax.set_xlabel("numbers each agent sends per event time")
         ax.set_ylabel("RMS error / centralized KF's")
-        ax.legend(fontsize=7)
+        handles, labels = ax.get_legend_handles_labels()
+        seen = {}
+        for h, lab in zip(handles, labels):
+            seen.setdefault(lab, h)
+        ax.legend(seen.values(), seen.keys(), fontsize=6)
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=110)
@@ -244,6 +294,8 @@ def main(argv=None) -> int:
     p.add_argument("--steps", type=int, default=None, help="event times per run (default: 12 settling times)")
     p.add_argument("--rego-iterations", type=int, default=2000,
                    help="the most covariance iterations of Rego's filter's design (0: leave it out)")
+    p.add_argument("--kinds", nargs="*", default=["whole", "split"], choices=["whole", "split"],
+                   help="the product's other kinds at each q, and its default design (none given: leave them out)")
     p.add_argument("--no-write", action="store_true")
     p.add_argument("--append", action="store_true",
                    help="keep the records' other models, replace only these (a large model's rows run alone)")
@@ -263,7 +315,7 @@ def main(argv=None) -> int:
         warnings.simplefilter("ignore")
         for key in args.models:
             t0 = time.perf_counter()
-            rows.append(bench_model(key, sorted(args.q), args.seeds, args.steps, args.rego_iterations))
+            rows.append(bench_model(key, sorted(args.q), args.seeds, args.steps, args.rego_iterations, args.kinds))
             print(f"   ({time.perf_counter() - t0:.0f} s, load {loadavg()})", flush=True)
     if not args.no_write:
         RESULTS.mkdir(parents=True, exist_ok=True)
