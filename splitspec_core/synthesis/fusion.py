@@ -81,6 +81,8 @@ OUTER = 60
 #: the trace of ``X`` settled: no fall by more than this fraction in ``STALL`` policy iterations
 TOL = 1e-7
 STALL = 2
+#: damped policy steps, tried in turn where the greedy gains do not stabilise: the fraction of the step taken
+DAMP = (0.5, 0.25, 0.125)
 #: search steps of the shift alpha (regula falsi, bisection where a failed design has no radius)
 ALPHA_STEPS = 6
 #: a continuation step keeps the last stable gains' radius on F / alpha at most this (closer to 1 its covariance
@@ -401,9 +403,27 @@ def steady_covariance(M: np.ndarray, N: np.ndarray, *, doublings: int = 60) -> n
     raise DesignError("the fusion design's error map is not stable: no steady covariance")
 
 
+def _blend(old: tuple, new: tuple, beta: float) -> tuple:
+    """``(1 - beta) old + beta new`` of two gain sets ``(Ls, weights)``: every ``sum_j W_ij(k) = I`` is kept."""
+    Ls = tuple((1.0 - beta) * a + beta * b for a, b in zip(old[0], new[0]))
+    weights = tuple(tuple((1.0 - beta) * a + beta * b for a, b in zip(ko, kn)) for ko, kn in zip(old[1], new[1]))
+    return Ls, weights
+
+
+def _evaluate(Fa, Cs, Rs, nbs, QQ, gains) -> np.ndarray:
+    """The steady covariance of frozen gains in the design's model; DesignError when they do not stabilise it."""
+    M, P = error_map(Fa, Cs, gains[0], gains[1], nbs)
+    noise = P @ sla.block_diag(*[L @ R @ L.T for L, R in zip(gains[0], Rs)]) @ P.T + QQ
+    return steady_covariance(M, noise)
+
+
 def _design_at(F, Cs, Q, Rs, nbs, q, alpha, X0, fixed=FIXED):
     """Gains at one shift ``alpha``: ``fixed`` plain event times, then policy iteration; ``(Ls, weights, X,
-    iterations)`` with ``X`` the steady covariance of the returned gains in the design's model (``F / alpha``)."""
+    iterations)`` with ``X`` the steady covariance of the returned gains in the design's model (``F / alpha``).
+
+    Where the greedy gains of a steady covariance do not stabilise the design's model, the step is damped: the
+    gains ``(1 - beta) last + beta greedy`` for ``beta`` in ``DAMP`` (convex: each ``sum_j W_ij = I`` kept), the last
+    stabilising ones at ``beta = 0``; where none stabilises either, ``FIXED`` more plain event times."""
     m, n = len(Cs), F.shape[0]
     Fa = F / alpha
     QQ = np.kron(np.ones((m, m)), Q) / alpha ** 2
@@ -411,18 +431,23 @@ def _design_at(F, Cs, Q, Rs, nbs, q, alpha, X0, fixed=FIXED):
     for _ in range(fixed):
         Ls, weights, Xn = fusion_gains(X, Fa, Cs, Rs, nbs, q)
         X = Xn + QQ
-    best, stalled = None, 0
+    best, stalled, last = None, 0, None
     for it in range(1, OUTER + 1):
         Ls, weights, _ = fusion_gains(X, Fa, Cs, Rs, nbs, q)
-        M, P = error_map(Fa, Cs, Ls, weights, nbs)
-        noise = P @ sla.block_diag(*[L @ R @ L.T for L, R in zip(Ls, Rs)]) @ P.T + QQ
-        try:
-            X = steady_covariance(M, noise)
-        except DesignError:  # not yet stabilising: more plain event times
+        found = None
+        for beta in (1.0,) + (DAMP if last is not None else ()):
+            gains = (Ls, weights) if beta == 1.0 else _blend(last, (Ls, weights), beta)
+            try:
+                found = gains, _evaluate(Fa, Cs, Rs, nbs, QQ, gains)
+                break
+            except DesignError:
+                continue
+        if found is None:  # not yet stabilising: more plain event times
             for _ in range(FIXED):
                 Ls, weights, Xn = fusion_gains(X, Fa, Cs, Rs, nbs, q)
                 X = Xn + QQ
             continue
+        last, X = found
         tr = np.trace(X)
         # near the fixed point the gains move in directions the covariance hardly feels (neighbours' estimates
         # nearly equal): the trace wanders at 1e-5 of itself; the best frozen gains seen are kept
@@ -431,7 +456,7 @@ def _design_at(F, Cs, Q, Rs, nbs, q, alpha, X0, fixed=FIXED):
         else:
             stalled += 1
         if best is None or tr < best[0]:
-            best = (tr, Ls, weights, it, X)
+            best = (tr, last[0], last[1], it, X)
         if stalled >= STALL:
             break
     if best is None:
