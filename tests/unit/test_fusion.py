@@ -7,6 +7,8 @@ against a long noisy run.
 
 from __future__ import annotations
 
+import re
+
 from pathlib import Path
 
 import numpy as np
@@ -143,8 +145,11 @@ def test_fusion_is_certified_at_a_rate_it_reaches_and_refuses_one_it_cannot():
     fast = design_fusion(F, Cs, Q, Rs, nbs, 1, rate=0.9 * free.radius)
     assert fast.radius < 0.9 * free.radius and fast.alpha < 1.0
     assert fast.rms >= free.rms * (1 - 1e-9)  # a faster rate costs accuracy, never gains it
-    with pytest.raises(DesignError, match="not certified"):
+    with pytest.raises(DesignError, match="not certified") as refused:
         design_fusion(F, Cs, Q, Rs, nbs, 1, rate=1e-6)
+    # the refusal says how far the shift got: a radius below the unshifted one, still above the rate
+    shifted = re.search(r"([0-9.e-]+) at the most shifted", str(refused.value))
+    assert shifted is not None and 1e-6 < float(shifted.group(1)) < free.radius
 
 
 @pytest.mark.slow
