@@ -67,8 +67,8 @@ FOLDED = 64
 class FusionPart:
     """The fusion kind's part of an agent (:mod:`splitspec_core.synthesis.fusion_kind`), from its configuration's
     ``gain`` (:func:`~splitspec_core.synthesis.fusion_kind.agent_fusion`): the per-step model ``F``, ``L_i`` and
-    ``{j: W_ij(k)}`` per graph, the known input's map per step (``D`` on the sampled model).  Its three steps are the
-    simulator's ``FusionRound``'s for this agent: ``z_i(0) = x_i + L_i (y_i - C_i x_i)``; per sub-round
+    ``{j: W_ij(k)}`` per graph, the known input's map per step (``D`` on the sampled model).  Its three steps are
+    the simulator's (``kinds.Fusion``) for this agent: ``z_i(0) = x_i + L_i (y_i - C_i x_i)``; per sub-round
     ``z_i(k) = sum_j W_ij(k) z_j(k - 1)`` over the neighbours whose estimates count, the others' weights folded into
     its own; ``x_i(tau + 1) = F z_i(q) [+ B u]``."""
 
@@ -479,7 +479,7 @@ class AgentNode:
         return self._update_then_exchange(r, update, lambda got, k: st.weighted_average(got[2], got[1]), lambda z: z)
 
     def _advance_fusion(self, r: dict) -> list:
-        """The fusion kind's round (:class:`FusionPart`), as the simulator's ``FusionRound`` runs it for this agent."""
+        """The fusion kind's round (:class:`FusionPart`), as the simulator's ``kinds.Fusion`` runs it for this agent."""
         part, g = self.fusion, r["graph"]
 
         def update(y):

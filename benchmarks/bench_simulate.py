@@ -58,7 +58,7 @@ import scipy
 import scipy.linalg as sla
 
 from splitspec_core.synthesis.designer import design
-from splitspec_core.simulation.simulator import _spmv
+from splitspec_core.simulation.kinds import spmv as _spmv
 from splitspec_core.scenarios.generate import random_strongly_connected_arcs, random_system
 from splitspec_core.model.network import consensus_rows
 from splitspec_core.scenarios.load import parse_scenario

@@ -52,6 +52,7 @@ from ..errors import ScenarioError
 from ..model.network import NetworkState, make_plan
 from ..model.plant import advanced, initial_estimate, measured, seed_draws
 from ..model.rows import REPORTED, empty
+from .kinds import consensus_matrix, kind_of
 from .loop import run_steps
 from .simulator import (BatchEstimator, NetworkWeights, Trajectory, realized_step, check_trajectory_memory,
                         simulate, round_columns)
@@ -169,29 +170,12 @@ def fallback_reason(des: Design, *, lost=None, measurements=None, exact: bool = 
         return "random switching drawn from each run's seed"
     if sc.design.bad_data is not None:
         return "design.bad_data: each agent's test decides, per seed, which measurements it uses"
-    if des.consensus == "fusion":
-        return "the fusion kind runs its agents' steps one seed at a time (simulator.FusionRound)"
-    return None
-
-
-try:  # the CSR kernel writing into a given array (scipy's product allocates a new one every call)
-    from scipy.sparse._sparsetools import csr_matvecs as _csr_matvecs
-except ImportError:  # pragma: no cover - private API moved: fall back to the public product
-    _csr_matvecs = None
-
-
-def _spmm(S: sp.csr_matrix, Z: np.ndarray, out: np.ndarray) -> np.ndarray:
-    """``out = S @ Z`` for a CSR matrix and a C-contiguous float64 matrix; each row sums in entry order."""
-    if _csr_matvecs is None:
-        out[...] = S @ Z
-        return out
-    out.fill(0.0)
-    _csr_matvecs(S.shape[0], S.shape[1], Z.shape[1], S.indptr, S.indices, S.data, Z.ravel(), out.ravel())
-    return out
+    return kind_of(des).seeds_refusal
 
 
 class SeedBatchEstimator(BatchEstimator):
-    """:class:`~splitspec_core.simulation.simulator.BatchEstimator` with a trailing seed axis: state ``X`` (m, n, N).
+    """:class:`~splitspec_core.simulation.simulator.BatchEstimator` with a trailing seed axis: state ``X`` (m, n, N)
+    (each kind's seeds form, :meth:`.kinds.Kind.seeds_step`).
 
     Discrete sub-rounds run as eq. (split-discrete-p2) in full coordinates,
     ``Z <- Z + P (S Z - Z)`` (one sparse product with ``n N`` columns, one batched ``P_i`` product); the update
@@ -202,8 +186,7 @@ class SeedBatchEstimator(BatchEstimator):
     def __init__(self, des: Design, seeds: int):
         super().__init__(des)
         self.N = int(seeds)
-        if self.continuous:
-            self.g = np.repeat(self.g[:, None], self.N, axis=1)
+        self.kind.for_seeds(self.N)
 
     def weights(self, rows: dict) -> sp.csr_matrix:
         """``S`` (m x m, sparse): row i holds agent i's weights on its alive neighbours.
@@ -216,19 +199,9 @@ class SeedBatchEstimator(BatchEstimator):
         Returns
         -------
         scipy.sparse.csr_matrix
-            ``S`` restricted to the alive agents, in both times and both designs.
+            ``S`` restricted to the alive agents, in both times and every kind that batches seeds.
         """
-        pos = {a: k for k, a in enumerate(self.sc.agent_ids)}
-        ri = [pos[i] for i, (nbs, _) in rows.items() for _ in nbs]
-        ci = [pos[j] for _, (nbs, _) in rows.items() for j in nbs]
-        w = [x for _, (_, ws) in rows.items() for x in ws]
-        return sp.csr_matrix((w, (ri, ci)), shape=(self.m, self.m))
-
-    def _Y(self, y: np.ndarray) -> np.ndarray:
-        """Stacked ``y`` (sum s_i, N) to per-agent, zero-padded (m, s_max, N)."""
-        Y = np.zeros((self.m, self.Kp.shape[2], self.N))
-        Y[self._yidx] = y
-        return Y
+        return consensus_matrix(self.sc, rows)
 
     def step(self, X: np.ndarray, y: np.ndarray, W, alive: np.ndarray, missing=None) -> np.ndarray:
         """One step of every seed; ``W`` one ``S`` for every exchange (lossless).
@@ -251,21 +224,11 @@ class SeedBatchEstimator(BatchEstimator):
         (m, n, N) ndarray
             The estimates ``x_i(k+1)`` of every seed, zero for the dead agents.
         """
-        return self.step_realized(X, y, [W] * (1 if self.continuous else self.q), alive)
-
-    def _whole(self, X: np.ndarray, Y: np.ndarray, Ws: list, alive: np.ndarray) -> np.ndarray:
-        """The whole-state design (whole_state.py): ``z_i(0) = F_i x_i - K_s,i y_i``, then ``z <- S_k z`` per
-        exchange."""
-        m, n, N = X.shape
-        Z = np.matmul(self.Fst, X) - np.matmul(self.Kp, Y)
-        for S in Ws:
-            Z = (S @ Z.reshape(m, n * N)).reshape(m, n, N)
-        Z[~alive] = 0.0
-        return Z
+        return self.step_realized(X, y, [W] * self.kind.exchanges, alive)
 
     def step_realized(self, X: np.ndarray, y: np.ndarray, Ws: list, alive: np.ndarray, missing=None) -> np.ndarray:
-        """One step of every seed with one ``S_k`` per exchange (sparse or :class:`_RealizedS`, the same for every
-        seed: a partition, never a drawn loss).
+        """One step of every seed with one ``S_k`` per exchange (sparse or realized, the same for every seed: a
+        partition, never a drawn loss).
 
         Parameters
         ----------
@@ -286,41 +249,7 @@ class SeedBatchEstimator(BatchEstimator):
             The estimates ``x_i(k+1)`` of every seed, zero for the dead agents.  With the adaptive gain this
             also advances ``g`` (m, N).
         """
-        m, n, N = X.shape
-        Y = self._Y(y)
-        if self.whole:
-            return self._whole(X, Y, Ws, alive)
-        if self.continuous:
-            S = Ws[0]
-            diff = X - (S @ X.reshape(m, n * N)).reshape(m, n, N)
-            PD = np.matmul(self.Pst, diff)
-            # steps.sampled_step: x_i <- E x_i + D [K_i (C_i x_i - y_i) - g_i P_i (x_i - sum_j w_ij x_j)]
-            corr = np.matmul(self.KC, X) - np.matmul(self.Kp, Y) - self.g[:, None, :] * PD
-            Xn = np.matmul(self.E, X) + np.matmul(self.D, corr)
-            if self.adaptive:
-                # eq. (adaptive): |V_i'(avg_i - x_i)|^2 = diff' R_i R_i' diff (diff' P_i diff for orthogonal P_i)
-                rate = np.einsum("ijs,ijs->is", diff, np.matmul(self.Rgram, diff))
-                self.g = np.where(alive[:, None], self.g + self.dt * rate, self.g)
-        elif all(isinstance(S, sp.csr_matrix) for S in Ws):
-            # eq. split-discrete-p2: (I - P_i) z_i(k) = (I - P_i) z_i(tau) for every k, so
-            # z_i <- (I - P_i) x_i + P_i sum_j w_ij z_j, in place (no temporary of the state's size)
-            U = X - np.matmul(self.Pst, X)
-            Z = X.copy()
-            SZ = np.empty((m, n * N))
-            for S in Ws:
-                _spmm(S, Z.reshape(m, n * N), SZ)
-                np.matmul(self.Pst, SZ.reshape(m, n, N), out=Z)
-                Z += U
-        else:  # realized graphs of a partition (a _RealizedS per exchange)
-            Z = X
-            for S in Ws:
-                # eq. split-discrete-p2: z_i <- z_i + P_i (sum_j w_ij z_j - z_i)
-                Z = Z + np.matmul(self.Pst, (S @ Z.reshape(m, n * N)).reshape(m, n, N) - Z)
-        if not self.continuous:
-            # eq. split-discrete-est1: x_i <- (A + K_i C_i) z_i(q) - K_i y_i
-            Xn = np.matmul(self.Fst, Z) - np.matmul(self.Kp, Y)
-        Xn[~alive] = 0.0
-        return Xn
+        return self.kind.seeds_step(X, self.kind.Y(y), Ws, alive)
 
 
 def simulate_seeds(des: Design, seeds, *, steps: int | None = None, noise: bool = True,
@@ -445,7 +374,7 @@ def _batch(des: Design, seeds: tuple, *, steps, noise, trajectories) -> tuple:
         rounds = {c.name: empty(c, T, m, n) for c in REPORTED if c.reported == "round"}  # the same for every seed
         lost_rows: list = []
     impaired = any(f.drops_messages for f in sc.faults)  # the only losses that are the same for every seed
-    exchanges = 1 if est.continuous else int(des.q)
+    exchanges = est.kind.exchanges
     weights = NetworkWeights(est, sc)
 
     def restart(killed, rejoined):
@@ -453,8 +382,7 @@ def _batch(des: Design, seeds: tuple, *, steps, noise, trajectories) -> tuple:
             X[i] = 0.0
         for i, inc in rejoined:
             X[i] = np.stack([initial_estimate(n, s, i, inc) for s in seeds], axis=1)
-            if est.adaptive:
-                est.g[i] = sc.design.g0
+            est.kind.restart(i)
 
     def record(k):
         e2 = np.einsum("ijs,ijs->is", X - x[None], X - x[None])  # (m, N)
@@ -464,8 +392,9 @@ def _batch(des: Design, seeds: tuple, *, steps, noise, trajectories) -> tuple:
             xs[:, k] = x.T
             xh[:, k, alive] = X[alive].transpose(2, 0, 1)
             al[k] = alive
-            if est.continuous:
-                g[:, k, alive] = est.g[alive].T
+            gains = est.kind.gains()
+            if gains is not None:
+                g[:, k, alive] = gains[alive].T
 
     def update(k, y):
         nonlocal X

@@ -11,6 +11,9 @@ Three estimators share one driver (plant, noise streams, switching, faults):
   eq. (split_continuous_observer), integrated with a matrix exponential per
   step (graphs piecewise constant), noise-free, for comparison.
 
+Each estimator runs the design's kind (:mod:`.kinds`: the discrete or sampled-data split, the whole state, the
+fusion kind) in its form; neither the estimators nor the driver branch on the kind.
+
 Step order at step k (time ``t_k``), the one loop of :mod:`splitspec_core.simulation.loop`: apply faults at
 k; record ``x(k), x_i(k)``; measure ``y_i(k) = C_i x(k) + w_i(k)`` (as the sensor faults in force change it);
 every alive agent updates to ``x_i(k+1)``; the plant moves to ``x(k+1)``.
@@ -32,7 +35,6 @@ from pathlib import Path
 
 import numpy as np
 import scipy.linalg as sla
-import scipy.sparse as sp
 
 from ..model import steps as st
 from ..synthesis.design_data import Design
@@ -41,9 +43,10 @@ from ..model.network import NetworkState, Plan, make_plan
 from ..model.plant import Plant, RecordedPlant, initial_estimate, initial_state, output_rows
 from ..model.rows import REPORTED, column, empty
 from ..model.screening import Screen
-from ..model.impairment import PARTITION, Impairment, crosses, group_of, realized_row
+from ..model.impairment import PARTITION, Impairment, crosses, group_of
 from ..scenarios.faults import PLANT
 from ..scenarios.specs import Scenario
+from .kinds import EXACT_NEEDS_FIXED_G, exact_refusal, kind_of, realized_rows, weight_entries
 from .loop import run_steps
 from .trajectory_file import lost_arrays, write_trajectory
 
@@ -309,6 +312,9 @@ def check_trajectory_memory(sc: Scenario, steps: int | None = None, *, key: str 
 
 
 class _EstimatorBase:
+    """What every form of the estimator holds: the design's matrices, the bad-data test, and its kind
+    (:mod:`.kinds`: the one dispatch on which estimator the design is, made here once)."""
+
     def __init__(self, des: Design):
         sc = des.scenario
         self.des, self.sc = des, sc
@@ -319,34 +325,9 @@ class _EstimatorBase:
         self.Ps = [np.asarray(P) for P in des.Ps]
         self.Vs = [np.asarray(V) for V in des.Vs]  # R_i: eq. (adaptive) projects with R_i' (= V_i' unless balanced)
         self.Ls = [np.asarray(L) for L in des.Ls]  # L_i: P_i = L_i R_i' (the working coordinates: local_design.py)
-        # the whole-state design (synthesis/whole_state.py): update, then average q times, on the per-step model in
-        # both times; ``continuous`` below means the paper's sampled-data form with g
-        self.whole = des.consensus == "whole"
-        # the fusion kind (synthesis/fusion_kind.py): measure, fuse q times with matrix weights, predict; every step of
-        # it, batched or looped, is FusionRound's (the agent process runs the same steps.py functions)
-        self.fusion = des.consensus == "fusion"
+        self.pos = {a: k for k, a in enumerate(sc.agent_ids)}
+        self.rows_y = output_rows(self.Cs)
         self.graph = 0  # the active graph's index, set per step by simulate (the fusion kind's gains are per graph)
-        self.continuous = sc.time == "continuous" and not (self.whole or self.fusion)
-        self.adaptive = self.continuous and des.g_mode == "adaptive"
-        self.G = None  # the whole-state step's map of the known input B u (continuous: D), None: itself
-        if self.continuous:
-            self.E, self.D, _ = st.sampled_data_matrices(self.A, sc.run.dt)
-            self.dt = sc.run.dt
-            self.g = np.full(self.m, sc.design.g0 if self.adaptive else float(des.g))
-        elif self.fusion:
-            self.q = int(des.q)
-            self.kind = FusionRound(des)
-        elif self.whole:
-            self.q = int(des.q)
-            dt = sc.run.dt if sc.time == "continuous" else None
-            ED = None if dt is None else st.sampled_data_matrices(self.A, dt)[:2]
-            mats = [st.step_matrices(self.A, K, C, dt=dt, sampled=ED) for K, C in zip(self.Ks, self.Cs)]
-            self.A_step, self.G = mats[0][0], mats[0][3]
-            self.F = [mt[1] for mt in mats]
-            self.Ks = [mt[2] for mt in mats]  # K_s,i = K_i, or D K_i: what the step applies to y_i
-        else:
-            self.q = int(des.q)
-            self.F = [self.A + K @ C for K, C in zip(self.Ks, self.Cs)]
         # design.bad_data: every agent tests its measurement before its update (model/screening.py, the agents' own
         # steps.innovation_test); a suspect sensor's agent takes P_i = I and no measurement; ``tau`` set per step
         from ..synthesis.bad_data import bad_data
@@ -354,70 +335,37 @@ class _EstimatorBase:
         bd = bad_data(des)
         self.screen = None if bd is None else Screen(bd, self.Cs, sc.agent_ids)
         self.tau = 0
+        self.kind = kind_of(des)(self)
 
-    def _fusion_step(self, X: np.ndarray, y: np.ndarray, rounds: list, missing, bu) -> np.ndarray:
-        """The fusion kind's event time on this step's graph, ``rounds`` the rows of each exchange."""
-        ys = [None if missing is not None and missing[k] else y[r] for k, r in enumerate(self.kind.rows_y)]
-        return self.kind.step(X, ys, rounds, bu, self.graph)
+    def screen_of(self, Z: np.ndarray, y: np.ndarray, missing, alive: np.ndarray):
+        """The bad-data test of every alive agent against ``Z`` (what its update applies K_i to).
 
-    def _screen(self, Z: np.ndarray, y: np.ndarray, missing, alive: np.ndarray):
-        """The bad-data test of every alive agent against ``Z`` (what its update applies K_i to): ``missing`` or the
-        measurements set aside."""
+        Parameters
+        ----------
+        Z : (m, n) ndarray
+            What each agent's update starts from.
+        y : (sum s_i,) ndarray
+            The stacked measurement.
+        missing : (m,) bool ndarray or None
+            Agents without a measurement this step.
+        alive : (m,) bool ndarray
+            The agents taking part.
+
+        Returns
+        -------
+        (m,) bool ndarray or None
+            ``missing`` with the measurements set aside (``missing`` itself without the test).
+        """
         return missing if self.screen is None else self.screen.screen(self.tau, Z, y, missing, alive)
 
-    def _projections(self) -> list:
-        """This event time's ``P_i``: ``I`` for the agents whose sensor is suspect (their fallback)."""
+    def projections(self) -> list:
+        """This event time's ``P_i``: ``I`` for the agents whose sensor is suspect (their fallback).
+
+        Returns
+        -------
+        list of (n, n) ndarray
+        """
         return self.Ps if self.screen is None or not self.screen.suspect.any() else self.screen.fallback(self.Ps)
-
-
-try:  # the CSR kernel without scipy's per-call dispatch (about 10 us a call at this size)
-    from scipy.sparse._sparsetools import csr_matvec as _csr_matvec
-except ImportError:  # pragma: no cover - private API moved: fall back to the public product
-    _csr_matvec = None
-
-
-def _spmv(A: sp.csr_matrix, x: np.ndarray) -> np.ndarray:
-    """``A @ x`` for a CSR matrix and a float64 vector."""
-    if _csr_matvec is None:
-        return A @ x
-    y = np.zeros(A.shape[0])
-    _csr_matvec(A.shape[0], A.shape[1], A.indptr, A.indices, A.data, x, y)
-    return y
-
-
-def _bmv(M: np.ndarray, X: np.ndarray) -> np.ndarray:
-    """Batched matrix-vector product: row i is ``M[i] @ X[i]``."""
-    return np.matmul(M, X[:, :, None])[:, :, 0]
-
-
-def weight_entries(sc: Scenario, rows: dict) -> tuple:
-    """``(row, col, weight, off-diagonal)`` arrays (agent positions) of ``rows``, sorted by row, in its order within.
-
-    Parameters
-    ----------
-    sc : Scenario
-        The scenario (its agent order).
-    rows : dict
-        ``{i: (neighbour ids, weights)}`` (:func:`splitspec_core.model.network.consensus_rows`).
-
-    Returns
-    -------
-    row : (E,) int64 ndarray
-        The receiver's position of each entry.
-    col : (E,) int64 ndarray
-        The sender's position.
-    weight : (E,) float ndarray
-        ``w_ij``.
-    off : (E,) bool ndarray
-        True for the off-diagonal entries (the messages between agents).
-    """
-    pos = {a: k for k, a in enumerate(sc.agent_ids)}
-    ri = np.array([pos[i] for i, (nbs, _) in rows.items() for _ in nbs], dtype=np.int64)
-    ci = np.array([pos[j] for _, (nbs, _) in rows.items() for j in nbs], dtype=np.int64)
-    w = np.array([x for _, (_, ws) in rows.items() for x in ws], dtype=float)
-    order = np.argsort(ri, kind="stable")  # by receiver, each row's own order kept (a realized S sums rows)
-    ri, ci, w = ri[order], ci[order], w[order]
-    return ri, ci, w, ri != ci
 
 
 class NetworkWeights:
@@ -450,159 +398,13 @@ class NetworkWeights:
         return W
 
 
-class _RealizedS:
-    """A realized consensus matrix ``S`` (m x m) as entries sorted by row, every present row non-empty (its own
-    weight): ``S @ Z`` sums each row's ``w_ij z_j`` in entry order, as a CSR product does."""
-
-    __slots__ = ("m", "cols", "w", "starts", "present")
-
-    def __init__(self, m: int, rows: np.ndarray, cols: np.ndarray, w: np.ndarray):
-        self.m, self.cols, self.w = m, cols, w
-        new_row = np.ones(len(rows), dtype=bool)
-        new_row[1:] = rows[1:] != rows[:-1]
-        self.starts = np.flatnonzero(new_row)
-        self.present = rows[self.starts]
-
-    def __matmul__(self, Z: np.ndarray) -> np.ndarray:
-        out = np.zeros((self.m,) + Z.shape[1:])
-        if len(self.cols):
-            out[self.present] = np.add.reduceat(self.w.reshape((-1,) + (1,) * (Z.ndim - 1)) * Z[self.cols],
-                                                self.starts, axis=0)
-        return out
-
-
-class FusionRound:
-    """The fusion kind's event time (:mod:`splitspec_core.synthesis.fusion_kind`), agent by agent with the step functions
-    of :mod:`splitspec_core.model.steps` in the order an agent process calls them: ``local_update``, then per exchange
-    ``fold_weights`` and ``matrix_fusion`` over the neighbours that count, then ``prediction_update``.  Both estimators
-    run it (one path for the kind)."""
-
-    def __init__(self, des: Design):
-        from ..synthesis.fusion_kind import weight_blocks
-
-        sc = des.scenario
-        kind = des.whole
-        self.ids = sc.agent_ids
-        self.pos = {a: k for k, a in enumerate(sc.agent_ids)}
-        self.Cs = [np.asarray(C, dtype=float) for C in sc.system.Cs]
-        self.rows_y = output_rows(self.Cs)
-        self.F = np.asarray(kind.designs[0].F)  # the per-step model: A, or exp(A run.dt) (the agents are sent it)
-        dt = sc.run.dt if sc.time == "continuous" else None
-        # the known input's map per step: B u itself, or D B u on the sampled model (steps.step_matrices's G)
-        self.G = None if dt is None else st.sampled_data_matrices(np.asarray(sc.system.A), dt)[1]
-        self.L = [d.Ls for d in kind.designs]
-        self.blocks = [[weight_blocks(des, g, i) for i in range(sc.m)] for g in range(len(kind.designs))]
-
-    def step(self, X: np.ndarray, ys: list, rounds: list, bu, graph: int) -> np.ndarray:
-        """``x_i(tau+1)`` of every agent in ``rounds[0]`` (zero rows for the others).
-
-        Parameters
-        ----------
-        X : (m, n) ndarray
-            The estimates ``x_i(tau)``.
-        ys : list
-            Each agent's ``y_i(tau)``, None without one.
-        rounds : list of dict
-            Per exchange, ``{i: (neighbour ids, weights)}`` of the neighbours whose estimates count (weights unused).
-        bu : (n,) ndarray or None
-            The known input's ``B u(tau)``.
-        graph : int
-            The active graph's index.
-
-        Returns
-        -------
-        (m, n) ndarray
-        """
-        pos, L, blocks = self.pos, self.L[graph], self.blocks[graph]
-        Z = np.zeros_like(X)
-        for i_id in rounds[0]:
-            i = pos[i_id]
-            Z[i] = st.local_update(X[i], L[i], self.Cs[i], ys[i])
-        for k, rows in enumerate(rounds):
-            Zn = np.zeros_like(Z)
-            for i_id, (nbs, _) in rows.items():
-                i = pos[i_id]
-                Zn[i] = st.matrix_fusion([Z[pos[j]] for j in nbs], st.fold_weights(blocks[i][k], i_id, nbs))
-            Z = Zn
-        Xn = np.zeros_like(X)
-        bu = st.step_input(self.G, bu)
-        for i_id in rounds[0]:
-            Xn[pos[i_id]] = st.prediction_update(Z[pos[i_id]], self.F, bu)
-        return Xn
-
-
-def realized_rows(sc: Scenario, rows: dict, entries: tuple, counts: list) -> list:
-    """Each exchange's realized rows ``{i: (nbs, ws)}``, by the agents' own :func:`impairment.realized_row`.
-
-    Parameters
-    ----------
-    sc : Scenario
-        Its agent order and ``design.weights``.
-    rows : dict
-        ``{i: (neighbour ids, weights)}`` of the step's network.
-    entries : tuple
-        :func:`weight_entries` of ``rows``.
-    counts : list of (E_off,) bool ndarray
-        One per exchange, True where an off-diagonal entry's message counts.
-
-    Returns
-    -------
-    list of dict
-        Per exchange, ``{i: (neighbour ids, weights)}`` of the messages that count.
-    """
-    ri, ci, _, off = entries
-    ids = sc.agent_ids
-    offi = np.flatnonzero(off)
-    out = []
-    for ok in counts:
-        counted: dict = {}
-        for e in offi[ok]:
-            counted.setdefault(ids[ri[e]], set()).add(ids[ci[e]])
-        out.append({i: realized_row(nbs, ws, counted.get(i, ()), sc.design.weights) for i, (nbs, ws) in rows.items()})
-    return out
-
-
 class BatchEstimator(_EstimatorBase):
-    """Vectorised estimator: state ``X`` (m, n); sparse weights; batched per-agent matrices.
-
-    Discrete sub-rounds run in unobservable-space coordinates: from
-    eq. (split-discrete-p2), ``(I - P_i) z_i(k) = (I - P_i) x_i(tau)`` for every
-    k, and ``w = V'z`` obeys ``w(k) = c + B w(k-1)`` with ``B = V' Sbar V``
-    (eq. split_discrete_pr2) and ``c = V' Sbar (I - P) x(tau)``.  With balanced working coordinates
-    (``design.coordinates``) ``P_i = L_i R_i'`` is oblique in the user's: ``w = R'z``, ``B = R' Sbar L``,
-    ``c = R' Sbar (I - P) x``, ``z = (I - P) x + L w``.  ``B`` is
-    block sparse (one ``n_i x n_j`` block per arc), so a sub-round costs one
-    sparse product with about ``sum_arcs n_i n_j`` non-zeros.
-    """
-
-    def __init__(self, des: Design):
-        super().__init__(des)
-        s_max = max(C.shape[0] for C in self.Cs)
-        self.Kp = np.zeros((self.m, self.n, s_max))
-        rows, cols = [], []
-        for i, (K, C) in enumerate(zip(self.Ks, self.Cs)):
-            self.Kp[i, :, : K.shape[1]] = K
-            rows += [i] * C.shape[0]
-            cols += list(range(C.shape[0]))
-        self._yidx = (np.array(rows), np.array(cols))
-        self.Pst = np.stack(self.Ps)
-        if self.continuous:
-            self.KC = np.stack([K @ C for K, C in zip(self.Ks, self.Cs)])
-            self.Rgram = np.stack([R @ R.T for R in self.Vs])  # eq. (adaptive): |R_i' d|^2 = d' R_i R_i' d
-        elif self.fusion:
-            pass  # FusionRound holds what it runs
-        elif self.whole:
-            self.Fst = np.stack(self.F)
-        else:
-            self.Fst = np.stack(self.F)
-            self.Vbig = sp.block_diag([sp.csr_matrix(L) for L in self.Ls], format="csr")  # (mn, nbar): L
-            self.VT = sp.block_diag([sp.csr_matrix(R.T) for R in self.Vs], format="csr")  # (nbar, mn): R transposed
+    """Vectorised estimator: state ``X`` (m, n); sparse weights; batched per-agent matrices (each kind's batch form,
+    :mod:`.kinds`: the split's lossless sub-rounds in unobservable-space coordinates, one sparse product per
+    sub-round with about ``sum_arcs n_i n_j`` non-zeros, never a dense ``mn x mn`` matrix)."""
 
     def weights(self, rows: dict):
-        """Row i holds agent i's weights on its alive neighbours.
-
-        Continuous: sparse ``W`` (m x m).  Discrete: ``(B, G)`` with
-        ``B = V'(W (x) I)V`` and ``G = V'(W (x) I)``, both sparse.
+        """The step's weights of a network, in the kind's batch form (:meth:`.kinds.Kind.weights`).
 
         Parameters
         ----------
@@ -611,23 +413,11 @@ class BatchEstimator(_EstimatorBase):
 
         Returns
         -------
-        scipy.sparse.csr_matrix or tuple of two csr_matrix
-            ``W`` (continuous time, and the whole-state design in both times), else ``(B, G)``.
+        object
+            Sparse ``S``; the split's ``(B, G, S)`` with ``B = V'(W (x) I)V`` and ``G = V'(W (x) I)``; the fusion
+            kind's rows themselves.
         """
-        if self.fusion:  # the rows themselves: FusionRound reads each agent's neighbours
-            return rows
-        pos = {a: k for k, a in enumerate(self.sc.agent_ids)}
-        ri, ci, vals = [], [], []
-        for i, (nbs, ws) in rows.items():
-            for j, w in zip(nbs, ws):
-                ri.append(pos[i])
-                ci.append(pos[j])
-                vals.append(w)
-        W = sp.csr_matrix((vals, (ri, ci)), shape=(self.m, self.m))
-        if self.continuous or self.whole:
-            return W
-        G = (self.VT @ sp.kron(W, sp.identity(self.n), format="csr")).tocsr()
-        return (G @ self.Vbig).tocsr(), G
+        return self.kind.weights(rows)
 
     def step(self, X: np.ndarray, y: np.ndarray, W, alive: np.ndarray, missing=None, bu=None) -> np.ndarray:
         """One step; ``missing`` (m,) bool: agents without a measurement this step (prediction only); ``bu`` (n,):
@@ -639,7 +429,7 @@ class BatchEstimator(_EstimatorBase):
             The estimates ``x_i(k)``, a row per agent (rows of dead agents are ignored).
         y : (sum s_i,) ndarray
             The stacked measurement ``y(k)``.
-        W : scipy.sparse.csr_matrix or tuple
+        W : object
             :meth:`weights` of the step's network.
         alive : (m,) bool ndarray
             The agents taking part.
@@ -654,57 +444,10 @@ class BatchEstimator(_EstimatorBase):
             The estimates ``x_i(k+1)``, zero rows for the dead agents.  In continuous time with the adaptive
             gain this also advances the alive agents' ``g`` (eq. adaptive).
         """
-        Y = np.zeros((self.m, self.Kp.shape[2]))
-        Y[self._yidx] = y
-        if self.fusion:
-            return self._fusion_step(X, y, [W] * self.q, missing, bu)
-        if self.whole:
-            return self.step_realized(X, y, [W] * self.q, alive, missing, bu)
-        if self.continuous:
-            Pst = np.stack(self._projections())  # before the test: the watch at the start of the step
-            missing = self._screen(X, y, missing, alive)
-            diff = X - W @ X
-            innov = _bmv(self.KC, X) - _bmv(self.Kp, Y)
-            if missing is not None and missing.any():
-                innov[missing] = 0.0  # steps.sampled_step with y_i None
-            corr = innov - self.g[:, None] * _bmv(Pst, diff)
-            if bu is not None:
-                corr = corr + bu  # steps.sampled_step: B u(k) held over the step
-            Xn = X @ self.E.T + corr @ self.D.T
-            if self.adaptive:
-                # eq. (adaptive): |V_i'(avg_i - x_i)|^2 = diff' R_i R_i' diff (diff' P_i diff for orthogonal P_i)
-                rate = np.einsum("mi,mi->m", diff, _bmv(self.Rgram, diff))
-                self.g = np.where(alive, self.g + self.dt * rate, self.g)
-        else:
-            B, G = W
-            U = X - _bmv(self.Pst, X)  # (I - P_i) x_i, fixed through the sub-rounds
-            w = _spmv(self.VT, X.ravel())  # w_i = R_i' x_i (V_i' x_i), z_i = U_i + L_i w_i
-            c = _spmv(G, U.ravel())
-            for _ in range(self.q):
-                # eq. split-discrete-p2 in V coordinates: w_i <- V_i' sum_j w_ij z_j
-                w = c + _spmv(B, w)
-            Z = U + _spmv(self.Vbig, w).reshape(self.m, self.n)
-            Xn = self._update(Z, Y, self._screen(Z, y, missing, alive), bu)
-        Xn[~alive] = 0.0
-        return Xn
-
-    def _update(self, Z: np.ndarray, Y: np.ndarray, missing, bu=None) -> np.ndarray:
-        """Eq. split-discrete-est1; an agent without a measurement predicts, ``A z_i(q)`` (steps.prediction_update);
-        both add the known input's ``B u`` when there is one.  The whole-state design: the same on the per-step model
-        (steps.step_matrices: ``A_s``, ``F_i``, ``K_s,i``, the input ``G B u``)."""
-        Xn = _bmv(self.Fst, Z) - _bmv(self.Kp, Y)
-        if missing is not None and missing.any():
-            Xn[missing] = Z[missing] @ (self.A_step if self.whole else self.A).T
-        bu = st.step_input(self.G, bu)
-        return Xn if bu is None else Xn + bu
-
+        return self.kind.step(X, y, W, alive, missing, bu)
 
     def realized(self, rows: dict, entries: tuple, counts: list) -> list:
-        """``S_k`` (m x m) of each exchange's realized graph: :func:`impairment.realized_row`, vectorised.
-
-        ``entries``: :func:`weight_entries` of ``rows`` (sorted by receiver); ``counts[k]``: a boolean per off-diagonal
-        entry, True where the message counts.  Each ``S_k`` is a :class:`_RealizedS` (a segmented sum: building a
-        scipy matrix per sub-round cost more than the whole step).
+        """Each exchange's realized weights (:meth:`.kinds.Kind.realized`).
 
         Parameters
         ----------
@@ -717,33 +460,16 @@ class BatchEstimator(_EstimatorBase):
 
         Returns
         -------
-        list of _RealizedS
-            ``S_k`` per exchange: a receiver's missing messages' weight goes to itself (Metropolis), or its row
-            is re-weighted ``1 / (1 + counted)`` (uniform).
+        list
+            ``S_k`` per exchange (a :class:`~.kinds.RealizedS`: a receiver's missing messages' weight goes to itself
+            (Metropolis), or its row is re-weighted ``1 / (1 + counted)`` (uniform)); the fusion kind's rows.
         """
-        if self.fusion:  # the rows that count, as the agents fold them (FusionRound)
-            return realized_rows(self.sc, rows, entries, counts)
-        ri, ci, w, off = entries
-        offi = np.flatnonzero(off)
-        out = []
-        for ok in counts:
-            keep = ~off
-            keep[offi[ok]] = True
-            rk = ri[keep]
-            if self.sc.design.weights == "metropolis":  # the missing weights go to the receiver itself
-                wk = w.copy()
-                kept = keep & off
-                wk[~off] = (1.0 - np.bincount(ri[kept], weights=w[kept], minlength=self.m))[ri[~off]]
-                wk = wk[keep]
-            else:  # 1 / (1 + #counted): row i of the realized graph's S
-                wk = 1.0 / np.bincount(rk, minlength=self.m)[rk]
-            out.append(_RealizedS(self.m, rk, ci[keep], wk))
-        return out
+        return self.kind.realized(rows, entries, counts)
 
     def step_realized(self, X: np.ndarray, y: np.ndarray, Ws: list, alive: np.ndarray, missing=None,
                       bu=None) -> np.ndarray:
-        """One step with a realized consensus matrix per exchange (``Ws``: q sparse ``S_k``, or one in continuous
-        time): eq. (split-discrete-p2) as ``z <- z + P_i (S_k z - z)_i``, then eq. (split-discrete-est1).
+        """One step with realized weights per exchange (``Ws``: q ``S_k``, or one in continuous time): the split's
+        eq. (split-discrete-p2) as ``z <- z + P_i (S_k z - z)_i``, then eq. (split-discrete-est1).
 
         Parameters
         ----------
@@ -752,7 +478,7 @@ class BatchEstimator(_EstimatorBase):
         y : (sum s_i,) ndarray
             The stacked measurement ``y(k)``.
         Ws : list
-            :meth:`realized` of the step: ``q`` matrices ``S_k`` (one in continuous time, handed to :meth:`step`).
+            :meth:`realized` of the step: one per exchange.
         alive : (m,) bool ndarray
             The agents taking part.
         missing : (m,) bool ndarray or None, optional
@@ -765,33 +491,11 @@ class BatchEstimator(_EstimatorBase):
         (m, n) ndarray
             The estimates ``x_i(k+1)``, zero rows for the dead agents.
         """
-        if self.fusion:
-            return self._fusion_step(X, y, Ws, missing, bu)
-        Y = np.zeros((self.m, self.Kp.shape[2]))
-        Y[self._yidx] = y
-        if self.continuous:
-            return self.step(X, y, Ws[0], alive, missing, bu)
-        if self.whole:  # update, then average q times (whole_state.py): z_i <- sum_j w_ij z_j
-            Z = self._update(X, Y, self._screen(X, y, missing, alive), bu)
-            for Wk in Ws:
-                Z = Wk @ Z
-            Z[~alive] = 0.0
-            return Z
-        Z = X.copy()
-        Pst = self.Pst if self.screen is None else np.stack(self._projections())
-        for Wk in Ws:
-            Z = Z + _bmv(Pst, Wk @ Z - Z)
-        Xn = self._update(Z, Y, self._screen(Z, y, missing, alive), bu)
-        Xn[~alive] = 0.0
-        return Xn
+        return self.kind.step_realized(X, y, Ws, alive, missing, bu)
 
 
 class AgentLoopEstimator(_EstimatorBase):
-    """Plain per-agent loop over the step functions of :mod:`splitspec_core.model.steps`."""
-
-    def __init__(self, des: Design):
-        super().__init__(des)
-        self.rows = output_rows(self.Cs)
+    """Plain per-agent loop over the step functions of :mod:`splitspec_core.model.steps` (each kind's loop form)."""
 
     def weights(self, rows: dict) -> dict:
         """The consensus rows themselves: each agent reads its own row, as an agent process does.
@@ -808,37 +512,9 @@ class AgentLoopEstimator(_EstimatorBase):
         """
         return rows
 
-    def _ys(self, y: np.ndarray, missing) -> list:
-        """Each agent's ``y_i``, None where it has no measurement this step."""
-        return [None if missing is not None and missing[k] else y[r] for k, r in enumerate(self.rows)]
-
-    def _update(self, i: int, z: np.ndarray, y_i, bu=None) -> np.ndarray:
-        if self.whole:  # the per-step model (steps.step_matrices), as the agent process runs it
-            bu = st.step_input(self.G, bu)
-            return (st.prediction_update(z, self.A_step, bu) if y_i is None
-                    else st.measurement_update(z, self.F[i], self.Ks[i], y_i, bu))
-        return (st.prediction_update(z, self.A, bu) if y_i is None
-                else st.measurement_update(z, self.F[i], self.Ks[i], y_i, bu))
-
-    def _whole(self, X: np.ndarray, ys: list, rounds: list, bu) -> np.ndarray:
-        """The whole-state design's event time (whole_state.py): every agent updates, then averages with its
-        neighbours once per entry of ``rounds`` (each exchange's rows ``{i: (nbs, ws)}``)."""
-        pos = {a: k for k, a in enumerate(self.sc.agent_ids)}
-        Z = np.zeros_like(X)
-        for i_id in rounds[0]:
-            i = pos[i_id]
-            Z[i] = self._update(i, X[i], ys[i], bu)
-        for rows in rounds:
-            Zn = np.zeros_like(Z)
-            for i_id, (nbs, ws) in rows.items():
-                Zn[pos[i_id]] = st.weighted_average([Z[pos[j]] for j in nbs], ws)  # eq. split-discrete-p2, P_i = I
-            Z = Zn
-        return Z
-
     def step(self, X: np.ndarray, y: np.ndarray, rows: dict, alive: np.ndarray, missing=None, bu=None) -> np.ndarray:
-        """One step, agent by agent, with the step functions of :mod:`splitspec_core.model.steps`: ``q`` consensus
-        sub-rounds then the update (discrete), the sampled-data step (continuous; with the adaptive gain its Euler
-        step), or the whole-state design's update then ``q`` averages.
+        """One step, agent by agent, with the step functions of :mod:`splitspec_core.model.steps`
+        (:meth:`.kinds.Kind.loop`): every message counting.
 
         Parameters
         ----------
@@ -849,7 +525,7 @@ class AgentLoopEstimator(_EstimatorBase):
         rows : dict
             ``{i: (neighbour ids, weights)}`` of the alive agents (:meth:`weights`).
         alive : (m,) bool ndarray
-            The agents taking part (unused: the agents of ``rows`` are the alive ones).
+            The agents taking part (those of ``rows``).
         missing : (m,) bool ndarray or None, optional
             Agents without a measurement this step; None (default): every agent has one.
         bu : (n,) ndarray or None, optional
@@ -860,38 +536,7 @@ class AgentLoopEstimator(_EstimatorBase):
         (m, n) ndarray
             The estimates ``x_i(k+1)``, zero rows for the agents not in ``rows``.
         """
-        if self.fusion:
-            return self._fusion_step(X, y, [rows] * self.q, missing, bu)
-        pos = {a: k for k, a in enumerate(self.sc.agent_ids)}
-        Ps = self._projections()  # before the test: the watch at the start of the step
-        if self.whole:
-            return self._whole(X, self._ys(y, self._screen(X, y, missing, alive)), [rows] * self.q, bu)
-        Xn = np.zeros_like(X)
-        if self.continuous:
-            ys = self._ys(y, self._screen(X, y, missing, alive))
-            g_next = self.g.copy()
-            for i_id, (nbs, ws) in rows.items():
-                i = pos[i_id]
-                states = [X[pos[j]] for j in nbs]
-                Xn[i] = st.sampled_step(X[i], self.E, self.D, self.Ks[i], self.Cs[i], ys[i], Ps[i],
-                                        self.g[i], states, ws, bu)
-                if self.adaptive:
-                    g_next[i] = st.adaptive_gain_step(self.g[i], st.adaptive_gain_rate(self.Vs[i], X[i], states, ws),
-                                                      self.dt)
-            self.g = g_next
-            return Xn
-        Z = X.copy()
-        for _ in range(self.q):
-            Zn = np.zeros_like(Z)
-            for i_id, (nbs, ws) in rows.items():
-                i = pos[i_id]
-                Zn[i] = st.consensus_subround(Z[i], Ps[i], [Z[pos[j]] for j in nbs], ws)
-            Z = Zn
-        ys = self._ys(y, self._screen(Z, y, missing, alive))
-        for i_id in rows:
-            i = pos[i_id]
-            Xn[i] = self._update(i, Z[i], ys[i], bu)
-        return Xn
+        return self.kind.loop(X, y, [rows] * self.kind.exchanges, alive, missing, bu)
 
     def realized(self, rows: dict, entries: tuple, counts: list) -> list:
         """Each exchange's realized rows ``{i: (nbs, ws)}``, by the agents' own :func:`impairment.realized_row`.
@@ -937,27 +582,7 @@ class AgentLoopEstimator(_EstimatorBase):
         (m, n) ndarray
             The estimates ``x_i(k+1)``, zero rows for the agents not in ``Ws[0]``.
         """
-        if self.fusion:
-            return self._fusion_step(X, y, Ws, missing, bu)
-        if self.continuous:
-            return self.step(X, y, Ws[0], alive, missing, bu)
-        if self.whole:
-            return self._whole(X, self._ys(y, self._screen(X, y, missing, alive)), Ws, bu)
-        pos = {a: k for k, a in enumerate(self.sc.agent_ids)}
-        Ps = self._projections()
-        Xn = np.zeros_like(X)
-        Z = X.copy()
-        for rows in Ws:
-            Zn = np.zeros_like(Z)
-            for i_id, (nbs, ws) in rows.items():
-                i = pos[i_id]
-                Zn[i] = st.consensus_subround(Z[i], Ps[i], [Z[pos[j]] for j in nbs], ws)
-            Z = Zn
-        ys = self._ys(y, self._screen(Z, y, missing, alive))
-        for i_id in Ws[0]:
-            i = pos[i_id]
-            Xn[i] = self._update(i, Z[i], ys[i], bu)
-        return Xn
+        return self.kind.loop(X, y, Ws, alive, missing, bu)
 
 
 # --------------------------------------------------------------------------
@@ -1081,7 +706,7 @@ def simulate(des: Design, *, seed: int | None = None, steps: int | None = None, 
     imp = Impairment(sc.network, seed) if sc.network.impaired and lost is None else None
     replay = _replay_index(lost) if lost is not None else None
     impaired = imp is not None or replay is not None or any(f.drops_messages for f in sc.faults)
-    exchanges = 1 if est.continuous else int(des.q)  # the whole-state design: q in both times
+    exchanges = est.kind.exchanges  # q; one per run.dt in the sampled-data form
     lost_rows: list = []
     # the measurements the estimators were given (a file's rows, the sensor faults in force applied)
     ys = np.zeros((T, sum(np.shape(C)[0] for C in sc.system.Cs))) if keep_y or measurements is not None else None
@@ -1097,8 +722,7 @@ def simulate(des: Design, *, seed: int | None = None, steps: int | None = None, 
             X[i] = initial_estimate(n, seed, i, inc)
             if est.screen is not None:
                 est.screen.reset(i)
-            if est.continuous and est.adaptive:
-                est.g[i] = sc.design.g0
+            est.kind.restart(i)
 
     def record(k):
         xs[k] = plant.x
@@ -1106,8 +730,9 @@ def simulate(des: Design, *, seed: int | None = None, steps: int | None = None, 
             us[k] = plant.input()
         xh[k][alive] = X[alive]
         al[k] = alive
-        if est.continuous:
-            g[k][alive] = est.g[alive]
+        gains = est.kind.gains()
+        if gains is not None:
+            g[k][alive] = gains[alive]
 
     def update(k, y):
         nonlocal X
@@ -1117,9 +742,6 @@ def simulate(des: Design, *, seed: int | None = None, steps: int | None = None, 
         before = len(lost_rows)
         Ws = realized_step(est, sc, W, k, exchanges, imp, replay, net.groups, lost_rows) if impaired else None
         est.tau, est.graph = k, int(plan.graph_seq[k])
-        if Ws is None and est.screen is not None and est.screen.suspect.any() and isinstance(est, BatchEstimator) \
-                and not (est.continuous or est.whole):  # a suspect sensor's P_i = I: the sub-rounds on S itself
-            Ws = est.realized(W[1], W[2], [np.ones(int(W[2][3].sum()), dtype=bool)] * exchanges)
         for name, values in round_columns(sc, W[1], exchanges, lost_rows[before:]).items():
             rounds[name][k] = values
         bu = st.known_input(B, plant.input())  # the known input every agent adds (the agent process: the same)
@@ -1257,9 +879,6 @@ def realized_step(est, sc: Scenario, W: tuple, tau: int, exchanges: int, imp, re
     return est.realized(rows, entries, counts) if any_lost else None
 
 
-# eq. (adaptive) makes each g_i(t) a state of its own: the ODE is no longer linear, so no matrix exponential
-EXACT_NEEDS_FIXED_G = ("the exact ODE needs one fixed g, and design.g is adaptive (each agent's g_i(t), eq. adaptive): "
-                       "give design.g a number or auto")
 
 
 def simulate_exact(des: Design, *, seed: int | None = None, steps: int | None = None) -> Trajectory:
@@ -1291,14 +910,9 @@ def simulate_exact(des: Design, *, seed: int | None = None, steps: int | None = 
         a sensor fault, or a trajectory that cannot fit in memory.
     """
     sc = des.scenario
-    if sc.time != "continuous":
-        raise ScenarioError("the exact ODE is continuous time; this scenario is discrete (time: discrete)")
-    if des.g_mode == "adaptive":
-        raise ScenarioError(EXACT_NEEDS_FIXED_G)
-    if des.consensus == "whole":
-        raise ScenarioError("the exact ODE is the split's continuous estimator (eq. split_continuous_observer); the "
-                            "whole-state design runs on the sampled model, q exchanges per run.dt: simulate without "
-                            "--exact")
+    refusal = exact_refusal(des)
+    if refusal:
+        raise ScenarioError(refusal)
     if sc.network.impaired or any(f.drops_messages for f in sc.faults):
         raise ScenarioError("the exact ODE has no messages to lose: it cannot model network: or partition faults "
                             "(simulate without --exact)")

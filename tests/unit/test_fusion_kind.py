@@ -105,7 +105,7 @@ def test_the_survivors_verdict_keeps_the_gains_and_folds_the_lost():
 
 
 def test_the_simulator_runs_one_step_path_for_the_kind_batched_or_looped():
-    """Both estimators run FusionRound: the same floats, with a kill and a restart (ring10_faults' faults)."""
+    """Both estimators run kinds.Fusion: the same floats, with a kill and a restart (ring10_faults' faults)."""
     faults = ss.load_scenario(EXAMPLES / "ring10_faults.yaml").faults
     sc = dataclasses.replace(ring(q=1), faults=faults)
     des = design(sc)
