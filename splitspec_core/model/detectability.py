@@ -66,6 +66,9 @@ __all__ = ["BACKOFF", "Unobserved", "UnobservedOf", "unobserved", "unobserved_of
 BACKOFF = 0.9
 #: A on W "does not decay" when its decay rate is below this fraction of |A_b| (continuous) or its radius within it of 1
 STILL = 1e-9
+#: W decaying within this fraction of the rate decays at the rate (round-off: a drawn mode at -0.2 computed at
+#: 0.20000000000000015 against rate 0.2): a mode at the rate certifies nothing (its errors grow like k r^k)
+TIE = 1e-9
 
 
 @dataclass(frozen=True)
@@ -130,7 +133,8 @@ class Unobserved:
         return self.decay < 1.0 - STILL * max(self.scale, 1.0)
 
     def limits(self, rate: float) -> bool:
-        """Whether ``W`` decays slower than the rate ``lam`` (so the errors cannot decay at ``lam``).
+        """Whether ``W`` decays no faster than the rate ``lam`` (so the errors cannot decay at ``lam``); within
+        :data:`TIE` of it counts as at it.
 
         Parameters
         ----------
@@ -144,7 +148,8 @@ class Unobserved:
         """
         if not self.dim:
             return False
-        return self.decay <= rate if self.time == "continuous" else self.decay >= rate
+        tie = TIE * max(abs(rate), 1e-300)
+        return self.decay <= rate + tie if self.time == "continuous" else self.decay >= rate - tie
 
     def envelope(self, rate: float) -> float:
         """The rate of the certified envelope: ``lam`` or, when ``W`` limits it, :data:`BACKOFF` of ``W``'s.

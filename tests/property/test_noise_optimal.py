@@ -17,13 +17,14 @@ prints the tally and fails when none, or (ten draws or more) fewer than half its
 
 from __future__ import annotations
 
+import copy
 import math
 
 import numpy as np
 import pytest
 from collections import Counter
 
-from hypothesis import event, given, settings
+from hypothesis import event, example, given, settings
 from hypothesis import strategies as st
 
 from splitspec_core.errors import SplitspecError
@@ -116,11 +117,24 @@ def test_the_noise_optimal_designs_error_stays_under_its_certified_envelope():
     _enough("the certified envelope", tally)
 
 
+#: a draw kept (session 4 of issue 44): the mode no agent sees at -0.2, computed at 0.20000000000000015, was called
+#: faster than rate 0.2 and the design certified with an infinite transient constant (detectability.TIE)
+MODE_AT_THE_RATE = {
+    "name": "detectable", "time": "continuous",
+    "system": {"A": [[-0.9923955727172279, 0.00526953755006427], [1.1434996818354888, -0.20760442728277206]],
+               "C": {1: [[0.0, 0.0]], 2: [[-0.04055202746344281, 0.0002696764580815072]],
+                     3: [[-0.04055202746344281, 0.0002696764580815072]]},
+               "x0": [0.0, 0.0], "measurement_noise": {1: [0.01], 2: [0.01], 3: [0.01]}, "process_noise": [0.01, 0.0]},
+    "graphs": {"ring": {"arcs": [[1, 2], [2, 3], [3, 1], [2, 1], [3, 2], [1, 3]]}},
+    "design": {"rate": 0.2, "consensus": "auto"}, "run": {"steps": 600, "seed": 0, "dt": 0.01}}
+
+
 def test_the_predicted_steady_rms_is_what_a_monte_carlo_measures():
     tally: Counter = Counter()
 
     @settings(max_examples=examples(15), **COMMON)
     @given(noisy(stable=True))
+    @example(copy.deepcopy(MODE_AT_THE_RATE))
     def check(data):
         des = _design(data, tally)
         if des is None:
