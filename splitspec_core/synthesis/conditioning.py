@@ -45,6 +45,9 @@ GAIN_WARN = 1e3
 TRANSIENT_WARN = 1e3
 #: the work (flops) spent on the exact transient constant before falling back to the Lyapunov bound
 MAX_WORK = 1e11
+#: and the powers formed at most (a small error map costs Python's overhead per power, not flops: 1e11 flops were
+#: 2.3e8 powers of a 6 x 6 map, minutes; this many take about a second)
+MAX_POWERS = 200_000
 
 
 @dataclass(frozen=True)
@@ -99,7 +102,7 @@ def transient_constant(M: np.ndarray, r: float, *, block: int = 1, max_work: flo
     T = M / r
     X = np.eye(d)  # (M / r)^k = exp(logs) X: rescaled now and then, so a huge transient cannot overflow
     logs, logf = 0.0, [0.0]  # log ||T^k||_F (k = 0: the identity counts as 1, its 2-norm)
-    steps = int(max(1, max_work // max(1.0, 2.0 * d ** 3)))
+    steps = int(max(1, min(MAX_POWERS, max_work // max(1.0, 2.0 * d ** 3))))
     # the slowest mode of M / r shrinks by rho(M / r)^steps within the budget: above 1/10 the powers cannot
     # fall below 1 in time unless that mode carries almost nothing, so only a head is formed (a lower bound, the
     # peak it reports) and the Lyapunov bound is taken at once

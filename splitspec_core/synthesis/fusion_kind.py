@@ -37,7 +37,8 @@ __all__ = ["FusionKind", "design_fusion_kind", "fusion_matrix", "fusion_noise", 
 
 #: ``design.q: auto``: the smallest q whose protocol limit is within this fraction of the Kalman predictor
 AUTO_GAP = 0.01
-#: a q that does not certify: the fewest that would is looked for up to the diameter plus this many
+#: a q that does not certify (and ``design.q: auto``): the fewest that would is looked for up to the diameter plus
+#: this many
 LOOK_FURTHER = 2
 
 
@@ -130,7 +131,8 @@ def design_fusion_kind(sc: Scenario, rate: float, warnings: list) -> FusionKind:
     Raises
     ------
     DesignError
-        ``design.q: auto`` and no q up to ``design.q_max`` certifies the rate.
+        ``design.q: auto`` and no q up to the diameter + :data:`LOOK_FURTHER` (at most ``design.q_max``) certifies
+        the rate.
 
     Examples
     --------
@@ -159,13 +161,16 @@ def design_fusion_kind(sc: Scenario, rate: float, warnings: list) -> FusionKind:
         return kind
     diameter = _diameter(sc)
     start = next((k for k in range(1, diameter + 1) if scenario_limit(sc, k).ratio <= 1 + AUTO_GAP), diameter)
-    for q in range(start, d.q_max + 1):
+    # as the budget's fewest: up to the diameter and LOOK_FURTHER more (every sensor is heard within the event time
+    # from the diameter on; each q beyond costs a shift search, minutes on a drawn system no q certifies)
+    end = min(d.q_max, max(start, diameter + LOOK_FURTHER))
+    for q in range(start, end + 1):
         got = _designs(sc, q, lam)
         if got is not None:
             return FusionKind(q=q, designs=got, lam_step=lam, limit=scenario_limit(sc, q).ratio)
-    raise DesignError(f"design.consensus: fusion certifies rate {d.rate:g} with no q up to design.q_max = {d.q_max} "
-                      "(the gains cannot outrun the plant's slowest mode the sensors cannot speed up): lower "
-                      "design.rate")
+    raise DesignError(f"design.consensus: fusion certifies rate {d.rate:g} with no q up to {end} (the network's "
+                      f"diameter {diameter} + {LOOK_FURTHER}; the gains cannot outrun the plant's slowest mode the "
+                      "sensors cannot speed up): lower design.rate")
 
 
 def budget_text(sc: Scenario, kind: FusionKind) -> str:
