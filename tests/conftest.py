@@ -33,3 +33,17 @@ if os.environ.get("SPLITSPEC_TEST_EIGENVALUES") == "iterative":
         from splitspec_core.synthesis import spectral
 
         monkeypatch.setattr(spectral, "DENSE_MAX", 0)
+
+
+# make test runs two workers (pytest-xdist, --dist loadgroup): the tests that start a deployment's processes
+# (integration, chaos) stay on one worker, one after another as before (their paced rounds and timeouts assume
+# the machine's other core is not another deployment); the unit and property tests share out the rest
+RUNTIME_FOLDERS = ("integration", "chaos")
+
+
+def pytest_collection_modifyitems(config, items):
+    if not config.pluginmanager.hasplugin("xdist"):
+        return
+    for item in items:
+        if Path(str(item.fspath)).parent.name in RUNTIME_FOLDERS:
+            item.add_marker(pytest.mark.xdist_group("runtime"))
