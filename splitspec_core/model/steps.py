@@ -50,6 +50,16 @@ predict,
 folded into the agent's own (:func:`fold_weights`).  ``design.consensus: fusion``:
 :mod:`splitspec_core.synthesis.fusion_kind`.
 
+Relay (:mod:`splitspec_core.synthesis.relay`)
+---------------------------------------------
+The exchanges carry the sensors' samples (:func:`relay_forward`: each agent passes on once every sample it holds);
+each agent keeps a base estimate ``b_i`` of ``x(t_b)`` and walks it forward over the samples it holds
+(:func:`relay_walk`, a :func:`relay_step` per event time of the walk), the base moving on once it is ``D`` behind:
+
+``e <- F e + G_l[:, r] (y_r(t) - C_r e) [+ B u(t)]``,  ``t = t_b .. tau``, ``l = tau - t``, ``r`` the rows held,
+
+``x_i(tau + 1) = e``.
+
 Bad data (:mod:`splitspec_core.synthesis.bad_data`)
 ---------------------------------------------------
 Before its update each agent tests its measurement against its prediction (:func:`innovation_test`):
@@ -80,6 +90,11 @@ __all__ = [
     "measurement_update",
     "prediction_update",
     "flatline",
+    "relay_step",
+    "relay_walk",
+    "relay_forward",
+    "relay_samples",
+    "relay_prune",
     "sampled_data_matrices",
     "sampled_step",
     "adaptive_gain_rate",
@@ -294,6 +309,169 @@ def fold_weights(blocks: dict, me, counted: Sequence) -> np.ndarray:
         if j not in counted:
             own = own + blocks[j]
     return np.hstack([own if j == me else blocks[j] for j in counted])
+
+
+def relay_step(e: np.ndarray, F: np.ndarray, G: np.ndarray, C: np.ndarray, y: np.ndarray,
+               bu: np.ndarray | None = None) -> np.ndarray:
+    """One step of the relay kind's walk, predictor form: ``F e + G (y - C e) [+ B u]``; no rows: ``F e [+ B u]``.
+
+    Parameters
+    ----------
+    e : (n,) ndarray
+        The estimate of ``x(t)``.
+    F : (n, n) ndarray
+        The per-step model.
+    G : (n, r) ndarray
+        The gain's columns of the rows held.
+    C : (r, n) ndarray
+        The rows held of the stacked output matrix.
+    y : (r,) ndarray
+        Their samples ``y_r(t)``.
+    bu : (n,) ndarray or None, optional
+        The known input's ``B u(t)`` (None: none).
+
+    Returns
+    -------
+    (n,) ndarray
+        The estimate of ``x(t + 1)``.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> relay_step(np.array([1.0]), np.eye(1), np.array([[0.5]]), np.eye(1), np.array([3.0]))
+    array([2.])
+    """
+    x = F @ e
+    if len(y):
+        x = x + G @ (y - C @ e)
+    return x if bu is None else x + bu
+
+
+def relay_walk(base: np.ndarray, t_base: int, tau: int, gains: Sequence[np.ndarray], F: np.ndarray, C: np.ndarray,
+               samples: dict, bus: dict | None = None) -> tuple:
+    """The relay kind's event time for one agent: walk the base ``b_i`` (the estimate of ``x(t_base)``) forward over
+    the samples held to ``x_i(tau + 1)``; the base moves on one step once it is ``D = len(gains) - 1`` behind.
+
+    Parameters
+    ----------
+    base : (n,) ndarray
+        ``b_i``.
+    t_base : int
+        The event time ``b_i`` estimates (``tau - D <= t_base <= tau``).
+    tau : int
+        The event time.
+    gains : sequence of (n, p) ndarray
+        ``gains[l]``: the walk's gain at lag ``l`` on every stacked row (zero columns for rows not designed),
+        ``gains[D]`` the base's.
+    F : (n, n) ndarray
+        The per-step model.
+    C : (p, n) ndarray
+        The stacked output matrix.
+    samples : dict
+        ``{t: (rows, y)}``: the stacked rows (int array, increasing) of ``y(t)`` held and their values.
+    bus : dict or None, optional
+        ``{t: B u(t)}`` (None: no inputs).
+
+    Returns
+    -------
+    tuple
+        ``(base, t_base, x)``: the base after the event time and ``x_i(tau + 1)``.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> gains = [np.array([[0.5]]), np.array([[0.5]])]  # D = 1
+    >>> relay_walk(np.zeros(1), 4, 5, gains, np.eye(1), np.eye(1), {4: (np.array([0]), np.array([2.0])),
+    ...                                                              5: (np.array([0]), np.array([2.0]))})
+    (array([1.]), 5, array([1.5]))
+    """
+    D = len(gains) - 1
+    e, nb, tb = base, base, t_base
+    empty = (np.zeros(0, dtype=np.int64), np.zeros(0))
+    for t in range(t_base, tau + 1):
+        rows, y = samples.get(t, empty)
+        lag = tau - t
+        e = relay_step(e, F, gains[lag][:, rows], C[rows], y, None if bus is None else bus.get(t))
+        if t == t_base and lag == D:  # the base's own step (every sensor in): it moves on
+            nb, tb = e, t_base + 1
+    return nb, tb, e
+
+
+def relay_forward(held: dict, sent: set) -> dict:
+    """What an agent sends in one exchange of the relay kind: the samples it holds and has not sent yet.
+
+    Parameters
+    ----------
+    held : dict
+        ``{(sensor position, event time): y_j(t)}`` of the samples it holds.
+    sent : set of (int, int)
+        The keys it sent before.
+
+    Returns
+    -------
+    dict
+        The samples to send, in the order of ``held``.
+
+    Examples
+    --------
+    >>> relay_forward({(0, 3): 1.5, (1, 3): 2.5}, {(0, 3)})
+    {(1, 3): 2.5}
+    """
+    return {k: v for k, v in held.items() if k not in sent}
+
+
+def relay_samples(held: dict, sensor_rows: Sequence[np.ndarray], t_base: int, tau: int) -> dict:
+    """``{t: (rows, y)}`` of the samples an agent holds for its walk from ``t_base`` to ``tau``
+    (:func:`relay_walk`), the sensors in increasing position.
+
+    Parameters
+    ----------
+    held : dict
+        ``{(sensor position, t): y_j(t)}``.
+    sensor_rows : sequence of int arrays
+        Each sensor's rows of the stacked ``y``.
+    t_base, tau : int
+        The walk's first and last event times.
+
+    Returns
+    -------
+    dict
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> got = relay_samples({(1, 4): np.array([2.0]), (0, 4): np.array([1.0])}, [np.array([0]), np.array([1])], 4, 4)
+    >>> got[4][0].tolist(), got[4][1].tolist()
+    ([0, 1], [1.0, 2.0])
+    """
+    out = {}
+    for t in range(t_base, tau + 1):
+        js = sorted(j for j, tt in held if tt == t)
+        if js:
+            out[t] = (np.concatenate([sensor_rows[j] for j in js]), np.concatenate([held[(j, t)] for j in js]))
+    return out
+
+
+def relay_prune(held: dict, cut: int) -> dict:
+    """The samples still wanted: those of event times ``cut`` on (no agent's walk starts before ``tau - D + 1``).
+
+    Parameters
+    ----------
+    held : dict
+        ``{(sensor position, t): y_j(t)}``.
+    cut : int
+        The first event time kept.
+
+    Returns
+    -------
+    dict
+
+    Examples
+    --------
+    >>> relay_prune({(0, 3): 1.0, (0, 4): 2.0}, 4)
+    {(0, 4): 2.0}
+    """
+    return {k: v for k, v in held.items() if k[1] >= cut}
 
 
 def prediction_update(z_q: np.ndarray, A: np.ndarray, bu: np.ndarray | None = None) -> np.ndarray:

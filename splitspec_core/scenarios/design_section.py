@@ -80,13 +80,13 @@ def parse_design(raw: Any, time: str, system: System, ids: tuple) -> DesignSpec:
         takes = gain_methods.listed(tuple(g.name for g in gain_methods.METHODS.values() if g.whole is not None))
         raise ScenarioError(f"design.consensus: whole takes design.gains {takes} ({gains} sets the split's local "
                             "poles)")
-    if consensus == "fusion":
-        _check_fusion(dmap, system)
+    if consensus in ("fusion", "relay"):
+        _check_noise_kind(consensus, dmap, system)
     if method.needs_noise and not _noisy(system):
         raise ScenarioError(f"design.gains: {gains} minimizes the error under noise: set system.process_noise "
                             "and/or system.measurement_noise")
     # the whole-state design exchanges q times per event time (continuous: per run.dt) and has no g
-    whole_possible = consensus in ("whole", "fusion") or (consensus == "auto" and not method.local)
+    whole_possible = consensus in ("whole", "fusion", "relay") or (consensus == "auto" and not method.local)
     K = None
     if method.needs_K:
         kraw = dmap.get("K")
@@ -113,7 +113,7 @@ def parse_design(raw: Any, time: str, system: System, ids: tuple) -> DesignSpec:
     g = read(dmap, "design", "g")  # a number, auto or adaptive
     if time == "discrete" and "g" in dmap:
         raise ScenarioError("design.g is for continuous time; discrete time uses design.q")
-    if consensus in ("whole", "fusion") and "g" in dmap:
+    if consensus in ("whole", "fusion", "relay") and "g" in dmap:
         raise ScenarioError(f"design.g is the split design's consensus gain; design.consensus: {consensus} exchanges "
                             "design.q times per run.dt")
     if not method.local and g == "adaptive":
@@ -192,18 +192,19 @@ def _bad_data(dmap: dict, system: System) -> tuple | None:
     return (float(p), int(k))
 
 
-def _check_fusion(dmap: dict, system: System) -> None:
-    """``design.consensus: fusion`` (synthesis/fusion_kind.py): its gains are the noise's, every output's
-    measurement noise above zero; what it does not offer yet is refused here, in one line each."""
+def _check_noise_kind(kind: str, dmap: dict, system: System) -> None:
+    """``design.consensus: fusion`` or ``relay`` (synthesis/fusion_kind.py, synthesis/relay.py): its gains are the
+    noise's, every output's measurement noise above zero; what it does not offer yet is refused here, in one line
+    each."""
     if not system.measurement_noise_present or bool((system.measurement_std <= 0).any()):
-        raise ScenarioError("design.consensus: fusion chooses its gains for the noise: set system.measurement_noise "
+        raise ScenarioError(f"design.consensus: {kind} chooses its gains for the noise: set system.measurement_noise "
                             "above 0 on every output")
     if dmap.get("gains") not in (None, gain_methods.NOISY_DEFAULT):
-        raise ScenarioError(f"design.consensus: fusion chooses its own gains for the noise: leave design.gains out "
+        raise ScenarioError(f"design.consensus: {kind} chooses its own gains for the noise: leave design.gains out "
                             f"(got {dmap['gains']})")
     for key, off in (("bad_data", ("off", None)), ("resilience", (0, None)), ("K", (None,))):
         if dmap.get(key, None) not in off:
-            raise ScenarioError(f"design.{key} is not offered with design.consensus: fusion")
+            raise ScenarioError(f"design.{key} is not offered with design.consensus: {kind}")
 
 
 def _noisy(system: System) -> bool:

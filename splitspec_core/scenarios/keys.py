@@ -132,8 +132,9 @@ DESIGN = (
                                        "scales span more than 100x)", words=("auto", "given", "balanced")),
     Key("consensus", "word", "auto", "what each agent takes from its neighbours (auto: the split, but for gains: "
                                      "optimal, which keeps the certified one with the smaller noise; fusion: "
-                                     "estimates fused with matrix weights chosen for the noise)",
-        words=("auto", "split", "whole", "fusion")),
+                                     "estimates fused with matrix weights chosen for the noise; relay: the sensors' "
+                                     "samples passed on, each agent the Kalman predictor of what it holds)",
+        words=("auto", "split", "whole", "fusion", "relay")),
     Key("bad_data", "map|word", "off", "each agent tests its measurement against its prediction and sets a failing one "
                                        "aside: off, or {false_alarm, suspect_after} (design.bad_data.*; needs noise)",
         words=("off",)),

@@ -10,7 +10,9 @@ step) is one of
 * :class:`WholeState` - :mod:`splitspec_core.synthesis.whole_state`: the update on the per-step model, then ``q``
   plain averages of the whole estimate;
 * :class:`Fusion` - :mod:`splitspec_core.synthesis.fusion_kind`: measure, fuse ``q`` times with matrix weights,
-  predict.
+  predict;
+* :class:`Relay` - :mod:`splitspec_core.synthesis.relay`: measure, pass the samples on ``q`` times, walk each
+  agent's base estimate over the samples it holds.
 
 Each class holds the kind's matrices and runs its event time in every form the simulator has: ``step`` /
 ``step_realized`` for :class:`~splitspec_core.simulation.simulator.BatchEstimator` (the agents stacked, ``X`` (m, n)),
@@ -20,7 +22,7 @@ of :mod:`splitspec_core.model.steps`, as the agent processes call them) and ``se
 when they are made; a kind is added here, as one class (``docs/how-to/extend.md``), and nowhere in the simulator's
 loop or the Monte Carlo batch.
 
-Why one module: the four kinds share the sparse kernels and the realized consensus matrix below, and the forms of one
+Why one module: the kinds share the sparse kernels and the realized consensus matrix below, and the forms of one
 kind must be read side by side (each is checked against the others to round-off).
 """
 
@@ -33,7 +35,7 @@ from ..model import steps as st
 from ..model.impairment import realized_row
 from ..synthesis.design_data import Design
 
-__all__ = ["Kind", "SplitDiscrete", "SplitSampled", "WholeState", "Fusion", "KINDS", "kind_of", "RealizedS",
+__all__ = ["Kind", "SplitDiscrete", "SplitSampled", "WholeState", "Fusion", "Relay", "KINDS", "kind_of", "RealizedS",
            "realized_rows", "weight_entries", "consensus_matrix", "spmv", "spmm", "bmv", "exact_refusal",
            "EXACT_NEEDS_FIXED_G"]
 
@@ -771,8 +773,91 @@ class Fusion(Kind):
         return Xn
 
 
+class Relay(Kind):
+    """The relay kind (:mod:`splitspec_core.synthesis.relay`), agent by agent with the step functions of
+    :mod:`splitspec_core.model.steps` in the order an agent process calls them: its own sample held, per exchange
+    ``relay_forward`` to the neighbours whose messages count, then ``relay_walk`` over the samples held.  Each agent's
+    base, its base's event time and the samples it holds and has sent are the kind's own state (a start or a restart
+    takes the initial estimate as the base, nothing held); the batch and the loop forms run the same steps, the seeds
+    do not batch."""
+
+    label = "relay kind"
+
+    seeds_refusal = "the relay kind runs its agents' steps one seed at a time (kinds.Relay)"
+
+    def __init__(self, est):
+        from ..synthesis.relay import gain_table
+
+        super().__init__(est, est.Ks)
+        sc, r = est.sc, est.des.whole
+        self.F = np.asarray(r.F)
+        self.C = np.vstack([np.asarray(C, dtype=float) for C in sc.system.Cs])
+        dt = sc.run.dt if sc.time == "continuous" else None
+        self.G = None if dt is None else st.sampled_data_matrices(np.asarray(sc.system.A), dt)[1]
+        self.D = r.D
+        self.table = [gain_table(r, i) for i in range(self.m)]
+        self.sensor_rows = [np.arange(s.start, s.stop, dtype=np.int64) for s in est.rows_y]
+        self.base = np.zeros((self.m, self.n))
+        self.t_base = np.zeros(self.m, dtype=np.int64)
+        self.fresh = set(range(self.m))
+        self.held = [{} for _ in range(self.m)]  # per agent {(sensor, t): y_j(t)}
+        self.sent = [set() for _ in range(self.m)]
+        self.bus: dict = {}  # t -> B u(t) (continuous: the sampled model's)
+
+    def restart(self, i):
+        self.fresh.add(i)
+
+    def weights(self, rows):
+        """The rows themselves: the samples go to the neighbours whose messages count."""
+        return rows
+
+    def realized(self, rows, entries, counts):
+        return realized_rows(self.sc, rows, entries, counts)
+
+    def step_realized(self, X, y, Ws, alive, missing, bu):
+        return self.loop(X, y, Ws, alive, missing, bu)
+
+    def loop(self, X, y, rounds, alive, missing, bu):
+        tau, pos = int(self.est.tau), self.est.pos
+        members = [pos[i] for i in rounds[0]]
+        for i in members:
+            if i in self.fresh:  # a start: the initial estimate is the base at tau, nothing held
+                self.base[i], self.t_base[i] = X[i], tau
+                self.held[i], self.sent[i] = {}, set()
+                self.fresh.discard(i)
+        ys = self.ys(y, missing)
+        bu = st.step_input(self.G, bu)
+        if bu is not None:
+            self.bus[tau] = bu
+        for i in members:
+            if ys[i] is not None:
+                self.held[i][(i, tau)] = ys[i]
+        for rows in rounds:  # each exchange: every member sends what it has not sent; the counted ones arrive
+            out = {pos[j]: st.relay_forward(self.held[pos[j]], self.sent[pos[j]]) for j in rows}
+            for j, s in out.items():
+                self.sent[j] |= set(s)
+            for i_id, (nbs, _) in rows.items():
+                i = pos[i_id]
+                for j_id in nbs:
+                    if j_id != i_id:
+                        self.held[i].update(out[pos[j_id]])
+        Xn = np.zeros_like(X)
+        for i in members:
+            samples = st.relay_samples(self.held[i], self.sensor_rows, int(self.t_base[i]), tau)
+            self.base[i], self.t_base[i], Xn[i] = st.relay_walk(self.base[i], int(self.t_base[i]), tau,
+                                                                 self.table[i], self.F, self.C, samples,
+                                                                 self.bus if self.bus else None)
+        cut = tau - self.D + 1  # no agent's walk starts before: older samples are no longer sent or held
+        for i in range(self.m):
+            self.held[i] = st.relay_prune(self.held[i], cut)
+            self.sent[i] = {h for h in self.sent[i] if h[1] >= cut}
+        for t in [t for t in self.bus if t < cut]:
+            del self.bus[t]
+        return Xn
+
+
 #: the kinds by the name a design gives (``Design.consensus``, and ``split`` by the scenario's time)
-KINDS = {"split": SplitDiscrete, "sampled": SplitSampled, "whole": WholeState, "fusion": Fusion}
+KINDS = {"split": SplitDiscrete, "sampled": SplitSampled, "whole": WholeState, "fusion": Fusion, "relay": Relay}
 
 
 def kind_of(des: Design) -> type:

@@ -219,8 +219,8 @@ def steady_start(c: float | None, r: float, e0: float, floor: float, T: int) -> 
 def _scenario_row(sc: Scenario, des) -> str:
     """The name of the scenario's own design in :func:`compare`."""
     method = gain_methods.method(sc.design.gains)
-    if des.consensus == "fusion":
-        return f"fusion (q = {des.q})"
+    if des.consensus in ("fusion", "relay"):
+        return f"{des.consensus} (q = {des.q})"
     if not method.local:
         return f"{method.name} ({'whole state' if des.consensus == 'whole' else 'split'})"
     if des.consensus == "whole":

@@ -15,7 +15,9 @@ noise: ``design.consensus``, ``design.gains: optimal``), ``mixing.py`` what cert
 and dwell-time bounds); ``fusion.py`` the fusion kind (matrix weights per exchange, each agent's gains the best
 for the noise given the others': few exchanges) and ``fusion_kind.py`` it in a design (``design.consensus: fusion``:
 the budget q, its certificate, what each agent is sent), ``exchange_limit.py`` the two-rate protocol's limit at q exchanges
-(the Kalman predictor fed each sensor as late as the protocol delivers it); ``design_cache.py`` designs paid once
+(the Kalman predictor fed each sensor as late as the protocol delivers it), ``relay.py`` the relay kind (the
+exchanges pass the sensors' samples on, each agent the Kalman predictor of what it holds: the protocol's limit,
+``design.consensus: relay``); ``design_cache.py`` designs paid once
 (kept in the process and on disk, keyed by content);
 ``verdict.py`` the certificate's verdict, computed once, ``report.py`` its rendering (``splitspec design``),
 ``advice.py`` the knobs a warning would name, each designed on the scenario and measured.

@@ -63,7 +63,7 @@ def _figures(des: Design) -> tuple:
 def _problems(des: Design) -> bool:
     """The design has something advice is for: a split design with warned margins or gains, a transient above
     :data:`TRANSIENT_WARN`, or a steady error above :data:`NOISE_WARN` times the Kalman filter's."""
-    if des.consensus in ("whole", "fusion") or des.adaptive:
+    if des.consensus in ("whole", "fusion", "relay") or des.adaptive:
         return False
     cond = conditioning(des)
     weak = any(a.observability_margin is not None and a.observability_margin < MARGIN_WARN for a in cond.agents)

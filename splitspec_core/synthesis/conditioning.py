@@ -286,7 +286,7 @@ def conditioning(des: Design) -> Conditioning:
     rms, graph, kf_rms, ref_rms = None, None, None, None
     s = sc.system
     if s.has_noise:
-        if not des.adaptive and sc.m * sc.n <= MAX_NOISE_DIM:
+        if not des.adaptive and (sc.m * sc.n <= MAX_NOISE_DIM or des.consensus == "relay"):  # relay: n x n
             k = sc.graph_names.index(sc.switching.graph_names(sc.graph_names)[0])
             graph = sc.graph_names[k]
             rms = {i: float(v) for i, v in zip(sc.agent_ids, predicted_rms(des, k))}
@@ -371,6 +371,15 @@ def _transient(des: Design, warnings: list) -> tuple:
     sc = des.scenario
     if des.adaptive:
         return None, None, "not defined for the adaptive gain (g changes with time)"
+    if des.consensus == "relay":  # its own constant, from n x n maps (synthesis/relay.py)
+        k = des.whole
+        label = des.cases[0].label
+        if k.transient_constant > TRANSIENT_WARN:
+            value = "infinite" if math.isinf(k.transient_constant) else f"{k.transient_constant:.2g}"
+            warnings.append(f"errors can grow {value}-fold before they decay (transient_constant, graph {label}; > "
+                            f"{TRANSIENT_WARN:g})")
+        return k.transient_constant, label, ("max over the agents of the walk's start and ||G_i|| c(F - L C) / "
+                                             "rate^D (relay: n x n maps), per event time")
     if sc.m * sc.n > MAX_DIM:
         return None, None, f"not computed: m n = {sc.m * sc.n} > {MAX_DIM}"
     used = set(sc.switching.graph_names(sc.graph_names))

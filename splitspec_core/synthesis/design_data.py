@@ -89,7 +89,7 @@ class Design:
     def two_rate(self) -> bool:
         """q consensus exchanges per event time: discrete time, or the whole-state design in continuous time (one
         event time per ``run.dt``)."""
-        return self.time == "discrete" or self.consensus in ("whole", "fusion")
+        return self.time == "discrete" or self.consensus in ("whole", "fusion", "relay")
 
     @property
     def rate(self) -> float:

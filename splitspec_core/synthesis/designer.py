@@ -37,6 +37,7 @@ from ..errors import AssumptionError, DesignError
 from .design_data import Design
 from .error_matrix import MAX_NOISE_DIM, predicted_rms, remember_predicted
 from ..model.local_design import design_agent, gain_request, whole_placeholder, with_gain
+from ..model.plant import output_rows
 from .prelude import Prelude
 from .sampled_rates import exact_g, sampled_g
 from .verdict import rate_certificate
@@ -146,7 +147,7 @@ def design(sc: Scenario, *, compare_q_methods: bool = False, workers: int | None
 
 def _dispatch(sc: Scenario, compare_q_methods: bool, workers: int | None) -> Design:
     d = sc.design
-    if d.consensus in ("whole", "fusion"):
+    if d.consensus in ("whole", "fusion", "relay"):
         return _design(sc, d.consensus, compare_q_methods, workers)
     if d.consensus == "auto" and not gain_methods.method(d.gains).local:  # a central method: both structures
         return _choose(sc, compare_q_methods, workers)
@@ -376,7 +377,7 @@ def _design(pre: "Prelude | Scenario", structure: str, compare_q_methods: bool, 
     A = sc.system.A
     warnings = list(pre.warnings)
     cases, switching = pre.cases, pre.switching
-    if structure in ("whole", "fusion"):
+    if structure in ("whole", "fusion", "relay"):
         if not un.decays:
             raise AssumptionError(f"design.consensus: {structure} needs every mode no agent sees to decay (the "
                                   "centralized filter it spreads has none for the others): design.consensus: split")
@@ -395,6 +396,8 @@ def _design(pre: "Prelude | Scenario", structure: str, compare_q_methods: bool, 
                   arc_losses=pre.arc_losses, split_residual=residual, unobserved=un, spectrum=pre.sp)
     if structure == "fusion":
         return _fusion(sc, agents, un, warnings, common)
+    if structure == "relay":
+        return _relay(sc, agents, un, warnings, common)
     if structure == "whole":
         Ks, q, info, radii, cert = design_whole(sc, cases, rate=un.envelope(d.rate),
                                                 dwell=scenario_dwell(sc) if switching else None, warnings=warnings)
@@ -438,6 +441,51 @@ def _fusion(sc: Scenario, agents: tuple, un, warnings: list, common: dict) -> De
     return Design(agents=agents, warnings=tuple(warnings), q=kind.q, q_result=result,
                   q_methods={"full error matrix": result}, error_radius=radii, full_radius=radii, consensus="fusion",
                   whole=kind, **common)
+
+
+def _relay(sc: Scenario, agents: tuple, un, warnings: list, common: dict) -> Design:
+    """The relay kind (:mod:`.relay`): the centralized predictor's gain (shifted by the rate when needed), each
+    agent's walk over the samples it holds; certified by the base's error map, ``n x n``."""
+    from .relay import relay_q, scenario_relay
+
+    d = sc.design
+    rate = un.envelope(d.rate)
+    kind = scenario_relay(sc, relay_q(sc), rate)
+    if not kind.certified:
+        warnings.append(relay_refusal(sc, kind))
+    rows = output_rows(sc.system.Cs)
+    # each agent's K_i in the predictor's form without neighbours (x+ = F x - L_i (C_i x - y_i)): the base's columns
+    # of its own rows, for the reports; what runs is the walk (kinds.Relay)
+    agents = tuple(with_gain(a, -kind.L[:, rows[k]], "relay") for k, a in enumerate(agents))
+    radii = {sc.graph_names[0]: kind.radius}
+    result = bounds.QResult(q=kind.q, method="base error map", bound=kind.radius, certified=kind.certified,
+                            switching=False)
+    des = Design(agents=agents, warnings=tuple(warnings), q=kind.q, q_result=result,
+                 q_methods={"base error map": result}, error_radius=radii, full_radius=radii, consensus="relay",
+                 whole=kind, **common)
+    remember_predicted(des, 0, kind.agent_rms)
+    return des
+
+
+def relay_refusal(sc: Scenario, kind) -> str:
+    """One line: the relay kind does not certify the rate, and the fastest rate it keeps (whatever ``q``: its
+    certificate is the centralized predictor's).
+
+    Parameters
+    ----------
+    sc : Scenario
+    kind : RelayDesign
+        Not certified.
+
+    Returns
+    -------
+    str
+    """
+    r = kind.radius
+    fastest = f"{r:.6g} per event time" if sc.time == "discrete" else \
+        f"{-math.log(r) / sc.run.dt:.4g} /s" if 0 < r < 1 else "none: its error map is unstable"
+    return (f"design.consensus: relay does NOT certify rate {sc.design.rate:g} at any q: its base is the centralized "
+            f"predictor, whose most shifted gain keeps rate {fastest} (spectral radius {r:.6g}): lower design.rate")
 
 
 def _design_g(sc: Scenario, cases, switching: bool, warnings: list) -> dict:

@@ -343,6 +343,9 @@ def error_dynamics(des: "Design", graph_index: int = 0) -> tuple:
 
     sc = des.scenario
     m, n = sc.m, sc.n
+    if des.consensus == "relay":  # no map of the estimates alone: the base and the samples held are state too
+        raise DesignError("the relay kind's error is not a map of the agents' estimates alone (each agent's base "
+                          "and the samples it holds are state too): its prediction is the design's (synthesis/relay.py)")
     if des.consensus == "fusion":  # its own error map and noise (synthesis/fusion_kind.py)
         from .fusion_kind import fusion_matrix, fusion_noise
 

@@ -298,12 +298,15 @@ class Exchanges:
         Messages each agent sends per event time (``q``; 1 for the continuous sampled-data form with ``g``); None
         when the design has no ``q``.
     numbers : int or None
-        Numbers each agent sends per event time: ``messages n`` (each message one estimate).
+        Numbers each agent sends per event time: ``messages n`` (each message one estimate); the relay kind's: at
+        most ``p``, every sensor's sample once.
     limit : ProtocolLimit or None
         The limit at ``messages`` exchanges, on ``graph``; None without noise, above the noise analysis's size or
         above :data:`LIMIT_AGENTS` agents.
     graph : str or None
         The graph the limit is computed on (the first the switching uses).
+    relayed : bool
+        The messages carry samples (the relay kind), not estimates.
     """
 
     per: str
@@ -311,6 +314,7 @@ class Exchanges:
     numbers: int | None
     limit: ProtocolLimit | None
     graph: str | None
+    relayed: bool = False
 
     def text(self) -> str:
         """The report's line.
@@ -322,8 +326,13 @@ class Exchanges:
         """
         if self.messages is None:
             return ""
-        out = (f"exchanges: each agent sends {self.messages} message{'s' if self.messages != 1 else ''} of "
-               f"{self.numbers // self.messages} numbers per {self.per} ({self.numbers} numbers)")
+        if self.relayed:
+            out = (f"exchanges: each agent sends {self.messages} message{'s' if self.messages != 1 else ''} per "
+                   f"{self.per} carrying at most {self.numbers} numbers in all (every sensor's sample once, each with "
+                   "its sensor and event time)")
+        else:
+            out = (f"exchanges: each agent sends {self.messages} message{'s' if self.messages != 1 else ''} of "
+                   f"{self.numbers // self.messages} numbers per {self.per} ({self.numbers} numbers)")
         if self.limit is not None:
             out += (f"; the protocol's limit at q = {self.messages}: {self.limit.ratio:.4g}x the centralized Kalman "
                     f"filter's RMS (graph {self.graph}: each sensor ceil(d / q) - 1 event times late; no estimator "
@@ -357,7 +366,7 @@ def design_exchanges(des) -> Exchanges:
     """
     sc = des.scenario
     per = "event time" if sc.time == "discrete" else "run.dt"
-    if sc.time == "continuous" and des.consensus not in ("whole", "fusion"):
+    if sc.time == "continuous" and des.consensus not in ("whole", "fusion", "relay"):
         q = 1  # the sampled-data form: one exchange per step
     else:
         q = None if des.q is None else int(des.q)
@@ -370,4 +379,7 @@ def design_exchanges(des) -> Exchanges:
             limit = scenario_limit(sc, q, graph=sc.graph_names.index(graph))
         except SplitspecError:  # no Kalman predictor (the stacked sensors not detectable with the noise): no limit
             limit, graph = None, None
+    if des.consensus == "relay":  # every sample once: p numbers, whatever q (synthesis/relay.py)
+        p = sum(int(np.shape(C)[0]) for C in sc.system.Cs)
+        return Exchanges(per=per, messages=q, numbers=p, limit=limit, graph=graph, relayed=True)
     return Exchanges(per=per, messages=q, numbers=q * sc.n, limit=limit, graph=graph)

@@ -135,6 +135,11 @@ def loss_certificate(des: Design) -> LossCertificate | None:
                                       "constant within an event time; a lost message folds its weight into the "
                                       "receiver's own, another error map (what loss costs is measured by splitspec "
                                       f"compare --sweep-loss){cut}")
+    if des.consensus == "relay":
+        return LossCertificate(False, "not certified under loss: the relay kind's certificate holds every sample "
+                                      "arriving as the graph's hops say; a lost message leaves its samples out of "
+                                      "the walk, the base running on fewer rows (what loss costs is measured by "
+                                      f"splitspec compare --sweep-loss){cut}")
     if des.consensus == "whole":
         return LossCertificate(False, "not certified under loss: the whole-state design's certificates (the full error "
                                       "matrix, the mixing bound) hold the graph constant within an event time and its "

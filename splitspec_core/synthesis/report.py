@@ -94,7 +94,7 @@ def _whole_json(des: Design) -> dict | None:
     """The whole-state design's choices (:class:`~splitspec_core.synthesis.whole_state.WholeState`), None for the
     split."""
     w = des.whole
-    if w is None or des.consensus == "fusion":
+    if w is None or des.consensus in ("fusion", "relay"):
         return None
     return {"method": w.method, "alpha": _num(w.alpha), "pi": [float(v) for v in w.pi], "rate_per_step": _num(w.lam_step),
             "central_radius": _num(w.central_radius), "central_rms": _num(w.central_rms),
@@ -114,6 +114,17 @@ def _fusion_json(des: Design) -> dict | None:
             "ratio_to_kalman": {name: _num(d.ratio) for name, d in zip(des.scenario.graph_names, k.designs)},
             "limit": _num(k.limit), "fewest_certified_q": k.fewest,
             "exchanges_per": "event time" if des.time == "discrete" else "run.dt"}
+
+
+def _relay_json(des: Design) -> dict | None:
+    """The relay design's choices (:class:`~splitspec_core.synthesis.relay.RelayDesign`), None otherwise."""
+    if des.consensus != "relay":
+        return None
+    k = des.whole
+    return {"q": k.q, "delay": k.D, "rate_per_step": _num(k.lam_step), "radius": _num(k.radius),
+            "certified": bool(k.certified), "alpha": _num(k.alpha), "ratio_to_kalman": _num(k.ratio),
+            "limit": _num(k.limit), "transient_constant": _num(k.transient_constant) if math.isfinite(
+                k.transient_constant) else "inf", "exchanges_per": "event time" if des.time == "discrete" else "run.dt"}
 
 
 def _conditioning_json(des: Design) -> dict:
@@ -254,14 +265,14 @@ def design_json(des: Design) -> dict:
                fastest_certified_rate=None if reach is None else {"rate": reach.rate, "refused": reach.refused},
                fewest_certified_q=fewest_exchanges(des))
     out.update(consensus=des.consensus, consensus_choice=des.chosen, whole_state=_whole_json(des),
-               fusion=_fusion_json(des))
+               fusion=_fusion_json(des), relay=_relay_json(des))
     ex = design_exchanges(des)
     vec = math.sqrt(sc.n)  # the limit's RMS per state, given here of the error vector as predicted_rms is
     out["exchanges"] = {"per": ex.per, "messages": ex.messages, "numbers": ex.numbers, "limit": None if ex.limit is None
                         else {"q": ex.limit.q, "graph": ex.graph, "ratio_to_kalman": _num(ex.limit.ratio),
                               "rms": _num(vec * ex.limit.rms), "kalman_rms": _num(vec * ex.limit.kf_rms),
                               "agents": {str(i): _num(vec * v) for i, v in zip(sc.agent_ids, ex.limit.agent_rms)}}}
-    if sc.time == "continuous" and des.consensus not in ("whole", "fusion"):
+    if sc.time == "continuous" and des.consensus not in ("whole", "fusion", "relay"):
         out.update({
             "g": _num(des.g),
             "g_mode": des.g_mode,
@@ -315,6 +326,8 @@ def fewest_exchanges(des: Design) -> int | None:
         return None
     if des.consensus == "fusion":
         return des.whole.fewest
+    if des.consensus == "relay":  # its certificate is the centralized predictor's: no q changes it
+        return None
     try:
         auto = design(dataclasses.replace(sc, design=dataclasses.replace(sc.design, q="auto")))
     except SplitspecError:
@@ -419,7 +432,8 @@ def design_text(des: Design) -> str:
     d = sc.design
     unit = "exp(-lam t)" if sc.time == "continuous" else "lam^tau"
     adaptive = des.g_mode == "adaptive"
-    consensus = {"whole": "the whole state", "fusion": "the whole state, fused with matrix weights (fusion)"}.get(
+    consensus = {"whole": "the whole state", "fusion": "the whole state, fused with matrix weights (fusion)",
+                 "relay": "the sensors' samples, passed on (relay)"}.get(
         des.consensus, "the split (each agent's unobservable space)")
     lines = [
         f"splitspec design: {sc.name}  ({sc.time} time, m = {sc.m} agents, n = {sc.n} states)",
@@ -464,6 +478,8 @@ def design_text(des: Design) -> str:
     lines += ["", f"cases covered: {', '.join(c.label for c in des.cases)}"]
     if des.consensus == "fusion":
         lines += [""] + fusion_lines(des)
+    elif des.consensus == "relay":
+        lines += [""] + relay_lines(des)
     elif sc.time == "continuous" and des.consensus != "whole":
         lines.append("")
         if des.g_mode == "adaptive":
@@ -516,7 +532,7 @@ def design_text(des: Design) -> str:
     if reach is not None:
         lines.append(f"  {reach.text}")
     fewest = fewest_exchanges(des)
-    if fewest is not None and des.consensus != "fusion":  # the fusion kind's warning says it already
+    if fewest is not None and des.consensus not in ("fusion", "relay"):  # the fusion kind's warning says it already
         per = "event time" if sc.time == "discrete" else "run.dt"
         lines.append(f"  the fewest exchanges that certify rate {d.rate:g} with these design keys: q = {fewest} per "
                      f"{per} (design.q: auto), against the budget design.q = {d.q}")
@@ -579,7 +595,8 @@ def _size_lines(des: Design) -> list:
         allrms = _all_rms(cond.predicted_rms)
         per = ", ".join(f"{i}: {v:.3g}" for i, v in cond.predicted_rms.items())
         out.append(f"noise: predicted steady-state RMS error {allrms:.3g}{reference_text(allrms, cond)} (per agent "
-                   f"{per}; graph {cond.predicted_graph} held constant, discrete Lyapunov equation)")
+                   f"{per}; graph {cond.predicted_graph} held constant, "
+                   f"{'the base covariance walked per agent' if des.consensus == 'relay' else 'discrete Lyapunov equation'})")
     elif cond.kalman_rms is not None:
         out.append(f"noise: the steady-state error is not predicted (m n = {sc.m * sc.n}); the centralized Kalman "
                    f"filter's is {cond.kalman_rms:.3g}")
@@ -645,6 +662,15 @@ def agent_lines(des: Design, cond) -> list:
             U = np.linalg.svd(np.asarray(a.K, dtype=float), full_matrices=False)[0] if a.K.size else a.K
             out.append(f"  agent {a.id}: s_i = {a.K.shape[1]}, corrects locally {spread(U, names) or 'nothing'}; "
                        f"takes every state from its neighbours; |F L_i| {c.gain_norm:.3g}")
+        return out
+    if des.consensus == "relay":
+        out = ["agents  (relay: each agent passes on every sample it holds once, and walks its base estimate of",
+               "         x(tau - D) forward over the samples it holds with the centralized predictor's gains; what",
+               "         its own sensor's columns of the base's gain L correct, by its largest states, and ||L_i||)"]
+        for k, (a, c) in enumerate(zip(des.agents, cond.agents)):
+            U = np.linalg.svd(np.asarray(a.K, dtype=float), full_matrices=False)[0] if a.K.size else a.K
+            out.append(f"  agent {a.id}: s_i = {a.K.shape[1]}, its samples correct {spread(U, names) or 'nothing'}; "
+                       f"every sensor's samples reach it; |L_i| {c.gain_norm:.3g}")
         return out
     if des.consensus == "whole":
         w = des.whole
@@ -724,6 +750,33 @@ def fusion_lines(des: Design) -> list:
         f"the steady-state gains of the model shifted by alpha = {k.alpha:.6g} (the noise's are slower than the rate)"
     out.append(f"  gains: {gains}; predicted {k.designs[0].ratio:.4g}x the Kalman predictor's RMS, its limit at q = "
                f"{des.q}: {k.limit:.4g}x")
+    return out
+
+
+def relay_lines(des: Design) -> list:
+    """The relay design's q, its delays, its certificate and what its gains are.
+
+    Parameters
+    ----------
+    des : Design
+        A relay design (``des.consensus == "relay"``).
+
+    Returns
+    -------
+    list of str
+    """
+    sc = des.scenario
+    k = des.whole
+    per = "event time" if sc.time == "discrete" else f"run.dt = {sc.run.dt:g}"
+    how = "design.q: given" if sc.design.q != "auto" else \
+        "the smallest whose protocol limit is within 1 % of the Kalman filter"
+    out = [f"q = {des.q} exchanges per {per}  (relay; {how}); every sample reaches every agent at most {k.D} event "
+           f"time{'s' if k.D != 1 else ''} late; spectral radius of the base's error map {k.radius:.6g} "
+           f"{'<' if k.certified else '>='} {k.lam_step:.6g} per step"]
+    gains = "the Kalman predictor's gain" if k.alpha == 1.0 else \
+        f"the Riccati predictor of the model shifted by alpha = {k.alpha:.6g} (the Kalman predictor is slower than the rate)"
+    out.append(f"  base: {gains}; the walk: the Kalman gains of the samples held at each lag; predicted {k.ratio:.4g}x "
+               f"the Kalman predictor's RMS, the protocol's limit at q = {des.q}: {k.limit:.4g}x")
     return out
 
 

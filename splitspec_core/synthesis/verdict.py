@@ -180,6 +180,8 @@ def _split_certificate(des: Design, *, sampled: bool = True) -> RateCertificate:
         return _whole_certificate(des)
     if des.consensus == "fusion":
         return _fusion_certificate(des)
+    if des.consensus == "relay":
+        return _relay_certificate(des)
     if des.full_radius:
         return _full_certificate(des, sampled=sampled)
     cert = _blocks_certificate(des, sampled=sampled)
@@ -280,6 +282,16 @@ def _fusion_certificate(des: Design) -> RateCertificate:
     return RateCertificate(k.certified, f"q = {des.q}: spectral radius of the full error map {k.radius:.6g} "
                                         f"{'<' if k.certified else '>='} {k.lam_step:.6g} {per}{held}; fusion",
                            by="full error matrix")
+
+
+def _relay_certificate(des: Design) -> RateCertificate:
+    """The relay kind (:mod:`.relay`): the base's error map below the rate per step (the agents' errors do not
+    couple; each is its walk's fixed map of the base's)."""
+    k = des.whole
+    per = "per event time" if des.time == "discrete" else f"per run.dt = {des.scenario.run.dt:g}"
+    return RateCertificate(k.certified, f"q = {des.q}: spectral radius of the base's error map F - L C {k.radius:.6g} "
+                                        f"{'<' if k.certified else '>='} {k.lam_step:.6g} {per} (every agent's error "
+                                        "its walk's fixed map of it; the graph fixed); relay", by="base error map")
 
 
 def _full_certificate(des: Design, *, sampled: bool) -> RateCertificate:
@@ -383,6 +395,15 @@ def survivors_certificate(des: Design, alive: tuple, arcs: dict, network, *, exc
         cert, by = worst < lam, "full error matrix"
         text = (f"q = {des.q}, the gains kept, the lost neighbours' weights folded into each agent's own: spectral "
                 f"radius of the survivors' full error map {worst:.6g} {'<' if cert else '>='} {lam:.6g} per step; fusion")
+    elif des.consensus == "relay":  # the gains kept: the base runs on the samples that still arrive in time
+        from .relay import survivors_radius as relay_survivors
+
+        worst = relay_survivors(des, alive, arcs)
+        lam = des.whole.lam_step
+        cert, by = worst < lam, "base error map"
+        text = (f"q = {des.q}, the gains kept, the lost agents' samples (and those arriving later than the base "
+                f"needs) left out: spectral radius of the base's error map {worst:.6g} {'<' if cert else '>='} "
+                f"{lam:.6g} per step; relay")
     elif des.consensus == "whole":  # the gains kept: the survivors' full error matrices (whole_state.py)
         cert, text, by = _whole_survivors(des, alive, arcs)
         un_S = network.unobserved if cert else un_S
