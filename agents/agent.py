@@ -125,7 +125,9 @@ class AgentNode:
         gain = config.get("gain")
         # the fusion kind (synthesis/fusion_kind.py): L_i and W_ij(k) per graph, the per-step model; P_i = I
         self.fusion = FusionPart(gain, sc, self.C) if gain is not None and gain.get("consensus") == "fusion" else None
-        if self.fusion is not None:
+        # the relay kind (synthesis/relay.py): the samples passed on, the walk's gains by lag
+        self.relay = RelayPart(gain, sc, self.index) if gain is not None and gain.get("consensus") == "relay" else None
+        if self.fusion is not None or self.relay is not None:
             self.K, self.P, self.V, self.whole = np.zeros((self.n, self.s)), np.eye(self.n), np.zeros((self.n, 0)), False
         elif gain is not None:  # a gain the design chose centrally (design.gains: optimal, or design.consensus: whole)
             self.K, self.P, self.V = central_part(gain, self.n, self.s)
@@ -136,9 +138,9 @@ class AgentNode:
             self.K, self.P, self.V = local.K, local.P, local.V_adaptive
             self.whole = False
         # continuous: the paper's sampled-data form with g; the whole-state design runs q exchanges per run.dt
-        self.continuous = sc.time == "continuous" and not self.whole and self.fusion is None
+        self.continuous = sc.time == "continuous" and not self.whole and self.fusion is None and self.relay is None
         self.G = None
-        if self.fusion is not None:
+        if self.fusion is not None or self.relay is not None:
             self.exchanges, self.adaptive, self.g0 = int(config["q"]), False, 0.0
         elif self.whole:  # update, then average q times, on the per-step model (steps.step_matrices)
             dt = sc.run.dt if sc.time == "continuous" else None
@@ -229,6 +231,13 @@ class AgentNode:
         return (self.keys.z(self.id), encode("z", self.run_id, mac_key=self.mac_key, tau=r["tau"],
                                                attempt=r["attempt"], k=k, agent=self.id, z=z))
 
+    def _relayed(self, k: int, samples: dict) -> tuple:
+        """The relay kind's exchange ``k``: the samples' values side by side, ``[sensor, t, ...]`` which they are."""
+        r, vals = self.round, list(samples.values())
+        return (self.keys.z(self.id), encode("r", self.run_id, mac_key=self.mac_key, tau=r["tau"], attempt=r["attempt"],
+                                               k=k, agent=self.id, z=np.concatenate(vals) if vals else np.zeros(0),
+                                               samples=[int(v) for key in samples for v in key]))
+
     # ------------------------------------------------------------------ inputs
 
     def on_tick(self, payload: bytes) -> list:
@@ -254,6 +263,8 @@ class AgentNode:
             if self.candidate[0] == tau and me is not None:
                 _, self.x, self.g, self.watch = self.candidate  # commit x_i(tau) (and the watch after round tau - 1)
                 self.tau = tau
+                if self.relay is not None:  # and the relay kind's state after round tau - 1
+                    self.relay.commit(tau)
             self.candidate = None
         if me is None:  # not taking part (lost, or not admitted yet)
             self.round = None
@@ -265,6 +276,8 @@ class AgentNode:
             # admission (start or rejoin): a fresh estimate of this incarnation, reported first
             self.incarnation = int(inc)
             self.x = initial_estimate(self.n, self.seed, self.index, self.incarnation)
+            if self.relay is not None:
+                self.relay.start(self.x, tau)
             self.g = self.g0
             self.tau = tau
             self.watch = (False, 0, 0, None)  # a fresh sensor watch and warm-up (model/screening.py: Screen.reset)
@@ -290,7 +303,7 @@ class AgentNode:
                       "z0": None if explicit else (tau, int(t["prev_attempt"])), "groups": self.net.groups,
                       "lost": [], "used": 0, "open": self.clock() if self.deadline is not None else None}
         self.round["graph"] = int(t["graph"])
-        if self.whole or self.fusion is not None:  # z_i(0): the updated estimate, sent once y_i(tau) is in (_advance)
+        if self.whole or self.fusion is not None or self.relay is not None:  # sent once y_i(tau) is in (_advance)
             self.round["z0"] = None
         elif explicit:
             out.append(self._z(0, self.round["z"]))
@@ -306,6 +319,11 @@ class AgentNode:
         if str(m["agent"]) != Keys.last(key):
             self.reject("wrong_sender")
             return None
+        if msg_type == "r":  # the relay kind's samples: they fit their values and their event time's window
+            m[field] = self.relay.parse(m, self.sc.m)
+            if m[field] is None:
+                self.reject("bad_field")
+            return m if m[field] is not None else None
         if m[field].shape != (self.n,):
             self.reject("bad_shape")
             return None
@@ -326,7 +344,7 @@ class AgentNode:
         return self._advance()
 
     def on_z(self, key: str, payload: bytes) -> list:
-        m = self._from_neighbour("z", "z", key, payload)
+        m = self._from_neighbour("r" if self.relay is not None else "z", "z", key, payload)
         if m is None:
             return []
         r = self.round
@@ -426,6 +444,8 @@ class AgentNode:
             return self._advance_whole(r)
         if self.fusion is not None:
             return self._advance_fusion(r)
+        if self.relay is not None:
+            return relay_round(self, r)
         if self.continuous:
             if "realized" not in r:
                 got = self._neighbour_states(0)
@@ -437,7 +457,7 @@ class AgentNode:
                 return out
             y = self.ys.get(r["tau"])  # None: no measurement, the step without its innovation
             bu = self.ys.bu(r["tau"])  # the known input's B u(tau) (None: no inputs)
-            x_next = st.sampled_step(self.x, self.E, self.D, self.K, self.C, self._screen(self.x, y), r["P"], self.g,
+            x_next = st.sampled_step(self.x, self.E, self.D, self.K, self.C, screen_round(self, self.x, y), r["P"], self.g,
                                      states, ws, bu)
             g_next = self.g
             if self.adaptive:
@@ -459,7 +479,7 @@ class AgentNode:
         y = self.ys.get(r["tau"])
         # eq. split-discrete-est1, or the prediction without a measurement (none, or set aside by the test)
         bu = self.ys.bu(r["tau"])
-        used = self._screen(r["z"], y)
+        used = screen_round(self, r["z"], y)
         x_next = st.prediction_update(r["z"], self.A, bu) if used is None else \
             st.measurement_update(r["z"], self.F, self.K, used, bu)
         return out + self._finish(x_next, 0.0, y)
@@ -471,7 +491,7 @@ class AgentNode:
 
         def update(y):
             bu = st.step_input(self.G, self.ys.bu(r["tau"]))
-            used = self._screen(self.x, y)
+            used = screen_round(self, self.x, y)
             return st.prediction_update(self.x, self.A, bu) if used is None else \
                 st.measurement_update(self.x, self.F, self.K, used, bu)
 
@@ -512,33 +532,6 @@ class AgentNode:
                 out.append(self._z(r["k"], r["z"]))
         return out + self._finish(finish(r["z"]), 0.0, r["y"])
 
-    def _screen(self, z: np.ndarray, y):
-        """The bad-data test of ``y_i(tau)`` against ``z`` (what the update applies K_i to): ``y`` if it is used,
-        None if there is none or it is set aside (failed, or the sensor suspect); the round keeps ``d_i`` and the
-        watch after it (committed with the estimate).  Exactly :class:`splitspec_core.model.screening.Screen`."""
-        r = self.round
-        r["watch"] = self.watch
-        if self.bad is None:
-            return y
-        S_inv, threshold, k, warmup, flat = self.bad
-        seen, tested = st.warmup_step(self.watch[2], y is not None, warmup)
-        last = self.watch[3]
-        y_i = None if y is None else np.array(y, dtype=float)
-        r["watch"] = self.watch[:2] + (seen, last if y_i is None else y_i)
-        if not tested:
-            r["stat"] = UNTESTED
-            return y
-        d, failed = st.innovation_test(y_i, self.C, z, S_inv, threshold)
-        if flat and st.flatline(y_i, last):
-            d, failed = FLATLINE, True
-        r["stat"] = d
-        suspect, run, _ = st.sensor_watch(self.watch[0], self.watch[1], failed, k)
-        r["watch"] = (suspect, run, seen, y_i)
-        if self.watch[0] or failed:
-            r["set_aside"] = True
-            return None
-        return y
-
     def _finish(self, x_next: np.ndarray, g_next: float, y) -> list:
         r = self.round
         self.candidate = (r["tau"] + 1, x_next, g_next, r.get("watch", self.watch))
@@ -548,6 +541,131 @@ class AgentNode:
         # the live known inputs the round added (B u(tau), measure.YBuffer.bu): recorded beside y (trajectory u)
         u = self.ys.ubuf.get(r["tau"]) if self.input_sampler is not None else None
         return [self._xhat(r["tau"] + 1, r["attempt"], x_next, columns, r["lost"], y, u)]
+
+
+class RelayPart:
+    """The relay kind's part of an agent (:mod:`splitspec_core.synthesis.relay`), from its configuration's ``gain``
+    (:func:`~splitspec_core.synthesis.relay.agent_relay`): the per-step model ``F``, the stacked ``C``, its gains by
+    lag, every sensor's rows.  Its state (the base, its event time, the samples held and sent, the known inputs'
+    ``B u(t)`` of the walk) is committed with the estimate; a round works on copies.  Its steps are the simulator's
+    (``kinds.Relay``) for this agent: its own sample held, per exchange ``relay_forward`` (sent) and the counted
+    neighbours' samples held, then ``relay_walk`` and ``relay_prune``."""
+
+    def __init__(self, gain: dict, sc, index: int):
+        self.F = np.asarray(gain["F"], dtype=float)
+        self.C = np.asarray(gain["C"], dtype=float).reshape(-1, sc.n)
+        self.table = [np.asarray(G, dtype=float).reshape(sc.n, -1) for G in gain["gains"]]
+        self.D = len(self.table) - 1
+        self.rows = [np.arange(a, b, dtype=np.int64) for a, b in gain["rows"]]
+        self.index = index
+        self.G = None if sc.time == "discrete" else st.sampled_data_matrices(np.asarray(sc.system.A), sc.run.dt)[1]
+        self.state = self.candidate = None  # (base, t_base, held, sent, bus)
+
+    def start(self, x: np.ndarray, tau: int) -> None:
+        """A start or a restart at ``tau``: the estimate is the base, nothing held."""
+        self.state, self.candidate = (np.array(x, dtype=float), int(tau), {}, set(), {}), None
+
+    def commit(self, tau: int) -> None:
+        """The round's state becomes the agent's, with its estimate of ``tau``."""
+        if self.candidate is not None and self.candidate[0] == tau:
+            self.state = self.candidate[1]
+        self.candidate = None
+
+    def open(self, r: dict, y, bu) -> None:
+        """The round's copies, its own sample ``y_i(tau)`` held (None: none), ``B u(tau)`` kept."""
+        base, t_base, held, sent, bus = self.state
+        r["held"], r["sent"], r["bus"] = dict(held), set(sent), dict(bus)
+        if y is not None:
+            r["held"][(self.index, r["tau"])] = np.array(y, dtype=float)
+        bu = st.step_input(self.G, bu)
+        if bu is not None:
+            r["bus"][r["tau"]] = bu
+
+    def forward(self, r: dict) -> dict:
+        """What this exchange sends: the samples held and not sent (now sent)."""
+        out = st.relay_forward(r["held"], r["sent"])
+        r["sent"] |= set(out)
+        return out
+
+    def parse(self, m: dict, m_agents: int) -> dict | None:
+        """An ``r`` message's samples ``{(sensor, t): y_j(t)}``, or None when they do not fit its values or its
+        event time's window."""
+        keys, vals, at, out = m["samples"], m["z"], 0, {}
+        for j, t in zip(keys[::2], keys[1::2]):
+            if not 0 <= j < m_agents or not m["tau"] - self.D <= t <= m["tau"] or (j, t) in out:
+                return None
+            size = len(self.rows[j])
+            out[(j, t)], at = vals[at:at + size], at + size
+        return out if at == len(vals) else None
+
+    def walk(self, r: dict) -> np.ndarray:
+        """``x_i(tau + 1)`` by the walk; the state after it kept as the candidate."""
+        tau = r["tau"]
+        base, t_base = self.state[0], self.state[1]
+        samples = st.relay_samples(r["held"], self.rows, t_base, tau)
+        base, t_base, x = st.relay_walk(base, t_base, tau, self.table, self.F, self.C, samples, r["bus"] or None)
+        cut = tau - self.D + 1  # no walk starts before: the older samples are no longer held or sent
+        bus = {t: v for t, v in r["bus"].items() if t >= cut}
+        self.candidate = (tau + 1, (base, t_base, st.relay_prune(r["held"], cut),
+                                    {h for h in r["sent"] if h[1] >= cut}, bus))
+        return x
+
+
+def relay_round(node: "AgentNode", r: dict) -> list:
+    """The relay kind's round of ``node`` (:class:`RelayPart`), as the simulator's ``kinds.Relay`` runs it for this
+    agent: once ``y_i(tau)`` is in, exchange ``k`` sends what it holds and has not sent, then holds what the counted
+    neighbours sent; after ``q`` exchanges the walk."""
+    part, out = node.relay, []
+    if "held" not in r:
+        if not node.ys.ready(r["tau"]):
+            return out
+        r["y"] = node.ys.get(r["tau"])
+        r["watch"] = node.watch
+        part.open(r, r["y"], node.ys.bu(r["tau"]))
+        node._opened()
+        r["z"] = part.forward(r)
+        out.append(node._relayed(0, r["z"]))
+    while r["k"] < node.exchanges:
+        got = node._neighbour_states(r["k"])
+        if got is None:
+            return out
+        for j, samples in zip(got[0], got[2]):
+            if j != node.id:
+                r["held"].update(samples)
+        r["k"] += 1
+        node._opened()
+        if r["k"] < node.exchanges:
+            r["z"] = part.forward(r)
+            out.append(node._relayed(r["k"], r["z"]))
+    return out + node._finish(part.walk(r), 0.0, r["y"])
+
+
+def screen_round(node, z: np.ndarray, y):
+    """Agent ``node``'s bad-data test of ``y_i(tau)`` against ``z`` (what the update applies K_i to): ``y`` if it is used,
+    None if there is none or it is set aside (failed, or the sensor suspect); the round keeps ``d_i`` and the
+    watch after it (committed with the estimate).  Exactly :class:`splitspec_core.model.screening.Screen`."""
+    r = node.round
+    r["watch"] = node.watch
+    if node.bad is None:
+        return y
+    S_inv, threshold, k, warmup, flat = node.bad
+    seen, tested = st.warmup_step(node.watch[2], y is not None, warmup)
+    last = node.watch[3]
+    y_i = None if y is None else np.array(y, dtype=float)
+    r["watch"] = node.watch[:2] + (seen, last if y_i is None else y_i)
+    if not tested:
+        r["stat"] = UNTESTED
+        return y
+    d, failed = st.innovation_test(y_i, node.C, z, S_inv, threshold)
+    if flat and st.flatline(y_i, last):
+        d, failed = FLATLINE, True
+    r["stat"] = d
+    suspect, run, _ = st.sensor_watch(node.watch[0], node.watch[1], failed, k)
+    r["watch"] = (suspect, run, seen, y_i)
+    if node.watch[0] or failed:
+        r["set_aside"] = True
+        return None
+    return y
 
 
 # ---------------------------------------------------------------------- process shell

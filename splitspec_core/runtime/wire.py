@@ -2,7 +2,7 @@
 
 Two encodings, one API (:func:`encode`, :func:`decode`):
 
-* the messages of every round (``y``, ``truth``, ``z``, ``xhat``: all but a
+* the messages of every round (``y``, ``truth``, ``z`` (``r`` for the relay kind), ``xhat``: all but a
   handful per event time) are compact binary: a fixed little-endian header
   (magic ``0xB5``, schema version, type code, the row schema's tag (:data:`ROW_TAG`: a process
   built with other reported row columns is ``bad_version``), CRC-32 of the run id, the
@@ -47,7 +47,8 @@ key                         from -> to              payload
                                                     the agents without a measurement (missing)
 ``truth``                   plant -> orchestrator   tau, attempt, x(tau)
 ``z/<i>``                   agent i -> neighbours   tau, attempt, k, z_i(k) (k = 0 only in fresh or re-run
-                                                    rounds)
+                                                    rounds); the relay kind's ``r``: tau, attempt, k, the
+                                                    samples it has not sent (values; sensor and t of each)
 ``xhat/<i>``                agent i -> orchestrator tau, attempt, x_i(tau) (+ its reported row columns, g_i
                             and neighbours          ..., rejected counts, the consensus messages it did not count, the y_i it
                                                     used: None without one, [] if not recorded);
@@ -415,6 +416,8 @@ BINARY_LAYOUT = {
     "y": (1, "qi", ("tau", "attempt"), "y", ("missing",)),
     "truth": (2, "qi", ("tau", "attempt"), "x", ("rejected",)),
     "z": (3, "qiii", ("tau", "attempt", "k", "agent"), "z", ()),
+    # the relay kind's exchange (synthesis/relay.py): the samples' values side by side, then which they are
+    "r": (5, "qiii", ("tau", "attempt", "k", "agent"), "z", ("samples",)),
     "xhat": (4, "qiii" + "".join(_STRUCT_CODE[c.dtype] for c in REPORTED),
              ("tau", "attempt", "agent", "incarnation", *(c.name for c in REPORTED)), "x",
              ("rejected", "lost", "y", "u")),
@@ -520,6 +523,9 @@ def _decode_binary(payload: bytes, run_id: str, expected_type: str) -> dict:
             if name == "lost":
                 ok = (isinstance(m, list) and len(m) % 3 == 0 and len(m) <= 3 * MAX_LOST
                       and all(_CHECK["int"](v) and 0 <= v < 2 ** 31 for v in m) and all(c <= 2 for c in m[2::3]))
+            elif name == "samples":  # flat [sensor, t, sensor, t, ...] of an r message's values, in order
+                ok = (isinstance(m, list) and len(m) % 2 == 0 and len(m) <= 2 * MAX_MISSING
+                      and all(_CHECK["int"](v) and 0 <= v < 2 ** 62 for v in m))
             elif name == "missing":
                 ok = isinstance(m, list) and len(m) <= MAX_MISSING and all(_CHECK["int"](v) and 0 <= v < 2 ** 31
                                                                             for v in m)

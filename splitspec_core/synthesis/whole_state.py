@@ -508,6 +508,10 @@ def agent_gain(des, agent_id: int) -> dict | None:
         from .fusion_kind import agent_fusion
 
         return agent_fusion(des, agent_id)
+    if des.consensus == "relay":  # its walk's gains by lag (relay.py)
+        from .relay import agent_relay
+
+        return agent_relay(des, agent_id)
     if des.consensus != "whole" and gain_methods.method(des.scenario.design.gains).local:
         return None
     a = next(a for a in des.agents if a.id == agent_id)
