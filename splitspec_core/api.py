@@ -68,7 +68,7 @@ def scenario(*, name: str | None = None, time: str | None = None, plant: Any = N
              weights: str | None = None, margin: float | None = None, rank_tol: float | None = None,
              graph_set: str | None = None, dwell: float | None = None, riccati: Mapping | None = None,
              eigenvalues: str | None = None, undetectable: str | None = None, coordinates: str | None = None,
-             consensus: str | None = None, bad_data: Any = None,
+             consensus: str | None = None, lag: Any = None, bad_data: Any = None,
              steps: int | None = None, dt: float | None = None, seed: int | None = None, pace: float | None = None,
              show: Any = None, keep: Mapping | None = None, record_every: int | None = None,
              system: Mapping | None = None, design: Mapping | None = None, run: Mapping | None = None,
@@ -99,7 +99,7 @@ def scenario(*, name: str | None = None, time: str | None = None, plant: Any = N
     graphs, switching, faults, positions, network, sources : optional
         The file's sections of those names.
     rate, gains, K, g, g0, q, q_method, q_max, resilience, weights, margin, rank_tol, graph_set, dwell, riccati, \
-eigenvalues, undetectable, coordinates, consensus, bad_data : optional
+eigenvalues, undetectable, coordinates, consensus, lag, bad_data : optional
         The file's ``design.*`` keys (``rate`` is required).
     steps, dt, seed, pace, show, keep, record_every : optional
         The file's ``run.*`` keys.

@@ -444,11 +444,14 @@ def relay_samples(held: dict, sensor_rows: Sequence[np.ndarray], t_base: int, ta
     >>> got[4][0].tolist(), got[4][1].tolist()
     ([0, 1], [1.0, 2.0])
     """
+    by_t: dict = {}
+    for j, t in held:  # one pass over what is held, grouped by event time
+        if t_base <= t <= tau:
+            by_t.setdefault(t, []).append(j)
     out = {}
-    for t in range(t_base, tau + 1):
-        js = sorted(j for j, tt in held if tt == t)
-        if js:
-            out[t] = (np.concatenate([sensor_rows[j] for j in js]), np.concatenate([held[(j, t)] for j in js]))
+    for t in sorted(by_t):
+        js = sorted(by_t[t])
+        out[t] = (np.concatenate([sensor_rows[j] for j in js]), np.concatenate([held[(j, t)] for j in js]))
     return out
 
 

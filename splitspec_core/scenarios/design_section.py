@@ -135,6 +135,9 @@ def parse_design(raw: Any, time: str, system: System, ids: tuple) -> DesignSpec:
         raise ScenarioError(f"design.q_max must be <= {MAX_Q} (consensus exchanges per event time), got {q_max}")
     if q != "auto" and q > q_max:
         raise ScenarioError(f"design.q = {q} exceeds design.q_max = {q_max}")
+    lag = read(dmap, "design", "lag")
+    if "lag" in dmap and consensus not in ("relay", "auto"):
+        raise ScenarioError(f"design.lag is the relay kind's (design.consensus: relay), not {consensus}'s")
     resilience = read(dmap, "design", "resilience")
     if resilience > 1:
         raise ScenarioError(f"design.resilience must be 0 or 1, got {resilience}")
@@ -168,7 +171,7 @@ def parse_design(raw: Any, time: str, system: System, ids: tuple) -> DesignSpec:
         resilience=resilience, weights=weights, margin=margin, rank_tol=rank_tol,
         graph_set=graph_set, dwell=dwell, process_weight=pw, measurement_weight=mw,
         eigenvalues=eigenvalues, undetectable=undetectable, coordinates=coordinates, consensus=consensus,
-        bad_data=bad_data,
+        bad_data=bad_data, lag=lag,
     )
 
 

@@ -135,6 +135,10 @@ DESIGN = (
                                      "estimates fused with matrix weights chosen for the noise; relay: the sensors' "
                                      "samples passed on, each agent the Kalman predictor of what it holds)",
         words=("auto", "split", "whole", "fusion", "relay")),
+    Key("lag", "integer|word", "auto", "the relay kind: event times its base stays behind beyond the network's delay "
+                                       "(its walk's Kalman steps recover the accuracy the rate's shift costs, at a "
+                                       "larger transient constant; auto: where that stops paying)", words=("auto",),
+        minimum=0),
     Key("bad_data", "map|word", "off", "each agent tests its measurement against its prediction and sets a failing one "
                                        "aside: off, or {false_alarm, suspect_after} (design.bad_data.*; needs noise)",
         words=("off",)),

@@ -264,6 +264,7 @@ class DesignSpec:
     undetectable: str = "refuse"  # refuse | exclude: a mode no agent sees that does not decay (detectability.py)
     coordinates: str = "auto"  # auto | given | balanced: where the estimator's projections are orthogonal (local_design)
     consensus: str = "auto"  # auto | split | whole: what each agent takes from its neighbours (synthesis/whole_state.py)
+    lag: Any = "auto"  # the relay kind's base: extra event times behind (an int >= 0 or auto; synthesis/relay.py)
     # design.bad_data: None (off) or (false_alarm, suspect_after): each agent tests its measurement (synthesis/bad_data.py)
     bad_data: tuple | None = None
 

@@ -1,9 +1,12 @@
-"""Estimators that exchange little, run on given measurements: the fusion kind and Rego's steady-state DKF.
+"""Estimators that exchange little, run on given measurements: the fusion and relay kinds and Rego's steady-state DKF.
 
 * :func:`run_fusion` walks the fusion kind (:mod:`splitspec_core.synthesis.fusion`) agent by agent through the pure
   steps of :mod:`splitspec_core.model.steps` (:func:`~splitspec_core.model.steps.local_update`,
   :func:`~splitspec_core.model.steps.matrix_fusion`, :func:`~splitspec_core.model.steps.prediction_update`), the same
   functions an agent process calls;
+* :func:`run_relay` walks the relay kind (:mod:`splitspec_core.synthesis.relay`) the same way, every sample arriving
+  as the graph's hops say (:func:`~splitspec_core.model.steps.relay_samples`,
+  :func:`~splitspec_core.model.steps.relay_walk`);
 * :class:`SteadyStateDKF` ports the baseline of the field at one exchange per step: F. C. Rego et al.'s steady-state
   distributed Kalman filter (the public MATLAB code ``Steady-State-Distributed-Kalman-Filter-MATLAB``, ``DTKF.m``).
   Each agent fuses its neighbours' *predictions* and its own measurement in information form and predicts:
@@ -30,8 +33,9 @@ from ..model import steps as st
 from ..model.plant import output_rows
 from ..synthesis.fusion import FusionDesign, steady_covariance
 from ..synthesis.kalman import regularise
+from ..synthesis.relay import RelayDesign, gain_table
 
-__all__ = ["run_fusion", "SteadyStateDKF", "simulate_measurements"]
+__all__ = ["run_fusion", "run_relay", "SteadyStateDKF", "simulate_measurements"]
 
 
 def run_fusion(des: FusionDesign, Cs, ys: np.ndarray, X0: np.ndarray) -> np.ndarray:
@@ -66,6 +70,43 @@ def run_fusion(des: FusionDesign, Cs, ys: np.ndarray, X0: np.ndarray) -> np.ndar
             z = [st.matrix_fusion([z[j] for j in nb], Wk[i]) for i, nb in enumerate(des.neighbours)]
         out[tau + 1] = [st.prediction_update(z_i, des.F) for z_i in z]
     return out
+
+
+def run_relay(des: RelayDesign, Cs, ys: np.ndarray, X0: np.ndarray) -> np.ndarray:
+    """The relay kind on the measurements ``ys``: every agent's predictions, step by step, each sample of sensor j
+    held by agent i ``delta_ij`` event times late (no message lost).
+
+    Parameters
+    ----------
+    des : RelayDesign
+        The gains.
+    Cs : sequence of (s_i, n) arrays
+        The agents' output matrices (agent order).
+    ys : (T - 1, p) array
+        Stacked measurements ``y(0) .. y(T - 2)``.
+    X0 : (m, n) array
+        The initial estimates ``x_i(0)`` (each agent's first base).
+
+    Returns
+    -------
+    (T, m, n) array
+        ``x_i(tau)``.
+    """
+    sensor_rows = [np.arange(r.start, r.stop) for r in output_rows(Cs)]
+    C = np.vstack(Cs)
+    m = len(Cs)
+    tables = [gain_table(des, i) for i in range(m)]
+    base, t_base = np.array(X0, dtype=float), [0] * m
+    out = np.empty((len(ys) + 1,) + base.shape)
+    out[0] = X0
+    for tau in range(len(ys)):
+        for i in range(m):
+            held = {(j, t): ys[t, sensor_rows[j]] for t in range(t_base[i], tau + 1) for j in range(m)
+                    if des.delays[i, j] <= tau - t}
+            samples = st.relay_samples(held, sensor_rows, t_base[i], tau)
+            base[i], t_base[i], out[tau + 1, i] = st.relay_walk(base[i], t_base[i], tau, tables[i], des.F, C, samples)
+    return out
+
 
 
 @dataclass(frozen=True)

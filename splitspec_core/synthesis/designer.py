@@ -37,7 +37,6 @@ from ..errors import AssumptionError, DesignError
 from .design_data import Design
 from .error_matrix import MAX_NOISE_DIM, predicted_rms, remember_predicted
 from ..model.local_design import design_agent, gain_request, whole_placeholder, with_gain
-from ..model.plant import output_rows
 from .prelude import Prelude
 from .sampled_rates import exact_g, sampled_g
 from .verdict import rate_certificate
@@ -267,26 +266,54 @@ def _fusion_offered(sc: Scenario) -> bool:
             and d.resilience == 0 and d.K is None)
 
 
+#: beside a certified relay design, the fusion kind is designed too only up to this m n (its design is a Smith
+#: doubling of size m n per policy step: minutes at the IEEE 39-bus model's 1700, issue 44; the relay's a few n x n
+#: Riccati equations) and only when the relay's gain is shifted (unshifted it is the protocol's limit: nothing within
+#: the budget is more accurate)
+FUSION_BESIDE_RELAY = 600
+
+
+def _relay_offered(sc: Scenario) -> bool:
+    """The relay kind's preconditions: the fusion kind's, and one graph."""
+    return _fusion_offered(sc) and len(sc.graph_names) == 1
+
+
+def _kind_at_budget(sc: Scenario, kind: str, compare_q_methods: bool, workers: int | None) -> Design | None:
+    """The design of ``kind`` (fusion or relay) at the budget, None when it refuses."""
+    other = dataclasses.replace(sc, design=dataclasses.replace(sc.design, consensus=kind))
+    try:
+        return _design(Prelude.of(other), kind, compare_q_methods, workers)
+    except (AssumptionError, DesignError):
+        return None
+
+
 def _with_budget(pre: Prelude, des: Design, compare_q_methods: bool, workers: int | None) -> Design:
-    """``design.q`` given is the budget (issue 44): the fusion kind at that q too, kept when it is certified and its
-    predicted steady RMS is smaller than ``des``'s (or ``des`` is not certified); else ``des``."""
+    """``design.q`` given is the budget (issue 44): the relay kind and the fusion kind at that q too (the fusion kind
+    beside a certified relay only as :data:`FUSION_BESIDE_RELAY` says); of the certified ones the smallest predicted
+    steady RMS is kept, ``des`` when none other is certified or ``des`` is certified and as accurate."""
     sc = pre.sc
     if sc.design.q == "auto" or not _fusion_offered(sc):
         return des
-    fused_sc = dataclasses.replace(sc, design=dataclasses.replace(sc.design, consensus="fusion"))
-    try:
-        fused = _design(Prelude.of(fused_sc), "fusion", compare_q_methods, workers)
-    except (AssumptionError, DesignError):
+    found = {}
+    relay = _kind_at_budget(sc, "relay", compare_q_methods, workers) if _relay_offered(sc) else None
+    if relay is not None and rate_certificate(relay).certified:
+        found["relay"] = relay
+    if relay is None or "relay" not in found or (relay.whole.alpha < 1.0 and sc.m * sc.n <= FUSION_BESIDE_RELAY):
+        fused = _kind_at_budget(sc, "fusion", compare_q_methods, workers)
+        if fused is not None and rate_certificate(fused).certified:
+            found["fusion"] = fused
+    if not found:
         return des
-    if not rate_certificate(fused).certified:
-        return des
-    mine, other = _predicted_all(fused), _predicted_all(des)
+    rms = {k: _predicted_all(d) for k, d in found.items()}
+    pick = min(found, key=lambda k: math.inf if rms[k] is None else rms[k])
+    mine, other = rms[pick], _predicted_all(des)
     if rate_certificate(des).certified and (mine is None or (other is not None and other <= mine)):
         return des
     said = "no prediction" if other is None else f"predicted steady RMS {other:.4g}"
-    return _annotated(fused, f"design.consensus: auto chose fusion at the budget design.q = {sc.design.q} (predicted "
-                             f"steady RMS {mine:.4g}, certified) over {des.consensus} ({said}"
-                             f"{'' if rate_certificate(des).certified else ', rate NOT certified'})")
+    beside = "".join(f"; {k}: predicted steady RMS {rms[k]:.4g}" for k in found if k != pick)
+    return _annotated(found[pick], f"design.consensus: auto chose {pick} at the budget design.q = {sc.design.q} "
+                                   f"(predicted steady RMS {mine:.4g}, certified) over {des.consensus} ({said}"
+                                   f"{'' if rate_certificate(des).certified else ', rate NOT certified'}{beside})")
 
 
 def _best_split(pre: Prelude, compare_q_methods: bool, workers: int | None) -> Design:
@@ -397,7 +424,9 @@ def _design(pre: "Prelude | Scenario", structure: str, compare_q_methods: bool, 
     if structure == "fusion":
         return _fusion(sc, agents, un, warnings, common)
     if structure == "relay":
-        return _relay(sc, agents, un, warnings, common)
+        from .relay import relay_design
+
+        return relay_design(sc, agents, un.envelope(d.rate), warnings, common)
     if structure == "whole":
         Ks, q, info, radii, cert = design_whole(sc, cases, rate=un.envelope(d.rate),
                                                 dwell=scenario_dwell(sc) if switching else None, warnings=warnings)
@@ -441,51 +470,6 @@ def _fusion(sc: Scenario, agents: tuple, un, warnings: list, common: dict) -> De
     return Design(agents=agents, warnings=tuple(warnings), q=kind.q, q_result=result,
                   q_methods={"full error matrix": result}, error_radius=radii, full_radius=radii, consensus="fusion",
                   whole=kind, **common)
-
-
-def _relay(sc: Scenario, agents: tuple, un, warnings: list, common: dict) -> Design:
-    """The relay kind (:mod:`.relay`): the centralized predictor's gain (shifted by the rate when needed), each
-    agent's walk over the samples it holds; certified by the base's error map, ``n x n``."""
-    from .relay import relay_q, scenario_relay
-
-    d = sc.design
-    rate = un.envelope(d.rate)
-    kind = scenario_relay(sc, relay_q(sc), rate)
-    if not kind.certified:
-        warnings.append(relay_refusal(sc, kind))
-    rows = output_rows(sc.system.Cs)
-    # each agent's K_i in the predictor's form without neighbours (x+ = F x - L_i (C_i x - y_i)): the base's columns
-    # of its own rows, for the reports; what runs is the walk (kinds.Relay)
-    agents = tuple(with_gain(a, -kind.L[:, rows[k]], "relay") for k, a in enumerate(agents))
-    radii = {sc.graph_names[0]: kind.radius}
-    result = bounds.QResult(q=kind.q, method="base error map", bound=kind.radius, certified=kind.certified,
-                            switching=False)
-    des = Design(agents=agents, warnings=tuple(warnings), q=kind.q, q_result=result,
-                 q_methods={"base error map": result}, error_radius=radii, full_radius=radii, consensus="relay",
-                 whole=kind, **common)
-    remember_predicted(des, 0, kind.agent_rms)
-    return des
-
-
-def relay_refusal(sc: Scenario, kind) -> str:
-    """One line: the relay kind does not certify the rate, and the fastest rate it keeps (whatever ``q``: its
-    certificate is the centralized predictor's).
-
-    Parameters
-    ----------
-    sc : Scenario
-    kind : RelayDesign
-        Not certified.
-
-    Returns
-    -------
-    str
-    """
-    r = kind.radius
-    fastest = f"{r:.6g} per event time" if sc.time == "discrete" else \
-        f"{-math.log(r) / sc.run.dt:.4g} /s" if 0 < r < 1 else "none: its error map is unstable"
-    return (f"design.consensus: relay does NOT certify rate {sc.design.rate:g} at any q: its base is the centralized "
-            f"predictor, whose most shifted gain keeps rate {fastest} (spectral radius {r:.6g}): lower design.rate")
 
 
 def _design_g(sc: Scenario, cases, switching: bool, warnings: list) -> dict:

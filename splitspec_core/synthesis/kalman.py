@@ -145,7 +145,8 @@ def kalman_predictor(F: np.ndarray, C: np.ndarray, Q: np.ndarray, R: np.ndarray)
     return KalmanPredictor(L=L, P=P, radius=radius)
 
 
-def shifted_predictor(F: np.ndarray, C: np.ndarray, Q: np.ndarray, R: np.ndarray, alpha: float) -> KalmanPredictor:
+def shifted_predictor(F: np.ndarray, C: np.ndarray, Q: np.ndarray, R: np.ndarray, alpha: float, *,
+                      covariance: bool = True) -> KalmanPredictor:
     """The Riccati predictor of ``F`` shifted by ``alpha`` in ``(0, 1]``: ``rho(F - L C) < alpha``.
 
     ``X`` solves the DARE of ``(F / alpha, C / alpha)`` with weights ``Q``, ``R`` (regularised as in
@@ -164,6 +165,8 @@ def shifted_predictor(F: np.ndarray, C: np.ndarray, Q: np.ndarray, R: np.ndarray
         Covariances of the process noise ``v`` and the measurement noise ``w`` (singular allowed: regularised).
     alpha : float
         The shift in ``(0, 1]``: the rate per step the predictor's error must beat.
+    covariance : bool, default True
+        False: ``P`` is left out (None; a search that needs only the gain and its radius).
 
     Returns
     -------
@@ -197,7 +200,7 @@ def shifted_predictor(F: np.ndarray, C: np.ndarray, Q: np.ndarray, R: np.ndarray
     radius = spectral_radius(F - L @ C)
     if not np.all(np.isfinite(L)) or radius >= alpha:
         raise DesignError(f"the shifted Riccati equation (alpha = {alpha:.6g}) has no stabilising solution")
-    return KalmanPredictor(L=L, P=steady_covariance(F, C, L, Q, R), radius=radius)
+    return KalmanPredictor(L=L, P=steady_covariance(F, C, L, Q, R) if covariance else None, radius=radius)
 
 
 def steady_covariance(F: np.ndarray, C: np.ndarray, L: np.ndarray, Q: np.ndarray, R: np.ndarray) -> np.ndarray:

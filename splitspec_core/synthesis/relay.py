@@ -57,10 +57,15 @@ from .exchange_limit import hop_distances, information_delays, network_model, pr
 from .kalman import kalman_predictor, per_step_rate, regularise, shifted_predictor, spectral_radius, steady_covariance
 
 __all__ = ["RelayDesign", "ALPHA_STEPS", "AUTO_GAP", "design_relay", "scenario_relay", "relay_gains", "walk_maps",
-           "relay_transient", "relay_q", "agent_relay", "survivors_radius", "gain_table"]
+           "relay_transient", "relay_q", "agent_relay", "survivors_radius", "gain_table", "LAG_MAX", "AUTO_LAG",
+           "relay_design", "refusal_text"]
 
 #: bisection steps of the shift alpha in [lam, 1] (each a Riccati equation of size n)
-ALPHA_STEPS = 14
+ALPHA_STEPS = 10
+#: ``design.lag: auto``: the most extra event times the base is kept behind
+LAG_MAX = 20
+#: ``design.lag: auto``: the fewest extra event times whose predicted RMS is within this fraction of :data:`LAG_MAX`'s
+AUTO_LAG = 5e-3
 #: ``design.q: auto``: the smallest q whose protocol limit is within this fraction of the Kalman predictor (as the
 #: fusion kind's; more exchanges send no more numbers here, only more messages)
 AUTO_GAP = 0.01
@@ -97,6 +102,8 @@ class RelayDesign:
         The protocol's limit at ``q`` over the Kalman predictor's RMS.
     transient : tuple of float
         ``c_i`` per agent (module docstring); ``inf`` when not certified.
+    lag : int
+        Event times the base is kept behind beyond the longest delay (``design.lag``).
     """
 
     q: int
@@ -111,11 +118,12 @@ class RelayDesign:
     kf_P_trace: float
     limit: float
     transient: tuple = ()
+    lag: int = 0
 
     @property
     def D(self) -> int:
-        """The longest delay (event times): the base is this far behind."""
-        return int(self.delays.max()) if self.delays.size else 0
+        """Event times the base is behind: the longest delay and :attr:`lag` more."""
+        return (int(self.delays.max()) if self.delays.size else 0) + int(self.lag)
 
     @property
     def certified(self) -> bool:
@@ -143,7 +151,8 @@ class RelayDesign:
         return max(self.transient, default=1.0)
 
 
-def relay_gains(F: np.ndarray, Cs, Rs, Q: np.ndarray, delays: np.ndarray, L: np.ndarray, P_base: np.ndarray) -> tuple:
+def relay_gains(F: np.ndarray, Cs, Rs, Q: np.ndarray, delays: np.ndarray, L: np.ndarray, P_base: np.ndarray,
+                lag: int = 0) -> tuple:
     """The walk's gains of every agent and its predicted steady covariance.
 
     Parameters
@@ -160,6 +169,8 @@ def relay_gains(F: np.ndarray, Cs, Rs, Q: np.ndarray, delays: np.ndarray, L: np.
         The base's gain.
     P_base : (n, n) array
         The base's steady covariance under ``L``.
+    lag : int, default 0
+        Event times the base is behind beyond the longest delay (every sensor held there).
 
     Returns
     -------
@@ -167,7 +178,7 @@ def relay_gains(F: np.ndarray, Cs, Rs, Q: np.ndarray, delays: np.ndarray, L: np.
         ``(walk, agent_P)`` as :class:`RelayDesign` holds them.
     """
     rows = output_rows(Cs)
-    m, D = delays.shape[0], int(delays.max()) if delays.size else 0
+    m, D = delays.shape[0], (int(delays.max()) if delays.size else 0) + int(lag)
     walk, agent_P = [], []
     for i in range(m):
         P, steps = np.array(P_base, dtype=float), [None] * D
@@ -214,16 +225,11 @@ def walk_maps(F: np.ndarray, C: np.ndarray, walk_i: tuple) -> tuple:
         return F - Lw @ C[r]
 
     D = len(walk_i)
-    G = np.eye(n)
-    for lag in range(D - 1, -1, -1):
-        G = step(lag) @ G
-    starts = []
-    for tau in range(D):
-        W = np.eye(n)
-        for lag in range(tau, -1, -1):
-            W = step(lag) @ W
+    starts, W = [], np.eye(n)
+    for tau in range(D):  # W_tau = step(0) .. step(tau): the walk from lag tau down, the last step applied first
+        W = W @ step(tau)
         starts.append(W)
-    return G, starts
+    return (starts[-1] if starts else np.eye(n)), starts
 
 
 def gain_table(r: RelayDesign, i: int) -> list:
@@ -280,8 +286,8 @@ def relay_transient(F: np.ndarray, C: np.ndarray, L: np.ndarray, walk: tuple, la
     return tuple(out)
 
 
-def design_relay(F: np.ndarray, Cs, Q: np.ndarray, Rs, dist: np.ndarray, q: int, lam: float | None = None
-                 ) -> RelayDesign:
+def design_relay(F: np.ndarray, Cs, Q: np.ndarray, Rs, dist: np.ndarray, q: int, lam: float | None = None,
+                 lag="auto") -> RelayDesign:
     """The relay design at ``q`` exchanges per event time (module docstring).
 
     Parameters
@@ -298,6 +304,10 @@ def design_relay(F: np.ndarray, Cs, Q: np.ndarray, Rs, dist: np.ndarray, q: int,
         Exchanges per event time.
     lam : float or None
         The rate per event time to certify; None: the Kalman predictor's gain as it is.
+    lag : int or "auto", default "auto"
+        Event times the base stays behind beyond the longest delay; ``auto``: none when the base is the Kalman
+        predictor (the walk would add nothing), else the fewest whose predicted RMS is within :data:`AUTO_LAG` of
+        :data:`LAG_MAX`'s (more never hurts: the walk's information contains the later base's).
 
     Returns
     -------
@@ -332,7 +342,7 @@ def design_relay(F: np.ndarray, Cs, Q: np.ndarray, Rs, dist: np.ndarray, q: int,
         for _ in range(ALPHA_STEPS):
             a = lo if found is None else 0.5 * (lo + hi)
             try:
-                p = shifted_predictor(F, C, Q, R, a)
+                p = shifted_predictor(F, C, Q, R, a, covariance=False)
                 ok = p.radius < lam
             except DesignError:
                 p, ok = None, False
@@ -345,14 +355,35 @@ def design_relay(F: np.ndarray, Cs, Q: np.ndarray, Rs, dist: np.ndarray, q: int,
         base = found or kf
         alpha = alpha if found is not None else 1.0
     P_base = kf.P if base is kf else steady_covariance(F, C, base.L, Q, R)
-    walk, agent_P = relay_gains(F, Cs, Rsr, Qr, delays, base.L, P_base)
+    if lag == "auto":
+        lag = 0 if alpha == 1.0 else _auto_lag(F, Cs, Rsr, Qr, delays, base.L, P_base)
+    walk, agent_P = relay_gains(F, Cs, Rsr, Qr, delays, base.L, P_base, int(lag))
     radius = float(base.radius)
     lam_step = float(lam) if lam is not None else 1.0
     transient = relay_transient(F, C, base.L, walk, lam_step) if radius < lam_step else (math.inf,) * len(Cs)
     limit = protocol_limit(F, Cs, Q, Rs, dist, q).ratio
     return RelayDesign(q=int(q), delays=delays, F=F, L=base.L, walk=walk, alpha=float(alpha), radius=radius,
                        lam_step=lam_step, agent_P=agent_P, kf_P_trace=float(np.trace(kf.P)), limit=float(limit),
-                       transient=transient)
+                       transient=transient, lag=int(lag))
+
+
+def _auto_lag(F, Cs, Rs, Q, delays, L, P_base) -> int:
+    """``design.lag: auto`` (:func:`design_relay`): the fewest extra event times within :data:`AUTO_LAG` of
+    :data:`LAG_MAX`'s predicted RMS.  The extra steps hold every sensor, the same for every agent: the base's
+    covariance walked through them once (the walk's Kalman step), each agent's delays after each."""
+    C = np.vstack(Cs)
+    R = sla.block_diag(*Rs)
+    P, total = np.array(P_base, dtype=float), []
+    for lag in range(LAG_MAX + 1):
+        _, agent_P = relay_gains(F, Cs, Rs, Q, delays, L, P, 0)
+        total.append(float(np.mean([np.trace(Pi) for Pi in agent_P])))
+        PC = P @ C.T
+        Lw = np.linalg.solve(C @ PC + R, (F @ PC).T).T
+        Fc = F - Lw @ C
+        P = Fc @ P @ Fc.T + Lw @ R @ Lw.T + Q
+        P = 0.5 * (P + P.T)
+    best = math.sqrt(max(total[-1], 0.0))
+    return next(k for k, t in enumerate(total) if math.sqrt(max(t, 0.0)) <= (1 + AUTO_LAG) * best)
 
 
 def relay_q(sc: Scenario) -> int:
@@ -403,7 +434,7 @@ def scenario_relay(sc: Scenario, q: int, rate: float | None) -> RelayDesign:
                           "the walk's gains are one graph's delays): design.consensus: fusion switches graphs")
     F, Q, _, Cs, Rs, arcs = network_model(sc, 0)
     lam = None if rate is None else per_step_rate(sc, rate)
-    return design_relay(F, Cs, Q, Rs, hop_distances(sc.m, arcs), q, lam)
+    return design_relay(F, Cs, Q, Rs, hop_distances(sc.m, arcs), q, lam, sc.design.lag)
 
 
 def agent_relay(des, agent_id: int) -> dict:
@@ -465,3 +496,68 @@ def survivors_radius(des, alive: tuple, arcs: dict) -> float:
             if kept else np.zeros(0, dtype=np.int64)
         worst = max(worst, spectral_radius(k.F - k.L[:, r] @ C[r]))
     return worst
+
+
+def relay_design(sc: Scenario, agents: tuple, rate: float, warnings: list, common: dict):
+    """The relay kind as a design (``design.consensus: relay``, :func:`splitspec_core.synthesis.designer.design`):
+    the gains of :func:`scenario_relay` at :func:`relay_q`, certified by the base's ``n x n`` error map, each agent's
+    predicted RMS kept as the design's.
+
+    Parameters
+    ----------
+    sc : Scenario
+        One graph, measurement noise on every output.
+    agents : tuple of AgentDesign
+        The agents' placeholders (:func:`~splitspec_core.model.local_design.whole_placeholder`).
+    rate : float
+        ``lam`` in the scenario's units (the envelope's when directions no agent sees limit it).
+    warnings : list
+        The design's warnings; a rate not certified appends its line.
+    common : dict
+        The fields every design shares (scenario, graphs, cases, ...).
+
+    Returns
+    -------
+    Design
+    """
+    from . import bounds
+    from .design_data import Design
+    from .error_matrix import remember_predicted
+    from ..model.local_design import with_gain
+
+    kind = scenario_relay(sc, relay_q(sc), rate)
+    if not kind.certified:
+        warnings.append(refusal_text(sc, kind))
+    rows = output_rows(sc.system.Cs)
+    # each agent's K_i in the predictor's form without neighbours (x+ = F x - L_i (C_i x - y_i)): the base's columns
+    # of its own rows, for the reports; what runs is the walk (kinds.Relay)
+    agents = tuple(with_gain(a, -kind.L[:, rows[k]], "relay") for k, a in enumerate(agents))
+    radii = {sc.graph_names[0]: kind.radius}
+    result = bounds.QResult(q=kind.q, method="base error map", bound=kind.radius, certified=kind.certified,
+                            switching=False)
+    des = Design(agents=agents, warnings=tuple(warnings), q=kind.q, q_result=result,
+                 q_methods={"base error map": result}, error_radius=radii, full_radius=radii, consensus="relay",
+                 whole=kind, **common)
+    remember_predicted(des, 0, kind.agent_rms)
+    return des
+
+
+def refusal_text(sc: Scenario, kind: RelayDesign) -> str:
+    """One line: the relay kind does not certify the rate, and the fastest rate it keeps (whatever ``q``: its
+    certificate is the centralized predictor's).
+
+    Parameters
+    ----------
+    sc : Scenario
+    kind : RelayDesign
+        Not certified.
+
+    Returns
+    -------
+    str
+    """
+    r = kind.radius
+    fastest = f"{r:.6g} per event time" if sc.time == "discrete" else \
+        f"{-math.log(r) / sc.run.dt:.4g} /s" if 0 < r < 1 else "none: its error map is unstable"
+    return (f"design.consensus: relay does NOT certify rate {sc.design.rate:g} at any q: its base is the centralized "
+            f"predictor, whose most shifted gain keeps rate {fastest} (spectral radius {r:.6g}): lower design.rate")

@@ -20,6 +20,7 @@ from splitspec_core.synthesis.fusion import scenario_fusion
 from splitspec_core.synthesis.fusion_kind import (AUTO_GAP, FusionKind, agent_fusion, budget_text, survivors_radius)
 from splitspec_core.synthesis.report import design_json, design_text
 from splitspec_core.synthesis.survivors import certify_network
+from splitspec_core.synthesis.error_matrix import predicted_rms
 from splitspec_core.synthesis.verdict import rate_certificate
 from tests.conftest import EXAMPLES
 
@@ -150,13 +151,34 @@ def test_a_budget_too_small_for_the_split_says_the_fewest_exchanges_that_certify
 
 
 def test_a_given_q_is_a_budget_auto_keeps_the_most_accurate_certified_kind_within_it():
-    """design.consensus: auto with design.q given: the fusion kind is designed at that q too, and kept when it is
-    certified and predicted more accurate (ring10_noise at q = 1: the split is not certified there)."""
+    """design.consensus: auto with design.q given: the relay and fusion kinds are designed at that q too, and the
+    most accurate certified one kept (ring10_noise at q = 1: the split is not certified there; the relay is the
+    protocol's limit, the fusion kind a hair above it)."""
     sc = ring(q=1, consensus="auto")
     des = design(sc)
-    assert des.consensus == "fusion" and des.q == 1 and rate_certificate(des).certified
-    assert des.chosen.startswith("design.consensus: auto chose fusion at the budget design.q = 1")
+    fused, relay = design(ring(q=1)), design(ring(q=1, consensus="relay"))
+    assert rate_certificate(fused).certified and rate_certificate(relay).certified
+    assert relay.whole.ratio < fused.whole.designs[0].ratio  # the limit itself, against the fusion kind's
+    assert des.consensus == "relay" and des.q == 1 and rate_certificate(des).certified
+    assert des.chosen.startswith("design.consensus: auto chose relay at the budget design.q = 1")
     assert "rate NOT certified" in des.chosen  # what it was preferred to
-    alone = design(ring(q=1))  # the same gains as asked for by name
-    assert des.whole.radius == pytest.approx(alone.whole.radius, rel=1e-12)
-    assert design(ring(q="auto", consensus="auto")).consensus != "fusion"  # no budget: the choice as before
+    assert des.whole.radius == pytest.approx(relay.whole.radius, rel=1e-12)  # the same gains as asked for by name
+    assert design(ring(q="auto", consensus="auto")).consensus not in ("fusion", "relay")  # no budget: as before
+
+
+def test_beside_a_shifted_relay_the_fusion_kind_is_designed_and_the_more_accurate_kept():
+    """The platoon is slower than its rate: the relay's gain is shifted, so the fusion kind is designed beside it
+    (m n = 48) and the certified one of smaller predicted RMS kept."""
+    base = ss.load_scenario(EXAMPLES / "platoon.yaml")
+    sc = dataclasses.replace(base, design=dataclasses.replace(base.design, consensus="auto", gains="optimal", q=1,
+                                                               resilience=0, K=None))
+    des = design(sc)
+    by = {k: design(dataclasses.replace(sc, design=dataclasses.replace(sc.design, consensus=k)))
+          for k in ("relay", "fusion")}
+    assert by["relay"].whole.alpha < 1.0
+    rms = {k: float(np.sqrt(np.mean(predicted_rms(d) ** 2))) for k, d in by.items() if rate_certificate(d).certified}
+    assert len(rms) == 2
+    best = min(rms, key=rms.get)
+    assert des.consensus == best and des.chosen.startswith(f"design.consensus: auto chose {best}")
+    other = next(k for k in rms if k != best)
+    assert f"{other}: predicted steady RMS {rms[other]:.4g}" in des.chosen

@@ -232,3 +232,41 @@ def test_an_agent_holds_only_samples_that_fit_their_values_and_their_window():
     bad = encode("r", "run", tau=7, attempt=0, k=0, agent=2, z=np.array([0.5]), samples=[1])
     with pytest.raises(WireError, match="samples"):
         decode(bad, "run", "r")
+
+
+def test_a_lagged_base_buys_back_the_accuracy_the_rate_s_shift_costs_and_stays_certified():
+    """The platoon is slower than its rate: the shifted base alone is 1.245x the KF at q = 3 (D = 0); kept behind
+    (design.lag: auto) its walk's Kalman steps bring it within 1 % of the protocol's limit, the certificate (the base's
+    radius) unchanged and the envelope's constant larger; more lag never hurts."""
+    base = ss.load_scenario(EXAMPLES / "platoon.yaml")
+
+    def at(lag):
+        return dataclasses.replace(base, design=dataclasses.replace(base.design, consensus="relay", q=3, lag=lag,
+                                                                    gains="optimal", resilience=0, K=None))
+
+    none, auto = design(at(0)).whole, design(at("auto")).whole
+    assert none.alpha < 1.0 and none.lag == 0 and auto.lag > 0 and auto.D == auto.lag  # every sensor in time at q = 3
+    assert none.radius == auto.radius < auto.lam_step  # the same base, certified
+    assert auto.ratio < none.ratio and auto.ratio <= 1.01 * auto.limit
+    ratios = [design(at(k)).whole.ratio for k in (0, 2, 5)]
+    assert ratios == sorted(ratios, reverse=True)
+    assert auto.transient_constant > none.transient_constant
+    tr = simulate(design(at("auto")), steps=60, noise=False)  # the envelope of the lagged design holds
+    e = np.linalg.norm(tr.xhat - tr.x[:, None, :], axis=2)
+    bound = auto.transient_constant * auto.lam_step ** np.arange(e.shape[0])[:, None] * e[0]
+    assert np.all(e <= bound * (1 + 1e-9))
+
+
+def test_design_lag_is_the_relay_kind_s_alone(tmp_path):
+    import yaml
+
+    raw = yaml.safe_load((EXAMPLES / "ring10_noise.yaml").read_text())
+    raw["design"] = {"rate": 0.8, "consensus": "whole", "q": 1, "lag": 3}
+    path = tmp_path / "s.yaml"
+    path.write_text(yaml.safe_dump(raw))
+    with pytest.raises(ScenarioError, match="design.lag is the relay kind's"):
+        ss.load_scenario(path)
+    raw["design"]["consensus"] = "relay"
+    path.write_text(yaml.safe_dump(raw))
+    des = design(ss.load_scenario(path))
+    assert des.whole.lag == 3 and des.whole.D == des.whole.delays.max() + 3
