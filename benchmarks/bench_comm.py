@@ -9,6 +9,8 @@ For each model and each q (exchanges per event time), side by side on the same n
   centralized accuracy a certified estimator can aim at in this family;
 * the fusion kind (:mod:`splitspec_core.synthesis.fusion`), predicted (its Lyapunov covariance) and measured (mean
   and spread over ``--seeds`` runs), with its spectral radius against the scenario's rate per event time;
+* the relay kind (:mod:`splitspec_core.synthesis.relay`: the sensors' samples passed on, each agent the Kalman
+  predictor of what it holds), predicted and measured on the same realisations, certified by its base's radius;
 * Rego's steady-state distributed Kalman filter (one estimate per step, :class:`SteadyStateDKF`), a baseline at q = 1;
 * the Kalman-consensus filter (Olfati-Saber, :class:`KalmanConsensusFilter`) with q exchanges, measured;
 * the product's other estimator kinds at the same q (``design.consensus: whole`` and, in discrete time, ``split``,
@@ -17,13 +19,15 @@ For each model and each q (exchanges per event time), side by side on the same n
   ``tests/unit/test_step_oracle.py`` and the noise tests hold to the simulator) and certified or not at the rate
   (``--kinds``; none: leave them out).
 
-Numbers sent: per agent per event time, ``q n`` for the fusion kind (one estimate per exchange), ``n`` for Rego's,
+Numbers sent: per agent per event time, ``q n`` for the fusion kind (one estimate per exchange), ``p`` for the relay
+kind (every sensor's sample once, whatever q; each with its sensor and event time), ``n`` for Rego's,
 ``n + s_i`` then ``n`` per further exchange for the KCF (its first message carries the prior and the measurement; the
 most any agent sends is counted).
 
     .venv/bin/python benchmarks/bench_comm.py                       # every model, q = 1 2 3
     .venv/bin/python benchmarks/bench_comm.py --models rego --q 1 2 3 --seeds 5
     .venv/bin/python benchmarks/bench_comm.py --models ieee39_pmu --q 3 --rego-iterations 0 --append
+    .venv/bin/python benchmarks/bench_comm.py --relay-only          # the relay rows of every model, the rest kept
 
 Writes benchmarks/results/bench_comm.json and docs/figures/bench_comm.png (``--no-write``: print only); the printed
 table of the run quoted in docs/benchmarks/index.md is kept as benchmarks/results/bench_comm.txt.
@@ -46,11 +50,12 @@ import splitspec_core as ss
 from splitspec_core.errors import SplitspecError
 from splitspec_core.model.plant import output_rows
 from splitspec_core.studies.baselines import KalmanConsensusFilter, run_predictor
-from splitspec_core.studies.few_exchanges import SteadyStateDKF, run_fusion, simulate_measurements
+from splitspec_core.studies.few_exchanges import SteadyStateDKF, run_fusion, run_relay, simulate_measurements
 from splitspec_core.synthesis.fusion import design_fusion, neighbour_positions
 from splitspec_core.synthesis.error_matrix import predicted_rms
 from splitspec_core.synthesis.kalman import kalman_predictor, per_step_rate, references
 from splitspec_core.synthesis.exchange_limit import design_exchanges, hop_distances, network_model, protocol_limit
+from splitspec_core.synthesis.relay import design_relay
 from splitspec_core.synthesis.verdict import rate_certificate
 
 from _common import loadavg
@@ -133,6 +138,38 @@ def product_kinds(sc, qs, kinds, kf_rms: float) -> list:
         shown = "unstable" if r["predicted"] is None else f"{r['predicted']:.4f}"
         print(f"   {label:<22}: sends {ex.numbers:5d}  predicted {shown}  "
               f"{'certified' if cert.certified else 'NOT certified'} at the rate  design {t_des:.1f} s", flush=True)
+    return rows
+
+
+def relay_rows(key: str, qs, seeds: int, steps: int | None) -> list:
+    """The relay kind at each q: designed at the rate, predicted, measured on ``seeds`` realisations (its own, the
+    Kalman predictor beside it on each), one row each."""
+    sc = MODELS[key]()
+    F, Q, R, Cs, Rs, arcs = _parts(sc)
+    lam = per_step_rate(sc, sc.design.rate)
+    dist = hop_distances(sc.m, arcs)
+    p = sum(C.shape[0] for C in Cs)
+    rows, runs, made = [], {}, {}
+    for q in qs:
+        t0 = time.perf_counter()
+        des = design_relay(F, Cs, Q, Rs, dist, q, lam)
+        made[q] = (des, time.perf_counter() - t0)
+        runs[f"relay q={q}"] = (lambda d: lambda y, X0: run_relay(d, Cs, y, X0))(des)
+    radius = max(d.radius for d, _ in made.values())
+    settle = int(np.ceil(np.log(1e-6) / np.log(max(radius, 1e-3))))
+    steps = steps or max(2000, 12 * settle)
+    meas = _measured(F, Cs, Q, Rs, runs, seeds, steps, min(settle, steps // 3))
+    for q, (des, t_des) in made.items():
+        mm = meas[f"relay q={q}"]
+        r = {"estimator": "relay", "q": q, "numbers": p, "limit": des.limit, "predicted": des.ratio, "measured": mm,
+             "radius": des.radius, "alpha": des.alpha, "certified": des.certified, "design_s": t_des,
+             "of_limit": des.ratio / des.limit - 1.0, "delay": des.D,
+             "transient": des.transient_constant if np.isfinite(des.transient_constant) else None}
+        rows.append(r)
+        print(f"   relay q={q} : sends {p:5d}  limit {des.limit:.4f}  predicted {des.ratio:.4f} "
+              f"({100 * r['of_limit']:+.2f} % of the limit)  measured {np.mean(mm):.4f} [{min(mm):.4f}, "
+              f"{max(mm):.4f}]  radius {des.radius:.6g} {'<' if des.certified else '>='} {lam:.6g}  alpha "
+              f"{des.alpha:.6g}  D {des.D}  design {t_des:.1f} s", flush=True)
     return rows
 
 
@@ -227,6 +264,7 @@ def bench_model(key: str, qs, seeds: int, steps: int | None, rego_iterations: in
                             "design_s": t_rego})
         print(f"   Rego SSDKF : sends {n:5d}  predicted {rego.ratio:.4f}  measured {np.mean(mm):.4f} "
               f"[{min(mm):.4f}, {max(mm):.4f}]  radius {rego.radius:.6g}  design {t_rego:.1f} s", flush=True)
+    row["rows"] += relay_rows(key, qs, seeds, steps)
     row["rows"] += product_kinds(sc, qs, kinds, kf_ref.rms)
     row["steps"], row["burn"], row["seeds"] = steps, burn, seeds
     return row
@@ -252,6 +290,13 @@ def figure(rows: list, path: Path) -> None:
         for r in fus:
             ax.annotate(f"q={r['q']}" + ("" if r.get("certified", True) else ", not certified"),
                         (r["numbers"], r["predicted"]), textcoords="offset points", xytext=(4, 6), fontsize=8)
+        rel = [r for r in row["rows"] if r["estimator"] == "relay"]
+        for r in rel:  # every q sends the same numbers: one marker per q, filled when certified at the rate
+            ax.plot([r["numbers"]], [r["predicted"]], "C1o", mfc="C1" if r["certified"] else "none", ms=7,
+                    label="relay, predicted (filled: certified)")
+            ax.plot([r["numbers"]], [np.mean(r["measured"])], "C1x", label="relay, measured")
+            ax.annotate(f"q={r['q']}", (r["numbers"], r["predicted"]), textcoords="offset points", xytext=(-22, -4),
+                        fontsize=7, color="C1")
         kcf = [r for r in row["rows"] if r["estimator"] == "kcf" and np.isfinite(np.mean(r["measured"]))]
         if kcf:
             ax.plot([r["numbers"] for r in kcf], [np.mean(r["measured"]) for r in kcf], "C2^:",
@@ -289,6 +334,27 @@ def figure(rows: list, path: Path) -> None:
     fig.savefig(path, dpi=110)
 
 
+def _relay_only(args) -> int:
+    """``--relay-only``: the relay kind of ``args.models`` at ``args.q``, replacing its rows in the records."""
+    record = RESULTS / "bench_comm.json"
+    data = json.loads(record.read_text()) if record.exists() else {"models": []}
+    for key in args.models:
+        row = next((r for r in data["models"] if r["model"] == key), None)
+        if row is None:
+            print(f"   {key}: not in the records: run it first without --relay-only", flush=True)
+            return 2
+        print(f"== {key} (load {loadavg()})", flush=True)
+        t0 = time.perf_counter()
+        new = relay_rows(key, sorted(args.q), args.seeds, args.steps)
+        row["rows"] = [r for r in row["rows"] if r["estimator"] != "relay"] + new
+        print(f"   ({time.perf_counter() - t0:.0f} s, load {loadavg()})", flush=True)
+    if not args.no_write:
+        record.write_text(json.dumps(data, indent=1))
+        figure(data["models"], FIGURE)
+        print(f"wrote {record} and {FIGURE}")
+    return 0
+
+
 def _kinds_only(args) -> int:
     """``--kinds-only``: the product's kinds of ``args.models`` at ``args.q``, replacing those rows in the records."""
     record = RESULTS / "bench_comm.json"
@@ -303,7 +369,7 @@ def _kinds_only(args) -> int:
         print(f"== {key} (load {loadavg()})", flush=True)
         t0 = time.perf_counter()
         kinds = product_kinds(sc, sorted(args.q), args.kinds, kf_ref.rms)
-        row["rows"] = [r for r in row["rows"] if r["estimator"] in ("fusion", "kcf", "rego")] + kinds
+        row["rows"] = [r for r in row["rows"] if r["estimator"] in ("fusion", "kcf", "rego", "relay")] + kinds
         print(f"   ({time.perf_counter() - t0:.0f} s, load {loadavg()})", flush=True)
     if not args.no_write:
         record.write_text(json.dumps(data, indent=1))
@@ -324,6 +390,8 @@ def main(argv=None) -> int:
                    help="the product's other kinds at each q, and its default design (none given: leave them out)")
     p.add_argument("--kinds-only", action="store_true",
                    help="only the product's kinds of these models, their rows replaced in the records (the rest kept)")
+    p.add_argument("--relay-only", action="store_true",
+                   help="only the relay kind of these models, its rows replaced in the records (the rest kept)")
     p.add_argument("--no-write", action="store_true")
     p.add_argument("--append", action="store_true",
                    help="keep the records' other models, replace only these (a large model's rows run alone)")
@@ -340,6 +408,8 @@ def main(argv=None) -> int:
     print(f"bench_comm: load {loadavg()}", flush=True)
     if args.kinds_only:
         return _kinds_only(args)
+    if args.relay_only:
+        return _relay_only(args)
     rows = []
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")

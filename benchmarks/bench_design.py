@@ -35,6 +35,13 @@ Two tables, no timing assertions anywhere (the machine is shared):
 
     .venv/bin/python benchmarks/bench_design.py --only fusion [--fusion-models rego ieee14_pmu] [--fusion-q 1 2 3]
 
+* the relay kind's design (``--only relay``, :mod:`splitspec_core.synthesis.relay`): the product's whole design and
+  its report (``design`` and ``design_json`` of the scenario with ``design.consensus: relay``, ``design.q: q``) on
+  Rego's ring and the IEEE 39-bus PMU ring, quiet and with one other busy process, alternating, medians of
+  ``--relay-repeat``, the load average beside each:
+
+    .venv/bin/python benchmarks/bench_design.py --only relay [--relay-models rego ieee39_pmu] [--relay-q 1 3]
+
 * ``splitspec compare`` of Rego's ring from a cold start (``--only compare``, no kept design), quiet and beside one
   busy process:
 
@@ -293,6 +300,42 @@ def fusion_table(args) -> None:
                   f"{des.ratio:>8.4f}{des.radius:>11.6g}{lam:>11.6g}  {loadavg(1)}", flush=True)
 
 
+def relay_table(args) -> None:
+    """The relay kind's design and report, quiet and beside one busy process (module docstring)."""
+    import dataclasses
+    import multiprocessing
+
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from bench_comm import MODELS
+    from splitspec_core.synthesis.report import design_json
+
+    print(f"relay design and its report (load {loadavg()})")
+    print(f"{'model':<14}{'q':>3}{'quiet s':>10}{'busy s':>10}{'ratio':>8}{'radius':>11}{'rate':>11}  load after")
+    for key in args.relay_models:
+        base = MODELS[key]()
+        for q in args.relay_q:
+            sc = dataclasses.replace(base, design=dataclasses.replace(base.design, consensus="relay", q=q, gains="optimal",
+                                                                      resilience=0, K=None))
+            quiet, busy, des = [], [], None
+            for _ in range(args.relay_repeat):
+                for loaded in (False, True):
+                    spinner = multiprocessing.Process(target=_spin, daemon=True) if loaded else None
+                    if spinner:
+                        spinner.start()
+                    try:
+                        t0 = time.perf_counter()
+                        des = design(sc)
+                        design_json(des)
+                        (busy if loaded else quiet).append(time.perf_counter() - t0)
+                    finally:
+                        if spinner:
+                            spinner.terminate()
+                            spinner.join()
+            k = des.whole
+            print(f"{key:<14}{q:>3}{statistics.median(quiet):>10.1f}{statistics.median(busy):>10.1f}"
+                  f"{k.ratio:>8.4f}{k.radius:>11.6g}{k.lam_step:>11.6g}  {loadavg(1)}", flush=True)
+
+
 def compare_table(args) -> None:
     """``splitspec compare`` of Rego's ring (its fusion design at q = 1, the split beside it, the references, 2 seeds)
     from a cold start (``SPLITSPEC_CACHE=off``), quiet and beside one busy process (module docstring)."""
@@ -328,7 +371,11 @@ def compare_table(args) -> None:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--compare-repeat", type=int, default=2)
-    ap.add_argument("--only", choices=["random", "ring", "scale", "fusion", "compare"], help="run one table only")
+    ap.add_argument("--only", choices=["random", "ring", "scale", "fusion", "relay", "compare"],
+                    help="run one table only")
+    ap.add_argument("--relay-models", nargs="+", default=["rego", "ieee39_pmu"])
+    ap.add_argument("--relay-q", type=int, nargs="+", default=[1, 3])
+    ap.add_argument("--relay-repeat", type=int, default=2)
     ap.add_argument("--fusion-models", nargs="+", default=["rego", "ieee14_pmu"])
     ap.add_argument("--fusion-q", type=int, nargs="+", default=[1, 2, 3])
     ap.add_argument("--fusion-repeat", type=int, default=1)
@@ -363,6 +410,9 @@ def main() -> None:
     if args.only in (None, "fusion"):
         print() if args.only is None else None
         fusion_table(args)
+    if args.only in (None, "relay"):
+        print() if args.only is None else None
+        relay_table(args)
     if args.only in (None, "compare"):
         print() if args.only is None else None
         compare_table(args)
