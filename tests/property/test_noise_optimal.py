@@ -8,7 +8,8 @@ choice between the whole state and the split) on drawn jointly detectable system
 The systems are :mod:`.test_detectable`'s (an observable part, a stable block nobody sees, mixed and scaled), the
 noise drawn per agent and output and per state (``system.measurement_noise: {agent: [stds]}``,
 ``system.process_noise: [one per state]``), each kind asked for by name (``design.consensus``: ``split``, ``whole``,
-``fusion`` (the envelope only: its steady state is ``test_fusion_properties.py``'s), or ``auto``'s choice).
+``fusion`` and ``relay`` (the envelope only: their steady states are ``test_fusion_properties.py``'s and
+``test_relay_properties.py``'s), or ``auto``'s choice).
 
 A draw that is not checked (the designer refuses it in one line, its rate is not certified, its plant is unstable
 for the steady state, its transient too long to wait out) is counted by its reason, never silently dropped: each test
@@ -100,7 +101,7 @@ def test_the_noise_optimal_designs_error_stays_under_its_certified_envelope():
     tally: Counter = Counter()
 
     @settings(max_examples=examples(25), **COMMON)
-    @given(noisy(kinds=("auto", "split", "whole", "fusion")))  # fusion's steady state: test_fusion_properties.py
+    @given(noisy(kinds=("auto", "split", "whole", "fusion", "relay")))  # their steady states: test_*_properties.py
     def check(data):
         des = _design(data, tally)
         if des is None:
