@@ -96,14 +96,15 @@ def run_relay(des: RelayDesign, Cs, ys: np.ndarray, X0: np.ndarray) -> np.ndarra
     C = np.vstack(Cs)
     m = len(Cs)
     tables = [gain_table(des, i) for i in range(m)]
+    # the rows agent i holds at each lag, sensors in order (what steps.relay_samples gives for every sample in time)
+    held = [[np.concatenate([sensor_rows[j] for j in range(m) if des.delays[i, j] <= lag])
+             for lag in range(des.D + 1)] for i in range(m)]
     base, t_base = np.array(X0, dtype=float), [0] * m
     out = np.empty((len(ys) + 1,) + base.shape)
     out[0] = X0
     for tau in range(len(ys)):
         for i in range(m):
-            held = {(j, t): ys[t, sensor_rows[j]] for t in range(t_base[i], tau + 1) for j in range(m)
-                    if des.delays[i, j] <= tau - t}
-            samples = st.relay_samples(held, sensor_rows, t_base[i], tau)
+            samples = {t: (held[i][tau - t], ys[t, held[i][tau - t]]) for t in range(t_base[i], tau + 1)}
             base[i], t_base[i], out[tau + 1, i] = st.relay_walk(base[i], t_base[i], tau, tables[i], des.F, C, samples)
     return out
 

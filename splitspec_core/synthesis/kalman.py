@@ -21,6 +21,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import hashlib
 import math
 
 import numpy as np
@@ -89,6 +90,12 @@ def _detectable(F: np.ndarray, C: np.ndarray, tol: float = 1e-9, *, radius: floa
     return True
 
 
+#: Kalman predictors kept by their model's content (a design's steps ask for the same one several times: the relay
+#: kind, its limit, the references; 0.7 s each at n = 170), at most this many
+KEPT = 8
+_kept: dict = {}
+
+
 def kalman_predictor(F: np.ndarray, C: np.ndarray, Q: np.ndarray, R: np.ndarray) -> KalmanPredictor:
     """Steady-state one-step predictor of ``x+ = F x + v``, ``y = C x + w`` (``cov v = Q``, ``cov w = R``).
 
@@ -129,6 +136,20 @@ def kalman_predictor(F: np.ndarray, C: np.ndarray, Q: np.ndarray, R: np.ndarray)
     """
     F = np.asarray(F, dtype=float)
     C = np.atleast_2d(np.asarray(C, dtype=float))
+    arrays = [np.ascontiguousarray(a, dtype=float) for a in (F, C, np.atleast_2d(Q), np.atleast_2d(R))]
+    key = hashlib.sha1(b"".join(repr(a.shape).encode() + a.tobytes() for a in arrays)).hexdigest()
+    if key in _kept:
+        return _kept[key]
+    out = _kalman_predictor(F, C, Q, R)
+    for a in (out.L, out.P):
+        a.setflags(write=False)  # shared by every caller of the same model
+    if len(_kept) >= KEPT:
+        _kept.pop(next(iter(_kept)))
+    _kept[key] = out
+    return out
+
+
+def _kalman_predictor(F: np.ndarray, C: np.ndarray, Q: np.ndarray, R: np.ndarray) -> KalmanPredictor:
     if not _detectable(F, C):
         raise DesignError("kalman_predictor: (C, F) is not detectable: an unstable mode of F is unobserved")
     Qr, Rr = regularise(Q), regularise(R)

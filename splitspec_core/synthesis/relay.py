@@ -60,8 +60,10 @@ __all__ = ["RelayDesign", "ALPHA_STEPS", "AUTO_GAP", "design_relay", "scenario_r
            "relay_transient", "relay_q", "agent_relay", "survivors_radius", "gain_table", "LAG_MAX", "AUTO_LAG",
            "relay_design", "refusal_text"]
 
-#: bisection steps of the shift alpha in [lam, 1] (each a Riccati equation of size n)
+#: Riccati equations (of size n) the search of the shift alpha in [lam, 1] solves at most (regula falsi, Illinois)
 ALPHA_STEPS = 10
+#: ... stopping once the bracket is narrower than this fraction of 1 - lam
+ALPHA_TOL = 1e-3
 #: ``design.lag: auto``: the most extra event times the base is kept behind
 LAG_MAX = 20
 #: ``design.lag: auto``: the fewest extra event times whose predicted RMS is within this fraction of :data:`LAG_MAX`'s
@@ -338,22 +340,7 @@ def design_relay(F: np.ndarray, Cs, Q: np.ndarray, Rs, dist: np.ndarray, q: int,
     delays = information_delays(dist, q)
     base, alpha = kf, 1.0
     if lam is not None and not kf.radius < lam:
-        lo, hi, found = lam, 1.0, None  # the largest alpha whose shifted gain certifies: the error grows as it falls
-        for _ in range(ALPHA_STEPS):
-            a = lo if found is None else 0.5 * (lo + hi)
-            try:
-                p = shifted_predictor(F, C, Q, R, a, covariance=False)
-                ok = p.radius < lam
-            except DesignError:
-                p, ok = None, False
-            if ok:
-                found, alpha, lo = p, a, a
-            elif found is None:
-                break  # not even the most shifted gain certifies: the Kalman predictor's kept, not certified
-            else:
-                hi = a
-        base = found or kf
-        alpha = alpha if found is not None else 1.0
+        base, alpha = _shift(F, C, Q, R, lam, kf)
     P_base = kf.P if base is kf else steady_covariance(F, C, base.L, Q, R)
     if lag == "auto":
         lag = 0 if alpha == 1.0 else _auto_lag(F, Cs, Rsr, Qr, delays, base.L, P_base)
@@ -365,6 +352,38 @@ def design_relay(F: np.ndarray, Cs, Q: np.ndarray, Rs, dist: np.ndarray, q: int,
     return RelayDesign(q=int(q), delays=delays, F=F, L=base.L, walk=walk, alpha=float(alpha), radius=radius,
                        lam_step=lam_step, agent_P=agent_P, kf_P_trace=float(np.trace(kf.P)), limit=float(limit),
                        transient=transient, lag=int(lag))
+
+
+def _shift(F, C, Q, R, lam: float, kf) -> tuple:
+    """``(predictor, alpha)``: the largest ``alpha`` in ``[lam, 1]`` whose shifted gain certifies ``lam`` (the error
+    grows as it falls), by regula falsi (Illinois) on ``radius(alpha) - lam`` from ``[lam, 1]`` (at ``lam`` the
+    radius is below it by construction, at 1 it is the Kalman predictor's, not below); ``(kf, 1.0)`` when not even
+    the most shifted gain certifies."""
+    try:
+        lo_p = shifted_predictor(F, C, Q, R, lam, covariance=False)
+    except DesignError:
+        return kf, 1.0
+    if not lo_p.radius < lam:
+        return kf, 1.0
+    lo, hi, g_lo, g_hi, side = lam, 1.0, lo_p.radius - lam, kf.radius - lam, 0
+    found, alpha = lo_p, lam
+    for _ in range(ALPHA_STEPS - 1):
+        if hi - lo < ALPHA_TOL * (1.0 - lam):
+            break
+        a = (lo * g_hi - hi * g_lo) / (g_hi - g_lo) if g_hi > g_lo else 0.5 * (lo + hi)
+        a = min(max(a, lo + 0.01 * (hi - lo)), hi - 0.01 * (hi - lo))  # inside the bracket
+        try:
+            p = shifted_predictor(F, C, Q, R, a, covariance=False)
+            g = p.radius - lam
+        except DesignError:
+            p, g = None, math.inf
+        if p is not None and g < 0:
+            found, alpha, lo, g_lo = p, a, a, g
+            g_hi, side = (0.5 * g_hi if side == -1 else g_hi), -1  # Illinois: the stale end's value halved
+        else:
+            hi, g_hi = a, (g if math.isfinite(g) else 2 * max(g_hi, 1e-12))
+            g_lo, side = (0.5 * g_lo if side == 1 else g_lo), 1
+    return found, float(alpha)
 
 
 def _auto_lag(F, Cs, Rs, Q, delays, L, P_base) -> int:

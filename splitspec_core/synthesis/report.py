@@ -770,8 +770,10 @@ def relay_lines(des: Design) -> list:
     per = "event time" if sc.time == "discrete" else f"run.dt = {sc.run.dt:g}"
     how = "design.q: given" if sc.design.q != "auto" else \
         "the smallest whose protocol limit is within 1 % of the Kalman filter"
-    out = [f"q = {des.q} exchanges per {per}  (relay; {how}); every sample reaches every agent at most {k.D} event "
-           f"time{'s' if k.D != 1 else ''} late; spectral radius of the base's error map {k.radius:.6g} "
+    late = int(k.delays.max())
+    behind = f"; the base {k.D} behind (design.lag {k.lag})" if k.lag else ""
+    out = [f"q = {des.q} exchanges per {per}  (relay; {how}); every sample reaches every agent at most {late} event "
+           f"time{'s' if late != 1 else ''} late{behind}; spectral radius of the base's error map {k.radius:.6g} "
            f"{'<' if k.certified else '>='} {k.lam_step:.6g} per step"]
     gains = "the Kalman predictor's gain" if k.alpha == 1.0 else \
         f"the Riccati predictor of the model shifted by alpha = {k.alpha:.6g} (the Kalman predictor is slower than the rate)"
