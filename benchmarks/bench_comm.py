@@ -168,7 +168,7 @@ def relay_rows(key: str, qs, seeds: int, steps: int | None) -> list:
         rows.append(r)
         print(f"   relay q={q} : sends {p:5d}  limit {des.limit:.4f}  predicted {des.ratio:.4f} "
               f"({100 * r['of_limit']:+.2f} % of the limit)  measured {np.mean(mm):.4f} [{min(mm):.4f}, "
-              f"{max(mm):.4f}]  radius {des.radius:.6g} {'<' if des.certified else '>='} {lam:.6g}  alpha "
+              f"{max(mm):.4f}]  radius {des.radius:.8g} {'<' if des.certified else '>='} {lam:.8g}  alpha "
               f"{des.alpha:.6g}  D {des.D}  design {t_des:.1f} s", flush=True)
     return rows
 

@@ -235,8 +235,8 @@ def test_an_agent_holds_only_samples_that_fit_their_values_and_their_window():
 
 
 def test_a_lagged_base_buys_back_the_accuracy_the_rate_s_shift_costs_and_stays_certified():
-    """The platoon is slower than its rate: the shifted base alone is 1.245x the KF at q = 3 (D = 0); kept behind
-    (design.lag: auto) its walk's Kalman steps bring it within 1 % of the protocol's limit, the certificate (the base's
+    """The platoon is slower than its rate: the shifted base alone is 1.25x the KF at q = 3 (D = 0); kept behind
+    (design.lag: auto) its walk's Kalman steps bring it within 2 % of the protocol's limit, the certificate (the base's
     radius) unchanged and the envelope's constant larger; more lag never hurts."""
     base = ss.load_scenario(EXAMPLES / "platoon.yaml")
 
@@ -247,7 +247,7 @@ def test_a_lagged_base_buys_back_the_accuracy_the_rate_s_shift_costs_and_stays_c
     none, auto = design(at(0)).whole, design(at("auto")).whole
     assert none.alpha < 1.0 and none.lag == 0 and auto.lag > 0 and auto.D == auto.lag  # every sensor in time at q = 3
     assert none.radius == auto.radius < auto.lam_step  # the same base, certified
-    assert auto.ratio < none.ratio and auto.ratio <= 1.01 * auto.limit
+    assert auto.ratio < none.ratio and auto.ratio <= 1.02 * auto.limit
     ratios = [design(at(k)).whole.ratio for k in (0, 2, 5)]
     assert ratios == sorted(ratios, reverse=True)
     assert auto.transient_constant > none.transient_constant
