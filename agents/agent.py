@@ -39,6 +39,8 @@ from __future__ import annotations
 import argparse
 import logging
 import time
+from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 
@@ -55,6 +57,78 @@ from splitspec_core.runtime.wire import Keys, WireError, decode, encode
 from .measure import YBuffer
 
 log = logging.getLogger("splitspec.agent")
+
+
+class Watch(NamedTuple):
+    """The sensor watch of an agent's estimate (:mod:`splitspec_core.model.screening`), committed with it."""
+
+    #: the sensor is suspect: the agent takes its neighbours' whole estimate and no measurement
+    suspect: bool = False
+    #: failed tests in a row (clean ones while suspect)
+    run: int = 0
+    #: measurements this incarnation has seen (its warm-up)
+    seen: int = 0
+    #: the last measurement given (the flat-line test's)
+    last: np.ndarray | None = None
+
+
+class Candidate(NamedTuple):
+    """A round's result, computed, not yet committed: ``x_i(tau)`` and what goes with it."""
+
+    tau: int
+    x: np.ndarray
+    g: float
+    watch: Watch
+
+
+class BadData(NamedTuple):
+    """``design.bad_data`` as the agent is sent it (:func:`splitspec_core.synthesis.bad_data.agent_config`)."""
+
+    S_inv: np.ndarray
+    threshold: float
+    suspect_after: int
+    warmup: int
+    flatline: bool
+
+
+class RelayState(NamedTuple):
+    """The relay kind's state beside the estimate (:class:`RelayPart`), committed with it."""
+
+    base: np.ndarray
+    t_base: int
+    held: dict
+    sent: set
+    bus: dict
+
+
+@dataclass(eq=False)
+class Round:
+    """The round in flight of an agent (``AgentNode.round``): its network row, where its exchanges stand, what it
+    measured and what it reports.  Made by ``AgentNode.on_tick``, filled as messages arrive."""
+
+    tau: int
+    attempt: int
+    nbs: list
+    ws: list
+    graph: int
+    groups: object
+    z: np.ndarray  # z_i(k): the state this agent sends (the relay kind: the samples of its exchange)
+    P: np.ndarray  # the projection of its consensus sub-rounds (I: a suspect sensor)
+    z0: tuple | None  # the (tau, attempt) of the x_j(tau) that are the neighbours' z_j(0); None: sent as z messages
+    open: float | None  # when the sub-round in flight opened (deadlines only)
+    k: int = 0  # the exchanges done
+    stat: float = UNTESTED  # the bad-data test's statistic
+    set_aside: bool = False  # the measurement failed the test (or its sensor is suspect)
+    lost: list = field(default_factory=list)  # the neighbours' messages that did not count: (k, j, cause)
+    used: int = 0  # the neighbours' messages that counted
+    wake: float | None = None  # when on_timer is wanted
+    realized: tuple | None = None  # continuous time: the neighbours' states of the step
+    updated: bool = False  # the kinds that update first: y_i(tau) is in and z_i(0) sent
+    y: np.ndarray | None = None  # y_i(tau) (None: none)
+    watch: Watch | None = None  # the watch after this round's test
+    held: dict | None = None  # the relay kind: the samples held, their keys sent, the known inputs of the walk
+    sent: set | None = None
+    bus: dict | None = None
 
 #: z messages buffered for at most this many (event time, attempt) rounds per sub-round and neighbour
 ZBUF_ROUNDS = 6
@@ -169,7 +243,7 @@ class AgentNode:
         self.tau = None  # tau of the committed estimate
         self.incarnation = None
         self.round = None  # dict of the round in flight
-        self.candidate = None  # (tau + 1, x, g) computed, not yet committed
+        self.candidate: Candidate | None = None  # computed, not yet committed
         self.zbuf: dict = {}  # (tau, attempt, k) -> {j: z_j}
         self.xbuf: dict = {}  # (tau, attempt of round tau - 1) -> {j: x_j(tau)}: the next round's z_j(0)
         rows = output_rows(sc.system.Cs)
@@ -180,11 +254,11 @@ class AgentNode:
         # design.bad_data (splitspec_core.synthesis.bad_data): the design's S_i^-1, threshold, k and warm-up; the watch
         # (suspect, run, measurements seen by this incarnation: its warm-up) of x_i(tau)
         bd = config.get("bad_data")
-        self.bad = None if bd is None else (np.asarray(bd["S_inv"], dtype=float).reshape(self.s, self.s),
-                                            float(bd["threshold"]), int(bd["suspect_after"]), int(bd["warmup"]),
-                                            bool(bd.get("flatline", False)))
+        self.bad = None if bd is None else BadData(np.asarray(bd["S_inv"], dtype=float).reshape(self.s, self.s),
+                                                   float(bd["threshold"]), int(bd["suspect_after"]), int(bd["warmup"]),
+                                                   bool(bd.get("flatline", False)))
         # suspect, failures (or clean tests) in a row, measurements seen (the warm-up), the last measurement given
-        self.watch = (False, 0, 0, None)
+        self.watch = Watch()
         # a misbehaving network (splitspec_core.model.impairment): the same draws as the simulator's, a deadline per
         # sub-round, messages held for their delay; the clock is only read when a deadline or a delay is set
         net = sc.network
@@ -220,7 +294,7 @@ class AgentNode:
 
     def next_wakeup(self) -> float | None:
         """When the round in flight wants :meth:`on_timer` (a sub-round's deadline, a held message's release)."""
-        return self.round.get("wake") if self.round is not None else None
+        return self.round.wake if self.round is not None else None
 
     def on_timer(self) -> list:
         """The clock reached :meth:`next_wakeup`: go on with what has arrived."""
@@ -228,13 +302,13 @@ class AgentNode:
 
     def _z(self, k: int, z: np.ndarray) -> tuple:
         r = self.round
-        return (self.keys.z(self.id), encode("z", self.run_id, mac_key=self.mac_key, tau=r["tau"],
-                                               attempt=r["attempt"], k=k, agent=self.id, z=z))
+        return (self.keys.z(self.id), encode("z", self.run_id, mac_key=self.mac_key, tau=r.tau,
+                                               attempt=r.attempt, k=k, agent=self.id, z=z))
 
     def _relayed(self, k: int, samples: dict) -> tuple:
         """The relay kind's exchange ``k``: the samples' values side by side, ``[sensor, t, ...]`` which they are."""
         r, vals = self.round, list(samples.values())
-        return (self.keys.z(self.id), encode("r", self.run_id, mac_key=self.mac_key, tau=r["tau"], attempt=r["attempt"],
+        return (self.keys.z(self.id), encode("r", self.run_id, mac_key=self.mac_key, tau=r.tau, attempt=r.attempt,
                                                k=k, agent=self.id, z=np.concatenate(vals) if vals else np.zeros(0),
                                                samples=[int(v) for key in samples for v in key]))
 
@@ -260,8 +334,8 @@ class AgentNode:
         known = self.net.update(t) or self.reject("unknown_topology")
         me = self.net.row if known else None
         if self.candidate is not None:
-            if self.candidate[0] == tau and me is not None:
-                _, self.x, self.g, self.watch = self.candidate  # commit x_i(tau) (and the watch after round tau - 1)
+            if self.candidate.tau == tau and me is not None:  # commit x_i(tau) (and the watch after round tau - 1)
+                self.x, self.g, self.watch = self.candidate.x, self.candidate.g, self.candidate.watch
                 self.tau = tau
                 if self.relay is not None:  # and the relay kind's state after round tau - 1
                     self.relay.commit(tau)
@@ -280,7 +354,7 @@ class AgentNode:
                 self.relay.start(self.x, tau)
             self.g = self.g0
             self.tau = tau
-            self.watch = (False, 0, 0, None)  # a fresh sensor watch and warm-up (model/screening.py: Screen.reset)
+            self.watch = Watch()  # a fresh sensor watch and warm-up (model/screening.py: Screen.reset)
             out.append(self._xhat(tau, attempt, self.x, report(g=self.g)))
         # drop buffers of older rounds
         self.zbuf = {k: v for k, v in self.zbuf.items() if (k[0], k[1]) >= (tau, attempt)}
@@ -298,15 +372,13 @@ class AgentNode:
         # z_j(0): sent as such in a fresh or re-run round, else the x_j(tau) of round (tau - 1, prev_attempt)
         explicit = bool(t["fresh"]) or attempt > 0
         # a suspect sensor: this round takes the neighbours' whole estimate (P_i = I) and no measurement
-        self.round = {"tau": tau, "attempt": attempt, "nbs": nbs, "ws": ws, "k": 0, "z": self.x.copy(),
-                      "P": np.eye(self.n) if self.watch[0] else self.P, "stat": UNTESTED, "set_aside": False,
-                      "z0": None if explicit else (tau, int(t["prev_attempt"])), "groups": self.net.groups,
-                      "lost": [], "used": 0, "open": self.clock() if self.deadline is not None else None}
-        self.round["graph"] = int(t["graph"])
-        if self.whole or self.fusion is not None or self.relay is not None:  # sent once y_i(tau) is in (_advance)
-            self.round["z0"] = None
-        elif explicit:
-            out.append(self._z(0, self.round["z"]))
+        update_first = self.whole or self.fusion is not None or self.relay is not None  # z_i(0) once y_i(tau) is in
+        self.round = Round(tau=tau, attempt=attempt, nbs=nbs, ws=ws, graph=int(t["graph"]), groups=self.net.groups,
+                           z=self.x.copy(), P=np.eye(self.n) if self.watch.suspect else self.P,
+                           z0=None if explicit or update_first else (tau, int(t["prev_attempt"])),
+                           open=self.clock() if self.deadline is not None else None)
+        if explicit and not update_first:
+            out.append(self._z(0, self.round.z))
         return out + self._advance()
 
     def _from_neighbour(self, msg_type: str, field: str, key: str, payload: bytes) -> dict | None:
@@ -350,7 +422,7 @@ class AgentNode:
         r = self.round
         tag = (m["tau"], m["attempt"])
         # before the first tick nothing is stale: a neighbour may have started the first round already
-        stale = self.tau is not None and tag < ((self.tau, -1) if r is None else (r["tau"], r["attempt"]))
+        stale = self.tau is not None and tag < ((self.tau, -1) if r is None else (r.tau, r.attempt))
         if stale or not 0 <= m["k"] < self.exchanges:
             self.reject("stale" if stale else "bad_k")
             return []
@@ -403,37 +475,37 @@ class AgentNode:
         with what it has (:func:`~splitspec_core.model.impairment.realized_row`) and records what did not count.
         """
         r = self.round
-        if k == 0 and r["z0"] is not None:  # eq. split-discrete-p1: z_j(0) = x_j(tau), sent as x_j's report
-            kind, tag = "x", r["z0"]
+        if k == 0 and r.z0 is not None:  # eq. split-discrete-p1: z_j(0) = x_j(tau), sent as x_j's report
+            kind, tag = "x", r.z0
         else:
-            kind, tag = "z", (r["tau"], r["attempt"], k)
+            kind, tag = "z", (r.tau, r.attempt, k)
         slot = (self.xbuf if kind == "x" else self.zbuf).get(tag, {})
-        if self.undrawn and not r["groups"]:  # sub_round's decisions without it: only a deadline can drop a message
-            if all(j in slot for j in r["nbs"] if j != self.id):  # every message on time: the whole row
-                r["wake"] = None
-                r["used"] += sum(1 for j in r["nbs"] if j != self.id)  # the neighbours' messages it counts
-                return r["nbs"], r["ws"], [r["z"] if j == self.id else slot[j] for j in r["nbs"]]
-            if self.deadline is None or self.clock() < r["open"] + self.deadline:  # wait (for all, or till then)
-                r["wake"] = None if self.deadline is None else r["open"] + self.deadline
+        if self.undrawn and not r.groups:  # sub_round's decisions without it: only a deadline can drop a message
+            if all(j in slot for j in r.nbs if j != self.id):  # every message on time: the whole row
+                r.wake = None
+                r.used += sum(1 for j in r.nbs if j != self.id)  # the neighbours' messages it counts
+                return r.nbs, r.ws, [r.z if j == self.id else slot[j] for j in r.nbs]
+            if self.deadline is None or self.clock() < r.open + self.deadline:  # wait (for all, or till then)
+                r.wake = None if self.deadline is None else r.open + self.deadline
                 return None
             # past the deadline: sub_round records the missing messages as late
         now = self.clock() if (self.delayed or self.deadline is not None) else 0.0
         arrived = self.arrived.get((kind, tag), {}) if self.delayed else None
-        got = sub_round(self.imp, self.sc.design.weights, tau=r["tau"], k=k + 1, me=self.id, nbs=r["nbs"],
-                        ws=r["ws"], have=slot, groups=r["groups"], now=now, opened=r["open"] or 0.0, arrived=arrived)
+        got = sub_round(self.imp, self.sc.design.weights, tau=r.tau, k=k + 1, me=self.id, nbs=r.nbs,
+                        ws=r.ws, have=slot, groups=r.groups, now=now, opened=r.open or 0.0, arrived=arrived)
         if got[0] == "wait":
-            r["wake"] = got[1]
+            r.wake = got[1]
             return None
         _, nbs, ws, lost = got
-        r["wake"] = None
-        r["lost"] += lost
-        r["used"] += sum(1 for j in nbs if j != self.id)  # the neighbours' messages it counts
-        return nbs, ws, [r["z"] if j == self.id else slot[j] for j in nbs]
+        r.wake = None
+        r.lost += lost
+        r.used += sum(1 for j in nbs if j != self.id)  # the neighbours' messages it counts
+        return nbs, ws, [r.z if j == self.id else slot[j] for j in nbs]
 
     def _opened(self) -> None:
         """The next sub-round opens now (its deadline counts from here)."""
         if self.deadline is not None:
-            self.round["open"] = self.clock()
+            self.round.open = self.clock()
 
     def _advance(self) -> list:
         r = self.round
@@ -447,41 +519,41 @@ class AgentNode:
         if self.relay is not None:
             return relay_round(self, r)
         if self.continuous:
-            if "realized" not in r:
+            if r.realized is None:
                 got = self._neighbour_states(0)
                 if got is None:
                     return out
-                r["realized"] = got
-            _, ws, states = r["realized"]
-            if not self.ys.ready(r["tau"]):
+                r.realized = got
+            _, ws, states = r.realized
+            if not self.ys.ready(r.tau):
                 return out
-            y = self.ys.get(r["tau"])  # None: no measurement, the step without its innovation
-            bu = self.ys.bu(r["tau"])  # the known input's B u(tau) (None: no inputs)
-            x_next = st.sampled_step(self.x, self.E, self.D, self.K, self.C, screen_round(self, self.x, y), r["P"], self.g,
+            y = self.ys.get(r.tau)  # None: no measurement, the step without its innovation
+            bu = self.ys.bu(r.tau)  # the known input's B u(tau) (None: no inputs)
+            x_next = st.sampled_step(self.x, self.E, self.D, self.K, self.C, screen_round(self, self.x, y), r.P, self.g,
                                      states, ws, bu)
             g_next = self.g
             if self.adaptive:
                 g_next = st.adaptive_gain_step(self.g, st.adaptive_gain_rate(self.V, self.x, states, ws), self.dt)
             return self._finish(x_next, g_next, y)
-        while r["k"] < self.exchanges:
-            got = self._neighbour_states(r["k"])
+        while r.k < self.exchanges:
+            got = self._neighbour_states(r.k)
             if got is None:
                 return out
             _, ws, states = got
             # eq. split-discrete-p2 (over the neighbours whose message counts: impairment.realized_row)
-            r["z"] = st.consensus_subround(r["z"], r["P"], states, ws)
-            r["k"] += 1
+            r.z = st.consensus_subround(r.z, r.P, states, ws)
+            r.k += 1
             self._opened()
-            if r["k"] < self.exchanges:
-                out.append(self._z(r["k"], r["z"]))
-        if not self.ys.ready(r["tau"]):
+            if r.k < self.exchanges:
+                out.append(self._z(r.k, r.z))
+        if not self.ys.ready(r.tau):
             return out
-        y = self.ys.get(r["tau"])
+        y = self.ys.get(r.tau)
         # eq. split-discrete-est1, or the prediction without a measurement (none, or set aside by the test)
-        bu = self.ys.bu(r["tau"])
-        used = screen_round(self, r["z"], y)
-        x_next = st.prediction_update(r["z"], self.A, bu) if used is None else \
-            st.measurement_update(r["z"], self.F, self.K, used, bu)
+        bu = self.ys.bu(r.tau)
+        used = screen_round(self, r.z, y)
+        x_next = st.prediction_update(r.z, self.A, bu) if used is None else \
+            st.measurement_update(r.z, self.F, self.K, used, bu)
         return out + self._finish(x_next, 0.0, y)
 
     def _advance_whole(self, r: dict) -> list:
@@ -490,7 +562,7 @@ class AgentNode:
         ``z_i(k) = sum_j w_ij z_j(k - 1)``; ``x_i(tau + 1) = z_i(q)``."""
 
         def update(y):
-            bu = st.step_input(self.G, self.ys.bu(r["tau"]))
+            bu = st.step_input(self.G, self.ys.bu(r.tau))
             used = screen_round(self, self.x, y)
             return st.prediction_update(self.x, self.A, bu) if used is None else \
                 st.measurement_update(self.x, self.F, self.K, used, bu)
@@ -500,47 +572,47 @@ class AgentNode:
 
     def _advance_fusion(self, r: dict) -> list:
         """The fusion kind's round (:class:`FusionPart`), as the simulator's ``kinds.Fusion`` runs it for this agent."""
-        part, g = self.fusion, r["graph"]
+        part, g = self.fusion, r.graph
 
         def update(y):
-            r["watch"] = self.watch
+            r.watch = self.watch
             return part.update(self.x, y, g)
 
         return self._update_then_exchange(r, update, lambda got, k: part.fuse(got[2], self.id, got[0], g, k),
-                                          lambda z: part.predict(z, self.ys.bu(r["tau"])))
+                                          lambda z: part.predict(z, self.ys.bu(r.tau)))
 
     def _update_then_exchange(self, r: dict, update, combine, finish) -> list:
         """The round of the kinds that update first (the whole state, fusion): once ``y_i(tau)`` is in,
         ``z_i(0) = update(y_i)`` (sent); per sub-round ``z_i(k) = combine((nbs, ws, states), k - 1)`` over the
         neighbours whose estimates count; ``x_i(tau + 1) = finish(z_i(q))``."""
         out = []
-        if "y" not in r:
-            if not self.ys.ready(r["tau"]):
+        if not r.updated:
+            if not self.ys.ready(r.tau):
                 return out
-            r["y"] = self.ys.get(r["tau"])
-            r["z"] = update(r["y"])
+            r.y, r.updated = self.ys.get(r.tau), True
+            r.z = update(r.y)
             self._opened()
-            out.append(self._z(0, r["z"]))
-        while r["k"] < self.exchanges:
-            got = self._neighbour_states(r["k"])
+            out.append(self._z(0, r.z))
+        while r.k < self.exchanges:
+            got = self._neighbour_states(r.k)
             if got is None:
                 return out
-            r["z"] = combine(got, r["k"])
-            r["k"] += 1
+            r.z = combine(got, r.k)
+            r.k += 1
             self._opened()
-            if r["k"] < self.exchanges:
-                out.append(self._z(r["k"], r["z"]))
-        return out + self._finish(finish(r["z"]), 0.0, r["y"])
+            if r.k < self.exchanges:
+                out.append(self._z(r.k, r.z))
+        return out + self._finish(finish(r.z), 0.0, r.y)
 
     def _finish(self, x_next: np.ndarray, g_next: float, y) -> list:
         r = self.round
-        self.candidate = (r["tau"] + 1, x_next, g_next, r.get("watch", self.watch))
+        self.candidate = Candidate(r.tau + 1, x_next, g_next, r.watch if r.watch is not None else self.watch)
         self.round = None
         # the row columns of x_i(tau + 1): g_i(tau + 1) and what round tau measured (splitspec_core.model.rows)
-        columns = report(g=g_next, messages_used=r["used"], y_rejected=r["set_aside"], y_statistic=r["stat"])
+        columns = report(g=g_next, messages_used=r.used, y_rejected=r.set_aside, y_statistic=r.stat)
         # the live known inputs the round added (B u(tau), measure.YBuffer.bu): recorded beside y (trajectory u)
-        u = self.ys.ubuf.get(r["tau"]) if self.input_sampler is not None else None
-        return [self._xhat(r["tau"] + 1, r["attempt"], x_next, columns, r["lost"], y, u)]
+        u = self.ys.ubuf.get(r.tau) if self.input_sampler is not None else None
+        return [self._xhat(r.tau + 1, r.attempt, x_next, columns, r.lost, y, u)]
 
 
 class RelayPart:
@@ -559,11 +631,12 @@ class RelayPart:
         self.rows = [np.arange(a, b, dtype=np.int64) for a, b in gain["rows"]]
         self.index = index
         self.G = None if sc.time == "discrete" else st.sampled_data_matrices(np.asarray(sc.system.A), sc.run.dt)[1]
-        self.state = self.candidate = None  # (base, t_base, held, sent, bus)
+        self.state: RelayState | None = None
+        self.candidate: tuple | None = None  # (tau + 1, the RelayState after the round)
 
     def start(self, x: np.ndarray, tau: int) -> None:
         """A start or a restart at ``tau``: the estimate is the base, nothing held."""
-        self.state, self.candidate = (np.array(x, dtype=float), int(tau), {}, set(), {}), None
+        self.state, self.candidate = RelayState(np.array(x, dtype=float), int(tau), {}, set(), {}), None
 
     def commit(self, tau: int) -> None:
         """The round's state becomes the agent's, with its estimate of ``tau``."""
@@ -573,18 +646,17 @@ class RelayPart:
 
     def open(self, r: dict, y, bu) -> None:
         """The round's copies, its own sample ``y_i(tau)`` held (None: none), ``B u(tau)`` kept."""
-        base, t_base, held, sent, bus = self.state
-        r["held"], r["sent"], r["bus"] = dict(held), set(sent), dict(bus)
+        r.held, r.sent, r.bus = dict(self.state.held), set(self.state.sent), dict(self.state.bus)
         if y is not None:
-            r["held"][(self.index, r["tau"])] = np.array(y, dtype=float)
+            r.held[(self.index, r.tau)] = np.array(y, dtype=float)
         bu = st.step_input(self.G, bu)
         if bu is not None:
-            r["bus"][r["tau"]] = bu
+            r.bus[r.tau] = bu
 
     def forward(self, r: dict) -> dict:
         """What this exchange sends: the samples held and not sent (now sent)."""
-        out = st.relay_forward(r["held"], r["sent"])
-        r["sent"] |= set(out)
+        out = st.relay_forward(r.held, r.sent)
+        r.sent |= set(out)
         return out
 
     def parse(self, m: dict, m_agents: int) -> dict | None:
@@ -600,14 +672,14 @@ class RelayPart:
 
     def walk(self, r: dict) -> np.ndarray:
         """``x_i(tau + 1)`` by the walk; the state after it kept as the candidate."""
-        tau = r["tau"]
-        base, t_base = self.state[0], self.state[1]
-        samples = st.relay_samples(r["held"], self.rows, t_base, tau)
-        base, t_base, x = st.relay_walk(base, t_base, tau, self.table, self.F, self.C, samples, r["bus"] or None)
+        tau = r.tau
+        base, t_base = self.state.base, self.state.t_base
+        samples = st.relay_samples(r.held, self.rows, t_base, tau)
+        base, t_base, x = st.relay_walk(base, t_base, tau, self.table, self.F, self.C, samples, r.bus or None)
         cut = tau - self.D + 1  # no walk starts before: the older samples are no longer held or sent
-        bus = {t: v for t, v in r["bus"].items() if t >= cut}
-        self.candidate = (tau + 1, (base, t_base, st.relay_prune(r["held"], cut),
-                                    {h for h in r["sent"] if h[1] >= cut}, bus))
+        bus = {t: v for t, v in r.bus.items() if t >= cut}
+        self.candidate = (tau + 1, RelayState(base, t_base, st.relay_prune(r.held, cut),
+                                              {h for h in r.sent if h[1] >= cut}, bus))
         return x
 
 
@@ -616,28 +688,28 @@ def relay_round(node: "AgentNode", r: dict) -> list:
     agent: once ``y_i(tau)`` is in, exchange ``k`` sends what it holds and has not sent, then holds what the counted
     neighbours sent; after ``q`` exchanges the walk."""
     part, out = node.relay, []
-    if "held" not in r:
-        if not node.ys.ready(r["tau"]):
+    if r.held is None:
+        if not node.ys.ready(r.tau):
             return out
-        r["y"] = node.ys.get(r["tau"])
-        r["watch"] = node.watch
-        part.open(r, r["y"], node.ys.bu(r["tau"]))
+        r.y = node.ys.get(r.tau)
+        r.watch = node.watch
+        part.open(r, r.y, node.ys.bu(r.tau))
         node._opened()
-        r["z"] = part.forward(r)
-        out.append(node._relayed(0, r["z"]))
-    while r["k"] < node.exchanges:
-        got = node._neighbour_states(r["k"])
+        r.z = part.forward(r)
+        out.append(node._relayed(0, r.z))
+    while r.k < node.exchanges:
+        got = node._neighbour_states(r.k)
         if got is None:
             return out
         for j, samples in zip(got[0], got[2]):
             if j != node.id:
-                r["held"].update(samples)
-        r["k"] += 1
+                r.held.update(samples)
+        r.k += 1
         node._opened()
-        if r["k"] < node.exchanges:
-            r["z"] = part.forward(r)
-            out.append(node._relayed(r["k"], r["z"]))
-    return out + node._finish(part.walk(r), 0.0, r["y"])
+        if r.k < node.exchanges:
+            r.z = part.forward(r)
+            out.append(node._relayed(r.k, r.z))
+    return out + node._finish(part.walk(r), 0.0, r.y)
 
 
 def screen_round(node, z: np.ndarray, y):
@@ -645,25 +717,25 @@ def screen_round(node, z: np.ndarray, y):
     None if there is none or it is set aside (failed, or the sensor suspect); the round keeps ``d_i`` and the
     watch after it (committed with the estimate).  Exactly :class:`splitspec_core.model.screening.Screen`."""
     r = node.round
-    r["watch"] = node.watch
+    r.watch = node.watch
     if node.bad is None:
         return y
-    S_inv, threshold, k, warmup, flat = node.bad
-    seen, tested = st.warmup_step(node.watch[2], y is not None, warmup)
-    last = node.watch[3]
+    bad, watch = node.bad, node.watch
+    seen, tested = st.warmup_step(watch.seen, y is not None, bad.warmup)
+    last = watch.last
     y_i = None if y is None else np.array(y, dtype=float)
-    r["watch"] = node.watch[:2] + (seen, last if y_i is None else y_i)
+    r.watch = watch._replace(seen=seen, last=last if y_i is None else y_i)
     if not tested:
-        r["stat"] = UNTESTED
+        r.stat = UNTESTED
         return y
-    d, failed = st.innovation_test(y_i, node.C, z, S_inv, threshold)
-    if flat and st.flatline(y_i, last):
+    d, failed = st.innovation_test(y_i, node.C, z, bad.S_inv, bad.threshold)
+    if bad.flatline and st.flatline(y_i, last):
         d, failed = FLATLINE, True
-    r["stat"] = d
-    suspect, run, _ = st.sensor_watch(node.watch[0], node.watch[1], failed, k)
-    r["watch"] = (suspect, run, seen, y_i)
-    if node.watch[0] or failed:
-        r["set_aside"] = True
+    r.stat = d
+    suspect, run, _ = st.sensor_watch(watch.suspect, watch.run, failed, bad.suspect_after)
+    r.watch = Watch(suspect, run, seen, y_i)
+    if watch.suspect or failed:
+        r.set_aside = True
         return None
     return y
 

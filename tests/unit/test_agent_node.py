@@ -69,7 +69,7 @@ def test_round_publishes_q_exchanges_and_the_estimate():
             out = a.on_z(f"splitspec/r/z/{j}", z(0, k, j))
     out = a.on_y(y(0))
     assert [k for k, _ in out] == ["splitspec/r/xhat/2"]
-    assert a.candidate[0] == 1
+    assert a.candidate.tau == 1
 
 
 def run_round(a, tau, *, z0_from_x: bool):
@@ -99,7 +99,7 @@ def test_a_steady_round_takes_z0_from_the_neighbours_estimates_and_sends_no_z0()
     run_round(a, 1, z0_from_x=True)
     # exact: the same step functions on the same float64 values (z_j(0) from x_j's message or from z_j's: the
     # same bytes decoded), in the same order
-    assert a.candidate[0] == b.candidate[0] == 2 and np.array_equal(a.candidate[1], b.candidate[1])
+    assert a.candidate.tau == b.candidate.tau == 2 and np.array_equal(a.candidate.x, b.candidate.x)
 
 
 def test_a_neighbour_a_round_ahead_is_kept_with_one_exchange():
@@ -119,7 +119,7 @@ def test_a_neighbour_a_round_ahead_is_kept_with_one_exchange():
     a.on_tick(tick(1, fresh=False, prev_attempt=0))
     assert [k for k, _ in a.on_y(y(1))] == ["splitspec/r/xhat/2"]
     a.on_tick(tick(2, fresh=False, prev_attempt=0))  # z_j(0) = x_j(2), kept above: no new message needed
-    assert [k for k, _ in a.on_y(y(2))] == ["splitspec/r/xhat/2"] and a.candidate[0] == 3
+    assert [k for k, _ in a.on_y(y(2))] == ["splitspec/r/xhat/2"] and a.candidate.tau == 3
 
 
 def test_estimates_of_an_aborted_attempt_are_not_taken_as_z0():
@@ -229,11 +229,11 @@ def test_a_sub_round_goes_on_without_a_late_neighbour_at_the_deadline():
     out = a.on_z("splitspec/r/z/1", z(0, 0, j=1, value=1.0))
     assert out == [] and a.next_wakeup() == pytest.approx(100.02)  # waits for agent 3 until the deadline
     now[0] = 100.019
-    assert a.on_timer() == [] and a.round["k"] == 0
+    assert a.on_timer() == [] and a.round.k == 0
     for k in range(6):
         now[0] += 0.02  # each sub-round's deadline passes (they open one after the other)
         out = a.on_timer()
-        assert a.round is None or a.round["k"] == k + 1
+        assert a.round is None or a.round.k == k + 1
         if k < 5:
             a.on_z("splitspec/r/z/1", z(0, k + 1, j=1, value=1.0))
     out = a.on_y(y(0))
@@ -399,7 +399,7 @@ def test_a_tick_without_a_network_runs_on_the_last_one():
     full = a.on_tick(tick(1, fresh=False, topology=7))
     compact = b.on_tick(compact_tick(1, topology=7))
     assert full == compact == []  # a steady round: nothing to send before the neighbours' z(1)
-    assert b.round["nbs"] == [2, 1, 3] and "unknown_topology" not in b.rejected
+    assert b.round.nbs == [2, 1, 3] and "unknown_topology" not in b.rejected
     outs = [run_round(n, 1, z0_from_x=True) for n in (a, b)]
     assert outs[0] == outs[1] and any("xhat/2" in k for k, _ in outs[1])
 
@@ -408,7 +408,7 @@ def test_a_tick_naming_a_network_never_received_leaves_the_agent_out():
     a = node()
     a.on_tick(tick(0, topology=3))
     run_round(a, 0, z0_from_x=False)
-    x = a.candidate[1].copy()
+    x = a.candidate.x.copy()
     assert a.on_tick(compact_tick(1, topology=4)) == []
     assert a.rejected["unknown_topology"] == 1 and a.round is None
     # x_i(1) was not committed (the agent took no part in round 1), and the estimate it had was kept

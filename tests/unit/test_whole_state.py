@@ -190,12 +190,12 @@ def test_the_agent_process_runs_the_loop_estimators_round():
     z2 = np.array([0.25, 0.5])
     for k in range(des.q):
         out = node.on_z("splitspec/r/z/2", encode("z", "r", mac_key=KEY, tau=0, attempt=0, k=k, agent=2, z=z2))
-    assert out[-1][0] == "splitspec/r/xhat/1" and node.candidate[0] == 1
+    assert out[-1][0] == "splitspec/r/xhat/1" and node.candidate.tau == 1
     F1 = np.array(OSC) + des.Ks[0] @ np.array([[1.0, 0.0]])
     z = st.measurement_update(x1, F1, des.Ks[0], y[:1])
     for _ in range(des.q):  # the neighbour's z stays z2 in this round (its messages say so)
         z = st.weighted_average([z, z2], [0.5, 0.5])
-    np.testing.assert_array_equal(node.candidate[1], z)  # the same functions on the same floats, in the same order
+    np.testing.assert_array_equal(node.candidate.x, z)  # the same functions on the same floats, in the same order
 
 
 # -------------------------------------------------------------------------------------- certificates, verdicts
