@@ -23,9 +23,10 @@ def _relay(raw: dict, q: int, **extra) -> dict:
     return out
 
 
-@pytest.mark.parametrize("raw", [_relay(NOISY_DISCRETE, 1), _relay(NOISY_CONTINUOUS, 1),
-                                 _relay(NOISY_DISCRETE, 1, network={"loss": 0.2})],
-                         ids=["discrete", "continuous", "lossy"])
+# the discrete ring runs lossy (its kill and restart kept): the lossless round is the same path with every message in,
+# and the deployments' tests are make test's long pole (one worker, one after another)
+@pytest.mark.parametrize("raw", [_relay(NOISY_DISCRETE, 1, network={"loss": 0.2}), _relay(NOISY_CONTINUOUS, 1)],
+                         ids=["discrete-lossy", "continuous"])
 def test_run_equals_simulate_for_the_relay_kind(tmp_path, raw):
     import splitspec_core as ss
 
