@@ -51,7 +51,7 @@ from splitspec_core.scenarios.load import parse_scenario_text
 from splitspec_core.model.plant import initial_estimate, output_rows
 from splitspec_core.model.rows import report
 from splitspec_core.model.screening import FLATLINE, UNTESTED
-from splitspec_core.runtime.ticks import TickNetwork
+from splitspec_core.runtime.ticks import Fence, TickNetwork
 from splitspec_core.runtime.wire import Keys, WireError, decode, encode
 
 from .measure import YBuffer
@@ -66,7 +66,7 @@ class Watch(NamedTuple):
     suspect: bool = False
     #: failed tests in a row (clean ones while suspect)
     run: int = 0
-    #: measurements this incarnation has seen (its warm-up)
+    #: measurements seen since this incarnation started or another agent rejoined (its warm-up)
     seen: int = 0
     #: the last measurement given (the flat-line test's)
     last: np.ndarray | None = None
@@ -237,6 +237,7 @@ class AgentNode:
         self.in_neighbours = sorted({j for g in sc.graphs for j, i in g.arcs if i == agent_id})
         self.zbuf_limit = ZBUF_ROUNDS * self.exchanges * max(1, len(self.in_neighbours))
         self.tick_tag = None  # (tau, attempt) of the last accepted tick
+        self.fence = Fence()  # the highest orchestrator epoch seen (the shell's, shared with its control messages)
         self.net = TickNetwork(agent_id, sc.agent_ids)  # the network of the last tick that carried one
         self.x = None  # committed x_i(tau)
         self.g = self.g0
@@ -259,6 +260,7 @@ class AgentNode:
                                                    bool(bd.get("flatline", False)))
         # suspect, failures (or clean tests) in a row, measurements seen (the warm-up), the last measurement given
         self.watch = Watch()
+        self.watched = None  # every agent's incarnation at the last round taken part in: a higher one is a rejoin
         # a misbehaving network (splitspec_core.model.impairment): the same draws as the simulator's, a deadline per
         # sub-round, messages held for their delay; the clock is only read when a deadline or a delay is set
         net = sc.network
@@ -320,6 +322,9 @@ class AgentNode:
         except WireError as e:
             self.reject(e.reason)
             return []
+        if not self.fence.admit(t):  # a superseded orchestrator's (a standby took over): never obeyed
+            self.reject("fenced")
+            return []
         tau, attempt = t["tau"], t["attempt"]
         out = []
         if self.tick_tag is not None:
@@ -345,7 +350,12 @@ class AgentNode:
             if known and self.x is not None and not self.net.alive:
                 self.x = None  # we were declared lost: a rejoin starts afresh
             return []
-        inc = self.net.incarnation
+        inc, incs = self.net.incarnation, self.net.incarnations
+        if self.whole and self.watched is not None and any(v > self.watched.get(j, 0) for j, v in incs.items()):
+            # another agent rejoined with a fresh estimate, averaged into this one's: a sensor not suspect warms up
+            # afresh (Screen.rejoined; the split's consensus leaves what this agent measures alone)
+            self.watch = self.watch if self.watch.suspect else self.watch._replace(seen=0)
+        self.watched = dict(incs)
         if self.x is None or inc != self.incarnation or self.tau != tau:
             # admission (start or rejoin): a fresh estimate of this incarnation, reported first
             self.incarnation = int(inc)
@@ -772,6 +782,7 @@ def main(args: argparse.Namespace) -> int:
     try:
         node = AgentNode(args.id, shell.fetch_config(wait=args.wait), keys.run_id)
         node.extra_counts = shell.inbox.take_dropped
+        node.fence = shell.fence
         handlers = {"tick": lambda key, p: node.on_tick(p), "z": node.on_z, "x": node.on_x,
                     "y": lambda key, p: node.on_y(p)}
         subscriptions = ([(keys.tick, "tick"), (keys.y, "y")] + [(keys.z(j), "z") for j in node.in_neighbours]

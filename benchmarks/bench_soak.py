@@ -27,7 +27,12 @@ What it measures, sampled every ``--sample-seconds`` from /proc and the records 
    p50, p90, p99, max and the event times later than 10% of a period; at the kills and restarts apart (the
    round of a restart's event time waits for the new process; the 25 event times from each are its catch-up),
    and around each recording segment's rewrite without them (PASS within a period); and the end event's own summary
-   (``reason``, ``late_event_times``, ``max_lateness_ms``, ``achieved_rate``, ``pace``), n/a where absent.
+   (``reason``, ``late_event_times``, ``max_lateness_ms``, ``achieved_rate``, ``pace``), n/a where absent;
+5. takeovers (``--kill-orchestrator-every S``: ``run.standby: true`` and the active orchestrator killed by the
+   scenario every S seconds of running): the stall of each (from the dead one's last tick to its successor's
+   first; target under 1 s), the rows missing, and the lateness outside each kill's, restart's and takeover's
+   catch-up (its event times until one starts less than a tenth of a period late) against a period.  The standbys and the router are processes of the run's tree too (``standby``,
+   ``router``): their memory is reported per process.
 
 The clock of ``--minutes`` and ``--warmup-minutes`` starts at the run's ``run_started`` event (its first round;
 start-up, which includes the design, is reported apart).  At the end it sends SIGINT to `splitspec run` (as
@@ -47,7 +52,7 @@ and ``<out>.stderr.log``).
 
     .venv/bin/python benchmarks/bench_soak.py [--minutes 30] [--m 10] [--n 50] [--pace 50] [--sample-seconds 5]
         [--warmup-minutes W] [--block-minutes 20] [--out DIR] [--model ring|power | --scenario FILE] [--rate 0.9]
-        [--keep-minutes K] [--kill-every S] [--no-replay] [--json FILE]
+        [--keep-minutes K] [--kill-every S] [--kill-orchestrator-every S] [--no-replay] [--json FILE]
 
     # a short check of the script itself
     .venv/bin/python benchmarks/bench_soak.py --minutes 1 --sample-seconds 2 --m 4 --n 8
@@ -137,6 +142,15 @@ def kill_faults(sc: dict, every: float, seconds: float) -> list:
     return faults
 
 
+def orchestrator_kills(sc: dict, every: float, seconds: float) -> list:
+    """The active orchestrator killed (``kill: orchestrator``) every ``every`` seconds of running over ``seconds``,
+    half a period apart from the agents' kills; ``at`` in the scenario's time."""
+    pace = float(sc["run"]["pace"])
+    unit = 1.0 if sc.get("time") == "continuous" else pace
+    return [{"at": round((k * every + 0.5 / pace) * unit, 6), "kill": "orchestrator"}
+            for k in range(1, int(seconds // every) + 1) if k * every < seconds]
+
+
 def file_scenario(path: Path, pace: float) -> dict:
     """The scenario of ``path`` with ``run.steps`` removed, ``run.pace`` set and a relative ``system.file`` made
     absolute (the copy is written elsewhere)."""
@@ -202,6 +216,10 @@ def label(pid: int, root: int) -> str | None:
         return f"agent {args[args.index('--id') + 1]}" if "--id" in args[:-1] else "agent ?"
     if "splitspec_orchestrator" in args and "orchestrator" in args:
         return "orchestrator"
+    if "splitspec_orchestrator" in args and "standby" in args:
+        return "standby"  # a standby orchestrator (run.standby), active once it took over
+    if "splitspec_orchestrator" in args and "router" in args:
+        return "router"
     return comm or "?"
 
 
@@ -453,6 +471,31 @@ def kind(path: str) -> str:
     return path
 
 
+def active_series(samples: list, evs: list, after_s: float, settle_s: float) -> dict:
+    """The RSS of the orchestrator holding the rounds at each sample (``orchestrator_started`` and each
+    ``orchestrator_takeover`` name its pid and wall time), from ``after_s`` of the run on and each epoch's first
+    ``settle_s`` left out: ``points`` [(t, MB)], ``epochs`` (how many held the rounds), ``peaks`` (each epoch's largest
+    RSS, MB, in order)."""
+    starts = [(float(e["wall"]), int(e["pid"])) for e in evs
+              if e.get("event") in ("orchestrator_started", "orchestrator_takeover") and "pid" in e and "wall" in e]
+    starts.sort()
+    points, peaks = [], {}
+    for s in samples:
+        if s["t"] is None or s["t"] < after_s:
+            continue
+        began = [b for b in starts if b[0] <= s["wall"]]
+        if not began:
+            continue
+        wall0, pid = began[-1]
+        rss = next((p["rss_kb"] / 1024 for p in s["procs"].values() if p["pid"] == pid), None)
+        if rss is None:
+            continue
+        peaks[wall0] = max(peaks.get(wall0, 0.0), rss)
+        if s["wall"] - wall0 >= settle_s:
+            points.append((s["t"], rss))
+    return {"points": points, "epochs": len(starts), "peaks": [peaks[k] for k in sorted(peaks)]}
+
+
 def role_of(lab: str) -> str:
     return "agent" if lab.startswith("agent ") else lab
 
@@ -521,6 +564,9 @@ def main() -> int:
                     "n = 50)")
     ap.add_argument("--sample-seconds", type=float, default=5.0)
     ap.add_argument("--warmup-minutes", type=float, help="default: min(5, 20%% of --minutes)")
+    ap.add_argument("--settle-minutes", type=float, default=2.0,
+                    help="with orchestrator kills: the minutes after each takeover left out of the active "
+                         "orchestrator's memory slope (default 2)")
     ap.add_argument("--block-minutes", type=float, default=20.0,
                     help="the blocks of the sawtooth-proof memory slopes (default 20)")
     ap.add_argument("--out", type=Path, help="the run's records (default: a fresh folder under /tmp)")
@@ -532,6 +578,9 @@ def main() -> int:
     ap.add_argument("--kill-every", type=float, default=0.0,
                     help="seconds: kill an agent (each in turn) every this many seconds of running and restart it "
                          f"{RESTART_AFTER:g} s later (0: no fault)")
+    ap.add_argument("--kill-orchestrator-every", type=float, default=0.0, metavar="S",
+                    help="seconds: with run.standby, kill the active orchestrator (the scenario's kill: orchestrator) "
+                         "every this many seconds of running; its standby takes over (0: never)")
     ap.add_argument("--no-replay", action="store_true", help="skip replaying the rows left on disk with simulate")
     args = ap.parse_args()
     if not args.minutes > 0 or not args.sample_seconds > 0 or not args.pace > 0:
@@ -564,6 +613,10 @@ def main() -> int:
         # the agents are killed: design for it (every single loss certified; the IEEE 14-bus default design's
         # survivors diverge: spectral radius 1.68 per step after any one loss)
         sc.setdefault("design", {}).setdefault("resilience", 1)
+    if args.kill_orchestrator_every > 0:
+        sc.setdefault("run", {})["standby"] = True
+        sc["faults"] = sorted(sc.get("faults", []) + orchestrator_kills(sc, args.kill_orchestrator_every,
+                                                                         args.minutes * 60), key=lambda f: f["at"])
     scen = out.parent / f"{out.name}.soak.yaml"
     scen.write_text(yaml.safe_dump(sc, sort_keys=False))
     run_id = f"soak-{os.getpid()}"
@@ -690,7 +743,7 @@ def main() -> int:
     by_role: dict = {}
     for key, pts in series.items():
         by_role.setdefault(role_of(key.split("/")[0]), []).append((key, pts))
-    order = ["run", "orchestrator", "fork server", "plant", "agent"]
+    order = ["run", "router", "orchestrator", "standby", "fork server", "plant", "agent"]
     for role in order + sorted(set(by_role) - set(order)):
         if role not in by_role:
             continue
@@ -747,6 +800,24 @@ def main() -> int:
         if agents:
             print(f"{'agents':>24}: {len(agents)} processes, largest highest {max(a['max_slope_mb_h'] for a in agents):8.2f}"
                   f", largest lowest {max(a['min_slope_mb_h'] for a in agents):8.2f}")
+
+    # whoever holds the rounds: with orchestrator kills each active process lives one epoch, shorter than its warm-up
+    # (a taken-over one grows for a minute or two as it takes the records on); the deployment's memory is the
+    # active one's at each moment, each epoch's first --settle-minutes left out
+    held = active_series(samples, evs, warmup * 60, args.settle_minutes * 60)
+    if held["epochs"] > 1:
+        a = np.array(held["points"])
+        slope, _ = slope_r2(a[:, 0] / 3600, a[:, 1]) if len(a) else (math.nan, None)
+        hi, lo, nb = block_slopes(a[:, 0] / 3600, a[:, 1], args.block_minutes / 60) if len(a) else (math.nan,) * 3
+        verdict = "n/a" if not math.isfinite(slope) else "PASS" if slope < SLOPE_LIMIT_MB_H else "FAIL"
+        print(f"the active orchestrator, whoever holds the rounds ({held['epochs']} epochs, each one's first "
+              f"{args.settle_minutes:g} min left out, {len(a)} samples): {a[:, 1].min():.1f} to {a[:, 1].max():.1f} "
+              f"MB, slope {fmt(slope, '.2f')} MB/h: {verdict}; by blocks of {args.block_minutes:g} min: highest "
+              f"{fmt(hi, '.2f')}, lowest {fmt(lo, '.2f')} ({nb} blocks); each epoch's peak: "
+              + ", ".join(f"{x:.1f}" for x in held["peaks"]) + " MB")
+        results["active_orchestrator"] = {"epochs": held["epochs"], "samples": len(a), "slope_mb_h": slope,
+                                          "block_max_slope_mb_h": hi, "block_min_slope_mb_h": lo,
+                                          "peaks_mb": held["peaks"], "verdict": verdict}
 
     # records
     total_end = sum(size for size, _ in final_files.values())
@@ -812,14 +883,44 @@ def main() -> int:
             # a fault: the round of a restart's event time waits for the new process's token (spawn to ready), a
             # kill's for the loss to be seen; the next ones catch up.  Reported apart, and left out of the lateness
             # around the rolls
-            restarts = sorted(int(e["tau"]) for e in evs if e.get("event") in ("agent_restarting", "agent_lost")
+            restarts = sorted(int(e["tau"]) for e in evs if e.get("event") in ("agent_restarting", "agent_lost",
+                                                                                "orchestrator_takeover")
                               and e.get("tau") is not None)
             catch_up = np.zeros(len(tau), dtype=bool)
             for r in restarts:
                 catch_up |= (tau >= r) & (tau < r + RESTART_CATCH_UP)
+            takeovers = [e for e in evs if e.get("event") == "orchestrator_takeover"]
+            if takeovers:  # each stall: from the dead one's last tick to its successor's first
+                stalls = np.array([float(e["stall_ms"]) for e in takeovers])
+                print(f"  {len(takeovers)} orchestrator takeovers: stall median {np.median(stalls):.0f} ms, max "
+                      f"{stalls.max():.0f} ms ({'PASS' if stalls.max() < 1000 else 'FAIL'}: under 1 s); "
+                      f"{sum(e.get('event') == 'rows_missing' for e in evs)} rows_missing events")
+                results["rows"].update(takeovers=len(takeovers), stall_ms_median=float(np.median(stalls)),
+                                       stall_ms_max=float(stalls.max()), stalls_ms=stalls.tolist())
             if restarts:
                 at = np.isin(tau, restarts) & np.isfinite(late)
                 rest = ~catch_up & np.isfinite(late)
+                # each fault's own catch-up: from its event time to the first one that starts less than a tenth of
+                # a period late (a takeover on a restart's event time waits for both, and takes longer than 25)
+                caught = np.zeros(len(tau), dtype=bool)
+                longest = 0
+                index = {int(t): k for k, t in enumerate(tau)}
+                for r in restarts:
+                    k = index.get(r)
+                    if k is None:
+                        continue
+                    j = k + 1
+                    while j < len(tau) and not late[j] < LATE_FRACTION * period_ms:
+                        j += 1
+                    caught[k:j] = True
+                    longest = max(longest, j - k)
+                apart = ~caught & np.isfinite(late)
+                outside = float(late[apart].max()) if apart.any() else math.nan
+                print(f"  outside each kill's, restart's and takeover's catch-up (its event times until one starts "
+                      f"less than {LATE_FRACTION * period_ms:g} ms late; the longest {longest}): max late "
+                      f"{fmt(outside, '.1f')} ms, {int(np.sum(late[apart] > period_ms))} event times later than a "
+                      "period: " + ("n/a" if not math.isfinite(outside) else "PASS" if outside <= period_ms else "FAIL"))
+                results["rows"].update(late_max_outside_catch_up=outside, longest_catch_up=longest)
                 print(f"  at the {len(restarts)} kills and restarts (the round waits for the loss or the new "
                       f"process): max late "
                       f"{fmt(float(late[at].max()) if at.any() else math.nan, '.1f')} ms, median "

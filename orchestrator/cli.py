@@ -63,6 +63,8 @@ def _commands_module(module: str):
         from .commands import deploy as mod
     elif module == "pace":
         from .commands import pace as mod
+    elif module == "simulate":
+        from .commands import simulate as mod
     else:
         from .commands import operate as mod
     return mod
@@ -73,7 +75,7 @@ def _command(target: str) -> Callable[[argparse.Namespace], int]:
     (``splitspec kill`` must start fast: it does not load numpy or scipy)."""
     module, _, name = target.partition(":")
 
-    if module not in ("study", "deploy", "pace", "operate"):
+    if module not in ("study", "simulate", "deploy", "pace", "operate"):
         raise ValueError(f"no commands module {module!r}")
 
     def run(args: argparse.Namespace) -> int:
@@ -131,13 +133,14 @@ def build_parser() -> argparse.ArgumentParser:
                       "centralized Kalman filter")
     meas.add_argument("--write-measurements", metavar="FILE", help="also write the simulated plant's measurements "
                       "and truth as a measurements file (.npz or .csv), which --measurements reads back")
-    p.set_defaults(func=_command("study:cmd_simulate"))
+    p.set_defaults(func=_command("simulate:cmd_simulate"))
 
     p = sub.add_parser("compare", help="estimation quality under noise: against the centralized Kalman filter "
                                        "and a Kalman-consensus filter",
                        description="Run the scenario's design, the paper's split (place, riccati, noise-tuned "
-                                   "gains), the centralized steady-state Kalman filter (and the best centralized "
-                                   "estimator certified at the rate, when the Kalman filter is slower) and "
+                                   "gains), the centralized steady-state Kalman filter (and the centralized Kalman "
+                                   "filter designed for A/rate, a rate-shifted Riccati design, when the Kalman "
+                                   "filter is slower) and "
                                    "Olfati-Saber's Kalman-consensus filter on the same noise realisations; report "
                                    "steady-state RMS error after each one's certified transient, ratio to the "
                                    "centralized filter, the predicted RMS, settling time and messages per event "
@@ -146,7 +149,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", required=True, help="output directory (created if missing)")
     p.add_argument("--seeds", type=_at_least(1), default=5, help="noise realisations: seed, seed+1, ... (default 5)")
     p.add_argument("--seed", type=_seed, help="first seed (default run.seed)")
-    p.add_argument("--steps", type=_at_least(4), help="override run.steps")
+    p.add_argument("--steps", type=_at_least(4), help="override run.steps (default: run.steps, or twice the longest "
+                   "certified transient when that is longer, which the output says)")
     p.add_argument("--kcf-eps", type=_positive(MAX_KCF_EPS), help="consensus gain of the Kalman-consensus filter "
                                                   "(default 1 / (1 + max in-degree))")
     p.add_argument("--sweep", action="store_true", help="also sweep q (discrete) or g (continuous): RMS error "
@@ -229,6 +233,31 @@ def build_parser() -> argparse.ArgumentParser:
     add_run_id_option(p)
     p.set_defaults(func=_command("deploy:cmd_orchestrator"))
 
+    p = sub.add_parser("standby", help="a standby orchestrator: follows a run and takes it over when its "
+                       "orchestrator dies",
+                       description="Follow the run --run-id on the Zenoh router at --connect (the ticks, the "
+                                   "estimates, the orchestrator's state) and take it over when the active "
+                                   "orchestrator's liveliness token goes: the round in flight goes on, the records "
+                                   "go on in --out (the run's output folder: on another host, a shared disk). "
+                                   "splitspec run starts one itself for a scenario with run.standby: true "
+                                   "(docs/how-to/orchestrator.md). Exit 0 when the run ends.")
+    p.add_argument("--connect", required=True, metavar="ENDPOINT", help="the run's Zenoh router (not an "
+                   "orchestrator's embedded one: it goes with it), e.g. tcp/10.0.0.1:7447")
+    p.add_argument("--out", required=True, help="the run's output folder (the active orchestrator's --out)")
+    cred = p.add_mutually_exclusive_group()
+    cred.add_argument("--credentials", metavar="FILE", help="the orchestrator user's credentials (orchestrator.cred "
+                      "of the run's credentials directory) for a secure router")
+    cred.add_argument("--secure", dest="secure_dir", metavar="DIR", help="the run's credentials directory: connect "
+                      "as the orchestrator user and hand each process it starts its credentials")
+    p.add_argument("--viewer", metavar="spawn|URL", default=os.environ.get("SPLITSPEC_VIEWER") or None,
+                   help="once it takes over, also stream to a Rerun viewer ('spawn' or a URL)")
+    p.add_argument("--round-timeout", type=_positive(MAX_SECONDS), default=10.0,
+                   help="seconds before a silent agent is declared lost (once it takes over)")
+    p.add_argument("--spawn-local", action="store_true", help="restarts by the scenario start their agents on this "
+                   "machine (what `splitspec run` does)")
+    add_run_id_option(p, required=True)
+    p.set_defaults(func=_command("deploy:cmd_standby"))
+
     p = sub.add_parser("view", help="open a run's recording (OUT/run.rrd): native Rerun viewer with a display, "
                        "else the web viewer on loopback",
                        description="Open OUT/run.rrd in the native Rerun viewer when a display exists (DISPLAY or "
@@ -246,6 +275,11 @@ def build_parser() -> argparse.ArgumentParser:
                        description="Run a Zenoh router in this process until Ctrl-C or SIGTERM: the same as zenohd "
                                    "for splitspec's purposes (multicast scouting off, the link lease of the runtime).")
     p.add_argument("--listen", required=True, metavar="ENDPOINT", help="e.g. tcp/0.0.0.0:7447")
+    p.add_argument("--secure", dest="secure_dir", metavar="DIR", help="authenticate clients against DIR/users.txt "
+                   "and enforce the access-control policy of the run --run-id of --scenario (a run with a standby "
+                   "orchestrator: its orchestrators connect as clients)")
+    p.add_argument("--scenario", metavar="FILE", help="with --secure: the run's scenario (its agents and sensors)")
+    p.add_argument("--run-id", help="with --secure: the run's id")
     p.set_defaults(func=_command("deploy:cmd_router"))
 
     p = sub.add_parser("credentials", help="generate Zenoh credentials for a secure deployment by hand",
@@ -262,7 +296,8 @@ def build_parser() -> argparse.ArgumentParser:
     who = p.add_mutually_exclusive_group(required=True)
     who.add_argument("--agent", type=int, metavar="I", help="agent id")
     who.add_argument("--plant", action="store_true", help="the plant (the run stops)")
-    who.add_argument("--orchestrator", action="store_true", help="the orchestrator (everything stops)")
+    who.add_argument("--orchestrator", action="store_true", help="the active orchestrator (with run.standby its "
+                     "standby takes over; else everything stops)")
     p.add_argument("--signal", default="KILL", choices=sorted(SIGNALS), help="signal to send (default KILL)")
     p.add_argument("--run-id", help="the run's id (default: the only live run of yours on this machine; with "
                    "several, they are listed and nothing is signalled)")

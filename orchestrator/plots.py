@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import textwrap
 from pathlib import Path
 
 import matplotlib
@@ -33,6 +34,7 @@ MARK_NAMES = {"loss": "agent lost", "rejoin": "agent rejoins (fresh estimate)", 
 MAX_LABELLED_SWITCHES = 12  # beyond this, switches are ticks without text (the legend names them)
 SWITCH_TICK = 0.07  # height of a switch tick at the top of the axes (axes fraction)
 SWITCH_TICK_STYLE = dict(color="#34495e", ls="-", lw=1.6)
+LABEL_BOX = dict(boxstyle="square,pad=0.05", facecolor="white", edgecolor="none", alpha=0.8)
 
 
 def legend_outside(ax, **kw):
@@ -59,11 +61,54 @@ def _draw_marks(ax, marks, *, text: bool) -> list:
             ax.axvline(m.t, **MARK_STYLES[m.kind], zorder=1.5, gid=f"mark:{m.kind}")
     for m in _labelled(marks) if text else ():
         ax.text(m.t, 0.02, " " + m.label, transform=ax.get_xaxis_transform(), rotation=90, va="bottom",
-                ha="right", fontsize=7, color=MARK_STYLES[m.kind]["color"], gid=f"mark-label:{m.kind}")
+                ha="right", fontsize=7, color=MARK_STYLES[m.kind]["color"], gid=f"mark-label:{m.kind}",
+                bbox=LABEL_BOX)  # readable over the line of an event close by (_spread_labels)
     kinds = [k for k in MARK_STYLES if any(m.kind == k for m in marks)]
     names = {**MARK_NAMES, "switch": "graph switch (ticks at the top)" if dense else MARK_NAMES["switch"]}
     style = {**MARK_STYLES, "switch": SWITCH_TICK_STYLE if dense else MARK_STYLES["switch"]}
     return [matplotlib.lines.Line2D([], [], **style[k], label=names[k]) for k in kinds]
+
+
+def _spread(anchors, width: float, lo: float, hi: float) -> np.ndarray:
+    """Positions for labels ``width`` wide, one per anchor: at least ``width`` apart, each cluster of labels that
+    would overlap centred on its anchors' mean, within ``[lo, hi]`` (when they fit), in the anchors' order."""
+    anchors = np.asarray(anchors, dtype=float)
+    order = np.argsort(anchors, kind="stable")
+    runs: list = []  # [first position, count, sum of anchors]
+    for a in anchors[order]:
+        runs.append([a, 1, a])
+        while len(runs) > 1 and runs[-2][0] + runs[-2][1] * width > runs[-1][0]:  # overlaps the run before: merge
+            n, total = runs[-2][1] + runs[-1][1], runs[-2][2] + runs[-1][2]
+            runs[-2:] = [[total / n - (n - 1) * width / 2, n, total]]
+    pos = np.concatenate([r[0] + width * np.arange(r[1]) for r in runs]) if runs else np.zeros(0)
+    for k in range(pos.size):  # within the axes: forwards from lo, backwards from hi
+        pos[k] = max(pos[k], lo if k == 0 else pos[k - 1] + width)
+    for k in range(pos.size - 1, -1, -1):
+        pos[k] = min(pos[k], hi if k == pos.size - 1 else pos[k + 1] - width)
+    out = np.empty_like(pos)
+    out[order] = pos
+    return out
+
+
+def _spread_labels(fig, ax) -> None:
+    """Nudge the event labels of ``ax`` (texts with a ``mark-label`` gid) sideways so that no two overlap: events
+    close in time got labels on top of one another.  Laid out once to know where the anchors fall; the nudges
+    are offsets in points, so they hold at any dpi."""
+    from matplotlib.transforms import offset_copy
+
+    texts = [t for t in ax.texts if (t.get_gid() or "").startswith("mark-label")]
+    if len(texts) < 2:
+        return
+    fig.draw_without_rendering()  # the constrained layout, then the labels' extents
+    renderer = fig.canvas.get_renderer()
+    boxes = [t.get_window_extent(renderer) for t in texts]
+    width = max(b.width for b in boxes) + 2.0  # rotated: the width is one line's height
+    centres = [(b.x0 + b.x1) / 2 for b in boxes]
+    box = ax.get_window_extent(renderer)
+    new = _spread(centres, width, box.x0 + width / 2, box.x1 - width / 2)
+    for t, c, x in zip(texts, centres, new):
+        if abs(x - c) > 1e-6:
+            t.set_transform(offset_copy(t.get_transform(), fig=fig, x=(x - c) * 72.0 / fig.dpi, units="points"))
 
 
 def _envelope_label(time: str, rate: float, marks, pieces: int, *, across_switches: int = 0) -> str:
@@ -135,6 +180,7 @@ def errors_figure(traj, *, time: str, rate: float | None, title: str, marks=(), 
     ax.set_title(title + (f"\n{NO_CERTIFIED_RATE}" if adaptive else ""))
     ax.grid(True, which="both", alpha=0.3)
     legend_outside(ax, handles=handles)
+    _spread_labels(fig, ax)
     return fig
 
 
@@ -186,11 +232,12 @@ def states_figure(traj, *, time: str, title: str, marks=(), max_components: int 
     top = axes[0, 0]  # short labels above the first component
     for m in _labelled(marks):
         top.text(m.t, 1.02, m.label, transform=top.get_xaxis_transform(), rotation=90, va="bottom",
-                 ha="center", fontsize=7, color=MARK_STYLES[m.kind]["color"])
+                 ha="center", fontsize=7, color=MARK_STYLES[m.kind]["color"], gid=f"mark-label:{m.kind}")
     fig.suptitle(title)
     handles, _ = axes[0, 0].get_legend_handles_labels()
     fig.legend(handles=handles + extra, loc="outside right upper", fontsize=8)  # beside all rows, not one
     axes[-1, 0].set_xlabel(_xlabel(time))
+    _spread_labels(fig, top)
     return fig
 
 
@@ -226,18 +273,37 @@ def plot_compare(res, errors_path: Path, ratios_path: Path) -> None:
     fig.savefig(errors_path, dpi=120)
     plt.close(fig)
     names = list(res.estimators)
-    ratios = [res.estimators[n].ratio_to_centralized or 0.0 for n in names]
+    bars, missing, log = ratio_bars(res)
     fig, ax = plt.subplots(figsize=(7.5, 3.6))
-    bars = ax.bar(range(len(names)), ratios, color=["#888" if n == "centralized KF" else "C0" for n in names])
-    for b, r in zip(bars, ratios):
-        ax.text(b.get_x() + b.get_width() / 2, b.get_height(), f"{r:.2f}", ha="center", va="bottom", fontsize=8)
+    if log:
+        ax.set_yscale("log")
+    drawn = ax.bar([names.index(n) for n in bars], list(bars.values()),
+                   color=["#888" if n == "centralized KF" else "C0" for n in bars])
+    for b, r in zip(drawn, bars.values()):
+        ax.text(b.get_x() + b.get_width() / 2, b.get_height(), f"{r:.3g}", ha="center", va="bottom", fontsize=8)
+    for n, label in missing.items():  # no bar: a missing ratio is not 0
+        ax.text(names.index(n), 0.03, label, transform=ax.get_xaxis_transform(), rotation=90, ha="center",
+                va="bottom", fontsize=6, color="C3")
     ax.axhline(1.0, color="k", lw=0.8)
     ax.set_xticks(range(len(names)), names, rotation=20, fontsize=8)
-    ax.set_ylabel("steady RMS / centralized KF")
+    ax.set_xlim(-0.6, len(names) - 0.4)
+    ax.set_ylabel("steady RMS / centralized KF" + (" (log)" if log else ""))
     ax.set_title(f"{res.scenario}: estimation quality under noise")
     fig.tight_layout()
     fig.savefig(ratios_path, dpi=120)
     plt.close(fig)
+
+
+def ratio_bars(res) -> tuple:
+    """What the ratio chart of :func:`plot_compare` draws: ``(bars, missing, log)``, ``bars`` ``{name: ratio}`` of the
+    rows with a ratio, ``missing`` ``{name: "n/a: reason"}`` (shortened to two lines) of the others, drawn as a label and
+    no bar, and ``log`` True where the ratios span more than a decade."""
+    bars = {n: r.ratio_to_centralized for n, r in res.estimators.items() if r.ratio_to_centralized is not None}
+    missing = {n: textwrap.fill(textwrap.shorten(f"n/a: {r.ratio_note or 'no ratio'}", 110, placeholder=" ..."), 56)
+               for n, r in res.estimators.items() if r.ratio_to_centralized is None}
+    positive = [v for v in bars.values() if v > 0]
+    log = bool(positive) and max(positive) > 10 * min(positive)
+    return bars, missing, log
 
 
 def plot_sweep(res: dict, path: Path) -> None:
@@ -272,6 +338,8 @@ def plot_sweep(res: dict, path: Path) -> None:
 def plot_rate_sweep(res: dict, path: Path) -> None:
     """Steady RMS against the rate asked (``compare --sweep-rate``): the designs predicted (filled: rate certified,
     hollow: not), the centralized references, the KCF measured."""
+    from splitspec_core.synthesis.kalman import SHIFTED_LABEL
+
     rows = res["rows"]
     x = [r["rate"] for r in rows]
     fig, ax = plt.subplots(figsize=(7.5, 4.6), layout="constrained")
@@ -282,11 +350,12 @@ def plot_rate_sweep(res: dict, path: Path) -> None:
         for xi, yi, r in zip(x, y, rows):
             ax.plot(xi, yi, "o", color=color, mfc=color if r[key]["certified"] else "white")
     for key, label, style in (("kalman", "centralized Kalman filter", "k--"),
-                              ("reference", "centralized, certified at the rate", "k:"),
+                              ("reference", SHIFTED_LABEL, "k:"),
                               ("kcf", "KCF (measured, no certificate)", "C2-.")):
         ax.plot(x, [np.nan if r[key] is None else r[key] for r in rows], style, label=label)
     ax.set_yscale("log")
-    ax.set_xlabel("rate asked" + (" (per second)" if res["time"] == "continuous" else " (lam per event time)"))
+    ax.set_xlabel("rate asked" + (f" ({res.get('per_time', 'per second')})" if res["time"] == "continuous"
+                                  else " (lam per event time)"))
     ax.set_ylabel("steady-state RMS error")
     ax.grid(True, alpha=0.3)
     ax.legend(fontsize=7)

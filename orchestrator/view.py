@@ -19,7 +19,6 @@ import socket
 import subprocess
 import sys
 import tempfile
-import threading
 import time
 import urllib.error
 import urllib.parse
@@ -76,13 +75,14 @@ def recording_path(out) -> Path:
 
 
 def retention_line(out) -> str | None:
-    """What ``run.keep`` removed and which span of the recording is still on disk (one line), None if nothing."""
-    from splitspec_core.runs import kept_span, read_events
+    """What ``run.keep`` removed and which span of the recording is still on disk (one line); when it removed
+    nothing, why; None without ``run.keep``."""
+    from splitspec_core.runs import kept_span, nothing_removed, read_events
 
     events = Path(out) / "events.jsonl"
     span = kept_span(read_events(events)) if events.is_file() else None
     if span is None:
-        return None
+        return nothing_removed(out, read_events(events)) if events.is_file() else None
     segs = [Path(p).name for p in _segments(Path(out) / RECORDING_NAME)]
     return (f"{span['text']}; the recording on disk: {', '.join(segs[:1] + (['...'] if len(segs) > 2 else []) + segs[-1:] if len(segs) > 1 else segs)}"
             + (f" (from event time {span['recording_from']})" if span.get("recording_from") is not None else ""))
@@ -197,8 +197,10 @@ def start_web_viewer(rrd: Path, *, port: int | None = None, grpc_port: int | Non
 def serve(rrd: Path, *, port: int | None = None, grpc_port: int | None = None, stream=None) -> int:
     """Serve the web viewer on ``rrd`` until SIGINT or SIGTERM (or until it exits); 0 when stopped, 1 if it died."""
     stream = sys.stdout if stream is None else stream
-    stop = threading.Event()
-    previous = {sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGINT, signal.SIGTERM)}
+    # a plain flag, not a threading.Event: the handler runs in this thread, and Event.set inside Event.wait's own
+    # lock (a signal arriving there) deadlocked it (a test left `splitspec view` and its viewer running at a core)
+    stop: list = []
+    previous = {sig: signal.signal(sig, lambda *_: stop.append(True)) for sig in (signal.SIGINT, signal.SIGTERM)}
     try:
         proc, viewer = start_web_viewer(rrd, port=port, grpc_port=grpc_port)
         try:
@@ -206,7 +208,8 @@ def serve(rrd: Path, *, port: int | None = None, grpc_port: int | None = None, s
             print(f"splitspec: serving {rrd} in the Rerun web viewer: open {viewer.url}  (from another machine: "
                   f"ssh -L {viewer.web_port}:{LOOPBACK}:{viewer.web_port} -L {viewer.grpc_port}:{LOOPBACK}:"
                   f"{viewer.grpc_port} {host}, then open the same URL there; Ctrl-C to stop)", file=stream, flush=True)
-            while not stop.wait(0.5):
+            while not stop:
+                time.sleep(0.2)
                 if proc.poll() is not None:
                     print(f"splitspec: error: the Rerun web viewer exited with status {proc.returncode}",
                           file=sys.stderr)

@@ -26,6 +26,7 @@ from splitspec_core.scenarios.measurements import load_measurements
 from splitspec_core.model.network import NetworkState, fault_schedule
 from splitspec_core.model.plant import Plant, RecordedPlant, output_rows
 from splitspec_core.scenarios.faults import PLANT
+from splitspec_core.runtime.ticks import Fence
 from splitspec_core.runtime.wire import Keys, WireError, decode, encode
 from splitspec_core.scenarios.load import parse_scenario_text
 
@@ -65,6 +66,7 @@ class PlantNode:
         self.tau = None
         self.y = None
         self.rejected: dict = {}
+        self.fence = Fence()  # the highest orchestrator epoch seen (the shell's, shared with its control messages)
 
     def reject(self, reason: str) -> None:
         self.rejected[reason] = self.rejected.get(reason, 0) + 1
@@ -81,6 +83,9 @@ class PlantNode:
             t = decode(payload, self.run_id, "tick", mac_key=self.mac_key)
         except WireError as e:
             self.reject(e.reason)
+            return []
+        if not self.fence.admit(t):  # a superseded orchestrator's (a standby took over): never obeyed
+            self.reject("fenced")
             return []
         tau = t["tau"]
         if self.tau is None:
@@ -142,6 +147,7 @@ def main(args: argparse.Namespace) -> int:
     try:
         node = PlantNode(shell.fetch_config(wait=args.wait), keys.run_id, measurements=args.measurements)
         node.extra_counts = shell.inbox.take_dropped
+        node.fence = shell.fence
         return shell.run(lambda ch, key, p: node.on_tick(p), node.reject, name="plant",
                          subscriptions=[(keys.tick, "tick")])
     finally:

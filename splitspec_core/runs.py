@@ -107,6 +107,12 @@ class RunRecord:
         return end_event(self.events)
 
     @property
+    def takeovers(self) -> list:
+        """The standby takeovers of the run (``orchestrator_takeover`` events: ``t``, ``tau``, ``pid``, ``host``,
+        ``epoch``, ``previous_pid``, ``previous_host``, ``stall_ms``), in order; empty without any."""
+        return self.named("orchestrator_takeover")
+
+    @property
     def closing_line(self) -> str | None:
         """The one line ``splitspec run`` ends with (:func:`closing_line`); None if the run never ended."""
         end = self.summary
@@ -114,11 +120,11 @@ class RunRecord:
 
     @property
     def on_disk(self) -> str | None:
-        """What ``run.keep`` removed and which span is still on disk (:func:`kept_span`), one line; None when
-        nothing was removed."""
+        """What ``run.keep`` removed and which span is still on disk (:func:`kept_span`), one line; when it removed
+        nothing, why (:func:`nothing_removed`); None for a run without ``run.keep``."""
         span = kept_span(self.events)
         if span is None:
-            return None
+            return nothing_removed(self.out, self.events)
         t = self.trajectory.t
         held = (f"the rows of t = {t[0]:g} .. {t[-1]:g} ({len(t)} event times) are on disk" if len(t) else
                 "no row is on disk")
@@ -165,6 +171,43 @@ def kept_span(events: Iterable[dict]) -> dict | None:
             + " and ".join(parts))
     return {"removed": len(gone), "bytes": size, "chunks_from": chunks_from, "recording_from": recording_from,
             "text": text}
+
+
+def nothing_removed(out: str | Path, events: Iterable[dict]) -> str | None:
+    """Why ``run.keep`` removed nothing from a run's records, one line: no segment closed yet (the sizes they close
+    at, from the ``records_retention`` event the run wrote at its start), or the closed ones not due yet; and what
+    the records take.
+
+    Parameters
+    ----------
+    out : str or Path
+        The run's directory.
+    events : iterable of dict
+        Its events (:func:`read_events`).
+
+    Returns
+    -------
+    str or None
+        The line; None when the run had no ``run.keep`` (no ``records_retention`` event) or removed something
+        (:func:`kept_span` says what).
+    """
+    from .simulation.trajectory_chunks import chunk_segments
+
+    events = list(events)
+    plans = [e for e in events if e.get("event") == "records_retention"]
+    if not plans or any(e.get("event") == "records_removed" for e in events):
+        return None
+    out = Path(out)
+    chunks = [p for _, p in chunk_segments(out)]
+    recording = sorted(out.glob("run*.rrd"))
+    size = sum(p.stat().st_size for p in chunks + recording if p.is_file())
+    p = plans[-1]
+    if len(chunks) > 1 or len(recording) > 1:
+        why = "its closed segments were not due yet (" + p.get("text", "").removeprefix("run.keep: ") + ")"
+    else:
+        why = (f"no segment had closed (a row chunk segment closes past {p.get('chunk_mb', 0):.4g} MiB, a recording "
+               f"segment past {p.get('recording_mb', 0):.4g} MiB: set run.keep.segment_mb for a short run)")
+    return f"run.keep removed nothing: {why}; the records take {size / 1e6:.1f} MB"
 
 
 def read_events(path: str | Path) -> tuple:
@@ -254,6 +297,9 @@ def closing_line(end: dict) -> str:
         parts.append(f"consensus disagreement at the end {end['final_disagreement']:.3g} (no truth)")
     parts.append(f"agents lost {end.get('agents_lost', 0)}, rejoined {end.get('agents_rejoined', 0)}")
     parts.append(f"consensus messages lost {end.get('messages_lost', 0)}")
+    if end.get("takeovers"):
+        n = end["takeovers"]
+        parts.append(f"{n} orchestrator takeover{'s' * (n > 1)}")
     return f"{head}: " + "; ".join(parts)
 
 

@@ -35,15 +35,8 @@ if os.environ.get("SPLITSPEC_TEST_EIGENVALUES") == "iterative":
         monkeypatch.setattr(spectral, "DENSE_MAX", 0)
 
 
-# make test runs two workers (pytest-xdist, --dist loadgroup): the tests that start a deployment's processes
-# (integration, chaos) stay on one worker, one after another as before (their paced rounds and timeouts assume
-# the machine's other core is not another deployment); the unit and property tests share out the rest
-RUNTIME_FOLDERS = ("integration", "chaos")
-
-
-def pytest_collection_modifyitems(config, items):
-    if not config.pluginmanager.hasplugin("xdist"):
-        return
-    for item in items:
-        if Path(str(item.fspath)).parent.name in RUNTIME_FOLDERS:
-            item.add_marker(pytest.mark.xdist_group("runtime"))
+# make test runs two workers (pytest-xdist): they share out every test, so two deployments' tests (integration,
+# chaos) may run at once, each paced run beside the other's processes; their timeouts allow for it.  (A hook here
+# once marked them for one worker, one after another; pytest-xdist read the marks before it ran, so it never had
+# an effect -- measured: the deployments' tests of one suite took 1320 s of its 1184 s -- and one worker for them
+# would make them alone longer than the whole suite is.)

@@ -64,12 +64,18 @@ def cmd_run(args: argparse.Namespace) -> int:
     code = run_local(str(args.scenario), out, run_id=args.run_id, viewer=viewer, wait=args.wait,
                      round_timeout=args.round_timeout, agent_ids=sc.agent_ids, verbose=args.verbose,
                      secure=not args.insecure, measurements=args.measurements, sensor_ids=tuple(sc.sensor_keys),
-                     until_stopped=sc.run.until_stopped)
+                     until_stopped=sc.run.until_stopped, standby=sc.run.standby)
     rrd = out / "run.rrd"
-    if rrd.exists():
+    from ..viewer.rrd_file import rrd_segments
+
+    segments = rrd_segments(rrd)
+    if segments:  # run.keep may have removed run.rrd, the first segment: name the first one left
         from splitspec_core.runs import end_event, closing_line, read_events
 
-        print(f"recording: {rrd}  (open it with: {_splitspec_command()} view {out})")
+        from ..view import retention_line
+
+        left = "" if segments[0] == rrd else f", the first of {len(segments)} segments run.keep left"
+        print(f"recording: {segments[0]}{left}  (open it with: {_splitspec_command()} view {out})")
         rows = out / "trajectory.npz" if (out / "trajectory.npz").exists() else out / "chunks"
         print(f"trajectory: {rows}  events: {out / 'events.jsonl'}")
         _network_line(sc, out)
@@ -81,6 +87,9 @@ def cmd_run(args: argparse.Namespace) -> int:
             end = None
         if end is not None:
             print(closing_line(end))
+        kept = retention_line(out) if sc.run.keep_hours is not None or sc.run.keep_gigabytes is not None else None
+        if kept is not None:  # run.keep: what it removed and what is left, or why nothing went (issue 46)
+            print(kept)
     return code
 
 
@@ -91,7 +100,7 @@ def default_steps_line(sc, *, measurements: bool = False) -> str:
     r = sc.run
     if not r.steps_default or r.until_stopped or measurements:
         return ""
-    what = f"{r.steps} steps" + ("" if sc.time == "discrete" else f" of run.dt {r.dt:g} s")
+    what = f"{r.steps} steps" + ("" if sc.time == "discrete" else f" of run.dt {r.dt:g} {sc.system.time_unit}")
     return (f"splitspec: run.steps not given: running the default {what} ({r.steps + 1} event times); set run.steps, "
             "or run.pace to run until stopped")
 
@@ -160,20 +169,45 @@ def _splitspec_command() -> str:
         return str(beside)
 
 
+def cmd_standby(args: argparse.Namespace) -> int:
+    from splitspec_core.runtime.cli import die_with_parent
+    from splitspec_core.runtime.wire import Keys
+
+    from ..standby import main as standby_main
+
+    die_with_parent()  # started by `splitspec run`: go when it goes
+    Keys(args.run_id)  # validates --run-id
+    return standby_main(args)
+
+
 def cmd_router(args: argparse.Namespace) -> int:
     import signal
-    import threading
+    import time
 
     from splitspec_core.runtime.bus import lease_ms_for, open_session
+    from splitspec_core.runtime.cli import die_with_parent
 
-    stop = threading.Event()
+    die_with_parent()  # started by `splitspec run` (a run with a standby): go when it goes
+    kw: dict = {}
+    if args.secure_dir:
+        if not args.scenario or not args.run_id:
+            raise SplitspecError("router --secure DIR needs the run's --scenario FILE and --run-id ID (its access "
+                                 "control names the run's agents)")
+        import splitspec_core as ss
+        from splitspec_core.runtime.security import Credentials
+
+        sc = ss.load_scenario(args.scenario)
+        kw["extra"] = Credentials.load(args.secure_dir).router_extra(args.run_id, sc.agent_ids, sc.sensor_keys)
+    # a plain flag, not a threading.Event: the handler runs in this thread, and Event.set inside Event.wait's own
+    # lock (a signal arriving there) deadlocks (it did in `splitspec view`)
+    stop: list = []
     for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stop.set())
-    session = open_session("router", listen=[args.listen], lease_ms=lease_ms_for("router"))
+        signal.signal(sig, lambda *_: stop.append(True))
+    session = open_session("router", listen=[args.listen], lease_ms=lease_ms_for("router"), **kw)
     logging.getLogger("splitspec.router").info("Zenoh router listening on %s (pid %d)", args.listen, os.getpid())
     try:
-        while not stop.wait(0.5):
-            pass
+        while not stop:
+            time.sleep(0.2)
     finally:
         session.close()
     return 0

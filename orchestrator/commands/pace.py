@@ -11,6 +11,10 @@ temporary copy of the scenario with
 * ``faults: []`` (a kill or a freeze is not the steady state a pace has to hold),
 * ``run.pace`` removed and ``run.steps`` generous (:data:`PROBE_STEPS`: the run is stopped long before;
   the orchestrator's memory does not grow with ``steps``),
+* ``run.keep`` removed: a paced scenario that runs until stopped is what ``pace`` is for, but the measuring run is
+  a run of ``run.steps``, stopped after ``--seconds``, and its records stay whole (retention removes closed
+  segments between rounds, far larger than a few seconds of records: no part of a round's cost); the disk line
+  then says what ``run.keep.hours`` and ``run.keep.gigabytes`` keep on hand at the measured growth,
 * ``system.file`` written in (the copy lives in another folder),
 * ``sources:`` removed: the simulated plant stands in for live sensors (they need a pace and a publisher);
 
@@ -210,6 +214,7 @@ def probe_mapping(path: Path) -> tuple[dict, bool]:
     data = dict(resolve_model_file(load_yaml(read_scenario_text(path), source=str(path)), path.parent))
     run = dict(data.get("run") or {})
     run.pop("pace", None)
+    run.pop("keep", None)  # a run of run.steps has no retention (module docstring)
     run["steps"] = PROBE_STEPS
     data["run"] = run
     data["faults"] = []
@@ -239,16 +244,39 @@ class DiskRate:
     rows: int
     every: int
 
-    def line(self, pace: float, keep_hours: float | None = None) -> str:
-        """One line: the disk per hour and per day at ``pace``, and what ``run.keep.hours`` holds on hand."""
+    def line(self, pace: float, keep_hours: float | None = None, keep_gigabytes: float | None = None,
+             segments: tuple | None = None) -> str:
+        """One line: the disk per hour and per day at ``pace``, what ``run.keep.hours`` and ``run.keep.gigabytes``
+        hold on hand and, given ``segments`` (the bytes past which a row chunk segment and a recording segment close:
+        :class:`~splitspec_orchestrator.records.files.Continuous`), when the first of each closes: nothing is removed
+        before (a newcomer's 3-minute run with the default 64 and 256 MiB removed nothing and could not tell why)."""
         hour = (self.chunk_bytes + self.rrd_bytes) * pace * 3600
         text = (f"disk: about {hour / 1e9:.3g} GB per hour at pace {pace:g} ({self.chunk_bytes * pace * 3.6e-3:.3g} MB/h "
                 f"of row chunks, {self.rrd_bytes * pace * 3.6e-3:.3g} MB/h of Rerun recording with the state panels "
                 f"every {self.every} event time{'s' if self.every != 1 else ''}; measured over {self.rows} event times); "
                 f"{24 * hour / 1e9:.3g} GB a day")
         if keep_hours is not None:
-            text += f"; run.keep.hours {keep_hours:g}: about {keep_hours * hour / 1e9:.3g} GB on hand plus one segment of each"
+            text += (f"; run.keep.hours {keep_hours:g}: about {keep_hours * hour / 1e9:.3g} GB on hand plus the segment "
+                     "being written of each kind")
+        if keep_gigabytes is not None and hour > 0:
+            text += (f"; run.keep.gigabytes {keep_gigabytes:g}: reached after about {keep_gigabytes * 1e9 / hour:.3g} h, "
+                     "then the oldest closed segments go")
+        if segments is not None and (keep_hours is not None or keep_gigabytes is not None):
+            closes = [f"a {what} segment closes about every {_duration(size / (rate * pace))} ({size / (1 << 20):g} MiB)"
+                      for what, size, rate in (("row chunk", segments[0], self.chunk_bytes),
+                                               ("recording", segments[1], self.rrd_bytes)) if rate > 0 and pace > 0]
+            if closes:
+                text += "; " + " and ".join(closes) + " (run.keep.segment_mb): nothing is removed before one closes"
         return text
+
+
+def _duration(seconds: float) -> str:
+    """``seconds`` as a person says it: ``40 s``, ``12 min``, ``3.2 h``, ``5.1 days``."""
+    if seconds < 90:
+        return f"{seconds:.2g} s"
+    if seconds < 5400:
+        return f"{seconds / 60:.2g} min"
+    return f"{seconds / 3600:.2g} h" if seconds < 172800 else f"{seconds / 86400:.2g} days"
 
 
 def _record_sizes(out: Path) -> tuple[int, int, int]:
@@ -386,5 +414,9 @@ def cmd_pace(args: argparse.Namespace) -> int:
     feasible, line = verdict(meas, pace, about=about)
     print(line)
     if disk is not None and feasible:  # (at a pace that cannot be kept the figure would be the machine's, not the run's)
-        print(disk.line(pace if pace is not None else meas.capacity, sc.run.keep_hours))
+        from ..records.files import Continuous
+
+        sizes = Continuous.from_env(sc.run)
+        print(disk.line(pace if pace is not None else meas.capacity, sc.run.keep_hours, sc.run.keep_gigabytes,
+                        segments=(sizes.chunk_bytes, sizes.rrd_bytes)))
     return 0 if feasible else EXIT_NOT_FEASIBLE

@@ -72,6 +72,7 @@ _TEXTS = {
         f"statistic {f.get('statistic'):.4g} over {f.get('threshold'):.4g}") + "): it estimates from its neighbours alone",
     "sensor_restored": lambda f: f"agent {f.get('agent')}'s sensor restored (statistic {f.get('statistic'):.4g} under "
                                  f"{f.get('threshold'):.4g})",
+    "records_retention": lambda f: f.get("text"),
     "records_removed": lambda f: f"removed {f.get('file')} (event times {f.get('first_tau')}..{f.get('last_tau')}, "
                                  f"{f.get('bytes', 0) / 1e6:.1f} MB): " + (
         "closed longer ago than run.keep.hours" if f.get("reason") == "hours" else
@@ -86,6 +87,16 @@ _TEXTS = {
     "pace_not_kept": lambda f: f"cannot keep pace {f.get('pace')}: {f.get('achieved_rate')} event times per second, "
                                f"{f.get('late_ms')} ms behind; limited by {f.get('limit')}",
     "orchestrator_started": lambda f: f"orchestrator started (pid {f.get('pid')})",
+    "orchestrator_lost": lambda f: f"the orchestrator (pid {f.get('pid')} on {f.get('host')}, epoch {f.get('epoch')}) "
+                                   f"was lost at event time {f.get('tau')}",
+    "orchestrator_takeover": lambda f: f"orchestrator epoch {f.get('epoch')} (pid {f.get('pid')} on {f.get('host')}) "
+                                       f"took the run over at event time {f.get('tau')}; rounds stalled "
+                                       f"{f.get('stall_ms')} ms",
+    "standby_joined": lambda f: f"a standby orchestrator follows the run (pid {f.get('pid')} on {f.get('host')})",
+    "standby_ready": lambda f: f"the standby (pid {f.get('pid')}) is ready to take over",
+    "standby_left": lambda f: f"the standby (pid {f.get('pid')}) left",
+    "rows_missing": lambda f: f"event times {f.get('first')}..{f.get('last')} were not recorded (the dead orchestrator "
+                              "had not written them, its standby had not followed them)",
     "orchestrator_stalled": lambda f: f"orchestrator frozen for {f.get('seconds')} s",
     "recording_closed": lambda f: f"recording closed ({f.get('rows')} rows"
                                   + ("" if f.get("finished", True) else ", unfinished")
@@ -108,7 +119,7 @@ def event_text(event: str, fields: dict, note: str | None = None) -> str:
 
 
 class EventLog:
-    """``events.jsonl`` of a run: created empty, then appended one line at a time.
+    """``events.jsonl`` of a run: created empty (or, ``append``, taken as it is), then appended one line at a time.
 
     Raises
     ------
@@ -117,9 +128,12 @@ class EventLog:
         (a torn line is cut back first).
     """
 
-    def __init__(self, path: Path):
+    def __init__(self, path: Path, *, append: bool = False):
         self.path = Path(path)
         self.size = 0
+        if append and self.path.exists():  # a standby that takes over a run goes on after the last whole line
+            self.size = self.path.stat().st_size
+            return
         self._write(b"", mode="wb")
 
     def line(self, event: str, t: float, wall: float, fields: dict) -> bytes:

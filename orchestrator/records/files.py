@@ -110,8 +110,9 @@ class Continuous:
     """How a run that goes on until stopped keeps its records bounded (docs/reference/files.md, "Runs until
     stopped"): ``window_rows`` rows held in memory (at most about twice as many), a new chunk segment past
     ``chunk_bytes``, ``run.rrd`` rolled to ``run-0001.rrd`` ... past ``rrd_bytes``.  :meth:`from_env` reads
-    ``SPLITSPEC_WINDOW_ROWS``, ``SPLITSPEC_CHUNK_MB`` and ``SPLITSPEC_RRD_ROLL_MB`` (defaults 1024, 64, 256); ``keep_hours`` and ``keep_bytes``
-    are ``run.keep``'s (:mod:`.retention`)."""
+    ``SPLITSPEC_WINDOW_ROWS``, ``SPLITSPEC_CHUNK_MB`` and ``SPLITSPEC_RRD_ROLL_MB`` (defaults 1024, 64, 256; the
+    segment sizes ``run.keep.segment_mb`` when the scenario gives it, the variables overriding it); ``keep_hours``
+    and ``keep_bytes`` are ``run.keep``'s (:mod:`.retention`)."""
 
     window_rows: int = 1024
     chunk_bytes: int = 64 << 20
@@ -122,11 +123,14 @@ class Continuous:
 
     @classmethod
     def from_env(cls, run=None) -> "Continuous":
+        segment_mb = getattr(run, "keep_segment_mb", None)  # run.keep.segment_mb: both kinds of segment
+
         def mb(name: str, default: int) -> int:
+            given = default if segment_mb is None else segment_mb
             try:
-                return max(1 << 16, int(float(os.environ.get(name, default)) * (1 << 20)))
+                return max(1 << 16, int(float(os.environ.get(name, given)) * (1 << 20)))
             except ValueError:
-                return default << 20
+                return int(given * (1 << 20))
 
         try:
             window = max(16, int(os.environ.get("SPLITSPEC_WINDOW_ROWS", 1024)))

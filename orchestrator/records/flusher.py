@@ -132,6 +132,7 @@ class Flusher:
         self.request: int | None = None
         self.last_flush = started
         self.closed = False
+        self.fence = None  # () -> bool: another process holds these records now (a standby took the run over)
         _OPEN.add(self)
         _register_exit_flush()
         self.stop = threading.Event()
@@ -276,6 +277,9 @@ class Flusher:
             with self.lock:
                 if self.closed or self.failure.error is not None:
                     return False  # the recording has stopped: close() writes what is left
+                if self.fence is not None and self.fence():  # another orchestrator holds the records now
+                    self.closed = True
+                    return False
                 upto = self.request
                 if upto is None:
                     if time.monotonic() - self.last_flush < self.flush_seconds:

@@ -30,6 +30,7 @@ does stop it (the writer's docstring, "Write failures and consistency").
 
 from __future__ import annotations
 
+import logging
 import threading
 import time
 from pathlib import Path
@@ -37,6 +38,7 @@ from typing import Iterable, Mapping
 
 import numpy as np
 
+from splitspec_core.runtime.cli import EVENTS_LOGGER
 from splitspec_core.scenarios.labels import default_state_names
 from splitspec_core.simulation.trajectory_file import TRAJECTORY_FILE
 
@@ -46,7 +48,7 @@ from ..viewer.sink import DEFAULT_VIEWER_PORT, RRD_FILE, RerunSink, open_sink
 from .checks import RecordingError, check_row, check_run, check_topology
 from .events import EVENTS_FILE, EventLog, event_level, event_text
 from .files import Continuous, RecordFiles, RecordsWriteError, WriteFailure, strerror
-from .retention import Retention
+from .retention import Retention, plan
 from .flusher import Flusher
 from .measured import MeasuredRecords
 from .outdir import Reserve
@@ -56,6 +58,7 @@ from .writer import RecordWriter
 __all__ = ["Recorder", "RecordingError", "RecordsWriteError", "verify_rrd", "TRAJECTORY_FILE",
            "EVENTS_FILE", "RRD_FILE"]
 
+told = logging.getLogger(EVENTS_LOGGER)  # what run.keep removes, on splitspec run's terminal (--log-level events)
 RESERVE_BYTES = 4 << 20  # disk-space reserve released on ENOSPC to write the final records
 _MAX_INITIAL_ROWS = 1024  # row storage starts at most this big (``steps`` is a hint) and doubles
 
@@ -105,7 +108,8 @@ class Recorder:
                  viewer_port: int = DEFAULT_VIEWER_PORT, connect_timeout: float = 1.0,
                  reserve_bytes: int = RESERVE_BYTES, envelope_rate: float | None = None, columns: tuple = (),
                  positions: Mapping[int, tuple[float, float]] | None = None, states: tuple | None = None,
-                 shown: tuple | None = None, continuous: Continuous | None = None, record_every: int = 1):
+                 shown: tuple | None = None, continuous: Continuous | None = None, record_every: int = 1,
+                 resume: tuple | None = None):
         ids = check_run(agent_ids=agent_ids, n=n, time_mode=time_mode, dt=dt, graph_names=graph_names,
                         flush_seconds=flush_seconds, envelope_rate=envelope_rate, positions=positions)
 
@@ -138,8 +142,12 @@ class Recorder:
         # Write failures (records.writer's docstring): the first one and whether a caller has seen it.
         self._failed = WriteFailure(self._lock)
         events_path = self.out_dir / EVENTS_FILE
+        # resume: (rows on disk, the rrd segment to write) of records a standby takes over (records.recover made
+        # them agree first): events.jsonl and the chunks go on, run.rrd in a new segment, trajectory.npz rebuilt
+        # from the chunks at the close
+        self.resumed = resume
         try:
-            self._events = EventLog(events_path)  # create / empty events.jsonl
+            self._events = EventLog(events_path, append=resume is not None)  # create / empty events.jsonl
         except OSError as exc:
             raise RecordsWriteError(events_path, strerror(exc)) from None
         if states is not None and len(states) != self.n:
@@ -151,19 +159,25 @@ class Recorder:
                          columns=tuple(columns), positions=dict(positions) if positions else None,
                          viewer=viewer, viewer_port=viewer_port, connect_timeout=connect_timeout,
                          states=names, shown=shown, roll_bytes=continuous.rrd_bytes if continuous else None,
-                         record_every=record_every)
+                         record_every=record_every, segment=0 if resume is None else resume[1])
         # trajectory.npz and run.rrd (self._rec is its sink), written by the flushes
         files = RecordFiles(self.out_dir, agent_ids=self.agent_ids, taken=taken, lost=self._lost,
                             extra=self._meas.arrays, failure=self._failed, sink=sink,
                             states=names or default_state_names(self.n), y_rows=self._meas.y_rows,
                             u_rows=self._meas.u_rows,
                             continuous=continuous, dt=self.dt if time_mode == "continuous" else 1.0)
+        self._npz_at_close = False  # resumed: trajectory.npz rebuilt from every chunk at the close
+        if resume is not None:
+            self._s.base = taken.base = files.chunk_rows = files.rrd_rows = int(resume[0])
+            self._npz_at_close, files.npz = files.npz, False
         self._w = RecordWriter(taken, files, self._meas, self._events, self._failed, self._lock,
                                envelope_rate=self.envelope_rate, time_mode=time_mode, dt=self.dt)
+        self.retention_plan = None  # run.keep's plan (retention.plan), said by the driver at the start
         if continuous is not None and (continuous.keep_hours is not None or continuous.keep_bytes is not None):
+            self.retention_plan = plan(continuous)
             self._w.retention = Retention(self.out_dir, files, hours=continuous.keep_hours,
                                           max_bytes=continuous.keep_bytes, emit=self._retention_event,
-                                          recording_hours=continuous.keep_recording_hours)
+                                          recording_hours=continuous.keep_recording_hours, prior=resume)
         if sink is not None:
             files.append_rrd()  # header, properties, styles and blueprint: run.rrd exists from the start
         self._reserve = Reserve(self.out_dir, reserve_bytes)
@@ -246,7 +260,8 @@ class Recorder:
 
     def _retention_event(self, event: str, t: float, fields: dict) -> None:
         """An event of :mod:`.retention`, from a flush (``_io`` held): appended to ``events.jsonl`` and queued for
-        Rerun as :meth:`event` does, without flushing (it runs in one)."""
+        Rerun as :meth:`event` does, without flushing (it runs in one); and told on ``splitspec run``'s terminal."""
+        told.info("%s", event_text(event, fields))
         with self._lock:
             line = self._events.line(event, t, time.time(), fields)
             try:
@@ -370,9 +385,53 @@ class Recorder:
             self._f.finish(finished)  # the last flush, run.rrd finished, the recording_closed event
         if self._watcher is not None and self._watcher is not threading.current_thread():
             self._watcher.join(timeout=10.0)
+        if self._npz_at_close:
+            self._rebuild_trajectory()
         if self._failure is not None and not self._failed.reported and finished:
             self._failed.reported = True
             raise self._failure
+
+    def _rebuild_trajectory(self) -> None:
+        """Resumed records: ``trajectory.npz`` from every chunk (the rows before the takeover and after)."""
+        from splitspec_core.simulation.simulator import Trajectory
+        from splitspec_core.simulation.trajectory_chunks import read_chunks
+
+        try:
+            rows = read_chunks(self.out_dir)
+            if rows is not None:
+                Trajectory.from_arrays(rows).save(self.out_dir / TRAJECTORY_FILE)
+        except OSError as exc:
+            self._failed.fail(self.out_dir / TRAJECTORY_FILE, exc, None)
+
+    def finish_beside(self, segment: Path):
+        """Finish another recording segment of this run (a dead orchestrator's, left without its footer) in a child
+        process beside the run, as a rolled one is (:func:`~splitspec_orchestrator.viewer.rrd_file.finish_in_child`):
+        its ``Popen``, None without Rerun."""
+        from ..viewer.rrd_file import finish_in_child, rrd_index
+
+        args = self.layout_args()
+        return None if args is None else finish_in_child(segment, args, has_layout=rrd_index(segment) == 0)
+
+    def layout_args(self) -> dict | None:
+        """The arguments of the recording's default layout (what a segment finished beside the run gets; JSON), None
+        without Rerun."""
+        sink = self._w.sink
+        return None if sink is None else sink.blueprint_args()
+
+    def fence_with(self, superseded) -> None:
+        """``superseded()``: whether another process holds these records now (a standby took the run over); the
+        background flushes ask it first and stop writing for good once it says so (:meth:`abandon` follows)."""
+        self._f.fence = superseded
+
+    def abandon(self) -> None:
+        """Another orchestrator took these records over (a standby, while this one was cut off): stop writing at
+        once; nothing more is flushed, finished or closed here."""
+        with self._io, self._lock:
+            if self._closed:
+                return
+            self._f.close()
+            self._npz_at_close = False
+            self._w.disconnect()
 
     def __del__(self) -> None:
         # Dropped without close(): send what is buffered (logging used to be immediate).

@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 __all__ = ["Tick", "Record", "Topology", "MarkLost", "Event", "Log", "Signal", "Control", "Spawn", "QueryStatus",
-           "ReplyConfig", "ReplyRefused", "RegistryUpdate", "Stop", "Finished"]
+           "ReplyConfig", "ReplyRefused", "RegistryUpdate", "Stop", "Finished", "KillSelf"]
 
 @dataclass(frozen=True)
 class Tick:
@@ -140,3 +140,10 @@ class Stop:
 @dataclass(frozen=True)
 class Finished:
     rounds: int
+
+
+@dataclass(frozen=True)
+class KillSelf:
+    """The scenario kills the active orchestrator (``kill: orchestrator``): the shell SIGKILLs its own process."""
+
+    tau: int

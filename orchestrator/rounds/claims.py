@@ -151,6 +151,24 @@ class ClaimTable:
         if c is not None:
             c.released = True
 
+    def adopt(self, procs: dict, present: set, now: float) -> None:
+        """A takeover: the granted processes of the active orchestrator's table (``procs``: "plant" / agent id ->
+        pid, host, nonce), each present if its token is among ``present`` (``(role, id, nonce)``)."""
+        for name, p in procs.items():
+            role, ident = ("plant", 0) if name == "plant" else ("agent", int(name))
+            up = (role, ident, p["nonce"]) in present
+            self.claims[(role, ident)] = Claim(nonce=str(p["nonce"]), pid=int(p["pid"]), host=str(p["host"]),
+                                               since=now, present=up)
+            self.procs[name] = {"pid": int(p["pid"]), "host": str(p["host"])}
+
+    def state(self) -> dict:
+        """The process table with each granted process's nonce (a standby's :meth:`adopt` takes it)."""
+        out = {}
+        for (role, ident), c in self.claims.items():
+            if not c.released:
+                out["plant" if role == "plant" else str(ident)] = {"pid": c.pid, "host": c.host, "nonce": c.nonce}
+        return out
+
     def missing(self) -> list:
         """Who does not yet hold a granted claim with its token up ("plant", "agent 3")."""
         out = []

@@ -79,10 +79,10 @@ import numpy as np
 
 from splitspec_core.model.impairment import CAUSES
 from splitspec_core.model.network import make_plan
-from splitspec_core.scenarios.faults import RESTART, SIGNAL
+from splitspec_core.scenarios.faults import ORCHESTRATOR, RESTART, SIGNAL
 
-from .actions import (Control, Event, Finished, Log, QueryStatus, Record, RegistryUpdate, ReplyConfig, ReplyRefused,
-                      Signal, Spawn, Stop, Tick)
+from .actions import (Control, Event, Finished, KillSelf, Log, QueryStatus, Record, RegistryUpdate, ReplyConfig,
+                      ReplyRefused, Signal, Spawn, Stop, Tick)
 from .claims import ClaimTable, describe_status
 from .collected import Collected
 from .liveness import PROBE_ANSWER_SECONDS, PROBE_SECONDS, Liveness
@@ -161,6 +161,7 @@ class RoundMachine:
         self.round_late = math.nan  # how late it started against run.pace (seconds; NaN unpaced)
         self.last_in: int | None = None  # the agent whose estimate came last in the round in flight
         self.pace = PaceWatch.of(sc, des, cores=os.cpu_count())  # run.pace: each event time's lateness, or None
+        self.epoch = 1  # the orchestrator's (the shell's): the k-th `kill: orchestrator` is epoch k's
 
     # the collaborators' state, where the shell and the tests read it
     claims = property(lambda self: self.identity.claims, doc="(role, ident) -> :class:`.claims.Claim`")
@@ -219,8 +220,7 @@ class RoundMachine:
 
     def on_hello(self, ref, h: dict, now: float) -> list:
         """A process claims an identity (``h``: role, id, pid, host, nonce); reply config or refuse."""
-        out = self.on_clock(now)
-        return out + self.identity.hello(ref, h, now, started=self.started, t=self.t())
+        return self.on_clock(now) + self.identity.hello(ref, h, now, started=self.started, t=self.t())
 
     def on_token(self, role: str, ident: int, nonce: str | None, present: bool, now: float) -> list:
         """A liveliness token appeared or disappeared (only the granted claim's token counts)."""
@@ -233,7 +233,8 @@ class RoundMachine:
             out += self.live.ready(role, ident, c.pid, now, self.t())
             if role == "agent" and self.started and ident not in self.alive:
                 self.joinable.add(ident)
-                out.append(Log("info", f"agent {ident} is back; it joins at the next event time"))
+                if self.live.restart is None or self.live.restart[0] != ident:  # a restart says it rejoins
+                    out.append(Log("info", f"agent {ident} is back; it joins at the next event time"))
             return out + self._progress(now)
         if role == "plant":
             if self.started:
@@ -259,11 +260,8 @@ class RoundMachine:
 
     def on_spawned(self, role: str, ident: int, pid: int, now: float, *, began: float | None = None) -> list:
         """The shell started process ``pid`` for ``role``/``ident``; it began at ``began`` and returned at ``now``.
-
-        The time inside the spawn (fork and exec, seconds when the machine is busy starting the other m
-        processes) is the orchestrator's own work, not a freeze: the stall detector looks at the gap
-        before ``began`` only, and starts counting again from ``now``.
-        """
+        The time inside the spawn (fork and exec, seconds when the machine is busy starting the other m processes)
+        is the orchestrator's own work, not a freeze: the stall detector looks at the gap before ``began`` only."""
         out = self.on_clock(began) if began is not None else []
         self.live.spawned(role, ident, pid, now)  # and the pid of an agent the scenario restarts
         return out
@@ -291,8 +289,7 @@ class RoundMachine:
 
     def on_pid_gone(self, role: str, ident: int, pid: int, now: float) -> list:
         """A granted process on this host (not a child) is no longer running, before its token showed."""
-        out = self.on_clock(now)
-        return out + self.identity.gone(role, ident, pid, self.t())
+        return self.on_clock(now) + self.identity.gone(role, ident, pid, self.t())
 
     # ------------------------------------------------------------------ start-up
 
@@ -339,8 +336,7 @@ class RoundMachine:
     # ------------------------------------------------------------------ timers and status
 
     def on_timer(self, now: float) -> list:
-        out = self.on_clock(now)
-        return out + self._progress(now)
+        return self.on_clock(now) + self._progress(now)
 
     def on_status(self, answered: set, now: float, *, plant: bool = True) -> list:
         """The answer to :class:`QueryStatus`: agents (ids) whose processes answered, and whether the plant did."""
@@ -481,6 +477,9 @@ class RoundMachine:
                 how, acts = self.live.signal_agent(f.agent, type(f), self.procs.get(f.agent))
                 out += acts
                 out += self._lose(f.agent, f"{f.loss_word} by the scenario ({how})")
+            elif f.runtime == ORCHESTRATOR:  # epoch k's kill; its successor, replaying the step, goes on
+                if _kill_epoch(self.plan, f) == self.epoch:
+                    return out + [Event(f.event, t, {"tau": self.tau, "epoch": self.epoch}), KillSelf(self.tau)]
             elif f.runtime == RESTART:
                 if f.agent in self.alive:
                     out.append(Event("fault_skipped", t, {"action": f.action, "id": f.agent,
@@ -566,3 +565,10 @@ class RoundMachine:
     @property
     def finished(self) -> bool:
         return self.phase is Phase.DONE
+
+
+def _kill_epoch(plan, f) -> int:
+    """The epoch a scenario's ``kill: orchestrator`` ``f`` kills: the k-th of the plan's is epoch k's (a standby that
+    took over at that step replays it and goes on)."""
+    kills = [g for tau in sorted(plan.faults) for g in plan.faults[tau] if g.runtime == ORCHESTRATOR]
+    return next(k for k, g in enumerate(kills, 1) if g is f)

@@ -24,6 +24,7 @@ class RunTally:
         self.agents_lost = 0
         self.agents_rejoined = 0
         self.messages_lost = 0
+        self.takeovers = 0  # standbys that took the run over so far (a takeover's successor counts its predecessors')
 
     def record(self, a: Record) -> None:
         self.event_times += 1
@@ -40,7 +41,8 @@ class RunTally:
     def fields(self, *, seconds: float, pace=None, disagreement=None) -> dict:
         """The end event's fields: ``event_times``, ``seconds`` (wall, from the first round), ``rounds_per_second``,
         ``final_max_error`` (None without truth) or ``final_disagreement`` (``disagreement(xhat, alive)`` of the
-        last row, given by the shell), ``agents_lost``, ``agents_rejoined``, ``messages_lost`` and, paced, the
+        last row, given by the shell), ``agents_lost``, ``agents_rejoined``, ``messages_lost``, ``takeovers`` (a standby
+        took the run over: how many times, counted since the run's start) and, paced, the
         :class:`~splitspec_orchestrator.rounds.pace.PaceWatch` summary (``pace``, ``late_event_times``,
         ``max_lateness_ms``)."""
         out = {"event_times": self.event_times, "seconds": round(seconds, 3),
@@ -53,6 +55,8 @@ class RunTally:
             out["final_disagreement"] = float(f"{d:.6g}") if math.isfinite(d) else None
         out.update(agents_lost=self.agents_lost, agents_rejoined=self.agents_rejoined,
                    messages_lost=self.messages_lost)
+        if self.takeovers:
+            out["takeovers"] = self.takeovers
         if pace is not None:
             out.update(pace.summary())
         return out

@@ -39,6 +39,19 @@ class TopologyState:
         self.alive = set(self.sc.agent_ids)
         self.joinable.clear()
 
+    def adopt(self, alive, incarnation: dict, faults, *, graph: int) -> None:
+        """A takeover: the network of the round in flight (``alive``, ``incarnation``: agent id -> int), the
+        network faults applied so far replayed (``faults``), the graph its tick announced."""
+        self.net.alive[:] = False
+        for a in alive:
+            self.net.alive[self.index[a]] = True
+        for a, inc in incarnation.items():
+            self.net.incarnation[self.index[a]] = int(inc)
+        self.net.apply(list(faults))
+        self.alive = set(alive)
+        self.joinable.clear()
+        self.last_graph, self.dirty = graph, True
+
     def incarnation(self, aid: int) -> int:
         return int(self.net.incarnation[self.index[aid]])
 

@@ -71,7 +71,8 @@ TL_EVENT, TL_TIME, TL_WALL = "event", "time", "wall"
 _FAULT_MARKS, _FAULT_MARK_STYLES = fault_marks()
 # the bad-data test's (splitspec_core.synthesis.bad_data): a sensor set aside and taken back
 MARK_OF_EVENT = {**_FAULT_MARKS, "graph_switched": "graph_switch", "fault_skipped": "fault",
-                 "sensor_suspect": "suspect", "sensor_restored": "restored"}
+                 "sensor_suspect": "suspect", "sensor_restored": "restored",
+                 "orchestrator_takeover": "takeover"}  # a standby took the run over (its kind's mark: kill_orchestrator)
 MARK_KINDS = {  # kind: (legend name, marker, colour)
     "lost": ("agent lost", "Cross", (214, 39, 40)),
     "rejoined": ("agent rejoined", "Up", (44, 160, 44)),

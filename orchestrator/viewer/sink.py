@@ -122,7 +122,7 @@ class RerunSink:
                  time_mode: str, dt: float, graph_names: tuple, envelope: bool, columns: tuple,
                  positions: dict, viewer: str | None, viewer_port: int, connect_timeout: float,
                  states: tuple | None = None, shown: tuple | None = None, roll_bytes: int | None = None,
-                 record_every: int = 1):
+                 record_every: int = 1, segment: int = 0):
         import rerun as rr
 
         self.record_every = max(1, int(record_every))  # run.record_every: the state panels' decimation
@@ -134,9 +134,10 @@ class RerunSink:
         self.shown = None if shown is None else tuple(int(k) for k in shown)  # run.show: the states tab's views
         self.labels = bp.state_labels(self.n, self.states)
         self.positions = bp.node_positions(self.agent_ids, positions)
-        self.rrd_file = RrdAppender(Path(out_dir) / RRD_FILE)
+        # segment: 0 for a new run; a standby that takes over a run writes its next segment (records resumed)
+        self.rrd_file = RrdAppender(segment_path(Path(out_dir) / RRD_FILE, int(segment)))
         self.roll_bytes = roll_bytes  # run.rrd rolls to run-0001.rrd ... past this size (None: never)
-        self.segment = 0  # the segment being written (0: run.rrd)
+        self.segment = int(segment)  # the segment being written (0: run.rrd)
         self.finishing: list = []  # child processes finishing rolled segments (finish_in_child)
         self.span: list = [None, None]  # first and last event time of the rows sent to the segment being written
         self.closed: list[ClosedSegment] = []  # the rolled segments not removed (run.keep: records.retention)

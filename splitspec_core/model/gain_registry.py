@@ -27,11 +27,15 @@ REGULARISATION = 1e-9
 def regularise(M: np.ndarray) -> np.ndarray:
     """A symmetric PSD matrix made positive definite if it is (numerically) singular.
 
-    If the smallest eigenvalue of ``M`` is at most ``1e-12 max(1, |M|_2)``,
+    If the smallest eigenvalue of ``M`` is at most ``1e-12 |M|_2`` (singular to round-off, relative to ``M`` itself),
     returns ``M + REGULARISATION max(1, |M|_2) I`` (``REGULARISATION = 1e-9``);
     otherwise ``M`` unchanged.  Used for noise-free measurements (``R = 0``) and
     zero (or rank-deficient) process noise, where the Riccati equation has no
-    stabilising solution or its solver needs ``R`` invertible.
+    stabilising solution or its solver needs ``R`` invertible.  Small noise that is stated is not singular: a motor's
+    angles with process noise std ``1e-6`` per step (variance ``1e-12``, beside ``2.5e-3`` on its speeds) were taken
+    as singular against ``1e-12 max(1, |M|_2)`` and given ``1e-9``, 1000 times their noise, so the centralized Kalman
+    filter's predicted RMS was that of another model (0.2142, the true one's 0.2125) and a distributed design was
+    reported at 0.992x of it (issue 46's walk).
 
     Parameters
     ----------
@@ -51,9 +55,9 @@ def regularise(M: np.ndarray) -> np.ndarray:
     M = 0.5 * (np.asarray(M, dtype=float) + np.asarray(M, dtype=float).T)
     if M.size == 0:
         return M
-    scale = max(1.0, float(np.linalg.norm(M, 2)))
-    if np.linalg.eigvalsh(M)[0] <= 1e-12 * scale:
-        return M + REGULARISATION * scale * np.eye(M.shape[0])
+    norm = float(np.linalg.norm(M, 2))
+    if np.linalg.eigvalsh(M)[0] <= 1e-12 * norm:
+        return M + REGULARISATION * max(1.0, norm) * np.eye(M.shape[0])
     return M
 
 

@@ -66,6 +66,23 @@ class Screen:
         self.seen[i] = 0
         self.last[i] = None
 
+    def rejoined(self) -> None:
+        """An agent rejoined with a fresh estimate in the whole-state design: the warm-up of every sensor not suspect
+        starts afresh.
+
+        Its consensus averages whole estimates, so the fresh estimate's error reaches the neighbours' measured
+        directions within an event time and their errors are no longer the steady state ``S_i`` predicts (the paper's
+        split moves only what each agent does not see, ``C_i P_i = 0``, and needs none of this: the simulator calls
+        this for the whole-state design only).  Tested at once, their clean measurements failed, and where
+        the sensors so made suspect were the only ones to see a direction (a motor's angle), nobody was left to bring
+        their agents back and none was ever restored.  So their measurements are used untested again for ``warmup``
+        of them, as after the run's start.  A sensor suspect before stays suspect, set aside and tested (only clean
+        tests restore it: a sensor that lies through a rejoin is not taken back untested).  The watches' counts
+        hold, as on every untested event time, so :class:`Watch` replays the same decisions from the rows; the agent
+        process does the same on a tick that carries a higher incarnation (``agents/agent.py``).
+        """
+        self.seen[~self.suspect] = 0
+
     def fallback(self, Ps) -> list:
         """The projections of this event time's consensus: ``I`` for the suspect sensors' agents, ``P_i`` else.
 

@@ -454,6 +454,16 @@ class Inbox:
         except queue.Empty:
             return None
 
+    def offer(self, item: tuple) -> None:
+        """Queue an item as a subscription does: dropped and counted (``inbox_full``) when the inbox is full.
+
+        Parameters
+        ----------
+        item : tuple
+            ``(channel, key, payload)``.
+        """
+        self._offer(item)
+
     def put(self, item: tuple) -> None:
         """Inject an item (e.g. a signal turned into an event); never dropped.
 

@@ -23,7 +23,12 @@ from ..parallel import sigterm_at_parent_death
 __all__ = ["ArgumentParser", "EXIT_BAD_INPUT", "EXIT_FAILED", "MAX_SECONDS", "MAX_SEED", "UsageError",
            "add_logging_options", "add_node_options", "at_least", "error_boundary", "positive", "seed",
            "add_run_id_option", "node_cli", "setup_logging", "integer", "default_wait", "DEFAULT_WAIT",
-           "PARENT_ENV", "die_with_parent", "sigterm_at_parent_death"]
+           "PARENT_ENV", "die_with_parent", "sigterm_at_parent_death", "EVENTS_LOGGER"]
+
+#: the logger of a run's events as the orchestrator tells them (a fault and its end, a loss and a rejoin, a sensor set
+#: aside and taken back, the survivors' verdict): ``--log-level events`` shows them, at INFO too, beside every
+#: warning and nothing else at INFO (``splitspec run``'s terminal)
+EVENTS_LOGGER = "splitspec.events"
 
 EXIT_BAD_INPUT = 2
 EXIT_FAILED = 1
@@ -226,8 +231,8 @@ def add_logging_options(p: argparse.ArgumentParser) -> None:
         The parser to add them to.
     """
     p.add_argument("-v", "--verbose", action="store_true", help="log more")
-    p.add_argument("--log-level", default=None, choices=["debug", "info", "warning", "error"],
-                   help="logging level (default info; debug with -v)")
+    p.add_argument("--log-level", default=None, choices=["debug", "info", "events", "warning", "error"],
+                   help="logging level (default info; debug with -v; events: the warnings and a run's events)")
 
 
 def setup_logging(args: argparse.Namespace) -> None:
@@ -236,10 +241,14 @@ def setup_logging(args: argparse.Namespace) -> None:
     Parameters
     ----------
     args : argparse.Namespace
-        Parsed options; ``log_level`` and ``verbose`` are read if present (default level INFO, DEBUG with ``-v``).
+        Parsed options; ``log_level`` and ``verbose`` are read if present (default level INFO, DEBUG with ``-v``;
+        ``events``: WARNING, and INFO for :data:`EVENTS_LOGGER`).
     """
     level = args.log_level.upper() if getattr(args, "log_level", None) else \
         ("DEBUG" if getattr(args, "verbose", False) else "INFO")
+    if level == "EVENTS":
+        level = "WARNING"
+        logging.getLogger(EVENTS_LOGGER).setLevel(logging.INFO)
     logging.basicConfig(level=level, format="%(asctime)s %(name)s %(levelname)s %(message)s")
 
 

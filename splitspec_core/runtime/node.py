@@ -35,7 +35,7 @@ from ..scenarios.faults import KINDS, SIGNAL
 from .bus import (CHILD_ENV, LIVELINESS_DELETE, IdentityRefused, Inbox, hosted_runs, lease_ms_for, open_session,
                   query_bytes, socket_address, unreachable_reason, zenoh_config)
 
-__all__ = ["NodeShell", "CONNECT_BUDGET", "RUN_GRACE", "LINK_GRACE", "process_age"]
+__all__ = ["NodeShell", "CONNECT_BUDGET", "RUN_GRACE", "LINK_GRACE", "TAKEOVER_WAIT", "process_age"]
 
 #: seconds after its start a hand-started process gives the router to accept its connection (retried while
 #: nothing listens); counted from the process's start, so a slow start on a loaded machine does not add to it
@@ -52,6 +52,16 @@ LINK_GRACE = 1.0
 #: alternating: the agents' CPU per event time 110 ms against 122-125 ms, 70-71 against 77-79 ms/event
 NODE_ZENOH_RUNTIME = "(app: (handover: rx), tx: (handover: rx))"
 ZENOH_RUNTIME_ENV = "ZENOH_RUNTIME"
+#: seconds a plant or agent waits for a standby orchestrator to take over once the active one's token is gone
+#: (``SPLITSPEC_TAKEOVER_WAIT``); without a standby's token up it exits at once, as it always did
+def _takeover_wait() -> float:
+    try:
+        return max(0.1, float(os.environ.get("SPLITSPEC_TAKEOVER_WAIT", "10")))
+    except ValueError:
+        return 10.0
+
+
+TAKEOVER_WAIT = _takeover_wait()
 #: a refused handshake is tried this many times (POLL apart) before the process reports it
 REFUSALS = 2
 POLL = 0.1
@@ -79,8 +89,10 @@ class NodeShell:
     The process claims its identity (``role``, ``ident``) with a random nonce in its ``hello``; the
     orchestrator answers with the configuration (and the run's MAC key) or refuses, naming the live
     process that holds the identity (:class:`IdentityRefused`).  The loop ends on a ``stop`` from the
-    orchestrator, when the orchestrator's liveliness token disappears (so no process outlives a crashed
-    orchestrator), or on SIGINT/SIGTERM.  Every other message goes to the node's
+    orchestrator, when the orchestrator's liveliness token disappears and no standby orchestrator follows the run
+    (so no process outlives a crashed orchestrator; with a standby up it waits :data:`TAKEOVER_WAIT` seconds for
+    the takeover, then exits), or on SIGINT/SIGTERM.  A tick or control of an orchestrator epoch below the
+    highest seen is refused (``fenced``: :class:`~splitspec_core.runtime.ticks.Fence`).  Every other message goes to the node's
     ``dispatch(channel, key, payload) -> [(key, payload), ...]``; a handler error is counted with
     ``on_error(reason)`` and never ends the process.
     """
@@ -134,8 +146,16 @@ class NodeShell:
 
         for sig in (signal.SIGINT, signal.SIGTERM):
             signal.signal(sig, on_signal)
-        # watch the orchestrator first: if it dies we must exit by ourselves
-        self.inbox.watch_liveliness(keys.alive("orchestrator"), "orchestrator")
+        from .ticks import Fence
+
+        self.fence = Fence()  # the highest orchestrator epoch seen in a tick or a control (the node shares it)
+        # watch the orchestrators first: if the last one dies and no standby takes over, we must exit by ourselves
+        self.orchestrators: set = set()  # the epochs of the orchestrator tokens up
+        self.standbys: set = set()  # the standby orchestrators' token keys up
+        self.takeover_by: float | None = None  # the orchestrator is gone: wait for a standby's takeover until then
+        self.expect_standby = False  # the config says a standby follows the run (its token may reach us late)
+        self.inbox.watch_liveliness(keys.orchestrators, "orchestrator")
+        self.inbox.watch_liveliness(keys.standbys, "standby")
 
     @property
     def who(self) -> str:
@@ -245,6 +265,7 @@ class NodeShell:
             raise IdentityRefused(f"{self.who} of run {self.keys.run_id!r} refused: {refusal['reason']}")
         cfg = decode(raw, self.keys.run_id, "config")
         self.mac_key = self.inbox.mac_key = cfg["key"]
+        self.expect_standby = bool(cfg.get("standby", False))  # a standby follows the run: wait for its takeover
         self.health_inbox.serve(self.keys.status(self.role, self.ident, self.nonce), lambda _q: hello)
         return cfg
 
@@ -384,6 +405,11 @@ class NodeShell:
         self.log.info("%s ready (pid %d)", name, os.getpid())
         while True:
             due = alarm[0]
+            if self.takeover_by is not None:
+                if time.monotonic() >= self.takeover_by:
+                    code = self._no_takeover()
+                    break
+                due = self.takeover_by if due is None else min(due, self.takeover_by)
             item = self.inbox.get(timeout=1.0 if due is None else min(1.0, max(0.0, due - time.monotonic())))
             if timer is not None:
                 with lock:
@@ -397,9 +423,13 @@ class NodeShell:
             channel, key, payload = item
             if channel == "control":
                 try:
-                    cmd = decode(payload, self.keys.run_id, "control", mac_key=self.mac_key)["cmd"]
+                    msg = decode(payload, self.keys.run_id, "control", mac_key=self.mac_key)
+                    cmd = msg["cmd"]
                 except WireError as e:
                     on_error(e.reason)
+                    continue
+                if not self.fence.admit(msg):  # a superseded orchestrator's: never obeyed
+                    on_error("fenced")
                     continue
                 if cmd == "stop":
                     self.log.info("%s: stop from the orchestrator", name)
@@ -412,17 +442,11 @@ class NodeShell:
                     self.log.warning("%s: %s requested by the orchestrator", name, word)
                     os.kill(os.getpid(), getattr(signal, kind.signal))
             elif channel == "orchestrator":
-                if payload == LIVELINESS_DELETE:
-                    import sys
-
-                    msg = (f"{self.who}: the orchestrator of run {self.keys.run_id!r} was lost (its liveliness "
-                           "token disappeared); exiting")
-                    if os.environ.get(CHILD_ENV):  # the orchestrator's own child: `splitspec run` says it once
-                        self.log.info("%s", msg)
-                    else:
-                        print(f"splitspec: error: {msg}", file=sys.stderr)
+                if self._orchestrator_token(key, payload):
                     code = 1
                     break
+            elif channel == "standby":
+                (self.standbys.add if payload != LIVELINESS_DELETE else self.standbys.discard)(str(key))
             elif channel == "signal":
                 self.log.info("%s: interrupted", name)
                 break
@@ -432,6 +456,45 @@ class NodeShell:
             self._closing = True
         token.undeclare()
         return code
+
+    def _orchestrator_token(self, key: str, payload) -> bool:
+        """An orchestrator's token appeared or went (its id is its epoch); True: exit now (the last one went and no
+        standby follows the run).  With a standby up (or the run's config saying one follows it: its token may reach
+        this process late), wait :data:`TAKEOVER_WAIT` seconds for its takeover."""
+        epoch = self.keys.last(key)
+        if payload != LIVELINESS_DELETE:
+            self.orchestrators.add(epoch)
+            if self.takeover_by is not None:
+                self.takeover_by = None
+                self.log.info("%s: orchestrator epoch %s took over run %r; going on", self.who, epoch,
+                              self.keys.run_id)
+            return False
+        self.orchestrators.discard(epoch)
+        if self.orchestrators or self.takeover_by is not None:
+            return False
+        if self.standbys or self.expect_standby:
+            self.takeover_by = time.monotonic() + TAKEOVER_WAIT
+            self.log.warning("%s: the orchestrator (epoch %s) of run %r was lost; waiting up to %g s for its standby "
+                             "to take over", self.who, epoch, self.keys.run_id, TAKEOVER_WAIT)
+            return False
+        self._say(f"{self.who}: the orchestrator of run {self.keys.run_id!r} was lost (its liveliness token "
+                  "disappeared); exiting")
+        return True
+
+    def _no_takeover(self) -> int:
+        self._say(f"{self.who}: the orchestrator of run {self.keys.run_id!r} was lost and no standby took over "
+                  f"within {TAKEOVER_WAIT:g} s (SPLITSPEC_TAKEOVER_WAIT); exiting")
+        return 1
+
+    def _say(self, msg: str) -> None:
+        """The one line of an exit for want of an orchestrator (the log only for a process `splitspec run` started:
+        it says it once)."""
+        import sys
+
+        if os.environ.get(CHILD_ENV):
+            self.log.info("%s", msg)
+        else:
+            print(f"splitspec: error: {msg}", file=sys.stderr)
 
     def close(self) -> None:
         """Close both inboxes and both Zenoh sessions (an error closing a session is logged, not raised)."""

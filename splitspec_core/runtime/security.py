@@ -31,7 +31,11 @@ refused at connection time) and enforces this access-control policy
   (it sees the agents' subscriptions to it, nothing else);
 * ``tick``, ``control`` and the ``config`` queryable are the orchestrator's
   own session (the router itself, not subject to the policy); nobody else
-  may publish them or serve ``config``.
+  may publish them or serve ``config``.  In a run with a standby
+  orchestrator the router is a process of its own and the orchestrators are
+  its clients: only the ``orchestrator`` user may then publish ``tick``,
+  ``control`` and ``state``, serve ``config``, hold an orchestrator's or a
+  standby's token and query statuses.
 
 A denied message is dropped by the router silently; the receivers never see
 it.  Zenoh's access control is read when the router opens: the set of
@@ -127,7 +131,7 @@ def acl_config(run_id: str, agent_ids, sensors: dict | None = None) -> dict:
     --------
     >>> acl = acl_config("r1", [1, 2])
     >>> acl["default_permission"], [s["id"] for s in acl["subjects"]]
-    ('deny', ['everyone', 'plant', 'agent-1', 'agent-2'])
+    ('deny', ['everyone', 'plant', 'orchestrator', 'agent-1', 'agent-2'])
     """
     keys = Keys(run_id)
     p = keys.prefix
@@ -151,13 +155,25 @@ def acl_config(run_id: str, agent_ids, sensors: dict | None = None) -> dict:
         rule("plant-token", ["liveliness_token"], ingress, [f"{p}/alive/plant/**"]),
         rule("plant-status", ["declare_queryable", "reply"], ingress, [f"{p}/status/plant/**"]),
     ]
+    # a run with a standby: its orchestrators are clients of the run's own router (not embedded in it)
+    rules += [
+        rule("orchestrator-publish", ["put"], ingress, [f"{p}/tick", f"{p}/control", f"{p}/state"]),
+        rule("orchestrator-config", ["declare_queryable", "reply"], ingress, [f"{p}/config"]),
+        rule("orchestrator-token", ["liveliness_token"], ingress, [f"{p}/alive/orchestrator/*",
+                                                                   f"{p}/alive/standby/**"]),
+        rule("orchestrator-status", ["query"], ingress, [f"{p}/status/**"]),
+        rule("orchestrator-answers", ["reply"], egress, [f"{p}/status/**"]),
+    ]
     subjects = [{"id": "everyone", "usernames": ["orchestrator", "plant"] + [user_of("agent", i) for i in agent_ids]},
-                {"id": "plant", "usernames": ["plant"]}]
+                {"id": "plant", "usernames": ["plant"]}, {"id": "orchestrator", "usernames": ["orchestrator"]}]
     policies = [
         {"id": "everyone", "subjects": ["everyone"],
          "rules": ["subscribe", "receive", "query-config", "receive-config", "watch-liveliness", "see-liveliness",
                    "status-query", "discover-runs"]},
         {"id": "plant", "subjects": ["plant"], "rules": ["plant-publish", "plant-token", "plant-status"]},
+        {"id": "orchestrator", "subjects": ["orchestrator"],
+         "rules": ["orchestrator-publish", "orchestrator-config", "orchestrator-token", "orchestrator-status",
+                   "orchestrator-answers"]},
     ]
     for i in agent_ids:
         u = user_of("agent", i)

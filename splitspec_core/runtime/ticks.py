@@ -15,15 +15,54 @@ from __future__ import annotations
 from ..model.impairment import group_of
 from .wire import encode
 
-__all__ = ["TickEncoder", "TickNetwork"]
+__all__ = ["TickEncoder", "TickNetwork", "Fence"]
+
+
+class Fence:
+    """The highest orchestrator epoch a process has seen in a tick or a control (fencing).
+
+    Every orchestrator that holds a run's rounds has an epoch: the first 1, each standby that takes over one
+    more.  A tick or a control of a lower epoch than the highest seen comes from an orchestrator that was
+    superseded (cut off, then back): it is refused (``fenced``), so two orchestrators never hold the rounds at
+    once.  A message without an epoch counts as epoch 0.
+
+    Examples
+    --------
+    >>> f = Fence()
+    >>> f.admit({"epoch": 1}), f.admit({"epoch": 2}), f.admit({"epoch": 1}), f.epoch
+    (True, True, False, 2)
+    """
+
+    def __init__(self):
+        self.epoch = 0
+
+    def admit(self, msg: dict) -> bool:
+        """Whether the decoded tick or control ``msg`` may be obeyed (its epoch is not below the highest seen).
+
+        Parameters
+        ----------
+        msg : dict
+            A decoded ``tick`` or ``control`` message.
+
+        Returns
+        -------
+        bool
+            True (and the highest epoch raised to the message's) unless the message's epoch is lower.
+        """
+        epoch = int(msg.get("epoch", 0))
+        if epoch < self.epoch:
+            return False
+        self.epoch = epoch
+        return True
 
 
 class TickEncoder:
     """The ticks of one run (signed with ``mac_key``), the network in those where it changed."""
 
-    def __init__(self, run_id: str, *, mac_key: bytes | None):
+    def __init__(self, run_id: str, *, mac_key: bytes | None, epoch: int = 0, topology: int = 0):
         self.run_id, self.mac_key = run_id, mac_key
-        self.topology = 0
+        self.epoch = int(epoch)  # the orchestrator's (fencing: Fence); 0: none sent
+        self.topology = int(topology)  # a standby that takes over counts on from the last tick's
         self._last = None
 
     def encode(self, *, tau: int, attempt: int, graph: int, final: bool, fresh: bool, prev_attempt: int,
@@ -81,13 +120,20 @@ class TickEncoder:
             fields.update(alive=list(net[0]), rows={str(i): [list(nb), list(w)] for i, (nb, w) in rows.items()},
                           incarnation={str(i): int(v) for i, v in net[2].items()},
                           partition=[list(g) for g in net[3]])
+        if self.epoch:
+            fields["epoch"] = self.epoch
         return encode("tick", self.run_id, mac_key=self.mac_key, topology=self.topology, **fields)
+
+    def resend_network(self) -> None:
+        """Carry the network in the next tick (a standby that starts following learns it there)."""
+        self._last = None
 
 
 class TickNetwork:
     """Agent ``agent_id``'s view of the network the ticks announce, from the last tick that carried one: its row
     (neighbours as ints, weights as floats; None when it takes no part), whether it is alive, its incarnation,
-    and the partition in force as ``{agent id: group}`` (:func:`splitspec_core.model.impairment.group_of`; {} for none)."""
+    every agent's (``incarnations``, ``{agent id: incarnation}``: a higher one is a rejoin), and the partition in
+    force as ``{agent id: group}`` (:func:`splitspec_core.model.impairment.group_of`; {} for none)."""
 
     def __init__(self, agent_id: int, ids):
         self.id, self.key, self.ids = agent_id, str(agent_id), tuple(ids)
@@ -95,6 +141,7 @@ class TickNetwork:
         self.row = None
         self.alive = False
         self.incarnation = 0
+        self.incarnations: dict = {}
         self.groups: dict = {}
 
     def update(self, t: dict) -> bool:
@@ -117,5 +164,6 @@ class TickNetwork:
             self.row = None if row is None else ([int(j) for j in row[0]], [float(w) for w in row[1]])
             self.alive = self.id in t["alive"]
             self.incarnation = int(t["incarnation"].get(self.key, 0))
+            self.incarnations = {int(k): int(v) for k, v in t["incarnation"].items()}
             self.groups = group_of(t["partition"], self.ids)
         return self.topology == t["topology"]

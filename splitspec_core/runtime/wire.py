@@ -56,6 +56,8 @@ key                         from -> to              payload
 ``sensors/<key>``            sensor -> agent i       y_i as JSON ``{"y": [...], "t": ...}`` or raw float64 (scenario
                                                     ``sources:``; unsigned, see :mod:`splitspec_agents.sensor`)
 ``control``                 orchestrator -> all     ``stop``; ``kill agent/<i>``, ``freeze agent/<i>`` (faults)
+``state``                   orchestrator -> standby its epoch, the process table (pid, host, nonce), the pace's
+                                                    origin (wall clock), tau, the rows on disk: what a takeover needs
 ``status/<role>/<id>/<n>``  queryable (every proc.) a ``hello``: the process answers (not frozen)
 ``alive/<role>/<id>/<n>``   liveliness token        presence; DELETE is a death (n: the process's nonce)
 ==========================  ======================  ==========================================
@@ -143,6 +145,21 @@ class Keys:
     def control(self) -> str:
         """The key of the orchestrator's commands (stop, kill, freeze), ``<prefix>/control`` (str)."""
         return f"{self.prefix}/control"
+
+    @property
+    def state(self) -> str:
+        """The key of the active orchestrator's state for a standby, ``<prefix>/state`` (str)."""
+        return f"{self.prefix}/state"
+
+    @property
+    def orchestrators(self) -> str:
+        """Every orchestrator token of this run, ``<prefix>/alive/orchestrator/*`` (the id is its epoch)."""
+        return f"{self.prefix}/alive/orchestrator/*"
+
+    @property
+    def standbys(self) -> str:
+        """Every standby orchestrator token of this run, ``<prefix>/alive/standby/**``."""
+        return f"{self.prefix}/alive/standby/**"
 
     @property
     def y(self) -> str:
@@ -377,16 +394,20 @@ MESSAGE_FIELDS = {
     "config": {"scenario": "str", "seed": "int", "g": "any", "q": "any", "g_mode": "any", "key": "bytes"},
     "refused": {"reason": "str", "holder_pid": "int", "holder_host": "str"},
     "hello": {"role": "str", "id": "int", "pid": "int", "host": "str", "nonce": "str"},
+    "state": {"epoch": "int", "procs": "map", "t_run_wall": "any", "tau": "int", "pid": "int", "host": "str",
+              "kept": "int"},
 }
 
 #: optional fields (name -> kind), returned only when present: a run on recorded measurements (their sha256, steps,
 #: whether they hold the truth), whether agents report the y_i they used, the directions no agent sees (W, n rows of
 #: w numbers: splitspec_core.model.detectability), the agent's gain when the design chose it centrally ({K, consensus,
 #: P}: splitspec_core.synthesis.whole_state.agent_gain), the agent's bad-data test ({S_inv, threshold, suspect_after}:
-#: splitspec_core.synthesis.bad_data.agent_config); a tick's network
+#: splitspec_core.synthesis.bad_data.agent_config); a tick's network; the epoch of the orchestrator that sent a tick,
+#: a control or a config (fencing: a process ignores a tick or control of an epoch below the highest it has seen)
 OPTIONAL_FIELDS = {"config": {"measurements": "map", "record_y": "bool", "unobserved": "list", "gain": "map",
-                              "bad_data": "map"},
-                   "tick": {"alive": "list", "rows": "map", "incarnation": "map", "partition": "list"}}
+                              "bad_data": "map", "epoch": "int", "standby": "bool"},
+                   "tick": {"alive": "list", "rows": "map", "incarnation": "map", "partition": "list", "epoch": "int"},
+                   "control": {"epoch": "int"}}
 #: optional fields that come all together or not at all: a tick's network is all four (runtime.ticks)
 TOGETHER = {"tick": ("alive", "rows", "incarnation", "partition")}
 

@@ -377,6 +377,8 @@ def read(mapping: Mapping, section: str, name: str, *, default: Any = None) -> A
         return check_number(value, where)
     if decl.kind.startswith("integer"):
         return check_integer(value, where, minimum=decl.minimum)
+    if decl.kind == "boolean" and not isinstance(value, bool):
+        raise ScenarioError(f"{where} must be true or false, got {value!r}")
     return value
 
 

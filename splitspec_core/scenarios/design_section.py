@@ -9,7 +9,7 @@ from typing import Any
 
 from ..errors import ScenarioError
 from .checks import (BAD_DATA_KEYS, DESIGN_KEYS, MAX_Q, MIN_RICCATI_WEIGHT, RICCATI_KEYS, check_keys, check_known_agent,
-                     check_matrix, check_shapes, ids_text, read, require_map)
+                     check_matrix, check_shapes, describe, ids_text, read, require_map)
 from . import gain_methods
 from .specs import DesignSpec, System
 
@@ -165,25 +165,38 @@ def parse_design(raw: Any, time: str, system: System, ids: tuple) -> DesignSpec:
         for k, w in zip(RICCATI_KEYS, (pw, mw)):
             if w is not None and not w >= MIN_RICCATI_WEIGHT:
                 raise ScenarioError(f"design.riccati.{k} must be >= {MIN_RICCATI_WEIGHT:g}, got {rmap[k]}")
-    bad_data = _bad_data(dmap, system)
+    bad_data, bad_data_default = _bad_data(dmap, system)
     return DesignSpec(
         rate=rate, gains=gains, K=K, g=g, g0=g0, q=q, q_method=q_method, q_max=q_max,
         resilience=resilience, weights=weights, margin=margin, rank_tol=rank_tol,
         graph_set=graph_set, dwell=dwell, process_weight=pw, measurement_weight=mw,
         eigenvalues=eigenvalues, undetectable=undetectable, coordinates=coordinates, consensus=consensus,
-        bad_data=bad_data, lag=lag,
+        bad_data=bad_data, bad_data_default=bad_data_default, lag=lag,
     )
 
 
-def _bad_data(dmap: dict, system: System) -> tuple | None:
-    """``design.bad_data``: None (``off``, the default) or ``(false_alarm, suspect_after)``.  It needs measurement
-    noise: the test's threshold is calibrated against it (noise-free data has nothing to calibrate against, and a
-    singular innovation covariance)."""
+def _bad_data(dmap: dict, system: System) -> tuple:
+    """``design.bad_data``: ``(test, default)``, ``test`` None (off) or ``(false_alarm, suspect_after)``, ``default``
+    True when the key is absent and the scenario states measurement noise.
+
+    Absent: on, with the declared defaults, when the scenario states measurement noise (a lie spreading silently is
+    the worse default; the test is calibrated by the noise the user stated), off without it.  ``off`` or ``false``
+    (YAML reads ``off`` and ``no`` as false): off.  ``on`` or ``true``: on with the declared defaults, as ``{}``.
+    Given on, it needs measurement noise above 0 on every output: the test's threshold is calibrated against it
+    (noise-free data has nothing to calibrate against, and a singular innovation covariance)."""
     raw = dmap.get("bad_data")
-    if raw is None or raw == "off":
-        return None
-    if isinstance(raw, str):
-        raise ScenarioError(f"design.bad_data must be off or a map {{false_alarm, suspect_after}}, got {raw!r}")
+    if raw is None:
+        if not system.measurement_noise_present:
+            return None, False
+        # on by default; an output without noise cannot be tested (synthesis/bad_data.py's report line says so)
+        return (None if bool((system.measurement_std <= 0).any()) else _defaults()), True
+    if raw is False or raw == "off":
+        return None, False
+    if raw is True or raw == "on":
+        raw = {}
+    if not isinstance(raw, dict):
+        raise ScenarioError(f"design.bad_data must be off, on or a map {{false_alarm, suspect_after}}, got "
+                            f"{describe(raw)}")
     bmap = require_map(raw, "design.bad_data")
     check_keys(bmap, BAD_DATA_KEYS, "design.bad_data")
     p, k = (read(bmap, "design.bad_data", key) for key in BAD_DATA_KEYS)
@@ -192,7 +205,13 @@ def _bad_data(dmap: dict, system: System) -> tuple | None:
     if not system.measurement_noise_present or bool((system.measurement_std <= 0).any()):
         raise ScenarioError("design.bad_data needs system.measurement_noise above 0 on every output: the test is "
                             "calibrated against it (use design.bad_data: off)")
-    return (float(p), int(k))
+    return (float(p), int(k)), False
+
+
+def _defaults() -> tuple:
+    """``(false_alarm, suspect_after)`` as declared (:data:`~splitspec_core.scenarios.keys.BAD_DATA`)."""
+    p, k = (read({}, "design.bad_data", key) for key in BAD_DATA_KEYS)
+    return float(p), int(k)
 
 
 def _check_noise_kind(kind: str, dmap: dict, system: System) -> None:
@@ -205,7 +224,7 @@ def _check_noise_kind(kind: str, dmap: dict, system: System) -> None:
     if dmap.get("gains") not in (None, gain_methods.NOISY_DEFAULT):
         raise ScenarioError(f"design.consensus: {kind} chooses its own gains for the noise: leave design.gains out "
                             f"(got {dmap['gains']})")
-    for key, off in (("bad_data", ("off", None)), ("resilience", (0, None)), ("K", (None,))):
+    for key, off in (("bad_data", ("off", False, None)), ("resilience", (0, None)), ("K", (None,))):
         if dmap.get(key, None) not in off:
             raise ScenarioError(f"design.{key} is not offered with design.consensus: {kind}")
 

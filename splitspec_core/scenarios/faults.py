@@ -35,12 +35,13 @@ from .checks import check_arc, check_keys, check_known_agent, check_number, desc
 from .network_section import check_heals, parse_groups
 
 __all__ = ["Fault", "FaultContext", "KINDS", "FAULT_ACTIONS", "FAULT_ALIASES", "SIGNAL", "RESTART", "NETWORK",
-           "PLANT", "register", "make_fault", "parse_faults", "kind_of_event", "fault_event_text", "fault_marks"]
+           "PLANT", "ORCHESTRATOR", "register", "make_fault", "parse_faults", "kind_of_event", "fault_event_text", "fault_marks"]
 
 SIGNAL = "signal"  #: the runtime signals the agent's process (SIGKILL, SIGSTOP); it is lost from that step
 RESTART = "restart"  #: the runtime spawns the agent's process again; it rejoins with a fresh estimate
 NETWORK = "network"  #: the runtime changes the agents' network as the simulator does (the ticks carry it)
 PLANT = "plant"  #: the plant process applies it to the measurements, from the scenario, at the same step
+ORCHESTRATOR = "orchestrator"  #: the runtime's active orchestrator kills itself (a standby takes over); no effect
 
 KINDS: dict = {}  #: ``{action: kind}`` in registration order
 _WORDS: dict = {}  #: every word a scenario may use for an action (aliases too) -> the kind
@@ -272,9 +273,9 @@ def register(cls: type) -> type:
     type
         ``cls``, now buildable (:meth:`Fault.__post_init__` refuses a kind nobody registered).
     """
-    if cls.runtime not in (SIGNAL, RESTART, NETWORK, PLANT):
+    if cls.runtime not in (SIGNAL, RESTART, NETWORK, PLANT, ORCHESTRATOR):
         raise ValueError(f"fault kind {cls.__name__}: runtime {cls.runtime!r} is none of {SIGNAL}, {RESTART}, "
-                         f"{NETWORK}, {PLANT}")
+                         f"{NETWORK}, {PLANT}, {ORCHESTRATOR}")
     if cls.event is None or (cls.runtime in (SIGNAL, RESTART) and "agent" not in cls.__dataclass_fields__):
         raise ValueError(f"fault kind {cls.__name__} needs an event, and an agent when the runtime signals or "
                          "restarts it")
@@ -738,6 +739,28 @@ class Repair(_AgentFault):
 # ---------------------------------------------------------------------------------------------------- parsing
 
 
+@register
+@dataclass(frozen=True)
+class KillOrchestrator(Fault):
+    """``kill: orchestrator`` (also ``kill_orchestrator: true``): the run's active orchestrator is SIGKILLed at the
+    step; with ``run.standby: true`` its standby takes over, else the run ends there.  No effect on the estimates
+    (the simulator ignores it).  The k-th of a scenario's orchestrator kills is the orchestrator of epoch k's: a
+    standby that takes over does not kill itself again at a step it replays."""
+
+    action, runtime, event, mark = "kill_orchestrator", ORCHESTRATOR, "orchestrator_killed", "takeover"
+    mark_style = ("orchestrator killed, taken over", "Right", (127, 127, 127))
+
+    @classmethod
+    def parse(cls, value, fmap, key, ctx):
+        if value not in (True, "orchestrator"):
+            raise ScenarioError(f"{key}.{cls.action} must be true (or write kill: orchestrator), got {value!r}")
+        return {}
+
+    @staticmethod
+    def text(fields):
+        return f"the orchestrator killed by the scenario at event time {fields['tau']}"
+
+
 FAULT_ACTIONS = tuple(KINDS)  #: the registered actions (the kinds above), in order
 FAULT_ALIASES = {a: cls.action for cls in KINDS.values() for a in cls.aliases}  #: older spellings -> the action
 
@@ -792,6 +815,8 @@ def parse_faults(raw: Any, ids: tuple, *, outputs: dict | None = None) -> tuple:
         if len(words) != 1:
             raise ScenarioError(f"{key} needs exactly one of {', '.join(FAULT_ACTIONS)}")
         cls = _WORDS[words[0]]
+        if cls is Kill and fmap[words[0]] == "orchestrator":  # kill: orchestrator
+            cls = KillOrchestrator
         for o in fmap:
             if o not in ("at", "for", words[0]) and o not in cls.options:
                 raise ScenarioError(f"{key}.{o} does not go with {cls.action} (its keys: at, {cls.action}, "

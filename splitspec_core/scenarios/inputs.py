@@ -185,7 +185,7 @@ def _sampled(A: Any, B: Any, sample: Any, time: str) -> tuple:
         raise ScenarioError("system.sample samples a continuous model for time: discrete; with time: continuous the "
                             "estimator itself runs in continuous time (its step is run.dt): leave system.sample out")
     if not dt >= MIN_DT:
-        raise ScenarioError(f"system.sample must be >= {MIN_DT:g} seconds, got {dt:g}")
+        raise ScenarioError(f"system.sample must be >= {MIN_DT:g} (in system.time_unit), got {dt:g}")
     from .sampling import sampled_data_matrices
 
     with np.errstate(all="ignore"):
@@ -229,8 +229,11 @@ def parse_inputs(sysmap: Mapping, A: np.ndarray, time: str) -> tuple:
     if sysmap.get("B") is not None:
         B = check_matrix(sysmap["B"], "system.B")
         if B.shape[0] != A.shape[0]:
-            raise DimensionError(f"system.B has {B.shape[0]} rows, system.A is {A.shape[0]}x{A.shape[0]} (B is n x p, "
-                                 "one column per input)")
+            n = A.shape[0]
+            # no guessing: a flat list [a, b, ...] is one row (1 x n), not the column of one input
+            hint = "; a flat list is one row: write one input's column as [[a], [b], ...]" if B.shape == (1, n) else ""
+            raise DimensionError(f"system.B is {B.shape[0]}x{B.shape[1]}, system.A is {n}x{n} (B is n x p, one "
+                                 f"column per input{hint})")
     u = None
     if sysmap.get("u") is not None:
         if B is None:

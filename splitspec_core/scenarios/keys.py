@@ -82,6 +82,9 @@ SYSTEM = (
                                            "output]}"),
     Key("states", "names", None, "n state names, in every message, report, plot and record"),
     Key("outputs", "per agent", None, "names of agent i's outputs (s_i names per agent listed)"),
+    Key("time_unit", "text", "s", "the unit of the model's time (system.sample, run.dt, a continuous rate per it): "
+                                  "printed after every such time and as 1/unit after rates; a short word (s, min, "
+                                  "h, ms); the run's wall clock stays in seconds"),
 )
 
 GRAPH = (
@@ -139,9 +142,10 @@ DESIGN = (
                                        "(its walk's Kalman steps recover the accuracy the rate's shift costs, at a "
                                        "larger transient constant; auto: where that stops paying)", words=("auto",),
         minimum=0),
-    Key("bad_data", "map|word", "off", "each agent tests its measurement against its prediction and sets a failing one "
-                                       "aside: off, or {false_alarm, suspect_after} (design.bad_data.*; needs noise)",
-        words=("off",)),
+    Key("bad_data", "map|word", None, "each agent tests its measurement against its prediction and sets a failing one "
+                                      "aside: off (or false), on (or true: the defaults below), or {false_alarm, "
+                                      "suspect_after} (design.bad_data.*; needs measurement noise); default: on when "
+                                      "the scenario states measurement noise, else off", words=("off", "on")),
 )
 
 BAD_DATA = (
@@ -166,6 +170,8 @@ RUN = (
     Key("record_every", "integer", None, "run only: the Rerun recording's state panels every this many event times "
                                          "(errors, events and marks every one); default 1, a run until stopped at "
                                          "a pace over 10: the event times of 0.1 s", minimum=1),
+    Key("standby", "boolean", False, "run only: a standby orchestrator follows the run and takes over when the "
+                                     "active one dies (a router of its own; agents and plant outlive it)"),
 )
 
 KEEP = (
@@ -173,6 +179,9 @@ KEEP = (
     Key("gigabytes", "number", None, "remove the oldest closed segments while the records take more (10^9 bytes)"),
     Key("recording_hours", "number", None, "the Rerun recording's segments (run*.rrd) this many hours instead of "
                                            "hours: a longer review, thinned by run.record_every"),
+    Key("segment_mb", "number", None, "MiB past which a segment closes, row chunks and recording alike (default 64 "
+                                      "and 256): only closed segments are removed, so a short run removes nothing "
+                                      "unless its segments are small"),
 )
 
 NETWORK = (
@@ -237,7 +246,7 @@ def names(keys: tuple) -> tuple:
     Examples
     --------
     >>> names(RUN)
-    ('steps', 'dt', 'seed', 'pace', 'show', 'keep', 'record_every')
+    ('steps', 'dt', 'seed', 'pace', 'show', 'keep', 'record_every', 'standby')
     """
     return tuple(k.name for k in keys)
 

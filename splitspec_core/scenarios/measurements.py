@@ -324,8 +324,9 @@ def load_measurements(path, sc, *, steps: int | None = None) -> Measurements:
         bad = np.abs(dt - sc.run.dt) > DT_RTOL * sc.run.dt
         if bad.any():
             k = int(np.argmax(bad))
-            raise _fail(path, f"rows {k + 1} and {k + 2} are {dt[k]:g} s apart; run.dt is {sc.run.dt:g}: the "
-                              "sampled-data estimator steps by run.dt (resample the log, or set run.dt)")
+            raise _fail(path, f"rows {k + 1} and {k + 2} are {dt[k]:g} {sc.system.time_unit} apart; run.dt is "
+                              f"{sc.run.dt:g}: the sampled-data estimator steps by run.dt (resample the log, or set "
+                              "run.dt)")
     if steps is not None:
         if steps > T - 1:
             raise _fail(path, f"has {T} rows ({T - 1} steps); --steps {steps} asks for more")

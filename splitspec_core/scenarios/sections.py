@@ -26,6 +26,12 @@ from .faults import parse_faults
 from .network_section import parse_network
 from .sources import parse_input_source, parse_sources
 
+#: run.keep.segment_mb's least: 64 KiB (orchestrator.records.files.Continuous floors its sizes there too)
+MIN_SEGMENT_MB = 1 / 16
+#: system.time_unit's longest word
+MAX_UNIT = 12
+
+
 def _parse_system(raw: Any, time: str = "discrete") -> tuple[System, tuple]:
     sysmap = require_map(raw, "system")
     check_keys(sysmap, SYSTEM_KEYS, "system")
@@ -68,8 +74,17 @@ def _parse_system(raw: Any, time: str = "discrete") -> tuple[System, tuple]:
             s_i = entries[aid].shape[0]
             outputs[aid] = check_names(v, f"system.outputs.{aid}", s_i, f"one per row of system.C.{aid}")
     system = System(A=A, Cs=tuple(entries[i] for i in ids), x0=x0, states=states, outputs=outputs, B=B, u=u,
-                    sample=sample, A_continuous=A_given if sample is not None else None, time=time, **noises)
+                    sample=sample, A_continuous=A_given if sample is not None else None, time=time,
+                    time_unit=_time_unit(read(sysmap, "system", "time_unit")), **noises)
     return system, ids
+
+
+def _time_unit(value: Any) -> str:
+    """``system.time_unit``: a short word of letters (``s``, ``min``, ``h``, ``ms``, ``day``), printed after times."""
+    if not isinstance(value, str) or not value.isalpha() or len(value) > MAX_UNIT:
+        raise ScenarioError(f"system.time_unit must be a short word of letters (s, min, h, ms; at most {MAX_UNIT}), "
+                            f"got {describe(value)}")
+    return value
 
 
 def _parse_graphs(raw: Any, ids: tuple) -> tuple:
@@ -194,16 +209,18 @@ def _parse_run(raw: Any, time: str, names: tuple = (), live: bool = False) -> Ru
             raise ScenarioError(f"run.pace must be >= {MIN_PACE:g} event times per second, got {pace:g}")
     omitted = "steps" not in rmap
     until_stopped = omitted and bool(pace or live)
-    hours, gigabytes, recording = _parse_keep(rmap.get("keep"), until_stopped)
+    hours, gigabytes, recording, segment_mb = _parse_keep(rmap.get("keep"), until_stopped)
     return RunSpec(steps, dt, seed, pace, _parse_show(rmap.get("show"), names), until_stopped, hours, gigabytes,
-                   recording, read(rmap, "run", "record_every"), omitted)
+                   recording, read(rmap, "run", "record_every"), omitted, bool(read(rmap, "run", "standby")),
+                   keep_segment_mb=segment_mb)
 
 
 def _parse_keep(raw: Any, until_stopped: bool) -> tuple:
-    """``run.keep``: ``(hours, gigabytes, recording_hours)``, each None when not given.  Only a run until stopped has segments to
-    remove: a run of ``run.steps`` keeps its whole ``trajectory.npz``."""
+    """``run.keep``: ``(hours, gigabytes, recording_hours, segment_mb)``, each None when not given.  Only a run until
+    stopped has segments to remove: a run of ``run.steps`` keeps its whole ``trajectory.npz``.  ``segment_mb`` at
+    least :data:`MIN_SEGMENT_MB` (64 KiB: smaller, the run would write little but segments)."""
     if raw is None:
-        return None, None, None
+        return None, None, None, None
     kmap = require_map(raw, "run.keep")
     check_keys(kmap, KEEP_KEYS, "run.keep")
     if not kmap:
@@ -215,9 +232,11 @@ def _parse_keep(raw: Any, until_stopped: bool) -> tuple:
     for k, v in values.items():
         if v is not None and v <= 0:
             raise ScenarioError(f"run.keep.{k} must be > 0, got {v:g}")
-    if set(kmap) == {"recording_hours"}:
-        raise ScenarioError("run.keep.recording_hours needs hours or gigabytes for the row chunks")
-    return values["hours"], values["gigabytes"], values["recording_hours"]
+    if not set(kmap) & {"hours", "gigabytes"}:
+        raise ScenarioError(f"run.keep.{sorted(kmap)[0]} needs hours or gigabytes for the row chunks")
+    if values["segment_mb"] is not None and values["segment_mb"] < MIN_SEGMENT_MB:
+        raise ScenarioError(f"run.keep.segment_mb must be >= {MIN_SEGMENT_MB:g} (64 KiB), got {values['segment_mb']:g}")
+    return values["hours"], values["gigabytes"], values["recording_hours"], values["segment_mb"]
 
 
 def parse_scenario(data: Any, *, source: str = "<scenario>", base: Path | None = None) -> Scenario:

@@ -84,6 +84,8 @@ class System:
         ``A`` and ``B`` here are then the sampled ones, ``A_continuous`` the model as given.
     time : str
         ``discrete`` or ``continuous``, the scenario's ``time`` (how ``A`` and the process noise are read).
+    time_unit : str
+        ``system.time_unit``: the unit of the model's time (``sample``, ``run.dt``, continuous rates), for printing.
 
     The noise's derived quantities (:mod:`splitspec_core.scenarios.noise`), which every computation uses:
     :attr:`process_covariance`, :attr:`measurement_std`, :attr:`measurement_covariance`,
@@ -103,6 +105,12 @@ class System:
     sample: float | None = None
     A_continuous: np.ndarray | None = None
     time: str = "discrete"
+    time_unit: str = "s"  # system.time_unit: the model time's unit, printed after its times and rates
+
+    @property
+    def per_time(self) -> str:
+        """``per second`` (``system.time_unit: s``, the default), else ``per <unit>``: after a rate, a str."""
+        return "per second" if self.time_unit == "s" else f"per {self.time_unit}"
 
     def __post_init__(self) -> None:
         # built directly, a system still meets the parser's noise checks (and holds what they return)
@@ -267,6 +275,9 @@ class DesignSpec:
     lag: Any = "auto"  # the relay kind's base: extra event times behind (an int >= 0 or auto; synthesis/relay.py)
     # design.bad_data: None (off) or (false_alarm, suspect_after): each agent tests its measurement (synthesis/bad_data.py)
     bad_data: tuple | None = None
+    # the key was absent and the scenario states measurement noise: the test is on by default (off where the design
+    # cannot calibrate it, synthesis/bad_data.py says why)
+    bad_data_default: bool = False
 
 
 @dataclass(frozen=True)
@@ -347,10 +358,12 @@ class RunSpec:
     ``keep_hours``, ``keep_gigabytes``: ``run.keep`` (a run until stopped only): a closed segment of the records
     (``chunks/rows-*.arrows``, ``run-*.rrd``) is removed that many hours after it closed, and the oldest closed
     ones while the records take more than that many 10^9 bytes (None: no limit); ``keep_recording_hours``: the
-    recording's segments that many hours instead (None: ``keep_hours``).  ``record_every``: the Rerun
+    recording's segments that many hours instead (None: ``keep_hours``); ``keep_segment_mb``: the MiB past which a
+    segment closes, chunks and recording alike (None: orchestrator.records.files's 64 and 256).  ``record_every``: the Rerun
     recording's state panels every this many event times (:attr:`recorded_every` resolves the default).
     ``steps_default``: ``run.steps`` was omitted and ``steps`` is the default (what ``splitspec run`` of an unpaced
-    scenario says it runs).
+    scenario says it runs).  ``standby``: ``splitspec run`` starts a standby orchestrator that takes over when the
+    active one dies (``run.standby``; docs/how-to/orchestrator.md).
     """
 
     steps: int = 60
@@ -364,6 +377,8 @@ class RunSpec:
     keep_recording_hours: float | None = None
     record_every: int | None = None
     steps_default: bool = False
+    standby: bool = False
+    keep_segment_mb: float | None = None  # run.keep.segment_mb: MiB past which a segment closes (None: 64 and 256)
 
     @property
     def recorded_every(self) -> int:

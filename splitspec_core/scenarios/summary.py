@@ -65,7 +65,8 @@ def summary(sc) -> str:
     defaults = type(d)(rate=d.rate)  # DesignSpec's defaults (not imported: specs.py imports this module)
     keys = [f"rate {d.rate:g}", f"gains {d.gains}"] + [
         f"{f.name} {getattr(d, f.name)}" for f in dataclasses.fields(d)
-        if f.name not in ("rate", "gains", "K") and getattr(d, f.name) != getattr(defaults, f.name)]
+        if f.name not in ("rate", "gains", "K", "bad_data_default") and getattr(d, f.name) != getattr(defaults, f.name)
+        and not (f.name == "bad_data" and d.bad_data_default)]  # the test on by default is the default
     if d.K is not None:
         keys.append("K given")
     noise = (f"process {_number(s.process_noise)}, measurement {_number(s.measurement_noise)}" if s.has_noise

@@ -85,5 +85,13 @@ def loader_for(base: type) -> type:
     return _LOADERS[base]
 
 
+def _list(dumper_, data):
+    """A list of scalars on one line (``[0, 0.001, 0]``: a matrix a row per line, as people write it), others in
+    block style: a 5 x 5 ``A`` written by ``design --tune rms --write`` took 30 lines, one number each."""
+    flat = all(x is None or isinstance(x, (bool, int, float, str)) for x in data)
+    return dumper_.represent_sequence("tag:yaml.org,2002:seq", data, flow_style=flat and bool(data))
+
+
 #: the safe dumper whose plain scalars resolve as :func:`loader_for`'s do (strings that read as numbers are quoted)
 dumper = _numbers_12(type("ScenarioDumper", (yaml.SafeDumper,), {}))
+dumper.add_representer(list, _list)

@@ -252,6 +252,9 @@ class Kind:
     label = "estimator"
     #: why N seeds of the kind cannot step as one batch (None: they can; :func:`.montecarlo.fallback_reason`)
     seeds_refusal: str | None = None
+    #: a rejoiner's fresh estimate reaches the others' measured directions (their bad-data tests warm up afresh:
+    #: :meth:`~splitspec_core.model.screening.Screen.rejoined`); the split's consensus leaves them alone (C_i P_i = 0)
+    spreads_rejoins: bool = False
 
     def __init__(self, est, Ks: list):
         self.est, self.sc, self.m, self.n = est, est.sc, est.m, est.n
@@ -670,6 +673,7 @@ class WholeState(Kind):
     ``P_i = I``); in continuous time on the sampled model, ``q`` exchanges per ``run.dt``."""
 
     label = "whole-state design"
+    spreads_rejoins = True  # the average takes the whole estimate, measured directions included
 
     def __init__(self, est):
         sc = est.sc

@@ -9,9 +9,11 @@ import numpy as np
 
 from ..synthesis.verdict import NO_CERTIFIED_RATE
 from ..model.network import fault_step
+from ..scenarios.faults import ORCHESTRATOR
 from .simulator import Trajectory
 
-__all__ = ["max_error", "fit_decay", "envelope_constant", "envelope_restarts", "envelope", "Mark", "event_marks",
+__all__ = ["max_error", "fit_decay", "fault_effects", "faults_in_force", "transient_steps", "envelope_constant",
+           "envelope_restarts", "envelope", "Mark", "event_marks",
            "summarize", "steady_rms", "monte_carlo_stats", "rms_stats", "NO_CERTIFIED_RATE"]
 
 
@@ -35,13 +37,30 @@ def max_error(traj: Trajectory) -> np.ndarray:
     return out
 
 
+def _fit_window(err: np.ndarray, scale, floor_rel: float, after: int, skip: int) -> tuple:
+    """``(start, end, usable)`` of :func:`fit_decay`: ``end`` the first sample from ``after`` on at the round-off
+    floor (or NaN), ``start`` the later of ``after + skip`` and the middle of ``[after, end)``; ``usable`` whether any
+    sample from ``after`` on is above the floor."""
+    tail = err[after:]
+    ok = np.isfinite(tail)
+    if not ok.any():
+        return after, after, False
+    floor = floor_rel * max(np.nanmax(tail), 1e-300)
+    if scale is not None:
+        floor = np.maximum(floor, floor_rel * np.asarray(scale, dtype=float)[after:])
+    below = np.nonzero(~ok | (tail <= floor))[0]
+    end = after + (below[0] if below.size else tail.size)
+    return max(after + skip, after + (end - after) // 2), end, end > after
+
+
 def fit_decay(t: np.ndarray, err: np.ndarray, *, time: str, scale: np.ndarray | None = None,
-              floor_rel: float = 1e-9) -> float | None:
+              floor_rel: float = 1e-9, after: int = 0, skip: int = 0) -> float | None:
     """Exponential decay measured over the tail of a noise-free error curve.
 
     Least-squares slope of ``log err`` against ``t`` over the second half of
-    the samples above the round-off floor.  The floor is
-    ``floor_rel * max(scale(t), max err)``: pass ``scale = |x(t)|`` since
+    the samples from ``after`` (the last fault's effect, :func:`fault_effects`; default the start) above the
+    round-off floor, and not before ``after + skip`` (the certified transient after it: :func:`transient_steps`).
+    The floor is ``floor_rel * max(scale(t), max err)``: pass ``scale = |x(t)|`` since
     round-off grows with the state (an unstable plant makes it grow).  Returns
     the rate ``lam`` in the scenario's convention: continuous ``err ~ exp(-lam t)``,
     discrete ``err ~ lam^tau``; ``None`` with fewer than 6 usable samples.
@@ -59,6 +78,10 @@ def fit_decay(t: np.ndarray, err: np.ndarray, *, time: str, scale: np.ndarray | 
         ``floor_rel * max err`` only.
     floor_rel : float, optional
         The relative round-off floor (default 1e-9).
+    after : int, optional
+        The first step the fit may look at (default 0): the samples before it are disturbed.
+    skip : int, optional
+        Steps after ``after`` the fit leaves out besides the first half (default 0).
 
     Returns
     -------
@@ -73,21 +96,116 @@ def fit_decay(t: np.ndarray, err: np.ndarray, *, time: str, scale: np.ndarray | 
     0.5
     >>> round(float(fit_decay(t, np.exp(-2 * t), time="continuous")), 6)
     2.0
+    >>> err = np.where(t < 8, 0.9 ** t, 0.5 ** (t - 8))  # a fault's effect at step 8: 0.5 per step after it
+    >>> round(float(fit_decay(t, err, time="discrete", after=8)), 6)
+    0.5
     """
     err = np.asarray(err, dtype=float)
-    ok = np.isfinite(err)
-    if not ok.any():
-        return None
-    floor = floor_rel * max(np.nanmax(err), 1e-300)
-    if scale is not None:
-        floor = np.maximum(floor, floor_rel * np.asarray(scale, dtype=float))
-    below = np.nonzero(~ok | (err <= floor))[0]
-    end = below[0] if below.size else err.size
-    start = end // 2
+    start, end, _ = _fit_window(err, scale, floor_rel, int(after), int(skip))
     if end - start < 6:
         return None
     slope = np.polyfit(t[start:end], np.log(err[start:end]), 1)[0]
     return -slope if time == "continuous" else math.exp(slope)
+
+
+def fault_effects(t: np.ndarray, alive: np.ndarray, *, faults=(), dt: float = 1.0, sensors=()) -> np.ndarray:
+    """The steps where a fault changed the error dynamics: what a decay rate must not be measured across.
+
+    Every loss and rejoin of the recorded ``alive`` (T, m), every scenario fault's step ``ceil(at / dt)`` (a kill,
+    a restart, a sensor corrupted or repaired, an arc dropped or restored, ...; not an orchestrator's kill, which
+    leaves the estimates alone) and every sensor the bad-data test set aside or took back (``sensors``:
+    :func:`sensor_events` of the same run).  Graph switches of the scenario's own switching are not faults: the
+    design certifies them.
+
+    Parameters
+    ----------
+    t : (T,) array_like
+        The times.
+    alive : (T, m) array_like of bool
+        The agents alive at each step.
+    faults : iterable of Fault, optional
+        The scenario's faults (default: none).
+    dt : float, optional
+        The step (default 1: discrete time), for the faults' steps.
+    sensors : sequence of tuple, optional
+        The run's :func:`sensor_events` (default: none).
+
+    Returns
+    -------
+    (E,) int ndarray
+        The steps in ``[1, T)``, in order, each once.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> alive = np.array([[1, 1], [1, 0], [1, 0], [1, 1], [1, 1]], dtype=bool)
+    >>> fault_effects(np.arange(5.0), alive, sensors=[(2.0, 1, "sensor_suspect", 9.0, 4.0)])
+    array([1, 2, 3])
+    """
+    t = np.asarray(t, dtype=float)
+    alive = np.asarray(alive, dtype=bool)
+    T = t.shape[0]
+    steps = set()
+    if T > 1:
+        steps |= set((np.nonzero((alive[1:] != alive[:-1]).any(axis=1))[0] + 1).tolist())
+    steps |= {fault_step(f.at, dt) for f in faults if f.runtime != ORCHESTRATOR}
+    steps |= {int(np.searchsorted(t, when)) for when, *_ in sensors}
+    return np.array(sorted(k for k in steps if 0 < k < T), dtype=int)
+
+
+def faults_in_force(faults) -> list:
+    """The faults still in force at the end of a run: a kind with an end (a sensor corrupted, an arc dropped, a
+    partition) that no later fault ends (:meth:`~splitspec_core.scenarios.faults.Fault.end`).  A loss (a kill, a
+    freeze) is not counted: the survivors' decay is the design's own (``design.resilience``).
+
+    Parameters
+    ----------
+    faults : iterable of Fault
+        The scenario's faults.
+
+    Returns
+    -------
+    list of Fault
+        The faults in force at the end, in the scenario's order.
+
+    Examples
+    --------
+    >>> from splitspec_core.scenarios.faults import make_fault
+    >>> fs = [make_fault("corrupt", 5.0, agent=2, bias=1.0), make_fault("drop_arc", 6.0, arc=(1, 3)),
+    ...       make_fault("restore_arc", 9.0, arc=(1, 3))]
+    >>> [f.action for f in faults_in_force(fs)]
+    ['corrupt']
+    """
+    faults = list(faults)
+    return [f for f in faults if f.ends_with and f.loss_word is None
+            and not any(g.at >= f.at and g == f.end(g.at) for g in faults)]
+
+
+def transient_steps(c: float | None, r: float) -> int:
+    """The certified transient in steps: the first ``k`` with ``c r^k <= 1``, where the envelope ``c r^k |e(k0)|``
+    of an error restarted at ``k0`` is back below ``|e(k0)|`` (``c`` the transient constant, ``r`` the rate per step).
+
+    Parameters
+    ----------
+    c : float or None
+        The design's transient constant (:func:`~splitspec_core.synthesis.conditioning.conditioning`); None or not
+        finite: not known (0 steps: no transient is certified).
+    r : float
+        The rate per step, in (0, 1).
+
+    Returns
+    -------
+    int
+        ``ceil(log c / log(1 / r))``, 0 when ``c <= 1`` or nothing bounds it.
+
+    Examples
+    --------
+    >>> transient_steps(10.0, 0.5), transient_steps(None, 0.5), transient_steps(0.8, 0.9)
+    (4, 0, 0)
+    """
+    if c is None or not math.isfinite(c) or c <= 1 or not 0 < r < 1:
+        return 0
+    return max(0, math.ceil(math.log(c) / -math.log(r) - 1e-9))
 
 
 def envelope_constant(t: np.ndarray, err: np.ndarray, *, time: str, rate: float,
@@ -363,7 +481,8 @@ def event_marks(t: np.ndarray, alive: np.ndarray, graph: np.ndarray, *, agent_id
 
 
 def summarize(traj: Trajectory, *, time: str, rate: float | None, noise_free: Trajectory | None = None,
-              adaptive: bool = False, certified_rate: bool | None = None) -> dict:
+              adaptive: bool = False, certified_rate: bool | None = None, faults=(), dt: float = 1.0, sensors=(),
+              transient: float | None = None) -> dict:
     """Final and max error per agent, measured decay rate vs the designed rate, alive agents.
 
     ``adaptive=True`` (the adaptive gain, thm. split_continuous_adaptive): the
@@ -373,7 +492,11 @@ def summarize(traj: Trajectory, *, time: str, rate: float | None, noise_free: Tr
     ``certified_rate`` is whether the design certifies ``rate`` (always False
     for the adaptive gain; default True otherwise).  ``rate`` None: no envelope and no verdict either (the
     certificate covers the error modulo directions no agent sees, which do not decay: ``design.undetectable:
-    exclude``).
+    exclude``).  The measured rate is fitted after the last fault's effect (:func:`fault_effects` of ``faults``
+    and ``sensors``) and the certified transient after it (:func:`transient_steps` of ``transient``): a rate
+    measured across a kill, a rejoin or a lying sensor measures the fault, not the design; with too few event
+    times left, or a fault still in force at the end (:func:`faults_in_force`), ``measured_rate`` is None and
+    ``measured_note`` says why.
 
     Parameters
     ----------
@@ -389,12 +512,23 @@ def summarize(traj: Trajectory, *, time: str, rate: float | None, noise_free: Tr
         The adaptive gain (default False).
     certified_rate : bool or None, optional
         Whether the design certifies ``rate``; None (default): True (False with the adaptive gain).
+    faults : iterable of Fault, optional
+        The scenario's faults (default: none), for :func:`fault_effects`.
+    dt : float, optional
+        The step (default 1: discrete time), for the faults' steps.
+    sensors : sequence of tuple, optional
+        :func:`sensor_events` of the noise-free run (default: none).
+    transient : float or None, optional
+        The design's transient constant (default None: no transient skipped after a fault's effect).
 
     Returns
     -------
     dict
         ``steps``, ``designed_rate``, ``certified_rate``, ``rate_note``, ``measured_rate`` (float or None),
-        ``measured_meets_design`` (bool or None), ``envelope_c`` (the constant when the envelope never
+        ``measured_from`` (the time the fit starts, None when nothing is fitted), ``measured_after_fault`` (the
+        time of the last fault's effect, None when none), ``measured_note`` (why no rate was measured because of
+        a fault, else None), ``measured_meets_design`` (bool or None), ``envelope_c`` (the constant when the
+        envelope never
         restarts, else None), ``envelope_pieces`` (``[t, c]`` per restart), ``alive_at_end`` (agent ids)
         and ``agents`` (agent id as str -> ``final_error``, ``max_error``, ``alive_at_end``).
 
@@ -411,7 +545,30 @@ def summarize(traj: Trajectory, *, time: str, rate: float | None, noise_free: Tr
     e = traj.errors()
     ref = noise_free if noise_free is not None else traj
     xnorm = np.linalg.norm(ref.x, axis=1)
-    measured = fit_decay(ref.t, max_error(ref), time=time, scale=xnorm)
+    effects = fault_effects(ref.t, ref.alive, faults=faults, dt=dt, sensors=sensors)
+    after = int(effects[-1]) if effects.size else 0
+    r = None if rate is None else rate if time == "discrete" else math.exp(-rate * dt)
+    skip = transient_steps(transient, r) if after and r is not None else 0
+    emax_ref = max_error(ref)
+    measured = fit_decay(ref.t, emax_ref, time=time, scale=xnorm, after=after, skip=skip)
+    start, end, usable = _fit_window(emax_ref, xnorm, 1e-9, after, skip)
+    note = None
+    lasting = faults_in_force(faults)
+    if lasting:  # the tail is the fault's, not the design's
+        f = lasting[-1]
+        k = fault_step(f.at, dt)
+        at = f"tau = {k}" if time == "discrete" else f"t = {f.at:g}"
+        measured, note = None, f"{f.text(f.payload(k))} from {at} to the end of the run: the tail measures the fault"
+    elif measured is None and after:
+        at = f"tau = {after}" if time == "discrete" else f"t = {ref.t[after]:g}"
+        cut = f" and its certified transient ({skip} steps)" if skip else ""
+        floor = f"tau = {end}" if time == "discrete" else f"t = {ref.t[min(end, len(ref.t) - 1)]:g}"
+        note = (f"the noise-free error is at round-off after the last fault's effect ({at})" if not usable else
+                f"the noise-free error is at round-off from {floor}, before the certified transient after the last "
+                f"fault's effect ({at}, {skip} steps) ends: nothing is left to fit, however long the run"
+                if end < len(ref.t) and end <= after + skip else
+                f"{max(end - start, 0)} steps after the last fault's effect ({at}){cut}, 6 needed: a longer run "
+                "(--steps) measures it")
     per_agent = {}
     for k, aid in enumerate(traj.agent_ids.tolist()):
         col = e[:, k]
@@ -427,10 +584,9 @@ def summarize(traj: Trajectory, *, time: str, rate: float | None, noise_free: Tr
     restarts = envelope_restarts(ref.alive, ref.graph)
     pieces = []  # [t of the restart, smallest c on that piece], as envelope(..., fit=True)
     if not bare:
-        emax = max_error(ref)
         for a, k0 in enumerate(restarts):
             k1 = restarts[a + 1] if a + 1 < restarts.size else ref.t.size
-            c = envelope_constant(ref.t[k0:k1] - ref.t[k0], emax[k0:k1], time=time, rate=rate, scale=xnorm[k0:k1])
+            c = envelope_constant(ref.t[k0:k1] - ref.t[k0], emax_ref[k0:k1], time=time, rate=rate, scale=xnorm[k0:k1])
             pieces.append([float(ref.t[k0]), c if math.isfinite(c) else None])
     env_c = pieces[0][1] if len(pieces) == 1 else None  # one constant only where the envelope never restarts
     return {
@@ -439,6 +595,9 @@ def summarize(traj: Trajectory, *, time: str, rate: float | None, noise_free: Tr
         "certified_rate": False if adaptive else (True if certified_rate is None else bool(certified_rate)),
         "rate_note": NO_CERTIFIED_RATE if adaptive else None,
         "measured_rate": measured,
+        "measured_from": float(ref.t[start]) if measured is not None else None,
+        "measured_after_fault": float(ref.t[after]) if after else None,
+        "measured_note": note,
         "measured_meets_design": meets,
         "envelope_c": env_c,
         "envelope_pieces": pieces,

@@ -168,7 +168,9 @@ def fallback_reason(des: Design, *, lost=None, measurements=None, exact: bool = 
         return "network: losses and delays are drawn per seed"
     if sc.switching.kind == "random" and sc.switching.seed is None:
         return "random switching drawn from each run's seed"
-    if sc.design.bad_data is not None:
+    from ..synthesis.bad_data import bad_data
+
+    if bad_data(des) is not None:
         return "design.bad_data: each agent's test decides, per seed, which measurements it uses"
     return kind_of(des).seeds_refusal
 

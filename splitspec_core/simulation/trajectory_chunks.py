@@ -33,7 +33,8 @@ import numpy as np
 
 from ..model.rows import COLUMNS, ROUND_FIELDS, column, empty, shape_of
 
-__all__ = ["CHUNKS_DIR", "ROUND_FIELDS", "ChunkWriter", "chunk_segments", "read_chunks", "has_chunks"]
+__all__ = ["CHUNKS_DIR", "ROUND_FIELDS", "ChunkWriter", "chunk_segments", "read_chunks", "has_chunks",
+           "segment_last_tau"]
 
 CHUNKS_DIR = "chunks"
 _SEGMENT_BYTES = 64 << 20
@@ -279,6 +280,27 @@ def has_chunks(out: str | Path) -> bool:
         True when it has at least one segment.
     """
     return bool(chunk_segments(out))
+
+
+def segment_last_tau(path: str | Path) -> int | None:
+    """The last event time of a segment's whole record batches (a torn last batch left out), None when it holds
+    none: with :func:`chunk_segments`, where a run's rows end without reading them all.
+
+    Parameters
+    ----------
+    path : str or Path
+        A segment file.
+
+    Returns
+    -------
+    int or None
+        The ``tau`` of its last whole row.
+    """
+    last = None
+    for batch in _batches(Path(path)):
+        if batch.num_rows:
+            last = int(batch.column("tau")[batch.num_rows - 1].as_py())
+    return last
 
 
 def _batches(path: Path) -> Iterator:

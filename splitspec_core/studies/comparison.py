@@ -41,9 +41,9 @@ import numpy as np
 
 from ..simulation.metrics import fit_decay, steady_rms
 from ..simulation.montecarlo import simulate_seeds
-from .baselines import baseline_seeds, baseline_trajectories, sampled_model
+from .baselines import baseline_seeds, baseline_trajectories
+from .transients import SETTLED, choose_steps, measured_start, row_transients, steady_start
 from ..synthesis.bounds import nice_ceil
-from ..synthesis.conditioning import conditioning, transient_constant
 from ..synthesis.design_cache import cached_design
 from ..synthesis.designer import SPLIT_BESIDE, design
 from ..synthesis.kalman import per_step_rate, references
@@ -59,15 +59,15 @@ from ..scenarios.specs import Scenario
 from ..simulation.simulator import check_trajectory_memory, simulate
 
 __all__ = ["CompareResult", "EstimatorResult", "compare", "sweep", "sweep_line", "certificate_lines", "settle_time",
-           "faults_note"]
+           "faults_note", "missing_ratio_lines", "strict_json"]
 
 
 @dataclass(frozen=True)
 class EstimatorResult:
     """One estimator's figures in :func:`compare` (RMS over agents, then mean and std over seeds)."""
 
-    rms_mean: float
-    rms_std: float
+    rms_mean: float | None  # None: no steady figure (``note`` says why)
+    rms_std: float | None
     ratio_to_centralized: float | None
     predicted_rms: float | None
     settle_time: float | None  # noise-free: first time after which the error stays below 1e-3 of its start
@@ -80,7 +80,8 @@ class EstimatorResult:
     certificate: str | None = None
     rate_note: str | None = None  # the adaptive gain: asymptotic convergence only (no certified rate)
     steady_from: float | None = None  # the steady RMS is measured from here (compare.steady_start); None: not settled
-    note: str | None = None  # why there is no steady figure
+    note: str | None = None  # why there is no steady figure, or how its start was found where not certified
+    ratio_note: str | None = None  # why there is no ratio to the centralized KF
     consensus: str | None = None  # split or whole (the designs' rows)
 
 
@@ -113,6 +114,7 @@ class CompareResult:
     curves: Mapping[str, np.ndarray]
     failed: Mapping[str, str] = dataclasses.field(default_factory=lambda: MappingProxyType({}))  # rows not designed, why
     note: str | None = None  # what the scenario's faults do to the rows (faults_note); None without faults
+    steps_note: str | None = None  # how the steps were chosen when none were given (transients.choose_steps)
 
     def to_json(self) -> dict:
         """The ``compare.json`` object.
@@ -120,13 +122,16 @@ class CompareResult:
         Returns
         -------
         dict
-            JSON-ready; a baseline's row has no certificate fields, ``tuned`` and ``failed`` only when present.
+            Strict JSON (``json.dumps(..., allow_nan=False)`` takes it): a number that is not finite is ``null``,
+            and the row says why (``note``, ``ratio_note``; an infinite predicted RMS: its ``certificate``); a
+            baseline's row has no certificate fields; ``tuned``, ``failed``, ``note`` and ``steps_note`` only when
+            present.
         """
         out = {"scenario": self.scenario, "time": self.time, "seeds": list(self.seeds), "steps": self.steps,
                "rate": self.rate, "process_noise": noise_json(self.process_noise),  # numbers stay numbers
                "measurement_noise": noise_json(self.measurement_noise), "exchanges": self.exchanges,
                "kcf_eps": self.kcf_eps,
-               "estimators": {k: {("settle_time_1e-3" if f == "settle_time" else f): getattr(v, f)
+               "estimators": {k: {("settle_time_1e-3" if f == "settle_time" else f): strict_json(getattr(v, f))
                                   for f in v.__dataclass_fields__
                                   if v.certificate is not None or f not in _CERTIFICATE_FIELDS}
                               for k, v in self.estimators.items()}}
@@ -136,7 +141,36 @@ class CompareResult:
             out["failed"] = dict(self.failed)
         if self.note:
             out["note"] = self.note
+        if self.steps_note:
+            out["steps_note"] = self.steps_note
         return out
+
+
+def strict_json(value):
+    """``value`` with every float that is not finite replaced by None: JSON has no NaN or Infinity.
+
+    Parameters
+    ----------
+    value : object
+        Plain data (dicts, lists, tuples, numbers, strings, None).
+
+    Returns
+    -------
+    object
+        The same data (tuples as lists); ``json.dumps(..., allow_nan=False)`` takes it.
+
+    Examples
+    --------
+    >>> strict_json({"rms": float("nan"), "rows": [1.0, float("inf")]})
+    {'rms': None, 'rows': [1.0, None]}
+    """
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, dict):
+        return {k: strict_json(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [strict_json(v) for v in value]
+    return value
 
 
 def _readonly(a) -> np.ndarray:
@@ -187,35 +221,6 @@ def _variant(sc: Scenario, gains: str) -> Scenario:
 
 #: ``split tuned`` (:func:`~splitspec_core.synthesis.noise_tuning.tune`: about 40 designs) only up to this m n
 TUNE_MAX = 400
-#: the steady state starts when the certified envelope of the transient is below this fraction of the predicted
-#: steady RMS error (:func:`steady_start`)
-SETTLED = 0.05
-
-
-def steady_start(c: float | None, r: float, e0: float, floor: float, T: int) -> int | None:
-    """The first step after the transient: where the certified envelope ``c r^k e0`` of the stacked error (``c`` the
-    transient constant, ``r`` the rate per step, ``e0`` the largest initial stacked error over the seeds) falls below
-    :data:`SETTLED` of ``floor`` (the predicted steady stacked RMS); None when that is past the run's ``T`` steps or
-    nothing bounds it (``c`` unknown or infinite, ``r >= 1``).
-
-    Parameters
-    ----------
-    c, r, e0, floor : float
-        As above (``c`` may be None); ``floor`` must be positive.
-    T : int
-        The run's steps.
-
-    Returns
-    -------
-    int or None
-        The step ``k`` (0 when already below).
-    """
-    if c is None or not math.isfinite(c) or not 0 < r < 1 or not floor > 0:
-        return None
-    k = max(0, math.ceil(math.log(SETTLED * floor / (c * max(e0, floor))) / math.log(r)))
-    return k if k < T else None
-
-
 def _scenario_row(sc: Scenario, des) -> str:
     """The name of the scenario's own design in :func:`compare`."""
     method = gain_methods.method(sc.design.gains)
@@ -234,12 +239,16 @@ def compare(sc: Scenario, *, seeds, steps: int | None = None, eps: float | None 
     Rows: the scenario's own design (``optimal (whole state)`` by default under noise), the paper's split with
     ``place`` and ``riccati`` gains (not beside a whole-state design above ``m n`` = ``SPLIT_BESIDE``) and, when
     the scenario's design is a split, tuned (:func:`~splitspec_core.synthesis.noise_tuning.tune`, up to ``m n`` =
-    :data:`TUNE_MAX`), the centralized Kalman filter, the best centralized estimator certified at the rate
-    (``centralized at rate``: :func:`~splitspec_core.synthesis.kalman.references`; only when the Kalman filter is
+    :data:`TUNE_MAX`), the centralized Kalman filter, the centralized Kalman filter designed for A/rate
+    (``centralized at rate``, a rate-shifted Riccati design, not the optimum under the rate:
+    :func:`~splitspec_core.synthesis.kalman.references`; only when the Kalman filter is
     slower than the rate) and the KCF with as many exchanges as the scenario's design.  Each row's steady RMS is
     measured after its own transient: from :func:`steady_start` of its certified envelope (the Kalman filter's from
     its radius and transient constant; the KCF, which certifies nothing, from the latest of the others'); a row
-    whose transient outlasts the run has none (``steady_from`` None) and says so in ``note``.
+    whose transient outlasts the run has none (``steady_from`` None) and says so in ``note``; a row without a ratio
+    to the centralized KF says why in ``ratio_note``.  Without ``steps`` the run is ``run.steps`` or, when that is
+    shorter, twice the longest certified transient
+    (:func:`~splitspec_core.studies.transients.choose_steps`; ``steps_note`` says so).
 
     Parameters
     ----------
@@ -248,7 +257,8 @@ def compare(sc: Scenario, *, seeds, steps: int | None = None, eps: float | None 
     seeds : iterable of int
         The seeds every estimator runs.
     steps, eps : int, float, optional
-        Steps per run (default ``run.steps``); the KCF's consensus gain (default ``1 / (1 + max in-degree)``).
+        Steps per run (default: ``run.steps``, or longer for every certified transient to end within the run, as
+        above); the KCF's consensus gain (default ``1 / (1 + max in-degree)``).
 
     Returns
     -------
@@ -288,25 +298,34 @@ def compare(sc: Scenario, *, seeds, steps: int | None = None, eps: float | None 
             variants[name] = design(_variant(sc, gains), reach=False)  # a side row: why, not how fast it could go
         except (DesignError, AssumptionError) as exc:  # e.g. a local Riccati equation without a solution, or
             variants[name] = str(exc)  # place's poles outside the rate: that row fails, the others are compared
-    tuned, notes = None, {}
+    tuned = None
     if sc.m * sc.n <= TUNE_MAX and own.consensus == "split":  # the split's own search for the noise (~40 designs)
         try:
             method = gain_methods.method(sc.design.gains)  # a central method: tune its split's default
             tuned = tune(sc if method.local else _variant(sc, method.split[0]))
-            variants["split tuned"] = tuned.design
+            if not tuned.kept:  # kept: no candidate beats the split it started from, a row of its own already
+                variants["split tuned"] = tuned.design
         except (DesignError, AssumptionError):
             pass
     failed = {k: v for k, v in variants.items() if isinstance(v, str)}
     variants = {k: v for k, v in variants.items() if not isinstance(v, str)}
     two_rate = own.two_rate
     exchanges = own.q if two_rate else 1
-    # every seed at once, per seed the errors of a single-seed run to round-off: the split-spectrum variants by
-    # montecarlo.simulate_seeds, the baselines by baselines.baseline_seeds (the same MonteCarloRuns statistics)
-    runs = {name: simulate_seeds(des, seeds, steps=steps) for name, des in variants.items()}
     kf, ref = references(sc, own.envelope_rate)
     extra = {} if ref is None or ref is kf else {"centralized at rate": ref.L}
-    b = baseline_seeds(sc, seeds, exchanges=exchanges, steps=steps, eps=eps, gains=extra)
-    runs.update({"centralized KF": b["centralized"], "KCF": b["kcf"], **{k: b[k] for k in extra}})
+    central = {"centralized KF": kf, **({"centralized at rate": ref} if extra else {})}
+    # the adaptive gain has no steady state (g_i(t) keeps moving), so no predicted RMS; none above MAX_NOISE_DIM
+    predicted = {name: _predicted_all(des) for name, des in variants.items()}
+    predicted.update({name: p.rms for name, p in central.items()})
+    steps_note = None
+    if steps is None:  # long enough for every certified transient: from the initial errors of a one-step run
+        first = _runs(sc, variants, seeds, 1, exchanges, eps, extra)
+        transients = row_transients(sc, variants, _initial_errors(first), predicted, central)
+        steps, steps_note = choose_steps(sc, transients)
+        check_trajectory_memory(sc, steps)
+    # every seed at once, per seed the errors of a single-seed run to round-off: the split-spectrum variants by
+    # montecarlo.simulate_seeds, the baselines by baselines.baseline_seeds (the same MonteCarloRuns statistics)
+    runs = _runs(sc, variants, seeds, steps, exchanges, eps, extra)
     curves = {name: r.rms() for name, r in runs.items()}
     T = runs["centralized KF"].t
     # noise-free transients (first seed)
@@ -324,55 +343,47 @@ def compare(sc: Scenario, *, seeds, steps: int | None = None, eps: float | None 
         worst = e if e.ndim == 1 else np.nanmax(e, axis=1)
         rate[name] = fit_decay(b0["t"], worst, time=sc.time, scale=np.linalg.norm(b0["x"], axis=1))
         clean[name] = e if e.ndim == 1 else np.sqrt(np.nansum(e ** 2, axis=1))
-    # the adaptive gain has no steady state (g_i(t) keeps moving), so no predicted RMS; none above MAX_NOISE_DIM
-    predicted = {name: _predicted_all(des) for name, des in variants.items()}
-    predicted["centralized KF"] = None if kf is None else kf.rms
-    if extra:
-        predicted["centralized at rate"] = ref.rms
-    starts, how = _steady_starts(sc, variants, runs, predicted, kf, ref if extra else None, len(T), clean)
+    transients = row_transients(sc, variants, _initial_errors(runs), predicted, central)
+    starts, notes = _steady_starts(sc, transients, predicted, len(T), clean)
     m = sc.m
     messages = {name: m * des.q if des.two_rate else m for name, des in variants.items()}
     messages["KCF"] = m * exchanges
-    for name in ("centralized KF", *extra):
+    for name in central:
         messages[name] = m  # every agent sends its measurement to the centre
-    rms = {name: (r.steady_rms(start=starts[name]) if starts[name] is not None else np.full(len(seeds), np.nan))
-           for name, r in runs.items()}
-    central = float(np.mean(rms["centralized KF"]))
+    rms = {name: (r.steady_rms(start=starts[name]) if starts[name] is not None else None) for name, r in runs.items()}
+    kf_rms = None if rms["centralized KF"] is None else float(np.mean(rms["centralized KF"]))
     table = {}
-    for name in list(variants) + ["centralized KF", *extra, "KCF"]:
+    for name in list(variants) + [*central, "KCF"]:
         r = rms[name]
         des = variants.get(name)
         cert = None if des is None else rate_certificate(des)
         k0 = starts[name]
-        notes[name] = (how.get(name) if k0 is not None else
-                       f"its transient outlasts the {len(T) - 1} steps of the run (no steady state measured): "
-                       "compare --steps longer")
+        ratio, why = _ratio(r, kf_rms, notes, name)
         table[name] = EstimatorResult(
-            rms_mean=float(r.mean()), rms_std=float(r.std(ddof=1)) if len(r) > 1 else 0.0,
-            ratio_to_centralized=float(r.mean() / central) if central > 0 and k0 is not None else None,
+            rms_mean=None if r is None else float(r.mean()),
+            rms_std=None if r is None else float(r.std(ddof=1)) if len(r) > 1 else 0.0,
+            ratio_to_centralized=ratio, ratio_note=why,
             predicted_rms=predicted.get(name), settle_time=settle.get(name), measured_rate=rate.get(name),
             messages_per_event=messages[name],
             q=None if des is None else des.q, g=None if des is None else des.g,
             gains=None if des is None else des.scenario.design.gains,
             certified_rate=None if cert is None else cert.certified, certificate=None if cert is None else cert.text,
             rate_note=NO_CERTIFIED_RATE if des is not None and des.adaptive else None,
-            steady_from=None if k0 is None else float(T[k0]), note=notes[name],
+            steady_from=None if k0 is None else float(T[k0]), note=notes.get(name),
             consensus=None if des is None else des.consensus)
-    for name, why in failed.items():
-        notes[name] = why
     tuned_json = None
     if tuned is not None:
         cd = tuned.design.scenario.design
         tuned_json = MappingProxyType({
             "gains": cd.gains, "process_weight": cd.process_weight,
             "measurement_weight": cd.measurement_weight, "q": tuned.design.q, "g": tuned.design.g,
-            "predicted_rms": tuned.rms, "baseline_predicted_rms": tuned.baseline_rms})
+            "predicted_rms": tuned.rms, "baseline_predicted_rms": tuned.baseline_rms, "kept": tuned.kept})
     return CompareResult(
         scenario=sc.name, time=sc.time, seeds=tuple(seeds), steps=int(len(T) - 1), rate=sc.design.rate,
         process_noise=sc.system.process_noise, measurement_noise=sc.system.measurement_noise, exchanges=exchanges,
         kcf_eps=eps, estimators=MappingProxyType(table), tuned=tuned_json, t=_readonly(T),
         curves=MappingProxyType({k: _readonly(np.mean(v, axis=0)) for k, v in curves.items()}),
-        failed=MappingProxyType(failed), note=faults_note(sc))
+        failed=MappingProxyType(failed), note=faults_note(sc), steps_note=steps_note)
 
 
 def faults_note(sc: Scenario) -> str | None:
@@ -412,51 +423,62 @@ def _predicted_all(des) -> float | None:
     return float(np.sqrt(np.mean(predicted_rms(des) ** 2)))
 
 
-def _steady_starts(sc: Scenario, variants: dict, runs: dict, predicted: dict, kf, ref, T: int, clean: dict) -> tuple:
-    """``(start, how)``: each row's first steady step (:func:`steady_start`) and, where it was not certified, why.
+def _runs(sc: Scenario, variants: dict, seeds: list, steps: int, exchanges: int, eps, extra: dict) -> dict:
+    """Every row's :class:`~splitspec_core.simulation.montecarlo.MonteCarloRuns` on the same realisations."""
+    runs = {name: simulate_seeds(des, seeds, steps=steps) for name, des in variants.items()}
+    b = baseline_seeds(sc, seeds, exchanges=exchanges, steps=steps, eps=eps, gains=extra)
+    runs.update({"centralized KF": b["centralized"], "KCF": b["kcf"], **{k: b[k] for k in extra}})
+    return runs
 
-    A design from its transient constant and envelope rate (:func:`~splitspec_core.synthesis.conditioning.conditioning`),
-    the centralized predictors from theirs (``n x n``); where no constant was computed (``m n`` above ``MAX_DIM``),
-    measured: the first step after which the noise-free run's stacked error (``clean``, same initial values) stays
-    below :data:`SETTLED` of the predicted steady one; the KCF, which certifies nothing, from the latest of the others.
+
+def _initial_errors(runs: dict) -> dict:
+    """Per row, the largest initial stacked error over the seeds (the same in a run of any length)."""
+    return {name: float(np.sqrt(np.max(r.sq_error[:, 0]))) for name, r in runs.items()}
+
+
+def _ratio(r, kf_rms: float | None, notes: dict, name: str) -> tuple:
+    """``(ratio to the centralized KF, None)``, or ``(None, why not)``."""
+    if r is None:
+        return None, f"no steady figure: {notes[name]}"
+    if kf_rms is None:
+        return None, f"the centralized KF has no steady figure: {notes['centralized KF']}"
+    if not kf_rms > 0:
+        return None, "the centralized KF's steady RMS is 0"
+    return float(r.mean() / kf_rms), None
+
+
+def _steady_starts(sc: Scenario, transients: dict, predicted: dict, T: int, clean: dict) -> tuple:
+    """``(start, note)``: each row's first steady step and, where it is not its certified transient's end, why.
+
+    A row's certified transient (:func:`~splitspec_core.studies.transients.row_transients`) within the run's ``T``
+    steps is its start.  Where no constant was computed (a design above ``m n`` = ``MAX_DIM``), or a centralized
+    predictor's bound outlasts the run (loose at n = 170, IEEE 39-bus): measured, the first step after which the
+    noise-free run's stacked error (``clean``, same initial values) stays below :data:`SETTLED` of the predicted
+    steady one.  The KCF, which certifies nothing, from the latest of the others.  A row with no start has a note
+    saying why.
     """
-    out, how = {}, {}
-    floors = {name: (predicted[name] * math.sqrt(sc.m) if predicted[name] is not None else None) for name in variants}
-    for name, des in variants.items():
-        c = conditioning(des).transient_constant
-        e0 = float(np.sqrt(np.max(runs[name].sq_error[:, 0])))
-        floor = floors[name]
-        out[name] = steady_start(c, per_step_rate(sc, des.envelope_rate), e0, floor, T) if floor else None
-        if out[name] is None and c is None and floor and name in clean:
-            out[name] = _measured_start(clean[name], floor)
-            if out[name] is not None:
-                how[name] = (f"steady from the noise-free run's error below {SETTLED:g} of the predicted (no certified "
-                             f"transient constant at m n = {sc.m * sc.n})")
-    F, _, _ = sampled_model(sc)
-    C = np.vstack([np.asarray(c, dtype=float) for c in sc.system.Cs])
-    for name, p in (("centralized KF", kf), ("centralized at rate", ref)):
-        if p is None or name not in runs:
-            continue
-        A_c = F - p.L @ C
-        r = p.radius ** 0.9  # a rate just slower than its radius: a finite constant
-        c = transient_constant(A_c, r).constant
-        e0 = float(np.sqrt(np.max(runs[name].sq_error[:, 0])))
-        out[name] = steady_start(c, r, e0, p.rms, T)
-        if out[name] is None and name in clean:  # the bound is loose at n = 170 (IEEE 39-bus): measure it
-            out[name] = _measured_start(clean[name], p.rms)
-            if out[name] is not None:
-                how[name] = (f"steady from the noise-free run's error below {SETTLED:g} of the predicted (its "
-                             f"certified envelope, constant {c:.3g} at rate {r:.6g} per step, outlasts the run)")
+    out, notes = {}, {}
+    for name, tr in transients.items():
+        k = tr.steps if tr.steps is not None and tr.steps < T else None
+        central = name in ("centralized KF", "centralized at rate")
+        floor = None if predicted[name] is None else predicted[name] * (1.0 if central else math.sqrt(sc.m))
+        if k is None and (tr.c is None or central) and floor and math.isfinite(floor) and name in clean:
+            k = measured_start(clean[name], floor)
+            if k is not None:
+                notes[name] = (f"steady from the noise-free run's error below {SETTLED:g} of the predicted (" + (
+                    f"its certified envelope, constant {tr.c:.3g} at rate {tr.r:.6g} per step, outlasts the run)"
+                    if central else f"no certified transient constant at m n = {sc.m * sc.n})"))
+        if k is None:
+            notes[name] = (f"its certified transient is {tr.steps} steps, the run {T - 1}: give --steps "
+                           f"{int(nice_ceil(2 * tr.steps))} or more" if tr.steps is not None else
+                           f"no certified transient: {tr.why}; nor did its noise-free run settle within the run"
+                           if tr.c is None or central else f"no certified transient: {tr.why}")
+        out[name] = k
     settled = [k for k in out.values() if k is not None]
     out["KCF"] = max(settled) if settled else None
-    return out, how
-
-
-def _measured_start(err: np.ndarray, floor: float) -> int | None:
-    """The first step after which ``err`` stays below :data:`SETTLED` of ``floor`` (None: it never does)."""
-    above = np.flatnonzero(~(np.asarray(err) <= SETTLED * floor))
-    k = 0 if above.size == 0 else int(above[-1]) + 1
-    return k if k < len(err) else None
+    if not settled:
+        notes["KCF"] = "it certifies nothing, and no other row's transient ended within the run"
+    return out, notes
 
 
 def sweep(sc: Scenario, *, seed: int, steps: int | None = None, values=None) -> dict:
@@ -532,6 +554,26 @@ def certificate_lines(res: CompareResult) -> list:
         verdict = "" if r.rate_note else ("rate certified: " if r.certified_rate else "rate NOT certified: ")
         lines.append(f"  {name}: {verdict}{r.certificate}")
     return lines
+
+
+def missing_ratio_lines(res: CompareResult) -> list:
+    """Why the rows of a :func:`compare` result without a ratio to the centralized KF have none: one line per reason.
+
+    Parameters
+    ----------
+    res : CompareResult
+        A :func:`compare` result.
+
+    Returns
+    -------
+    list of str
+        ``  row, row: ratio n/a: reason`` (indented); empty when every row has its ratio.
+    """
+    rows = {}
+    for name, r in res.estimators.items():
+        if r.ratio_note:
+            rows.setdefault(r.ratio_note, []).append(name)
+    return [f"  {', '.join(names)}: ratio n/a: {reason}" for reason, names in rows.items()]
 
 
 def sweep_line(sw: dict) -> str:

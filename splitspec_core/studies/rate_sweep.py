@@ -9,7 +9,8 @@ which certifies nothing and has no prediction:
                          them under the rate's certificate, :mod:`splitspec_core.synthesis.whole_state`);
 ``split``                the paper's split (gains ``riccati``, the scenario's noise levels as weights);
 ``centralized KF``       the Kalman filter: the same at every rate (it certifies its own radius, not the rate);
-``centralized at rate``  the best centralized estimator certified at the rate (:func:`~splitspec_core.synthesis.kalman.references`);
+``centralized at rate``  the centralized Kalman filter designed for A/rate (a rate-shifted Riccati design, certified at
+                         the rate, not the optimum under it: :func:`~splitspec_core.synthesis.kalman.references`);
 ``KCF``                  the Kalman-consensus filter with as many exchanges as the whole-state design at that rate,
                          its steady RMS measured on ``seeds`` runs, over each run's last half.
 
@@ -67,7 +68,7 @@ def check_rates(sc: Scenario, rates) -> list:
     for r in rates:
         if not math.isfinite(r) or (sc.time == "continuous" and not r > 0) or (sc.time == "discrete"
                                                                               and not 0 < r < 1):
-            want = "> 0 (per second)" if sc.time == "continuous" else "in (0, 1) (per event time)"
+            want = f"> 0 ({sc.system.per_time})" if sc.time == "continuous" else "in (0, 1) (per event time)"
             raise ScenarioError(f"--sweep-rate {r:g}: a rate of this {sc.time}-time scenario must be {want}")
     return rates
 
@@ -89,7 +90,8 @@ def _row(sc: Scenario, **keys) -> dict:
 
 
 def rate_sweep(sc: Scenario, rates, *, seeds=(0, 1), steps: int | None = None) -> dict:
-    """Steady RMS against the rate asked (module docstring): ``{"scenario", "time", "rates", "rows": [...]}``, a row
+    """Steady RMS against the rate asked (module docstring): ``{"scenario", "time", "per_time", "rates", "rows":
+    [...]}`` (``per_time``: the continuous rate's unit, ``system.time_unit``), a row
     per rate with ``whole``, ``split`` (each :func:`_row`), ``kalman``, ``reference`` (predicted, None where none
     exists) and ``kcf`` (measured: mean over ``seeds`` of the steady RMS over each run's last half).
 
@@ -140,7 +142,7 @@ def rate_sweep(sc: Scenario, rates, *, seeds=(0, 1), steps: int | None = None) -
         kcf = float(np.mean(runs["kcf"].steady_rms(start=start)))
         rows.append({"rate": rate, "whole": whole, "split": split, "kalman": None if kf is None else kf.rms,
                      "reference": None if ref is None else ref.rms, "kcf": kcf, "kcf_exchanges": int(exchanges)})
-    return {"scenario": sc.name, "time": sc.time, "rates": rates, "seeds": list(seeds), "rows": rows}
+    return {"scenario": sc.name, "time": sc.time, "per_time": sc.system.per_time, "rates": rates, "seeds": list(seeds), "rows": rows}
 
 
 def rate_sweep_table(res: dict) -> list:
@@ -162,14 +164,14 @@ def rate_sweep_table(res: dict) -> list:
             return f"{'refused' if row['error'] else '-':>12}"
         return f"{row['rms']:11.4g}{'*' if row['certified'] else ' '}"
 
-    per = "per second" if res["time"] == "continuous" else "per event time"
+    per = res.get("per_time", "per second") if res["time"] == "continuous" else "per event time"
     lines = [f"steady RMS against the rate asked ({per}; * rate certified; KCF measured, the rest predicted):",
-             f"  {'rate':>8} {'whole state':>12} {'split':>12} {'central KF':>11} {'central@rate':>12} "
+             f"  {'rate':>8} {'whole state':>12} {'split':>12} {'central KF':>11} {'KF for A/rate':>13} "
              f"{'KCF':>10} {'q':>4}"]
     for r in res["rows"]:
         q = r["whole"]["q"] if r["whole"]["q"] is not None else "-"
         kf = "-" if r["kalman"] is None else f"{r['kalman']:.4g}"
         ref = "-" if r["reference"] is None else f"{r['reference']:.4g}"
-        lines.append(f"  {r['rate']:>8g} {cell(r['whole'])} {cell(r['split'])} {kf:>11} {ref:>12} "
+        lines.append(f"  {r['rate']:>8g} {cell(r['whole'])} {cell(r['split'])} {kf:>11} {ref:>13} "
                      f"{r['kcf']:10.4g} {q:>4}")
     return lines

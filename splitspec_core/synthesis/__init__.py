@@ -4,7 +4,7 @@
 and the whole state), ``prelude.py`` what both share (decompositions, what nobody sees, cases, losses),
 ``approximate.py`` the policy for an approximate split, ``design_data.py`` the ``Design`` it returns (data; its analyses are functions of it, cached
 per design); ``bounds.py`` the certificates' bounds for g and q, ``spectral.py`` spectral radii (exact or
-matrix-free, never claiming more than was computed), ``sampled_rates.py`` g for the sampled-data form;
+matrix-free, never claiming more than was computed) and the one rule every certificate decides by (``certifies``), ``sampled_rates.py`` g for the sampled-data form;
 ``error_matrix.py`` the full mn x mn error map, ``conditioning.py`` margins and the transient constant;
 ``resilience.py`` single agent and arc losses, ``loss_certificate.py`` lossy networks, ``bad_data.py`` each
 agent's test of its measurement and the certified fallback of a suspect sensor (``design.bad_data``),

@@ -9,8 +9,13 @@ verdict, the transient constant, the predicted steady RMS.  The knobs, each chan
 * ``design.gains: optimal`` with ``design.consensus: whole`` (when the scenario has noise): the whole-state design
   (:mod:`.whole_state`), which needs no local observer and so no margin;
 * ``design.margin: 0.1`` (when it is larger): the local gains move the slow modes less far;
-* ``design.rank_tol`` above the smallest warned margin: the weak directions left to consensus;
-* a slower ``design.rate`` (four fifths of it; discrete: ``lam^0.8``).
+* ``design.rank_tol`` above the largest warned margin: the weak directions left to consensus; or, when what was
+  already left to consensus misses the rate (:func:`.approximate.misses_on_full`), below the weakest one's margin
+  (the approximate split's warning): those directions counted;
+* a slower ``design.rate``, only ever one this module certified: for a design whose rate is not certified, the fastest
+  rate the same keys certify (:func:`~splitspec_core.synthesis.designer.highest_rate`, shown rounded toward slower,
+  or exactly as certified when the rounded one is not); else four fifths of it (discrete: ``lam^0.8``).  A rate
+  knob whose design is not certified is not proposed: its line says no rate was certified.
 
 Only up to ``m n`` = :data:`ADVICE_DIM` (each knob is a design and its conditioning: seconds each), and never
 more than what was computed: a knob whose design is refused says so in its one line.
@@ -28,11 +33,12 @@ from ..errors import SplitspecError
 from ..scenarios import gain_methods
 from .conditioning import MARGIN_WARN, TRANSIENT_WARN, conditioning
 from .design_data import Design, cached_analysis
-from .designer import design
+from .approximate import misses_on_full
+from .designer import RateReach, design, highest_rate
 from .error_matrix import MAX_NOISE_DIM, predicted_rms
 from .verdict import rate_certificate
 
-__all__ = ["Tried", "advice", "advice_lines", "ADVICE_DIM", "NOISE_WARN"]
+__all__ = ["Tried", "advice", "advice_lines", "fastest_rate", "ADVICE_DIM", "NOISE_WARN"]
 
 #: advice is tried up to this m n
 ADVICE_DIM = 400
@@ -49,6 +55,7 @@ class Tried:
     transient: float | None = None
     rms: float | None = None
     error: str | None = None
+    note: str | None = None  # a knob not proposed, and why (the rate knob when no slower rate was certified)
 
 
 def _figures(des: Design) -> tuple:
@@ -111,22 +118,74 @@ def advice(des: Design) -> tuple:
         knobs.append(("design.margin: 0.1", dict(margin=0.1)))
     margins = [a.observability_margin for a in conditioning(des).agents
                if a.observability_margin is not None and a.observability_margin < MARGIN_WARN]
-    if margins and not method.needs_K:
+    if misses_on_full(des) and not method.needs_K:
+        # what was left to consensus misses the rate: the knob is the warning's, design.rank_tol below the weakest
+        # direction's margin (count it), never above (leave more to consensus)
+        weakest = min([a.dec.weak for a in des.agents if a.dec.weak > 0] or [des.split_residual])
+        tol = float(f"{weakest / 10:.1g}")
+        if tol > 0:
+            knobs.append((f"design.rank_tol: {tol:g}", dict(rank_tol=tol)))
+    elif margins and not method.needs_K:
         tol = float(f"{10 * max(margins):.1g}")
         if tol < 1:
             knobs.append((f"design.rank_tol: {tol:g}", dict(rank_tol=tol)))
-    slower = d.rate * 0.8 if sc.time == "continuous" else d.rate ** 0.8
-    knobs.append((f"design.rate: {slower:.3g}", dict(rate=slower)))
     out = []
     for text, keys in knobs:
-        try:
-            alt = design(dataclasses.replace(sc, design=dataclasses.replace(d, **keys)))
-        except SplitspecError as exc:
-            out.append(Tried(text, error=str(exc).split(";")[0]))
-            continue
-        ok, c, rms = _figures(alt)
-        out.append(Tried(text, certified=ok, transient=c, rms=rms))
+        out.append(_tried(sc, text, keys))
+    out.append(_rate_knob(des))
     return tuple(out)
+
+
+def _tried(sc, text: str, keys: dict) -> Tried:
+    """``keys`` designed on ``sc``: what it gave, or its refusal."""
+    try:
+        alt = design(dataclasses.replace(sc, design=dataclasses.replace(sc.design, **keys)))
+    except SplitspecError as exc:
+        return Tried(text, error=str(exc).split(";")[0])
+    ok, c, rms = _figures(alt)
+    return Tried(text, certified=ok, transient=c, rms=rms)
+
+
+@cached_analysis
+def fastest_rate(des: Design):
+    """A design whose rate is not certified (the adaptive gain aside): the fastest rate its keys certify
+    (:func:`~splitspec_core.synthesis.designer.highest_rate`, a bisection of a few designs), else None.
+
+    Parameters
+    ----------
+    des : Design
+        The design (computed once per design).
+
+    Returns
+    -------
+    RateReach or None
+        The bisection's certified and refused rates and its line; None when the rate is certified, for the adaptive
+        gain, or when even a rate far slower is refused.
+    """
+    if des.adaptive or rate_certificate(des).certified:
+        return None
+    return highest_rate(des.scenario)
+
+
+def _rate_knob(des: Design) -> Tried:
+    """The slower rate (module docstring): always one that was designed and certified, or a line saying none was."""
+    sc = des.scenario
+    d = sc.design
+    if rate_certificate(des).certified:
+        slower = d.rate * 0.8 if sc.time == "continuous" else d.rate ** 0.8
+        candidates = [float(f"{slower:.3g}")]
+    else:
+        reach: RateReach | None = fastest_rate(des)
+        if reach is None:
+            slow = d.rate / 100.0 if sc.time == "continuous" else 1.0 - (1.0 - d.rate) / 100.0
+            return Tried("design.rate", note=f"no rate certified with these design keys, down to {slow:.4g}")
+        candidates = [reach.shown, reach.rate] if reach.shown not in (None, reach.rate) else [reach.rate]
+    for rate in candidates:
+        t = _tried(sc, f"design.rate: {rate:.10g}", dict(rate=rate))
+        if t.certified:
+            return t
+    return Tried("design.rate", note=f"no slower rate certified with these design keys (design.rate "
+                                     f"{candidates[0]:g} is not), so none is proposed")
 
 
 def advice_lines(des: Design) -> list:
@@ -158,5 +217,6 @@ def advice_lines(des: Design) -> list:
 
     lines = [f"advice (each knob designed on this scenario; this design: {figs(ok, c, rms)}):"]
     for t in tried:
-        lines.append(f"  {t.knob}: " + (f"refused: {t.error}" if t.error else figs(t.certified, t.transient, t.rms)))
+        lines.append(f"  {t.knob}: " + (t.note if t.note else f"refused: {t.error}" if t.error else
+                                        figs(t.certified, t.transient, t.rms)))
     return lines

@@ -15,6 +15,7 @@ import re
 from . import bounds
 from .design_data import Design
 from .error_matrix import MAX_RATE_DIM, full_radius
+from .spectral import certifies, comparison
 
 __all__ = ["check_full"]
 
@@ -57,7 +58,7 @@ def check_full(des: Design, warnings: list) -> Design:
     if not _full_meets(des, full):
         des = _raise_to_full(des, warnings)
     if not _full_meets(des, des.full_radius):
-        if des.time == "continuous" and max(v["ode"] for v in des.full_radius.values()) > -des.envelope_rate:
+        if des.time == "continuous" and not certifies(max(v["ode"] for v in des.full_radius.values()), -des.envelope_rate):
             # sampled_rates.py's run.dt advice was computed on the split blocks: no run.dt helps when the ODE misses
             warnings[:] = [w for w in warnings if not re.match(r"(the sampled-data estimator is UNSTABLE with g|"
                                                               r"with run\.dt = \S+ the sampled-data estimator)", w)]
@@ -69,11 +70,29 @@ def check_full(des: Design, warnings: list) -> Design:
     return des
 
 
+def misses_on_full(des: Design) -> bool:
+    """An approximate split whose full error matrices miss the rate (by the one rule, :func:`.spectral.certifies`):
+    what it left to consensus is what fails, so a larger ``design.rank_tol`` (more left to consensus) is no remedy.
+
+    Parameters
+    ----------
+    des : Design
+        The design.
+
+    Returns
+    -------
+    bool
+        True when ``des.full_radius`` was computed and misses the rate; False for an exact split.
+    """
+    return bool(des.full_radius) and not _full_meets(des, des.full_radius)
+
+
 def _full_meets(des: Design, full: dict) -> bool:
     rate = des.envelope_rate  # lam, or slower when directions no agent sees limit it (they are in the full matrix)
     if des.time == "discrete":
-        return max(full.values()) < rate
-    return max(v["ode"] for v in full.values()) <= -rate and min(v["sampled"] for v in full.values()) >= rate
+        return certifies(max(full.values()), rate)
+    return (certifies(max(v["ode"] for v in full.values()), -rate)
+            and certifies(-min(v["sampled"] for v in full.values()), -rate))
 
 
 def _raise_to_full(des: Design, warnings: list) -> Design:
@@ -97,7 +116,7 @@ def _raise_to_full(des: Design, warnings: list) -> Design:
             if _full_meets(des, full):
                 result = bounds.choose_q(d.q_method, des.cases, d.rate, q=q, q_max=d.q_max)
                 warnings.append(f"q raised from {des.q} to {q}: with the approximate split, q = {des.q} leaves the full "
-                                f"error matrix's spectral radius at {max(des.full_radius.values()):.4g} >= rate {d.rate:g}")
+                                f"error matrix's spectral radius {comparison(max(des.full_radius.values()), d.rate, limit_text=f'rate {d.rate:g}')}")
                 return dataclasses.replace(des, q=q, q_result=result, full_radius=full, warnings=tuple(warnings),
                                            error_radius={c.label: bounds.error_radius(c, q) for c in des.cases})
         return des

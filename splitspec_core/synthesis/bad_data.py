@@ -29,7 +29,10 @@ Warm-up
     in measurements, not event times (:func:`splitspec_core.model.steps.warmup_step`): an estimate does not settle
     before its measurements come, and a stream may start late (a live sensor started after the run, a recorded
     file whose first rows are empty: counted in event times, every agent's first measurements failed, all its
-    sensors became suspect and none was ever restored).
+    sensors became suspect and none was ever restored).  In the whole-state design any agent's rejoin starts it
+    again for every sensor not suspect (:meth:`splitspec_core.model.screening.Screen.rejoined`: the fresh estimate's
+    error reaches the neighbours' measured directions through the average; the split's consensus does not touch
+    them).
 
 Suspect and restored (:func:`splitspec_core.model.steps.sensor_watch`)
     ``suspect_after = k`` failed tests in a row make the sensor suspect: from the next event time its agent uses no
@@ -57,11 +60,15 @@ from ..errors import DesignError
 from .design_data import Design, cached_analysis
 from .error_matrix import MAX_NOISE_DIM, error_dynamics, full_error_matrix
 
+#: the design kinds without a bad-data test (scenarios/design_section.py refuses design.bad_data given with them)
+NO_TEST_KINDS = ("fusion", "relay")
+
 #: how far inside the unit circle (per step; continuous split: times run.dt, of the decay rate) a fallback's radius
 #: must be to count as decaying: an eigenvalue of modulus 1 comes out within ~1e-15 of it either way
 STABLE_MARGIN = 1e-9
 
-__all__ = ["SensorTest", "Fallback", "BadData", "bad_data", "agent_config", "fallback_radius", "report_lines"]
+__all__ = ["SensorTest", "Fallback", "BadData", "bad_data", "default_off_reason", "agent_config", "fallback_radius",
+           "report_lines"]
 
 
 @dataclass(frozen=True)
@@ -176,7 +183,7 @@ def _fallback(des: Design, agent_id: int, graphs: list) -> Fallback:
     target, against = lam, f"rate {lam:g}"
     if sc.time == "continuous" and not per_rate:  # the whole-state design's per-step radius: exp(-rate run.dt)
         target = math.exp(-lam * sc.run.dt)
-        against = f"exp(-rate dt) = {target:.5g} (rate {lam:g} /s)"
+        against = f"exp(-rate dt) = {target:.5g} (rate {lam:g} {sc.system.per_time})"
     # directions only this sensor sees that do not decay: the fallback's radius is 1 there, which round-off may
     # put a hair either side (1 - 4e-16 under one OpenBLAS kernel): the detectability analysis decides, not it
     others = [a for a in sc.agent_ids if a != agent_id]
@@ -209,6 +216,10 @@ def _fallback(des: Design, agent_id: int, graphs: list) -> Fallback:
 def bad_data(des: Design) -> BadData | None:
     """The bad-data detection of a design whose scenario asks for it (``design.bad_data``; module docstring).
 
+    On by default when the scenario states measurement noise (``DesignSpec.bad_data_default``): then a design that
+    cannot calibrate the test (the reasons below, an output without noise, or ``design.consensus: fusion`` or
+    ``relay``, which have none) has it off, and :func:`report_lines` says why; given explicitly, those refuse.
+
     Parameters
     ----------
     des : Design
@@ -224,14 +235,53 @@ def bad_data(des: Design) -> BadData | None:
     DesignError
         No steady state to calibrate against: the adaptive gain, ``design.undetectable: exclude`` (directions that
         do not decay), an error system too large for the Lyapunov equation, an unstable error map, or a singular
-        ``S_i``.
+        ``S_i`` (only when ``design.bad_data`` is given; by default the test is then off).
     """
+    d = des.scenario.design
+    if d.bad_data is None or (d.bad_data_default and des.consensus in NO_TEST_KINDS):
+        return None
+    try:
+        return _calibrated(des)
+    except DesignError:
+        if d.bad_data_default:
+            return None
+        raise
+
+
+def default_off_reason(des: Design) -> str | None:
+    """Why a test that is on by default (the scenario states measurement noise, ``design.bad_data`` absent) is off
+    for ``des``, in words; None when it is on or not on by default.
+
+    Parameters
+    ----------
+    des : Design
+        The design.
+
+    Returns
+    -------
+    str or None
+        The reason (an output without noise, a kind without the test, or the design's own error line).
+    """
+    d = des.scenario.design
+    if not d.bad_data_default or bad_data(des) is not None:
+        return None
+    if d.bad_data is None:
+        return "system.measurement_noise is 0 on some output: the test is calibrated against it"
+    if des.consensus in NO_TEST_KINDS:
+        return f"design.consensus: {des.consensus} has no bad-data test"
+    try:
+        _calibrated(des)
+    except DesignError as exc:
+        return str(exc).removeprefix("design.bad_data ").removeprefix("design.bad_data: ")
+    return None  # (not reached: bad_data would have been on)
+
+
+def _calibrated(des: Design) -> BadData:
+    """The test and the fallbacks of :func:`bad_data`, or the :class:`DesignError` saying why none can be had."""
     import scipy.linalg as sla
     from scipy.stats import chi2
 
     sc = des.scenario
-    if sc.design.bad_data is None:
-        return None
     p, k = sc.design.bad_data
     if des.adaptive:
         raise DesignError("design.bad_data needs the error's steady state, and the adaptive gain has none (g changes "
@@ -309,11 +359,14 @@ def report_lines(des: Design) -> list:
     Returns
     -------
     list of str
-        Empty when ``design.bad_data`` is off.
+        Empty when ``design.bad_data`` is off; when it is on by default, first the line that says so; when the
+        default is off for this design, the one line saying why.
     """
     bd = bad_data(des)
     if bd is None:
-        return []
+        why = default_off_reason(des)
+        return [] if why is None else [f"bad-data test: off ({why}; on by default when the scenario states "
+                                       "measurement noise)"]
     thresholds = {t.S.shape[0]: t.threshold for t in bd.tests}
     steps = "event times" if des.time == "discrete" else f"steps of run.dt = {des.scenario.run.dt:g}"
     which = ", ".join(f"{v:.4g} for s_i = {s}" for s, v in sorted(thresholds.items()))
@@ -323,4 +376,7 @@ def report_lines(des: Design) -> list:
              + ("; a measurement repeating the last one exactly fails (a stuck sensor)" if bd.flatline else
                 "; no repeat test (live sensors may give a sample twice)")]
     lines += [f.text for f in bd.fallbacks]
+    if des.scenario.design.bad_data_default:  # the first line says it is the default, the rest stand under it
+        lines = ["bad-data test: on (default: the scenario states measurement noise; design.bad_data: off turns it "
+                 "off)"] + lines
     return lines

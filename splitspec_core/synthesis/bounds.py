@@ -30,7 +30,7 @@ import numpy as np
 from ..errors import DesignError
 from ..model.graphs import Graph, is_doubly_stochastic, perron_vector
 from . import spectral
-from .spectral import spectral_radius  # also bounds.spectral_radius, as before
+from .spectral import certifies, spectral_radius  # also bounds.spectral_radius, as before
 
 __all__ = [
     "Case",
@@ -242,7 +242,8 @@ def abscissa(case: Case, g: float) -> float:
     Returns
     -------
     float
-        ``max Re eig(A_V(g))``; ``-inf`` when ``nbar = 0``.  The error decays at rate ``lam`` when it is ``<= -lam``.
+        ``max Re eig(A_V(g))``; ``-inf`` when ``nbar = 0``.  The error decays at rate ``lam`` when it is below
+        ``-lam`` (:func:`~splitspec_core.synthesis.spectral.certifies`).
     """
     if case.nbar == 0:
         return -math.inf
@@ -251,7 +252,8 @@ def abscissa(case: Case, g: float) -> float:
 
 
 def g_min(case: Case, rate: float, *, g_hi: float | None = None, rtol: float = 1e-6) -> float:
-    """Smallest g with ``abscissa(A_V(g)) <= -lam`` (bisection on the spectrum).
+    """Smallest g with ``abscissa(A_V(g))`` below ``-lam`` by the one rule (:func:`.spectral.certifies`; bisection on
+    the spectrum).
 
     The abscissa is decreasing in g for large g (Prop. split_continuous_stable);
     the bisection starts from the sufficient ``g_hi`` (eq. g by default) and
@@ -278,18 +280,18 @@ def g_min(case: Case, rate: float, *, g_hi: float | None = None, rtol: float = 1
     DesignError
         No g up to 1e12 meets the rate.
     """
-    if abscissa(case, 0.0) <= -rate:
+    if certifies(abscissa(case, 0.0), -rate):
         return 0.0
     hi = g_bound(case, rate) if g_hi is None else g_hi
     hi = max(hi, 1e-9)
-    while abscissa(case, hi) > -rate:  # eq. (g) is sufficient, so this ends
+    while not certifies(abscissa(case, hi), -rate):  # eq. (g) is sufficient, so this ends
         hi *= 2.0
         if hi > 1e12:
             raise DesignError(f"{case.label}: no g up to 1e12 meets rate {rate:g}")
     lo = 0.0
     while hi - lo > rtol * hi:
         mid = 0.5 * (lo + hi)
-        if abscissa(case, mid) <= -rate:
+        if certifies(abscissa(case, mid), -rate):
             hi = mid
         else:
             lo = mid
@@ -431,12 +433,12 @@ class QResult:
     method : str
         ``spectral``, ``weighted``, ``two-norm`` or ``mixed``.
     bound : float
-        The certified quantity at this q (<= rate when ``certified``):
+        The certified quantity at this q (below the rate by :func:`.spectral.certifies` when ``certified``):
         spectral radius of ``Atil B^q`` (spectral), ``||Atil||_R ||B||_R^q``
         (weighted, eq. rnorm), ``max |Atil B^q|_2`` (two-norm),
         ``||Atil|| ||B^p||^pbar`` (mixed, eq. rajit2/rajit3).
     certified : bool
-        Whether ``bound`` meets the rate.
+        Whether ``bound`` certifies the rate (:func:`.spectral.certifies`: strictly below it, by its margin).
     switching : bool
         Whether the certificate holds under arbitrary switching among the
         cases (two-norm and mixed), or per constant graph only.
@@ -677,7 +679,7 @@ def q_spectral(cases, rate: float, *, q: int | None = None, q_max: int = 100_000
 
     def pred(case):
         powers = None if spectral.use_iterative(case.nbar, method) else _Powers(case.B)  # lives for this case
-        return lambda k: radius(case, k, powers) < rate
+        return lambda k: certifies(radius(case, k, powers), rate)
 
     def what(case):
         return f"q (spectral, {case.label})"
@@ -690,7 +692,7 @@ def q_spectral(cases, rate: float, *, q: int | None = None, q_max: int = 100_000
         radius(cases[0], q)  # the warm start of the rest
         _prefetch(cases[1:], q, rate=rate, method=method, warm=warm.get(q), workers=workers)
     bound = max(radius(c, q) for c in cases)
-    return QResult(q=q, method="spectral", bound=bound, certified=bound < rate, switching=False,
+    return QResult(q=q, method="spectral", bound=bound, certified=certifies(bound, rate), switching=False,
                    eig=spectral.summary(c._how.get(q) for c in cases if c.nbar))
 
 
@@ -703,7 +705,8 @@ def _weighted_norm(M: np.ndarray, h: np.ndarray) -> float:
 
 
 def q_weighted(cases, rate: float, *, q: int | None = None, q_max: int = 100_000) -> QResult:
-    """q by the weighted two-norm, eq. (rnorm): ``||B||_R^q <= lam / ||Atil||_R`` (constant graphs).
+    """q by the weighted two-norm, eq. (rnorm): ``||B||_R^q < lam / ||Atil||_R`` (constant graphs; strict, by the
+    one rule :func:`.spectral.certifies`).
 
     Parameters
     ----------
@@ -719,7 +722,7 @@ def q_weighted(cases, rate: float, *, q: int | None = None, q_max: int = 100_000
     Returns
     -------
     QResult
-        ``bound = max ||Atil||_R ||B||_R^q`` over the cases, ``certified`` when ``<= rate``, ``switching=False``.
+        ``bound = max ||Atil||_R ||B||_R^q`` over the cases, ``certified`` when below ``rate`` (:func:`.spectral.certifies`), ``switching=False``.
 
     Raises
     ------
@@ -739,21 +742,21 @@ def q_weighted(cases, rate: float, *, q: int | None = None, q_max: int = 100_000
             if na > rate and nb > 0:
                 q = max(q, math.ceil(math.log(rate / na) / math.log(nb) - 1e-12))
         # the -1e-12 spares a step when the ratio is an integer; round-off can then leave
-        # ||Atil||_R ||B||_R^q an ulp above lam, so step up until eq. (rnorm) holds as evaluated
-        while max(na * nb ** q for na, nb in per) > rate and q <= q_max:
+        # ||Atil||_R ||B||_R^q an ulp above lam, so step up until eq. (rnorm) holds as evaluated (by the one rule)
+        while not certifies(max(na * nb ** q for na, nb in per), rate) and q <= q_max:
             q += 1
         if q > q_max:
             raise DesignError(f"q (weighted) = {q} exceeds design.q_max = {q_max}")
     bound = max(na * nb ** q for na, nb in per)
-    return QResult(q=q, method="weighted", bound=bound, certified=bound <= rate, switching=False)
+    return QResult(q=q, method="weighted", bound=bound, certified=certifies(bound, rate), switching=False)
 
 
 def q_two_norm(cases, rate: float, *, q: int | None = None, q_max: int = 100_000) -> QResult:
     """q = p * pbar by the standard two-norm over all cases (time-varying graphs).
 
     ``p``: smallest with ``|B^p|_2 < 1`` for every case; ``pbar``: smallest with
-    ``|Atil (B^p)^pbar|_2 <= lam`` for every case.  Certificate:
-    ``max |Atil B^q|_2 <= lam``, which bounds every product of switching steps.
+    ``|Atil (B^p)^pbar|_2 < lam`` for every case.  Certificate:
+    ``max |Atil B^q|_2 < lam`` (:func:`.spectral.certifies`), which bounds every product of switching steps.
 
     Parameters
     ----------
@@ -769,7 +772,7 @@ def q_two_norm(cases, rate: float, *, q: int | None = None, q_max: int = 100_000
     Returns
     -------
     QResult
-        ``bound = max |Atil B^q|_2``, ``certified`` when ``<= rate``, ``switching=True``, ``p`` and ``pbar``.
+        ``bound = max |Atil B^q|_2``, ``certified`` when below ``rate`` (:func:`.spectral.certifies`), ``switching=True``, ``p`` and ``pbar``.
 
     Raises
     ------
@@ -790,13 +793,13 @@ def q_two_norm(cases, rate: float, *, q: int | None = None, q_max: int = 100_000
         p = _smallest_max((p_pred(c) for c in live), q_max,
                           whats=(f"p (two-norm, {c.label})" for c in live)) if live else 1
         Bp = [_power(c.B, p) for c in live]
-        pbar = smallest(lambda k: all(norm2(c.Atil @ _power(b, k)) <= rate for c, b in zip(live, Bp)),
+        pbar = smallest(lambda k: all(certifies(norm2(c.Atil @ _power(b, k)), rate) for c, b in zip(live, Bp)),
                          max(1, q_max // p), what="pbar (two-norm)")
         q = p * pbar
     else:
         p = pbar = None
     bound = max([norm2(c.Atil @ _power(c.B, q)) for c in live] or [0.0])
-    return QResult(q=q, method="two-norm", bound=bound, certified=bound <= rate, switching=True, p=p, pbar=pbar)
+    return QResult(q=q, method="two-norm", bound=bound, certified=certifies(bound, rate), switching=True, p=p, pbar=pbar)
 
 
 def mixed_norm(M: np.ndarray, rows, cols=None) -> float:
@@ -855,7 +858,7 @@ def q_mixed(cases, rate: float, *, q: int | None = None, q_max: int = 100_000) -
     """q = p * pbar by the mixed matrix norm, eqs. (rajit), (rajit2), (rajit3).
 
     ``p >= (m - 1)^2`` makes ``||B^p|| < 1`` (checked numerically; doubled if not);
-    ``pbar`` is the smallest with ``||Atil|| ||B^p||^pbar <= lam`` for every case.
+    ``pbar`` is the smallest with ``||Atil|| ||B^p||^pbar < lam`` for every case (:func:`.spectral.certifies`).
 
     Parameters
     ----------
@@ -871,7 +874,7 @@ def q_mixed(cases, rate: float, *, q: int | None = None, q_max: int = 100_000) -
     Returns
     -------
     QResult
-        ``bound = max ||Atil|| ||B^p||^pbar`` (mixed norms), ``certified`` when ``<= rate``, ``switching=True``,
+        ``bound = max ||Atil|| ||B^p||^pbar`` (mixed norms), ``certified`` when below ``rate`` (:func:`.spectral.certifies`), ``switching=True``,
         ``p`` and ``pbar``.
 
     Raises
@@ -891,7 +894,7 @@ def q_mixed(cases, rate: float, *, q: int | None = None, q_max: int = 100_000) -
             if val < best[0]:
                 best = (val, p, q // p)
         bound, p, pbar = best
-        return QResult(q=q, method="mixed", bound=bound, certified=bound <= rate, switching=True, p=p, pbar=pbar)
+        return QResult(q=q, method="mixed", bound=bound, certified=certifies(bound, rate), switching=True, p=p, pbar=pbar)
     if not live:
         return QResult(q=1, method="mixed", bound=0.0, certified=True, switching=True, p=1, pbar=1)
     p = max(1, max((c.graph.m - 1) ** 2 for c in live))
@@ -908,13 +911,13 @@ def q_mixed(cases, rate: float, *, q: int | None = None, q_max: int = 100_000) -
         if na > rate and nb > 0:
             pbar = max(pbar, math.ceil(math.log(rate / na) / math.log(nb) - 1e-12))
     # as in q_weighted: step up until eq. (rajit3) holds as evaluated, not just up to round-off
-    while max(na * nb ** pbar for na, nb in zip(nas, nbs)) > rate and p * pbar <= q_max:
+    while not certifies(max(na * nb ** pbar for na, nb in zip(nas, nbs)), rate) and p * pbar <= q_max:
         pbar += 1
     q = p * pbar
     if q > q_max:
         raise DesignError(f"q (mixed) = {q} exceeds design.q_max = {q_max}")
     bound = max(na * nb ** pbar for na, nb in zip(nas, nbs))
-    return QResult(q=q, method="mixed", bound=bound, certified=bound <= rate, switching=True, p=p, pbar=pbar)
+    return QResult(q=q, method="mixed", bound=bound, certified=certifies(bound, rate), switching=True, p=p, pbar=pbar)
 
 
 _Q_METHODS = {"spectral": q_spectral, "weighted": q_weighted, "two-norm": q_two_norm, "mixed": q_mixed}

@@ -33,6 +33,7 @@ import numpy as np
 from .design_data import Design, cached_analysis
 from .error_matrix import MAX_DIM, MAX_NOISE_DIM, case_parts, full_error_matrix, modulo, predicted_rms
 from .kalman import references
+from .approximate import misses_on_full
 
 __all__ = ["AgentConditioning", "Conditioning", "Transient", "conditioning", "transient_constant",
            "time_scale_warning", "MARGIN_WARN", "GAIN_WARN", "TRANSIENT_WARN", "TIME_SCALE_WARN"]
@@ -220,7 +221,7 @@ class Conditioning:
     predicted_graph: str | None
     warnings: tuple
     # the references under noise (kalman.references): the centralized Kalman filter's predicted steady RMS, and the
-    # best centralized estimator's certified at the rate (None: no noise, or none exists)
+    # rate-shifted one's (kalman.SHIFTED_NAME: certified at the rate, not the best that is; None: no noise, or none)
     kalman_rms: float | None = None
     reference_rms: float | None = None
 
@@ -278,7 +279,7 @@ def conditioning(des: Design) -> Conditioning:
                                weak=a.dec.weak, split_residual=a.dec.split_residual)
         agents.append(ac)
     if des.consensus == "split":  # no local observer in the whole state: margins and local gains are the split's
-        warnings += _agent_warnings(agents)
+        warnings += _agent_warnings(agents, more_to_consensus_fails=misses_on_full(des))
     scale_note = time_scale_warning(sc)
     if scale_note:
         warnings.append(scale_note)
@@ -348,18 +349,23 @@ def _span(values) -> str:
     return f"{lo:.2g}" if f"{lo:.2g}" == f"{hi:.2g}" else f"{lo:.2g} to {hi:.2g}"
 
 
-def _agent_warnings(agents) -> list:
+def _agent_warnings(agents, *, more_to_consensus_fails: bool = False) -> list:
     """One line per kind, naming every agent it concerns (not one line per agent): observability margins below
     :data:`MARGIN_WARN`, gains above :data:`GAIN_WARN` times the system's scale.  What to do about them is the
-    report's advice, each knob tried (:mod:`.advice`)."""
+    report's advice, each knob tried (:mod:`.advice`).  ``more_to_consensus_fails``: the directions already left to
+    consensus miss the rate (:func:`.approximate.misses_on_full`); the line then does not point ``design.rank_tol``
+    up, the way that leaves more to consensus, against the warning that points it down for those."""
     out = []
     weak = [a for a in agents if a.observability_margin is not None and a.observability_margin < MARGIN_WARN]
     if weak:
+        top = max(a.observability_margin for a in weak)
+        hint = (f"design.rank_tol above {top:.2g} would leave these directions to consensus too, where the weakest "
+                "ones already miss the rate: not a remedy here" if more_to_consensus_fails else
+                f"design.rank_tol above {top:.2g} leaves it to consensus")
         out.append(f"{_agents_text(a.id for a in weak)} {'sees a direction' if len(weak) == 1 else 'see directions'} "
                    f"with an observability margin of only {_span([a.observability_margin for a in weak])} "
                    f"(< {MARGIN_WARN:g}): the local gain grows like 1 / margin, and so does its noise; a model less "
-                   f"accurate than that does not really show it (design.rank_tol above "
-                   f"{max(a.observability_margin for a in weak):.2g} leaves it to consensus)")
+                   f"accurate than that does not really show it ({hint})")
     big = [a for a in agents if a.gain_ratio > GAIN_WARN]
     if big:
         out.append(f"{_agents_text(a.id for a in big)}: ||K_i C_i|| is {_span([a.gain_ratio for a in big])} times the "

@@ -47,7 +47,7 @@ DISK_KEEP = 32
 
 #: the run's keys no design reads (set to their defaults in the key); the scenario's ``source`` and ``positions`` too
 NOT_DESIGNED = ("seed", "pace", "show", "until_stopped", "keep_hours", "keep_gigabytes", "keep_recording_hours",
-                "record_every")
+                "record_every", "keep_segment_mb")
 
 _memory: "OrderedDict[str, object]" = OrderedDict()
 _on_disk: dict = {}  # key -> (folder, design, analyses it held when written): written again at exit if they grew

@@ -39,6 +39,7 @@ from .error_matrix import MAX_NOISE_DIM, predicted_rms, remember_predicted
 from ..model.local_design import design_agent, gain_request, whole_placeholder, with_gain
 from .prelude import Prelude
 from .sampled_rates import exact_g, sampled_g
+from .spectral import CERTIFY_MARGIN, certifies
 from .verdict import rate_certificate
 from .whole_state import design_whole
 from ..scenarios import gain_methods
@@ -165,6 +166,7 @@ class RateReach:
     rate: float
     refused: float
     text: str
+    shown: float | None = None  # ``rate`` as the line shows it: rounded toward slower
 
 
 def highest_rate(sc: Scenario, *, probes: int = RATE_PROBES) -> RateReach | None:
@@ -217,8 +219,25 @@ def highest_rate(sc: Scenario, *, probes: int = RATE_PROBES) -> RateReach | None
         mid = math.sqrt(good * bad) if sc.time == "continuous" else 1.0 - math.sqrt((1.0 - good) * (1.0 - bad))
         good, bad = (mid, bad) if ok(mid) else (good, mid)
     unit = "" if sc.time == "continuous" else " per event time"
-    return RateReach(good, bad, f"the fastest rate these design keys certify is about {good:.3g}{unit} (design.rate "
-                                f"{good:.3g} certified, {bad:.3g} not; {probes} designs)")
+    slower_up = sc.time == "discrete"  # a slower rate: a larger lam (discrete), a smaller one (continuous)
+    digits = 3
+    while digits < 10 and _rounded(good, digits, slower_up) == _rounded(bad, digits, not slower_up):
+        digits += 1  # never "0.996 certified, 0.996 not"
+    # each printed toward its own side: the certified one rounded slower, the refused one faster, so the line never
+    # calls a rate certified that is faster than the one designed
+    shown, refused = _rounded(good, digits, slower_up), _rounded(bad, digits, not slower_up)
+    return RateReach(good, bad, f"the fastest rate these design keys certify is about {shown:g}{unit} "
+                                f"(design.rate {good:.10g} certified, {refused:g} not; {probes} designs)", shown)
+
+
+def _rounded(x: float, digits: int, up: bool) -> float:
+    """``x`` rounded up (or down) to ``digits`` significant digits."""
+    if x <= 0 or not math.isfinite(x):
+        return x
+    step = 10.0 ** (math.floor(math.log10(x)) - digits + 1)
+    k = x / step
+    k = math.ceil(k - 1e-9) if up else math.floor(k + 1e-9)
+    return float(f"{k * step:.{digits}g}")
 
 
 def _choose(sc: Scenario, compare_q_methods: bool, workers: int | None) -> Design:
@@ -260,9 +279,11 @@ def _choose(sc: Scenario, compare_q_methods: bool, workers: int | None) -> Desig
 
 def _fusion_offered(sc: Scenario) -> bool:
     """The fusion kind's preconditions (scenarios.design_section refuses it otherwise): measurement noise on every
-    output, no bad-data test, no resilience, no given gains."""
+    output, no bad-data test given (the default one is off with these kinds: synthesis/bad_data.py), no resilience,
+    no given gains."""
     s, d = sc.system, sc.design
-    return (s.measurement_noise_present and not bool((s.measurement_std <= 0).any()) and d.bad_data is None
+    return (s.measurement_noise_present and not bool((s.measurement_std <= 0).any())
+            and (d.bad_data is None or d.bad_data_default)
             and d.resilience == 0 and d.K is None)
 
 
@@ -491,7 +512,8 @@ def _design_g(sc: Scenario, cases, switching: bool, warnings: list) -> dict:
         mode = "auto"
         if certified:
             by = min(certified, key=certified.get)
-            g = bounds.nice_ceil(certified[by] * (1 + 1e-9))
+            # above the bound by the one rule's margin (spectral.certifies: the bound below g), then rounded up
+            g = bounds.nice_ceil(certified[by] * (1 + 2 * CERTIFY_MARGIN))
             if g == 0.0 and not switching and any(c.nbar for c in cases):
                 # eq. (g) says any g works: the unobservable parts decay at the rate on their own, but only at it (an
                 # estimator exactly at its rate has no finite transient constant); the exact spectrum's g with the
@@ -501,22 +523,22 @@ def _design_g(sc: Scenario, cases, switching: bool, warnings: list) -> dict:
                     g, by = alt, "spectrum (exact, constant graph)"
         else:
             by = None
-            g = bounds.nice_ceil(per_graph * (1 + 1e-9))
+            g = bounds.nice_ceil(per_graph * (1 + 2 * CERTIFY_MARGIN))
             warnings.append("g is not certified for switching: the graphs are not all doubly stochastic and no "
                             "dwell time is known (set design.dwell or design.weights: metropolis); g covers "
                             "each graph held constant (eq. g)")
     else:
         g, mode = float(d.g), "given"
-        ok = [k for k, v in certified.items() if g >= v]
+        ok = [k for k, v in certified.items() if certifies(v, g)]  # the one rule: the sufficient bound below g
         by = min(ok, key=certified.get) if ok else None
         if by is None:
-            if all(bounds.abscissa(c, g) <= -rate for c in cases):
+            if all(certifies(bounds.abscissa(c, g), -rate) for c in cases):
                 what = "each graph held constant" if switching else "the constant graph"
                 warnings.append(f"g = {g:g} is below the sufficient bound but the exact spectrum meets the rate for "
                                 f"{what}")
                 by = None if switching else "spectrum (exact, constant graph)"
             else:
-                bad = [c.label for c in cases if bounds.abscissa(c, g) > -rate]
+                bad = [c.label for c in cases if not certifies(bounds.abscissa(c, g), -rate)]
                 warnings.append(f"g = {g:g} does NOT meet rate {rate:g} on {', '.join(bad)}")
     radius = {c.label: bounds.abscissa(c, g) for c in cases} if g is not None else {}
     return dict(g=g, g_mode=mode, g_bounds=g_bounds, g_mins=g_mins, g_dwell=g_dw, dwell=dwell,

@@ -63,6 +63,7 @@ import scipy.sparse.linalg as spla
 from ..errors import DesignError
 from ..scenarios.specs import Scenario
 from .kalman import kalman_predictor, regularise
+from .spectral import certifies
 
 __all__ = ["FusionDesign", "REG", "FIXED", "design_fusion", "fusion_gains", "error_map", "steady_covariance",
            "scenario_fusion", "neighbour_positions"]
@@ -563,7 +564,7 @@ def _design_fusion(F, Cs, Q, Rs, nbs, q, *, rate):
     except (np.linalg.LinAlgError, ValueError) as exc:
         raise DesignError(f"the fusion design at q = {q} failed: {exc}") from None
     log.info("fusion q = %d: unshifted, radius %.6g, predicted %.4gx the KF", q, best.radius, best.ratio)
-    if rate is None or best.radius < rate:
+    if rate is None or certifies(best.radius, rate):
         return best
 
     def attempt(alpha, X):
@@ -574,7 +575,7 @@ def _design_fusion(F, Cs, Q, Rs, nbs, q, *, rate):
         except (DesignError, np.linalg.LinAlgError, ValueError):  # ValueError: covariances overflowed
             return None, None
         log.info("fusion q = %d: alpha %.6g, radius %.6g %s rate %.6g, predicted %.4gx the KF", q, alpha, d.radius,
-                 "<" if d.radius < rate else ">=", rate, d.ratio)
+                 "<" if certifies(d.radius, rate) else "not <", rate, d.ratio)
         return d, Xa
 
     # The largest alpha that certifies (the gains closest to the noise's).  The radius of a design for F / alpha is
@@ -604,7 +605,7 @@ def _design_fusion(F, Cs, Q, Rs, nbs, q, *, rate):
             fail, fail_radius = a, None
             continue
         warm_X, warm_radius = X, d.radius
-        if d.radius < rate:
+        if certifies(d.radius, rate):  # the one rule (spectral.certifies)
             ok = d
         else:
             fail, fail_radius = a, d.radius

@@ -32,6 +32,7 @@ from ..scenarios.specs import Scenario
 from .exchange_limit import hop_distances, network_model, scenario_limit
 from .fusion import design_fusion, neighbour_positions
 from .kalman import per_step_rate, spectral_radius
+from .spectral import certifies
 
 __all__ = ["FusionKind", "design_fusion_kind", "fusion_matrix", "fusion_noise", "agent_fusion", "survivors_radius"]
 
@@ -76,8 +77,8 @@ class FusionKind:
 
     @property
     def certified(self) -> bool:
-        """Every graph's error map below the rate."""
-        return self.radius < self.lam_step
+        """Every graph's error map below the rate (the one rule, :func:`.spectral.certifies`)."""
+        return certifies(self.radius, self.lam_step)
 
     @property
     def kf_rms(self) -> float:
@@ -188,7 +189,7 @@ def budget_text(sc: Scenario, kind: FusionKind) -> str:
     """
     r = kind.radius
     fastest = f"{r:.6g} per event time" if sc.time == "discrete" else \
-        f"{-math.log(r) / sc.run.dt:.4g} /s" if 0 < r < 1 else "none: its error map is unstable"
+        f"{-math.log(r) / sc.run.dt:.4g} {sc.system.per_time}" if 0 < r < 1 else "none: its error map is unstable"
     fewest = f"q = {kind.fewest}" if kind.fewest is not None else f"none up to q = {kind.searched}"
     return (f"design.q = {kind.q} does NOT certify rate {sc.design.rate:g} with the fusion kind: the fewest exchanges "
             f"that do: {fewest}; the noise's gains at q = {kind.q} keep rate {fastest} (spectral radius {r:.6g})")

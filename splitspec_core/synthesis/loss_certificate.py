@@ -39,6 +39,7 @@ import numpy as np
 
 from .design_data import Design, cached_analysis
 from ..model.graphs import build_graph, find_unreachable
+from .spectral import certifies
 
 __all__ = ["LossCertificate", "loss_certificate", "MAX_LOST_CHECKED"]
 
@@ -226,12 +227,12 @@ def loss_certificate(des: Design) -> LossCertificate | None:
     q_needed = max(1, math.ceil(math.log(rate / norm_a) / math.log(beta))) if norm_a > rate else 1
     fields = dict(max_lost=L, beta=beta, bound=bound, q_needed=q_needed, p_more=p_more, graphs=len(graphs))
     what = f"|Atil|_2 max_k |V' S_k V|_2^q = {norm_a:.4g} x {beta:.4g}^{q} = {bound:.4g}"
-    if bound <= rate and covers:
-        return LossCertificate(True, f"rate certified under loss: {what} <= rate {rate:g} over every graph a "
+    if certifies(bound, rate) and covers:
+        return LossCertificate(True, f"rate certified under loss: {what} < rate {rate:g} over every graph a "
                                      f"sub-round can realize ({len(graphs)}){cut}", **fields)
-    if bound <= rate:
-        return LossCertificate(False, f"not certified under loss: certified only for {scope} ({what} <= rate "
+    if certifies(bound, rate):
+        return LossCertificate(False, f"not certified under loss: certified only for {scope} ({what} < rate "
                                       f"{rate:g} over the {len(graphs)} graphs they realize){beyond}{cut}", **fields)
-    return LossCertificate(False, f"not certified under loss: q = {q} gives {what} > rate {rate:g}; q >= {q_needed} "
+    return LossCertificate(False, f"not certified under loss: q = {q} gives {what} >= rate {rate:g}; q >= {q_needed} "
                                   f"would certify {scope} (two-norm over the {len(graphs)} graphs they realize)"
                                   f"{beyond}{cut}", **fields)

@@ -26,6 +26,7 @@ from .conditioning import transient_constant
 from .error_matrix import MAX_RATE_DIM, whole_matrix
 from ..model.graphs import is_doubly_stochastic
 from .kalman import spectral_radius
+from .spectral import certifies
 from ..scenarios.specs import Scenario
 
 __all__ = ["mixing_bound", "dwell_bound", "same_agents", "certify"]
@@ -173,9 +174,9 @@ def certify(sc: Scenario, by_id: dict, cases, q: int, lam: float, dwell: float |
     switching = any(len(Ss) > 1 for Ss in groups.values())
     if radii and not switching:
         worst = max(radii.values())
-        return radii, ("full error matrix", worst, worst < lam, False)
+        return radii, ("full error matrix", worst, certifies(worst, lam), False)
     mix = max(mixing_bound([by_id[i] for i in ids], Ss, q, lam) for ids, Ss in groups.items())
-    if mix < lam:
+    if certifies(mix, lam):
         return radii, ("mixing bound", mix, True, True)
     if radii:
         worst = max(radii.values())
@@ -183,10 +184,10 @@ def certify(sc: Scenario, by_id: dict, cases, q: int, lam: float, dwell: float |
         if steps:
             Ms = [whole_matrix([by_id[i] for i in c.graph.ids], c.graph.S, q) for c in cases]
             dw = dwell_bound(Ms, lam, steps)
-            if dw < lam:
+            if certifies(dw, lam):
                 return radii, ("dwell-time bound", dw, True, True)
         warnings.append("the whole-state design is certified for each graph held constant; no switching certificate "
                         "holds (the mixing bound needs doubly stochastic weights, design.weights: metropolis on "
                         "undirected graphs; the dwell-time bound a longer dwell)")
-        return radii, ("full error matrix", worst, worst < lam, False)
+        return radii, ("full error matrix", worst, certifies(worst, lam), False)
     return radii, ("mixing bound", mix, False, True)

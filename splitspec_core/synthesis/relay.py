@@ -55,6 +55,7 @@ from ..model.plant import output_rows
 from ..scenarios.specs import Scenario
 from .exchange_limit import hop_distances, information_delays, network_model, protocol_limit
 from .kalman import kalman_predictor, per_step_rate, regularise, shifted_predictor, spectral_radius, steady_covariance
+from .spectral import certifies
 
 __all__ = ["RelayDesign", "ALPHA_STEPS", "AUTO_GAP", "design_relay", "scenario_relay", "relay_gains", "walk_maps",
            "relay_transient", "relay_q", "agent_relay", "survivors_radius", "gain_table", "LAG_MAX", "AUTO_LAG",
@@ -134,8 +135,8 @@ class RelayDesign:
 
     @property
     def certified(self) -> bool:
-        """``rho(F - L C)`` below the rate per event time."""
-        return self.radius < self.lam_step
+        """``rho(F - L C)`` below the rate per event time (the one rule, :func:`.spectral.certifies`)."""
+        return certifies(self.radius, self.lam_step)
 
     @property
     def agent_rms(self) -> np.ndarray:
@@ -345,7 +346,7 @@ def design_relay(F: np.ndarray, Cs, Q: np.ndarray, Rs, dist: np.ndarray, q: int,
     Qr, Rsr = regularise(Q), [regularise(Ri) for Ri in Rs]
     delays = information_delays(dist, q)
     base, alpha = kf, 1.0
-    if lam is not None and not kf.radius < lam:
+    if lam is not None and not certifies(kf.radius, lam):  # the one rule (spectral.certifies)
         base, alpha = _shift(F, C, Q, R, lam, kf)
     P_base = kf.P if base is kf else steady_covariance(F, C, base.L, Q, R)
     if lag == "auto":
@@ -586,6 +587,6 @@ def refusal_text(sc: Scenario, kind: RelayDesign) -> str:
     """
     r = kind.radius
     fastest = f"{r:.6g} per event time" if sc.time == "discrete" else \
-        f"{-math.log(r) / sc.run.dt:.4g} /s" if 0 < r < 1 else "none: its error map is unstable"
+        f"{-math.log(r) / sc.run.dt:.4g} {sc.system.per_time}" if 0 < r < 1 else "none: its error map is unstable"
     return (f"design.consensus: relay does NOT certify rate {sc.design.rate:g} at any q: its base is the centralized "
             f"predictor, whose most shifted gain keeps rate {fastest} (spectral radius {r:.6g}): lower design.rate")

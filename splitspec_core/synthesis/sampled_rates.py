@@ -18,6 +18,7 @@ from . import bounds
 from ..errors import DesignError
 from ..scenarios.specs import Scenario
 from ..scenarios.sampling import sampled_data_matrices
+from .spectral import certifies
 
 __all__ = ["sampled_rates", "sampled_g", "exact_g"]
 
@@ -83,7 +84,7 @@ def sampled_rates(sc: Scenario, agents, cases, g: float, *, dt: float | None = N
 
 def exact_g(cases, rate: float, margin: float, g_mins: dict) -> float | None:
     """The smallest two-digit g whose exact spectrum beats the rate by ``design.margin`` on every case (abscissa of
-    A_V(g) at most ``-(1 + margin) lam``, eq. split_continuous_split, each graph held constant; the margin, as the
+    A_V(g) below ``-(1 + margin) lam``, eq. split_continuous_split, each graph held constant; the margin, as the
     local gains', keeps the decay clear of the rate: a g at the rate's edge leaves a transient that takes the sampled
     form millions of steps to outlive), or at least the rate when no g gives that margin; None when none does.
 
@@ -110,7 +111,7 @@ def exact_g(cases, rate: float, margin: float, g_mins: dict) -> float | None:
             continue
         g = bounds.nice_ceil(need * (1 + 1e-9))
         for _ in range(40):
-            if all(bounds.abscissa(c, g) <= -target for c in cases):
+            if all(certifies(bounds.abscissa(c, g), -target) for c in cases):
                 return g
             g = bounds.nice_ceil(g * 1.25)
     return None
@@ -166,11 +167,11 @@ def _sampled_warn(sc: Scenario, agents, cases, g: float, out: dict, warnings: li
     would meet it."""
     dt = sc.run.dt
     worst = min(out.values())
-    if worst >= sc.design.rate:
+    if certifies(-worst, -sc.design.rate):  # the one rule on the decay rate
         return
     need = None
     for k in range(1, 21):
-        if min(sampled_rates(sc, agents, cases, g, dt=dt / 2 ** k).values()) >= sc.design.rate:
+        if certifies(-min(sampled_rates(sc, agents, cases, g, dt=dt / 2 ** k).values()), -sc.design.rate):
             need = dt / 2 ** k
             break
     fix = (f"reduce run.dt (run.dt <= {need:.3g} meets it)" if need is not None

@@ -22,6 +22,13 @@ A certificate never says more than what was computed:
 * every value records how it was computed (:class:`Radius`), and the design reports the methods and
   tolerances used (``splitspec design --json``: ``q_eigenvalues``).
 
+Every certificate decides by one rule, :func:`certifies` (and every report phrases it by :func:`comparison`): a bound
+certifies the rate only when it is *below* it, by the relative margin :data:`CERTIFY_MARGIN`.  A bound equal to
+the rate certifies nothing (a Jordan block at the rate grows like ``k lam^k``; its transient constant is infinite),
+and a bound an ulp below it is equal to it up to the round-off of the eigenvalue (or norm) that computed it: a
+double eigenvalue moves like the square root of the round-off, ``1e-8`` relative, and the error map of another
+computation path (:mod:`.conditioning`'s full error matrix) lands on the other side of the rate.
+
 ``method`` everywhere: ``dense`` (always form and decompose), ``iterative`` (always ARPACK first, with the
 fallbacks above), ``auto`` (iterative above ``DENSE_MAX`` unknowns, where it is faster; the default).
 """
@@ -34,7 +41,7 @@ import numpy as np
 
 from ..model.graphs import positions_in
 
-__all__ = ["DENSE_MAX", "DECIDE", "TOL", "Radius", "radius", "radii", "spectral_radius", "summary", "use_iterative"]
+__all__ = ["CERTIFY_MARGIN", "certifies", "comparison", "DENSE_MAX", "DECIDE", "TOL", "Radius", "radius", "radii", "spectral_radius", "summary", "use_iterative"]
 
 DENSE_MAX = 300  # nbar above which "auto" goes matrix-free (dense eigvals of 300 x 300: ~30 ms)
 TOL = 1e-8  # ARPACK's relative tolerance on the Ritz values
@@ -44,6 +51,73 @@ TOL = 1e-8  # ARPACK's relative tolerance on the Ritz values
 DECIDE = 1e-2
 NCV = 40  # ARPACK's Krylov basis size (at least): the top of these spectra is crowded (moduli 0.5 % apart)
 METHODS = ("auto", "dense", "iterative")
+#: The relative margin of the one rule (:func:`certifies`): 100 times the round-off of a defective (double)
+#: eigenvalue's modulus (``sqrt(eps) ~ 1.5e-8``), a rate slower by a millionth of itself: nothing a design needs
+CERTIFY_MARGIN = 1e-6
+
+
+def certifies(bound: float, limit: float) -> bool:
+    """The one rule of every certificate: ``bound < limit - CERTIFY_MARGIN |limit|`` (strict, with a margin).
+
+    ``bound`` is what must be below ``limit``: a spectral radius or norm per event time against the rate ``lam``
+    (discrete), a spectral abscissa against ``-lam`` (continuous), a decay rate ``-d`` against ``-lam``.  Equal, or
+    within :data:`CERTIFY_MARGIN` (relative) of it, certifies nothing (module docstring).
+
+    Parameters
+    ----------
+    bound : float
+        The certified quantity.
+    limit : float
+        What it must be below.
+
+    Returns
+    -------
+    bool
+        True when ``bound`` is below ``limit`` by the margin (False for NaN).
+
+    Examples
+    --------
+    >>> certifies(0.4736, 0.5), certifies(0.5, 0.5), certifies(0.5 * (1 - 1e-9), 0.5), certifies(-2.1, -2.0)
+    (True, False, False, True)
+    """
+    return bool(bound < limit - CERTIFY_MARGIN * abs(limit))
+
+
+def comparison(bound: float, limit: float, *, limit_text: str | None = None, digits: int = 4) -> str:
+    """The one rule (:func:`certifies`) as a report prints it: ``bound < limit`` when it certifies, ``bound >= limit``
+    when it is not below, and for a bound below but within the margin, both with 10 digits and the reason.
+
+    Parameters
+    ----------
+    bound : float
+        The certified quantity.
+    limit : float
+        What it must be below.
+    limit_text : str, optional
+        How ``limit`` is named (e.g. ``rate 0.5``); default its value.
+    digits : int
+        Significant digits of ``bound``.
+
+    Returns
+    -------
+    str
+        A clause, e.g. ``0.4736 < rate 0.5``.
+
+    Examples
+    --------
+    >>> comparison(0.4736, 0.5, limit_text="rate 0.5"), comparison(0.52, 0.5), comparison(0.94996, 0.95)
+    ('0.4736 < rate 0.5', '0.52 >= 0.5', '0.94996 < 0.95')
+    >>> print(comparison(0.2999999999, 0.3, limit_text="rate 0.3"))
+    0.2999999999 is not below rate 0.3 by the certificate's margin (1e-06 relative)
+    """
+    named = f"{limit:g}" if limit_text is None else limit_text
+    while digits < 10 and bound != limit and f"{bound:.{digits}g}" == f"{limit:.{digits}g}":
+        digits += 1  # never "0.95 < rate 0.95": as many digits as tell them apart
+    if certifies(bound, limit):
+        return f"{bound:.{digits}g} < {named}"
+    if bound >= limit or not bound == bound:
+        return f"{bound:.{digits}g} >= {named}"
+    return f"{bound:.10g} is not below {named} by the certificate's margin ({CERTIFY_MARGIN:g} relative)"
 
 
 @dataclass(frozen=True)

@@ -56,7 +56,7 @@ def certify_network(des: Design, alive_ids, dropped=frozenset()) -> dict:
     ...                          gains="place"))
     >>> v = certify_network(des, [1, 3])
     >>> v["rate_certified"], v["certificate"]
-    (True, 'q = 3: spectral bound 0.1768 <= rate 0.5')
+    (True, 'q = 3: spectral bound 0.1768 < rate 0.5')
     >>> v = certify_network(des, [1, 2])  # nobody sees x3, x4 any more
     >>> v["ok"], v["jointly_observable"], v["certificate"]
     (False, False, 'no rate: the survivors leave a mode unobserved that does not decay')

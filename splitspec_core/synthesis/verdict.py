@@ -18,6 +18,7 @@ from .error_matrix import MAX_RATE_DIM, step_blocks, whole_matrix
 from .kalman import spectral_radius
 from ..model.graphs import build_graph
 from .sampled_rates import sampled_rates
+from .spectral import certifies, comparison
 from .mixing import mixing_bound
 
 __all__ = ["RateCertificate", "rate_certificate", "survivors_certificate", "q_text", "whole_text", "sampled_shortfall",
@@ -56,7 +57,7 @@ class RateCertificate:
 
 
 def q_text(q: int, r: bounds.QResult, rate: float, cases: int, *, held: str = "each") -> str:
-    """``q = ...: <method> bound ... <= rate ...``: the line of q's certificate (``r``) over ``cases`` cases; a
+    """``q = ...: <method> bound ... < rate ...``: the line of q's certificate (``r``) over ``cases`` cases; a
     per-graph method on more than one says so (``held``: ``each`` in the design's report, ``per`` at runtime).
 
     Parameters
@@ -77,8 +78,8 @@ def q_text(q: int, r: bounds.QResult, rate: float, cases: int, *, held: str = "e
     str
         One line.
     """
-    ok = bool(r.certified)
-    return (f"q = {q}: {r.method} bound {r.bound:.4g} {'<=' if ok else '>'} rate {rate:g}"
+    # the one rule (spectral.certifies) decided r.certified; the line says the same comparison
+    return (f"q = {q}: {r.method} bound {comparison(r.bound, rate, limit_text=f'rate {rate:g}')}"
             + ("" if r.switching or cases == 1 else f" ({held} graph held constant)"))
 
 
@@ -138,7 +139,7 @@ def rate_certificate(des: Design, *, sampled: bool = True) -> RateCertificate:
     ...                          graphs={"a": [(1, 2), (2, 1), (2, 3), (3, 2), (1, 3), (3, 1)]}, rate=0.5,
     ...                          gains="place"))
     >>> rate_certificate(des)
-    RateCertificate(certified=True, text='q = 3: spectral bound 0.419 <= rate 0.5', rate=0.5, by='spectral')
+    RateCertificate(certified=True, text='q = 3: spectral bound 0.419 < rate 0.5', rate=0.5, by='spectral')
     """
     return _rate_certificate(des, sampled=bool(sampled))
 
@@ -205,9 +206,9 @@ def _blocks_certificate(des: Design, *, sampled: bool) -> RateCertificate:
     g = des.g
     if des.g_certified_by is None:
         worst = max(des.error_radius.values(), default=-math.inf)
-        if worst > -rate:  # eq. (split_continuous_split): the ODE's error decays as exp(abscissa t)
+        if not certifies(worst, -rate):  # eq. (split_continuous_split): the ODE's error decays as exp(abscissa t)
             return RateCertificate(False, f"g = {g:g} misses rate {rate:g} even for the ODE (spectral abscissa "
-                                          f"of A_V {worst:.4g} > -{rate:g})")
+                                          f"of A_V {comparison(worst, -rate)})")
         return RateCertificate(False, f"g = {g:g} meets rate {rate:g} for each graph held constant, but no bound "
                                       "covers the switching (thm. arb, eq. split_continuous_g)")
     by = des.g_certified_by
@@ -218,10 +219,10 @@ def _blocks_certificate(des: Design, *, sampled: bool) -> RateCertificate:
     worst = min(des.sampled_rate.values())
     if worst <= 0:
         return RateCertificate(False, f"{ode}, but {sampled_shortfall(dt, worst, rate)}: reduce run.dt or g")
-    if worst < rate:
+    if not certifies(-worst, -rate):  # the one rule on the decay rate: -worst below -rate
         return RateCertificate(False, f"{ode}, but {sampled_shortfall(dt, worst, rate)}: reduce run.dt")
     scope = " (each graph held constant)" if len(des.cases) > 1 else ""
-    return RateCertificate(True, f"{ode}; its sampled-data form with run.dt = {dt:g} decays at {worst:.4g} >= "
+    return RateCertificate(True, f"{ode}; its sampled-data form with run.dt = {dt:g} decays at {worst:.4g} > "
                                  f"{rate:g}{scope}", by=by)
 
 
@@ -254,11 +255,11 @@ def whole_text(q: int, r: bounds.QResult, des: Design, cases: int, *, held: str 
             "dwell-time bound": "dwell-time bound"}.get(r.method, r.method)
     ok = bool(r.certified)
     if sc.time == "discrete":
-        text = f"q = {q}: {what} {r.bound:.6g} {'<' if ok else '>='} rate {lam:.6g}"
+        text = f"q = {q}: {what} {comparison(r.bound, lam, limit_text=f'rate {lam:.6g}', digits=6)}"
     else:
         per_s = -math.log(r.bound) / sc.run.dt if 0 < r.bound < math.inf else 0.0
-        text = (f"q = {q} exchanges per run.dt = {sc.run.dt:g}: {what} {r.bound:.6g} {'<' if ok else '>='} "
-                f"{lam:.6g} per step (decay rate {per_s:.4g} {'>=' if ok else '<'} {-math.log(lam) / sc.run.dt:.4g})")
+        text = (f"q = {q} exchanges per run.dt = {sc.run.dt:g}: {what} {comparison(r.bound, lam, digits=6)} "
+                f"per step (decay rate {per_s:.4g} {'>' if ok else '<='} {-math.log(lam) / sc.run.dt:.4g})")
     if r.method == "mixing bound":
         text += " under arbitrary switching among doubly stochastic graphs"
     elif r.method == "dwell-time bound":
@@ -279,8 +280,8 @@ def _fusion_certificate(des: Design) -> RateCertificate:
     k = des.whole
     per = "per event time" if des.time == "discrete" else f"per run.dt = {des.scenario.run.dt:g}"
     held = " (each graph held constant)" if len(k.designs) > 1 else ""
-    return RateCertificate(k.certified, f"q = {des.q}: spectral radius of the full error map {k.radius:.6g} "
-                                        f"{'<' if k.certified else '>='} {k.lam_step:.6g} {per}{held}; fusion",
+    return RateCertificate(k.certified, f"q = {des.q}: spectral radius of the full error map "
+                                        f"{comparison(k.radius, k.lam_step, digits=6)} {per}{held}; fusion",
                            by="full error matrix")
 
 
@@ -289,8 +290,8 @@ def _relay_certificate(des: Design) -> RateCertificate:
     couple; each is its walk's fixed map of the base's)."""
     k = des.whole
     per = "per event time" if des.time == "discrete" else f"per run.dt = {des.scenario.run.dt:g}"
-    return RateCertificate(k.certified, f"q = {des.q}: spectral radius of the base's error map F - L C {k.radius:.6g} "
-                                        f"{'<' if k.certified else '>='} {k.lam_step:.6g} {per} (every agent's error "
+    return RateCertificate(k.certified, f"q = {des.q}: spectral radius of the base's error map F - L C "
+                                        f"{comparison(k.radius, k.lam_step, digits=6)} {per} (every agent's error "
                                         "its walk's fixed map of it; the graph fixed); relay", by="base error map")
 
 
@@ -306,16 +307,33 @@ def _full_certificate(des: Design, *, sampled: bool) -> RateCertificate:
     by = "full error matrix"
     if des.time == "discrete":
         worst = max(des.full_radius.values())
-        ok = worst < rate
-        return RateCertificate(ok, f"q = {des.q}: spectral radius of the full error matrix {worst:.4g} "
-                                   f"{'<' if ok else '>='} rate {rate:g} ({scope})", by=by)
+        ok = certifies(worst, rate)
+        return RateCertificate(ok, f"q = {des.q}: spectral radius of the full error matrix "
+                                   f"{comparison(worst, rate, limit_text=f'rate {rate:g}')}"
+                                   f"{_where(des, des.full_radius, ok)} ({scope})", by=by)
     ode = max(v["ode"] for v in des.full_radius.values())
     smp = min(v["sampled"] for v in des.full_radius.values())
-    ok = ode <= -rate and (smp >= rate or not sampled)
-    text = f"g = {des.g:g}: spectral abscissa of the full error matrix {ode:.4g} {'<=' if ode <= -rate else '>'} -{rate:g}"
+    ok = certifies(ode, -rate) and (certifies(-smp, -rate) or not sampled)
+    text = (f"g = {des.g:g}: spectral abscissa of the full error matrix {comparison(ode, -rate)}"
+            f"{_where(des, {k: v['ode'] for k, v in des.full_radius.items()}, ok)}")
     if sampled:
         text += f", its sampled-data form with run.dt = {sc.run.dt:g} decays at {smp:.4g}"
     return RateCertificate(ok, f"{text} ({scope})", by=by)
+
+
+def _where(des: Design, values: dict, ok: bool) -> str:
+    """Which case a verdict's worst value is about, when there is more than one: `` on ring without agent 1 (the
+    worst of 5 cases; a loss design.resilience: 1 asks to survive; without losses, ring: 0.8859)``; the graphs themselves are named when the worst is a loss case
+    (``design.resilience: 1``), so a report never leaves the reader to guess which network a bound is about."""
+    if len(values) < 2:
+        return ""
+    label = max(values, key=values.get)
+    nominal = {g.name for g in des.graphs}
+    text = f" on {label} (the worst of {len(values)} cases"
+    if label not in nominal:
+        own = ", ".join(f"{k}: {v:.4g}" for k, v in values.items() if k in nominal)
+        text += f"; a loss design.resilience: 1 asks to survive; without losses, {own}" if own else ""
+    return text + ")"
 
 
 def _whole_survivors(des: Design, alive: tuple, arcs: dict) -> tuple:
@@ -332,14 +350,14 @@ def _whole_survivors(des: Design, alive: tuple, arcs: dict) -> tuple:
     per = "per event time" if sc.time == "discrete" else "per step"
     if len(alive) * sc.n <= MAX_RATE_DIM and (len(Ss) == 1 or des.q_result.method != "mixing bound"):
         worst = max(spectral_radius(whole_matrix(Fs, S, des.q)) for S in Ss)
-        ok = worst < lam
+        ok = certifies(worst, lam)
         held = " (per graph held constant)" if len(Ss) > 1 else ""
-        return ok, (f"q = {des.q}, the gains kept: spectral radius of the survivors' full error matrix {worst:.6g} "
-                    f"{'<' if ok else '>='} {lam:.6g} {per}{held}; whole-state consensus"), "full error matrix"
+        return ok, (f"q = {des.q}, the gains kept: spectral radius of the survivors' full error matrix "
+                    f"{comparison(worst, lam, digits=6)} {per}{held}; whole-state consensus"), "full error matrix"
     bound = mixing_bound(Fs, Ss, des.q, lam)
-    ok = bound < lam
-    return ok, (f"q = {des.q}, the gains kept: mixing bound of the survivors {bound:.6g} {'<' if ok else '>='} "
-                f"{lam:.6g} {per}; whole-state consensus"), "mixing bound"
+    ok = certifies(bound, lam)
+    return ok, (f"q = {des.q}, the gains kept: mixing bound of the survivors {comparison(bound, lam, digits=6)} "
+                f"{per}; whole-state consensus"), "mixing bound"
 
 
 def survivors_certificate(des: Design, alive: tuple, arcs: dict, network, *, excluded: bool) -> RateCertificate:
@@ -349,7 +367,7 @@ def survivors_certificate(des: Design, alive: tuple, arcs: dict, network, *, exc
     ``alive``: the surviving agents; ``arcs``: per graph the switching uses, its arcs still up; ``network``: their
     :func:`~splitspec_core.synthesis.resilience.network_verdict`; ``excluded``: what they leave unobserved is no more
     than ``design.undetectable: exclude`` set aside.  Nothing without strong connectivity and detectability;
-    else ``q`` with the design's q method (rho(Atil B^q) <= lam for ``spectral``, eq. split_discrete_rho), ``g``
+    else ``q`` with the design's q method (rho(Atil B^q) < lam for ``spectral``, eq. split_discrete_rho), ``g``
     against eq. (g) or, failing that, the exact spectrum of A_V(g) (eq. split_continuous_split) per graph held
     constant, on the survivors' graphs on the quotient by ``W_S``; a continuous g must also make the sampled-data
     form with ``run.dt`` decay at the rate (as :func:`rate_certificate`).  ``certified`` is None for the
@@ -392,18 +410,18 @@ def survivors_certificate(des: Design, alive: tuple, arcs: dict, network, *, exc
 
         worst = survivors_radius(des, alive, arcs)
         lam = des.whole.lam_step
-        cert, by = worst < lam, "full error matrix"
+        cert, by = certifies(worst, lam), "full error matrix"
         text = (f"q = {des.q}, the gains kept, the lost neighbours' weights folded into each agent's own: spectral "
-                f"radius of the survivors' full error map {worst:.6g} {'<' if cert else '>='} {lam:.6g} per step; fusion")
+                f"radius of the survivors' full error map {comparison(worst, lam, digits=6)} per step; fusion")
     elif des.consensus == "relay":  # the gains kept: the base runs on the samples that still arrive in time
         from .relay import survivors_radius as relay_survivors
 
         worst = relay_survivors(des, alive, arcs)
         lam = des.whole.lam_step
-        cert, by = worst < lam, "base error map"
+        cert, by = certifies(worst, lam), "base error map"
         text = (f"q = {des.q}, the gains kept, the lost agents' samples (and those arriving later than the base "
-                f"needs) left out: spectral radius of the base's error map {worst:.6g} {'<' if cert else '>='} "
-                f"{lam:.6g} per step; relay")
+                f"needs) left out: spectral radius of the base's error map {comparison(worst, lam, digits=6)} "
+                f"per step; relay")
     elif des.consensus == "whole":  # the gains kept: the survivors' full error matrices (whole_state.py)
         cert, text, by = _whole_survivors(des, alive, arcs)
         un_S = network.unobserved if cert else un_S
@@ -418,16 +436,16 @@ def survivors_certificate(des: Design, alive: tuple, arcs: dict, network, *, exc
         ad = {a.id: a for a in des.agents}
         cases = survivor_cases()
         gb = max(bounds.g_bound(c, rate) for c in cases)
-        if des.g >= gb:
-            cert, text, by = True, f"g = {des.g:g} >= eq. (g) bound {gb:.4g} on the survivors' graphs", "eq:g"
+        if certifies(gb, des.g):  # the one rule: eq. (g)'s bound below the g used
+            cert, text, by = True, f"g = {des.g:g} > eq. (g) bound {gb:.4g} on the survivors' graphs", "eq:g"
         else:
             worst = max(bounds.abscissa(c, des.g) for c in cases)
-            cert, by = worst <= -rate, "spectrum"
-            text = (f"g = {des.g:g} < eq. (g) bound {gb:.4g}; exact spectral abscissa {worst:.4g} "
-                    f"{'<=' if cert else '>'} -{rate:g} (per graph held constant)")
+            cert, by = certifies(worst, -rate), "spectrum"
+            text = (f"g = {des.g:g} < eq. (g) bound {gb:.4g}; exact spectral abscissa {comparison(worst, -rate)} "
+                    "(per graph held constant)")
         if cert:  # what runs is the sampled-data form (steps.py): it must decay at the rate too
             dt, sampled = sc.run.dt, min(sampled_rates(sc, [ad[i] for i in alive], cases, des.g).values())
-            if sampled < rate:
+            if not certifies(-sampled, -rate):
                 cert = False
                 text += f"; but {sampled_shortfall(dt, sampled, rate)}"
     envelope = rate

@@ -69,6 +69,7 @@ from .mixing import certify, mixing_bound, same_agents
 from .bounds import smallest
 from ..model.observability import unobservable_directions
 from .kalman import kalman_predictor, per_step_rate, shifted_predictor, spectral_radius
+from .spectral import certifies
 
 __all__ = ["WholeState", "Q_GAIN", "Q_EXTRA", "Q_CAP", "SEARCH_DIM", "MARGINS", "case_radius", "radius_at", "design_whole",
            "whole_gains", "agent_gain"]
@@ -423,8 +424,8 @@ def _certifies(sc: Scenario, by_id, cases, lam: float, q: int) -> bool:
     of each agent set's graphs)."""
     if sc.m * sc.n > MAX_RATE_DIM:
         groups = same_agents(cases)
-        return all(mixing_bound([by_id[i] for i in ids], Ss, q, lam) < lam for ids, Ss in groups.items())
-    return all(by_id.of(sc, c, q) < lam for c in cases)
+        return all(certifies(mixing_bound([by_id[i] for i in ids], Ss, q, lam), lam) for ids, Ss in groups.items())
+    return all(certifies(by_id.of(sc, c, q), lam) for c in cases)
 
 
 def _smallest_q(sc: Scenario, by_id: dict, cases, lam: float, q_cap: int) -> int | None:

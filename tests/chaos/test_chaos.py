@@ -51,6 +51,10 @@ def test_orchestrator_sigkill_mid_run(tmp_path):
     _show("orchestrator SIGKILL", C.case_orchestrator_killed, tmp_path)
 
 
+def test_orchestrator_takeovers_at_a_switch_a_roll_and_of_the_standby(tmp_path):
+    _show("orchestrator takeovers", C.case_orchestrator_takeovers, tmp_path)
+
+
 def _need_mount():
     if not C.can_mount():
         pytest.skip("needs root to mount a tmpfs")

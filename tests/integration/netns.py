@@ -205,6 +205,11 @@ class NetnsLab:
         for ns, dev in ((self.ns(host), "eth0"), (self.ns("hub"), f"p{self.hosts.index(host)}")):
             _tc("-n", ns, "qdisc", "replace", "dev", dev, "root", *spec)
 
+    def cut(self, host: str, off: bool = True) -> None:
+        """Cut ``host`` off the network (its ``eth0`` down: no frame in or out, no FIN either), or (``off=False``)
+        bring it back."""
+        _ip("-n", self.ns(host), "link", "set", "eth0", "down" if off else "up")
+
     def link_stats(self) -> dict:
         """``{host: {"up": {"frames", "dropped"}, "down": {...}}}`` of every impairable host's link so far."""
         if self.impair_backend == "linkem":

@@ -90,7 +90,10 @@ def wait_for_event(out: Path, name: str, timeout: float = 60.0, **where) -> dict
 
 
 def wait_for_rows(out: Path, rows: int, timeout: float = 60.0) -> None:
-    """Until ``trajectory.npz`` (written incrementally) holds at least ``rows`` event times."""
+    """Until the records hold at least ``rows`` event times: ``trajectory.npz`` (written incrementally), or for a
+    run until stopped its chunks (the last segment's last event time)."""
+    from splitspec_core.simulation.trajectory_chunks import chunk_segments, segment_last_tau
+
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
         try:
@@ -99,8 +102,15 @@ def wait_for_rows(out: Path, rows: int, timeout: float = 60.0) -> None:
                     return
         except (OSError, ValueError, KeyError):
             pass  # not written yet
+        try:
+            segments = chunk_segments(out)
+            last = segment_last_tau(segments[-1][1]) if segments else None
+            if last is not None and last + 1 >= rows:
+                return
+        except (OSError, ValueError):
+            pass
         time.sleep(0.05)
-    raise AssertionError(f"fewer than {rows} rows in {out}/trajectory.npz after {timeout} s")
+    raise AssertionError(f"fewer than {rows} rows in {out} (trajectory.npz or chunks) after {timeout} s")
 
 
 def pid_alive(pid: int) -> bool:

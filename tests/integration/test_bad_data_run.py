@@ -56,6 +56,27 @@ def test_corrupted_sensor_and_killed_agent_for_real_equal_simulate(tmp_path, con
     assert [tau for tau, _ in rrd["marks/restored"]] == [int(e["t"]) for e in ev if e["event"] == "sensor_restored"]
 
 
+def test_a_rejoin_for_real_leaves_the_other_sensors_trusted_as_simulate_does(tmp_path):
+    """Issue 46's walk (a motor and its load, the current sensor's agent killed at 700 and restarted at 800): each
+    agent process starts its warm-up afresh on the tick that carries the rejoiner's higher incarnation, as the
+    simulator's Screen.rejoined does; before, the two angle sensors became suspect at 803 and were never restored
+    (the run ended 3.68 off)."""
+    from tests.unit.test_bad_data import MOTOR
+
+    scen = tmp_path / "motor.yaml"
+    scen.write_text(MOTOR)
+    out = tmp_path / "out"
+    r = run("run", scen, "--out", out, "--run-id", "t" + uuid.uuid4().hex[:10])
+    assert r.returncode == 0, r.stdout + r.stderr
+    compare_with_simulate(out, scen, tmp_path)  # xhat, alive and every reported column, y_statistic included
+    ran = np.load(out / "trajectory.npz")
+    assert not ran["y_rejected"].any()
+    assert (ran["y_statistic"][800:1142] == -1).all() and (ran["y_statistic"][1142:-1] >= 0).all()
+    assert [e for e in events(out) if e["event"] in ("sensor_suspect", "sensor_restored")] == []
+    assert [e["event"] for e in events(out) if e["event"] in ("agent_lost", "agent_rejoined")] == [
+        "agent_lost", "agent_rejoined"]
+
+
 def test_a_stuck_sensor_for_real_is_caught_by_its_repeats_as_simulate_does(tmp_path):
     """The plant process holds agent 3's measurement (corrupt ... stuck): each agent process's repeat test fails it
     from the first repeat, as the simulator's does; the records and the events agree with simulate."""

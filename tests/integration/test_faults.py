@@ -107,6 +107,12 @@ def test_corrupt_sensor_and_kill_for_real_equal_simulate_and_replay(tmp_path):
     (bad,) = [e for e in ev if e["event"] == "sensor_corrupted"]
     (fixed,) = [e for e in ev if e["event"] == "sensor_repaired"]
     assert (bad["id"], bad["tau"], bad["bias"], bad["scale"], fixed["id"], fixed["tau"]) == (2, 8, 0.5, 1.2, 2, 14)
+    # the terminal tells each fault and its end, not the fault alone
+    told = [ln.split(" splitspec.events ", 1)[1] for ln in r.stderr.splitlines() if " splitspec.events " in ln]
+    assert "WARNING event time 8: agent 2's measurements corrupted (scale 1.2, bias 0.5) by the scenario" in told
+    assert "INFO event time 14: agent 2's sensor repaired" in told
+    assert "WARNING agent 7 lost from event time 11: killed by the scenario (SIGKILL to pid " in "\n".join(told)
+    assert any(t.startswith("INFO agent 7 rejoins at event time 20 with a fresh estimate") for t in told), told
     traj, err = agent_errors(out)
     k = list(traj["agent_ids"]).index(2)
     import splitspec_core as ss
@@ -167,7 +173,8 @@ def test_outside_sigkill_of_a_redundant_agent(tmp_path):
     assert code == 0, text
     (lost,) = lost_events(out, 4)
     tau = lost["tau"]
-    assert tau >= 25 and ("liveliness" in lost["reason"] or "killed by SIGKILL" in lost["reason"])
+    assert tau >= 25 and lost["reason"] == "the process exited (killed by SIGKILL)"  # its parent reaped it
+    assert f"agent 4 lost from event time {tau}: the process exited (killed by SIGKILL)" in text  # the terminal
     traj, err = agent_errors(out)
     k = list(traj["agent_ids"]).index(4)
     assert traj["alive"][:tau, k].all() and not traj["alive"][tau:, k].any()

@@ -152,3 +152,32 @@ def test_processes_started_before_their_orchestrator_wait_for_it(tmp_path):
                 q.wait(timeout=30)
     compare_with_simulate(out, scen, tmp_path)
     assert_all_gone([q.pid for q in procs.values()] + all_pids(out))
+
+
+def test_a_standby_started_after_its_run_ended_says_so_and_exits(tmp_path):
+    """`splitspec standby` for a run whose orchestrator is not up (the run ended, or never was): it asks for the
+    run's configuration for --wait seconds, then exits 1 in one line, writes nothing and leaves no process behind (a
+    standby once kept its interpreter alive on Zenoh's callback threads, and its launcher with it)."""
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    router = start("router", "--listen", endpoint, log=tmp_path / "router.log")
+    log = tmp_path / "standby.log"
+    standby = None
+    try:
+        wait_for_listener(endpoint)
+        t0 = time.monotonic()
+        standby = start("standby", "--run-id", "rgone", "--connect", endpoint, "--out", tmp_path / "out",
+                        "--wait", 3, log=log)
+        code = standby.wait(timeout=60)
+        took = time.monotonic() - t0
+    finally:
+        for proc in (standby, router):
+            if proc is not None and proc.poll() is None:
+                proc.kill()
+                proc.wait()
+    text = log.read_text()
+    errors = [ln for ln in text.splitlines() if ln.startswith("splitspec: error")]
+    assert code == 1 and len(errors) == 1 and "Traceback" not in text, text
+    assert f"no orchestrator of run 'rgone' answered on {endpoint} within 3 s" in errors[0], errors
+    assert 3 <= took < 3 + 20, took
+    assert not (tmp_path / "out" / "events.jsonl").exists()  # it wrote nothing
+    assert_all_gone([standby.pid])

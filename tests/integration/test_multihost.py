@@ -257,3 +257,56 @@ def test_impaired_link_delays_and_loses_frames_and_is_removed():
             raise RuntimeError("boom")
     assert netns.lab_namespaces(os.getpid()) == []
     assert root_links() == links_before and root_qdiscs() == qdiscs_before  # nothing left outside the lab
+
+
+def test_a_standby_on_another_host_takes_over_and_the_cut_off_orchestrator_stands_down(tmp_path):
+    """run.standby across hosts: the router on its own host, the orchestrator on one, its standby on another.  The
+    orchestrator's host is cut off (its link down: no FIN, the router sees it go only when the link's lease runs
+    out, 1.5 s here); the standby takes over, the run goes on; the cut-off one, back on the network, holds no round
+    and writes nothing (it stands down, exit 4); the records equal simulate, every event time once."""
+    from splitspec_orchestrator.viewer.rrd_file import verify_rrd
+
+    steps = 400
+    scen = scenario_file(tmp_path, "paper_discrete", run={"steps": steps, "pace": 40, "standby": True})
+    out = tmp_path / "out"
+    rid = "standby-hosts"
+    hosts = ["router", "orch1", "orch2", "plant"] + [f"a{i}" for i in AGENTS]
+    logs = {h: tmp_path / f"{h}.log" for h in hosts}
+    procs = {}
+    env = {**ENV, "SPLITSPEC_LEASE_MS": "1500"}
+    with netns.NetnsLab(hosts) as lab:
+        def start(host, args):
+            procs[host] = subprocess.Popen(lab.exec(host, cli(*args)), cwd=ROOT, env=env, stdout=open(logs[host], "wb"),
+                                           stderr=subprocess.STDOUT)
+        try:
+            endpoint = f"tcp/{lab.addr['router']}:7447"
+            start("router", ["router", "--listen", endpoint])
+            wait_for_router(lab, "orch1", endpoint)
+            start("orch1", ["orchestrator", scen, "--connect", endpoint, "--out", out, "--run-id", rid])
+            start("orch2", ["standby", "--connect", endpoint, "--out", out, "--run-id", rid])
+            start("plant", ["plant", "--connect", endpoint, "--run-id", rid])
+            for i in AGENTS:
+                start(f"a{i}", ["agent", "--id", i, "--connect", endpoint, "--run-id", rid])
+            wait_for_event(out, "standby_ready", timeout=90)
+            lab.cut("orch1")
+            took = wait_for_event(out, "orchestrator_takeover", timeout=30)
+            assert took["epoch"] == 2 and took["pid"] == procs["orch2"].pid
+            lab.cut("orch1", off=False)  # back: it must not hold a round again
+            assert procs["orch1"].wait(timeout=30) == 4, dump(logs["orch1"])
+            assert "stands down and writes nothing more" in logs["orch1"].read_text(errors="replace")
+            assert procs["orch2"].wait(timeout=120) == 0, dump(logs["orch2"])
+            for h in ["plant"] + [f"a{i}" for i in AGENTS]:
+                assert procs[h].wait(timeout=20) == 0, dump(logs[h])
+        finally:
+            stop_all(procs)
+    ev = events(out)
+    names = [e["event"] for e in ev]
+    assert names.count("run_finished") == 1 and "run_failed" not in names and "rows_missing" not in names
+    assert names.count("orchestrator_takeover") == 1
+    assert not [e for e in ev if e["event"] in ("agent_lost", "agent_rejoined")]
+    with np.load(out / "trajectory.npz") as z:
+        assert np.array_equal(z["t"], np.arange(steps + 1))
+    compare_with_simulate(out, scen, tmp_path)
+    for seg in sorted(out.glob("run*.rrd")):
+        ok, said = verify_rrd(seg)
+        assert ok, (seg, said[-2000:])

@@ -12,8 +12,10 @@ import pytest
 import yaml
 
 from splitspec_core.simulation.trajectory_chunks import ChunkWriter
+from splitspec_core.scenarios.sections import parse_scenario
 from splitspec_orchestrator.commands.pace import (MARGIN, PROBE_STEPS, WARMUP_ROWS, PaceMeasurement, measure,
-                                                  verdict)
+                                                  probe_mapping, verdict)
+from tests.conftest import EXAMPLES
 from tests.integration.runtime_helpers import all_pids, assert_all_gone, events, run, scenario_file
 
 PREFIX = "splitspec: error: "
@@ -85,6 +87,24 @@ def test_rule_is_the_p90_against_90_percent_of_a_period():
     assert ok and line.startswith("capacity on this machine:") and "about 100" in line  # 0.9 * 1000 / 9
 
 
+def until_stopped_with_keep(tmp_path, example: str = "ring10_faults"):
+    """``example`` paced at 5, until stopped (no run.steps), with run.keep: what a deployment looks like."""
+    raw = yaml.safe_load((EXAMPLES / f"{example}.yaml").read_text())
+    raw["run"] = {"pace": 5, "seed": 1, "keep": {"hours": 1, "gigabytes": 2}}
+    path = tmp_path / f"{example}.yaml"
+    path.write_text(yaml.safe_dump(raw))
+    return path
+
+
+def test_the_measuring_run_of_a_scenario_with_run_keep_is_valid(tmp_path):
+    """Issue 46, finding 3: pace refused a paced scenario with run.keep (the copy has run.steps, and run.keep is
+    for a run until stopped); the copy leaves run.keep out."""
+    data, _ = probe_mapping(until_stopped_with_keep(tmp_path))
+    assert "keep" not in data["run"] and data["run"]["steps"] == PROBE_STEPS
+    sc = parse_scenario(data)
+    assert sc.run.keep_hours is None and not sc.run.until_stopped
+
+
 @pytest.mark.slow
 def test_a_pace_no_machine_keeps_is_not_feasible(tmp_path):
     r = run("pace", scenario_file(tmp_path, "ring10"), "--pace", "100000", "--seconds", SECONDS, timeout=120)
@@ -98,9 +118,9 @@ def test_a_pace_no_machine_keeps_is_not_feasible(tmp_path):
 
 @pytest.mark.slow
 def test_a_modest_pace_is_feasible_faults_removed(tmp_path):
-    """ring10_faults at pace 5 (200 ms a period): feasible; the measuring run had no fault, no pace, and left no
-    process behind."""
-    scen = scenario_file(tmp_path, "ring10_faults", run={"pace": 5})  # --pace defaults to run.pace
+    """ring10_faults at pace 5 (200 ms a period) until stopped with run.keep: feasible; the measuring run had no
+    fault, no pace, no run.keep, and left no process behind; the disk line says what run.keep keeps."""
+    scen = until_stopped_with_keep(tmp_path)  # --pace defaults to run.pace
     out = tmp_path / "out"
     r = run("pace", scen, "--seconds", SECONDS, "--out", out, timeout=120)
     assert "Traceback" not in r.stderr, r.stderr
@@ -112,8 +132,9 @@ def test_a_modest_pace_is_feasible_faults_removed(tmp_path):
     # the records' growth, measured: bytes of chunks and recording per hour at the pace, the state panels every one
     assert lines[1].startswith("disk: about ") and " GB per hour at pace 5 (" in lines[1], lines[1]
     assert float(lines[1].split("disk: about ")[1].split(" GB")[0]) > 0 and "every 1 event time;" in lines[1]
+    assert "; run.keep.hours 1: about " in lines[1] and "; run.keep.gigabytes 2: reached after about " in lines[1]
     copy = yaml.safe_load((out / "scenario.yaml").read_text())
-    assert copy["run"]["record_every"] == 1
+    assert copy["run"]["record_every"] == 1 and "keep" not in copy["run"]
     assert copy["faults"] == [] and "pace" not in copy["run"] and copy["run"]["steps"] == PROBE_STEPS
     names = {e["event"] for e in events(out)}
     assert "run_started" in names and not names & {"agent_lost", "arc_dropped", "agent_restarting"}, names

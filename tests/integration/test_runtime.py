@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 import yaml
 
+from splitspec_core.model.network import fault_step
 from splitspec_orchestrator.records.recover import recover
 from tests.conftest import EXAMPLES, ROOT
 from tests.integration.runtime_helpers import (ENV, assert_all_gone, cli, compare_with_simulate, events, run,
@@ -53,8 +54,14 @@ def test_run_equals_simulate(tmp_path, example, changes):
     assert ("plant", 0) in pids and ("orchestrator", 0) in pids
     assert len(set(pids.values())) == len(pids) == len(agents) + 3  # and the agent fork server
     assert_all_gone(pids.values())
-    names = [e["event"] for e in events(out)]
-    assert names[-2:] == ["run_finished", "recording_closed"] or "run_finished" in names
+    ev = events(out)
+    names = [e["event"] for e in ev]
+    steps = sc["run"]["steps"] if "steps" in sc.get("run", {}) else None
+    assert names[-2:] == ["run_finished", "recording_closed"] and names.count("run_finished") == 1, names
+    finished, closed = ev[-2:]
+    assert finished["reason"] == "steps" and (steps is None or finished["rounds"] == steps), finished
+    assert closed["finished"] is True and closed["rows"] == finished["rounds"] + 1, closed  # event times 0..steps
+    assert "agent_lost" not in names and "run_interrupted" not in names
     ok, msg = verify_rrd(out / "run.rrd")
     assert ok, msg
     traj = np.load(out / "trajectory.npz")
@@ -246,5 +253,12 @@ def test_run_equals_simulate_for_the_noise_optimal_design(tmp_path, raw):
     k = 3 if raw["time"] == "discrete" else 2
     alive = traj["alive"][:, k - 1]
     assert not alive.all() and alive[-1]  # killed, then back
-    names = [e["event"] for e in events(out)]
-    assert "agent_lost" in names or "process_exited" in names or any("lost" in n for n in names)
+    ev = events(out)
+    kill, restart = (fault_step(f["at"], raw["run"].get("dt", 1.0) if raw["time"] == "continuous" else 1.0)
+                     for f in raw["faults"])
+    (lost,) = [e for e in ev if e["event"] == "agent_lost"]
+    (back,) = [e for e in ev if e["event"] == "agent_rejoined"]
+    assert (lost["id"], lost["tau"], back["id"], back["tau"], back["incarnation"]) == (k, kill, k, restart, 1)
+    assert lost["reason"].startswith("killed by the scenario (SIGKILL to pid ")
+    assert back["reason"] == "restarted by the scenario"
+    assert np.flatnonzero(~alive).tolist() == list(range(kill, restart))  # the trajectory says the same

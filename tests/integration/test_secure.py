@@ -63,8 +63,10 @@ def test_secure_bad_input(tmp_path):
     scen = EXAMPLES / "paper_discrete.yaml"
     r = run("orchestrator", scen, "--listen", "tcp/127.0.0.1:1", "--out", tmp_path / "o", "--secure", tmp_path / "nope")
     assert r.returncode == 2 and "cannot read" in r.stderr and "splitspec credentials" in r.stderr
+    # with --connect, --secure DIR is the run's own router's credentials (a run with a standby): the same one line
     r = run("orchestrator", scen, "--connect", "tcp/127.0.0.1:1", "--out", tmp_path / "o", "--secure", tmp_path)
-    assert r.returncode == 2 and "--listen" in r.stderr
+    assert r.returncode == 2 and "users.txt" in r.stderr and "splitspec credentials" in r.stderr
+    assert r.stderr.count("\n") == 2, r.stderr  # the run id's line, then the one error line
     r = run("agent", "--id", 1, "--connect", "tcp/127.0.0.1:1", "--run-id", "x",
             "--credentials", tmp_path / "none.cred")
     assert r.returncode == 2 and "cannot read credentials file" in r.stderr

@@ -27,12 +27,16 @@ CHAIN = ROOT / "examples" / "sensors" / "chain.yaml"
 PUBLISHER = ROOT / "examples" / "sensors" / "publisher.py"
 
 
-def chain(tmp_path: Path, steps: int, bad_data: dict | None = None) -> Path:
+def chain(tmp_path: Path, steps: int | None, bad_data: dict | None = None, name: str = "chain.yaml") -> Path:
+    """examples/sensors/chain.yaml with ``steps`` (None: until stopped) and ``design.bad_data``, in ``tmp_path``."""
     raw = yaml.safe_load(CHAIN.read_text())
-    raw["run"]["steps"] = steps
+    if steps is None:
+        raw["run"].pop("steps", None)
+    else:
+        raw["run"]["steps"] = steps
     if bad_data is not None:
         raw["design"]["bad_data"] = bad_data
-    path = tmp_path / "chain.yaml"
+    path = tmp_path / name
     path.write_text(yaml.safe_dump(raw))
     return path
 
@@ -69,6 +73,10 @@ class SensorRun:
                     p.wait(timeout=10)
         assert code == 0, dump(self.log, *(log for _, log in self.publishers))
         assert_all_gone(all_pids(self.out) + [p.pid for p, _ in self.publishers])
+        if not (self.out / "trajectory.npz").exists():  # a run until stopped: its chunks
+            from splitspec_core.simulation.trajectory_chunks import read_chunks
+
+            return dict(read_chunks(self.out))
         with np.load(self.out / "trajectory.npz") as f:
             return {k: f[k] for k in f.files}
 
@@ -183,7 +191,9 @@ def test_a_sensor_lost_is_predicted_through_and_picked_up_again(sensor_run, tmp_
     # (no convergence check: the second publisher simulates a chain of its own, not the first one's)
 
 
-def _put_all(endpoint: str, key: str, payloads) -> None:
+def _put_all(endpoint: str, key: str, payloads, *, until, timeout: float = 30.0) -> None:
+    """Put ``payloads`` on ``key``, then keep the session open until ``until()`` (the run's records show they
+    arrived) or ``timeout`` seconds: closing it may drop what is still queued, and Zenoh acknowledges no put."""
     import zenoh
 
     c = zenoh.Config()
@@ -194,9 +204,21 @@ def _put_all(endpoint: str, key: str, payloads) -> None:
         pub = s.declare_publisher(key)
         for p in payloads:
             pub.put(p)
-        # closing the session may drop what is still queued; Zenoh acknowledges no put: let them drain (what
-        # arrived is checked from the run's own records afterwards)
-        time.sleep(0.3)
+        deadline = time.monotonic() + timeout
+        while not until() and time.monotonic() < deadline:
+            time.sleep(0.05)
+
+
+def _rejected_by(out: Path, who: str) -> dict:
+    """The messages of ``who`` the run rejected so far, by reason (its ``message_rejected`` events)."""
+    counts: dict = {}
+    for e in events(out):
+        if e["event"] == "message_rejected" and e.get("by") == who:
+            counts[e["reason"]] = counts.get(e["reason"], 0) + e["count"]
+    return counts
+
+
+BAD_SENSOR = ("garbage", "not_object", "bad_length", "non_finite", "bad_y", "too_big", "bad_t", "flood")
 
 
 def test_the_publisher_finds_the_run_by_its_out_dir_and_stops_with_it(tmp_path):
@@ -237,13 +259,15 @@ def test_a_misbehaving_sensor_is_counted_and_the_run_goes_on(sensor_run, tmp_pat
            b'{"y": [NaN, 1.0]}', np.array([np.inf, 0.0]).tobytes(), json.dumps({"y": "1 2"}).encode(),
            b"{" + b" " * 5000 + b"}", json.dumps({"y": [0.1, 0.2], "t": "noon"}).encode()]
     flood = [json.dumps({"y": [0.01 * k, 0.0]}).encode() for k in range(5000)]
-    _put_all(r.sensors["endpoint"], key, bad + flood)
+
+    def counted() -> bool:  # what is checked below, from the run's records: then every put has arrived
+        counts = _rejected_by(r.out, "agent 1")
+        return all(counts.get(f"sensor_{why}", 0) >= 1 for why in BAD_SENSOR) and counts["sensor_flood"] > 1000
+
+    _put_all(r.sensors["endpoint"], key, bad + flood, until=counted)
     traj = r.finish()
-    counts: dict = {}
-    for e in events(r.out):
-        if e["event"] == "message_rejected" and e.get("by") == "agent 1":
-            counts[e["reason"]] = counts.get(e["reason"], 0) + e["count"]
-    for reason in ("garbage", "not_object", "bad_length", "non_finite", "bad_y", "too_big", "bad_t", "flood"):
+    counts = _rejected_by(r.out, "agent 1")
+    for reason in BAD_SENSOR:
         assert counts.get(f"sensor_{reason}", 0) >= 1, counts
     assert counts["sensor_flood"] > 1000, counts  # 5000 in a burst: most never decoded
     assert traj["alive"].all() and traj["xhat"].shape[0] == 41

@@ -243,12 +243,12 @@ def test_ss_run_of_a_run_until_stopped_ends_at_its_timeout_with_the_closing_line
 def test_run_keep_removes_closed_segments_while_running_and_what_is_left_loads_and_replays(tmp_path):
     """run.keep.hours of 1.8 s on a run rolling small segments: segments disappear while it runs, each removal is an
     event, the records left load (from the first row still on disk) and replay to round-off; run.record_every
-    thins the state panels of run.rrd, not the errors."""
-    env = {"SPLITSPEC_RUNTIME_DIR": str(tmp_path / "rt"), "SPLITSPEC_CHUNK_MB": "0.06",
-           "SPLITSPEC_RRD_ROLL_MB": "0.4"}
+    thins the state panels of run.rrd, not the errors.  The chunk segments' size is the scenario's
+    run.keep.segment_mb (the recording's, larger, the variable's), said at the start in a records_retention event."""
+    env = {"SPLITSPEC_RUNTIME_DIR": str(tmp_path / "rt"), "SPLITSPEC_RRD_ROLL_MB": "0.4"}
     scen, out, log = endless(tmp_path, "ring10", 40), tmp_path / "out", tmp_path / "run.log"
     raw = yaml.safe_load(scen.read_text())
-    raw["run"].update(keep={"hours": 0.0005}, record_every=4)
+    raw["run"].update(keep={"hours": 0.0005, "segment_mb": 0.0625}, record_every=4)
     scen.write_text(yaml.safe_dump(raw))
     p = start("run", scen, "--out", out, "--run-id", "rkeep001", log=log, env_extra=env)
     with ctrl_c_after(p, log):
@@ -257,6 +257,8 @@ def test_run_keep_removes_closed_segments_while_running_and_what_is_left_loads_a
             assert p.poll() is None and time.monotonic() < deadline, dump(log)
             time.sleep(0.3)
         assert p.poll() is None  # removed while the run goes on
+        (said,) = [e for e in events(out) if e["event"] == "records_retention"]
+        assert (said["chunk_mb"], said["recording_mb"], said["hours"]) == (0.0625, pytest.approx(0.4), 0.0005)
         removed = [e for e in events(out) if e["event"] == "records_removed"]
         assert {e["kind"] for e in removed} == {"chunks", "recording"}
         for e in removed:
@@ -264,6 +266,8 @@ def test_run_keep_removes_closed_segments_while_running_and_what_is_left_loads_a
         assert not (out / "run.rrd").exists()  # the first segment went first
         wait_rows(out, 1, p, log)
     end = end_event(events(out))
+    # the closing summary says what run.keep removed (run.rrd itself gone: the summary is printed all the same)
+    assert any(line.startswith("run.keep removed ") for line in log.read_text().splitlines()), dump(log)
     rec = ss.load_run(out)
     t = rec.trajectory.t
     first_kept = max(e["last_tau"] for e in events(out) if e["event"] == "records_removed" and e["kind"] == "chunks") + 1

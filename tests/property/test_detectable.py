@@ -9,6 +9,10 @@ random similarity ``T = Q D``: an orthogonal rotation, then states in units from
   the rate or the slower one ``W`` allows, and from random initial estimates the simulated error must stay
   under the certified envelope ``c r^k |e(0)|``;
 * ``A_ww`` with a mode that does not decay: refused in one line that names the states the mode lives on.
+
+A draw of issue 46 is kept as an example (:func:`bound_at_the_rate`): its spectral bound at q = 1 is the rate
+itself, up to round-off (``0.9 / 3 = 0.3``), which the design once called certified while the transient constant was
+infinite.  The one rule (:func:`splitspec_core.synthesis.spectral.certifies`) refuses it.
 """
 
 from __future__ import annotations
@@ -17,12 +21,13 @@ import math
 
 import numpy as np
 import pytest
-from hypothesis import assume, event, given, settings
+from hypothesis import assume, event, example, given, settings
 from hypothesis import strategies as st
 
 from splitspec_core.synthesis.conditioning import conditioning
 from splitspec_core.synthesis.designer import design
 from splitspec_core.errors import AssumptionError
+from splitspec_core.synthesis.spectral import certifies
 from splitspec_core.synthesis.verdict import rate_certificate
 from splitspec_core.scenarios.load import parse_scenario
 from splitspec_core.simulation.simulator import simulate
@@ -85,8 +90,40 @@ def detectable(draw, *, decays: bool = True):
     return data, hidden, A[n_o:, n_o:]
 
 
+def bound_at_the_rate() -> tuple:
+    """Hypothesis's draw of issue 46, made exact: x_o' = 0.9 x_o seen by agents 1 and 3 (``C_1 = C_3 = [234.62,
+    -2.7133]``), x_w' = ... + 0.05 x_w seen by nobody (``h``, with ``C h = 0`` exactly), agent 2 blind, a ring of 3,
+    rate 0.3, place.  Agent 2's error in the observed direction shrinks by ``0.9 S_22 = 0.9 / 3``: at q = 1 the
+    spectral bound is the rate (``0.2999999999999993`` as computed)."""
+    A0 = np.array([[0.5101, -0.00532], [-33.717, 0.43993]])  # the draw as the issue printed it
+    c = np.array([234.62, -2.7133])
+    h = np.array([2.7133, 234.62])
+    w, V = np.linalg.eig(A0)
+    T = np.column_stack([V[:, np.argmax(w.real)].real, h])
+    A = T @ np.diag([0.9, 0.05]) @ np.linalg.inv(T)
+    arcs = [[1, 2], [2, 3], [3, 1], [2, 1], [3, 2], [1, 3]]
+    data = {"name": "detectable", "time": "discrete",
+            "system": {"A": A.tolist(), "C": {1: [c.tolist()], 2: [[0.0, 0.0]], 3: [c.tolist()]}, "x0": [0.0, 0.0]},
+            "graphs": {"ring": {"arcs": arcs}}, "design": {"rate": 0.3, "gains": "place"},
+            "run": {"steps": 80, "seed": 0}}
+    return data, (h / np.linalg.norm(h))[:, None], np.array([[0.05]])
+
+
+def test_a_bound_equal_to_the_rate_certifies_nothing():
+    data, _, _ = bound_at_the_rate()
+    at_one = design(parse_scenario({**data, "design": {**data["design"], "q": 1}}))
+    cert = rate_certificate(at_one)
+    assert at_one.q_result.bound == pytest.approx(0.3, rel=1e-12)  # the rate, up to round-off
+    assert not cert.certified and not certifies(at_one.q_result.bound, 0.3), cert.text
+    assert cert.text.startswith("q = 1: spectral bound 0.3 is not below rate 0.3 by the certificate's margin"), cert.text
+    des = design(parse_scenario(data))  # q auto: the next q certifies, its transient constant finite
+    assert des.q > 1 and rate_certificate(des).certified
+    assert math.isfinite(conditioning(des).transient_constant)
+
+
 @settings(max_examples=examples(30), **COMMON)
 @given(detectable())
+@example(bound_at_the_rate())
 def test_a_detectable_system_designs_and_its_error_stays_under_the_envelope(drawn):
     data, hidden, A_ww = drawn
     try:

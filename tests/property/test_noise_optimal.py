@@ -71,7 +71,11 @@ def noisy(draw, stable: bool = False, kinds: tuple = ("auto", "split", "whole"))
     process = [draw(st.sampled_from([0.0, 0.01, 0.1])) for _ in range(n)]
     process[draw(st.integers(0, n - 1))] = draw(st.sampled_from([0.01, 0.1]))  # some process noise, not filtered
     sys_["process_noise"] = process
-    data["design"] = {"rate": data["design"]["rate"], "consensus": draw(st.sampled_from(list(kinds)))}
+    # the design under noise is the subject, not the bad-data test the stated noise turns on by default (issue 46):
+    # it sets a sensor aside on a large transient (the envelope then is the fallback's) and runs Monte Carlo seed by
+    # seed (567 s for this file's Monte Carlo test, against seconds as one batch)
+    data["design"] = {"rate": data["design"]["rate"], "consensus": draw(st.sampled_from(list(kinds))),
+                      "bad_data": "off"}
     return data
 
 
@@ -127,7 +131,7 @@ MODE_AT_THE_RATE = {
                      3: [[-0.04055202746344281, 0.0002696764580815072]]},
                "x0": [0.0, 0.0], "measurement_noise": {1: [0.01], 2: [0.01], 3: [0.01]}, "process_noise": [0.01, 0.0]},
     "graphs": {"ring": {"arcs": [[1, 2], [2, 3], [3, 1], [2, 1], [3, 2], [1, 3]]}},
-    "design": {"rate": 0.2, "consensus": "auto"}, "run": {"steps": 600, "seed": 0, "dt": 0.01}}
+    "design": {"rate": 0.2, "consensus": "auto", "bad_data": "off"}, "run": {"steps": 600, "seed": 0, "dt": 0.01}}
 
 
 def test_the_predicted_steady_rms_is_what_a_monte_carlo_measures():

@@ -16,6 +16,7 @@ from splitspec_core.scenarios.generate import random_strongly_connected_arcs, ra
 from splitspec_core.scenarios.load import parse_scenario
 from splitspec_core.simulation.simulator import simulate
 from splitspec_core.synthesis.verdict import rate_certificate
+from tests.property.test_design_properties import examples
 from tests.property.test_detectable import assert_under_the_envelope
 
 
@@ -37,7 +38,7 @@ def _scenario(seed, m, n, time, rate, gains, extra, dt=0.005):
     })
 
 
-@settings(max_examples=15, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=examples(15), deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(seed=st.integers(0, 10_000), m=st.integers(2, 6), n=st.integers(2, 8),
        rate=st.floats(0.3, 0.9), gains=st.sampled_from(["place", "riccati"]), extra=st.integers(0, 6))
 def test_discrete_error_decays_at_designed_rate(seed, m, n, rate, gains, extra):
@@ -50,7 +51,7 @@ def test_discrete_error_decays_at_designed_rate(seed, m, n, rate, gains, extra):
     assert measured <= rate * 1.02, (measured, rate, des.q)
 
 
-@settings(max_examples=10, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=examples(10), deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(seed=st.integers(0, 10_000), m=st.integers(2, 5), n=st.integers(2, 6),
        rate=st.floats(0.2, 1.5), gains=st.sampled_from(["place", "riccati"]), extra=st.integers(0, 4))
 @example(seed=1, m=2, n=4, rate=0.21875, gains="place", extra=0)  # found by hypothesis: a thin margin at dt = 0.005

@@ -466,3 +466,51 @@ def test_every_subpackage_is_installed():
 def test_code_lines_leave_out_docstrings_only():
     text = '"""Module.\n\nMore."""\nX = 1\n\n\ndef f():\n    """One.\n\n    Two.\n    """\n    return "not a docstring"\n'
     assert code_lines(ast.parse(text), text) == len(text.splitlines()) - 3 - 4
+
+
+# ---------------------------------------------------------------------------------------------- the module tree
+
+TREE_PACKAGES = ("splitspec_core", "agents", "plant", "orchestrator")
+_HEADING = re.compile(r"^( *)([a-z_]+)/(?=\s|$)")
+
+
+def module_tree() -> dict[tuple[str, ...], set[str]]:
+    """The architecture page's ``text`` block under "The modules": for each folder (its path of headings, e.g.
+    ``("splitspec_core", "synthesis")``) the file names its own lines mention (``commands/{a,b}.py`` expanded)."""
+    text = (ROOT / "docs" / "explanation" / "architecture.md").read_text()
+    block = text.split("## The modules", 1)[1].split("```text", 1)[1].split("```", 1)[0]
+    named: dict[tuple[str, ...], set[str]] = {}
+    stack: list[tuple[int, str]] = []  # (indent, folder) of the open headings
+    for line in block.splitlines():
+        if not line.strip():
+            continue
+        m = _HEADING.match(line)
+        indent = len(line) - len(line.lstrip())
+        if m:
+            while stack and stack[-1][0] >= indent:
+                stack.pop()
+            stack.append((indent, m.group(2)))
+            line = line[m.end():]
+        path = tuple(f for _, f in stack)
+        line = re.sub(r"(\w+)/\{([\w,]+)\}\.py",
+                      lambda g: " ".join(f"{g[1]}/{n}.py" for n in g[2].split(",")), line)
+        for word in re.findall(r"(?:[a-z_]+/)*[a-z_0-9]+\.py", line):
+            *sub, name = word.split("/")
+            named.setdefault(path + tuple(sub), set()).add(name)
+    return named
+
+
+def test_the_architecture_page_names_every_module_in_its_folder():
+    """The module tree of docs/explanation/architecture.md is checked against the code: every module is named
+    under its own folder, and every name there is a module of that folder (issue 46: 15 of 121 were missing)."""
+    named = module_tree()
+    actual: dict[tuple[str, ...], set[str]] = {}
+    for pkg in TREE_PACKAGES:
+        for f in (ROOT / pkg).rglob("*.py"):
+            if f.name != "__init__.py" and "__pycache__" not in f.parts:
+                actual.setdefault(f.relative_to(ROOT).parent.parts, set()).add(f.name)
+    missing = sorted("/".join(k) + "/" + n for k, names in actual.items() for n in names - named.get(k, set())
+                     if n != "__main__.py")
+    stale = sorted("/".join(k) + "/" + n for k, names in named.items() for n in names - actual.get(k, set()))
+    assert not missing, f"modules the architecture page does not name under their folder: {missing}"
+    assert not stale, f"names the architecture page puts in a folder that has no such module: {stale}"

@@ -46,18 +46,67 @@ def batch_means(values: np.ndarray, batches: int = 20) -> tuple:
 # ------------------------------------------------------------------------------------------------ the scenario key
 
 
-def test_bad_data_is_off_by_default_and_parsed_with_its_defaults():
-    assert ring10_noise(bad=None).design.bad_data is None
+def test_bad_data_is_parsed_with_its_defaults():
     assert ring10_noise(bad="off").design.bad_data is None
     assert ring10_noise(bad={}).design.bad_data == (1e-5, 3)
     assert ring10_noise(bad={"false_alarm": 1e-3, "suspect_after": 5}).design.bad_data == (1e-3, 5)
+
+
+def bad_data_as_written(text: str):
+    """ring10_noise with ``design.bad_data`` written ``text`` in the file (YAML reads ``off``/``no`` as false)."""
+    raw = yaml.safe_load((EXAMPLES / "ring10_noise.yaml").read_text())
+    raw["run"] = {"steps": 100}
+    body = yaml.safe_dump(raw).replace("design:\n", f"design:\n  bad_data: {text}\n", 1)
+    return parse_scenario_text(body, source="ring10_noise").design
+
+
+@pytest.mark.parametrize("text", ["off", "Off", "no", "false", '"off"'])
+def test_bad_data_off_as_the_docs_write_it_turns_the_test_off(text):
+    """Issue 46, finding 1: ``design.bad_data: off`` (a boolean to YAML) was refused as "must be a mapping"."""
+    d = bad_data_as_written(text)
+    assert d.bad_data is None and not d.bad_data_default
+
+
+@pytest.mark.parametrize("text", ["on", "true", "yes", '"on"'])
+def test_bad_data_on_is_the_test_with_its_declared_defaults(text):
+    d = bad_data_as_written(text)
+    assert d.bad_data == (1e-5, 3) and not d.bad_data_default
+
+
+def test_bad_data_is_on_by_default_when_the_scenario_states_measurement_noise():
+    """Issue 46, finding 2: absent, the test is on under stated measurement noise, and the report says so first."""
+    d = ring10_noise(bad=None).design
+    assert d.bad_data == (1e-5, 3) and d.bad_data_default
+    lines = report_lines(design(ring10_noise(bad=None)))
+    assert lines[0] == ("bad-data test: on (default: the scenario states measurement noise; design.bad_data: off "
+                        "turns it off)")
+    assert lines[1].startswith("bad data: each agent tests")
+    raw = yaml.safe_load((EXAMPLES / "ring10.yaml").read_text())  # noise-free: nothing to calibrate, off
+    quiet = parse_scenario_text(yaml.safe_dump(raw), source="ring10").design
+    assert quiet.bad_data is None and not quiet.bad_data_default
+
+
+def test_the_default_test_is_off_where_the_design_cannot_calibrate_it_and_the_report_says_why():
+    """Measurement noise on some outputs only, or a kind without the test: off by default, one line saying why
+    (given explicitly, the first is refused: test_bad_data_needs_measurement_noise)."""
+    raw = yaml.safe_load((EXAMPLES / "ring10_noise.yaml").read_text())
+    raw["system"]["measurement_noise"] = {1: 0.0, **{k: 0.1 for k in range(2, 11)}}
+    raw["run"] = {"steps": 100}
+    des = design(parse_scenario_text(yaml.safe_dump(raw), source="some"))
+    assert bad_data(des) is None
+    assert report_lines(des) == ["bad-data test: off (system.measurement_noise is 0 on some output: the test is "
+                                 "calibrated against it; on by default when the scenario states measurement noise)"]
+    des = design(ring10_noise(bad=None, consensus="fusion", gains="optimal", resilience=0))
+    assert bad_data(des) is None and des.consensus == "fusion"
+    assert report_lines(des)[0].startswith("bad-data test: off (design.consensus: fusion has no bad-data test")
 
 
 @pytest.mark.parametrize("bad, words", [
     ({"false_alarm": 0.7}, "design.bad_data.false_alarm must be in (0, 0.5), got 0.7"),
     ({"suspect_after": 0}, "design.bad_data.suspect_after must be >= 1"),
     ({"false_alarms": 1e-3}, "unknown key design.bad_data.false_alarms"),
-    ("on", "design.bad_data must be off or a map"),
+    ("sometimes", "design.bad_data must be off, on or a map {false_alarm, suspect_after}, got the string"),
+    (3, "design.bad_data must be off, on or a map {false_alarm, suspect_after}, got int 3"),
 ])
 def test_bad_data_refuses_bad_values_in_one_line(bad, words):
     with pytest.raises(ScenarioError) as e:
@@ -139,7 +188,7 @@ def test_empirical_innovation_covariance_matches_S():
 
 
 def test_every_sensor_of_ring10_noise_can_be_lost_and_the_report_says_so():
-    des = design(ring10_noise())
+    des = design(ring10_noise())  # given explicitly: no line saying it is the default
     lines = report_lines(des)
     assert lines[0].startswith("bad data: each agent tests") and "threshold 19.51 for s_i = 1" in lines[0]
     for f, line in zip(bad_data(des).fallbacks, lines[1:]):
@@ -166,7 +215,7 @@ def test_a_sensor_that_alone_sees_an_oscillator_cannot_be_lost():
 
 @pytest.fixture(scope="module")
 def clean_rms():
-    tr = simulate(design(ring10_noise(bad=None, steps=AT + FOR)))
+    tr = simulate(design(ring10_noise(bad="off", steps=AT + FOR)))
     return np.sqrt((tr.errors()[100:AT] ** 2).mean(axis=0)), float(tr.x[:, 4].std())
 
 
@@ -190,8 +239,20 @@ def test_a_sensor_biased_20_sd_is_flagged_and_set_aside(clean_rms, what):
     assert np.all(np.delete(ratio, 2) <= 2.0) and ratio[2] <= 3.0, ratio
     (restored,) = [e for e in events if e[2] == "sensor_restored"]
     assert AT + FOR <= restored[0] <= AT + FOR + 5  # taken back after k clean tests
-    blind = simulate(design(ring10_noise(bad=None, faults=faults, steps=AT + FOR + 20)))
+    blind = simulate(design(ring10_noise(bad="off", faults=faults, steps=AT + FOR + 20)))
     assert (blind.errors()[AT:AT + FOR].mean(axis=0) / rms).max() > 5 * ratio.max()
+
+
+def test_a_lie_is_caught_by_the_default_test(clean_rms):
+    """Issue 46, finding 2: no design.bad_data key, measurement noise stated: the biased sensor is flagged and the
+    other agents stay within 2x their clean steady RMS (without a test they were many times it)."""
+    rms, _ = clean_rms
+    faults = [{"at": AT, "corrupt": 3, "for": FOR, "bias": 2.0}]
+    des = design(ring10_noise(bad=None, faults=faults, steps=AT + FOR + 20))
+    tr = simulate(des)
+    assert [e[1:3] for e in sensor_events(tr, bad_data(des))][:1] == [(3, "sensor_suspect")]
+    ratio = tr.errors()[AT:AT + FOR].mean(axis=0) / rms
+    assert np.all(np.delete(ratio, 2) <= 2.0), ratio
 
 
 def test_clean_data_rejects_at_most_2_per_10000_agent_event_times():
@@ -301,3 +362,55 @@ def test_live_sensors_have_no_repeat_test():
     des = design(parse_scenario_text(yaml.safe_dump(raw), source="live"))
     assert bad_data(des).flatline is False
     assert "no repeat test" in report_lines(des)[0]
+
+
+MOTOR = """
+name: motor
+time: discrete
+system:
+  time_unit: ms
+  sample: 1.0
+  A: [[0, 0.001, 0, 0, 0], [-100, -0.05, 100, 0.05, 0.5], [0, 0, 0, 0.001, 0], [10, 0.005, -10, -0.006, 0],
+      [0, -0.05, 0, 0, -1]]
+  B: [[0], [0], [0], [0], [1]]
+  u: {constant: [1.0], sine: [{amplitude: [2.0], period: 200}]}
+  C: {1: [[1, 0, 0, 0, 0]], 2: [[0, 0, 1, 0, 0]], 3: [[0, 0, 0, 0, 1]]}
+  process_noise: [1.0e-6, 0.05, 1.0e-6, 0.05, 0.01]
+  measurement_noise: {1: 5.0e-4, 2: 5.0e-3, 3: 0.01}
+graphs:
+  bus: {undirected: [[1, 2], [2, 3]]}
+design: {rate: 0.98}
+run: {steps: 1300, seed: 1}
+faults:
+  - {at: 700, kill: 3, for: 100}
+"""
+
+
+def test_a_rejoin_does_not_make_the_other_agents_sensors_suspect():
+    """Issue 46 (the walk on a motor driving a load through a flexible shaft): the current sensor's agent killed at
+    700 and restarted at 800 rejoins with a fresh estimate (its angle 10 rad off: the motor has turned) that the
+    whole-state consensus spreads in one event time; every neighbour's clean measurement failed its test, the two
+    angle sensors became suspect, and, nobody else seeing the angle, were never restored (the error held at 2.6 rad
+    to the end).  A rejoin starts every agent's warm-up afresh, as the run's start does: no sensor is suspect, and
+    every agent is back within 2x its clean steady RMS."""
+    des = design(parse_scenario_text(MOTOR, source="motor"))
+    tr = simulate(des)
+    assert sensor_events(tr, bad_data(des)) == []
+    err = tr.errors()
+    clean = np.sqrt((err[400:700] ** 2).mean(axis=0))
+    back = np.sqrt((err[1200:] ** 2).mean(axis=0))
+    assert np.all(back <= 2.0 * clean), (back, clean)
+    assert not tr.columns["y_rejected"][800:].any()
+
+
+def test_a_rejoin_leaves_the_split_designs_tests_running():
+    """The split's consensus moves only what each agent does not see (C_i P_i = 0): a rejoin does not reach the
+    others' innovations, so their tests go on through it (no warm-up: a lie starting then is caught at once), and
+    nothing is flagged."""
+    des = design(parse_scenario_text(MOTOR.replace("design: {rate: 0.98}",
+                                                   "design: {rate: 0.98, consensus: split, gains: riccati}"),
+                                     source="motor"))
+    tr = simulate(des)
+    stat = tr.columns["y_statistic"]
+    assert (stat[800:810, :2] >= 0).all() and (stat[800:810, 2] == UNTESTED).all()  # agent 3 itself warms up
+    assert sensor_events(tr, bad_data(des)) == [] and not tr.columns["y_rejected"].any()

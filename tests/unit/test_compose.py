@@ -72,8 +72,13 @@ def test_every_command_is_a_valid_invocation(compose):
         assert args.run_id == "compose"
         # a plant or agent gives the router 2.5 s to listen: one that started too early is started again (bounded);
         # the orchestrator waits for the router by itself and a failed run is not repeated
-        assert svc.get("restart") == ("no" if args.command == "orchestrator" else "on-failure:3"), name
-    assert {a.command for a in roles.values()} == {"orchestrator", "plant", "agent"}
+        assert svc.get("restart") == ("no" if args.command in ("orchestrator", "standby") else "on-failure:3"), name
+    assert {a.command for a in roles.values()} == {"orchestrator", "standby", "plant", "agent"}
+    # the standby follows the orchestrator's run and writes into its records' folder
+    standby = [str(c) for c in services["standby"]["command"]]
+    orch = [str(c) for c in services["orchestrator"]["command"]]
+    assert option(standby, "--out") == option(orch, "--out")
+    assert services["standby"]["volumes"] == services["orchestrator"]["volumes"]
 
 
 def test_agents_match_the_scenario_and_output_is_a_volume(compose):

@@ -30,7 +30,8 @@ def parse(raw, ids=IDS, outputs=None):
 EXAMPLE = {"kill": {"kill": 3}, "restart": {"restart": 3}, "freeze": {"freeze": 3},
            "drop_arc": {"drop_arc": [1, 2]}, "restore_arc": {"restore_arc": [1, 2]},
            "partition": {"partition": [[1, 2, 3]]}, "heal": {"heal": True},
-           "corrupt": {"corrupt": 3, "bias": [0.5], "scale": 2.0}, "repair": {"repair": 3}}
+           "corrupt": {"corrupt": 3, "bias": [0.5], "scale": 2.0}, "repair": {"repair": 3},
+           "kill_orchestrator": {"kill": "orchestrator"}}
 
 
 def test_every_registered_kind_has_an_example_here():
@@ -71,7 +72,7 @@ def test_each_kind_parses_to_its_class_and_its_event_reads_back(ring, action):
     raw = ([{"at": 1, "partition": [[1, 2, 3]]}] if action == "heal" else []) + [{"at": 4, **EXAMPLE[action]}]
     f = parse(raw)[-1]
     assert type(f) is fk.KINDS[action] and f.action == action and f.at == 4.0
-    assert f.runtime in (fk.SIGNAL, fk.RESTART, fk.NETWORK, fk.PLANT) and f.event is not None
+    assert f.runtime in (fk.SIGNAL, fk.RESTART, fk.NETWORK, fk.PLANT, fk.ORCHESTRATOR) and f.event is not None
     event = {"event": f.event, **f.payload(4)}
     if f.runtime in (fk.SIGNAL, fk.RESTART):  # the runtime logs agent_lost / agent_rejoined itself
         event = {"event": f.event, "id": f.agent, "tau": 4}

@@ -53,3 +53,35 @@ def test_a_spawned_process_keeps_running_and_its_own_children_do_not_inherit_the
                         f"p = spawn([sys.executable, '-c', {code!r}]); sys.exit(p.wait())"],
                        capture_output=True, text=True, timeout=60)
     assert r.returncode == 0 and r.stdout.strip() == "None", (r.stdout, r.stderr)
+
+
+def test_a_starting_standby_is_idle_class_and_every_thread_it_started_leaves_it():
+    """launcher.idle_class / normal_class: a process put in the idle class starts threads (as a standby's Zenoh
+    session does); taken out, every thread is back in the normal class."""
+    import pytest
+
+    from splitspec_orchestrator.launcher import idle_class, normal_class
+
+    if not hasattr(os, "SCHED_IDLE"):
+        pytest.skip("no SCHED_IDLE here")
+    code = ("import sys, threading, time\n"
+            "sys.stdin.readline()\n"  # told: it is in the idle class now
+            "for _ in range(3):\n"
+            "    threading.Thread(target=time.sleep, args=(60,), daemon=True).start()\n"
+            "print('threads', flush=True)\n"
+            "time.sleep(60)\n")
+    p = subprocess.Popen([sys.executable, "-c", code], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+    try:
+        if not idle_class(p.pid):
+            pytest.skip("may not leave the idle class again here (not root, RLIMIT_NICE < 20)")
+        assert os.sched_getscheduler(p.pid) == os.SCHED_IDLE
+        p.stdin.write("go\n")
+        p.stdin.flush()
+        assert p.stdout.readline().strip() == "threads"
+        tasks = [int(t) for t in os.listdir(f"/proc/{p.pid}/task")]
+        assert len(tasks) == 4 and {os.sched_getscheduler(t) for t in tasks} == {os.SCHED_IDLE}
+        normal_class(p.pid)
+        assert {os.sched_getscheduler(t) for t in tasks} == {os.SCHED_OTHER}
+    finally:
+        p.kill()
+        p.wait()

@@ -58,8 +58,9 @@ CASES = {
     "paper_continuous": lambda: load_scenario(EXAMPLES / "paper_continuous.yaml"),
     "ring10_faults_switching": lambda: load_scenario(EXAMPLES / "ring10_faults_switching.yaml"),
     "ring10_partition": lambda: load_scenario(EXAMPLES / "ring10_partition.yaml"),
+    # design.bad_data: off: the default test (on under measurement noise) runs per seed (test_what_falls_back_and_why)
     "random discrete, faults, switching": lambda: _seeded_switching(
-        random_scenario(1, time="discrete", faults=_faults("discrete"))),
+        random_scenario(1, time="discrete", faults=_faults("discrete"), bad_data="off")),
     "random continuous, faults, switching": lambda: _seeded_switching(
         random_scenario(2, time="continuous", faults=_faults("continuous"))),
     "random adaptive g, faults, switching": lambda: _seeded_switching(
@@ -137,6 +138,8 @@ def test_what_falls_back_and_why():
     assert "replay" in fallback_reason(des, lost=np.zeros((0, 4), dtype=np.int64))
     assert "measurements" in fallback_reason(des, measurements=object())
     assert "switching" in fallback_reason(design(random_scenario(4, time="discrete")))
+    noisy = _seeded_switching(random_scenario(1, time="discrete"))  # the bad-data test on by default (issue 46)
+    assert fallback_reason(design(noisy)).startswith("design.bad_data: each agent's test decides, per seed")
 
 
 def test_ss_simulate_with_seeds():

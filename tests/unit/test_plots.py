@@ -152,3 +152,43 @@ def test_dense_switching_envelope_is_one_constant_and_switches_are_ticks():
         assert not ax.texts  # no label per switch
     finally:
         plt.close(fig)
+
+
+def _label_boxes(fig, ax, labels):
+    """The boxes in pixels of the texts ``labels`` on ``ax``, as drawn (a PNG written at simulate's dpi, then drawn
+    again)."""
+    import io
+
+    fig.savefig(io.BytesIO(), dpi=110)
+    fig.canvas.draw()
+    renderer = fig.canvas.get_renderer()
+    return [(t.get_text().strip(), t.get_window_extent(renderer)) for t in ax.texts if t.get_text().strip() in labels]
+
+
+@pytest.mark.parametrize("figure", ["errors", "states"])
+def test_labels_of_events_close_in_time_do_not_overlap(ring10_faults, figure):
+    """Issue 46, finding 8: two events at the same or the next event time had their labels on top of one another."""
+    sc, traj, _, _ = ring10_faults
+    marks = (Mark(30, 30.0, "loss", "3 killed"), Mark(30, 30.0, "fault", "sensor 2 corrupted"),
+             Mark(31, 31.0, "rejoin", "5 rejoins"), Mark(32, 32.0, "sensor", "2 suspect"),
+             Mark(59, 59.0, "sensor", "2 restored"), Mark(60, 60.0, "fault", "sensor 2 repaired"))
+    if figure == "errors":
+        fig = plots.errors_figure(traj, time=sc.time, rate=sc.design.rate, title=sc.name, marks=marks)
+    else:
+        fig = plots.states_figure(traj, time=sc.time, title=sc.name, marks=marks)
+    ax = fig.axes[0]  # the labels: at the bottom of the errors, above the first state
+    try:
+        boxes = _label_boxes(fig, ax, {m.label for m in marks})
+        assert sorted(text for text, _ in boxes) == sorted(m.label for m in marks)
+        for k, (a, ba) in enumerate(boxes):
+            for b, bb in boxes[k + 1:]:
+                assert not ba.overlaps(bb), (a, ba, b, bb)
+        frame = ax.get_window_extent(fig.canvas.get_renderer())
+        px = frame.width / np.ptp(ax.get_xlim())  # pixels per event time
+        width = max(bb.width for _, bb in boxes)
+        for (text, bb), m in zip(boxes, marks):  # near its own line: within the labels of its cluster
+            assert frame.x0 - 1 <= bb.x0 and bb.x1 <= frame.x1 + 1, text
+            anchor = frame.x0 + (m.t - ax.get_xlim()[0]) * px
+            assert abs((bb.x0 + bb.x1) / 2 - anchor) < 4 * width, (text, bb, anchor)
+    finally:
+        plt.close(fig)

@@ -324,16 +324,40 @@ def test_crash_leaves_readable_trajectory(tmp_path):
     assert got == list(range(len(got)))
 
 
+def flushed_on_disk(out: str, rows: int, *, deadline: float) -> bool:
+    """Until ``rows`` rows are on disk (the recorder's background flush, and the Rerun file sink behind it, write
+    them in their own threads): in ``trajectory.npz`` and in ``run.rrd``, the loss's Clear too; False at
+    ``deadline``."""
+    import warnings
+
+    while time.monotonic() < deadline:
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")  # "RRD file has no footer": it is being written
+                with np.load(Path(out) / "trajectory.npz") as f:
+                    npz = f["t"].shape[0]
+                rrd = len(read_rrd(Path(out) / "run.rrd").get("errors/max", []))
+                cleared = bool(clear_taus(Path(out) / "run.rrd"))
+        except (OSError, RuntimeError, ValueError, KeyError, EOFError):  # not there yet, or cut mid-write: again
+            npz = rrd = 0
+            cleared = False
+        if npz >= rows and rrd >= rows and cleared:
+            return True
+        time.sleep(0.02)
+    return False
+
+
 @pytest.mark.filterwarnings("ignore:RRD file has no footer")
 def test_crash_keeps_rows_up_to_last_flush(tmp_path):
     """Killed after rows were buffered: both files hold exactly the rows up to the last flush (mark_lost)."""
     script = textwrap.dedent(f"""
         import os, sys, time
         sys.path.insert(0, {str(Path(__file__).parent)!r})
-        from test_recorder import record, NEVER
+        from test_recorder import record, NEVER, LOST_NOTICED, flushed_on_disk
         from pathlib import Path
         rec = record(Path({str(tmp_path)!r}), time_mode="discrete", close=False, flush_seconds=NEVER)
-        time.sleep(1.0)  # the Rerun file sink writes in the background
+        # the rows mark_lost flushed reach both files from the recorder's and the Rerun sink's own threads
+        flushed_on_disk({str(tmp_path)!r}, LOST_NOTICED + 1, deadline=time.monotonic() + 60)
         os._exit(3)  # no close(), no atexit, no Rerun shutdown
     """)
     proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60,

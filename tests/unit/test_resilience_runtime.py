@@ -5,6 +5,7 @@ import json
 
 import numpy as np
 import pytest
+import yaml
 
 from splitspec_core.synthesis.designer import design
 from splitspec_core.synthesis.survivors import certify_network
@@ -81,14 +82,17 @@ def test_verdict_after_link_failures(ring):
     assert v["ok"]
 
 
-def test_active_arcs_metropolis_drops_both_directions():
-    sc = load_scenario(EXAMPLES / "paper_discrete_switching.yaml")
-    k = sc.graph_names.index("b")
-    arcs = active_arcs(sc, k, {(1, 2)})
-    if sc.design.weights == "metropolis":
-        assert (1, 2) not in arcs and (2, 1) not in arcs
-    else:
-        assert (1, 2) not in arcs and (2, 1) in arcs
+@pytest.mark.parametrize("weights, gone", [("metropolis", {(1, 2), (2, 1)}),  # a failed link: both directions
+                                           ("uniform", {(1, 2)})])  # one arc of a directed view
+def test_active_arcs_metropolis_drops_both_directions(tmp_path, weights, gone):
+    raw = yaml.safe_load((EXAMPLES / "ring10.yaml").read_text())  # undirected: metropolis weights apply
+    raw["design"]["weights"] = weights
+    path = tmp_path / "ring10.yaml"
+    path.write_text(yaml.safe_dump(raw))
+    sc = load_scenario(path)
+    assert sc.design.weights == weights
+    arcs = active_arcs(sc, 0, {(1, 2)})
+    assert set(sc.graphs[0].arcs) - set(arcs) == gone and len(arcs) == len(sc.graphs[0].arcs) - len(gone)
 
 
 def test_network_state_lose_and_rejoin():

@@ -13,7 +13,7 @@ import pytest
 
 import splitspec_core as ss
 from splitspec_core.errors import ScenarioError
-from splitspec_core.runs import kept_span
+from splitspec_core.runs import kept_span, nothing_removed, read_events
 from splitspec_core.scenarios.specs import RunSpec
 from splitspec_core.simulation.trajectory_chunks import chunk_segments, read_chunks
 from splitspec_orchestrator.commands.pace import DiskRate
@@ -53,28 +53,69 @@ def test_run_keep_and_record_every_are_read_and_checked():
             _scenario(**run)
 
 
+def test_run_keep_segment_mb_sets_the_segment_sizes_and_the_variables_override_it(monkeypatch):
+    """Issue 46, finding 10: segments closed at 64 and 256 MiB whatever the scenario said, so a short run's run.keep
+    removed nothing; run.keep.segment_mb sets both (SPLITSPEC_CHUNK_MB / SPLITSPEC_RRD_ROLL_MB still override)."""
+    monkeypatch.delenv("SPLITSPEC_CHUNK_MB", raising=False)
+    monkeypatch.delenv("SPLITSPEC_RRD_ROLL_MB", raising=False)
+    sc = _scenario(pace=50, keep={"hours": 1, "segment_mb": 0.5})
+    assert sc.run.keep_segment_mb == 0.5
+    cont = Continuous.from_env(sc.run)
+    assert (cont.chunk_bytes, cont.rrd_bytes) == (1 << 19, 1 << 19)
+    assert (Continuous.from_env(_scenario(pace=50, keep={"hours": 1}).run).chunk_bytes,
+            Continuous.from_env(_scenario(pace=50, keep={"hours": 1}).run).rrd_bytes) == (64 << 20, 256 << 20)
+    monkeypatch.setenv("SPLITSPEC_CHUNK_MB", "2")
+    assert Continuous.from_env(sc.run).chunk_bytes == 2 << 20 and Continuous.from_env(sc.run).rrd_bytes == 1 << 19
+    for keep, message in [({"hours": 1, "segment_mb": 0.01}, r"run.keep.segment_mb must be >= 0.0625 \(64 KiB\)"),
+                          ({"segment_mb": 1}, "run.keep.segment_mb needs hours or gigabytes")]:
+        with pytest.raises(ScenarioError, match=message):
+            _scenario(pace=50, keep=keep)
+
+
+def test_a_run_that_removed_nothing_says_why_and_what_its_records_take(tmp_path):
+    """Issue 46, finding 10: on_disk was None when nothing was removed; the run's plan (said at its start, the
+    driver's records_retention event) and the records on disk now say why nothing went."""
+    out = tmp_path / "run"
+    rec = _until_stopped(out, Continuous(window_rows=16, chunk_bytes=1 << 30, rrd_bytes=1 << 30, keep_hours=1.0))
+    assert rec.retention_plan["chunk_mb"] == 1024 and rec.retention_plan["hours"] == 1.0
+    assert rec.retention_plan["text"].startswith("run.keep: a row chunk segment closes past 1024 MiB, a recording "
+                                                 "segment past 1024 MiB")
+    rec.event("records_retention", 0.0, **rec.retention_plan)  # as the driver does once the recorder is made
+    _feed_from(rec, 0, 40)
+    rec.close()
+    line = nothing_removed(out, read_events(out / "events.jsonl"))
+    assert line.startswith("run.keep removed nothing: no segment had closed (a row chunk segment closes past 1024 "
+                           "MiB, a recording segment past 1024 MiB: set run.keep.segment_mb for a short run)")
+    size = records_bytes(out)
+    assert size > 0 and line.endswith(f"; the records take {size / 1e6:.1f} MB")
+    assert retention_line(out) == line
+    assert _until_stopped(tmp_path / "plain", Continuous(window_rows=16)).retention_plan is None  # no run.keep
+
+
 def _until_stopped(out: Path, cont: Continuous) -> Recorder:
     return Recorder(out, agent_ids=IDS, n=N, steps=50, time_mode="discrete", dt=1.0, graph_names=("g",),
                     run_id="keep", scenario_name="keep", flush_seconds=0.0, continuous=cont)
 
 
 def test_a_recorder_until_stopped_keeps_its_records_under_run_keep_gigabytes(tmp_path):
-    # the same 800 rows without run.keep first: how much run.rrd (one segment, never removed) and the chunks take
+    # the same 400 rows without run.keep first: how much run.rrd (one segment, never removed) and the chunks take
+    # (chunk segments of half the usual size, some 12 rows each: as many segments as twice the rows would fill)
+    seg, rows_n = SEGMENT // 2, 400
     whole = tmp_path / "whole"
-    rec = _until_stopped(whole, Continuous(window_rows=16, chunk_bytes=SEGMENT, rrd_bytes=1 << 30))
-    _feed_from(rec, 0, 800)
+    rec = _until_stopped(whole, Continuous(window_rows=16, chunk_bytes=seg, rrd_bytes=1 << 30))
+    _feed_from(rec, 0, rows_n)
     # as written while running (the close compacts it)
     rrd, chunks = (whole / "run.rrd").stat().st_size, sum(p.stat().st_size for _, p in chunk_segments(whole))
     rec.close()
-    room = 5 * SEGMENT  # about five chunk segments beside run.rrd (the run writes about thirty)
+    room = 5 * seg  # about five chunk segments beside run.rrd (the run writes about thirty)
     out = tmp_path / "run"
-    rec = _until_stopped(out, Continuous(window_rows=16, chunk_bytes=SEGMENT, rrd_bytes=1 << 30,
+    rec = _until_stopped(out, Continuous(window_rows=16, chunk_bytes=seg, rrd_bytes=1 << 30,
                                          keep_bytes=rrd + room))
     rec._w.retention.every = 0.0  # sweep at every flush (a run's: every 5 s)
-    _feed_from(rec, 0, 800)
+    _feed_from(rec, 0, rows_n)
     # the rule after the last sweep: within the limit, but for the chunk segment being written (never removed) and
     # what the removal events added to run.rrd (about 1.3 kB each: a flush sends each log as a chunk of its own)
-    assert records_bytes(out) <= rrd + room + SEGMENT + 60 * 1300, (records_bytes(out), rrd + room)
+    assert records_bytes(out) <= rrd + room + seg + 60 * 1300, (records_bytes(out), rrd + room)
     rec.close()
     removed = [json.loads(line) for line in (out / "events.jsonl").read_text().splitlines()
                if '"records_removed"' in line]
@@ -88,10 +129,10 @@ def test_a_recorder_until_stopped_keeps_its_records_under_run_keep_gigabytes(tmp
     rows = read_chunks(out)
     cut = max(e["last_tau"] for e in removed) + 1
     # what is left: every row from the first no removal took to the last, values as recorded
-    assert rows["tau"].tolist() == list(range(cut, 800))
-    assert 790 > cut > 0
-    rng = np.random.default_rng(790)
-    assert np.array_equal(rows["x"][790 - cut], rng.normal(size=N))  # exact: the values given, copied
+    assert rows["tau"].tolist() == list(range(cut, rows_n))
+    assert rows_n - 10 > cut > 0
+    rng = np.random.default_rng(rows_n - 10)
+    assert np.array_equal(rows["x"][rows_n - 10 - cut], rng.normal(size=N))  # exact: the values given, copied
     span = kept_span(ss.runs.read_events(out / "events.jsonl"))
     assert span["chunks_from"] == cut and span["recording_from"] is None and span["removed"] == len(removed)
     assert span["text"].startswith(f"run.keep removed {len(removed)} segments (") and str(cut) in span["text"]
@@ -118,17 +159,29 @@ def test_the_disk_rate_line_states_per_hour_per_day_and_on_hand():
     assert "on hand" not in d.line(50.0)
 
 
+def test_the_disk_rate_line_says_when_the_first_segments_close():
+    """Issue 46 (10) and its walk: a run.keep that removes nothing for a while left the user guessing; with the
+    segment sizes pace says when the first segment of each kind closes, before which nothing is removed."""
+    d = DiskRate(chunk_bytes=3000.0, rrd_bytes=2000.0, rows=500, every=5)
+    line = d.line(50.0, keep_hours=0.01, segments=(64 << 20, 1 << 20))
+    # 64 MiB of rows at 150 kB/s: 447 s = 7.5 min; 1 MiB of recording at 100 kB/s: 10 s
+    assert "a row chunk segment closes about every 7.5 min (64 MiB)" in line, line
+    assert "and a recording segment closes about every 10 s (1 MiB) (run.keep.segment_mb)" in line, line
+    assert "nothing is removed before one closes" in line and "plus the segment being written of each kind" in line
+    assert "segment closes" not in d.line(50.0, segments=(64 << 20, 1 << 20))  # no run.keep: no such line
+
+
 def test_run_keep_recording_hours_keeps_the_recording_longer_than_the_rows(tmp_path):
     sc = _scenario(pace=50, keep={"hours": 6, "recording_hours": 24})
     assert (sc.run.keep_hours, sc.run.keep_recording_hours) == (6.0, 24.0)
     with pytest.raises(ScenarioError, match="run.keep.recording_hours needs hours or gigabytes"):
         _scenario(pace=50, keep={"recording_hours": 24})
     out = tmp_path / "run"
-    # the rows' segments go as soon as they close; the recording's (rolled every 300 kB) stay a thousand hours
-    rec = _until_stopped(out, Continuous(window_rows=16, chunk_bytes=SEGMENT, rrd_bytes=300_000, keep_hours=1e-9,
+    # the rows' segments go as soon as they close; the recording's (rolled every 150 kB) stay a thousand hours
+    rec = _until_stopped(out, Continuous(window_rows=16, chunk_bytes=SEGMENT, rrd_bytes=150_000, keep_hours=1e-9,
                                          keep_recording_hours=1000.0))
     rec._w.retention.every = 0.0
-    _feed_from(rec, 0, 400)
+    _feed_from(rec, 0, 200)
     rec.close()
     removed = [json.loads(line) for line in (out / "events.jsonl").read_text().splitlines()
                if '"records_removed"' in line]

@@ -369,17 +369,22 @@ def test_fault_for_an_agent_on_another_host_is_a_control_message():
 # ---------------------------------------------------------------------- the whole protocol in-process
 
 
-def play(example, changes=None, events=None):
+def play(example, changes=None, events=None, takeover_at=None, unflushed=3):
     """Orchestrator machine + PlantNode + AgentNodes with messages delivered in order (no Zenoh); the machine's
-    events go to ``events`` when given."""
+    events go to ``events`` when given.  ``takeover_at``: a standby's follower hears everything, and the machine
+    dies as it ticks that event time (its last ``unflushed`` rows never reach the disk); a new machine of epoch 2
+    adopts the follower's view (rounds.follower.adopt) and carries the run on.  The rows: the dead machine's on
+    disk, the follower's after them, the new machine's."""
     from splitspec_agents.agent import AgentNode
+    from splitspec_orchestrator.rounds.follower import Follower, adopt
     from splitspec_plant.plant import PlantNode
     from splitspec_core.runtime.ticks import TickEncoder
-    from splitspec_core.runtime.wire import Keys, encode, new_run_key
+    from splitspec_core.runtime.wire import Keys, decode, encode, new_run_key
 
     m = machine(example, changes=changes)
+    follower = Follower(m.sc) if takeover_at is not None else None
     key = new_run_key()
-    ticks = TickEncoder("inproc", mac_key=key)
+    ticks = TickEncoder("inproc", mac_key=key, epoch=m.epoch)
     text = (EXAMPLES / f"{example}.yaml").read_text()
     if changes:
         import yaml
@@ -402,23 +407,38 @@ def play(example, changes=None, events=None):
             payload = ticks.encode(tau=a.tau, attempt=a.attempt, graph=a.graph, final=a.final, fresh=a.fresh,
                                    prev_attempt=a.prev_attempt, alive=a.alive, rows=a.rows,
                                    incarnation=a.incarnation, partition=a.partition)
+            if follower is not None:
+                follower.on_tick(decode(payload, "inproc", "tick", mac_key=key))
+                follower.on_state({"epoch": m.epoch, "procs": m.identity.state(), "t_run_wall": None,
+                                   "tau": m.tau, "pid": 1, "host": HOST, "kept": len(rows)})
+                if a.tau == takeover_at and m.epoch == 1:  # it dies here: a new machine adopts the follower's view
+                    kept = max(0, len(rows) - unflushed)
+                    assert follower.ready and follower.rows_from(kept)[0].tau == kept
+                    rows = rows[:kept] + follower.rows_from(kept)
+                    present = {(r, i, n) for (r, i), c in m.claims.items() if c.present and not c.released
+                               for n in (c.nonce,)}
+                    m = machine(example, changes=changes)
+                    m.epoch = 2
+                    ticks = TickEncoder("inproc", mac_key=key, epoch=2, topology=follower.round.topology)
+                    queue = adopt(m, follower, present, t)
             msgs = plant.on_tick(payload)
             for n in nodes.values():
                 msgs += n.on_tick(payload)
             while msgs:  # deliver every message to whoever subscribes to its key
                 k, p = msgs.pop(0)
                 if k == keys.truth:
-                    from splitspec_core.runtime.wire import decode
-
                     d = decode(p, "inproc", "truth", mac_key=key)
                     queue += m.on_truth(d["tau"], d["attempt"], d["x"], d["rejected"], t)
+                    if follower is not None:
+                        follower.on_truth(d["tau"], d["attempt"], d["x"])
                 elif k.startswith(keys.prefix + "/xhat/"):
-                    from splitspec_core.runtime.wire import decode
-
                     d = decode(p, "inproc", "xhat", mac_key=key)
                     queue += m.on_xhat(d["agent"], d["tau"], d["attempt"], d["incarnation"], d["x"],
                                        {c.name: d[c.name] for c in REPORTED},
                                        d["rejected"], t, lost=d["lost"])
+                    if follower is not None:
+                        follower.on_xhat(d["agent"], d["tau"], d["attempt"], d["incarnation"], d["x"],
+                                         {c.name: d[c.name] for c in REPORTED}, lost=d["lost"])
                     for n in nodes.values():  # x_j(tau + 1) is also the neighbours' next z_j(0)
                         if d["agent"] in n.in_neighbours:
                             msgs += n.on_x(k, p)

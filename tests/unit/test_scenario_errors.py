@@ -24,6 +24,7 @@ import yaml
 
 from splitspec_orchestrator import cli
 from splitspec_core.scenarios.checks import GAIN_METHODS
+from splitspec_core.synthesis.spectral import certifies
 
 ROOT = Path(__file__).resolve().parents[2]
 EXAMPLE = ROOT / "examples" / "paper_discrete.yaml"
@@ -225,7 +226,10 @@ CASES = [
     ("top-unknown-key", scenario({"solver": "fast"}), ["unknown key solver"]),
     ("system-unknown-key", scenario({"system.D": [[1], [0], [0], [0]]}), ["unknown key system.D"]),
     # --- known inputs and sampling (system.B, system.u, system.sample) ------------------------------
-    ("B-rows", scenario({"system.B": [[1], [0]]}), ["system.B has 2 rows, system.A is 4x4"]),
+    ("B-rows", scenario({"system.B": [[1], [0]]}), ["system.B is 2x1, system.A is 4x4"]),
+    # issue 46's walk: one input's column written as a flat list (B: [0, 0, 0, 1]) is one row, and says so
+    ("B-flat", scenario({"system.B": [0, 0, 0, 1]}),
+     ["system.B is 1x4, system.A is 4x4", "a flat list is one row: write one input's column as [[a], [b], ...]"]),
     ("u-without-B", scenario({"system.u": [1.0]}), ["system.u needs system.B"]),
     ("u-width", scenario({"system.B": [[1], [0], [0], [0]], "system.u": [1.0, 2.0]}),
      ["system.u has 2 entries; system.B has 1 columns"]),
@@ -472,7 +476,7 @@ def test_design_json_contract():
     assert (data["m"], data["n"]) == (3, 4)
     assert isinstance(data["q"], int) and data["q"] >= 1
     assert data["q_method"] == "spectral"
-    assert data["q_bound"] <= data["rate"]
+    assert certifies(data["q_bound"], data["rate"])  # the one rule (synthesis/spectral.py)
     assert [a["id"] for a in data["agents"]] == [1, 2, 3]
     for agent in data["agents"]:
         for key in ("id", "K", "V", "P", "poles"):

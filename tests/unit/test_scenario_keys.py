@@ -19,7 +19,7 @@ from tests.conftest import ROOT
 PAGE = ROOT / "docs/how-to/scenario.md"
 BEGIN = "<!-- keys: generated from splitspec_core/scenarios/keys.py (reference_table) -->\n"
 END = "<!-- keys: end -->"
-KINDS = {"number", "integer", "word", "number|word", "integer|word", "matrix", "per agent", "names", "noise", "signal",
+KINDS = {"number", "integer", "word", "boolean", "number|word", "integer|word", "matrix", "per agent", "names", "noise", "signal",
          "path", "map", "map|word", "list", "text"}
 
 

@@ -14,13 +14,15 @@ from tests.conftest import EXAMPLES
 from tests.numerics import assert_close, max_rel_diff
 
 
-def random_scenario(seed: int, *, time: str, m: int = 5, n: int = 6, g="auto", noise=0.05, faults=()):
+def random_scenario(seed: int, *, time: str, m: int = 5, n: int = 6, g="auto", noise=0.05, faults=(), bad_data=None):
     rng = np.random.default_rng(seed)
     A, Cs = random_system(rng, m, n, time=time)
     arcs_a = random_strongly_connected_arcs(rng, m, extra=m)
     arcs_b = random_strongly_connected_arcs(rng, m, extra=2)
     d = {"rate": 0.8, "gains": "place", "q": "auto"} if time == "discrete" else {"rate": 0.5, "gains": "riccati",
                                                                                    "g": g}
+    if bad_data is not None:  # else the default: on under the measurement noise where the design calibrates it
+        d["bad_data"] = bad_data
     return parse_scenario({
         "name": f"rand{seed}", "time": time,
         "system": {"A": A.tolist(), "C": {i + 1: C.tolist() for i, C in enumerate(Cs)},
