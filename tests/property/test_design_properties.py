@@ -29,16 +29,17 @@ import os
 import numpy as np
 import pytest
 import scipy.linalg as sla
-from hypothesis import HealthCheck, assume, event, given, settings
+from hypothesis import HealthCheck, assume, event, example, given, settings
 from hypothesis import strategies as st
 
 from splitspec_core.synthesis.designer import design
 from splitspec_core.errors import AssumptionError, DesignError
 from splitspec_core.synthesis.error_matrix import block_diagonal
+from splitspec_core.synthesis.spectral import CERTIFY_MARGIN, certifies
 from splitspec_core.model.observability import decompose, threshold_of
 from splitspec_core.scenarios.load import parse_scenario
 
-from .strategies import graph_sequences, scenarios
+from .strategies import Drawn, graph_sequences, scenarios
 
 settings.register_profile("ci", derandomize=True)
 if os.environ.get("HYPOTHESIS_PROFILE"):  # only when asked: the profile is global to the session
@@ -168,6 +169,8 @@ class Full:
         # eq. (split_AV): Abar V = V Atil ; eq. (split_QA): Q Abar = Abar_V Q
         self.Atil = self.V.T @ self.Abar @ self.V
         self.AbarV = self.Q @ self.Abar @ self.Q.T
+        # |Q Abar V|: how far span V is from Abar-invariant (0 up to round-off unless a weak direction was left out)
+        self.leak = norm2(self.Q @ self.Abar @ self.V) if self.nbar and self.Q.shape[0] else 0.0
         self.I = np.eye(self.m * self.n)
 
     def Sbar(self, S: np.ndarray) -> np.ndarray:
@@ -312,19 +315,24 @@ def test_discrete_error_matrix_meets_rate(drawn):
         tol = 1e-9 * (1.0 + norm2(M))
         # eqs. (split_discrete_xpr1), (split_discrete_xpr2): V is invariant, Q M = Abar_V Q
         AV = full.V.T @ M @ full.V
-        assert np.allclose(M @ full.V, full.V @ AV, atol=tol)
-        assert np.allclose(full.Q @ M, full.AbarV @ full.Q, atol=tol)
-        # eq. (split_discrete_ench): A_V = Atil B^q
-        assert np.allclose(AV, full.Atil @ np.linalg.matrix_power(full.B(graph.S), q), atol=tol)
+        exact = full.leak <= tol
+        if exact:  # else a weak direction was left to consensus: see test_continuous_g_meets_rate
+            assert np.allclose(M @ full.V, full.V @ AV, atol=tol)
+            assert np.allclose(full.Q @ M, full.AbarV @ full.Q, atol=tol)
+            # eq. (split_discrete_ench): A_V = Atil B^q
+            assert np.allclose(AV, full.Atil @ np.linalg.matrix_power(full.B(graph.S), q), atol=tol)
+        else:
+            event("split inexact (a weak direction left to consensus)")
         # eq. (split_discrete_as): spec(M) = spec(Abar_V) U spec(A_V)
         B = full.B(graph.S)
         h = np.repeat(perron(graph.S), full.sizes)
         rho_V[graph.name] = radius_interval(AV, (norm2(full.Atil) + full.kc) * power_scale(B, q, h))
         rho_M = radius_interval(M)
         split = top(rho_obs, radius_interval(AV))
-        assert same(rho_M, split, 1e-9 * (1 + norm2(M))), (rho_M, split)
+        if exact:
+            assert same(rho_M, split, 1e-9 * (1 + norm2(M))), (rho_M, split)
         # the certificate bounds (or is) the spectral radius, for each graph held constant
-        assert rho_M[1] <= full.rate + 1e-9 + (rho_M[2] - rho_M[1])
+        assert rho_M[1] < full.rate + (rho_M[2] - rho_M[1])
         # the library's radius of A_V = Atil B^q (formed from its Gram matrices)
         lib = dsg.error_radius[graph.name]
         assert same((lib, lib, lib), rho_V[graph.name], 1e-12), (lib, rho_V[graph.name])
@@ -393,16 +401,18 @@ def test_discrete_q_certificates_from_full_matrices(drawn, data):
     Bs = {g.name: full.B(g.S) for g in dsg.graphs}
     for method, res in dsg.q_methods.items():
         assert not isinstance(res, str), f"{method}: {res}"
-        assert res.certified, f"{method}: q = {res.q} not certified (bound {res.bound})"
+        assert res.certified and certifies(res.bound, lam), f"{method}: q = {res.q} not certified (bound {res.bound})"
+        # below: each bound recomputed independently is below the rate too (strictly: the one rule's margin, 1e-6
+        # relative, exceeds the two paths' round-off)
         q = res.q
         if method == "two-norm":
-            # max over graphs |Atil B^q|_2 <= rate bounds every switching product
+            # max over graphs |Atil B^q|_2 < rate bounds every switching product
             vals = [norm2(full.Atil @ np.linalg.matrix_power(B, q)) for B in Bs.values()]
             assert max(vals, default=0.0) == pytest.approx(res.bound, rel=1e-7, abs=1e-12)
-            assert max(vals, default=0.0) <= lam * (1 + 1e-9)
+            assert max(vals, default=0.0) < lam
             assert res.p * res.pbar == q
         elif method == "mixed":
-            # eqs. (rajit), (rajit2), (rajit3): q = p pbar, ||B^p|| < 1, ||Atil|| ||B^p||^pbar <= rate
+            # eqs. (rajit), (rajit2), (rajit3): q = p pbar, ||B^p|| < 1, ||Atil|| ||B^p||^pbar < rate
             assert res.p * res.pbar == q and res.p >= 1
             na = mixed_norm(full.Atil, sizes, sizes)
             for B in Bs.values():
@@ -410,8 +420,8 @@ def test_discrete_q_certificates_from_full_matrices(drawn, data):
                     continue
                 nbp = mixed_norm(np.linalg.matrix_power(B, res.p), sizes, sizes)
                 assert nbp < 1.0
-                assert na * nbp**res.pbar <= lam * (1 + 1e-12)
-                assert mixed_norm(full.Atil @ np.linalg.matrix_power(B, q), sizes, sizes) <= lam * (1 + 1e-9)
+                assert na * nbp**res.pbar < lam
+                assert mixed_norm(full.Atil @ np.linalg.matrix_power(B, q), sizes, sizes) < lam
         elif method == "weighted":
             # eq. (rnorm) with R = V'(Pi (x) I)V = block_diagonal(pi_i I_{n_i}), pi the Perron vector of S
             for g in dsg.graphs:
@@ -425,13 +435,13 @@ def test_discrete_q_certificates_from_full_matrices(drawn, data):
                 wnorm = lambda X: norm2(r[:, None] * X / r[None, :])  # noqa: E731
                 nb = wnorm(Bs[g.name])
                 assert nb < 1.0  # eq. (ino)
-                assert wnorm(full.Atil) * nb**q <= lam * (1 + 1e-12)
+                assert wnorm(full.Atil) * nb**q < lam
         else:  # spectral
             for B in Bs.values():
                 iv = radius_interval(full.Atil @ np.linalg.matrix_power(B, q))
                 assert iv[1] < lam + 1e-9 + (iv[2] - iv[1]), (iv, lam)
-    if not full.nbar:
-        return
+    if not full.nbar or full.leak > 1e-9 * (1 + norm2(full.Abar)):
+        return  # (an inexact split, a weak direction left to consensus: the products' bounds assume V invariant)
     # switching products over random graph sequences (two-norm and mixed certify arbitrary switching)
     seq = data.draw(graph_sequences(len(dsg.graphs)), label="graph sequence")
     two, mixed = dsg.q_methods["two-norm"], dsg.q_methods["mixed"]
@@ -445,8 +455,20 @@ def test_discrete_q_certificates_from_full_matrices(drawn, data):
 # --------------------------------------------------------------------------
 
 
+def mode_at_the_rate_seen_once() -> Drawn:
+    """CI's draw (make test): ``A = -0.2`` at rate 0.2 seen by agent 1 of a ring of seven (rank_tol 1e-12, place):
+    the others' error decays at exactly the rate when g = 0, and faster for every g > 0."""
+    arcs = [[k, k % 7 + 1] for k in range(1, 8)] + [[k % 7 + 1, k] for k in range(1, 8)]
+    data = {"name": "drawn", "time": "continuous",
+            "system": {"A": [[-0.2]], "C": {k: [[-1.0 if k == 1 else 0.0]] for k in range(1, 8)}},
+            "graphs": {"g1": {"arcs": arcs}},
+            "design": {"rate": 0.2, "gains": "place", "margin": 0.5, "rank_tol": 1e-12}}
+    return Drawn(data=data, T=np.eye(1), edges=(0, 1), owned=(frozenset({0}),) + (frozenset(),) * 6)
+
+
 @settings(max_examples=examples(110), **COMMON)
 @given(scenarios(time="continuous"))
+@example(mode_at_the_rate_seen_once())
 def test_continuous_g_meets_rate(drawn):
     """The full matrix of eq. (split_continuous_em) meets the rate at g; eq. (g) is sufficient; g_min is tight."""
     dsg = designed(drawn)
@@ -465,11 +487,19 @@ def test_continuous_g_meets_rate(drawn):
         # 3. the full error matrix at the design's g decays at the rate, for each graph held constant
         M = full.continuous_error(S, g)
         tol = 1e-9 * (1.0 + norm2(M))
-        assert np.allclose(M @ full.V, full.V @ AV(g), atol=tol)
-        assert np.allclose(full.Q @ M, full.AbarV @ full.Q, atol=tol)
         assert np.allclose(AV(g), full.Atil - g * full.V.T @ (full.I - Sbar) @ full.V, atol=tol)
         a_M, a_V = abscissa_interval(M), abscissa_interval(AV(g))
-        assert same(a_M, top(a_obs, a_V), 1e-9 * (1 + norm2(M))), (a_M, a_obs, a_V)
+        if full.leak <= tol:
+            # the split is exact to round-off: M is block triangular in (V, Q') and its spectrum is that of the blocks
+            assert np.allclose(M @ full.V, full.V @ AV(g), atol=tol)
+            assert np.allclose(full.Q @ M, full.AbarV @ full.Q, atol=tol)
+            assert same(a_M, top(a_obs, a_V), 1e-9 * (1 + norm2(M))), (a_M, a_obs, a_V)
+        else:
+            # a direction seen above round-off but below rank_tol was left to consensus (Decomposition.weak): V_i is
+            # only nearly A-invariant and the identities hold up to the leak; the design's guarantee is then the
+            # full error matrix's rate, checked below (CI's test-kernels drew one: rank_tol 1e-12, margin 4.5e-10,
+            # leak 1.9e-6)
+            event("split inexact (a weak direction left to consensus)")
         assert a_M[1] <= -lam + 1e-7 + (a_M[2] - a_M[1]), (a_M, -lam)
         if full.nbar:
             lib = dsg.error_radius[graph.name]
@@ -486,7 +516,12 @@ def test_continuous_g_meets_rate(drawn):
             assert at_gb[1] <= -lam + 1e-7 + (at_gb[2] - at_gb[1]), (at_gb, -lam)
         # 3. the exact smallest g (bisection, rtol 1e-6) sits on the boundary
         gm = dsg.g_mins[graph.name]
-        assert 0 <= gm <= gb * (1 + 2e-6) + 1e-9
+        assert gm >= 0
+        if gm > gb * (1 + 2e-6) + 1e-9:
+            # the strict rule (spectral.certifies): at eq. (g)'s bound the error decays only at the rate (a part no
+            # gain moves, decaying exactly at it), which certifies nothing: the smallest g is a hair above the bound
+            at_gb = abscissa_interval(AV(gb))
+            assert at_gb[2] >= -lam * (1 + 1e-5) and gm <= gb + 1e-4 * (1 + lam), (gm, gb, at_gb, -lam)
         at_gm = abscissa_interval(AV(gm))
         if gm == 0:
             assert at_gm[0] <= -lam
@@ -496,7 +531,10 @@ def test_continuous_g_meets_rate(drawn):
         if gm > 0 and full.nbar:
             for x in np.linspace(0.0, gm * (1 - 1e-3), 41):
                 below = abscissa_interval(AV(x))
-                assert below[2] > -lam - 1e-9, (x, gm, below, -lam)
+                # by the one rule the bisection used (spectral.certifies, a margin of 1e-6 |lam|): a g below gm may
+                # meet the rate by less than the margin (CI drew A = -0.2 at rate 0.2 seen by one agent of seven:
+                # every g > 0 beats the rate, at g = 7.6e-8 by 5e-9; gm = 3e-6 is the first g to beat it by the margin)
+                assert below[2] >= -lam * (1 + CERTIFY_MARGIN) - 1e-9, (x, gm, below, -lam)
 
 
 @settings(max_examples=examples(80), **COMMON)
@@ -581,7 +619,7 @@ def test_weighted_q_is_certified_at_a_round_off_tie():
     }
     dsg = design(parse_scenario(data), compare_q_methods=True)
     for method, res in dsg.q_methods.items():
-        assert res.certified and res.bound <= 0.5, (method, res)
+        assert res.certified and certifies(res.bound, 0.5), (method, res)
     assert not dsg.warnings
 
 
