@@ -63,6 +63,7 @@ from splitspec_core.model.rows import REPORTED, run_columns
 from splitspec_core.scenarios.faults import PLANT
 from splitspec_core.scenarios.load import load_scenario, read_scenario_text, resolved_scenario_text
 from splitspec_core.runtime.cli import EVENTS_LOGGER
+from splitspec_core.runtime.node import settle_heap
 from splitspec_core.runtime.ticks import TickEncoder
 from splitspec_core.runtime.wire import Keys, WireError, decode, encode, new_run_key
 
@@ -694,6 +695,8 @@ def _open_records(orch, taking_over: bool):
         orch.finisher = rec.finish_beside(torn)
     if taking_over:  # at the end, every segment left without its footer is finished (takeover.finish_left_segments)
         orch.left_segments = rec.layout_args()
+    else:  # set up (imports, design, records): never visited by a collection again (takeover.took_over, a standby's)
+        settle_heap()
     return rec
 
 

@@ -133,6 +133,7 @@ class Standby:
         from splitspec_core.model.rows import REPORTED
         from splitspec_core.runtime.bus import LIVELINESS_DELETE
         from splitspec_core.runtime.wire import WireError, decode
+        from splitspec_core.runtime.node import settle_heap
 
         keys = self.keys
         inbox = self.inbox
@@ -163,6 +164,7 @@ class Standby:
                       file=sys.stderr)
                 return 1
             if ready is None and follower.ready:
+                settle_heap()  # its start-up and the records taken on: never visited again (it may hold the rounds)
                 ready = self.session.liveliness().declare_token(keys.alive("standby", 1, self.nonce))
                 log.info("standby: ready to take over run %r (records on disk to event time %d)", keys.run_id,
                          follower.kept - 1)

@@ -26,6 +26,8 @@ import socket
 import time
 from pathlib import Path
 
+from splitspec_core.runtime.node import settle_heap
+
 log = logging.getLogger("splitspec.orchestrator")
 
 __all__ = ["HOLDER_FILE", "STATE_SECONDS", "StandbyLink", "hold_records", "records_holder", "resume_records",
@@ -291,5 +293,6 @@ def took_over(orch, tau: int | None) -> None:
               "previous_host": info["host"], "stall_ms": round(stall_ms, 1), "tau": int(view.round.tau)}
     orch.rec.event("orchestrator_takeover", t, level="WARN", **fields)
     orch.tally.takeovers = orch.epoch - 1  # epoch 1 started the run; each takeover is one more
+    settle_heap(collect=False)  # the records it took on: out of every later collection, with no pause in the catch-up
     log.warning("orchestrator epoch %d (pid %d) took the run over at event time %d from pid %s on %s; rounds "
                 "stalled %.0f ms", orch.epoch, os.getpid(), view.round.tau, info["pid"], info["host"], stall_ms)
