@@ -71,7 +71,7 @@ $(VENV)/.docs-installed: $(VENV)/.installed
 # on one of them); the property tests at half their examples (SPLITSPEC_PROPERTY_SCALE: make test-kernels runs them
 # in full three times, under other floating-point paths)
 WORKERS ?= 2
-PARALLEL = -n $(WORKERS) --dist loadgroup
+PARALLEL = -n $(WORKERS) --dist loadgroup --durations=25
 TEST_PROPERTY_SCALE ?= 0.5
 
 test: setup
