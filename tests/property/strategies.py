@@ -225,12 +225,13 @@ def scenarios(draw, *, time: str | None = None, q_method: str | None = None, m_m
     #   misses the rate (e.g. A = diag(-1, -0.8, ..., 0.6), C_1 = -1', rate 2), which design_gain
     #   rejects loudly; discrete placement at rate 0.3 with 10 states misses the rate likewise.
     # Keep <= 6 (continuous) / 8 (discrete) states per agent, continuous shifts <= 3 and discrete
-    # Riccati radii rate / (1 + margin) >= 0.15.
+    # Riccati radii rate / (1 + margin) >= 0.2 (CI drew a DARE with no finite solution at radius 0.1532, four
+    # slow modes of modulus 1.1 seen by one agent; solved at 0.161: tests/unit/test_observability_gains.py).
     own_cap = 8 if time == "discrete" else 6
     if time == "continuous":
         margins = [x for x in margins if rate * (1 + x) <= 3.0] or [0.2]
     elif gains == "riccati":
-        margins = [x for x in margins if rate / (1 + x) >= 0.15] or [0.2]
+        margins = [x for x in margins if rate / (1 + x) >= 0.2] or [0.2]
     A, Cs, T, edges, owned = draw(_system(m, time, n_max, own_cap, near_dependent))
     ngraphs = graphs or draw(st.integers(1, 2))
     gs = [draw(_arcs(m)) for _ in range(ngraphs)]

@@ -1,7 +1,15 @@
+import dataclasses
+import json
+import re
+from pathlib import Path
+
 import numpy as np
 import pytest
 
-from splitspec_core.errors import AssumptionError
+from splitspec_core.errors import AssumptionError, DesignError
+from splitspec_core.scenarios.load import parse_scenario
+from splitspec_core.synthesis.designer import design
+from splitspec_core.synthesis.verdict import rate_certificate
 from splitspec_core.model.gains import GainRequest, design_gain, meets_rate
 from splitspec_core.model.observability import decompose, unobservable_directions
 
@@ -223,3 +231,20 @@ def test_close_modes_the_gain_must_move_are_left_to_consensus():
     small = design_gain(moved, GainRequest(method="place", time="continuous", rate=0.2, margin=0.5))
     assert np.linalg.norm(big.K) > 1e5 and np.linalg.norm(small.K) < 1.0
     assert 0.0 < moved.weak < 1e-3  # what it left out, it saw only weakly
+
+
+def test_a_riccati_design_too_fast_for_a_weak_mode_is_refused_with_a_rate_that_certifies():
+    """CI's property test drew this (test-iterative, 2026-11-30): 9 states, four slow modes of modulus 1.1, agent
+    32 sees many of them; ``gains: riccati`` at rate 0.3064 with ``margin: 1`` asks every pole inside radius 0.1532,
+    where scipy's DARE of the slow part (eigenvalues up to 7.2 once scaled) finds no finite solution (at 0.161 it
+    does).  The refusal is one line naming the agent, and the rate it proposes certifies."""
+    sc = parse_scenario(json.loads((Path(__file__).parent / "data" / "riccati_at_radius_0153.json").read_text()))
+    with pytest.raises(DesignError) as info:
+        design(sc)
+    text = str(info.value)
+    assert "\n" not in text and text.startswith("agent 32: the Riccati design of its slow modes") and \
+        "too weakly observable" in text, text
+    proposed = float(re.search(r"design\.rate ([0-9.]+) certified", text).group(1))
+    assert sc.design.rate < proposed < 0.4
+    ok = design(dataclasses.replace(sc, design=dataclasses.replace(sc.design, rate=proposed)))
+    assert rate_certificate(ok).certified
