@@ -31,8 +31,13 @@ What it measures, sampled every ``--sample-seconds`` from /proc and the records 
 5. takeovers (``--kill-orchestrator-every S``: ``run.standby: true`` and the active orchestrator killed by the
    scenario every S seconds of running): the stall of each (from the dead one's last tick to its successor's
    first; target under 1 s), the rows missing, and the lateness outside each kill's, restart's and takeover's
-   catch-up (its event times until one starts less than a tenth of a period late) against a period.  The standbys and the router are processes of the run's tree too (``standby``,
-   ``router``): their memory is reported per process.
+   catch-up (its event times until one starts less than a tenth of a period late) against a period.  The standbys
+   and the router are processes of the run's tree too (``standby``, ``router``): their memory is reported per
+   process;
+6. the machine's own timekeeping (:mod:`_canary`, records in ``<out>.canary.f64``): a bare sleeper at the run's
+   priority, on a grid of the run's period, with the hypervisor's steal; the event times later than a period
+   outside the faults' catch-ups are split into those while the machine itself stalled (the sleeper woke more than
+   half a period late, or the hypervisor stole half a core over 0.2 s; and their catch-up) and the others, which alone are the product's (PASS: none).
 
 The clock of ``--minutes`` and ``--warmup-minutes`` starts at the run's ``run_started`` event (its first round;
 start-up, which includes the design, is reported apart).  At the end it sends SIGINT to `splitspec run` (as
@@ -74,6 +79,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+import _canary
 from _common import loadavg
 from splitspec_orchestrator.launcher import idle_class, normal_class
 
@@ -426,6 +432,54 @@ def chunk_rows(out: Path, *, whole_limit: int = WHOLE_READ_BYTES, tail: ChunkTai
 
 # ------------------------------------------------------------------ figures
 
+def machine_stalls(path: Path, tau: np.ndarray, wall: np.ndarray, late: np.ndarray, apart: np.ndarray,
+                   period_ms: float) -> dict:
+    """The event times later than a period outside the faults' catch-ups (``apart``), split by whether the machine
+    itself stalled then (:mod:`_canary`: its bare sleeper at the run's priority woke more than half a period late,
+    or the hypervisor stole half a core over 0.2 s), printed and returned.
+
+    An event time scheduled at ``s = wall - late`` is the machine's if a stall overlaps ``[s - period, wall]``, or if
+    it is in the catch-up of one that is (every event time since started at least a tenth of a period late)."""
+    rec = _canary.read(path)
+    if not len(rec):
+        print("  the machine's own timekeeping: n/a (no records of the sleeper)")
+        return {}
+    per = np.diff(rec[:, 0])
+    span = float(rec[-1, 0] - rec[0, 0]) if len(rec) > 1 else math.nan
+    st = _canary.stalls(rec, period_ms / 2)
+    a = np.array([x[0] for x in st]) if st else np.empty(0)
+    b = np.array([x[1] for x in st]) if st else np.empty(0)
+    steal_s = (rec[-1, 2] - rec[0, 2]) / os.sysconf("SC_CLK_TCK")
+    busy = (rec[-1, 3] - rec[0, 3]) / os.sysconf("SC_CLK_TCK") / span if span > 0 else math.nan
+    w_s, s_s = wall / 1e9, (wall / 1e9) - late / 1e3
+    machine = np.zeros(len(tau), dtype=bool)
+    for k in np.where(np.isfinite(late) & (late > LATE_FRACTION * period_ms))[0]:
+        lo = s_s[k] - period_ms / 1e3
+        j = np.searchsorted(b, lo)  # stalls ending at or after lo
+        if j < len(a) and a[j] <= w_s[k]:
+            machine[k] = True
+        elif k and machine[k - 1] and tau[k - 1] == tau[k] - 1:
+            machine[k] = True  # the catch-up of an event time the machine made late
+    over = apart & (late > period_ms)
+    mine, theirs = over & machine, over & ~machine
+    worst = float(late[theirs].max()) if theirs.any() else 0.0
+    lates = rec[:, 1]
+    print(f"  the machine's own timekeeping (a bare sleeper at the run's priority, {len(rec)} ticks over "
+          f"{fmt(span, '.0f')} s, median tick {fmt(float(np.median(per)) * 1e3 if len(per) else math.nan, '.2f')} ms): "
+          f"woke late p99 {np.percentile(lates, 99):.2f} ms, max {lates.max():.1f} ms; {len(st)} stalls (woke more "
+          f"than {period_ms / 2:g} ms late, or {_canary.STEAL_CORES:g} core stolen over {_canary.STEAL_WINDOW_S:g} s) covering {float(np.sum(b - a)):.1f} s "
+          f"({100 * float(np.sum(b - a)) / span:.3f}% of the run); steal {steal_s:.1f} s in all; the machine busy "
+          f"{fmt(busy, '.2f')} cores on average")
+    print(f"  of the {int(over.sum())} event times later than a period outside the faults' catch-ups: "
+          f"{int(mine.sum())} while the machine stalled (or in the catch-up after), {int(theirs.sum())} not (max "
+          f"{worst:.1f} ms): " + ("PASS" if not theirs.any() else "FAIL"))
+    return {"ticks": int(len(rec)), "late_p99_ms": float(np.percentile(lates, 99)), "late_max_ms": float(lates.max()),
+            "stalls": len(st), "stall_seconds": float(np.sum(b - a)), "steal_seconds": float(steal_s),
+            "busy_cores": busy, "over_period": int(over.sum()), "over_period_machine": int(mine.sum()),
+            "over_period_not_machine": int(theirs.sum()), "late_max_not_machine": worst,
+            "not_machine_taus": [int(t) for t in tau[theirs][:200]]}
+
+
 def slope_r2(t: np.ndarray, y: np.ndarray) -> tuple:
     """Least-squares slope of y against t and the fit's R^2 (nan with fewer than 3 points; R^2 1 if y is flat)."""
     if len(t) < 3 or np.ptp(t) == 0:
@@ -639,6 +693,11 @@ def main() -> int:
     # the watcher must not take the run's cores: it reads each closed chunk segment (67 MB, a second or two of a
     # core), which made rounds up to 165 ms late beside it in the hour of 2026-11-30; the run's processes are
     # started already (its own are started by the run), so only this process goes to the idle class
+    # the machine's own timekeeping beside the run, at the run's priority (this one's, before it goes idle)
+    canary_path = out.parent / f"{out.name}.canary.f64"
+    canary_path.unlink(missing_ok=True)
+    canary = subprocess.Popen([sys.executable, str(Path(__file__).with_name("_canary.py")), str(canary_path),
+                               repr(1.0 / args.pace)], stdin=subprocess.DEVNULL)
     idle = idle_class(os.getpid())
     samples: list = []  # {"t" (s since the first round, None before), "wall", "procs", "files"}
     watch = FileWatch()
@@ -696,6 +755,8 @@ def main() -> int:
                   flush=True)
             os.killpg(proc.pid, signal.SIGKILL)
             code = proc.wait()
+    canary.terminate()
+    canary.wait()
     stdout.close()
     stderr.close()
     final_files = record_files(out) if out.exists() else {}
@@ -811,13 +872,13 @@ def main() -> int:
     # active one's at each moment, each epoch's first --settle-minutes left out
     held = active_series(samples, evs, warmup * 60, args.settle_minutes * 60)
     if held["epochs"] > 1:
-        a = np.array(held["points"])
+        a = np.array(held["points"]).reshape(-1, 2)  # none left when each epoch is shorter than its settling
         slope, _ = slope_r2(a[:, 0] / 3600, a[:, 1]) if len(a) else (math.nan, None)
         hi, lo, nb = block_slopes(a[:, 0] / 3600, a[:, 1], args.block_minutes / 60) if len(a) else (math.nan,) * 3
         verdict = "n/a" if not math.isfinite(slope) else "PASS" if slope < SLOPE_LIMIT_MB_H else "FAIL"
         print(f"the active orchestrator, whoever holds the rounds ({held['epochs']} epochs, each one's first "
-              f"{args.settle_minutes:g} min left out, {len(a)} samples): {a[:, 1].min():.1f} to {a[:, 1].max():.1f} "
-              f"MB, slope {fmt(slope, '.2f')} MB/h: {verdict}; by blocks of {args.block_minutes:g} min: highest "
+              f"{args.settle_minutes:g} min left out, {len(a)} samples): {fmt(a[:, 1].min() if len(a) else math.nan)} to "
+              f"{fmt(a[:, 1].max() if len(a) else math.nan)} MB, slope {fmt(slope, '.2f')} MB/h: {verdict}; by blocks of {args.block_minutes:g} min: highest "
               f"{fmt(hi, '.2f')}, lowest {fmt(lo, '.2f')} ({nb} blocks); each epoch's peak: "
               + ", ".join(f"{x:.1f}" for x in held["peaks"]) + " MB")
         results["active_orchestrator"] = {"epochs": held["epochs"], "samples": len(a), "slope_mb_h": slope,
@@ -936,6 +997,8 @@ def main() -> int:
                 results["rows"].update(restarts=len(restarts),
                                        late_max_at_restarts=float(late[at].max()) if at.any() else None,
                                        late_max_apart=float(late[rest].max()) if rest.any() else None)
+            outside_faults = apart if restarts else np.isfinite(late)
+            results["machine_stalls"] = machine_stalls(canary_path, tau, wall, late, outside_faults, period_ms)
             # a file rewritten while running (run.rrd's segment finished as it rolls): the lateness around it
             near = []
             for w, path in watch.walls:
