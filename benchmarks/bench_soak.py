@@ -432,14 +432,31 @@ def chunk_rows(out: Path, *, whole_limit: int = WHOLE_READ_BYTES, tail: ChunkTai
 
 # ------------------------------------------------------------------ figures
 
+CONTROL_SHIFT_S = 37.0  #: the machine's stalls moved by this many seconds: what they would hold by chance
+
+
+def machine_made(tau: np.ndarray, wall_s: np.ndarray, late: np.ndarray, a: np.ndarray, b: np.ndarray,
+                 period_ms: float) -> np.ndarray:
+    """Which event times the machine made late: one started at ``wall_s`` and scheduled at ``s = wall_s - late``
+    whose ``[s - period, wall_s]`` meets a stall ``[a_j, b_j]`` (sorted, disjoint), or in the catch-up of one that
+    did (every event time since started at least a tenth of a period late)."""
+    made = np.zeros(len(tau), dtype=bool)
+    for k in np.where(np.isfinite(late) & (late > LATE_FRACTION * period_ms))[0]:
+        j = np.searchsorted(b, wall_s[k] - late[k] / 1e3 - period_ms / 1e3)  # the first stall ending after that
+        if j < len(a) and a[j] <= wall_s[k]:
+            made[k] = True
+        elif k and made[k - 1] and tau[k - 1] == tau[k] - 1:
+            made[k] = True
+    return made
+
+
 def machine_stalls(path: Path, tau: np.ndarray, wall: np.ndarray, late: np.ndarray, apart: np.ndarray,
                    period_ms: float) -> dict:
     """The event times later than a period outside the faults' catch-ups (``apart``), split by whether the machine
     itself stalled then (:mod:`_canary`: its bare sleeper at the run's priority woke more than half a period late,
-    or the hypervisor stole half a core over 0.2 s), printed and returned.
-
-    An event time scheduled at ``s = wall - late`` is the machine's if a stall overlaps ``[s - period, wall]``, or if
-    it is in the catch-up of one that is (every event time since started at least a tenth of a period late)."""
+    or the hypervisor stole half a core over 0.2 s; :func:`machine_made`), printed and returned.  Beside it, a
+    control: the same stalls moved by ``CONTROL_SHIFT_S`` either way, which hold as many only if the stalls cover so
+    much of the run that any event time falls in one."""
     rec = _canary.read(path)
     if not len(rec):
         print("  the machine's own timekeeping: n/a (no records of the sleeper)")
@@ -451,32 +468,29 @@ def machine_stalls(path: Path, tau: np.ndarray, wall: np.ndarray, late: np.ndarr
     b = np.array([x[1] for x in st]) if st else np.empty(0)
     steal_s = (rec[-1, 2] - rec[0, 2]) / os.sysconf("SC_CLK_TCK")
     busy = (rec[-1, 3] - rec[0, 3]) / os.sysconf("SC_CLK_TCK") / span if span > 0 else math.nan
-    w_s, s_s = wall / 1e9, (wall / 1e9) - late / 1e3
-    machine = np.zeros(len(tau), dtype=bool)
-    for k in np.where(np.isfinite(late) & (late > LATE_FRACTION * period_ms))[0]:
-        lo = s_s[k] - period_ms / 1e3
-        j = np.searchsorted(b, lo)  # stalls ending at or after lo
-        if j < len(a) and a[j] <= w_s[k]:
-            machine[k] = True
-        elif k and machine[k - 1] and tau[k - 1] == tau[k] - 1:
-            machine[k] = True  # the catch-up of an event time the machine made late
+    wall_s = wall / 1e9
     over = apart & (late > period_ms)
-    mine, theirs = over & machine, over & ~machine
+    made = machine_made(tau, wall_s, late, a, b, period_ms)
+    mine, theirs = over & made, over & ~made
+    control = [int((over & machine_made(tau, wall_s, late, a + d, b + d, period_ms)).sum())
+               for d in (CONTROL_SHIFT_S, -CONTROL_SHIFT_S)]
     worst = float(late[theirs].max()) if theirs.any() else 0.0
     lates = rec[:, 1]
+    cover = float(np.sum(b - a))
     print(f"  the machine's own timekeeping (a bare sleeper at the run's priority, {len(rec)} ticks over "
           f"{fmt(span, '.0f')} s, median tick {fmt(float(np.median(per)) * 1e3 if len(per) else math.nan, '.2f')} ms): "
-          f"woke late p99 {np.percentile(lates, 99):.2f} ms, max {lates.max():.1f} ms; {len(st)} stalls (woke more "
-          f"than {period_ms / 2:g} ms late, or {_canary.STEAL_CORES:g} core stolen over {_canary.STEAL_WINDOW_S:g} s) covering {float(np.sum(b - a)):.1f} s "
-          f"({100 * float(np.sum(b - a)) / span:.3f}% of the run); steal {steal_s:.1f} s in all; the machine busy "
-          f"{fmt(busy, '.2f')} cores on average")
+          f"woke late p99 {np.percentile(lates, 99):.2f} ms, max {lates.max():.1f} ms; steal {steal_s:.1f} s in all "
+          f"({100 * steal_s / span:.1f}% of a core); the machine busy {fmt(busy, '.2f')} cores on average; {len(st)} "
+          f"stalls (woke more than {period_ms / 2:g} ms late, or {_canary.STEAL_CORES:g} core stolen over "
+          f"{_canary.STEAL_WINDOW_S:g} s) covering {cover:.1f} s ({100 * cover / span:.2f}% of the run)")
     print(f"  of the {int(over.sum())} event times later than a period outside the faults' catch-ups: "
-          f"{int(mine.sum())} while the machine stalled (or in the catch-up after), {int(theirs.sum())} not (max "
+          f"{int(mine.sum())} while the machine stalled (or in the catch-up after; the same stalls moved "
+          f"{CONTROL_SHIFT_S:g} s later or earlier hold {control[0]} and {control[1]}), {int(theirs.sum())} not (max "
           f"{worst:.1f} ms): " + ("PASS" if not theirs.any() else "FAIL"))
     return {"ticks": int(len(rec)), "late_p99_ms": float(np.percentile(lates, 99)), "late_max_ms": float(lates.max()),
-            "stalls": len(st), "stall_seconds": float(np.sum(b - a)), "steal_seconds": float(steal_s),
+            "stalls": len(st), "stall_seconds": cover, "stall_fraction": cover / span, "steal_seconds": float(steal_s),
             "busy_cores": busy, "over_period": int(over.sum()), "over_period_machine": int(mine.sum()),
-            "over_period_not_machine": int(theirs.sum()), "late_max_not_machine": worst,
+            "control_shifted": control, "over_period_not_machine": int(theirs.sum()), "late_max_not_machine": worst,
             "not_machine_taus": [int(t) for t in tau[theirs][:200]]}
 
 
