@@ -5,7 +5,8 @@ flush (a record batch may be torn), ``trajectory.npz`` as of its last rewrite (a
 (or its last segment, ``run-000k.rrd``, of a rolled recording) without a footer (``rerun rrd verify`` fails; a
 message may be torn) and possibly a torn last line in ``events.jsonl``.  :func:`recover` takes the chunks (K
 rows, event times 0..K-1; ``trajectory.npz`` of a run before chunks existed) as the authority, cuts a torn
-batch off, rewrites ``trajectory.npz`` from them if the run kept one with fewer rows, and
+batch off, rewrites ``trajectory.npz`` from them if the run kept one with fewer rows (or was to keep one, a run of
+``run.steps``, and was killed before its first), and
 
 - rewrites ``run.rrd`` from its whole messages with the data of event times
   ``< K`` and the static data, blueprint, text log and topology up to ``K``
@@ -128,16 +129,34 @@ def _recover_chunks(out: Path, traj: Path) -> tuple[int, float, bool]:
             changed = True
     rows = read_rows(out)
     K = 0 if rows is None else len(rows["tau"])
-    if rows is not None and traj.exists():
+    if rows is not None and (traj.exists() or _keeps_trajectory(out / EVENTS_FILE)):
         try:
             with np.load(traj) as f:
                 T = int(f["t"].shape[0])
-        except Exception:  # noqa: BLE001 - unreadable: the chunks replace it
+        except Exception:  # noqa: BLE001 - unreadable or not written yet: the chunks replace it
             T = -1
         if T < K:
             Trajectory.from_arrays(rows).save(traj)
             changed = True
     return K, float(rows["t"][-1]) if K else 0.0, changed
+
+
+def _keeps_trajectory(events: Path) -> bool:
+    """Whether the run kept a ``trajectory.npz`` (a run of ``run.steps``: its ``run_started`` names its steps; a run
+    until stopped says ``steps: null`` and keeps its rows in the chunks alone).  A run killed before its first rewrite
+    of ``trajectory.npz`` (seen on a busy machine: the chunks held 10 rows, ``trajectory.npz`` none) gets one from
+    the chunks all the same."""
+    try:
+        with open(events, "rb") as f:
+            for line in f:
+                if b'"run_started"' in line:
+                    try:
+                        return json.loads(line).get("steps") is not None
+                    except ValueError:
+                        return False
+    except OSError:
+        pass
+    return False
 
 
 def _recover_rrd(rrd: Path, K: int) -> tuple[str, bool | None]:

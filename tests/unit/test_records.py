@@ -369,6 +369,35 @@ def test_recover_after_sigkill(tmp_path):
     assert {name: (out / name).read_bytes() for name in before} == before
 
 
+@pytest.mark.filterwarnings("ignore:RRD file has no footer")
+@pytest.mark.parametrize("steps", [400, None])
+def test_recover_makes_the_trajectory_a_run_of_steps_was_killed_before_writing(tmp_path, steps):
+    """make test, 2026-11-30, on a busy machine: the orchestrator of a run of run.steps SIGKILLed once the chunks held
+    10 rows, before its first rewrite of trajectory.npz; the recovery left none.  It now makes it from the chunks,
+    for a run of run.steps (run_started names its steps), and never for a run until stopped (steps: null)."""
+    from splitspec_core.simulation.trajectory_chunks import read_chunks
+
+    out = tmp_path / "run"
+    script = _KILLED_WRITER.format(tests=str(Path(__file__).parent), out=str(out))
+    proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120,
+                          env={**os.environ, "RERUN_ANALYTICS": "0"})
+    assert proc.returncode == -signal.SIGKILL, proc.stdout + proc.stderr
+    (out / "trajectory.npz").unlink()  # as if killed before its first rewrite
+    lines = (out / "events.jsonl").read_text().splitlines(keepends=True)
+    k = next(i for i, line in enumerate(lines) if '"run_started"' in line)
+    lines[k] = json.dumps({**json.loads(lines[k]), "steps": steps}) + "\n"
+    (out / "events.jsonl").write_text("".join(lines))
+    K = len(read_chunks(out)["tau"])
+    result = recover(out)
+    assert result["rows"] == K and result["rrd_verified"]
+    if steps is None:
+        assert not (out / "trajectory.npz").exists()
+        assert "kept in chunks/, events.jsonl and run.rrd" in result["message"]
+    else:
+        assert npz_rows(out) == K and "kept in trajectory.npz, events.jsonl and run.rrd" in result["message"]
+        assert_records_agree(out, K)
+
+
 def test_recover_cli(tmp_path, capsys):
     rec = recorder(tmp_path / "run", flush_seconds=3600.0)
     for tau in range(5):
