@@ -1,7 +1,8 @@
 # Two entry points, both safe on a fresh clone with only python3 and make:
 #   make demo   set up .venv and run the main job (the multi-process demo)
-#   make test   set up .venv and run the whole test suite
+#   make test   set up .venv and run the test suite but its longest tests (make test-long)
 # and checks CI runs as well:
+#   make test-long     the longest tests (pytest.mark.long), which make test leaves out
 #   make test-kernels  the unit and property tests again on other floating-point paths (OpenBLAS kernels,
 #                      BLAS threads, numpy without AVX-512), as on other CPUs
 #   make test-lowest   set up .venv-lowest with every dependency at its lower bound, run a subset
@@ -34,7 +35,7 @@ KERNEL_NOT_NUMERIC = retention cli_input scenario_errors recorder architecture r
 KERNEL_TESTS ?= tests/unit tests/property $(foreach t,$(KERNEL_NOT_NUMERIC),--ignore=tests/unit/test_$(t).py)
 KERNEL_PYTEST = RERUN_ANALYTICS=0 $(BIN)/python -m pytest -p no:cacheprovider $(PARALLEL) $(KERNEL_TESTS)
 
-.PHONY: demo docs sensors test test-iterative test-kernels test-lowest setup clean
+.PHONY: demo docs sensors test test-long test-iterative test-kernels test-lowest setup clean
 
 setup: $(VENV)/.installed
 
@@ -75,7 +76,12 @@ PARALLEL = -n $(WORKERS) --dist loadgroup --durations=25
 TEST_PROPERTY_SCALE ?= 0.5
 
 test: setup
-	RERUN_ANALYTICS=0 SPLITSPEC_PROPERTY_SCALE=$(TEST_PROPERTY_SCALE) $(BIN)/python -m pytest $(PARALLEL)
+	RERUN_ANALYTICS=0 SPLITSPEC_PROPERTY_SCALE=$(TEST_PROPERTY_SCALE) $(BIN)/python -m pytest $(PARALLEL) -m "not long"
+
+# the tests marked long (pytest.mark.long: the longest, 17 to 70 s each on 2 cores), which make test leaves out to
+# keep under 15 minutes on 2 cores; CI runs both
+test-long: setup
+	RERUN_ANALYTICS=0 SPLITSPEC_PROPERTY_SCALE=$(TEST_PROPERTY_SCALE) $(BIN)/python -m pytest $(PARALLEL) -m long
 
 # The certificate tests again with every spectral radius of the spectral q computed by ARPACK on the matrix-free
 # operator (splitspec_core/synthesis/spectral.py), which by default only designs above 300 unknowns take: both paths give

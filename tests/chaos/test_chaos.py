@@ -21,6 +21,7 @@ def _show(name, case, *args):
     print(f"\n{name}: " + ", ".join(f"{k} {v}" for k, v in figures.items()))
 
 
+@pytest.mark.long
 def test_duplicate_id_is_refused_and_the_holder_kept(tmp_path):
     _show("duplicate id", C.case_duplicate_id, tmp_path)
 
@@ -51,6 +52,7 @@ def test_orchestrator_sigkill_mid_run(tmp_path):
     _show("orchestrator SIGKILL", C.case_orchestrator_killed, tmp_path)
 
 
+@pytest.mark.long
 def test_orchestrator_takeovers_at_a_switch_a_roll_and_of_the_standby(tmp_path):
     _show("orchestrator takeovers", C.case_orchestrator_takeovers, tmp_path)
 
@@ -70,6 +72,7 @@ def test_read_only_out(tmp_path):
     _show("read-only --out", C.case_read_only_out, tmp_path)
 
 
+@pytest.mark.long
 def test_agent_sigstop_then_sigcont(tmp_path):
     _show("agent SIGSTOP/SIGCONT", C.case_agent_frozen, tmp_path)
 
@@ -79,5 +82,6 @@ def test_random_multi_kills(tmp_path, seed):
     _show(f"random kills seed {seed}", C.case_random_kills, tmp_path, seed)
 
 
+@pytest.mark.long
 def test_kill_and_restart_storm(tmp_path):
     _show("kill-and-restart storm", C.case_restart_storm, tmp_path)

@@ -102,6 +102,7 @@ def used_samples(record, traj, agent: int) -> np.ndarray:
                      for tau in range(len(traj["y"]))])
 
 
+@pytest.mark.long
 def test_a_live_sensor_that_lies_is_flagged_restored_and_replays(tmp_path):
     """examples/sensors/publisher.py started 7 s into a run until stopped, agent 1's sensor biased by 1.0 (100 noise
     stds) for 80 samples later on, the run stopped 100 samples after the lie: the late start is not taken for a lie

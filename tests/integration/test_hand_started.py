@@ -46,6 +46,7 @@ def one_error_line(err: str) -> str:
     return lines[0]
 
 
+@pytest.mark.long
 def test_hand_started_process_that_cannot_join_exits_at_once_with_the_reason(tmp_path):
     scen = scenario_file(tmp_path, "paper_discrete", run={"steps": 400, "pace": 25, "seed": 7})
     out = tmp_path / "out"

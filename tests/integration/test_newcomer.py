@@ -53,6 +53,7 @@ def strict_json(text: str):
     return json.loads(text, parse_constant=refuse)
 
 
+@pytest.mark.long
 def test_a_newcomer_walks_design_compare_faults_a_kept_run_pace_and_review(tmp_path):
     raw = chain_model()
     scen = write(tmp_path, "chain", raw)

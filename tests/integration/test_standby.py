@@ -33,6 +33,7 @@ def _standby_ready_after(out, t_after):
     raise AssertionError(f"no new standby ready after the takeover: {events(out)}")
 
 
+@pytest.mark.long
 def test_the_run_outlives_two_orchestrator_kills(tmp_path):
     raw = yaml.safe_load((EXAMPLES / "ring10_standby.yaml").read_text())  # ring10 paced at 20, standby
     assert raw["run"] == {"steps": 400, "seed": 1, "pace": 20, "standby": True}

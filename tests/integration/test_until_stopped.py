@@ -132,6 +132,7 @@ def test_splitspec_stop_with_a_window_of_rows_and_rolled_records(tmp_path):
     assert_all_gone(all_pids(out))
 
 
+@pytest.mark.long
 def test_a_rolled_segment_opened_alone_has_the_topology_and_the_layout(tmp_path):
     env = {"SPLITSPEC_RUNTIME_DIR": str(tmp_path / "rt"), "SPLITSPEC_RRD_ROLL_MB": "0.3"}
     scen, out, log = endless(tmp_path, "ring10", 40), tmp_path / "out", tmp_path / "run.log"

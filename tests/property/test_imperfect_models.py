@@ -66,6 +66,7 @@ def names_margin(warning: str, agent: int) -> bool:
     return who[0] in ("agent", "agents") and str(agent) in who[1:]
 
 
+@pytest.mark.long
 @settings(max_examples=examples(40), **COMMON)
 @given(seed=st.integers(0, 10_000), time=st.sampled_from(["discrete", "continuous"]),
        imperfection=st.one_of(st.tuples(st.just("round"), st.sampled_from([7, 6, 5, 4])),

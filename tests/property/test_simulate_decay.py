@@ -7,6 +7,7 @@ add polynomial factors t^k lam^t to the transient.
 """
 
 import numpy as np
+import pytest
 from hypothesis import HealthCheck, assume, example, given, settings
 from hypothesis import strategies as st
 
@@ -51,6 +52,7 @@ def test_discrete_error_decays_at_designed_rate(seed, m, n, rate, gains, extra):
     assert measured <= rate * 1.02, (measured, rate, des.q)
 
 
+@pytest.mark.long
 @settings(max_examples=examples(10), deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(seed=st.integers(0, 10_000), m=st.integers(2, 5), n=st.integers(2, 6),
        rate=st.floats(0.2, 1.5), gains=st.sampled_from(["place", "riccati"]), extra=st.integers(0, 4))

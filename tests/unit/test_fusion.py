@@ -152,6 +152,7 @@ def test_fusion_is_certified_at_a_rate_it_reaches_and_refuses_one_it_cannot():
     assert shifted is not None and 1e-6 < float(shifted.group(1)) < free.radius
 
 
+@pytest.mark.long
 @pytest.mark.slow
 def test_rego_ring_fusion_at_one_exchange_beats_regos_filter_near_the_limit():
     # issue 44: Rego's steady-state DKF reaches 1.92x the KF (radius 0.863) with one exchange per step; the

@@ -201,6 +201,7 @@ def test_a_kalman_filter_whose_certified_transient_outlasts_the_run_is_measured_
     assert kf.rms_mean == pytest.approx(honest.estimators["centralized KF"].rms_mean, rel=0.1)
 
 
+@pytest.mark.long
 def test_a_split_whose_gains_miss_the_rate_is_a_failed_row_not_a_failed_compare():
     """IEEE 14-bus at 0.5 /s: place's local poles miss the rate (an AssumptionError), riccati has no solution; the
     whole-state design is certified.  compare returns it and the baselines, and says why each split failed."""

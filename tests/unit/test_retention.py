@@ -97,6 +97,7 @@ def _until_stopped(out: Path, cont: Continuous) -> Recorder:
                     run_id="keep", scenario_name="keep", flush_seconds=0.0, continuous=cont)
 
 
+@pytest.mark.long
 def test_a_recorder_until_stopped_keeps_its_records_under_run_keep_gigabytes(tmp_path):
     # the same 400 rows without run.keep first: how much run.rrd (one segment, never removed) and the chunks take
     # (chunk segments of half the usual size, some 12 rows each: as many segments as twice the rows would fill)
@@ -171,6 +172,7 @@ def test_the_disk_rate_line_says_when_the_first_segments_close():
     assert "segment closes" not in d.line(50.0, segments=(64 << 20, 1 << 20))  # no run.keep: no such line
 
 
+@pytest.mark.long
 def test_run_keep_recording_hours_keeps_the_recording_longer_than_the_rows(tmp_path):
     sc = _scenario(pace=50, keep={"hours": 6, "recording_hours": 24})
     assert (sc.run.keep_hours, sc.run.keep_recording_hours) == (6.0, 24.0)

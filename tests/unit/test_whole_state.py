@@ -111,6 +111,7 @@ def test_q_is_the_smallest_certified_then_raised_only_while_the_noise_falls():
 # ---------------------------------------------------------------------------------------------- noise, measured
 
 
+@pytest.mark.long
 @pytest.mark.parametrize("make", [two_agents, continuous], ids=["discrete", "continuous"])
 def test_the_predicted_steady_rms_is_what_a_monte_carlo_measures(make):
     des = design(make(gains="optimal", consensus="whole"))
