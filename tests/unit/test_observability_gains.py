@@ -233,18 +233,21 @@ def test_close_modes_the_gain_must_move_are_left_to_consensus():
     assert 0.0 < moved.weak < 1e-3  # what it left out, it saw only weakly
 
 
-def test_a_riccati_design_too_fast_for_a_weak_mode_is_refused_with_a_rate_that_certifies():
+def test_a_riccati_design_at_the_edge_of_its_weak_mode_certifies_or_is_refused_with_a_rate_that_does():
     """CI's property test drew this (test-iterative, 2026-11-30): 9 states, four slow modes of modulus 1.1, agent
     32 sees many of them; ``gains: riccati`` at rate 0.3064 with ``margin: 1`` asks every pole inside radius 0.1532,
-    where scipy's DARE of the slow part (eigenvalues up to 7.2 once scaled) finds no finite solution (at 0.161 it
-    does).  The refusal is one line naming the agent, and the rate it proposes certifies."""
+    where scipy's DARE of the slow part (eigenvalues up to 7.2 once scaled) is at the edge of double precision: with
+    the default OpenBLAS kernel it finds no finite solution (at radius 0.161 it does), with the Prescott and
+    Sandybridge kernels it solves.  Either the design certifies, or its refusal is one line naming the agent and the
+    rate it proposes certifies."""
     sc = parse_scenario(json.loads((Path(__file__).parent / "data" / "riccati_at_radius_0153.json").read_text()))
-    with pytest.raises(DesignError) as info:
-        design(sc)
-    text = str(info.value)
-    assert "\n" not in text and text.startswith("agent 32: the Riccati design of its slow modes") and \
-        "too weakly observable" in text, text
-    proposed = float(re.search(r"design\.rate ([0-9.]+) certified", text).group(1))
-    assert sc.design.rate < proposed < 0.4
-    ok = design(dataclasses.replace(sc, design=dataclasses.replace(sc.design, rate=proposed)))
-    assert rate_certificate(ok).certified
+    try:
+        des = design(sc)
+    except DesignError as exc:
+        text = str(exc)
+        assert "\n" not in text and text.startswith("agent 32: the Riccati design of its slow modes") and \
+            "too weakly observable" in text, text
+        proposed = float(re.search(r"design\.rate ([0-9.]+) certified", text).group(1))
+        assert sc.design.rate < proposed < 0.4
+        des = design(dataclasses.replace(sc, design=dataclasses.replace(sc.design, rate=proposed)))
+    assert rate_certificate(des).certified
