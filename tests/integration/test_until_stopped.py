@@ -82,8 +82,12 @@ def test_ctrl_c_ends_a_run_until_stopped_as_finished(tmp_path):
     text = log.read_text()
     end = end_event(events(out))
     assert end["event"] == "run_finished" and end["reason"] == "stopped (SIGINT)", end
-    assert closing_line(end) in text and end["pace_kept"]  # the one closing line, and a pace kept ...
-    assert "cannot keep pace" not in text and not [e for e in events(out) if e["event"] == "pace_not_kept"]
+    assert closing_line(end) in text  # the one closing line
+    # Whether pace 25 was kept is the machine's to say (CI's 2 cores once ran this beside another worker: 75 of 83
+    # late, up to 517 ms): the test asks that the closing line, the log and the events say the same about it
+    warned = [e for e in events(out) if e["event"] == "pace_not_kept"]
+    assert end["pace_kept"] == (not warned) == ("cannot keep pace" not in text), (end, warned)
+    assert (", pace 25 kept" in closing_line(end)) == end["pace_kept"]
     rec = ss.load_run(out)
     T = len(rec.trajectory.t)
     assert not (out / "trajectory.npz").exists() and T == end["event_times"] >= 60
