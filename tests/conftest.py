@@ -2,6 +2,7 @@ import os
 from pathlib import Path
 
 import pytest
+from hypothesis import settings
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLES = ROOT / "examples"
@@ -10,6 +11,14 @@ os.environ.setdefault("RERUN_ANALYTICS", "0")
 # no design cache in the tests (synthesis/design_cache.py): each test designs what it checks, whatever ran before it
 # (tests/unit/test_design_cache.py turns it on in a folder of its own)
 os.environ["SPLITSPEC_CACHE"] = "off"
+
+# HYPOTHESIS_PROFILE=ci (.ci/run and make test-lowest): every property test draws the same examples on every run
+# (derandomized: CI lands or not on the code, never on the draw); unset, each run draws new ones (a hunt: how
+# tests/property/*'s kept @examples were found).  Loaded here, before any test module is imported: a test's
+# @settings falls back to the profile in force when the test is decorated.
+settings.register_profile("ci", derandomize=True)
+if os.environ.get("HYPOTHESIS_PROFILE"):
+    settings.load_profile(os.environ["HYPOTHESIS_PROFILE"])
 
 
 @pytest.fixture

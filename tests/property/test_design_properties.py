@@ -14,8 +14,8 @@ so spectral radii and abscissae are compared as round-off intervals
 Scenarios come from :mod:`.strategies` (valid by construction: jointly
 observable, strongly connected).  Environment:
 
-* ``HYPOTHESIS_PROFILE=ci``: the same examples on every run (derandomized);
-  the default profile draws new ones each run;
+* ``HYPOTHESIS_PROFILE=ci``: the same examples on every run (derandomized; the
+  profile is registered in ``tests/conftest.py``); the default profile draws new ones each run;
 * ``SPLITSPEC_PROPERTY_SCALE=10``: ten times the examples (a longer hunt
   than the ~35 s default budget).
 """
@@ -41,9 +41,6 @@ from splitspec_core.scenarios.load import parse_scenario
 
 from .strategies import Drawn, graph_sequences, scenarios
 
-settings.register_profile("ci", derandomize=True)
-if os.environ.get("HYPOTHESIS_PROFILE"):  # only when asked: the profile is global to the session
-    settings.load_profile(os.environ["HYPOTHESIS_PROFILE"])
 SCALE = float(os.environ.get("SPLITSPEC_PROPERTY_SCALE", "1"))
 COMMON = dict(deadline=None, suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
 
