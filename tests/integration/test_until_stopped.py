@@ -236,7 +236,9 @@ def test_a_pace_far_above_the_machine_is_reported_while_running_and_at_the_end(t
 def test_ss_run_of_a_run_until_stopped_ends_at_its_timeout_with_the_closing_line(tmp_path):
     sc = ss.load_scenario(endless(tmp_path, "paper_discrete", 30))
     assert sc.run.until_stopped
-    rec = ss.run(sc, out=tmp_path / "out", timeout=8)  # the timeout stops it as Ctrl-C does: finished
+    # the timeout stops it as Ctrl-C does: finished (15 s from the launch: a full suite beside another at load 7
+    # took more than 8 s to start the run, which then ended without a row)
+    rec = ss.run(sc, out=tmp_path / "out", timeout=15)
     end = rec.summary
     assert end["event"] == "run_finished" and end["reason"] == "stopped (SIGINT)"
     assert rec.closing_line.startswith("run finished (stopped (SIGINT)): ") and "pace 30" in rec.closing_line
