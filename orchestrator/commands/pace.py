@@ -279,8 +279,10 @@ def _duration(seconds: float) -> str:
     return f"{seconds / 3600:.2g} h" if seconds < 172800 else f"{seconds / 86400:.2g} days"
 
 
-def _record_sizes(out: Path) -> tuple[int, int, int]:
-    """``(rows, chunk bytes, rrd bytes)`` of a run's records as they stand."""
+def record_sizes(out: Path) -> tuple[int, int, int] | None:
+    """``(rows, chunk bytes, rrd bytes)`` of a run's records as they stand; None when a flush came while they were
+    read (the rows and the bytes would not be of the same records: a run's first flush caught between reading its
+    rows and their size once made a window of rows with no byte in it)."""
     from splitspec_core.simulation.trajectory_chunks import chunk_segments, read_chunks
 
     from ..viewer.rrd_file import rrd_segments
@@ -291,12 +293,17 @@ def _record_sizes(out: Path) -> tuple[int, int, int]:
         except OSError:
             return 0
 
+    def chunk_bytes() -> int:
+        return sum(size(p) for _, p in chunk_segments(out))
+
+    before = chunk_bytes()
     try:
         rows = read_chunks(out)
     except Exception:  # noqa: BLE001 - a segment caught mid-write: no sample this time
-        rows = None
-    return (0 if rows is None else len(rows["tau"]), sum(size(p) for _, p in chunk_segments(out)),
-            sum(size(p) for p in rrd_segments(out / "run.rrd")))
+        return None
+    if chunk_bytes() != before:
+        return None
+    return (0 if rows is None else len(rows["tau"]), before, sum(size(p) for p in rrd_segments(out / "run.rrd")))
 
 
 def run_probe(scenario: Path, out: Path, *, seconds: float, log_path: Path, every: int = 1) -> DiskRate | None:
@@ -325,12 +332,14 @@ def run_probe(scenario: Path, out: Path, *, seconds: float, log_path: Path, ever
             if started is None and "run_started" in _run_events(out):
                 started = now
             if started is not None and mid is None and now - started >= seconds / 2:
-                mid = _record_sizes(out)
-            if started is not None and now - started >= seconds:
-                end = _record_sizes(out)
-                # the records grow a flush at a time (the recorder's 1 s): run on, up to DISK_EXTRA_SECONDS,
-                # until the window from the middle holds DISK_MIN_ROWS rows, so a short run still measures its disk
-                if end[0] - mid[0] >= DISK_MIN_ROWS or now - started >= seconds + DISK_EXTRA_SECONDS:
+                mid = record_sizes(out)  # (None: a flush came while it was read; sampled again next time)
+            if mid is not None and now - started >= seconds:
+                end = record_sizes(out)
+                # the records grow a flush at a time (the recorder's 1 s, the recording's own): run on, up to
+                # DISK_EXTRA_SECONDS, until the window from the middle holds DISK_MIN_ROWS rows and a flush of each
+                # kind, so a short run still measures its disk
+                grown = end is not None and end[0] - mid[0] >= DISK_MIN_ROWS and end[1] > mid[1] and end[2] > mid[2]
+                if grown or now - started >= seconds + DISK_EXTRA_SECONDS:
                     proc.send_signal(signal.SIGINT)  # the run writes its records and stops its processes
                     break
                 time.sleep(0.2)

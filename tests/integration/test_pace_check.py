@@ -14,7 +14,7 @@ import yaml
 from splitspec_core.simulation.trajectory_chunks import ChunkWriter
 from splitspec_core.scenarios.sections import parse_scenario
 from splitspec_orchestrator.commands.pace import (MARGIN, PROBE_STEPS, WARMUP_ROWS, PaceMeasurement, measure,
-                                                  probe_mapping, verdict)
+                                                  probe_mapping, record_sizes, verdict)
 from tests.conftest import EXAMPLES
 from tests.integration.runtime_helpers import all_pids, assert_all_gone, events, run, scenario_file
 
@@ -56,6 +56,27 @@ def _rows(out, walls_ms) -> None:
               "xhat": np.zeros((T, 2, 1)), "alive": np.ones((T, 2), bool), "graph": np.zeros(T, np.int64),
               "g": np.full((T, 2), np.nan), "wall": (np.asarray(walls_ms) * 1e6).astype(np.int64),
               "round": np.zeros((T, 5)), "lost": [np.zeros(0, np.int64)] * T})
+
+
+def test_a_flush_while_the_records_are_read_is_no_sample(tmp_path, monkeypatch):
+    """CI once printed ``disk: about 0 GB per hour``: the measuring run's first flush landed between reading its
+    rows (none yet) and their size, so the window from the middle grew by rows and by no byte.  A sample whose bytes
+    changed while its rows were read is no sample; one that did not has its rows and its bytes from one state."""
+    import splitspec_core.simulation.trajectory_chunks as chunks
+
+    _rows(tmp_path, [0.0, 10.0, 20.0])
+    real = chunks.read_chunks
+    assert record_sizes(tmp_path)[:2] == (3, sum(p.stat().st_size for _, p in chunks.chunk_segments(tmp_path)))
+
+    def read_then_flush(out, **kw):  # a flush landing while the rows are read: bytes appended to the segment
+        rows = real(out, **kw)
+        seg = chunks.chunk_segments(out)[-1][1]
+        with open(seg, "ab") as f:
+            f.write(b"\0" * 64)
+        return rows
+
+    monkeypatch.setattr(chunks, "read_chunks", read_then_flush)
+    assert record_sizes(tmp_path) is None
 
 
 def test_measure_uses_the_rows_wall_times_after_the_warm_up(tmp_path):
