@@ -15,8 +15,19 @@ import numpy as np  # noqa: E402
 
 
 
-def _xlabel(time: str) -> str:
-    return "time t" if time == "continuous" else "event time tau"
+def time_unit(system) -> str:
+    """What the time axis of a scenario's plots is in (the ``unit`` of the plot functions): ``system.time_unit``
+    for a continuous model; for a sampled one (``system.sample``) the length of an event time (``1 min``); for a
+    discrete model, nothing (an event time is a step).  A model in minutes once plotted as if in seconds."""
+    if system.time == "continuous":
+        return system.time_unit
+    return f"{system.sample:g} {system.time_unit}" if system.sample is not None else ""
+
+
+def _xlabel(time: str, unit: str = "") -> str:
+    if time == "continuous":
+        return "time t" + (f" ({unit})" if unit else "")
+    return "event time tau" + (f" (one is {unit})" if unit else "")
 
 
 # one style per kind of event (splitspec_core.simulation.metrics.Mark.kind)
@@ -124,16 +135,16 @@ def _envelope_label(time: str, rate: float, marks, pieces: int, *, across_switch
 
 
 def plot_errors(traj, path: Path, *, time: str, rate: float | None, title: str, marks=(), noise_free=None,
-                adaptive: bool = False) -> None:
+                adaptive: bool = False, unit: str = "") -> None:
     """Write :func:`errors_figure` to ``path`` (PNG)."""
     fig = errors_figure(traj, time=time, rate=rate, title=title, marks=marks, noise_free=noise_free,
-                        adaptive=adaptive)
+                        adaptive=adaptive, unit=unit)
     fig.savefig(path, dpi=110)
     plt.close(fig)
 
 
 def errors_figure(traj, *, time: str, rate: float | None, title: str, marks=(), noise_free=None,
-                  adaptive: bool = False):
+                  adaptive: bool = False, unit: str = ""):
     """Error norm per agent, log scale, events marked, with the designed envelope restarted at rejoins and switches.
 
     ``marks``: :func:`splitspec_core.simulation.metrics.event_marks` of the run.  The
@@ -175,7 +186,7 @@ def errors_figure(traj, *, time: str, rate: float | None, title: str, marks=(), 
             hi += 0.09 * span  # a strip over the data for the switch ticks
         ax.set_ylim(10 ** lo, 10 ** hi)
     handles += _draw_marks(ax, marks, text=True)
-    ax.set_xlabel(_xlabel(time))
+    ax.set_xlabel(_xlabel(time, unit))
     ax.set_ylabel("|x_i - x|")
     ax.set_title(title + (f"\n{NO_CERTIFIED_RATE}" if adaptive else ""))
     ax.grid(True, which="both", alpha=0.3)
@@ -189,15 +200,16 @@ MAX_ROWS = 16
 
 
 def plot_states(traj, path: Path, *, time: str, title: str, marks=(), max_components: int = 8,
-                reference=None, shown=None) -> None:
+                reference=None, shown=None, unit: str = "") -> None:
     """Write :func:`states_figure` to ``path`` (PNG)."""
     fig = states_figure(traj, time=time, title=title, marks=marks, max_components=max_components, reference=reference,
-                        shown=shown)
+                        shown=shown, unit=unit)
     fig.savefig(path, dpi=110)
     plt.close(fig)
 
 
-def states_figure(traj, *, time: str, title: str, marks=(), max_components: int = 8, reference=None, shown=None):
+def states_figure(traj, *, time: str, title: str, marks=(), max_components: int = 8, reference=None, shown=None,
+                  unit: str = ""):
     """Each state component: truth (black) versus every agent's estimate, events marked; without truth,
     ``reference`` (the centralized Kalman filter on the same measurements, (T, n)) in its place.  Each row is
     labelled with the state's name (``traj.states``: ``system.states``, else ``x1 .. xn``).  ``shown``: the
@@ -236,19 +248,19 @@ def states_figure(traj, *, time: str, title: str, marks=(), max_components: int 
     fig.suptitle(title)
     handles, _ = axes[0, 0].get_legend_handles_labels()
     fig.legend(handles=handles + extra, loc="outside right upper", fontsize=8)  # beside all rows, not one
-    axes[-1, 0].set_xlabel(_xlabel(time))
+    axes[-1, 0].set_xlabel(_xlabel(time, unit))
     _spread_labels(fig, top)
     return fig
 
 
-def plot_monte_carlo(t, stats: dict, path: Path, *, time: str, title: str, marks=()) -> None:
+def plot_monte_carlo(t, stats: dict, path: Path, *, time: str, title: str, marks=(), unit: str = "") -> None:
     """Mean RMS error over seeds with the 10-90 % band, events marked."""
     fig, ax = plt.subplots(figsize=(9.0, 4), layout="constrained")
     ax.fill_between(t, stats["p10"], stats["p90"], alpha=0.3, label="10-90 % of seeds")
     ax.semilogy(t, stats["mean"], lw=1.5, label=f"mean over {stats['seeds']} seeds")
     handles, _ = ax.get_legend_handles_labels()
     handles += _draw_marks(ax, marks, text=False)
-    ax.set_xlabel(_xlabel(time))
+    ax.set_xlabel(_xlabel(time, unit))
     ax.set_ylabel("RMS error over agents")
     ax.set_title(title)
     ax.grid(True, which="both", alpha=0.3)
@@ -257,7 +269,7 @@ def plot_monte_carlo(t, stats: dict, path: Path, *, time: str, title: str, marks
     plt.close(fig)
 
 
-def plot_compare(res, errors_path: Path, ratios_path: Path) -> None:
+def plot_compare(res, errors_path: Path, ratios_path: Path, *, unit: str = "") -> None:
     """RMS error over time per estimator (mean over seeds) and the bar chart of ratios to the centralized KF, of a
     :class:`splitspec_core.CompareResult`."""
     t = res.t
@@ -265,7 +277,7 @@ def plot_compare(res, errors_path: Path, ratios_path: Path) -> None:
     for name, c in res.curves.items():
         style = {"centralized KF": dict(color="k", lw=2.0), "KCF": dict(ls="--")}.get(name, {})
         ax.semilogy(t, c, label=name, **style)
-    ax.set_xlabel(_xlabel(res.time))
+    ax.set_xlabel(_xlabel(res.time, unit))
     ax.set_ylabel("RMS over agents of |x_i - x|")
     ax.set_title(f"{res.scenario}: mean over {len(res.seeds)} seeds")
     ax.grid(True, which="both", alpha=0.3)
@@ -411,7 +423,7 @@ def plot_network_sweep(res: dict, path: Path) -> None:
     plt.close(fig)
 
 
-def plot_reference(traj, ref: dict, path: Path, *, time: str, title: str, marks=()) -> None:
+def plot_reference(traj, ref: dict, path: Path, *, time: str, title: str, marks=(), unit: str = "") -> None:
     """Without truth, what can be known (:mod:`splitspec_core.studies.no_truth`): each agent's measurement residual,
     the consensus disagreement and each agent's distance to the centralized Kalman filter, log scale."""
     fig, axes = plt.subplots(3, 1, figsize=(9.5, 8.0), sharex=True, layout="constrained")
@@ -427,7 +439,7 @@ def plot_reference(traj, ref: dict, path: Path, *, time: str, title: str, marks=
     for ax in axes:
         extra = _draw_marks(ax, marks, text=False)
         ax.grid(True, which="both", alpha=0.3)
-    axes[-1].set_xlabel(_xlabel(time))
+    axes[-1].set_xlabel(_xlabel(time, unit))
     handles, _ = axes[0].get_legend_handles_labels()
     fig.legend(handles=handles + [axes[1].get_lines()[0]] + extra, loc="outside right upper", fontsize=8)
     fig.savefig(path, dpi=110)

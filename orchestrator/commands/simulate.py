@@ -153,14 +153,16 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         marks = event_marks(traj.t, traj.alive, traj.graph, agent_ids=traj.agent_ids, faults=sc.faults,
                             graph_names=sc.graph_names, dt=dt,
                             sensors=sensor_events(traj, d.detail))  # design.bad_data: sensors set aside, taken back
+        unit = plots.time_unit(sc.system)  # system.time_unit on the time axes
         plots.plot_errors(traj, out / "errors.png", time=sc.time, rate=envelope_rate, title=title,
-                          marks=marks, noise_free=clean, adaptive=adaptive)
-        plots.plot_states(traj, out / "states.png", time=sc.time, title=title, marks=marks, shown=sc.shown_states)
+                          marks=marks, noise_free=clean, adaptive=adaptive, unit=unit)
+        plots.plot_states(traj, out / "states.png", time=sc.time, title=title, marks=marks, shown=sc.shown_states,
+                          unit=unit)
         summary["plots"] = ["errors.png", "states.png"]
         if mc is not None:
             # faults strike every seed at the same step; a random switching signal may differ per seed
             plots.plot_monte_carlo(traj.t, mc, out / "monte_carlo.png", time=sc.time, title=title,
-                                   marks=[mk for mk in marks if mk.kind != "switch"])
+                                   marks=[mk for mk in marks if mk.kind != "switch"], unit=unit)
             summary["plots"].append("monte_carlo.png")
     (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
     print(_simulate_summary_text(summary, time=sc.time, out=out))
@@ -192,14 +194,15 @@ def _simulate_measured(args: argparse.Namespace, sc, d, traj, meas, out) -> int:
                 f", measurements {Path(meas.path).name}"
         marks = event_marks(traj.t, traj.alive, traj.graph, agent_ids=traj.agent_ids, faults=sc.faults,
                             graph_names=sc.graph_names, dt=sc.run.dt if sc.time == "continuous" else 1.0)
-        P.plot_reference(traj, ref, out / "reference.png", time=sc.time, title=title, marks=marks)
+        unit = P.time_unit(sc.system)  # system.time_unit on the time axes
+        P.plot_reference(traj, ref, out / "reference.png", time=sc.time, title=title, marks=marks, unit=unit)
         plots.append("reference.png")
         if meas.has_truth:
             P.plot_errors(traj, out / "errors.png", time=sc.time, rate=sc.design.rate, title=title, marks=marks,
-                          adaptive=d.g_mode == "adaptive")
+                          adaptive=d.g_mode == "adaptive", unit=unit)
             plots.append("errors.png")
         P.plot_states(traj, out / "states.png", time=sc.time, title=title, marks=marks,
-                      reference=None if meas.has_truth else ref["kf"], shown=sc.shown_states)
+                      reference=None if meas.has_truth else ref["kf"], shown=sc.shown_states, unit=unit)
         plots.append("states.png")
     summary["plots"] = plots
     (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")

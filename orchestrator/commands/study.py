@@ -144,7 +144,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
     if not args.no_plots:
         from .. import plots as P
 
-        P.plot_compare(result, out / "compare_errors.png", out / "compare_ratios.png")
+        P.plot_compare(result, out / "compare_errors.png", out / "compare_ratios.png", unit=P.time_unit(sc.system))
         plots = ["compare_errors.png", "compare_ratios.png"]
     if args.sweep:
         sw = sweep(sc, seed=seed0, steps=args.steps)

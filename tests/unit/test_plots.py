@@ -192,3 +192,25 @@ def test_labels_of_events_close_in_time_do_not_overlap(ring10_faults, figure):
             assert abs((bb.x0 + bb.x1) / 2 - anchor) < 4 * width, (text, bb, anchor)
     finally:
         plt.close(fig)
+
+
+@pytest.mark.parametrize("name, label", [("platoon", "event time tau (one is 0.1 min)"),
+                                         ("ieee14_pmu", "time t (min)"),
+                                         ("ring10", "event time tau")])
+def test_the_time_axis_says_the_models_unit(tmp_path, name, label):
+    """Issue 46's walk: a model in minutes (``system.time_unit: min``) was plotted against a bare ``time t``.  A
+    continuous model's axis is in its unit, a sampled one's event time is ``system.sample`` of it, a discrete
+    model's event time is a step."""
+    from splitspec_core.scenarios.files import resolve_model_file
+    from splitspec_core.scenarios.sections import parse_scenario
+
+    data = dict(resolve_model_file(yaml.safe_load((EXAMPLES / f"{name}.yaml").read_text()), EXAMPLES))
+    if name != "ring10":
+        data["system"] = dict(data["system"], time_unit="min")
+    sc = parse_scenario(data)
+    unit = plots.time_unit(sc.system)
+    traj = simulate(design(sc), seed=0, steps=20)
+    for fig in (plots.errors_figure(traj, time=sc.time, rate=sc.design.rate, title=sc.name, unit=unit),
+                plots.states_figure(traj, time=sc.time, title=sc.name, unit=unit)):
+        assert fig.axes[-1].get_xlabel() == label or any(ax.get_xlabel() == label for ax in fig.axes), label
+        plt.close(fig)
