@@ -771,7 +771,27 @@ def _config(orch, a) -> bytes:
 
 
 def _answering(orch, timeout: float) -> tuple:
-    """Agents whose granted process answers a status query within ``timeout`` (not frozen), and the plant."""
+    """Agents whose granted process answers a status query within ``timeout`` (not frozen), and the plant.
+
+    A process on this host that did not answer but is not stopped (``/proc``: not ``T``, ``t``, a zombie or gone)
+    is starved, not frozen: on a loaded machine a process can miss 0.8 s.  It is asked once more before it is lost
+    (a SIGSTOPped one is found at the first query, as before; one elsewhere is known by its answers alone)."""
+    from .registry import process_state
+
+    answered, plant = _status_answers(orch, timeout)
+    expected = [(("agent", a), a) for a in orch.machine.alive] + [(("plant", 0), None)]
+    starved = [c for who, aid in expected if (c := orch.machine.claims.get(who)) is not None and c.host == HOST
+               and not (plant if aid is None else aid in answered)
+               and process_state(c.pid) not in (None, "T", "t", "Z", "X")]
+    if starved:
+        again, plant_again = _status_answers(orch, timeout)
+        answered |= again
+        plant = plant or plant_again
+    return answered, plant
+
+
+def _status_answers(orch, timeout: float) -> tuple:
+    """One status query: the agents whose granted process answered within ``timeout``, and whether the plant did."""
     from splitspec_core.runtime.bus import query_all
 
     answered, plant = set(), False

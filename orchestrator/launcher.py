@@ -453,11 +453,9 @@ class Supervisor:
 
 
 def _running(pid: int) -> bool:
-    try:
-        with open(f"/proc/{pid}/stat", encoding="ascii") as f:
-            return f.read().rsplit(")", 1)[1].split()[0] != "Z"
-    except OSError:
-        return False
+    from .registry import process_state
+
+    return process_state(pid) not in (None, "Z")
 
 
 def _signal_name(signum: int) -> str:

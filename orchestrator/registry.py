@@ -32,8 +32,8 @@ from pathlib import Path
 
 from splitspec_core.errors import SplitspecError
 
-__all__ = ["runtime_dir", "RunRegistry", "find_runs", "pid_running", "new_run_id", "check_run_id",
-           "is_own_splitspec_process", "resolve", "RunChoiceError", "describe_run"]
+__all__ = ["runtime_dir", "RunRegistry", "find_runs", "pid_running", "process_state", "new_run_id",
+           "check_run_id", "is_own_splitspec_process", "resolve", "RunChoiceError", "describe_run"]
 
 # the characters splitspec_core.runtime.wire.Keys refuses in a run id (a Zenoh key chunk; tests check both agree)
 _FORBIDDEN = frozenset("/*$?#")
@@ -71,6 +71,22 @@ def runtime_dir() -> Path:
     return Path(tempfile.gettempdir()) / f"splitspec-{os.getuid()}"
 
 
+def process_state(pid: int) -> str | None:
+    """The state letter of process ``pid`` on this host (``/proc/PID/stat``: ``R`` running, ``S`` sleeping, ``D``
+    in the disk, ``T`` stopped by a signal, ``t`` by a debugger, ``Z`` a zombie, ...); None if there is none.
+
+    Examples
+    --------
+    >>> process_state(os.getpid())
+    'R'
+    """
+    try:
+        with open(f"/proc/{int(pid)}/stat", encoding="ascii", errors="replace") as f:
+            return f.read().rsplit(")", 1)[-1].split()[0]
+    except (OSError, ValueError, OverflowError, IndexError):
+        return None
+
+
 def pid_running(pid: int) -> bool:
     """True if ``pid`` is a live (non-zombie) process."""
     try:
@@ -79,11 +95,7 @@ def pid_running(pid: int) -> bool:
         return False
     except PermissionError:
         return True
-    try:
-        with open(f"/proc/{int(pid)}/stat") as f:
-            return f.read().rsplit(")", 1)[-1].split()[0] != "Z"
-    except OSError:
-        return True
+    return process_state(pid) != "Z"  # (unreadable: alive, as the signal said)
 
 
 def _start_ticks(path: str) -> int | None:

@@ -7,7 +7,7 @@ import subprocess
 import sys
 import time
 
-from splitspec_orchestrator.registry import pid_running
+from splitspec_orchestrator.registry import pid_running, process_state
 from splitspec_core.runtime.cli import PARENT_ENV
 
 CHILD = "from splitspec_core.runtime.cli import die_with_parent; die_with_parent(); import time; time.sleep(60)"
@@ -85,3 +85,30 @@ def test_a_starting_standby_is_idle_class_and_every_thread_it_started_leaves_it(
     finally:
         p.kill()
         p.wait()
+
+
+def test_process_state_tells_a_stopped_process_from_a_starved_one():
+    """The orchestrator asks a process on its host that missed a status query once more unless ``/proc`` says it is
+    stopped (SIGSTOP: ``T``), a zombie or gone: a starved process is slow, not frozen."""
+    p = subprocess.Popen(["sleep", "30"])
+    try:
+        deadline = time.monotonic() + 10
+        while process_state(p.pid) != "S" and time.monotonic() < deadline:  # exec'd and asleep
+            time.sleep(0.01)
+        assert process_state(p.pid) == "S"
+        os.kill(p.pid, signal.SIGSTOP)
+        while process_state(p.pid) != "T" and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert process_state(p.pid) == "T" and pid_running(p.pid)  # stopped, not dead
+        os.kill(p.pid, signal.SIGCONT)
+        while process_state(p.pid) == "T" and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert process_state(p.pid) in ("R", "S")
+        p.kill()
+        while process_state(p.pid) != "Z" and time.monotonic() < deadline:  # dead, not yet reaped
+            time.sleep(0.01)
+        assert process_state(p.pid) == "Z" and not pid_running(p.pid)
+    finally:
+        p.kill()
+        p.wait()
+    assert process_state(p.pid) is None and process_state(-1) is None
