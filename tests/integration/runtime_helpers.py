@@ -31,6 +31,45 @@ def scenario_file(tmp_path: Path, example: str, **changes) -> Path:
     return path
 
 
+def endless(tmp_path: Path, example: str, pace: float, *, faults: bool = False) -> Path:
+    """A copy of an example paced at ``pace``, without run.steps (and without its faults unless ``faults``): it runs
+    until stopped.  A test that waits for something (a kill, a rejoin, a late process) runs until it has seen it and
+    then stops the run (:func:`stopped`): a run of run.steps at a pace ends on the wall clock, and on a starved
+    machine before a cold-started process (`splitspec kill`, a hand-started agent) has done its part."""
+    raw = yaml.safe_load((EXAMPLES / f"{example}.yaml").read_text())
+    raw["run"] = {"pace": pace, "seed": (raw.get("run") or {}).get("seed", 0)}
+    if not faults:
+        raw.pop("faults", None)
+    path = tmp_path / f"{example}_endless.yaml"
+    path.write_text(yaml.safe_dump(raw))
+    return path
+
+
+def stop_run(p: subprocess.Popen, log: Path, timeout: float = 120.0) -> None:
+    """Stop a run until stopped as Ctrl-C does (the terminal signals the whole process group); it must end with
+    exit 0 (its records written, its processes stopped)."""
+    os.killpg(p.pid, signal.SIGINT)
+    try:
+        code = p.wait(timeout=timeout)
+    finally:
+        if p.poll() is None:
+            os.killpg(p.pid, signal.SIGKILL)
+    assert code == 0, dump(log)
+
+
+def recorded(out: Path) -> dict:
+    """A run's rows as ``trajectory.npz``'s arrays (``t``, ``x``, ``xhat``, ``alive``, ``agent_ids``, ...): that
+    file's, or a run until stopped's chunks."""
+    from splitspec_core.simulation.trajectory_chunks import read_chunks
+
+    if (out / "trajectory.npz").exists():
+        with np.load(out / "trajectory.npz") as z:
+            return {k: z[k] for k in z.files}
+    rows = read_chunks(out)
+    assert rows is not None, f"{out} has neither trajectory.npz nor chunks"
+    return rows
+
+
 def free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
@@ -160,8 +199,12 @@ def all_pids(out: Path) -> list:
                                                              "fork_server_started")]
 
 
-def compare_trajectories(a_path: Path, b_path: Path, tol: float = 1e-9) -> float:
-    """Assert two trajectory.npz files agree to ``tol`` (relative to the largest value); return the max diff."""
+def compare_trajectories(a_path: Path, b_path: Path, tol: float = 1e-9, *, last_ends: bool = True) -> float:
+    """Assert two trajectory.npz files agree to ``tol`` (relative to the largest value); return the max diff.
+
+    ``last_ends=False``: ``a``'s last row did not end its run (a run until stopped went on past it, exchanging its
+    messages) while ``b``'s did (``simulate``'s last row is followed by no exchange): the agents' reported columns are
+    compared without that row (``messages_used`` there is a count in ``a``, none in ``b``)."""
     a, b = np.load(a_path), np.load(b_path)
     # exact: flags, indices, ids, and times k * dt (one correctly rounded product in both the recorder and the
     # simulator); the estimates below, computed in other processes along other paths, only to ``tol``
@@ -184,8 +227,8 @@ def compare_trajectories(a_path: Path, b_path: Path, tol: float = 1e-9) -> float
     # every column the agents report (the row schema: g (T, m), NaN where dead and in discrete time, else the
     # adaptive g_i or the fixed g; ...): the fill at the same places in both, the values to ``tol`` (integers: exact)
     for c in REPORTED:
-        ga, gb = a[c.name], b[c.name]
-        assert ga.shape == gb.shape == a["alive"].shape, (c.name, ga.shape, gb.shape)
+        ga, gb = (a[c.name], b[c.name]) if last_ends else (a[c.name][:-1], b[c.name][:-1])
+        assert ga.shape == gb.shape == a["alive"][:len(ga)].shape, (c.name, ga.shape, gb.shape)
         has = present(c, gb)
         assert np.array_equal(present(c, ga), has), f"{c.name} has no value at different places"
         if ga.dtype.kind != "f":
@@ -220,8 +263,17 @@ def compare_with_simulate(out: Path, scenario: Path, tmp: Path, tol: float = 1e-
 
 
 def replay(out: Path, tmp: Path, tol: float = 1e-9) -> float:
-    """The run's own scenario copy replayed with the faults recorded in its events.jsonl."""
-    return compare_with_simulate(out, out / "scenario.yaml", tmp, tol, "--faults-from", out / "events.jsonl")
+    """The run's own scenario copy replayed with the faults recorded in its events.jsonl; a run until stopped's
+    with the faults and the length of its records (``--faults-from OUT``), against its chunks."""
+    if (out / "trajectory.npz").exists():
+        return compare_with_simulate(out, out / "scenario.yaml", tmp, tol, "--faults-from", out / "events.jsonl")
+    import splitspec_core as ss
+
+    sim = tmp / "sim"
+    r = run("simulate", out / "scenario.yaml", "--out", sim, "--no-plots", "--faults-from", out)
+    assert r.returncode == 0, r.stderr
+    ss.load_run(out).trajectory.save(tmp / "recorded.npz")
+    return compare_trajectories(tmp / "recorded.npz", sim / "trajectory.npz", tol, last_ends=False)
 
 
 def dump(*logs: Path) -> str:

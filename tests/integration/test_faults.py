@@ -11,9 +11,9 @@ import pytest
 import yaml
 
 from tests.conftest import EXAMPLES
-from tests.integration.runtime_helpers import (all_pids, assert_all_gone, compare_with_simulate, dump, events,
-                                               replay, run, start, started_pids, wait_for_event,
-                                               scenario_file, wait_for_rows)
+from tests.integration.runtime_helpers import (all_pids, assert_all_gone, compare_with_simulate, dump, endless,
+                                               events, recorded, replay, run, start, started_pids, stop_run,
+                                               wait_for_event, scenario_file, wait_for_rows)
 from tests.rrd_readback import read_rrd, read_rrd_logs, verify_rrd
 
 pytestmark = pytest.mark.slow
@@ -50,7 +50,7 @@ def lost_events(out, aid=None):
 
 
 def agent_errors(out):
-    traj = np.load(out / "trajectory.npz")
+    traj = recorded(out)
     return traj, np.linalg.norm(traj["xhat"] - traj["x"][:, None, :], axis=2)
 
 
@@ -186,9 +186,11 @@ def test_outside_sigkill_of_a_redundant_agent(tmp_path):
 
 
 def test_hang_then_kill_and_rejoin_by_hand(tmp_path):
-    """SIGSTOP via `splitspec kill`, then SIGKILL of another agent and a hand-started replacement."""
+    """SIGSTOP via `splitspec kill`, then SIGKILL of another agent and a hand-started replacement.  The run goes on
+    until stopped, 100 event times after the rejoin: two cold-started `splitspec kill`s and a hand-started agent once
+    outlasted a run of 240 steps at pace 20 on a starved machine."""
     rid = run_id()
-    scen = scenario_file(tmp_path, "ring10", run={"steps": 240, "pace": 20})
+    scen = endless(tmp_path, "ring10", 20)
     hand = None
     with running(tmp_path, scen, rid, "--insecure") as (p, out, log):  # a hand-started agent joins
         wait_for_rows(out, 20, timeout=90)
@@ -203,6 +205,8 @@ def test_hang_then_kill_and_rejoin_by_hand(tmp_path):
         hand = start("agent", "--id", 2, "--connect", endpoint, "--run-id", rid, log=tmp_path / "hand.log")
         back = wait_for_event(out, "agent_rejoined", timeout=60, id=2)
         assert back["incarnation"] == 1 and back["pid"] == hand.pid
+        wait_for_rows(out, back["tau"] + 100, timeout=60)  # ring10's rate 0.8: 0.8^100 ~ 2e-10
+        stop_run(p, log)
     code, text = finish(p, log)
     assert code == 0, text + dump(tmp_path / "hand.log")
     hand.wait(timeout=15)  # told to stop with the others
@@ -263,14 +267,19 @@ def test_non_redundant_loss_is_reported_and_the_run_goes_on(tmp_path):
 def test_chaos_random_kills(tmp_path, seed):
     """Seeded random SIGKILLs at random moments of a paced run: every run completes and replays."""
     rng = np.random.default_rng(seed)
-    scen = scenario_file(tmp_path, "ring10", run={"steps": 100, "pace": 30})
+    # until stopped, 30 event times after the last loss (a run of 100 steps once ended before it on a starved
+    # machine: the rows reach the disk a flush, about a second, after their round)
+    scen = endless(tmp_path, "ring10", 30)
     victims = [int(v) for v in rng.choice(np.arange(1, 11), size=2, replace=False)]
-    # trajectory.npz is flushed about once a second (30 rows here): stay clear of the end of the run
     rows = sorted(int(r) for r in rng.integers(5, 50, size=2))
     with running(tmp_path, scen, run_id()) as (p, out, log):
         for victim, row in zip(victims, rows):
             wait_for_rows(out, row, timeout=90)
             os.kill(started_pids(out)[("agent", victim)], signal.SIGKILL)
+        last = wait_for_event(out, "agent_lost", timeout=60, id=victims[-1])
+        wait_for_event(out, "agent_lost", timeout=60, id=victims[0])
+        wait_for_rows(out, last["tau"] + 30, timeout=60)
+        stop_run(p, log)
     code, text = finish(p, log)
     assert code == 0, text
     assert sorted(e["id"] for e in lost_events(out)) == sorted(victims)
@@ -304,17 +313,24 @@ def test_status_probe_catches_a_frozen_agent_long_before_its_lease(tmp_path):
     """With a 20 s lease, the status probe (or the round timeout) notices a SIGSTOPped agent at once; the round is
     re-run without it."""
     rid = run_id()
-    scen = scenario_file(tmp_path, "paper_discrete", run={"steps": 300, "pace": 25})
+    # until stopped, 100 event times after the loss (a run of 300 steps at pace 25 is 12 s of wall time, less on a
+    # starved machine than a cold-started `splitspec kill` may take)
+    scen = endless(tmp_path, "paper_discrete", 25)
     with running(tmp_path, scen, rid, "--round-timeout", "0.5", env_extra={"SPLITSPEC_LEASE_MS": "20000"}) \
             as (p, out, log):
         wait_for_rows(out, 10, timeout=90)
-        stopped = time.time()
+        before = time.time()
         r = run("kill", "--agent", 1, "--signal", "STOP", "--run-id", rid, timeout=30)
+        stopped = time.time()  # the signal was sent by now (the command's start-up is not the probe's)
         assert r.returncode == 0, r.stderr
+        lost = wait_for_event(out, "agent_lost", timeout=30, id=1)
+        wait_for_rows(out, lost["tau"] + 100, timeout=60)
+        stop_run(p, log)
     code, text = finish(p, log)
     assert code == 0, text
-    (lost,) = lost_events(out, 1)
-    assert lost["reason"].endswith("frozen") and lost["wall"] - stopped < 5.0, lost
+    assert lost_events(out, 1) == [lost]
+    # found long before the 20 s lease: the probe's 0.3 + 0.8 s, with room for a starved machine
+    assert lost["reason"].endswith("frozen") and before <= lost["wall"] and lost["wall"] - stopped < 5.0, lost
     # agents 2 and 3 still observe both oscillators: the survivors converge (to round-off relative to |x|,
     # which grows like 2^(tau/2) in the paper's example)
     traj, err = agent_errors(out)

@@ -19,21 +19,11 @@ from splitspec_core.runs import closing_line, end_event
 from splitspec_core.simulation.simulator import Trajectory
 from splitspec_core.simulation.trajectory_chunks import chunk_segments, read_chunks
 from splitspec_orchestrator.viewer.rrd_file import rrd_segments
-from tests.integration.runtime_helpers import (ENV, EXAMPLES, ROOT, all_pids, assert_all_gone, cli, dump, events,
-                                               run, start, wait_for_event)
+from tests.integration.runtime_helpers import (ENV, EXAMPLES, ROOT, all_pids, assert_all_gone, cli, dump, endless,
+                                               events, run, start, wait_for_event)
 from tests.rrd_readback import read_blueprint, read_rrd, read_rrd_graph, read_rrd_logs, read_rrd_vectors, verify_rrd
 
 pytestmark = pytest.mark.slow
-
-
-def endless(tmp_path, example: str, pace: float):
-    """A copy of an example paced at ``pace``, without run.steps and without faults: it runs until stopped."""
-    raw = yaml.safe_load((EXAMPLES / f"{example}.yaml").read_text())
-    raw["run"] = {"pace": pace, "seed": (raw.get("run") or {}).get("seed", 0)}
-    raw.pop("faults", None)
-    path = tmp_path / f"{example}_endless.yaml"
-    path.write_text(yaml.safe_dump(raw))
-    return path
 
 
 def rows_on_disk(out) -> int:
