@@ -44,7 +44,7 @@ def chain(tmp_path: Path, steps: int | None, bad_data: dict | None = None, name:
 class SensorRun:
     """`splitspec run SCENARIO` in the background, and where its sensors publish (its ``sensors`` event)."""
 
-    def __init__(self, tmp_path: Path, steps: int, *extra, bad_data: dict | None = None):
+    def __init__(self, tmp_path: Path, steps: int | None, *extra, bad_data: dict | None = None):
         self.tmp, self.out, self.log = tmp_path, tmp_path / "out", tmp_path / "run.log"
         self.scenario = chain(tmp_path, steps, bad_data)
         self.proc = subprocess.Popen(cli("run", self.scenario, "--out", self.out, *extra), cwd=ROOT, env=ENV,
@@ -80,6 +80,27 @@ class SensorRun:
         with np.load(self.out / "trajectory.npz") as f:
             return {k: f[k] for k in f.files}
 
+    def values(self) -> np.ndarray:
+        """(T, m) whether each agent had a measurement at each event time, in the records so far (a run until
+        stopped's chunks; none yet: (0, m))."""
+        from splitspec_core.simulation.trajectory_chunks import read_chunks
+
+        rows = read_chunks(self.out)
+        return np.zeros((0, 3), bool) if rows is None else ~rows["y_missing"]
+
+    def wait_values(self, enough, timeout: float = 60.0) -> np.ndarray:
+        """Until ``enough(values)`` (:meth:`values`); the values then.  A run until stopped waits for its sensors as
+        long as they take to start (a run of run.steps once ended before a cold-started publisher had begun)."""
+        deadline = time.monotonic() + timeout
+        while not enough(v := self.values()):
+            assert self.proc.poll() is None and time.monotonic() < deadline, (v.astype(int), dump(self.log))
+            time.sleep(0.2)
+        return v
+
+    def stop(self) -> None:
+        """Stop the run until stopped as Ctrl-C does (its process group; the publishers are on their own)."""
+        os.killpg(self.proc.pid, signal.SIGINT)
+
     def kill(self) -> None:
         for p in [self.proc] + [p for p, _ in self.publishers]:
             if p.poll() is None:
@@ -91,7 +112,7 @@ class SensorRun:
 def sensor_run(tmp_path):
     runs = []
 
-    def start(steps: int, *extra, bad_data: dict | None = None) -> SensorRun:
+    def start(steps: int | None, *extra, bad_data: dict | None = None) -> SensorRun:
         r = SensorRun(tmp_path, steps, *extra, bad_data=bad_data)
         runs.append(r)
         return r
@@ -132,7 +153,10 @@ def test_a_secure_run_on_live_sensors_converges_and_its_log_replays(sensor_run, 
     # the sensors start after the run: the first event times have none; from 1.5 s on every agent has a value at
     # most event times (max_age 0.2 s = 2 periods covers a dropped sample; a publisher starved of the cores misses
     # more: 8.9 % in a full suite beside another at load 7, under 5 % otherwise); none at the final event time
-    assert missing[15:-1].mean() < 0.25 and missing[-1].all()
+    # (counted from each agent's first value: a publisher cold-started on a starved machine may begin late)
+    heard = np.argmax(~missing, axis=0)
+    assert all(missing[heard[i]:-1, i].mean() < 0.25 for i in range(3)) and heard.max() < 30, missing.astype(int)
+    assert missing[-1].all()
     assert np.isfinite(traj["y"][15:-1][~missing[15:-1].repeat(2, axis=1)]).all()
     # convergence against the publisher's own truth, and to the centralized Kalman filter on the same y
     A = np.array(yaml.safe_load(CHAIN.read_text())["system"]["A"])
@@ -168,25 +192,30 @@ def test_a_secure_run_on_live_sensors_converges_and_its_log_replays(sensor_run, 
 
 
 def test_a_sensor_lost_is_predicted_through_and_picked_up_again(sensor_run, tmp_path):
-    # the new publisher gets 8 s to start before the run's end (a full suite beside another at load 7 took more
-    # than the 4.5 s it once had: agent 2's sensor never came back)
-    r = sensor_run(120, "--insecure")
+    # until stopped: agent 2's publisher is killed once its values are in the records, the new one started 30 rows
+    # later and the run stopped once it has delivered 15 (a run of run.steps once ended before the new publisher,
+    # cold-started on a starved machine, had begun)
+    r = sensor_run(None, "--insecure")
     r.publish("--agents", 1, 3, name="pub13", credentials=None)
     second = r.publish("--agents", 2, name="pub2a", credentials=None)
-    wait_for_rows(r.out, 25, timeout=30)
+    at_kill = len(r.wait_values(lambda v: v[:, 1].sum() >= 5))
     os.killpg(second.pid, signal.SIGKILL)
     second.wait()
-    wait_for_rows(r.out, 40, timeout=30)
+    wait_for_rows(r.out, at_kill + 30, timeout=30)  # the rows reach the disk a flush (about 10 here) after
     r.publish("--agents", 2, "--seed", 5, name="pub2b", credentials=None)
+    r.wait_values(lambda v: len(v) > at_kill + 30 and v[at_kill + 30:, 1].sum() >= 15)
+    r.stop()
     traj = r.finish()
     miss = traj["y_missing"][:, 1]
     assert traj["alive"].all()  # the agent itself never stopped: it predicted
-    lost = np.flatnonzero(miss[20:-1]) + 20
+    lost = np.flatnonzero(miss[at_kill:-1]) + at_kill
     assert len(lost) >= 15, miss.astype(int)  # at least ~2 s without agent 2's sensor...
-    assert not miss[-11:-1].any(), miss.astype(int)  # ...and its values again at the end
+    assert (~miss[at_kill + 30:-1]).sum() >= 15, miss.astype(int)  # ...and its values again at the end
     # the others' sensors never stopped: at most a sample late now and then (a publisher starved of the cores: one
-    # event time of agent 3's beside a CI run at load 6)
-    assert traj["y_missing"][20:-1, [0, 2]].sum() <= 3, traj["y_missing"][20:-1].astype(int)
+    # event time of agent 3's beside a CI run at load 6; a broken path misses them all)
+    others = traj["y_missing"][:-1, [0, 2]]
+    heard = np.argmax(~others, axis=0).max()  # from when both were first heard
+    assert others[heard:].mean() < 0.1, traj["y_missing"].astype(int)
     # the timeline says when: one sensor_lost / sensor_back per change of agent 2's y_missing after it was heard
     # (not sensor_suspect: the second publisher's chain is not the first one's, so the bad-data test, on since the
     # scenario states its noise, may find agent 2 inconsistent with the others once it is back)
@@ -238,13 +267,23 @@ def test_the_publisher_finds_the_run_by_its_out_dir_and_stops_with_it(tmp_path):
     (out / "events.jsonl").write_text(json.dumps({"event": "sensors", "endpoint": "tcp/127.0.0.1:9", "run_id": "old",
                                                   "credentials": None}) + "\n"
                                       + json.dumps({"event": "run_finished"}) + "\n")
-    scenario = chain(tmp_path, 30)
+    # until stopped, once every agent has 10 values (a run of 30 steps once ended before the cold-started
+    # publisher reached every agent)
+    scenario = chain(tmp_path, None)
     run_proc = subprocess.Popen(cli("run", scenario, "--out", out), cwd=ROOT, env=ENV, start_new_session=True,
                                 stdout=open(tmp_path / "run.log", "wb"), stderr=subprocess.STDOUT)
     pub = subprocess.Popen([sys.executable, str(PUBLISHER), str(scenario), "--from-run", str(out)], cwd=ROOT,
                            env=ENV, start_new_session=True, stdout=open(tmp_path / "pub.log", "wb"),
                            stderr=subprocess.STDOUT)
+    from splitspec_core.simulation.trajectory_chunks import read_chunks
+
     try:
+        deadline = time.monotonic() + 60
+        while (rows := read_chunks(out)) is None or not ((~rows["y_missing"]).sum(axis=0) >= 10).all():
+            assert run_proc.poll() is None and time.monotonic() < deadline, dump(tmp_path / "run.log",
+                                                                                 tmp_path / "pub.log")
+            time.sleep(0.2)
+        os.killpg(run_proc.pid, signal.SIGINT)  # Ctrl-C
         assert run_proc.wait(timeout=60) == 0, dump(tmp_path / "run.log")
         assert pub.wait(timeout=15) == 0, dump(tmp_path / "pub.log")
     finally:
@@ -252,14 +291,16 @@ def test_the_publisher_finds_the_run_by_its_out_dir_and_stops_with_it(tmp_path):
             if p.poll() is None:
                 os.killpg(p.pid, signal.SIGKILL)
     assert "the run has finished" in (tmp_path / "pub.log").read_text()
-    with np.load(out / "trajectory.npz") as f:
-        used = ~f["y_missing"]
-    # the sensors reached every agent by the end (the last row, the final tick, takes no measurement)
-    assert used[-10:-1].all() and not used[-1].any(), used.astype(int)
+    used = ~read_chunks(out)["y_missing"]
+    # the sensors reached every agent and kept reaching it: from its first value on, at most a sample late now and
+    # then (a publisher that found no run, or the old one's endpoint, reaches none)
+    for i in range(used.shape[1]):
+        first = int(np.argmax(used[:, i]))
+        assert used[first:-1, i].mean() > 0.75, used.astype(int)
 
 
 def test_a_misbehaving_sensor_is_counted_and_the_run_goes_on(sensor_run, tmp_path):
-    r = sensor_run(40, "--insecure")
+    r = sensor_run(None, "--insecure")  # until stopped: once every put has arrived and 40 event times have run
     r.publish("--agents", 2, 3, credentials=None)
     wait_for_rows(r.out, 5, timeout=30)
     key = r.sensors["keys"]["1"]
@@ -273,26 +314,31 @@ def test_a_misbehaving_sensor_is_counted_and_the_run_goes_on(sensor_run, tmp_pat
         return all(counts.get(f"sensor_{why}", 0) >= 1 for why in BAD_SENSOR) and counts["sensor_flood"] > 1000
 
     _put_all(r.sensors["endpoint"], key, bad + flood, until=counted)
+    wait_for_rows(r.out, 41, timeout=60)
+    r.stop()
     traj = r.finish()
     counts = _rejected_by(r.out, "agent 1")
     for reason in BAD_SENSOR:
         assert counts.get(f"sensor_{reason}", 0) >= 1, counts
     assert counts["sensor_flood"] > 1000, counts  # 5000 in a burst: most never decoded
-    assert traj["alive"].all() and traj["xhat"].shape[0] == 41
+    assert traj["alive"].all() and traj["xhat"].shape[0] >= 41
     assert traj["y_missing"][:, 0].sum() > 20  # agent 1 had a value only around the flood: it predicted the rest
 
 
 def test_secure_a_sensor_publishes_on_its_own_key_only(sensor_run, tmp_path):
-    r = sensor_run(30)
+    r = sensor_run(None)  # until stopped: once agent 1 has had 20 values (its publisher may start late)
     cred1 = str(Path(r.sensors["credentials"]) / "sensor-1.cred")
     r.publish("--agents", 1, name="own")  # sensor-1 on agent 1's key (from the credentials directory)
     r.publish("--agents", 2, name="other", credentials=cred1)  # sensor-1's credential on agent 2's key
     nocred = r.publish("--agents", 3, name="nocred", credentials=None)  # no credential at all
+    r.wait_values(lambda v: v[:, 0].sum() >= 20)
+    assert nocred.wait(timeout=30) != 0  # refused at connection
+    r.stop()
     traj = r.finish()
     miss = traj["y_missing"]
     assert miss[:, 1].all() and miss[:, 2].all()  # the router dropped them: agents 2 and 3 never saw a value
-    assert not miss[12:-1, 0].any()
-    assert nocred.returncode != 0  # refused at connection
+    first = int(np.argmax(~miss[:, 0]))
+    assert miss[first:-1, 0].mean() < 0.25, miss.astype(int)  # agent 1's: from its first value, nearly all
 
 
 @pytest.mark.parametrize("change, fragment", [
