@@ -441,7 +441,8 @@ def _run_seconds(out: Path) -> float:
 
 def case_duplicate_id(tmp: Path) -> dict:
     """A second process claims agent 3 while the first lives: refused (exit 2, one line naming the holder)."""
-    scen = scenario_file(tmp, "ring10", run={"steps": 200, "pace": 20})
+    # 20 s of rounds: the duplicate's start-up and a `splitspec kill`, both cold-started, fit on a starved machine
+    scen = scenario_file(tmp, "ring10", run={"steps": 400, "pace": 20})
     with chaos_run(tmp, scen, "--insecure") as r:
         wait_for_rows(r.out, 5, timeout=90)
         holder = r.pid("agent", 3)
@@ -451,7 +452,8 @@ def case_duplicate_id(tmp: Path) -> dict:
         refused_after = time.monotonic() - t0
         text = (r.tmp / "dup-agent-3.log").read_text(errors="replace")
         assert code == 2, text
-        assert refused_after < 10, f"the second agent 3 took {refused_after:.1f} s to be refused"
+        # refused at once, not after the 60 s --wait (its start-up counted: seconds on a starved machine)
+        assert refused_after < 20, f"the second agent 3 took {refused_after:.1f} s to be refused"
         line = assert_one_error(text, f"agent 3 of run '{r.rid}' refused: agent 3 is held by pid {holder} on host",
                                 "refusing a second process for it")
         e = wait_event(r.out, "duplicate_refused", timeout=10, id=3)
@@ -477,7 +479,7 @@ FLOOD_RSS_BOUND_MB = 50.0  #: RSS growth allowed to the orchestrator and to agen
 
 def case_flood(tmp: Path, *, rate: float = 50_000, seconds: float = 3.0) -> dict:
     """A never-admitted client floods future messages without a MAC (and two well-formed forgeries)."""
-    steps, pace = 200, 25
+    steps, pace = 450, 25  # 18 s of rounds: the flood lasts 3 s, at most 9 on a starved machine
     scen = scenario_file(tmp, "paper_discrete", run={"steps": steps, "pace": pace})
     with chaos_run(tmp, scen, "--insecure") as r:
         wait_for_rows(r.out, 10, timeout=90)
@@ -547,7 +549,9 @@ def case_loaded_machine(tmp: Path, *, hogs: int = 4) -> dict:
             "stalls": sum(e["event"] == "orchestrator_stalled" for e in events(r.out))}
 
 
-STARTUP_STOP_S = 2.0  #: `splitspec run` must stop this soon after a participant dies during start-up
+#: `splitspec run` must stop this soon after a participant dies during start-up (its parent reaps it at once; on
+#: a starved machine writing run_failed takes a second or two), not after the --wait of 30 to 60 s
+STARTUP_STOP_S = 5.0
 
 
 def _startup_death(tmp: Path, role: str, ident: int) -> dict:
@@ -569,8 +573,8 @@ def _startup_death(tmp: Path, role: str, ident: int) -> dict:
     failed = next(x for x in ev if x["event"] == "run_failed")
     figures = {"exit after kill s": round(took, 2), "detected s": round(failed["wall"] - t_kill, 3),
                "records closed after s": round(ev[-1]["wall"] - t_kill, 2)}
-    assert failed["wall"] - t_kill <= STARTUP_STOP_S, figures  # reported (the one line, run_failed) within 2 s
-    assert took <= 10, figures  # and the whole run has ended soon after
+    assert failed["wall"] - t_kill <= STARTUP_STOP_S, figures  # reported (the one line, run_failed) within 5 s
+    assert took <= 20, figures  # and the whole run has ended soon after
     return figures
 
 
@@ -725,8 +729,8 @@ def case_read_only_out(tmp: Path) -> dict:
 
 
 def case_agent_frozen(tmp: Path) -> dict:
-    """SIGSTOP agent 6: lost within 1.5 s (the orchestrator's status probe); SIGCONT later: it is not readmitted
-    and is stopped at the end."""
+    """SIGSTOP agent 6: lost within seconds (the orchestrator's status probe, 0.3 + 0.8 s; not the 10 s lease);
+    SIGCONT later: it is not readmitted and is stopped at the end."""
     scen = scenario_file(tmp, "ring10", run={"steps": 120, "pace": 20})
     with chaos_run(tmp, scen) as r:
         wait_for_rows(r.out, 15, timeout=90)
@@ -738,7 +742,8 @@ def case_agent_frozen(tmp: Path) -> dict:
     code, text = r.finish()
     assert code == 0, r.logs()
     assert_clean(text)
-    assert latency <= 1.5, f"SIGSTOP detected after {latency:.3f} s"
+    # the probe's 1.1 s, with room for a starved machine (its stalls reach half a second); the lease would be 10 s
+    assert latency <= 5.0, f"SIGSTOP detected after {latency:.3f} s"
     losses = lost(r.out)
     assert len(losses) == 1, (losses, r.logs()[-4000:])  # CI once saw a second loss: say whose and why
     (loss,) = losses
@@ -778,9 +783,9 @@ def case_random_kills(tmp: Path, seed: int = 1) -> dict:
 def case_restart_storm(tmp: Path, seed: int = 5) -> dict:
     """Three times in quick succession: SIGKILL agent j, start a replacement by hand, wait for its rejoin."""
     rng = random.Random(seed)
-    # 400 event times at 20/s: three hand-started agents need their start-up (about 7 s each at a load
-    # average of 13 on 2 cores) before the run ends
-    steps = 400
+    # 800 event times at 20/s: three hand-started agents need their start-up (about 7 s each at a load
+    # average of 13 on 2 cores) and their rejoin before the run ends
+    steps = 800
     scen = scenario_file(tmp, "ring10", run={"steps": steps, "pace": 20})
     victims = rng.sample(range(1, 11), 3)
     rejoin = []

@@ -109,6 +109,14 @@ def rogue_during_hand_started_run(tmp_path, scen, out, run_id, *, creds=None, **
         wait_for_event(out, "run_started", timeout=60)
         th.start()
         yield endpoint, procs, sent
+        # the rogue stops with the run: what it sends while the processes shut down is never counted (on a starved
+        # machine that once was most of it)
+        deadline = time.monotonic() + 120
+        while (procs[0].poll() is None and time.monotonic() < deadline
+               and not any(e["event"] == "run_finished" for e in events(out))):
+            time.sleep(0.05)
+        stop.set()
+        th.join(timeout=10)
         assert procs[0].wait(timeout=120) == 0, dump(*logs)
     finally:
         stop.set()
@@ -122,7 +130,8 @@ def rogue_during_hand_started_run(tmp_path, scen, out, run_id, *, creds=None, **
 
 
 def test_rogue_messages_are_dropped_and_counted(tmp_path):
-    scen = scenario_file(tmp_path, "paper_discrete", run={"steps": 60, "pace": 25})
+    # 6 s of rounds: the rogue's session, started once the run has, has most of them to send in
+    scen = scenario_file(tmp_path, "paper_discrete", run={"steps": 150, "pace": 25})
     out = tmp_path / "out"
     with rogue_during_hand_started_run(tmp_path, scen, out, "rogue-test") as (_, _, sent):
         pass

@@ -109,9 +109,10 @@ def test_rule_is_the_p90_against_90_percent_of_a_period():
 
 
 def until_stopped_with_keep(tmp_path, example: str = "ring10_faults"):
-    """``example`` paced at 5, until stopped (no run.steps), with run.keep: what a deployment looks like."""
+    """``example`` paced at 2, until stopped (no run.steps), with run.keep: what a deployment looks like (a pace
+    slow enough that a starved machine, two other deployments beside it, still keeps it)."""
     raw = yaml.safe_load((EXAMPLES / f"{example}.yaml").read_text())
-    raw["run"] = {"pace": 5, "seed": 1, "keep": {"hours": 1, "gigabytes": 2}}
+    raw["run"] = {"pace": 2, "seed": 1, "keep": {"hours": 1, "gigabytes": 2}}
     path = tmp_path / f"{example}.yaml"
     path.write_text(yaml.safe_dump(raw))
     return path
@@ -139,7 +140,7 @@ def test_a_pace_no_machine_keeps_is_not_feasible(tmp_path):
 
 @pytest.mark.slow
 def test_a_modest_pace_is_feasible_faults_removed(tmp_path):
-    """ring10_faults at pace 5 (200 ms a period) until stopped with run.keep: feasible; the measuring run had no
+    """ring10_faults at pace 2 (500 ms a period) until stopped with run.keep: feasible; the measuring run had no
     fault, no pace, no run.keep, and left no process behind; the disk line says what run.keep keeps."""
     scen = until_stopped_with_keep(tmp_path)  # --pace defaults to run.pace
     out = tmp_path / "out"
@@ -147,11 +148,11 @@ def test_a_modest_pace_is_feasible_faults_removed(tmp_path):
     assert "Traceback" not in r.stderr, r.stderr
     assert r.returncode == 0, r.stdout + r.stderr
     lines = r.stdout.splitlines()
-    assert len(lines) == 2 and lines[0].startswith("pace 5: feasible on this machine: "), r.stdout
+    assert len(lines) == 2 and lines[0].startswith("pace 2: feasible on this machine: "), r.stdout
     ms = float(lines[0].split(": ")[2].split(" ms per event time")[0])
-    assert 0 < ms < MARGIN * 200, lines[0]
+    assert 0 < ms < MARGIN * 500, lines[0]
     # the records' growth, measured: bytes of chunks and recording per hour at the pace, the state panels every one
-    assert lines[1].startswith("disk: about ") and " GB per hour at pace 5 (" in lines[1], lines[1]
+    assert lines[1].startswith("disk: about ") and " GB per hour at pace 2 (" in lines[1], lines[1]
     assert float(lines[1].split("disk: about ")[1].split(" GB")[0]) > 0 and "every 1 event time;" in lines[1]
     assert "; run.keep.hours 1: about " in lines[1] and "; run.keep.gigabytes 2: reached after about " in lines[1]
     copy = yaml.safe_load((out / "scenario.yaml").read_text())
