@@ -129,9 +129,13 @@ def test_a_newcomer_walks_design_compare_faults_a_kept_run_pace_and_review(tmp_p
             and ("run.rrd" not in gone or "segments run.keep left" in recording)), recording
 
     # 5. splitspec pace on the same file: it measures, and its disk line speaks of run.keep
-    r = run("pace", kept_file, "--seconds", 3, timeout=300)
-    assert r.returncode in (0, 1), r.stdout + r.stderr  # feasible or not on this machine: measured either way
-    assert "run.keep" in r.stdout, r.stdout
+    # (at the file's pace 50 the verdict is the machine's: CI beside other work once measured p90 31.5 ms, NOT
+    # feasible, and printed no disk line, as it should; a pace of 5 is kept by any machine this suite runs on)
+    r = run("pace", kept_file, "--pace", 5, "--seconds", 3, timeout=300)
+    assert r.returncode == 0, r.stdout + r.stderr
+    verdict, disk = r.stdout.splitlines()
+    assert verdict.startswith("pace 5: feasible on this machine: ") and "; run.keep.hours 0.0005: about " in disk, \
+        r.stdout
 
     # 6. review
     rec = ss.load_run(out)
