@@ -521,6 +521,8 @@ class Orchestrator:
                 now = time.monotonic()
                 item = self.inbox.get(timeout=max(0.0, min(POLL_SECONDS, m.next_deadline() - now)))
                 now = time.monotonic()
+                if self.stop_requested:  # it came while this waited (the handler ran as the wait returned): what
+                    continue  # woke it, a process that a Ctrl-C to the whole group also ended, is not a loss
                 if item is not None:
                     self._execute(self._handle(item, now))
                     # drain what is already queued before looking at timers and children (a stop asked for first)
