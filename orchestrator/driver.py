@@ -521,9 +521,7 @@ class Orchestrator:
                 now = time.monotonic()
                 item = self.inbox.get(timeout=max(0.0, min(POLL_SECONDS, m.next_deadline() - now)))
                 now = time.monotonic()
-                if self.stop_requested:  # it came while this waited (the handler ran as the wait returned): what
-                    continue  # woke it, a process that a Ctrl-C to the whole group also ended, is not a loss
-                if item is not None:
+                if item is not None and not self.stop_requested:  # stopped while waiting: what woke it is no loss
                     self._execute(self._handle(item, now))
                     # drain what is already queued before looking at timers and children (a stop asked for first)
                     while not (self.finished or self.stop_requested) and (item := self.inbox.get(0)) is not None:
