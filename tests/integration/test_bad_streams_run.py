@@ -183,11 +183,11 @@ def test_a_live_sensor_that_lies_is_flagged_restored_and_replays(tmp_path):
     sim = run("simulate", scenario, "--out", tmp_path / "replay", "--no-plots", "--measurements", replay)
     assert sim.returncode == 0, sim.stderr
     with np.load(tmp_path / "replay" / "trajectory.npz") as f:
-        assert np.array_equal(f["y_rejected"], rejected)
         # all but the last row: the stopped run's last event time tested the measurement it took (for an update the
-        # stop cut off); a run of T event times does not take one at its last
+        # stop cut off), and may have set it aside (CI: agent 3's, at the stop); a run of T event times takes none
+        assert np.array_equal(f["y_rejected"][:-1], rejected[:-1])
         np.testing.assert_allclose(f["y_statistic"][:-1], stat[:-1], rtol=1e-9, atol=1e-9)
         np.testing.assert_allclose(f["xhat"], traj["xhat"], rtol=0, atol=1e-9 * np.abs(traj["xhat"]).max())
         expected = sensor_events(Trajectory.load(tmp_path / "replay" / "trajectory.npz"),
                                  bad_data(ss.design(ss.load_scenario(scenario)).detail))
-    assert ev == [e[:3] for e in expected]
+    assert [e for e in ev if e[0] < T - 1] == [e[:3] for e in expected if e[0] < T - 1]  # (the last row: as above)
