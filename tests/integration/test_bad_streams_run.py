@@ -170,12 +170,15 @@ def test_a_live_sensor_that_lies_is_flagged_restored_and_replays(tmp_path):
     for t, a, what in others:  # each other suspicion came after a sample taken off time
         if what == "sensor_suspect":
             assert after_off[int(t)], (t, a, np.flatnonzero(off), ev)
-    for a in (1, 2, 3):  # and each was restored
-        assert [e[2] for e in others if e[1] == a] == ["sensor_suspect", "sensor_restored"] * (
-            len([e for e in others if e[1] == a]) // 2), others
+    T = len(traj["y"])
+    for a in (1, 2, 3):  # and each was restored, but one the stop cut off: k clean tests, after up to OFF_TIME_AFTER
+        # failing ones, restore it (CI: agent 3 suspect at 213 of a run stopped there, after a sample off time)
+        theirs = [e for e in others if e[1] == a]
+        if theirs and theirs[-1][2] == "sensor_suspect" and theirs[-1][0] > T - 1 - k - OFF_TIME_AFTER:
+            theirs = theirs[:-1]
+        assert [e[2] for e in theirs] == ["sensor_suspect", "sensor_restored"] * (len(theirs) // 2), others
     assert (stat[:LIVE_LATE] == UNTESTED).all() and sample[LIVE_LATE - 1] == -1  # no sensor yet: nothing tested
     # the y the agents used, replayed by the simulator: the same decisions and estimates
-    T = len(traj["y"])
     replay = tmp_path / "used.npz"
     write_measurements(replay, t=np.arange(float(T)), y=np.nan_to_num(traj["y"]), agent_ids=[1, 2, 3],
                        sizes=[2, 2, 2], missing=traj["y_missing"])
