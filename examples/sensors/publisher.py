@@ -32,7 +32,6 @@ import json
 import logging
 import signal
 import sys
-import threading
 import time
 from pathlib import Path
 
@@ -177,9 +176,11 @@ def main(args: argparse.Namespace) -> int:
                 time.sleep(0.5)
         sessions.append(s)
         pubs[i] = s.declare_publisher(f"splitspec/{args.run_id}/sensors/{sources[i]}")
-    stop = threading.Event()
+    # a plain flag, not a threading.Event: the handler runs in this thread, and Event.set inside Event.wait's own
+    # lock (a signal arriving there) deadlocks (a test's SIGINT left this publisher running, once in a suite)
+    stop: list = []
     for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stop.set())
+        signal.signal(sig, lambda *_: stop.append(True))
     writer = f = None
     if args.record:
         f = open(args.record, "w", newline="")
@@ -192,9 +193,11 @@ def main(args: argparse.Namespace) -> int:
     period = 1.0 / rate
     log.info("publishing agents %s at %g samples/s on %s", mine, rate, args.connect)
     try:
-        while not stop.is_set() and (args.samples is None or k < args.samples):
+        while not stop and (args.samples is None or k < args.samples):
             due = t0 + k * period + rng.uniform(0, args.jitter) * period
-            if stop.wait(max(0.0, due - time.monotonic())):
+            while not stop and time.monotonic() < due:
+                time.sleep(min(0.05, max(0.0, due - time.monotonic())))  # a signal: seen within 50 ms
+            if stop:
                 break
             now = time.monotonic()
             if now - t0 > args.duration:
